@@ -1,0 +1,5 @@
+import sys
+
+from rgtbus.cli import main
+
+sys.exit(main())
