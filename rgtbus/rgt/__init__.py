@@ -1,0 +1,60 @@
+"""Reflexive Game Theory engine: pure Python, no I/O.
+
+graph -> polynomial -> stratification tree / diagonal form -> fold -> F -> canonical forms ->
+forward task (intervals, frustration) and inverse task (reflexive control).
+"""
+
+from rgtbus.rgt.algebra import Universe
+from rgtbus.rgt.control import ControlResult, solve_brute_force, solve_per_action
+from rgtbus.rgt.decision import (
+    CanonicalForm,
+    InfluenceMatrix,
+    SubjectResult,
+    canonical_form,
+    canonical_forms,
+    evaluate,
+    forward,
+)
+from rgtbus.rgt.diagonal import (
+    DecisionFunction,
+    decision_function,
+    diagonal_inline,
+    diagonal_text,
+    fold,
+    stratification_text,
+)
+from rgtbus.rgt.expr import Expr, format_expr
+from rgtbus.rgt.polynomial import (
+    RelationGraph,
+    find_p4,
+    graph_to_polynomial,
+    parse_polynomial,
+    polynomial_to_graph,
+)
+
+__all__ = [
+    "CanonicalForm",
+    "ControlResult",
+    "DecisionFunction",
+    "Expr",
+    "InfluenceMatrix",
+    "RelationGraph",
+    "SubjectResult",
+    "Universe",
+    "canonical_form",
+    "canonical_forms",
+    "decision_function",
+    "diagonal_inline",
+    "diagonal_text",
+    "evaluate",
+    "find_p4",
+    "fold",
+    "format_expr",
+    "forward",
+    "graph_to_polynomial",
+    "parse_polynomial",
+    "polynomial_to_graph",
+    "solve_brute_force",
+    "solve_per_action",
+    "stratification_text",
+]

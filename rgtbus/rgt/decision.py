@@ -1,0 +1,205 @@
+"""Decision equations, canonical forms and the forward task.
+
+For subject x the decision equation is ``x = F(x, others)``. Because every operation is bitwise,
+``F(x) = A·x + B·not(x)`` with ``A = F(x=1)`` and ``B = F(x=0)`` (the canonical form). Its
+solutions are exactly the alternatives with ``B ⊆ x ⊆ A``; if ``B ⊄ A`` the subject is
+frustrated (no decision). The other variables take the influences *on x*: column x of the
+influence matrix, whose row is the influencing subject.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from rgtbus.errors import RgtbusError
+from rgtbus.rgt.algebra import Universe
+from rgtbus.rgt.diagonal import DecisionFunction
+from rgtbus.rgt.expr import ONE, ZERO, Expr, Sum, format_expr, needs_star, readable, substitute
+
+
+@dataclass(frozen=True)
+class CanonicalForm:
+    """``x = A·x + B·not(x)`` with A and B as expressions in the other subjects."""
+
+    subject: str
+    A: Expr
+    B: Expr
+
+    def text(self, star: bool = False) -> str:
+        x = self.subject
+
+        def factor(e: Expr, var: str) -> str | None:
+            if e == ZERO:
+                return None
+            if e == ONE:
+                return var
+            body = format_expr(e, star)
+            if isinstance(e, Sum):
+                body = f"({body})"
+            if star:
+                return f"{body}*{var}"
+            # "(b+c)a" reads as the paper does; elsewhere "·" keeps names apart ("bc·a").
+            joint = "" if body.endswith(")") and not var.startswith("not(") else "·"
+            return f"{body}{joint}{var}"
+
+        parts = [p for p in (factor(self.A, x), factor(self.B, f"not({x})")) if p]
+        return f"{x} = " + (" + ".join(parts) if parts else "0")
+
+
+def canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
+    df.index(subject)
+    a = readable(substitute(df.display, {subject: ONE}), df.order)
+    b = readable(substitute(df.display, {subject: ZERO}), df.order)
+    return CanonicalForm(subject, a, b)
+
+
+def canonical_forms(df: DecisionFunction) -> dict[str, CanonicalForm]:
+    return {s: canonical_form(df, s) for s in df.order}
+
+
+# ---------------------------------------------------------------------------------------------
+# Influences
+
+
+class InfluenceMatrix:
+    """``matrix[src, dst]``: the alternative subject ``src`` urges on subject ``dst``."""
+
+    def __init__(self, subjects: Iterable[str], universe: Universe) -> None:
+        self.subjects = tuple(subjects)
+        self.universe = universe
+        self._values: dict[tuple[str, str], int] = {}
+
+    def set(self, src: str, dst: str, value: int, origin: str = "") -> None:
+        where = f" in {origin}" if origin else ""
+        for s in (src, dst):
+            if s not in self.subjects:
+                raise RgtbusError(
+                    f"unknown subject {s!r}{where} (subjects: {', '.join(self.subjects)})"
+                )
+        if src == dst:
+            raise RgtbusError(f"influence {src}>{dst}{where}: a subject does not influence itself")
+        self._values[(src, dst)] = self.universe.check(value)
+
+    def get(self, src: str, dst: str) -> int | None:
+        return self._values.get((src, dst))
+
+    def items(self) -> Iterable[tuple[tuple[str, str], int]]:
+        return self._values.items()
+
+    def on(self, dst: str) -> dict[str, int]:
+        """Column ``dst``: every other subject's influence on it; missing ones are an error."""
+        out: dict[str, int] = {}
+        for src in self.subjects:
+            if src == dst:
+                continue
+            v = self._values.get((src, dst))
+            if v is None:
+                raise RgtbusError(f"missing influence {src}>{dst} (on subject {dst})")
+            out[src] = v
+        return out
+
+    @classmethod
+    def parse(
+        cls, specs: Iterable[str], subjects: Iterable[str], universe: Universe
+    ) -> InfluenceMatrix:
+        """From ``SRC>DST=VALUE`` strings, e.g. ``a>b={alpha}``."""
+        m = cls(subjects, universe)
+        for spec in specs:
+            if "=" not in spec or ">" not in spec.split("=", 1)[0]:
+                raise RgtbusError(
+                    f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}"
+                )
+            lhs, value = spec.split("=", 1)
+            src, dst = (p.strip() for p in lhs.split(">", 1))
+            if m.get(src, dst) is not None:
+                raise RgtbusError(f"influence {src}>{dst} is given twice")
+            try:
+                mask = universe.parse_alternative(value)
+            except RgtbusError as exc:
+                raise RgtbusError(f"{exc} (influence {spec!r})") from None
+            m.set(src, dst, mask, origin=repr(spec))
+        return m
+
+    @classmethod
+    def from_mapping(
+        cls, values: Mapping[tuple[str, str], int], subjects: Iterable[str], universe: Universe
+    ) -> InfluenceMatrix:
+        m = cls(subjects, universe)
+        for (src, dst), v in values.items():
+            m.set(src, dst, v)
+        return m
+
+
+# ---------------------------------------------------------------------------------------------
+# Forward task
+
+
+@dataclass(frozen=True)
+class SubjectResult:
+    """A and B under the influences on the subject; interval ``[B, A]`` or frustration."""
+
+    subject: str
+    A: int
+    B: int
+
+    @property
+    def frustrated(self) -> bool:
+        return bool(self.B & ~self.A)
+
+    @property
+    def interval(self) -> tuple[int, int] | None:
+        return None if self.frustrated else (self.B, self.A)
+
+    def choices(self, universe: Universe) -> list[int]:
+        return universe.subsets_between(self.B, self.A)
+
+
+def evaluate(
+    df: DecisionFunction, universe: Universe, subject: str, on: Mapping[str, int]
+) -> SubjectResult:
+    """A = F(x=1, others=on), B = F(x=0, others=on)."""
+    f = df.mask_function(universe.full)
+    args_a = []
+    args_b = []
+    for s in df.order:
+        if s == subject:
+            args_a.append(universe.full)
+            args_b.append(0)
+        else:
+            try:
+                v = on[s]
+            except KeyError:
+                raise RgtbusError(
+                    f"missing influence {s}>{subject} (on subject {subject})"
+                ) from None
+            args_a.append(v)
+            args_b.append(v)
+    return SubjectResult(subject, f(*args_a), f(*args_b))
+
+
+def forward(
+    df: DecisionFunction, universe: Universe, matrix: InfluenceMatrix
+) -> dict[str, SubjectResult]:
+    """The forward task for every subject."""
+    if tuple(sorted(matrix.subjects)) != tuple(sorted(df.order)):
+        raise RgtbusError(
+            f"influence matrix subjects {list(matrix.subjects)} differ from {list(df.order)}"
+        )
+    return {s: evaluate(df, universe, s, matrix.on(s)) for s in df.order}
+
+
+def canonical_text(form: CanonicalForm, order: Iterable[str]) -> str:
+    return form.text(needs_star(list(order)))
+
+
+__all__ = [
+    "CanonicalForm",
+    "InfluenceMatrix",
+    "SubjectResult",
+    "canonical_form",
+    "canonical_forms",
+    "canonical_text",
+    "evaluate",
+    "forward",
+]

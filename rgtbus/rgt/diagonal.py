@@ -1,0 +1,199 @@
+"""Stratification tree, diagonal form, folding and the decision function F.
+
+The Polynomial Stratification Tree (PST) is the flattened polynomial itself: every non-leaf node
+is a sum or a product of its children, levels alternating. In the diagonal form each non-leaf
+node carries its children, joined by its operation, as its exponent, with ``P^W = P + not(W)``.
+
+Folding, bottom-up::
+
+    fold(x) = x                                   (a leaf)
+    fold(N) = N + not(W),  W = op(fold(child) for child of N)
+
+where N is the node's own (unfolded) polynomial and ``op`` its operation. ``F = fold(root)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from rgtbus.errors import RgtbusError
+from rgtbus.rgt.expr import (
+    ONE,
+    Expr,
+    Not,
+    Prod,
+    Sum,
+    Var,
+    compile_masks,
+    format_expr,
+    minimal_sop,
+    needs_star,
+    readable,
+    simplify,
+    support,
+    truth_table,
+    variables,
+)
+from rgtbus.rgt.polynomial import is_polynomial
+
+
+def fold(poly: Expr) -> Expr:
+    """The structural fold ``N + not(W)`` of every node, locally simplified."""
+    if isinstance(poly, Var):
+        return poly
+    if isinstance(poly, Sum):
+        w: Expr = Sum(tuple(fold(t) for t in poly.terms))
+    elif isinstance(poly, Prod):
+        w = Prod(tuple(fold(f) for f in poly.factors))
+    else:
+        raise RgtbusError(f"cannot fold {format_expr(poly)!r}: not a polynomial")
+    w = simplify(w)
+    names = variables(poly)
+    table = truth_table(w, names)
+    if table == (1 << (1 << len(names))) - 1:
+        return poly  # N + not(1) = N
+    if table == truth_table(poly, names):
+        return ONE  # N + not(N) = 1
+    return simplify(Sum((poly, Not(w))))
+
+
+@dataclass(frozen=True)
+class DecisionFunction:
+    """F for one polynomial: structural and displayed forms, truth table, mask evaluator.
+
+    ``display`` is the structural fold (``a(b+c)+not(a)``), except where folding eliminates
+    subjects altogether: then the minimal sum of products shows it (``(a+b)c+d`` -> ``c+d``).
+    """
+
+    polynomial: Expr
+    order: tuple[str, ...]
+    structural: Expr
+    display: Expr
+    table: int
+    _masks: dict[int, Callable[..., int]] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        return len(self.order)
+
+    def text(self) -> str:
+        return format_expr(self.display, needs_star(self.order))
+
+    def index(self, subject: str) -> int:
+        try:
+            return self.order.index(subject)
+        except ValueError:
+            raise RgtbusError(
+                f"unknown subject {subject!r} (subjects: {', '.join(self.order)})"
+            ) from None
+
+    def mask_function(self, full: int) -> Callable[..., int]:
+        """``f(*masks) -> mask`` for alternatives over a universe with mask ``full``."""
+        fn = self._masks.get(full)
+        if fn is None:
+            fn = compile_masks(self.structural, self.order, full)
+            self._masks[full] = fn
+        return fn
+
+
+def decision_function(poly: Expr, order: Sequence[str] | None = None) -> DecisionFunction:
+    if not is_polynomial(poly):
+        raise RgtbusError(f"{format_expr(poly)!r} is not a polynomial of a relationship graph")
+    names = tuple(order) if order is not None else tuple(variables(poly))
+    if sorted(names) != sorted(variables(poly)):
+        raise RgtbusError(f"subjects {list(names)} do not match the polynomial's variables")
+    structural = fold(poly)
+    table = truth_table(structural, names)
+    display = readable(structural, names)
+    if len(support(table, len(names))) < len(names):
+        # Folding eliminated subjects: show that rather than a form that hides it.
+        reduced = minimal_sop(table, names)
+        if reduced is not None:
+            display = reduced
+    return DecisionFunction(poly, names, structural, display, table)
+
+
+# ---------------------------------------------------------------------------------------------
+# Text renderings
+
+
+def _bracket(e: Expr, star: bool) -> str:
+    return f"[{format_expr(e, star)}]"
+
+
+def stratification_text(poly: Expr) -> str:
+    """The PST as an indented tree, root first."""
+    star = needs_star(variables(poly))
+    lines: list[str] = []
+
+    def walk(x: Expr, depth: int) -> None:
+        op = ""
+        if isinstance(x, Sum):
+            op = "  (+ conflict)"
+        elif isinstance(x, Prod):
+            op = "  (· alliance)"
+        lines.append("  " * depth + _bracket(x, star) + op)
+        if isinstance(x, Sum | Prod):
+            for c in x.terms if isinstance(x, Sum) else x.factors:
+                walk(c, depth + 1)
+
+    walk(poly, 0)
+    return "\n".join(lines)
+
+
+def diagonal_text(poly: Expr, folded: Expr | None = None) -> str:
+    """The diagonal form drawn the paper's way: each node's exponent up and to the right.
+
+    ``ab+c`` becomes::
+
+                [a][b]
+            [ab]      +[c]
+        [ab+c]
+
+    With ``folded`` given, ``= F`` is written at the end of the root's line.
+    """
+    star = needs_star(variables(poly))
+    cells: list[tuple[int, int, str]] = []  # (row from the bottom, column, text)
+
+    def place(x: Expr, row: int, col: int) -> int:
+        """Place node x at (row, col); return the first free column right of its drawing."""
+        text = _bracket(x, star)
+        cells.append((row, col, text))
+        right = col + len(text)
+        if isinstance(x, Sum | Prod):
+            kids = x.terms if isinstance(x, Sum) else x.factors
+            c = right
+            for i, k in enumerate(kids):
+                if i and isinstance(x, Sum):
+                    cells.append((row + 1, c, "+"))
+                    c += 1
+                c = place(k, row + 1, c)
+            right = max(right, c)
+        return right
+
+    end = place(poly, 0, 0)
+    if folded is not None:
+        cells.append((0, end + 1, f"= {format_expr(folded, star)}"))
+    height = max(r for r, _, _ in cells) + 1
+    rows = [[" "] * 0 for _ in range(height)]
+    for r, c, text in sorted(cells, key=lambda t: (t[0], t[1])):
+        line = rows[r]
+        if len(line) < c:
+            line.extend(" " * (c - len(line)))
+        line[c : c + len(text)] = list(text)
+    return "\n".join("".join(line).rstrip() for line in reversed(rows))
+
+
+def diagonal_inline(poly: Expr) -> str:
+    """One-line diagonal form: ``[ab+c]^([ab]^([a][b]) + [c])``."""
+    star = needs_star(variables(poly))
+
+    def d(x: Expr) -> str:
+        if isinstance(x, Var):
+            return _bracket(x, star)
+        kids = x.terms if isinstance(x, Sum) else x.factors  # type: ignore[attr-defined]
+        sep = " + " if isinstance(x, Sum) else ""
+        return f"{_bracket(x, star)}^({sep.join(d(k) for k in kids)})"
+
+    return d(poly)

@@ -1,0 +1,386 @@
+"""Boolean expressions over subject variables: the terms RGT computes with.
+
+A polynomial of a relationship graph uses only ``Var``, ``Sum`` (conflict, OR) and ``Prod``
+(alliance, AND), each variable once. Folding adds ``Not`` and constants. Values are alternatives
+(bitmasks), so every operation is bitwise and an expression is fully described by its two-valued
+truth table; ``truth_table`` computes it bit-parallel as one Python integer with 2^n bits
+(bit ``m`` = value at the assignment whose bit i is variable i).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import cache
+
+from rgtbus.errors import RgtbusError
+
+
+class Expr:
+    """Base of the expression tree (immutable, hashable, structural equality)."""
+
+    __slots__ = ()
+
+    def __str__(self) -> str:
+        return format_expr(self)
+
+
+@dataclass(frozen=True, slots=True)
+class Var(Expr):
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
+class Const(Expr):
+    value: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Not(Expr):
+    arg: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class Sum(Expr):
+    """Disjunction: conflict between the terms."""
+
+    terms: tuple[Expr, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Prod(Expr):
+    """Conjunction: alliance between the factors."""
+
+    factors: tuple[Expr, ...]
+
+
+ONE = Const(True)
+ZERO = Const(False)
+
+
+def children(e: Expr) -> tuple[Expr, ...]:
+    if isinstance(e, Sum):
+        return e.terms
+    if isinstance(e, Prod):
+        return e.factors
+    if isinstance(e, Not):
+        return (e.arg,)
+    return ()
+
+
+def variables(e: Expr) -> list[str]:
+    """Variable names in order of first appearance (left to right)."""
+    out: list[str] = []
+    seen: set[str] = set()
+
+    def walk(x: Expr) -> None:
+        if isinstance(x, Var) and x.name not in seen:
+            seen.add(x.name)
+            out.append(x.name)
+        for c in children(x):
+            walk(c)
+
+    walk(e)
+    return out
+
+
+def needs_star(names: Sequence[str]) -> bool:
+    """Multi-letter names are written with an explicit ``*`` for products."""
+    return any(len(n) > 1 for n in names)
+
+
+def format_expr(e: Expr, star: bool | None = None) -> str:
+    """Print in the paper's notation: ``ab+c``, ``a(b+c)+not(a)``, ``robot1*robot2+robot3``.
+
+    Products of single-letter variables are juxtaposed; a ``not(...)`` factor is joined with
+    ``·`` so it reads unambiguously; with multi-letter names every product uses ``*``.
+    """
+    if star is None:
+        star = needs_star(variables(e))
+
+    def fmt(x: Expr) -> str:
+        if isinstance(x, Var):
+            return x.name
+        if isinstance(x, Const):
+            return "1" if x.value else "0"
+        if isinstance(x, Not):
+            return f"not({fmt(x.arg)})"
+        if isinstance(x, Sum):
+            return "+".join(fmt(t) for t in x.terms)
+        if isinstance(x, Prod):
+            parts: list[str] = []
+            prev: Expr | None = None
+            for f in x.factors:
+                text = f"({fmt(f)})" if isinstance(f, Sum) else fmt(f)
+                if prev is not None:
+                    if star:
+                        parts.append("*")
+                    elif isinstance(f, Not | Const) or isinstance(prev, Not | Const):
+                        parts.append("·")
+                parts.append(text)
+                prev = f
+            return "".join(parts)
+        raise TypeError(f"not an expression: {x!r}")
+
+    return fmt(e)
+
+
+# ---------------------------------------------------------------------------------------------
+# Local simplification (keeps the paper's shape; no global minimisation)
+
+
+def simplify(e: Expr) -> Expr:
+    """Constants, flattening, double negation, duplicates, ``x+not(x)=1``, ``x·not(x)=0``,
+    and absorption (``x + x·y = x``, ``x·(x+y) = x``)."""
+    if isinstance(e, Var | Const):
+        return e
+    if isinstance(e, Not):
+        a = simplify(e.arg)
+        if isinstance(a, Const):
+            return Const(not a.value)
+        if isinstance(a, Not):
+            return a.arg
+        return Not(a)
+    is_sum = isinstance(e, Sum)
+    kind = Sum if is_sum else Prod
+    absorbing = ONE if is_sum else ZERO
+    neutral = ZERO if is_sum else ONE
+    items: list[Expr] = []
+    for c in children(e):
+        s = simplify(c)
+        if s == absorbing:
+            return absorbing
+        if s == neutral:
+            continue
+        for part in children(s) if isinstance(s, kind) else (s,):
+            if part not in items:
+                items.append(part)
+    for x in items:
+        if isinstance(x, Not):
+            y = x.arg
+            # x + not(x) = 1 and x·not(x) = 0, also when x was flattened into the items.
+            if y in items or (isinstance(y, kind) and all(p in items for p in children(y))):
+                return absorbing
+    dual = Prod if is_sum else Sum
+    # Absorption: drop a dual term that contains another item as one of its parts.
+    kept = []
+    for x in items:
+        if isinstance(x, dual) and any(y is not x and y in children(x) for y in items):
+            continue
+        kept.append(x)
+    if not kept:
+        return neutral
+    if len(kept) == 1:
+        return kept[0]
+    return kind(tuple(kept))
+
+
+def substitute(e: Expr, values: dict[str, Expr]) -> Expr:
+    """Replace variables by expressions (typically constants), then simplify."""
+
+    def sub(x: Expr) -> Expr:
+        if isinstance(x, Var):
+            return values.get(x.name, x)
+        if isinstance(x, Not):
+            return Not(sub(x.arg))
+        if isinstance(x, Sum):
+            return Sum(tuple(sub(t) for t in x.terms))
+        if isinstance(x, Prod):
+            return Prod(tuple(sub(f) for f in x.factors))
+        return x
+
+    return simplify(sub(e))
+
+
+# ---------------------------------------------------------------------------------------------
+# Truth tables and evaluation
+
+
+@cache
+def variable_table(i: int, n: int) -> int:
+    """Truth table of variable i over n variables: bit m set iff bit i of m is set."""
+    width = 1 << i
+    table = ((1 << width) - 1) << width
+    period = width << 1
+    total = 1 << n
+    while period < total:
+        table |= table << period
+        period <<= 1
+    return table
+
+
+def truth_table(e: Expr, order: Sequence[str]) -> int:
+    """Bit-parallel truth table of ``e`` over the variables in ``order`` (2^n bits)."""
+    n = len(order)
+    full = (1 << (1 << n)) - 1
+    index = {name: i for i, name in enumerate(order)}
+
+    def ev(x: Expr) -> int:
+        if isinstance(x, Var):
+            try:
+                return variable_table(index[x.name], n)
+            except KeyError:
+                raise RgtbusError(f"variable {x.name!r} is not one of {list(order)}") from None
+        if isinstance(x, Const):
+            return full if x.value else 0
+        if isinstance(x, Not):
+            return full ^ ev(x.arg)
+        if isinstance(x, Sum):
+            acc = 0
+            for t in x.terms:
+                acc |= ev(t)
+            return acc
+        if isinstance(x, Prod):
+            acc = full
+            for f in x.factors:
+                acc &= ev(f)
+            return acc
+        raise TypeError(f"not an expression: {x!r}")
+
+    return ev(e)
+
+
+def compile_masks(e: Expr, order: Sequence[str], full: int) -> Callable[..., int]:
+    """Compile ``e`` into ``f(*masks) -> mask``: whole-alternative evaluation, one call.
+
+    This is the straightforward set-level evaluator, independent of the truth-table path, so the
+    two can cross-check each other.
+    """
+    index = {name: i for i, name in enumerate(order)}
+
+    def src(x: Expr) -> str:
+        if isinstance(x, Var):
+            if x.name not in index:
+                raise RgtbusError(f"variable {x.name!r} is not one of {list(order)}")
+            return f"v{index[x.name]}"
+        if isinstance(x, Const):
+            return str(full if x.value else 0)
+        if isinstance(x, Not):
+            return f"({full} ^ {src(x.arg)})"
+        if isinstance(x, Sum):
+            return "(" + " | ".join(src(t) for t in x.terms) + ")"
+        if isinstance(x, Prod):
+            return "(" + " & ".join(src(f) for f in x.factors) + ")"
+        raise TypeError(f"not an expression: {x!r}")
+
+    params = ", ".join(f"v{i}" for i in range(len(order)))
+    # The source is generated from our own tree: variable indexes and integers only.
+    return eval(f"lambda {params}: {src(e)}", {"__builtins__": {}})
+
+
+def support(table: int, n: int) -> list[int]:
+    """Indexes of the variables the function really depends on."""
+    out = []
+    for i in range(n):
+        v = variable_table(i, n)
+        hi = (table & v) >> (1 << i)
+        lo = table & (v >> (1 << i))
+        if hi != lo:
+            out.append(i)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Minimal sum of products (Quine-McCluskey with a greedy cover), for small supports
+
+
+MAX_MINIMISE_VARS = 10
+
+
+def minimal_sop(table: int, order: Sequence[str]) -> Expr | None:
+    """A minimal-ish sum of products equal to ``table``; None if the support is too large.
+
+    Terms are ordered by the positions of their variables in ``order``, so results read like
+    the paper (``bc+d``, not ``d+bc``).
+    """
+    n = len(order)
+    full = (1 << (1 << n)) - 1
+    if table == 0:
+        return ZERO
+    if table == full:
+        return ONE
+    sup = support(table, n)
+    if len(sup) > MAX_MINIMISE_VARS:
+        return None
+    m = len(sup)
+    minterms = []
+    for r in range(1 << m):
+        idx = 0
+        for j, var in enumerate(sup):
+            if r >> j & 1:
+                idx |= 1 << var
+        if table >> idx & 1:
+            minterms.append(r)
+    # Implicants as (value, care-mask) over the reduced variables.
+    current = {(t, (1 << m) - 1) for t in minterms}
+    primes: set[tuple[int, int]] = set()
+    while current:
+        merged: set[tuple[int, int]] = set()
+        used: set[tuple[int, int]] = set()
+        items = sorted(current)
+        by_mask: dict[int, list[tuple[int, int]]] = {}
+        for it in items:
+            by_mask.setdefault(it[1], []).append(it)
+        for mask, group in by_mask.items():
+            values = {v for v, _ in group}
+            for v, _ in group:
+                for j in range(m):
+                    bit = 1 << j
+                    if mask & bit and not v & bit and (v | bit) in values:
+                        merged.add((v, mask & ~bit))
+                        used.add((v, mask))
+                        used.add((v | bit, mask))
+        primes |= current - used
+        current = merged
+
+    def covers(p: tuple[int, int], t: int) -> bool:
+        return (t & p[1]) == p[0]
+
+    remaining = set(minterms)
+    chosen: list[tuple[int, int]] = []
+    prime_list = sorted(primes, key=lambda p: (-(m - p[1].bit_count()), p))
+    # Essential primes first, then greedy by coverage.
+    for t in minterms:
+        cov = [p for p in prime_list if covers(p, t)]
+        if len(cov) == 1 and cov[0] not in chosen:
+            chosen.append(cov[0])
+    for p in chosen:
+        remaining -= {t for t in remaining if covers(p, t)}
+    while remaining:
+        best = max(
+            prime_list,
+            key=lambda p: (sum(1 for t in remaining if covers(p, t)), -p[1].bit_count()),
+        )
+        chosen.append(best)
+        remaining -= {t for t in remaining if covers(best, t)}
+
+    terms: list[tuple[tuple[int, ...], Expr]] = []
+    for value, mask in chosen:
+        lits: list[tuple[int, Expr]] = []
+        for j, var in enumerate(sup):
+            if mask >> j & 1:
+                v: Expr = Var(order[var])
+                lits.append((var, v if value >> j & 1 else Not(v)))
+        lits.sort(key=lambda p: p[0])
+        expr = lits[0][1] if len(lits) == 1 else Prod(tuple(x for _, x in lits))
+        terms.append((tuple(p[0] for p in lits), expr))
+    terms.sort(key=lambda p: p[0])
+    if len(terms) == 1:
+        return terms[0][1]
+    return Sum(tuple(e for _, e in terms))
+
+
+def readable(local: Expr, order: Sequence[str]) -> Expr:
+    """``local`` (the paper-shaped form), unless a minimal sum of products is much shorter.
+
+    Deeply nested folds simplify locally into long ``not(...)`` chains; a sum of products 1.5x
+    shorter reads better, while the paper's own forms (``a(b+c)+not(a)``) are kept.
+    """
+    table = truth_table(local, order)
+    sop = minimal_sop(table, order)
+    if sop is None:
+        return local
+    star = needs_star(order)
+    if 1.5 * len(format_expr(sop, star)) < len(format_expr(local, star)):
+        return sop
+    return local

@@ -1,0 +1,305 @@
+"""Relationship graphs and their polynomials.
+
+A group is a complete graph over its subjects, each edge an alliance (``·``) or a conflict (``+``).
+The graph is decomposable exactly when its alliance graph has no induced P4 (it is a cograph);
+the polynomial is then built by recursion on a vertex set S:
+
+* one vertex -> the variable;
+* the alliance graph on S falls into several components -> the **sum** of their polynomials;
+* else the conflict graph on S falls into several components -> their **product**;
+* else S holds an induced P4 -> not decomposable (the error names the four subjects).
+
+Nested sums and products are flattened, so levels alternate + and · (the stratification tree).
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from rgtbus.errors import RgtbusError
+from rgtbus.rgt.expr import Const, Expr, Not, Prod, Sum, Var, format_expr, variables
+
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def parse_polynomial(text: str) -> Expr:
+    """Parse ``ab+c``, ``a(b+c)``, ``(a+b)c+d`` or ``robot1*robot2+robot3``.
+
+    Without ``*`` every letter is a variable; with ``*`` anywhere, names are whole identifiers
+    and every product is written with ``*`` (or by juxtaposing parentheses). Each variable must
+    appear exactly once, as in the polynomial of a relationship graph.
+    """
+    src = text
+    if not src.strip():
+        raise RgtbusError("empty polynomial")
+    star = "*" in src
+    tokens: list[tuple[str, str, int]] = []  # (kind, text, position)
+    i = 0
+    while i < len(src):
+        ch = src[i]
+        if ch.isspace():
+            i += 1
+            continue
+        if ch in "+*()":
+            tokens.append((ch, ch, i))
+            i += 1
+            continue
+        if star:
+            m = _IDENT.match(src, i)
+            if m:
+                tokens.append(("name", m.group(), i))
+                i = m.end()
+                continue
+        elif ch.isalpha():
+            tokens.append(("name", ch, i))
+            i += 1
+            continue
+        hint = ""
+        if not star and (ch.isdigit() or ch == "_"):
+            hint = " (multi-letter names need '*', e.g. robot1*robot2+robot3)"
+        raise RgtbusError(f"bad token {ch!r} at position {i} in polynomial {text!r}{hint}")
+
+    pos = 0
+
+    def peek() -> tuple[str, str, int] | None:
+        return tokens[pos] if pos < len(tokens) else None
+
+    def where() -> str:
+        t = peek()
+        return f"{t[1]!r} at position {t[2]}" if t else "end of input"
+
+    def parse_sum() -> Expr:
+        nonlocal pos
+        terms = [parse_prod()]
+        while (t := peek()) and t[0] == "+":
+            pos += 1
+            terms.append(parse_prod())
+        return terms[0] if len(terms) == 1 else Sum(tuple(_flatten(terms, Sum)))
+
+    def parse_prod() -> Expr:
+        nonlocal pos
+        factors = [parse_factor()]
+        while (t := peek()) and t[0] in ("*", "name", "("):
+            if t[0] == "*":
+                pos += 1
+            factors.append(parse_factor())
+        return factors[0] if len(factors) == 1 else Prod(tuple(_flatten(factors, Prod)))
+
+    def parse_factor() -> Expr:
+        nonlocal pos
+        t = peek()
+        if t is None or t[0] in ("+", "*", ")"):
+            raise RgtbusError(f"expected a variable or '(' but found {where()} in {text!r}")
+        if t[0] == "name":
+            pos += 1
+            return Var(t[1])
+        pos += 1  # "("
+        inner = parse_sum()
+        close = peek()
+        if close is None or close[0] != ")":
+            raise RgtbusError(f"missing ')' for '(' at position {t[2]} in {text!r}")
+        pos += 1
+        return inner
+
+    expr = parse_sum()
+    if pos != len(tokens):
+        raise RgtbusError(f"unexpected {where()} in polynomial {text!r}")
+    seen: set[str] = set()
+    for name in _all_var_occurrences(expr):
+        if name in seen:
+            raise RgtbusError(
+                f"variable {name!r} appears twice in polynomial {text!r}: each subject appears once"
+            )
+        seen.add(name)
+    return expr
+
+
+def _all_var_occurrences(e: Expr) -> list[str]:
+    if isinstance(e, Var):
+        return [e.name]
+    if isinstance(e, Sum | Prod):
+        out: list[str] = []
+        for c in e.terms if isinstance(e, Sum) else e.factors:
+            out.extend(_all_var_occurrences(c))
+        return out
+    return []
+
+
+def _flatten(items: Iterable[Expr], kind: type) -> list[Expr]:
+    out: list[Expr] = []
+    for x in items:
+        if isinstance(x, kind):
+            out.extend(x.terms if isinstance(x, Sum) else x.factors)  # type: ignore[attr-defined]
+        else:
+            out.append(x)
+    return out
+
+
+def is_polynomial(e: Expr) -> bool:
+    """Only variables, sums and products, each variable once."""
+    if isinstance(e, Const | Not):
+        return False
+    if isinstance(e, Sum | Prod):
+        kids = e.terms if isinstance(e, Sum) else e.factors
+        if not all(is_polynomial(c) for c in kids):
+            return False
+    names = _all_var_occurrences(e)
+    return len(names) == len(set(names))
+
+
+def canonical(e: Expr, order: Sequence[str] | None = None) -> Expr:
+    """The same polynomial with children sorted by their first subject in ``order``."""
+    rank = {n: i for i, n in enumerate(order if order is not None else sorted(variables(e)))}
+
+    def key(x: Expr) -> int:
+        return min(rank[n] for n in variables(x))
+
+    def canon(x: Expr) -> Expr:
+        if isinstance(x, Sum):
+            return Sum(tuple(sorted((canon(t) for t in x.terms), key=key)))
+        if isinstance(x, Prod):
+            return Prod(tuple(sorted((canon(f) for f in x.factors), key=key)))
+        return x
+
+    return canon(e)
+
+
+# ---------------------------------------------------------------------------------------------
+# Graphs
+
+
+def _pair(a: str, b: str) -> frozenset[str]:
+    return frozenset((a, b))
+
+
+@dataclass(frozen=True)
+class RelationGraph:
+    """A complete graph over ``subjects``; listed pairs are alliances, all others conflicts."""
+
+    subjects: tuple[str, ...]
+    alliances: frozenset[frozenset[str]]
+
+    @classmethod
+    def from_pairs(
+        cls, subjects: Sequence[str], alliances: Iterable[tuple[str, str]]
+    ) -> RelationGraph:
+        subs = tuple(subjects)
+        if not subs:
+            raise RgtbusError("a group needs at least one subject")
+        for s in subs:
+            if not _IDENT.fullmatch(s):
+                raise RgtbusError(f"bad subject name {s!r}: use letters, digits and _")
+        dup = [s for s in subs if subs.count(s) > 1]
+        if dup:
+            raise RgtbusError(f"subject {dup[0]!r} is listed twice")
+        known = set(subs)
+        pairs: set[frozenset[str]] = set()
+        for a, b in alliances:
+            for s in (a, b):
+                if s not in known:
+                    raise RgtbusError(f"unknown subject {s!r} in alliance {a}-{b}")
+            if a == b:
+                raise RgtbusError(f"alliance {a}-{b} joins a subject to itself")
+            pairs.add(_pair(a, b))
+        return cls(subs, frozenset(pairs))
+
+    def allied(self, a: str, b: str) -> bool:
+        return _pair(a, b) in self.alliances
+
+    def edges(self) -> dict[tuple[str, str], str]:
+        """``{(a, b): "alliance" | "conflict"}`` for every pair, in subject order."""
+        return {
+            (a, b): "alliance" if self.allied(a, b) else "conflict"
+            for a, b in itertools.combinations(self.subjects, 2)
+        }
+
+
+def _components(vertices: Sequence[str], adjacent) -> list[list[str]]:
+    remaining = list(vertices)
+    comps: list[list[str]] = []
+    while remaining:
+        start = remaining.pop(0)
+        comp = [start]
+        frontier = [start]
+        while frontier:
+            v = frontier.pop()
+            for w in list(remaining):
+                if adjacent(v, w):
+                    remaining.remove(w)
+                    comp.append(w)
+                    frontier.append(w)
+        order = {s: i for i, s in enumerate(vertices)}
+        comps.append(sorted(comp, key=order.__getitem__))
+    return comps
+
+
+def find_p4(graph: RelationGraph, within: Sequence[str] | None = None) -> tuple[str, ...] | None:
+    """An induced path a-b-c-d of alliances (a-c, a-d, b-d in conflict), or None."""
+    vertices = list(within if within is not None else graph.subjects)
+    for quad in itertools.combinations(vertices, 4):
+        edges = [(x, y) for x, y in itertools.combinations(quad, 2) if graph.allied(x, y)]
+        if len(edges) != 3:
+            continue
+        degree = {v: 0 for v in quad}
+        for x, y in edges:
+            degree[x] += 1
+            degree[y] += 1
+        if sorted(degree.values()) != [1, 1, 2, 2]:
+            continue
+        # Three edges with degrees 1,1,2,2 on four vertices is exactly a path: walk it.
+        path = [next(v for v in quad if degree[v] == 1)]
+        while len(path) < 4:
+            path.append(next(v for v in quad if v not in path and graph.allied(path[-1], v)))
+        return tuple(path)
+    return None
+
+
+def graph_to_polynomial(graph: RelationGraph) -> Expr:
+    """The polynomial of a decomposable relationship graph (see the module docstring)."""
+
+    def build(vs: list[str]) -> Expr:
+        if len(vs) == 1:
+            return Var(vs[0])
+        comps = _components(vs, graph.allied)
+        if len(comps) > 1:
+            return Sum(tuple(build(c) for c in comps))
+        comps = _components(vs, lambda a, b: not graph.allied(a, b))
+        if len(comps) > 1:
+            return Prod(tuple(build(c) for c in comps))
+        p4 = find_p4(graph, vs)
+        assert p4 is not None, "a prime graph on >= 2 vertices always holds an induced P4"
+        a, b, c, d = p4
+        raise RgtbusError(
+            f"relationship graph is not decomposable: induced P4 {a}-{b}-{c}-{d} "
+            f"(alliances {a}-{b}, {b}-{c}, {c}-{d}; conflicts {a}-{c}, {a}-{d}, {b}-{d})"
+        )
+
+    return build(list(graph.subjects))
+
+
+def polynomial_to_graph(poly: Expr, subjects: Sequence[str] | None = None) -> RelationGraph:
+    """Two subjects are allied iff their lowest common node is a product."""
+    names = variables(poly)
+    alliances: list[tuple[str, str]] = []
+
+    def walk(x: Expr) -> None:
+        if isinstance(x, Sum | Prod):
+            kids = x.terms if isinstance(x, Sum) else x.factors
+            if isinstance(x, Prod):
+                for f1, f2 in itertools.combinations(kids, 2):
+                    alliances.extend((a, b) for a in variables(f1) for b in variables(f2))
+            for k in kids:
+                walk(k)
+
+    walk(poly)
+    order = list(subjects) if subjects is not None else names
+    if sorted(order) != sorted(names):
+        raise RgtbusError(f"subjects {order} do not match the polynomial's variables {names}")
+    return RelationGraph.from_pairs(order, alliances)
+
+
+def polynomial_text(poly: Expr) -> str:
+    return format_expr(poly)
