@@ -26,7 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = OneLineParser(prog="rgtbus", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"rgtbus {__version__}")
-    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
+    subparsers = parser.add_subparsers(
+        dest="command", metavar="COMMAND", parser_class=OneLineParser
+    )
     subparsers.required = True
     for module in (rgt_cmds,):
         module.register(subparsers)

@@ -28,8 +28,10 @@ from rgtbus.rgt.polynomial import (
     RelationGraph,
     find_p4,
     graph_to_polynomial,
+    install_relations,
     parse_polynomial,
     polynomial_to_graph,
+    random_polynomial,
 )
 
 __all__ = [
@@ -52,8 +54,10 @@ __all__ = [
     "format_expr",
     "forward",
     "graph_to_polynomial",
+    "install_relations",
     "parse_polynomial",
     "polynomial_to_graph",
+    "random_polynomial",
     "solve_brute_force",
     "solve_per_action",
     "stratification_text",

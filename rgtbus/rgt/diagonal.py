@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt.expr import (
@@ -69,9 +70,20 @@ class DecisionFunction:
     polynomial: Expr
     order: tuple[str, ...]
     structural: Expr
-    display: Expr
     table: int
     _masks: dict[int, Callable[..., int]] = field(default_factory=dict, repr=False, compare=False)
+
+    @cached_property
+    def display(self) -> Expr:
+        """Computed on first use: minimisation is for people, not for the solvers."""
+        names = self.order
+        display = readable(self.structural, names)
+        if len(support(self.table, len(names))) < len(names):
+            # Folding eliminated subjects: show that rather than a form that hides it.
+            reduced = minimal_sop(self.table, names)
+            if reduced is not None:
+                display = reduced
+        return display
 
     @property
     def n(self) -> int:
@@ -105,13 +117,7 @@ def decision_function(poly: Expr, order: Sequence[str] | None = None) -> Decisio
         raise RgtbusError(f"subjects {list(names)} do not match the polynomial's variables")
     structural = fold(poly)
     table = truth_table(structural, names)
-    display = readable(structural, names)
-    if len(support(table, len(names))) < len(names):
-        # Folding eliminated subjects: show that rather than a form that hides it.
-        reduced = minimal_sop(table, names)
-        if reduced is not None:
-            display = reduced
-    return DecisionFunction(poly, names, structural, display, table)
+    return DecisionFunction(poly, names, structural, table)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,8 +15,9 @@ Nested sums and products are flattened, so levels alternate + and · (the strati
 from __future__ import annotations
 
 import itertools
+import random
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from rgtbus.errors import RgtbusError
@@ -303,3 +304,41 @@ def polynomial_to_graph(poly: Expr, subjects: Sequence[str] | None = None) -> Re
 
 def polynomial_text(poly: Expr) -> str:
     return format_expr(poly)
+
+
+def install_relations(
+    subjects: Sequence[str], sent: Mapping[tuple[str, str], bool]
+) -> RelationGraph:
+    """The installed graph: a pair is allied iff both sent alliance to each other (AND).
+
+    ``sent[(s, r)]`` is True when s sent the alliance code to r, False for conflict; every
+    ordered pair of distinct subjects is needed.
+    """
+    pairs = []
+    for a, b in itertools.combinations(subjects, 2):
+        for key in ((a, b), (b, a)):
+            if key not in sent:
+                raise RgtbusError(f"missing relationship code {key[0]}>{key[1]}")
+        if sent[(a, b)] and sent[(b, a)]:
+            pairs.append((a, b))
+    return RelationGraph.from_pairs(subjects, pairs)
+
+
+def random_polynomial(subjects: Sequence[str], rng: random.Random) -> Expr:
+    """A random decomposable group over ``subjects`` (a random cotree), flattened."""
+    names = list(subjects)
+    rng.shuffle(names)
+
+    def build(vs: list[str], op: type) -> Expr:
+        if len(vs) == 1:
+            return Var(vs[0])
+        parts = rng.randint(2, len(vs))
+        cuts = sorted(rng.sample(range(1, len(vs)), parts - 1))
+        groups = [vs[i:j] for i, j in zip([0, *cuts], [*cuts, len(vs)], strict=True)]
+        other = Prod if op is Sum else Sum
+        kids = [build(g, other) for g in groups]
+        return op(tuple(kids))
+
+    if not names:
+        raise RgtbusError("a group needs at least one subject")
+    return build(names, rng.choice((Sum, Prod)))
