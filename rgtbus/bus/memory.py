@@ -1,0 +1,38 @@
+"""The in-process twin of the zenoh bus: a queue instead of a network.
+
+Payloads still go through the codec and the shared receive path, so the memory bus drops and
+counts exactly what the zenoh bus would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rgtbus.bus.base import QueueBus, matches_subscription
+
+
+class MemoryBus(QueueBus):
+    kind = "memory"
+    OPTIONS = frozenset({"local", "max_ahead", "count_foreign"})
+
+    def __init__(
+        self,
+        run_id: str,
+        members: Sequence[str],
+        sample_rate: float,
+        window_len: int,
+        *,
+        local: Sequence[str] | None = None,
+        max_ahead: int = 1024,
+        count_foreign: bool = True,
+    ) -> None:
+        super().__init__(run_id, members, sample_rate, window_len, local=local, max_ahead=max_ahead)
+        # Same filter as the zenoh subscriber's key expression.
+        self._sub_run = None if count_foreign else self.run_id
+
+    def _send(self, key: str, data: bytes) -> None:
+        if matches_subscription(key, self._sub_run):
+            self._inbox.put((key, data))
+
+    def _close_transport(self) -> None:
+        pass

@@ -1,0 +1,171 @@
+"""The zenoh bus: each member's samples on ``rgtbus/<run_id>/tx/<unit>``.
+
+Default: one in-process session, peer mode, no listen/connect endpoints, multicast scouting off;
+a session's own puts reach its own subscriber, so a single process hears itself. For
+cross-process runs pass ``connect``/``listen``/``mode`` (or a zenoh config file or a session).
+
+The subscriber callback runs on a zenoh thread: it only copies ``(key, bytes)`` into a
+``SimpleQueue``; decoding and bookkeeping happen in ``gather`` on the caller's thread.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from rgtbus.bus.base import QueueBus
+from rgtbus.errors import RgtbusError
+
+_MODES = ("peer", "client", "router")
+
+
+def make_config(
+    *,
+    mode: str | None = None,
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
+    multicast: bool | None = None,
+    config: zenoh.Config | str | os.PathLike[str] | None = None,
+) -> zenoh.Config:
+    """A zenoh Config: the given file/Config (or zenoh's defaults), then the explicit options.
+
+    Without a config, unset options mean: peer mode, no endpoints, multicast scouting off.
+    """
+    if config is None:
+        cfg = zenoh.Config()
+        mode = "peer" if mode is None else mode
+        connect = () if connect is None else connect
+        listen = () if listen is None else listen
+        multicast = False if multicast is None else multicast
+    elif isinstance(config, zenoh.Config):
+        cfg = config
+    else:
+        try:
+            cfg = zenoh.Config.from_file(os.fspath(config))
+        except Exception as e:  # zenoh raises ZError; keep one line
+            raise RgtbusError(f"zenoh config {os.fspath(config)!r}: {e}") from e
+    if mode is not None:
+        if mode not in _MODES:
+            raise RgtbusError(f"zenoh mode {mode!r} unknown (use {', '.join(_MODES)})")
+        cfg.insert_json5("mode", json.dumps(mode))
+    for name, eps in (("connect", connect), ("listen", listen)):
+        if eps is None:
+            continue
+        if isinstance(eps, str):
+            raise RgtbusError(f"zenoh {name} endpoints must be a list, got the string {eps!r}")
+        try:
+            cfg.insert_json5(f"{name}/endpoints", json.dumps([str(e) for e in eps]))
+        except Exception as e:
+            raise RgtbusError(f"zenoh {name} endpoints {list(eps)!r}: {e}") from e
+    if multicast is not None:
+        cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    return cfg
+
+
+class ZenohBus(QueueBus):
+    kind = "zenoh"
+    OPTIONS = frozenset(
+        {
+            "local",
+            "max_ahead",
+            "count_foreign",
+            "mode",
+            "connect",
+            "listen",
+            "multicast",
+            "config",
+            "session",
+        }
+    )
+
+    def __init__(
+        self,
+        run_id: str,
+        members: Sequence[str],
+        sample_rate: float,
+        window_len: int,
+        *,
+        local: Sequence[str] | None = None,
+        max_ahead: int = 1024,
+        count_foreign: bool = True,
+        mode: str | None = None,
+        connect: Sequence[str] | None = None,
+        listen: Sequence[str] | None = None,
+        multicast: bool | None = None,
+        config: zenoh.Config | str | os.PathLike[str] | None = None,
+        session: zenoh.Session | None = None,
+    ) -> None:
+        super().__init__(run_id, members, sample_rate, window_len, local=local, max_ahead=max_ahead)
+        self._publishers: dict[str, Any] = {}
+        self._subscriber: Any = None
+        self._owns_session = session is None
+        if session is None:
+            cfg = make_config(
+                mode=mode, connect=connect, listen=listen, multicast=multicast, config=config
+            )
+            try:
+                session = zenoh.open(cfg)
+            except Exception as e:
+                raise RgtbusError(
+                    f"cannot open zenoh session (mode {mode or 'peer'}, connect "
+                    f"{list(connect or [])}, listen {list(listen or [])}): {e}"
+                ) from e
+        elif any(v is not None for v in (mode, connect, listen, multicast, config)):
+            raise RgtbusError("zenoh bus: pass either a session or session options, not both")
+        self.session = session
+        try:
+            # Count foreign runs: listen one level wider than our own run's keys.
+            sub_key = "rgtbus/*/tx/*" if count_foreign else f"rgtbus/{self.run_id}/tx/*"
+            put = self._inbox.put
+            self._subscriber = session.declare_subscriber(
+                sub_key, lambda s: put((str(s.key_expr), s.payload.to_bytes()))
+            )
+            for unit in self.local:
+                # BLOCK: a lockstep window must never lose a sample to congestion;
+                # express: no batching delay between a window's publish and gather.
+                self._publishers[unit] = session.declare_publisher(
+                    self._keys[unit],
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    express=True,
+                )
+        except BaseException:
+            self._closed = True
+            self._close_transport()
+            raise
+
+    def _send(self, key: str, data: bytes) -> None:
+        # Our own units' keys go through their declared publishers; anything else (put_raw)
+        # through the session.
+        pub = (
+            self._publishers.get(key[len(self._prefix) :]) if key.startswith(self._prefix) else None
+        )
+        if pub is not None:
+            pub.put(data)
+        else:
+            self.session.put(key, data)
+
+    def _close_transport(self) -> None:
+        # Subscriber first so no callback runs while the rest goes away; then the session
+        # (a declared callback subscriber keeps the interpreter from exiting: SPEC §5).
+        errors: list[str] = []
+        entities = [self._subscriber, *self._publishers.values()]
+        self._subscriber = None
+        self._publishers = {}
+        for ent in entities:
+            if ent is None:
+                continue
+            try:
+                ent.undeclare()
+            except Exception as e:  # session may already be closed by its owner
+                errors.append(str(e))
+        if self._owns_session and getattr(self, "session", None) is not None:
+            try:
+                self.session.close()
+            except Exception as e:
+                errors.append(str(e))
+        if errors and self._owns_session:
+            raise RgtbusError(f"closing zenoh bus of run {self.run_id!r}: {errors[0]}")
