@@ -337,10 +337,17 @@ def test_zenoh_two_sessions_over_loopback():
         open_bus("zenoh", "lo", ["a", "b"], RATE, WLEN, listen=[ep], local=["a"]) as bus_a,
         open_bus("zenoh", "lo", ["a", "b"], RATE, WLEN, connect=[ep], local=["b"]) as bus_b,
     ):
+        # A publisher always matches its own session's subscriber, so matching_status says
+        # nothing about the peer: wait until each side hears a probe from the other.
         deadline = time.monotonic() + 5.0
-        while not bus_b._publishers["b"].matching_status.matching:
+        heard = {"a": False, "b": False}
+        while not all(heard.values()):
             assert time.monotonic() < deadline, "sessions did not connect"
+            bus_a.put_raw("rgtbus/lo/tx/probe-a", b"")
+            bus_b.put_raw("rgtbus/lo/tx/probe-b", b"")
             time.sleep(0.01)
+            heard["a"] |= any("probe-b" in n for n in bus_a.drop_notes())
+            heard["b"] |= any("probe-a" in n for n in bus_b.drop_notes())
         for w in range(3):
             bus_a.publish("a", w, np.full(WLEN, w + 0.5))
             bus_b.publish("b", w, np.full(WLEN, -w - 0.5))

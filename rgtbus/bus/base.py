@@ -184,12 +184,17 @@ class QueueBus:
         return {u: got[u] for u in self.members}
 
     def stats(self) -> dict[str, int]:
+        """Counters so far; drains what already arrived first so they are current."""
+        if not self._closed:
+            self._drain()
         out = dict(self._stats)
         out["buffered"] = len(self._buffer)
         return out
 
     def drop_notes(self) -> list[str]:
         """Why recent payloads were dropped (one line each, at most 100 kept); clears them."""
+        if not self._closed:
+            self._drain()
         notes = list(self._notes)
         self._notes.clear()
         return notes
