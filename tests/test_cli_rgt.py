@@ -254,7 +254,7 @@ ERRORS = [
     ),
     (
         ["control", "ab+c", "--actions", "alpha,beta", "--subject", "a", "--target", "[1]"],
-        "bad target interval",
+        "bad interval",
     ),
     (
         [

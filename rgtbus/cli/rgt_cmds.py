@@ -224,30 +224,12 @@ def _matrix_text(df: DecisionFunction, universe: Universe, matrix: InfluenceMatr
     )
 
 
-def parse_target(text: str, universe: Universe) -> tuple[int, int]:
-    """``{alpha}`` -> (lo, hi) = ({alpha}, {alpha}); ``[{beta},1]`` -> ({beta}, 1)."""
-    s = text.strip()
-    if s.startswith("[") and s.endswith("]"):
-        inner = s[1:-1]
-        depth = 0
-        for i, ch in enumerate(inner):
-            depth += ch == "{"
-            depth -= ch == "}"
-            if ch == "," and depth == 0:
-                lo = universe.parse_alternative(inner[:i])
-                hi = universe.parse_alternative(inner[i + 1 :])
-                return lo, hi
-        raise RgtbusError(f"bad target interval {text!r}: write [LOW,HIGH], e.g. [{{beta}},1]")
-    v = universe.parse_alternative(s)
-    return v, v
-
-
 def run_control(args: argparse.Namespace) -> int:
     poly, df, universe = load_group(args)
     star = needs_star(df.order)
     subject = args.subject
     df.index(subject)
-    lo, hi = parse_target(args.target, universe)
+    lo, hi = universe.parse_interval(args.target)
     matrix = InfluenceMatrix.parse(args.influence, df.order, universe)
     fixed = {}
     for (src, dst), v in matrix.items():

@@ -107,6 +107,21 @@ class Universe:
             )
         raise RgtbusError(f"bad alternative {text!r}: write 1, 0, {{}}, or {{action,...}}")
 
+    def parse_interval(self, text: str) -> tuple[int, int]:
+        """``{alpha}`` -> (lo, hi) = ({alpha}, {alpha}); ``[{beta},1]`` -> ({beta}, 1)."""
+        s = text.strip()
+        if not (s.startswith("[") and s.endswith("]")):
+            v = self.parse_alternative(s)
+            return v, v
+        inner = s[1:-1]
+        depth = 0
+        for i, ch in enumerate(inner):
+            depth += ch == "{"
+            depth -= ch == "}"
+            if ch == "," and depth == 0:
+                return self.parse_alternative(inner[:i]), self.parse_alternative(inner[i + 1 :])
+        raise RgtbusError(f"bad interval {text!r}: write [LOW,HIGH], e.g. [{{beta}},1]")
+
     def to_list(self, mask: int) -> list[str]:
         """JSON form: sorted action names."""
         return sorted(a for j, a in enumerate(self.actions) if mask >> j & 1)

@@ -1,0 +1,221 @@
+"""The timed protocol of SPEC §3, as a pure state machine (one per unit).
+
+All units hear the whole medium. To send code X to unit r, unit s
+
+1. sends the ID-code on its own frequency ω_s, starting at the turn's start time t0;
+2. when its ω_s resonator spikes (sample k), waits the reaction delay D;
+3. sends X on ω_r, starting at t = k·τ + D.
+
+Medium access (paper mode): one transmission at a time, in a fixed order known to every unit
+(phase 1, relationships: every s to every r ≠ s, sender-major; phase 3, influences: the same
+order), separated by a guard gap G. The timing chain is therefore decided by ID spikes alone::
+
+    pulse m of a code starting at t on ω:  sample round((t + m·2π/ω) / τ),  m = 0..N-1
+    payload start      p = k_spike·τ + D
+    next turn's start  t0' = p + (N-1)·2π/ω_r + G
+
+Every unit runs the same machine on what it hears, so every unit knows when each turn starts,
+and the turn's sender additionally acts on it. The machine does not decode: it says what to
+decode and when (``Listen``), and is told the result (``on_decoded``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+PHASES = ("relations", "influences")
+
+
+@dataclass(frozen=True)
+class Turn:
+    index: int
+    phase: str
+    sender: str
+    addressee: str
+
+
+def turns(units: Sequence[str]) -> list[Turn]:
+    out: list[Turn] = []
+    for phase in PHASES:
+        for s in units:
+            for r in units:
+                if s != r:
+                    out.append(Turn(len(out), phase, s, r))
+    return out
+
+
+def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[int, ...]:
+    """Sample index of each pulse: ``round((start + m·2π/ω) / τ)``."""
+    period = 2 * math.pi / omega
+    return tuple(round((start + m * period) / tau) for m in range(pulses))
+
+
+@dataclass(frozen=True)
+class Send:
+    """Put ``code`` on ``channel``'s frequency, pulses at ``samples``."""
+
+    turn: int
+    kind: str  # "id" | "payload"
+    channel: str
+    code: str
+    start: float
+    samples: tuple[int, ...]
+    sender: str
+    addressee: str
+
+
+@dataclass(frozen=True)
+class Listen:
+    """Decode once every sample up to ``ready_sample`` has been received.
+
+    ``kind`` "id": check the ID-code on ``channels[0]`` at ``start``. ``kind`` "relation" or
+    "influence": find which of ``channels`` carries a code starting at ``start`` and read it.
+    """
+
+    turn: int
+    kind: str
+    sender: str
+    expected_addressee: str
+    channels: tuple[str, ...]
+    start: float
+    ready_sample: int
+
+
+@dataclass
+class ProtocolState:
+    """What one unit knows of the schedule, and what it must do next."""
+
+    me: str
+    units: tuple[str, ...]
+    omegas: dict[str, float]
+    tau: float
+    pulses: int = 3
+    start: float = 0.001
+    reaction_delay: float = 0.5
+    guard: float = 0.5
+    search: int = 2  # samples of timing search around a payload's expected start
+    schedule: list[Turn] = field(init=False)
+    turn: int = field(init=False, default=0)
+    turn_start: float = field(init=False)
+    waiting_id_spike: bool = field(init=False, default=True)
+    errors: list[str] = field(init=False, default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.schedule = turns(self.units)
+        self.turn_start = self.start
+
+    # -- helpers
+
+    def period(self, unit: str) -> float:
+        return 2 * math.pi / self.omegas[unit]
+
+    def current(self) -> Turn | None:
+        return self.schedule[self.turn] if self.turn < len(self.schedule) else None
+
+    @property
+    def finished(self) -> bool:
+        return self.turn >= len(self.schedule)
+
+    def id_samples(self) -> tuple[int, ...]:
+        t = self.current()
+        assert t is not None
+        return code_samples(self.turn_start, self.omegas[t.sender], self.pulses, self.tau)
+
+    def id_deadline(self) -> int:
+        """The last sample at which the current ID may still make its sender's resonator spike:
+        the last ID pulse plus one period (y can cross threshold between pulses)."""
+        t = self.current()
+        assert t is not None
+        return self.id_samples()[-1] + math.ceil(self.period(t.sender) / self.tau)
+
+    # -- events
+
+    def begin(self, relation_code: dict[str, str], influence_code: dict[str, str]) -> list[Send]:
+        """Start of the run: the first turn's sender sends its ID."""
+        self._codes = {"relations": relation_code, "influences": influence_code}
+        return self._id_actions()
+
+    def _id_actions(self) -> list[Send]:
+        t = self.current()
+        if t is None or t.sender != self.me:
+            return []
+        return [
+            Send(
+                t.index,
+                "id",
+                t.sender,
+                "id",
+                self.turn_start,
+                self.id_samples(),
+                t.sender,
+                t.addressee,
+            )
+        ]
+
+    def on_spike(self, channel: str, sample: int) -> tuple[list[Send], list[Listen]]:
+        """A spike on ``channel``'s resonator at ``sample``: the ID spike of the current turn
+        (once its first pulse is on the medium) moves the schedule on."""
+        t = self.current()
+        if t is None or not self.waiting_id_spike or channel != t.sender:
+            return [], []
+        ids = self.id_samples()
+        if sample < ids[0]:
+            return [], []
+        self.waiting_id_spike = False
+        payload_start = sample * self.tau + self.reaction_delay
+        payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, self.tau)
+        sends: list[Send] = []
+        if t.sender == self.me:
+            code = self._codes[t.phase][t.addressee]
+            sends.append(
+                Send(
+                    t.index,
+                    "payload",
+                    t.addressee,
+                    code,
+                    payload_start,
+                    payload,
+                    t.sender,
+                    t.addressee,
+                )
+            )
+        kind = "relation" if t.phase == "relations" else "influence"
+        others = tuple(u for u in self.units if u != t.sender)
+        # The payload's channel is read from the medium, so look as far as the slowest one.
+        longest = max(self.period(u) for u in others) * (self.pulses - 1)
+        ready = round((payload_start + longest) / self.tau) + self.search
+        listens = [
+            Listen(
+                t.index,
+                "id",
+                t.sender,
+                t.addressee,
+                (t.sender,),
+                self.turn_start,
+                max(ids[-1], sample),
+            ),
+            Listen(t.index, kind, t.sender, t.addressee, others, payload_start, ready),
+        ]
+        # Next turn: the chain is known now, well ahead of its first pulse.
+        self.turn += 1
+        self.turn_start = payload_start + (self.pulses - 1) * self.period(t.addressee) + self.guard
+        self.waiting_id_spike = True
+        sends.extend(self._id_actions())
+        return sends, listens
+
+    def check_deadline(self, received_upto: int) -> str | None:
+        """An error text when the current ID's spike is overdue (the chain cannot go on)."""
+        t = self.current()
+        if t is None or not self.waiting_id_spike:
+            return None
+        if received_upto > self.id_deadline():
+            msg = (
+                f"{self.me}: no ID spike on {t.sender}'s channel for turn {t.index} "
+                f"({t.sender} -> {t.addressee}, {t.phase}) by t = "
+                f"{self.id_deadline() * self.tau:.3f} s"
+            )
+            self.errors.append(msg)
+            return msg
+        return None

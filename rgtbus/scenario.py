@@ -1,0 +1,463 @@
+"""Scenario files: TOML data -> a validated, typed ``Scenario``.
+
+A scenario names its units, actions, frequencies (or ``"auto"``), codebook, resonator mode,
+policies (relationships, influences, decisions), timing, channel noise and seed, and may carry an
+``[expect]`` table that ``rgtbus run --check`` verifies. Every refusal names the file, the line
+(where it can be found) and the key, and says why.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+from rgtbus.rgt import Universe
+
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_OMEGA = re.compile(r"\s*([0-9]*\.?[0-9]*)\s*(pi|π)?\s*(?:/\s*([0-9]*\.?[0-9]+))?\s*\Z")
+
+TOP_KEYS = {
+    "name",
+    "description",
+    "seed",
+    "units",
+    "actions",
+    "frequencies",
+    "codebook",
+    "mode",
+    "timing",
+    "channel",
+    "relations",
+    "influences",
+    "decision",
+    "outcome",
+    "expect",
+}
+TIMING_KEYS = {"sample_rate", "window", "start", "reaction_delay", "guard", "max_seconds"}
+CHANNEL_KEYS = {"noise", "gain"}
+RELATION_KEYS = {"policy", "p", "fixed", "draws"}
+DECISION_KEYS = {"policy", "units"}
+OUTCOME_KEYS = {"name", "all_of", "choose", "then", "else"}
+EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustrated", "relations"}
+DECISION_POLICIES = ("max", "min", "seeded-random")
+RELATION_POLICIES = ("fixed", "random")
+MODES = ("paper", "exact")
+
+
+def parse_omega(text: str | float | int) -> float:
+    """``3pi/2``, ``1.5pi``, ``pi``, ``4.71``, ``7π/6`` -> rad/s (no eval)."""
+    if isinstance(text, bool):
+        raise RgtbusError(f"bad frequency {text!r}")
+    if isinstance(text, int | float):
+        value = float(text)
+    else:
+        m = _OMEGA.match(text)
+        if not m or (not m.group(1) and not m.group(2)):
+            raise RgtbusError(f"bad frequency {text!r}: write e.g. 3pi/2, 1.5pi or 4.71")
+        coef = float(m.group(1)) if m.group(1) else 1.0
+        value = coef * (math.pi if m.group(2) else 1.0)
+        if m.group(3):
+            den = float(m.group(3))
+            if den == 0:
+                raise RgtbusError(f"bad frequency {text!r}: division by zero")
+            value /= den
+    if not math.isfinite(value) or value <= 0:
+        raise RgtbusError(f"bad frequency {text!r}: must be a positive number of rad/s")
+    return value
+
+
+@dataclass(frozen=True)
+class Timing:
+    sample_rate: float = 200.0  # samples per second (tau = 5 ms)
+    window: float = 0.1  # seconds per bus window; at most the reaction delay (the lookahead)
+    start: float = 0.001  # first transmission, seconds after onset (the paper's 1 ms)
+    reaction_delay: float = 0.5  # from the ID spike to the addressed code
+    guard: float = 0.5  # silence between one transmission's end and the next ID
+    max_seconds: float = 3600.0  # a run that has not finished by then fails
+
+    @property
+    def tau(self) -> float:
+        return 1.0 / self.sample_rate
+
+    @property
+    def window_samples(self) -> int:
+        return round(self.window * self.sample_rate)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """``name: then`` when every unit of ``all_of`` chooses ``choose``, else ``name: else``."""
+
+    name: str
+    all_of: tuple[str, ...]
+    choose: int
+    then: str
+    otherwise: str
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    path: str
+    text: str
+    seed: int
+    units: tuple[str, ...]
+    universe: Universe
+    frequencies: dict[str, float]
+    frequency_text: dict[str, str]
+    codebook: str
+    mode: str
+    timing: Timing
+    noise: float
+    gains: dict[tuple[str, str], float]
+    relation_policy: str
+    alliance_p: float
+    fixed_relations: dict[tuple[str, str], bool]
+    draws: dict[tuple[str, str], float]
+    influences: dict[tuple[str, str], int]
+    decisions: dict[str, str]
+    outcome: Outcome | None
+    expect: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+
+    def pairs(self) -> list[tuple[str, str]]:
+        """Every ordered pair of distinct units, sender-major in unit order."""
+        return [(s, r) for s in self.units for r in self.units if s != r]
+
+    def with_seed(self, seed: int) -> Scenario:
+        from dataclasses import replace
+
+        return replace(self, seed=seed)
+
+
+class _Ctx:
+    """Where a value came from, for one-line errors: ``file:line: key: reason``."""
+
+    def __init__(self, path: str, text: str) -> None:
+        self.path = path
+        self.lines = text.splitlines()
+
+    def line_of(self, section: str, key: str | None) -> int | None:
+        header = (
+            re.compile(r"\s*\[+\s*" + re.escape(section) + r"\s*\]+\s*(#.*)?\Z")
+            if section
+            else None
+        )
+        in_section = section == ""
+        for i, line in enumerate(self.lines, 1):
+            stripped = line.strip()
+            if stripped.startswith("["):
+                in_section = bool(header and header.match(line))
+                if in_section and key is None:
+                    return i
+                continue
+            if in_section and key is not None:
+                m = re.match(r'\s*"?([^"=\s]+)"?\s*=', line)
+                if m and m.group(1) == key:
+                    return i
+        if section and key is not None and "." not in section:
+            # Inline tables and dotted keys: fall back to any line naming the key.
+            for i, line in enumerate(self.lines, 1):
+                if re.match(r'\s*"?' + re.escape(key) + r'"?\s*=', line):
+                    return i
+        return None
+
+    def error(self, section: str, key: str | None, reason: str) -> RgtbusError:
+        line = self.line_of(section, key)
+        where = f"{self.path}:{line}" if line else self.path
+        name = ".".join(p for p in (section, key) if p)
+        return RgtbusError(f"{where}: {name or 'scenario'}: {reason}")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RgtbusError(f"cannot read scenario {str(p)!r}: {exc.strerror}") from None
+    return parse_scenario(text, str(p))
+
+
+def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
+    ctx = _Ctx(path, text)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RgtbusError(f"{path}: not valid TOML: {exc}") from None
+
+    def unknown(table: Mapping[str, Any], allowed: set[str], section: str) -> None:
+        for key in table:
+            if key not in allowed:
+                raise ctx.error(
+                    section, key, f"unknown key (allowed: {', '.join(sorted(allowed))})"
+                )
+
+    def table(name: str) -> dict[str, Any]:
+        value = data.get(name, {})
+        if not isinstance(value, dict):
+            raise ctx.error("", name, "must be a table")
+        return value
+
+    unknown(data, TOP_KEYS, "")
+    name = data.get("name")
+    if not isinstance(name, str) or not _IDENT.match(name):
+        raise ctx.error("", "name", f"need a scenario name (letters, digits, _), got {name!r}")
+    seed = data.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ctx.error("", "seed", f"must be a non-negative integer, got {seed!r}")
+
+    units = data.get("units")
+    if not isinstance(units, list) or len(units) < 2:
+        raise ctx.error("", "units", "need a list of at least two unit names")
+    for u in units:
+        if not isinstance(u, str) or not _IDENT.match(u):
+            raise ctx.error("", "units", f"bad unit name {u!r}")
+    if len(set(units)) != len(units):
+        dup = next(u for u in units if units.count(u) > 1)
+        raise ctx.error("", "units", f"unit {dup!r} is listed twice")
+    units_t = tuple(units)
+
+    def unit(value: str, section: str, key: str) -> str:
+        if value not in units_t:
+            raise ctx.error(section, key, f"unknown unit {value!r} (units: {', '.join(units_t)})")
+        return value
+
+    def pair(key: str, section: str) -> tuple[str, str]:
+        parts = key.split(">")
+        if len(parts) != 2:
+            raise ctx.error(section, key, 'write the pair as SENDER>ADDRESSEE, e.g. "a>b"')
+        s, r = (unit(x.strip(), section, key) for x in parts)
+        if s == r:
+            raise ctx.error(section, key, "a unit does not address itself")
+        return s, r
+
+    actions = data.get("actions")
+    if not isinstance(actions, list) or not actions or not all(isinstance(a, str) for a in actions):
+        raise ctx.error("", "actions", 'need a list of action names, e.g. ["alpha", "beta"]')
+    try:
+        universe = Universe(tuple(actions))
+    except RgtbusError as exc:
+        raise ctx.error("", "actions", str(exc)) from None
+
+    def alternative(value: Any, section: str, key: str) -> int:
+        if isinstance(value, list):
+            try:
+                return universe.from_list(value)
+            except RgtbusError as exc:
+                raise ctx.error(section, key, str(exc)) from None
+        if isinstance(value, int) and not isinstance(value, bool) and value in (0, 1):
+            return universe.full if value else 0
+        if not isinstance(value, str):
+            raise ctx.error(section, key, f"bad alternative {value!r}")
+        try:
+            return universe.parse_alternative(value)
+        except RgtbusError as exc:
+            raise ctx.error(section, key, str(exc)) from None
+
+    # Frequencies: a table per unit, or "auto" (a plan by the rules of SPEC §2).
+    freq = data.get("frequencies", "auto")
+    frequencies: dict[str, float] = {}
+    frequency_text: dict[str, str] = {}
+    if freq == "auto":
+        from rgtbus.signal.plan import auto_plan
+
+        try:
+            plan = auto_plan(len(units_t))
+        except RgtbusError as exc:
+            raise ctx.error("", "frequencies", str(exc)) from None
+        for u, w in zip(units_t, plan, strict=True):
+            frequencies[u] = float(w)
+            frequency_text[u] = f"{float(w):.6g}"
+    elif isinstance(freq, dict):
+        for key, value in freq.items():
+            unit(key, "frequencies", key)
+            try:
+                frequencies[key] = parse_omega(value)
+            except RgtbusError as exc:
+                raise ctx.error("frequencies", key, str(exc)) from None
+            frequency_text[key] = str(value)
+        missing = [u for u in units_t if u not in frequencies]
+        if missing:
+            raise ctx.error("frequencies", None, f"no frequency for unit {missing[0]!r}")
+    else:
+        raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
+
+    codebook = data.get("codebook", "paper")
+    if not isinstance(codebook, str):
+        raise ctx.error("", "codebook", 'must name a codebook, e.g. "paper"')
+    mode = data.get("mode", "paper")
+    if mode not in MODES:
+        raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
+
+    # Timing
+    t = table("timing")
+    unknown(t, TIMING_KEYS, "timing")
+    values: dict[str, float] = {}
+    for key in TIMING_KEYS:
+        if key in t:
+            v = t[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ctx.error("timing", key, f"must be a number, got {v!r}")
+            values[key] = float(v)
+    timing = Timing(**values)
+    if timing.sample_rate <= 0:
+        raise ctx.error("timing", "sample_rate", "must be positive")
+    if timing.window <= 0 or abs(timing.window * timing.sample_rate - timing.window_samples) > 1e-9:
+        raise ctx.error("timing", "window", "must be a positive whole number of samples")
+    if timing.window > timing.reaction_delay:
+        raise ctx.error(
+            "timing",
+            "window",
+            f"{timing.window} s exceeds the reaction delay {timing.reaction_delay} s "
+            "(the lookahead)",
+        )
+    for key in ("start", "guard"):
+        if getattr(timing, key) < 0:
+            raise ctx.error("timing", key, "must not be negative")
+    if timing.max_seconds <= 0:
+        raise ctx.error("timing", "max_seconds", "must be positive")
+
+    # Channel
+    ch = table("channel")
+    unknown(ch, CHANNEL_KEYS, "channel")
+    noise = ch.get("noise", 0.0)
+    if isinstance(noise, bool) or not isinstance(noise, int | float) or not noise >= 0:
+        raise ctx.error("channel", "noise", f"must be a standard deviation >= 0, got {noise!r}")
+    gains: dict[tuple[str, str], float] = {}
+    gain_table = ch.get("gain", {})
+    if not isinstance(gain_table, dict):
+        raise ctx.error("channel", "gain", 'must be a table {"a>b" = 0.9, ...}')
+    for key, g in gain_table.items():
+        if isinstance(g, bool) or not isinstance(g, int | float) or not g > 0:
+            raise ctx.error("channel.gain", key, f"gain must be positive, got {g!r}")
+        gains[pair(key, "channel.gain")] = float(g)
+
+    # Relationship policy
+    rel = table("relations")
+    unknown(rel, RELATION_KEYS, "relations")
+    policy = rel.get("policy", "random")
+    if policy not in RELATION_POLICIES:
+        raise ctx.error("relations", "policy", f"unknown policy {policy!r} (fixed or random)")
+    p = rel.get("p", 0.61)
+    if isinstance(p, bool) or not isinstance(p, int | float) or not 0 <= p <= 1:
+        raise ctx.error("relations", "p", f"alliance probability must be within [0, 1], got {p!r}")
+    fixed: dict[tuple[str, str], bool] = {}
+    for key, v in (rel.get("fixed") or {}).items():
+        if v not in ("alliance", "conflict"):
+            raise ctx.error("relations.fixed", key, f'must be "alliance" or "conflict", got {v!r}')
+        fixed[pair(key, "relations.fixed")] = v == "alliance"
+    draws: dict[tuple[str, str], float] = {}
+    for key, v in (rel.get("draws") or {}).items():
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= 1:
+            raise ctx.error("relations.draws", key, f"a draw must be within [0, 1], got {v!r}")
+        draws[pair(key, "relations.draws")] = float(v)
+    if policy == "fixed":
+        missing = [f"{s}>{r}" for s, r in _pairs(units_t) if (s, r) not in fixed]
+        if missing:
+            raise ctx.error("relations.fixed", None, f"policy fixed: no relation for {missing[0]}")
+
+    # Influences: fixed per peer; every ordered pair, since every unit influences every other.
+    inf = table("influences")
+    influences: dict[tuple[str, str], int] = {}
+    for key, v in inf.items():
+        influences[pair(key, "influences")] = alternative(v, "influences", key)
+    missing = [f"{s}>{r}" for s, r in _pairs(units_t) if (s, r) not in influences]
+    if missing:
+        raise ctx.error("influences", None, f"no influence for {missing[0]}")
+
+    # Decision policies
+    dec = table("decision")
+    unknown(dec, DECISION_KEYS, "decision")
+    default_policy = dec.get("policy", "max")
+    per_unit = dec.get("units", {})
+    if not isinstance(per_unit, dict):
+        raise ctx.error("decision", "units", "must be a table {unit = policy}")
+    decisions: dict[str, str] = {}
+
+    def decision_policy(v: Any, section: str, key: str) -> str:
+        if v in DECISION_POLICIES:
+            return v
+        if isinstance(v, str):
+            try:
+                universe.parse_alternative(v)
+                return v
+            except RgtbusError:
+                pass
+        raise ctx.error(
+            section,
+            key,
+            f"unknown decision policy {v!r} (max, min, seeded-random, or a preferred alternative)",
+        )
+
+    default_policy = decision_policy(default_policy, "decision", "policy")
+    for u in units_t:
+        decisions[u] = default_policy
+    for key, v in per_unit.items():
+        decisions[unit(key, "decision.units", key)] = decision_policy(v, "decision.units", key)
+
+    # Outcome
+    outcome = None
+    if "outcome" in data:
+        o = table("outcome")
+        unknown(o, OUTCOME_KEYS, "outcome")
+        for key in ("name", "all_of", "choose", "then", "else"):
+            if key not in o:
+                raise ctx.error("outcome", key, "missing")
+        all_of = o["all_of"]
+        if not isinstance(all_of, list) or not all_of:
+            raise ctx.error("outcome", "all_of", "need a list of units")
+        outcome = Outcome(
+            name=str(o["name"]),
+            all_of=tuple(unit(u, "outcome", "all_of") for u in all_of),
+            choose=alternative(o["choose"], "outcome", "choose"),
+            then=str(o["then"]),
+            otherwise=str(o["else"]),
+        )
+
+    expect = table("expect")
+    unknown(expect, EXPECT_KEYS, "expect")
+    for key in ("choices", "intervals", "frustrated"):
+        sub = expect.get(key, {})
+        if not isinstance(sub, dict):
+            raise ctx.error("expect", key, "must be a table {unit = value}")
+        for u in sub:
+            unit(u, f"expect.{key}", u)
+
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ctx.error("", "description", "must be a string")
+
+    return Scenario(
+        name=name,
+        path=path,
+        text=text,
+        seed=seed,
+        units=units_t,
+        universe=universe,
+        frequencies=frequencies,
+        frequency_text=frequency_text,
+        codebook=codebook,
+        mode=mode,
+        timing=timing,
+        noise=float(noise),
+        gains=gains,
+        relation_policy=policy,
+        alliance_p=float(p),
+        fixed_relations=fixed,
+        draws=draws,
+        influences=influences,
+        decisions=decisions,
+        outcome=outcome,
+        expect=expect,
+        description=description,
+    )
+
+
+def _pairs(units: tuple[str, ...]) -> list[tuple[str, str]]:
+    return [(s, r) for s in units for r in units if s != r]

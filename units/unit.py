@@ -1,0 +1,428 @@
+"""The autonomous unit: transmitter + receiver + protocol + RGT reasoning + decision policy.
+
+One unit is one SimPy process (driven by ``rgtbus.sim.World``). Each window it renders its own
+scheduled pulses, then hears the whole medium (every member's samples, with its own link gains
+and noise), feeds its resonators, turns spikes into protocol events, decodes what the protocol
+asks for from its resonators' states, and reasons on what it decoded. It shares no Python object
+with the other units: its knowledge comes only from the medium.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import simpy
+
+from rgtbus.mind import Mind
+from rgtbus.protocol import Listen, ProtocolState, Send, code_samples
+from rgtbus.scenario import Scenario
+from rgtbus.signal.resonator import ResonatorBank, transition
+from rgtbus.sim import ns
+
+KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
+
+
+@dataclass
+class Codes:
+    """The codewords a unit uses, by meaning: ``id``, ``alliance``, ``conflict`` and one per
+    alternative mask."""
+
+    pulses: int
+    words: dict[str, np.ndarray]
+    alternative_names: dict[int, str]  # mask -> codeword name
+
+    def relation_set(self) -> dict[str, np.ndarray]:
+        return {k: self.words[k] for k in ("alliance", "conflict")}
+
+    def alternative_set(self) -> dict[str, np.ndarray]:
+        return {n: self.words[n] for n in self.alternative_names.values()}
+
+
+@dataclass
+class Decoded:
+    turn: int
+    kind: str
+    sender: str
+    addressee: str
+    code: str
+    margin: float
+    t: float
+    accepted: bool
+
+
+@dataclass
+class AutonomousUnit:
+    name: str
+    scenario: Scenario
+    codes: Codes
+    recorder: object
+    decode: Callable[..., tuple[str, float, float]]
+    traces: bool = False
+    # state
+    finished: bool = False
+    failure: str | None = None
+    decoded: list[Decoded] = field(default_factory=list)
+    sent: list[Send] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        sc = self.scenario
+        self.units = sc.units
+        self.tau = sc.timing.tau
+        self.L = sc.timing.window_samples
+        self.omegas = [sc.frequencies[u] for u in self.units]
+        self.bank = ResonatorBank(self.omegas, mode=sc.mode, tau=self.tau)
+        self.A = np.array([transition(w, mode=sc.mode, tau=self.tau) for w in self.omegas])
+        self.protocol = ProtocolState(
+            self.name,
+            self.units,
+            dict(sc.frequencies),
+            self.tau,
+            pulses=self.codes.pulses,
+            start=sc.timing.start,
+            reaction_delay=sc.timing.reaction_delay,
+            guard=sc.timing.guard,
+        )
+        seed = sc.seed
+        self.mind = Mind(
+            self.name,
+            self.units,
+            sc.universe,
+            sc.decisions[self.name],
+            random.Random(f"{seed}:{self.name}:decision"),
+        )
+        self.noise_rng = np.random.default_rng([seed, self.units.index(self.name), 1])
+        self.tx: dict[int, list[tuple[float, Send]]] = {}
+        self.listens: list[Listen] = []
+        self.readout: dict[int, np.ndarray] = {}  # window -> (L, channels) medium estimates
+        self._z_last = np.zeros(len(self.units), complex)
+        self._spiked_last = np.zeros(len(self.units), bool)
+        self.quench: set[int] = set()  # samples at which the resonators are set back to rest
+        self._offset = 0  # absolute index of the bank's sample 0 (moves at each quench)
+        self.relation_choice = self._choose_relations()
+        self.env: simpy.Environment | None = None
+
+    # -- policies --------------------------------------------------------------------------
+
+    def _choose_relations(self) -> dict[str, str]:
+        """What this unit sends to each peer: fixed, or alliance with probability p."""
+        sc = self.scenario
+        rng = random.Random(f"{sc.seed}:{self.name}:relations")
+        out = {}
+        for r in self.units:
+            if r == self.name:
+                continue
+            key = (self.name, r)
+            draw = rng.random()  # drawn for every peer, so fixing one never shifts the others
+            if key in sc.fixed_relations:
+                out[r] = "alliance" if sc.fixed_relations[key] else "conflict"
+            else:
+                d = sc.draws.get(key, draw)
+                out[r] = "alliance" if d <= sc.alliance_p else "conflict"
+        return out
+
+    def _influence_codes(self) -> dict[str, str]:
+        sc = self.scenario
+        return {
+            r: self.codes.alternative_names[sc.influences[(self.name, r)]]
+            for r in self.units
+            if r != self.name
+        }
+
+    # -- the world's interface ---------------------------------------------------------------
+
+    def begin(self, env: simpy.Environment) -> None:
+        self.env = env
+        self._schedule(self.protocol.begin(self.relation_choice, self._influence_codes()))
+
+    def _schedule(self, sends: list[Send]) -> None:
+        for send in sends:
+            magnitudes = self.codes.words[send.code]
+            for sample, m in zip(send.samples, magnitudes, strict=True):
+                self.tx.setdefault(sample, []).append((float(m), send))
+            self.sent.append(send)
+            if self.env is not None:
+                self.env.process(self._announce(send))
+
+    def _announce(self, send: Send):
+        """The reaction, at its exact time: logged when the code goes on the medium."""
+        assert self.env is not None
+        yield self.env.timeout(max(0.0, send.start - self.env.now))
+        what = "ID" if send.kind == "id" else send.code
+        self.recorder.log(
+            "info",
+            f"{send.sender} -> {send.addressee}: {what} on {send.channel}'s frequency",
+            ns(send.start),
+            name=self.name,
+        )
+
+    def render(self, window: int) -> np.ndarray:
+        out = np.zeros(self.L)
+        base = window * self.L
+        for k in range(base, base + self.L):
+            for m, send in self.tx.pop(k, ()):
+                out[k - base] += m
+                self.recorder.write(
+                    "/tx/pulse",
+                    {
+                        "unit": self.name,
+                        "channel": send.channel,
+                        "omega": self.scenario.frequencies[send.channel],
+                        "magnitude": m,
+                        "t": k * self.tau,
+                        "sample": k,
+                        "message": {
+                            "id": send.turn * 2 + (send.kind == "payload"),
+                            "kind": send.kind,
+                            "code": send.code,
+                            "sender": send.sender,
+                            "addressee": send.addressee,
+                        },
+                    },
+                    ns(k * self.tau),
+                )
+        return out
+
+    def hear(self, window: int, gathered: dict[str, np.ndarray]) -> None:
+        sc = self.scenario
+        heard = np.zeros(self.L)
+        for s in self.units:
+            heard += sc.gains.get((s, self.name), 1.0) * gathered[s]
+        if sc.noise > 0:
+            heard += self.noise_rng.normal(0.0, sc.noise, self.L)
+        base = window * self.L
+        cuts = sorted(k - base for k in self.quench if base <= k < base + self.L)
+        self.quench -= {k + base for k in cuts}
+        readout = np.empty((self.L, len(self.units)))
+        bounds = [0, *cuts, self.L]
+        for lo, hi in itertools.pairwise(bounds):
+            if lo in cuts:
+                # Quench at a turn's start: the paper's b = -0.1 rings for ~10 s, longer than
+                # any guard, and leftovers of the last turn could cancel or fake the next ID.
+                self.bank.reset()
+                self._offset = base + lo
+                self._z_last[:] = 0
+                self._spiked_last[:] = False
+            if hi > lo:
+                self._feed(heard[lo:hi], readout[lo:hi], window, base + lo)
+        self.readout[window] = readout
+        self.readout.pop(window - int(KEEP_SECONDS / (self.L * self.tau)), None)
+
+        last = (window + 1) * self.L - 1
+        for listen in [x for x in self.listens if x.ready_sample <= last]:
+            self.listens.remove(listen)
+            self._decode(listen)
+        if not self.finished and self.failure is None:
+            err = self.protocol.check_deadline(last)
+            if err:
+                self.failure = err
+                self.recorder.log("error", err, ns(last * self.tau), name=self.name)
+
+    def _feed(self, heard: np.ndarray, readout: np.ndarray, window: int, first: int) -> None:
+        res = self.bank.feed(heard, record=True)
+        z = res.z[:, 0, :]
+        spiked = res.spiked[:, 0, :]
+        # Increment readout: d[k] = (z[k] - next(z[k-1])) / i recovers the medium sample,
+        # where next() is A·z or, after a spike, the reset state Re(A·z) + i·0.1.
+        prev = np.vstack([self._z_last[None, :], z[:-1]])
+        prev_spiked = np.vstack([self._spiked_last[None, :], spiked[:-1]])
+        step = self.A[None, :] * prev
+        step = np.where(prev_spiked, step.real + 1j * self.bank.reset_value, step)
+        readout[:] = ((z - step) / 1j).real
+        self._z_last = z[-1].copy()
+        self._spiked_last = spiked[-1].copy()
+        if self.traces:
+            self.recorder.write(
+                f"/trace/{self.name}",
+                {
+                    "unit": self.name,
+                    "window": window,
+                    "t": first * self.tau,
+                    "sample_rate": 1 / self.tau,
+                    "channels": list(self.units),
+                    "y": res.y[:, 0, :].T.tolist(),
+                    "x": z.real.T.tolist(),
+                },
+                ns(first * self.tau),
+            )
+        for sample, _rx, ch in res.spikes.tolist():
+            sample += self._offset
+            channel = self.units[ch]
+            self.recorder.write(
+                "/rx/spike",
+                {
+                    "unit": self.name,
+                    "channel": channel,
+                    "omega": self.omegas[ch],
+                    "t": sample * self.tau,
+                    "sample": sample,
+                },
+                ns(sample * self.tau),
+            )
+            turn = self.protocol.turn
+            sends, listens = self.protocol.on_spike(channel, sample)
+            if self.protocol.turn != turn and not self.protocol.finished:
+                self.quench.add(round(self.protocol.turn_start / self.tau))
+            self._schedule(sends)
+            self.listens.extend(listens)
+
+    # -- decoding and reasoning --------------------------------------------------------------
+
+    def _values(self, channel: int, samples: tuple[int, ...]) -> np.ndarray | None:
+        out = []
+        for k in samples:
+            w, off = divmod(k, self.L)
+            block = self.readout.get(w)
+            if block is None:
+                return None
+            out.append(block[off, channel])
+        return np.array(out)
+
+    def _decode(self, listen: Listen) -> None:
+        t_ready = listen.ready_sample * self.tau
+        if listen.kind == "id":
+            ch = self.units.index(listen.sender)
+            samples = code_samples(listen.start, self.omegas[ch], self.codes.pulses, self.tau)
+            values = self._values(ch, samples)
+            code, margin, _ = self.decode(values, self.codes.words)
+            accepted = code in ("id", "alliance")  # the same pulses: the ID-code on own frequency
+            self._record(
+                listen, listen.sender, "id" if accepted else code, margin, t_ready, accepted
+            )
+            if not accepted:
+                self.failure = (
+                    f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
+                    f"decoded as {code!r}"
+                )
+            return
+        candidates = (
+            self.codes.relation_set() if listen.kind == "relation" else self.codes.alternative_set()
+        )
+        best = None
+        for r in listen.channels:
+            ch = self.units.index(r)
+            for shift in range(-self.protocol.search, self.protocol.search + 1):
+                samples = code_samples(
+                    listen.start + shift * self.tau, self.omegas[ch], self.codes.pulses, self.tau
+                )
+                values = self._values(ch, samples)
+                if values is None:
+                    continue
+                code, margin, dist = self.decode(values, candidates)
+                if best is None or dist < best[0] - 1e-12:
+                    best = (dist, r, code, margin)
+        assert best is not None, "the readout history covers every listen"
+        _, addressee, code, margin = best
+        accepted = addressee == listen.expected_addressee
+        self._record(listen, addressee, code, margin, t_ready, accepted)
+        if not accepted:
+            self.recorder.log(
+                "warning",
+                f"{self.name}: turn {listen.turn}: code from "
+                f"{listen.sender} found on {addressee}'s channel, expected "
+                f"{listen.expected_addressee}",
+                ns(t_ready),
+                name=self.name,
+            )
+        self._learn(listen, addressee, code, t_ready)
+
+    def _record(
+        self, listen: Listen, addressee: str, code: str, margin: float, t: float, accepted: bool
+    ) -> None:
+        d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
+        self.decoded.append(d)
+        value = code
+        if listen.kind == "influence":
+            value = self.scenario.universe.format(self._mask_of(code))
+        self.recorder.write(
+            "/rx/decode",
+            {
+                "unit": self.name,
+                "sender": listen.sender,
+                "addressee": addressee,
+                "kind": listen.kind,
+                "code": code,
+                "value": value,
+                "margin": float(margin),
+                "t": t,
+                "accepted": accepted,
+            },
+            ns(t),
+        )
+
+    def _mask_of(self, code: str) -> int:
+        for mask, name in self.codes.alternative_names.items():
+            if name == code:
+                return mask
+        raise KeyError(code)
+
+    def _learn(self, listen: Listen, addressee: str, code: str, t: float) -> None:
+        mind = self.mind
+        universe = self.scenario.universe
+        key = (listen.sender, listen.expected_addressee)
+        if listen.kind == "relation":
+            mind.sent[key] = code == "alliance"
+            if mind.relations_complete():
+                mind.build_group()
+                self.recorder.write(
+                    "/unit/relations",
+                    {
+                        "unit": self.name,
+                        "t": t,
+                        "sent": {
+                            f"{s}>{r}": "alliance" if v else "conflict"
+                            for (s, r), v in sorted(mind.sent.items())
+                        },
+                        "installed": mind.installed(),
+                        "polynomial": mind.polynomial,
+                        "agree": True,
+                    },
+                    ns(t),
+                )
+                if mind.error:
+                    self.recorder.log("error", f"{self.name}: {mind.error}", ns(t), self.name)
+        else:
+            mind.influences[key] = self._mask_of(code)
+            if mind.influences_complete():
+                self.recorder.write(
+                    "/unit/influences",
+                    {
+                        "unit": self.name,
+                        "t": t,
+                        "influences": {
+                            f"{s}>{r}": universe.to_list(v)
+                            for (s, r), v in sorted(mind.influences.items())
+                        },
+                    },
+                    ns(t),
+                )
+                mind.decide()
+                self._log_decisions(t)
+                self.finished = True
+
+    def _log_decisions(self, t: float) -> None:
+        mind = self.mind
+        u = self.scenario.universe
+        if mind.results is None:
+            self.recorder.log("error", f"{self.name}: no decision: {mind.error}", ns(t), self.name)
+            return
+        for s, r in mind.results.items():
+            choice = mind.choice if s == self.name else None
+            self.recorder.write(
+                "/unit/decision",
+                {
+                    "unit": self.name,
+                    "subject": s,
+                    "t": t,
+                    "A": u.to_list(r.A),
+                    "B": u.to_list(r.B),
+                    "interval": None if r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
+                    "frustrated": r.frustrated,
+                    "choice": None if choice is None else u.to_list(choice),
+                    "canonical": mind.canonical(s),
+                },
+                ns(t),
+            )
