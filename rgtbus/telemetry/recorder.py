@@ -1,0 +1,374 @@
+"""Recorders: where every step of a run is written. MCAP for real runs, memory for tests.
+
+Messages are JSON with a JSON Schema per topic (see ``topics.py``), so Foxglove opens the file.
+Time is simulated: ``log_time = publish_time = t_ns`` (integer nanoseconds from the run start).
+"""
+
+from __future__ import annotations
+
+import json
+import operator
+import os
+import struct
+from collections import Counter
+from typing import IO, Any, BinaryIO, Protocol, Self, runtime_checkable
+
+import mcap.exceptions
+from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from rgtbus import __version__
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import topics, validate
+
+LOG_TOPIC = "/log"
+LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}
+_U64_MAX = 2**64 - 1
+
+
+@runtime_checkable
+class Recorder(Protocol):
+    enabled: bool
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None: ...
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None: ...
+    def metadata(self, name: str, values: dict[str, str]) -> None: ...
+    def close(self) -> None: ...
+
+
+def _default(obj: Any) -> Any:
+    # numpy arrays and scalars without importing numpy here
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _check_t_ns(t_ns: Any) -> int:
+    try:
+        if isinstance(t_ns, bool):
+            raise TypeError
+        t = operator.index(t_ns)  # ints and numpy integers; never floats
+    except TypeError:
+        raise RgtbusError(f"t_ns must be an int of nanoseconds, got {t_ns!r}") from None
+    if not 0 <= t <= _U64_MAX:
+        raise RgtbusError(f"t_ns {t} out of range 0..2**64-1")
+    return t
+
+
+def level_number(level: str) -> int:
+    """foxglove.Log level for a level name: debug 1, info 2, warning 3, error 4, fatal 5."""
+    try:
+        return LOG_LEVELS[level]
+    except (KeyError, TypeError):
+        names = ", ".join(k for k in LOG_LEVELS if k != "unknown")
+        raise RgtbusError(f"unknown log level {level!r} (use {names})") from None
+
+
+def log_message(
+    level: str, text: str, t_ns: int, name: str = "rgtbus", file: str = "", line: int = 0
+) -> dict[str, Any]:
+    """A foxglove.Log message."""
+    t = _check_t_ns(t_ns)
+    return {
+        "timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000},
+        "level": level_number(level),
+        "message": str(text),
+        "name": str(name),
+        "file": str(file),
+        "line": int(line),
+    }
+
+
+class _Encoding:
+    """Topic check, JSON encoding and optional validation, shared by the real recorders."""
+
+    enabled = True
+
+    def __init__(self, validate: bool) -> None:
+        self.validate = validate
+        self.counts: Counter[str] = Counter()  # messages written per topic
+        self._closed = False
+
+    def _encode(self, topic: str, message: dict, t_ns: int) -> tuple[str, bytes, int]:
+        if self._closed:
+            raise RgtbusError(f"write to {topic!r} on a closed recorder")
+        schema = topics.schema_for(topic)
+        t = _check_t_ns(t_ns)
+        if not isinstance(message, dict):
+            raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
+        try:
+            data = json.dumps(message, separators=(",", ":"), allow_nan=False, default=_default)
+        except (TypeError, ValueError) as e:
+            raise RgtbusError(f"message on {topic} at t_ns={t} is not JSON: {e}") from None
+        if self.validate:
+            errs = validate.errors(json.loads(data), topics.load_schema(schema))
+            if errs:
+                more = f" (+{len(errs) - 1} more)" if len(errs) > 1 else ""
+                raise RgtbusError(f"message on {topic} breaks {schema}: {errs[0]}{more}")
+        self.counts[topic] += 1
+        return schema, data.encode(), t
+
+    @staticmethod
+    def _check_metadata(name: str, values: dict[str, str]) -> dict[str, str]:
+        if not isinstance(name, str) or not name:
+            raise RgtbusError(f"metadata name must be a non-empty string, got {name!r}")
+        if not isinstance(values, dict):
+            raise RgtbusError(f"metadata {name!r} must be a dict of strings")
+        for k, v in values.items():
+            if not isinstance(k, str) or not isinstance(v, str):
+                raise RgtbusError(f"metadata {name!r}: {k!r}: {v!r} is not a string to a string")
+        return dict(values)
+
+    def log(
+        self,
+        level: str,
+        text: str,
+        t_ns: int,
+        name: str = "rgtbus",
+        *,
+        file: str = "",
+        line: int = 0,
+    ) -> None:
+        self.write(LOG_TOPIC, log_message(level, text, t_ns, name, file, line), t_ns)
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None:
+        raise NotImplementedError
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class McapRecorder(_Encoding):
+    """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
+    support ``write`` and ``tell``). ``close`` finishes the file (summary, footer)."""
+
+    def __init__(
+        self,
+        stream: BinaryIO,
+        *,
+        compression: str = "zstd",
+        validate: bool = False,
+        chunk_size: int = 256 * 1024,
+    ) -> None:
+        super().__init__(validate)
+        if compression not in _COMPRESSION:
+            raise RgtbusError(
+                f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
+            )
+        self.stream = stream
+        # Smaller chunks than mcap's 1 MiB default: a killed run loses at most one chunk.
+        self._writer = Writer(stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
+        self._writer.start(profile="", library=f"rgtbus {__version__}")
+        self._schema_ids: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}
+        self._sequence: Counter[int] = Counter()
+
+    def _channel(self, topic: str, schema: str) -> int:
+        cid = self._channel_ids.get(topic)
+        if cid is None:
+            sid = self._schema_ids.get(schema)
+            if sid is None:
+                sid = self._writer.register_schema(
+                    name=schema, encoding=topics.SCHEMA_ENCODING, data=topics.schema_bytes(schema)
+                )
+                self._schema_ids[schema] = sid
+            cid = self._writer.register_channel(
+                topic=topic, message_encoding=topics.MESSAGE_ENCODING, schema_id=sid
+            )
+            self._channel_ids[topic] = cid
+        return cid
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None:
+        schema, data, t = self._encode(topic, message, t_ns)
+        cid = self._channel(topic, schema)
+        self._sequence[cid] += 1
+        self._writer.add_message(
+            channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
+        )
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        if self._closed:
+            raise RgtbusError(f"metadata {name!r} on a closed recorder")
+        self._writer.add_metadata(name, self._check_metadata(name, values))
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._writer.finish()
+        flush = getattr(self.stream, "flush", None)
+        if flush is not None:
+            flush()
+
+
+class MemoryRecorder(_Encoding):
+    """The in-process twin: keeps what an MCAP file would hold, JSON round-tripped so reading
+    it back equals ``read_log`` of the same writes. Validates by default (it serves tests)."""
+
+    def __init__(self, *, validate: bool = True) -> None:
+        super().__init__(validate)
+        self.messages: list[tuple[str, int, dict]] = []
+        self.metadata_records: dict[str, dict[str, str]] = {}
+        self.logs: list[dict[str, Any]] = []
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None:
+        _, data, t = self._encode(topic, message, t_ns)
+        decoded = json.loads(data)
+        self.messages.append((topic, t, decoded))
+        if topic == LOG_TOPIC:
+            self.logs.append(decoded)
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        if self._closed:
+            raise RgtbusError(f"metadata {name!r} on a closed recorder")
+        self.metadata_records[name] = self._check_metadata(name, values)
+
+    def read(self) -> LogContents:
+        """What ``read_log`` would return for the same writes."""
+        msgs = sorted(self.messages, key=lambda m: m[1])
+        return LogContents(msgs, {k: dict(v) for k, v in self.metadata_records.items()})
+
+    def close(self) -> None:
+        self._closed = True
+
+
+class NullRecorder:
+    """Records nothing. ``enabled`` is False so callers can skip building messages."""
+
+    enabled = False
+    closed = False
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None:
+        pass
+
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
+        pass
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        pass
+
+    def close(self) -> None:
+        self.closed = True
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class LogContents(tuple):
+    """``(messages, metadata)`` — unpacks as a pair — plus how the read ended.
+
+    messages: ``[(topic, log_time_ns, message), ...]`` in log-time order (file order on ties);
+    metadata: ``{name: {key: value}}`` (a repeated name: the last record wins).
+    ``truncated``: the file ended before its footer; ``note``: one line saying where and why;
+    ``end_ns``: log time of the last message read (None when there was none).
+    """
+
+    messages: list[tuple[str, int, dict]]
+    metadata: dict[str, dict[str, str]]
+    truncated: bool
+    note: str
+
+    def __new__(
+        cls,
+        messages: list[tuple[str, int, dict]],
+        metadata: dict[str, dict[str, str]],
+        truncated: bool = False,
+        note: str = "",
+    ) -> LogContents:
+        self = super().__new__(cls, (messages, metadata))
+        self.messages = messages
+        self.metadata = metadata
+        self.truncated = truncated
+        self.note = note
+        return self
+
+    @property
+    def end_ns(self) -> int | None:
+        return max((m[1] for m in self.messages), default=None)
+
+
+def read_log(source: str | os.PathLike[str] | IO[bytes]) -> LogContents:
+    """Read an MCAP log written by McapRecorder: a path or a binary stream.
+
+    Reads sequentially (no index needed), so a truncated file yields every complete record
+    before the cut and ``truncated=True`` with a note. Not an MCAP file: RgtbusError.
+    """
+    if isinstance(source, str | os.PathLike):
+        try:
+            with open(source, "rb") as f:
+                return _read(f, os.fspath(source))
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
+    return _read(source, getattr(source, "name", "<stream>"))
+
+
+def _read(stream: IO[bytes], label: str) -> LogContents:
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    raw: list[tuple[str, int, bytes]] = []
+    metadata: dict[str, dict[str, str]] = {}
+    started = finished = False
+    note = ""
+    records = StreamReader(stream, record_size_limit=2**30).records
+    try:
+        for rec in records:
+            if isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is None:
+                    raise RgtbusError(f"{label}: message on unknown channel {rec.channel_id}")
+                raw.append((ch.topic, rec.log_time, rec.data))
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                metadata[rec.name] = dict(rec.metadata)
+            elif isinstance(rec, Header):
+                started = True
+            elif isinstance(rec, DataEnd | Footer):
+                finished = True
+    except mcap.exceptions.InvalidMagic:
+        raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
+    except RgtbusError:
+        raise
+    except Exception as e:  # EndOfFile, short struct reads, a cut compressed chunk
+        if not started:
+            raise RgtbusError(
+                f"{label}: not an MCAP file (empty or cut before its header)"
+            ) from None
+        where = (
+            "in its summary (all messages present)" if finished else f"after {len(raw)} messages"
+        )
+        cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
+        why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
+        note = f"{label}: log truncated {where} ({why})"
+    messages = []
+    for topic, t, data in raw:
+        try:
+            messages.append((topic, t, json.loads(data)))
+        except ValueError as e:
+            raise RgtbusError(f"{label}: message on {topic} at {t} ns is not JSON: {e}") from None
+    messages.sort(key=lambda m: m[1])
+    truncated = bool(note)
+    if truncated and messages:
+        note += f"; last message at {messages[-1][1] / 1e9:.6f} s"
+    return LogContents(messages, metadata, truncated, note)

@@ -1,0 +1,460 @@
+"""One suite for the recorders (MCAP on a BytesIO, MCAP on a file, memory), plus the schema
+files, the topic table, the validator, truncated logs and docs/topics.md."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import (
+    TOPIC_PATTERNS,
+    TOPICS,
+    McapRecorder,
+    MemoryRecorder,
+    NullRecorder,
+    Recorder,
+    read_log,
+    schema_for,
+    topics_markdown,
+)
+from rgtbus.telemetry import topics as topics_mod
+from rgtbus.telemetry import validate as validate_mod
+
+SCHEMA_DIR = Path(topics_mod.__file__).parent / "schemas"
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "topics.md"
+
+# One valid message per topic (the /trace family by one member).
+SAMPLES: dict[str, dict] = {
+    "/medium": {"window": 3, "t": 0.3, "sample_rate": 200.0, "samples": [0.0, 0.4, -0.4]},
+    "/tx/pulse": {
+        "unit": "a",
+        "channel": "c",
+        "omega": 5 * math.pi / 3,
+        "magnitude": -0.4,
+        "t": 1.25,
+        "sample": 250,
+        "message": {
+            "id": 7,
+            "kind": "relation",
+            "code": "conflict",
+            "sender": "a",
+            "addressee": "c",
+        },
+    },
+    "/rx/spike": {"unit": "b", "channel": "a", "omega": 3 * math.pi / 2, "t": 1.3, "sample": 260},
+    "/rx/decode": {
+        "unit": "b",
+        "sender": "a",
+        "addressee": "c",
+        "kind": "relation",
+        "code": "conflict",
+        "value": "conflict",
+        "margin": 0.31,
+        "t": 2.0,
+        "accepted": True,
+    },
+    "/unit/relations": {
+        "unit": "c",
+        "t": 4.0,
+        "sent": {"a>b": "alliance", "b>a": "alliance", "a>c": "conflict"},
+        "installed": {"a-b": "alliance"},
+        "polynomial": None,
+        "agree": False,
+    },
+    "/unit/influences": {
+        "unit": "c",
+        "t": 6.0,
+        "influences": {"a>b": ["alpha"], "a>c": [], "b>a": ["alpha", "beta"]},
+    },
+    "/unit/decision": {
+        "unit": "a",
+        "subject": "b",
+        "t": 7.0,
+        "A": ["alpha", "beta"],
+        "B": ["beta"],
+        "interval": [["beta"], ["alpha", "beta"]],
+        "frustrated": False,
+        "choice": ["alpha", "beta"],
+        "canonical": "b = 1 b + {beta} not(b)",
+    },
+    "/log": {
+        "timestamp": {"sec": 1, "nsec": 5},
+        "level": 2,
+        "message": "hello",
+        "name": "rgtbus",
+        "file": "",
+        "line": 0,
+    },
+    "/trace/a": {
+        "unit": "a",
+        "window": 0,
+        "t": 0.0,
+        "sample_rate": 200.0,
+        "channels": ["a", "b"],
+        "y": [[0.0, 0.1], [0.0, -0.2]],
+        "x": [[1.0, 0.9], [0.5, 0.4]],
+    },
+    "/run": {
+        "scenario": "gate",
+        "seed": 1,
+        "outcome": {"gate": "open"},
+        "agree": True,
+        "sim_seconds": 12.5,
+        "error": None,
+    },
+}
+
+
+def _t_ns(i: int) -> int:
+    return 1_000_000_000 + 37 * i
+
+
+# -- the shared suite: three recorders, one read-back ---------------------------------------
+
+
+class Harness:
+    """A recorder plus how to finish it and read back what it holds."""
+
+    def __init__(self, kind: str, tmp_path: Path, **kw):
+        self.kind = kind
+        self.path = tmp_path / "run.mcap"
+        self._file = None
+        if kind == "mcap-bytes":
+            self.buf = io.BytesIO()
+            self.rec = McapRecorder(self.buf, validate=True, **kw)
+        elif kind == "mcap-file":
+            self._file = open(self.path, "wb")  # noqa: SIM115  closed in finish()
+            self.rec = McapRecorder(self._file, validate=True, **kw)
+        else:
+            self.rec = MemoryRecorder(**kw)
+
+    def finish(self):
+        self.rec.close()
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+
+    def read(self):
+        self.finish()
+        if self.kind == "mcap-bytes":
+            return read_log(io.BytesIO(self.buf.getvalue()))
+        if self.kind == "mcap-file":
+            return read_log(self.path)
+        return self.rec.read()
+
+
+@pytest.fixture(params=["mcap-bytes", "mcap-file", "memory"])
+def harness(request, tmp_path):
+    h = Harness(request.param, tmp_path)
+    try:
+        yield h
+    finally:
+        h.finish()
+
+
+def _write_all(rec) -> list[tuple[str, int, dict]]:
+    """Write every sample, out of time order; return the expected read-back."""
+    order = list(SAMPLES.items())
+    expected = []
+    for i, (topic, msg) in reversed(list(enumerate(order))):
+        rec.write(topic, msg, _t_ns(i))
+        expected.append((topic, _t_ns(i), msg))
+    rec.write("/medium", {**SAMPLES["/medium"], "samples": np.array([1.5, -2.0])}, _t_ns(0))
+    expected.append(("/medium", _t_ns(0), {**SAMPLES["/medium"], "samples": [1.5, -2.0]}))
+    # sorted by time; the two /medium at the same time keep write order
+    return sorted(expected, key=lambda m: m[1])
+
+
+def test_read_back_is_identical_on_every_recorder(harness):
+    expected = _write_all(harness.rec)
+    harness.rec.metadata("scenario", {"name": "gate", "text": "units = ['a']\n"})
+    messages, metadata = harness.read()
+    assert messages == expected
+    assert metadata == {"scenario": {"name": "gate", "text": "units = ['a']\n"}}
+    assert not harness.read().truncated  # reading twice is fine too
+
+
+def test_metadata_round_trip(harness):
+    harness.rec.metadata("run", {"seed": "7", "version": "0.1.0"})
+    harness.rec.metadata("codebook", {"alliance": "[.4,.4,.4]", "ω": "3π/2"})
+    harness.rec.metadata("run", {"seed": "8"})  # a repeated name: the last wins
+    harness.rec.metadata("empty", {})
+    _, metadata = harness.read()
+    assert metadata == {
+        "run": {"seed": "8"},
+        "codebook": {"alliance": "[.4,.4,.4]", "ω": "3π/2"},
+        "empty": {},
+    }
+
+
+def test_foxglove_log_fields_and_levels(harness):
+    for i, level in enumerate(["debug", "info", "warning", "error", "fatal"]):
+        harness.rec.log(level, f"line {i}", 2_000_000_123 + i, name="unit-a")
+    harness.rec.log("info", "where", 5, file="units/unit.py", line=42)
+    messages, _ = harness.read()
+    assert [m[0] for m in messages] == ["/log"] * 6
+    assert messages[0] == (
+        "/log",
+        5,
+        {
+            "timestamp": {"sec": 0, "nsec": 5},
+            "level": 2,
+            "message": "where",
+            "name": "rgtbus",
+            "file": "units/unit.py",
+            "line": 42,
+        },
+    )
+    assert [m[2]["level"] for m in messages[1:]] == [1, 2, 3, 4, 5]
+    assert messages[1][2]["timestamp"] == {"sec": 2, "nsec": 123}
+    assert messages[5][2]["timestamp"] == {"sec": 2, "nsec": 127}
+    assert {m[2]["name"] for m in messages[1:]} == {"unit-a"}
+
+
+def test_refusals(harness):
+    rec = harness.rec
+    for topic in ["/nope", "/trace/", "/trace/a/b", "medium", "/trace/*"]:
+        with pytest.raises(
+            RgtbusError, match=re.escape(f"unknown telemetry topic '{topic}' (known: /medium,")
+        ):
+            rec.write(topic, {}, 0)
+    with pytest.raises(RgtbusError, match="unknown log level 'loud'"):
+        rec.log("loud", "x", 0)
+    for bad in [1.0, -1, True, 2**64, "5"]:
+        with pytest.raises(RgtbusError, match="t_ns"):
+            rec.write("/medium", SAMPLES["/medium"], bad)
+    with pytest.raises(RgtbusError, match="must be a dict, got list"):
+        rec.write("/medium", [], 0)
+    with pytest.raises(RgtbusError, match=r"message on /medium at t_ns=0 is not JSON"):
+        rec.write("/medium", {**SAMPLES["/medium"], "samples": [math.nan]}, 0)
+    with pytest.raises(RgtbusError, match="is not JSON"):
+        rec.write("/medium", {**SAMPLES["/medium"], "samples": {1, 2}}, 0)
+    with pytest.raises(RgtbusError, match=r"metadata 'm': 'k': 1 is not a string to a string"):
+        rec.metadata("m", {"k": 1})
+    rec.write("/trace/unit_7.b-c", SAMPLES["/trace/a"], np.int64(3))  # numpy ints are fine
+    messages, _ = harness.read()
+    assert messages == [("/trace/unit_7.b-c", 3, SAMPLES["/trace/a"])]
+
+
+@pytest.mark.parametrize(
+    ("topic", "change", "msg"),
+    [
+        ("/medium", {"window": None}, r"\$\.window: expected integer, got null"),
+        ("/medium", {"window": True}, r"\$\.window: expected integer, got boolean"),
+        ("/medium", {"samples": [1, "x"]}, r"\$\.samples\[1\]: expected number, got string"),
+        ("/medium", {"extra": 1}, r"\$: unexpected field 'extra'"),
+        ("/tx/pulse", {"message": {"id": 1}}, r"\$\.message: missing required field 'kind'"),
+        ("/unit/relations", {"sent": {"a>b": "truce"}}, r"'truce' not one of"),
+        ("/unit/relations", {"sent": {"ab": "alliance"}}, r"key 'ab'.* does not match"),
+        ("/unit/decision", {"interval": [["a"]]}, r"1 items, at least 2 needed"),
+        ("/log", {"level": 6}, r"matches 0 of the oneOf alternatives"),
+        ("/log", {"timestamp": {"sec": 1, "nsec": 10**9}}, r"above maximum 999999999"),
+        ("/run", {"sim_seconds": -1.0}, r"below minimum 0"),
+    ],
+)
+def test_validation_catches_bad_messages(harness, topic, change, msg):
+    with pytest.raises(RgtbusError, match=msg):
+        harness.rec.write(topic, {**SAMPLES[topic], **change}, 0)
+
+
+def test_validation_catches_a_missing_field(harness):
+    msg = dict(SAMPLES["/rx/decode"])
+    del msg["margin"]
+    with pytest.raises(
+        RgtbusError,
+        match=r"message on /rx/decode breaks rgtbus.Decode: \$: missing required field 'margin'",
+    ):
+        harness.rec.write("/rx/decode", msg, 0)
+    assert harness.read()[0] == []  # nothing half-written
+
+
+def test_close_is_idempotent_and_final(harness):
+    harness.rec.write("/medium", SAMPLES["/medium"], 1)
+    harness.rec.close()
+    harness.rec.close()
+    assert harness.rec.closed
+    with pytest.raises(RgtbusError, match="write to '/medium' on a closed recorder"):
+        harness.rec.write("/medium", SAMPLES["/medium"], 2)
+    with pytest.raises(RgtbusError, match="on a closed recorder"):
+        harness.rec.log("info", "late", 2)
+    with pytest.raises(RgtbusError, match="metadata 'x' on a closed recorder"):
+        harness.rec.metadata("x", {})
+    assert len(harness.read()[0]) == 1
+
+
+def test_closed_after_an_exception_the_log_is_readable(harness):
+    with pytest.raises(ZeroDivisionError), harness.rec as rec:
+        rec.metadata("run", {"seed": "1"})
+        rec.write("/medium", SAMPLES["/medium"], 10)
+        rec.log("error", "about to fail", 11)
+        _ = 1 / 0
+    assert harness.rec.closed
+    messages, metadata = harness.read()
+    assert [m[0] for m in messages] == ["/medium", "/log"] and metadata == {"run": {"seed": "1"}}
+
+
+# -- MCAP specifics ---------------------------------------------------------------------------
+
+
+def _mcap_bytes(n=400, **kw) -> bytes:
+    buf = io.BytesIO()
+    with McapRecorder(buf, **kw) as rec:
+        rec.metadata("run", {"seed": "1"})
+        for i in range(n):
+            samples = np.sin(np.arange(20) * 0.1 + i)
+            rec.write(
+                "/medium",
+                {"window": i, "t": i * 0.1, "sample_rate": 200.0, "samples": samples},
+                i * 100_000_000,
+            )
+        rec.log("info", "done", n * 100_000_000)
+    return buf.getvalue()
+
+
+def test_mcap_log_time_publish_time_and_encodings():
+    buf = io.BytesIO(_mcap_bytes(5))
+    reader = make_reader(buf)
+    seen = [
+        (ch.topic, msg.log_time, msg.publish_time, sc.name, sc.encoding, ch.message_encoding)
+        for sc, ch, msg in reader.iter_messages()
+    ]
+    assert [s[1] for s in seen] == [
+        0,
+        100_000_000,
+        200_000_000,
+        300_000_000,
+        400_000_000,
+        500_000_000,
+    ]
+    assert all(s[1] == s[2] for s in seen)
+    assert {(s[0], s[3], s[4], s[5]) for s in seen} == {
+        ("/medium", "rgtbus.MediumWindow", "jsonschema", "json"),
+        ("/log", "foxglove.Log", "jsonschema", "json"),
+    }
+    summary = reader.get_summary()
+    schema = next(s for s in summary.schemas.values() if s.name == "foxglove.Log")
+    assert json.loads(schema.data)["title"] == "foxglove.Log"
+    assert len(summary.channels) == 2  # channels are registered once per topic
+
+
+def test_one_schema_record_for_a_topic_family():
+    buf = io.BytesIO()
+    with McapRecorder(buf) as rec:
+        for u in "abc":
+            rec.write(f"/trace/{u}", {**SAMPLES["/trace/a"], "unit": u}, 0)
+    summary = make_reader(io.BytesIO(buf.getvalue())).get_summary()
+    assert len(summary.channels) == 3 and len(summary.schemas) == 1
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_compressions_read_back(compression):
+    messages, _ = read_log(io.BytesIO(_mcap_bytes(30, compression=compression)))
+    assert len(messages) == 31
+
+
+def test_unknown_compression():
+    with pytest.raises(
+        RgtbusError, match=r"unknown MCAP compression 'brotli' \(use zstd, lz4, none\)"
+    ):
+        McapRecorder(io.BytesIO(), compression="brotli")
+
+
+def test_truncated_log_is_read_as_far_as_it_goes():
+    data = _mcap_bytes(400, chunk_size=4096)
+    full = read_log(io.BytesIO(data))
+    assert not full.truncated and full.note == "" and len(full.messages) == 401
+    assert full.end_ns == 400 * 100_000_000
+    counts = []
+    for cut in [len(data) - 1, len(data) - 200, len(data) * 2 // 3, len(data) // 3, 200]:
+        part = read_log(io.BytesIO(data[:cut]))
+        assert part.truncated and "log truncated" in part.note and "\n" not in part.note
+        assert part.messages == full.messages[: len(part.messages)]
+        assert part.metadata == {"run": {"seed": "1"}}
+        counts.append(len(part.messages))
+    assert counts[0] == 401 and "all messages present" in read_log(io.BytesIO(data[:-1])).note
+    assert counts == sorted(counts, reverse=True) and 0 < counts[3] < counts[2] < 401
+    assert f"after {counts[3]} messages" in read_log(io.BytesIO(data[: len(data) // 3])).note
+
+
+def test_truncated_file_on_disk(tmp_path):
+    path = tmp_path / "cut.mcap"
+    data = _mcap_bytes(400, chunk_size=4096)
+    path.write_bytes(data[: len(data) // 2])
+    res = read_log(path)
+    assert res.truncated and str(path) in res.note and 0 < len(res.messages) < 401
+
+
+def test_not_an_mcap_file(tmp_path):
+    for data in [b"", b"\x89MC", b"hello world, this is not an mcap file"]:
+        with pytest.raises(RgtbusError, match="not an MCAP file"):
+            read_log(io.BytesIO(data))
+    with pytest.raises(RgtbusError, match=r"cannot read log .*missing\.mcap"):
+        read_log(tmp_path / "missing.mcap")
+
+
+def test_null_recorder():
+    rec = NullRecorder()
+    assert isinstance(rec, Recorder) and not rec.enabled
+    rec.write("/anything", {}, -1)
+    rec.log("whatever", "x", 0)
+    rec.metadata("m", {})
+    rec.close()
+    rec.close()
+    assert isinstance(McapRecorder(io.BytesIO()), Recorder) and MemoryRecorder().enabled
+
+
+def test_memory_recorder_keeps_logs_and_copies():
+    rec = MemoryRecorder()
+    msg = {**SAMPLES["/medium"], "samples": [1.0]}
+    rec.write("/medium", msg, 1)
+    msg["samples"].append(2.0)  # the recorder holds its own copy
+    rec.log("warning", "careful", 2)
+    assert rec.messages[0][2]["samples"] == [1.0]
+    assert rec.logs == [rec.messages[1][2]] and rec.logs[0]["level"] == 3
+    assert rec.counts == {"/medium": 1, "/log": 1}
+
+
+# -- schema files, topic table, docs -------------------------------------------------------------
+
+
+def test_every_schema_file_is_a_json_object_schema_the_validator_understands():
+    files = sorted(SCHEMA_DIR.glob("*.json"))
+    assert files
+    for f in files:
+        schema = json.loads(f.read_text())
+        assert schema["type"] == "object", f.name
+        assert schema["title"] == f.stem, f.name
+        assert set(schema["required"]) <= set(schema["properties"]), f.name
+        validate_mod.check_schema(schema, f.name)
+
+
+def test_topic_table_and_schema_files_agree():
+    used = set(topics_mod.schema_names())
+    on_disk = {f.stem for f in SCHEMA_DIR.glob("*.json")}
+    assert used == on_disk  # every topic's schema exists, and no orphan schema
+    for topic, (schema, _) in TOPICS.items():
+        assert schema_for(topic) == schema
+    assert schema_for("/trace/a") == TOPIC_PATTERNS[0][2]
+    # every topic has a sample message above, and it is valid
+    assert set(SAMPLES) == set(TOPICS) | {"/trace/a"}
+    for topic, msg in SAMPLES.items():
+        assert validate_mod.errors(msg, topics_mod.load_schema(schema_for(topic))) == [], topic
+
+
+def test_validator_refuses_unknown_keywords():
+    with pytest.raises(RgtbusError, match=r"x\.properties\.a: unsupported keyword\(s\) format"):
+        validate_mod.check_schema({"type": "object", "properties": {"a": {"format": "date"}}}, "x")
+
+
+def test_docs_topics_md_is_generated():
+    assert DOCS.read_text() == topics_markdown(), (
+        'docs/topics.md is stale: regenerate with python -c "from rgtbus.telemetry import '
+        "topics_markdown; open('docs/topics.md','w').write(topics_markdown())\""
+    )
