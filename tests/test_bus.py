@@ -433,3 +433,17 @@ def test_payload_encode_refuses(args, msg):
 def test_memory_bus_is_a_bus():
     with MemoryBus("m", ["a"], RATE, WLEN) as bus:
         assert isinstance(bus, Bus) and "MemoryBus run='m'" in repr(bus)
+
+
+def test_zenoh_bus_left_open_does_not_hang_the_interpreter_at_exit():
+    import subprocess
+    import sys
+
+    code = (
+        "from rgtbus.bus import open_bus\n"
+        "bus = open_bus('zenoh', 'left-open', ['a'], 200.0, 20)\n"
+        "bus.publish('a', 0, [0.0] * 20)\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=20)
+    assert out.returncode == 0 and out.stdout == "ok\n", out.stderr

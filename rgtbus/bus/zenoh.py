@@ -10,8 +10,11 @@ The subscriber callback runs on a zenoh thread: it only copies ``(key, bytes)`` 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import threading
+import weakref
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,6 +24,33 @@ from rgtbus.bus.base import QueueBus
 from rgtbus.errors import RgtbusError
 
 _MODES = ("peer", "client", "router")
+
+# A declared callback subscriber leaves a non-daemon zenoh thread behind, and the interpreter
+# waits for it before atexit handlers run: a bus left open hangs the process at exit (SPEC §5).
+# threading's own pre-join hook (what concurrent.futures uses) runs early enough to close them.
+_open_buses: weakref.WeakSet[ZenohBus] = weakref.WeakSet()
+_exit_hook_lock = threading.Lock()
+_exit_hook_registered = False
+
+
+def _close_open_buses() -> None:
+    for bus in list(_open_buses):
+        with contextlib.suppress(Exception):  # best effort at exit: the alternative is a hang
+            bus.close()
+
+
+def _ensure_exit_hook() -> None:
+    global _exit_hook_registered
+    with _exit_hook_lock:
+        if _exit_hook_registered:
+            return
+        register = getattr(threading, "_register_atexit", None)
+        if register is not None:
+            try:
+                register(_close_open_buses)
+            except RuntimeError:  # already shutting down
+                return
+        _exit_hook_registered = True
 
 
 def make_config(
@@ -136,6 +166,8 @@ class ZenohBus(QueueBus):
             self._closed = True
             self._close_transport()
             raise
+        _ensure_exit_hook()
+        _open_buses.add(self)
 
     def _send(self, key: str, data: bytes) -> None:
         # Our own units' keys go through their declared publishers; anything else (put_raw)
@@ -151,6 +183,7 @@ class ZenohBus(QueueBus):
     def _close_transport(self) -> None:
         # Subscriber first so no callback runs while the rest goes away; then the session
         # (a declared callback subscriber keeps the interpreter from exiting: SPEC §5).
+        _open_buses.discard(self)
         errors: list[str] = []
         entities = [self._subscriber, *self._publishers.values()]
         self._subscriber = None
