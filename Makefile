@@ -13,11 +13,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/rgtbus solve 'abc+d' --actions open \
-	    --influence 'a>b=0' --influence 'a>c=0' --influence 'a>d=0' \
-	    --influence 'b>a=0' --influence 'b>c=0' --influence 'b>d=0' \
-	    --influence 'c>a=0' --influence 'c>b=0' --influence 'c>d=0' \
-	    --influence 'd>a=1' --influence 'd>b=1' --influence 'd>c=1'
+	$(VENV)/bin/rgtbus run scenarios/gate.toml --check
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -285,6 +285,14 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         missing = [u for u in units_t if u not in frequencies]
         if missing:
             raise ctx.error("frequencies", None, f"no frequency for unit {missing[0]!r}")
+        seen: dict[float, str] = {}
+        for u in units_t:
+            w = frequencies[u]
+            if w in seen:
+                raise ctx.error(
+                    "frequencies", u, f"frequency clash: {u} and {seen[w]} share {w:.6g} rad/s"
+                )
+            seen[w] = u
     else:
         raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
 

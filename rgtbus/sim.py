@@ -26,6 +26,7 @@ import simpy
 
 from rgtbus.bus.base import Bus
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import Recorder
 
 
 class Member(Protocol):
@@ -36,11 +37,6 @@ class Member(Protocol):
     def begin(self, env: simpy.Environment) -> None: ...
     def render(self, window: int) -> np.ndarray: ...
     def hear(self, window: int, gathered: dict[str, np.ndarray]) -> None: ...
-
-
-class Recorder(Protocol):
-    def write(self, topic: str, message: dict, t_ns: int) -> None: ...
-    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None: ...
 
 
 def ns(seconds: float) -> int:

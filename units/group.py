@@ -202,3 +202,31 @@ def summarise(sc: Scenario, members: list[AutonomousUnit], result) -> dict[str, 
         "bus": result.bus_stats,
         "error": error,
     }
+
+
+def check_expectations(scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
+    """Compare the run with the scenario's ``[expect]`` table."""
+    u = scenario.universe
+    exp = scenario.expect
+    out: list[tuple[str, bool, str]] = []
+
+    def check(what: str, got: Any, want: Any) -> None:
+        out.append((what, got == want, f"got {got!r}, expected {want!r}"))
+
+    if "polynomial" in exp:
+        check("polynomial", s["polynomial"], exp["polynomial"])
+    if "agree" in exp:
+        check("agree", s["agree"], exp["agree"])
+    if "outcome" in exp:
+        check("outcome", s["outcome"], exp["outcome"])
+    for pair, rel in exp.get("relations", {}).items():
+        check(f"relation {pair}", s["relations"].get(pair), rel)
+    for name, text in exp.get("intervals", {}).items():
+        lo, hi = u.parse_interval(text)
+        check(f"interval of {name}", s["units"][name]["interval"], [u.to_list(lo), u.to_list(hi)])
+    for name, text in exp.get("choices", {}).items():
+        check(f"choice of {name}", s["units"][name]["choice"], u.to_list(u.parse_alternative(text)))
+    for name, flag in exp.get("frustrated", {}).items():
+        check(f"frustration of {name}", s["units"][name]["frustrated"], flag)
+    check("no decode errors", len(s["decode_errors"]), 0)
+    return out

@@ -1,0 +1,219 @@
+"""``rgtbus run SCENARIO``: the timed protocol simulation, logged to MCAP."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run a scenario: units socialising over the medium, logged to MCAP",
+        description="Run a scenario: every unit a SimPy process exchanging sampled waveforms over "
+        "the bus, decoding with its own resonators and deciding by its own RGT inference.",
+    )
+    p.add_argument("scenario", metavar="SCENARIO", help="a scenario file, e.g. scenarios/gate.toml")
+    p.add_argument(
+        "--bus",
+        choices=("zenoh", "memory"),
+        default="zenoh",
+        help="zenoh (in-process session, no network; the default) or memory",
+    )
+    p.add_argument("--log", metavar="PATH", help="MCAP log (default logs/<scenario>-<time>.mcap)")
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument(
+        "--realtime",
+        type=float,
+        metavar="FACTOR",
+        help="pace the run: FACTOR simulated seconds per wall second",
+    )
+    p.add_argument("--traces", action="store_true", help="log resonator y/x traces too")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="verify the scenario's [expect] table; exit 1 if anything differs",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def default_log_path(name: str) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("logs") / f"{name}-{stamp}.mcap"
+
+
+class Progress:
+    """Pacing (``--realtime``) and a rate-limited progress line on stderr."""
+
+    def __init__(self, realtime: float | None, show: bool) -> None:
+        self.realtime = realtime
+        self.show = show
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        self.shown = False
+
+    def __call__(self, sim_now: float, window: int) -> None:
+        wall = time.perf_counter() - self.t0
+        if self.realtime:
+            ahead = sim_now / self.realtime - wall
+            if ahead > 0:
+                time.sleep(ahead)
+                wall += ahead
+        if self.show and wall > 2.0 and wall - self.last >= 0.5:
+            self.last = wall
+            self.shown = True
+            print(
+                f"\r  t = {sim_now:8.1f} s simulated, window {window}, {wall:6.1f} s wall",
+                end="",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    def done(self) -> None:
+        if self.shown:
+            print(file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry import McapRecorder
+    from units.group import check_expectations, run_group
+
+    scenario = load_scenario(args.scenario)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise RgtbusError(f"--seed {args.seed}: must be a non-negative integer")
+        scenario = scenario.with_seed(args.seed)
+    if args.realtime is not None and not args.realtime > 0:
+        raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
+    log_path = Path(args.log) if args.log else default_log_path(scenario.name)
+    try:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        stream = open(log_path, "wb")  # noqa: SIM115 - closed in the finally below
+    except OSError as exc:
+        raise RgtbusError(f"cannot write log {str(log_path)!r}: {exc.strerror}") from None
+
+    progress = Progress(args.realtime, not args.quiet and sys.stderr.isatty())
+    recorder = McapRecorder(stream)
+    summary: dict[str, Any] | None = None
+    try:
+        out = run_group(scenario, args.bus, recorder, traces=args.traces, progress=progress)
+        summary = out.summary
+    except BaseException as exc:
+        recorder.log("fatal", f"run failed: {exc}", 0)
+        raise
+    finally:
+        progress.done()
+        recorder.close()
+        stream.close()
+    summary["log"] = str(log_path)
+
+    checks = check_expectations(scenario, summary) if args.check else []
+    if args.json:
+        keys = (
+            "scenario",
+            "seed",
+            "polynomial",
+            "relations",
+            "agree",
+            "influences",
+            "units",
+            "outcome",
+            "sim_seconds",
+            "wall_seconds",
+            "log",
+            "decode_errors",
+            "error",
+        )
+        out_json = {k: summary[k] for k in keys}
+        if args.check:
+            out_json["checks"] = [{"what": w, "ok": ok, "detail": d} for w, ok, d in checks]
+        print(json.dumps(out_json))
+    else:
+        print_summary(scenario, summary)
+        if args.check:
+            print("checks:")
+            for what, ok, detail in checks:
+                print(f"  {'ok  ' if ok else 'FAIL'} {what}{'' if ok else ': ' + detail}")
+    if summary["error"]:
+        if not args.json:
+            print(f"run failed: {summary['error']}", file=sys.stderr)
+        return 1
+    if any(not ok for _, ok, _ in checks):
+        return 1
+    return 0
+
+
+def print_summary(scenario, s: dict[str, Any]) -> None:
+    u = scenario.universe
+    units = scenario.units
+    print(
+        f"scenario {s['scenario']} (seed {s['seed']}): {', '.join(units)}; "
+        f"actions {', '.join(u.actions)}"
+    )
+    print("relationships decoded by each unit:")
+    pairs = [f"{a}-{b}" for i, a in enumerate(units) for b in units[i + 1 :]]
+    width = max(len(p) for p in pairs)
+    print("  " + " " * 6 + "  ".join(p.ljust(max(width, 8)) for p in pairs))
+    for name in units:
+        table = s["unit_relations"][name]
+        print(f"  {name:<6}" + "  ".join(table.get(p, "?").ljust(max(width, 8)) for p in pairs))
+    print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
+    print(f"polynomial: {s['polynomial'] or '(none)'}")
+    if s["influences"]:
+        print("influences (row influences column):")
+        cells = [["", *list(units)]]
+        for src in units:
+            row = [src]
+            for dst in units:
+                v = s["influences"].get(f"{src}>{dst}")
+                row.append(
+                    dst if src == dst else (u.format(u.from_list(v)) if v is not None else "?")
+                )
+            cells.append(row)
+        widths = [max(len(r[i]) for r in cells) for i in range(len(cells[0]))]
+        for r in cells:
+            print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    print("decisions:")
+    cw = max((len(v["canonical"] or "") for v in s["units"].values()), default=0)
+    for name in units:
+        v = s["units"][name]
+        if not v["decided"]:
+            print(f"  {name}: no decision")
+            continue
+        if v["frustrated"]:
+            verdict = "frustrated: no decision"
+        else:
+            lo, hi = (u.format(u.from_list(x)) for x in v["interval"])
+            interval = f"{name} = {lo}" if lo == hi else f"{hi} ⊇ {name} ⊇ {lo}"
+            verdict = f"{interval:<18} choice {u.format(u.from_list(v['choice']))}"
+        print(f"  {v['canonical']:<{cw}}   {verdict}")
+    if s["outcome"] is not None:
+        print(f"outcome: {s['outcome']}")
+    errors = s["decode_errors"]
+    print(
+        f"decode errors: {len(errors)}"
+        + (
+            "  ("
+            + "; ".join(
+                f"{e['unit']} turn {e['turn']}: {e['decoded']} for {e['sent']}" for e in errors[:5]
+            )
+            + ")"
+            if errors
+            else ""
+        )
+    )
+    print(
+        f"time: {s['sim_seconds']:.1f} s simulated in {s['wall_seconds']:.2f} s wall "
+        f"({s['windows']} windows)"
+    )
+    print(f"log: {s['log']}")

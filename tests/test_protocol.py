@@ -1,0 +1,119 @@
+"""The protocol state machine and the reasoning, pure (no SimPy, no bus)."""
+
+import math
+import random
+
+import pytest
+
+from rgtbus.mind import Mind, choose
+from rgtbus.protocol import ProtocolState, code_samples, turns
+from rgtbus.rgt import Universe, decision_function, evaluate, parse_polynomial
+
+W = {"a": 3 * math.pi / 2, "b": 4 * math.pi / 3, "c": 5 * math.pi / 3}
+TAU = 0.005
+
+
+def test_turn_order_is_sender_major_per_phase():
+    t = turns(("a", "b", "c"))
+    assert [(x.phase, x.sender, x.addressee) for x in t[:6]] == [
+        ("relations", "a", "b"),
+        ("relations", "a", "c"),
+        ("relations", "b", "a"),
+        ("relations", "b", "c"),
+        ("relations", "c", "a"),
+        ("relations", "c", "b"),
+    ]
+    assert [x.phase for x in t[6:]] == ["influences"] * 6
+    assert [x.index for x in t] == list(range(12))
+
+
+def test_code_samples_one_period_apart():
+    # ω_a = 3π/2: period 4/3 s; the paper's codes start 1 ms after onset.
+    assert code_samples(0.001, W["a"], 3, TAU) == (0, 267, 534)
+    assert code_samples(1.0, 2 * math.pi, 3, TAU) == (200, 400, 600)
+
+
+def machine(me: str) -> ProtocolState:
+    p = ProtocolState(me, ("a", "b", "c"), W, TAU, start=0.001, reaction_delay=0.5, guard=0.5)
+    return p
+
+
+def test_sender_reacts_to_its_own_id_spike():
+    p = machine("a")
+    sends = p.begin({"b": "alliance", "c": "conflict"}, {"b": "1", "c": "0"})
+    assert [(s.kind, s.channel, s.code, s.samples) for s in sends] == [
+        ("id", "a", "id", (0, 267, 534))
+    ]
+    # A spike on another channel, or before the ID's first pulse, is not the ID spike.
+    assert p.on_spike("b", 300) == ([], [])
+    sends, listens = p.on_spike("a", 534)
+    payload = sends[0]
+    assert (payload.kind, payload.channel, payload.code) == ("payload", "b", "alliance")
+    assert payload.start == pytest.approx(534 * TAU + 0.5)
+    assert payload.samples == code_samples(534 * TAU + 0.5, W["b"], 3, TAU)
+    assert [x.kind for x in listens] == ["id", "relation"]
+    assert listens[1].channels == ("b", "c") and listens[1].expected_addressee == "b"
+    # The next turn (a -> c) starts a guard after the payload's last pulse; a sends its ID.
+    end = 534 * TAU + 0.5 + 2 * 2 * math.pi / W["b"]
+    assert p.turn == 1 and p.turn_start == pytest.approx(end + 0.5)
+    assert sends[1].kind == "id" and sends[1].addressee == "c"
+
+
+def test_listener_follows_the_chain_without_sending():
+    p = machine("c")
+    assert p.begin({"a": "alliance", "b": "alliance"}, {"a": "1", "b": "1"}) == []
+    sends, listens = p.on_spike("a", 534)
+    assert sends == [] and len(listens) == 2
+    assert p.turn == 1
+
+
+def test_deadline_names_the_missing_id():
+    p = machine("b")
+    p.begin({"a": "alliance", "c": "alliance"}, {"a": "1", "c": "1"})
+    assert p.check_deadline(p.id_deadline()) is None
+    msg = p.check_deadline(p.id_deadline() + 1)
+    assert msg.startswith("b: no ID spike on a's channel for turn 0 (a -> b, relations)")
+
+
+U = Universe(("alpha", "beta"))
+
+
+@pytest.mark.parametrize(
+    ("policy", "expected"),
+    [
+        ("max", "1"),
+        ("min", "{beta}"),
+        ("{beta}", "{beta}"),
+        ("{alpha}", "1"),
+    ],  # {alpha} is not in [{beta}, 1]: falls back to max
+)
+def test_decision_policies(policy, expected):
+    df = decision_function(parse_polynomial("ab+c"))
+    r = evaluate(df, U, "b", {"a": 0b01, "c": 0b10})  # interval [{beta}, 1]
+    assert U.format(choose(policy, r, U, random.Random(0))) == expected
+
+
+def test_seeded_random_policy_is_reproducible_and_stays_in_the_interval():
+    df = decision_function(parse_polynomial("ab+c"))
+    r = evaluate(df, U, "b", {"a": 0b01, "c": 0b10})
+    picks = [choose("seeded-random", r, U, random.Random(s)) for s in range(50)]
+    assert set(picks) == {0b10, 0b11}
+    assert picks == [choose("seeded-random", r, U, random.Random(s)) for s in range(50)]
+
+
+def test_frustrated_unit_makes_no_choice():
+    df = decision_function(parse_polynomial("a(b+c)"))
+    r = evaluate(df, U, "a", {"b": 0b10, "c": 0b10})
+    assert r.frustrated and choose("max", r, U, random.Random(0)) is None
+
+
+def test_mind_installs_by_and_and_reports_non_decomposable_groups():
+    m = Mind("a", ("a", "b", "c", "d"), Universe(("x",)), "max", random.Random(0))
+    for s, r in [(s, r) for s in "abcd" for r in "abcd" if s != r]:
+        m.sent[(s, r)] = {frozenset(p) for p in ("ab", "bc", "cd")} >= {frozenset(s + r)}
+    assert m.relations_complete()
+    m.sent[("b", "a")] = True
+    m.build_group()
+    assert m.error.startswith("relationship graph is not decomposable: induced P4")
+    m.decide()  # no group: no decision, no crash
+    assert m.results is None and m.choice is None
