@@ -145,8 +145,8 @@ def _pyplot():
 
 def _save(fig, path: Path, caption: str) -> None:
     fig.text(0.5, 0.01, caption, ha="center", va="bottom", fontsize=8.5, wrap=True)
-    path.parent.mkdir(parents=True, exist_ok=True)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
     except OSError as exc:
         raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None

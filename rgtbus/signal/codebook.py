@@ -154,12 +154,12 @@ def validate(cb: Codebook) -> None:
                 raise RgtbusError(f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are the "
                                   f"same pulses {list(w1)}")
             d = _dist(w1, w2)
-            if d < cb.min_distance:
+            if d < cb.min_distance - 1e-9:
                 raise RgtbusError(f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are "
                                   f"{d:.3g} apart, closer than min_distance {cb.min_distance:g}")
     for name, w in cb.alternatives.items():
         d = _dist(w, cb.id_word)
-        if d < cb.min_distance:
+        if d < cb.min_distance - 1e-9:
             raise RgtbusError(f"codebook {cb.name}: alternative {name!r} is {d:.3g} from the "
                               f"ID-code, closer than min_distance {cb.min_distance:g}")
 
@@ -248,7 +248,7 @@ def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: 
                               "use a coarser step")
     id_word = tuple([0.4] * pulses)
     pts = np.array(cands, dtype=float) * step
-    pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance]
+    pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance - 1e-9]
     if len(pts) < need:
         raise RgtbusError(f"codebook generator: only {len(pts)} candidate words for {need} "
                           f"alternatives at N = {pulses} pulses; use more pulses")
@@ -263,7 +263,7 @@ def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: 
         d = np.minimum(d, np.linalg.norm(pts - pts[j], axis=1))
     words = [tuple(round(float(v), 10) for v in pts[j]) for j in chosen]
     got = min(_dist(a, b) for a, b in itertools.combinations(words, 2)) if need > 1 else math.inf
-    if got < min_distance:
+    if got < min_distance - 1e-9:
         raise RgtbusError(f"codebook generator: {need} words of {pulses} pulses reach only "
                           f"{got:.3g} apart, below min_distance {min_distance:g}; use more pulses")
     # Sort words for a stable, readable assignment: names in mask order get words in order.

@@ -123,7 +123,8 @@ def auto_plan(n: int, *, pulses: int = 3, mode: str = "paper", tau: float = PAPE
     n ≤ 4 with the paper's settings (3 pulses, paper mode, τ, b): the paper's ω_a, ω_b, ω_c and
     the gate's ω_d, in that order.  Otherwise a geometric ladder ω_j = ω_min·(1 + 0.3/N)^j — the
     tightest spacing the rules allow, so the most units fit in an octave — placed as high as the
-    band allows (paper mode: just under Euler's limit; exact mode: from ``omega_min`` or 2π rad/s),
+    band allows (paper mode: just under Euler's limit; exact mode: from ``omega_min``, by default
+    2π rad/s or the lowest ω whose longest message fits 1/|b|),
     then checked by :func:`check_plan`.  Refused when n units cannot fit (the rule is named, with
     the pulse count that would fit).
     """
@@ -143,8 +144,8 @@ def auto_plan(n: int, *, pulses: int = 3, mode: str = "paper", tau: float = PAPE
         if mode == "paper":
             top = 0.98 * euler_limit(tau, b)
             omega_min = top / ratio ** (n - 1)
-        else:
-            omega_min = 2 * PI
+        else:  # 1 Hz, or higher so the longest message fits the resonator's memory 1/|b|
+            omega_min = max(2 * PI, 1.05 * (pulses - 1) * 2 * PI * abs(b))
     plan = [omega_min * ratio ** j for j in range(n)]
     check_plan(plan, pulses=pulses, mode=mode, tau=tau, b=b)
     return plan

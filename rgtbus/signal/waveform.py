@@ -96,6 +96,8 @@ def hear(transmissions: Sequence[Transmission], n_samples: int, *, n_receivers: 
     if not (math.isfinite(sigma) and sigma >= 0):
         raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
     senders = sorted({t.sender for t in transmissions})
+    if senders and (senders[0] < 0 or not all(isinstance(s, (int, np.integer)) for s in senders)):
+        raise RgtbusError(f"transmission sender {senders[0]!r} must be an index ≥ 0")
     n_send = (max(senders) + 1) if senders else 0
     if gains is None:
         g = np.ones((n_send, n_receivers))

@@ -1,0 +1,192 @@
+"""Increment readout, nearest codeword, joint decoding, timing search, ID acceptance, SER."""
+
+import math
+
+import numpy as np
+import pytest
+
+from rgtbus.errors import RgtbusError
+from rgtbus.signal.codebook import paper_codebook
+from rgtbus.signal.decoder import (
+    Readout,
+    accept_id,
+    candidate_instants,
+    decode_code,
+    decode_joint,
+    increments,
+    nearest,
+    start_from_spike,
+)
+from rgtbus.signal.evaluate import symbol_error_rate
+from rgtbus.signal.plan import PAPER_OMEGAS
+from rgtbus.signal.resonator import ResonatorBank
+from rgtbus.signal.waveform import Transmission, hear, pulse_instants, superpose
+
+OM = list(PAPER_OMEGAS)
+CB = paper_codebook()
+
+
+def run(transmissions, n=1300, channels=OM, sigma=0.0, seed=0, chunk=None):
+    u = hear(transmissions, n, sigma=sigma, seed=seed)[:, 0]
+    bank = ResonatorBank(channels)
+    ro = [Readout.for_bank(bank, c) for c in range(len(channels))]
+    step = chunk or n
+    for i in range(0, n, step):
+        res = bank.feed(u[i:i + step], record=True)
+        for r in ro:
+            r.append(res)
+    return u, bank, ro
+
+
+def test_readout_recovers_medium_on_every_channel_through_spikes():
+    tx = [Transmission(OM[0], 0.001, (0.4, 0.4, 0.4)), Transmission(OM[2], 3.5, (0.7, 0.3, 0.2))]
+    u, _bank, ro = run(tx, n=1300 + 700, chunk=20)
+    for r in ro:
+        np.testing.assert_allclose(r.values(range(800, 2000)), u[800:], atol=1e-12)
+    # spikes happened, so the reset branch of the readout was exercised
+    res = ResonatorBank(OM).feed(u, record=True)
+    assert res.spiked[:, 0, 0].any() and res.spiked[:, 0, 2].any()
+    d = increments(res.z[:, 0, :], res.spiked[:, 0, :], ResonatorBank(OM).A, 0.1)
+    np.testing.assert_allclose(d, np.repeat(u[:, None], 4, axis=1), atol=1e-12)
+
+
+@pytest.mark.parametrize("family", ["relation", "alternative"])
+@pytest.mark.parametrize("on", range(4))
+def test_decoder_exact_at_zero_noise(family, on):
+    words = CB.family(family)
+    for name, w in words.items():
+        _, _, ro = run([Transmission(OM[on], 0.001, w)], n=1400)
+        dec = decode_code(ro[on], OM[on], 0.001, words)
+        assert dec.name == name
+        assert dec.distance < 1e-12 and dec.confidence == pytest.approx(1.0)
+
+
+def test_joint_decoding_with_overlapping_interferer():
+    # Same start: first pulses share sample 0; each decoded exactly by the joint decoder.
+    for a_name, a in CB.alternatives.items():
+        for c_name, c in CB.alternatives.items():
+            tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
+            _, _, ro = run(tx)
+            got = decode_joint(ro[1], [(tx[0].instants(), CB.alternatives),
+                                       (tx[1].instants(), CB.alternatives)])
+            assert [g.name for g in got] == [a_name, c_name]
+            assert got[0].distance < 1e-12 and got[0].margin > 0.1
+
+
+def test_joint_decoding_coordinate_descent_path(monkeypatch):
+    import rgtbus.signal.decoder as dec
+
+    monkeypatch.setattr(dec, "MAX_EXHAUSTIVE", 1)
+    a, c = CB.alternatives["{alpha}"], CB.alternatives["1"]
+    tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
+    _, _, ro = run(tx)
+    got = dec.decode_joint(ro[0], [(t.instants(), CB.alternatives) for t in tx])
+    assert [g.name for g in got] == ["{alpha}", "1"]
+
+
+def test_independent_decoding_fails_where_joint_succeeds():
+    a, c = CB.alternatives["{beta}"], CB.alternatives["0"]
+    tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
+    _, _, ro = run(tx)
+    assert decode_code(ro[0], OM[0], 0.001, CB.alternatives).name != "{beta}"
+
+
+@pytest.mark.parametrize("start", [0.4137, 0.2, 1.0031, 0.0777])
+@pytest.mark.parametrize("ch", [0, 2, 3])
+def test_timing_search_from_a_spike(start, ch):
+    tx = [Transmission(OM[ch], start, CB.id_word)]
+    u, _bank, ro = run(tx, n=1500)
+    res = ResonatorBank(OM).feed(u)
+    spike = int(res.spikes[res.spikes[:, 2] == ch, 0][0])
+    ok, dec = accept_id(ro[ch], spike, OM[ch], CB)
+    assert ok and dec.name == "id" and dec.distance < 1e-12
+    assert dec.instants == tuple(pulse_instants(OM[ch], start, 3))
+
+
+def test_timing_search_is_needed():
+    # The start implied by the spike puts the middle pulse one sample off for this start.
+    misses = 0
+    for start in np.linspace(0.1, 0.2, 21):
+        spike = int(pulse_instants(OM[0], start, 3)[-1])
+        guess = start_from_spike(spike, OM[0], 3)
+        if tuple(pulse_instants(OM[0], guess, 3)) != tuple(pulse_instants(OM[0], start, 3)):
+            misses += 1
+    assert misses > 0
+
+
+def test_candidate_instants_cover_all_distinct_timings():
+    cands = candidate_instants(OM[0], 1.0, 3, search=2)
+    insts = [c[1] for c in cands]
+    assert len(set(insts)) == len(insts)
+    for t in np.linspace(1.0 - 0.01, 1.0 + 0.01, 97):
+        assert tuple(pulse_instants(OM[0], t, 3)) in insts
+    assert cands[0][0] == 0
+
+
+@pytest.mark.parametrize("word", ["1", "{beta}"])
+def test_crosstalk_spike_is_not_accepted_as_an_id(word):
+    # SPEC §2: these codes on ω_c fire ω_a; the ID check must refuse a's "ID".
+    tx = [Transmission(OM[2], 0.001, CB.alternatives[word])]
+    u, _, ro = run(tx, n=800)
+    spikes = ResonatorBank(OM).feed(u).spikes
+    on_a = spikes[spikes[:, 2] == 0, 0]
+    assert len(on_a) == 1
+    ok, dec = accept_id(ro[0], int(on_a[0]), OM[0], CB)
+    assert not ok and dec.distance > 0.3
+    ok_c, _ = accept_id(ro[2], int(spikes[spikes[:, 2] == 2, 0][0]), OM[2], CB)
+    assert not ok_c  # an alternative on c is not c's ID either
+
+
+def test_nearest_margin_and_ties():
+    d = nearest([0.4, 0.4, 0.4], CB.all_words())
+    assert d.name in ("id", "alliance") and d.margin == pytest.approx(math.dist(
+        (0.4, 0.4, 0.4), (0.5, 0.2, 0.5)))
+    half = nearest([0.45, 0.3, 0.45], {"x": (0.4, 0.4, 0.4), "y": (0.5, 0.2, 0.5)})
+    assert half.confidence == pytest.approx(0.0, abs=1e-9)
+
+
+def test_ser_bounds_at_stated_noise():
+    # Alternatives (min distance 0.374): σ = 0.05 → essentially error-free; σ = 0.1 → a few %.
+    wa, wc = OM[0], OM[2]
+    low = symbol_error_rate(CB.alternatives, wa, 0.05, trials=1500, seed=1)
+    assert low.ser <= 0.005
+    mid = symbol_error_rate(CB.alternatives, wa, 0.1, trials=1500, seed=2)
+    assert 0.01 <= mid.ser <= 0.07
+    joint = symbol_error_rate(CB.alternatives, wa, 0.05, trials=1500, seed=3, interferer=wc)
+    assert joint.ser <= 0.005
+    zero = symbol_error_rate(CB.relations, wa, 0.0, trials=200, interferer=wc)
+    assert zero.errors == 0
+
+
+def test_decoder_refusals():
+    _, _, ro = run([Transmission(OM[0], 0.001, CB.id_word)], n=600)
+    with pytest.raises(RgtbusError, match="outside the history"):
+        ro[0].values([599, 600])
+    with pytest.raises(RgtbusError, match="outside the readout"):
+        decode_code(np.zeros(10), OM[0], 0.001, CB.relations)
+    with pytest.raises(RgtbusError, match="no candidate words"):
+        nearest([0.1], {})
+    with pytest.raises(RgtbusError, match="expected 3"):
+        nearest([0.1, 0.2, 0.3], {"x": (0.1, 0.2)})
+    with pytest.raises(RgtbusError, match="different lengths"):
+        decode_code(np.zeros(1000), OM[0], 0.001, {"x": (0.1, 0.2), "y": (0.1, 0.2, 0.3)})
+    with pytest.raises(RgtbusError, match="no transmissions"):
+        decode_joint(np.zeros(10), [])
+    with pytest.raises(RgtbusError, match="differ"):
+        increments(np.zeros(3, complex), np.zeros(4, bool), 1.0)
+    bank = ResonatorBank(OM)
+    with pytest.raises(RgtbusError, match="channel 7"):
+        Readout.for_bank(bank, 7)
+    r = Readout.for_bank(bank)
+    with pytest.raises(RgtbusError, match="record=True"):
+        r.append(bank.feed(np.zeros(5)))
+    res = bank.feed(np.zeros(5), record=True)
+    with pytest.raises(RgtbusError, match="expected 0"):
+        r.append(res)
+    with pytest.raises(RgtbusError, match="capacity"):
+        Readout(1.0, capacity=0)
+    with pytest.raises(RgtbusError, match="trials"):
+        symbol_error_rate(CB.relations, OM[0], 0.1, trials=0)
+    with pytest.raises(RgtbusError, match="sigma"):
+        symbol_error_rate(CB.relations, OM[0], -0.1)
+    assert superpose([], 3).tolist() == [0, 0, 0]
