@@ -99,6 +99,18 @@ def test_fast_matches_reference(kw):
     assert np.array_equal(ref.spiked, fast.spiked)
 
 
+def test_sparse_input_skips_the_block_scan(monkeypatch):
+    bank = ResonatorBank(np.linspace(3, 6, 10))
+    u = sparse_medium(20000, 30, 9)
+    want = ResonatorBank(np.linspace(3, 6, 10), engine="reference").feed(u).spikes
+
+    def no_block_scan(*a, **k):
+        raise AssertionError("dense block scan used on sparse input")
+
+    monkeypatch.setattr(bank, "_dense_segment", no_block_scan)
+    assert np.array_equal(bank.feed(u).spikes, want)
+
+
 def test_pure_python_loop_agrees():
     u = sparse_medium(3000, 30, 7)
     spikes = ResonatorBank(PAPER, engine="reference").feed(u).spikes
@@ -122,7 +134,7 @@ def _feed_chunks(bank, u, sizes, record):
 def test_chunked_equals_whole_bit_for_bit(engine, medium):
     rng = np.random.default_rng(11)
     u = sparse_medium(9000, 70, 8, scale=0.9) if medium == "sparse" else rng.normal(0, 0.03, 3000)
-    om = np.linspace(3, 6, 7)
+    om = np.linspace(3, 6, 9)  # ≥ 8 lanes: the event-driven path is taken for sparse input
     whole_b = ResonatorBank(om, engine=engine, epoch=1024)
     whole = whole_b.feed(u, record=True)
     for sizes, record in (([20], True), ([1, 7, 333], False), ([4096, 5], True)):
@@ -141,9 +153,9 @@ def test_chunked_equals_whole_bit_for_bit(engine, medium):
 def test_chunked_equals_whole_property(sizes, seed):
     u = sparse_medium(2500, 25, seed, scale=0.9)
     om = [3.0, 4.2, 5.5]
-    whole_b = ResonatorBank(om, epoch=512)
+    whole_b = ResonatorBank(om, epoch=512, n_receivers=3)
     whole = whole_b.feed(u)
-    b = ResonatorBank(om, epoch=512)
+    b = ResonatorBank(om, epoch=512, n_receivers=3)
     outs = _feed_chunks(b, u, sizes, record=seed % 2 == 0)
     assert np.array_equal(np.concatenate([o.spikes for o in outs]), whole.spikes)
     assert np.array_equal(b.z, whole_b.z)

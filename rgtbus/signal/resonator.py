@@ -55,6 +55,7 @@ ENGINES = ("fast", "reference")
 _SKIP_MAX_ABS_A = 1.0 - 1e-9
 # A lane counts as "might spike" when |z| ≥ threshold·(1 − _HOT_MARGIN): covers rounding of tables.
 _HOT_MARGIN = 1e-9
+_SPARSE_MIN_LANES = 8
 
 
 def euler_limit(tau: float = PAPER_TAU, b: float = PAPER_B) -> float:
@@ -180,7 +181,7 @@ class ResonatorBank:
         if r < 1:
             raise RgtbusError(f"epoch = {epoch!r} must be a positive integer")
         self._R = r
-        self._block = int(block) if block else max(64, min(1024, (1 << 17) // max(1, L)))
+        self._block = int(block) if block else 256
         self._hot_block = 512  # longest run of rows examined at once for one lane
         self._span = 4096  # rows per sparse pass: bounds the work redone after each spike
         if self._block < 1:
@@ -354,7 +355,10 @@ class ResonatorBank:
             seg = min(n - row, R - m0, self._span)
             lo, hi = np.searchsorted(nz_rows, [row, row + seg])
             nz = nz_rows[lo:hi] - row
-            sparse = (rec is None and self._can_skip and 16 * len(nz) <= seg)
+            # Skipping pays when inputs are sparse and there are enough lanes to amortise its
+            # per-spike rounds; with a handful of lanes the block scan is cheaper (measured).
+            sparse = (rec is None and self._can_skip and 16 * len(nz) <= seg
+                      and (self._L >= _SPARSE_MIN_LANES or not len(nz)))
             if sparse:
                 wr, wi, pend = self._sparse(u, row, seg, m0, nz, cr, ci, spikes)
             else:
@@ -473,6 +477,10 @@ class ResonatorBank:
         thr2 = (thr * (1.0 - _HOT_MARGIN)) ** 2
         L = self._L
         K = self._hot_block
+        if not nz.size:  # quiet stretch: nothing changes unless some lane is already hot
+            zr0, zi0 = self._z_of(self._all, m0, cr, ci)
+            if not (zr0 * zr0 + zi0 * zi0 >= thr2).any():
+                return cr.copy(), ci.copy(), np.zeros(L, dtype=bool)
         out_wr = np.empty(L)
         out_wi = np.empty(L)
         out_pend = np.zeros(L, dtype=bool)
