@@ -88,12 +88,12 @@ def throughput(n: int, channels: tuple[int, ...], py_samples: int, repeat: int) 
             t_win, r_win = best_of(windows, 1 if label == "noisy" else repeat)
             t_ref, r_ref = best_of(lambda u=u, b=ref_bank: fresh(b).feed(u), 1)
             m = min(py_samples, n)
-            t_py, py = best_of(lambda u=u, m=m: simulate_python(om, u[:m]), 1)
+            t_py, py = best_of(lambda u=u, m=m, om=om: simulate_python(om, u[:m]), 1)
             same = (np.array_equal(r_fast.spikes, r_ref.spikes)
                     and np.array_equal(np.concatenate(r_win), r_ref.spikes))
             pre = r_ref.spikes[r_ref.spikes[:, 0] < m]
             same_py = all(py[k] == pre[pre[:, 2] == k, 0].tolist() for k in range(c))
-            rate = lambda t, s=n: s * c / t / 1e6  # noqa: E731
+            rate = lambda t, s=n, c=c: s * c / t / 1e6  # noqa: E731
             print(f"| {c} | {label} | {rate(t_fast):,.0f} | {rate(t_win):,.0f} | "
                   f"{rate(t_ref):,.1f} | {rate(t_py, m):,.2f} | {t_ref / t_fast:,.0f}× | "
                   f"{rate(t_fast) / rate(t_py, m):,.0f}× | {len(r_ref.spikes)} | "
