@@ -289,7 +289,7 @@ class ResonatorBank:
             raise RgtbusError(f"sample {self._n + bad} is not finite")
         return u
 
-    def feed(self, samples, record: bool = False) -> FeedResult:
+    def feed(self, samples: np.ndarray | Sequence[float], record: bool = False) -> FeedResult:
         """Advance by ``len(samples)`` samples; return spikes (and trajectories if ``record``)."""
         u = self._as_input(samples)
         n = u.shape[0]
