@@ -25,6 +25,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from rgtbus.signal.waveform import pulse_instants
+
 PHASES = ("relations", "influences")
 
 
@@ -48,8 +50,7 @@ def turns(units: Sequence[str]) -> list[Turn]:
 
 def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[int, ...]:
     """Sample index of each pulse: ``round((start + m·2π/ω) / τ)``."""
-    period = 2 * math.pi / omega
-    return tuple(round((start + m * period) / tau) for m in range(pulses))
+    return tuple(int(k) for k in pulse_instants(omega, start, pulses, tau))
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,15 @@ from typing import Any
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt import Universe
+from rgtbus.signal.codebook import (
+    Codebook,
+    alternative_names,
+    generate_codebook,
+    paper_codebook,
+)
+from rgtbus.signal.plan import auto_plan, check_plan, parse_omega
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-_OMEGA = re.compile(r"\s*([0-9]*\.?[0-9]*)\s*(pi|π)?\s*(?:/\s*([0-9]*\.?[0-9]+))?\s*\Z")
 
 TOP_KEYS = {
     "name",
@@ -48,28 +54,6 @@ EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustr
 DECISION_POLICIES = ("max", "min", "seeded-random")
 RELATION_POLICIES = ("fixed", "random")
 MODES = ("paper", "exact")
-
-
-def parse_omega(text: str | float | int) -> float:
-    """``3pi/2``, ``1.5pi``, ``pi``, ``4.71``, ``7π/6`` -> rad/s (no eval)."""
-    if isinstance(text, bool):
-        raise RgtbusError(f"bad frequency {text!r}")
-    if isinstance(text, int | float):
-        value = float(text)
-    else:
-        m = _OMEGA.match(text)
-        if not m or (not m.group(1) and not m.group(2)):
-            raise RgtbusError(f"bad frequency {text!r}: write e.g. 3pi/2, 1.5pi or 4.71")
-        coef = float(m.group(1)) if m.group(1) else 1.0
-        value = coef * (math.pi if m.group(2) else 1.0)
-        if m.group(3):
-            den = float(m.group(3))
-            if den == 0:
-                raise RgtbusError(f"bad frequency {text!r}: division by zero")
-            value /= den
-    if not math.isfinite(value) or value <= 0:
-        raise RgtbusError(f"bad frequency {text!r}: must be a positive number of rad/s")
-    return value
 
 
 @dataclass(frozen=True)
@@ -111,7 +95,7 @@ class Scenario:
     universe: Universe
     frequencies: dict[str, float]
     frequency_text: dict[str, str]
-    codebook: str
+    codebook: Codebook
     mode: str
     timing: Timing
     noise: float
@@ -260,15 +244,18 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         except RgtbusError as exc:
             raise ctx.error(section, key, str(exc)) from None
 
+    mode = data.get("mode", "paper")
+    if mode not in MODES:
+        raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
+    codebook = _codebook(data.get("codebook", "paper"), universe, ctx)
+
     # Frequencies: a table per unit, or "auto" (a plan by the rules of SPEC §2).
     freq = data.get("frequencies", "auto")
     frequencies: dict[str, float] = {}
     frequency_text: dict[str, str] = {}
     if freq == "auto":
-        from rgtbus.signal.plan import auto_plan
-
         try:
-            plan = auto_plan(len(units_t))
+            plan = auto_plan(len(units_t), pulses=codebook.pulses, mode=mode)
         except RgtbusError as exc:
             raise ctx.error("", "frequencies", str(exc)) from None
         for u, w in zip(units_t, plan, strict=True):
@@ -278,7 +265,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         for key, value in freq.items():
             unit(key, "frequencies", key)
             try:
-                frequencies[key] = parse_omega(value)
+                frequencies[key] = parse_omega(value, "frequency")
             except RgtbusError as exc:
                 raise ctx.error("frequencies", key, str(exc)) from None
             frequency_text[key] = str(value)
@@ -293,15 +280,12 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
                     "frequencies", u, f"frequency clash: {u} and {seen[w]} share {w:.6g} rad/s"
                 )
             seen[w] = u
+        try:
+            check_plan([frequencies[u] for u in units_t], pulses=codebook.pulses, mode=mode)
+        except RgtbusError as exc:
+            raise ctx.error("frequencies", None, str(exc)) from None
     else:
         raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
-
-    codebook = data.get("codebook", "paper")
-    if not isinstance(codebook, str):
-        raise ctx.error("", "codebook", 'must name a codebook, e.g. "paper"')
-    mode = data.get("mode", "paper")
-    if mode not in MODES:
-        raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
 
     # Timing
     t = table("timing")
@@ -469,3 +453,45 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
 
 def _pairs(units: tuple[str, ...]) -> list[tuple[str, str]]:
     return [(s, r) for s in units for r in units if s != r]
+
+
+CODEBOOK_KINDS = ("paper", "generated", "custom")
+
+
+def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
+    """``"paper"``, ``"generated"``, or a table with ``kind`` and that kind's options."""
+    if isinstance(spec, str):
+        kind, opts = spec, {}
+    elif isinstance(spec, dict):
+        opts = dict(spec)
+        kind = opts.pop("kind", "custom")
+    else:
+        raise ctx.error("", "codebook", 'must be "paper", "generated" or a table')
+    section = "codebook" if isinstance(spec, dict) else ""
+    key = None if isinstance(spec, dict) else "codebook"
+    try:
+        if kind == "paper":
+            extra = set(opts) - {"names"}
+            if extra:
+                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for the paper codebook")
+            cb = paper_codebook(universe.actions, names=opts.get("names"))
+        elif kind == "generated":
+            extra = set(opts) - {"pulses", "min_distance", "seed"}
+            if extra:
+                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for a generated codebook")
+            cb = generate_codebook(
+                universe.actions,
+                pulses=opts.get("pulses", 3),
+                min_distance=opts.get("min_distance", 0.3),
+                seed=opts.get("seed", 0),
+            )
+        elif kind == "custom":
+            cb = Codebook.from_dict(opts, where="codebook")
+        else:
+            raise RgtbusError(f"unknown codebook kind {kind!r} ({', '.join(CODEBOOK_KINDS)})")
+    except RgtbusError as exc:
+        raise ctx.error(section, key, str(exc)) from None
+    missing = [n for n in alternative_names(universe.actions) if n not in cb.alternatives]
+    if missing:
+        raise ctx.error(section, key, f"no word for alternative {missing[0]}")
+    return cb

@@ -31,8 +31,16 @@ def test_paper_codebook_renames():
         paper_codebook(names={"x": "y"})
     with pytest.raises(RgtbusError, match="share a name"):
         paper_codebook(names={"1": "0"})
-    with pytest.raises(RgtbusError, match="k = 2"):
-        paper_codebook(("a",))
+    with pytest.raises(RgtbusError, match="k = 1 or 2"):
+        paper_codebook(("a", "b", "c"))
+    with pytest.raises(RgtbusError, match="k = 1 or 2"):
+        paper_codebook(("a", "a"))
+
+
+def test_paper_codebook_for_one_action_has_the_unit_and_zero_codes():
+    cb = paper_codebook(("open",))  # Example 3: 1 = open the gate, 0 = don't
+    assert dict(cb.alternatives) == {"1": (0.2, 0.3, 0.7), "0": (0.7, 0.3, 0.2)}
+    assert cb.actions == ("open",)
 
 
 def test_dict_round_trip():

@@ -13,47 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from rgtbus import __version__
 from rgtbus.bus import open_bus
-from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.sim import World, ns
-from units.unit import AutonomousUnit, Codes
-
-PAPER_WORDS = {
-    "id": (0.4, 0.4, 0.4),
-    "alliance": (0.4, 0.4, 0.4),
-    "conflict": (-0.4, -0.4, -0.4),
-    "1": (0.2, 0.3, 0.7),
-    "0": (0.7, 0.3, 0.2),
-    "{1}": (0.5, 0.2, 0.5),  # the first action's alternative ({alpha})
-    "{2}": (0.3, 0.6, 0.3),  # the second's ({beta})
-}
-
-
-def paper_codes(universe) -> Codes:
-    if universe.k > 2:
-        raise RgtbusError(f"the paper codebook covers k <= 2 actions, not {universe.k}")
-    words = {k: np.array(v) for k, v in PAPER_WORDS.items()}
-    names = {universe.full: "1", 0: "0"}
-    if universe.k == 2:
-        names[0b01] = "{1}"
-        names[0b10] = "{2}"
-    used = {"id", "alliance", "conflict", *names.values()}
-    return Codes(3, {k: v for k, v in words.items() if k in used}, names)
-
-
-def nearest(values: np.ndarray, candidates: dict[str, np.ndarray]) -> tuple[str, float, float]:
-    """Maximum-likelihood codeword under Gaussian noise: the nearest in Euclidean distance.
-    Returns (name, margin = second-best minus best distance, best distance)."""
-    scored = sorted((float(np.linalg.norm(values - w)), n) for n, w in candidates.items())
-    best_d, best = scored[0]
-    # Codewords with equal magnitudes (id, alliance) are one point: skip exact ties.
-    rest = [d for d, n in scored[1:] if not np.array_equal(candidates[n], candidates[best])]
-    margin = (rest[0] - best_d) if rest else float("inf")
-    return best, margin, best_d
+from units.unit import AutonomousUnit
 
 
 @dataclass
@@ -78,7 +42,6 @@ def run_group(
 ) -> RunOutput:
     sc = scenario
     run_id = run_id or f"{sc.name}-{sc.seed}"
-    codes = paper_codes(sc.universe)
     recorder.metadata("scenario", {"name": sc.name, "path": sc.path, "text": sc.text})
     recorder.metadata(
         "run",
@@ -91,10 +54,8 @@ def run_group(
         },
     )
     recorder.metadata("frequencies", {u: repr(w) for u, w in sc.frequencies.items()})
-    recorder.metadata(
-        "codebook", {k: json.dumps(list(map(float, v))) for k, v in codes.words.items()}
-    )
-    members = [AutonomousUnit(u, sc, codes, recorder, nearest, traces=traces) for u in sc.units]
+    recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
+    members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
     with open_bus(
         bus_kind, run_id, sc.units, sc.timing.sample_rate, sc.timing.window_samples
     ) as bus:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import random
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,26 +19,11 @@ import simpy
 from rgtbus.mind import Mind
 from rgtbus.protocol import Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
-from rgtbus.signal.resonator import ResonatorBank, transition
+from rgtbus.signal.decoder import Readout, decode_code, nearest
+from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.sim import ns
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-
-
-@dataclass
-class Codes:
-    """The codewords a unit uses, by meaning: ``id``, ``alliance``, ``conflict`` and one per
-    alternative mask."""
-
-    pulses: int
-    words: dict[str, np.ndarray]
-    alternative_names: dict[int, str]  # mask -> codeword name
-
-    def relation_set(self) -> dict[str, np.ndarray]:
-        return {k: self.words[k] for k in ("alliance", "conflict")}
-
-    def alternative_set(self) -> dict[str, np.ndarray]:
-        return {n: self.words[n] for n in self.alternative_names.values()}
 
 
 @dataclass
@@ -58,9 +42,7 @@ class Decoded:
 class AutonomousUnit:
     name: str
     scenario: Scenario
-    codes: Codes
     recorder: object
-    decode: Callable[..., tuple[str, float, float]]
     traces: bool = False
     # state
     finished: bool = False
@@ -74,14 +56,18 @@ class AutonomousUnit:
         self.tau = sc.timing.tau
         self.L = sc.timing.window_samples
         self.omegas = [sc.frequencies[u] for u in self.units]
+        self.cb = sc.codebook
         self.bank = ResonatorBank(self.omegas, mode=sc.mode, tau=self.tau)
-        self.A = np.array([transition(w, mode=sc.mode, tau=self.tau) for w in self.omegas])
+        keep = round(KEEP_SECONDS / self.tau)
+        self.readouts = [
+            Readout.for_bank(self.bank, ch, capacity=keep) for ch in range(len(self.units))
+        ]
         self.protocol = ProtocolState(
             self.name,
             self.units,
             dict(sc.frequencies),
             self.tau,
-            pulses=self.codes.pulses,
+            pulses=self.cb.pulses,
             start=sc.timing.start,
             reaction_delay=sc.timing.reaction_delay,
             guard=sc.timing.guard,
@@ -97,11 +83,7 @@ class AutonomousUnit:
         self.noise_rng = np.random.default_rng([seed, self.units.index(self.name), 1])
         self.tx: dict[int, list[tuple[float, Send]]] = {}
         self.listens: list[Listen] = []
-        self.readout: dict[int, np.ndarray] = {}  # window -> (L, channels) medium estimates
-        self._z_last = np.zeros(len(self.units), complex)
-        self._spiked_last = np.zeros(len(self.units), bool)
         self.quench: set[int] = set()  # samples at which the resonators are set back to rest
-        self._offset = 0  # absolute index of the bank's sample 0 (moves at each quench)
         self.relation_choice = self._choose_relations()
         self.env: simpy.Environment | None = None
 
@@ -127,10 +109,17 @@ class AutonomousUnit:
     def _influence_codes(self) -> dict[str, str]:
         sc = self.scenario
         return {
-            r: self.codes.alternative_names[sc.influences[(self.name, r)]]
+            r: sc.universe.format(sc.influences[(self.name, r)])
             for r in self.units
             if r != self.name
         }
+
+    def word(self, send: Send) -> tuple[float, ...]:
+        if send.kind == "id":
+            return self.cb.id_word
+        if send.code in self.cb.relations:
+            return self.cb.relations[send.code]
+        return self.cb.alternatives[send.code]
 
     # -- the world's interface ---------------------------------------------------------------
 
@@ -140,7 +129,7 @@ class AutonomousUnit:
 
     def _schedule(self, sends: list[Send]) -> None:
         for send in sends:
-            magnitudes = self.codes.words[send.code]
+            magnitudes = self.word(send)
             for sample, m in zip(send.samples, magnitudes, strict=True):
                 self.tx.setdefault(sample, []).append((float(m), send))
             self.sent.append(send)
@@ -196,20 +185,16 @@ class AutonomousUnit:
         base = window * self.L
         cuts = sorted(k - base for k in self.quench if base <= k < base + self.L)
         self.quench -= {k + base for k in cuts}
-        readout = np.empty((self.L, len(self.units)))
         bounds = [0, *cuts, self.L]
         for lo, hi in itertools.pairwise(bounds):
             if lo in cuts:
                 # Quench at a turn's start: the paper's b = -0.1 rings for ~10 s, longer than
                 # any guard, and leftovers of the last turn could cancel or fake the next ID.
-                self.bank.reset()
-                self._offset = base + lo
-                self._z_last[:] = 0
-                self._spiked_last[:] = False
+                self.bank.quench()
+                for r in self.readouts:
+                    r.quench()
             if hi > lo:
-                self._feed(heard[lo:hi], readout[lo:hi], window, base + lo)
-        self.readout[window] = readout
-        self.readout.pop(window - int(KEEP_SECONDS / (self.L * self.tau)), None)
+                self._feed(heard[lo:hi], window, base + lo)
 
         last = (window + 1) * self.L - 1
         for listen in [x for x in self.listens if x.ready_sample <= last]:
@@ -221,19 +206,10 @@ class AutonomousUnit:
                 self.failure = err
                 self.recorder.log("error", err, ns(last * self.tau), name=self.name)
 
-    def _feed(self, heard: np.ndarray, readout: np.ndarray, window: int, first: int) -> None:
+    def _feed(self, heard: np.ndarray, window: int, first: int) -> None:
         res = self.bank.feed(heard, record=True)
-        z = res.z[:, 0, :]
-        spiked = res.spiked[:, 0, :]
-        # Increment readout: d[k] = (z[k] - next(z[k-1])) / i recovers the medium sample,
-        # where next() is A·z or, after a spike, the reset state Re(A·z) + i·0.1.
-        prev = np.vstack([self._z_last[None, :], z[:-1]])
-        prev_spiked = np.vstack([self._spiked_last[None, :], spiked[:-1]])
-        step = self.A[None, :] * prev
-        step = np.where(prev_spiked, step.real + 1j * self.bank.reset_value, step)
-        readout[:] = ((z - step) / 1j).real
-        self._z_last = z[-1].copy()
-        self._spiked_last = spiked[-1].copy()
+        for r in self.readouts:  # the increment readout: the medium as each resonator saw it
+            r.append(res)
         if self.traces:
             self.recorder.write(
                 f"/trace/{self.name}",
@@ -244,12 +220,11 @@ class AutonomousUnit:
                     "sample_rate": 1 / self.tau,
                     "channels": list(self.units),
                     "y": res.y[:, 0, :].T.tolist(),
-                    "x": z.real.T.tolist(),
+                    "x": res.z[:, 0, :].real.T.tolist(),
                 },
                 ns(first * self.tau),
             )
         for sample, _rx, ch in res.spikes.tolist():
-            sample += self._offset
             channel = self.units[ch]
             self.recorder.write(
                 "/rx/spike",
@@ -271,63 +246,51 @@ class AutonomousUnit:
 
     # -- decoding and reasoning --------------------------------------------------------------
 
-    def _values(self, channel: int, samples: tuple[int, ...]) -> np.ndarray | None:
-        out = []
-        for k in samples:
-            w, off = divmod(k, self.L)
-            block = self.readout.get(w)
-            if block is None:
-                return None
-            out.append(block[off, channel])
-        return np.array(out)
-
     def _decode(self, listen: Listen) -> None:
         t_ready = listen.ready_sample * self.tau
+        pulses = self.cb.pulses
         if listen.kind == "id":
+            # An ID counts only if it reads as the ID-code on the sender's own frequency
+            # (a↔c crosstalk makes resonators fire for other codes).
             ch = self.units.index(listen.sender)
-            samples = code_samples(listen.start, self.omegas[ch], self.codes.pulses, self.tau)
-            values = self._values(ch, samples)
-            code, margin, _ = self.decode(values, self.codes.words)
-            accepted = code in ("id", "alliance")  # the same pulses: the ID-code on own frequency
-            self._record(
-                listen, listen.sender, "id" if accepted else code, margin, t_ready, accepted
-            )
+            samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
+            dec = nearest(self.readouts[ch].values(samples), self.cb.distinct_words())
+            accepted = dec.name == "id"
+            self._record(listen, listen.sender, dec.name, dec.margin, t_ready, accepted)
             if not accepted:
                 self.failure = (
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
-                    f"decoded as {code!r}"
+                    f"decoded as {dec.name!r}"
                 )
             return
-        candidates = (
-            self.codes.relation_set() if listen.kind == "relation" else self.codes.alternative_set()
-        )
+        family = "relation" if listen.kind == "relation" else "alternative"
+        words = self.cb.family(family)
         best = None
-        for r in listen.channels:
+        for r in listen.channels:  # which channel carries the code: the best fit
             ch = self.units.index(r)
-            for shift in range(-self.protocol.search, self.protocol.search + 1):
-                samples = code_samples(
-                    listen.start + shift * self.tau, self.omegas[ch], self.codes.pulses, self.tau
-                )
-                values = self._values(ch, samples)
-                if values is None:
-                    continue
-                code, margin, dist = self.decode(values, candidates)
-                if best is None or dist < best[0] - 1e-12:
-                    best = (dist, r, code, margin)
-        assert best is not None, "the readout history covers every listen"
-        _, addressee, code, margin = best
+            dec = decode_code(
+                self.readouts[ch],
+                self.omegas[ch],
+                listen.start,
+                words,
+                tau=self.tau,
+                search=self.protocol.search,
+            )
+            if best is None or dec.distance < best[0].distance - 1e-12:
+                best = (dec, r)
+        assert best is not None
+        dec, addressee = best
         accepted = addressee == listen.expected_addressee
-        self._record(listen, addressee, code, margin, t_ready, accepted)
+        self._record(listen, addressee, dec.name, dec.margin, t_ready, accepted)
         if not accepted:
             self.recorder.log(
                 "warning",
-                f"{self.name}: turn {listen.turn}: code from "
-                f"{listen.sender} found on {addressee}'s channel, expected "
-                f"{listen.expected_addressee}",
+                f"{self.name}: turn {listen.turn}: code from {listen.sender} found on "
+                f"{addressee}'s channel, expected {listen.expected_addressee}",
                 ns(t_ready),
                 name=self.name,
             )
-        self._learn(listen, addressee, code, t_ready)
+        self._learn(listen, dec.name, t_ready)
 
     def _record(
         self, listen: Listen, addressee: str, code: str, margin: float, t: float, accepted: bool
@@ -335,8 +298,6 @@ class AutonomousUnit:
         d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
         self.decoded.append(d)
         value = code
-        if listen.kind == "influence":
-            value = self.scenario.universe.format(self._mask_of(code))
         self.recorder.write(
             "/rx/decode",
             {
@@ -353,13 +314,7 @@ class AutonomousUnit:
             ns(t),
         )
 
-    def _mask_of(self, code: str) -> int:
-        for mask, name in self.codes.alternative_names.items():
-            if name == code:
-                return mask
-        raise KeyError(code)
-
-    def _learn(self, listen: Listen, addressee: str, code: str, t: float) -> None:
+    def _learn(self, listen: Listen, code: str, t: float) -> None:
         mind = self.mind
         universe = self.scenario.universe
         key = (listen.sender, listen.expected_addressee)
@@ -385,7 +340,7 @@ class AutonomousUnit:
                 if mind.error:
                     self.recorder.log("error", f"{self.name}: {mind.error}", ns(t), self.name)
         else:
-            mind.influences[key] = self._mask_of(code)
+            mind.influences[key] = universe.parse_alternative(code)
             if mind.influences_complete():
                 self.recorder.write(
                     "/unit/influences",

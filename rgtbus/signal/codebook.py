@@ -187,23 +187,25 @@ def paper_codebook(actions: Sequence[str] = ("alpha", "beta"),
     """The paper's codebook (SPEC §2): 3 pulses, ID/alliance {.4,.4,.4}, conflict {−.4,−.4,−.4}
     and the four k = 2 alternatives; ``actions`` renames α, β; ``names`` remaps alternative names
     (e.g. Example 2's other reading ``{"1": "0", "0": "1"}``)."""
-    if len(actions) != 2 or len(set(actions)) != 2:
-        raise RgtbusError(f"the paper codebook has words for k = 2 distinct actions, got "
+    if len(actions) not in (1, 2) or len(set(actions)) != len(actions):
+        raise RgtbusError(f"the paper codebook has words for k = 1 or 2 distinct actions, got "
                           f"{list(actions)}")
-    a, b = (str(x) for x in actions)
-    alts = {"1": PAPER_ALTERNATIVES["1"], "0": PAPER_ALTERNATIVES["0"],
-            "{" + a + "}": PAPER_ALTERNATIVES["{alpha}"],
-            "{" + b + "}": PAPER_ALTERNATIVES["{beta}"]}
+    alts = {"1": PAPER_ALTERNATIVES["1"], "0": PAPER_ALTERNATIVES["0"]}
+    if len(actions) == 2:  # k = 1 (Example 3's "open") uses only the unit- and zero-codes
+        a, b = (str(x) for x in actions)
+        alts["{" + a + "}"] = PAPER_ALTERNATIVES["{alpha}"]
+        alts["{" + b + "}"] = PAPER_ALTERNATIVES["{beta}"]
     if names:
         unknown = [k for k in names if k not in alts]
         if unknown:
             raise RgtbusError(f"paper codebook: no alternative named {unknown[0]!r} to rename")
         alts = {names.get(k, k): v for k, v in alts.items()}
-        if len(alts) != 4:
+        if len(alts) != 1 << len(actions):
             raise RgtbusError("paper codebook: renaming made two alternatives share a name")
     return Codebook(pulses=3, id_word=(0.4, 0.4, 0.4),
                     relations={"alliance": (0.4, 0.4, 0.4), "conflict": (-0.4, -0.4, -0.4)},
-                    alternatives=alts, min_distance=0.2, name="paper", actions=(a, b))
+                    alternatives=alts, min_distance=0.2, name="paper",
+                    actions=tuple(str(x) for x in actions))
 
 
 def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: float = 0.3,

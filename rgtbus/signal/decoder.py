@@ -94,6 +94,11 @@ class Readout:
     def end(self) -> int:
         return self._end
 
+    def quench(self) -> None:
+        """The bank was quenched (z = 0): the next increment starts from rest."""
+        self._z_prev = 0j
+        self._sp_prev = False
+
     def append(self, result: FeedResult) -> None:
         if result.z is None or result.spiked is None:
             raise RgtbusError("readout needs bank.feed(..., record=True) results")

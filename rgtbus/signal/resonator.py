@@ -214,6 +214,11 @@ class ResonatorBank:
     def reset(self) -> None:
         """Back to rest: z = 0 everywhere, sample counter 0."""
         self._n = 0
+        self.quench()
+
+    def quench(self) -> None:
+        """Back to rest (z = 0 everywhere) without moving the sample counter, so spike indexes
+        stay absolute and feeding in chunks stays exact across the quench."""
         self._wr = np.zeros(self._L)
         self._wi = np.zeros(self._L)
         self._pend = np.zeros(self._L, dtype=bool)
