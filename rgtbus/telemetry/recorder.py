@@ -11,6 +11,7 @@ import operator
 import os
 import struct
 from collections import Counter
+from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, runtime_checkable
 
 import mcap.exceptions
@@ -321,27 +322,57 @@ def read_log(source: str | os.PathLike[str] | IO[bytes]) -> LogContents:
     return _read(source, getattr(source, "name", "<stream>"))
 
 
-def _read(stream: IO[bytes], label: str) -> LogContents:
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    raw: list[tuple[str, int, bytes]] = []
-    metadata: dict[str, dict[str, str]] = {}
+@dataclass
+class RawLog:
+    """An MCAP file's records as written, undecoded (what ``merge`` needs).
+
+    ``messages``: ``[(channel_id, log_time, publish_time, sequence, data), ...]`` in file
+    order; ``metadata``: every Metadata record in file order (repeated names kept);
+    ``note``: empty, or one line saying where and why the file was cut.
+    """
+
+    label: str
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    messages: list[tuple[int, int, int, int, bytes]] = field(default_factory=list)
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    note: str = ""
+
+    @property
+    def truncated(self) -> bool:
+        return bool(self.note)
+
+
+def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
+    """Every record of an MCAP file (path or binary stream), read sequentially so a truncated
+    file yields all complete records before the cut. Not an MCAP file: RgtbusError."""
+    if isinstance(source, str | os.PathLike):
+        try:
+            with open(source, "rb") as f:
+                return _scan(f, os.fspath(source))
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
+    return _scan(source, getattr(source, "name", "<stream>"))
+
+
+def _scan(stream: IO[bytes], label: str) -> RawLog:
+    raw = RawLog(label)
     started = finished = False
-    note = ""
     records = StreamReader(stream, record_size_limit=2**30).records
     try:
         for rec in records:
             if isinstance(rec, Message):
-                ch = channels.get(rec.channel_id)
-                if ch is None:
+                if rec.channel_id not in raw.channels:
                     raise RgtbusError(f"{label}: message on unknown channel {rec.channel_id}")
-                raw.append((ch.topic, rec.log_time, rec.data))
+                raw.messages.append(
+                    (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
+                )
             elif isinstance(rec, Channel):
-                channels[rec.id] = rec
+                raw.channels[rec.id] = rec
             elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
+                raw.schemas[rec.id] = rec
             elif isinstance(rec, Metadata):
-                metadata[rec.name] = dict(rec.metadata)
+                raw.metadata.append((rec.name, dict(rec.metadata)))
             elif isinstance(rec, Header):
                 started = True
             elif isinstance(rec, DataEnd | Footer):
@@ -355,20 +386,26 @@ def _read(stream: IO[bytes], label: str) -> LogContents:
             raise RgtbusError(
                 f"{label}: not an MCAP file (empty or cut before its header)"
             ) from None
-        where = (
-            "in its summary (all messages present)" if finished else f"after {len(raw)} messages"
-        )
+        n = len(raw.messages)
+        where = "in its summary (all messages present)" if finished else f"after {n} messages"
         cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
         why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
-        note = f"{label}: log truncated {where} ({why})"
+        raw.note = f"{label}: log truncated {where} ({why})"
+    return raw
+
+
+def _read(stream: IO[bytes], label: str) -> LogContents:
+    raw = _scan(stream, label)
     messages = []
-    for topic, t, data in raw:
+    for cid, t, _, _, data in raw.messages:
+        topic = raw.channels[cid].topic
         try:
             messages.append((topic, t, json.loads(data)))
         except ValueError as e:
             raise RgtbusError(f"{label}: message on {topic} at {t} ns is not JSON: {e}") from None
     messages.sort(key=lambda m: m[1])
-    truncated = bool(note)
-    if truncated and messages:
+    metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
+    note = raw.note
+    if note and messages:
         note += f"; last message at {messages[-1][1] / 1e9:.6f} s"
-    return LogContents(messages, metadata, truncated, note)
+    return LogContents(messages, metadata, bool(note), note)

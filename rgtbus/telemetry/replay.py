@@ -1,0 +1,865 @@
+"""Reading a run back from its MCAP log: the timeline, the run's summary, and verification.
+
+``load_replay(source)`` organises a log (path or stream) into a ``Replay``: transmissions (the
+logged pulses grouped into codes, with their meaning), spikes, decodes (each matched with the
+transmission it read), the tables each unit built, decisions, the ``/run`` record and the
+metadata; ``Replay.summary()`` rebuilds the fields ``rgtbus run --json`` prints, from the log
+alone.
+
+``verify(replay, rerun)`` compares the log with a re-run of its units on its own medium (the
+re-run itself needs the units, so it lives in ``units/replay.py``; anything with ``messages``,
+``summary``, ``windows`` and ``complete`` will do) and checks that the logged pulses add up,
+sample for sample, to the logged medium. Every disagreement is a ``Mismatch``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import IO, Any
+
+import numpy as np
+
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.telemetry.recorder import LogContents, read_log
+
+NS = 1_000_000_000
+
+# Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
+EXIT_VERIFIED = 0
+EXIT_MISMATCH = 1
+EXIT_TRUNCATED = 3  # everything read agrees, but the log ends early: the run is not verified
+
+
+@dataclass
+class Transmission:
+    """One code on the medium: the logged pulses of one message, with what it means."""
+
+    turn: int
+    kind: str  # "id" | "payload"
+    phase: str  # "relations" | "influences"
+    sender: str
+    addressee: str
+    channel: str
+    code: str
+    meaning: str  # "ID", "alliance", "conflict", "influence {alpha}", ...
+    start: float
+    end: float
+    pulses: list[tuple[float, float]]  # (t, magnitude)
+
+    @property
+    def label(self) -> str:
+        return f"{self.sender} → {self.addressee}: {self.meaning}"
+
+
+@dataclass
+class DecodeRow:
+    unit: str
+    t: float
+    sender: str
+    addressee: str
+    kind: str
+    code: str
+    margin: float
+    accepted: bool
+    turn: int | None  # of the transmission it read (None: no such transmission logged)
+    sent: str | None  # the code that transmission carried
+    matches: bool | None  # decoded what was sent (None: nothing to compare with)
+
+
+@dataclass
+class Mismatch:
+    """One disagreement between the log and what verification recomputed."""
+
+    topic: str
+    t: float | None
+    unit: str | None
+    field: str
+    logged: Any
+    recomputed: Any
+
+    def text(self) -> str:
+        when = "" if self.t is None else f" t={self.t:.3f}s"
+        who = "" if self.unit is None else f" unit={self.unit}"
+        return (
+            f"{self.topic}{when}{who} {self.field}: logged {_short(self.logged)}, "
+            f"recomputed {_short(self.recomputed)}"
+        )
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    text = json.dumps(value, ensure_ascii=False, default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _phase_of(turn: int, n_units: int) -> str:
+    return "relations" if turn < n_units * (n_units - 1) else "influences"
+
+
+class Replay:
+    """A log organised for reading. Build with ``load_replay``."""
+
+    def __init__(self, contents: LogContents, label: str = "<log>") -> None:
+        self.contents = contents
+        self.label = label
+        self.metadata: dict[str, dict[str, str]] = contents.metadata
+        self.truncated: bool = contents.truncated
+        self.note: str = contents.note
+        self.by_topic: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+        for topic, t, msg in contents.messages:
+            self.by_topic[topic].append((t, msg))
+        self.scenario: Scenario | None = None
+        self.scenario_error: str | None = None
+        self._load_scenario()
+        self.units: tuple[str, ...] = self._units()
+        self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
+        self.transmissions = self._transmissions()
+        self.decodes = self._decodes()
+        self.spikes = [m for _, m in self.by_topic["/rx/spike"]]
+        self.relations = {m["unit"]: m for _, m in self.by_topic["/unit/relations"]}
+        self.influences = {m["unit"]: m for _, m in self.by_topic["/unit/influences"]}
+        self.decisions = [m for _, m in self.by_topic["/unit/decision"]]
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _load_scenario(self) -> None:
+        meta = self.metadata.get("scenario")
+        if not meta or "text" not in meta:
+            self.scenario_error = "the log has no scenario metadata"
+            return
+        try:
+            sc = parse_scenario(meta["text"], meta.get("path", "<scenario>"))
+            seed = self.metadata.get("run", {}).get("seed")
+            if seed is not None:
+                sc = sc.with_seed(int(seed))
+        except (RgtbusError, ValueError) as e:
+            self.scenario_error = f"the log's scenario does not load: {e}"
+            return
+        self.scenario = sc
+
+    def require_scenario(self) -> Scenario:
+        if self.scenario is None:
+            raise RgtbusError(f"{self.label}: cannot re-run: {self.scenario_error}")
+        return self.scenario
+
+    def _units(self) -> tuple[str, ...]:
+        if self.scenario is not None:
+            return self.scenario.units
+        seen: dict[str, None] = {}
+        for topic in ("/tx/pulse", "/rx/spike", "/rx/decode", "/unit/relations"):
+            for _, m in self.by_topic[topic]:
+                seen.setdefault(m["unit"], None)
+        return tuple(seen)
+
+    def _transmissions(self) -> list[Transmission]:
+        groups: dict[tuple[str, int], list[dict]] = {}
+        for _, p in self.by_topic["/tx/pulse"]:
+            groups.setdefault((p["unit"], p["message"]["id"]), []).append(p)
+        out = []
+        n = len(self.units)
+        for (_, mid), pulses in groups.items():
+            msg = pulses[0]["message"]
+            turn = mid // 2
+            phase = _phase_of(turn, n)
+            if msg["kind"] == "id":
+                meaning = "ID"
+            elif phase == "relations":
+                meaning = msg["code"]
+            else:
+                meaning = f"influence {msg['code']}"
+            out.append(
+                Transmission(
+                    turn=turn,
+                    kind=msg["kind"],
+                    phase=phase,
+                    sender=msg["sender"],
+                    addressee=msg["addressee"],
+                    channel=pulses[0]["channel"],
+                    code=msg["code"],
+                    meaning=meaning,
+                    start=pulses[0]["t"],
+                    end=pulses[-1]["t"],
+                    pulses=[(p["t"], p["magnitude"]) for p in pulses],
+                )
+            )
+        out.sort(key=lambda x: (x.start, x.turn, x.kind))
+        return out
+
+    def _decodes(self) -> list[DecodeRow]:
+        # A decode reads the latest code of its class its sender started before it.
+        starts: dict[tuple[str, str], list[Transmission]] = defaultdict(list)
+        for tx in self.transmissions:
+            starts[(tx.sender, tx.kind)].append(tx)
+        rows = []
+        for _, d in self.by_topic["/rx/decode"]:
+            cls = "id" if d["kind"] == "id" else "payload"
+            tx = None
+            for cand in starts[(d["sender"], cls)]:
+                if cand.start <= d["t"] + 1e-9:
+                    tx = cand
+            if tx is None:
+                matches = None
+            elif cls == "id":
+                matches = d["code"] == "id"
+            else:
+                matches = d["code"] == tx.code and d["addressee"] == tx.addressee
+            rows.append(
+                DecodeRow(
+                    unit=d["unit"],
+                    t=d["t"],
+                    sender=d["sender"],
+                    addressee=d["addressee"],
+                    kind=d["kind"],
+                    code=d["code"],
+                    margin=d["margin"],
+                    accepted=d["accepted"],
+                    turn=None if tx is None else tx.turn,
+                    sent=None if tx is None else tx.code,
+                    matches=matches,
+                )
+            )
+        return rows
+
+    # -- what the log says -------------------------------------------------------------------
+
+    @property
+    def window_seconds(self) -> float | None:
+        if self.scenario is not None:
+            t = self.scenario.timing
+            return t.window_samples / t.sample_rate
+        med = self.by_topic["/medium"]
+        if med:
+            return len(med[0][1]["samples"]) / med[0][1]["sample_rate"]
+        return None
+
+    @property
+    def windows(self) -> int:
+        return len(self.by_topic["/medium"])
+
+    @property
+    def sim_seconds(self) -> float:
+        if self.run is not None:
+            return float(self.run["sim_seconds"])
+        ws = self.window_seconds or 0.0
+        return round(self.windows * ws, 6)
+
+    def agree(self) -> bool:
+        tables = [self.relations.get(u, {}).get("installed", {}) for u in self.units]
+        polys = [self.relations.get(u, {}).get("polynomial") for u in self.units]
+        return all(t == tables[0] for t in tables) and all(p == polys[0] for p in polys)
+
+    def decode_errors(self) -> list[dict[str, Any]]:
+        """As ``summarise`` lists them: per unit (in unit order), decodes of a wrong code."""
+        out = []
+        order = {u: i for i, u in enumerate(self.units)}
+        rows = sorted(self.decodes, key=lambda d: order.get(d.unit, len(order)))
+        for d in rows:
+            if d.matches is False:
+                out.append(
+                    {
+                        "unit": d.unit,
+                        "turn": d.turn,
+                        "kind": d.kind,
+                        "decoded": d.code,
+                        "sent": d.sent,
+                    }
+                )
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """The fields of ``rgtbus run --json`` (less wall time and log path), from the log."""
+        units = self.units
+        first = self.relations.get(units[0], {}) if units else {}
+        first_infl = self.influences.get(units[0], {}) if units else {}
+        own = {
+            d["unit"]: d for d in self.decisions if d["unit"] == d["subject"]
+        }  # each unit's own decision
+        units_out = {}
+        for u in units:
+            d = own.get(u)
+            units_out[u] = {
+                "interval": None if d is None else d["interval"],
+                "frustrated": False if d is None else bool(d["frustrated"]),
+                "choice": None if d is None else d["choice"],
+                "canonical": None if d is None else d["canonical"],
+                "A": None if d is None else d["A"],
+                "B": None if d is None else d["B"],
+                "decided": d is not None,
+            }
+        run = self.run or {}
+        seed = self.metadata.get("run", {}).get("seed")
+        return {
+            "scenario": run.get("scenario", self.metadata.get("scenario", {}).get("name")),
+            "seed": run.get("seed", None if seed is None else int(seed)),
+            "polynomial": first.get("polynomial"),
+            "relations": first.get("installed", {}),
+            "sent_relations": first.get("sent", {}),
+            "unit_relations": {u: self.relations.get(u, {}).get("installed", {}) for u in units},
+            "agree": self.agree(),
+            "influences": first_infl.get("influences", {}),
+            "units": units_out,
+            "outcome": run.get("outcome", self._outcome()),
+            "decode_errors": self.decode_errors(),
+            "sim_seconds": self.sim_seconds,
+            "windows": self.windows,
+            "error": run.get("error"),
+        }
+
+    def _outcome(self) -> Any:
+        sc = self.scenario
+        if sc is None or sc.outcome is None:
+            return None
+        own = {d["unit"]: d for d in self.decisions if d["unit"] == d["subject"]}
+        if any(u not in own for u in sc.units):
+            return None
+        want = sc.universe.to_list(sc.outcome.choose)
+        ok = all(own[x]["choice"] == want for x in sc.outcome.all_of)
+        return f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
+
+    def spike_counts(self) -> dict[str, dict[str, int]]:
+        counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
+        for s in self.spikes:
+            counts.setdefault(s["unit"], Counter())[s["channel"]] += 1
+        return {u: dict(c) for u, c in counts.items()}
+
+    def info(self) -> dict[str, Any]:
+        """The run's metadata: scenario, seed, version, bus, run id, frequencies."""
+        sc = self.metadata.get("scenario", {})
+        run = self.metadata.get("run", {})
+        return {
+            "scenario": sc.get("name"),
+            "path": sc.get("path"),
+            "seed": None if run.get("seed") is None else int(run["seed"]),
+            "version": run.get("version"),
+            "bus": run.get("bus"),
+            "run_id": run.get("run_id"),
+            "python": run.get("python"),
+            "frequencies": {k: float(v) for k, v in self.metadata.get("frequencies", {}).items()},
+            "records": sorted(self.metadata),
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        """``rgtbus replay --json``: one object."""
+        return {
+            "log": self.label,
+            "metadata": self.info(),
+            "truncated": self.truncated,
+            "note": self.note,
+            "transmissions": [
+                {k: v for k, v in asdict(tx).items() if k != "pulses"}
+                | {"pulses": [{"t": t, "magnitude": m} for t, m in tx.pulses]}
+                for tx in self.transmissions
+            ],
+            "spikes": self.spikes,
+            "spike_counts": self.spike_counts(),
+            "decodes": [asdict(d) for d in self.decodes],
+            "tables": {
+                u: {
+                    "relations": self.relations.get(u),
+                    "influences": self.influences.get(u),
+                }
+                for u in self.units
+            },
+            "agree": self.agree(),
+            "decisions": self.decisions,
+            "outcome": self.summary()["outcome"],
+            "run": self.run,
+            "summary": self.summary(),
+        }
+
+    # -- inputs for a re-run -----------------------------------------------------------------
+
+    def _medium_array(self) -> tuple[np.ndarray, list[Mismatch]]:
+        """Logged medium as (windows, L), with gaps and malformed windows reported (zeros)."""
+        sc = self.require_scenario()
+        L = sc.timing.window_samples
+        ws = L / sc.timing.sample_rate
+        med = self.by_topic["/medium"]
+        n = max((m["window"] for _, m in med), default=-1) + 1
+        arr = np.zeros((n, L))
+        have = np.zeros(n, dtype=bool)
+        bad: list[Mismatch] = []
+        for t_ns, m in med:
+            w = m["window"]
+            if have[w]:
+                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w}", "twice", "once"))
+                continue
+            if len(m["samples"]) != L:
+                bad.append(
+                    Mismatch("/medium", t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
+                )
+                continue
+            if not math.isclose(m["t"], w * ws, abs_tol=1e-9) or t_ns != round(w * ws * NS):
+                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w} t", m["t"], w * ws))
+            if m["sample_rate"] != sc.timing.sample_rate:
+                bad.append(
+                    Mismatch(
+                        "/medium",
+                        t_ns / NS,
+                        None,
+                        f"window {w} sample_rate",
+                        m["sample_rate"],
+                        sc.timing.sample_rate,
+                    )
+                )
+            arr[w] = m["samples"]
+            have[w] = True
+        for w in np.flatnonzero(~have):
+            bad.append(Mismatch("/medium", w * ws, None, f"window {w}", "missing", "present"))
+        return arr, bad
+
+    def medium_windows(self) -> np.ndarray:
+        """The logged medium, one row per window (a missing window reads as silence)."""
+        return self._medium_array()[0]
+
+    def _pulse_parts(self, n_windows: int) -> dict[str, np.ndarray]:
+        """Each sender's own samples, rebuilt from its logged pulses (flat, windows × L).
+
+        Added in logged order, as the unit added them, so the floats are the unit's own."""
+        sc = self.require_scenario()
+        L = sc.timing.window_samples
+        parts = {u: np.zeros(n_windows * L) for u in self.units}
+        for _, p in self.by_topic["/tx/pulse"]:
+            k = p["sample"]
+            if p["unit"] in parts and 0 <= k < n_windows * L:
+                parts[p["unit"]][k] += p["magnitude"]
+        return parts
+
+    def has_gains(self) -> bool:
+        sc = self.require_scenario()
+        return any(g != 1.0 for g in sc.gains.values())
+
+    def sender_parts(self) -> list[dict[str, np.ndarray]]:
+        """Per window, each sender's samples (for scenarios with link gains)."""
+        sc = self.require_scenario()
+        L = sc.timing.window_samples
+        n = self.medium_windows().shape[0]
+        flat = self._pulse_parts(n)
+        return [{u: flat[u][w * L : (w + 1) * L] for u in self.units} for w in range(n)]
+
+    def check_medium(self) -> list[Mismatch]:
+        """Every logged window exactly equals the sum of the logged pulses (unit order)."""
+        sc = self.require_scenario()
+        arr, bad = self._medium_array()
+        n, L = arr.shape
+        tau = sc.timing.tau
+        parts = self._pulse_parts(n)
+        expected = np.zeros(n * L)
+        for u in self.units:  # the medium's own order of addition
+            expected += parts[u]
+        logged = arr.reshape(-1)
+        for k in np.flatnonzero(logged != expected):
+            w = int(k) // L
+            bad.append(
+                Mismatch(
+                    "/medium",
+                    float(k) * tau,
+                    None,
+                    f"window {w} samples[{int(k) - w * L}]",
+                    float(logged[k]),
+                    float(expected[k]),
+                )
+            )
+        return bad
+
+    def traced_units(self) -> list[str]:
+        return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]
+
+    def trace_arrays(self, unit: str) -> dict[str, Any] | None:
+        msgs = [m for _, m in self.by_topic.get(f"/trace/{unit}", [])]
+        return self.stack_traces(msgs) if msgs else None
+
+    @staticmethod
+    def stack_traces(msgs: Sequence[dict]) -> dict[str, Any]:
+        """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``."""
+        if not msgs:
+            return {"t": np.zeros(0), "y": np.zeros((0, 0)), "channels": []}
+        ts, ys = [], []
+        for m in msgs:
+            y = np.asarray(m["y"], dtype=float)  # channels × samples
+            k = y.shape[1]
+            ts.append(m["t"] + np.arange(k) / m["sample_rate"])
+            ys.append(y.T)
+        return {"t": np.concatenate(ts), "y": np.concatenate(ys), "channels": msgs[0]["channels"]}
+
+
+def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
+    """Read and organise a log (path or binary stream). Unreadable/not MCAP: RgtbusError."""
+    label = os.fspath(source) if isinstance(source, str | os.PathLike) else "<stream>"
+    label = getattr(source, "name", label) if not isinstance(source, str | os.PathLike) else label
+    return Replay(read_log(source), str(label))
+
+
+# -- verification ---------------------------------------------------------------------------
+
+
+def _json(value: Any) -> Any:
+    """What the value becomes in a log: the JSON round trip (tuples -> lists, numpy -> plain)."""
+    return json.loads(json.dumps(value, default=lambda o: o.tolist()))
+
+
+def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str, Any, Any]]:
+    if isinstance(logged, dict) and isinstance(recomputed, dict):
+        out = []
+        for key in [*logged, *(k for k in recomputed if k not in logged)]:
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in recomputed:
+                out.append((sub, logged[key], "(absent)"))
+            elif key not in logged:
+                out.append((sub, "(absent)", recomputed[key]))
+            else:
+                out += _field_diffs(logged[key], recomputed[key], sub)
+        return out
+    # True == 1 in Python, not in a log; 3 == 3.0 is fine (JSON numbers)
+    if logged == recomputed and isinstance(logged, bool) == isinstance(recomputed, bool):
+        return []
+    return [(path or "(message)", logged, recomputed)]
+
+
+def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
+    out = []
+    for key in ("y", "x"):
+        if logged.get(key) == recomputed.get(key):
+            continue
+        a = np.asarray(logged.get(key), dtype=float)
+        b = np.asarray(recomputed.get(key), dtype=float)
+        if a.shape != b.shape:
+            out.append((f"{key} shape", list(a.shape), list(b.shape)))
+            continue
+        ch, k = (int(i) for i in np.argwhere(a != b)[0])
+        n = int(np.count_nonzero(a != b))
+        more = f" (+{n - 1} more)" if n > 1 else ""
+        name = logged.get("channels", [])[ch] if ch < len(logged.get("channels", [])) else ch
+        out.append((f"{key}[{name}][{k}]{more}", float(a[ch, k]), float(b[ch, k])))
+    rest = {k: v for k, v in logged.items() if k not in ("y", "x")}
+    rest_r = {k: v for k, v in recomputed.items() if k not in ("y", "x")}
+    return out + _field_diffs(rest, _json(rest_r))
+
+
+# topic -> key of a message (messages with equal keys are paired in order)
+_KEYS: dict[str, Callable[[int, dict], tuple]] = {
+    "/tx/pulse": lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
+    "/rx/spike": lambda t, m: (m.get("unit"), m.get("channel"), m.get("sample")),
+    "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
+    "/unit/relations": lambda t, m: (m.get("unit"),),
+    "/unit/influences": lambda t, m: (m.get("unit"),),
+    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject")),
+    "/log": lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+}
+
+
+def _key_text(topic: str, key: tuple) -> str:
+    """The paired messages' key in words (part of a mismatch's field)."""
+    if topic == "/tx/pulse":
+        return f"pulse on {key[2]} at sample {key[1]}"
+    if topic == "/rx/spike":
+        return f"spike on {key[1]} at sample {key[2]}"
+    if topic == "/rx/decode":
+        return f"{key[1]} from {key[2]}"
+    if topic == "/unit/decision":
+        return f"subject {key[1]}"
+    if topic == "/log":
+        return f"line {key[3]!r}"
+    if topic.startswith("/trace/"):
+        return f"window {key[0]}"
+    return "table"
+
+
+def diff_messages(
+    logged: Iterable[tuple[str, int, dict]],
+    recomputed: Iterable[tuple[str, int, dict]],
+    units: Sequence[str],
+    *,
+    until_ns: int | None = None,
+) -> tuple[list[Mismatch], Counter[str]]:
+    """Pair logged and recomputed messages per topic by key; list what differs.
+
+    Only /log lines written by units are compared (others come from the CLI or a merge);
+    ``until_ns`` ignores messages at or after that time on both sides (a truncated log).
+    Returns the mismatches and how many messages of each topic were compared.
+    """
+    unitset = set(units)
+
+    def keyed(msgs: Iterable[tuple[str, int, dict]], norm: bool) -> dict[str, dict[tuple, list]]:
+        out: dict[str, dict[tuple, list]] = defaultdict(lambda: defaultdict(list))
+        for topic, t, m in msgs:
+            if until_ns is not None and t >= until_ns:
+                continue
+            if topic.startswith("/trace/"):
+                out[topic][(m.get("window"), t)].append((t, m))
+            elif topic in _KEYS:
+                if topic == "/log" and m.get("name") not in unitset:
+                    continue
+                m = _json(m) if norm else m
+                out[topic][_KEYS[topic](t, m)].append((t, m))
+        return out
+
+    a = keyed(logged, norm=False)
+    b = keyed(recomputed, norm=True)
+    mismatches: list[Mismatch] = []
+    checked: Counter[str] = Counter()
+    for topic in sorted(set(a) | set(b)):
+        la, lb = a.get(topic, {}), b.get(topic, {})
+        for key in sorted(set(la) | set(lb), key=lambda k: json.dumps(k, default=str)):
+            xs, ys = la.get(key, []), lb.get(key, [])
+            for i in range(max(len(xs), len(ys))):
+                x = xs[i] if i < len(xs) else None
+                y = ys[i] if i < len(ys) else None
+                t_ns, m = x if x is not None else y  # type: ignore[misc]
+                unit = m.get("unit", m.get("name"))
+                what = _key_text(topic, key)
+                checked[topic] += 1
+                if x is None:
+                    mismatches.append(Mismatch(topic, t_ns / NS, unit, what, "(missing)", _json(m)))
+                    continue
+                if y is None:
+                    mismatches.append(Mismatch(topic, t_ns / NS, unit, what, m, "(not produced)"))
+                    continue
+                if topic.startswith("/trace/"):
+                    diffs = _trace_diff(x[1], y[1])
+                else:
+                    diffs = _field_diffs(x[1], y[1])
+                    if x[0] != y[0]:
+                        diffs.append(("log_time", x[0], y[0]))
+                for path, lv, rv in diffs:
+                    field_name = (
+                        path
+                        if topic in ("/unit/relations", "/unit/influences")
+                        else (f"{what}: {path}")
+                    )
+                    mismatches.append(Mismatch(topic, t_ns / NS, unit, field_name, lv, rv))
+    return mismatches, checked
+
+
+@dataclass
+class VerifyReport:
+    label: str
+    mismatches: list[Mismatch]
+    checked: dict[str, int]
+    truncated: bool
+    note: str
+    windows_logged: int
+    windows_rerun: int
+    until: float | None = None  # compared up to this time (a truncated log)
+    extra: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.mismatches and not self.truncated
+
+    @property
+    def exit_code(self) -> int:
+        if self.mismatches:
+            return EXIT_MISMATCH
+        return EXIT_TRUNCATED if self.truncated else EXIT_VERIFIED
+
+    def verdict(self) -> str:
+        n = sum(self.checked.values())
+        if self.mismatches:
+            return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
+        if self.truncated:
+            return (
+                f"INCOMPLETE: the {n} messages before t = {self.until:.3f} s agree, but the log "
+                "is truncated, so the run is verified only that far"
+            )
+        return f"verified: {n} messages agree with the re-run ({self.windows_logged} windows)"
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "log": self.label,
+            "ok": self.ok,
+            "exit_code": self.exit_code,
+            "verdict": self.verdict(),
+            "truncated": self.truncated,
+            "note": self.note,
+            "until": self.until,
+            "windows": {"logged": self.windows_logged, "rerun": self.windows_rerun},
+            "checked": dict(self.checked),
+            "mismatches": [asdict(m) for m in self.mismatches],
+        }
+
+
+def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> VerifyReport:
+    """Compare a log with a re-run of its units (``units.replay.rerun_replay``).
+
+    Checks: the metadata matches the scenario; the pulses add up to the medium; every spike,
+    decode, table, decision, trace and unit log line recomputed equals the logged one (no
+    more, no fewer); the ``/run`` record equals the re-run's summary; plus ``checks`` (e.g.
+    decisions re-derived from the logged tables).
+    """
+    sc = replay.require_scenario()
+    mismatches: list[Mismatch] = []
+    # The scenario rebuilt from its text must be the one that ran.
+    freq = {u: repr(w) for u, w in sc.frequencies.items()}
+    for name, want in (
+        ("frequencies", freq),
+        ("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()}),
+    ):
+        got = replay.metadata.get(name)
+        if got is not None and got != want:
+            mismatches.append(Mismatch(f"metadata {name}", None, None, "values", got, want))
+    mismatches += replay.check_medium()
+    ws = sc.timing.window_samples / sc.timing.sample_rate
+    until_ns = None
+    until = None
+    if replay.truncated:
+        # Messages of the last logged window may be cut off: compare only before it.
+        last = max(replay.windows - 1, 0)
+        until_ns = round(last * ws * NS)
+        until = last * ws
+    diffs, checked = diff_messages(
+        replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns
+    )
+    mismatches += diffs
+    mismatches += list(checks)
+    checked["/medium"] = replay.windows
+    if not replay.truncated:
+        if rerun.windows != replay.windows or not rerun.complete:
+            mismatches.append(
+                Mismatch(
+                    "/medium",
+                    replay.windows * ws,
+                    None,
+                    "windows (the run's length)",
+                    replay.windows,
+                    rerun.windows if rerun.complete else f"more than {rerun.windows}",
+                )
+            )
+        run = replay.run
+        if run is None:
+            mismatches.append(Mismatch("/run", None, None, "record", "(missing)", "present"))
+        else:
+            checked["/run"] += 1
+            s = rerun.summary
+            want = {
+                "scenario": s["scenario"],
+                "seed": s["seed"],
+                "outcome": s["outcome"],
+                "agree": s["agree"],
+                "sim_seconds": s["sim_seconds"],
+                "error": s["error"],
+            }
+            for path, lv, rv in _field_diffs(run, want):
+                mismatches.append(Mismatch("/run", run.get("sim_seconds"), None, path, lv, rv))
+    return VerifyReport(
+        label=replay.label,
+        mismatches=mismatches,
+        checked=dict(checked),
+        truncated=replay.truncated,
+        note=replay.note,
+        windows_logged=replay.windows,
+        windows_rerun=rerun.windows,
+        until=until,
+    )
+
+
+# -- CSV ------------------------------------------------------------------------------------
+
+
+def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
+    """``{file name: (header, rows)}``: transmissions, decodes, decisions, spikes."""
+    tx_head = [
+        "turn",
+        "phase",
+        "kind",
+        "sender",
+        "addressee",
+        "channel",
+        "code",
+        "meaning",
+        "start",
+        "end",
+        "pulses",
+    ]
+    tx_rows = [
+        [
+            x.turn,
+            x.phase,
+            x.kind,
+            x.sender,
+            x.addressee,
+            x.channel,
+            x.code,
+            x.meaning,
+            x.start,
+            x.end,
+            len(x.pulses),
+        ]
+        for x in replay.transmissions
+    ]
+    dec_head = [
+        "t",
+        "unit",
+        "sender",
+        "addressee",
+        "kind",
+        "code",
+        "margin",
+        "accepted",
+        "turn",
+        "sent",
+        "matches",
+    ]
+    dec_rows = [
+        [
+            d.t,
+            d.unit,
+            d.sender,
+            d.addressee,
+            d.kind,
+            d.code,
+            d.margin,
+            d.accepted,
+            d.turn,
+            d.sent,
+            d.matches,
+        ]
+        for d in replay.decodes
+    ]
+
+    def alt(v: Any) -> str:
+        return "" if v is None else "{" + ",".join(v) + "}"
+
+    dn_head = ["t", "unit", "subject", "A", "B", "low", "high", "frustrated", "choice", "canonical"]
+    dn_rows = [
+        [
+            d["t"],
+            d["unit"],
+            d["subject"],
+            alt(d["A"]),
+            alt(d["B"]),
+            alt(d["interval"][0]) if d["interval"] else "",
+            alt(d["interval"][1]) if d["interval"] else "",
+            d["frustrated"],
+            alt(d["choice"]),
+            d["canonical"],
+        ]
+        for d in replay.decisions
+    ]
+    sp_head = ["t", "unit", "channel", "omega", "sample"]
+    sp_rows = [[s["t"], s["unit"], s["channel"], s["omega"], s["sample"]] for s in replay.spikes]
+    return {
+        "transmissions.csv": (tx_head, tx_rows),
+        "decodes.csv": (dec_head, dec_rows),
+        "decisions.csv": (dn_head, dn_rows),
+        "spikes.csv": (sp_head, sp_rows),
+    }
+
+
+def write_csv(header: list[str], rows: list[list[Any]], stream: IO[str]) -> None:
+    """One table as CSV (booleans as true/false, None as empty)."""
+    w = csv.writer(stream, lineterminator="\n")
+    w.writerow(header)
+    for row in rows:
+        w.writerow(
+            [
+                "" if v is None else ("true" if v is True else "false" if v is False else v)
+                for v in row
+            ]
+        )

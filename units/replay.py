@@ -1,0 +1,249 @@
+"""Re-running a logged run: the units' receivers and reasoning fed with the logged medium.
+
+``rerun`` rebuilds every unit (``AutonomousUnit``, exactly as ``run_group`` does) from the
+scenario and drives it window by window with the logged ``/medium`` samples instead of a bus:
+the units render their own transmissions again (so their pulses can be compared with the
+log), hear the logged medium (with their own seeded noise), spike, decode, build tables and
+decide. What they record goes into a ``CaptureRecorder``; ``rgtbus.telemetry.replay`` diffs it
+against the log. ``verify_log`` glues reading, re-running and diffing for the CLI.
+
+It lives in ``units/`` because it needs the unit itself: adapters never import ``units/``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections import defaultdict
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
+from typing import IO, Any
+
+import numpy as np
+import simpy
+
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario
+from rgtbus.sim import WorldResult
+from rgtbus.telemetry import log_message
+from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
+from units.group import summarise
+from units.unit import AutonomousUnit
+
+
+class CaptureRecorder:
+    """Keeps every write as given (no JSON round trip: the diff normalises what it compares)."""
+
+    enabled = True
+    closed = False
+
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, int, dict]] = []
+
+    def write(self, topic: str, message: dict, t_ns: int) -> None:
+        self.messages.append((topic, t_ns, message))
+
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
+        self.messages.append(("/log", t_ns, log_message(level, text, t_ns, name)))
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        pass
+
+    def close(self) -> None:
+        self.closed = True
+
+
+@dataclass
+class Rerun:
+    messages: list[tuple[str, int, dict]]  # what the re-run units recorded, in write order
+    summary: dict[str, Any]  # summarise() of the re-run units (the run's own summary fields)
+    units: list[AutonomousUnit]
+    windows: int
+    complete: bool  # every re-run unit finished or failed (as the World would have stopped)
+
+
+def rerun(
+    scenario: Scenario,
+    windows: Sequence[np.ndarray],
+    *,
+    parts: Sequence[dict[str, np.ndarray]] | None = None,
+    traces: Collection[str] = (),
+    only: Collection[str] | None = None,
+) -> Rerun:
+    """Feed ``windows`` (the logged medium, window 0 first) to freshly built units.
+
+    ``parts``: per window, each sender's own samples — needed when the scenario has link gains
+    (each unit hears ``sum(gain[s -> me] * part[s])``); otherwise the medium is heard as one
+    part, bit for bit what the units heard in the run (0 + x_a + x_b ... in the same order).
+    ``traces``: units that record ``/trace/<unit>``; ``only``: re-run just these units (each
+    unit's receiver depends on the medium alone, so one unit can be re-run on its own).
+    Stops like the World: after a window in which a unit failed or all have finished.
+    """
+    sc = scenario
+    rec = CaptureRecorder()
+    names = [u for u in sc.units if only is None or u in only]
+    members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
+    L = sc.timing.window_samples
+    ws = L / sc.timing.sample_rate
+    zeros = np.zeros(L)
+    env = simpy.Environment()
+    for m in members:
+        m.begin(env)
+    t0 = time.perf_counter()
+    failure = None
+    done = 0
+    max_windows = math.ceil(sc.timing.max_seconds / ws)
+    for w, medium in enumerate(windows):
+        if w:
+            env.run(until=w * ws)  # announcements (log lines) due before this window
+        for m in members:
+            m.render(w)
+        if parts is not None:
+            gathered = parts[w]
+        else:
+            gathered = {u: zeros for u in sc.units}
+            gathered[sc.units[0]] = medium
+        for m in members:
+            m.hear(w, gathered)
+        done = w + 1
+        failed = [m for m in members if m.failure]
+        if failed:
+            failure = failed[0].failure
+            break
+        if all(m.finished for m in members):
+            break
+    env.run(until=done * ws + 1e-9)
+    complete = failure is not None or all(m.finished for m in members)
+    if not complete and done >= max_windows:
+        complete = True
+        failure = (
+            f"not finished after {max_windows * ws:.1f} s of simulated time (timing.max_seconds)"
+        )
+    result = WorldResult(done, done * ws, time.perf_counter() - t0, failure)
+    summary = summarise(sc, members, result) if only is None else {}
+    return Rerun(rec.messages, summary, members, done, complete)
+
+
+def rerun_replay(
+    replay: Replay, *, traces: Collection[str] | None = None, only: Collection[str] | None = None
+) -> Rerun:
+    """Re-run the units of a loaded log on its medium (per-sender parts when gains need them).
+
+    ``traces``: units to record traces for (default: the units whose traces the log holds)."""
+    sc = replay.require_scenario()
+    windows = replay.medium_windows()
+    parts = replay.sender_parts() if replay.has_gains() else None
+    if traces is None:
+        traces = replay.traced_units()
+    return rerun(sc, windows, parts=parts, traces=traces, only=only)
+
+
+def check_reasoning(replay: Replay) -> list[Mismatch]:
+    """Every logged table and decision follows from the logged tables: each unit's relations
+    table gives its installed relations and polynomial (RGT phase 2), and its relations and
+    influence tables give its decisions (phase 4), by a fresh copy of the unit's own mind."""
+    sc = replay.require_scenario()
+    u = sc.universe
+    out: list[Mismatch] = []
+    logged_decisions = defaultdict(dict)
+    for d in replay.decisions:
+        logged_decisions[d["unit"]][d["subject"]] = d
+    for name in sc.units:
+        rel = replay.relations.get(name)
+        if rel is None:
+            continue
+        unit = AutonomousUnit(name, sc, CaptureRecorder())  # a fresh mind, same policy and rng
+        mind = unit.mind
+        try:
+            mind.sent = {tuple(k.split(">", 1)): v == "alliance" for k, v in rel["sent"].items()}
+        except (AttributeError, ValueError):
+            out.append(Mismatch("/unit/relations", rel.get("t"), name, "sent", rel["sent"], None))
+            continue
+        if not mind.relations_complete():
+            continue
+        mind.build_group()
+        want = {"installed": mind.installed(), "polynomial": mind.polynomial}
+        for key, value in want.items():
+            if rel.get(key) != value:
+                out.append(
+                    Mismatch(
+                        "/unit/relations",
+                        rel["t"],
+                        name,
+                        f"{key} (from its sent table)",
+                        rel.get(key),
+                        value,
+                    )
+                )
+        infl = replay.influences.get(name)
+        if infl is None or mind.df is None:
+            continue
+        try:
+            mind.influences = {
+                tuple(k.split(">", 1)): u.from_list(v) for k, v in infl["influences"].items()
+            }
+        except (AttributeError, ValueError, RgtbusError):
+            out.append(
+                Mismatch(
+                    "/unit/influences", infl.get("t"), name, "influences", infl["influences"], None
+                )
+            )
+            continue
+        if not mind.influences_complete():
+            continue
+        mind.decide()
+        cap = CaptureRecorder()
+        unit.recorder = cap
+        unit._log_decisions(infl["t"])
+        for _, _, m in cap.messages:
+            if m.get("subject") is None:  # a "no decision" log line
+                continue
+            logged = logged_decisions[name].get(m["subject"])
+            if logged is None:
+                out.append(
+                    Mismatch(
+                        "/unit/decision",
+                        m["t"],
+                        name,
+                        f"subject {m['subject']} (from its tables)",
+                        "(missing)",
+                        m,
+                    )
+                )
+                continue
+            for key, value in m.items():
+                if logged.get(key) != value:
+                    out.append(
+                        Mismatch(
+                            "/unit/decision",
+                            logged["t"],
+                            name,
+                            f"subject {m['subject']}: {key} (from its tables)",
+                            logged.get(key),
+                            value,
+                        )
+                    )
+    return out
+
+
+def verify_log(source: str | os.PathLike[str] | IO[bytes] | Replay) -> VerifyReport:
+    """Read a log, re-run its units on its medium, re-derive the decisions from the logged
+    tables, and list every disagreement."""
+    replay = source if isinstance(source, Replay) else load_replay(source)
+    return verify(replay, rerun_replay(replay), check_reasoning(replay))
+
+
+def traces_for(replay: Replay, unit: str) -> dict[str, Any]:
+    """A unit's resonator y traces: logged, else recomputed by re-running that unit alone.
+
+    ``{"t": seconds (n,), "y": (n, channels), "channels": [...], "recomputed": bool}``."""
+    logged = replay.trace_arrays(unit)
+    if logged is not None:
+        return {**logged, "recomputed": False}
+    out = rerun_replay(replay, traces=[unit], only=[unit])
+    topic = f"/trace/{unit}"
+    return {
+        **Replay.stack_traces([m for t, _, m in out.messages if t == topic]),
+        "recomputed": True,
+    }
