@@ -19,7 +19,7 @@ import simpy
 from rgtbus.mind import Mind
 from rgtbus.protocol import Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
-from rgtbus.signal.decoder import Readout, decode_code, nearest
+from rgtbus.signal.decoder import BankReadout, decode_among, nearest
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.sim import ns
 
@@ -59,9 +59,7 @@ class AutonomousUnit:
         self.cb = sc.codebook
         self.bank = ResonatorBank(self.omegas, mode=sc.mode, tau=self.tau)
         keep = round(KEEP_SECONDS / self.tau)
-        self.readouts = [
-            Readout.for_bank(self.bank, ch, capacity=keep) for ch in range(len(self.units))
-        ]
+        self.readout = BankReadout(self.bank, capacity=keep)
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -191,8 +189,7 @@ class AutonomousUnit:
                 # Quench at a turn's start: the paper's b = -0.1 rings for ~10 s, longer than
                 # any guard, and leftovers of the last turn could cancel or fake the next ID.
                 self.bank.quench()
-                for r in self.readouts:
-                    r.quench()
+                self.readout.quench()
             if hi > lo:
                 self._feed(heard[lo:hi], window, base + lo)
 
@@ -208,8 +205,7 @@ class AutonomousUnit:
 
     def _feed(self, heard: np.ndarray, window: int, first: int) -> None:
         res = self.bank.feed(heard, record=True)
-        for r in self.readouts:  # the increment readout: the medium as each resonator saw it
-            r.append(res)
+        self.readout.append(res)  # the increment readout: the medium as each resonator saw it
         if self.traces:
             self.recorder.write(
                 f"/trace/{self.name}",
@@ -254,7 +250,7 @@ class AutonomousUnit:
             # (a↔c crosstalk makes resonators fire for other codes).
             ch = self.units.index(listen.sender)
             samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
-            dec = nearest(self.readouts[ch].values(samples), self.cb.distinct_words())
+            dec = nearest(self.readout.values(samples, ch), self.cb.distinct_words())
             accepted = dec.name == "id"
             self._record(listen, listen.sender, dec.name, dec.margin, t_ready, accepted)
             if not accepted:
@@ -265,21 +261,13 @@ class AutonomousUnit:
             return
         family = "relation" if listen.kind == "relation" else "alternative"
         words = self.cb.family(family)
-        best = None
-        for r in listen.channels:  # which channel carries the code: the best fit
-            ch = self.units.index(r)
-            dec = decode_code(
-                self.readouts[ch],
-                self.omegas[ch],
-                listen.start,
-                words,
-                tau=self.tau,
-                search=self.protocol.search,
-            )
-            if best is None or dec.distance < best[0].distance - 1e-12:
-                best = (dec, r)
-        assert best is not None
-        dec, addressee = best
+        channels = [
+            (self.units.index(r), self.omegas[self.units.index(r)]) for r in listen.channels
+        ]
+        dec, ch = decode_among(
+            self.readout, channels, listen.start, words, tau=self.tau, search=self.protocol.search
+        )
+        addressee = self.units[ch]
         accepted = addressee == listen.expected_addressee
         self._record(listen, addressee, dec.name, dec.margin, t_ready, accepted)
         if not accepted:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt.algebra import Universe
@@ -49,6 +50,12 @@ class CanonicalForm:
 
 def canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
     df.index(subject)
+    return _canonical_form(df, subject)
+
+
+@lru_cache(maxsize=4096)
+def _canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
+    # Minimising A and B is the costly part; units holding the same group share the result.
     a = readable(substitute(df.display, {subject: ONE}), df.order)
     b = readable(substitute(df.display, {subject: ZERO}), df.order)
     return CanonicalForm(subject, a, b)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt.expr import (
@@ -110,14 +110,22 @@ class DecisionFunction:
 
 
 def decision_function(poly: Expr, order: Sequence[str] | None = None) -> DecisionFunction:
+    """F of a polynomial over the subjects in ``order`` (default: order of appearance).
+
+    Pure and cached: every unit of a group that decoded the same polynomial shares one F.
+    """
     if not is_polynomial(poly):
         raise RgtbusError(f"{format_expr(poly)!r} is not a polynomial of a relationship graph")
     names = tuple(order) if order is not None else tuple(variables(poly))
     if sorted(names) != sorted(variables(poly)):
         raise RgtbusError(f"subjects {list(names)} do not match the polynomial's variables")
+    return _decision_function(poly, names)
+
+
+@lru_cache(maxsize=512)
+def _decision_function(poly: Expr, names: tuple[str, ...]) -> DecisionFunction:
     structural = fold(poly)
-    table = truth_table(structural, names)
-    return DecisionFunction(poly, names, structural, table)
+    return DecisionFunction(poly, names, structural, truth_table(structural, names))
 
 
 # ---------------------------------------------------------------------------------------------

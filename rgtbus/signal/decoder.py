@@ -123,6 +123,98 @@ class Readout:
         return self._buf[idx % self.capacity]
 
 
+class BankReadout:
+    """Streaming increment readout of every channel of one receiver at once (what a unit keeps:
+    one vectorised update a window instead of one per channel).
+
+    ``append(result)`` after each ``bank.feed(..., record=True)``; ``values(indices, channels)``
+    gives d at absolute sample indices (any shape) of the matching channels.
+    """
+
+    def __init__(self, bank: ResonatorBank, receiver: int = 0, capacity: int = 6000) -> None:
+        if not isinstance(capacity, int) or capacity < 1:
+            raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
+        if not 0 <= receiver < bank.n_receivers:
+            raise RgtbusError(f"readout: receiver {receiver} not in the bank "
+                              f"({bank.n_receivers} receivers)")
+        self.A = np.asarray(bank.A, dtype=complex)
+        self.reset_value = float(bank.reset_value)
+        self.receiver = receiver
+        self.capacity = capacity
+        self._buf = np.zeros((capacity, self.A.size))
+        self._end = 0
+        self._z_prev = np.zeros(self.A.size, dtype=complex)
+        self._sp_prev = np.zeros(self.A.size, dtype=bool)
+
+    @property
+    def end(self) -> int:
+        return self._end
+
+    def quench(self) -> None:
+        """The bank was quenched (z = 0): the next increments start from rest."""
+        self._z_prev[:] = 0
+        self._sp_prev[:] = False
+
+    def append(self, result: FeedResult) -> None:
+        if result.z is None or result.spiked is None:
+            raise RgtbusError("readout needs bank.feed(..., record=True) results")
+        if result.start != self._end:
+            raise RgtbusError(f"readout: result starts at sample {result.start}, expected "
+                              f"{self._end} (results must be appended in order)")
+        z = result.z[:, self.receiver, :]
+        sp = result.spiked[:, self.receiver, :]
+        if not len(z):
+            return
+        d = increments(z, sp, self.A, self.reset_value, self._z_prev, self._sp_prev)
+        self._z_prev = z[-1].copy()
+        self._sp_prev = sp[-1].copy()
+        idx = np.arange(self._end, self._end + len(d)) % self.capacity
+        self._buf[idx] = d
+        self._end += len(d)
+
+    def values(self, indices: np.ndarray | Sequence[int], channels: np.ndarray | int) -> np.ndarray:
+        idx = np.asarray(indices, dtype=np.int64)
+        if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
+            raise RgtbusError(f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
+                              f"the history {max(0, self._end - self.capacity)}..{self._end - 1}")
+        return self._buf[idx % self.capacity, channels]
+
+
+def decode_among(readout: BankReadout, channels: Sequence[tuple[int, float]], start: float,
+                 words: Mapping[str, Sequence[float]], *, tau: float = PAPER_TAU,
+                 search: int = 0) -> tuple[Decision, int]:
+    """Which of ``channels`` ((channel index, ω) pairs) carries a code that started at ``start``
+    (± ``search`` samples), and which word: the (channel, timing, word) with the smallest
+    distance, all candidates scored in one vectorised step. Returns (decision, channel index)."""
+    ws = _words(words, None, "decode")
+    names = list(ws)
+    mat = np.stack([ws[n] for n in names])  # (W, N)
+    pulses = mat.shape[1]
+    rows: list[tuple[int, int, tuple[int, ...]]] = []
+    for ch, omega in channels:
+        for shift, inst in candidate_instants(omega, start, pulses, tau, search):
+            if inst[0] >= 0 and inst[-1] < readout.end:
+                rows.append((ch, shift, inst))
+    if not rows:
+        raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
+    inst = np.array([r[2] for r in rows])
+    chans = np.array([r[0] for r in rows])
+    vals = readout.values(inst, chans[:, None])  # (M, N)
+    dist = np.linalg.norm(vals[:, None, :] - mat[None, :, :], axis=2)  # (M, W)
+    best_w = dist.argmin(axis=1)
+    best_d = dist[np.arange(len(rows)), best_w]
+    m = int(np.argmin(best_d))  # the first minimum: channels in order, nearest shift first
+    w = int(best_w[m])
+    same = np.all(mat == mat[w], axis=1)
+    others = dist[m][~same]
+    margin = float(others.min() - dist[m, w]) if others.size else math.inf
+    sep = float(np.linalg.norm(mat[~same] - mat[w], axis=1).min()) if others.size else 0.0
+    conf = margin / sep if sep > 0 else (1.0 if not others.size else 0.0)
+    ch, shift, instants = rows[m]
+    return Decision(names[w], float(dist[m, w]), margin, conf, tuple(float(x) for x in vals[m]),
+                    instants, shift), ch
+
+
 @dataclass(frozen=True)
 class Decision:
     """A decoded code: ``name`` of the nearest word, its Euclidean ``distance`` to the read
