@@ -1,0 +1,249 @@
+"""``rgtbus replay LOG`` (timeline, --verify, --plot, --csv) and ``rgtbus merge``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "replay",
+        help="read a run's MCAP log: timeline, verification, plots, CSV tables",
+        description="Read a run back from its MCAP log. Without options: what happened, in "
+        "order (transmissions with their decodes, spikes, tables, decisions, outcome). "
+        "--verify re-runs every unit's receiver and reasoning on the logged medium and lists "
+        "each disagreement (exit 0: verified; 1: mismatches; 3: truncated log, everything read "
+        "agrees; 2: unreadable log).",
+    )
+    p.add_argument("log", metavar="LOG", help="an MCAP log written by rgtbus run")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--verify", action="store_true", help="re-run the units and compare")
+    p.add_argument("--plot", metavar="OUT.png", help="the activity-of-unit figure as PNG")
+    p.add_argument("--unit", metavar="NAME", help="unit to plot (default: the first)")
+    p.add_argument("--from", dest="t_from", type=float, metavar="T", help="plot from T s")
+    p.add_argument("--to", dest="t_to", type=float, metavar="T", help="plot up to T s")
+    p.add_argument("--csv", metavar="DIR", help="write transmissions/decodes/decisions/spikes.csv")
+    p.set_defaults(func=replay)
+
+    m = subparsers.add_parser(
+        "merge",
+        help="merge per-process MCAP logs into one time-ordered log",
+        description="Merge MCAP logs into one, ordered by log time: schemas and channels shared "
+        "when identical, byte-identical messages (same topic and time) kept once, metadata "
+        "kept once when identical, differing records with the same name kept as NAME.K "
+        "(K = the input's position).",
+    )
+    m.add_argument("inputs", nargs="+", metavar="LOG", help="input MCAP logs")
+    m.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="merged log")
+    m.add_argument("--keep-duplicates", action="store_true", help="keep byte-identical messages")
+    m.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    m.set_defaults(func=merge)
+
+
+def replay(args: argparse.Namespace) -> int:
+    from rgtbus.telemetry.replay import load_replay
+
+    if args.plot is None and (args.unit or args.t_from is not None or args.t_to is not None):
+        raise RgtbusError("--unit, --from and --to go with --plot OUT.png")
+    rp = load_replay(args.log)
+    if rp.truncated:
+        print(f"note: {rp.note}", file=sys.stderr)
+    side = []
+    if args.csv:
+        side.append(_write_csv(rp, Path(args.csv)))
+    if args.plot:
+        side.append(_plot(rp, args))
+    for line in side:
+        print(line, file=sys.stderr)
+    if args.verify:
+        from units.replay import verify_log
+
+        report = verify_log(rp)
+        if args.json:
+            print(json.dumps(report.to_json()))
+        else:
+            for mm in report.mismatches:
+                print(mm.text())
+            if report.truncated:
+                print(f"note: {report.note}")
+            print(report.verdict())
+        return report.exit_code
+    if args.json:
+        print(json.dumps(rp.to_json()))
+    elif not side:
+        print_timeline(rp)
+    return 0
+
+
+def _write_csv(rp, out: Path) -> str:
+    from rgtbus.telemetry.replay import csv_tables, write_csv
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for name, (header, rows) in csv_tables(rp).items():
+            with open(out / name, "w", newline="", encoding="utf-8") as f:
+                write_csv(header, rows, f)
+    except OSError as e:
+        raise RgtbusError(f"--csv {str(out)!r}: {e.strerror}") from None
+    return f"wrote {', '.join(csv_tables(rp))} to {out}"
+
+
+def _plot(rp, args: argparse.Namespace) -> str:
+    from rgtbus.telemetry.plots import activity_figure, save_png
+    from units.replay import traces_for
+
+    unit = args.unit or (rp.units[0] if rp.units else None)
+    if unit is None or unit not in rp.units:
+        raise RgtbusError(f"--unit {unit!r}: not a unit of this log (units: {', '.join(rp.units)})")
+    trace = traces_for(rp, unit)
+    fig = activity_figure(rp, unit, trace, t_from=args.t_from, t_to=args.t_to)
+    try:
+        with open(args.plot, "wb") as f:
+            save_png(fig, f)
+    except OSError as e:
+        raise RgtbusError(f"--plot {args.plot!r}: {e.strerror}") from None
+    src = "recomputed" if trace["recomputed"] else "logged"
+    return f"wrote {args.plot} (unit {unit}, {src} resonator trace)"
+
+
+def merge(args: argparse.Namespace) -> int:
+    from rgtbus.telemetry.merge import merge_logs
+    from rgtbus.telemetry.recorder import scan_log
+
+    out = Path(args.output)
+    for src in args.inputs:
+        if os.path.exists(src) and out.exists() and os.path.samefile(src, out):
+            raise RgtbusError(f"-o {args.output!r}: is also an input")
+    logs = [scan_log(src) for src in args.inputs]
+    tmp = out.with_name(out.name + ".part")
+    try:
+        with open(tmp, "wb") as f:
+            res = merge_logs(logs, f, compression=args.compression, dedupe=not args.keep_duplicates)
+        os.replace(tmp, out)
+    except OSError as e:
+        raise RgtbusError(f"-o {args.output!r}: {e.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    for note in res.notes:
+        print(f"warning: {note}; merged as far as it goes", file=sys.stderr)
+    renamed = "; ".join(f"{k} -> {v}" for k, v in res.renamed.items())
+    print(
+        f"merged {len(logs)} logs into {out}: {res.messages} messages "
+        f"({res.duplicates} duplicates dropped), {res.channels} channels, {res.schemas} schemas, "
+        f"metadata {', '.join(res.metadata)}" + (f" (renamed: {renamed})" if renamed else "")
+    )
+    return 0
+
+
+# -- the timeline ---------------------------------------------------------------------------
+
+
+def _alt(rp, v: Any) -> str:
+    if v is None:
+        return "none"
+    u = rp.scenario.universe if rp.scenario else None
+    return u.format(u.from_list(v)) if u else "{" + ",".join(v) + "}"
+
+
+def print_timeline(rp) -> None:
+    info = rp.info()
+    s = rp.summary()
+    units = list(rp.units)
+    print(
+        f"log {rp.label}: scenario {info['scenario']} ({info['path']}), seed {info['seed']}, "
+        f"rgtbus {info['version']}, bus {info['bus']}, run {info['run_id']}"
+    )
+    print(
+        f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated in {rp.windows} windows; "
+        f"{len(rp.contents.messages)} messages"
+    )
+    if rp.truncated:
+        print(f"NOTE: {rp.note}")
+    by_tx: dict[tuple[int, str], list] = {}
+    for d in rp.decodes:
+        key = (d.turn, "id" if d.kind == "id" else "payload")
+        by_tx.setdefault(key, []).append(d)
+    print(
+        f"transmissions ({len(rp.transmissions)}), each with its decodes "
+        "(unit ✓/✗ margin; ✗ = not what was sent):"
+    )
+    width = max((len(tx.label) for tx in rp.transmissions), default=10)
+    for tx in rp.transmissions:
+        decs = by_tx.get((tx.turn, tx.kind), [])
+        marks = "  ".join(
+            f"{d.unit}{'✓' if d.matches else '✗'}{d.margin:.3f}"
+            + (
+                ""
+                if d.matches
+                else f"={d.code}" + ("" if d.addressee == tx.addressee else f"@{d.addressee}")
+            )
+            for d in decs
+        )
+        print(
+            f"  {tx.start:8.3f}–{tx.end:8.3f} s  turn {tx.turn:3d}  {tx.label:<{width}}  "
+            f"on {tx.channel}  {marks or '(no decodes)'}"
+        )
+    lost = [d for d in rp.decodes if d.turn is None]
+    if lost:
+        print(f"  decodes matching no logged transmission: {len(lost)}")
+    bad = [d for d in rp.decodes if d.matches is False]
+    margins = [d.margin for d in rp.decodes]
+    print(
+        f"decodes: {len(rp.decodes)}, {len(bad)} not what was sent"
+        + (f"; smallest margin {min(margins):.3f}" if margins else "")
+    )
+    print("spikes per unit (rows) and channel (columns):")
+    counts = rp.spike_counts()
+    print("       " + "".join(f"{c:>6}" for c in units))
+    for u in units:
+        print(f"  {u:<5}" + "".join(f"{counts.get(u, {}).get(c, 0):>6}" for c in units))
+    print("relationship tables (as each unit holds them):")
+    pairs = [f"{a}-{b}" for i, a in enumerate(units) for b in units[i + 1 :]]
+    w = max([len(p) for p in pairs] + [8])
+    print("  " + " " * 6 + "  ".join(p.ljust(w) for p in pairs) + "  polynomial")
+    for u in units:
+        rel = rp.relations.get(u)
+        if rel is None:
+            print(f"  {u:<6}(no table)")
+            continue
+        cells = "  ".join(rel["installed"].get(p, "?").ljust(w) for p in pairs)
+        print(f"  {u:<6}{cells}  {rel['polynomial'] or '(none)'}  t={rel['t']:.3f}s")
+    print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
+    if s["influences"]:
+        print("influences (row influences column), as the first unit holds them:")
+        cells = [["", *units]] + [
+            [src]
+            + [
+                "·" if src == dst else _alt(rp, s["influences"].get(f"{src}>{dst}"))
+                for dst in units
+            ]
+            for src in units
+        ]
+        widths = [max(len(r[i]) for r in cells) for i in range(len(cells[0]))]
+        for r in cells:
+            print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    print("decisions (each unit's own; predictions of the others in --json):")
+    for d in rp.decisions:
+        if d["unit"] != d["subject"]:
+            continue
+        if d["frustrated"]:
+            verdict = "frustrated: no decision"
+        else:
+            lo, hi = (_alt(rp, x) for x in d["interval"])
+            verdict = f"{d['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {d['unit']} ⊇ {lo}"
+            verdict = f"{verdict:<14} choice {_alt(rp, d['choice'])}"
+        print(f"  t={d['t']:.3f}s  {d['canonical']:<28} {verdict}")
+    if s["outcome"] is not None:
+        print(f"outcome: {s['outcome']}")
+    if rp.run is None:
+        print("no /run record: the run did not finish writing its log")
+    elif s["error"]:
+        print(f"run failed: {s['error']}")

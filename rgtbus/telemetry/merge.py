@@ -1,0 +1,132 @@
+"""Merging MCAP logs (one per process of a cross-process run) into one time-ordered log.
+
+Records are copied undecoded. Schemas are shared when identical (name, encoding, bytes);
+channels when identical (topic, encoding, schema, metadata); messages are ordered by log time
+(ties: input order, then file order) and renumbered per channel. A message that is byte for
+byte the same on the same topic at the same time in two inputs (e.g. the medium, logged by
+every process) is kept once unless ``dedupe=False``. Metadata records are kept once when
+identical; a record whose name is taken by a different one (e.g. each process's ``run``) is
+kept as ``NAME.K`` (K = the input's position, from 1). A ``merge`` record lists the inputs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import BinaryIO
+
+from mcap.writer import CompressionType, Writer
+
+from rgtbus import __version__
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.recorder import RawLog
+
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}
+
+
+@dataclass
+class MergeResult:
+    messages: int = 0
+    duplicates: int = 0  # identical messages dropped
+    channels: int = 0
+    schemas: int = 0
+    metadata: list[str] = field(default_factory=list)  # record names written
+    renamed: dict[str, str] = field(default_factory=dict)  # "input K: NAME" -> new name
+    notes: list[str] = field(default_factory=list)  # truncated inputs
+
+
+def merge_logs(
+    logs: Sequence[RawLog],
+    stream: BinaryIO,
+    *,
+    compression: str = "zstd",
+    dedupe: bool = True,
+) -> MergeResult:
+    """Write the merge of ``logs`` (from ``scan_log``) as one MCAP file to ``stream``."""
+    if not logs:
+        raise RgtbusError("merge: no input logs")
+    if compression not in _COMPRESSION:
+        raise RgtbusError(
+            f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
+        )
+    res = MergeResult()
+    writer = Writer(stream, compression=_COMPRESSION[compression])
+    writer.start(profile="", library=f"rgtbus {__version__} merge")
+
+    schema_ids: dict[tuple, int] = {}
+    channel_ids: dict[tuple, int] = {}
+    topic_of: dict[int, str] = {}
+    entries: list[tuple[int, int, int, int, int, bytes]] = []
+    for k, log in enumerate(logs):
+        if log.note:
+            res.notes.append(log.note)
+        local_schema: dict[int, int] = {0: 0}  # schema id 0: no schema
+        for sid, s in log.schemas.items():
+            key = (s.name, s.encoding, bytes(s.data))
+            if key not in schema_ids:
+                schema_ids[key] = writer.register_schema(s.name, s.encoding, s.data)
+            local_schema[sid] = schema_ids[key]
+        local_channel: dict[int, int] = {}
+        for cid, c in log.channels.items():
+            if c.schema_id not in local_schema:
+                raise RgtbusError(f"{log.label}: channel {c.topic} names unknown schema")
+            sid = local_schema[c.schema_id]
+            key = (c.topic, c.message_encoding, sid, tuple(sorted(c.metadata.items())))
+            if key not in channel_ids:
+                channel_ids[key] = writer.register_channel(
+                    c.topic, c.message_encoding, sid, dict(c.metadata)
+                )
+                topic_of[channel_ids[key]] = c.topic
+            local_channel[cid] = channel_ids[key]
+        for order, (cid, log_time, publish_time, _, data) in enumerate(log.messages):
+            entries.append((log_time, k, order, local_channel[cid], publish_time, data))
+    entries.sort(key=lambda e: (e[0], e[1], e[2]))
+
+    seen: set[tuple[int, int, bytes]] = set()
+    sequence: Counter[int] = Counter()
+    for log_time, _, _, cid, publish_time, data in entries:
+        if dedupe:
+            key = (cid, log_time, data)
+            if key in seen:
+                res.duplicates += 1
+                continue
+            seen.add(key)
+        sequence[cid] += 1
+        writer.add_message(cid, log_time, data, publish_time, sequence[cid])
+        res.messages += 1
+
+    kept: dict[str, dict[str, str]] = {}
+    for k, log in enumerate(logs, start=1):
+        for name, values in log.metadata:
+            if any(
+                v == values and (n == name or n.startswith(f"{name}.")) for n, v in kept.items()
+            ):
+                continue
+            new = name
+            if new in kept:
+                new = f"{name}.{k}"
+                i = 2
+                while new in kept:
+                    new = f"{name}.{k}.{i}"
+                    i += 1
+                res.renamed[f"input {k}: {name}"] = new
+            kept[new] = values
+    kept["merge" if "merge" not in kept else "merge.0"] = {
+        "inputs": json.dumps([log.label for log in logs]),
+        "renamed": json.dumps(res.renamed),
+        "truncated": json.dumps(res.notes),
+        "duplicates_dropped": str(res.duplicates),
+    }
+    for name, values in kept.items():
+        writer.add_metadata(name, values)
+    res.metadata = list(kept)
+    res.channels = len(channel_ids)
+    res.schemas = len(schema_ids)
+    writer.finish()
+    return res

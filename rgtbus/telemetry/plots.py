@@ -1,0 +1,272 @@
+"""The paper's "activity of unit" figure for a logged run (matplotlib, Agg, imported lazily).
+
+One panel per channel (one resonator of the unit's bank): its y trace, the pulses on the
+medium on that channel (stems, coloured by sender), the unit's spikes, and each transmission
+labelled with its meaning ("a → c: ID", "a → c: conflict"). Below, the decision timeline of the
+whole run: per unit, its decodes (green: read what was sent, red: not), when its relationship
+table was complete (with the polynomial) and its decision; the zoomed range is shaded.
+
+Labels are placed in up to ``LABEL_ROWS`` staggered rows; a label that fits in no row is left
+out and the panel says how many were (zoom in with ``t_from``/``t_to``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, BinaryIO
+
+import numpy as np
+
+from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from rgtbus.telemetry.replay import Replay
+
+WIDTH_IN = 14.0
+CHANNEL_IN = 2.1
+TIMELINE_MIN_IN = 1.6
+DPI = 100
+LABEL_ROWS = 3
+LABEL_FONT = 7.5
+_Y_LABELS = (1.85, 2.3, 2.75)  # label rows above the threshold
+_COLORS = [
+    "#1f77b4",
+    "#d62728",
+    "#2ca02c",
+    "#9467bd",
+    "#ff7f0e",
+    "#8c564b",
+    "#e377c2",
+    "#17becf",
+    "#7f7f7f",
+    "#bcbd22",
+]
+
+
+def figure_size(n_channels: int, n_units: int) -> tuple[float, float]:
+    """Figure size in inches for a unit with ``n_channels`` resonators in a group of
+    ``n_units`` (the PNG is ``DPI`` times this)."""
+    timeline = max(TIMELINE_MIN_IN, 0.6 + 0.32 * n_units)
+    return WIDTH_IN, CHANNEL_IN * n_channels + timeline
+
+
+def activity_figure(
+    replay: Replay,
+    unit: str,
+    trace: dict[str, Any],
+    *,
+    t_from: float | None = None,
+    t_to: float | None = None,
+) -> Figure:
+    """The figure (not yet saved). ``trace``: ``{"t", "y" (n × channels), "channels",
+    "recomputed"}`` as ``units.replay.traces_for`` returns it."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    units = list(replay.units)
+    if unit not in units:
+        raise RgtbusError(f"--unit {unit!r}: not a unit of this log (units: {', '.join(units)})")
+    end = max(replay.sim_seconds, trace["t"][-1] if len(trace["t"]) else 0.0)
+    lo = 0.0 if t_from is None else float(t_from)
+    hi = end if t_to is None else float(t_to)
+    if not hi > lo:
+        raise RgtbusError(f"--from {lo:g} --to {hi:g}: empty time range (the run is {end:g} s)")
+    channels = list(trace["channels"]) or units
+    color = {u: _COLORS[i % len(_COLORS)] for i, u in enumerate(units)}
+    omegas = replay.info()["frequencies"]
+
+    w, h = figure_size(len(channels), len(units))
+    fig = Figure(figsize=(w, h), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    heights = [CHANNEL_IN] * len(channels) + [h - CHANNEL_IN * len(channels)]
+    axes = fig.subplots(len(channels) + 1, 1, gridspec_kw={"height_ratios": heights})
+    chan_axes = list(axes[:-1])
+    for ax in chan_axes[1:]:
+        ax.sharex(chan_axes[0])
+    source = "recomputed from the logged medium" if trace.get("recomputed") else "logged trace"
+    fig.suptitle(
+        f"Activity of unit {unit} — scenario {replay.info()['scenario']}, "
+        f"seed {replay.info()['seed']} ({source}); {lo:g}–{hi:g} s",
+        fontsize=11,
+    )
+
+    t = np.asarray(trace["t"])
+    y = np.asarray(trace["y"])
+    view = (t >= lo) & (t <= hi)
+    px_per_s = (WIDTH_IN * DPI * 0.86) / (hi - lo)  # axes width ≈ 86 % of the figure
+    hidden_total = 0
+    for ci, (ax, ch) in enumerate(zip(chan_axes, channels, strict=True)):
+        if y.size:
+            ax.plot(t[view], y[view, ci], color="0.25", lw=0.6, label="resonator y")
+        ax.axhline(1.0, color="0.6", lw=0.6, ls="--")
+        ax.axhline(0.0, color="0.85", lw=0.5)
+        # pulses on this channel, coloured by sender
+        for tx in replay.transmissions:
+            if tx.channel != ch or tx.end < lo or tx.start > hi:
+                continue
+            ts = [p[0] for p in tx.pulses]
+            ms = [p[1] for p in tx.pulses]
+            ax.vlines(ts, 0, ms, color=color[tx.sender], lw=1.6)
+        spikes = [s["t"] for s in replay.spikes if s["unit"] == unit and s["channel"] == ch]
+        spikes = [s for s in spikes if lo <= s <= hi]
+        if spikes:
+            ax.plot(spikes, [1.5] * len(spikes), "v", color="#d62728", ms=5, label="spike")
+        hidden_total += _labels(ax, replay, ch, lo, hi, px_per_s, color)
+        om = omegas.get(ch)
+        ax.set_title(
+            f"channel {ch}" + (f" (ω = {om:.3f} rad/s)" if om else ""),
+            loc="left",
+            fontsize=9,
+        )
+        ax.set_ylim(-1.7, 3.05)
+        ax.set_yticks([-1, 0, 1])
+        ax.set_ylabel("y", fontsize=8)
+        ax.tick_params(labelsize=8)
+        ax.set_xlim(lo, hi)
+        if ci < len(channels) - 1:
+            ax.tick_params(labelbottom=False)
+    chan_axes[-1].set_xlabel("t (s)", fontsize=8)
+    if hidden_total:
+        chan_axes[0].text(
+            1.0,
+            1.02,
+            f"{hidden_total} labels left out: zoom in with --from/--to",
+            transform=chan_axes[0].transAxes,
+            ha="right",
+            va="bottom",
+            fontsize=7,
+            color="0.4",
+        )
+    _timeline(axes[-1], replay, lo, hi, end, color)
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], color="0.25", lw=0.8, label="resonator y"),
+        Line2D([], [], color="0.6", lw=0.8, ls="--", label="threshold"),
+        Line2D([], [], color="#d62728", marker="v", ls="", label=f"spike of {unit}"),
+        *(Line2D([], [], color=color[u], lw=2, label=f"pulses from {u}") for u in units),
+    ]
+    fig.legend(
+        handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7.5, frameon=False
+    )
+    return fig
+
+
+def _labels(
+    ax, replay: Replay, ch: str, lo: float, hi: float, px_per_s: float, color: dict[str, str]
+) -> int:
+    """Transmission labels on a channel, greedily in staggered rows; returns how many did not
+    fit."""
+    free = [-np.inf] * LABEL_ROWS  # time from which each row is free
+    hidden = 0
+    char_px = LABEL_FONT * 0.62  # average glyph width at DPI 100, points≈pixels·0.72
+    for tx in replay.transmissions:
+        if tx.channel != ch or tx.start < lo or tx.start > hi:
+            continue
+        width_s = (len(tx.label) * char_px + 8) / px_per_s
+        # near the right edge the label ends at its transmission instead of starting there
+        left = tx.start if tx.start + width_s <= hi else tx.start - width_s
+        for row in range(LABEL_ROWS):
+            if left >= free[row]:
+                free[row] = left + width_s
+                ax.text(
+                    tx.start,
+                    _Y_LABELS[row],
+                    tx.label,
+                    fontsize=LABEL_FONT,
+                    color=color[tx.sender],
+                    va="center",
+                    ha="left" if left == tx.start else "right",
+                    clip_on=True,
+                )
+                ax.plot(
+                    [tx.start, tx.start],
+                    [1.55, _Y_LABELS[row] - 0.15],
+                    color=color[tx.sender],
+                    lw=0.5,
+                    alpha=0.6,
+                )
+                break
+        else:
+            hidden += 1
+    return hidden
+
+
+def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[str, str]) -> None:
+    units = list(replay.units)
+    row = {u: len(units) - 1 - i for i, u in enumerate(units)}
+    # phases of the protocol as bands
+    for phase, shade in (("relations", "#e8f0fa"), ("influences", "#faf0e0")):
+        txs = [x for x in replay.transmissions if x.phase == phase]
+        if txs:
+            a, b = txs[0].start, txs[-1].end
+            ax.axvspan(a, b, color=shade, zorder=0)
+            ax.text(
+                (a + b) / 2,
+                len(units) - 0.35,
+                f"{phase} phase",
+                ha="center",
+                va="center",
+                fontsize=7.5,
+                color="0.35",
+            )
+    if lo > 0 or hi < end:  # the zoomed range of the panels above
+        ax.axvspan(lo, hi, facecolor="0.5", alpha=0.12, edgecolor="0.2", lw=0.8, zorder=1)
+    for d in replay.decodes:
+        c = "#2ca02c" if d.matches is not False else "#d62728"
+        ax.plot([d.t], [row[d.unit]], "|", color=c, ms=7, mew=1.0) if d.unit in row else None
+    for u, rel in replay.relations.items():
+        if u in row:
+            ax.plot([rel["t"]], [row[u]], "s", color=color[u], ms=5)
+            ax.annotate(
+                rel["polynomial"] or "no polynomial",
+                (rel["t"], row[u]),
+                xytext=(4, 4),
+                textcoords="offset points",
+                fontsize=7,
+            )
+    universe = replay.scenario.universe if replay.scenario else None
+    for d in replay.decisions:
+        if d["unit"] != d["subject"] or d["unit"] not in row:
+            continue
+        if d["frustrated"]:
+            text = f"{d['unit']}: frustrated"
+        else:
+            text = f"{d['unit']} chooses {_alt(d['choice'], universe)}"
+            lo_a, hi_a = (_alt(v, universe) for v in d["interval"])
+            text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
+        ax.plot([d["t"]], [row[d["unit"]]], "D", color=color[d["unit"]], ms=6)
+        ax.annotate(
+            text,
+            (d["t"], row[d["unit"]]),
+            xytext=(-6, 4),
+            textcoords="offset points",
+            fontsize=7.5,
+            ha="right",
+        )
+    outcome = replay.summary()["outcome"]
+    ax.set_title(
+        "decision timeline: decodes (green ok, red wrong), tables complete (■), decisions (◆)"
+        + (f" — outcome {outcome}" if outcome else ""),
+        loc="left",
+        fontsize=9,
+    )
+    ax.set_yticks([row[u] for u in units], units, fontsize=8)
+    ax.set_ylim(-0.6, len(units) - 0.1)
+    ax.set_xlim(0, end * 1.01 if end else 1)
+    ax.tick_params(labelsize=8)
+    ax.set_xlabel("t (s), whole run", fontsize=8)
+
+
+def _alt(value: Any, universe) -> str:
+    if value is None:
+        return "none"
+    if universe is None:
+        return "{" + ",".join(value) + "}"
+    return universe.format(universe.from_list(value))
+
+
+def save_png(fig: Figure, stream: BinaryIO) -> None:
+    """Write the figure as PNG to an open binary stream."""
+    fig.savefig(stream, format="png", dpi=DPI)
