@@ -823,8 +823,12 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
         for d in replay.decodes
     ]
 
-    def alt(v: Any) -> str:
-        return "" if v is None else "{" + ",".join(v) + "}"
+    u = replay.scenario.universe if replay.scenario is not None else None
+
+    def alt(v: Any) -> str:  # the text form (1, 0, {alpha}); empty when there is none
+        if v is None:
+            return ""
+        return u.format(u.from_list(v)) if u is not None else "{" + ",".join(v) + "}"
 
     dn_head = ["t", "unit", "subject", "A", "B", "low", "high", "frustrated", "choice", "canonical"]
     dn_rows = [

@@ -1,0 +1,451 @@
+"""Replay of MCAP logs: summary round trip, verification (clean, tampered, truncated), merge,
+plots, CSV, Foxglove layout, refusals."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+import struct
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+from rgtbus.cli import main
+from rgtbus.scenario import load_scenario, parse_scenario
+from rgtbus.telemetry import McapRecorder, read_log, schema_for
+from rgtbus.telemetry import topics as topics_mod
+from rgtbus.telemetry import validate as validate_mod
+from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
+from rgtbus.telemetry.replay import EXIT_TRUNCATED, load_replay
+from units.group import run_group
+from units.replay import rerun, traces_for, verify_log
+
+ROOT = Path(__file__).resolve().parent.parent
+RUN_KEYS = (
+    "scenario",
+    "seed",
+    "polynomial",
+    "relations",
+    "agree",
+    "influences",
+    "units",
+    "outcome",
+    "sim_seconds",
+    "decode_errors",
+    "error",
+)
+
+
+@cache
+def _run(name: str, traces: bool = False, text: str | None = None) -> tuple[bytes, str]:
+    """(MCAP bytes, ``rgtbus run --json``-style summary as JSON) of a scenario run."""
+    sc = (
+        parse_scenario(text, f"{name}.toml")
+        if text is not None
+        else load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    )
+    buf = io.BytesIO()
+    rec = McapRecorder(buf, chunk_size=16 * 1024)
+    out = run_group(sc, "memory", rec, traces=traces)
+    rec.close()
+    return buf.getvalue(), json.dumps(out.summary)
+
+
+def log_bytes(name: str = "example2", traces: bool = False) -> bytes:
+    return _run(name, traces)[0]
+
+
+def write(tmp_path: Path, data: bytes, name: str = "run.mcap") -> Path:
+    p = tmp_path / name
+    p.write_bytes(data)
+    return p
+
+
+def rewrite(data: bytes, edit) -> bytes:
+    """The log with its messages passed through ``edit(list) -> list`` (a hand-altered log)."""
+    messages, metadata = read_log(io.BytesIO(data))
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    for name, values in metadata.items():
+        rec.metadata(name, values)
+    for topic, t, m in edit([(tp, t, json.loads(json.dumps(m))) for tp, t, m in messages]):
+        rec.write(topic, m, t)
+    rec.close()
+    return buf.getvalue()
+
+
+def cli(capsys, *args) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# -- round trip ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["overview", "example2", "gate"])
+def test_summary_round_trip_and_clean_verify(name):
+    data, summary_json = _run(name)
+    summary = json.loads(summary_json)
+    rp = load_replay(io.BytesIO(data))
+    got = rp.summary()
+    assert {k: got[k] for k in RUN_KEYS} == {k: summary[k] for k in RUN_KEYS}
+    assert got["windows"] == summary["windows"]
+    assert got["unit_relations"] == summary["unit_relations"]
+    report = verify_log(rp)
+    assert report.ok and report.exit_code == 0 and report.mismatches == []
+    assert report.checked["/rx/decode"] > 0 and report.checked["/unit/decision"] > 0
+
+
+def test_rerun_summary_equals_the_runs_own():
+    data, summary_json = _run("example2")
+    rp = load_replay(io.BytesIO(data))
+    out = rerun(rp.scenario, rp.medium_windows())
+    strip = ("wall_seconds", "bus")
+    assert {k: v for k, v in out.summary.items() if k not in strip} == {
+        k: v for k, v in json.loads(summary_json).items() if k not in strip
+    }
+
+
+def test_replay_cli_text_and_json(tmp_path, capsys):
+    path = write(tmp_path, log_bytes("gate"))
+    code, out, _ = cli(capsys, "replay", path)
+    assert code == 0
+    assert "a → b: ID" in out and "d → c: influence 1" in out and "outcome: gate: open" in out
+    assert "all units agree: yes" in out and "seed 3" in out
+    code, out, _ = cli(capsys, "replay", path, "--json")
+    doc = json.loads(out)
+    assert {"transmissions", "decodes", "decisions", "agree", "metadata"} <= set(doc)
+    assert len(doc["transmissions"]) == 48 and doc["agree"] is True
+    assert doc["metadata"]["scenario"] == "gate" and doc["metadata"]["seed"] == 3
+    assert all(d["matches"] for d in doc["decodes"]) and len(doc["decodes"]) == 192
+    first = doc["transmissions"][0]
+    assert (first["sender"], first["addressee"], first["meaning"]) == ("a", "b", "ID")
+    assert first["start"] == 0.0 and first["end"] > first["start"]
+
+
+# -- verification -------------------------------------------------------------------------
+
+
+def test_verify_cli_clean(tmp_path, capsys):
+    code, out, _ = cli(capsys, "replay", write(tmp_path, log_bytes()), "--verify")
+    assert code == 0 and out.startswith("verified:")
+    code, out, _ = cli(capsys, "replay", write(tmp_path, log_bytes()), "--verify", "--json")
+    doc = json.loads(out)
+    assert code == 0 and doc["ok"] and doc["mismatches"] == []
+
+
+def _tamper_choice(msgs):
+    for _, _, m in msgs:
+        if m.get("subject") == "b" and m.get("unit") == "b" and "choice" in m:
+            m["choice"] = ["beta"] if m["choice"] != ["beta"] else []
+            return msgs
+    raise AssertionError("no decision to tamper with")
+
+
+def _tamper_sample(msgs):
+    for _, _, m in msgs:
+        if "samples" in m and any(m["samples"]):
+            i = next(i for i, v in enumerate(m["samples"]) if v)
+            m["samples"][i] += 0.001
+            return msgs
+    raise AssertionError("no medium window to tamper with")
+
+
+def _tamper_delete_decode(msgs):
+    i = next(i for i, (tp, _, m) in enumerate(msgs) if tp == "/rx/decode" and m["kind"] != "id")
+    return msgs[:i] + msgs[i + 1 :]
+
+
+@pytest.mark.parametrize(
+    "edit, topic, field",
+    [
+        (_tamper_choice, "/unit/decision", "choice"),
+        (_tamper_sample, "/medium", "samples["),
+        (_tamper_delete_decode, "/rx/decode", "from"),
+    ],
+    ids=["decision-choice", "medium-sample", "deleted-decode"],
+)
+def test_tampering_is_caught(tmp_path, capsys, edit, topic, field):
+    path = write(tmp_path, rewrite(log_bytes(), edit))
+    code, out, _ = cli(capsys, "replay", path, "--verify")
+    assert code == 1 and "MISMATCH" in out
+    lines = [ln for ln in out.splitlines() if ln.startswith(topic)]
+    assert lines and any(field in ln for ln in lines), out
+
+
+def test_tampered_decision_names_logged_and_recomputed(tmp_path):
+    report = verify_log(io.BytesIO(rewrite(log_bytes(), _tamper_choice)))
+    mm = [m for m in report.mismatches if m.topic == "/unit/decision"]
+    # caught twice: by the re-run units and by re-deriving from the logged tables
+    assert {m.unit for m in mm} == {"b"} and len(mm) == 2
+    assert any("from its tables" in m.field for m in mm)
+    assert all(m.logged == ["beta"] and m.recomputed == ["alpha"] for m in mm)
+
+
+def test_medium_sample_mismatch_points_at_the_sample():
+    report = verify_log(io.BytesIO(rewrite(log_bytes(), _tamper_sample)))
+    med = [m for m in report.mismatches if m.topic == "/medium"]
+    assert len(med) == 1 and re.fullmatch(r"window \d+ samples\[\d+\]", med[0].field)
+    assert med[0].logged == pytest.approx(med[0].recomputed + 0.001)
+
+
+def test_truncated_log_verified_as_far_as_it_goes(tmp_path, capsys):
+    data = log_bytes()
+    cut = data[: len(data) // 2]
+    path = write(tmp_path, cut, "cut.mcap")
+    code, out, err = cli(capsys, "replay", path, "--verify")
+    assert code == EXIT_TRUNCATED == 3
+    assert "log truncated" in err and "INCOMPLETE" in out and "verified only that far" in out
+    report = verify_log(io.BytesIO(cut))
+    assert report.truncated and not report.ok and report.mismatches == []
+    assert 0 < report.until < 76 and report.checked["/rx/decode"] > 0
+    # the timeline reads the truncated log too, and says so
+    code, out, _ = cli(capsys, "replay", path)
+    assert code == 0 and "NOTE:" in out and "no /run record" in out
+    # tampering before the cut is still caught
+    bad = rewrite(data, _tamper_delete_decode)
+    report = verify_log(io.BytesIO(bad[: len(bad) * 2 // 3]))
+    assert report.exit_code == 1 and any(m.topic == "/rx/decode" for m in report.mismatches)
+
+
+def test_gains_and_noise_verify_from_per_sender_pulses():
+    text = (ROOT / "scenarios" / "example2.toml").read_text()
+    text = text.replace(
+        "[relations]", '[channel]\nnoise = 0.001\n[channel.gain]\n"a>b" = 0.98\n\n[relations]', 1
+    )
+    data, summary = _run("example2-gains", text=text)
+    assert json.loads(summary)["error"] is None
+    rp = load_replay(io.BytesIO(data))
+    assert rp.has_gains()
+    assert verify_log(rp).ok
+    # fed the summed medium instead, b's receiver hears a's codes 2 % too loud: caught
+    from rgtbus.telemetry.replay import verify
+
+    wrong = verify(rp, rerun(rp.scenario, rp.medium_windows()))
+    assert wrong.mismatches and {m.unit for m in wrong.mismatches if m.unit} <= {"b"}
+
+
+# -- merge --------------------------------------------------------------------------------
+
+
+def _split(data: bytes, unit: str) -> tuple[bytes, bytes]:
+    """Two per-process logs: one with ``unit``'s messages (and the medium), one with the rest."""
+    messages, metadata = read_log(io.BytesIO(data))
+
+    def mine(topic, m):
+        return m.get("unit", m.get("name")) == unit or topic in ("/medium", "/run")
+
+    out = []
+    for keep in (True, False):
+        buf = io.BytesIO()
+        rec = McapRecorder(buf)
+        for name, values in metadata.items():
+            rec.metadata(
+                name, values | ({"process": unit if keep else "rest"} if name == "run" else {})
+            )
+        for topic, t, m in messages:
+            # both processes log the medium and the summary; the merge keeps one copy
+            if mine(topic, m) == keep or topic in ("/medium", "/run"):
+                rec.write(topic, m, t)
+        rec.close()
+        out.append(buf.getvalue())
+    return out[0], out[1]
+
+
+def test_merge_two_process_logs(tmp_path, capsys):
+    data = log_bytes()
+    a, rest = _split(data, "a")
+    pa, pr = write(tmp_path, a, "a.mcap"), write(tmp_path, rest, "rest.mcap")
+    out = tmp_path / "merged.mcap"
+    code, text, _ = cli(capsys, "merge", pa, pr, "-o", out)
+    assert code == 0 and "duplicates dropped" in text
+    merged = read_log(out)
+    orig = read_log(io.BytesIO(data))
+    key = lambda m: (m[1], m[0], json.dumps(m[2], sort_keys=True))  # noqa: E731
+    assert sorted(merged.messages, key=key) == sorted(orig.messages, key=key)
+    assert [m[1] for m in merged.messages] == sorted(m[1] for m in merged.messages)
+    assert merged.metadata["run"]["process"] == "a"
+    assert merged.metadata["run.2"]["process"] == "rest"
+    assert merged.metadata["scenario"] == orig.metadata["scenario"]
+    assert "scenario.2" not in merged.metadata  # identical records kept once
+    assert json.loads(merged.metadata["merge"]["inputs"]) == [str(pa), str(pr)]
+    assert cli(capsys, "replay", out, "--verify")[0] == 0
+    # channels deduplicated: one per topic
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    topics = [c.topic for c in summary.channels.values()]
+    assert len(topics) == len(set(topics)) and len(summary.schemas) == len(
+        {s.name for s in summary.schemas.values()}
+    )
+
+
+def test_merge_refusals(tmp_path, capsys):
+    good = write(tmp_path, log_bytes())
+    bad = write(tmp_path, b"not an mcap file at all", "bad.mcap")
+    code, _, err = cli(capsys, "merge", good, bad, "-o", tmp_path / "o.mcap")
+    assert code == 2 and "bad.mcap" in err and "not an MCAP file" in err
+    code, _, err = cli(capsys, "merge", good, "-o", good)
+    assert code == 2 and "also an input" in err
+    assert read_log(good).messages  # the input is untouched
+
+
+def test_merge_keeps_a_truncated_input_as_far_as_it_goes(tmp_path, capsys):
+    data = log_bytes()
+    cut = write(tmp_path, data[: len(data) // 2], "cut.mcap")
+    out = tmp_path / "m.mcap"
+    code, _, err = cli(capsys, "merge", cut, "-o", out)
+    assert code == 0 and "warning" in err and "truncated" in err
+    assert len(read_log(out).messages) == len(read_log(cut).messages)
+
+
+# -- plots, CSV, Foxglove -----------------------------------------------------------------
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", head[16:24])
+
+
+def test_plot_writes_png_with_the_expected_panels(tmp_path, capsys):
+    path = write(tmp_path, log_bytes(traces=True))
+    png = tmp_path / "a.png"
+    code, _, err = cli(
+        capsys, "replay", path, "--plot", png, "--unit", "b", "--from", "10", "--to", "40"
+    )
+    assert code == 0 and "logged resonator trace" in err
+    w, h = figure_size(3, 3)
+    assert _png_size(png) == (round(w * DPI), round(h * DPI))
+    rp = load_replay(path)
+    fig = activity_figure(rp, "b", traces_for(rp, "b"), t_from=10, t_to=40)
+    titles = [ax.get_title(loc="left") for ax in fig.axes]
+    assert len(fig.axes) == 4
+    assert [t.split(" (")[0] for t in titles[:3]] == ["channel a", "channel b", "channel c"]
+    assert titles[3].startswith("decision timeline")
+    texts = [t.get_text() for ax in fig.axes[:3] for t in ax.texts]
+    shown = {tx.label for tx in rp.transmissions if 10 <= tx.start <= 40}
+    assert "a → b: ID" in shown and shown <= set(texts)
+    assert fig.axes[0].get_xlim() == (10, 40)
+
+
+def test_plot_recomputes_the_trace_when_not_logged(tmp_path, capsys):
+    path = write(tmp_path, log_bytes())
+    png = tmp_path / "c.png"
+    code, _, err = cli(capsys, "replay", path, "--plot", png, "--unit", "c")
+    assert code == 0 and "recomputed" in err and png.stat().st_size > 10_000
+    rp = load_replay(path)
+    logged = traces_for(load_replay(io.BytesIO(log_bytes(traces=True))), "c")
+    again = traces_for(rp, "c")
+    assert again["recomputed"] and not logged["recomputed"]
+    assert (again["y"] == logged["y"]).all()  # the re-run bank is the logged bank
+
+
+def test_plot_refusals(tmp_path, capsys):
+    path = write(tmp_path, log_bytes())
+    code, _, err = cli(capsys, "replay", path, "--plot", tmp_path / "x.png", "--unit", "zz")
+    assert code == 2 and "'zz'" in err
+    code, _, err = cli(
+        capsys, "replay", path, "--plot", tmp_path / "x.png", "--from", "5", "--to", "5"
+    )
+    assert code == 2 and "empty time range" in err
+    code, _, err = cli(capsys, "replay", path, "--unit", "a")
+    assert code == 2 and "--plot" in err
+
+
+def test_csv_tables(tmp_path, capsys):
+    path = write(tmp_path, log_bytes())
+    out = tmp_path / "tables"
+    assert cli(capsys, "replay", path, "--csv", out)[0] == 0
+    rows = {}
+    for name in ("transmissions", "decodes", "decisions", "spikes"):
+        with open(out / f"{name}.csv", newline="", encoding="utf-8") as f:
+            rows[name] = list(csv.DictReader(f))
+    assert len(rows["transmissions"]) == 24 and rows["transmissions"][0]["meaning"] == "ID"
+    assert list(rows["transmissions"][0])[:5] == ["turn", "phase", "kind", "sender", "addressee"]
+    assert len(rows["decodes"]) == 72 and {r["matches"] for r in rows["decodes"]} == {"true"}
+    assert float(rows["decodes"][0]["margin"]) > 0
+    own = [r for r in rows["decisions"] if r["unit"] == r["subject"]]
+    assert [(r["unit"], r["low"], r["high"]) for r in own] == [
+        ("a", "0", "1"),
+        ("b", "{alpha}", "{alpha}"),
+        ("c", "0", "{beta}"),
+    ]
+    assert rows["spikes"] and set(rows["spikes"][0]) == {"t", "unit", "channel", "omega", "sample"}
+
+
+def test_every_logged_message_validates_against_its_schema():
+    messages, _ = read_log(io.BytesIO(log_bytes(traces=True)))
+    seen = set()
+    for topic, _, m in messages:
+        schema = topics_mod.load_schema(schema_for(topic))
+        assert validate_mod.errors(m, schema) == [], topic
+        seen.add(topic)
+    assert {
+        "/medium",
+        "/tx/pulse",
+        "/rx/spike",
+        "/rx/decode",
+        "/unit/relations",
+        "/unit/influences",
+        "/unit/decision",
+        "/log",
+        "/run",
+        "/trace/a",
+    } <= seen
+
+
+def _layout_topics(node, out):
+    if isinstance(node, dict):
+        for k, v in node.items():
+            if k in ("value", "topicPath", "topicToRender") and isinstance(v, str):
+                out.append(re.match(r"^(/[^.{\[]*)", v).group(1))
+            else:
+                _layout_topics(v, out)
+    elif isinstance(node, list):
+        for v in node:
+            _layout_topics(v, out)
+    return out
+
+
+def test_foxglove_layout_names_only_existing_topics():
+    layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
+    panels = set(layout["configById"])
+    kinds = {p.split("!")[0] for p in panels}
+    assert {"Plot", "Log", "RawMessages"} <= kinds
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert set(leaves(layout["layout"])) == panels
+    topics = _layout_topics(layout["configById"], [])
+    logged = {t for t, _, _ in read_log(io.BytesIO(log_bytes(traces=True))).messages}
+    for topic in topics:
+        schema_for(topic)  # a topic the recorder registers
+        assert topic in logged, topic
+    assert {"/medium", "/log", "/unit/decision", "/trace/a"} <= set(topics)
+
+
+def test_unreadable_input_exit_2(tmp_path, capsys):
+    for data in (b"", b"hello, not mcap", b"\x89MCAP0\r\n"):
+        code, out, err = cli(capsys, "replay", write(tmp_path, data, "x.mcap"), "--verify")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+        assert "not an MCAP file" in err
+    code, _, err = cli(capsys, "replay", tmp_path / "missing.mcap")
+    assert code == 2 and "missing.mcap" in err
+
+
+def test_log_without_scenario_cannot_be_verified(tmp_path, capsys):
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    rec.write("/medium", {"window": 0, "t": 0.0, "sample_rate": 200.0, "samples": [0.0]}, 0)
+    rec.close()
+    path = write(tmp_path, buf.getvalue())
+    assert cli(capsys, "replay", path)[0] == 0
+    code, _, err = cli(capsys, "replay", path, "--verify")
+    assert code == 2 and "no scenario metadata" in err
