@@ -12,6 +12,11 @@ The world knows the members only through this interface (no import of ``units/``
 * ``name``; ``begin(env)``; ``render(window) -> np.ndarray`` (L float64 samples);
 * ``hear(window, gathered: {unit: samples})``;
 * ``finished`` (bool) and ``failure`` (str | None).
+
+The members given may be a subset of the bus's members (one unit per OS process): the others
+are heard through the bus only. Each member's publish carries FINAL once it has finished and
+FAILED once it has failed; the run ends after the first window in which every member is FINAL,
+or in which any is FAILED, so every process stops at the same window.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import numpy as np
 import simpy
 
 from rgtbus.bus.base import Bus
+from rgtbus.bus.payload import FAILED, FINAL
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import Recorder
 
@@ -67,6 +73,7 @@ class World:
         max_seconds: float,
         gather_timeout: float = 5.0,
         progress: Callable[[float, int], None] | None = None,
+        write_medium: bool = True,
     ) -> None:
         if window_samples < 1:
             raise RgtbusError(f"window of {window_samples} samples: need at least one")
@@ -79,6 +86,7 @@ class World:
         self.max_windows = int(np.ceil(max_seconds / self.window_seconds))
         self.gather_timeout = gather_timeout
         self.progress = progress
+        self.write_medium = write_medium  # one process of a cross-process run logs the medium
         self.env = simpy.Environment()
         self.failure: str | None = None
         self.windows = 0
@@ -89,38 +97,47 @@ class World:
 
     def _medium(self):
         env = self.env
-        order = [m.name for m in self.members]
+        names = self.bus.members  # every member of the run, local or not, in a fixed order
+        local = {m.name: m for m in self.members}
         for w in range(self.max_windows):
             self.windows = w + 1
             opened, self._opened = self._opened, env.event()
             opened.succeed(w)
-            yield env.timeout(0)  # the members publish at the window's start
+            yield env.timeout(0)  # the local members publish at the window's start
             gathered = self.bus.gather(w, timeout=self.gather_timeout)
+            flags = self.bus.last_flags
             yield env.timeout(self.window_seconds)
-            medium = np.zeros(self.window_samples)
-            for name in order:  # fixed order: the same float sum on every bus
-                medium += gathered[name]
-            self.recorder.write(
-                "/medium",
-                {
-                    "window": w,
-                    "t": w * self.window_seconds,
-                    "sample_rate": self.sample_rate,
-                    "samples": medium.tolist(),
-                },
-                ns(w * self.window_seconds),
-            )
+            if self.write_medium:
+                medium = np.zeros(self.window_samples)
+                for name in names:  # fixed order: the same float sum in every process
+                    medium += gathered[name]
+                self.recorder.write(
+                    "/medium",
+                    {
+                        "window": w,
+                        "t": w * self.window_seconds,
+                        "sample_rate": self.sample_rate,
+                        "samples": medium.tolist(),
+                    },
+                    ns(w * self.window_seconds),
+                )
+            # Flags travel with the samples, so every process ends the run at the same window.
+            failed = [u for u in names if flags.get(u, 0) & FAILED]
+            if failed:
+                u = failed[0]
+                self.failure = (
+                    local[u].failure
+                    if u in local and local[u].failure
+                    else f"unit {u} failed (window {w}; see its log)"
+                )
+                return
+            if all(flags.get(u, 0) & FINAL for u in names):
+                return
             heard, self._heard = self._heard, env.event()
             heard.succeed((w, gathered))
-            yield env.timeout(0)  # the members react before the next window opens
+            yield env.timeout(0)  # the local members react before the next window opens
             if self.progress is not None:
                 self.progress(env.now, w)
-            failed = [m for m in self.members if m.failure]
-            if failed:
-                self.failure = failed[0].failure
-                return
-            if all(m.finished for m in self.members):
-                return
         self.failure = (
             f"not finished after {self.max_windows * self.window_seconds:.1f} s of simulated "
             "time (timing.max_seconds)"
@@ -130,7 +147,8 @@ class World:
         member.begin(self.env)
         while True:
             w = yield self._opened
-            self.bus.publish(member.name, w, member.render(w))
+            flags = FAILED if member.failure else FINAL if member.finished else 0
+            self.bus.publish(member.name, w, member.render(w), flags)
             w, gathered = yield self._heard
             member.hear(w, gathered)
 

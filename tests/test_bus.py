@@ -297,6 +297,10 @@ def test_zenoh_two_runs_sharing_a_session_count_each_other_as_foreign():
             assert all((v == 1).all() for v in bus_a.gather(0, timeout=2.0).values())
             assert all((v == 2).all() for v in bus_b.gather(0, timeout=2.0).values())
             for bus in (bus_a, bus_b):
+                # The other run's samples may still be in flight when gather returns.
+                deadline = time.monotonic() + 2.0
+                while bus.stats()["dropped_foreign"] < 2 and time.monotonic() < deadline:
+                    time.sleep(0.01)
                 assert bus.stats()["dropped_foreign"] == 2
                 assert bus.stats()["accepted"] == 2
         assert not session.is_closed()  # a borrowed session is left to its owner
@@ -397,7 +401,8 @@ GOOD = encode(3, 200.0, np.arange(4, dtype=float))
         (_patch(GOOD, 0, b"RGTC"), r"bad magic b'RGTC', expected b'RGTB'"),
         (_patch(GOOD, 4, b"\x02"), r"version 2 unsupported, expected 1"),
         (_patch(GOOD, 5, b"f"), r"dtype code b'f' unsupported"),
-        (_patch(GOOD, 8, b"\x01"), r"reserved bytes not zero: 000001000000"),
+        (_patch(GOOD, 8, b"\x01"), r"reserved bytes not zero: 0001000000"),
+        (_patch(GOOD, 6, b"\x04"), r"payload flags 0x04 hold unknown bits"),
         (_patch(GOOD, 20, struct.pack("<d", float("nan"))), r"sample rate nan not finite"),
         (_patch(GOOD, 20, struct.pack("<d", -1.0)), r"sample rate -1.0 not finite and > 0"),
         (GOOD[:-1], r"length 63 bytes does not match count 4 \(expected 64\)"),
@@ -447,3 +452,17 @@ def test_zenoh_bus_left_open_does_not_hang_the_interpreter_at_exit():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=20)
     assert out.returncode == 0 and out.stdout == "ok\n", out.stderr
+
+
+def test_flags_travel_with_the_window(make_bus):
+    from rgtbus.bus.payload import FAILED, FINAL, decode_frame
+
+    bus = make_bus()
+    for w, flags in enumerate([{"a": 0, "b": FINAL, "c": FAILED}, {"a": FINAL, "b": 0, "c": 0}]):
+        for u in "abc":
+            bus.publish(u, w, np.zeros(WLEN), flags=flags[u])
+        bus.gather(w, timeout=2.0)
+        assert bus.last_flags == flags
+    assert decode_frame(encode(0, RATE, np.zeros(2), FINAL | FAILED))[3] == 3
+    with pytest.raises(RgtbusError, match="only FINAL"):
+        encode(0, RATE, np.zeros(2), 4)

@@ -18,7 +18,7 @@ from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
-from rgtbus.bus.payload import decode, encode
+from rgtbus.bus.payload import decode_frame, encode
 from rgtbus.errors import RgtbusError
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
@@ -31,7 +31,7 @@ class Bus(Protocol):
     run_id: str
     members: tuple[str, ...]
 
-    def publish(self, unit: str, window: int, samples: np.ndarray) -> None: ...
+    def publish(self, unit: str, window: int, samples: np.ndarray, flags: int = 0) -> None: ...
     def gather(self, window: int, timeout: float = 5.0) -> dict[str, np.ndarray]: ...
     def stats(self) -> dict[str, int]: ...
     def close(self) -> None: ...
@@ -119,6 +119,9 @@ class QueueBus:
         self._keys = {u: tx_key(self.run_id, u) for u in self.members}
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._buffer: dict[int, dict[str, np.ndarray]] = {}
+        self._flags: dict[int, dict[str, int]] = {}
+        # Flags of the last gathered window, per member (FINAL, FAILED): how a run ends.
+        self.last_flags: dict[str, int] = {}
         self._next_window = 0  # windows below this were gathered (or skipped): late
         self._last_published: dict[str, int] = {}
         self._stats = dict.fromkeys(STAT_KEYS, 0)
@@ -127,7 +130,7 @@ class QueueBus:
 
     # -- public API -------------------------------------------------------------------------
 
-    def publish(self, unit: str, window: int, samples: np.ndarray) -> None:
+    def publish(self, unit: str, window: int, samples: np.ndarray, flags: int = 0) -> None:
         self._check_open("publish")
         self._check_member(unit)
         if unit not in self.local:
@@ -146,7 +149,7 @@ class QueueBus:
                 f"unit {unit!r} window {window}: samples shape {arr.shape}, "
                 f"expected ({self.window_len},)"
             )
-        data = encode(window, self.sample_rate, arr)
+        data = encode(window, self.sample_rate, arr, flags)
         self._send(self._keys[unit], data)
         self._last_published[unit] = window
         self._stats["published"] += 1
@@ -176,9 +179,11 @@ class QueueBus:
             self._accept(*item)
             self._drain()
         got = self._buffer.pop(window)
+        self.last_flags = self._flags.pop(window, {})
         # Windows below the gathered one can never complete now: forget them.
         for w in [w for w in self._buffer if w < window]:
             self._stats["dropped_late"] += len(self._buffer.pop(w))
+            self._flags.pop(w, None)
         self._next_window = window + 1
         self._stats["gathered"] += 1
         return {u: got[u] for u in self.members}
@@ -283,7 +288,7 @@ class QueueBus:
             self._drop("dropped_foreign", f"{key}: {unit!r} is not a member")
             return
         try:
-            window, rate, samples = decode(data)
+            window, rate, samples, flags = decode_frame(data)
         except RgtbusError as e:
             self._drop("dropped_malformed", f"{key}: {e}")
             return
@@ -313,6 +318,7 @@ class QueueBus:
             self._drop("dropped_duplicate", f"{key}: window {window} received twice")
             return
         slot[unit] = samples
+        self._flags.setdefault(window, {})[unit] = flags
         self._stats["accepted"] += 1
 
 
