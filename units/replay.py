@@ -59,8 +59,9 @@ class Rerun:
     messages: list[tuple[str, int, dict]]  # what the re-run units recorded, in write order
     summary: dict[str, Any]  # summarise() of the re-run units (the run's own summary fields)
     units: list[AutonomousUnit]
-    windows: int
+    windows: int  # windows used, the closing one included when the log has it
     complete: bool  # every re-run unit finished or failed (as the World would have stopped)
+    closed: bool  # the log held the closing window (the World logs it, then ends the run)
 
 
 def rerun(
@@ -93,12 +94,22 @@ def rerun(
     t0 = time.perf_counter()
     failure = None
     done = 0
+    stopped = False
     max_windows = math.ceil(sc.timing.max_seconds / ws)
     for w, medium in enumerate(windows):
         if w:
             env.run(until=w * ws)  # announcements (log lines) due before this window
+        # As the World: a window opens with every member's flags (finished, failed); the
+        # first window in which all have finished or one has failed is logged, not heard.
+        failed = [m for m in members if m.failure]
+        stop = bool(failed) or all(m.finished for m in members)
         for m in members:
             m.render(w)
+        done = w + 1
+        if stop:
+            failure = failed[0].failure if failed else None
+            stopped = True
+            break
         if parts is not None:
             gathered = parts[w]
         else:
@@ -106,15 +117,12 @@ def rerun(
             gathered[sc.units[0]] = medium
         for m in members:
             m.hear(w, gathered)
-        done = w + 1
-        failed = [m for m in members if m.failure]
-        if failed:
-            failure = failed[0].failure
-            break
-        if all(m.finished for m in members):
-            break
     env.run(until=done * ws + 1e-9)
-    complete = failure is not None or all(m.finished for m in members)
+    # The log ended before the closing window: complete if the units were done anyway.
+    failed = [m for m in members if m.failure]
+    complete = stopped or bool(failed) or all(m.finished for m in members)
+    if not stopped and failed:
+        failure = failed[0].failure
     if not complete and done >= max_windows:
         complete = True
         failure = (
@@ -122,7 +130,7 @@ def rerun(
         )
     result = WorldResult(done, done * ws, time.perf_counter() - t0, failure)
     summary = summarise(sc, members, result) if only is None else {}
-    return Rerun(rec.messages, summary, members, done, complete)
+    return Rerun(rec.messages, summary, members, done, complete, stopped)
 
 
 def rerun_replay(
