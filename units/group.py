@@ -26,10 +26,6 @@ class RunOutput:
     units: list[AutonomousUnit]
 
 
-def _interval_json(u, r) -> list[list[str]] | None:
-    return None if r.frustrated else [u.to_list(r.B), u.to_list(r.A)]
-
-
 def run_group(
     scenario: Scenario,
     bus_kind: str,
@@ -70,7 +66,7 @@ def run_group(
             progress=progress,
         )
         result = world.run()
-    summary = summarise(sc, members, result)
+    summary = summarise(sc, [m.report() for m in members], result)
     recorder.write(
         "/run",
         {
@@ -86,74 +82,50 @@ def run_group(
     return RunOutput(summary, members)
 
 
-def summarise(sc: Scenario, members: list[AutonomousUnit], result) -> dict[str, Any]:
-    u = sc.universe
-    tables = {}
-    for m in members:
-        tables[m.name] = m.mind.installed()
-    first = tables[members[0].name]
-    agree = all(t == first for t in tables.values()) and all(
-        m.mind.polynomial == members[0].mind.polynomial for m in members
+def summarise(sc: Scenario, reports: list[dict[str, Any]], result) -> dict[str, Any]:
+    """The run's summary from every unit's ``report()`` (one process or many)."""
+    by_unit = {r["unit"]: r for r in reports}
+    ref = by_unit[sc.units[0]]
+    tables = {r["unit"]: r["installed"] for r in reports}
+    agree = len(reports) == len(sc.units) and all(
+        r["installed"] == ref["installed"] and r["polynomial"] == ref["polynomial"] for r in reports
     )
     # Ground truth for decode errors: what was actually sent, per (turn, kind).
     truth = {}
-    for m in members:
-        for s in m.sent:
-            truth[(s.turn, "id" if s.kind == "id" else "payload")] = (s.addressee, s.code)
+    for r in reports:
+        for turn, kind, addressee, code in r["sends"]:
+            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
     decode_errors = []
-    for m in members:
-        for d in m.decoded:
-            key = (d.turn, "id" if d.kind == "id" else "payload")
+    for r in reports:
+        for turn, kind, addressee, code in r["decodes"]:
+            key = (turn, "id" if kind == "id" else "payload")
             if key not in truth:
                 continue
-            addressee, code = truth[key]
-            wrong = (
-                (d.code != "id") if d.kind == "id" else (d.code != code or d.addressee != addressee)
-            )
+            sent_to, sent = truth[key]
+            wrong = (code != "id") if kind == "id" else (code != sent or addressee != sent_to)
             if wrong:
                 decode_errors.append(
-                    {
-                        "unit": m.name,
-                        "turn": d.turn,
-                        "kind": d.kind,
-                        "decoded": d.code,
-                        "sent": code,
-                    }
+                    {"unit": r["unit"], "turn": turn, "kind": kind, "decoded": code, "sent": sent}
                 )
-    ref = members[0].mind
-    units_out = {}
-    for m in members:
-        r = m.mind.results[m.name] if m.mind.results else None
-        units_out[m.name] = {
-            "interval": _interval_json(u, r) if r else None,
-            "frustrated": bool(r.frustrated) if r else False,
-            "choice": None if m.mind.choice is None else u.to_list(m.mind.choice),
-            "canonical": m.mind.canonical(m.name) if m.mind.df else None,
-            "A": u.to_list(r.A) if r else None,
-            "B": u.to_list(r.B) if r else None,
-            "decided": r is not None,
-        }
+    units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome: Any = None
-    if sc.outcome is not None and all(m.mind.results for m in members):
-        ok = all(
-            members[sc.units.index(x)].mind.choice == sc.outcome.choose for x in sc.outcome.all_of
-        )
+    if sc.outcome is not None and all(v["decided"] for v in units_out.values()):
+        want = sc.universe.to_list(sc.outcome.choose)
+        ok = all(units_out[x]["choice"] == want for x in sc.outcome.all_of)
         outcome = f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
     error = result.failure
     if error is None:
-        errs = [m.mind.error for m in members if m.mind.error]
+        errs = [r["failure"] or r["mind_error"] for r in reports if r["failure"] or r["mind_error"]]
         error = errs[0] if errs else None
     return {
         "scenario": sc.name,
         "seed": sc.seed,
-        "polynomial": ref.polynomial,
-        "relations": ref.installed(),
-        "sent_relations": {
-            f"{s}>{r}": "alliance" if v else "conflict" for (s, r), v in sorted(ref.sent.items())
-        },
+        "polynomial": ref["polynomial"],
+        "relations": ref["installed"],
+        "sent_relations": ref["sent_relations"],
         "unit_relations": tables,
         "agree": agree,
-        "influences": {f"{s}>{r}": u.to_list(v) for (s, r), v in sorted(ref.influences.items())},
+        "influences": ref["influences"],
         "units": units_out,
         "outcome": outcome,
         "decode_errors": decode_errors,

@@ -369,3 +369,35 @@ class AutonomousUnit:
                 },
                 ns(t),
             )
+
+    # -- what this unit knows, as plain data (one process's share of a run summary) ----------
+
+    def report(self) -> dict:
+        u = self.scenario.universe
+        mind = self.mind
+        r = mind.results[self.name] if mind.results else None
+        return {
+            "unit": self.name,
+            "installed": mind.installed(),
+            "polynomial": mind.polynomial,
+            "sent_relations": {
+                f"{s}>{t}": "alliance" if v else "conflict"
+                for (s, t), v in sorted(mind.sent.items())
+            },
+            "influences": {
+                f"{s}>{t}": u.to_list(v) for (s, t), v in sorted(mind.influences.items())
+            },
+            "result": {
+                "interval": None if r is None or r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
+                "frustrated": bool(r.frustrated) if r else False,
+                "choice": None if mind.choice is None else u.to_list(mind.choice),
+                "canonical": mind.canonical(self.name) if mind.df else None,
+                "A": u.to_list(r.A) if r else None,
+                "B": u.to_list(r.B) if r else None,
+                "decided": r is not None,
+            },
+            "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
+            "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
+            "failure": self.failure,
+            "mind_error": mind.error,
+        }
