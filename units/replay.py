@@ -129,12 +129,7 @@ def rerun(
             f"not finished after {max_windows * ws:.1f} s of simulated time (timing.max_seconds)"
         )
     result = WorldResult(done, done * ws, time.perf_counter() - t0, failure)
-    summary = {}
-    if only is None:
-        # summarise() takes the units' report() dicts (cross-process runs); older units
-        # were summarised directly.
-        reports = [m.report() for m in members] if hasattr(members[0], "report") else members
-        summary = summarise(sc, reports, result)
+    summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
     return Rerun(rec.messages, summary, members, done, complete, stopped)
 
 
