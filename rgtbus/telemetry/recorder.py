@@ -11,6 +11,7 @@ import operator
 import os
 import struct
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, runtime_checkable
 
@@ -395,14 +396,26 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
 
 
 def _read(stream: IO[bytes], label: str) -> LogContents:
-    raw = _scan(stream, label)
-    messages = []
+    return decode_log(_scan(stream, label))
+
+
+def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> LogContents:
+    """A scanned log as ``read_log`` returns it. Messages on topics for which ``keep_raw``
+    is true stay undecoded JSON ``bytes`` (for readers that may never need them)."""
+    label = raw.label
+    messages: list[tuple[str, int, Any]] = []
+    topics = {cid: ch.topic for cid, ch in raw.channels.items()}
+    lazy = {cid for cid, t in topics.items() if keep_raw is not None and keep_raw(t)}
     for cid, t, _, _, data in raw.messages:
-        topic = raw.channels[cid].topic
+        if cid in lazy:
+            messages.append((topics[cid], t, bytes(data)))
+            continue
         try:
-            messages.append((topic, t, json.loads(data)))
+            messages.append((topics[cid], t, json.loads(data)))
         except ValueError as e:
-            raise RgtbusError(f"{label}: message on {topic} at {t} ns is not JSON: {e}") from None
+            raise RgtbusError(
+                f"{label}: message on {topics[cid]} at {t} ns is not JSON: {e}"
+            ) from None
     messages.sort(key=lambda m: m[1])
     metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
     note = raw.note
