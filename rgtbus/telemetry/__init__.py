@@ -1,7 +1,9 @@
 """MCAP telemetry: every step of a run as JSON messages with JSON Schemas (Foxglove-readable).
 
 ``McapRecorder(stream)`` for real runs, ``MemoryRecorder()`` for tests, ``NullRecorder()`` to
-record nothing; ``read_log(path_or_stream)`` reads a log back (truncated files too).
+record nothing; ``read_log(path_or_stream)`` reads a log back (truncated files too),
+``scan_log`` its undecoded records. Reading a run back: ``replay`` (timeline, summary,
+verification against a re-run), ``merge`` (per-process logs into one), ``plots`` (figures).
 """
 
 from rgtbus.telemetry.recorder import (
@@ -11,10 +13,13 @@ from rgtbus.telemetry.recorder import (
     McapRecorder,
     MemoryRecorder,
     NullRecorder,
+    RawLog,
     Recorder,
+    decode_log,
     level_number,
     log_message,
     read_log,
+    scan_log,
 )
 from rgtbus.telemetry.topics import TOPIC_PATTERNS, TOPICS, schema_for, topics_markdown
 
@@ -27,10 +32,13 @@ __all__ = [
     "McapRecorder",
     "MemoryRecorder",
     "NullRecorder",
+    "RawLog",
     "Recorder",
+    "decode_log",
     "level_number",
     "log_message",
     "read_log",
+    "scan_log",
     "schema_for",
     "topics_markdown",
 ]
