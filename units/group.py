@@ -26,6 +26,42 @@ class RunOutput:
     units: list[AutonomousUnit]
 
 
+def default_run_id(sc: Scenario) -> str:
+    return f"{sc.name}-{sc.seed}"
+
+
+def write_metadata(recorder, sc: Scenario, bus_kind: str, run_id: str, **extra: str) -> None:
+    recorder.metadata("scenario", {"name": sc.name, "path": sc.path, "text": sc.text})
+    recorder.metadata(
+        "run",
+        {
+            "seed": str(sc.seed),
+            "version": __version__,
+            "bus": bus_kind,
+            "run_id": run_id,
+            "python": platform.python_version(),
+            **extra,
+        },
+    )
+    recorder.metadata("frequencies", {u: repr(w) for u, w in sc.frequencies.items()})
+    recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
+
+
+def write_run_summary(recorder, summary: dict[str, Any]) -> None:
+    recorder.write(
+        "/run",
+        {
+            "scenario": summary["scenario"],
+            "seed": summary["seed"],
+            "outcome": summary["outcome"],
+            "agree": summary["agree"],
+            "sim_seconds": summary["sim_seconds"],
+            "error": summary["error"],
+        },
+        ns(summary["sim_seconds"]),
+    )
+
+
 def run_group(
     scenario: Scenario,
     bus_kind: str,
@@ -37,20 +73,8 @@ def run_group(
     progress: Callable[[float, int], None] | None = None,
 ) -> RunOutput:
     sc = scenario
-    run_id = run_id or f"{sc.name}-{sc.seed}"
-    recorder.metadata("scenario", {"name": sc.name, "path": sc.path, "text": sc.text})
-    recorder.metadata(
-        "run",
-        {
-            "seed": str(sc.seed),
-            "version": __version__,
-            "bus": bus_kind,
-            "run_id": run_id,
-            "python": platform.python_version(),
-        },
-    )
-    recorder.metadata("frequencies", {u: repr(w) for u, w in sc.frequencies.items()})
-    recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
+    run_id = run_id or default_run_id(sc)
+    write_metadata(recorder, sc, bus_kind, run_id)
     members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
     with open_bus(
         bus_kind, run_id, sc.units, sc.timing.sample_rate, sc.timing.window_samples
@@ -67,18 +91,7 @@ def run_group(
         )
         result = world.run()
     summary = summarise(sc, [m.report() for m in members], result)
-    recorder.write(
-        "/run",
-        {
-            "scenario": sc.name,
-            "seed": sc.seed,
-            "outcome": summary["outcome"],
-            "agree": summary["agree"],
-            "sim_seconds": summary["sim_seconds"],
-            "error": summary["error"],
-        },
-        ns(result.sim_seconds),
-    )
+    write_run_summary(recorder, summary)
     return RunOutput(summary, members)
 
 

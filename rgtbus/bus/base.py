@@ -188,6 +188,11 @@ class QueueBus:
         self._stats["gathered"] += 1
         return {u: got[u] for u in self.members}
 
+    def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
+        """Barrier before window 0 for runs spread over processes; in-process buses have
+        every member at hand already."""
+        self._check_member(unit)
+
     def stats(self) -> dict[str, int]:
         """Counters so far; drains what already arrived first so they are current."""
         if not self._closed:

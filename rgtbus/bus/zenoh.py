@@ -13,7 +13,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import threading
+import time
 import weakref
 from collections.abc import Sequence
 from typing import Any
@@ -132,6 +134,10 @@ class ZenohBus(QueueBus):
         super().__init__(run_id, members, sample_rate, window_len, local=local, max_ahead=max_ahead)
         self._publishers: dict[str, Any] = {}
         self._subscriber: Any = None
+        self._hello_sub: Any = None
+        self._token: Any = None
+        self._hellos: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+        self._joined: tuple[str, str] | None = None  # (unit, digest) once the run has started
         self._owns_session = session is None
         if session is None:
             cfg = make_config(
@@ -169,6 +175,120 @@ class ZenohBus(QueueBus):
         _ensure_exit_hook()
         _open_buses.add(self)
 
+    # -- joining a cross-process run --------------------------------------------------------
+
+    def hello_key(self, unit: str) -> str:
+        return f"rgtbus/{self.run_id}/hello/{unit}"
+
+    def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
+        """Barrier before window 0: wait until every member is up, on the same scenario.
+
+        Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and repeats a
+        hello (its unit, scenario digest, and which members it has heard) until it has heard
+        every member and every member says it has heard everyone. Data and subscriber
+        declarations share a link in order, so a hello from a peer proves its tx subscriber is
+        declared: nobody's window 0 can be lost. Refused: a member on another scenario or seed
+        (digest differs), or a run that already started (a late joiner). Running members
+        answer late hellos from ``gather``.
+        """
+        self._check_member(unit)
+        members = set(self.members)
+        put = self._hellos.put
+        self._hello_sub = self.session.declare_subscriber(
+            f"rgtbus/{self.run_id}/hello/*", lambda s: put(s.payload.to_bytes())
+        )
+        try:
+            self._token = self.session.liveliness().declare_token(
+                f"rgtbus/{self.run_id}/alive/{unit}"
+            )
+        except Exception as e:  # liveliness is for presence only; the barrier does the work
+            self._notes.append(f"liveliness token not declared: {e}")
+        heard = {unit}
+        ready: set[str] = set()
+        deadline = time.monotonic() + timeout
+        while True:
+            self._say_hello(unit, digest, heard, started=False)
+            until = time.monotonic() + 0.05
+            while (left := until - time.monotonic()) > 0:
+                try:
+                    raw = self._hellos.get(timeout=left)
+                except queue.Empty:
+                    break
+                msg = self._read_hello(raw)
+                if msg is None or msg["unit"] not in members or msg["unit"] == unit:
+                    continue
+                if msg["digest"] != digest:
+                    raise RgtbusError(
+                        f"unit {msg['unit']!r} of run {self.run_id!r} runs another scenario or "
+                        f"seed (digest {msg['digest'][:12]}, ours {digest[:12]})"
+                    )
+                if msg["started"]:
+                    raise RgtbusError(
+                        f"run {self.run_id!r} already started (unit {msg['unit']!r} is at window "
+                        f"{msg['window']}): {unit!r} joined too late"
+                    )
+                heard.add(msg["unit"])
+                if set(msg["heard"]) >= members:
+                    ready.add(msg["unit"])
+            if heard == members and ready >= members - {unit}:
+                self._say_hello(unit, digest, heard, started=False)
+                # What is queued now was said before the start (a link keeps its order).
+                while not self._hellos.empty():
+                    self._hellos.get_nowait()
+                self._joined = (unit, digest)
+                return
+            if time.monotonic() > deadline:
+                missing = sorted(members - heard) or sorted(members - ready - {unit})
+                raise RgtbusError(
+                    f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
+                    f"{', '.join(missing)}"
+                )
+
+    def _say_hello(self, unit: str, digest: str, heard: set[str], started: bool) -> None:
+        msg = {
+            "unit": unit,
+            "digest": digest,
+            "heard": sorted(heard),
+            "started": started,
+            "window": self._next_window,
+        }
+        self.session.put(self.hello_key(unit), json.dumps(msg).encode())
+
+    def _read_hello(self, raw: bytes) -> dict[str, Any] | None:
+        try:
+            msg = json.loads(raw)
+            if not (
+                isinstance(msg, dict)
+                and isinstance(msg.get("unit"), str)
+                and isinstance(msg.get("digest"), str)
+                and isinstance(msg.get("heard"), list)
+            ):
+                raise ValueError("fields")
+            return msg
+        except ValueError:
+            self._drop("dropped_malformed", f"hello: not a hello message ({raw[:40]!r})")
+            return None
+
+    def gather(self, window: int, timeout: float = 5.0):  # type: ignore[override]
+        if self._joined is not None:
+            self._answer_late_hellos()
+        return super().gather(window, timeout)
+
+    def _answer_late_hellos(self) -> None:
+        assert self._joined is not None
+        unit, digest = self._joined
+        while True:
+            try:
+                raw = self._hellos.get_nowait()
+            except queue.Empty:
+                return
+            msg = self._read_hello(raw)
+            if msg is not None and not msg.get("started") and msg["unit"] != unit:
+                if msg["heard"] and set(msg["heard"]) >= set(self.members):
+                    continue  # a member's last barrier hello, not a late joiner
+                self._notes.append(f"hello from {msg['unit']!r} after the start: refused")
+                self._say_hello(unit, digest, set(self.members), started=True)
+
     def _send(self, key: str, data: bytes) -> None:
         # Our own units' keys go through their declared publishers; anything else (put_raw)
         # through the session.
@@ -185,7 +305,8 @@ class ZenohBus(QueueBus):
         # (a declared callback subscriber keeps the interpreter from exiting: SPEC §5).
         _open_buses.discard(self)
         errors: list[str] = []
-        entities = [self._subscriber, *self._publishers.values()]
+        entities = [self._hello_sub, self._subscriber, *self._publishers.values(), self._token]
+        self._hello_sub = self._token = None
         self._subscriber = None
         self._publishers = {}
         for ent in entities:

@@ -1,0 +1,453 @@
+"""Cross-process runs: ``rgtbus unit``, ``rgtbus launch`` and ``rgtbus router``."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+
+
+def _zenoh_arguments(p: argparse.ArgumentParser) -> None:
+    # zenoh's own spelling: -m/--mode, -e/--connect, -l/--listen, -c/--config.
+    p.add_argument(
+        "-m",
+        "--mode",
+        choices=("peer", "client"),
+        default="peer",
+        help="zenoh mode (default peer; client to go through a router)",
+    )
+    p.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    p.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)",
+    )
+    p.add_argument(
+        "-c",
+        "--config",
+        "--zenoh-config",
+        dest="zenoh_config",
+        metavar="FILE",
+        help="a zenoh JSON5 config file (the options above override it)",
+    )
+    p.add_argument(
+        "--multicast",
+        action="store_true",
+        help="turn zenoh's multicast scouting on (off unless asked)",
+    )
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    u = subparsers.add_parser(
+        "unit",
+        help="run one unit of a scenario as its own process, over zenoh",
+        description="Run unit NAME of SCENARIO in this process. Every unit of the scenario must "
+        "be started (on this machine or others) and reachable through zenoh; they join, then "
+        "advance in lockstep, window by window.",
+    )
+    u.add_argument("name", metavar="NAME", help="the unit to run, e.g. a")
+    u.add_argument("scenario", metavar="SCENARIO", help="the scenario file (same on every unit)")
+    _zenoh_arguments(u)
+    u.add_argument("--log", metavar="PATH", help="this unit's MCAP log (default logs/...)")
+    u.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="give up when a window is incomplete for S seconds (default 10)",
+    )
+    u.add_argument(
+        "--join-timeout",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="give up when not every unit has joined within S seconds (default 30)",
+    )
+    u.add_argument("--run-id", help="the run's id on the bus (default <scenario>-<seed>)")
+    u.add_argument("--seed", type=int, help="override the scenario's seed (same on every unit)")
+    u.add_argument("--traces", action="store_true", help="log resonator traces")
+    u.add_argument("--json", action="store_true", help="print one JSON object")
+    u.set_defaults(func=run_unit_cmd)
+
+    la = subparsers.add_parser(
+        "launch",
+        help="run every unit of a scenario as its own OS process on loopback",
+        description="Start every unit of SCENARIO as a separate process (zenoh on loopback, free "
+        "ports), wait for all, merge their logs into one, and print the run's summary.",
+    )
+    la.add_argument("scenario", metavar="SCENARIO")
+    la.add_argument(
+        "--log-dir",
+        metavar="DIR",
+        help="per-unit logs and the merged run.mcap (default logs/<scenario>-<time>/)",
+    )
+    la.add_argument(
+        "--router",
+        action="store_true",
+        help="connect the units through a zenoh router process instead of a mesh",
+    )
+    la.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="per-window timeout of every unit (default 10)",
+    )
+    la.add_argument("--seed", type=int, help="override the scenario's seed")
+    la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
+    la.set_defaults(func=run_launch)
+
+    r = subparsers.add_parser(
+        "router",
+        help="a zenoh router for units on several machines",
+        description="Open a zenoh session in router mode and route between client units until "
+        "interrupted (Ctrl-C or SIGTERM).",
+    )
+    r.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    r.add_argument(
+        "-c", "--config", dest="zenoh_config", metavar="FILE", help="a zenoh JSON5 config file"
+    )
+    r.set_defaults(func=run_router)
+
+
+def zenoh_options(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "mode": args.mode,
+        "connect": list(args.connect),
+        "listen": list(args.listen),
+        "multicast": bool(args.multicast),
+        "config": args.zenoh_config,
+    }
+
+
+def _load(path: str, seed: int | None):
+    from rgtbus.scenario import load_scenario
+
+    sc = load_scenario(path)
+    if seed is not None:
+        if seed < 0:
+            raise RgtbusError(f"--seed {seed}: must be a non-negative integer")
+        sc = sc.with_seed(seed)
+    return sc
+
+
+def run_unit_cmd(args: argparse.Namespace) -> int:
+    from rgtbus.cli.run_cmd import default_log_path
+    from rgtbus.telemetry import McapRecorder
+    from units.process import run_unit
+
+    sc = _load(args.scenario, args.seed)
+    if args.name not in sc.units:
+        raise RgtbusError(f"unknown unit {args.name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    for what in ("timeout", "join_timeout"):
+        if not getattr(args, what) > 0:
+            raise RgtbusError(f"--{what.replace('_', '-')} must be positive seconds")
+    log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{args.name}")
+    try:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        stream = open(log_path, "wb")  # noqa: SIM115 - closed in the finally below
+    except OSError as exc:
+        raise RgtbusError(f"cannot write log {str(log_path)!r}: {exc.strerror}") from None
+    recorder = McapRecorder(stream)
+    # SIGTERM (a launcher giving up) ends the run like Ctrl-C: the log is still finished.
+    signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        out = run_unit(
+            sc,
+            args.name,
+            recorder,
+            zenoh_options=zenoh_options(args),
+            run_id=args.run_id,
+            timeout=args.timeout,
+            join_timeout=args.join_timeout,
+            traces=args.traces,
+        )
+    except KeyboardInterrupt:
+        recorder.log("error", f"{args.name}: interrupted", 0, name=args.name)
+        print(f"rgtbus unit: {args.name}: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        recorder.close()
+        stream.close()
+    out["log"] = str(log_path)
+    if args.json:
+        print(json.dumps(out))
+    else:
+        res = out["report"]["result"]
+        verdict = (
+            "no decision"
+            if not res["decided"]
+            else "frustrated"
+            if res["frustrated"]
+            else f"interval {res['interval']}, choice {res['choice']}"
+        )
+        print(f"unit {args.name}: {res['canonical'] or ''}  {verdict}")
+        print(
+            f"  polynomial {out['report']['polynomial']}; {out['windows']} windows, "
+            f"{out['sim_seconds']:.1f} s simulated in {out['wall_seconds']:.2f} s; log {log_path}"
+        )
+    if out["error"]:
+        print(f"rgtbus unit: {out['error']}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def free_ports(n: int) -> list[int]:
+    """n distinct free TCP ports on loopback (held open together, so no two are the same)."""
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+class Launch:
+    """Spawned processes, always reaped: terminate, then kill what is left."""
+
+    def __init__(self) -> None:
+        self.procs: list[tuple[str, subprocess.Popen]] = []
+
+    def spawn(self, label: str, argv: list[str]) -> subprocess.Popen:
+        proc = subprocess.Popen(
+            argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        self.procs.append((label, proc))
+        return proc
+
+    def reap(self) -> None:
+        for _, p in self.procs:
+            if p.poll() is None:
+                p.terminate()
+        deadline = time.monotonic() + 5
+        for _, p in self.procs:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def run_launch(args: argparse.Namespace) -> int:
+    from rgtbus.cli.run_cmd import print_summary
+    from rgtbus.sim import WorldResult
+    from rgtbus.telemetry import McapRecorder
+    from rgtbus.telemetry.merge import merge_logs
+    from rgtbus.telemetry.recorder import scan_log
+    from units.group import default_run_id, summarise, write_metadata, write_run_summary
+
+    t0 = time.perf_counter()
+    sc = _load(args.scenario, args.seed)
+    if not args.timeout > 0:
+        raise RgtbusError("--timeout must be positive seconds")
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    log_dir = Path(args.log_dir) if args.log_dir else Path("logs") / f"{sc.name}-{stamp}"
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RgtbusError(f"cannot create log dir {str(log_dir)!r}: {exc.strerror}") from None
+    run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
+    exe = [sys.executable, "-m", "rgtbus"]
+    seed = ["--seed", str(sc.seed)]
+    launch = Launch()
+    outputs: dict[str, dict[str, Any]] = {}
+    failures: list[str] = []
+    try:
+        ports = free_ports(len(sc.units) + 1)
+        if args.router:
+            router_ep = f"tcp/127.0.0.1:{ports[-1]}"
+            router = launch.spawn("router", [*exe, "router", "--listen", router_ep])
+            _wait_line(router, "router listening", 10.0)
+        for i, name in enumerate(sc.units):
+            if args.router:
+                net = ["--mode", "client", "--connect", router_ep]
+            else:  # a full mesh: each listens on its port and connects to those before it
+                net = ["--listen", f"tcp/127.0.0.1:{ports[i]}"]
+                for j in range(i):
+                    net += ["--connect", f"tcp/127.0.0.1:{ports[j]}"]
+            launch.spawn(
+                name,
+                [
+                    *exe,
+                    "unit",
+                    name,
+                    args.scenario,
+                    *net,
+                    *seed,
+                    "--log",
+                    str(log_dir / f"{name}.mcap"),
+                    "--json",
+                    "--timeout",
+                    str(args.timeout),
+                    "--run-id",
+                    run_id,
+                ],
+            )
+        units = [(label, p) for label, p in launch.procs if label != "router"]
+        # Read every unit's output concurrently: a full pipe must never stall a unit.
+        results: dict[str, tuple[int, str, str]] = {}
+
+        def collect(label: str, proc: subprocess.Popen) -> None:
+            out, err = proc.communicate()
+            results[label] = (proc.returncode, out, err)
+
+        threads = [threading.Thread(target=collect, args=u, daemon=True) for u in units]
+        for t in threads:
+            t.start()
+        limit = sc.timing.max_seconds + 60 + 2 * args.timeout
+        end = time.monotonic() + limit
+        for t in threads:
+            t.join(timeout=max(0.0, end - time.monotonic()))
+        for label, _ in units:
+            if label not in results:
+                failures.append(f"unit {label} did not finish within {limit:.0f} s")
+                continue
+            code, out, err = results[label]
+            try:
+                outputs[label] = json.loads(out.strip().splitlines()[-1])
+            except (ValueError, IndexError):
+                last = (err.strip().splitlines() or ["no output"])[-1]
+                failures.append(f"unit {label} exited {code}: {last}")
+                continue
+            if outputs[label]["error"]:
+                failures.append(f"unit {label}: {outputs[label]['error']}")
+    finally:
+        launch.reap()
+
+    reports = [outputs[u]["report"] for u in sc.units if u in outputs]
+    first = next((outputs[u] for u in sc.units if u in outputs), None)
+    wall = time.perf_counter() - t0
+    result = WorldResult(
+        windows=first["windows"] if first else 0,
+        sim_seconds=first["sim_seconds"] if first else 0.0,
+        wall_seconds=wall,
+        failure=failures[0] if failures else None,
+        bus_stats={u: o["bus"] for u, o in outputs.items()},
+    )
+    summary = summarise(sc, reports, result) if reports else None
+    merged = log_dir / "run.mcap"
+    with open(log_dir / "launch.mcap", "wb") as f:
+        rec = McapRecorder(f)
+        write_metadata(rec, sc, "zenoh", run_id, process="launch")
+        if summary is not None:
+            write_run_summary(rec, summary)
+        for msg in failures:
+            rec.log("error", msg, 0, name="launch")
+        rec.close()
+    inputs = [log_dir / f"{u}.mcap" for u in sc.units if (log_dir / f"{u}.mcap").exists()]
+    logs = [scan_log(p) for p in [*inputs, log_dir / "launch.mcap"]]
+    with open(merged, "wb") as f:
+        merge_logs(logs, f)
+    if summary is None:
+        raise RgtbusError(f"no unit finished: {failures[0] if failures else 'no output'}")
+    summary["log"] = str(merged)
+    if args.json:
+        keys = (
+            "scenario",
+            "seed",
+            "polynomial",
+            "relations",
+            "agree",
+            "influences",
+            "units",
+            "outcome",
+            "sim_seconds",
+            "wall_seconds",
+            "log",
+            "decode_errors",
+            "error",
+        )
+        print(json.dumps({k: summary[k] for k in keys}))
+    else:
+        print_summary(sc, summary)
+    if failures:
+        for msg in failures:
+            print(f"launch: {msg}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> None:
+    """Wait for a line containing ``text`` on the process's stdout (bounded)."""
+    found = threading.Event()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if text in line:
+                found.set()
+                return
+
+    threading.Thread(target=read, daemon=True).start()
+    if not found.wait(timeout):
+        raise RgtbusError(f"router did not start within {timeout:g} s")
+
+
+def run_router(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from rgtbus.bus.zenoh import make_config
+
+    if not args.listen and not args.zenoh_config:
+        raise RgtbusError("router: give at least one --listen ENDPOINT (or a --config)")
+    cfg = make_config(
+        mode="router",
+        listen=args.listen or None,
+        config=args.zenoh_config,
+        multicast=None if args.zenoh_config else False,
+    )
+    try:
+        session = zenoh.open(cfg)
+    except Exception as exc:
+        raise RgtbusError(f"router: cannot open a zenoh router on {args.listen}: {exc}") from None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(f"router listening on {', '.join(args.listen) or '(config)'}", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        session.close()
+    return 0

@@ -1,0 +1,263 @@
+"""Cross-process runs: one OS process per unit over zenoh on loopback (multicast off).
+
+Every spawned process is reaped by the ``procs`` fixture, even when a test fails; every wait
+is bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from rgtbus.bus.payload import encode
+from rgtbus.bus.zenoh import make_config
+from rgtbus.cli.proc_cmds import free_ports
+from rgtbus.scenario import load_scenario
+from rgtbus.telemetry import MemoryRecorder, read_log
+from units.group import run_group
+
+ROOT = Path(__file__).parent.parent
+EXE = [sys.executable, "-m", "rgtbus"]
+
+
+@pytest.fixture
+def procs():
+    spawned: list[subprocess.Popen] = []
+
+    def spawn(*argv: str) -> subprocess.Popen:
+        p = subprocess.Popen(
+            [*EXE, *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        spawned.append(p)
+        return p
+
+    try:
+        yield spawn
+    finally:
+        for p in spawned:
+            if p.poll() is None:
+                p.kill()
+            p.communicate(timeout=10)
+
+
+def single(name: str):
+    sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    rec = MemoryRecorder()
+    return run_group(sc, "memory", rec).summary, rec.read()[0]
+
+
+def content(messages):
+    """Log content, order-free among simultaneous messages."""
+    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in messages)
+
+
+RESULT_KEYS = (
+    "polynomial",
+    "relations",
+    "agree",
+    "influences",
+    "units",
+    "outcome",
+    "sim_seconds",
+    "decode_errors",
+    "error",
+)
+
+
+@pytest.mark.parametrize(
+    ("name", "router"), [("example2", False), ("gate", False), ("example2", True)]
+)
+def test_launch_equals_the_single_process_run(tmp_path, name, router):
+    argv = [
+        *EXE,
+        "launch",
+        str(ROOT / "scenarios" / f"{name}.toml"),
+        "--log-dir",
+        str(tmp_path),
+        "--json",
+    ] + (["--router"] if router else [])
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    ref, ref_messages = single(name)
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, metadata = read_log(tmp_path / "run.mcap")
+    assert content(messages) == content(ref_messages)
+    assert metadata["scenario"]["name"] == name
+    units = load_scenario(ROOT / "scenarios" / f"{name}.toml").units
+    assert sorted(p.name for p in tmp_path.glob("*.mcap")) == sorted(
+        [f"{u}.mcap" for u in units] + ["launch.mcap", "run.mcap"]
+    )
+
+
+def start_mesh(procs, scenario: str, tmp_path: Path, *extra: str, units=None):
+    sc = load_scenario(scenario)
+    names = units or sc.units
+    ports = free_ports(len(names))
+    started = {}
+    for i, name in enumerate(names):
+        net = ["--listen", f"tcp/127.0.0.1:{ports[i]}"]
+        for j in range(i):
+            net += ["--connect", f"tcp/127.0.0.1:{ports[j]}"]
+        started[name] = procs(
+            "unit",
+            name,
+            scenario,
+            *net,
+            "--log",
+            str(tmp_path / f"{name}.mcap"),
+            "--json",
+            "--run-id",
+            "t1",
+            *extra,
+        )
+    return ports, started
+
+
+def test_a_stalled_unit_stops_the_others_with_a_clear_message(procs, tmp_path):
+    scenario = str(ROOT / "scenarios" / "gate.toml")
+    _, started = start_mesh(procs, scenario, tmp_path, "--timeout", "1.5", "--join-timeout", "8")
+    time.sleep(1.5)
+    started["b"].send_signal(signal.SIGSTOP)  # b stalls (wherever it is): the others must stop
+    t0 = time.monotonic()
+    for name in "acd":
+        _out, err = started[name].communicate(timeout=30)
+        assert started[name].returncode not in (0, None)
+        msg = err.strip().splitlines()[-1]
+        assert "b" in msg and ("window" in msg or "joining" in msg), msg
+        messages, _ = read_log(tmp_path / f"{name}.mcap")  # finished and readable
+        assert any(t == "/log" and m["level"] >= 4 for t, _, m in messages)
+    assert time.monotonic() - t0 < 20
+    started["b"].kill()
+
+
+def test_foreign_and_malformed_samples_are_dropped_counted_and_logged(procs, tmp_path):
+    scenario = str(ROOT / "scenarios" / "example2.toml")
+    ports, started = start_mesh(procs, scenario, tmp_path)
+    stop = threading.Event()
+
+    def pester() -> None:
+        cfg = make_config(mode="peer", connect=[f"tcp/127.0.0.1:{ports[0]}"])
+        session = zenoh.open(cfg)
+        try:
+            while not stop.wait(0.02):
+                w = 0
+                session.put("rgtbus/t1/tx/mallory", encode(w, 200.0, [0.4] * 20))  # not a member
+                session.put("rgtbus/other-run/tx/a", encode(w, 200.0, [0.4] * 20))  # other run
+                session.put("rgtbus/t1/tx/a", b"RGTB garbage")  # malformed
+        finally:
+            session.close()
+
+    thread = threading.Thread(target=pester, daemon=True)
+    thread.start()
+    try:
+        outs = {}
+        for name, p in started.items():
+            out, err = p.communicate(timeout=60)
+            assert p.returncode == 0, err
+            outs[name] = json.loads(out)
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+    ref, _ = single("example2")
+    for name, out in outs.items():
+        assert out["report"]["result"] == ref["units"][name]
+        assert out["bus"]["dropped_foreign"] > 0 and out["bus"]["dropped_malformed"] > 0
+        messages, _ = read_log(tmp_path / f"{name}.mcap")
+        assert any(t == "/log" and m["message"].startswith("dropped:") for t, _, m in messages)
+
+
+def test_late_joiner_and_other_scenario_are_refused(procs, tmp_path):
+    scenario = str(ROOT / "scenarios" / "gate.toml")
+    ports, started = start_mesh(procs, scenario, tmp_path)
+    time.sleep(2.0)  # the run is under way
+    late = procs(
+        "unit",
+        "a",
+        scenario,
+        "--connect",
+        f"tcp/127.0.0.1:{ports[0]}",
+        "--log",
+        str(tmp_path / "late.mcap"),
+        "--run-id",
+        "t1",
+        "--join-timeout",
+        "15",
+    )
+    _, err = late.communicate(timeout=30)
+    assert late.returncode != 0
+    assert "already started" in err or "joining" in err, err
+    for p in started.values():
+        p.communicate(timeout=60)
+        assert p.returncode == 0
+
+    # Same run id, another seed: the digest differs, and the join is refused at once.
+    ports = free_ports(2)
+    one = procs(
+        "unit",
+        "a",
+        scenario,
+        "--listen",
+        f"tcp/127.0.0.1:{ports[0]}",
+        "--run-id",
+        "t2",
+        "--log",
+        str(tmp_path / "x.mcap"),
+        "--join-timeout",
+        "5",
+    )
+    two = procs(
+        "unit",
+        "b",
+        scenario,
+        "--connect",
+        f"tcp/127.0.0.1:{ports[0]}",
+        "--run-id",
+        "t2",
+        "--seed",
+        "99",
+        "--log",
+        str(tmp_path / "y.mcap"),
+        "--join-timeout",
+        "5",
+    )
+    errs = [p.communicate(timeout=30)[1] for p in (one, two)]
+    assert one.returncode != 0 and two.returncode != 0
+    # Whichever hears the other first refuses; the other is then left without an answer.
+    assert any("runs another scenario or seed" in e for e in errs), errs
+
+
+def test_unit_refuses_bad_input(tmp_path):
+    scenario = str(ROOT / "scenarios" / "gate.toml")
+    for argv, needle in [
+        (["unit", "z", scenario], "unknown unit 'z'"),
+        (["unit", "a", scenario, "--timeout", "0"], "--timeout must be positive"),
+        (["unit", "a", scenario, "--mode", "router"], "invalid choice"),
+        (
+            [
+                "unit",
+                "a",
+                scenario,
+                "--listen",
+                "tcp/999.0.0.1:1",
+                "--log",
+                str(tmp_path / "u.mcap"),
+            ],
+            "cannot open zenoh session",
+        ),
+    ]:
+        proc = subprocess.run([*EXE, *argv], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, (argv, proc.stderr)
+        assert needle in proc.stderr and "Traceback" not in proc.stderr

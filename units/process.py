@@ -1,0 +1,99 @@
+"""One unit as its own OS process, in lockstep with the others over zenoh.
+
+The process holds one ``AutonomousUnit`` and the run's zenoh bus with only that unit local. It
+joins the run (a barrier: every member up, on the same scenario and seed), then advances window
+by window: a window ends only when every member's samples for it have arrived (conservative
+synchronisation; the reaction delay is the lookahead that makes one-window steps enough). The
+decisions and the log content equal the single-process run of the same scenario and seed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rgtbus.bus import open_bus
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario
+from rgtbus.sim import World, WorldResult, ns
+from units.group import default_run_id, write_metadata
+from units.unit import AutonomousUnit
+
+
+def scenario_digest(sc: Scenario) -> str:
+    """What every process of one run must share: the scenario text and the seed."""
+    return hashlib.sha256(f"{sc.text}\0seed={sc.seed}".encode()).hexdigest()
+
+
+def run_unit(
+    sc: Scenario,
+    name: str,
+    recorder,
+    *,
+    zenoh_options: dict[str, Any] | None = None,
+    run_id: str | None = None,
+    timeout: float = 10.0,
+    join_timeout: float = 20.0,
+    traces: bool = False,
+    progress: Callable[[float, int], None] | None = None,
+) -> dict[str, Any]:
+    """Run unit ``name`` of ``sc`` in this process; returns its part of the run summary."""
+    if name not in sc.units:
+        raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    run_id = run_id or default_run_id(sc)
+    t0 = time.perf_counter()
+    write_metadata(recorder, sc, "zenoh", run_id, process=name)
+    unit = AutonomousUnit(name, sc, recorder, traces=traces)
+    opts = dict(zenoh_options or {})
+    error: str | None = None
+    result = WorldResult(0, 0.0, 0.0, None)
+    with open_bus(
+        "zenoh",
+        run_id,
+        sc.units,
+        sc.timing.sample_rate,
+        sc.timing.window_samples,
+        local=[name],
+        **opts,
+    ) as bus:
+        bus.join(name, scenario_digest(sc), timeout=join_timeout)
+        world = World(
+            [unit],
+            bus,
+            recorder,
+            sample_rate=sc.timing.sample_rate,
+            window_samples=sc.timing.window_samples,
+            max_seconds=sc.timing.max_seconds,
+            gather_timeout=timeout,
+            progress=progress,
+            write_medium=name == sc.units[0],  # one medium in the merged log, as in one process
+        )
+        try:
+            result = world.run()
+            error = result.failure
+        except RgtbusError as exc:  # a member died or stalled: the window never completed
+            error = str(exc)
+            result = WorldResult(
+                world.windows,
+                world.windows * world.window_seconds,
+                time.perf_counter() - t0,
+                error,
+                dict(bus.stats()),
+            )
+        for note in bus.drop_notes():
+            recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)
+        stats = dict(bus.stats())
+    if error:
+        recorder.log("error", error, ns(result.sim_seconds), name=name)
+    return {
+        "unit": name,
+        "run_id": run_id,
+        "report": unit.report(),
+        "sim_seconds": round(result.sim_seconds, 6),
+        "windows": result.windows,
+        "wall_seconds": round(time.perf_counter() - t0, 3),
+        "error": error,
+        "bus": stats,
+    }
