@@ -186,6 +186,28 @@ def test_tampered_decision_names_logged_and_recomputed(tmp_path):
     assert all(m.logged == ["beta"] and m.recomputed == ["alpha"] for m in mm)
 
 
+def test_log_lines_of_units_must_be_there_extra_lines_may_be():
+    def drop_announcement(msgs):
+        i = next(i for i, (tp, _, m) in enumerate(msgs) if tp == "/log" and m["name"] == "b")
+        return msgs[:i] + msgs[i + 1 :]
+
+    def add_wrapper_line(msgs):
+        line = {
+            "timestamp": {"sec": 1, "nsec": 0},
+            "level": 3,
+            "message": "dropped: x",
+            "name": "b",
+            "file": "",
+            "line": 0,
+        }
+        return [*msgs, ("/log", 1_000_000_000, line)]
+
+    report = verify_log(io.BytesIO(rewrite(log_bytes(), drop_announcement)))
+    assert [m.topic for m in report.mismatches] == ["/log"]
+    assert report.mismatches[0].logged == "(missing)" and report.mismatches[0].unit == "b"
+    assert verify_log(io.BytesIO(rewrite(log_bytes(), add_wrapper_line))).ok
+
+
 def test_medium_sample_mismatch_points_at_the_sample():
     report = verify_log(io.BytesIO(rewrite(log_bytes(), _tamper_sample)))
     med = [m for m in report.mismatches if m.topic == "/medium"]
