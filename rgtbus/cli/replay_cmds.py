@@ -53,8 +53,9 @@ def replay(args: argparse.Namespace) -> int:
     if args.plot is None and (args.unit or args.t_from is not None or args.t_to is not None):
         raise RgtbusError("--unit, --from and --to go with --plot OUT.png")
     rp = load_replay(args.log)
-    if rp.truncated:
-        print(f"note: {rp.note}", file=sys.stderr)
+    timeline = not (args.json or args.verify or args.csv or args.plot)
+    if rp.truncated and not timeline and (args.json or not args.verify):
+        print(f"note: {rp.note}", file=sys.stderr)  # the text reports print it themselves
     side = []
     if args.csv:
         side.append(_write_csv(rp, Path(args.csv)))
@@ -77,7 +78,7 @@ def replay(args: argparse.Namespace) -> int:
         return report.exit_code
     if args.json:
         print(json.dumps(rp.to_json()))
-    elif not side:
+    elif timeline:
         print_timeline(rp)
     return 0
 
