@@ -232,6 +232,8 @@ def print_timeline(rp) -> None:
         for r in cells:
             print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
     print("decisions (each unit's own; predictions of the others in --json):")
+    if not any(d["unit"] == d["subject"] for d in rp.decisions):
+        print("  (none)")
     for d in rp.decisions:
         if d["unit"] != d["subject"]:
             continue

@@ -20,7 +20,7 @@ import math
 import os
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import IO, Any
 
 import numpy as np
@@ -671,7 +671,6 @@ class VerifyReport:
     windows_logged: int
     windows_rerun: int
     until: float | None = None  # compared up to this time (a truncated log)
-    extra: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
