@@ -204,8 +204,13 @@ class AutonomousUnit:
                 self.recorder.log("error", err, ns(last * self.tau), name=self.name)
 
     def _feed(self, heard: np.ndarray, window: int, first: int) -> None:
-        res = self.bank.feed(heard, record=True)
-        self.readout.append(res)  # the increment readout: the medium as each resonator saw it
+        # Most windows are silent (a code is 3 pulses over seconds): skip recording them.
+        quiet = not self.traces and not heard.any()
+        res = self.bank.feed(heard, record=not quiet)
+        if quiet:
+            self.readout.append_quiet(res.n, self.bank)
+        else:
+            self.readout.append(res)  # the increment readout: the medium as each resonator saw
         if self.traces:
             self.recorder.write(
                 f"/trace/{self.name}",

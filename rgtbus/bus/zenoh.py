@@ -95,6 +95,14 @@ def make_config(
             raise RgtbusError(f"zenoh {name} endpoints {list(eps)!r}: {e}") from e
     if multicast is not None:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    if config is None and connect and mode == "peer":
+        # Peers of one run start together and connect to each other before all listen:
+        # retry an endpoint that is not up yet soon (zenoh's default backoff starts at 1 s
+        # and would dominate a short run's start-up).
+        cfg.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": 50, "period_max_ms": 500, "period_increase_factor": 1.5}),
+        )
     return cfg
 
 

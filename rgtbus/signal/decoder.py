@@ -36,9 +36,14 @@ from rgtbus.signal.resonator import PAPER_RESET_VALUE, PAPER_TAU, FeedResult, Re
 MAX_EXHAUSTIVE = 4096
 
 
-def increments(z: np.ndarray, spiked: np.ndarray, A: np.ndarray | complex,
-               reset_value: float = PAPER_RESET_VALUE, z_prev: np.ndarray | complex = 0j,
-               spiked_prev: np.ndarray | bool = False) -> np.ndarray:
+def increments(
+    z: np.ndarray,
+    spiked: np.ndarray,
+    A: np.ndarray | complex,
+    reset_value: float = PAPER_RESET_VALUE,
+    z_prev: np.ndarray | complex = 0j,
+    spiked_prev: np.ndarray | bool = False,
+) -> np.ndarray:
     """Increment readout ``d[k] = Im(z[k] − next(z[k-1]))`` along axis 0 (real array).
 
     ``z``/``spiked``: pre-spike states and spike mask (e.g. ``FeedResult.z``, ``.spiked``);
@@ -67,8 +72,14 @@ class Readout:
     medium estimate d at absolute sample indices still in the history.
     """
 
-    def __init__(self, A: complex, reset_value: float = PAPER_RESET_VALUE, capacity: int = 6000,
-                 receiver: int = 0, channel: int = 0):
+    def __init__(
+        self,
+        A: complex,
+        reset_value: float = PAPER_RESET_VALUE,
+        capacity: int = 6000,
+        receiver: int = 0,
+        channel: int = 0,
+    ):
         """Prefer :meth:`for_bank`, which takes A and the reset value from the bank."""
         if not isinstance(capacity, int) or capacity < 1:
             raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
@@ -83,11 +94,14 @@ class Readout:
         self._sp_prev = False
 
     @classmethod
-    def for_bank(cls, bank: ResonatorBank, channel: int = 0, receiver: int = 0,
-                 capacity: int = 6000) -> Readout:
+    def for_bank(
+        cls, bank: ResonatorBank, channel: int = 0, receiver: int = 0, capacity: int = 6000
+    ) -> Readout:
         if not 0 <= channel < bank.n_channels or not 0 <= receiver < bank.n_receivers:
-            raise RgtbusError(f"readout: channel {channel} / receiver {receiver} not in the bank "
-                              f"({bank.n_channels} channels, {bank.n_receivers} receivers)")
+            raise RgtbusError(
+                f"readout: channel {channel} / receiver {receiver} not in the bank "
+                f"({bank.n_channels} channels, {bank.n_receivers} receivers)"
+            )
         return cls(complex(bank.A[channel]), bank.reset_value, capacity, receiver, channel)
 
     @property
@@ -103,8 +117,10 @@ class Readout:
         if result.z is None or result.spiked is None:
             raise RgtbusError("readout needs bank.feed(..., record=True) results")
         if result.start != self._end:
-            raise RgtbusError(f"readout: result starts at sample {result.start}, expected "
-                              f"{self._end} (results must be appended in order)")
+            raise RgtbusError(
+                f"readout: result starts at sample {result.start}, expected "
+                f"{self._end} (results must be appended in order)"
+            )
         z = result.z[:, self.receiver, self.channel]
         s = result.spiked[:, self.receiver, self.channel]
         if not len(z):
@@ -118,14 +134,23 @@ class Readout:
     def values(self, indices: Sequence[int] | np.ndarray) -> np.ndarray:
         idx = np.asarray(indices, dtype=np.int64)
         if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
-            raise RgtbusError(f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
-                              f"the history {max(0, self._end - self.capacity)}..{self._end - 1}")
+            raise RgtbusError(
+                f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
+                f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
+            )
         return self._buf[idx % self.capacity]
+
+
+DIGITS = 12  # readout precision: far below any noise, far above rounding residue (~1e-17)
 
 
 class BankReadout:
     """Streaming increment readout of every channel of one receiver at once (what a unit keeps:
     one vectorised update a window instead of one per channel).
+
+    Values are rounded to ``DIGITS`` decimals, so a silent sample reads exactly 0 whether it was
+    computed (``append``) or known (``append_quiet``): results never depend on which windows
+    happened to be silent, i.e. on the window size.
 
     ``append(result)`` after each ``bank.feed(..., record=True)``; ``values(indices, channels)``
     gives d at absolute sample indices (any shape) of the matching channels.
@@ -135,8 +160,9 @@ class BankReadout:
         if not isinstance(capacity, int) or capacity < 1:
             raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
         if not 0 <= receiver < bank.n_receivers:
-            raise RgtbusError(f"readout: receiver {receiver} not in the bank "
-                              f"({bank.n_receivers} receivers)")
+            raise RgtbusError(
+                f"readout: receiver {receiver} not in the bank ({bank.n_receivers} receivers)"
+            )
         self.A = np.asarray(bank.A, dtype=complex)
         self.reset_value = float(bank.reset_value)
         self.receiver = receiver
@@ -159,8 +185,10 @@ class BankReadout:
         if result.z is None or result.spiked is None:
             raise RgtbusError("readout needs bank.feed(..., record=True) results")
         if result.start != self._end:
-            raise RgtbusError(f"readout: result starts at sample {result.start}, expected "
-                              f"{self._end} (results must be appended in order)")
+            raise RgtbusError(
+                f"readout: result starts at sample {result.start}, expected "
+                f"{self._end} (results must be appended in order)"
+            )
         z = result.z[:, self.receiver, :]
         sp = result.spiked[:, self.receiver, :]
         if not len(z):
@@ -168,6 +196,16 @@ class BankReadout:
         d = increments(z, sp, self.A, self.reset_value, self._z_prev, self._sp_prev)
         self._z_prev = z[-1].copy()
         self._sp_prev = sp[-1].copy()
+        self._store(np.round(d, DIGITS))
+
+    def append_quiet(self, n: int, bank: ResonatorBank) -> None:
+        """``n`` samples of silence were fed (``record=False``): their increments are 0, and the
+        next increment starts from the bank's current state."""
+        self._z_prev = bank.z[self.receiver].copy()
+        self._sp_prev = bank.spiked_last[self.receiver].copy()
+        self._store(np.zeros((n, self.A.size)))
+
+    def _store(self, d: np.ndarray) -> None:
         idx = np.arange(self._end, self._end + len(d)) % self.capacity
         self._buf[idx] = d
         self._end += len(d)
@@ -175,14 +213,22 @@ class BankReadout:
     def values(self, indices: np.ndarray | Sequence[int], channels: np.ndarray | int) -> np.ndarray:
         idx = np.asarray(indices, dtype=np.int64)
         if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
-            raise RgtbusError(f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
-                              f"the history {max(0, self._end - self.capacity)}..{self._end - 1}")
+            raise RgtbusError(
+                f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
+                f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
+            )
         return self._buf[idx % self.capacity, channels]
 
 
-def decode_among(readout: BankReadout, channels: Sequence[tuple[int, float]], start: float,
-                 words: Mapping[str, Sequence[float]], *, tau: float = PAPER_TAU,
-                 search: int = 0) -> tuple[Decision, int]:
+def decode_among(
+    readout: BankReadout,
+    channels: Sequence[tuple[int, float]],
+    start: float,
+    words: Mapping[str, Sequence[float]],
+    *,
+    tau: float = PAPER_TAU,
+    search: int = 0,
+) -> tuple[Decision, int]:
     """Which of ``channels`` ((channel index, ω) pairs) carries a code that started at ``start``
     (± ``search`` samples), and which word: the (channel, timing, word) with the smallest
     distance, all candidates scored in one vectorised step. Returns (decision, channel index)."""
@@ -211,8 +257,9 @@ def decode_among(readout: BankReadout, channels: Sequence[tuple[int, float]], st
     sep = float(np.linalg.norm(mat[~same] - mat[w], axis=1).min()) if others.size else 0.0
     conf = margin / sep if sep > 0 else (1.0 if not others.size else 0.0)
     ch, shift, instants = rows[m]
-    return Decision(names[w], float(dist[m, w]), margin, conf, tuple(float(x) for x in vals[m]),
-                    instants, shift), ch
+    return Decision(
+        names[w], float(dist[m, w]), margin, conf, tuple(float(x) for x in vals[m]), instants, shift
+    ), ch
 
 
 @dataclass(frozen=True)
@@ -231,8 +278,9 @@ class Decision:
     shift: int = 0
 
 
-def _words(words: Mapping[str, Sequence[float]], n: int | None,
-           where: str) -> dict[str, np.ndarray]:
+def _words(
+    words: Mapping[str, Sequence[float]], n: int | None, where: str
+) -> dict[str, np.ndarray]:
     if not words:
         raise RgtbusError(f"{where}: no candidate words")
     out = {str(k): np.asarray(v, dtype=float) for k, v in words.items()}
@@ -261,8 +309,9 @@ def nearest(values: Sequence[float] | np.ndarray, words: Mapping[str, Sequence[f
     return Decision(best, best_d, margin, conf, tuple(float(x) for x in v))
 
 
-def candidate_instants(omega: float, start: float, pulses: int, tau: float = PAPER_TAU,
-                       search: int = 0) -> list[tuple[int, tuple[int, ...]]]:
+def candidate_instants(
+    omega: float, start: float, pulses: int, tau: float = PAPER_TAU, search: int = 0
+) -> list[tuple[int, tuple[int, ...]]]:
     """Every distinct pulse-instant tuple for starts within ± ``search`` samples of ``start``,
     as (shift in samples, instants), nearest shift first."""
     period = 2 * math.pi / omega
@@ -289,9 +338,16 @@ def candidate_instants(omega: float, start: float, pulses: int, tau: float = PAP
     return sorted(((s, i) for i, s in seen.items()), key=lambda p: (abs(p[0]), p[0]))
 
 
-def decode_code(readout: Readout | np.ndarray, omega: float, start: float,
-                words: Mapping[str, Sequence[float]], *, tau: float = PAPER_TAU,
-                search: int = 0, offset: int = 0) -> Decision:
+def decode_code(
+    readout: Readout | np.ndarray,
+    omega: float,
+    start: float,
+    words: Mapping[str, Sequence[float]],
+    *,
+    tau: float = PAPER_TAU,
+    search: int = 0,
+    offset: int = 0,
+) -> Decision:
     """Decode one code on ``omega`` that started at ``start`` s (± ``search`` samples).
 
     ``readout`` is a :class:`Readout` or a 1-D array of d whose element 0 is absolute sample
@@ -312,11 +368,13 @@ def decode_code(readout: Readout | np.ndarray, omega: float, start: float,
             raise
         dec = nearest(vals, ws)
         if best is None or dec.distance < best.distance - 1e-12:
-            best = Decision(dec.name, dec.distance, dec.margin, dec.confidence, dec.values,
-                            inst, shift)
+            best = Decision(
+                dec.name, dec.distance, dec.margin, dec.confidence, dec.values, inst, shift
+            )
     if best is None:
-        raise RgtbusError(f"decode: no pulse instants of the code at {start:g} s are in the "
-                          "readout")
+        raise RgtbusError(
+            f"decode: no pulse instants of the code at {start:g} s are in the readout"
+        )
     return best
 
 
@@ -326,8 +384,10 @@ def _read(readout: Readout | np.ndarray, inst: Sequence[int], offset: int) -> np
     arr = np.asarray(readout)
     idx = np.asarray(inst, dtype=np.int64) - offset
     if idx.min() < 0 or idx.max() >= arr.shape[0]:
-        raise RgtbusError(f"decode: pulse instants {list(inst)} fall outside the readout "
-                          f"(samples {offset}..{offset + arr.shape[0] - 1})")
+        raise RgtbusError(
+            f"decode: pulse instants {list(inst)} fall outside the readout "
+            f"(samples {offset}..{offset + arr.shape[0] - 1})"
+        )
     return arr[idx]
 
 
@@ -336,22 +396,34 @@ def start_from_spike(spike_sample: int, omega: float, pulses: int, tau: float = 
     return spike_sample * tau - (pulses - 1) * 2 * math.pi / omega
 
 
-def accept_id(readout: Readout | np.ndarray, spike_sample: int, omega: float,
-              codebook: Codebook, *, tau: float = PAPER_TAU, search: int = 3, offset: int = 0,
-              accept_radius: float | None = None) -> tuple[bool, Decision]:
+def accept_id(
+    readout: Readout | np.ndarray,
+    spike_sample: int,
+    omega: float,
+    codebook: Codebook,
+    *,
+    tau: float = PAPER_TAU,
+    search: int = 3,
+    offset: int = 0,
+    accept_radius: float | None = None,
+) -> tuple[bool, Decision]:
     """Judge a spike on the sender's own ω: accepted iff the code there decodes as the ID-code
     among all distinct words, within ``accept_radius`` (default half the codebook's
     ``min_distance``)."""
     start = max(0.0, start_from_spike(spike_sample, omega, codebook.pulses, tau))
-    dec = decode_code(readout, omega, start, codebook.distinct_words(), tau=tau, search=search,
-                      offset=offset)
+    dec = decode_code(
+        readout, omega, start, codebook.distinct_words(), tau=tau, search=search, offset=offset
+    )
     radius = codebook.min_distance / 2 if accept_radius is None else accept_radius
     return dec.name == "id" and dec.distance <= radius, dec
 
 
-def decode_joint(readout: Readout | np.ndarray,
-                 transmissions: Sequence[tuple[Sequence[int], Mapping[str, Sequence[float]]]],
-                 *, offset: int = 0) -> list[Decision]:
+def decode_joint(
+    readout: Readout | np.ndarray,
+    transmissions: Sequence[tuple[Sequence[int], Mapping[str, Sequence[float]]]],
+    *,
+    offset: int = 0,
+) -> list[Decision]:
     """Decode overlapping transmissions together.
 
     ``transmissions``: (pulse instants, candidate words) per transmitter.  Over the union U of
@@ -365,8 +437,10 @@ def decode_joint(readout: Readout | np.ndarray,
     if not transmissions:
         raise RgtbusError("decode_joint: no transmissions")
     insts = [np.asarray(i, dtype=np.int64) for i, _ in transmissions]
-    wsets = [_words(w, len(i), f"decode_joint transmission {j}")
-             for j, ((_, w), i) in enumerate(zip(transmissions, insts, strict=True))]
+    wsets = [
+        _words(w, len(i), f"decode_joint transmission {j}")
+        for j, ((_, w), i) in enumerate(zip(transmissions, insts, strict=True))
+    ]
     union = np.unique(np.concatenate(insts))
     d = _read(readout, union, offset)
     cols = []
@@ -381,7 +455,7 @@ def decode_joint(readout: Readout | np.ndarray,
     names = [list(w) for w in wsets]
     mats = [np.stack([wsets[j][n] for n in names[j]]) for j in range(len(insts))]
     # Contribution of each candidate word of transmitter j to d_U.
-    contrib = [m @ M[:, bounds[j]:bounds[j + 1]].T for j, m in enumerate(mats)]
+    contrib = [m @ M[:, bounds[j] : bounds[j + 1]].T for j, m in enumerate(mats)]
     sizes = [len(n) for n in names]
 
     def resid(choice: Sequence[int]) -> float:
@@ -395,13 +469,18 @@ def decode_joint(readout: Readout | np.ndarray,
         best = combos[b]
         margins = []
         for j in range(len(insts)):
-            other = [r for r, ch in zip(res, combos, strict=True)
-                     if not np.array_equal(mats[j][ch[j]], mats[j][best[j]])]
+            other = [
+                r
+                for r, ch in zip(res, combos, strict=True)
+                if not np.array_equal(mats[j][ch[j]], mats[j][best[j]])
+            ]
             margins.append(float(min(other) - res[b]) if other else math.inf)
         best_res = float(res[b])
     else:
-        choice = [int(np.argmin(np.linalg.norm(mats[j] - c_hat[bounds[j]:bounds[j + 1]], axis=1)))
-                  for j in range(len(insts))]
+        choice = [
+            int(np.argmin(np.linalg.norm(mats[j] - c_hat[bounds[j] : bounds[j + 1]], axis=1)))
+            for j in range(len(insts))
+        ]
         for _ in range(20):
             changed = False
             for j in range(len(insts)):
@@ -415,8 +494,11 @@ def decode_joint(readout: Readout | np.ndarray,
         best_res = resid(best)
         margins = []
         for j in range(len(insts)):
-            alts = [resid([*best[:j], c, *best[j + 1:]]) for c in range(sizes[j])
-                    if not np.array_equal(mats[j][c], mats[j][best[j]])]
+            alts = [
+                resid([*best[:j], c, *best[j + 1 :]])
+                for c in range(sizes[j])
+                if not np.array_equal(mats[j][c], mats[j][best[j]])
+            ]
             margins.append(min(alts) - best_res if alts else math.inf)
     out = []
     for j in range(len(insts)):
@@ -424,7 +506,14 @@ def decode_joint(readout: Readout | np.ndarray,
         others = [m for m in mats[j] if not np.array_equal(m, w)]
         sep = min((float(np.linalg.norm(m - w)) for m in others), default=0.0)
         conf = margins[j] / sep if sep > 0 and math.isfinite(margins[j]) else 1.0
-        out.append(Decision(names[j][best[j]], best_res, margins[j], conf,
-                            tuple(float(x) for x in c_hat[bounds[j]:bounds[j + 1]]),
-                            tuple(int(k) for k in insts[j])))
+        out.append(
+            Decision(
+                names[j][best[j]],
+                best_res,
+                margins[j],
+                conf,
+                tuple(float(x) for x in c_hat[bounds[j] : bounds[j + 1]]),
+                tuple(int(k) for k in insts[j]),
+            )
+        )
     return out
