@@ -52,6 +52,7 @@ SAMPLES: dict[str, dict] = {
     "/rx/spike": {"unit": "b", "channel": "a", "omega": 3 * math.pi / 2, "t": 1.3, "sample": 260},
     "/rx/decode": {
         "unit": "b",
+        "turn": 1,
         "sender": "a",
         "addressee": "c",
         "kind": "relation",
@@ -67,7 +68,6 @@ SAMPLES: dict[str, dict] = {
         "sent": {"a>b": "alliance", "b>a": "alliance", "a>c": "conflict"},
         "installed": {"a-b": "alliance"},
         "polynomial": None,
-        "agree": False,
     },
     "/unit/influences": {
         "unit": "c",

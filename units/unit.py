@@ -295,6 +295,7 @@ class AutonomousUnit:
             "/rx/decode",
             {
                 "unit": self.name,
+                "turn": listen.turn,
                 "sender": listen.sender,
                 "addressee": addressee,
                 "kind": listen.kind,
@@ -326,7 +327,6 @@ class AutonomousUnit:
                         },
                         "installed": mind.installed(),
                         "polynomial": mind.polynomial,
-                        "agree": True,
                     },
                     ns(t),
                 )

@@ -201,7 +201,9 @@ class Replay:
             cls = "id" if d["kind"] == "id" else "payload"
             tx = None
             for cand in starts[(d["sender"], cls)]:
-                if cand.start <= d["t"] + 1e-9:
+                if ("turn" in d and cand.turn == d["turn"]) or (
+                    "turn" not in d and cand.start <= d["t"] + 1e-9  # logs from before turns
+                ):
                     tx = cand
             if tx is None:
                 matches = None
