@@ -466,3 +466,18 @@ def test_flags_travel_with_the_window(make_bus):
     assert decode_frame(encode(0, RATE, np.zeros(2), FINAL | FAILED))[3] == 3
     with pytest.raises(RgtbusError, match="only FINAL"):
         encode(0, RATE, np.zeros(2), 4)
+
+
+def test_log_bus_serves_logged_windows_and_ends():
+    from rgtbus.bus.logbus import LogBus, LogEnded
+    from rgtbus.bus.payload import FINAL
+
+    windows = [np.full(WLEN, float(w)) for w in range(3)]
+    bus = LogBus("replay", ["a", "b", "c"], windows, local=["a", "b"])
+    bus.publish("a", 0, np.zeros(WLEN), FINAL)
+    got = bus.gather(0)
+    assert (got["a"] == 0.0).all() and (got["b"] == 0).all() and set(got) == {"a", "b", "c"}
+    assert bus.last_flags == {"a": FINAL, "b": 0, "c": FINAL}  # c is not re-run: finished
+    assert (bus.gather(2)["a"] == 2.0).all()
+    with pytest.raises(LogEnded, match="ends after window 2"):
+        bus.gather(3)

@@ -1,7 +1,8 @@
 """Re-running a logged run: the units' receivers and reasoning fed with the logged medium.
 
 ``rerun`` rebuilds every unit (``AutonomousUnit``, exactly as ``run_group`` does) from the
-scenario and drives it window by window with the logged ``/medium`` samples instead of a bus:
+scenario and runs them in the SimPy ``World`` over a ``LogBus`` that serves the logged
+``/medium`` windows instead of a live bus:
 the units render their own transmissions again (so their pulses can be compared with the
 log), hear the logged medium (with their own seeded noise), spike, decode, build tables and
 decide. What they record goes into a ``CaptureRecorder``; ``rgtbus.telemetry.replay`` diffs it
@@ -12,20 +13,18 @@ It lives in ``units/`` because it needs the unit itself: adapters never import `
 
 from __future__ import annotations
 
-import math
 import os
-import time
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import IO, Any
 
 import numpy as np
-import simpy
 
+from rgtbus.bus.logbus import LogBus, LogEnded
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import WorldResult
+from rgtbus.sim import World, WorldResult
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
 from units.group import summarise
@@ -79,56 +78,34 @@ def rerun(
     part, bit for bit what the units heard in the run (0 + x_a + x_b ... in the same order).
     ``traces``: units that record ``/trace/<unit>``; ``only``: re-run just these units (each
     unit's receiver depends on the medium alone, so one unit can be re-run on its own).
-    Stops like the World: after a window in which a unit failed or all have finished.
+    The units run in the ``World`` itself, over a ``LogBus`` serving the logged windows, so the
+    re-run ends exactly where the run did.
     """
     sc = scenario
     rec = CaptureRecorder()
     names = [u for u in sc.units if only is None or u in only]
     members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
-    L = sc.timing.window_samples
-    ws = L / sc.timing.sample_rate
-    zeros = np.zeros(L)
-    env = simpy.Environment()
-    for m in members:
-        m.begin(env)
-    t0 = time.perf_counter()
-    failure = None
-    done = 0
-    stopped = False
-    max_windows = math.ceil(sc.timing.max_seconds / ws)
-    for w, medium in enumerate(windows):
-        if w:
-            env.run(until=w * ws)  # announcements (log lines) due before this window
-        # As the World: a window opens with every member's flags (finished, failed); the
-        # first window in which all have finished or one has failed is logged, not heard.
+    bus = LogBus("replay", sc.units, windows, parts=parts, local=names)
+    world = World(
+        members,
+        bus,
+        rec,
+        sample_rate=sc.timing.sample_rate,
+        window_samples=sc.timing.window_samples,
+        max_seconds=sc.timing.max_seconds,
+        write_medium=False,  # the log has the medium; the diff compares what units did
+    )
+    try:
+        result = world.run()
+        stopped = complete = True  # the World ended the run within the log
+    except LogEnded:  # the log ends before the World would have ended the run
+        world.env.run(until=world.env.now + 1e-9)  # announcements due by the last window
         failed = [m for m in members if m.failure]
-        stop = bool(failed) or all(m.finished for m in members)
-        for m in members:
-            m.render(w)
-        done = w + 1
-        if stop:
-            failure = failed[0].failure if failed else None
-            stopped = True
-            break
-        if parts is not None:
-            gathered = parts[w]
-        else:
-            gathered = {u: zeros for u in sc.units}
-            gathered[sc.units[0]] = medium
-        for m in members:
-            m.hear(w, gathered)
-    env.run(until=done * ws + 1e-9)
-    # The log ended before the closing window: complete if the units were done anyway.
-    failed = [m for m in members if m.failure]
-    complete = stopped or bool(failed) or all(m.finished for m in members)
-    if not stopped and failed:
-        failure = failed[0].failure
-    if not complete and done >= max_windows:
-        complete = True
-        failure = (
-            f"not finished after {max_windows * ws:.1f} s of simulated time (timing.max_seconds)"
-        )
-    result = WorldResult(done, done * ws, time.perf_counter() - t0, failure)
+        complete = bool(failed) or all(m.finished for m in members)
+        stopped = False
+        result = WorldResult(len(windows), 0.0, 0.0, failed[0].failure if failed else None)
+    done = min(result.windows, len(windows))
+    result = WorldResult(done, done * world.window_seconds, result.wall_seconds, result.failure)
     summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
     return Rerun(rec.messages, summary, members, done, complete, stopped)
 
