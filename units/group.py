@@ -26,6 +26,28 @@ class RunOutput:
     units: list[AutonomousUnit]
 
 
+# What `rgtbus run --json` and `rgtbus launch --json` print: one contract for both.
+SUMMARY_JSON_KEYS = (
+    "scenario",
+    "seed",
+    "polynomial",
+    "relations",
+    "agree",
+    "influences",
+    "units",
+    "outcome",
+    "sim_seconds",
+    "wall_seconds",
+    "log",
+    "decode_errors",
+    "error",
+)
+
+
+def summary_json(summary: dict[str, Any]) -> dict[str, Any]:
+    return {k: summary[k] for k in SUMMARY_JSON_KEYS}
+
+
 def default_run_id(sc: Scenario) -> str:
     return f"{sc.name}-{sc.seed}"
 

@@ -275,7 +275,13 @@ def run_launch(args: argparse.Namespace) -> int:
     from rgtbus.telemetry import McapRecorder
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.recorder import scan_log
-    from units.group import default_run_id, summarise, write_metadata, write_run_summary
+    from units.group import (
+        default_run_id,
+        summarise,
+        summary_json,
+        write_metadata,
+        write_run_summary,
+    )
 
     t0 = time.perf_counter()
     sc = _load(args.scenario, args.seed)
@@ -383,22 +389,7 @@ def run_launch(args: argparse.Namespace) -> int:
         raise RgtbusError(f"no unit finished: {failures[0] if failures else 'no output'}")
     summary["log"] = str(merged)
     if args.json:
-        keys = (
-            "scenario",
-            "seed",
-            "polynomial",
-            "relations",
-            "agree",
-            "influences",
-            "units",
-            "outcome",
-            "sim_seconds",
-            "wall_seconds",
-            "log",
-            "decode_errors",
-            "error",
-        )
-        print(json.dumps({k: summary[k] for k in keys}))
+        print(json.dumps(summary_json(summary)))
     else:
         print_summary(sc, summary)
     if failures:

@@ -86,7 +86,7 @@ class Progress:
 def run(args: argparse.Namespace) -> int:
     from rgtbus.scenario import load_scenario
     from rgtbus.telemetry import McapRecorder
-    from units.group import check_expectations, run_group
+    from units.group import check_expectations, run_group, summary_json
 
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
@@ -119,22 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
     checks = check_expectations(scenario, summary) if args.check else []
     if args.json:
-        keys = (
-            "scenario",
-            "seed",
-            "polynomial",
-            "relations",
-            "agree",
-            "influences",
-            "units",
-            "outcome",
-            "sim_seconds",
-            "wall_seconds",
-            "log",
-            "decode_errors",
-            "error",
-        )
-        out_json = {k: summary[k] for k in keys}
+        out_json = summary_json(summary)
         if args.check:
             out_json["checks"] = [{"what": w, "ok": ok, "detail": d} for w, ok, d in checks]
         print(json.dumps(out_json))

@@ -25,41 +25,78 @@ PI = math.pi
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "resonate", help="feed one code to a bank of resonators; report peak y and spikes",
+        "resonate",
+        help="feed one code to a bank of resonators; report peak y and spikes",
         description="Send one code (pulse magnitudes --pulses on channel --on) and report, per "
-                    "resonator: omega, peak recorded y (1.5 when it spiked) and spike times.")
-    p.add_argument("--omega", action="append", metavar="EXPR",
-                   help="resonator frequency, rad/s: 3pi/2, 1.5pi, 4.71 (repeat; default the "
-                        "paper's 3pi/2, 4pi/3, 5pi/3)")
-    p.add_argument("--pulses", default="0.4,0.4,0.4", metavar="M1,M2,...",
-                   help="pulse magnitudes of the code (default the ID-code 0.4,0.4,0.4)")
-    p.add_argument("--on", type=int, default=0, metavar="INDEX",
-                   help="index of the --omega the code is sent on (default 0)")
-    p.add_argument("--start", type=float, default=0.001, metavar="SECONDS",
-                   help="time of the first pulse (default 0.001, the paper's 1 ms)")
-    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
-                   help="simulated time (default: start + pulses × slowest period + 0.5 s)")
+        "resonator: omega, peak recorded y (1.5 when it spiked) and spike times.",
+    )
+    p.add_argument(
+        "--omega",
+        action="append",
+        metavar="EXPR",
+        help="resonator frequency, rad/s: 3pi/2, 1.5pi, 4.71 (repeat; default the "
+        "paper's 3pi/2, 4pi/3, 5pi/3)",
+    )
+    p.add_argument(
+        "--pulses",
+        default="0.4,0.4,0.4",
+        metavar="M1,M2,...",
+        help="pulse magnitudes of the code (default the ID-code 0.4,0.4,0.4)",
+    )
+    p.add_argument(
+        "--on",
+        type=int,
+        default=0,
+        metavar="INDEX",
+        help="index of the --omega the code is sent on (default 0)",
+    )
+    p.add_argument(
+        "--start",
+        type=float,
+        default=0.001,
+        metavar="SECONDS",
+        help="time of the first pulse (default 0.001, the paper's 1 ms)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="simulated time (default: start + pulses × slowest period + 0.5 s)",
+    )
     p.add_argument("--mode", choices=("paper", "exact"), default="paper")
-    p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA",
-                   help="white Gaussian noise on every sample (default 0)")
+    p.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="white Gaussian noise on every sample (default 0)",
+    )
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--plot", metavar="PNG", help="also write the y trajectories to this PNG")
     p.set_defaults(func=cmd_resonate)
 
     f = subparsers.add_parser(
-        "figures", help="regenerate the paper's resonator figures and the decoder's error rate",
+        "figures",
+        help="regenerate the paper's resonator figures and the decoder's error rate",
         description="Write PNGs: matched vs unmatched resonators for the paper's excitatory, "
-                    "inhibitory and mixed series on two frequency pairs, receiving a message, "
-                    "and the decoder's symbol error rate against noise.")
+        "inhibitory and mixed series on two frequency pairs, receiving a message, "
+        "and the decoder's symbol error rate against noise.",
+    )
     f.add_argument("outdir", metavar="OUTDIR")
-    f.add_argument("--trials", type=int, default=1000,
-                   help="Monte-Carlo trials per point of the error-rate figure (default 1000)")
+    f.add_argument(
+        "--trials",
+        type=int,
+        default=1000,
+        help="Monte-Carlo trials per point of the error-rate figure (default 1000)",
+    )
     f.add_argument("--seed", type=int, default=0)
     f.set_defaults(func=cmd_figures)
 
 
 # -- resonate ------------------------------------------------------------------------------
+
 
 def _parse_pulses(text: str) -> tuple[float, ...]:
     out = []
@@ -75,9 +112,18 @@ def _parse_pulses(text: str) -> tuple[float, ...]:
     return tuple(out)
 
 
-def run_resonate(omegas: Sequence[float], word: Sequence[float], on: int, *, start: float = 0.001,
-                 duration: float | None = None, mode: str = "paper", noise: float = 0.0,
-                 seed: int = 0, tau: float = PAPER_TAU) -> tuple[ResonatorBank, FeedResult]:
+def run_resonate(
+    omegas: Sequence[float],
+    word: Sequence[float],
+    on: int,
+    *,
+    start: float = 0.001,
+    duration: float | None = None,
+    mode: str = "paper",
+    noise: float = 0.0,
+    seed: int = 0,
+    tau: float = PAPER_TAU,
+) -> tuple[ResonatorBank, FeedResult]:
     """Bank over ``omegas`` fed one code (``word`` on ``omegas[on]`` from ``start``)."""
     if not 0 <= on < len(omegas):
         raise RgtbusError(f"--on {on}: no such resonator (give 0..{len(omegas) - 1})")
@@ -89,8 +135,10 @@ def run_resonate(omegas: Sequence[float], word: Sequence[float], on: int, *, sta
         lim = euler_limit(tau)
         for w in omegas:
             if w >= lim:
-                raise RgtbusError(f"--omega {w:.6g}: beyond Euler's stable band ({lim:.4g} rad/s) "
-                                  "in paper mode; use --mode exact")
+                raise RgtbusError(
+                    f"--omega {w:.6g}: beyond Euler's stable band ({lim:.4g} rad/s) "
+                    "in paper mode; use --mode exact"
+                )
     if duration is None:
         duration = start + len(word) * 2 * PI / min(omegas) + 0.5
     if not (math.isfinite(duration) and duration > 0):
@@ -98,8 +146,10 @@ def run_resonate(omegas: Sequence[float], word: Sequence[float], on: int, *, sta
     n = round(duration / tau) + 1
     last = pulse_instants(omegas[on], start, len(word), tau)[-1]
     if last >= n:
-        raise RgtbusError(f"--duration {duration:g}: the code's last pulse comes at "
-                          f"{last * tau:g} s, after the end")
+        raise RgtbusError(
+            f"--duration {duration:g}: the code's last pulse comes at "
+            f"{last * tau:g} s, after the end"
+        )
     u = hear([Transmission(omegas[on], start, tuple(word))], n, sigma=noise, seed=seed, tau=tau)
     bank = ResonatorBank(omegas, mode=mode, tau=tau)
     return bank, bank.feed(u[:, 0], record=True)
@@ -109,22 +159,38 @@ def cmd_resonate(args: argparse.Namespace) -> int:
     texts = args.omega or list(PAPER_OMEGA_TEXT[:3])
     omegas = [parse_omega(t, where="--omega") for t in texts]
     word = _parse_pulses(args.pulses)
-    bank, res = run_resonate(omegas, word, args.on, start=args.start, duration=args.duration,
-                             mode=args.mode, noise=args.noise, seed=args.seed)
+    bank, res = run_resonate(
+        omegas,
+        word,
+        args.on,
+        start=args.start,
+        duration=args.duration,
+        mode=args.mode,
+        noise=args.noise,
+        seed=args.seed,
+    )
     tau = bank.tau
     rows = []
     for c, w in enumerate(omegas):
         times = res.spikes[res.spikes[:, 2] == c, 0] * tau
-        rows.append({"omega": float(w), "peak_y": float(res.y[:, 0, c].max()),
-                     "spikes": [round(float(t), 9) for t in times]})
+        rows.append(
+            {
+                "omega": float(w),
+                "peak_y": float(res.y[:, 0, c].max()),
+                "spikes": [round(float(t), 9) for t in times],
+            }
+        )
     if args.plot:
-        _plot_resonate(Path(args.plot), omegas, texts, word, args.on, args.start, res, tau,
-                       args.mode)
+        _plot_resonate(
+            Path(args.plot), omegas, texts, word, args.on, args.start, res, tau, args.mode
+        )
     if args.json:
         print(json.dumps({"resonators": rows}))
     else:
-        print(f"code {list(word)} on {texts[args.on]} from {args.start:g} s, mode {args.mode}"
-              + (f", noise {args.noise:g} (seed {args.seed})" if args.noise else ""))
+        print(
+            f"code {list(word)} on {texts[args.on]} from {args.start:g} s, mode {args.mode}"
+            + (f", noise {args.noise:g} (seed {args.seed})" if args.noise else "")
+        )
         print(f"{'omega':>12}  {'rad/s':>8}  {'peak y':>7}  spikes (s)")
         for t, r in zip(texts, rows, strict=True):
             sp = ", ".join(f"{s:.3f}" for s in r["spikes"]) or "-"
@@ -133,6 +199,7 @@ def cmd_resonate(args: argparse.Namespace) -> int:
 
 
 # -- plotting (lazy matplotlib) ---------------------------------------------------------------
+
 
 def _pyplot():
     import matplotlib
@@ -158,8 +225,9 @@ def _plot_resonate(path: Path, omegas, texts, word, on, start, res, tau, mode) -
     plt = _pyplot()
     n = res.y.shape[0]
     t = np.arange(n) * tau
-    fig, axes = plt.subplots(len(omegas), 1, figsize=(8, 1.9 * len(omegas) + 0.8), sharex=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(omegas), 1, figsize=(8, 1.9 * len(omegas) + 0.8), sharex=True, squeeze=False
+    )
     inst = pulse_instants(omegas[on], start, len(word), tau) * tau
     for c, ax in enumerate(axes[:, 0]):
         ax.plot(t, res.y[:, 0, c], lw=1, color="C0" if c == on else "C7")
@@ -169,12 +237,17 @@ def _plot_resonate(path: Path, omegas, texts, word, on, start, res, tau, mode) -
         ax.set_ylabel(f"y, ω={texts[c]}", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout(rect=(0, 0.09, 1, 1))
-    _save(fig, path, f"Code {list(word)} sent on ω = {texts[on]} ({mode} mode); green lines: "
-                     "pulses; dotted: threshold 1; spikes are drawn as y = 1.5.")
+    _save(
+        fig,
+        path,
+        f"Code {list(word)} sent on ω = {texts[on]} ({mode} mode); green lines: "
+        "pulses; dotted: threshold 1; spikes are drawn as y = 1.5.",
+    )
 
 
-def _trace(omegas: Sequence[float], word: Sequence[float], on: int, seconds: float,
-           start: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
+def _trace(
+    omegas: Sequence[float], word: Sequence[float], on: int, seconds: float, start: float = 0.001
+) -> tuple[np.ndarray, np.ndarray]:
     n = round(seconds / PAPER_TAU) + 1
     u = hear([Transmission(omegas[on], start, tuple(word))], n)[:, 0]
     res = ResonatorBank(omegas).feed(u, record=True)
@@ -194,13 +267,22 @@ def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title:
         other = 1 - row
         t, y_m = _trace(oms, word, row, seconds)
         _, y_u = _trace(oms, word, other, seconds)
-        fired = ("fires" if (y_m[:, row] >= 1.5).any() else "does not fire",
-                 "fires" if (y_u[:, row] >= 1.5).any() else "does not fire")
-        verdict.append(f"ω = {names[row]} {fired[0]} for its own series and {fired[1]} for "
-                       f"{names[other]}'s")
+        fired = (
+            "fires" if (y_m[:, row] >= 1.5).any() else "does not fire",
+            "fires" if (y_u[:, row] >= 1.5).any() else "does not fire",
+        )
+        verdict.append(
+            f"ω = {names[row]} {fired[0]} for its own series and {fired[1]} for {names[other]}'s"
+        )
         ax.plot(t, y_m[:, row], color="C0", lw=1.1, label=f"input on ω = {names[row]} (matched)")
-        ax.plot(t, y_u[:, row], color="C1", lw=1.1, ls="--",
-                label=f"input on ω = {names[other]} (unmatched)")
+        ax.plot(
+            t,
+            y_u[:, row],
+            color="C1",
+            lw=1.1,
+            ls="--",
+            label=f"input on ω = {names[other]} (unmatched)",
+        )
         for j, c in ((row, colors[row]), (other, colors[other])):
             for x in pulse_instants(oms[j], 0.001, len(word)) * PAPER_TAU:
                 ax.axvline(x, color=c, lw=0.8, alpha=0.6)
@@ -211,9 +293,11 @@ def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title:
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.09, 1, 1))
-    caption = (f"{title}: " + "; ".join(verdict) + f" (spikes drawn as y = 1.5). Green/red "
-               f"lines: pulses on {names[0]}/{names[1]}; paper mode, b = −0.1, τ = 5 ms, "
-               "start 1 ms.")
+    caption = (
+        f"{title}: " + "; ".join(verdict) + f" (spikes drawn as y = 1.5). Green/red "
+        f"lines: pulses on {names[0]}/{names[1]}; paper mode, b = −0.1, τ = 5 ms, "
+        "start 1 ms."
+    )
     _save(fig, path, caption)
     return caption
 
@@ -250,11 +334,15 @@ def figure_receiving(path: Path) -> str:
     fired = []
     for c, name in order:
         ts = res.spikes[res.spikes[:, 2] == c, 0] * PAPER_TAU
-        fired.append(f"ω_{name} " + (("spikes at " + ", ".join(f"{x:.2f}" for x in ts) + " s")
-                                     if len(ts) else "no spike"))
-    caption = (f"a sends its ID-code on ω_a (green), then 0.5 s after the ω_a spike the ID-code "
-               f"on ω_c (red, from {t_send:.2f} s): " + "; ".join(fired) + ". The first code "
-               "still rings (1/|b| = 10 s) when the second arrives.")
+        fired.append(
+            f"ω_{name} "
+            + (("spikes at " + ", ".join(f"{x:.2f}" for x in ts) + " s") if len(ts) else "no spike")
+        )
+    caption = (
+        f"a sends its ID-code on ω_a (green), then 0.5 s after the ω_a spike the ID-code "
+        f"on ω_c (red, from {t_send:.2f} s): " + "; ".join(fired) + ". The first code "
+        "still rings (1/|b| = 10 s) when the second arrives."
+    )
     _save(fig, path, caption)
     return caption
 
@@ -271,15 +359,18 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
     curves = {
         "alternatives, alone": dict(words=cb.alternatives),
         "alternatives + interferer on ω_c, joint": dict(words=cb.alternatives, interferer=wc),
-        "alternatives + interferer, independent": dict(words=cb.alternatives, interferer=wc,
-                                                       joint=False),
+        "alternatives + interferer, independent": dict(
+            words=cb.alternatives, interferer=wc, joint=False
+        ),
         "alliance/conflict, alone": dict(words=cb.relations),
     }
     fig, ax = plt.subplots(figsize=(7.5, 5))
     floor = 0.5 / trials
     for j, (label, kw) in enumerate(curves.items()):
-        sers = [symbol_error_rate(omega=wa, sigma=s, trials=trials, seed=seed + j, **kw).ser
-                for s in SIGMAS]
+        sers = [
+            symbol_error_rate(omega=wa, sigma=s, trials=trials, seed=seed + j, **kw).ser
+            for s in SIGMAS
+        ]
         ax.plot(SIGMAS, [max(s, floor) for s in sers], marker="o", label=label)
     ax.set_yscale("log")
     ax.set_ylim(floor * 0.8, 1)
@@ -289,9 +380,11 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
     ax.set_title(f"Decoder symbol error rate, code on ω_a = 3pi/2, {trials} trials a point")
     ax.legend(fontsize=8)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
-    caption = ("Increment readout + nearest codeword through the paper-mode bank; the "
-               "interferer starts with the code (first pulses collide). Points on the dotted "
-               f"line had no error in {trials} trials.")
+    caption = (
+        "Increment readout + nearest codeword through the paper-mode bank; the "
+        "interferer starts with the code (first pulses collide). Points on the dotted "
+        f"line had no error in {trials} trials."
+    )
     _save(fig, path, caption)
     return caption
 
