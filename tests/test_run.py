@@ -288,3 +288,44 @@ def test_timing_defaults_match_the_paper():
     t = Timing()
     assert (t.tau, t.window_samples, t.reaction_delay) == (0.005, 20, 0.5)
     assert random.Random("3:a:decision").random() == random.Random("3:a:decision").random()
+
+
+def test_realtime_paces_the_run(tmp_path, capsys):
+    argv = [
+        "run",
+        str(ROOT / "scenarios/overview.toml"),
+        "--bus",
+        "memory",
+        "--quiet",
+        "--log",
+        str(tmp_path / "o.mcap"),
+        "--json",
+        "--realtime",
+        "150",
+    ]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["wall_seconds"] >= out["sim_seconds"] / 150 * 0.95
+    assert main([*argv[:-1], "0"]) == 2
+    assert "--realtime 0.0: must be a positive factor" in capsys.readouterr().err
+
+
+def test_progress_line_is_rate_limited_and_only_for_long_runs(monkeypatch, capsys):
+    from rgtbus.cli import run_cmd
+
+    clock = iter([0.0, 1.0, 2.5, 2.7, 3.1, 3.2, 0.0, 9.0])  # t0, then one reading a call
+
+    class FakeTime:
+        perf_counter = staticmethod(lambda: next(clock))
+
+    monkeypatch.setattr(run_cmd, "time", FakeTime)
+    progress = run_cmd.Progress(realtime=None, show=True)
+    for w in range(5):
+        progress(w * 0.1, w)
+    progress.done()
+    err = capsys.readouterr().err
+    # 1.0 s: too early; 2.5 s: shown; 2.7 s: rate-limited; 3.1 s: shown; 3.2 s: rate-limited
+    assert err.count("simulated") == 2 and err.endswith("\n")
+    quiet = run_cmd.Progress(realtime=None, show=False)
+    quiet(1.0, 1)
+    assert capsys.readouterr().err == ""

@@ -239,6 +239,15 @@ def free_ports(n: int) -> list[int]:
             s.close()
 
 
+def _die_with_parent() -> None:
+    """In the child, before exec: ask Linux for SIGTERM when the launcher dies, so no unit is
+    left behind even if the launcher is killed outright (best effort elsewhere)."""
+    with contextlib.suppress(Exception):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 class Launch:
     """Spawned processes, always reaped: terminate, then kill what is left."""
 
@@ -252,6 +261,7 @@ class Launch:
             stderr=subprocess.PIPE,
             stdin=subprocess.DEVNULL,
             text=True,
+            preexec_fn=_die_with_parent,
         )
         self.procs.append((label, proc))
         return proc
