@@ -16,7 +16,8 @@ from typing import Any
 from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.scenario import Scenario
-from rgtbus.sim import World, ns
+from rgtbus.sim import World, WorldResult, ns
+from rgtbus.telemetry import Recorder
 from units.unit import AutonomousUnit
 
 
@@ -52,7 +53,9 @@ def default_run_id(sc: Scenario) -> str:
     return f"{sc.name}-{sc.seed}"
 
 
-def write_metadata(recorder, sc: Scenario, bus_kind: str, run_id: str, **extra: str) -> None:
+def write_metadata(
+    recorder: Recorder, sc: Scenario, bus_kind: str, run_id: str, **extra: str
+) -> None:
     recorder.metadata("scenario", {"name": sc.name, "path": sc.path, "text": sc.text})
     recorder.metadata(
         "run",
@@ -69,7 +72,7 @@ def write_metadata(recorder, sc: Scenario, bus_kind: str, run_id: str, **extra: 
     recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
 
 
-def write_run_summary(recorder, summary: dict[str, Any]) -> None:
+def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
     recorder.write(
         "/run",
         {
@@ -87,7 +90,7 @@ def write_run_summary(recorder, summary: dict[str, Any]) -> None:
 def run_group(
     scenario: Scenario,
     bus_kind: str,
-    recorder,
+    recorder: Recorder,
     *,
     run_id: str | None = None,
     traces: bool = False,
@@ -117,7 +120,7 @@ def run_group(
     return RunOutput(summary, members)
 
 
-def summarise(sc: Scenario, reports: list[dict[str, Any]], result) -> dict[str, Any]:
+def summarise(sc: Scenario, reports: list[dict[str, Any]], result: WorldResult) -> dict[str, Any]:
     """The run's summary from every unit's ``report()`` (one process or many)."""
     by_unit = {r["unit"]: r for r in reports}
     ref = by_unit[sc.units[0]]
@@ -172,7 +175,7 @@ def summarise(sc: Scenario, reports: list[dict[str, Any]], result) -> dict[str, 
     }
 
 
-def check_expectations(scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
+def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
     """Compare the run with the scenario's ``[expect]`` table."""
     u = scenario.universe
     exp = scenario.expect

@@ -18,6 +18,7 @@ from rgtbus.bus import open_bus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.sim import World, WorldResult, ns
+from rgtbus.telemetry import Recorder
 from units.group import default_run_id, write_metadata
 from units.unit import AutonomousUnit
 
@@ -30,7 +31,7 @@ def scenario_digest(sc: Scenario) -> str:
 def run_unit(
     sc: Scenario,
     name: str,
-    recorder,
+    recorder: Recorder,
     *,
     zenoh_options: dict[str, Any] | None = None,
     run_id: str | None = None,

@@ -22,6 +22,7 @@ from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import BankReadout, decode_among, nearest
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.sim import ns
+from rgtbus.telemetry import Recorder
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
@@ -42,7 +43,7 @@ class Decoded:
 class AutonomousUnit:
     name: str
     scenario: Scenario
-    recorder: object
+    recorder: Recorder
     traces: bool = False
     # state
     finished: bool = False

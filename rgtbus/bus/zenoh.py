@@ -20,6 +20,7 @@ import weakref
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from rgtbus.bus.base import QueueBus
@@ -277,7 +278,7 @@ class ZenohBus(QueueBus):
             self._drop("dropped_malformed", f"hello: not a hello message ({raw[:40]!r})")
             return None
 
-    def gather(self, window: int, timeout: float = 5.0):  # type: ignore[override]
+    def gather(self, window: int, timeout: float = 5.0) -> dict[str, np.ndarray]:
         if self._joined is not None:
             self._answer_late_hellos()
         return super().gather(window, timeout)

@@ -7,9 +7,12 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.replay import Replay
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -154,7 +157,7 @@ def _alt(rp, v: Any) -> str:
     return u.format(u.from_list(v)) if u else "{" + ",".join(v) + "}"
 
 
-def print_timeline(rp) -> None:
+def print_timeline(rp: Replay) -> None:
     info = rp.info()
     s = rp.summary()
     units = list(rp.units)

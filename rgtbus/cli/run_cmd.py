@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def print_summary(scenario, s: dict[str, Any]) -> None:
+def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
     u = scenario.universe
     units = scenario.units
     print(

@@ -47,8 +47,11 @@ class Codebook:
 
     @property
     def families(self) -> dict[str, dict[str, Word]]:
-        return {"id": {"id": self.id_word}, "relation": dict(self.relations),
-                "alternative": dict(self.alternatives)}
+        return {
+            "id": {"id": self.id_word},
+            "relation": dict(self.relations),
+            "alternative": dict(self.alternatives),
+        }
 
     def family(self, name: str) -> dict[str, Word]:
         fams = self.families
@@ -74,10 +77,15 @@ class Codebook:
         return min((_dist(a, b) for a, b in itertools.combinations(words, 2)), default=math.inf)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "pulses": self.pulses, "min_distance": self.min_distance,
-                "actions": list(self.actions), "id": list(self.id_word),
-                "relation": {k: list(v) for k, v in self.relations.items()},
-                "alternative": {k: list(v) for k, v in self.alternatives.items()}}
+        return {
+            "name": self.name,
+            "pulses": self.pulses,
+            "min_distance": self.min_distance,
+            "actions": list(self.actions),
+            "id": list(self.id_word),
+            "relation": {k: list(v) for k, v in self.relations.items()},
+            "alternative": {k: list(v) for k, v in self.alternatives.items()},
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "codebook") -> Codebook:
@@ -88,8 +96,9 @@ class Codebook:
         known = {"name", "pulses", "min_distance", "actions", "id", "relation", "alternative"}
         for key in data:
             if key not in known:
-                raise RgtbusError(f"{where}: unknown key {key!r} "
-                                  f"(known: {', '.join(sorted(known))})")
+                raise RgtbusError(
+                    f"{where}: unknown key {key!r} (known: {', '.join(sorted(known))})"
+                )
         for key in ("pulses", "id", "relation", "alternative"):
             if key not in data:
                 raise RgtbusError(f"{where}: missing key {key!r}")
@@ -109,10 +118,15 @@ class Codebook:
         actions = data.get("actions", ())
         if isinstance(actions, str) or not isinstance(actions, Sequence):
             raise RgtbusError(f"{where}.actions: {actions!r} must be a list of action names")
-        return cls(pulses=pulses, id_word=_as_word(data["id"], f"{where}.id"),
-                   relations=table("relation"), alternatives=table("alternative"),
-                   min_distance=float(md), name=str(data.get("name", "custom")),
-                   actions=tuple(str(a) for a in actions))
+        return cls(
+            pulses=pulses,
+            id_word=_as_word(data["id"], f"{where}.id"),
+            relations=table("relation"),
+            alternatives=table("alternative"),
+            min_distance=float(md),
+            name=str(data.get("name", "custom")),
+            actions=tuple(str(a) for a in actions),
+        )
 
 
 def _as_word(value: Any, where: str) -> Word:
@@ -138,30 +152,44 @@ def validate(cb: Codebook) -> None:
         raise RgtbusError(f"codebook {cb.name}: pulses = {cb.pulses!r} must be a positive integer")
     if not (isinstance(cb.min_distance, (int, float)) and cb.min_distance >= 0):
         raise RgtbusError(f"codebook {cb.name}: min_distance = {cb.min_distance!r} must be ≥ 0")
-    fams = {"id": {"id": cb.id_word}, "relation": dict(cb.relations),
-            "alternative": dict(cb.alternatives)}
+    fams = {
+        "id": {"id": cb.id_word},
+        "relation": dict(cb.relations),
+        "alternative": dict(cb.alternatives),
+    }
     for fam, words in fams.items():
         for name, w in words.items():
-            if not isinstance(w, tuple) or not all(isinstance(v, float) and math.isfinite(v)
-                                                   for v in w):
-                raise RgtbusError(f"codebook {cb.name}: {fam} word {name!r} = {w!r} must be a "
-                                  "tuple of finite floats")
+            if not isinstance(w, tuple) or not all(
+                isinstance(v, float) and math.isfinite(v) for v in w
+            ):
+                raise RgtbusError(
+                    f"codebook {cb.name}: {fam} word {name!r} = {w!r} must be a "
+                    "tuple of finite floats"
+                )
             if len(w) != cb.pulses:
-                raise RgtbusError(f"codebook {cb.name}: {fam} word {name!r} has {len(w)} pulses, "
-                                  f"expected {cb.pulses}")
+                raise RgtbusError(
+                    f"codebook {cb.name}: {fam} word {name!r} has {len(w)} pulses, "
+                    f"expected {cb.pulses}"
+                )
         for (n1, w1), (n2, w2) in itertools.combinations(words.items(), 2):
             if w1 == w2:
-                raise RgtbusError(f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are the "
-                                  f"same pulses {list(w1)}")
+                raise RgtbusError(
+                    f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are the "
+                    f"same pulses {list(w1)}"
+                )
             d = _dist(w1, w2)
             if d < cb.min_distance - 1e-9:
-                raise RgtbusError(f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are "
-                                  f"{d:.3g} apart, closer than min_distance {cb.min_distance:g}")
+                raise RgtbusError(
+                    f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are "
+                    f"{d:.3g} apart, closer than min_distance {cb.min_distance:g}"
+                )
     for name, w in cb.alternatives.items():
         d = _dist(w, cb.id_word)
         if d < cb.min_distance - 1e-9:
-            raise RgtbusError(f"codebook {cb.name}: alternative {name!r} is {d:.3g} from the "
-                              f"ID-code, closer than min_distance {cb.min_distance:g}")
+            raise RgtbusError(
+                f"codebook {cb.name}: alternative {name!r} is {d:.3g} from the "
+                f"ID-code, closer than min_distance {cb.min_distance:g}"
+            )
 
 
 def alternative_names(actions: Sequence[str]) -> list[str]:
@@ -178,18 +206,24 @@ def alternative_names(actions: Sequence[str]) -> list[str]:
     return names
 
 
-PAPER_ALTERNATIVES = {"1": (0.2, 0.3, 0.7), "0": (0.7, 0.3, 0.2),
-                      "{alpha}": (0.5, 0.2, 0.5), "{beta}": (0.3, 0.6, 0.3)}
+PAPER_ALTERNATIVES = {
+    "1": (0.2, 0.3, 0.7),
+    "0": (0.7, 0.3, 0.2),
+    "{alpha}": (0.5, 0.2, 0.5),
+    "{beta}": (0.3, 0.6, 0.3),
+}
 
 
-def paper_codebook(actions: Sequence[str] = ("alpha", "beta"),
-                   names: Mapping[str, str] | None = None) -> Codebook:
+def paper_codebook(
+    actions: Sequence[str] = ("alpha", "beta"), names: Mapping[str, str] | None = None
+) -> Codebook:
     """The paper's codebook (SPEC §2): 3 pulses, ID/alliance {.4,.4,.4}, conflict {−.4,−.4,−.4}
     and the four k = 2 alternatives; ``actions`` renames α, β; ``names`` remaps alternative names
     (e.g. Example 2's other reading ``{"1": "0", "0": "1"}``)."""
     if len(actions) not in (1, 2) or len(set(actions)) != len(actions):
-        raise RgtbusError(f"the paper codebook has words for k = 1 or 2 distinct actions, got "
-                          f"{list(actions)}")
+        raise RgtbusError(
+            f"the paper codebook has words for k = 1 or 2 distinct actions, got {list(actions)}"
+        )
     alts = {"1": PAPER_ALTERNATIVES["1"], "0": PAPER_ALTERNATIVES["0"]}
     if len(actions) == 2:  # k = 1 (Example 3's "open") uses only the unit- and zero-codes
         a, b = (str(x) for x in actions)
@@ -202,15 +236,28 @@ def paper_codebook(actions: Sequence[str] = ("alpha", "beta"),
         alts = {names.get(k, k): v for k, v in alts.items()}
         if len(alts) != 1 << len(actions):
             raise RgtbusError("paper codebook: renaming made two alternatives share a name")
-    return Codebook(pulses=3, id_word=(0.4, 0.4, 0.4),
-                    relations={"alliance": (0.4, 0.4, 0.4), "conflict": (-0.4, -0.4, -0.4)},
-                    alternatives=alts, min_distance=0.2, name="paper",
-                    actions=tuple(str(x) for x in actions))
+    return Codebook(
+        pulses=3,
+        id_word=(0.4, 0.4, 0.4),
+        relations={"alliance": (0.4, 0.4, 0.4), "conflict": (-0.4, -0.4, -0.4)},
+        alternatives=alts,
+        min_distance=0.2,
+        name="paper",
+        actions=tuple(str(x) for x in actions),
+    )
 
 
-def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: float = 0.3,
-                      total: float | None = None, low: float = 0.1, high: float = 0.7,
-                      step: float | None = None, seed: int = 0) -> Codebook:
+def generate_codebook(
+    actions: Sequence[str],
+    *,
+    pulses: int = 3,
+    min_distance: float = 0.3,
+    total: float | None = None,
+    low: float = 0.1,
+    high: float = 0.7,
+    step: float | None = None,
+    seed: int = 0,
+) -> Codebook:
     """Alternative words for k actions with a stated minimum distance, deterministic per seed.
 
     Like the paper's words, every alternative has the same total magnitude ``total`` (default
@@ -232,9 +279,13 @@ def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: 
     total = 0.4 * pulses if total is None else float(total)
     high = float(high)
     if step is None:  # finest grid in 0.05 steps whose enumeration stays small
-        step = next(s * 0.05 for s in range(1, 100)
-                    if (math.floor(high / (s * 0.05)) - math.ceil(low / (s * 0.05)) + 1)
-                    ** max(0, pulses - 1) <= 1_000_000)
+        step = next(
+            s * 0.05
+            for s in range(1, 100)
+            if (math.floor(high / (s * 0.05)) - math.ceil(low / (s * 0.05)) + 1)
+            ** max(0, pulses - 1)
+            <= 1_000_000
+        )
     if not step > 0:
         raise RgtbusError(f"codebook generator: step = {step!r} must be positive")
     units = round(total / step)
@@ -242,23 +293,29 @@ def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: 
     if pulses == 1:
         cands = [(units,)] if lo_u <= units <= hi_u else []
     else:
-        cands = [(*c, units - sum(c)) for c in itertools.product(range(lo_u, hi_u + 1),
-                                                                    repeat=pulses - 1)
-                 if lo_u <= units - sum(c) <= hi_u]
+        cands = [
+            (*c, units - sum(c))
+            for c in itertools.product(range(lo_u, hi_u + 1), repeat=pulses - 1)
+            if lo_u <= units - sum(c) <= hi_u
+        ]
         if len(cands) > 1_000_000:
-            raise RgtbusError(f"codebook generator: {len(cands)} candidates at step {step:g}; "
-                              "use a coarser step")
+            raise RgtbusError(
+                f"codebook generator: {len(cands)} candidates at step {step:g}; use a coarser step"
+            )
     id_word = tuple([0.4] * pulses)
     pts = np.array(cands, dtype=float) * step
     pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance - 1e-9]
     if len(pts) < need:
-        raise RgtbusError(f"codebook generator: only {len(pts)} candidate words for {need} "
-                          f"alternatives at N = {pulses} pulses; use more pulses")
+        raise RgtbusError(
+            f"codebook generator: only {len(pts)} candidate words for {need} "
+            f"alternatives at N = {pulses} pulses; use more pulses"
+        )
     rng = np.random.default_rng(seed)
     pts = pts[rng.permutation(len(pts))]
     chosen = [0]
-    d = np.minimum(np.linalg.norm(pts - pts[0], axis=1),
-                   np.linalg.norm(pts - np.array(id_word), axis=1))
+    d = np.minimum(
+        np.linalg.norm(pts - pts[0], axis=1), np.linalg.norm(pts - np.array(id_word), axis=1)
+    )
     while len(chosen) < need:
         j = int(np.argmax(d))
         chosen.append(j)
@@ -266,12 +323,19 @@ def generate_codebook(actions: Sequence[str], *, pulses: int = 3, min_distance: 
     words = [tuple(round(float(v), 10) for v in pts[j]) for j in chosen]
     got = min(_dist(a, b) for a, b in itertools.combinations(words, 2)) if need > 1 else math.inf
     if got < min_distance - 1e-9:
-        raise RgtbusError(f"codebook generator: {need} words of {pulses} pulses reach only "
-                          f"{got:.3g} apart, below min_distance {min_distance:g}; use more pulses")
+        raise RgtbusError(
+            f"codebook generator: {need} words of {pulses} pulses reach only "
+            f"{got:.3g} apart, below min_distance {min_distance:g}; use more pulses"
+        )
     # Sort words for a stable, readable assignment: names in mask order get words in order.
     words.sort()
     alts = dict(zip(alternative_names(acts), words, strict=True))
-    return Codebook(pulses=pulses, id_word=id_word,
-                    relations={"alliance": id_word, "conflict": tuple([-0.4] * pulses)},
-                    alternatives=alts, min_distance=min_distance,
-                    name=f"generated-k{k}-N{pulses}-seed{seed}", actions=tuple(acts))
+    return Codebook(
+        pulses=pulses,
+        id_word=id_word,
+        relations={"alliance": id_word, "conflict": tuple([-0.4] * pulses)},
+        alternatives=alts,
+        min_distance=min_distance,
+        name=f"generated-k{k}-N{pulses}-seed{seed}",
+        actions=tuple(acts),
+    )

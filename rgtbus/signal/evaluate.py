@@ -34,11 +34,21 @@ class SerResult:
         return self.errors / self.trials
 
 
-def symbol_error_rate(words: Mapping[str, Sequence[float]], omega: float, sigma: float, *,
-                      trials: int = 1000, seed: int = 0, interferer: float | None = None,
-                      interferer_words: Mapping[str, Sequence[float]] | None = None,
-                      joint: bool = True, start: float = 0.001, mode: str = "paper",
-                      tau: float = PAPER_TAU, batch: int = 500) -> SerResult:
+def symbol_error_rate(
+    words: Mapping[str, Sequence[float]],
+    omega: float,
+    sigma: float,
+    *,
+    trials: int = 1000,
+    seed: int = 0,
+    interferer: float | None = None,
+    interferer_words: Mapping[str, Sequence[float]] | None = None,
+    joint: bool = True,
+    start: float = 0.001,
+    mode: str = "paper",
+    tau: float = PAPER_TAU,
+    batch: int = 500,
+) -> SerResult:
     """Symbol error rate of decoding ``words`` sent on ``omega`` under noise ``sigma``."""
     if trials < 1:
         raise RgtbusError(f"trials = {trials!r} must be positive")
@@ -76,7 +86,7 @@ def symbol_error_rate(words: Mapping[str, Sequence[float]], omega: float, sigma:
         res = bank.feed(u, record=True)
         d = increments(res.z[:, :, 0], res.spiked[:, :, 0], bank.A[0], bank.reset_value)
         if interferer is None or not joint:
-            v = d[inst].T                                    # (m, N)
+            v = d[inst].T  # (m, N)
             dist = np.linalg.norm(v[:, None, :] - W[None, :, :], axis=2)
             got = dist.argmin(axis=1)
         else:
@@ -85,8 +95,9 @@ def symbol_error_rate(words: Mapping[str, Sequence[float]], omega: float, sigma:
     return SerResult(float(sigma), trials, errors)
 
 
-def _joint_batch(d: np.ndarray, inst: np.ndarray, W: np.ndarray, inst_i: np.ndarray,
-                 IW: np.ndarray) -> np.ndarray:
+def _joint_batch(
+    d: np.ndarray, inst: np.ndarray, W: np.ndarray, inst_i: np.ndarray, IW: np.ndarray
+) -> np.ndarray:
     """Exhaustive joint ML over (target word, interferer word) pairs, vectorised over trials."""
     union = np.unique(np.concatenate([inst, inst_i]))
     pos_t = np.searchsorted(union, inst)
@@ -96,14 +107,21 @@ def _joint_batch(d: np.ndarray, inst: np.ndarray, W: np.ndarray, inst_i: np.ndar
     for c, (a, b) in enumerate(combos):
         np.add.at(pred[c], pos_t, W[a])
         np.add.at(pred[c], pos_i, IW[b])
-    du = d[union].T                                          # (m, |U|)
+    du = d[union].T  # (m, |U|)
     res = np.linalg.norm(du[:, None, :] - pred[None, :, :], axis=2)
     best = res.argmin(axis=1)
     return np.array([combos[b][0] for b in best])
 
 
-def noise_spike_rate(omegas: Sequence[float], sigma: float, *, seconds: float = 600.0,
-                     seed: int = 0, mode: str = "paper", tau: float = PAPER_TAU) -> float:
+def noise_spike_rate(
+    omegas: Sequence[float],
+    sigma: float,
+    *,
+    seconds: float = 600.0,
+    seed: int = 0,
+    mode: str = "paper",
+    tau: float = PAPER_TAU,
+) -> float:
     """Spikes per second per resonator on noise alone (false attention at noise σ)."""
     if not sigma >= 0:
         raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")

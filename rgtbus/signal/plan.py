@@ -43,8 +43,9 @@ def parse_omega(text: str, where: str = "omega") -> float:
     s = str(text)
     m = _OMEGA_RE.match(s)
     if not m or not (m.group(1) or m.group(2)):
-        raise RgtbusError(f"{where}: cannot read {s!r} as a frequency; write e.g. 3pi/2, "
-                          "1.5pi or 4.71 (rad/s)")
+        raise RgtbusError(
+            f"{where}: cannot read {s!r} as a frequency; write e.g. 3pi/2, 1.5pi or 4.71 (rad/s)"
+        )
     value = float(m.group(1)) if m.group(1) else 1.0
     if m.group(2):
         value *= PI
@@ -63,8 +64,14 @@ def message_length(omega_min: float, pulses: int) -> float:
     return (pulses - 1) * 2 * PI / omega_min
 
 
-def check_plan(omegas: Sequence[float], *, pulses: int = 3, mode: str = "paper",
-               tau: float = PAPER_TAU, b: float = PAPER_B) -> None:
+def check_plan(
+    omegas: Sequence[float],
+    *,
+    pulses: int = 3,
+    mode: str = "paper",
+    tau: float = PAPER_TAU,
+    b: float = PAPER_B,
+) -> None:
     """Refuse (``RgtbusError`` naming the rule) a plan that breaks a rule of the module doc."""
     if mode not in ("paper", "exact"):
         raise RgtbusError(f"mode {mode!r} is not one of paper, exact")
@@ -84,30 +91,35 @@ def check_plan(omegas: Sequence[float], *, pulses: int = 3, mode: str = "paper",
     if s[-1] > nyq:
         raise RgtbusError(
             f"rule nyquist: omega {s[-1]:.6g} rad/s leaves fewer than {MIN_SAMPLES_PER_PERIOD} "
-            f"samples a period at tau = {tau:g} s (limit {nyq:.6g} rad/s)")
+            f"samples a period at tau = {tau:g} s (limit {nyq:.6g} rad/s)"
+        )
     if mode == "paper":
         lim = euler_limit(tau, b)
         if s[-1] >= lim:
             raise RgtbusError(
                 f"rule euler: omega {s[-1]:.6g} rad/s is beyond Euler's stable band "
-                f"({lim:.4g} rad/s at b = {b:g}, tau = {tau:g}); use mode exact")
+                f"({lim:.4g} rad/s at b = {b:g}, tau = {tau:g}); use mode exact"
+            )
     if s[-1] >= 2 * s[0]:
         raise RgtbusError(
             f"rule octave: {s[-1]:.6g} rad/s is not below twice {s[0]:.6g} rad/s "
-            "(a pulse train on ω also excites 2ω)")
+            "(a pulse train on ω also excites 2ω)"
+        )
     need = SPACING_FACTOR / pulses
     for lo, hi in itertools.pairwise(s):
         if (hi - lo) / lo < need * (1 - 1e-9):
             raise RgtbusError(
                 f"rule spacing: {lo:.6g} and {hi:.6g} rad/s are {100 * (hi - lo) / lo:.1f} % "
-                f"apart, below 0.3/N = {100 * need:.1f} % for N = {pulses} pulses")
+                f"apart, below 0.3/N = {100 * need:.1f} % for N = {pulses} pulses"
+            )
     if b >= 0:
         raise RgtbusError(f"rule decay: b = {b:g} must be negative (resonators must forget)")
     length = message_length(s[0], pulses)
     if 1 / abs(b) < length:
         raise RgtbusError(
             f"rule decay: memory 1/|b| = {1 / abs(b):.4g} s is shorter than the longest message "
-            f"({pulses} pulses on {s[0]:.6g} rad/s: {length:.4g} s)")
+            f"({pulses} pulses on {s[0]:.6g} rad/s: {length:.4g} s)"
+        )
 
 
 def max_units(pulses: int = 3) -> int:
@@ -116,8 +128,15 @@ def max_units(pulses: int = 3) -> int:
     return 1 + math.floor(math.log(2) / math.log(step) - 1e-9)
 
 
-def auto_plan(n: int, *, pulses: int = 3, mode: str = "paper", tau: float = PAPER_TAU,
-              b: float = PAPER_B, omega_min: float | None = None) -> list[float]:
+def auto_plan(
+    n: int,
+    *,
+    pulses: int = 3,
+    mode: str = "paper",
+    tau: float = PAPER_TAU,
+    b: float = PAPER_B,
+    omega_min: float | None = None,
+) -> list[float]:
     """Frequencies (rad/s) for n units, in unit order.
 
     n ≤ 4 with the paper's settings (3 pulses, paper mode, τ, b): the paper's ω_a, ω_b, ω_c and
@@ -130,15 +149,17 @@ def auto_plan(n: int, *, pulses: int = 3, mode: str = "paper", tau: float = PAPE
     """
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise RgtbusError(f"number of units {n!r} must be a positive integer")
-    paper_settings = (pulses == 3 and mode == "paper" and tau == PAPER_TAU and b == PAPER_B
-                      and omega_min is None)
+    paper_settings = (
+        pulses == 3 and mode == "paper" and tau == PAPER_TAU and b == PAPER_B and omega_min is None
+    )
     if paper_settings and n <= len(PAPER_OMEGAS):
         return list(PAPER_OMEGAS[:n])
     if n > max_units(pulses):
         more = next(p for p in range(pulses, 10_000) if max_units(p) >= n)
         raise RgtbusError(
             f"rule octave/spacing: {n} units do not fit one octave at 0.3/N spacing with "
-            f"N = {pulses} pulses (at most {max_units(pulses)}); use at least {more} pulses")
+            f"N = {pulses} pulses (at most {max_units(pulses)}); use at least {more} pulses"
+        )
     ratio = 1 + SPACING_FACTOR / pulses
     if omega_min is None:
         if mode == "paper":
@@ -146,6 +167,6 @@ def auto_plan(n: int, *, pulses: int = 3, mode: str = "paper", tau: float = PAPE
             omega_min = top / ratio ** (n - 1)
         else:  # 1 Hz, or higher so the longest message fits the resonator's memory 1/|b|
             omega_min = max(2 * PI, 1.05 * (pulses - 1) * 2 * PI * abs(b))
-    plan = [omega_min * ratio ** j for j in range(n)]
+    plan = [omega_min * ratio**j for j in range(n)]
     check_plan(plan, pulses=pulses, mode=mode, tau=tau, b=b)
     return plan

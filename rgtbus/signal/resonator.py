@@ -67,8 +67,9 @@ def euler_limit(tau: float = PAPER_TAU, b: float = PAPER_B) -> float:
     return math.sqrt(v) if v > 0 else 0.0
 
 
-def transition(omega: float, *, mode: str = "paper", tau: float = PAPER_TAU,
-               b: float = PAPER_B) -> complex:
+def transition(
+    omega: float, *, mode: str = "paper", tau: float = PAPER_TAU, b: float = PAPER_B
+) -> complex:
     """The one-sample transition A: ``1 + τ(b + iω)`` (paper) or ``exp(τ(b + iω))`` (exact)."""
     if mode == "paper":
         return complex(1.0 + tau * b, tau * omega)
@@ -98,8 +99,9 @@ class FeedResult:
     def x(self) -> np.ndarray | None:
         return None if self.z is None else self.z.real
 
-    def spike_times(self, tau: float = PAPER_TAU, receiver: int = 0,
-                    channel: int | None = None) -> np.ndarray | list[np.ndarray]:
+    def spike_times(
+        self, tau: float = PAPER_TAU, receiver: int = 0, channel: int | None = None
+    ) -> np.ndarray | list[np.ndarray]:
         """Spike times in seconds (sample index × τ) of one receiver, one channel or all."""
         sel = self.spikes[self.spikes[:, 1] == receiver]
         if channel is not None:
@@ -132,11 +134,21 @@ class ResonatorBank:
     (n, n_receivers) and returns a :class:`FeedResult`; the bank keeps its state between calls.
     """
 
-    def __init__(self, omegas: Sequence[float] | np.ndarray, *, mode: str = "paper",
-                 tau: float = PAPER_TAU, b: float = PAPER_B,
-                 threshold: float = PAPER_THRESHOLD, spike_value: float = PAPER_SPIKE_VALUE,
-                 reset_value: float = PAPER_RESET_VALUE, n_receivers: int = 1,
-                 engine: str = "fast", epoch: int | None = None, block: int | None = None):
+    def __init__(
+        self,
+        omegas: Sequence[float] | np.ndarray,
+        *,
+        mode: str = "paper",
+        tau: float = PAPER_TAU,
+        b: float = PAPER_B,
+        threshold: float = PAPER_THRESHOLD,
+        spike_value: float = PAPER_SPIKE_VALUE,
+        reset_value: float = PAPER_RESET_VALUE,
+        n_receivers: int = 1,
+        engine: str = "fast",
+        epoch: int | None = None,
+        block: int | None = None,
+    ):
         om = np.atleast_1d(np.asarray(omegas, dtype=float))
         if om.ndim != 1 or om.size == 0:
             raise RgtbusError(f"omegas must be a non-empty list of numbers, got shape {om.shape}")
@@ -174,8 +186,11 @@ class ResonatorBank:
         # Epoch length: keep |A|^±m within 1e8 so the rotating frame loses no precision.
         log_abs = float(np.abs(np.log(np.abs(self.A))).max())
         # Tables cost 32 bytes × epoch × channels: cap them near 32 MB.
-        r = (1 << min(14, max(10, int(math.log2(max(1, (1 << 20) // om.size)))))
-             if epoch is None else int(epoch))
+        r = (
+            1 << min(14, max(10, int(math.log2(max(1, (1 << 20) // om.size)))))
+            if epoch is None
+            else int(epoch)
+        )
         if epoch is None and log_abs > 0:
             r = max(1, min(r, 2 ** math.floor(math.log2(max(1.0, 18.0 / log_abs)))))
         if r < 1:
@@ -186,9 +201,9 @@ class ResonatorBank:
         self._span = 4096  # rows per sparse pass: bounds the work redone after each spike
         if self._block < 1:
             raise RgtbusError(f"block = {block!r} must be a positive integer")
-        self._theta = np.angle(self.A)            # rotation per sample
+        self._theta = np.angle(self.A)  # rotation per sample
         with np.errstate(divide="ignore"):
-            self._lam = -np.log(np.abs(self.A))   # decay rate per sample (> 0 when skipping)
+            self._lam = -np.log(np.abs(self.A))  # decay rate per sample (> 0 when skipping)
         self._tables()
         self.reset()
 
@@ -196,8 +211,8 @@ class ResonatorBank:
     def _tables(self) -> None:
         m = np.arange(self._R + 1, dtype=float)[:, None]
         log_a = np.log(self.A)[None, :]
-        p = np.exp(m * log_a)          # P[m] = A^m
-        q = np.exp(-m[:-1] * log_a)    # Q[m] = A^-m
+        p = np.exp(m * log_a)  # P[m] = A^m
+        q = np.exp(-m[:-1] * log_a)  # Q[m] = A^-m
         self._Pr = np.ascontiguousarray(p.real)
         self._Pi = np.ascontiguousarray(p.imag)
         # Channel-major copies padded by K rows, viewed as sliding windows of K samples.
@@ -256,11 +271,11 @@ class ResonatorBank:
     def _post_carry(self, lanes: np.ndarray, zr: np.ndarray, zi: np.ndarray, m_next):
         """Running-sum value that starts sample m_next after a spike with pre-spike state z."""
         ch = self._ch[lanes]
-        xr = self._Ar[ch] * zr - self._Ai[ch] * zi          # x: Euler step of pre-spike state
+        xr = self._Ar[ch] * zr - self._Ai[ch] * zi  # x: Euler step of pre-spike state
         rv = self.reset_value
         qr = self._Qr[m_next, ch]
         nqi = self._nQi[m_next, ch]
-        return qr * xr + nqi * rv, qr * rv - nqi * xr      # Q[m_next]·(x + i·reset_value)
+        return qr * xr + nqi * rv, qr * rv - nqi * xr  # Q[m_next]·(x + i·reset_value)
 
     def _carry(self, n_abs: int, wr: np.ndarray, wi: np.ndarray, pend: np.ndarray):
         """Carry into absolute sample n_abs from the state of sample n_abs − 1."""
@@ -288,7 +303,8 @@ class ResonatorBank:
         elif u.ndim != 2 or u.shape[1] != self.n_receivers:
             raise RgtbusError(
                 f"samples of shape {np.shape(samples)} do not fit the bank: expected (n,) or "
-                f"(n, {self.n_receivers}) for {self.n_receivers} receiver(s)")
+                f"(n, {self.n_receivers}) for {self.n_receivers} receiver(s)"
+            )
         if not np.isfinite(u).all():
             bad = int(np.flatnonzero(~np.isfinite(u).all(axis=1))[0])
             raise RgtbusError(f"sample {self._n + bad} is not finite")
@@ -362,8 +378,12 @@ class ResonatorBank:
             nz = nz_rows[lo:hi] - row
             # Skipping pays when inputs are sparse and there are enough lanes to amortise its
             # per-spike rounds; with a handful of lanes the block scan is cheaper (measured).
-            sparse = (rec is None and self._can_skip and 16 * len(nz) <= seg
-                      and (self._L >= _SPARSE_MIN_LANES or not len(nz)))
+            sparse = (
+                rec is None
+                and self._can_skip
+                and 16 * len(nz) <= seg
+                and (self._L >= _SPARSE_MIN_LANES or not len(nz))
+            )
             if sparse:
                 wr, wi, pend = self._sparse(u, row, seg, m0, nz, cr, ci, spikes)
             else:
@@ -394,7 +414,7 @@ class ResonatorBank:
 
         ``lanes`` None means all lanes.  Returns w at the last row and the last row's spike mask.
         """
-        ub = u[row:row + nb]
+        ub = u[row : row + nb]
         if lanes is None and self.n_receivers == 1:
             sl = slice(m0, m0 + nb)
             ul = ub  # (nb, 1) broadcasts against (nb, C)
@@ -463,8 +483,8 @@ class ResonatorBank:
             U, C = self.n_receivers, self.n_channels
             if lanes is not None:
                 raise AssertionError("recording scans all lanes")
-            rec[0][row:row + nb] = x.reshape(nb, U, C)
-            rec[1][row:row + nb] = y.reshape(nb, U, C)
+            rec[0][row : row + nb] = x.reshape(nb, U, C)
+            rec[1][row : row + nb] = y.reshape(nb, U, C)
             for k, c in zip(hit_rows, hit_cols, strict=True):
                 rec[2][row + k, self._rec[c], self._ch[c]] = True
         return wr[-1].copy(), wi[-1].copy(), last
@@ -490,16 +510,16 @@ class ResonatorBank:
         out_wi = np.empty(L)
         out_pend = np.zeros(L, dtype=bool)
         lanes = self._all
-        p = np.zeros(L, dtype=np.int64)        # row each lane (re)starts at, within the segment
-        c_r, c_i = cr.copy(), ci.copy()         # its running sum entering that row
+        p = np.zeros(L, dtype=np.int64)  # row each lane (re)starts at, within the segment
+        c_r, c_i = cr.copy(), ci.copy()  # its running sum entering that row
         while lanes.size:
             H = lanes.size
-            ev = np.union1d(nz[nz >= p.min()], p)          # input rows plus restart rows
+            ev = np.union1d(nz[nz >= p.min()], p)  # input rows plus restart rows
             ch = self._ch[lanes]
             ms = m0 + ev
             full = H == L and self.n_receivers == 1
-            ue = u[row + ev]                                # (E, U)
-            if full:                                        # all lanes: plain row gathers
+            ue = u[row + ev]  # (E, U)
+            if full:  # all lanes: plain row gathers
                 tq, tn = self._Qr[ms], self._nQi[ms]
                 pr, pi = self._Pr[ms], self._Pi[ms]
             else:
@@ -555,15 +575,20 @@ class ResonatorBank:
                     d_start = np.mod(alpha - phi, 2 * np.pi)
                     d_end = np.mod(np.pi - alpha - phi, 2 * np.pi)
                     k0 = np.where(in_arc, 1, np.maximum(1, np.floor(d_start / th) - 1))
-                    k1 = np.where(in_arc, np.floor(np.where(in_arc, d_end, 0) / th) + 2,
-                                  np.floor(d_end / th) + 2)
-                    k_cool = np.floor(np.log(np.maximum(rho, thr2) / thr2 ** 0.5)
-                                      / self._lam[chf]) + 2
+                    k1 = np.where(
+                        in_arc,
+                        np.floor(np.where(in_arc, d_end, 0) / th) + 2,
+                        np.floor(d_end / th) + 2,
+                    )
+                    k_cool = (
+                        np.floor(np.log(np.maximum(rho, thr2) / thr2**0.5) / self._lam[chf]) + 2
+                    )
                     k0 = k0.astype(np.int64)
                     top = np.minimum(nxt, base + np.minimum(k_cool, 1e15).astype(np.int64) + 1)
                     start = base + k0
-                    stop = np.minimum(np.minimum(top, base + np.minimum(k1, 1e15).astype(np.int64)
-                                                 + 1), start + K)
+                    stop = np.minimum(
+                        np.minimum(top, base + np.minimum(k1, 1e15).astype(np.int64) + 1), start + K
+                    )
                     width = int(max(0, (stop - start).max()))
                     krow = np.full(fj.size, seg, dtype=np.int64)
                     if width:
@@ -605,13 +630,13 @@ class ResonatorBank:
             gl = lanes[go]
             w_r, w_i = wr[j, go], wi[j, go]
             spk = ev_kind[go] == 0
-            nr, ni = w_r.copy(), w_i.copy()      # capped lanes resume with the same sum
+            nr, ni = w_r.copy(), w_i.copy()  # capped lanes resume with the same sum
             if spk.any():
                 sl, sk = gl[spk], k[spk]
                 spikes.append((sk + row, sl))
                 zr_k, zi_k = self._z_of(sl, m0 + sk, w_r[spk], w_i[spk])
                 last = sk + 1 >= seg
-                if last.any():                  # spike on the segment's last row: reset pending
+                if last.any():  # spike on the segment's last row: reset pending
                     out_wr[sl[last]] = w_r[spk][last]
                     out_wi[sl[last]] = w_i[spk][last]
                     out_pend[sl[last]] = True
@@ -630,9 +655,16 @@ class ResonatorBank:
         return out_wr, out_wi, out_pend
 
 
-def simulate_python(omegas: Sequence[float], samples: Sequence[float], *, mode: str = "paper",
-                    tau: float = PAPER_TAU, b: float = PAPER_B, threshold: float = PAPER_THRESHOLD,
-                    reset_value: float = PAPER_RESET_VALUE) -> list[list[int]]:
+def simulate_python(
+    omegas: Sequence[float],
+    samples: Sequence[float],
+    *,
+    mode: str = "paper",
+    tau: float = PAPER_TAU,
+    b: float = PAPER_B,
+    threshold: float = PAPER_THRESHOLD,
+    reset_value: float = PAPER_RESET_VALUE,
+) -> list[list[int]]:
     """Pure-Python per-sample loop (one receiver): spike sample indices per channel.
 
     Same model as the bank: ``z = A·z`` (or the reset state after a spike), ``y += u``, spike when

@@ -55,14 +55,16 @@ def _word(word: Sequence[float], where: str) -> tuple[float, ...]:
     return w
 
 
-def code_waveform(word: Sequence[float], omega: float, start: float, n_samples: int,
-                  tau: float = PAPER_TAU) -> np.ndarray:
+def code_waveform(
+    word: Sequence[float], omega: float, start: float, n_samples: int, tau: float = PAPER_TAU
+) -> np.ndarray:
     """The medium samples (length ``n_samples``) of one code; refuses pulses past the end."""
     return superpose([Transmission(omega, start, _word(word, "code"))], n_samples, tau)
 
 
-def superpose(transmissions: Sequence[Transmission], n_samples: int,
-              tau: float = PAPER_TAU) -> np.ndarray:
+def superpose(
+    transmissions: Sequence[Transmission], n_samples: int, tau: float = PAPER_TAU
+) -> np.ndarray:
     """Sum of all transmissions' pulses, length ``n_samples``."""
     if not isinstance(n_samples, (int, np.integer)) or n_samples < 0:
         raise RgtbusError(f"n_samples = {n_samples!r} must be a non-negative integer")
@@ -73,7 +75,8 @@ def superpose(transmissions: Sequence[Transmission], n_samples: int,
         if idx[-1] >= n_samples:
             raise RgtbusError(
                 f"transmission {j}: its last pulse at sample {int(idx[-1])} "
-                f"(t = {idx[-1] * tau:g} s) is past the end ({n_samples} samples)")
+                f"(t = {idx[-1] * tau:g} s) is past the end ({n_samples} samples)"
+            )
         np.add.at(out, idx, word)
     return out
 
@@ -83,9 +86,16 @@ def code_length(omega: float, pulses: int, start: float = 0.0, tau: float = PAPE
     return int(pulse_instants(omega, start, pulses, tau)[-1]) + 1
 
 
-def hear(transmissions: Sequence[Transmission], n_samples: int, *, n_receivers: int = 1,
-         gains: np.ndarray | Sequence[Sequence[float]] | None = None, sigma: float = 0.0,
-         seed: int | None = 0, tau: float = PAPER_TAU) -> np.ndarray:
+def hear(
+    transmissions: Sequence[Transmission],
+    n_samples: int,
+    *,
+    n_receivers: int = 1,
+    gains: np.ndarray | Sequence[Sequence[float]] | None = None,
+    sigma: float = 0.0,
+    seed: int | None = 0,
+    tau: float = PAPER_TAU,
+) -> np.ndarray:
     """Medium as each receiver hears it: shape (n_samples, n_receivers).
 
     ``gains[s, r]`` scales sender s's signal at receiver r (default 1); ``sigma`` adds white
@@ -104,8 +114,9 @@ def hear(transmissions: Sequence[Transmission], n_samples: int, *, n_receivers: 
     else:
         g = np.asarray(gains, dtype=float)
         if g.ndim != 2 or g.shape[1] != n_receivers or g.shape[0] < n_send:
-            raise RgtbusError(f"gains of shape {g.shape} must be (senders ≥ {n_send}, "
-                              f"receivers = {n_receivers})")
+            raise RgtbusError(
+                f"gains of shape {g.shape} must be (senders ≥ {n_send}, receivers = {n_receivers})"
+            )
         if not np.isfinite(g).all():
             raise RgtbusError("gains must be finite")
     out = np.zeros((int(n_samples), n_receivers))
