@@ -16,7 +16,14 @@ order), separated by a guard gap G. The timing chain is therefore decided by ID 
 
 Every unit runs the same machine on what it hears, so every unit knows when each turn starts,
 and the turn's sender additionally acts on it. The machine does not decode: it says what to
-decode and when (``Listen``), and is told the result (``on_decoded``).
+decode and when (``Listen``); the unit decodes and reasons.
+
+Anchor ``spike`` (the paper, the default) is the chain above. Anchor ``schedule`` counts each
+reaction from the ID's last pulse instead, ``p = k_last·τ + D``: on a clean channel the paper's
+ID-code fires its resonator exactly there, so nothing changes, but the whole run is then known
+from the start and no unit depends on its own (noise-prone) attention spike: spikes still give
+attention and are logged, decoding alone carries the messages. It keeps noisy channels decoding
+far past the point where attention spikes fail (see the README).
 """
 
 from __future__ import annotations
@@ -25,9 +32,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from rgtbus.errors import RgtbusError
 from rgtbus.signal.waveform import pulse_instants
 
 PHASES = ("relations", "influences")
+ANCHORS = ("spike", "schedule")
 
 
 @dataclass(frozen=True)
@@ -97,15 +106,18 @@ class ProtocolState:
     reaction_delay: float = 0.5
     guard: float = 0.5
     search: int = 2  # samples of timing search around a payload's expected start
+    anchor: str = "spike"  # what a reaction counts from: the ID spike, or the ID's last pulse
     schedule: list[Turn] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
-    waiting_id_spike: bool = field(init=False, default=True)
     errors: list[str] = field(init=False, default_factory=list)
 
     def __post_init__(self) -> None:
+        if self.anchor not in ANCHORS:
+            raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
         self.schedule = turns(self.units)
         self.turn_start = self.start
+        self.turn_starts = [self.start]  # every turn's start known so far
 
     # -- helpers
 
@@ -133,10 +145,18 @@ class ProtocolState:
 
     # -- events
 
-    def begin(self, relation_code: dict[str, str], influence_code: dict[str, str]) -> list[Send]:
-        """Start of the run: the first turn's sender sends its ID."""
+    def begin(
+        self, relation_code: dict[str, str], influence_code: dict[str, str]
+    ) -> tuple[list[Send], list[Listen]]:
+        """Start of the run: the first turn's sender sends its ID. Anchored on the schedule,
+        the whole run is known now: every send and every listen of every turn."""
         self._codes = {"relations": relation_code, "influences": influence_code}
-        return self._id_actions()
+        sends, listens = self._id_actions(), []
+        while self.anchor == "schedule" and not self.finished:
+            more_sends, more_listens = self._react(self.id_samples()[-1])
+            sends += more_sends
+            listens += more_listens
+        return sends, listens
 
     def _id_actions(self) -> list[Send]:
         t = self.current()
@@ -159,12 +179,17 @@ class ProtocolState:
         """A spike on ``channel``'s resonator at ``sample``: the ID spike of the current turn
         (once its first pulse is on the medium) moves the schedule on."""
         t = self.current()
-        if t is None or not self.waiting_id_spike or channel != t.sender:
+        if self.anchor != "spike" or t is None or channel != t.sender:
             return [], []
+        if sample < self.id_samples()[0]:
+            return [], []
+        return self._react(sample)
+
+    def _react(self, sample: int) -> tuple[list[Send], list[Listen]]:
+        """The current turn's ID counts from ``sample``: plan its payload and the next turn."""
+        t = self.current()
+        assert t is not None
         ids = self.id_samples()
-        if sample < ids[0]:
-            return [], []
-        self.waiting_id_spike = False
         payload_start = sample * self.tau + self.reaction_delay
         payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, self.tau)
         sends: list[Send] = []
@@ -202,14 +227,15 @@ class ProtocolState:
         # Next turn: the chain is known now, well ahead of its first pulse.
         self.turn += 1
         self.turn_start = payload_start + (self.pulses - 1) * self.period(t.addressee) + self.guard
-        self.waiting_id_spike = True
+        if not self.finished:
+            self.turn_starts.append(self.turn_start)
         sends.extend(self._id_actions())
         return sends, listens
 
     def check_deadline(self, received_upto: int) -> str | None:
         """An error text when the current ID's spike is overdue (the chain cannot go on)."""
         t = self.current()
-        if t is None or not self.waiting_id_spike:
+        if t is None or self.anchor != "spike":
             return None
         if received_upto > self.id_deadline():
             msg = (

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.protocol import ANCHORS
 from rgtbus.rgt import Universe
 from rgtbus.signal.codebook import (
     Codebook,
@@ -45,7 +46,9 @@ TOP_KEYS = {
     "outcome",
     "expect",
 }
-TIMING_KEYS = {"sample_rate", "window", "start", "reaction_delay", "guard", "max_seconds"}
+TIMING_KEYS = {
+    "sample_rate", "window", "start", "reaction_delay", "guard", "max_seconds", "anchor",
+}
 CHANNEL_KEYS = {"noise", "gain"}
 RELATION_KEYS = {"policy", "p", "fixed", "draws"}
 DECISION_KEYS = {"policy", "units"}
@@ -64,6 +67,7 @@ class Timing:
     reaction_delay: float = 0.5  # from the ID spike to the addressed code
     guard: float = 0.5  # silence between one transmission's end and the next ID
     max_seconds: float = 3600.0  # a run that has not finished by then fails
+    anchor: str = "spike"  # reactions count from the ID spike (paper) or the ID's last pulse
 
     @property
     def tau(self) -> float:
@@ -291,13 +295,16 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     t = table("timing")
     unknown(t, TIMING_KEYS, "timing")
     values: dict[str, float] = {}
-    for key in TIMING_KEYS:
+    anchor = t.get("anchor", "spike")
+    if anchor not in ANCHORS:
+        raise ctx.error("timing", "anchor", f"unknown anchor {anchor!r} (spike or schedule)")
+    for key in TIMING_KEYS - {"anchor"}:
         if key in t:
             v = t[key]
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ctx.error("timing", key, f"must be a number, got {v!r}")
             values[key] = float(v)
-    timing = Timing(**values)
+    timing = Timing(**values, anchor=anchor)
     if timing.sample_rate <= 0:
         raise ctx.error("timing", "sample_rate", "must be positive")
     if timing.window <= 0 or abs(timing.window * timing.sample_rate - timing.window_samples) > 1e-9:

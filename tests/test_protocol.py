@@ -40,7 +40,8 @@ def machine(me: str) -> ProtocolState:
 
 def test_sender_reacts_to_its_own_id_spike():
     p = machine("a")
-    sends = p.begin({"b": "alliance", "c": "conflict"}, {"b": "1", "c": "0"})
+    sends, listens = p.begin({"b": "alliance", "c": "conflict"}, {"b": "1", "c": "0"})
+    assert listens == []
     assert [(s.kind, s.channel, s.code, s.samples) for s in sends] == [
         ("id", "a", "id", (0, 267, 534))
     ]
@@ -61,7 +62,7 @@ def test_sender_reacts_to_its_own_id_spike():
 
 def test_listener_follows_the_chain_without_sending():
     p = machine("c")
-    assert p.begin({"a": "alliance", "b": "alliance"}, {"a": "1", "b": "1"}) == []
+    assert p.begin({"a": "alliance", "b": "alliance"}, {"a": "1", "b": "1"}) == ([], [])
     sends, listens = p.on_spike("a", 534)
     assert sends == [] and len(listens) == 2
     assert p.turn == 1
@@ -117,3 +118,32 @@ def test_mind_installs_by_and_and_reports_non_decomposable_groups():
     assert m.error.startswith("relationship graph is not decomposable: induced P4")
     m.decide()  # no group: no decision, no crash
     assert m.results is None and m.choice is None
+
+
+def test_schedule_anchor_plans_the_whole_run_from_the_start():
+    p = ProtocolState("b", ("a", "b", "c"), W, TAU, anchor="schedule")
+    sends, listens = p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
+    assert p.finished and len(p.turn_starts) == 12
+    assert [(s.turn, s.kind) for s in sends if s.kind == "id"] == [
+        (2, "id"),
+        (3, "id"),
+        (8, "id"),
+        (9, "id"),
+    ]  # b's turns: b>a, b>c in both phases
+    assert len(listens) == 2 * 12
+    # The reaction counts from the ID's last pulse: on a clean channel the spike is there.
+    first_payload = next(s for s in sends if s.kind == "payload")
+    spike_p = ProtocolState("b", ("a", "b", "c"), W, TAU)
+    spike_p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
+    for _ in range(first_payload.turn + 1):
+        ids = spike_p.id_samples()
+        out, _ = spike_p.on_spike(spike_p.current().sender, ids[-1])
+    assert next(s for s in out if s.kind == "payload") == first_payload
+    assert p.on_spike("a", 10**6) == ([], []) and p.check_deadline(10**9) is None
+
+
+def test_unknown_anchor_is_refused():
+    from rgtbus.errors import RgtbusError
+
+    with pytest.raises(RgtbusError, match="unknown anchor 'sometimes'"):
+        ProtocolState("a", ("a", "b"), W, TAU, anchor="sometimes")

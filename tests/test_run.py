@@ -329,3 +329,26 @@ def test_progress_line_is_rate_limited_and_only_for_long_runs(monkeypatch, capsy
     quiet = run_cmd.Progress(realtime=None, show=False)
     quiet(1.0, 1)
     assert capsys.readouterr().err == ""
+
+
+def test_schedule_anchor_changes_nothing_on_a_clean_channel():
+    base = load_scenario(ROOT / "scenarios" / "gate.toml")
+    _, spike, (m_spike, _) = run(base)
+    sched = replace(base, timing=replace(base.timing, anchor="schedule"))
+    _, s, (m_sched, _) = run(sched)
+
+    def content(ms):
+        return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in ms)
+
+    assert content(m_sched) == content(m_spike)
+    assert s["units"] == spike["units"]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_noisy_gate_decodes_at_sigma_0_05_when_anchored_on_the_schedule(seed):
+    """Stated level for anchor = "schedule": sigma = 0.05 (25x what attention spikes stand)."""
+    sc = load_scenario(ROOT / "scenarios" / "gate_noisy.toml").with_seed(seed)
+    assert sc.noise == 0.05 and sc.timing.anchor == "schedule"
+    sc_, s, _ = run(sc)
+    assert s["error"] is None and s["decode_errors"] == []
+    assert [w for w, ok, _ in check_expectations(sc_, s) if not ok] == []

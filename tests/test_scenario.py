@@ -51,6 +51,11 @@ BAD = [
     ('"a>b" = "0"', '"a>a" = "0"', r"influences\.a>a: a unit does not address itself"),
     ('units = ["a", "b", "c", "d"]', 'units = ["a", "b", "c", "d", "a"]', r"listed twice"),
     ('mode = "paper"', 'mode = "analog"', r"mode: unknown resonator mode 'analog'"),
+    (
+        "guard = 0.5",
+        'guard = 0.5\nanchor = "whenever"',
+        r"timing\.anchor: unknown anchor 'whenever'",
+    ),
     ('all_of = ["a", "b", "c"]', 'all_of = ["a", "x"]', r"outcome\.all_of: unknown unit 'x'"),
     ('name = "gate"', 'name = "gate"\nname = "twice"', r"not valid TOML"),
 ]

@@ -19,8 +19,21 @@ def run(argv, capsys):
 
 
 def test_resonate_text_paper_id_code(capsys):
-    code, out, _ = run(["resonate", "--omega", "3pi/2", "--omega", "4pi/3", "--omega", "5pi/3",
-                        "--pulses=0.4,0.4,0.4", "--on", "0"], capsys)
+    code, out, _ = run(
+        [
+            "resonate",
+            "--omega",
+            "3pi/2",
+            "--omega",
+            "4pi/3",
+            "--omega",
+            "5pi/3",
+            "--pulses=0.4,0.4,0.4",
+            "--on",
+            "0",
+        ],
+        capsys,
+    )
     assert code == 0
     lines = out.splitlines()
     assert "3pi/2" in lines[2] and "1.500" in lines[2] and "2.670" in lines[2]
@@ -39,8 +52,22 @@ def test_resonate_json_shows_crosstalk(capsys):
 
 
 def test_resonate_noise_is_seeded_and_exact_mode(capsys):
-    argv = ["resonate", "--noise", "0.05", "--seed", "7", "--json", "--mode", "exact",
-            "--omega", "12", "--omega", "1.5pi", "--start", "0.2"]
+    argv = [
+        "resonate",
+        "--noise",
+        "0.05",
+        "--seed",
+        "7",
+        "--json",
+        "--mode",
+        "exact",
+        "--omega",
+        "12",
+        "--omega",
+        "1.5pi",
+        "--start",
+        "0.2",
+    ]
     a = run(argv, capsys)[1]
     b = run(argv, capsys)[1]
     assert a == b and json.loads(a)["resonators"][0]["omega"] == 12.0
@@ -84,8 +111,12 @@ def test_figures_refusals(tmp_path, capsys):
 
 
 def test_refusal_has_no_traceback():
-    p = subprocess.run([sys.executable, "-m", "rgtbus", "resonate", "--omega", "pi/0"],
-                       capture_output=True, text=True, check=False)
+    p = subprocess.run(
+        [sys.executable, "-m", "rgtbus", "resonate", "--omega", "pi/0"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert p.returncode == 2 and "Traceback" not in p.stderr
     assert p.stderr.strip() == "rgtbus resonate: error: --omega: 'pi/0' divides by zero"
 

@@ -18,8 +18,12 @@ def test_paper_codebook_matches_spec():
     cb = paper_codebook()
     assert cb.pulses == 3 and cb.id_word == (0.4, 0.4, 0.4)
     assert cb.relations == {"alliance": (0.4, 0.4, 0.4), "conflict": (-0.4, -0.4, -0.4)}
-    assert cb.alternatives == {"1": (0.2, 0.3, 0.7), "0": (0.7, 0.3, 0.2),
-                               "{alpha}": (0.5, 0.2, 0.5), "{beta}": (0.3, 0.6, 0.3)}
+    assert cb.alternatives == {
+        "1": (0.2, 0.3, 0.7),
+        "0": (0.7, 0.3, 0.2),
+        "{alpha}": (0.5, 0.2, 0.5),
+        "{beta}": (0.3, 0.6, 0.3),
+    }
     assert cb.family_min_distance("alternative") == pytest.approx(math.sqrt(0.14))
     assert list(cb.distinct_words()) == ["id", "conflict", "1", "0", "{alpha}", "{beta}"]
 
@@ -96,7 +100,7 @@ def test_alternative_names():
 def test_generator_min_distance_and_determinism(k, pulses, dmin):
     acts = [f"x{i}" for i in range(k)]
     cb = generate_codebook(acts, pulses=pulses, min_distance=dmin, seed=5)
-    assert len(cb.alternatives) == 2 ** k and cb.pulses == pulses
+    assert len(cb.alternatives) == 2**k and cb.pulses == pulses
     words = list(cb.alternatives.values())
     assert min(math.dist(a, b) for a, b in itertools.combinations(words, 2)) >= dmin
     assert all(abs(sum(w) - 0.4 * pulses) < 1e-9 and max(w) <= 0.7 + 1e-9 for w in words)

@@ -32,7 +32,7 @@ def run(transmissions, n=1300, channels=OM, sigma=0.0, seed=0, chunk=None):
     ro = [Readout.for_bank(bank, c) for c in range(len(channels))]
     step = chunk or n
     for i in range(0, n, step):
-        res = bank.feed(u[i:i + step], record=True)
+        res = bank.feed(u[i : i + step], record=True)
         for r in ro:
             r.append(res)
     return u, bank, ro
@@ -67,8 +67,9 @@ def test_joint_decoding_with_overlapping_interferer():
         for c_name, c in CB.alternatives.items():
             tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
             _, _, ro = run(tx)
-            got = decode_joint(ro[1], [(tx[0].instants(), CB.alternatives),
-                                       (tx[1].instants(), CB.alternatives)])
+            got = decode_joint(
+                ro[1], [(tx[0].instants(), CB.alternatives), (tx[1].instants(), CB.alternatives)]
+            )
             assert [g.name for g in got] == [a_name, c_name]
             assert got[0].distance < 1e-12 and got[0].margin > 0.1
 
@@ -139,8 +140,9 @@ def test_crosstalk_spike_is_not_accepted_as_an_id(word):
 
 def test_nearest_margin_and_ties():
     d = nearest([0.4, 0.4, 0.4], CB.all_words())
-    assert d.name in ("id", "alliance") and d.margin == pytest.approx(math.dist(
-        (0.4, 0.4, 0.4), (0.5, 0.2, 0.5)))
+    assert d.name in ("id", "alliance") and d.margin == pytest.approx(
+        math.dist((0.4, 0.4, 0.4), (0.5, 0.2, 0.5))
+    )
     half = nearest([0.45, 0.3, 0.45], {"x": (0.4, 0.4, 0.4), "y": (0.5, 0.2, 0.5)})
     assert half.confidence == pytest.approx(0.0, abs=1e-9)
 

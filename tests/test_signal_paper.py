@@ -33,12 +33,24 @@ def test_matched_fires_unmatched_does_not(word, pair):
 # The a<->c crosstalk of SPEC §2 ({.2,.3,.7} and {.3,.6,.3} on c fire a) is asserted as it is;
 # so is one more case SPEC does not list: {.2,.3,.7} on a fires b (peak y 1.001, knife-edge).
 EXPECTED = {
-    ("id", 0): "a", ("id", 1): "b", ("id", 2): "c",
-    ("conflict", 0): "a", ("conflict", 1): "b", ("conflict", 2): "c",
-    ("1", 0): "ab", ("1", 1): "b", ("1", 2): "ac",
-    ("0", 0): "a", ("0", 1): "b", ("0", 2): "c",
-    ("{alpha}", 0): "a", ("{alpha}", 1): "b", ("{alpha}", 2): "c",
-    ("{beta}", 0): "a", ("{beta}", 1): "b", ("{beta}", 2): "ac",
+    ("id", 0): "a",
+    ("id", 1): "b",
+    ("id", 2): "c",
+    ("conflict", 0): "a",
+    ("conflict", 1): "b",
+    ("conflict", 2): "c",
+    ("1", 0): "ab",
+    ("1", 1): "b",
+    ("1", 2): "ac",
+    ("0", 0): "a",
+    ("0", 1): "b",
+    ("0", 2): "c",
+    ("{alpha}", 0): "a",
+    ("{alpha}", 1): "b",
+    ("{alpha}", 2): "c",
+    ("{beta}", 0): "a",
+    ("{beta}", 1): "b",
+    ("{beta}", 2): "ac",
 }
 
 

@@ -74,16 +74,34 @@ def test_check_plan_argument_refusals():
 
 @pytest.mark.parametrize(
     "text, value",
-    [("3pi/2", 3 * PI / 2), ("1.5pi", 1.5 * PI), ("4.71", 4.71), ("pi", PI), ("7π/6", 7 * PI / 6),
-     ("2*pi/3", 2 * PI / 3), (" 5pi / 3 ", 5 * PI / 3), ("1e1", 10.0), ("pi/2", PI / 2)],
+    [
+        ("3pi/2", 3 * PI / 2),
+        ("1.5pi", 1.5 * PI),
+        ("4.71", 4.71),
+        ("pi", PI),
+        ("7π/6", 7 * PI / 6),
+        ("2*pi/3", 2 * PI / 3),
+        (" 5pi / 3 ", 5 * PI / 3),
+        ("1e1", 10.0),
+        ("pi/2", PI / 2),
+    ],
 )
 def test_parse_omega(text, value):
     assert parse_omega(text) == pytest.approx(value)
 
 
-@pytest.mark.parametrize("text, needle", [("3pi/x", "'3pi/x'"), ("", "''"), ("pi/0", "zero"),
-                                          ("0", "positive"), ("__import__('os')", "cannot read"),
-                                          ("-3pi/2", "cannot read"), ("/2", "cannot read")])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("3pi/x", "'3pi/x'"),
+        ("", "''"),
+        ("pi/0", "zero"),
+        ("0", "positive"),
+        ("__import__('os')", "cannot read"),
+        ("-3pi/2", "cannot read"),
+        ("/2", "cannot read"),
+    ],
+)
 def test_parse_omega_refusals(text, needle):
     with pytest.raises(RgtbusError) as e:
         parse_omega(text, where="--omega")

@@ -41,12 +41,12 @@ def test_update_and_spike_rule_by_hand(engine):
     z = [0.4j]
     z.append(A * z[-1])
     z.append(A * z[-1])
-    z.append(A * z[-1] + 1.2j)               # pre-spike state, y ≥ 1 → spike at 3
+    z.append(A * z[-1] + 1.2j)  # pre-spike state, y ≥ 1 → spike at 3
     z.append(complex((A * z[-1]).real, 0.1))  # x: Euler step of the pre-spike state, y = 0.1
     z.append(A * z[-1])
     np.testing.assert_allclose(r.z[:, 0, 0], z, rtol=1e-12, atol=1e-15)
     assert r.spikes.tolist() == [[3, 0, 0]]
-    assert r.y[3, 0, 0] == 1.5                 # recorded spike value
+    assert r.y[3, 0, 0] == 1.5  # recorded spike value
     assert r.y[2, 0, 0] == pytest.approx(z[2].imag)
     assert r.spiked[:, 0, 0].tolist() == [False, False, False, True, False, False]
 
@@ -78,8 +78,7 @@ def test_inhibitory_spike_between_inputs():
         dict(u=sparse_medium(6000, 40, 2, receivers=3), om=np.linspace(3, 6, 5), U=3),
         dict(u=np.random.default_rng(3).normal(0, 0.03, 4000), om=np.linspace(3, 6, 6)),
         dict(u=sparse_medium(5000, 60, 4, scale=3.0), om=PAPER, epoch=700),
-        dict(u=np.random.default_rng(5).normal(0, 0.05, 3000), om=[12.0, 30.0, 55.0],
-             mode="exact"),
+        dict(u=np.random.default_rng(5).normal(0, 0.05, 3000), om=[12.0, 30.0, 55.0], mode="exact"),
         dict(u=sparse_medium(5000, 30, 6, scale=3.0), om=[2.0, 40.0], mode="exact", b=-2.0),
     ],
 )
@@ -89,7 +88,7 @@ def test_fast_matches_reference(kw):
     U = kw.pop("U", 1)
     ref = ResonatorBank(om, engine="reference", n_receivers=U, **kw).feed(u, record=True)
     fast = ResonatorBank(om, n_receivers=U, **kw).feed(u, record=True)
-    skip = ResonatorBank(om, n_receivers=U, **kw).feed(u)       # event-driven path
+    skip = ResonatorBank(om, n_receivers=U, **kw).feed(u)  # event-driven path
     assert len(ref.spikes) > 0
     # Identical spikes; states agree to rounding (different association, same maths).
     assert np.array_equal(ref.spikes, fast.spikes)
@@ -123,7 +122,7 @@ def _feed_chunks(bank, u, sizes, record):
     outs, i, j = [], 0, 0
     while i < len(u):
         step = sizes[j % len(sizes)]
-        outs.append(bank.feed(u[i:i + step], record=record))
+        outs.append(bank.feed(u[i : i + step], record=record))
         i += step
         j += 1
     return outs

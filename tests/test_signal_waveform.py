@@ -29,8 +29,7 @@ def test_superpose_and_collisions():
     u = superpose([a, c], 600)
     assert u[0] == pytest.approx(0.7)  # first pulses share sample 0
     assert u[267] == 0.2 and u[240] == 0.3 and np.count_nonzero(u) == 5
-    np.testing.assert_array_equal(code_waveform(a.word, a.omega, a.start, 600),
-                                  superpose([a], 600))
+    np.testing.assert_array_equal(code_waveform(a.word, a.omega, a.start, 600), superpose([a], 600))
 
 
 def test_hear_gains_and_seeded_noise():

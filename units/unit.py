@@ -70,6 +70,7 @@ class AutonomousUnit:
             start=sc.timing.start,
             reaction_delay=sc.timing.reaction_delay,
             guard=sc.timing.guard,
+            anchor=sc.timing.anchor,
         )
         seed = sc.seed
         self.mind = Mind(
@@ -124,7 +125,11 @@ class AutonomousUnit:
 
     def begin(self, env: simpy.Environment) -> None:
         self.env = env
-        self._schedule(self.protocol.begin(self.relation_choice, self._influence_codes()))
+        sends, listens = self.protocol.begin(self.relation_choice, self._influence_codes())
+        self._schedule(sends)
+        self.listens.extend(listens)
+        # Quench at every turn start known (all of them when anchored on the schedule).
+        self.quench.update(round(t / self.tau) for t in self.protocol.turn_starts[1:])
 
     def _schedule(self, sends: list[Send]) -> None:
         for send in sends:
