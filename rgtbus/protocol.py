@@ -118,6 +118,8 @@ class ProtocolState:
         self.schedule = turns(self.units)
         self.turn_start = self.start
         self.turn_starts = [self.start]  # every turn's start known so far
+        self._ids_key: tuple[int, float] | None = None
+        self._ids: tuple[int, ...] = ()
 
     # -- helpers
 
@@ -134,7 +136,11 @@ class ProtocolState:
     def id_samples(self) -> tuple[int, ...]:
         t = self.current()
         assert t is not None
-        return code_samples(self.turn_start, self.omegas[t.sender], self.pulses, self.tau)
+        key = (t.index, self.turn_start)
+        if self._ids_key != key:  # asked every window by the deadline check: compute once
+            self._ids_key = key
+            self._ids = code_samples(self.turn_start, self.omegas[t.sender], self.pulses, self.tau)
+        return self._ids
 
     def id_deadline(self) -> int:
         """The last sample at which the current ID may still make its sender's resonator spike:

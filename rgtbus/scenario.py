@@ -47,7 +47,13 @@ TOP_KEYS = {
     "expect",
 }
 TIMING_KEYS = {
-    "sample_rate", "window", "start", "reaction_delay", "guard", "max_seconds", "anchor",
+    "sample_rate",
+    "window",
+    "start",
+    "reaction_delay",
+    "guard",
+    "max_seconds",
+    "anchor",
 }
 CHANNEL_KEYS = {"noise", "gain"}
 RELATION_KEYS = {"policy", "p", "fixed", "draws"}

@@ -226,8 +226,9 @@ class AutonomousUnit:
                     "t": first * self.tau,
                     "sample_rate": 1 / self.tau,
                     "channels": list(self.units),
-                    "y": res.y[:, 0, :].T.tolist(),
-                    "x": res.z[:, 0, :].real.T.tolist(),
+                    # arrays: the recorder encodes them; a verifying re-run compares them as is
+                    "y": res.y[:, 0, :].T,
+                    "x": res.z[:, 0, :].real.T,
                 },
                 ns(first * self.tau),
             )
