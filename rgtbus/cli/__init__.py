@@ -24,7 +24,11 @@ class OneLineParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     from rgtbus.cli import proc_cmds, replay_cmds, rgt_cmds, run_cmd, signal_cmds
 
-    parser = OneLineParser(prog="rgtbus", description=__doc__.splitlines()[0])
+    parser = OneLineParser(
+        prog="rgtbus",
+        description="Socialised autonomous units: Reflexive Game Theory over a shared medium "
+        "of resonate-and-fire receivers.",
+    )
     parser.add_argument("--version", action="version", version=f"rgtbus {__version__}")
     subparsers = parser.add_subparsers(
         dest="command", metavar="COMMAND", parser_class=OneLineParser
