@@ -15,6 +15,7 @@ from typing import Any
 
 from rgtbus import __version__
 from rgtbus.bus import open_bus
+from rgtbus.bus.base import Bus
 from rgtbus.scenario import Scenario
 from rgtbus.sim import World, WorldResult, ns
 from rgtbus.telemetry import Recorder
@@ -72,6 +73,21 @@ def write_metadata(
     recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
 
 
+def scenario_world(
+    sc: Scenario, members: list[AutonomousUnit], bus: Bus, recorder: Recorder, **options: Any
+) -> World:
+    """The SimPy world timed as the scenario says (window, sample rate, time limit)."""
+    return World(
+        members,
+        bus,
+        recorder,
+        sample_rate=sc.timing.sample_rate,
+        window_samples=sc.timing.window_samples,
+        max_seconds=sc.timing.max_seconds,
+        **options,
+    )
+
+
 def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
     recorder.write(
         "/run",
@@ -104,15 +120,8 @@ def run_group(
     with open_bus(
         bus_kind, run_id, sc.units, sc.timing.sample_rate, sc.timing.window_samples
     ) as bus:
-        world = World(
-            members,
-            bus,
-            recorder,
-            sample_rate=sc.timing.sample_rate,
-            window_samples=sc.timing.window_samples,
-            max_seconds=sc.timing.max_seconds,
-            gather_timeout=gather_timeout,
-            progress=progress,
+        world = scenario_world(
+            sc, members, bus, recorder, gather_timeout=gather_timeout, progress=progress
         )
         result = world.run()
     summary = summarise(sc, [m.report() for m in members], result)

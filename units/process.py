@@ -17,9 +17,9 @@ from typing import Any
 from rgtbus.bus import open_bus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import World, WorldResult, ns
+from rgtbus.sim import WorldResult, ns
 from rgtbus.telemetry import Recorder
-from units.group import default_run_id, write_metadata
+from units.group import default_run_id, scenario_world, write_metadata
 from units.unit import AutonomousUnit
 
 
@@ -60,13 +60,11 @@ def run_unit(
         **opts,
     ) as bus:
         bus.join(name, scenario_digest(sc), timeout=join_timeout)
-        world = World(
+        world = scenario_world(
+            sc,
             [unit],
             bus,
             recorder,
-            sample_rate=sc.timing.sample_rate,
-            window_samples=sc.timing.window_samples,
-            max_seconds=sc.timing.max_seconds,
             gather_timeout=timeout,
             progress=progress,
             write_medium=name == sc.units[0],  # one medium in the merged log, as in one process

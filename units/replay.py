@@ -24,10 +24,10 @@ import numpy as np
 from rgtbus.bus.logbus import LogBus, LogEnded
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import World, WorldResult
+from rgtbus.sim import WorldResult
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
-from units.group import summarise
+from units.group import scenario_world, summarise
 from units.unit import AutonomousUnit
 
 
@@ -86,13 +86,11 @@ def rerun(
     names = [u for u in sc.units if only is None or u in only]
     members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
     bus = LogBus("replay", sc.units, windows, parts=parts, local=names)
-    world = World(
+    world = scenario_world(
+        sc,
         members,
         bus,
         rec,
-        sample_rate=sc.timing.sample_rate,
-        window_samples=sc.timing.window_samples,
-        max_seconds=sc.timing.max_seconds,
         write_medium=False,  # the log has the medium; the diff compares what units did
     )
     try:
