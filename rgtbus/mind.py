@@ -10,11 +10,16 @@ picks its own choice from its interval by its decision policy:
 * a preferred alternative (e.g. ``{alpha}``): chosen when within the interval, else ``max``.
 
 A frustrated unit makes no choice.
+
+What a unit sends is chosen here too: its relationship code to each peer (fixed by the scenario,
+or alliance with probability p, the "positive pole", from its own seeded draws) and its
+influence on each peer.
 """
 
 from __future__ import annotations
 
 import random
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from rgtbus.errors import RgtbusError
@@ -31,6 +36,39 @@ from rgtbus.rgt import (
     install_relations,
 )
 from rgtbus.rgt.expr import needs_star
+
+
+def choose_relations(
+    me: str,
+    units: Sequence[str],
+    *,
+    seed: int,
+    fixed: Mapping[tuple[str, str], bool],
+    draws: Mapping[tuple[str, str], float],
+    p: float,
+) -> dict[str, str]:
+    """``{peer: "alliance" | "conflict"}``: fixed where the scenario fixes it, else alliance
+    iff this unit's draw for the peer is at most ``p`` (an explicit draw replaces the random
+    one). A draw is made for every peer, so fixing one never shifts the others."""
+    rng = random.Random(f"{seed}:{me}:relations")
+    out = {}
+    for r in units:
+        if r == me:
+            continue
+        key = (me, r)
+        draw = rng.random()
+        if key in fixed:
+            out[r] = "alliance" if fixed[key] else "conflict"
+        else:
+            out[r] = "alliance" if draws.get(key, draw) <= p else "conflict"
+    return out
+
+
+def choose_influences(
+    me: str, units: Sequence[str], influences: Mapping[tuple[str, str], int], universe: Universe
+) -> dict[str, str]:
+    """``{peer: alternative text}``: the influence this unit sends to each peer."""
+    return {r: universe.format(influences[(me, r)]) for r in units if r != me}
 
 
 def choose(
@@ -68,10 +106,14 @@ class Mind:
         return [(s, r) for s in self.units for r in self.units if s != r]
 
     def relations_complete(self) -> bool:
-        return all(p in self.sent for p in self.pairs())
+        n = len(self.units)
+        return len(self.sent) == n * (n - 1) and all(p in self.sent for p in self.pairs())
 
     def influences_complete(self) -> bool:
-        return all(p in self.influences for p in self.pairs())
+        n = len(self.units)
+        return len(self.influences) == n * (n - 1) and all(
+            p in self.influences for p in self.pairs()
+        )
 
     def installed(self) -> dict[str, str]:
         """``{"a-b": "alliance" | "conflict"}`` for every pair known from both sides."""

@@ -28,12 +28,13 @@ far past the point where attention spikes fail (see the README).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.waveform import pulse_instants
+from rgtbus.signal.waveform import pulse_samples
 
 PHASES = ("relations", "influences")
 ANCHORS = ("spike", "schedule")
@@ -59,7 +60,7 @@ def turns(units: Sequence[str]) -> list[Turn]:
 
 def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[int, ...]:
     """Sample index of each pulse: ``round((start + m·2π/ω) / τ)``."""
-    return tuple(int(k) for k in pulse_instants(omega, start, pulses, tau))
+    return pulse_samples(omega, start, pulses, tau)
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,26 @@ class Listen:
 
 
 @dataclass
+class Actions:
+    """What a protocol event asks of its unit: transmit ``sends``, decode ``listens`` when their
+    samples are in, set the resonators back to rest before each sample of ``quench`` (a turn's
+    start: the paper's b = −0.1 rings for ~10 s, longer than any guard, and leftovers of the
+    last turn could cancel or fake the next ID), and, when ``deadline`` is set, check after
+    that sample that the current turn's ID spike came (``check_deadline``)."""
+
+    sends: list[Send] = field(default_factory=list)
+    listens: list[Listen] = field(default_factory=list)
+    quench: list[int] = field(default_factory=list)
+    deadline: int | None = None
+
+    def __bool__(self) -> bool:
+        return bool(self.sends or self.listens or self.quench or self.deadline is not None)
+
+
+NEVER = 2**63 - 1  # "no such sample": a promise of silence for the rest of the run
+
+
+@dataclass
 class ProtocolState:
     """What one unit knows of the schedule, and what it must do next."""
 
@@ -116,10 +137,13 @@ class ProtocolState:
         if self.anchor not in ANCHORS:
             raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
         self.schedule = turns(self.units)
+        self._own_turns = [t.index for t in self.schedule if t.sender == self.me]
         self.turn_start = self.start
         self.turn_starts = [self.start]  # every turn's start known so far
         self._ids_key: tuple[int, float] | None = None
         self._ids: tuple[int, ...] = ()
+        self._bound_key: tuple[int, int] | None = None
+        self._bound = NEVER
 
     # -- helpers
 
@@ -151,18 +175,18 @@ class ProtocolState:
 
     # -- events
 
-    def begin(
-        self, relation_code: dict[str, str], influence_code: dict[str, str]
-    ) -> tuple[list[Send], list[Listen]]:
+    def begin(self, relation_code: dict[str, str], influence_code: dict[str, str]) -> Actions:
         """Start of the run: the first turn's sender sends its ID. Anchored on the schedule,
-        the whole run is known now: every send and every listen of every turn."""
+        the whole run is known now: every send, listen and quench of every turn."""
         self._codes = {"relations": relation_code, "influences": influence_code}
-        sends, listens = self._id_actions(), []
+        acts = Actions(sends=self._id_actions())
         while self.anchor == "schedule" and not self.finished:
-            more_sends, more_listens = self._react(self.id_samples()[-1])
-            sends += more_sends
-            listens += more_listens
-        return sends, listens
+            more = self._react(self.id_samples()[-1])
+            acts.sends += more.sends
+            acts.listens += more.listens
+            acts.quench += more.quench
+        acts.deadline = self._deadline()
+        return acts
 
     def _id_actions(self) -> list[Send]:
         t = self.current()
@@ -181,17 +205,19 @@ class ProtocolState:
             )
         ]
 
-    def on_spike(self, channel: str, sample: int) -> tuple[list[Send], list[Listen]]:
+    def on_spike(self, channel: str, sample: int) -> Actions:
         """A spike on ``channel``'s resonator at ``sample``: the ID spike of the current turn
         (once its first pulse is on the medium) moves the schedule on."""
         t = self.current()
         if self.anchor != "spike" or t is None or channel != t.sender:
-            return [], []
+            return Actions()
         if sample < self.id_samples()[0]:
-            return [], []
-        return self._react(sample)
+            return Actions()
+        acts = self._react(sample)
+        acts.deadline = self._deadline()
+        return acts
 
-    def _react(self, sample: int) -> tuple[list[Send], list[Listen]]:
+    def _react(self, sample: int) -> Actions:
         """The current turn's ID counts from ``sample``: plan its payload and the next turn."""
         t = self.current()
         assert t is not None
@@ -233,10 +259,65 @@ class ProtocolState:
         # Next turn: the chain is known now, well ahead of its first pulse.
         self.turn += 1
         self.turn_start = payload_start + (self.pulses - 1) * self.period(t.addressee) + self.guard
+        quench = []
         if not self.finished:
             self.turn_starts.append(self.turn_start)
+            quench.append(round(self.turn_start / self.tau))
         sends.extend(self._id_actions())
-        return sends, listens
+        return Actions(sends, listens, quench)
+
+    def _deadline(self) -> int | None:
+        """The current turn's ID deadline when the chain depends on its spike."""
+        if self.anchor != "spike" or self.finished:
+            return None
+        return self.id_deadline()
+
+    def awaited(self) -> tuple[str, int, int] | None:
+        """The spike the chain waits for: (channel, earliest sample, latest sample), or None
+        when nothing this unit hears can plan a send any more (every reaction known, or the
+        run's end). Past the latest sample (the ID's deadline) the chain is broken."""
+        if self.anchor != "spike" or self.finished:
+            return None
+        t = self.current()
+        assert t is not None
+        return t.sender, self.id_samples()[0], self.id_deadline()
+
+    def send_bound(self, h: int) -> int:
+        """A lower bound on the first sample of any send this machine has not planned yet,
+        given that it has heard no ID spike before sample ``h`` (``NEVER`` if none can come).
+
+        Only a reaction plans sends: to turn i's ID spike at k (k ≥ h and k ≥ the ID's first
+        pulse) this unit plans its payload if it sends turn i, or turn i+1's ID if it sends
+        that one; a later turn starts no earlier than the previous reaction plus the delay,
+        the payload and the guard. Every step is monotone in k, so chaining from the earliest
+        possible spike gives the earliest send: the promise behind the conservative
+        synchronisation of the event engine (docs/engine.md)."""
+        if self.anchor != "spike" or self.finished:
+            return NEVER
+        j = bisect.bisect_left(self._own_turns, self.turn)
+        if j == len(self._own_turns):
+            return NEVER
+        mine = self._own_turns[j]
+        i = self.turn
+        k = max(h, self.id_samples()[0])
+        if self._bound_key == (i, k):  # asked every round: the same until the chain moves
+            return self._bound
+        self._bound_key = (i, k)
+        self._bound = self._chain(i, k, mine)
+        return self._bound
+
+    def _chain(self, i: int, k: int, mine: int) -> int:
+        tau, delay, guard, tail = self.tau, self.reaction_delay, self.guard, self.pulses - 1
+        for _ in range(8):  # stopping early only loosens the bound, and 8 turns is far enough
+            t = self.schedule[i]
+            payload_start = k * tau + delay
+            if i == mine:
+                return round(payload_start / tau)  # the payload's first pulse
+            k = round((payload_start + tail * self.period(t.addressee) + guard) / tau)
+            if i + 1 == mine:
+                return k  # the next turn's ID, first pulse
+            i += 1
+        return k
 
     def check_deadline(self, received_upto: int) -> str | None:
         """An error text when the current ID's spike is overdue (the chain cannot go on)."""

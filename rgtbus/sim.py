@@ -1,22 +1,21 @@
-"""The SimPy world: windows of simulated time, the medium, and the run loop.
+"""The SimPy world: the medium, the units' ears and the conservative time horizon (docs/engine.md).
 
-Time advances in windows of L samples (default 0.1 s = 20 samples). Window w covers samples
-[wL, (w+1)L). At t = wL·τ every member renders and publishes its outgoing samples for window w;
-the medium process gathers them through the bus; at t = (w+1)L·τ, when window w is over, every
-member hears it (each applies its own link gains and noise) and reacts. A reaction is decided on
-exact sample indexes at least the reaction delay ahead (the lookahead, ≥ one window), so the
-window size never changes a result.
+The world moves from event to event. Every local member publishes what it transmits (its pulses,
+as soon as they are planned) and a promise "nothing more from me before sample t"
+(``promise``: its earliest unplanned send, ``NEVER`` once it is done). The medium before the
+smallest promise of all members, local or in other processes, is final: the world takes it from
+the bus, hands it to the ears, and lets SimPy run every event before it — spikes, reactions
+(timeouts of the reaction delay), decodes, decisions — each at its exact sample. Then the
+members promise again (conservative synchronisation with null messages, Chandy–Misra–Bryant;
+the reaction delay is the lookahead that keeps the promises ahead). Silence costs nothing.
 
-The world knows the members only through this interface (no import of ``units/``):
+``engine="dense"`` is the time-stepped reference: the horizon moves one window (``timing.window``)
+at a time, every member publishes every window and every unit feeds its own resonators every
+sample. Both engines give identical results.
 
-* ``name``; ``begin(env)``; ``render(window) -> np.ndarray`` (L float64 samples);
-* ``hear(window, gathered: {unit: samples})``;
-* ``finished`` (bool) and ``failure`` (str | None).
-
-The members given may be a subset of the bus's members (one unit per OS process): the others
-are heard through the bus only. Each member's publish carries FINAL once it has finished and
-FAILED once it has failed; the run ends after the first window in which every member is FINAL,
-or in which any is FAILED, so every process stops at the same window.
+The run ends when every member is done (decided or failed; a done unit listens no more) and
+every transmission is out. The world knows members only through ``Member`` (no import of
+``units/``); remote members only through the bus.
 """
 
 from __future__ import annotations
@@ -28,21 +27,35 @@ from typing import Any, Protocol
 
 import numpy as np
 import simpy
+import simpy.rt
 
-from rgtbus.bus.base import Bus
-from rgtbus.bus.payload import FAILED, FINAL
+from rgtbus.bus.base import Bus, Pulses, merge_pulses, split_pulses
+from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.errors import RgtbusError
+from rgtbus.hearing import Ears, Listener
+from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder
+
+ENGINES = ("event", "dense")
 
 
 class Member(Protocol):
+    """What the world uses of a local unit."""
+
     name: str
-    finished: bool
+    done: bool
+    done_at: int
     failure: str | None
 
-    def begin(self, env: simpy.Environment) -> None: ...
-    def render(self, window: int) -> np.ndarray: ...
-    def hear(self, window: int, gathered: dict[str, np.ndarray]) -> None: ...
+    def listener(self) -> Listener: ...
+    def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None: ...
+    def take_outbox(self) -> Pulses: ...
+    def promise(self, horizon: int) -> int: ...
+    def awaited(self) -> tuple[int, int, int] | None: ...
+    def quench_between(self, lo: int, hi: int) -> list[int]: ...
+
+
+_NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
 def ns(seconds: float) -> int:
@@ -50,120 +63,276 @@ def ns(seconds: float) -> int:
     return round(seconds * 1e9)
 
 
+@dataclass(frozen=True)
+class Receivers:
+    """How the units hear: every unit has one resonator per channel of the run."""
+
+    omegas: tuple[float, ...]
+    mode: str
+    tau: float
+
+
 @dataclass
 class WorldResult:
-    windows: int
+    steps: int  # rounds of the horizon (windows for the dense engine)
     sim_seconds: float
     wall_seconds: float
-    failure: str | None
-    bus_stats: dict[str, int] = field(default_factory=dict)
+    failure: str | None  # the world's own: a member gone or stalled, the log ended
+    bus_stats: dict[str, Any] = field(default_factory=dict)
+    end_sample: int = 0  # the last sample of the run
 
 
 class World:
-    """Runs members over a bus, window by window, until all have finished or one fails."""
+    """Runs local members over a bus until every member is done; see the module docstring."""
 
     def __init__(
         self,
         members: Sequence[Member],
         bus: Bus,
         recorder: Recorder,
+        receivers: Receivers,
         *,
-        sample_rate: float,
         window_samples: int,
-        max_seconds: float,
-        gather_timeout: float = 5.0,
+        engine: str = "event",
+        timeout: float = 5.0,
         progress: Callable[[float, int], None] | None = None,
         write_medium: bool = True,
+        realtime: float | None = None,
     ) -> None:
+        if engine not in ENGINES:
+            raise RgtbusError(f"unknown engine {engine!r} (use {', '.join(ENGINES)})")
         if window_samples < 1:
             raise RgtbusError(f"window of {window_samples} samples: need at least one")
         self.members = list(members)
         self.bus = bus
         self.recorder = recorder
-        self.sample_rate = sample_rate
-        self.window_samples = window_samples
-        self.window_seconds = window_samples / sample_rate
-        self.max_windows = int(np.ceil(max_seconds / self.window_seconds))
-        self.gather_timeout = gather_timeout
+        self.receivers = receivers
+        self.tau = receivers.tau
+        self.window = window_samples
+        self.engine = engine
+        self.timeout = timeout
         self.progress = progress
         self.write_medium = write_medium  # one process of a cross-process run logs the medium
-        self.env = simpy.Environment()
-        self.failure: str | None = None
-        self.windows = 0
-        self._opened: simpy.Event = self.env.event()  # window w is open: render and publish
-        self._heard: simpy.Event = self.env.event()  # window w is over: hear it
-
-    # SimPy processes -------------------------------------------------------------------------
-
-    def _medium(self):
-        env = self.env
-        names = self.bus.members  # every member of the run, local or not, in a fixed order
-        local = {m.name: m for m in self.members}
-        for w in range(self.max_windows):
-            self.windows = w + 1
-            opened, self._opened = self._opened, env.event()
-            opened.succeed(w)
-            yield env.timeout(0)  # the local members publish at the window's start
-            gathered = self.bus.gather(w, timeout=self.gather_timeout)
-            flags = self.bus.last_flags
-            yield env.timeout(self.window_seconds)
-            if self.write_medium:
-                medium = np.zeros(self.window_samples)
-                for name in names:  # fixed order: the same float sum in every process
-                    medium += gathered[name]
-                self.recorder.write(
-                    "/medium",
-                    {
-                        "window": w,
-                        "t": w * self.window_seconds,
-                        "sample_rate": self.sample_rate,
-                        "samples": medium.tolist(),
-                    },
-                    ns(w * self.window_seconds),
-                )
-            # Flags travel with the samples, so every process ends the run at the same window.
-            failed = [u for u in names if flags.get(u, 0) & FAILED]
-            if failed:
-                u = failed[0]
-                self.failure = (
-                    local[u].failure
-                    if u in local and local[u].failure
-                    else f"unit {u} failed (window {w}; see its log)"
-                )
-                return
-            if all(flags.get(u, 0) & FINAL for u in names):
-                return
-            heard, self._heard = self._heard, env.event()
-            heard.succeed((w, gathered))
-            yield env.timeout(0)  # the local members react before the next window opens
-            if self.progress is not None:
-                self.progress(env.now, w)
-        self.failure = (
-            f"not finished after {self.max_windows * self.window_seconds:.1f} s of simulated "
-            "time (timing.max_seconds)"
+        self.env: simpy.Environment = (
+            simpy.rt.RealtimeEnvironment(factor=1.0 / realtime, strict=False)
+            if realtime
+            else simpy.Environment()
         )
+        self.failure: str | None = None
+        self.steps = 0
+        self.horizon = 0
+        self._medium: dict[str, list[Pulses]] = {}  # pulses received, not yet logged
+        self._last_pulse = -1
+        self._held: dict[str, list[Pulses]] = {m.name: [] for m in self.members}
+        self._sent_promise: dict[str, int] = {m.name: -1 for m in self.members}
+        self._sent_flags: dict[str, int] = {m.name: 0 for m in self.members}
+        self._ears: list[Ears] = []
+        self._where: dict[str, tuple[Ears, int]] = {}
+        self._ahead: dict[str, Pulses] = {}  # local members' published pulses not yet heard
 
-    def _member(self, member: Member):
-        member.begin(self.env)
+    # -- set-up ---------------------------------------------------------------------------------
+
+    def _build_ears(self) -> None:
+        r = self.receivers
+        dense = self.engine == "dense"
+        # The event engine shares one bank among its local units; the reference gives each
+        # unit its own, fed every window.
+        groups = [[m] for m in self.members] if dense else [self.members]
+        for group in groups:
+            if not group:
+                continue
+            bank = ResonatorBank(r.omegas, mode=r.mode, tau=r.tau, n_receivers=len(group))
+            ears = Ears(
+                self.env,
+                self.bus.members,
+                [m.listener() for m in group],
+                bank,
+                dense=dense,
+                window=self.window,
+            )
+            self._ears.append(ears)
+            for i, m in enumerate(group):
+                m.begin(self.env, ears, i)
+                self._where[m.name] = (ears, i)
+
+    # -- the SimPy process ------------------------------------------------------------------
+
+    def _coordinate(self):
+        env = self.env
+        self._build_ears()
+        yield env.timeout(0)  # every unit begins (its first sends and requests)
         while True:
-            w = yield self._opened
-            flags = FAILED if member.failure else FINAL if member.finished else 0
-            self.bus.publish(member.name, w, member.render(w), flags)
-            w, gathered = yield self._heard
-            member.hear(w, gathered)
+            self._publish()
+            if self._finished():
+                break
+            beyond = self.horizon + self.window - 1 if self.engine == "dense" else self.horizon
+            h = self.bus.wait(beyond, timeout=self.timeout)
+            if self.engine == "dense":
+                h = min(h, self.horizon + self.window)
+            pulses = self.bus.take(h)
+            self.horizon = h
+            self.steps += 1
+            for ears in self._ears:
+                ears.hear(h, pulses)
+            self._log_medium(pulses, final_before=h)
+            if self.progress is not None:
+                self.progress(env.now, self.steps)
+            if h < NEVER:
+                yield env.timeout(max(0.0, (h - 0.5) * self.tau - env.now))
+            else:  # every member promised silence: run until the local units are done
+                yield env.all_of([e.quiet for e in self._ears])
+        end = self.end_sample()
+        self._log_medium({}, final_before=NEVER)
+        # what is still on its way (transmissions of units that are done) goes out
+        yield env.timeout(max(0.0, (end + 0.5) * self.tau - env.now))
+
+    def _publish(self) -> None:
+        """Every local member's frame: its new pulses and its promise (event engine), or its
+        pulses of the next window and the window's end (dense engine)."""
+        fresh: dict[str, Pulses] = {}
+        for m in self.members:
+            samples, values = m.take_outbox()
+            if samples.size:
+                self._held[m.name].append((samples, values))
+                fresh[m.name] = (samples, values)
+        promises = self._promises(fresh) if self.engine == "event" else {}
+        for m in self.members:
+            flags = (FAILED if m.failure else FINAL) if m.done else 0
+            held = merge_pulses(self._held[m.name])
+            if self.engine == "dense":
+                limit = self.horizon + self.window
+                now, later = split_pulses(held, limit)
+                promise = NEVER if m.done and not later[0].size else limit
+                self._held[m.name] = [later] if later[0].size else []
+            else:
+                now = held
+                self._held[m.name] = []
+                promise = promises[m.name]
+            changed = (
+                now[0].size
+                or promise != self._sent_promise[m.name]
+                or flags != self._sent_flags[m.name]
+                or self.engine == "dense"
+            )
+            if changed:
+                self.bus.publish(
+                    m.name,
+                    now[0],
+                    now[1],
+                    promise=promise,
+                    flags=flags,
+                    done_at=m.done_at if m.done else 0,
+                )
+                if now[0].size and self.engine == "event":
+                    self._ahead[m.name] = merge_pulses([self._ahead.get(m.name, _NONE), now])
+                self._sent_promise[m.name] = promise
+                self._sent_flags[m.name] = flags
+
+    def _promises(self, fresh: dict[str, Pulses]) -> dict[str, int]:
+        """Each local member's promise: its protocol's earliest unplanned send given that it
+        heard no spike to react to before the horizon; sharpened, for a member whose promise
+        holds everyone back, by looking ahead at its own resonators: every other member has
+        promised silence until B, so the pulses already planned are all it will hear before
+        B, and its reaction cannot come before its first spike on them."""
+        h = self.horizon
+        for u, p in list(self._ahead.items()):  # what is before the horizon has been heard
+            self._ahead[u] = split_pulses(p, h)[1]
+        plain = {m.name: m.promise(h) for m in self.members}
+        remote = [s.promise for u, s in self.bus.status().items() if u not in plain]
+        out = dict(plain)
+        for m in self.members:
+            others = [p for u, p in plain.items() if u != m.name] + remote
+            bound = min(others, default=NEVER)
+            aw = m.awaited()
+            if aw is None or plain[m.name] >= bound or m.name not in self._where:
+                continue
+            ears, i = self._where[m.name]
+            until = min(bound, aw[2] + 1)  # no reaction after the ID's deadline
+            # Remote members' pulses as received; the local ones' as sent (a bus may hand our
+            # own frames back later than the peers' frames that depend on them).
+            known = {u: p for u, p in self.bus.known(until).items() if u not in plain}
+            for u in plain:
+                parts = [split_pulses(self._ahead[u], until)[0]] if u in self._ahead else []
+                if u in fresh:
+                    parts.append(fresh[u])
+                known[u] = merge_pulses(parts)
+            k = ears.peek(i, until, known, m.quench_between(h, until), aw[0], aw[1])
+            out[m.name] = m.promise(until if k is None else k)
+        return out
+
+    def _finished(self) -> bool:
+        status = self.bus.status()
+        return all(s.flags and s.promise == NEVER for s in status.values())
+
+    def end_sample(self) -> int:
+        """The run's last sample: the last sample any member listened to or transmitted."""
+        done = [s.done_at for s in self.bus.status().values() if s.flags]
+        return max([*done, self._last_pulse, 0])
+
+    # -- the medium's log --------------------------------------------------------------------
+
+    def _log_medium(self, pulses: dict[str, Pulses], final_before: int) -> None:
+        """Log every window that carries a pulse (silent ones are not logged), once final: the
+        sum of every member's samples, added in member order as each unit hears them."""
+        for u, p in pulses.items():
+            if p[0].size:
+                self._last_pulse = max(self._last_pulse, int(p[0][-1]))
+                if self.write_medium:
+                    self._medium.setdefault(u, []).append(p)
+        if not self.write_medium or not self._medium:
+            return
+        L = self.window
+        cut_at = final_before if final_before >= NEVER else (final_before // L) * L
+        now: dict[str, Pulses] = {}
+        for u in list(self._medium):
+            ready, later = split_pulses(merge_pulses(self._medium[u]), cut_at)
+            if ready[0].size:
+                now[u] = ready
+            if later[0].size:
+                self._medium[u] = [later]
+            else:
+                del self._medium[u]
+        if not now:
+            return
+        rows, values = self._sum_medium(now)
+        windows = rows // L
+        for w in np.unique(windows).tolist():
+            sel = windows == w
+            samples = np.zeros(L)
+            samples[rows[sel] - w * L] = values[sel]
+            t = w * L * self.tau
+            self.recorder.write(
+                "/medium",
+                {"window": w, "t": t, "sample_rate": 1.0 / self.tau, "samples": samples.tolist()},
+                ns(t),
+            )
+
+    def _sum_medium(self, pulses: dict[str, Pulses]) -> Pulses:
+        """Each member's magnitudes per sample (in the order it sent them), then the members'
+        totals added in member order."""
+        names = [u for u in self.bus.members if u in pulses]
+        rows = np.unique(np.concatenate([pulses[u][0] for u in names]))
+        x = np.zeros((rows.size, len(names)))
+        for j, u in enumerate(names):
+            np.add.at(x[:, j], np.searchsorted(rows, pulses[u][0]), pulses[u][1])
+        return rows, np.cumsum(x, axis=1)[:, -1]
+
+    # -- running ----------------------------------------------------------------------------
 
     def run(self) -> WorldResult:
         t0 = time.perf_counter()
-        for m in self.members:
-            self.env.process(self._member(m))
-        done = self.env.process(self._medium())
-        self.env.run(until=done)
+        done = self.env.process(self._coordinate())
+        try:
+            self.env.run(until=done)
+        except RgtbusError as exc:  # a member gone or stalled, or a log that ends early
+            self.failure = str(exc)
         return WorldResult(
-            windows=self.windows,
-            sim_seconds=self.windows * self.window_seconds,
+            steps=self.steps,
+            sim_seconds=round((self.end_sample() + 1) * self.tau, 9),
             wall_seconds=time.perf_counter() - t0,
             failure=self.failure,
             bus_stats=dict(self.bus.stats()),
+            end_sample=self.end_sample(),
         )
 
 

@@ -5,8 +5,8 @@ import random
 
 import pytest
 
-from rgtbus.mind import Mind, choose
-from rgtbus.protocol import ProtocolState, code_samples, turns
+from rgtbus.mind import Mind, choose, choose_relations
+from rgtbus.protocol import NEVER, ProtocolState, code_samples, turns
 from rgtbus.rgt import Universe, decision_function, evaluate, parse_polynomial
 
 W = {"a": 3 * math.pi / 2, "b": 4 * math.pi / 3, "c": 5 * math.pi / 3}
@@ -40,14 +40,16 @@ def machine(me: str) -> ProtocolState:
 
 def test_sender_reacts_to_its_own_id_spike():
     p = machine("a")
-    sends, listens = p.begin({"b": "alliance", "c": "conflict"}, {"b": "1", "c": "0"})
-    assert listens == []
-    assert [(s.kind, s.channel, s.code, s.samples) for s in sends] == [
+    acts = p.begin({"b": "alliance", "c": "conflict"}, {"b": "1", "c": "0"})
+    assert acts.listens == [] and acts.quench == []
+    assert acts.deadline == p.id_deadline() == 534 + 267  # the ID's last pulse + a period
+    assert [(s.kind, s.channel, s.code, s.samples) for s in acts.sends] == [
         ("id", "a", "id", (0, 267, 534))
     ]
     # A spike on another channel, or before the ID's first pulse, is not the ID spike.
-    assert p.on_spike("b", 300) == ([], [])
-    sends, listens = p.on_spike("a", 534)
+    assert not p.on_spike("b", 300)
+    acts = p.on_spike("a", 534)
+    sends, listens = acts.sends, acts.listens
     payload = sends[0]
     assert (payload.kind, payload.channel, payload.code) == ("payload", "b", "alliance")
     assert payload.start == pytest.approx(534 * TAU + 0.5)
@@ -58,13 +60,17 @@ def test_sender_reacts_to_its_own_id_spike():
     end = 534 * TAU + 0.5 + 2 * 2 * math.pi / W["b"]
     assert p.turn == 1 and p.turn_start == pytest.approx(end + 0.5)
     assert sends[1].kind == "id" and sends[1].addressee == "c"
+    # The protocol names the quench (the next turn's start) and the new turn's deadline.
+    assert acts.quench == [round(p.turn_start / TAU)]
+    assert acts.deadline == p.id_deadline() > acts.quench[0]
 
 
 def test_listener_follows_the_chain_without_sending():
     p = machine("c")
-    assert p.begin({"a": "alliance", "b": "alliance"}, {"a": "1", "b": "1"}) == ([], [])
-    sends, listens = p.on_spike("a", 534)
-    assert sends == [] and len(listens) == 2
+    acts = p.begin({"a": "alliance", "b": "alliance"}, {"a": "1", "b": "1"})
+    assert acts.sends == [] and acts.listens == [] and acts.deadline is not None
+    acts = p.on_spike("a", 534)
+    assert acts.sends == [] and len(acts.listens) == 2 and len(acts.quench) == 1
     assert p.turn == 1
 
 
@@ -122,8 +128,11 @@ def test_mind_installs_by_and_and_reports_non_decomposable_groups():
 
 def test_schedule_anchor_plans_the_whole_run_from_the_start():
     p = ProtocolState("b", ("a", "b", "c"), W, TAU, anchor="schedule")
-    sends, listens = p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
+    acts = p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
+    sends, listens = acts.sends, acts.listens
     assert p.finished and len(p.turn_starts) == 12
+    assert len(acts.quench) == 11 and acts.deadline is None  # no spike is waited for
+    assert p.send_bound(0) == NEVER and p.awaited() is None
     assert [(s.turn, s.kind) for s in sends if s.kind == "id"] == [
         (2, "id"),
         (3, "id"),
@@ -137,9 +146,9 @@ def test_schedule_anchor_plans_the_whole_run_from_the_start():
     spike_p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
     for _ in range(first_payload.turn + 1):
         ids = spike_p.id_samples()
-        out, _ = spike_p.on_spike(spike_p.current().sender, ids[-1])
+        out = spike_p.on_spike(spike_p.current().sender, ids[-1]).sends
     assert next(s for s in out if s.kind == "payload") == first_payload
-    assert p.on_spike("a", 10**6) == ([], []) and p.check_deadline(10**9) is None
+    assert not p.on_spike("a", 10**6) and p.check_deadline(10**9) is None
 
 
 def test_unknown_anchor_is_refused():
@@ -147,3 +156,41 @@ def test_unknown_anchor_is_refused():
 
     with pytest.raises(RgtbusError, match="unknown anchor 'sometimes'"):
         ProtocolState("a", ("a", "b"), W, TAU, anchor="sometimes")
+
+
+@pytest.mark.parametrize("me", ["a", "b", "c"])
+@pytest.mark.parametrize("seed", range(4))
+def test_send_bound_is_never_later_than_a_send(me, seed):
+    """The promise behind the event engine: whatever spikes come, and whenever, every send a
+    reaction plans is at or after the bound computed before it (for any horizon before it)."""
+    rng = random.Random(seed)
+    p = machine(me)
+    acts = p.begin({u: "alliance" for u in "abc" if u != me}, {u: "1" for u in "abc" if u != me})
+    h = 0
+    while not p.finished:
+        ids = p.id_samples()
+        spike = max(h, ids[0]) + rng.choice([0, 1, rng.randrange(600)])
+        bound = p.send_bound(h)
+        aw = p.awaited()
+        assert aw == (p.current().sender, ids[0], p.id_deadline())
+        acts = p.on_spike(p.current().sender, spike)
+        for s in acts.sends:
+            assert s.samples[0] >= bound
+        assert not [s for s in acts.sends if s.samples[0] < spike + 99]  # the reaction delay
+        h = spike + rng.randrange(50)
+    assert p.send_bound(h) == NEVER and p.awaited() is None
+
+
+def test_relation_choice_is_seeded_fixed_or_drawn():
+    units = ("a", "b", "c", "d")
+    fixed = {("a", "b"): False}
+    draws = {("a", "c"): 0.9}
+    one = choose_relations("a", units, seed=3, fixed=fixed, draws=draws, p=0.61)
+    assert one == choose_relations("a", units, seed=3, fixed=fixed, draws=draws, p=0.61)
+    assert one["b"] == "conflict" and one["c"] == "conflict" and set(one) == {"b", "c", "d"}
+    assert choose_relations("a", units, seed=3, fixed={}, draws={}, p=1.0) == dict.fromkeys(
+        "bcd", "alliance"
+    )
+    # fixing one peer never shifts the others' draws
+    free = choose_relations("a", units, seed=3, fixed={}, draws={}, p=0.61)
+    assert free["d"] == one["d"]

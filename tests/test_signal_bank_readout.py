@@ -1,4 +1,4 @@
-"""The all-channel readout and the vectorised channel search agree with the per-channel ones."""
+"""The readout history (all channels, any receivers) and the vectorised channel search."""
 
 import math
 
@@ -7,74 +7,70 @@ import pytest
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
-from rgtbus.signal.decoder import DIGITS, BankReadout, Readout, decode_among, decode_code
-from rgtbus.signal.resonator import ResonatorBank
+from rgtbus.signal.decoder import ReadoutHistory, decode_among, decode_code
+from rgtbus.signal.resonator import READOUT_DIGITS, ResonatorBank
 from rgtbus.signal.waveform import Transmission, superpose
 
 OMEGAS = [3 * math.pi / 2, 4 * math.pi / 3, 5 * math.pi / 3, 7 * math.pi / 6]
 
 
-def fed(words, start=0.7, channel=2, n=2000, quench_at=None, sigma=0.0):
+def fed(words, start=0.7, channel=2, n=2000, quench_at=None, sigma=0.0, step=20):
     cb = paper_codebook()
     u = superpose([Transmission(OMEGAS[channel], start, cb.alternatives[words])], n)
     u = u + np.random.default_rng(1).normal(0, sigma, n) if sigma else u
     bank = ResonatorBank(OMEGAS)
-    bank_ro = BankReadout(bank, capacity=n)
-    singles = [Readout.for_bank(bank, c, capacity=n) for c in range(len(OMEGAS))]
-    for lo in range(0, n, 20):
+    ro = ReadoutHistory.for_bank(bank, capacity=n)
+    for lo in range(0, n, step):
         if quench_at is not None and lo == quench_at:
             bank.quench()
-            bank_ro.quench()
-            for r in singles:
-                r.quench()
-        res = bank.feed(u[lo : lo + 20], record=True)
-        bank_ro.append(res)
-        for r in singles:
-            r.append(res)
-    return cb, bank_ro, singles
+        ro.extend(bank.feed(u[lo : lo + step], readout=True))
+    return cb, ro, u
 
 
 @pytest.mark.parametrize("quench_at", [None, 100])
-def test_bank_readout_equals_per_channel_readouts(quench_at):
-    _, bank_ro, singles = fed("{beta}", quench_at=quench_at)
+def test_readout_is_the_medium_on_every_channel(quench_at):
+    _, ro, u = fed("{beta}", quench_at=quench_at)
     idx = np.arange(0, 2000)
-    for c, r in enumerate(singles):
-        assert np.array_equal(bank_ro.values(idx, c), np.round(r.values(idx), DIGITS))
+    for c in range(len(OMEGAS)):
+        assert np.array_equal(ro.values(idx, c), np.round(u, READOUT_DIGITS))
 
 
 @pytest.mark.parametrize("word", ["1", "0", "{alpha}", "{beta}"])
 def test_decode_among_finds_channel_and_word(word):
-    cb, bank_ro, singles = fed(word, start=0.702, sigma=0.02)
+    cb, ro, _ = fed(word, start=0.702, sigma=0.02)
     words = cb.family("alternative")
-    dec, ch = decode_among(bank_ro, [(c, w) for c, w in enumerate(OMEGAS)], 0.7, words, search=2)
+    dec, ch = decode_among(ro, [(c, w) for c, w in enumerate(OMEGAS)], 0.7, words, search=2)
     assert (dec.name, ch) == (word, 2)
-    ref = decode_code(singles[2], OMEGAS[2], 0.7, words, search=2)
+    ref = decode_code(ro, OMEGAS[2], 0.7, words, search=2, channel=2)
     assert (dec.name, dec.shift, dec.instants) == (ref.name, ref.shift, ref.instants)
     assert dec.distance == pytest.approx(ref.distance) and dec.margin == pytest.approx(ref.margin)
 
 
 def test_out_of_history_is_refused():
-    cb, bank_ro, _ = fed("1")
+    cb, ro, _ = fed("1")
     with pytest.raises(RgtbusError, match="outside the history"):
-        bank_ro.values([5000], 0)
+        ro.values([5000], 0)
     with pytest.raises(RgtbusError, match="no pulse instants"):
-        decode_among(bank_ro, [(0, OMEGAS[0])], 50.0, cb.family("alternative"))
+        decode_among(ro, [(0, OMEGAS[0])], 50.0, cb.family("alternative"))
 
 
-def test_quiet_windows_read_exactly_like_computed_ones():
-    """Skipping the recording of silent windows changes no readout value."""
+@pytest.mark.parametrize("step", [7, 20, 100, 2000])
+def test_readout_does_not_depend_on_how_the_medium_was_fed(step):
+    """Silent stretches read exactly 0 whether fed sample by sample or jumped."""
+    want = fed("1", step=2000)[1].values(np.arange(2000), slice(None))
+    got = fed("1", step=step)[1].values(np.arange(2000), slice(None))
+    assert np.array_equal(got, want)
+    assert np.count_nonzero(got[:, 2]) == 3
+
+
+def test_a_shared_history_keeps_each_receivers_view():
     cb = paper_codebook()
-    u = superpose([Transmission(OMEGAS[1], 0.3, cb.alternatives["1"])], 1200)
-    recorded = {}
-    for quiet_path in (False, True):
-        bank = ResonatorBank(OMEGAS)
-        ro = BankReadout(bank, capacity=1200)
-        for lo in range(0, 1200, 20):
-            chunk = u[lo : lo + 20]
-            if quiet_path and not chunk.any():
-                ro.append_quiet(bank.feed(chunk).n, bank)
-            else:
-                ro.append(bank.feed(chunk, record=True))
-        recorded[quiet_path] = ro.values(np.arange(1200), slice(None))
-    assert np.array_equal(recorded[False], recorded[True])
-    assert np.count_nonzero(recorded[True][:, 1]) == 3
+    a = superpose([Transmission(OMEGAS[0], 0.2, cb.alternatives["1"])], 900)
+    b = superpose([Transmission(OMEGAS[1], 0.4, cb.alternatives["0"])], 900)
+    bank = ResonatorBank(OMEGAS, n_receivers=2)
+    ro = ReadoutHistory.for_bank(bank, capacity=500)  # shorter than the run: a ring
+    ro.extend(bank.feed(np.stack([a, b], axis=1), readout=True))
+    idx = np.arange(400, 900)
+    assert np.array_equal(ro.of(0).values(idx, 1), np.round(a[400:], READOUT_DIGITS))
+    assert np.array_equal(ro.of(1).values(idx, 3), np.round(b[400:], READOUT_DIGITS))
+    assert ro.of(1).end == 900

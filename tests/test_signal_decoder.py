@@ -8,12 +8,11 @@ import pytest
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.decoder import (
-    Readout,
+    ReadoutHistory,
     accept_id,
     candidate_instants,
     decode_code,
     decode_joint,
-    increments,
     nearest,
     start_from_spike,
 )
@@ -29,24 +28,23 @@ CB = paper_codebook()
 def run(transmissions, n=1300, channels=OM, sigma=0.0, seed=0, chunk=None):
     u = hear(transmissions, n, sigma=sigma, seed=seed)[:, 0]
     bank = ResonatorBank(channels)
-    ro = [Readout.for_bank(bank, c) for c in range(len(channels))]
+    ro = ReadoutHistory.for_bank(bank)
     step = chunk or n
     for i in range(0, n, step):
-        res = bank.feed(u[i : i + step], record=True)
-        for r in ro:
-            r.append(res)
+        ro.extend(bank.feed(u[i : i + step], readout=True))
     return u, bank, ro
 
 
 def test_readout_recovers_medium_on_every_channel_through_spikes():
     tx = [Transmission(OM[0], 0.001, (0.4, 0.4, 0.4)), Transmission(OM[2], 3.5, (0.7, 0.3, 0.2))]
     u, _bank, ro = run(tx, n=1300 + 700, chunk=20)
-    for r in ro:
-        np.testing.assert_allclose(r.values(range(800, 2000)), u[800:], atol=1e-12)
+    for c in range(len(OM)):
+        np.testing.assert_allclose(ro.values(range(800, 2000), c), u[800:], atol=1e-12)
     # spikes happened, so the reset branch of the readout was exercised
-    res = ResonatorBank(OM).feed(u, record=True)
+    res = ResonatorBank(OM).feed(u, record=True, readout=True)
     assert res.spiked[:, 0, 0].any() and res.spiked[:, 0, 2].any()
-    d = increments(res.z[:, 0, :], res.spiked[:, 0, :], ResonatorBank(OM).A, 0.1)
+    d = np.zeros((len(u), len(OM)))
+    d[res.readout_rows] = res.readout[:, 0, :]
     np.testing.assert_allclose(d, np.repeat(u[:, None], 4, axis=1), atol=1e-12)
 
 
@@ -56,7 +54,7 @@ def test_decoder_exact_at_zero_noise(family, on):
     words = CB.family(family)
     for name, w in words.items():
         _, _, ro = run([Transmission(OM[on], 0.001, w)], n=1400)
-        dec = decode_code(ro[on], OM[on], 0.001, words)
+        dec = decode_code(ro, OM[on], 0.001, words, channel=on)
         assert dec.name == name
         assert dec.distance < 1e-12 and dec.confidence == pytest.approx(1.0)
 
@@ -68,7 +66,9 @@ def test_joint_decoding_with_overlapping_interferer():
             tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
             _, _, ro = run(tx)
             got = decode_joint(
-                ro[1], [(tx[0].instants(), CB.alternatives), (tx[1].instants(), CB.alternatives)]
+                ro,
+                [(tx[0].instants(), CB.alternatives), (tx[1].instants(), CB.alternatives)],
+                channel=1,
             )
             assert [g.name for g in got] == [a_name, c_name]
             assert got[0].distance < 1e-12 and got[0].margin > 0.1
@@ -81,7 +81,7 @@ def test_joint_decoding_coordinate_descent_path(monkeypatch):
     a, c = CB.alternatives["{alpha}"], CB.alternatives["1"]
     tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
     _, _, ro = run(tx)
-    got = dec.decode_joint(ro[0], [(t.instants(), CB.alternatives) for t in tx])
+    got = dec.decode_joint(ro, [(t.instants(), CB.alternatives) for t in tx], channel=0)
     assert [g.name for g in got] == ["{alpha}", "1"]
 
 
@@ -89,7 +89,7 @@ def test_independent_decoding_fails_where_joint_succeeds():
     a, c = CB.alternatives["{beta}"], CB.alternatives["0"]
     tx = [Transmission(OM[0], 0.001, a), Transmission(OM[2], 0.001, c)]
     _, _, ro = run(tx)
-    assert decode_code(ro[0], OM[0], 0.001, CB.alternatives).name != "{beta}"
+    assert decode_code(ro, OM[0], 0.001, CB.alternatives, channel=0).name != "{beta}"
 
 
 @pytest.mark.parametrize("start", [0.4137, 0.2, 1.0031, 0.0777])
@@ -99,7 +99,7 @@ def test_timing_search_from_a_spike(start, ch):
     u, _bank, ro = run(tx, n=1500)
     res = ResonatorBank(OM).feed(u)
     spike = int(res.spikes[res.spikes[:, 2] == ch, 0][0])
-    ok, dec = accept_id(ro[ch], spike, OM[ch], CB)
+    ok, dec = accept_id(ro, spike, OM[ch], CB, channel=ch)
     assert ok and dec.name == "id" and dec.distance < 1e-12
     assert dec.instants == tuple(pulse_instants(OM[ch], start, 3))
 
@@ -132,9 +132,9 @@ def test_crosstalk_spike_is_not_accepted_as_an_id(word):
     spikes = ResonatorBank(OM).feed(u).spikes
     on_a = spikes[spikes[:, 2] == 0, 0]
     assert len(on_a) == 1
-    ok, dec = accept_id(ro[0], int(on_a[0]), OM[0], CB)
+    ok, dec = accept_id(ro, int(on_a[0]), OM[0], CB, channel=0)
     assert not ok and dec.distance > 0.3
-    ok_c, _ = accept_id(ro[2], int(spikes[spikes[:, 2] == 2, 0][0]), OM[2], CB)
+    ok_c, _ = accept_id(ro, int(spikes[spikes[:, 2] == 2, 0][0]), OM[2], CB, channel=2)
     assert not ok_c  # an alternative on c is not c's ID either
 
 
@@ -163,7 +163,7 @@ def test_ser_bounds_at_stated_noise():
 def test_decoder_refusals():
     _, _, ro = run([Transmission(OM[0], 0.001, CB.id_word)], n=600)
     with pytest.raises(RgtbusError, match="outside the history"):
-        ro[0].values([599, 600])
+        ro.values([599, 600], 0)
     with pytest.raises(RgtbusError, match="outside the readout"):
         decode_code(np.zeros(10), OM[0], 0.001, CB.relations)
     with pytest.raises(RgtbusError, match="no candidate words"):
@@ -174,19 +174,17 @@ def test_decoder_refusals():
         decode_code(np.zeros(1000), OM[0], 0.001, {"x": (0.1, 0.2), "y": (0.1, 0.2, 0.3)})
     with pytest.raises(RgtbusError, match="no transmissions"):
         decode_joint(np.zeros(10), [])
-    with pytest.raises(RgtbusError, match="differ"):
-        increments(np.zeros(3, complex), np.zeros(4, bool), 1.0)
     bank = ResonatorBank(OM)
-    with pytest.raises(RgtbusError, match="channel 7"):
-        Readout.for_bank(bank, 7)
-    r = Readout.for_bank(bank)
-    with pytest.raises(RgtbusError, match="record=True"):
-        r.append(bank.feed(np.zeros(5)))
-    res = bank.feed(np.zeros(5), record=True)
+    with pytest.raises(RgtbusError, match="receiver 7"):
+        ReadoutHistory.for_bank(bank).of(7)
+    r = ReadoutHistory.for_bank(bank)
+    with pytest.raises(RgtbusError, match="readout=True"):
+        r.extend(bank.feed(np.zeros(5)))
+    res = bank.feed(np.zeros(5), readout=True)
     with pytest.raises(RgtbusError, match="expected 0"):
-        r.append(res)
+        r.extend(res)
     with pytest.raises(RgtbusError, match="capacity"):
-        Readout(1.0, capacity=0)
+        ReadoutHistory(4, capacity=0)
     with pytest.raises(RgtbusError, match="trials"):
         symbol_error_rate(CB.relations, OM[0], 0.1, trials=0)
     with pytest.raises(RgtbusError, match="sigma"):

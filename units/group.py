@@ -17,7 +17,7 @@ from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.bus.base import Bus
 from rgtbus.scenario import Scenario
-from rgtbus.sim import World, WorldResult, ns
+from rgtbus.sim import Receivers, World, WorldResult, ns
 from rgtbus.telemetry import Recorder
 from units.unit import AutonomousUnit
 
@@ -40,6 +40,7 @@ SUMMARY_JSON_KEYS = (
     "outcome",
     "sim_seconds",
     "wall_seconds",
+    "engine",
     "log",
     "decode_errors",
     "error",
@@ -76,15 +77,11 @@ def write_metadata(
 def scenario_world(
     sc: Scenario, members: list[AutonomousUnit], bus: Bus, recorder: Recorder, **options: Any
 ) -> World:
-    """The SimPy world timed as the scenario says (window, sample rate, time limit)."""
+    """The SimPy world of a scenario: its channels, resonator mode and sample rate; its window
+    (the medium's log blocks, and the dense engine's step)."""
+    receivers = Receivers(tuple(sc.frequencies[u] for u in sc.units), sc.mode, sc.timing.tau)
     return World(
-        members,
-        bus,
-        recorder,
-        sample_rate=sc.timing.sample_rate,
-        window_samples=sc.timing.window_samples,
-        max_seconds=sc.timing.max_seconds,
-        **options,
+        members, bus, recorder, receivers, window_samples=sc.timing.window_samples, **options
     )
 
 
@@ -110,26 +107,35 @@ def run_group(
     *,
     run_id: str | None = None,
     traces: bool = False,
-    gather_timeout: float = 5.0,
+    timeout: float = 5.0,
     progress: Callable[[float, int], None] | None = None,
+    engine: str = "event",
+    realtime: float | None = None,
 ) -> RunOutput:
     sc = scenario
     run_id = run_id or default_run_id(sc)
-    write_metadata(recorder, sc, bus_kind, run_id)
+    write_metadata(recorder, sc, bus_kind, run_id, engine=engine)
     members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
-    with open_bus(
-        bus_kind, run_id, sc.units, sc.timing.sample_rate, sc.timing.window_samples
-    ) as bus:
+    with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate) as bus:
         world = scenario_world(
-            sc, members, bus, recorder, gather_timeout=gather_timeout, progress=progress
+            sc,
+            members,
+            bus,
+            recorder,
+            engine=engine,
+            timeout=timeout,
+            progress=progress,
+            realtime=realtime,
         )
         result = world.run()
-    summary = summarise(sc, [m.report() for m in members], result)
+    summary = summarise(sc, [m.report() for m in members], result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)
 
 
-def summarise(sc: Scenario, reports: list[dict[str, Any]], result: WorldResult) -> dict[str, Any]:
+def summarise(
+    sc: Scenario, reports: list[dict[str, Any]], result: WorldResult, *, engine: str = "event"
+) -> dict[str, Any]:
     """The run's summary from every unit's ``report()`` (one process or many)."""
     by_unit = {r["unit"]: r for r in reports}
     ref = by_unit[sc.units[0]]
@@ -160,9 +166,18 @@ def summarise(sc: Scenario, reports: list[dict[str, Any]], result: WorldResult) 
         want = sc.universe.to_list(sc.outcome.choose)
         ok = all(units_out[x]["choice"] == want for x in sc.outcome.all_of)
         outcome = f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
+    # The root cause: the world's own failure (a member gone or stalled), else the earliest
+    # unit failure (others may fail after it, for want of its transmissions), else a unit
+    # whose group was not decomposable.
     error = result.failure
     if error is None:
-        errs = [r["failure"] or r["mind_error"] for r in reports if r["failure"] or r["mind_error"]]
+        failed = sorted(
+            ((r["failed_at"], order) for order, r in enumerate(reports) if r["failure"]),
+        )
+        if failed:
+            error = reports[failed[0][1]]["failure"]
+    if error is None:
+        errs = [r["mind_error"] for r in reports if r["mind_error"]]
         error = errs[0] if errs else None
     return {
         "scenario": sc.name,
@@ -178,7 +193,8 @@ def summarise(sc: Scenario, reports: list[dict[str, Any]], result: WorldResult) 
         "decode_errors": decode_errors,
         "sim_seconds": round(result.sim_seconds, 6),
         "wall_seconds": round(result.wall_seconds, 3),
-        "windows": result.windows,
+        "engine": engine,
+        "steps": result.steps,
         "bus": result.bus_stats,
         "error": error,
     }

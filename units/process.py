@@ -1,10 +1,10 @@
-"""One unit as its own OS process, in lockstep with the others over zenoh.
+"""One unit as its own OS process, synchronised with the others over zenoh.
 
 The process holds one ``AutonomousUnit`` and the run's zenoh bus with only that unit local. It
-joins the run (a barrier: every member up, on the same scenario and seed), then advances window
-by window: a window ends only when every member's samples for it have arrived (conservative
-synchronisation; the reaction delay is the lookahead that makes one-window steps enough). The
-decisions and the log content equal the single-process run of the same scenario and seed.
+joins the run (a barrier: every member up, on the same scenario and seed), then runs the same
+``World`` as a single-process run: it advances to the smallest promise of all members
+(conservative synchronisation, docs/engine.md), or window by window with ``engine="dense"``.
+The decisions and the log content equal the single-process run of the same scenario and seed.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 from rgtbus.bus import open_bus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import WorldResult, ns
+from rgtbus.sim import ns
 from rgtbus.telemetry import Recorder
 from units.group import default_run_id, scenario_world, write_metadata
 from units.unit import AutonomousUnit
@@ -39,59 +39,44 @@ def run_unit(
     join_timeout: float = 20.0,
     traces: bool = False,
     progress: Callable[[float, int], None] | None = None,
+    engine: str = "event",
+    realtime: float | None = None,
 ) -> dict[str, Any]:
     """Run unit ``name`` of ``sc`` in this process; returns its part of the run summary."""
     if name not in sc.units:
         raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
     run_id = run_id or default_run_id(sc)
     t0 = time.perf_counter()
-    write_metadata(recorder, sc, "zenoh", run_id, process=name)
+    write_metadata(recorder, sc, "zenoh", run_id, process=name, engine=engine)
     unit = AutonomousUnit(name, sc, recorder, traces=traces)
     opts = dict(zenoh_options or {})
-    error: str | None = None
-    result = WorldResult(0, 0.0, 0.0, None)
-    with open_bus(
-        "zenoh",
-        run_id,
-        sc.units,
-        sc.timing.sample_rate,
-        sc.timing.window_samples,
-        local=[name],
-        **opts,
-    ) as bus:
+    with open_bus("zenoh", run_id, sc.units, sc.timing.sample_rate, local=[name], **opts) as bus:
         bus.join(name, scenario_digest(sc), timeout=join_timeout)
         world = scenario_world(
             sc,
             [unit],
             bus,
             recorder,
-            gather_timeout=timeout,
+            engine=engine,
+            timeout=timeout,
             progress=progress,
+            realtime=realtime,
             write_medium=name == sc.units[0],  # one medium in the merged log, as in one process
         )
-        try:
-            result = world.run()
-            error = result.failure
-        except RgtbusError as exc:  # a member died or stalled: the window never completed
-            error = str(exc)
-            result = WorldResult(
-                world.windows,
-                world.windows * world.window_seconds,
-                time.perf_counter() - t0,
-                error,
-                dict(bus.stats()),
-            )
+        result = world.run()  # a member gone or stalled ends it with result.failure
+        error = result.failure or unit.failure
         for note in bus.drop_notes():
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)
         stats = dict(bus.stats())
-    if error:
-        recorder.log("error", error, ns(result.sim_seconds), name=name)
+    if result.failure:  # a unit's own failure is in its log already
+        recorder.log("error", result.failure, ns(result.sim_seconds), name=name)
     return {
         "unit": name,
         "run_id": run_id,
         "report": unit.report(),
         "sim_seconds": round(result.sim_seconds, 6),
-        "windows": result.windows,
+        "steps": result.steps,
+        "world_failure": result.failure,
         "wall_seconds": round(time.perf_counter() - t0, 3),
         "error": error,
         "bus": stats,

@@ -2,7 +2,7 @@
 
 ``rerun`` rebuilds every unit (``AutonomousUnit``, exactly as ``run_group`` does) from the
 scenario and runs them in the SimPy ``World`` over a ``LogBus`` that serves the logged
-``/medium`` windows instead of a live bus:
+medium instead of a live bus:
 the units render their own transmissions again (so their pulses can be compared with the
 log), hear the logged medium (with their own seeded noise), spike, decode, build tables and
 decide. What they record goes into a ``CaptureRecorder``; ``rgtbus.telemetry.replay`` diffs it
@@ -15,16 +15,15 @@ from __future__ import annotations
 
 import os
 from collections import defaultdict
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import IO, Any
 
-import numpy as np
-
-from rgtbus.bus.logbus import LogBus, LogEnded
+from rgtbus.bus.base import Pulses
+from rgtbus.bus.logbus import LogBus
+from rgtbus.bus.payload import NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import WorldResult
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
 from units.group import scenario_world, summarise
@@ -58,68 +57,66 @@ class Rerun:
     messages: list[tuple[str, int, dict]]  # what the re-run units recorded, in write order
     summary: dict[str, Any]  # summarise() of the re-run units (the run's own summary fields)
     units: list[AutonomousUnit]
-    windows: int  # windows used, the closing one included when the log has it
-    complete: bool  # every re-run unit finished or failed (as the World would have stopped)
-    closed: bool  # the log held the closing window (the World logs it, then ends the run)
+    complete: bool  # every re-run unit decided or failed within the logged medium
 
 
 def rerun(
     scenario: Scenario,
-    windows: Sequence[np.ndarray],
+    medium: Mapping[str, Pulses],
     *,
-    parts: Sequence[dict[str, np.ndarray]] | None = None,
+    end: int = NEVER,
     traces: Collection[str] = (),
     only: Collection[str] | None = None,
+    engine: str = "event",
 ) -> Rerun:
-    """Feed ``windows`` (the logged medium, window 0 first) to freshly built units.
+    """Feed the logged medium to freshly built units.
 
-    ``parts``: per window, each sender's own samples — needed when the scenario has link gains
-    (each unit hears ``sum(gain[s -> me] * part[s])``); otherwise the medium is heard as one
-    part, bit for bit what the units heard in the run (0 + x_a + x_b ... in the same order).
-    ``traces``: units that record ``/trace/<unit>``; ``only``: re-run just these units (each
-    unit's receiver depends on the medium alone, so one unit can be re-run on its own).
-    The units run in the ``World`` itself, over a ``LogBus`` serving the logged windows, so the
-    re-run ends exactly where the run did.
+    ``medium``: the logged pulses, either the whole medium under the first unit's name (what
+    every unit heard, bit for bit) or each sender's own pulses (needed when the scenario has
+    link gains: each unit hears ``sum(gain[s -> me] * pulses[s])``). ``end``: the first sample
+    the log does not cover (a truncated log). ``traces``: units that record
+    ``/trace/<unit>``; ``only``: re-run just these units (each unit's receiver depends on the
+    medium alone, so one unit can be re-run on its own). The units run in the ``World`` itself,
+    over a ``LogBus`` serving the log, so the re-run ends exactly where the run did.
     """
     sc = scenario
     rec = CaptureRecorder()
     names = [u for u in sc.units if only is None or u in only]
     members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
-    bus = LogBus("replay", sc.units, windows, parts=parts, local=names)
+    bus = LogBus("replay", sc.units, medium, local=names, end=end)
     world = scenario_world(
         sc,
         members,
         bus,
         rec,
+        engine=engine,
         write_medium=False,  # the log has the medium; the diff compares what units did
     )
-    try:
-        result = world.run()
-        stopped = complete = True  # the World ended the run within the log
-    except LogEnded:  # the log ends before the World would have ended the run
-        world.env.run(until=world.env.now + 1e-9)  # announcements due by the last window
-        failed = [m for m in members if m.failure]
-        complete = bool(failed) or all(m.finished for m in members)
-        stopped = False
-        result = WorldResult(len(windows), 0.0, 0.0, failed[0].failure if failed else None)
-    done = min(result.windows, len(windows))
-    result = WorldResult(done, done * world.window_seconds, result.wall_seconds, result.failure)
+    result = world.run()
+    complete = all(m.done for m in members)
     summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
-    return Rerun(rec.messages, summary, members, done, complete, stopped)
+    return Rerun(rec.messages, summary, members, complete)
 
 
 def rerun_replay(
     replay: Replay, *, traces: Collection[str] | None = None, only: Collection[str] | None = None
 ) -> Rerun:
-    """Re-run the units of a loaded log on its medium (per-sender parts when gains need them).
+    """Re-run the units of a loaded log on its medium (per-sender pulses when gains need them).
 
     ``traces``: units to record traces for (default: the units whose traces the log holds)."""
     sc = replay.require_scenario()
-    windows = replay.medium_windows()
-    parts = replay.sender_parts() if replay.has_gains() else None
+    if replay.has_gains():
+        medium: Mapping[str, Pulses] = replay.sender_pulses()
+    else:
+        medium = {sc.units[0]: replay.medium_pulses()}
+    end = NEVER
+    if replay.truncated:
+        until = replay.units_until_ns() or 0
+        w_last = max((m["window"] for _, m in replay.by_topic["/medium"]), default=-1)
+        end = max((w_last + 1) * sc.timing.window_samples, round(until / 1e9 / sc.timing.tau) + 1)
     if traces is None:
         traces = replay.traced_units()
-    return rerun(sc, windows, parts=parts, traces=traces, only=only)
+    return rerun(sc, medium, end=end, traces=traces, only=only)
 
 
 def check_reasoning(replay: Replay) -> list[Mismatch]:

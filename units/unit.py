@@ -1,14 +1,16 @@
 """The autonomous unit: transmitter + receiver + protocol + RGT reasoning + decision policy.
 
-One unit is one SimPy process (driven by ``rgtbus.sim.World``). Each window it renders its own
-scheduled pulses, then hears the whole medium (every member's samples, with its own link gains
-and noise), feeds its resonators, turns spikes into protocol events, decodes what the protocol
-asks for from its resonators' states, and reasons on what it decoded. It shares no Python object
-with the other units: its knowledge comes only from the medium.
+One unit is one SimPy process (driven by ``rgtbus.sim.World``): it receives (its ears fire at its
+resonators' spikes and at its own timers), runs the pure protocol machine on what it heard,
+decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
+protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
+object with the other units: its knowledge comes only from the medium. Once it has decided, or
+failed, it listens no more.
 """
 
 from __future__ import annotations
 
+import heapq
 import itertools
 import random
 from dataclasses import dataclass, field
@@ -16,15 +18,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import simpy
 
-from rgtbus.mind import Mind
-from rgtbus.protocol import Listen, ProtocolState, Send, code_samples
+from rgtbus.bus.base import Pulses
+from rgtbus.bus.payload import NEVER
+from rgtbus.hearing import Ears, Heard, Listener
+from rgtbus.mind import Mind, choose_influences, choose_relations
+from rgtbus.protocol import Actions, Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
-from rgtbus.signal.decoder import BankReadout, decode_among, nearest
-from rgtbus.signal.resonator import ResonatorBank
+from rgtbus.signal.decoder import Readout, WordSet, decode_among, nearest
 from rgtbus.sim import ns
 from rgtbus.telemetry import Recorder
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
+
+# Timer kinds, in the order they run when due at the same boundary: what happens after a
+# sample comes before what happens before the next one.
+_AFTER, _BEFORE = 0, 1
 
 
 @dataclass
@@ -39,6 +47,16 @@ class Decoded:
     accepted: bool
 
 
+@dataclass(order=True)
+class _Timer:
+    boundary: int  # act once every sample before this one has been heard
+    order: int  # _AFTER or _BEFORE
+    seq: int
+    at: int = field(compare=False)  # the sample it belongs to (its time)
+    kind: str = field(compare=False)  # "listen" | "quench" | "deadline" | "limit"
+    listen: Listen | None = field(compare=False, default=None)
+
+
 @dataclass
 class AutonomousUnit:
     name: str
@@ -48,6 +66,8 @@ class AutonomousUnit:
     # state
     finished: bool = False
     failure: str | None = None
+    done: bool = False
+    done_at: int = 0
     decoded: list[Decoded] = field(default_factory=list)
     sent: list[Send] = field(default_factory=list)
 
@@ -58,9 +78,9 @@ class AutonomousUnit:
         self.L = sc.timing.window_samples
         self.omegas = [sc.frequencies[u] for u in self.units]
         self.cb = sc.codebook
-        self.bank = ResonatorBank(self.omegas, mode=sc.mode, tau=self.tau)
-        keep = round(KEEP_SECONDS / self.tau)
-        self.readout = BankReadout(self.bank, capacity=keep)
+        self._id_words = WordSet.of(self.cb.distinct_words())
+        self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
+        self._channels = [(i, w) for i, w in enumerate(self.omegas)]
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -80,39 +100,152 @@ class AutonomousUnit:
             sc.decisions[self.name],
             random.Random(f"{seed}:{self.name}:decision"),
         )
-        self.noise_rng = np.random.default_rng([seed, self.units.index(self.name), 1])
-        self.tx: dict[int, list[tuple[float, Send]]] = {}
-        self.listens: list[Listen] = []
-        self.quench: set[int] = set()  # samples at which the resonators are set back to rest
-        self.relation_choice = self._choose_relations()
+        self.relation_choice = choose_relations(
+            self.name,
+            self.units,
+            seed=seed,
+            fixed=sc.fixed_relations,
+            draws=sc.draws,
+            p=sc.alliance_p,
+        )
+        self.influence_choice = choose_influences(self.name, self.units, sc.influences, sc.universe)
+        self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
+        self.readout: Readout | None = None  # the ears give it at the start
+        self._timers: list[_Timer] = []
+        self._seq = itertools.count()
+        self._deadline: _Timer | None = None
+        self._outbox: list[tuple[int, float]] = []
         self.env: simpy.Environment | None = None
+        self.ears: Ears | None = None
+        self.index = 0
 
-    # -- policies --------------------------------------------------------------------------
+    # -- the world's interface ---------------------------------------------------------------
 
-    def _choose_relations(self) -> dict[str, str]:
-        """What this unit sends to each peer: fixed, or alliance with probability p."""
+    def listener(self) -> Listener:
+        """This unit's receiver: its link gains, its noise (its own seeded generator), its
+        readout, its traces."""
         sc = self.scenario
-        rng = random.Random(f"{sc.seed}:{self.name}:relations")
-        out = {}
-        for r in self.units:
-            if r == self.name:
+        return Listener(
+            name=self.name,
+            gains=np.array([sc.gains.get((s, self.name), 1.0) for s in self.units]),
+            noise=sc.noise,
+            rng=np.random.default_rng([sc.seed, self.units.index(self.name), 1]),
+            keep=round(KEEP_SECONDS / self.tau),
+            trace=self._trace if self.traces else None,
+        )
+
+    def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
+        self.env, self.ears, self.index = env, ears, index
+        self.readout = ears.readout_of(index)
+        self._add(_AFTER, self.limit, self.limit - 1, "limit")
+        self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
+        env.process(self._live())
+
+    def take_outbox(self) -> Pulses:
+        """The pulses planned since the last call (sample order; one sample's magnitudes in
+        the order they were planned)."""
+        box, self._outbox = self._outbox, []
+        if not box:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        box.sort(key=lambda p: p[0])  # stable: planning order within a sample
+        return np.array([p[0] for p in box], dtype=np.int64), np.array([p[1] for p in box])
+
+    def promise(self, horizon: int) -> int:
+        """Nothing unplanned from this unit before this sample, given no spike it reacts to
+        before ``horizon``."""
+        return NEVER if self.done else self.protocol.send_bound(horizon)
+
+    def awaited(self) -> tuple[int, int, int] | None:
+        """The spike this unit's next plans wait for: (channel index, earliest sample, latest
+        sample)."""
+        aw = None if self.done else self.protocol.awaited()
+        return None if aw is None else (self.units.index(aw[0]), aw[1], aw[2])
+
+    def quench_between(self, lo: int, hi: int) -> list[int]:
+        """The samples in [lo, hi) before which this unit will set its resonators to rest."""
+        return [t.at for t in self._timers if t.kind == "quench" and lo <= t.at < hi]
+
+    # -- living: receive -> protocol -> decode -> reason -> send ------------------------------
+
+    def _live(self):
+        assert self.ears is not None
+        while not self.done:
+            t = self._timers[0]
+            aw = self.awaited()
+            heard = yield self.ears.listen(
+                self.index, t.boundary, t.at, None if aw is None else aw[0]
+            )
+            if heard is not None:
+                self._on_spikes(heard)
                 continue
-            key = (self.name, r)
-            draw = rng.random()  # drawn for every peer, so fixing one never shifts the others
-            if key in sc.fixed_relations:
-                out[r] = "alliance" if sc.fixed_relations[key] else "conflict"
-            else:
-                d = sc.draws.get(key, draw)
-                out[r] = "alliance" if d <= sc.alliance_p else "conflict"
-        return out
+            while not self.done and self._timers and self._timers[0].boundary == t.boundary:
+                self._on_timer(heapq.heappop(self._timers))
+        self.ears.stop(self.index)
 
-    def _influence_codes(self) -> dict[str, str]:
-        sc = self.scenario
-        return {
-            r: sc.universe.format(sc.influences[(self.name, r)])
-            for r in self.units
-            if r != self.name
-        }
+    def _on_spikes(self, heard: Heard) -> None:
+        k = heard.sample
+        for ch in heard.channels:
+            channel = self.units[ch]
+            self.recorder.write(
+                "/rx/spike",
+                {
+                    "unit": self.name,
+                    "channel": channel,
+                    "omega": self.omegas[ch],
+                    "t": k * self.tau,
+                    "sample": k,
+                },
+                ns(k * self.tau),
+            )
+            self._apply(self.protocol.on_spike(channel, k))
+
+    def _on_timer(self, t: _Timer) -> None:
+        if t.kind == "quench":
+            assert self.ears is not None
+            self.ears.quench(self.index)
+        elif t.kind == "listen":
+            assert t.listen is not None
+            self._decode(t.listen)
+        elif t.kind == "deadline":
+            self._deadline = None
+            err = self.protocol.check_deadline(t.at + 1)
+            if err:
+                self._fail(err, t.at)
+        elif t.kind == "limit":
+            self._fail(
+                f"{self.name}: not finished after {self.scenario.timing.max_seconds:g} s of "
+                "simulated time (timing.max_seconds)",
+                t.at,
+            )
+        if (self.finished or self.failure) and not self.done:
+            self.done = True
+            self.done_at = t.at
+
+    def _fail(self, message: str, at: int) -> None:
+        if self.failure is None:
+            self.failure = message
+            self.recorder.log("error", message, ns(at * self.tau), name=self.name)
+
+    def _add(self, order: int, boundary: int, at: int, kind: str, listen: Listen | None = None):
+        timer = _Timer(boundary, order, next(self._seq), at, kind, listen)
+        heapq.heappush(self._timers, timer)
+        return timer
+
+    def _apply(self, acts: Actions) -> None:
+        for send in acts.sends:
+            self._transmit(send)
+        for listen in acts.listens:
+            self._add(_AFTER, listen.ready_sample + 1, listen.ready_sample, "listen", listen)
+        for q in acts.quench:
+            self._add(_BEFORE, q, q, "quench")
+        if acts.deadline is not None:
+            if self._deadline is not None:  # one deadline at a time: the current turn's
+                self._timers.remove(self._deadline)
+                heapq.heapify(self._timers)
+            d = acts.deadline
+            self._deadline = self._add(_AFTER, d + 1, d, "deadline")
+
+    # -- transmitting ------------------------------------------------------------------------
 
     def word(self, send: Send) -> tuple[float, ...]:
         if send.kind == "id":
@@ -121,29 +254,19 @@ class AutonomousUnit:
             return self.cb.relations[send.code]
         return self.cb.alternatives[send.code]
 
-    # -- the world's interface ---------------------------------------------------------------
-
-    def begin(self, env: simpy.Environment) -> None:
-        self.env = env
-        sends, listens = self.protocol.begin(self.relation_choice, self._influence_codes())
-        self._schedule(sends)
-        self.listens.extend(listens)
-        # Quench at every turn start known (all of them when anchored on the schedule).
-        self.quench.update(round(t / self.tau) for t in self.protocol.turn_starts[1:])
-
-    def _schedule(self, sends: list[Send]) -> None:
-        for send in sends:
-            magnitudes = self.word(send)
-            for sample, m in zip(send.samples, magnitudes, strict=True):
-                self.tx.setdefault(sample, []).append((float(m), send))
-            self.sent.append(send)
-            if self.env is not None:
-                self.env.process(self._announce(send))
-
-    def _announce(self, send: Send):
-        """The reaction, at its exact time: logged when the code goes on the medium."""
+    def _transmit(self, send: Send) -> None:
+        """Plan a transmission: its pulses go out to the bus now (ahead of time), and a SimPy
+        process puts each on the medium's log at its sample."""
+        magnitudes = [float(m) for m in self.word(send)]
+        self._outbox.extend(zip(send.samples, magnitudes, strict=True))
+        self.sent.append(send)
         assert self.env is not None
-        yield self.env.timeout(max(0.0, send.start - self.env.now))
+        self.env.process(self._on_air(send, magnitudes))
+
+    def _on_air(self, send: Send, magnitudes: list[float]):
+        env = self.env
+        assert env is not None
+        yield env.timeout(max(0.0, min(send.start, send.samples[0] * self.tau) - env.now))
         what = "ID" if send.kind == "id" else send.code
         self.recorder.log(
             "info",
@@ -151,106 +274,48 @@ class AutonomousUnit:
             ns(send.start),
             name=self.name,
         )
-
-    def render(self, window: int) -> np.ndarray:
-        out = np.zeros(self.L)
-        base = window * self.L
-        for k in range(base, base + self.L):
-            for m, send in self.tx.pop(k, ()):
-                out[k - base] += m
-                self.recorder.write(
-                    "/tx/pulse",
-                    {
-                        "unit": self.name,
-                        "channel": send.channel,
-                        "omega": self.scenario.frequencies[send.channel],
-                        "magnitude": m,
-                        "t": k * self.tau,
-                        "sample": k,
-                        "message": {
-                            "id": send.turn * 2 + (send.kind == "payload"),
-                            "kind": send.kind,
-                            "code": send.code,
-                            "sender": send.sender,
-                            "addressee": send.addressee,
-                        },
-                    },
-                    ns(k * self.tau),
-                )
-        return out
-
-    def hear(self, window: int, gathered: dict[str, np.ndarray]) -> None:
-        sc = self.scenario
-        heard = np.zeros(self.L)
-        for s in self.units:
-            heard += sc.gains.get((s, self.name), 1.0) * gathered[s]
-        if sc.noise > 0:
-            heard += self.noise_rng.normal(0.0, sc.noise, self.L)
-        base = window * self.L
-        cuts = sorted(k - base for k in self.quench if base <= k < base + self.L)
-        self.quench -= {k + base for k in cuts}
-        bounds = [0, *cuts, self.L]
-        for lo, hi in itertools.pairwise(bounds):
-            if lo in cuts:
-                # Quench at a turn's start: the paper's b = -0.1 rings for ~10 s, longer than
-                # any guard, and leftovers of the last turn could cancel or fake the next ID.
-                self.bank.quench()
-                self.readout.quench()
-            if hi > lo:
-                self._feed(heard[lo:hi], window, base + lo)
-
-        last = (window + 1) * self.L - 1
-        for listen in [x for x in self.listens if x.ready_sample <= last]:
-            self.listens.remove(listen)
-            self._decode(listen)
-        if not self.finished and self.failure is None:
-            err = self.protocol.check_deadline(last)
-            if err:
-                self.failure = err
-                self.recorder.log("error", err, ns(last * self.tau), name=self.name)
-
-    def _feed(self, heard: np.ndarray, window: int, first: int) -> None:
-        # Most windows are silent (a code is 3 pulses over seconds): skip recording them.
-        quiet = not self.traces and not heard.any()
-        res = self.bank.feed(heard, record=not quiet)
-        if quiet:
-            self.readout.append_quiet(res.n, self.bank)
-        else:
-            self.readout.append(res)  # the increment readout: the medium as each resonator saw
-        if self.traces:
+        message = {
+            "id": send.turn * 2 + (send.kind == "payload"),
+            "kind": send.kind,
+            "code": send.code,
+            "sender": send.sender,
+            "addressee": send.addressee,
+        }
+        omega = self.scenario.frequencies[send.channel]
+        for k, m in zip(send.samples, magnitudes, strict=True):
+            yield env.timeout(max(0.0, k * self.tau - env.now))
             self.recorder.write(
-                f"/trace/{self.name}",
+                "/tx/pulse",
                 {
                     "unit": self.name,
-                    "window": window,
-                    "t": first * self.tau,
-                    "sample_rate": 1 / self.tau,
-                    "channels": list(self.units),
-                    # arrays: the recorder encodes them; a verifying re-run compares them as is
-                    "y": res.y[:, 0, :].T,
-                    "x": res.z[:, 0, :].real.T,
+                    "channel": send.channel,
+                    "omega": omega,
+                    "magnitude": m,
+                    "t": k * self.tau,
+                    "sample": k,
+                    "message": message,
                 },
-                ns(first * self.tau),
+                ns(k * self.tau),
             )
-        for sample, _rx, ch in res.spikes.tolist():
-            channel = self.units[ch]
-            self.recorder.write(
-                "/rx/spike",
-                {
-                    "unit": self.name,
-                    "channel": channel,
-                    "omega": self.omegas[ch],
-                    "t": sample * self.tau,
-                    "sample": sample,
-                },
-                ns(sample * self.tau),
-            )
-            turn = self.protocol.turn
-            sends, listens = self.protocol.on_spike(channel, sample)
-            if self.protocol.turn != turn and not self.protocol.finished:
-                self.quench.add(round(self.protocol.turn_start / self.tau))
-            self._schedule(sends)
-            self.listens.extend(listens)
+
+    # -- traces --------------------------------------------------------------------------------
+
+    def _trace(self, first: int, x: np.ndarray, y: np.ndarray) -> None:
+        """Resonator states of one window (or the part of it this unit heard)."""
+        self.recorder.write(
+            f"/trace/{self.name}",
+            {
+                "unit": self.name,
+                "window": first // self.L,
+                "t": first * self.tau,
+                "sample_rate": 1 / self.tau,
+                "channels": list(self.units),
+                # arrays: the recorder encodes them; a verifying re-run compares them as is
+                "y": y.T,
+                "x": x.T,
+            },
+            ns(first * self.tau),
+        )
 
     # -- decoding and reasoning --------------------------------------------------------------
 
@@ -262,20 +327,20 @@ class AutonomousUnit:
             # (a↔c crosstalk makes resonators fire for other codes).
             ch = self.units.index(listen.sender)
             samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
-            dec = nearest(self.readout.values(samples, ch), self.cb.distinct_words())
+            assert self.readout is not None
+            dec = nearest(self.readout.values(samples, ch), self._id_words)
             accepted = dec.name == "id"
             self._record(listen, listen.sender, dec.name, dec.margin, t_ready, accepted)
             if not accepted:
-                self.failure = (
+                self._fail(
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
-                    f"decoded as {dec.name!r}"
+                    f"decoded as {dec.name!r}",
+                    listen.ready_sample,
                 )
             return
-        family = "relation" if listen.kind == "relation" else "alternative"
-        words = self.cb.family(family)
-        channels = [
-            (self.units.index(r), self.omegas[self.units.index(r)]) for r in listen.channels
-        ]
+        words = self._families["relation" if listen.kind == "relation" else "alternative"]
+        channels = [self._channels[self.units.index(r)] for r in listen.channels]
+        assert self.readout is not None
         dec, ch = decode_among(
             self.readout, channels, listen.start, words, tau=self.tau, search=self.protocol.search
         )
@@ -297,7 +362,6 @@ class AutonomousUnit:
     ) -> None:
         d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
         self.decoded.append(d)
-        value = code
         self.recorder.write(
             "/rx/decode",
             {
@@ -307,7 +371,7 @@ class AutonomousUnit:
                 "addressee": addressee,
                 "kind": listen.kind,
                 "code": code,
-                "value": value,
+                "value": code,
                 "margin": float(margin),
                 "t": t,
                 "accepted": accepted,
@@ -411,5 +475,7 @@ class AutonomousUnit:
             "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
             "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
             "failure": self.failure,
+            "failed_at": self.done_at if self.failure else None,
+            "done_at": self.done_at if self.done else None,
             "mind_error": mind.error,
         }

@@ -1,6 +1,7 @@
-"""The medium's transport: every member's samples for a window, gathered by every member.
+"""The medium's transport: every member's frames (pulses and promises), seen by every member.
 
-``open_bus("zenoh" | "memory", run_id, members, sample_rate, window_len, **options)``.
+``open_bus("zenoh" | "memory", run_id, members, sample_rate, **options)``; ``LogBus`` serves a
+logged run back (the replay twin).
 """
 
 from __future__ import annotations
@@ -8,18 +9,24 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from rgtbus.bus.base import STAT_KEYS, Bus, QueueBus, tx_key
+from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, Pulses, QueueBus, tx_key
 from rgtbus.bus.memory import MemoryBus
-from rgtbus.bus.payload import decode, encode
+from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
 
 KINDS = ("zenoh", "memory")
 
 __all__ = [
+    "FAILED",
+    "FINAL",
     "KINDS",
+    "NEVER",
     "STAT_KEYS",
     "Bus",
+    "Frame",
+    "MemberStatus",
     "MemoryBus",
+    "Pulses",
     "QueueBus",
     "decode",
     "encode",
@@ -33,7 +40,6 @@ def open_bus(
     run_id: str,
     members: Sequence[str],
     sample_rate: float,
-    window_len: int,
     **options: Any,
 ) -> QueueBus:
     """Open a bus of ``kind``; unknown kinds and options are refused by name."""
@@ -51,4 +57,4 @@ def open_bus(
             f"unknown option(s) {', '.join(unknown)} for the {kind} bus "
             f"(known: {', '.join(sorted(cls.OPTIONS))})"
         )
-    return cls(run_id, members, sample_rate, window_len, **options)
+    return cls(run_id, members, sample_rate, **options)

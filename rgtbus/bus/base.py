@@ -1,8 +1,11 @@
-"""The Bus protocol and the receive logic both buses share.
+"""The Bus protocol and the receive logic both live buses share.
 
-A bus carries each member's outgoing samples for a window to every member. Received payloads go
-through one path (``QueueBus._accept``): key check, payload decode, header check against the run,
-then into a per-window buffer. Everything else is dropped and counted, never returned.
+A bus carries every member's frames (docs/engine.md): the pulses it transmits and its promise
+"nothing more from me before sample t". ``wait(h)`` blocks until every member has promised past
+sample h and returns the horizon H (the smallest promise): the medium before H is then final and
+``take(H)`` hands it out. Received payloads go through one path (``QueueBus._accept``): key check,
+frame decode, checks against the run and the member's earlier frames, then into the member's
+state. Everything else is dropped and counted, never returned.
 """
 
 from __future__ import annotations
@@ -13,27 +16,56 @@ import re
 import time
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
-from rgtbus.bus.payload import decode_frame, encode
+from rgtbus.bus.payload import NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 _MAX_NOTES = 100
+Pulses = tuple[np.ndarray, np.ndarray]  # (sample indexes int64, magnitudes float64)
+
+
+@dataclass
+class MemberStatus:
+    """What the bus knows of a member: its promise, FINAL/FAILED flags and done_at."""
+
+    promise: int = 0
+    flags: int = 0
+    done_at: int = 0
+    seq: int = 0
+    pending: list[Pulses] = field(default_factory=list)
 
 
 @runtime_checkable
 class Bus(Protocol):
+    """Everything the world uses of a bus (memory, zenoh and the log-replay twin)."""
+
     run_id: str
     members: tuple[str, ...]
 
-    def publish(self, unit: str, window: int, samples: np.ndarray, flags: int = 0) -> None: ...
-    def gather(self, window: int, timeout: float = 5.0) -> dict[str, np.ndarray]: ...
+    def publish(
+        self,
+        unit: str,
+        samples: np.ndarray,
+        values: np.ndarray,
+        *,
+        promise: int,
+        flags: int = 0,
+        done_at: int = 0,
+    ) -> None: ...
+    def wait(self, beyond: int, timeout: float = 5.0) -> int: ...
+    def take(self, until: int) -> dict[str, Pulses]: ...
+    def known(self, until: int) -> dict[str, Pulses]: ...
+    def status(self) -> dict[str, MemberStatus]: ...
+    def join(self, unit: str, digest: str, timeout: float = 10.0) -> None: ...
     def stats(self) -> dict[str, int]: ...
+    def drop_notes(self) -> list[str]: ...
     def close(self) -> None: ...
     def __enter__(self) -> Self: ...
     def __exit__(self, *exc: object) -> None: ...
@@ -59,8 +91,8 @@ STAT_KEYS = (
     "published",
     "received",
     "accepted",
-    "gathered",
-    "buffered",
+    "waits",
+    "pending",
     "dropped_foreign",
     "dropped_malformed",
     "dropped_late",
@@ -69,8 +101,27 @@ STAT_KEYS = (
 )
 
 
+def merge_pulses(parts: Sequence[Pulses]) -> Pulses:
+    """Concatenate pulse lists, keeping each sample's magnitudes in arrival order."""
+    if not parts:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    if len(parts) == 1:
+        return parts[0]
+    s = np.concatenate([p[0] for p in parts])
+    v = np.concatenate([p[1] for p in parts])
+    order = np.argsort(s, kind="stable")
+    return s[order], v[order]
+
+
+def split_pulses(pulses: Pulses, until: int) -> tuple[Pulses, Pulses]:
+    """(pulses before ``until``, the rest)."""
+    s, v = pulses
+    k = int(np.searchsorted(s, until))
+    return (s[:k], v[:k]), (s[k:], v[k:])
+
+
 class QueueBus:
-    """Shared core: publish validation + encode, and a receive queue drained by ``gather``.
+    """Shared core: publish validation + encode, and a receive queue drained by ``wait``.
 
     Subclasses provide ``_send(key, data)`` and ``_close_transport()``; whatever delivers
     payloads only ever calls ``self._inbox.put((key, data))`` (thread-safe, never blocks).
@@ -84,10 +135,8 @@ class QueueBus:
         run_id: str,
         members: Sequence[str],
         sample_rate: float,
-        window_len: int,
         *,
         local: Sequence[str] | None = None,
-        max_ahead: int = 1024,
     ) -> None:
         self.run_id = check_name("run id", run_id)
         if isinstance(members, str):
@@ -104,12 +153,6 @@ class QueueBus:
         if not (math.isfinite(rate) and rate > 0):
             raise RgtbusError(f"sample rate must be finite and > 0, got {sample_rate!r}")
         self.sample_rate = rate
-        if isinstance(window_len, bool) or not isinstance(window_len, int) or window_len < 1:
-            raise RgtbusError(f"window length must be an int >= 1, got {window_len!r}")
-        self.window_len = window_len
-        if isinstance(max_ahead, bool) or not isinstance(max_ahead, int) or max_ahead < 1:
-            raise RgtbusError(f"max_ahead must be an int >= 1, got {max_ahead!r}")
-        self.max_ahead = max_ahead
         self._member_set = frozenset(self.members)
         local_units = self.members if local is None else tuple(local)
         for u in local_units:
@@ -118,59 +161,70 @@ class QueueBus:
         self._prefix = tx_prefix(self.run_id)
         self._keys = {u: tx_key(self.run_id, u) for u in self.members}
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
-        self._buffer: dict[int, dict[str, np.ndarray]] = {}
-        self._flags: dict[int, dict[str, int]] = {}
-        # Flags of the last gathered window, per member (FINAL, FAILED): how a run ends.
-        self.last_flags: dict[str, int] = {}
-        self._next_window = 0  # windows below this were gathered (or skipped): late
-        self._last_published: dict[str, int] = {}
+        self._members = {u: MemberStatus() for u in self.members}
+        self._sent = {u: MemberStatus() for u in self.local}  # what we published, per local unit
+        self._taken = 0  # samples below this were handed out by take()
         self._stats = dict.fromkeys(STAT_KEYS, 0)
         self._notes: deque[str] = deque(maxlen=_MAX_NOTES)
         self._closed = False
 
     # -- public API -------------------------------------------------------------------------
 
-    def publish(self, unit: str, window: int, samples: np.ndarray, flags: int = 0) -> None:
+    def publish(
+        self,
+        unit: str,
+        samples: np.ndarray,
+        values: np.ndarray,
+        *,
+        promise: int,
+        flags: int = 0,
+        done_at: int = 0,
+    ) -> None:
+        """Send one frame of ``unit`` (a local member): its new pulses and its promise."""
         self._check_open("publish")
         self._check_member(unit)
         if unit not in self.local:
             raise RgtbusError(
                 f"unit {unit!r} is not published from this bus (local: {', '.join(self.local)})"
             )
-        window = self._check_window(window)
-        last = self._last_published.get(unit)
-        if last is not None and window <= last:
+        mine = self._sent[unit]
+        s = np.asarray(samples, dtype=np.int64).reshape(-1)
+        if s.size and s[0] < mine.promise:
             raise RgtbusError(
-                f"unit {unit!r} already published window {last}; window {window} is not later"
+                f"unit {unit!r}: pulse at sample {int(s[0])} is before its earlier promise "
+                f"(sample {mine.promise})"
             )
-        arr = np.asarray(samples, dtype=np.float64)
-        if arr.shape != (self.window_len,):
-            raise RgtbusError(
-                f"unit {unit!r} window {window}: samples shape {arr.shape}, "
-                f"expected ({self.window_len},)"
-            )
-        data = encode(window, self.sample_rate, arr, flags)
+        if promise < mine.promise:
+            raise RgtbusError(f"unit {unit!r}: promise {promise} goes back from {mine.promise}")
+        frame = Frame(
+            mine.seq + 1, int(promise), s, np.asarray(values, dtype=np.float64), flags, done_at
+        )
+        data = encode(frame, self.sample_rate)
         self._send(self._keys[unit], data)
-        self._last_published[unit] = window
+        mine.seq, mine.promise = frame.seq, frame.promise
         self._stats["published"] += 1
 
-    def gather(self, window: int, timeout: float = 5.0) -> dict[str, np.ndarray]:
-        self._check_open("gather")
-        window = self._check_window(window)
-        if window < self._next_window:
-            raise RgtbusError(
-                f"window {window} already gathered in run {self.run_id!r} "
-                f"(next is {self._next_window})"
-            )
+    def wait(self, beyond: int, timeout: float = 5.0) -> int:
+        """Block until every member has promised past sample ``beyond`` (once everyone has
+        promised silence for good: until every member is done); return the horizon (the
+        smallest promise). RgtbusError naming the silent members after ``timeout`` s."""
+        self._check_open("wait")
         deadline = time.monotonic() + max(0.0, float(timeout))
         self._drain()
-        while not self._complete(window):
+        self._stats["waits"] += 1
+        while not self._past(beyond):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                missing = [u for u in self.members if u not in self._buffer.get(window, {})]
+                late = [u for u in self.members if not self._past(beyond, u)]
+                what = (
+                    "did not say it was done"
+                    if beyond >= NEVER
+                    else f"promised nothing past sample {beyond} "
+                    f"(t = {beyond / self.sample_rate:.3f} s)"
+                )
                 raise RgtbusError(
-                    f"gather timed out after {timeout:g} s in run {self.run_id!r}: "
-                    f"window {window} missing unit(s) {', '.join(missing)}"
+                    f"no news for {timeout:g} s in run {self.run_id!r}: "
+                    f"{', '.join(late)} {what}: stalled or gone"
                 )
             try:
                 item = self._inbox.get(timeout=remaining)
@@ -178,18 +232,53 @@ class QueueBus:
                 continue
             self._accept(*item)
             self._drain()
-        got = self._buffer.pop(window)
-        self.last_flags = self._flags.pop(window, {})
-        # Windows below the gathered one can never complete now: forget them.
-        for w in [w for w in self._buffer if w < window]:
-            self._stats["dropped_late"] += len(self._buffer.pop(w))
-            self._flags.pop(w, None)
-        self._next_window = window + 1
-        self._stats["gathered"] += 1
-        return {u: got[u] for u in self.members}
+        return self.horizon()
+
+    def _past(self, beyond: int, unit: str | None = None) -> bool:
+        members = [self._members[unit]] if unit else self._members.values()
+        if beyond >= NEVER:
+            return all(m.flags and m.promise >= NEVER for m in members)
+        return all(m.promise > beyond for m in members)
+
+    def horizon(self) -> int:
+        """The smallest promise: the medium before it is final (as far as received)."""
+        return min(m.promise for m in self._members.values())
+
+    def take(self, until: int) -> dict[str, Pulses]:
+        """Every member's pulses before sample ``until`` (at most the horizon), handed out once."""
+        self._check_open("take")
+        if until > self.horizon():
+            raise RgtbusError(
+                f"take up to sample {until}: only samples before {self.horizon()} are final"
+            )
+        out = {}
+        for u, m in self._members.items():
+            now, later = split_pulses(merge_pulses(m.pending), until)
+            m.pending = [later] if later[0].size else []
+            out[u] = now
+        self._taken = max(self._taken, until)
+        return out
+
+    def known(self, until: int) -> dict[str, Pulses]:
+        """Every member's pulses received so far before sample ``until``, taken or not yet:
+        what is on its way, for looking ahead (nothing is handed out)."""
+        if not self._closed:
+            self._drain()
+        out = {}
+        for u, m in self._members.items():
+            merged = merge_pulses(m.pending)
+            m.pending = [merged] if merged[0].size else []
+            out[u] = split_pulses(merged, until)[0]
+        return out
+
+    def status(self) -> dict[str, MemberStatus]:
+        """Every member's promise, flags and done_at as received so far."""
+        if not self._closed:
+            self._drain()
+        return self._members
 
     def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
-        """Barrier before window 0 for runs spread over processes; in-process buses have
+        """Barrier before the run for runs spread over processes; in-process buses have
         every member at hand already."""
         self._check_member(unit)
 
@@ -198,7 +287,7 @@ class QueueBus:
         if not self._closed:
             self._drain()
         out = dict(self._stats)
-        out["buffered"] = len(self._buffer)
+        out["pending"] = sum(int(p[0].size) for m in self._members.values() for p in m.pending)
         return out
 
     def drop_notes(self) -> list[str]:
@@ -260,16 +349,6 @@ class QueueBus:
                 f"(members: {', '.join(self.members)})"
             )
 
-    @staticmethod
-    def _check_window(window: object) -> int:
-        if isinstance(window, bool) or not isinstance(window, int | np.integer) or window < 0:
-            raise RgtbusError(f"window must be an int >= 0, got {window!r}")
-        return int(window)
-
-    def _complete(self, window: int) -> bool:
-        got = self._buffer.get(window)
-        return got is not None and len(got) == len(self.members)
-
     def _drain(self) -> None:
         get = self._inbox.get_nowait
         while True:
@@ -293,7 +372,7 @@ class QueueBus:
             self._drop("dropped_foreign", f"{key}: {unit!r} is not a member")
             return
         try:
-            window, rate, samples, flags = decode_frame(data)
+            frame, rate = decode(data)
         except RgtbusError as e:
             self._drop("dropped_malformed", f"{key}: {e}")
             return
@@ -302,28 +381,31 @@ class QueueBus:
                 "dropped_malformed", f"{key}: sample rate {rate:g}, run has {self.sample_rate:g}"
             )
             return
-        if samples.size != self.window_len:
+        m = self._members[unit]
+        if frame.seq <= m.seq:
+            self._drop("dropped_duplicate", f"{key}: frame {frame.seq} received twice")
+            return
+        if frame.seq != m.seq + 1:
+            self._drop("dropped_ahead", f"{key}: frame {frame.seq} while {m.seq + 1} is due")
+            return
+        if frame.promise < m.promise:
             self._drop(
-                "dropped_malformed",
-                f"{key}: window {window} has {samples.size} samples, run has {self.window_len}",
+                "dropped_malformed", f"{key}: promise {frame.promise} goes back from {m.promise}"
             )
             return
-        if window < self._next_window:
-            self._drop("dropped_late", f"{key}: window {window} arrived after it was gathered")
-            return
-        if window >= self._next_window + self.max_ahead:
+        if frame.samples.size and frame.samples[0] < max(m.promise, self._taken):
             self._drop(
-                "dropped_ahead",
-                f"{key}: window {window} is more than {self.max_ahead} ahead of "
-                f"{self._next_window}",
+                "dropped_late",
+                f"{key}: pulse at sample {int(frame.samples[0])} is before its promise "
+                f"(sample {m.promise})",
             )
             return
-        slot = self._buffer.setdefault(window, {})
-        if unit in slot:
-            self._drop("dropped_duplicate", f"{key}: window {window} received twice")
+        if m.flags and frame.flags != m.flags:
+            self._drop("dropped_malformed", f"{key}: done flags changed after the unit was done")
             return
-        slot[unit] = samples
-        self._flags.setdefault(window, {})[unit] = flags
+        m.seq, m.promise, m.flags, m.done_at = frame.seq, frame.promise, frame.flags, frame.done_at
+        if frame.samples.size:
+            m.pending.append((frame.samples, frame.values))
         self._stats["accepted"] += 1
 
 

@@ -1,24 +1,25 @@
-"""The log bus: a finished run's medium served back, window by window (the replay twin).
+"""The log bus: a finished run's medium served back (the replay twin of the live buses).
 
-``World`` runs re-built units over it exactly as over a live bus: the members publish (their
-samples are dropped: the log already has the medium; their flags are kept, so the run ends at
-the same window as it did), and ``gather`` returns the logged window — as per-sender parts when
-link gains need them, else the medium as one part. Members of the run that are not re-run count
-as finished. When the log has no more windows, ``gather`` raises ``LogEnded``.
+``World`` runs re-built units over it exactly as over a live bus. The medium comes from the log,
+all of it known from the start (every member promises silence past the log's end); what the
+re-run members publish is not needed (the log already holds the medium) but their FINAL/FAILED
+flags are kept, so the run ends as it did. Members of the run that are not re-run count as
+finished. Waiting past the end of a log that was cut short raises ``LogEnded``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from rgtbus.bus.payload import FINAL
+from rgtbus.bus.base import MemberStatus, Pulses, merge_pulses, split_pulses
+from rgtbus.bus.payload import FINAL, NEVER
 from rgtbus.errors import RgtbusError
 
 
 class LogEnded(RgtbusError):
-    """The log holds no more windows (a truncated log, or the run's last window)."""
+    """The log holds no more of the medium (a truncated log)."""
 
 
 class LogBus:
@@ -28,42 +29,66 @@ class LogBus:
         self,
         run_id: str,
         members: Sequence[str],
-        windows: Sequence[np.ndarray],
+        medium: Mapping[str, Pulses],
         *,
-        parts: Sequence[dict[str, np.ndarray]] | None = None,
         local: Sequence[str] | None = None,
+        end: int = NEVER,
     ) -> None:
+        """``medium``: per member, its logged pulses (or the whole medium under one member's
+        name: what every unit heard, bit for bit); ``end``: the first sample the log does not
+        cover (a truncated log), else the run's medium is complete."""
         self.run_id = run_id
         self.members = tuple(members)
         self.local = tuple(self.members if local is None else local)
-        self._windows = windows
-        self._parts = parts
-        self._flags: dict[int, dict[str, int]] = {}
-        self.last_flags: dict[str, int] = {}
-        self._zeros = np.zeros(len(windows[0]) if len(windows) else 0)
-
-    def publish(self, unit: str, window: int, samples: np.ndarray, flags: int = 0) -> None:
-        self._flags.setdefault(window, {})[unit] = flags
-
-    def gather(self, window: int, timeout: float = 0.0) -> dict[str, np.ndarray]:
-        if window >= len(self._windows):
-            raise LogEnded(f"the log ends after window {len(self._windows) - 1}")
-        published = self._flags.pop(window, {})
-        self.last_flags = {
-            u: published.get(u, 0 if u in self.local else FINAL) for u in self.members
+        self.end = end
+        self._pending = {
+            u: merge_pulses([medium[u]]) if u in medium else _none() for u in self.members
         }
-        if self._parts is not None:
-            return dict(self._parts[window])
-        # The medium as one part: what every unit heard, bit for bit (0 + x_a + x_b ...).
-        out = dict.fromkeys(self.members, self._zeros)
-        out[self.members[0]] = self._windows[window]
+        self._status = {
+            u: MemberStatus(promise=end, flags=0 if u in self.local else FINAL)
+            for u in self.members
+        }
+        self._published = 0
+
+    def publish(
+        self,
+        unit: str,
+        samples: np.ndarray,
+        values: np.ndarray,
+        *,
+        promise: int,
+        flags: int = 0,
+        done_at: int = 0,
+    ) -> None:
+        st = self._status[unit]
+        st.flags, st.done_at = flags, done_at
+        self._published += 1
+
+    def wait(self, beyond: int, timeout: float = 0.0) -> int:
+        if beyond >= self.end and self.end < NEVER:
+            raise LogEnded(f"the log ends at sample {self.end}")
+        return self.end
+
+    def take(self, until: int) -> dict[str, Pulses]:
+        out = {}
+        for u in self.members:
+            out[u], self._pending[u] = split_pulses(self._pending[u], until)
         return out
+
+    def known(self, until: int) -> dict[str, Pulses]:
+        return {u: split_pulses(self._pending[u], until)[0] for u in self.members}
+
+    def status(self) -> dict[str, MemberStatus]:
+        return self._status
 
     def join(self, unit: str, digest: str, timeout: float = 0.0) -> None:
         pass
 
     def stats(self) -> dict[str, int]:
-        return {"windows": len(self._windows)}
+        return {"published": self._published}
+
+    def drop_notes(self) -> list[str]:
+        return []
 
     def close(self) -> None:
         pass
@@ -73,3 +98,7 @@ class LogBus:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _none() -> Pulses:
+    return np.zeros(0, dtype=np.int64), np.zeros(0)

@@ -13,20 +13,18 @@ from rgtbus.bus.base import QueueBus, matches_subscription
 
 class MemoryBus(QueueBus):
     kind = "memory"
-    OPTIONS = frozenset({"local", "max_ahead", "count_foreign"})
+    OPTIONS = frozenset({"local", "count_foreign"})
 
     def __init__(
         self,
         run_id: str,
         members: Sequence[str],
         sample_rate: float,
-        window_len: int,
         *,
         local: Sequence[str] | None = None,
-        max_ahead: int = 1024,
         count_foreign: bool = True,
     ) -> None:
-        super().__init__(run_id, members, sample_rate, window_len, local=local, max_ahead=max_ahead)
+        super().__init__(run_id, members, sample_rate, local=local)
         # Same filter as the zenoh subscriber's key expression.
         self._sub_run = None if count_foreign else self.run_id
 

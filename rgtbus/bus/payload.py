@@ -1,101 +1,155 @@
-"""The wire format of one unit's samples for one window.
+"""The wire format of one member's frame: what it transmits, and its promise of silence.
 
-Layout (little-endian, 32-byte header so the samples start 8-byte aligned):
+A member transmits pulses (one sample of a magnitude each: the medium stays a sampled waveform,
+sent sparsely) and promises "nothing more from me before sample ``promise``" (conservative
+synchronisation with null messages, docs/engine.md). A frame may carry no pulse at all (a null
+message) and pulses far ahead of its promise (transmissions already planned). Magnitudes at one
+sample add up in the order they were sent.
+
+Layout (little-endian, 48-byte header, so the arrays start 8-byte aligned)::
 
     offset  size  field
     0       4     magic b"RGTB"
-    4       1     version (1)
-    5       1     dtype code (b"d" = float64)
-    6       1     flags: bit 0 FINAL (the unit has finished), bit 1 FAILED (it has failed)
-    7       5     reserved, zero
-    12      8     window index, u64
-    20      8     sample rate, f64 (samples per second)
-    28      4     count, u32
-    32      8*n   samples, float64
+    4       1     version (2)
+    5       1     flags: bit 0 FINAL (the unit has decided), bit 1 FAILED (it has failed)
+    6       2     reserved, zero
+    8       8     sequence number, u64 (1, 2, 3, ... per member)
+    16      8     promise, u64 (a sample index; 2**63 - 1: silent for the rest of the run)
+    24      8     done_at, u64 (the last sample the member listened to, once FINAL or FAILED)
+    32      8     sample rate, f64 (samples per second)
+    40      4     count n, u32
+    44      4     reserved, zero
+    48      8*n   sample indexes, u64, non-decreasing
+    48+8n   8*n   magnitudes, f64, finite, |m| <= MAX_MAGNITUDE
 """
 
 from __future__ import annotations
 
 import math
 import struct
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from rgtbus.errors import RgtbusError
 
 MAGIC = b"RGTB"
-VERSION = 1
-DTYPE_F64 = b"d"
-_HEADER = struct.Struct("<4sBcB5sQdI")
-HEADER_SIZE = _HEADER.size  # 32
-_RESERVED = bytes(5)
+VERSION = 2
+_HEADER = struct.Struct("<4sBBHQQQdII")
+HEADER_SIZE = _HEADER.size  # 48
 FINAL = 0x01
 FAILED = 0x02
 _KNOWN_FLAGS = FINAL | FAILED
-_U64_MAX = 2**64 - 1
-_U32_MAX = 2**32 - 1
+NEVER = 2**63 - 1  # a promise of silence for the rest of the run
+MAX_MAGNITUDE = 1e6  # far above any code; keeps a resonator's sums finite whatever a peer sends
+MAX_PULSES = 2**24  # one frame; a run's whole schedule of one unit is far below this
+_EMPTY_I = np.zeros(0, dtype=np.int64)
+_EMPTY_F = np.zeros(0, dtype=np.float64)
 
 
-def encode(window: int, sample_rate: float, samples: np.ndarray, flags: int = 0) -> bytes:
-    """Header + little-endian float64 samples; refuses what ``decode`` would refuse."""
+@dataclass(frozen=True)
+class Frame:
+    """One frame of one member (see the module docstring)."""
+
+    seq: int
+    promise: int
+    samples: np.ndarray = field(default_factory=lambda: _EMPTY_I)
+    values: np.ndarray = field(default_factory=lambda: _EMPTY_F)
+    flags: int = 0
+    done_at: int = 0
+
+    @property
+    def done(self) -> bool:
+        return bool(self.flags & (FINAL | FAILED))
+
+
+def _u64(value: object, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise RgtbusError(f"frame {what} must be an int, got {value!r}")
+    if not 0 <= int(value) <= NEVER:
+        raise RgtbusError(f"frame {what} {value} out of range 0..2**63-1")
+    return int(value)
+
+
+def _check_pulses(samples: np.ndarray, values: np.ndarray) -> None:
+    if samples.size != values.size:
+        raise RgtbusError(f"frame has {samples.size} sample indexes for {values.size} values")
+    if samples.size > MAX_PULSES:
+        raise RgtbusError(f"frame holds at most {MAX_PULSES} pulses, got {samples.size}")
+    if samples.size:
+        if samples.min() < 0 or samples.max() > NEVER:
+            raise RgtbusError("frame sample index out of range 0..2**63-1")
+        if np.any(np.diff(samples) < 0):
+            raise RgtbusError("frame sample indexes are not in order")
+        bad = ~np.isfinite(values) | (np.abs(values) > MAX_MAGNITUDE)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise RgtbusError(
+                f"frame magnitude {float(values[k])!r} at sample {int(samples[k])} is not finite "
+                f"or beyond ±{MAX_MAGNITUDE:g}"
+            )
+
+
+def encode(frame: Frame, sample_rate: float) -> bytes:
+    """Header + arrays; refuses what ``decode`` would refuse."""
+    flags = frame.flags
     if isinstance(flags, bool) or not isinstance(flags, int) or flags & ~_KNOWN_FLAGS:
-        raise RgtbusError(f"payload flags {flags!r}: only FINAL (1) and FAILED (2) are defined")
-    if isinstance(window, bool) or not isinstance(window, int | np.integer):
-        raise RgtbusError(f"payload window must be an int, got {window!r}")
-    if not 0 <= window <= _U64_MAX:
-        raise RgtbusError(f"payload window {window} out of range 0..2**64-1")
+        raise RgtbusError(f"frame flags {flags!r}: only FINAL (1) and FAILED (2) are defined")
+    seq = _u64(frame.seq, "sequence number")
+    promise = _u64(frame.promise, "promise")
+    done_at = _u64(frame.done_at, "done_at")
     rate = float(sample_rate)
     if not (math.isfinite(rate) and rate > 0):
-        raise RgtbusError(f"payload sample rate must be finite and > 0, got {sample_rate!r}")
-    arr = np.asarray(samples)
-    if arr.ndim != 1:
-        raise RgtbusError(f"payload samples must be 1-D, got shape {arr.shape}")
-    if arr.dtype != np.float64:
-        raise RgtbusError(f"payload samples must be float64, got {arr.dtype}")
-    if arr.size > _U32_MAX:
-        raise RgtbusError(f"payload holds at most 2**32-1 samples, got {arr.size}")
-    if not np.isfinite(arr).all():
-        bad = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise RgtbusError(f"payload sample {bad} is not finite: {float(arr[bad])!r}")
-    header = _HEADER.pack(MAGIC, VERSION, DTYPE_F64, flags, _RESERVED, int(window), rate, arr.size)
-    return header + arr.astype("<f8", copy=False).tobytes()
+        raise RgtbusError(f"frame sample rate must be finite and > 0, got {sample_rate!r}")
+    samples = np.asarray(frame.samples)
+    values = np.asarray(frame.values)
+    if samples.ndim != 1 or values.ndim != 1:
+        raise RgtbusError("frame samples and values must be 1-D")
+    if samples.size and not np.issubdtype(samples.dtype, np.integer):
+        raise RgtbusError(f"frame sample indexes must be integers, got {samples.dtype}")
+    if values.size and values.dtype != np.float64:
+        raise RgtbusError(f"frame magnitudes must be float64, got {values.dtype}")
+    samples = samples.astype(np.int64, copy=False)
+    values = values.astype(np.float64, copy=False)
+    _check_pulses(samples, values)
+    header = _HEADER.pack(MAGIC, VERSION, flags, 0, seq, promise, done_at, rate, samples.size, 0)
+    return header + samples.astype("<u8").tobytes() + values.astype("<f8").tobytes()
 
 
-def decode(data: bytes) -> tuple[int, float, np.ndarray]:
-    """Inverse of ``encode``: ``(window, sample_rate, samples)``; samples are a fresh float64
-    array. Raises RgtbusError (one line, what is wrong) on anything malformed."""
-    window, rate, samples, _ = decode_frame(data)
-    return window, rate, samples
-
-
-def decode_frame(data: bytes) -> tuple[int, float, np.ndarray, int]:
-    """``decode`` plus the flags byte: ``(window, sample_rate, samples, flags)``."""
+def decode(data: bytes) -> tuple[Frame, float]:
+    """Inverse of ``encode``: ``(frame, sample_rate)`` with fresh arrays. Raises RgtbusError
+    (one line, what is wrong) on anything malformed."""
     if not isinstance(data, bytes | bytearray):
-        raise RgtbusError(f"payload must be bytes, got {type(data).__name__}")
+        raise RgtbusError(f"frame must be bytes, got {type(data).__name__}")
     if len(data) < HEADER_SIZE:
-        raise RgtbusError(f"payload too short: {len(data)} bytes, header needs {HEADER_SIZE}")
-    magic, version, dtype, flags, reserved, window, rate, count = _HEADER.unpack_from(data)
+        raise RgtbusError(f"frame too short: {len(data)} bytes, header needs {HEADER_SIZE}")
+    magic, version, flags, res1, seq, promise, done_at, rate, count, res2 = _HEADER.unpack_from(
+        data
+    )
     if magic != MAGIC:
-        raise RgtbusError(f"payload bad magic {magic!r}, expected {MAGIC!r}")
+        raise RgtbusError(f"frame bad magic {magic!r}, expected {MAGIC!r}")
     if version != VERSION:
-        raise RgtbusError(f"payload version {version} unsupported, expected {VERSION}")
-    if dtype != DTYPE_F64:
-        raise RgtbusError(f"payload dtype code {dtype!r} unsupported, expected {DTYPE_F64!r}")
+        raise RgtbusError(f"frame version {version} unsupported, expected {VERSION}")
     if flags & ~_KNOWN_FLAGS:
-        raise RgtbusError(f"payload flags 0x{flags:02x} hold unknown bits")
-    if reserved != _RESERVED:
-        raise RgtbusError(f"payload reserved bytes not zero: {reserved.hex()}")
+        raise RgtbusError(f"frame flags 0x{flags:02x} hold unknown bits")
+    if res1 or res2:
+        raise RgtbusError("frame reserved fields not zero")
     if not (math.isfinite(rate) and rate > 0):
-        raise RgtbusError(f"payload sample rate {rate!r} not finite and > 0")
-    expected = HEADER_SIZE + 8 * count
+        raise RgtbusError(f"frame sample rate {rate!r} not finite and > 0")
+    for what, v in (("sequence number", seq), ("promise", promise), ("done_at", done_at)):
+        if v > NEVER:
+            raise RgtbusError(f"frame {what} {v} out of range 0..2**63-1")
+    expected = HEADER_SIZE + 16 * count
     if len(data) != expected:
         raise RgtbusError(
-            f"payload length {len(data)} bytes does not match count {count} (expected {expected})"
+            f"frame length {len(data)} bytes does not match count {count} (expected {expected})"
         )
-    samples = np.frombuffer(data, dtype="<f8", count=count, offset=HEADER_SIZE).astype(
+    raw = np.frombuffer(data, dtype="<u8", count=count, offset=HEADER_SIZE)
+    if count and raw.max() > NEVER:
+        raise RgtbusError("frame sample index out of range 0..2**63-1")
+    samples = raw.astype(np.int64)
+    values = np.frombuffer(data, dtype="<f8", count=count, offset=HEADER_SIZE + 8 * count).astype(
         np.float64
-    )  # astype copies: the caller owns a writable array
-    if not np.isfinite(samples).all():
-        bad = int(np.flatnonzero(~np.isfinite(samples))[0])
-        raise RgtbusError(f"payload sample {bad} is not finite: {float(samples[bad])!r}")
-    return window, rate, samples, flags
+    )  # astype copies: the caller owns writable arrays
+    _check_pulses(samples, values)
+    return Frame(seq, promise, samples, values, flags, done_at), rate

@@ -1,11 +1,11 @@
-"""The zenoh bus: each member's samples on ``rgtbus/<run_id>/tx/<unit>``.
+"""The zenoh bus: each member's frames on ``rgtbus/<run_id>/tx/<unit>``.
 
 Default: one in-process session, peer mode, no listen/connect endpoints, multicast scouting off;
 a session's own puts reach its own subscriber, so a single process hears itself. For
 cross-process runs pass ``connect``/``listen``/``mode`` (or a zenoh config file or a session).
 
 The subscriber callback runs on a zenoh thread: it only copies ``(key, bytes)`` into a
-``SimpleQueue``; decoding and bookkeeping happen in ``gather`` on the caller's thread.
+``SimpleQueue``; decoding and bookkeeping happen in ``wait`` on the caller's thread.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import weakref
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from rgtbus.bus.base import QueueBus
@@ -112,7 +111,6 @@ class ZenohBus(QueueBus):
     OPTIONS = frozenset(
         {
             "local",
-            "max_ahead",
             "count_foreign",
             "mode",
             "connect",
@@ -128,10 +126,8 @@ class ZenohBus(QueueBus):
         run_id: str,
         members: Sequence[str],
         sample_rate: float,
-        window_len: int,
         *,
         local: Sequence[str] | None = None,
-        max_ahead: int = 1024,
         count_foreign: bool = True,
         mode: str | None = None,
         connect: Sequence[str] | None = None,
@@ -140,7 +136,7 @@ class ZenohBus(QueueBus):
         config: zenoh.Config | str | os.PathLike[str] | None = None,
         session: zenoh.Session | None = None,
     ) -> None:
-        super().__init__(run_id, members, sample_rate, window_len, local=local, max_ahead=max_ahead)
+        super().__init__(run_id, members, sample_rate, local=local)
         self._publishers: dict[str, Any] = {}
         self._subscriber: Any = None
         self._hello_sub: Any = None
@@ -170,8 +166,8 @@ class ZenohBus(QueueBus):
                 sub_key, lambda s: put((str(s.key_expr), s.payload.to_bytes()))
             )
             for unit in self.local:
-                # BLOCK: a lockstep window must never lose a sample to congestion;
-                # express: no batching delay between a window's publish and gather.
+                # BLOCK: a frame must never be lost to congestion (the run would stall);
+                # express: no batching delay between a frame's publish and the peers' wait.
                 self._publishers[unit] = session.declare_publisher(
                     self._keys[unit],
                     congestion_control=zenoh.CongestionControl.BLOCK,
@@ -190,15 +186,15 @@ class ZenohBus(QueueBus):
         return f"rgtbus/{self.run_id}/hello/{unit}"
 
     def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
-        """Barrier before window 0: wait until every member is up, on the same scenario.
+        """Barrier before the run: wait until every member is up, on the same scenario.
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and repeats a
         hello (its unit, scenario digest, and which members it has heard) until it has heard
         every member and every member says it has heard everyone. Data and subscriber
         declarations share a link in order, so a hello from a peer proves its tx subscriber is
-        declared: nobody's window 0 can be lost. Refused: a member on another scenario or seed
-        (digest differs), or a run that already started (a late joiner). Running members
-        answer late hellos from ``gather``.
+        declared: nobody's first frame can be lost. Refused: a member on another scenario or
+        seed (digest differs), or a run that already started (a late joiner). Running members
+        answer late hellos from ``wait``.
         """
         self._check_member(unit)
         members = set(self.members)
@@ -233,8 +229,8 @@ class ZenohBus(QueueBus):
                     )
                 if msg["started"]:
                     raise RgtbusError(
-                        f"run {self.run_id!r} already started (unit {msg['unit']!r} is at window "
-                        f"{msg['window']}): {unit!r} joined too late"
+                        f"run {self.run_id!r} already started (unit {msg['unit']!r} is at sample "
+                        f"{msg.get('sample')}): {unit!r} joined too late"
                     )
                 heard.add(msg["unit"])
                 if set(msg["heard"]) >= members:
@@ -259,7 +255,7 @@ class ZenohBus(QueueBus):
             "digest": digest,
             "heard": sorted(heard),
             "started": started,
-            "window": self._next_window,
+            "sample": self._taken,
         }
         self.session.put(self.hello_key(unit), json.dumps(msg).encode())
 
@@ -278,10 +274,10 @@ class ZenohBus(QueueBus):
             self._drop("dropped_malformed", f"hello: not a hello message ({raw[:40]!r})")
             return None
 
-    def gather(self, window: int, timeout: float = 5.0) -> dict[str, np.ndarray]:
+    def wait(self, beyond: int, timeout: float = 5.0) -> int:
         if self._joined is not None:
             self._answer_late_hellos()
-        return super().gather(window, timeout)
+        return super().wait(beyond, timeout)
 
     def _answer_late_hellos(self) -> None:
         assert self._joined is not None

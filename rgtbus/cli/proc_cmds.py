@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run one unit of a scenario as its own process, over zenoh",
         description="Run unit NAME of SCENARIO in this process. Every unit of the scenario must "
         "be started (on this machine or others) and reachable through zenoh; they join, then "
-        "advance in lockstep, window by window.",
+        "advance together, each to the smallest promise of all (conservative synchronisation).",
     )
     u.add_argument("name", metavar="NAME", help="the unit to run, e.g. a")
     u.add_argument("scenario", metavar="SCENARIO", help="the scenario file (same on every unit)")
@@ -75,7 +75,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=10.0,
         metavar="S",
-        help="give up when a window is incomplete for S seconds (default 10)",
+        help="give up when no member has news for S seconds (default 10)",
     )
     u.add_argument(
         "--join-timeout",
@@ -87,6 +87,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     u.add_argument("--run-id", help="the run's id on the bus (default <scenario>-<seed>)")
     u.add_argument("--seed", type=int, help="override the scenario's seed (same on every unit)")
     u.add_argument("--traces", action="store_true", help="log resonator traces")
+    u.add_argument(
+        "--realtime",
+        type=float,
+        metavar="FACTOR",
+        help="pace the run: FACTOR simulated seconds per wall second",
+    )
+    u.add_argument(
+        "--engine",
+        choices=("event", "dense"),
+        default="event",
+        help="the same on every unit of a run (event: the default; dense: the time-stepped "
+        "reference)",
+    )
     u.add_argument("--json", action="store_true", help="print one JSON object")
     u.set_defaults(func=run_unit_cmd)
 
@@ -112,9 +125,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=10.0,
         metavar="S",
-        help="per-window timeout of every unit (default 10)",
+        help="give up when no member has news for S seconds (default 10)",
     )
     la.add_argument("--seed", type=int, help="override the scenario's seed")
+    la.add_argument(
+        "--engine", choices=("event", "dense"), default="event", help="as for rgtbus run"
+    )
+    la.add_argument(
+        "--realtime",
+        type=float,
+        metavar="FACTOR",
+        help="pace the run: FACTOR simulated seconds per wall second",
+    )
     la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
     la.set_defaults(func=run_launch)
 
@@ -170,6 +192,8 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     for what in ("timeout", "join_timeout"):
         if not getattr(args, what) > 0:
             raise RgtbusError(f"--{what.replace('_', '-')} must be positive seconds")
+    if args.realtime is not None and not args.realtime > 0:
+        raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{args.name}")
     try:
         log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -189,6 +213,8 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
             timeout=args.timeout,
             join_timeout=args.join_timeout,
             traces=args.traces,
+            engine=args.engine,
+            realtime=args.realtime,
         )
     except KeyboardInterrupt:
         recorder.log("error", f"{args.name}: interrupted", 0, name=args.name)
@@ -211,7 +237,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
         )
         print(f"unit {args.name}: {res['canonical'] or ''}  {verdict}")
         print(
-            f"  polynomial {out['report']['polynomial']}; {out['windows']} windows, "
+            f"  polynomial {out['report']['polynomial']}; {out['steps']} steps, "
             f"{out['sim_seconds']:.1f} s simulated in {out['wall_seconds']:.2f} s; log {log_path}"
         )
     if out["error"]:
@@ -297,6 +323,8 @@ def run_launch(args: argparse.Namespace) -> int:
     sc = _load(args.scenario, args.seed)
     if not args.timeout > 0:
         raise RgtbusError("--timeout must be positive seconds")
+    if args.realtime is not None and not args.realtime > 0:
+        raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     stamp = time.strftime("%Y%m%d-%H%M%S")
     log_dir = Path(args.log_dir) if args.log_dir else Path("logs") / f"{sc.name}-{stamp}"
     try:
@@ -338,6 +366,9 @@ def run_launch(args: argparse.Namespace) -> int:
                     str(args.timeout),
                     "--run-id",
                     run_id,
+                    "--engine",
+                    args.engine,
+                    *(["--realtime", str(args.realtime)] if args.realtime else []),
                 ],
             )
         units = [(label, p) for label, p in launch.procs if label != "router"]
@@ -375,13 +406,13 @@ def run_launch(args: argparse.Namespace) -> int:
     first = next((outputs[u] for u in sc.units if u in outputs), None)
     wall = time.perf_counter() - t0
     result = WorldResult(
-        windows=first["windows"] if first else 0,
-        sim_seconds=first["sim_seconds"] if first else 0.0,
+        steps=first["steps"] if first else 0,
+        sim_seconds=max((o["sim_seconds"] for o in outputs.values()), default=0.0),
         wall_seconds=wall,
         failure=failures[0] if failures else None,
         bus_stats={u: o["bus"] for u, o in outputs.items()},
     )
-    summary = summarise(sc, reports, result) if reports else None
+    summary = summarise(sc, reports, result, engine=args.engine) if reports else None
     merged = log_dir / "run.mcap"
     with open(log_dir / "launch.mcap", "wb") as f:
         rec = McapRecorder(f)

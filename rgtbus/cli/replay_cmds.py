@@ -166,7 +166,7 @@ def print_timeline(rp: Replay) -> None:
         f"rgtbus {info['version']}, bus {info['bus']}, run {info['run_id']}"
     )
     print(
-        f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated in {rp.windows} windows; "
+        f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated; "
         f"{len(rp.contents.messages)} messages"
     )
     if rp.truncated:

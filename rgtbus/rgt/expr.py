@@ -287,6 +287,48 @@ def support(table: int, n: int) -> list[int]:
 MAX_MINIMISE_VARS = 10
 
 
+def _prime_implicants(minterms: Sequence[int], m: int) -> set[tuple[int, int]]:
+    """Every prime implicant of the function with these minterms, as (value, care-mask).
+
+    Bit-parallel over the truth table: ``cubes[free]`` has bit v set when every minterm
+    ``v | s`` (s within ``free``) is in the function, i.e. the cube (v, free) is an implicant;
+    adding a free variable j keeps v when v's neighbour across j is there too. A cube is prime
+    when no cube with one more free variable contains it."""
+    size = 1 << m
+    table = 0
+    for t in minterms:
+        table |= 1 << t
+    low = [0] * m  # positions v with bit j clear
+    for j in range(m):
+        block = (1 << (1 << j)) - 1  # 2^j ones, then 2^j zeros, repeated
+        pattern = 0
+        for start in range(0, size, 2 << j):
+            pattern |= block << start
+        low[j] = pattern
+    cubes = {0: table}
+    for free in range(1, size):
+        j = (free & -free).bit_length() - 1
+        base = cubes.get(free & (free - 1))
+        if base:
+            both = base & (base >> (1 << j)) & low[j]
+            if both:
+                cubes[free] = both
+    care_all = size - 1
+    primes: set[tuple[int, int]] = set()
+    for free, c in cubes.items():
+        covered = 0
+        for j in range(m):
+            bigger = cubes.get(free | 1 << j) if not free >> j & 1 else None
+            if bigger:
+                covered |= bigger | (bigger << (1 << j))
+        rest = c & ~covered
+        while rest:
+            bit = rest & -rest
+            primes.add((bit.bit_length() - 1, care_all ^ free))
+            rest ^= bit
+    return primes
+
+
 def minimal_sop(table: int, order: Sequence[str]) -> Expr | None:
     """A minimal-ish sum of products equal to ``table``; None if the support is too large.
 
@@ -311,51 +353,44 @@ def minimal_sop(table: int, order: Sequence[str]) -> Expr | None:
                 idx |= 1 << var
         if table >> idx & 1:
             minterms.append(r)
-    # Implicants as (value, care-mask) over the reduced variables.
-    current = {(t, (1 << m) - 1) for t in minterms}
-    primes: set[tuple[int, int]] = set()
-    while current:
-        merged: set[tuple[int, int]] = set()
-        used: set[tuple[int, int]] = set()
-        items = sorted(current)
-        by_mask: dict[int, list[tuple[int, int]]] = {}
-        for it in items:
-            by_mask.setdefault(it[1], []).append(it)
-        for mask, group in by_mask.items():
-            values = {v for v, _ in group}
-            for v, _ in group:
-                for j in range(m):
-                    bit = 1 << j
-                    if mask & bit and not v & bit and (v | bit) in values:
-                        merged.add((v, mask & ~bit))
-                        used.add((v, mask))
-                        used.add((v | bit, mask))
-        primes |= current - used
-        current = merged
+    primes = _prime_implicants(minterms, m)
 
-    def covers(p: tuple[int, int], t: int) -> bool:
-        return (t & p[1]) == p[0]
-
-    remaining = set(minterms)
-    chosen: list[tuple[int, int]] = []
+    # Cover, with each prime's minterms as a bitset over the minterm list (same choices and
+    # order as testing every pair, without the quadratic cost).
+    pos = {t: i for i, t in enumerate(minterms)}
     prime_list = sorted(primes, key=lambda p: (-(m - p[1].bit_count()), p))
-    # Essential primes first, then greedy by coverage.
-    for t in minterms:
-        cov = [p for p in prime_list if covers(p, t)]
+    free_bits = [1 << j for j in range(m)]
+    cov_sets: list[int] = []
+    for value, mask in prime_list:
+        free = [b for b in free_bits if not mask & b]
+        bits = 0
+        for r in range(1 << len(free)):
+            t = value
+            for j, b in enumerate(free):
+                if r >> j & 1:
+                    t |= b
+            bits |= 1 << pos[t]
+        cov_sets.append(bits)
+    chosen: list[int] = []
+    # Essential primes first (in minterm order), then greedy by coverage.
+    for i in range(len(minterms)):
+        bit = 1 << i
+        cov = [k for k, c in enumerate(cov_sets) if c & bit]
         if len(cov) == 1 and cov[0] not in chosen:
             chosen.append(cov[0])
-    for p in chosen:
-        remaining -= {t for t in remaining if covers(p, t)}
+    remaining = (1 << len(minterms)) - 1
+    for k in chosen:
+        remaining &= ~cov_sets[k]
     while remaining:
         best = max(
-            prime_list,
-            key=lambda p: (sum(1 for t in remaining if covers(p, t)), -p[1].bit_count()),
+            range(len(prime_list)),
+            key=lambda k: ((cov_sets[k] & remaining).bit_count(), -prime_list[k][1].bit_count()),
         )
         chosen.append(best)
-        remaining -= {t for t in remaining if covers(best, t)}
+        remaining &= ~cov_sets[best]
 
     terms: list[tuple[tuple[int, ...], Expr]] = []
-    for value, mask in chosen:
+    for value, mask in (prime_list[k] for k in chosen):
         lits: list[tuple[int, Expr]] = []
         for j, var in enumerate(sup):
             if mask >> j & 1:

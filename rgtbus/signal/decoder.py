@@ -2,9 +2,11 @@
 
 - **Detection**: a spike on ω_s says "something arrived on ω_s" (an ID-code spike: "s transmits").
 - **Increment readout**: the resonator's update is ``z[k] = A·z[k-1] + i·u[k]``, so
-  ``d[k] = (z[k] − next(z[k-1])) / i`` recovers the medium sample u[k], where ``next(z) = A·z``,
-  or after a spike the reset state ``Re(A·z) + i·reset_value``.  Any channel of a receiver gives
-  the same d (they all hear the same sample); the imaginary rounding residue is ~1e-15.
+  ``d[k] = Im(z[k] − ẑ[k])`` recovers the medium sample u[k], where ẑ[k] is the state at k
+  before its input (``A·z[k-1]``, or after a spike the reset state).  The bank computes it
+  (``resonate``, readout=True) at the samples that carry input, rounded to 12 decimals; every
+  other sample reads 0.  Any channel of a receiver gives the same d (they all hear the same
+  sample); ``ReadoutHistory`` keeps the last seconds of it for decoding.
 - **Nearest codeword**: with white Gaussian noise on the medium the values at a code's pulse
   instants are ``word + noise``, so the maximum-likelihood word is the nearest (Euclidean); the
   margin is how much farther the runner-up is.
@@ -26,205 +28,121 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
+import numba
 import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import Codebook
-from rgtbus.signal.resonator import PAPER_RESET_VALUE, PAPER_TAU, FeedResult, ResonatorBank
+from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
+from rgtbus.signal.waveform import pulse_samples
 
 MAX_EXHAUSTIVE = 4096
 
 
-def increments(
-    z: np.ndarray,
-    spiked: np.ndarray,
-    A: np.ndarray | complex,
-    reset_value: float = PAPER_RESET_VALUE,
-    z_prev: np.ndarray | complex = 0j,
-    spiked_prev: np.ndarray | bool = False,
-) -> np.ndarray:
-    """Increment readout ``d[k] = Im(z[k] − next(z[k-1]))`` along axis 0 (real array).
+class ReadoutHistory:
+    """The increment readout of a bank's receivers over the last ``capacity`` samples.
 
-    ``z``/``spiked``: pre-spike states and spike mask (e.g. ``FeedResult.z``, ``.spiked``);
-    ``A`` broadcasts over the trailing axes (one per channel); ``z_prev``/``spiked_prev`` are
-    the state before the first row (0 and False at rest).
-    """
-    z = np.asarray(z)
-    spiked = np.asarray(spiked, dtype=bool)
-    if z.shape != spiked.shape:
-        raise RgtbusError(f"z of shape {z.shape} and spiked of shape {spiked.shape} differ")
-    zp = np.empty_like(z)
-    sp = np.empty_like(spiked)
-    zp[0] = z_prev
-    sp[0] = spiked_prev
-    zp[1:] = z[:-1]
-    sp[1:] = spiked[:-1]
-    step = A * zp
-    pred_im = np.where(sp, reset_value, step.imag)
-    return z.imag - pred_im
-
-
-class Readout:
-    """Streaming increment readout of one receiver's channel, kept for ``capacity`` samples.
-
-    ``append(result)`` after each ``bank.feed(..., record=True)``; ``values(indices)`` gives the
-    medium estimate d at absolute sample indices still in the history.
+    ``extend(result)`` after every advance of the bank with ``readout=True`` (in order): the
+    samples that carried input read their increment, every other sample reads 0 (silence).
+    ``values(indices, channels, receiver)`` gives d at absolute sample indices (any shape) of
+    the matching channels; ``of(receiver)`` is one receiver's view (what a unit decodes from).
+    A quench needs nothing here: the bank's readout already restarts from rest.
     """
 
-    def __init__(
-        self,
-        A: complex,
-        reset_value: float = PAPER_RESET_VALUE,
-        capacity: int = 6000,
-        receiver: int = 0,
-        channel: int = 0,
-    ):
-        """Prefer :meth:`for_bank`, which takes A and the reset value from the bank."""
-        if not isinstance(capacity, int) or capacity < 1:
+    def __init__(self, channels: int, capacity: int = 6000, receivers: int = 1) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
             raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
-        self.A = complex(A)
-        self.reset_value = float(reset_value)
+        if not isinstance(channels, int) or channels < 1:
+            raise RgtbusError(f"readout channels {channels!r} must be a positive integer")
+        if not isinstance(receivers, int) or receivers < 1:
+            raise RgtbusError(f"readout receivers {receivers!r} must be a positive integer")
+        self.channels = channels
         self.capacity = capacity
-        self.receiver = receiver
-        self.channel = channel
-        self._buf = np.zeros(capacity)
+        self.receivers = receivers
+        self._buf = np.zeros((capacity, receivers, channels))
         self._end = 0  # absolute index one past the newest sample
-        self._z_prev = 0j
-        self._sp_prev = False
 
     @classmethod
-    def for_bank(
-        cls, bank: ResonatorBank, channel: int = 0, receiver: int = 0, capacity: int = 6000
-    ) -> Readout:
-        if not 0 <= channel < bank.n_channels or not 0 <= receiver < bank.n_receivers:
-            raise RgtbusError(
-                f"readout: channel {channel} / receiver {receiver} not in the bank "
-                f"({bank.n_channels} channels, {bank.n_receivers} receivers)"
-            )
-        return cls(complex(bank.A[channel]), bank.reset_value, capacity, receiver, channel)
+    def for_bank(cls, bank: ResonatorBank, capacity: int = 6000) -> ReadoutHistory:
+        return cls(bank.n_channels, capacity, bank.n_receivers)
 
     @property
     def end(self) -> int:
         return self._end
 
-    def quench(self) -> None:
-        """The bank was quenched (z = 0): the next increment starts from rest."""
-        self._z_prev = 0j
-        self._sp_prev = False
+    def extend(self, result: FeedResult) -> None:
+        """Append one advance's readout (``bank.advance(..., readout=True)`` or ``feed``)."""
+        if result.readout is None or result.readout_rows is None:
+            raise RgtbusError("readout history needs results of an advance with readout=True")
+        self.store(result.start, result.n, result.readout_rows, result.readout)
 
-    def append(self, result: FeedResult) -> None:
-        if result.z is None or result.spiked is None:
-            raise RgtbusError("readout needs bank.feed(..., record=True) results")
-        if result.start != self._end:
+    def store(self, start: int, n: int, rows: np.ndarray, values: np.ndarray) -> None:
+        """Samples [start, start + n) were processed; ``values`` (len(rows), receivers,
+        channels) is the readout at the absolute samples ``rows`` among them; others read 0."""
+        if start != self._end:
             raise RgtbusError(
-                f"readout: result starts at sample {result.start}, expected "
-                f"{self._end} (results must be appended in order)"
+                f"readout: samples from {start} appended, expected {self._end} (in order)"
             )
-        z = result.z[:, self.receiver, self.channel]
-        s = result.spiked[:, self.receiver, self.channel]
-        if not len(z):
-            return
-        d = increments(z, s, self.A, self.reset_value, self._z_prev, self._sp_prev)
-        self._z_prev, self._sp_prev = complex(z[-1]), bool(s[-1])
-        idx = (np.arange(self._end, self._end + len(d))) % self.capacity
-        self._buf[idx] = d
-        self._end += len(d)
+        cap = self.capacity
+        if n >= cap:
+            self._buf[:] = 0.0
+        elif n:
+            lo, hi = start % cap, (start + n) % cap
+            if lo < hi:
+                self._buf[lo:hi] = 0.0
+            else:
+                self._buf[lo:] = 0.0
+                self._buf[:hi] = 0.0
+        if len(rows):
+            keep = rows >= start + n - cap  # what still fits in the history
+            self._buf[rows[keep] % cap] = values[keep]
+        self._end = start + n
 
-    def values(self, indices: Sequence[int] | np.ndarray) -> np.ndarray:
+    def values(
+        self,
+        indices: np.ndarray | Sequence[int],
+        channels: np.ndarray | int,
+        receiver: int = 0,
+    ) -> np.ndarray:
         idx = np.asarray(indices, dtype=np.int64)
         if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
             raise RgtbusError(
                 f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
                 f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
             )
-        return self._buf[idx % self.capacity]
+        return self._buf[idx % self.capacity, receiver, channels]
+
+    def of(self, receiver: int) -> ReceiverReadout:
+        if not 0 <= receiver < self.receivers:
+            raise RgtbusError(f"readout: receiver {receiver} not in the history ({self.receivers})")
+        return ReceiverReadout(self, receiver)
 
 
-DIGITS = 12  # readout precision: far below any noise, far above rounding residue (~1e-17)
+@dataclass(frozen=True)
+class ReceiverReadout:
+    """One receiver's readout in a shared history."""
 
-
-class BankReadout:
-    """Streaming increment readout of every channel of one receiver at once (what a unit keeps:
-    one vectorised update a window instead of one per channel).
-
-    Values are rounded to ``DIGITS`` decimals, so a silent sample reads exactly 0 whether it was
-    computed (``append``) or known (``append_quiet``): results never depend on which windows
-    happened to be silent, i.e. on the window size.
-
-    ``append(result)`` after each ``bank.feed(..., record=True)``; ``values(indices, channels)``
-    gives d at absolute sample indices (any shape) of the matching channels.
-    """
-
-    def __init__(self, bank: ResonatorBank, receiver: int = 0, capacity: int = 6000) -> None:
-        if not isinstance(capacity, int) or capacity < 1:
-            raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
-        if not 0 <= receiver < bank.n_receivers:
-            raise RgtbusError(
-                f"readout: receiver {receiver} not in the bank ({bank.n_receivers} receivers)"
-            )
-        self.A = np.asarray(bank.A, dtype=complex)
-        self.reset_value = float(bank.reset_value)
-        self.receiver = receiver
-        self.capacity = capacity
-        self._buf = np.zeros((capacity, self.A.size))
-        self._end = 0
-        self._z_prev = np.zeros(self.A.size, dtype=complex)
-        self._sp_prev = np.zeros(self.A.size, dtype=bool)
+    history: ReadoutHistory
+    receiver: int
 
     @property
     def end(self) -> int:
-        return self._end
-
-    def quench(self) -> None:
-        """The bank was quenched (z = 0): the next increments start from rest."""
-        self._z_prev[:] = 0
-        self._sp_prev[:] = False
-
-    def append(self, result: FeedResult) -> None:
-        if result.z is None or result.spiked is None:
-            raise RgtbusError("readout needs bank.feed(..., record=True) results")
-        if result.start != self._end:
-            raise RgtbusError(
-                f"readout: result starts at sample {result.start}, expected "
-                f"{self._end} (results must be appended in order)"
-            )
-        z = result.z[:, self.receiver, :]
-        sp = result.spiked[:, self.receiver, :]
-        if not len(z):
-            return
-        d = increments(z, sp, self.A, self.reset_value, self._z_prev, self._sp_prev)
-        self._z_prev = z[-1].copy()
-        self._sp_prev = sp[-1].copy()
-        self._store(np.round(d, DIGITS))
-
-    def append_quiet(self, n: int, bank: ResonatorBank) -> None:
-        """``n`` samples of silence were fed (``record=False``): their increments are 0, and the
-        next increment starts from the bank's current state."""
-        self._z_prev = bank.z[self.receiver].copy()
-        self._sp_prev = bank.spiked_last[self.receiver].copy()
-        self._store(np.zeros((n, self.A.size)))
-
-    def _store(self, d: np.ndarray) -> None:
-        idx = np.arange(self._end, self._end + len(d)) % self.capacity
-        self._buf[idx] = d
-        self._end += len(d)
+        return self.history.end
 
     def values(self, indices: np.ndarray | Sequence[int], channels: np.ndarray | int) -> np.ndarray:
-        idx = np.asarray(indices, dtype=np.int64)
-        if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
-            raise RgtbusError(
-                f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
-                f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
-            )
-        return self._buf[idx % self.capacity, channels]
+        return self.history.values(indices, channels, self.receiver)
+
+
+Readout = ReadoutHistory | ReceiverReadout
 
 
 def decode_among(
-    readout: BankReadout,
+    readout: Readout,
     channels: Sequence[tuple[int, float]],
     start: float,
-    words: Mapping[str, Sequence[float]],
+    words: Words,
     *,
     tau: float = PAPER_TAU,
     search: int = 0,
@@ -232,34 +150,92 @@ def decode_among(
     """Which of ``channels`` ((channel index, ω) pairs) carries a code that started at ``start``
     (± ``search`` samples), and which word: the (channel, timing, word) with the smallest
     distance, all candidates scored in one vectorised step. Returns (decision, channel index)."""
-    ws = _words(words, None, "decode")
-    names = list(ws)
-    mat = np.stack([ws[n] for n in names])  # (W, N)
-    pulses = mat.shape[1]
-    rows: list[tuple[int, int, tuple[int, ...]]] = []
-    for ch, omega in channels:
-        for shift, inst in candidate_instants(omega, start, pulses, tau, search):
-            if inst[0] >= 0 and inst[-1] < readout.end:
-                rows.append((ch, shift, inst))
-    if not rows:
+    names, mat = word_matrix(words, None, "decode")
+    chans, shifts, inst = _candidates(
+        tuple((int(c), float(w)) for c, w in channels), float(start), mat.shape[1], tau, search
+    )
+    ok = (inst[:, 0] >= 0) & (inst[:, -1] < readout.end)
+    if not ok.any():
         raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
-    inst = np.array([r[2] for r in rows])
-    chans = np.array([r[0] for r in rows])
+    if not ok.all():
+        chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
     vals = readout.values(inst, chans[:, None])  # (M, N)
-    dist = np.linalg.norm(vals[:, None, :] - mat[None, :, :], axis=2)  # (M, W)
-    best_w = dist.argmin(axis=1)
-    best_d = dist[np.arange(len(rows)), best_w]
-    m = int(np.argmin(best_d))  # the first minimum: channels in order, nearest shift first
-    w = int(best_w[m])
-    same = np.all(mat == mat[w], axis=1)
-    others = dist[m][~same]
-    margin = float(others.min() - dist[m, w]) if others.size else math.inf
-    sep = float(np.linalg.norm(mat[~same] - mat[w], axis=1).min()) if others.size else 0.0
-    conf = margin / sep if sep > 0 else (1.0 if not others.size else 0.0)
-    ch, shift, instants = rows[m]
-    return Decision(
-        names[w], float(dist[m, w]), margin, conf, tuple(float(x) for x in vals[m]), instants, shift
-    ), ch
+    m, w, best, margin, sep = score(vals, mat, _ORDER[: mat.shape[0]])
+    conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
+    decision = Decision(
+        names[w],
+        best,
+        margin,
+        conf,
+        tuple(float(x) for x in vals[m]),
+        tuple(int(k) for k in inst[m]),
+        int(shifts[m]),
+    )
+    return decision, int(chans[m])
+
+
+_ORDER = np.arange(4096)
+
+
+@numba.njit(cache=True, nogil=True)
+def score(vals, mat, rank):  # fmt: skip
+    """Maximum likelihood under white Gaussian noise: the candidate row ``m`` of ``vals``
+    (M, N) and word ``w`` of ``mat`` (W, N) at the smallest Euclidean distance (ties: the first
+    row, the lowest ``rank``), that distance, the margin (the nearest word that differs from
+    ``w`` is this much farther; inf if none) and the separation of ``w`` from that set."""
+    M, W, N = vals.shape[0], mat.shape[0], mat.shape[1]
+    best_m, best_w, best_d = 0, 0, np.inf
+    for i in range(M):
+        for j in range(W):
+            acc = 0.0
+            for k in range(N):
+                diff = vals[i, k] - mat[j, k]
+                acc += diff * diff
+            d = np.sqrt(acc)
+            if d < best_d or (d == best_d and i == best_m and rank[j] < rank[best_w]):
+                best_m, best_w, best_d = i, j, d
+    runner = np.inf
+    sep = np.inf
+    for j in range(W):
+        acc = 0.0
+        dist2 = 0.0
+        for k in range(N):
+            diff = vals[best_m, k] - mat[j, k]
+            acc += diff * diff
+            gap = mat[j, k] - mat[best_w, k]
+            dist2 += gap * gap
+        if dist2 == 0.0:
+            continue  # the same word under another name (e.g. id and alliance)
+        runner = min(runner, np.sqrt(acc))
+        sep = min(sep, np.sqrt(dist2))
+    if runner == np.inf:
+        return best_m, best_w, best_d, np.inf, 0.0
+    return best_m, best_w, best_d, runner - best_d, sep
+
+
+@lru_cache(maxsize=1024)  # every unit of a run decodes the same codes
+def _candidates(
+    channels: tuple[tuple[int, float], ...], start: float, pulses: int, tau: float, search: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every (channel, timing shift, instants) candidate, channels in order, nearest shift
+    first: three read-only arrays (M,), (M,), (M, pulses)."""
+    rows = [
+        (ch, shift, inst)
+        for ch, omega in channels
+        for shift, inst in _candidate_instants(omega, start, pulses, tau, search)
+    ]
+    chans = np.array([r[0] for r in rows], dtype=np.int64)
+    shifts = np.array([r[1] for r in rows], dtype=np.int64)
+    inst = np.array([r[2] for r in rows], dtype=np.int64).reshape(len(rows), pulses)
+    for a in (chans, shifts, inst):
+        a.flags.writeable = False
+    return chans, shifts, inst
+
+
+def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    """Euclidean distance of each row of ``values`` (M, N) to each word of ``mat`` (W, N)."""
+    diff = values[:, None, :] - mat[None, :, :]
+    return np.sqrt((diff * diff).sum(axis=2))
 
 
 @dataclass(frozen=True)
@@ -278,35 +254,77 @@ class Decision:
     shift: int = 0
 
 
+@dataclass(frozen=True, eq=False)
+class WordSet:
+    """Candidate words as names and a read-only (W, N) matrix: built once, decoded often."""
+
+    names: tuple[str, ...]
+    matrix: np.ndarray
+
+    @classmethod
+    def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:
+        return cls(*word_matrix(words, None, where))
+
+
+Words = Mapping[str, Sequence[float]] | WordSet
+
+
+def word_matrix(words: Words, n: int | None, where: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """Names and the (W, N) matrix of candidate words (checked; cached per word set)."""
+    if isinstance(words, WordSet):
+        if n is not None and words.matrix.shape[1] != n:
+            raise RgtbusError(
+                f"{where}: word {words.names[0]!r} has {words.matrix.shape[1]} pulses, expected {n}"
+            )
+        return words.names, words.matrix
+    if not words:
+        raise RgtbusError(f"{where}: no candidate words")
+    try:
+        key = tuple((str(k), tuple(float(x) for x in v)) for k, v in words.items())
+    except (TypeError, ValueError):
+        raise RgtbusError(f"{where}: words must be sequences of numbers") from None
+    if len({len(v) for _, v in key}) != 1:
+        raise RgtbusError(f"{where}: candidate words have different lengths")
+    names, mat = _word_matrix(key)
+    if n is not None and mat.shape[1] != n:
+        raise RgtbusError(f"{where}: word {names[0]!r} has {mat.shape[1]} pulses, expected {n}")
+    return names, mat
+
+
+@lru_cache(maxsize=256)
+def _word_matrix(
+    key: tuple[tuple[str, tuple[float, ...]], ...],
+) -> tuple[tuple[str, ...], np.ndarray]:
+    mat = np.array([v for _, v in key], dtype=float)
+    mat.flags.writeable = False
+    return tuple(k for k, _ in key), mat
+
+
 def _words(
     words: Mapping[str, Sequence[float]], n: int | None, where: str
 ) -> dict[str, np.ndarray]:
-    if not words:
-        raise RgtbusError(f"{where}: no candidate words")
-    out = {str(k): np.asarray(v, dtype=float) for k, v in words.items()}
-    for k, v in out.items():
-        if v.ndim != 1 or (n is not None and v.size != n):
-            raise RgtbusError(f"{where}: word {k!r} has {v.size} pulses, expected {n}")
-    return out
+    names, mat = word_matrix(words, n, where)
+    return dict(zip(names, mat, strict=True))
 
 
-def nearest(values: Sequence[float] | np.ndarray, words: Mapping[str, Sequence[float]]) -> Decision:
+def nearest(values: Sequence[float] | np.ndarray, words: Words) -> Decision:
     """Maximum-likelihood (nearest Euclidean) word for the values read at a code's instants.
 
-    Words equal to the best (e.g. ``id`` and ``alliance``) are not counted as runners-up.
+    Words equal to the best (e.g. ``id`` and ``alliance``) are not counted as runners-up; ties
+    go to the first name in alphabetical order.
     """
-    v = np.asarray(values, dtype=float)
-    ws = _words(words, v.size, "nearest")
-    scored = sorted((float(np.linalg.norm(v - w)), name) for name, w in ws.items())
-    best_d, best = scored[0]
-    rest = [(d, n) for d, n in scored[1:] if not np.array_equal(ws[n], ws[best])]
-    if rest:
-        margin = rest[0][0] - best_d
-        sep = float(np.linalg.norm(ws[rest[0][1]] - ws[best]))
-        conf = margin / sep if sep > 0 else 0.0
-    else:
-        margin, conf = math.inf, 1.0
-    return Decision(best, best_d, margin, conf, tuple(float(x) for x in v))
+    v = np.asarray(values, dtype=float).reshape(1, -1)
+    names, mat = word_matrix(words, v.shape[1], "nearest")
+    _, w, best, margin, sep = score(v, mat, _alphabetical(names))
+    conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
+    return Decision(names[w], best, margin, conf, tuple(float(x) for x in v[0]))
+
+
+@lru_cache(maxsize=256)
+def _alphabetical(names: tuple[str, ...]) -> np.ndarray:
+    rank = np.empty(len(names), dtype=np.int64)
+    rank[np.argsort(np.array(names, dtype=object), kind="stable")] = np.arange(len(names))
+    return rank
 
 
 def candidate_instants(
@@ -314,6 +332,13 @@ def candidate_instants(
 ) -> list[tuple[int, tuple[int, ...]]]:
     """Every distinct pulse-instant tuple for starts within ± ``search`` samples of ``start``,
     as (shift in samples, instants), nearest shift first."""
+    return list(_candidate_instants(float(omega), float(start), int(pulses), float(tau), search))
+
+
+@lru_cache(maxsize=4096)  # every unit of a run decodes the same codes
+def _candidate_instants(
+    omega: float, start: float, pulses: int, tau: float, search: int
+) -> tuple[tuple[int, tuple[int, ...]], ...]:
     period = 2 * math.pi / omega
     t_lo, t_hi = start - search * tau, start + search * tau
     cuts = {t_lo, t_hi}
@@ -331,11 +356,11 @@ def candidate_instants(
     for t in probes:
         if t < 0:
             continue
-        inst = tuple(round((t + j * period) / tau) for j in range(pulses))
+        inst = pulse_samples(omega, t, pulses, tau)
         shift = inst[0] - round(start / tau)
         if inst not in seen or abs(shift) < abs(seen[inst]):
             seen[inst] = shift
-    return sorted(((s, i) for i, s in seen.items()), key=lambda p: (abs(p[0]), p[0]))
+    return tuple(sorted(((s, i) for i, s in seen.items()), key=lambda p: (abs(p[0]), p[0])))
 
 
 def decode_code(
@@ -347,11 +372,13 @@ def decode_code(
     tau: float = PAPER_TAU,
     search: int = 0,
     offset: int = 0,
+    channel: int = 0,
 ) -> Decision:
     """Decode one code on ``omega`` that started at ``start`` s (± ``search`` samples).
 
-    ``readout`` is a :class:`Readout` or a 1-D array of d whose element 0 is absolute sample
-    ``offset``.  Returns the best fit over timing candidates (smallest distance, then shift).
+    ``readout`` is a :class:`ReadoutHistory` (read on ``channel``) or a 1-D array of d whose
+    element 0 is absolute sample ``offset``.  Returns the best fit over timing candidates
+    (smallest distance, then shift).
     """
     ws = _words(words, None, "decode")
     n = {w.size for w in ws.values()}
@@ -361,7 +388,7 @@ def decode_code(
     best: Decision | None = None
     for shift, inst in candidate_instants(omega, start, pulses, tau, search):
         try:
-            vals = _read(readout, inst, offset)
+            vals = _read(readout, inst, offset, channel)
         except RgtbusError:
             if search:
                 continue
@@ -378,9 +405,11 @@ def decode_code(
     return best
 
 
-def _read(readout: Readout | np.ndarray, inst: Sequence[int], offset: int) -> np.ndarray:
-    if isinstance(readout, Readout):
-        return readout.values(inst)
+def _read(
+    readout: Readout | np.ndarray, inst: Sequence[int], offset: int, channel: int = 0
+) -> np.ndarray:
+    if isinstance(readout, ReadoutHistory):
+        return readout.values(inst, channel)
     arr = np.asarray(readout)
     idx = np.asarray(inst, dtype=np.int64) - offset
     if idx.min() < 0 or idx.max() >= arr.shape[0]:
@@ -406,13 +435,21 @@ def accept_id(
     search: int = 3,
     offset: int = 0,
     accept_radius: float | None = None,
+    channel: int = 0,
 ) -> tuple[bool, Decision]:
     """Judge a spike on the sender's own ω: accepted iff the code there decodes as the ID-code
     among all distinct words, within ``accept_radius`` (default half the codebook's
     ``min_distance``)."""
     start = max(0.0, start_from_spike(spike_sample, omega, codebook.pulses, tau))
     dec = decode_code(
-        readout, omega, start, codebook.distinct_words(), tau=tau, search=search, offset=offset
+        readout,
+        omega,
+        start,
+        codebook.distinct_words(),
+        tau=tau,
+        search=search,
+        offset=offset,
+        channel=channel,
     )
     radius = codebook.min_distance / 2 if accept_radius is None else accept_radius
     return dec.name == "id" and dec.distance <= radius, dec
@@ -423,6 +460,7 @@ def decode_joint(
     transmissions: Sequence[tuple[Sequence[int], Mapping[str, Sequence[float]]]],
     *,
     offset: int = 0,
+    channel: int = 0,
 ) -> list[Decision]:
     """Decode overlapping transmissions together.
 
@@ -442,7 +480,7 @@ def decode_joint(
         for j, ((_, w), i) in enumerate(zip(transmissions, insts, strict=True))
     ]
     union = np.unique(np.concatenate(insts))
-    d = _read(readout, union, offset)
+    d = _read(readout, union, offset, channel)
     cols = []
     for inst in insts:
         for k in inst:

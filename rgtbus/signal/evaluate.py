@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.decoder import increments
 from rgtbus.signal.resonator import PAPER_TAU, ResonatorBank
 from rgtbus.signal.waveform import pulse_instants
 
@@ -82,9 +81,10 @@ def symbol_error_rate(
             u[inst_i] += IW[pick_i].T
         if sigma > 0:
             u += rng.normal(0.0, sigma, u.shape)
-        bank = ResonatorBank(channels, mode=mode, tau=tau, n_receivers=m)
-        res = bank.feed(u, record=True)
-        d = increments(res.z[:, :, 0], res.spiked[:, :, 0], bank.A[0], bank.reset_value)
+        res = ResonatorBank(channels, mode=mode, tau=tau, n_receivers=m).feed(u, readout=True)
+        assert res.readout is not None and res.readout_rows is not None
+        d = np.zeros((n, m))  # the increment readout on the code's channel (0 where silent)
+        d[res.readout_rows] = res.readout[:, :, 0]
         if interferer is None or not joint:
             v = d[inst].T  # (m, N)
             dist = np.linalg.norm(v[:, None, :] - W[None, :, :], axis=2)

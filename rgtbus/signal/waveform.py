@@ -12,11 +12,20 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.resonator import PAPER_TAU
+
+
+@lru_cache(maxsize=65536)
+def pulse_samples(omega: float, start: float, pulses: int, tau: float) -> tuple[int, ...]:
+    """The rule: pulse j of a code starting at ``start`` on ω is at sample
+    ``round((start + j·2π/ω)/τ)`` (round half to even). Unchecked; see ``pulse_instants``."""
+    period = 2 * math.pi / omega
+    return tuple(round((start + j * period) / tau) for j in range(pulses))
 
 
 def pulse_instants(omega: float, start: float, pulses: int, tau: float = PAPER_TAU) -> np.ndarray:
@@ -27,8 +36,7 @@ def pulse_instants(omega: float, start: float, pulses: int, tau: float = PAPER_T
         raise RgtbusError(f"start = {start!r} must be a time ≥ 0 s")
     if not isinstance(pulses, (int, np.integer)) or pulses < 1:
         raise RgtbusError(f"pulses = {pulses!r} must be a positive integer")
-    period = 2 * math.pi / omega
-    return np.array([round((start + j * period) / tau) for j in range(pulses)], dtype=np.int64)
+    return np.array(pulse_samples(omega, start, int(pulses), tau), dtype=np.int64)
 
 
 @dataclass(frozen=True)

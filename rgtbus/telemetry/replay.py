@@ -8,8 +8,8 @@ alone.
 
 ``verify(replay, rerun)`` compares the log with a re-run of its units on its own medium (the
 re-run itself needs the units, so it lives in ``units/replay.py``; anything with ``messages``,
-``summary``, ``windows`` and ``complete`` will do) and checks that the logged pulses add up,
-sample for sample, to the logged medium. Every disagreement is a ``Mismatch``.
+``summary`` and ``complete`` will do) and checks that the logged pulses add up, sample for
+sample, to the logged medium. Every disagreement is a ``Mismatch``.
 """
 
 from __future__ import annotations
@@ -246,10 +246,10 @@ class Replay:
 
     @property
     def sim_seconds(self) -> float:
+        """The run's simulated length: from its ``/run`` record, else as far as the log goes."""
         if self.run is not None:
             return float(self.run["sim_seconds"])
-        ws = self.window_seconds or 0.0
-        return round(self.windows * ws, 6)
+        return round(max((m[1] for m in self.contents.messages), default=0) / NS, 6)
 
     def agree(self) -> bool:
         tables = [self.relations.get(u, {}).get("installed", {}) for u in self.units]
@@ -309,7 +309,6 @@ class Replay:
             "outcome": run.get("outcome", self._outcome()),
             "decode_errors": self.decode_errors(),
             "sim_seconds": self.sim_seconds,
-            "windows": self.windows,
             "error": run.get("error"),
         }
 
@@ -377,19 +376,17 @@ class Replay:
 
     # -- inputs for a re-run -----------------------------------------------------------------
 
-    def _medium_array(self) -> tuple[np.ndarray, list[Mismatch]]:
-        """Logged medium as (windows, L), with gaps and malformed windows reported (zeros)."""
+    def _medium_windows(self) -> tuple[dict[int, np.ndarray], list[Mismatch]]:
+        """The logged medium's windows (only windows that carried a pulse are logged), with
+        repeated and malformed windows reported."""
         sc = self.require_scenario()
         L = sc.timing.window_samples
         ws = L / sc.timing.sample_rate
-        med = self.by_topic["/medium"]
-        n = max((m["window"] for _, m in med), default=-1) + 1
-        arr = np.zeros((n, L))
-        have = np.zeros(n, dtype=bool)
+        out: dict[int, np.ndarray] = {}
         bad: list[Mismatch] = []
-        for t_ns, m in med:
+        for t_ns, m in self.by_topic["/medium"]:
             w = m["window"]
-            if have[w]:
+            if w in out:
                 bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w}", "twice", "once"))
                 continue
             if len(m["samples"]) != L:
@@ -410,64 +407,99 @@ class Replay:
                         sc.timing.sample_rate,
                     )
                 )
-            arr[w] = m["samples"]
-            have[w] = True
-        for w in np.flatnonzero(~have):
-            bad.append(Mismatch("/medium", w * ws, None, f"window {w}", "missing", "present"))
-        return arr, bad
+            out[w] = np.asarray(m["samples"], dtype=float)
+        return out, bad
 
-    def medium_windows(self) -> np.ndarray:
-        """The logged medium, one row per window (a missing window reads as silence)."""
-        return self._medium_array()[0]
-
-    def _pulse_parts(self, n_windows: int) -> dict[str, np.ndarray]:
-        """Each sender's own samples, rebuilt from its logged pulses (flat, windows × L).
-
-        Added in logged order, as the unit added them, so the floats are the unit's own."""
+    def medium_pulses(self) -> tuple[np.ndarray, np.ndarray]:
+        """The logged medium as (sample indexes, values) of its non-silent samples: what every
+        unit heard, bit for bit (each unit's magnitudes added up, then the units in order)."""
         sc = self.require_scenario()
         L = sc.timing.window_samples
-        parts = {u: np.zeros(n_windows * L) for u in self.units}
+        windows, _ = self._medium_windows()
+        rows, vals = [], []
+        for w in sorted(windows):
+            nz = np.flatnonzero(windows[w])
+            rows.append(nz + w * L)
+            vals.append(windows[w][nz])
+        if not rows:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        return np.concatenate(rows).astype(np.int64), np.concatenate(vals)
+
+    def sender_pulses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each unit's own transmissions, rebuilt from its logged pulses (in the order it sent
+        them: the floats add up as the unit added them)."""
+        rows: dict[str, list[int]] = {u: [] for u in self.units}
+        vals: dict[str, list[float]] = {u: [] for u in self.units}
         for _, p in self.by_topic["/tx/pulse"]:
-            k = p["sample"]
-            if p["unit"] in parts and 0 <= k < n_windows * L:
-                parts[p["unit"]][k] += p["magnitude"]
-        return parts
+            if p["unit"] in rows:
+                rows[p["unit"]].append(int(p["sample"]))
+                vals[p["unit"]].append(float(p["magnitude"]))
+        out = {}
+        for u in self.units:
+            r = np.array(rows[u], dtype=np.int64)
+            order = np.argsort(r, kind="stable")
+            out[u] = (r[order], np.array(vals[u])[order])
+        return out
 
     def has_gains(self) -> bool:
         sc = self.require_scenario()
         return any(g != 1.0 for g in sc.gains.values())
 
-    def sender_parts(self) -> list[dict[str, np.ndarray]]:
-        """Per window, each sender's samples (for scenarios with link gains)."""
+    def units_until_ns(self) -> int | None:
+        """The log time up to which the units' messages are complete (units write in time
+        order; the medium and traces are logged ahead of them): None when nothing was."""
+        times = [
+            t
+            for topic, msgs in self.by_topic.items()
+            if topic != "/medium" and not _is_trace(topic) and topic != "/run"
+            for t, _ in msgs
+        ]
+        return max(times) if times else None
+
+    def check_medium(self, until_ns: int | None = None) -> list[Mismatch]:
+        """Every logged window exactly equals the sum of the logged pulses (each unit's
+        magnitudes in the order sent, then the units in order), and every window that carries
+        a pulse is logged; only windows that end before ``until_ns`` when given (a truncated
+        log: the medium is logged ahead of the pulses)."""
         sc = self.require_scenario()
         L = sc.timing.window_samples
-        n = self.medium_windows().shape[0]
-        flat = self._pulse_parts(n)
-        return [{u: flat[u][w * L : (w + 1) * L] for u in self.units} for w in range(n)]
-
-    def check_medium(self) -> list[Mismatch]:
-        """Every logged window exactly equals the sum of the logged pulses (unit order)."""
-        sc = self.require_scenario()
-        arr, bad = self._medium_array()
-        n, L = arr.shape
         tau = sc.timing.tau
-        parts = self._pulse_parts(n)
-        expected = np.zeros(n * L)
-        for u in self.units:  # the medium's own order of addition
-            expected += parts[u]
-        logged = arr.reshape(-1)
-        for k in np.flatnonzero(logged != expected):
-            w = int(k) // L
-            bad.append(
-                Mismatch(
-                    "/medium",
-                    float(k) * tau,
-                    None,
-                    f"window {w} samples[{int(k) - w * L}]",
-                    float(logged[k]),
-                    float(expected[k]),
+        windows, bad = self._medium_windows()
+        parts = self.sender_pulses()
+        rows = np.unique(np.concatenate([p[0] for p in parts.values()] + [np.zeros(0, int)]))
+        x = np.zeros((rows.size, len(self.units)))
+        for j, u in enumerate(self.units):
+            np.add.at(x[:, j], np.searchsorted(rows, parts[u][0]), parts[u][1])
+        expected = np.cumsum(x, axis=1)[:, -1] if rows.size else np.zeros(0)
+        want: dict[int, np.ndarray] = {}
+        for k, v in zip(rows.tolist(), expected.tolist(), strict=True):
+            if v != 0.0:
+                want.setdefault(k // L, np.zeros(L))[k % L] = v
+        end = self.sim_seconds / tau if self.run is not None else math.inf
+        if until_ns is not None:
+            end = min(end, until_ns / NS / tau - L)
+        for w in sorted(set(windows) | set(want)):
+            if until_ns is not None and (w + 1) * L * tau * NS > until_ns:
+                continue
+            logged = windows.get(w)
+            exp = want.get(w, np.zeros(L))
+            if logged is None:
+                if w * L <= end:  # a run logs its medium up to its end
+                    bad.append(
+                        Mismatch("/medium", w * L * tau, None, f"window {w}", "missing", "present")
+                    )
+                continue
+            for k in np.flatnonzero(logged != exp):
+                bad.append(
+                    Mismatch(
+                        "/medium",
+                        (w * L + int(k)) * tau,
+                        None,
+                        f"window {w} samples[{int(k)}]",
+                        float(logged[k]),
+                        float(exp[k]),
+                    )
                 )
-            )
         return bad
 
     def traced_units(self) -> list[str]:
@@ -680,8 +712,7 @@ class VerifyReport:
     checked: dict[str, int]
     truncated: bool
     note: str
-    windows_logged: int
-    windows_rerun: int
+    medium_windows: int  # non-silent windows of the medium in the log
     until: float | None = None  # compared up to this time (a truncated log)
 
     @property
@@ -700,10 +731,10 @@ class VerifyReport:
             return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
         if self.truncated:
             return (
-                f"INCOMPLETE: the {n} messages before t = {self.until:.3f} s agree, but the log "
-                "is truncated, so the run is verified only that far"
+                f"INCOMPLETE: the {n} messages before t = {self.until or 0.0:.3f} s agree, but "
+                "the log is truncated, so the run is verified only that far"
             )
-        return f"verified: {n} messages agree with the re-run ({self.windows_logged} windows)"
+        return f"verified: {n} messages agree with the re-run"
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -714,7 +745,7 @@ class VerifyReport:
             "truncated": self.truncated,
             "note": self.note,
             "until": self.until,
-            "windows": {"logged": self.windows_logged, "rerun": self.windows_rerun},
+            "medium_windows": self.medium_windows,
             "checked": dict(self.checked),
             "mismatches": [asdict(m) for m in self.mismatches],
         }
@@ -726,7 +757,8 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     Checks: the metadata matches the scenario; the pulses add up to the medium; every spike,
     decode, table, decision, trace and unit log line recomputed equals the logged one (no
     more, no fewer); the ``/run`` record equals the re-run's summary; plus ``checks`` (e.g.
-    decisions re-derived from the logged tables).
+    decisions re-derived from the logged tables). ``rerun`` needs ``messages``, ``summary``
+    and ``complete`` (every re-run unit ended within the logged medium).
     """
     sc = replay.require_scenario()
     mismatches: list[Mismatch] = []
@@ -739,15 +771,13 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         got = replay.metadata.get(name)
         if got is not None and got != want:
             mismatches.append(Mismatch(f"metadata {name}", None, None, "values", got, want))
-    mismatches += replay.check_medium()
-    ws = sc.timing.window_samples / sc.timing.sample_rate
     until_ns = None
     until = None
     if replay.truncated:
-        # Messages of the last logged window may be cut off: compare only before it.
-        last = max(replay.windows - 1, 0)
-        until_ns = round(last * ws * NS)
-        until = last * ws
+        # Units write in time order: what is logged before their last message is complete.
+        until_ns = replay.units_until_ns() or 0
+        until = until_ns / NS
+    mismatches += replay.check_medium(until_ns)
     diffs, checked = diff_messages(
         replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns
     )
@@ -755,19 +785,15 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     mismatches += list(checks)
     checked["/medium"] = replay.windows
     if not replay.truncated:
-        # The World logs one closing window after the units are done (its FINAL/FAILED
-        # flags travel with that window's samples); a log without it (written before
-        # that rule) ends one window earlier. Anything else is a different run length.
-        closing_missing = not getattr(rerun, "closed", True) and rerun.complete
-        if (rerun.windows != replay.windows and not closing_missing) or not rerun.complete:
+        if not rerun.complete:
             mismatches.append(
                 Mismatch(
                     "/medium",
-                    replay.windows * ws,
+                    replay.sim_seconds,
                     None,
-                    "windows (the run's length)",
-                    replay.windows,
-                    rerun.windows if rerun.complete else f"more than {rerun.windows}",
+                    "the run's length",
+                    "the logged medium",
+                    "units still listening when it ends",
                 )
             )
         run = replay.run
@@ -776,7 +802,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         else:
             checked["/run"] += 1
             s = rerun.summary
-            want = {
+            want_run = {
                 "scenario": s["scenario"],
                 "seed": s["seed"],
                 "outcome": s["outcome"],
@@ -784,7 +810,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
                 "sim_seconds": s["sim_seconds"],
                 "error": s["error"],
             }
-            for path, lv, rv in _field_diffs(run, want):
+            for path, lv, rv in _field_diffs(run, want_run):
                 mismatches.append(Mismatch("/run", run.get("sim_seconds"), None, path, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))  # stable
     return VerifyReport(
@@ -793,8 +819,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         checked=dict(checked),
         truncated=replay.truncated,
         note=replay.note,
-        windows_logged=replay.windows,
-        windows_rerun=rerun.windows,
+        medium_windows=replay.windows,
         until=until,
     )
 

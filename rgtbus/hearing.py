@@ -1,0 +1,401 @@
+"""The units' ears: the resonator banks of the units one process runs, advanced as one (SimPy).
+
+Every unit hears the medium through its own resonators: its own lanes of the bank, its own link
+gains and noise, its own quench times and its own readout; it learns nothing from another unit's
+lanes. The lanes of all the units of one process are simply advanced by one call of the core
+(``resonate``), because a call costs about the same for one unit as for twenty: the numeric
+work of a run then grows with its events, not with events × units. Lanes are independent and
+every value depends only on the absolute sample, so how the work is batched or chunked never
+changes a result (docs/engine.md).
+
+A unit asks ``listen(i, boundary, at)``: "advance me up to sample ``boundary`` (exclusive)". The
+returned SimPy event fires at the unit's first spike (``Heard``, at the spike's time) or, when
+the boundary is reached, with ``None`` at time ``at`` (its timer's own sample). The ears advance
+only when every listening unit has asked, never past the smallest boundary asked for nor past
+the horizon of the known medium (``hear``), and stop at the first spike of any unit: events
+therefore happen in time order, each at its exact sample.
+
+``dense=True`` is the time-stepped reference: every window of ``window`` samples is fed to
+every unit, silent or not.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import simpy
+
+from rgtbus.bus.base import Pulses
+from rgtbus.errors import RgtbusError
+from rgtbus.signal.decoder import ReadoutHistory, ReceiverReadout
+from rgtbus.signal.resonator import BankState, ResonatorBank, resonate
+
+TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
+
+
+@dataclass(frozen=True)
+class Heard:
+    """Spikes of one unit's resonators at ``sample``, on channels ``channels`` (indexes)."""
+
+    sample: int
+    channels: tuple[int, ...]
+
+
+@dataclass
+class Listener:
+    """One unit's share of the ears."""
+
+    name: str
+    gains: np.ndarray  # gain of each sender's signal at this unit, in member order
+    noise: float  # σ of the white noise this unit's receiver adds to every sample
+    rng: np.random.Generator
+    keep: int  # samples of readout history the unit decodes from
+    trace: TraceSink | None = None
+    active: bool = True
+    request: tuple[int, int, simpy.Event] | None = None  # (boundary, at, event)
+    watch: int | None = None  # the channel whose spike could change this unit's plans
+    _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    _noise_at: int = 0  # sample of _noise[0]
+
+    def noise_for(self, lo: int, hi: int) -> np.ndarray:
+        """This unit's noise for samples [lo, hi), drawn in order from its own generator (the
+        same numbers however the stretch is cut)."""
+        have = self._noise_at + self._noise.size
+        if lo < self._noise_at:
+            raise RgtbusError(f"{self.name}: noise for sample {lo} was already used")
+        if hi > have:
+            more = self.rng.normal(0.0, self.noise, hi - have)
+            self._noise = np.concatenate([self._noise[lo - self._noise_at :], more])
+            self._noise_at = lo
+        out = self._noise[lo - self._noise_at : hi - self._noise_at]
+        return out
+
+    def used_noise(self, upto: int) -> None:
+        if upto > self._noise_at:
+            cut = min(upto - self._noise_at, self._noise.size)
+            self._noise = self._noise[cut:]
+            self._noise_at += cut
+
+
+class Ears:
+    """The banks of the listening units of one process (see the module docstring)."""
+
+    def __init__(
+        self,
+        env: simpy.Environment,
+        senders: Sequence[str],
+        listeners: Sequence[Listener],
+        bank: ResonatorBank,
+        *,
+        dense: bool = False,
+        window: int = 20,
+    ) -> None:
+        if bank.n_receivers != len(listeners):
+            raise RgtbusError(f"{len(listeners)} listeners for a bank of {bank.n_receivers}")
+        self.env = env
+        self.tau = bank.tau
+        self.senders = tuple(senders)
+        self.listeners = list(listeners)
+        self.bank = bank
+        self.dense = dense
+        self.window = window
+        self.readout = ReadoutHistory(
+            bank.n_channels, max(lst.keep for lst in self.listeners), len(self.listeners)
+        )
+        self.horizon = 0  # every sender's pulses before this sample are known
+        # the known medium: every pulse in sample order (each sender's in its own order)
+        self._rows = np.zeros(0, dtype=np.int64)
+        self._who = np.zeros(0, dtype=np.int64)
+        self._val = np.zeros(0)
+        self._cur = 0  # pulses before this index were heard
+        self._poke = env.event()
+        self._more = env.event()
+        self.quiet = env.event()  # every unit is done listening
+        self._unit_gains = all(np.all(lst.gains == 1.0) for lst in self.listeners)
+        self._traced = any(lst.trace is not None for lst in self.listeners)
+        self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        self.steps = 0  # bank advances so far
+        self.process = env.process(self._run())
+
+    @property
+    def pos(self) -> int:
+        return self.bank.n_fed
+
+    # -- the world's side ---------------------------------------------------------------------
+
+    def hear(self, horizon: int, pulses: Mapping[str, Pulses]) -> None:
+        """The medium is now known up to ``horizon`` (exclusive): these are the new pulses."""
+        if horizon < self.horizon:
+            raise RgtbusError(f"horizon {horizon} goes back from {self.horizon}")
+        parts = [(n, pulses[u]) for n, u in enumerate(self.senders) if u in pulses]
+        parts = [(n, p) for n, p in parts if p[0].size]
+        if parts:
+            rows = np.concatenate([p[0] for _, p in parts])
+            if rows.min() < self.horizon:
+                raise RgtbusError(f"a pulse at sample {int(rows.min())} arrived after its time")
+            who = np.concatenate([np.full(p[0].size, n) for n, p in parts])
+            val = np.concatenate([p[1] for _, p in parts])
+            order = np.argsort(rows, kind="stable")
+            keep = slice(self._cur, None)
+            self._rows = np.concatenate([self._rows[keep], rows[order]])
+            self._who = np.concatenate([self._who[keep], who[order]])
+            self._val = np.concatenate([self._val[keep], val[order]])
+            self._cur = 0
+        self.horizon = horizon
+        _fire(self._more)
+
+    # -- a unit's side --------------------------------------------------------------------------
+
+    def listen(self, i: int, boundary: int, at: int, watch: int | None = None) -> simpy.Event:
+        """Advance unit ``i`` up to sample ``boundary``; see the module docstring. ``watch``:
+        the channel on which a spike could change the unit's plans (the ears stop there; the
+        unit hears every other spike too, each at its sample, but nothing waits on them)."""
+        lst = self.listeners[i]
+        if not lst.active:
+            raise RgtbusError(f"{lst.name} stopped listening")
+        if boundary < self.pos:
+            raise RgtbusError(f"{lst.name}: boundary {boundary} is behind the ears ({self.pos})")
+        ev = self.env.event()
+        lst.request = (boundary, at, ev)
+        lst.watch = watch
+        _fire(self._poke)
+        return ev
+
+    def readout_of(self, i: int) -> ReceiverReadout:
+        """Unit ``i``'s own readout (its resonators' view of the medium)."""
+        return self.readout.of(i)
+
+    def quench(self, i: int) -> None:
+        """Unit ``i``'s resonators back to rest, here (before the sample the ears are at)."""
+        self.bank.quench(i)
+
+    def stop(self, i: int) -> None:
+        """Unit ``i`` is done: it listens no more (and draws no more noise)."""
+        lst = self.listeners[i]
+        lst.active = False
+        lst.request = None
+        if lst.trace is not None:
+            self._flush_trace(i)
+        _fire(self._poke)
+
+    def peek(
+        self,
+        i: int,
+        until: int,
+        extra: Mapping[str, Pulses],
+        quench: Sequence[int],
+        channel: int,
+        after: int,
+    ) -> int | None:
+        """Look ahead for unit ``i``: the first sample in [here, ``until``), at or after
+        ``after``, at which its resonator on ``channel`` would spike if the medium held only the
+        pulses known so far plus ``extra``, its quench times applied. Pure: the ears, the bank
+        and the unit do not move (the unit's noise is drawn ahead and kept for the real run)."""
+        lst = self.listeners[i]
+        lo = self.pos
+        if until <= lo or not lst.active:
+            return None
+        parts = [
+            (n, p)
+            for n, u in enumerate(self.senders)
+            if u in extra and (p := extra[u])[0].size and p[0][0] < until
+        ]
+        rows = np.concatenate([self._rows[self._cur :], *(p[0] for _, p in parts)])
+        who = np.concatenate([self._who[self._cur :], *(np.full(p[0].size, n) for n, p in parts)])
+        val = np.concatenate([self._val[self._cur :], *(p[1] for _, p in parts)])
+        order = np.argsort(rows, kind="stable")
+        rows, who, val = rows[order], who[order], val[order]
+        cut = int(np.searchsorted(rows, until))
+        unit_gains = bool(np.all(lst.gains == 1.0))
+        at, heard = _heard_by(rows[:cut], who[:cut], val[:cut], lst.gains[None, :], unit_gains)
+        heard = heard[:, 0]
+        if lst.noise > 0:
+            dense = lst.noise_for(lo, until).copy()
+            dense[at - lo] = heard + dense[at - lo]
+            at, heard = np.arange(lo, until, dtype=np.int64), dense
+        # Lanes are independent: the awaited channel's resonator alone, from the same tables.
+        lane = i * self.bank.n_channels + channel
+        st = self.bank.state
+        state = BankState(st.wr[[lane]], st.wi[[lane]], st.pend[[lane]], lo)
+        model = self.bank.model.pick(np.array([channel]), np.array([0]), 1)
+        stops = [*sorted(q for q in quench if lo <= q < until), until]
+        for stop in stops:
+            while state.n < stop:
+                k0, k1 = np.searchsorted(at, [state.n, stop])
+                state, res = resonate(model, state, stop, at[k0:k1], heard[k0:k1, None], stop=True)
+                if res.stopped and state.n - 1 >= after:
+                    return state.n - 1
+            if stop < until:
+                state = BankState.rest(1, stop)
+        return None
+
+    # -- the SimPy process ----------------------------------------------------------------------
+
+    def _run(self):
+        env = self.env
+        spikes: list[tuple[int, int, tuple[int, ...]]] = []  # heard, not yet delivered
+        while True:
+            live = [lst for lst in self.listeners if lst.active]
+            if not live:
+                self.quiet.succeed()
+                return
+            if any(lst.request is None for lst in live):
+                self._poke = env.event()
+                yield self._poke
+                continue
+            if spikes:  # deliver what the last advance heard, each at its sample, in order
+                k = spikes[0][0]
+                yield env.timeout(max(0.0, k * self.tau - env.now))
+                while spikes and spikes[0][0] == k:
+                    _, n, chans = spikes.pop(0)
+                    lst = self.listeners[n]
+                    if lst.active and lst.request is not None:
+                        ev = lst.request[2]
+                        lst.request = None
+                        ev.succeed(Heard(k, chans))
+                continue
+            boundary = min(lst.request[0] for lst in live)  # type: ignore[index]
+            target = min(boundary, self.horizon)
+            if self.dense:
+                target = min(target, (self.pos // self.window + 1) * self.window)
+            if self.pos < target:
+                spikes = self._advance(target)
+                continue
+            due = sorted(
+                (lst.request[1], n)  # type: ignore[index]
+                for n, lst in enumerate(self.listeners)
+                if lst.active and lst.request is not None and lst.request[0] == self.pos
+            )
+            if due:
+                for at, n in due:
+                    yield env.timeout(max(0.0, at * self.tau - env.now))
+                    lst = self.listeners[n]
+                    if lst.active and lst.request is not None:
+                        ev = lst.request[2]
+                        lst.request = None
+                        ev.succeed(None)
+                continue
+            self._more = env.event()
+            yield self._more  # the medium is known no further: wait for the world
+
+    def _advance(self, target: int) -> list[tuple[int, int, tuple[int, ...]]]:
+        """Every unit's lanes from here towards ``target``, up to the first spike on a watched
+        channel: one call of the core, however many other spikes ring on the way. Returns the
+        spikes heard: (sample, unit, channels)."""
+        lo = self.pos
+        cut = self._cur + int(np.searchsorted(self._rows[self._cur :], target))
+        rows, medium_at = self._medium_rows(slice(self._cur, cut))
+        noisy = [n for n, lst in enumerate(self.listeners) if lst.active and lst.noise > 0]
+        if noisy:
+            all_rows = np.arange(lo, target, dtype=np.int64)
+            heard = np.zeros((all_rows.size, len(self.listeners)))
+            heard[rows - lo] = medium_at
+            rows = all_rows
+            for n in noisy:
+                heard[:, n] += self.listeners[n].noise_for(lo, target)
+        else:
+            heard = medium_at
+        for n, lst in enumerate(self.listeners):
+            if not lst.active:
+                heard[:, n] = 0.0  # a unit that is done hears nothing more
+        C = self.bank.n_channels
+        watched = np.zeros(self.bank.model.lanes, dtype=bool)
+        for n, lst in enumerate(self.listeners):
+            if lst.active and lst.watch is not None:
+                watched[n * C + lst.watch] = True
+        res = self.bank.advance(
+            target,
+            rows,
+            heard,
+            stop=bool(watched.any()),
+            stop_lanes=watched,
+            readout=True,
+            record=self._traced,
+        )
+        end = lo + res.n
+        self.steps += 1
+        self._cur += int(np.searchsorted(self._rows[self._cur : cut], end))
+        self.readout.extend(res)
+        for n, lst in enumerate(self.listeners):
+            if lst.active:
+                lst.used_noise(end)
+                if lst.trace is not None and res.z is not None and res.y is not None:
+                    self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
+        heard_spikes = []
+        sp = res.spikes  # sorted by sample, receiver, channel
+        if sp.size:
+            keys = sp[:, 0] * len(self.listeners) + sp[:, 1]
+            starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+            for a, b in itertools.pairwise([*starts.tolist(), len(sp)]):
+                k, n = int(sp[a, 0]), int(sp[a, 1])
+                if self.listeners[n].active:
+                    chans = tuple(int(c) for c in sp[a:b, 2] if 0 <= c < C)
+                    heard_spikes.append((k, n, chans))
+        return heard_spikes
+
+    def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
+        """Samples of these pulses, and what each unit hears there."""
+        g = np.stack([lst.gains for lst in self.listeners])  # (listeners, senders)
+        return _heard_by(self._rows[part], self._who[part], self._val[part], g, self._unit_gains)
+
+    # -- traces ---------------------------------------------------------------------------------
+
+    def _add_trace(self, n: int, lo: int, x: np.ndarray, y: np.ndarray) -> None:
+        buf = self._trace_buf.setdefault(n, [])
+        buf.append((lo, x, y))
+        first = buf[0][0]
+        end = lo + x.shape[0]
+        w0 = first // self.window
+        while (w0 + 1) * self.window <= end:
+            self._emit_trace(n, (w0 + 1) * self.window)
+            buf = self._trace_buf.get(n, [])
+            if not buf:
+                return
+            w0 = buf[0][0] // self.window
+
+    def _emit_trace(self, n: int, upto: int) -> None:
+        """Hand unit n the trace rows before ``upto`` (a window boundary, or where it stopped)."""
+        buf = self._trace_buf.get(n, [])
+        if not buf:
+            return
+        first = buf[0][0]
+        xs = np.concatenate([b[1] for b in buf])
+        ys = np.concatenate([b[2] for b in buf])
+        k = upto - first
+        sink = self.listeners[n].trace
+        assert sink is not None
+        sink(first, xs[:k], ys[:k])
+        rest = [(upto, xs[k:], ys[k:])] if xs.shape[0] > k else []
+        self._trace_buf[n] = rest
+
+    def _flush_trace(self, n: int) -> None:
+        buf = self._trace_buf.get(n, [])
+        if buf:
+            self._emit_trace(n, buf[-1][0] + buf[-1][1].shape[0])
+
+
+def _heard_by(
+    pulses: np.ndarray, who: np.ndarray, val: np.ndarray, gains: np.ndarray, unit_gains: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """The samples that carry pulses, and what each listener hears there (rows, listeners):
+    each sender's magnitudes added in the order sent, times the listener's link gain for that
+    sender (``gains``: listeners × senders), added in member order."""
+    if not pulses.size:
+        return pulses, np.zeros((0, gains.shape[0]))
+    rows, at = np.unique(pulses, return_inverse=True)
+    S = gains.shape[1]
+    x = np.zeros(rows.size * S)
+    np.add.at(x, at * S + who, val)  # in order, per (row, sender)
+    x = x.reshape(rows.size, S)
+    if unit_gains:
+        total = np.cumsum(x, axis=1)[:, -1]  # sequential: the same sum everywhere
+        return rows, np.repeat(total[:, None], gains.shape[0], axis=1)
+    return rows, np.cumsum(x[:, None, :] * gains[None, :, :], axis=2)[:, :, -1]
+
+
+def _fire(ev: simpy.Event) -> None:
+    if not ev.triggered:
+        ev.succeed()
