@@ -8,12 +8,14 @@ work of a run then grows with its events, not with events × units. Lanes are in
 every value depends only on the absolute sample, so how the work is batched or chunked never
 changes a result (docs/engine.md).
 
-A unit asks ``listen(i, boundary, at)``: "advance me up to sample ``boundary`` (exclusive)". The
-returned SimPy event fires at the unit's first spike (``Heard``, at the spike's time) or, when
-the boundary is reached, with ``None`` at time ``at`` (its timer's own sample). The ears advance
-only when every listening unit has asked, never past the smallest boundary asked for nor past
-the horizon of the known medium (``hear``), and stop at the first spike of any unit: events
-therefore happen in time order, each at its exact sample.
+A unit asks ``listen(i, boundary, at, watch)``: "advance me up to sample ``boundary``
+(exclusive); wake me at a spike on channel ``watch``" (the one spike its protocol can react
+to). The returned SimPy event fires at that spike's time, or when the boundary is reached at
+time ``at`` (its timer's own sample), with a ``Heard``: every spike of the unit's resonators
+since it last woke, in order, each with its sample. The ears advance only when every listening
+unit has asked, never past the smallest boundary asked for nor past the horizon of the known
+medium (``hear``), and stop at the first watched spike of any unit: what a unit reacts to
+happens in time order, each at its exact sample.
 
 ``dense=True`` is the time-stepped reference: every window of ``window`` samples is fed to
 every unit, silent or not.
@@ -38,10 +40,11 @@ TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n
 
 @dataclass(frozen=True)
 class Heard:
-    """Spikes of one unit's resonators at ``sample``, on channels ``channels`` (indexes)."""
+    """What woke a unit: ``spikes`` of its resonators since it last woke, in order, as
+    (sample, channel indexes); ``reached``: its boundary (else: its watched spike, the last)."""
 
-    sample: int
-    channels: tuple[int, ...]
+    spikes: tuple[tuple[int, tuple[int, ...]], ...]
+    reached: bool
 
 
 @dataclass
@@ -57,6 +60,7 @@ class Listener:
     active: bool = True
     request: tuple[int, int, simpy.Event] | None = None  # (boundary, at, event)
     watch: int | None = None  # the channel whose spike could change this unit's plans
+    heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
     _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _noise_at: int = 0  # sample of _noise[0]
 
@@ -114,7 +118,8 @@ class Ears:
         self._poke = env.event()
         self._more = env.event()
         self.quiet = env.event()  # every unit is done listening
-        self._unit_gains = all(np.all(lst.gains == 1.0) for lst in self.listeners)
+        self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
+        self._unit_gains = bool(np.all(self._gains == 1.0))
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
         self.steps = 0  # bank advances so far
@@ -236,7 +241,6 @@ class Ears:
 
     def _run(self):
         env = self.env
-        spikes: list[tuple[int, int, tuple[int, ...]]] = []  # heard, not yet delivered
         while True:
             live = [lst for lst in self.listeners if lst.active]
             if not live:
@@ -246,23 +250,19 @@ class Ears:
                 self._poke = env.event()
                 yield self._poke
                 continue
-            if spikes:  # deliver what the last advance heard, each at its sample, in order
-                k = spikes[0][0]
-                yield env.timeout(max(0.0, k * self.tau - env.now))
-                while spikes and spikes[0][0] == k:
-                    _, n, chans = spikes.pop(0)
-                    lst = self.listeners[n]
-                    if lst.active and lst.request is not None:
-                        ev = lst.request[2]
-                        lst.request = None
-                        ev.succeed(Heard(k, chans))
-                continue
             boundary = min(lst.request[0] for lst in live)  # type: ignore[index]
             target = min(boundary, self.horizon)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
             if self.pos < target:
-                spikes = self._advance(target)
+                k = self._advance(target)
+                if k is not None:  # a watched spike: wake whoever watched it, at its time
+                    yield env.timeout(max(0.0, k * self.tau - env.now))
+                    for lst in self.listeners:
+                        if lst.active and lst.heard and lst.heard[-1][0] == k:
+                            chans = lst.heard[-1][1]
+                            if lst.watch in chans:
+                                self._wake(lst, reached=False)
                 continue
             due = sorted(
                 (lst.request[1], n)  # type: ignore[index]
@@ -274,17 +274,23 @@ class Ears:
                     yield env.timeout(max(0.0, at * self.tau - env.now))
                     lst = self.listeners[n]
                     if lst.active and lst.request is not None:
-                        ev = lst.request[2]
-                        lst.request = None
-                        ev.succeed(None)
+                        self._wake(lst, reached=True)
                 continue
             self._more = env.event()
             yield self._more  # the medium is known no further: wait for the world
 
-    def _advance(self, target: int) -> list[tuple[int, int, tuple[int, ...]]]:
+    @staticmethod
+    def _wake(lst: Listener, *, reached: bool) -> None:
+        assert lst.request is not None
+        ev = lst.request[2]
+        lst.request = None
+        heard, lst.heard = tuple(lst.heard), []
+        ev.succeed(Heard(heard, reached))
+
+    def _advance(self, target: int) -> int | None:
         """Every unit's lanes from here towards ``target``, up to the first spike on a watched
-        channel: one call of the core, however many other spikes ring on the way. Returns the
-        spikes heard: (sample, unit, channels)."""
+        channel: one call of the core, however many other spikes ring on the way (each unit
+        keeps its own until it wakes). Returns the watched spike's sample, if it stopped at one."""
         lo = self.pos
         cut = self._cur + int(np.searchsorted(self._rows[self._cur :], target))
         rows, medium_at = self._medium_rows(slice(self._cur, cut))
@@ -324,22 +330,18 @@ class Ears:
                 lst.used_noise(end)
                 if lst.trace is not None and res.z is not None and res.y is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
-        heard_spikes = []
-        sp = res.spikes  # sorted by sample, receiver, channel
-        if sp.size:
-            keys = sp[:, 0] * len(self.listeners) + sp[:, 1]
-            starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-            for a, b in itertools.pairwise([*starts.tolist(), len(sp)]):
-                k, n = int(sp[a, 0]), int(sp[a, 1])
-                if self.listeners[n].active:
-                    chans = tuple(int(c) for c in sp[a:b, 2] if 0 <= c < C)
-                    heard_spikes.append((k, n, chans))
-        return heard_spikes
+        # sorted by sample, receiver, channel: one entry per (sample, unit)
+        for (k, n), group in itertools.groupby(res.spikes.tolist(), key=lambda s: (s[0], s[1])):
+            lst = self.listeners[n]
+            if lst.active:
+                lst.heard.append((k, tuple(s[2] for s in group)))
+        return end - 1 if res.stopped else None
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""
-        g = np.stack([lst.gains for lst in self.listeners])  # (listeners, senders)
-        return _heard_by(self._rows[part], self._who[part], self._val[part], g, self._unit_gains)
+        return _heard_by(
+            self._rows[part], self._who[part], self._val[part], self._gains, self._unit_gains
+        )
 
     # -- traces ---------------------------------------------------------------------------------
 
@@ -385,6 +387,9 @@ def _heard_by(
     sender (``gains``: listeners × senders), added in member order."""
     if not pulses.size:
         return pulses, np.zeros((0, gains.shape[0]))
+    if unit_gains and (pulses.size == 1 or bool(np.all(pulses[1:] > pulses[:-1]))):
+        # one pulse a sample: what everyone hears is that magnitude (0 + v + 0 … is v)
+        return pulses, np.repeat(val[:, None], gains.shape[0], axis=1)
     rows, at = np.unique(pulses, return_inverse=True)
     S = gains.shape[1]
     x = np.zeros(rows.size * S)

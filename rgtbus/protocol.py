@@ -112,6 +112,7 @@ class Actions:
 
 
 NEVER = 2**63 - 1  # "no such sample": a promise of silence for the rest of the run
+NOTHING = Actions()  # what a spike the protocol ignores asks for (shared: never changed)
 
 
 @dataclass
@@ -144,6 +145,8 @@ class ProtocolState:
         self._ids: tuple[int, ...] = ()
         self._bound_key: tuple[int, int] | None = None
         self._bound = NEVER
+        self._awaited_key: tuple[int, float] | None = None
+        self._awaited: tuple[str, int, int] = ("", 0, 0)
 
     # -- helpers
 
@@ -207,12 +210,13 @@ class ProtocolState:
 
     def on_spike(self, channel: str, sample: int) -> Actions:
         """A spike on ``channel``'s resonator at ``sample``: the ID spike of the current turn
-        (once its first pulse is on the medium) moves the schedule on."""
+        (once its first pulse is on the medium) moves the schedule on. Any other spike asks
+        for nothing (the shared, empty ``NOTHING``)."""
         t = self.current()
         if self.anchor != "spike" or t is None or channel != t.sender:
-            return Actions()
+            return NOTHING
         if sample < self.id_samples()[0]:
-            return Actions()
+            return NOTHING
         acts = self._react(sample)
         acts.deadline = self._deadline()
         return acts
@@ -278,9 +282,13 @@ class ProtocolState:
         run's end). Past the latest sample (the ID's deadline) the chain is broken."""
         if self.anchor != "spike" or self.finished:
             return None
-        t = self.current()
-        assert t is not None
-        return t.sender, self.id_samples()[0], self.id_deadline()
+        key = (self.turn, self.turn_start)
+        if self._awaited_key != key:  # asked at every wake: the same until the chain moves
+            t = self.current()
+            assert t is not None
+            self._awaited_key = key
+            self._awaited = (t.sender, self.id_samples()[0], self.id_deadline())
+        return self._awaited
 
     def send_bound(self, h: int) -> int:
         """A lower bound on the first sample of any send this machine has not planned yet,

@@ -472,9 +472,7 @@ def test_zenoh_bus_left_open_does_not_hang_the_interpreter_at_exit():
     data=st.data(),
 )
 def test_frame_round_trip(seq, promise, done_at, flags, rate, values, data):
-    samples = np.sort(
-        data.draw(hnp.arrays(np.int64, values.size, elements=st.integers(0, NEVER)))
-    )
+    samples = np.sort(data.draw(hnp.arrays(np.int64, values.size, elements=st.integers(0, NEVER))))
     raw = encode(Frame(seq, promise, samples, values, flags, done_at), rate)
     assert len(raw) == HEADER_SIZE + 16 * values.size
     frame, r = decode(raw)

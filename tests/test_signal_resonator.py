@@ -298,3 +298,14 @@ def test_feed_and_advance_refusals():
         b.advance(2)
     with pytest.raises(RgtbusError, match="mode"):
         transition(1.0, mode="x")
+
+
+def test_a_spike_on_the_last_sample_is_a_stop():
+    b = ResonatorBank(PAPER)
+    res = b.advance(11, [10], [1.2], stop=True)  # spikes at sample 10, the last one asked for
+    assert res.stopped and res.spikes.tolist() == [[10, 0, c] for c in range(3)]
+    assert b.n_fed == 11 and b.spiked_last.all()
+    lanes = np.zeros(3, dtype=bool)
+    lanes[1] = True
+    res = ResonatorBank(PAPER).advance(11, [10], [1.2], stop=True, stop_lanes=lanes)
+    assert res.stopped and res.spikes[:, 2].tolist() == [0, 1, 2]

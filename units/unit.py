@@ -20,9 +20,9 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
-from rgtbus.hearing import Ears, Heard, Listener
+from rgtbus.hearing import Ears, Listener
 from rgtbus.mind import Mind, choose_influences, choose_relations
-from rgtbus.protocol import Actions, Listen, ProtocolState, Send, code_samples
+from rgtbus.protocol import NOTHING, Actions, Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import Readout, WordSet, decode_among, nearest
 from rgtbus.sim import ns
@@ -81,6 +81,7 @@ class AutonomousUnit:
         self._id_words = WordSet.of(self.cb.distinct_words())
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._channels = [(i, w) for i, w in enumerate(self.omegas)]
+        self._index = {u: i for i, u in enumerate(self.units)}
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -159,7 +160,7 @@ class AutonomousUnit:
         """The spike this unit's next plans wait for: (channel index, earliest sample, latest
         sample)."""
         aw = None if self.done else self.protocol.awaited()
-        return None if aw is None else (self.units.index(aw[0]), aw[1], aw[2])
+        return None if aw is None else (self._index[aw[0]], aw[1], aw[2])
 
     def quench_between(self, lo: int, hi: int) -> list[int]:
         """The samples in [lo, hi) before which this unit will set its resonators to rest."""
@@ -175,16 +176,16 @@ class AutonomousUnit:
             heard = yield self.ears.listen(
                 self.index, t.boundary, t.at, None if aw is None else aw[0]
             )
-            if heard is not None:
-                self._on_spikes(heard)
+            for k, channels in heard.spikes:  # in order; only the last can be reacted to
+                self._on_spikes(k, channels)
+            if not heard.reached:
                 continue
             while not self.done and self._timers and self._timers[0].boundary == t.boundary:
                 self._on_timer(heapq.heappop(self._timers))
         self.ears.stop(self.index)
 
-    def _on_spikes(self, heard: Heard) -> None:
-        k = heard.sample
-        for ch in heard.channels:
+    def _on_spikes(self, k: int, channels: tuple[int, ...]) -> None:
+        for ch in channels:
             channel = self.units[ch]
             self.recorder.write(
                 "/rx/spike",
@@ -232,6 +233,8 @@ class AutonomousUnit:
         return timer
 
     def _apply(self, acts: Actions) -> None:
+        if acts is NOTHING:
+            return
         for send in acts.sends:
             self._transmit(send)
         for listen in acts.listens:
@@ -339,7 +342,7 @@ class AutonomousUnit:
                 )
             return
         words = self._families["relation" if listen.kind == "relation" else "alternative"]
-        channels = [self._channels[self.units.index(r)] for r in listen.channels]
+        channels = [self._channels[self._index[r]] for r in listen.channels]
         assert self.readout is not None
         dec, ch = decode_among(
             self.readout, channels, listen.start, words, tau=self.tau, search=self.protocol.search

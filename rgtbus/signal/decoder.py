@@ -30,13 +30,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
-import numba
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.signal._walk import score
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
-from rgtbus.signal.waveform import pulse_samples
 
 MAX_EXHAUSTIVE = 4096
 
@@ -105,13 +104,17 @@ class ReadoutHistory:
         indices: np.ndarray | Sequence[int],
         channels: np.ndarray | int,
         receiver: int = 0,
+        span: tuple[int, int] | None = None,
     ) -> np.ndarray:
+        """d at ``indices`` (``span``: their smallest and largest, when the caller knows)."""
         idx = np.asarray(indices, dtype=np.int64)
-        if idx.size and (idx.min() < max(0, self._end - self.capacity) or idx.max() >= self._end):
-            raise RgtbusError(
-                f"readout: samples {int(idx.min())}..{int(idx.max())} are outside "
-                f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
-            )
+        if idx.size:
+            lo, hi = span if span is not None else (int(idx.min()), int(idx.max()))
+            if lo < max(0, self._end - self.capacity) or hi >= self._end:
+                raise RgtbusError(
+                    f"readout: samples {lo}..{hi} are outside "
+                    f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
+                )
         return self._buf[idx % self.capacity, receiver, channels]
 
     def of(self, receiver: int) -> ReceiverReadout:
@@ -131,8 +134,13 @@ class ReceiverReadout:
     def end(self) -> int:
         return self.history.end
 
-    def values(self, indices: np.ndarray | Sequence[int], channels: np.ndarray | int) -> np.ndarray:
-        return self.history.values(indices, channels, self.receiver)
+    def values(
+        self,
+        indices: np.ndarray | Sequence[int],
+        channels: np.ndarray | int,
+        span: tuple[int, int] | None = None,
+    ) -> np.ndarray:
+        return self.history.values(indices, channels, self.receiver, span)
 
 
 Readout = ReadoutHistory | ReceiverReadout
@@ -151,15 +159,18 @@ def decode_among(
     (± ``search`` samples), and which word: the (channel, timing, word) with the smallest
     distance, all candidates scored in one vectorised step. Returns (decision, channel index)."""
     names, mat = word_matrix(words, None, "decode")
-    chans, shifts, inst = _candidates(
+    chans, shifts, inst, lo, hi = _candidates(
         tuple((int(c), float(w)) for c, w in channels), float(start), mat.shape[1], tau, search
     )
-    ok = (inst[:, 0] >= 0) & (inst[:, -1] < readout.end)
-    if not ok.any():
-        raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
-    if not ok.all():
+    if hi >= readout.end:  # rarely: candidates past what has been heard
+        ok = inst[:, -1] < readout.end
+        if not ok.any():
+            raise RgtbusError(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
         chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
-    vals = readout.values(inst, chans[:, None])  # (M, N)
+        hi = int(inst[:, -1].max())
+    vals = np.ascontiguousarray(readout.values(inst, chans[:, None], span=(lo, hi)))  # (M, N)
     m, w, best, margin, sep = score(vals, mat, _ORDER[: mat.shape[0]])
     conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
     decision = Decision(
@@ -174,62 +185,33 @@ def decode_among(
     return decision, int(chans[m])
 
 
-_ORDER = np.arange(4096)
+_ORDER = np.arange(4096, dtype=np.int64)
 
 
-@numba.njit(cache=True, nogil=True)
-def score(vals, mat, rank):  # fmt: skip
-    """Maximum likelihood under white Gaussian noise: the candidate row ``m`` of ``vals``
-    (M, N) and word ``w`` of ``mat`` (W, N) at the smallest Euclidean distance (ties: the first
-    row, the lowest ``rank``), that distance, the margin (the nearest word that differs from
-    ``w`` is this much farther; inf if none) and the separation of ``w`` from that set."""
-    M, W, N = vals.shape[0], mat.shape[0], mat.shape[1]
-    best_m, best_w, best_d = 0, 0, np.inf
-    for i in range(M):
-        for j in range(W):
-            acc = 0.0
-            for k in range(N):
-                diff = vals[i, k] - mat[j, k]
-                acc += diff * diff
-            d = np.sqrt(acc)
-            if d < best_d or (d == best_d and i == best_m and rank[j] < rank[best_w]):
-                best_m, best_w, best_d = i, j, d
-    runner = np.inf
-    sep = np.inf
-    for j in range(W):
-        acc = 0.0
-        dist2 = 0.0
-        for k in range(N):
-            diff = vals[best_m, k] - mat[j, k]
-            acc += diff * diff
-            gap = mat[j, k] - mat[best_w, k]
-            dist2 += gap * gap
-        if dist2 == 0.0:
-            continue  # the same word under another name (e.g. id and alliance)
-        runner = min(runner, np.sqrt(acc))
-        sep = min(sep, np.sqrt(dist2))
-    if runner == np.inf:
-        return best_m, best_w, best_d, np.inf, 0.0
-    return best_m, best_w, best_d, runner - best_d, sep
-
-
-@lru_cache(maxsize=1024)  # every unit of a run decodes the same codes
+@lru_cache(maxsize=64)  # every unit of a run decodes the same codes, at about the same time
 def _candidates(
     channels: tuple[tuple[int, float], ...], start: float, pulses: int, tau: float, search: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Every (channel, timing shift, instants) candidate, channels in order, nearest shift
-    first: three read-only arrays (M,), (M,), (M, pulses)."""
-    rows = [
-        (ch, shift, inst)
-        for ch, omega in channels
-        for shift, inst in _candidate_instants(omega, start, pulses, tau, search)
-    ]
-    chans = np.array([r[0] for r in rows], dtype=np.int64)
-    shifts = np.array([r[1] for r in rows], dtype=np.int64)
-    inst = np.array([r[2] for r in rows], dtype=np.int64).reshape(len(rows), pulses)
-    for a in (chans, shifts, inst):
-        a.flags.writeable = False
-    return chans, shifts, inst
+    first: three read-only arrays (M,), (M,), (M, pulses); and the instants' span. Candidates
+    before the first sample are left out."""
+    chans: list[int] = []
+    shifts: list[int] = []
+    insts: list[tuple[int, ...]] = []
+    for ch, omega in channels:
+        for shift, inst in _candidate_instants(omega, start, pulses, tau, search):
+            if inst[0] >= 0:
+                chans.append(ch)
+                shifts.append(shift)
+                insts.append(inst)
+    if not insts:
+        raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
+    a = np.array(chans, dtype=np.int64)
+    b = np.array(shifts, dtype=np.int64)
+    c = np.array(insts, dtype=np.int64)
+    for arr in (a, b, c):
+        arr.flags.writeable = False
+    return a, b, c, int(c[:, 0].min()), int(c[:, -1].max())
 
 
 def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:
@@ -313,7 +295,7 @@ def nearest(values: Sequence[float] | np.ndarray, words: Words) -> Decision:
     Words equal to the best (e.g. ``id`` and ``alliance``) are not counted as runners-up; ties
     go to the first name in alphabetical order.
     """
-    v = np.asarray(values, dtype=float).reshape(1, -1)
+    v = np.ascontiguousarray(values, dtype=float).reshape(1, -1)
     names, mat = word_matrix(words, v.shape[1], "nearest")
     _, w, best, margin, sep = score(v, mat, _alphabetical(names))
     conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
@@ -335,32 +317,33 @@ def candidate_instants(
     return list(_candidate_instants(float(omega), float(start), int(pulses), float(tau), search))
 
 
-@lru_cache(maxsize=4096)  # every unit of a run decodes the same codes
+@lru_cache(maxsize=256)  # every unit of a run decodes the same codes, at about the same time
 def _candidate_instants(
     omega: float, start: float, pulses: int, tau: float, search: int
 ) -> tuple[tuple[int, tuple[int, ...]], ...]:
     period = 2 * math.pi / omega
+    jts = [j * period for j in range(pulses)]
     t_lo, t_hi = start - search * tau, start + search * tau
-    cuts = {t_lo, t_hi}
-    for j in range(pulses):
-        # instant j changes where (t + j·T)/τ crosses h + 1/2
-        h_lo = math.floor((t_lo + j * period) / tau - 0.5)
-        h_hi = math.ceil((t_hi + j * period) / tau - 0.5)
-        for h in range(h_lo, h_hi + 1):
-            t = (h + 0.5) * tau - j * period
+    cuts = [t_lo, t_hi]
+    for jt in jts:  # instant j changes where (t + j·T)/τ crosses h + 1/2
+        for h in range(math.floor((t_lo + jt) / tau - 0.5), math.ceil((t_hi + jt) / tau - 0.5) + 1):
+            t = (h + 0.5) * tau - jt
             if t_lo < t < t_hi:
-                cuts.add(t)
-    pts = sorted(cuts)
-    probes = [start] + [(a + b) / 2 for a, b in itertools.pairwise(pts)]
-    seen: dict[tuple[int, ...], int] = {}
-    for t in probes:
+                cuts.append(t)
+    cuts.sort()
+    probes = sorted([start, *((a + b) / 2 for a, b in itertools.pairwise(cuts))])
+    s0 = round(start / tau)
+    out: list[tuple[int, tuple[int, ...]]] = []
+    prev: tuple[int, ...] | None = None
+    for t in probes:  # the rule of pulse_samples; instants grow with t: equal ones are adjacent
         if t < 0:
             continue
-        inst = pulse_samples(omega, t, pulses, tau)
-        shift = inst[0] - round(start / tau)
-        if inst not in seen or abs(shift) < abs(seen[inst]):
-            seen[inst] = shift
-    return tuple(sorted(((s, i) for i, s in seen.items()), key=lambda p: (abs(p[0]), p[0])))
+        inst = tuple(round((t + jt) / tau) for jt in jts)
+        if inst != prev:
+            out.append((inst[0] - s0, inst))
+            prev = inst
+    out.sort(key=lambda p: (abs(p[0]), p[0]))
+    return tuple(out)
 
 
 def decode_code(

@@ -37,10 +37,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.signal._walk import walk_lanes
 
 PAPER_TAU = 0.005
 PAPER_B = -0.1
@@ -255,122 +255,6 @@ def _z_of(T: Tables, ch: np.ndarray, m, wr: np.ndarray, wi: np.ndarray):
 # -- the one dynamics function ---------------------------------------------------------------
 
 
-@numba.njit(cache=True, nogil=True)
-def walk(
-    Pr, Pi, Qr, nQi, ar, ai, R, ch, rec, thr, thr2, rv, stable,
-    w_r, w_i, pend, start, end, rows, vals, stop_first,
-    record, col, xs, ys, mask, readout, ds, sp_k, sp_l, lane, n_sp,
-):  # fmt: skip
-    """One resonator (channel ``ch``, receiver ``rec``) from sample ``start`` to ``end``.
-
-    In its epoch's rotating frame (m = k mod R, P[m] = A^m, Q[m] = A^-m)::
-
-        enter k:  at an epoch's start  w ← P[R]·w                     (re-anchor)
-                  after a spike at k−1 w ← Q[m]·(Re(A·z[k−1]) + i·rv) (reset)
-        input:    w ← w + i·u[k]·Q[m]                                 (u = vals[j, rec])
-        state:    z[k] = P[m]·w;  spike at k  ⇔  Im z[k] ≥ thr
-        readout:  d[k] = Im z[k] − Im(P[m]·w before the input)
-
-    Between inputs w is constant: a resonator with |z|² < thr2 (below threshold, with room for
-    table rounding) cannot spike before its next input (|A| < 1), so the walk jumps there,
-    re-anchoring at every epoch start on the way; otherwise it steps sample by sample.
-    ``stop_first``: return right after the first spike. Spikes go to (sp_k, sp_l) from index
-    n_sp on. Returns (w_r, w_i, pend, next sample, spike count, overflowed).
-    """
-    E = rows.size
-    j = np.searchsorted(rows, start)
-    cap = sp_k.size
-    k = start
-    while k < end:
-        m = k % R
-        if pend:  # reset from the pre-spike state of k−1, in its own frame
-            mp = (k - 1) % R
-            zr = Pr[mp, ch] * w_r - Pi[mp, ch] * w_i
-            zi = Pr[mp, ch] * w_i + Pi[mp, ch] * w_r
-            xr = ar * zr - ai * zi
-            w_r, w_i = Qr[m, ch] * xr + nQi[m, ch] * rv, Qr[m, ch] * rv - nQi[m, ch] * xr
-            pend = False
-        elif m == 0 and k > 0:
-            w_r, w_i = Pr[R, ch] * w_r - Pi[R, ch] * w_i, Pr[R, ch] * w_i + Pi[R, ch] * w_r
-        pr = Pr[m, ch]
-        pi = Pi[m, ch]
-        has_input = j < E and rows[j] == k
-        if has_input:
-            b_r, b_i = w_r, w_i
-            u = vals[j, rec]
-            w_r = w_r + u * nQi[m, ch]
-            w_i = w_i + u * Qr[m, ch]
-        zr = pr * w_r - pi * w_i
-        zi = pr * w_i + pi * w_r
-        if has_input:
-            if readout:
-                ds[j, col] = np.round(zi - (pr * b_i + pi * b_r), 12)
-            j += 1
-        if record:
-            xs[k - start, col] = zr
-            ys[k - start, col] = zi
-        if zi >= thr:
-            if n_sp >= cap:
-                return w_r, w_i, pend, k, n_sp, True
-            sp_k[n_sp] = k
-            sp_l[n_sp] = lane
-            n_sp += 1
-            pend = True
-            if record:
-                mask[k - start, col] = True
-            if stop_first:
-                return w_r, w_i, pend, k + 1, n_sp, False
-            k += 1
-            continue
-        k += 1
-        if record or not stable or zr * zr + zi * zi >= thr2:
-            continue  # every sample is wanted, or this resonator may still cross the threshold
-        nxt = rows[j] if j < E else end
-        if nxt > end:
-            nxt = end
-        b = ((k + R - 1) // R) * R  # the epoch starts crossed on the way to nxt
-        while b < nxt:
-            if b > 0:
-                w_r, w_i = Pr[R, ch] * w_r - Pi[R, ch] * w_i, Pr[R, ch] * w_i + Pi[R, ch] * w_r
-            b += R
-        k = nxt
-    return w_r, w_i, pend, end, n_sp, False
-
-
-@numba.njit(cache=True, nogil=True)
-def walk_lanes(
-    Pr, Pi, Qr, nQi, Ar, Ai, R, lane_ch, lane_rec, lanes, thr, thr2, rv, stable,
-    wr, wi, pend, start, end, rows, vals, stop_first,
-    record, xs, ys, mask, readout, ds, sp_k, sp_l,
-):  # fmt: skip
-    """``walk`` each of ``lanes``. With ``stop_first``: only find the first spike (returns one
-    past it, or ``end``; later lanes look no further; the state is left alone). Otherwise every
-    lane walks to ``end`` and its state is updated in place. Returns (stop, spikes, overflow).
-    """
-    n_sp = 0
-    first = end
-    for idx in range(lanes.size):
-        lane = lanes[idx]
-        c = lane_ch[lane]
-        w_r, w_i, p, at, n_new, over = walk(
-            Pr, Pi, Qr, nQi, Ar[c], Ai[c], R, c, lane_rec[lane], thr, thr2, rv, stable,
-            wr[lane], wi[lane], pend[lane], start, first, rows, vals, stop_first,
-            record, lane, xs, ys, mask, readout, ds, sp_k, sp_l, lane, n_sp,
-        )  # fmt: skip
-        if over:
-            return first, n_new, True
-        if stop_first:
-            if n_new > n_sp:
-                first = at
-                n_sp = 0  # only where it stops matters here
-        else:
-            n_sp = n_new
-            wr[lane] = w_r
-            wi[lane] = w_i
-            pend[lane] = p
-    return first, n_sp, False
-
-
 def resonate(
     M: BankModel,
     state: BankState,
@@ -404,47 +288,55 @@ def resonate(
     vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, U)
     wr, wi, pend = state.wr.copy(), state.wi.copy(), state.pend.copy()
     common = (T.Pr, T.Pi, T.Qr, T.nQi, T.Ar, T.Ai, T.R, M.lane_ch, M.lane_rec)
+    flags = pend.view(np.uint8)  # the compiled walk sees booleans as bytes
     rule = (M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip)
     stopped = False
     if stop:  # the first spike among the stop lanes decides where every lane stops
         watch = np.arange(L) if stop_lanes is None else np.flatnonzero(stop_lanes)
+        watch = watch.astype(np.int64)
         buf = np.empty(max(1, watch.size), dtype=np.int64)
-        first, _, _ = walk_lanes(
-            *common, watch, *rule, wr, wi, pend, start, end, rows, vals, True,
+        first, found, _ = walk_lanes(
+            *common, watch, *rule, wr, wi, flags, start, end, rows, vals, True,
             False, _NO_2D, _NO_2D, _NO_MASK, False, _NO_2D, buf, buf.copy(),
         )  # fmt: skip
-        if first < end:
+        if found:
             end, stopped = int(first), True
             cut = int(np.searchsorted(rows, end))
             rows, vals = rows[:cut], vals[:cut]
     n = end - start
     cap = max(64, 4 * L)
-    all_lanes = np.arange(L)
+    all_lanes = np.arange(L, dtype=np.int64)
     while True:
         sp_k = np.empty(cap, dtype=np.int64)
         sp_l = np.empty(cap, dtype=np.int64)
         xs = np.empty((n, L)) if record else _NO_2D
         ys = np.empty((n, L)) if record else _NO_2D
-        mask = np.zeros((n, L), dtype=np.bool_) if record else _NO_MASK
+        mask = np.zeros((n, L), dtype=np.uint8) if record else _NO_MASK
         ds = np.zeros((rows.size, L)) if readout else _NO_2D
         _, n_sp, over = walk_lanes(
-            *common, all_lanes, *rule, wr, wi, pend, start, end, rows, vals, False,
+            *common, all_lanes, *rule, wr, wi, flags, start, end, rows, vals, False,
             record, xs, ys, mask, readout, ds, sp_k, sp_l,
         )  # fmt: skip
         if not over:
             break
         cap *= 4  # more spikes than room: walk again with more
         wr, wi, pend = state.wr.copy(), state.wi.copy(), state.pend.copy()
+        flags = pend.view(np.uint8)
     new = BankState(wr, wi, pend, end)
-    order = np.lexsort((sp_l[:n_sp], sp_k[:n_sp]))
-    k_all, lanes = sp_k[:n_sp][order], sp_l[:n_sp][order]
-    arr = np.stack([k_all, M.lane_rec[lanes], M.lane_ch[lanes]], axis=1).astype(np.int64)
+    arr = np.empty((n_sp, 3), dtype=np.int64)
+    if n_sp:
+        order = np.lexsort((sp_l[:n_sp], sp_k[:n_sp]))
+        lanes = sp_l[:n_sp][order]
+        arr[:, 0] = sp_k[:n_sp][order]
+        arr[:, 1] = M.lane_rec[lanes]
+        arr[:, 2] = M.lane_ch[lanes]
     result = FeedResult(start=start, n=n, spikes=arr, stopped=stopped)
     if record:
         shape = (n, U, C)
         result.z = xs.reshape(shape) + 1j * ys.reshape(shape)
-        result.y = np.where(mask.reshape(shape), M.spike_value, ys.reshape(shape))
-        result.spiked = mask.reshape(shape)
+        spiked = mask.view(np.bool_).reshape(shape)
+        result.y = np.where(spiked, M.spike_value, ys.reshape(shape))
+        result.spiked = spiked
     if readout:
         has = np.any(vals != 0.0, axis=1)
         result.readout_rows = rows[has]
@@ -453,7 +345,7 @@ def resonate(
 
 
 _NO_2D = np.zeros((0, 0))
-_NO_MASK = np.zeros((0, 0), dtype=np.bool_)
+_NO_MASK = np.zeros((0, 0), dtype=np.uint8)
 
 
 def _validate_float(value: float, name: str) -> float:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -20,7 +19,6 @@ from rgtbus.errors import RgtbusError
 from rgtbus.signal.resonator import PAPER_TAU
 
 
-@lru_cache(maxsize=65536)
 def pulse_samples(omega: float, start: float, pulses: int, tau: float) -> tuple[int, ...]:
     """The rule: pulse j of a code starting at ``start`` on ω is at sample
     ``round((start + j·2π/ω)/τ)`` (round half to even). Unchecked; see ``pulse_instants``."""

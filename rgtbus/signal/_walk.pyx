@@ -1,0 +1,203 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled loops of the receiver: the resonator walk and the decoder's nearest-word score.
+
+The model and its rules are stated in ``rgtbus.signal.resonator`` (docs/model.md); this file
+holds the one place they are computed. Compiled without FMA contraction
+(``-ffp-contract=off``), so every product and sum is rounded as written.
+"""
+
+from libc.math cimport INFINITY, rint, sqrt
+
+
+cdef inline double _round12(double x) noexcept nogil:
+    # numpy's round(x, 12): rint(x·1e12)/1e12, rint rounding half to even
+    return rint(x * 1e12) / 1e12
+
+
+cdef inline (double, double, bint, long, long, bint) walk(
+    const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
+    const double[:, ::1] nQi, double ar, double ai, long R, long ch, long rec,
+    double thr, double thr2, double rv, bint stable,
+    double w_r, double w_i, bint pend, long start, long end,
+    const long[::1] rows, const double[:, ::1] vals, bint stop_first,
+    bint record, long col, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
+    bint readout, double[:, ::1] ds, long[::1] sp_k, long[::1] sp_l, long lane,
+    long n_sp,
+) noexcept nogil:
+    """One resonator (channel ``ch``, receiver ``rec``) from sample ``start`` to ``end``.
+
+    In its epoch's rotating frame (m = k mod R, P[m] = A^m, Q[m] = A^-m)::
+
+        enter k:  at an epoch's start  w ← P[R]·w                     (re-anchor)
+                  after a spike at k−1 w ← Q[m]·(Re(A·z[k−1]) + i·rv) (reset)
+        input:    w ← w + i·u[k]·Q[m]                                 (u = vals[j, rec])
+        state:    z[k] = P[m]·w;  spike at k  ⇔  Im z[k] ≥ thr
+        readout:  d[k] = Im z[k] − Im(P[m]·w before the input), rounded to 12 decimals
+
+    Between inputs w is constant: a resonator with |z|² < thr2 (below threshold, with room for
+    table rounding) cannot spike before its next input (|A| < 1), so the walk jumps there,
+    re-anchoring at every epoch start on the way; otherwise it steps sample by sample.
+    ``stop_first``: return right after the first spike. Spikes go to (sp_k, sp_l) from index
+    n_sp on. Returns (w_r, w_i, pend, next sample, spike count, overflowed).
+    """
+    cdef Py_ssize_t E = rows.shape[0]
+    cdef Py_ssize_t cap = sp_k.shape[0]
+    cdef Py_ssize_t j = 0
+    cdef Py_ssize_t lo = 0, hi = E, mid
+    cdef long k = start, m, mp, nxt, b
+    cdef double pr, pi, zr, zi, xr, b_r, b_i, u, t_r, t_i
+    cdef bint has_input
+    while lo < hi:  # the first input row at or after start
+        mid = (lo + hi) // 2
+        if rows[mid] < start:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo
+    while k < end:
+        m = k % R
+        if pend:  # reset from the pre-spike state of k−1, in its own frame
+            mp = (k - 1) % R
+            zr = Pr[mp, ch] * w_r - Pi[mp, ch] * w_i
+            zi = Pr[mp, ch] * w_i + Pi[mp, ch] * w_r
+            xr = ar * zr - ai * zi
+            t_r = Qr[m, ch] * xr + nQi[m, ch] * rv
+            t_i = Qr[m, ch] * rv - nQi[m, ch] * xr
+            w_r, w_i = t_r, t_i
+            pend = False
+        elif m == 0 and k > 0:
+            t_r = Pr[R, ch] * w_r - Pi[R, ch] * w_i
+            t_i = Pr[R, ch] * w_i + Pi[R, ch] * w_r
+            w_r, w_i = t_r, t_i
+        pr = Pr[m, ch]
+        pi = Pi[m, ch]
+        has_input = j < E and rows[j] == k
+        if has_input:
+            b_r = w_r
+            b_i = w_i
+            u = vals[j, rec]
+            w_r = w_r + u * nQi[m, ch]
+            w_i = w_i + u * Qr[m, ch]
+        zr = pr * w_r - pi * w_i
+        zi = pr * w_i + pi * w_r
+        if has_input:
+            if readout:
+                ds[j, col] = _round12(zi - (pr * b_i + pi * b_r))
+            j += 1
+        if record:
+            xs[k - start, col] = zr
+            ys[k - start, col] = zi
+        if zi >= thr:
+            if n_sp >= cap:
+                return w_r, w_i, pend, k, n_sp, True
+            sp_k[n_sp] = k
+            sp_l[n_sp] = lane
+            n_sp += 1
+            pend = True
+            if record:
+                mask[k - start, col] = 1
+            if stop_first:
+                return w_r, w_i, pend, k + 1, n_sp, False
+            k += 1
+            continue
+        k += 1
+        if record or not stable or zr * zr + zi * zi >= thr2:
+            continue  # every sample is wanted, or this resonator may still cross the threshold
+        nxt = rows[j] if j < E else end
+        if nxt > end:
+            nxt = end
+        b = ((k + R - 1) // R) * R  # the epoch starts crossed on the way to nxt
+        while b < nxt:
+            if b > 0:
+                t_r = Pr[R, ch] * w_r - Pi[R, ch] * w_i
+                t_i = Pr[R, ch] * w_i + Pi[R, ch] * w_r
+                w_r, w_i = t_r, t_i
+            b += R
+        k = nxt
+    return w_r, w_i, pend, end, n_sp, False
+
+
+def walk_lanes(
+    const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
+    const double[:, ::1] nQi, const double[::1] Ar, const double[::1] Ai, long R,
+    const long[::1] lane_ch, const long[::1] lane_rec, const long[::1] lanes,
+    double thr, double thr2, double rv, bint stable,
+    double[::1] wr, double[::1] wi, unsigned char[::1] pend, long start, long end,
+    const long[::1] rows, const double[:, ::1] vals, bint stop_first,
+    bint record, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
+    bint readout, double[:, ::1] ds, long[::1] sp_k, long[::1] sp_l,
+):
+    """``walk`` each of ``lanes``. With ``stop_first``: only find the first spike (returns one
+    past it and 1, or ``end`` and 0; later lanes look no further; the state is left alone).
+    Otherwise every lane walks to ``end`` and its state is updated in place. Returns (stop,
+    spikes, overflow).
+    """
+    cdef long n_sp = 0, first = end, n_new = 0, at, lane, c, found = 0
+    cdef Py_ssize_t idx
+    cdef double w_r, w_i
+    cdef bint p, over = False
+    with nogil:
+        for idx in range(lanes.shape[0]):
+            lane = lanes[idx]
+            c = lane_ch[lane]
+            w_r, w_i, p, at, n_new, over = walk(
+                Pr, Pi, Qr, nQi, Ar[c], Ai[c], R, c, lane_rec[lane], thr, thr2, rv, stable,
+                wr[lane], wi[lane], pend[lane], start, first, rows, vals, stop_first,
+                record, lane, xs, ys, mask, readout, ds, sp_k, sp_l, lane, n_sp,
+            )
+            if over:
+                break
+            if stop_first:
+                if n_new > n_sp:
+                    first = at
+                    found = 1
+                    n_sp = 0  # only where it stops matters here
+            else:
+                n_sp = n_new
+                wr[lane] = w_r
+                wi[lane] = w_i
+                pend[lane] = p
+    if over:
+        return first, n_new, True
+    if stop_first:
+        return first, found, False
+    return first, n_sp, False
+
+
+def score(const double[:, ::1] vals, const double[:, ::1] mat, const long[::1] rank):
+    """Maximum likelihood under white Gaussian noise: the candidate row ``m`` of ``vals``
+    (M, N) and word ``w`` of ``mat`` (W, N) at the smallest Euclidean distance (ties: the first
+    row, the lowest ``rank``), that distance, the margin (the nearest word that differs from
+    ``w`` is this much farther; inf if none) and the separation of ``w`` from that set."""
+    cdef Py_ssize_t M = vals.shape[0], W = mat.shape[0], N = mat.shape[1]
+    cdef Py_ssize_t i, j, k, best_m = 0, best_w = 0
+    cdef double best_d = INFINITY, acc, diff, d, runner = INFINITY, sep = INFINITY, dist2, gap
+    with nogil:
+        for i in range(M):
+            for j in range(W):
+                acc = 0.0
+                for k in range(N):
+                    diff = vals[i, k] - mat[j, k]
+                    acc = acc + diff * diff
+                d = sqrt(acc)
+                if d < best_d or (d == best_d and i == best_m and rank[j] < rank[best_w]):
+                    best_m = i
+                    best_w = j
+                    best_d = d
+        for j in range(W):
+            acc = 0.0
+            dist2 = 0.0
+            for k in range(N):
+                diff = vals[best_m, k] - mat[j, k]
+                acc = acc + diff * diff
+                gap = mat[j, k] - mat[best_w, k]
+                dist2 = dist2 + gap * gap
+            if dist2 == 0.0:
+                continue  # the same word under another name (e.g. id and alliance)
+            if sqrt(acc) < runner:
+                runner = sqrt(acc)
+            if sqrt(dist2) < sep:
+                sep = sqrt(dist2)
+    if runner == INFINITY:
+        return best_m, best_w, best_d, INFINITY, 0.0
+    return best_m, best_w, best_d, runner - best_d, sep
