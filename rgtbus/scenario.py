@@ -71,6 +71,9 @@ EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustr
 DECISION_POLICIES = ("max", "min", "seeded-random")
 RELATION_POLICIES = ("fixed", "random")
 MODES = ("paper", "exact")
+# Noise, gains and pulse magnitudes above this overflow the resonators' floats mid-run (1e200
+# did; 1e3 runs and fails cleanly); pulses are about 0.4, decoding fails from noise ~0.08.
+MAX_LEVEL = 1000.0
 # Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
 # run fails only after simulating its whole length.
 _GUARD_WHY = (
@@ -168,8 +171,14 @@ class _Ctx:
                 m = re.match(r'\s*"?([^"=\s]+)"?\s*=', line)
                 if m and m.group(1) == key:
                     return i
+        if section:
+            # An inline table (``codebook = {...}``): the line that opens it.
+            parent, _, last = section.rpartition(".")
+            found = self.line_of(parent, last)
+            if found is not None:
+                return found
         if section and key is not None and "." not in section:
-            # Inline tables and dotted keys: fall back to any line naming the key.
+            # Dotted keys: fall back to any line naming the key.
             for i, line in enumerate(self.lines, 1):
                 if re.match(r'\s*"?' + re.escape(key) + r'"?\s*=', line):
                     return i
@@ -291,6 +300,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
 
     def alternative(value: Any, section: str, key: str) -> int:
         if isinstance(value, list):
+            if not all(isinstance(x, str) for x in value):
+                raise ctx.error(section, key, f"bad alternative {value!r}: a list of action names")
             try:
                 return universe.from_list(value)
             except RgtbusError as exc:
@@ -419,17 +430,23 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     ch = table("channel")
     unknown(ch, CHANNEL_KEYS, "channel")
     noise = ch.get("noise", 0.0)
-    if not _finite(noise) or not noise >= 0:
+    if not _finite(noise) or not 0 <= noise <= MAX_LEVEL:
         raise ctx.error(
-            "channel", "noise", f"must be a standard deviation >= 0 and finite, got {noise!r}"
+            "channel",
+            "noise",
+            f"must be a standard deviation >= 0 and finite (at most {MAX_LEVEL:g}), got {noise!r}",
         )
     gains: dict[tuple[str, str], float] = {}
     gain_table = ch.get("gain", {})
     if not isinstance(gain_table, dict):
         raise ctx.error("channel", "gain", 'must be a table {"a>b" = 0.9, ...}')
     for key, g in gain_table.items():
-        if not _finite(g) or not g > 0:
-            raise ctx.error("channel.gain", key, f"gain must be a finite number > 0, got {g!r}")
+        if not _finite(g) or not 0 < g <= MAX_LEVEL:
+            raise ctx.error(
+                "channel.gain",
+                key,
+                f"gain must be a finite number > 0 (at most {MAX_LEVEL:g}), got {g!r}",
+            )
         gains[pair(key, "channel.gain")] = float(g)
 
     # Relationship policy
@@ -663,6 +680,10 @@ def _expect(
     return out
 
 
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
 def _finite(v: Any) -> bool:
     """A real, finite number (TOML allows inf and nan; bool is an int in Python)."""
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
@@ -673,6 +694,7 @@ def _pairs(units: tuple[str, ...]) -> list[tuple[str, str]]:
 
 
 CODEBOOK_KINDS = ("paper", "generated", "custom")
+MAX_PULSES = 64  # a code's length grows with N; far beyond any plan's need (the paper's N = 3)
 
 
 def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
@@ -686,21 +708,41 @@ def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
         raise ctx.error("", "codebook", 'must be "paper", "generated" or a table')
     section = "codebook" if isinstance(spec, dict) else ""
     key = None if isinstance(spec, dict) else "codebook"
+    # Options are checked first and blamed by name; the builders' own refusals name the table.
+    if kind == "paper":
+        extra = set(opts) - {"names"}
+        names = opts.get("names")
+        if names is not None and (
+            not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values())
+        ):
+            raise ctx.error(
+                "codebook", "names", f'must be a table {{"1" = "0", ...}}, got {names!r}'
+            )
+    elif kind == "generated":
+        extra = set(opts) - {"pulses", "min_distance", "seed"}
+        pulses = opts.get("pulses", 3)
+        if not _int(pulses) or not 1 <= pulses <= MAX_PULSES:
+            raise ctx.error(
+                "codebook", "pulses", f"must be an integer 1..{MAX_PULSES}, got {pulses!r}"
+            )
+        min_distance = opts.get("min_distance", 0.3)
+        if not _finite(min_distance) or min_distance < 0:
+            raise ctx.error(
+                "codebook", "min_distance", f"must be a number >= 0, got {min_distance!r}"
+            )
+        seed = opts.get("seed", 0)
+        if not _int(seed) or seed < 0:
+            raise ctx.error("codebook", "seed", f"must be an integer >= 0, got {seed!r}")
+    else:
+        extra = set()
+    if extra:
+        raise ctx.error("codebook", sorted(extra)[0], f"unknown key for the {kind} codebook")
     try:
         if kind == "paper":
-            extra = set(opts) - {"names"}
-            if extra:
-                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for the paper codebook")
-            cb = paper_codebook(universe.actions, names=opts.get("names"))
+            cb = paper_codebook(universe.actions, names=names)
         elif kind == "generated":
-            extra = set(opts) - {"pulses", "min_distance", "seed"}
-            if extra:
-                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for a generated codebook")
             cb = generate_codebook(
-                universe.actions,
-                pulses=opts.get("pulses", 3),
-                min_distance=opts.get("min_distance", 0.3),
-                seed=opts.get("seed", 0),
+                universe.actions, pulses=pulses, min_distance=min_distance, seed=seed
             )
         elif kind == "custom":
             cb = Codebook.from_dict(opts, where="codebook")
@@ -708,6 +750,9 @@ def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
             raise RgtbusError(f"unknown codebook kind {kind!r} ({', '.join(CODEBOOK_KINDS)})")
     except RgtbusError as exc:
         raise ctx.error(section, key, str(exc)) from None
+    words = [cb.id_word, *cb.relations.values(), *cb.alternatives.values()]
+    if any(abs(v) > MAX_LEVEL for w in words for v in w):
+        raise ctx.error(section, key, f"a pulse magnitude beyond {MAX_LEVEL:g}")
     missing = [n for n in alternative_names(universe.actions) if n not in cb.alternatives]
     if missing:
         raise ctx.error(section, key, f"no word for alternative {missing[0]}")

@@ -4,6 +4,8 @@ file, the line and the key (issue #10, item 1)."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -127,23 +129,27 @@ def test_guard_of_one_sample_still_loads():
 
 # -- [channel] -------------------------------------------------------------------------------
 
+NOISE = "channel.noise: must be a standard deviation >= 0 and finite (at most 1000), got"
+GAIN = "channel.gain.a>b: gain must be a finite number > 0 (at most 1000), got"
 CHANNEL = [
-    ("noise = inf", "channel.noise: must be a standard deviation >= 0 and finite, got inf"),
-    ("noise = nan", "channel.noise: must be a standard deviation >= 0 and finite, got nan"),
-    ("noise = -0.1", "channel.noise: must be a standard deviation >= 0 and finite, got -0.1"),
-    ('noise = "loud"', "channel.noise: must be a standard deviation >= 0 and finite, got 'loud'"),
-    ('noise = 0.0\n[channel.gain]\n"a>b" = inf', "channel.gain.a>b: gain must be a finite number"),
-    ('noise = 0.0\n[channel.gain]\n"a>b" = nan', "channel.gain.a>b: gain must be a finite number"),
-    ('noise = 0.0\n[channel.gain]\n"a>b" = -1', "channel.gain.a>b: gain must be a finite number"),
-    ('noise = 0.0\n[channel.gain]\n"a>b" = "x"', "channel.gain.a>b: gain must be a finite number"),
+    ("noise = inf", f"{NOISE} inf"),
+    ("noise = nan", f"{NOISE} nan"),
+    ("noise = -0.1", f"{NOISE} -0.1"),
+    ("noise = 1e200", f"{NOISE} 1e+200"),  # finite, but overflows the resonators mid-run
+    ('noise = "loud"', f"{NOISE} 'loud'"),
+    ('noise = 0.0\n[channel.gain]\n"a>b" = inf', f"{GAIN} inf"),
+    ('noise = 0.0\n[channel.gain]\n"a>b" = nan', f"{GAIN} nan"),
+    ('noise = 0.0\n[channel.gain]\n"a>b" = -1', f"{GAIN} -1"),
+    ('noise = 0.0\n[channel.gain]\n"a>b" = 1e200', f"{GAIN} 1e+200"),
+    ('noise = 0.0\n[channel.gain]\n"a>b" = "x"', f"{GAIN} 'x'"),
 ]
 
 
-@pytest.mark.parametrize(("new", "expect"), CHANNEL, ids=[c[0][-12:] for c in CHANNEL])
+@pytest.mark.parametrize(("new", "expect"), CHANNEL, ids=[c[0].split("\n")[-1] for c in CHANNEL])
 def test_channel_values_name_file_line_and_key(new, expect):
     text = edit(GATE, "noise = 0.0", new)
     msg = refused(text)
-    assert msg.startswith(f"scenarios/x.toml:{line_of(text, new.splitlines()[-1])}: {expect}")
+    assert msg == f"scenarios/x.toml:{line_of(text, new.splitlines()[-1])}: {expect}"
 
 
 # -- fixed relations forming an induced P4 ---------------------------------------------------
@@ -227,3 +233,36 @@ def test_expect_polynomial_and_pairs_are_stored_as_a_run_prints_them():
     assert sc.expect["relations"] == {"a-b": "alliance", "c-d": "conflict"}
     msg = refused(text + '"a-b" = "conflict"\n')
     assert "expect.relations.a-b: the pair a-b is given twice" in msg
+
+
+# -- what the fuzzer found -------------------------------------------------------------------
+
+FOUND = [
+    ('"d>a" = "1"', '"d>a" = [[]]', "influences.d>a: bad alternative [[]]: a list of action names"),
+    ('codebook = "paper"', 'codebook = {kind = "generated", seed = "x"}', "codebook.seed: must"),
+    ('codebook = "paper"', 'codebook = {kind = "generated", seed = -1}', "codebook.seed: must"),
+    ('codebook = "paper"', 'codebook = {kind = "generated", min_distance = "x"}', "codebook.min"),
+    ('codebook = "paper"', 'codebook = {kind = "generated", pulses = 9999999999}', "codebook.puls"),
+    ('codebook = "paper"', 'codebook = {kind = "paper", names = 3}', "codebook.names: must be"),
+    ('codebook = "paper"', 'codebook = {kind = "paper", colour = 3}', "codebook.colour: unknown"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("old", "new", "expect"), FOUND, ids=[f[1] for f in FOUND])
+def test_fuzzer_findings_are_refused_by_key(old, new, expect):
+    text = edit(GATE, old, new)
+    assert f"x.toml:{line_of(text, new)}: {expect}" in refused(text)
+
+
+def test_generated_codebook_counts_before_it_enumerates():
+    # N = 200 once enumerated 2**199 candidates (the step was sized on another grid): a hang
+    code = (
+        "from rgtbus.errors import RgtbusError\n"
+        "from rgtbus.signal.codebook import generate_codebook\n"
+        "try:\n    generate_codebook(['alpha', 'beta'], pulses=200)\n"
+        "except RgtbusError as e:\n    print(e)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    assert proc.stdout.startswith("codebook generator: ") and proc.stderr == ""
