@@ -324,7 +324,7 @@ def test_zenoh_bad_mode_and_endpoints():
         open_bus("zenoh", "r1", ["a"], RATE, WLEN, mode="hub")
     with pytest.raises(RgtbusError, match="must be a list, got the string"):
         open_bus("zenoh", "r1", ["a"], RATE, WLEN, connect="tcp/127.0.0.1:1")
-    with pytest.raises(RgtbusError, match="zenoh listen endpoints"):
+    with pytest.raises(RgtbusError, match="zenoh listen endpoint 'nonsense': Endpoints must"):
         open_bus("zenoh", "r1", ["a"], RATE, WLEN, listen=["nonsense"])
 
 

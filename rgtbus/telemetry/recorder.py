@@ -6,13 +6,14 @@ Time is simulated: ``log_time = publish_time = t_ns`` (integer nanoseconds from 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import operator
 import os
 import struct
 import zlib
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, runtime_checkable
 
@@ -160,7 +161,10 @@ class _Encoding:
 
 class McapRecorder(_Encoding):
     """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
-    support ``write`` and ``tell``). ``close`` finishes the file (summary, footer)."""
+    support ``write`` and ``tell``). ``close`` finishes the file (summary, footer).
+
+    A failed write (an unwritable path, a full disk) raises ``RgtbusError`` naming the stream;
+    ``failed`` then holds that line and nothing more is written (``close`` writes nothing)."""
 
     def __init__(
         self,
@@ -176,6 +180,7 @@ class McapRecorder(_Encoding):
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
             )
         self.stream = stream
+        self.failed: str | None = None
         # Smaller chunks than mcap's 1 MiB default: a killed run loses at most one chunk.
         # Data CRCs cover the records outside chunks too (the scenario text in the metadata).
         self._writer = Writer(
@@ -184,10 +189,28 @@ class McapRecorder(_Encoding):
             compression=_COMPRESSION[compression],
             enable_data_crcs=True,
         )
-        self._writer.start(profile="", library=f"rgtbus {__version__}")
+        with self._io():
+            self._writer.start(profile="", library=f"rgtbus {__version__}")
+            self._flush()  # a target that takes no bytes fails here, before any run starts
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
         self._sequence: Counter[int] = Counter()
+
+    @contextlib.contextmanager
+    def _io(self) -> Iterator[None]:
+        if self.failed:
+            raise RgtbusError(self.failed)
+        try:
+            yield
+        except OSError as e:
+            name = getattr(self.stream, "name", "<stream>")
+            self.failed = f"cannot write log {str(name)!r}: {e.strerror or e}"
+            raise RgtbusError(self.failed) from None
+
+    def _flush(self) -> None:
+        flush = getattr(self.stream, "flush", None)
+        if flush is not None:
+            flush()
 
     def _channel(self, topic: str, schema: str) -> int:
         cid = self._channel_ids.get(topic)
@@ -206,25 +229,29 @@ class McapRecorder(_Encoding):
 
     def write(self, topic: str, message: dict, t_ns: int) -> None:
         schema, data, t = self._encode(topic, message, t_ns)
-        cid = self._channel(topic, schema)
-        self._sequence[cid] += 1
-        self._writer.add_message(
-            channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
-        )
+        with self._io():
+            cid = self._channel(topic, schema)
+            self._sequence[cid] += 1
+            self._writer.add_message(
+                channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
+            )
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
-        self._writer.add_metadata(name, self._check_metadata(name, values))
+        values = self._check_metadata(name, values)
+        with self._io():
+            self._writer.add_metadata(name, values)
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
-        flush = getattr(self.stream, "flush", None)
-        if flush is not None:
-            flush()
+        if self.failed:
+            return  # the file is lost either way; its error is already on its way
+        with self._io():
+            self._writer.finish()
+            self._flush()
 
 
 class MemoryRecorder(_Encoding):
