@@ -477,6 +477,8 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
         for rec in reader.records:
             if src.short:  # the record's declared length ran past the end: not taken
                 raise mcap.exceptions.EndOfFile()
+            if not started and not isinstance(rec, Header):
+                raise _Corrupt(f"record at byte {start}: the first record is not a Header")
             if isinstance(rec, Header):
                 started = True
                 raw.library = rec.library
@@ -533,6 +535,10 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
         )
     except Exception as e:  # EndOfFile, short struct reads, a damaged record
         if not started:
+            if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
+                raise RgtbusError(
+                    f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
+                ) from None
             raise RgtbusError(
                 f"{label}: not an MCAP file (empty or cut before its header)"
             ) from None
