@@ -208,6 +208,8 @@ def load_scenario(path: str | Path) -> Scenario:
             data = f.read(MAX_SCENARIO_BYTES + 1)
     except OSError as exc:
         raise RgtbusError(f"cannot read scenario {where!r}: {exc.strerror}") from None
+    except ValueError as exc:  # a NUL in the path
+        raise RgtbusError(f"cannot read scenario {where!r}: {exc}") from None
     if len(data) > MAX_SCENARIO_BYTES:
         raise RgtbusError(
             f"{where}: larger than {MAX_SCENARIO_BYTES // 2**20} MiB: not a scenario file"

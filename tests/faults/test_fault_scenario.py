@@ -67,6 +67,8 @@ def test_binary_file_is_refused(tmp_path):
 def test_directory_and_device_are_refused(tmp_path):
     with pytest.raises(RgtbusError, match=r"^cannot read scenario '.*': is a directory$"):
         load_scenario(tmp_path)
+    with pytest.raises(RgtbusError, match=r"embedded null byte"):
+        load_scenario("gate\0.toml")
     if Path("/dev/zero").exists():  # endless: must be refused before reading
         with pytest.raises(RgtbusError, match=r"'/dev/zero': not a regular file$"):
             load_scenario("/dev/zero")
