@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -18,7 +19,14 @@ from typing import Any
 
 from rgtbus.errors import RgtbusError
 from rgtbus.protocol import ANCHORS
-from rgtbus.rgt import Universe
+from rgtbus.rgt import (
+    Universe,
+    graph_to_polynomial,
+    install_relations,
+    parse_polynomial,
+    polynomial_to_graph,
+)
+from rgtbus.rgt.expr import format_expr, needs_star
 from rgtbus.signal.codebook import (
     Codebook,
     alternative_names,
@@ -63,6 +71,14 @@ EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustr
 DECISION_POLICIES = ("max", "min", "seeded-random")
 RELATION_POLICIES = ("fixed", "random")
 MODES = ("paper", "exact")
+# Noise, gains and pulse magnitudes above this overflow the resonators' floats mid-run (1e200
+# did; 1e3 runs and fails cleanly); pulses are about 0.4, decoding fails from noise ~0.08.
+MAX_LEVEL = 1000.0
+# Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
+# run fails only after simulating its whole length.
+_GUARD_WHY = (
+    ": the next ID's first pulse would fall on the previous code's last sample and be misread"
+)
 
 
 @dataclass(frozen=True)
@@ -155,8 +171,14 @@ class _Ctx:
                 m = re.match(r'\s*"?([^"=\s]+)"?\s*=', line)
                 if m and m.group(1) == key:
                     return i
+        if section:
+            # An inline table (``codebook = {...}``): the line that opens it.
+            parent, _, last = section.rpartition(".")
+            found = self.line_of(parent, last)
+            if found is not None:
+                return found
         if section and key is not None and "." not in section:
-            # Inline tables and dotted keys: fall back to any line naming the key.
+            # Dotted keys: fall back to any line naming the key.
             for i, line in enumerate(self.lines, 1):
                 if re.match(r'\s*"?' + re.escape(key) + r'"?\s*=', line):
                     return i
@@ -169,13 +191,50 @@ class _Ctx:
         return RgtbusError(f"{where}: {name or 'scenario'}: {reason}")
 
 
+# Far beyond any real scenario (six units are ~2 KB); stops a device or a huge file early.
+MAX_SCENARIO_BYTES = 8 * 1024 * 1024
+
+
 def load_scenario(path: str | Path) -> Scenario:
     p = Path(path)
+    where = str(p)
     try:
-        text = p.read_text(encoding="utf-8")
+        mode = p.stat().st_mode
+        if stat.S_ISDIR(mode):
+            raise RgtbusError(f"cannot read scenario {where!r}: is a directory")
+        if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+            raise RgtbusError(f"cannot read scenario {where!r}: not a regular file")
+        with open(p, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
     except OSError as exc:
-        raise RgtbusError(f"cannot read scenario {str(p)!r}: {exc.strerror}") from None
-    return parse_scenario(text, str(p))
+        raise RgtbusError(f"cannot read scenario {where!r}: {exc.strerror}") from None
+    except ValueError as exc:  # a NUL in the path
+        raise RgtbusError(f"cannot read scenario {where!r}: {exc}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise RgtbusError(
+            f"{where}: larger than {MAX_SCENARIO_BYTES // 2**20} MiB: not a scenario file"
+        )
+    return parse_scenario(_decode_text(data, where), where)
+
+
+def _decode_text(data: bytes, where: str) -> str:
+    """UTF-8 text, or one line saying where the first bad byte is (a binary file, Latin-1)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise RgtbusError(
+            f"{where}:{line}: not a UTF-8 text file "
+            f"(byte 0x{data[exc.start]:02x} at line {line}, column {col})"
+        ) from None
+    nul = text.find("\0")
+    if nul >= 0:
+        line = text.count("\n", 0, nul) + 1
+        raise RgtbusError(
+            f"{where}:{line}: a binary file, not a scenario (NUL byte on line {line})"
+        )
+    return text
 
 
 def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
@@ -183,7 +242,9 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise RgtbusError(f"{path}: not valid TOML: {exc}") from None
+        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
+        where = f"{path}:{m.group(1)}" if m else path
+        raise RgtbusError(f"{where}: not valid TOML: {exc}") from None
 
     def unknown(table: Mapping[str, Any], allowed: set[str], section: str) -> None:
         for key in table:
@@ -241,6 +302,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
 
     def alternative(value: Any, section: str, key: str) -> int:
         if isinstance(value, list):
+            if not all(isinstance(x, str) for x in value):
+                raise ctx.error(section, key, f"bad alternative {value!r}: a list of action names")
             try:
                 return universe.from_list(value)
             except RgtbusError as exc:
@@ -297,50 +360,95 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     else:
         raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
 
-    # Timing
+    # Timing: every key on its own first (blamed by its own name), then how they fit together.
     t = table("timing")
     unknown(t, TIMING_KEYS, "timing")
     values: dict[str, float] = {}
     anchor = t.get("anchor", "spike")
-    if anchor not in ANCHORS:
+    if not isinstance(anchor, str) or anchor not in ANCHORS:
         raise ctx.error("timing", "anchor", f"unknown anchor {anchor!r} (spike or schedule)")
-    for key in TIMING_KEYS - {"anchor"}:
-        if key in t:
-            v = t[key]
+    for key, v in t.items():  # in file order: the first bad line is the one reported
+        if key != "anchor":
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ctx.error("timing", key, f"must be a number, got {v!r}")
+                raise ctx.error("timing", key, f"must be a finite number, got {v!r}")
             values[key] = float(v)
+            if key == "start":
+                if v < 0:
+                    raise ctx.error("timing", key, f"must not be negative, got {v!r}")
+            elif not v > 0:
+                why = _GUARD_WHY if key == "guard" else ""
+                raise ctx.error("timing", key, f"must be positive, got {v!r}{why}")
     timing = Timing(**values, anchor=anchor)
-    if timing.sample_rate <= 0:
-        raise ctx.error("timing", "sample_rate", "must be positive")
-    if timing.window <= 0 or abs(timing.window * timing.sample_rate - timing.window_samples) > 1e-9:
-        raise ctx.error("timing", "window", "must be a positive whole number of samples")
-    if timing.window > timing.reaction_delay:
+
+    def blame(key: str, other: str) -> str:
+        # A cross-key rule names a key the file sets: a default is nobody's typo.
+        return key if key in t or other not in t else other
+
+    samples = timing.window * timing.sample_rate
+    if not math.isfinite(samples) or abs(samples - round(samples)) > 1e-9:
+        if blame("window", "sample_rate") == "window":
+            raise ctx.error(
+                "timing",
+                "window",
+                f"must be a positive whole number of samples ({timing.window:g} s at "
+                f"{timing.sample_rate:g} samples/s is {samples:g})",
+            )
         raise ctx.error(
             "timing",
-            "window",
-            f"{timing.window} s exceeds the reaction delay {timing.reaction_delay} s "
-            "(the lookahead)",
+            "sample_rate",
+            f"{timing.sample_rate:g} samples/s makes the window {timing.window:g} s (default) "
+            f"{samples:g} samples: not a whole number",
         )
-    for key in ("start", "guard"):
-        if getattr(timing, key) < 0:
-            raise ctx.error("timing", key, "must not be negative")
-    if timing.max_seconds <= 0:
-        raise ctx.error("timing", "max_seconds", "must be positive")
+    if timing.window > timing.reaction_delay:
+        if blame("window", "reaction_delay") == "window":
+            raise ctx.error(
+                "timing",
+                "window",
+                f"{timing.window:g} s exceeds the reaction delay {timing.reaction_delay:g} s "
+                "(the lookahead)",
+            )
+        raise ctx.error(
+            "timing",
+            "reaction_delay",
+            f"{timing.reaction_delay:g} s is shorter than the window {timing.window:g} s "
+            "(default; the window is the lookahead and must fit in the reaction delay)",
+        )
+    if timing.guard < timing.tau - 1e-12:
+        raise ctx.error(
+            "timing",
+            blame("guard", "sample_rate"),
+            f"guard {timing.guard:g} s is shorter than one sample "
+            f"(1/sample_rate = {timing.tau:g} s){_GUARD_WHY}",
+        )
+    if timing.start >= timing.max_seconds:
+        raise ctx.error(
+            "timing",
+            blame("start", "max_seconds"),
+            f"start {timing.start:g} s is not before max_seconds {timing.max_seconds:g} s: "
+            "the run would end before its first transmission",
+        )
 
     # Channel
     ch = table("channel")
     unknown(ch, CHANNEL_KEYS, "channel")
     noise = ch.get("noise", 0.0)
-    if isinstance(noise, bool) or not isinstance(noise, int | float) or not noise >= 0:
-        raise ctx.error("channel", "noise", f"must be a standard deviation >= 0, got {noise!r}")
+    if not _finite(noise) or not 0 <= noise <= MAX_LEVEL:
+        raise ctx.error(
+            "channel",
+            "noise",
+            f"must be a standard deviation >= 0 and finite (at most {MAX_LEVEL:g}), got {noise!r}",
+        )
     gains: dict[tuple[str, str], float] = {}
     gain_table = ch.get("gain", {})
     if not isinstance(gain_table, dict):
         raise ctx.error("channel", "gain", 'must be a table {"a>b" = 0.9, ...}')
     for key, g in gain_table.items():
-        if isinstance(g, bool) or not isinstance(g, int | float) or not g > 0:
-            raise ctx.error("channel.gain", key, f"gain must be positive, got {g!r}")
+        if not _finite(g) or not 0 < g <= MAX_LEVEL:
+            raise ctx.error(
+                "channel.gain",
+                key,
+                f"gain must be a finite number > 0 (at most {MAX_LEVEL:g}), got {g!r}",
+            )
         gains[pair(key, "channel.gain")] = float(g)
 
     # Relationship policy
@@ -353,19 +461,30 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     if isinstance(p, bool) or not isinstance(p, int | float) or not 0 <= p <= 1:
         raise ctx.error("relations", "p", f"alliance probability must be within [0, 1], got {p!r}")
     fixed: dict[tuple[str, str], bool] = {}
-    for key, v in (rel.get("fixed") or {}).items():
+    fixed_table = rel.get("fixed", {})
+    if not isinstance(fixed_table, dict):
+        raise ctx.error("relations", "fixed", 'must be a table {"a>b" = "alliance", ...}')
+    for key, v in fixed_table.items():
         if v not in ("alliance", "conflict"):
             raise ctx.error("relations.fixed", key, f'must be "alliance" or "conflict", got {v!r}')
         fixed[pair(key, "relations.fixed")] = v == "alliance"
     draws: dict[tuple[str, str], float] = {}
-    for key, v in (rel.get("draws") or {}).items():
-        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= 1:
+    draw_table = rel.get("draws", {})
+    if not isinstance(draw_table, dict):
+        raise ctx.error("relations", "draws", 'must be a table {"a>b" = 0.42, ...}')
+    for key, v in draw_table.items():
+        if not _finite(v) or not 0 <= v <= 1:
             raise ctx.error("relations.draws", key, f"a draw must be within [0, 1], got {v!r}")
         draws[pair(key, "relations.draws")] = float(v)
     if policy == "fixed":
         missing = [f"{s}>{r}" for s, r in _pairs(units_t) if (s, r) not in fixed]
         if missing:
             raise ctx.error("relations.fixed", None, f"policy fixed: no relation for {missing[0]}")
+        # Fixed relations decide the group before any run: a P4 would only fail at phase 2.
+        try:
+            graph_to_polynomial(install_relations(units_t, fixed))
+        except RgtbusError as exc:
+            raise ctx.error("relations.fixed", None, f"policy fixed: {exc}") from None
 
     # Influences: fixed per peer; every ordered pair, since every unit influences every other.
     inf = table("influences")
@@ -417,22 +536,18 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         all_of = o["all_of"]
         if not isinstance(all_of, list) or not all_of:
             raise ctx.error("outcome", "all_of", "need a list of units")
+        for key in ("name", "then", "else"):
+            if not isinstance(o[key], str):
+                raise ctx.error("outcome", key, f"must be a string, got {o[key]!r}")
         outcome = Outcome(
-            name=str(o["name"]),
+            name=o["name"],
             all_of=tuple(unit(u, "outcome", "all_of") for u in all_of),
             choose=alternative(o["choose"], "outcome", "choose"),
-            then=str(o["then"]),
-            otherwise=str(o["else"]),
+            then=o["then"],
+            otherwise=o["else"],
         )
 
-    expect = table("expect")
-    unknown(expect, EXPECT_KEYS, "expect")
-    for key in ("choices", "intervals", "frustrated"):
-        sub = expect.get(key, {})
-        if not isinstance(sub, dict):
-            raise ctx.error("expect", key, "must be a table {unit = value}")
-        for u in sub:
-            unit(u, f"expect.{key}", u)
+    expect = _expect(table("expect"), units_t, universe, outcome, ctx)
 
     description = data.get("description", "")
     if not isinstance(description, str):
@@ -464,11 +579,124 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     )
 
 
+def _expect(
+    expect: dict[str, Any],
+    units: tuple[str, ...],
+    universe: Universe,
+    outcome: Outcome | None,
+    ctx: _Ctx,
+) -> dict[str, Any]:
+    """``[expect]`` checked at load, so ``--check`` never meets a value it cannot compare.
+
+    The polynomial and the relation pairs are stored as a run prints them (``b-a`` -> ``a-b``,
+    ``cb+a`` -> ``a+bc``): the same group written another way must not fail the check."""
+    for key in expect:
+        if key not in EXPECT_KEYS:
+            allowed = ", ".join(sorted(EXPECT_KEYS))
+            raise ctx.error("expect", key, f"unknown key (allowed: {allowed})")
+    out = dict(expect)
+
+    def sub_table(key: str, what: str) -> dict[str, Any]:
+        sub = expect.get(key, {})
+        if not isinstance(sub, dict):
+            raise ctx.error("expect", key, f"must be a table {{{what}}}")
+        return sub
+
+    def known_unit(name: str, section: str, key: str | None = None) -> None:
+        if name not in units:
+            key = name if key is None else key
+            raise ctx.error(section, key, f"unknown unit {name!r} (units: {', '.join(units)})")
+
+    if "agree" in expect and not isinstance(expect["agree"], bool):
+        raise ctx.error("expect", "agree", f"must be true or false, got {expect['agree']!r}")
+    if "polynomial" in expect:
+        text = expect["polynomial"]
+        if not isinstance(text, str):
+            raise ctx.error("expect", "polynomial", f'must be a string like "ab+c", got {text!r}')
+        try:
+            poly = parse_polynomial(text)
+            graph = polynomial_to_graph(poly, units)
+        except RgtbusError as exc:
+            raise ctx.error("expect", "polynomial", f"{exc} (units: {', '.join(units)})") from None
+        out["polynomial"] = format_expr(graph_to_polynomial(graph), needs_star(units))
+    if "outcome" in expect:
+        text = expect["outcome"]
+        if not isinstance(text, str):
+            raise ctx.error("expect", "outcome", f"must be a string, got {text!r}")
+        if outcome is None:
+            raise ctx.error("expect", "outcome", "the scenario has no [outcome] rule to expect")
+        possible = [f"{outcome.name}: {v}" for v in (outcome.then, outcome.otherwise)]
+        if text not in possible:
+            raise ctx.error(
+                "expect",
+                "outcome",
+                f"{text!r} is not an outcome of the [outcome] rule "
+                f"({' or '.join(repr(p) for p in possible)})",
+            )
+    relations = sub_table("relations", '"a-b" = "alliance"')
+    pairs: dict[str, str] = {}
+    for key, v in relations.items():
+        section = "expect.relations"
+        parts = key.split("-")
+        if len(parts) != 2:
+            raise ctx.error(section, key, 'write the pair as UNIT-UNIT, e.g. "a-b"')
+        a, b = (x.strip() for x in parts)
+        known_unit(a, section, key)
+        known_unit(b, section, key)
+        if a == b:
+            raise ctx.error(section, key, "a unit has no relation with itself")
+        if v not in ("alliance", "conflict"):
+            raise ctx.error(section, key, f'must be "alliance" or "conflict", got {v!r}')
+        if units.index(a) > units.index(b):
+            a, b = b, a
+        name = f"{a}-{b}"
+        if name in pairs:
+            raise ctx.error(section, key, f"the pair {name} is given twice")
+        pairs[name] = v
+    if "relations" in expect:
+        out["relations"] = pairs
+    for key, what, parse in (
+        ("intervals", '"[LOW,HIGH]"', universe.parse_interval),
+        ("choices", "an alternative", universe.parse_alternative),
+    ):
+        for name, v in sub_table(key, "unit = value").items():
+            known_unit(name, f"expect.{key}")
+            if not isinstance(v, str):
+                raise ctx.error(f"expect.{key}", name, f"must be a string ({what}), got {v!r}")
+            try:
+                value = parse(v)
+            except RgtbusError as exc:
+                raise ctx.error(f"expect.{key}", name, str(exc)) from None
+            if key == "intervals":
+                lo, hi = value
+                if lo & ~hi:
+                    raise ctx.error(
+                        "expect.intervals",
+                        name,
+                        f"empty interval {v!r}: its low end is not within its high end",
+                    )
+    for name, v in sub_table("frustrated", "unit = true").items():
+        known_unit(name, "expect.frustrated")
+        if not isinstance(v, bool):
+            raise ctx.error("expect.frustrated", name, f"must be true or false, got {v!r}")
+    return out
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _finite(v: Any) -> bool:
+    """A real, finite number (TOML allows inf and nan; bool is an int in Python)."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _pairs(units: tuple[str, ...]) -> list[tuple[str, str]]:
     return [(s, r) for s in units for r in units if s != r]
 
 
 CODEBOOK_KINDS = ("paper", "generated", "custom")
+MAX_PULSES = 64  # a code's length grows with N; far beyond any plan's need (the paper's N = 3)
 
 
 def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
@@ -482,21 +710,41 @@ def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
         raise ctx.error("", "codebook", 'must be "paper", "generated" or a table')
     section = "codebook" if isinstance(spec, dict) else ""
     key = None if isinstance(spec, dict) else "codebook"
+    # Options are checked first and blamed by name; the builders' own refusals name the table.
+    if kind == "paper":
+        extra = set(opts) - {"names"}
+        names = opts.get("names")
+        if names is not None and (
+            not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values())
+        ):
+            raise ctx.error(
+                "codebook", "names", f'must be a table {{"1" = "0", ...}}, got {names!r}'
+            )
+    elif kind == "generated":
+        extra = set(opts) - {"pulses", "min_distance", "seed"}
+        pulses = opts.get("pulses", 3)
+        if not _int(pulses) or not 1 <= pulses <= MAX_PULSES:
+            raise ctx.error(
+                "codebook", "pulses", f"must be an integer 1..{MAX_PULSES}, got {pulses!r}"
+            )
+        min_distance = opts.get("min_distance", 0.3)
+        if not _finite(min_distance) or min_distance < 0:
+            raise ctx.error(
+                "codebook", "min_distance", f"must be a number >= 0, got {min_distance!r}"
+            )
+        seed = opts.get("seed", 0)
+        if not _int(seed) or seed < 0:
+            raise ctx.error("codebook", "seed", f"must be an integer >= 0, got {seed!r}")
+    else:
+        extra = set()
+    if extra:
+        raise ctx.error("codebook", sorted(extra)[0], f"unknown key for the {kind} codebook")
     try:
         if kind == "paper":
-            extra = set(opts) - {"names"}
-            if extra:
-                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for the paper codebook")
-            cb = paper_codebook(universe.actions, names=opts.get("names"))
+            cb = paper_codebook(universe.actions, names=names)
         elif kind == "generated":
-            extra = set(opts) - {"pulses", "min_distance", "seed"}
-            if extra:
-                raise RgtbusError(f"unknown key {sorted(extra)[0]!r} for a generated codebook")
             cb = generate_codebook(
-                universe.actions,
-                pulses=opts.get("pulses", 3),
-                min_distance=opts.get("min_distance", 0.3),
-                seed=opts.get("seed", 0),
+                universe.actions, pulses=pulses, min_distance=min_distance, seed=seed
             )
         elif kind == "custom":
             cb = Codebook.from_dict(opts, where="codebook")
@@ -504,6 +752,9 @@ def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
             raise RgtbusError(f"unknown codebook kind {kind!r} ({', '.join(CODEBOOK_KINDS)})")
     except RgtbusError as exc:
         raise ctx.error(section, key, str(exc)) from None
+    words = [cb.id_word, *cb.relations.values(), *cb.alternatives.values()]
+    if any(abs(v) > MAX_LEVEL for w in words for v in w):
+        raise ctx.error(section, key, f"a pulse magnitude beyond {MAX_LEVEL:g}")
     missing = [n for n in alternative_names(universe.actions) if n not in cb.alternatives]
     if missing:
         raise ctx.error(section, key, f"no word for alternative {missing[0]}")

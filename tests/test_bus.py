@@ -401,7 +401,7 @@ def test_zenoh_bad_mode_and_endpoints():
         open_bus("zenoh", "r1", ["a"], RATE, mode="hub")
     with pytest.raises(RgtbusError, match="must be a list, got the string"):
         open_bus("zenoh", "r1", ["a"], RATE, connect="tcp/127.0.0.1:1")
-    with pytest.raises(RgtbusError, match="zenoh listen endpoints"):
+    with pytest.raises(RgtbusError, match="zenoh listen endpoint 'nonsense': Endpoints must"):
         open_bus("zenoh", "r1", ["a"], RATE, listen=["nonsense"])
 
 

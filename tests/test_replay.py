@@ -224,9 +224,9 @@ def test_truncated_log_verified_as_far_as_it_goes(tmp_path, capsys):
     report = verify_log(io.BytesIO(cut))
     assert report.truncated and not report.ok and report.mismatches == []
     assert 0 < report.until < 76 and report.checked["/rx/decode"] > 0
-    # the timeline reads the truncated log too, and says so
+    # the timeline reads the truncated log too, says so, and exits 3 (it ends early)
     code, out, _ = cli(capsys, "replay", path)
-    assert code == 0 and "NOTE:" in out and "no /run record" in out
+    assert code == EXIT_TRUNCATED and "NOTE:" in out and "no /run record" in out
     # tampering before the cut is still caught
     bad = rewrite(data, _tamper_delete_decode)
     report = verify_log(io.BytesIO(bad[: len(bad) * 2 // 3]))
@@ -465,8 +465,16 @@ def test_log_without_scenario_cannot_be_verified(tmp_path, capsys):
     buf = io.BytesIO()
     rec = McapRecorder(buf)
     rec.write("/medium", {"window": 0, "t": 0.0, "sample_rate": 200.0, "samples": [0.0]}, 0)
+    rec.metadata("run", {"seed": "1"})
     rec.close()
     path = write(tmp_path, buf.getvalue())
     assert cli(capsys, "replay", path)[0] == 0
     code, _, err = cli(capsys, "replay", path, "--verify")
     assert code == 2 and "no scenario metadata" in err
+    # with no run metadata at all it is no rgtbus run log: refused before reading on
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    rec.write("/medium", {"window": 0, "t": 0.0, "sample_rate": 200.0, "samples": [0.0]}, 0)
+    rec.close()
+    code, _, err = cli(capsys, "replay", write(tmp_path, buf.getvalue(), "bare.mcap"))
+    assert code == 2 and "not an rgtbus run log: no scenario or run metadata" in err

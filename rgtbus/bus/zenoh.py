@@ -14,6 +14,7 @@ import contextlib
 import json
 import os
 import queue
+import re
 import threading
 import time
 import weakref
@@ -55,6 +56,21 @@ def _ensure_exit_hook() -> None:
         _exit_hook_registered = True
 
 
+_RUST_AT = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+_JSON5_MSG = re.compile(r'msg: "(.*?)", location')
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """A zenoh error in one readable line: the JSON5 parser's own message if wrapped in one,
+    without the Rust source paths zenoh appends."""
+    text = str(exc)
+    m = _JSON5_MSG.search(text)
+    if m:
+        text = m.group(1)
+    text = " ".join(_RUST_AT.sub("", text).split())
+    return text or type(exc).__name__
+
+
 def make_config(
     *,
     mode: str | None = None,
@@ -79,7 +95,7 @@ def make_config(
         try:
             cfg = zenoh.Config.from_file(os.fspath(config))
         except Exception as e:  # zenoh raises ZError; keep one line
-            raise RgtbusError(f"zenoh config {os.fspath(config)!r}: {e}") from e
+            raise RgtbusError(f"zenoh config {os.fspath(config)!r}: {zenoh_reason(e)}") from None
     if mode is not None:
         if mode not in _MODES:
             raise RgtbusError(f"zenoh mode {mode!r} unknown (use {', '.join(_MODES)})")
@@ -92,7 +108,15 @@ def make_config(
         try:
             cfg.insert_json5(f"{name}/endpoints", json.dumps([str(e) for e in eps]))
         except Exception as e:
-            raise RgtbusError(f"zenoh {name} endpoints {list(eps)!r}: {e}") from e
+            # Name the endpoint at fault, not the whole list.
+            bad, reason = list(eps), zenoh_reason(e)
+            for ep in eps:
+                try:
+                    zenoh.Config().insert_json5(f"{name}/endpoints", json.dumps([str(ep)]))
+                except Exception as one:
+                    bad, reason = str(ep), zenoh_reason(one)
+                    break
+            raise RgtbusError(f"zenoh {name} endpoint {bad!r}: {reason}") from None
     if multicast is not None:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     if config is None and connect and mode == "peer":
@@ -151,10 +175,22 @@ class ZenohBus(QueueBus):
             try:
                 session = zenoh.open(cfg)
             except Exception as e:
+                given = [
+                    f"{k} {v if isinstance(v, str) else list(v)}"
+                    for k, v in (("mode", mode), ("connect", connect), ("listen", listen))
+                    if v is not None
+                ]
+                if config is not None:
+                    given.insert(
+                        0,
+                        f"config {os.fspath(config)!r}"
+                        if not isinstance(config, zenoh.Config)
+                        else "config",
+                    )
                 raise RgtbusError(
-                    f"cannot open zenoh session (mode {mode or 'peer'}, connect "
-                    f"{list(connect or [])}, listen {list(listen or [])}): {e}"
-                ) from e
+                    f"cannot open zenoh session ({', '.join(given) or 'mode peer'}): "
+                    f"{zenoh_reason(e)}"
+                ) from None
         elif any(v is not None for v in (mode, connect, listen, multicast, config)):
             raise RgtbusError("zenoh bus: pass either a session or session options, not both")
         self.session = session

@@ -19,19 +19,18 @@ from rgtbus.errors import RgtbusError
 
 
 def _zenoh_arguments(p: argparse.ArgumentParser) -> None:
-    # zenoh's own spelling: -m/--mode, -e/--connect, -l/--listen, -c/--config.
+    # zenoh's own spelling: -m/--mode, -e/--connect, -l/--listen, -c/--config. No defaults
+    # here (None = not given): a --config file's own values must survive what was not typed.
     p.add_argument(
         "-m",
         "--mode",
         choices=("peer", "client"),
-        default="peer",
         help="zenoh mode (default peer; client to go through a router)",
     )
     p.add_argument(
         "-e",
         "--connect",
         action="append",
-        default=[],
         metavar="ENDPOINT",
         help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
     )
@@ -39,7 +38,6 @@ def _zenoh_arguments(p: argparse.ArgumentParser) -> None:
         "-l",
         "--listen",
         action="append",
-        default=[],
         metavar="ENDPOINT",
         help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)",
     )
@@ -49,12 +47,13 @@ def _zenoh_arguments(p: argparse.ArgumentParser) -> None:
         "--zenoh-config",
         dest="zenoh_config",
         metavar="FILE",
-        help="a zenoh JSON5 config file (the options above override it)",
+        help="a zenoh JSON5 config file (the options above, where given, override it)",
     )
     p.add_argument(
         "--multicast",
         action="store_true",
-        help="turn zenoh's multicast scouting on (off unless asked)",
+        default=None,
+        help="turn zenoh's multicast scouting on (off unless asked or set in --config)",
     )
 
 
@@ -161,11 +160,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def zenoh_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Only what the user typed (None: not given), so ``make_config`` keeps the rest of a
+    ``--config`` file; without a file, ``make_config`` supplies the defaults."""
     return {
         "mode": args.mode,
-        "connect": list(args.connect),
-        "listen": list(args.listen),
-        "multicast": bool(args.multicast),
+        "connect": None if args.connect is None else list(args.connect),
+        "listen": None if args.listen is None else list(args.listen),
+        "multicast": args.multicast,
         "config": args.zenoh_config,
     }
 
@@ -182,8 +183,7 @@ def _load(path: str, seed: int | None):
 
 
 def run_unit_cmd(args: argparse.Namespace) -> int:
-    from rgtbus.cli.run_cmd import default_log_path
-    from rgtbus.telemetry import McapRecorder
+    from rgtbus.cli.run_cmd import close_log, default_log_path, open_log
     from units.process import run_unit
 
     sc = _load(args.scenario, args.seed)
@@ -195,12 +195,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{args.name}")
-    try:
-        log_path.parent.mkdir(parents=True, exist_ok=True)
-        stream = open(log_path, "wb")  # noqa: SIM115 - closed in the finally below
-    except OSError as exc:
-        raise RgtbusError(f"cannot write log {str(log_path)!r}: {exc.strerror}") from None
-    recorder = McapRecorder(stream)
+    stream, recorder = open_log(log_path)
     # SIGTERM (a launcher giving up) ends the run like Ctrl-C: the log is still finished.
     signal.signal(signal.SIGTERM, _interrupt)
     try:
@@ -217,12 +212,12 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
             realtime=args.realtime,
         )
     except KeyboardInterrupt:
-        recorder.log("error", f"{args.name}: interrupted", 0, name=args.name)
+        if not recorder.failed:
+            recorder.log("error", f"{args.name}: interrupted", 0, name=args.name)
         print(f"rgtbus unit: {args.name}: interrupted", file=sys.stderr)
         return 130
     finally:
-        recorder.close()
-        stream.close()
+        close_log(stream, recorder)
     out["log"] = str(log_path)
     if args.json:
         print(json.dumps(out))
@@ -306,9 +301,8 @@ class Launch:
 
 
 def run_launch(args: argparse.Namespace) -> int:
-    from rgtbus.cli.run_cmd import print_summary
+    from rgtbus.cli.run_cmd import close_log, open_log, print_summary
     from rgtbus.sim import WorldResult
-    from rgtbus.telemetry import McapRecorder
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.recorder import scan_log
     from units.group import (
@@ -414,18 +408,22 @@ def run_launch(args: argparse.Namespace) -> int:
     )
     summary = summarise(sc, reports, result, engine=args.engine) if reports else None
     merged = log_dir / "run.mcap"
-    with open(log_dir / "launch.mcap", "wb") as f:
-        rec = McapRecorder(f)
+    f, rec = open_log(log_dir / "launch.mcap")
+    try:
         write_metadata(rec, sc, "zenoh", run_id, process="launch")
         if summary is not None:
             write_run_summary(rec, summary)
         for msg in failures:
             rec.log("error", msg, 0, name="launch")
-        rec.close()
+    finally:
+        close_log(f, rec)
     inputs = [log_dir / f"{u}.mcap" for u in sc.units if (log_dir / f"{u}.mcap").exists()]
     logs = [scan_log(p) for p in [*inputs, log_dir / "launch.mcap"]]
-    with open(merged, "wb") as f:
-        merge_logs(logs, f)
+    try:
+        with open(merged, "wb") as out:
+            merge_logs(logs, out)
+    except OSError as exc:
+        raise RgtbusError(f"cannot write log {str(merged)!r}: {exc.strerror}") from None
     if summary is None:
         raise RgtbusError(f"no unit finished: {failures[0] if failures else 'no output'}")
     summary["log"] = str(merged)
@@ -459,7 +457,7 @@ def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> None:
 def run_router(args: argparse.Namespace) -> int:
     import zenoh
 
-    from rgtbus.bus.zenoh import make_config
+    from rgtbus.bus.zenoh import make_config, zenoh_reason
 
     if not args.listen and not args.zenoh_config:
         raise RgtbusError("router: give at least one --listen ENDPOINT (or a --config)")
@@ -472,7 +470,9 @@ def run_router(args: argparse.Namespace) -> int:
     try:
         session = zenoh.open(cfg)
     except Exception as exc:
-        raise RgtbusError(f"router: cannot open a zenoh router on {args.listen}: {exc}") from None
+        raise RgtbusError(
+            f"router: cannot open a zenoh router on {args.listen}: {zenoh_reason(exc)}"
+        ) from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -23,7 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "order (transmissions with their decodes, spikes, tables, decisions, outcome). "
         "--verify re-runs every unit's receiver and reasoning on the logged medium and lists "
         "each disagreement (exit 0: verified; 1: mismatches; 3: truncated log, everything read "
-        "agrees; 2: unreadable log).",
+        "agrees (3 without --verify too); 2: unreadable, corrupt, header-only or not an rgtbus "
+        "log).",
     )
     p.add_argument("log", metavar="LOG", help="an MCAP log written by rgtbus run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -51,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def replay(args: argparse.Namespace) -> int:
-    from rgtbus.telemetry.replay import load_replay
+    from rgtbus.telemetry.replay import EXIT_TRUNCATED, load_replay
 
     if args.plot is None and (args.unit or args.t_from is not None or args.t_to is not None):
         raise RgtbusError("--unit, --from and --to go with --plot OUT.png")
@@ -83,7 +84,8 @@ def replay(args: argparse.Namespace) -> int:
         print(json.dumps(rp.to_json()))
     elif timeline:
         print_timeline(rp)
-    return 0
+    # A log that ends early was read as far as it goes: say so in the exit code too.
+    return EXIT_TRUNCATED if rp.truncated else 0
 
 
 def _write_csv(rp, out: Path) -> str:
@@ -119,13 +121,18 @@ def _plot(rp, args: argparse.Namespace) -> str:
 
 def merge(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.merge import merge_logs
-    from rgtbus.telemetry.recorder import scan_log
+    from rgtbus.telemetry.recorder import require_run_log, scan_log
 
     out = Path(args.output)
     for src in args.inputs:
         if os.path.exists(src) and out.exists() and os.path.samefile(src, out):
             raise RgtbusError(f"-o {args.output!r}: is also an input")
     logs = [scan_log(src) for src in args.inputs]
+    for log in logs:
+        try:
+            require_run_log(log)  # corrupt, header-only or foreign: exit 2 naming the file
+        except RgtbusError as e:
+            raise RgtbusError(f"{e}; not merged") from None
     tmp = out.with_name(out.name + ".part")
     try:
         with open(tmp, "wb") as f:

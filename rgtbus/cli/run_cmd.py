@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry import McapRecorder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -59,6 +63,46 @@ def default_log_path(name: str) -> Path:
     return Path("logs") / f"{name}-{stamp}.mcap"
 
 
+def open_log(path: Path) -> tuple[BinaryIO, McapRecorder]:
+    """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
+    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk)."""
+    from rgtbus.telemetry import McapRecorder
+
+    for parent in path.parents:  # mkdir says "File exists" for a file on the way
+        if parent.exists():
+            if not parent.is_dir():
+                raise RgtbusError(f"cannot write log {str(path)!r}: {str(parent)!r} is a file")
+            break
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        stream = open(path, "wb")  # noqa: SIM115 - closed by close_log
+    except OSError as exc:
+        raise RgtbusError(f"cannot write log {str(path)!r}: {exc.strerror}") from None
+    try:
+        return stream, McapRecorder(stream)
+    except RgtbusError:
+        with contextlib.suppress(OSError):  # its buffer cannot be flushed: already reported
+            stream.close()
+        raise
+
+
+def close_log(stream: BinaryIO, recorder: McapRecorder) -> None:
+    """Finish the log and close its file; a write that fails here is one line too."""
+    try:
+        recorder.close()
+    finally:
+        if recorder.failed:
+            with contextlib.suppress(OSError):  # the recorder's error says it already
+                stream.close()
+        else:
+            try:
+                stream.close()
+            except OSError as exc:
+                raise RgtbusError(
+                    f"cannot write log {str(stream.name)!r}: {exc.strerror}"
+                ) from None
+
+
 class Progress:
     """A rate-limited progress line on stderr (pacing is the world's: ``--realtime``)."""
 
@@ -87,7 +131,6 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     from rgtbus.scenario import load_scenario
-    from rgtbus.telemetry import McapRecorder
     from units.group import check_expectations, run_group, summary_json
 
     scenario = load_scenario(args.scenario)
@@ -98,14 +141,9 @@ def run(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     log_path = Path(args.log) if args.log else default_log_path(scenario.name)
-    try:
-        log_path.parent.mkdir(parents=True, exist_ok=True)
-        stream = open(log_path, "wb")  # noqa: SIM115 - closed in the finally below
-    except OSError as exc:
-        raise RgtbusError(f"cannot write log {str(log_path)!r}: {exc.strerror}") from None
+    stream, recorder = open_log(log_path)
 
     progress = Progress(not args.quiet and sys.stderr.isatty())
-    recorder = McapRecorder(stream)
     summary: dict[str, Any] | None = None
     try:
         out = run_group(
@@ -119,12 +157,12 @@ def run(args: argparse.Namespace) -> int:
         )
         summary = out.summary
     except BaseException as exc:
-        recorder.log("fatal", f"run failed: {exc}", 0)
+        if not recorder.failed:  # a log that cannot be written cannot take the line either
+            recorder.log("fatal", f"run failed: {exc}", 0)
         raise
     finally:
         progress.done()
-        recorder.close()
-        stream.close()
+        close_log(stream, recorder)
     summary["log"] = str(log_path)
 
     checks = check_expectations(scenario, summary) if args.check else []

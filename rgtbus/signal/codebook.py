@@ -278,18 +278,28 @@ def generate_codebook(
     need = 1 << k
     total = 0.4 * pulses if total is None else float(total)
     high = float(high)
+
+    def grid(step: float) -> tuple[int, int]:
+        return math.ceil(low / step - 1e-9), math.floor(high / step + 1e-9)
+
+    def enumeration(step: float) -> int:
+        lo_u, hi_u = grid(step)
+        return max(0, hi_u - lo_u + 1) ** max(0, pulses - 1)
+
     if step is None:  # finest grid in 0.05 steps whose enumeration stays small
-        step = next(
-            s * 0.05
-            for s in range(1, 100)
-            if (math.floor(high / (s * 0.05)) - math.ceil(low / (s * 0.05)) + 1)
-            ** max(0, pulses - 1)
-            <= 1_000_000
-        )
+        step = next((s * 0.05 for s in range(1, 100) if enumeration(s * 0.05) <= 1_000_000), None)
+        if step is None:
+            raise RgtbusError(f"codebook generator: no grid step keeps N = {pulses} pulses small")
     if not step > 0:
         raise RgtbusError(f"codebook generator: step = {step!r} must be positive")
+    # Counted before enumerating: the product itself could outlast any caller.
+    if enumeration(step) > 1_000_000:
+        raise RgtbusError(
+            f"codebook generator: about {enumeration(step):.3g} candidates at step {step:g} "
+            f"for N = {pulses} pulses; use a coarser step"
+        )
     units = round(total / step)
-    lo_u, hi_u = math.ceil(low / step - 1e-9), math.floor(high / step + 1e-9)
+    lo_u, hi_u = grid(step)
     if pulses == 1:
         cands = [(units,)] if lo_u <= units <= hi_u else []
     else:

@@ -19,6 +19,7 @@ from rgtbus.telemetry.recorder import (
     level_number,
     log_message,
     read_log,
+    require_run_log,
     scan_log,
 )
 from rgtbus.telemetry.topics import TOPIC_PATTERNS, TOPICS, schema_for, topics_markdown
@@ -38,6 +39,7 @@ __all__ = [
     "level_number",
     "log_message",
     "read_log",
+    "require_run_log",
     "scan_log",
     "schema_for",
     "topics_markdown",

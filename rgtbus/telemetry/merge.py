@@ -7,6 +7,7 @@ byte the same on the same topic at the same time in two inputs (e.g. the medium,
 every process) is kept once unless ``dedupe=False``. Metadata records are kept once when
 identical; a record whose name is taken by a different one (e.g. each process's ``run``) is
 kept as ``NAME.K`` (K = the input's position, from 1). A ``merge`` record lists the inputs.
+A corrupt input (``RawLog.corrupt``) is refused; a truncated one is merged as far as it goes.
 """
 
 from __future__ import annotations
@@ -55,8 +56,11 @@ def merge_logs(
         raise RgtbusError(
             f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
         )
+    for log in logs:
+        if log.corrupt:  # never copy a damaged chunk into a log that looks whole
+            raise RgtbusError(f"{log.corruption}; not merged")
     res = MergeResult()
-    writer = Writer(stream, compression=_COMPRESSION[compression])
+    writer = Writer(stream, compression=_COMPRESSION[compression], enable_data_crcs=True)
     writer.start(profile="", library=f"rgtbus {__version__} merge")
 
     schema_ids: dict[tuple, int] = {}

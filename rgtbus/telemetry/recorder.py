@@ -6,18 +6,20 @@ Time is simulated: ``log_time = publish_time = t_ns`` (integer nanoseconds from 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import operator
 import os
 import struct
+import zlib
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, runtime_checkable
 
 import mcap.exceptions
-from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from rgtbus import __version__
@@ -32,6 +34,7 @@ _COMPRESSION = {
     "none": CompressionType.NONE,
 }
 _U64_MAX = 2**64 - 1
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 @runtime_checkable
@@ -158,7 +161,10 @@ class _Encoding:
 
 class McapRecorder(_Encoding):
     """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
-    support ``write`` and ``tell``). ``close`` finishes the file (summary, footer)."""
+    support ``write`` and ``tell``). ``close`` finishes the file (summary, footer).
+
+    A failed write (an unwritable path, a full disk) raises ``RgtbusError`` naming the stream;
+    ``failed`` then holds that line and nothing more is written (``close`` writes nothing)."""
 
     def __init__(
         self,
@@ -174,12 +180,37 @@ class McapRecorder(_Encoding):
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
             )
         self.stream = stream
+        self.failed: str | None = None
         # Smaller chunks than mcap's 1 MiB default: a killed run loses at most one chunk.
-        self._writer = Writer(stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
-        self._writer.start(profile="", library=f"rgtbus {__version__}")
+        # Data CRCs cover the records outside chunks too (the scenario text in the metadata).
+        self._writer = Writer(
+            stream,
+            chunk_size=chunk_size,
+            compression=_COMPRESSION[compression],
+            enable_data_crcs=True,
+        )
+        with self._io():
+            self._writer.start(profile="", library=f"rgtbus {__version__}")
+            self._flush()  # a target that takes no bytes fails here, before any run starts
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
         self._sequence: Counter[int] = Counter()
+
+    @contextlib.contextmanager
+    def _io(self) -> Iterator[None]:
+        if self.failed:
+            raise RgtbusError(self.failed)
+        try:
+            yield
+        except OSError as e:
+            name = getattr(self.stream, "name", "<stream>")
+            self.failed = f"cannot write log {str(name)!r}: {e.strerror or e}"
+            raise RgtbusError(self.failed) from None
+
+    def _flush(self) -> None:
+        flush = getattr(self.stream, "flush", None)
+        if flush is not None:
+            flush()
 
     def _channel(self, topic: str, schema: str) -> int:
         cid = self._channel_ids.get(topic)
@@ -198,25 +229,29 @@ class McapRecorder(_Encoding):
 
     def write(self, topic: str, message: dict, t_ns: int) -> None:
         schema, data, t = self._encode(topic, message, t_ns)
-        cid = self._channel(topic, schema)
-        self._sequence[cid] += 1
-        self._writer.add_message(
-            channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
-        )
+        with self._io():
+            cid = self._channel(topic, schema)
+            self._sequence[cid] += 1
+            self._writer.add_message(
+                channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
+            )
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
-        self._writer.add_metadata(name, self._check_metadata(name, values))
+        values = self._check_metadata(name, values)
+        with self._io():
+            self._writer.add_metadata(name, values)
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
-        flush = getattr(self.stream, "flush", None)
-        if flush is not None:
-            flush()
+        if self.failed:
+            return  # the file is lost either way; its error is already on its way
+        with self._io():
+            self._writer.finish()
+            self._flush()
 
 
 class MemoryRecorder(_Encoding):
@@ -338,10 +373,21 @@ class RawLog:
     messages: list[tuple[int, int, int, int, bytes]] = field(default_factory=list)
     metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
     note: str = ""
+    corruption: str = ""  # one line: what is damaged and where (read up to there)
+    library: str | None = None  # the writer named in the Header (None: no header read)
 
     @property
     def truncated(self) -> bool:
         return bool(self.note)
+
+    @property
+    def corrupt(self) -> bool:
+        return bool(self.corruption)
+
+    @property
+    def header_only(self) -> bool:
+        """Nothing but a Header: no schema, channel, message or metadata record."""
+        return not (self.schemas or self.channels or self.messages or self.metadata)
 
 
 def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
@@ -356,43 +402,176 @@ def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
     return _scan(source, getattr(source, "name", "<stream>"))
 
 
+class _Corrupt(Exception):
+    """Raised inside the scan to stop at damage; its text says what and where."""
+
+
+class _Tracked:
+    """The stream as StreamReader reads it (exact reads, no read-ahead): the position, whether
+    a read came back short (the file ended inside a record: truncation, not damage), and from
+    the data section's end on, the bytes the footer's summary CRC covers."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self.stream = stream
+        self.pos = 0
+        self.short = False
+        self.capture: bytearray | None = None
+
+    def read(self, n: int = -1) -> bytes:
+        data = self.stream.read(n)
+        if n is not None and n >= 0 and len(data) < n:
+            self.short = True
+        self.pos += len(data)
+        if self.capture is not None:
+            self.capture += data
+        return data
+
+
+def _ends_with_magic(stream: IO[bytes]) -> bool:
+    """A finished MCAP file ends with the magic: a record running past the end of such a file
+    has a damaged length, it was not cut. False when the stream cannot tell."""
+    try:
+        if not stream.seekable():
+            return False
+        here = stream.tell()
+        size = stream.seek(0, os.SEEK_END)
+        if size < 2 * len(MCAP_MAGIC):
+            stream.seek(here)
+            return False
+        stream.seek(size - len(MCAP_MAGIC))
+        tail = stream.read(len(MCAP_MAGIC))
+        stream.seek(here)
+        return tail == MCAP_MAGIC
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _seconds(t_ns: int) -> str:
+    return f"{t_ns / 1e9:.3f}"
+
+
 def _scan(stream: IO[bytes], label: str) -> RawLog:
     raw = RawLog(label)
-    started = finished = False
-    records = StreamReader(stream, record_size_limit=2**30).records
-    try:
-        for rec in records:
-            if isinstance(rec, Message):
-                if rec.channel_id not in raw.channels:
-                    raise RgtbusError(f"{label}: message on unknown channel {rec.channel_id}")
-                raw.messages.append(
-                    (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
+    src = _Tracked(stream)
+    # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
+    # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
+    reader = StreamReader(src, emit_chunks=True, validate_crcs=True, record_size_limit=2**30)
+    started = finished = False  # a Header read; the data section's end (DataEnd) reached
+    start = len(MCAP_MAGIC)  # byte offset of the record being read
+
+    def take(rec: Any) -> None:
+        if isinstance(rec, Message):
+            if rec.channel_id not in raw.channels:
+                raise _Corrupt(
+                    f"record at byte {start}: message on unknown channel {rec.channel_id}"
                 )
-            elif isinstance(rec, Channel):
-                raw.channels[rec.id] = rec
-            elif isinstance(rec, Schema):
-                raw.schemas[rec.id] = rec
-            elif isinstance(rec, Metadata):
-                raw.metadata.append((rec.name, dict(rec.metadata)))
-            elif isinstance(rec, Header):
+            raw.messages.append(
+                (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
+            )
+        elif isinstance(rec, Channel):
+            raw.channels[rec.id] = rec
+        elif isinstance(rec, Schema):
+            raw.schemas[rec.id] = rec
+
+    try:
+        for rec in reader.records:
+            if src.short:  # the record's declared length ran past the end: not taken
+                raise mcap.exceptions.EndOfFile()
+            if not started and not isinstance(rec, Header):
+                raise _Corrupt(f"record at byte {start}: the first record is not a Header")
+            if isinstance(rec, Header):
                 started = True
-            elif isinstance(rec, DataEnd | Footer):
+                raw.library = rec.library
+            elif isinstance(rec, Chunk):
+                where = (
+                    f"chunk at byte {start} (log time {_seconds(rec.message_start_time)}"
+                    f"–{_seconds(rec.message_end_time)} s)"
+                )
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except CRCValidationError as e:
+                    raise _Corrupt(
+                        f"{where}: CRC mismatch (stored {e.expected:#010x}, "
+                        f"computed {e.actual:#010x})"
+                    ) from None
+                except Exception as e:  # a complete chunk that does not decompress or parse
+                    raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
+                for r in inner:
+                    take(r)
+            elif isinstance(rec, Metadata) and not finished:
+                raw.metadata.append((rec.name, dict(rec.metadata)))
+            elif isinstance(rec, DataEnd):
                 finished = True
+                src.capture = bytearray()  # the summary, then the footer
+            elif isinstance(rec, Footer):
+                finished = True
+                covered = bytes(src.capture or b"")[:-4]  # all but the CRC field itself
+                if rec.summary_crc != 0 and zlib.crc32(covered) != rec.summary_crc:
+                    raise _Corrupt(
+                        f"summary section (from byte {rec.summary_start}): CRC mismatch "
+                        f"(stored {rec.summary_crc:#010x}, computed {zlib.crc32(covered):#010x})"
+                    )
+                src.capture = None
+            elif not finished:
+                take(rec)  # unchunked records; the summary's copies are not needed
+            start = src.pos
+        extra = len(src.read(1))
+        while extra and (more := len(stream.read(1 << 20))):
+            extra += more
+        if extra:
+            raise _Corrupt(
+                f"{extra} bytes of trailing garbage after the footer (the log itself is complete)"
+            )
+    except _Corrupt as e:
+        raw.corruption = f"{label}: corrupt log: {e}"
     except mcap.exceptions.InvalidMagic:
-        raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
-    except RgtbusError:
-        raise
-    except Exception as e:  # EndOfFile, short struct reads, a cut compressed chunk
         if not started:
+            raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
+        raw.corruption = f"{label}: corrupt log: bad magic after the footer"
+    except CRCValidationError as e:  # the data section's CRC, checked at DataEnd
+        raw.corruption = (
+            f"{label}: corrupt log: data section CRC mismatch (stored {e.expected:#010x}, "
+            f"computed {e.actual:#010x})"
+        )
+    except Exception as e:  # EndOfFile, short struct reads, a damaged record
+        if not started:
+            if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
+                raise RgtbusError(
+                    f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
+                ) from None
             raise RgtbusError(
                 f"{label}: not an MCAP file (empty or cut before its header)"
             ) from None
-        n = len(raw.messages)
-        where = "in its summary (all messages present)" if finished else f"after {n} messages"
-        cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
-        why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
-        raw.note = f"{label}: log truncated {where} ({why})"
+        if src.short and not _ends_with_magic(stream):
+            n = len(raw.messages)
+            where = "in its summary (all messages present)" if finished else f"after {n} messages"
+            cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
+            why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
+            raw.note = f"{label}: log truncated {where} ({why})"
+        elif src.short:
+            raw.corruption = (
+                f"{label}: corrupt log: record at byte {start} runs past the end of a file "
+                "that ends with MCAP's closing magic (a damaged record length)"
+            )
+        else:
+            raw.corruption = (
+                f"{label}: corrupt log: record at byte {start}: {type(e).__name__}: {e}"
+            )
     return raw
+
+
+def require_run_log(raw: RawLog) -> None:
+    """Refuse (one-line ``RgtbusError``) a log that is corrupt, holds only a header, or was
+    not written by an rgtbus run (no ``scenario`` or ``run`` metadata). Truncation passes:
+    everything before the cut is good."""
+    if raw.corrupt:
+        raise RgtbusError(raw.corruption)
+    by = f" (written by {raw.library!r})" if raw.library else ""
+    if raw.header_only:
+        raise RgtbusError(f"{raw.label}: holds only an MCAP header{by}: no records to read")
+    names = {name for name, _ in raw.metadata}
+    if not names & {"scenario", "run"}:
+        raise RgtbusError(f"{raw.label}: not an rgtbus run log: no scenario or run metadata{by}")
 
 
 def _read(stream: IO[bytes], label: str) -> LogContents:
@@ -403,6 +582,8 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
     """A scanned log as ``read_log`` returns it. Messages on topics for which ``keep_raw``
     is true stay undecoded JSON ``bytes`` (for readers that may never need them)."""
     label = raw.label
+    if raw.corrupt:
+        raise RgtbusError(raw.corruption)
     messages: list[tuple[str, int, Any]] = []
     topics = {cid: ch.topic for cid, ch in raw.channels.items()}
     lazy = {cid for cid, t in topics.items() if keep_raw is not None and keep_raw(t)}

@@ -27,7 +27,7 @@ import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
-from rgtbus.telemetry.recorder import LogContents, decode_log, scan_log
+from rgtbus.telemetry.recorder import LogContents, decode_log, require_run_log, scan_log
 
 NS = 1_000_000_000
 
@@ -529,11 +529,13 @@ def _is_trace(topic: str) -> bool:
 
 
 def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
-    """Read and organise a log (path or binary stream). Unreadable/not MCAP: RgtbusError.
+    """Read and organise a log (path or binary stream). Unreadable, not MCAP, corrupt, only a
+    header, or not written by an rgtbus run: RgtbusError. A truncated log reads up to its cut.
 
     Resonator traces (the bulk of a traced log) stay undecoded until something needs them:
     verification compares them byte for byte, plots decode one unit's."""
     raw = scan_log(source)
+    require_run_log(raw)
     return Replay(decode_log(raw, keep_raw=_is_trace), raw.label)
 
 
