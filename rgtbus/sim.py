@@ -258,7 +258,8 @@ class World:
                 known[u] = merge_pulses(parts)
             k = ears.peek(i, until, known, m.quench_between(h, until), aw[0], aw[1])
             out[m.name] = m.promise(until if k is None else k)
-        return out
+        # A promise made stays true: a later one computed without a look-ahead may be lower.
+        return {u: max(p, self._sent_promise[u]) for u, p in out.items()}
 
     def _finished(self) -> bool:
         status = self.bus.status()

@@ -41,8 +41,10 @@ def run_unit(
     progress: Callable[[float, int], None] | None = None,
     engine: str = "event",
     realtime: float | None = None,
+    on_open: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
-    """Run unit ``name`` of ``sc`` in this process; returns its part of the run summary."""
+    """Run unit ``name`` of ``sc`` in this process; returns its part of the run summary.
+    ``on_open``: called once its zenoh session is open (listening), before the join."""
     if name not in sc.units:
         raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
     run_id = run_id or default_run_id(sc)
@@ -51,6 +53,8 @@ def run_unit(
     unit = AutonomousUnit(name, sc, recorder, traces=traces)
     opts = dict(zenoh_options or {})
     with open_bus("zenoh", run_id, sc.units, sc.timing.sample_rate, local=[name], **opts) as bus:
+        if on_open is not None:  # e.g. a launcher starting the peers that connect here
+            on_open()
         bus.join(name, scenario_digest(sc), timeout=join_timeout)
         world = scenario_world(
             sc,

@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -261,43 +260,156 @@ def free_ports(n: int) -> list[int]:
 
 
 def _die_with_parent() -> None:
-    """In the child, before exec: ask Linux for SIGTERM when the launcher dies, so no unit is
-    left behind even if the launcher is killed outright (best effort elsewhere)."""
+    """In a child: ask Linux for SIGTERM when the launcher dies, so no unit is left behind even
+    if the launcher is killed outright (best effort elsewhere)."""
     with contextlib.suppress(Exception):
         import ctypes
 
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
+def _unit_child(
+    conn: Any,
+    sc: Any,
+    name: str,
+    log: Path,
+    net: dict[str, Any],
+    after: list[Any],
+    listening: Any,
+    **opts: Any,
+) -> None:
+    """One unit of a launch, in its own forked process: what ``rgtbus unit`` does, its result
+    sent back on ``conn``. It opens its session once the peers it connects to listen
+    (``after``), and says when it listens itself (``listening``)."""
+    from rgtbus.cli.run_cmd import close_log, open_log
+    from units.process import run_unit
+
+    _die_with_parent()
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the launcher's to handle
+    try:
+        for ev in after:  # bounded: a peer that never listens is named by the join
+            ev.wait(10.0)
+        stream, recorder = open_log(log)
+        try:
+            out = run_unit(
+                sc,
+                name,
+                recorder,
+                zenoh_options=net,
+                join_timeout=30.0,
+                on_open=listening.set,
+                **opts,
+            )
+        except KeyboardInterrupt:
+            if not recorder.failed:
+                recorder.log("error", f"{name}: interrupted", 0, name=name)
+            out = {"crash": "interrupted"}
+        finally:
+            close_log(stream, recorder)
+        out["log"] = str(log)
+    except RgtbusError as exc:
+        out = {"crash": str(exc)}
+    except BaseException as exc:  # a bug: say what, not a traceback on the launcher's terminal
+        out = {"crash": f"{type(exc).__name__}: {exc}"}
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # done: being stopped now loses nothing
+    conn.send(out)
+    conn.close()
+
+
+def _router_child(conn: Any, endpoint: str) -> None:
+    import zenoh
+
+    from rgtbus.bus.zenoh import make_config
+
+    _die_with_parent()
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = zenoh.open(make_config(mode="router", listen=[endpoint], multicast=False))
+    try:
+        conn.send("listening")
+        while not stop.wait(0.5):
+            pass
+    finally:
+        session.close()
+
+
 class Launch:
-    """Spawned processes, always reaped: terminate, then kill what is left."""
+    """The processes of a launch, forked from the launcher once it has loaded everything (so
+    a unit starts in milliseconds), always reaped: terminate, then kill what is left."""
 
     def __init__(self) -> None:
-        self.procs: list[tuple[str, subprocess.Popen]] = []
+        import multiprocessing
 
-    def spawn(self, label: str, argv: list[str]) -> subprocess.Popen:
-        proc = subprocess.Popen(
-            argv,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            text=True,
-            preexec_fn=_die_with_parent,
+        self._mp = multiprocessing.get_context("fork")
+        self.procs: dict[str, Any] = {}
+        self._results: dict[str, Any] = {}
+        self._listening: dict[str, Any] = {}
+
+    def start_unit(
+        self, name: str, sc: Any, log: Path, net: dict[str, Any], after: list[str], **opts: Any
+    ) -> None:
+        """Fork unit ``name``; it opens its session once the units ``after`` listen."""
+        reader, writer = self._mp.Pipe(duplex=False)
+        self._listening[name] = self._mp.Event()
+        waits = [self._listening[u] for u in after]
+        proc = self._mp.Process(
+            target=_unit_child,
+            args=(writer, sc, name, log, net, waits, self._listening[name]),
+            kwargs=opts,
+            name=name,
         )
-        self.procs.append((label, proc))
-        return proc
+        proc.start()
+        writer.close()
+        self.procs[name] = proc
+        self._results[name] = reader
+
+    def start_router(self, endpoint: str, timeout: float) -> None:
+        reader, writer = self._mp.Pipe(duplex=False)
+        proc = self._mp.Process(target=_router_child, args=(writer, endpoint), name="router")
+        proc.start()
+        writer.close()
+        self.procs["router"] = proc
+        if not reader.poll(timeout):
+            raise RgtbusError(f"router did not start within {timeout:g} s")
+        reader.recv()
+
+    def collect(self, limit: float) -> dict[str, dict[str, Any]]:
+        """Every unit's result as it comes (at most ``limit`` seconds in all); a unit that dies
+        without one is absent."""
+        from multiprocessing.connection import wait
+
+        out: dict[str, dict[str, Any]] = {}
+        waiting = dict(self._results)
+        end = time.monotonic() + limit
+        while waiting:
+            ready = wait(list(waiting.values()), timeout=max(0.0, end - time.monotonic()))
+            if not ready:
+                break
+            for name, conn in list(waiting.items()):
+                if conn in ready:
+                    with contextlib.suppress(EOFError, OSError):
+                        out[name] = conn.recv()
+                    del waiting[name]
+        return out
 
     def reap(self) -> None:
-        for _, p in self.procs:
-            if p.poll() is None:
+        """Every process ended: given a moment to leave on its own (a unit that has sent its
+        result is closing its session), then asked to stop, then killed."""
+        grace = time.monotonic() + 1.0
+        for name, p in self.procs.items():
+            if name != "router":
+                p.join(timeout=max(0.0, grace - time.monotonic()))
+        for p in self.procs.values():
+            if p.is_alive():
                 p.terminate()
         deadline = time.monotonic() + 5
-        for _, p in self.procs:
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                p.wait(timeout=max(0.1, deadline - time.monotonic()))
-            if p.poll() is None:
+        for p in self.procs.values():
+            p.join(timeout=max(0.1, deadline - time.monotonic()))
+            if p.is_alive():
                 p.kill()
-                p.wait()
+                p.join()
 
 
 def run_launch(args: argparse.Namespace) -> int:
@@ -326,8 +438,12 @@ def run_launch(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise RgtbusError(f"cannot create log dir {str(log_dir)!r}: {exc.strerror}") from None
     run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
-    exe = [sys.executable, "-m", "rgtbus"]
-    seed = ["--seed", str(sc.seed)]
+    # Loaded once here, before the units are forked (numpy loads numpy.random lazily).
+    import numpy.random  # noqa: F401
+
+    import rgtbus.bus.zenoh  # noqa: F401
+    import units.process  # noqa: F401
+
     launch = Launch()
     outputs: dict[str, dict[str, Any]] = {}
     failures: list[str] = []
@@ -335,64 +451,38 @@ def run_launch(args: argparse.Namespace) -> int:
         ports = free_ports(len(sc.units) + 1)
         if args.router:
             router_ep = f"tcp/127.0.0.1:{ports[-1]}"
-            router = launch.spawn("router", [*exe, "router", "--listen", router_ep])
-            _wait_line(router, "router listening", 10.0)
+            launch.start_router(router_ep, timeout=10.0)
         for i, name in enumerate(sc.units):
             if args.router:
-                net = ["--mode", "client", "--connect", router_ep]
+                net = {"mode": "client", "connect": [router_ep]}
             else:  # a full mesh: each listens on its port and connects to those before it
-                net = ["--listen", f"tcp/127.0.0.1:{ports[i]}"]
-                for j in range(i):
-                    net += ["--connect", f"tcp/127.0.0.1:{ports[j]}"]
-            launch.spawn(
+                net = {
+                    "listen": [f"tcp/127.0.0.1:{ports[i]}"],
+                    "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
+                }
+            launch.start_unit(
                 name,
-                [
-                    *exe,
-                    "unit",
-                    name,
-                    args.scenario,
-                    *net,
-                    *seed,
-                    "--log",
-                    str(log_dir / f"{name}.mcap"),
-                    "--json",
-                    "--timeout",
-                    str(args.timeout),
-                    "--run-id",
-                    run_id,
-                    "--engine",
-                    args.engine,
-                    *(["--realtime", str(args.realtime)] if args.realtime else []),
-                ],
+                sc,
+                log_dir / f"{name}.mcap",
+                net,
+                [] if args.router else list(sc.units[:i]),
+                run_id=run_id,
+                timeout=args.timeout,
+                engine=args.engine,
+                realtime=args.realtime,
             )
-        units = [(label, p) for label, p in launch.procs if label != "router"]
-        # Read every unit's output concurrently: a full pipe must never stall a unit.
-        results: dict[str, tuple[int, str, str]] = {}
-
-        def collect(label: str, proc: subprocess.Popen) -> None:
-            out, err = proc.communicate()
-            results[label] = (proc.returncode, out, err)
-
-        threads = [threading.Thread(target=collect, args=u, daemon=True) for u in units]
-        for t in threads:
-            t.start()
         limit = sc.timing.max_seconds + 60 + 2 * args.timeout
-        end = time.monotonic() + limit
-        for t in threads:
-            t.join(timeout=max(0.0, end - time.monotonic()))
-        for label, _ in units:
-            if label not in results:
-                failures.append(f"unit {label} did not finish within {limit:.0f} s")
-                continue
-            code, out, err = results[label]
-            try:
-                outputs[label] = json.loads(out.strip().splitlines()[-1])
-            except (ValueError, IndexError):
-                last = (err.strip().splitlines() or ["no output"])[-1]
-                failures.append(f"unit {label} exited {code}: {last}")
-                continue
-            if outputs[label]["error"]:
-                failures.append(f"unit {label}: {outputs[label]['error']}")
+        results = launch.collect(limit)
+        for name in sc.units:
+            out = results.get(name)
+            if out is None:
+                failures.append(f"unit {name} did not finish within {limit:.0f} s")
+            elif "crash" in out:
+                failures.append(f"unit {name}: {out['crash']}")
+            else:
+                outputs[name] = out
+                if out["error"]:
+                    failures.append(f"unit {name}: {out['error']}")
     finally:
         launch.reap()
 
@@ -436,22 +526,6 @@ def run_launch(args: argparse.Namespace) -> int:
             print(f"launch: {msg}", file=sys.stderr)
         return 1
     return 0
-
-
-def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> None:
-    """Wait for a line containing ``text`` on the process's stdout (bounded)."""
-    found = threading.Event()
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if text in line:
-                found.set()
-                return
-
-    threading.Thread(target=read, daemon=True).start()
-    if not found.wait(timeout):
-        raise RgtbusError(f"router did not start within {timeout:g} s")
 
 
 def run_router(args: argparse.Namespace) -> int:
