@@ -1,33 +1,47 @@
-"""The protocol simulation: wall time for `gate` and a 10-unit group, both buses, with and
-without logging, in one run.
+"""The protocol simulation: the event engine against the time-stepped reference, in one run.
 
-    python -m benchmarks.bench_run [--repeat N]
+    python -m benchmarks.bench_run [--sizes 4,6,8,10,12,14] [--repeat 3] [--quick]
 
-Baselines measured in the same run: the memory bus (for zenoh's cost) and no logging (for the
-cost of the full MCAP log, written zstd-compressed to memory). Goals (issue 4): gate under 1 s
-wall on the memory bus; zenoh at most 1.5x memory; full logging at most 1.3x no logging.
+Every case runs in a fresh process, so no cache of one run helps another: the gate and group6
+(scenario files) and generated groups of n units (serial schedule, 4-pulse codes, automatic
+plan), on both engines over the memory bus without a log. Reported per case: simulated
+seconds, wall seconds of the simulation (the event engine: median of --repeat; the reference:
+one run), their ratio, the process's peak RSS, and the world's steps. Then the slope of log wall
+over log n (the event engine, n = 4…14), and the costs of zenoh and of the full MCAP log.
+
+Goals (issue 9): group10 at least 30x faster than ``--engine dense``; the gate's simulation
+under 0.1 s; the exponent of wall time over n = 4…14 at most 2.5; n = 10 under 60 MB peak RSS.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import json
 import random
+import resource
+import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
-from rgtbus.rgt import polynomial_to_graph, random_polynomial
-from rgtbus.rgt.algebra import Universe
-from rgtbus.scenario import Scenario, load_scenario, parse_scenario
-from rgtbus.telemetry import McapRecorder, NullRecorder
-from units.group import run_group
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def group_scenario(n: int, seed: int = 10) -> Scenario:
-    """n units on an automatic plan with 4-pulse generated codes (3 pulses fit 8 units in an
-    octave), fixed relationships forming a random decomposable group, random influences."""
+def group_scenario(n: int, seed: int = 10):
+    """n units on an automatic plan with generated codes of the fewest pulses (at least 4) that
+    fit n channels in an octave, fixed relationships forming a random decomposable group,
+    random influences."""
+    from rgtbus.rgt import polynomial_to_graph, random_polynomial
+    from rgtbus.rgt.algebra import Universe
+    from rgtbus.scenario import parse_scenario
+    from rgtbus.signal.plan import max_units
+
+    pulses = next(p for p in range(4, 64) if max_units(p) >= n)
+
     rng = random.Random(seed)
     units = [f"u{i}" for i in range(n)]
     graph = polynomial_to_graph(random_polynomial(units, rng), units)
@@ -38,9 +52,11 @@ def group_scenario(n: int, seed: int = 10) -> Scenario:
         f"units = {units!r}".replace("'", '"'),
         'actions = ["alpha", "beta"]',
         'frequencies = "auto"',
+        "[timing]",
+        "max_seconds = 100000.0",  # 14 units take about an hour of simulated time
         "[codebook]",
         'kind = "generated"',
-        "pulses = 4",
+        f"pulses = {pulses}",
         "[relations]",
         'policy = "fixed"',
         "[relations.fixed]",
@@ -58,49 +74,128 @@ def group_scenario(n: int, seed: int = 10) -> Scenario:
     return parse_scenario("\n".join(lines) + "\n", f"<group{n}>")
 
 
-def one_run(sc: Scenario, bus: str, logging: bool) -> tuple[float, float, int]:
-    buf = io.BytesIO()
-    rec = McapRecorder(buf) if logging else NullRecorder()
-    t0 = time.perf_counter()
-    out = run_group(sc, bus, rec)
-    rec.close()
-    wall = time.perf_counter() - t0
-    if out.summary["error"]:
-        raise SystemExit(f"{sc.name} on {bus} failed: {out.summary['error']}")
-    return wall, out.summary["sim_seconds"], len(buf.getvalue())
+def load_case(case: str):
+    from rgtbus.scenario import load_scenario
+
+    if case.startswith("n="):
+        return group_scenario(int(case[2:]))
+    return load_scenario(ROOT / "scenarios" / f"{case}.toml")
+
+
+def one(case: str, engine: str, bus: str, log: bool, repeat: int) -> dict:
+    """In a child process: the simulation's wall (median of ``repeat``) and the peak RSS."""
+    from rgtbus.telemetry import McapRecorder, NullRecorder
+    from units.group import run_group
+
+    sc = load_case(case)
+    walls = []
+    out = None
+    size = 0
+    for _ in range(repeat):
+        buf = io.BytesIO()
+        rec = McapRecorder(buf) if log else NullRecorder()
+        t0 = time.perf_counter()
+        out = run_group(sc, bus, rec, engine=engine)
+        rec.close()
+        walls.append(time.perf_counter() - t0)
+        size = len(buf.getvalue())
+    assert out is not None
+    s = out.summary
+    return {
+        "wall": statistics.median(walls),
+        "sim": s["sim_seconds"],
+        "steps": s["steps"],
+        "error": s["error"],
+        "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "log_mb": size / 1e6,
+    }
+
+
+def measure(case: str, engine: str, bus: str = "memory", log: bool = False, repeat: int = 1):
+    argv = [sys.executable, "-m", "benchmarks.bench_run", "--one", case, engine, bus]
+    argv += ["--log" if log else "--no-log", "--repeat", str(repeat)]
+    proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=3600)
+    if proc.returncode != 0:
+        raise SystemExit(f"{case} {engine} failed: {proc.stderr.strip()[-500:]}")
+    r = json.loads(proc.stdout)
+    if r["error"]:
+        raise SystemExit(f"{case} {engine}: the run failed: {r['error']}")
+    return r
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=3, help="best of N runs (default 3)")
+    ap.add_argument("--sizes", default="4,6,8,10,12,14", help="generated group sizes")
+    ap.add_argument("--repeat", type=int, default=3, help="event-engine runs a case (median)")
+    ap.add_argument("--quick", action="store_true", help="sizes 4,6,8; the reference to n = 6")
+    ap.add_argument("--one", nargs=3, metavar=("CASE", "ENGINE", "BUS"), help=argparse.SUPPRESS)
+    ap.add_argument("--log", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--no-log", dest="log", action="store_false", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    cases = [
-        (load_scenario(ROOT / "scenarios" / "gate.toml"), args.repeat),
-        (group_scenario(10), 1),
-    ]
-    header = (
-        f"{'scenario':<9} {'bus':<7} {'log':<5} {'wall s':>8} {'sim s':>8} "
-        f"{'sim s / wall s':>15} {'log MB':>7} {'vs memory':>10} {'vs no log':>10}"
+    if args.one:
+        case, engine, bus = args.one
+        print(json.dumps(one(case, engine, bus, args.log, args.repeat)))
+        return
+    sizes = [4, 6, 8] if args.quick else [int(x) for x in args.sizes.split(",")]
+    dense_upto = 6 if args.quick else max(sizes)
+
+    print("## Event engine vs the time-stepped reference (memory bus, no log, fresh processes)")
+    print()
+    print(
+        "| case | units | simulated s | dense wall s | event wall s | dense / event | "
+        "event steps | event peak MB | dense peak MB |"
     )
-    print(header)
-    print("-" * len(header))
-    for sc, repeat in cases:
-        walls: dict[tuple[str, bool], float] = {}
+    print("|---|---|---|---|---|---|---|---|---|")
+    points = []
+    for case in ["gate", "group6", *(f"n={n}" for n in sizes)]:
+        sc = load_case(case)
+        n = len(sc.units)
+        ev = measure(case, "event", repeat=args.repeat)
+        de = measure(case, "dense") if n <= dense_upto else None
+        if ev["sim"] != (de or ev)["sim"]:
+            raise SystemExit(f"{case}: the engines disagree ({ev['sim']} vs {de['sim']} s)")
+        if case.startswith("n="):
+            points.append((n, ev["wall"], ev["sim"]))
+        ratio = f"{de['wall'] / ev['wall']:.1f}x" if de else "-"
+        print(
+            f"| {sc.name} | {n} | {ev['sim']:.1f} | "
+            f"{de['wall'] if de else float('nan'):.2f} | {ev['wall']:.3f} | {ratio} | "
+            f"{ev['steps']} | {ev['rss_mb']:.1f} | "
+            f"{de['rss_mb'] if de else float('nan'):.1f} |"
+        )
+    if len(points) >= 2:
+        x = np.log([p[0] for p in points])
+        y = np.log([p[1] for p in points])
+        del sc
+        slope = float(np.polyfit(x, y, 1)[0])
+        span = f"{points[0][0]}…{points[-1][0]}"
+        sims = np.log([s for _, _, s in points])
+        print()
+        print(
+            f"Exponent of the event engine's wall time over n = {span}: {slope:.2f} "
+            f"(least squares, log wall on log n; simulated time grows as n^"
+            f"{float(np.polyfit(x, sims, 1)[0]):.2f})"
+        )
+
+    print()
+    print("## The costs of zenoh and of the full MCAP log (event engine, fresh processes)")
+    print()
+    print("| case | bus | log | wall s | log MB | vs memory | vs no log |")
+    print("|---|---|---|---|---|---|---|")
+    for case in ("gate", "n=10" if not args.quick else "n=6"):
+        walls = {}
         for bus in ("memory", "zenoh"):
-            for logging in (False, True):
-                best = None
-                for _ in range(repeat):
-                    r = one_run(sc, bus, logging)
-                    best = r if best is None or r[0] < best[0] else best
-                wall, sim, size = best
-                walls[(bus, logging)] = wall
-                vs_mem = wall / walls[("memory", logging)] if bus == "zenoh" else 1.0
-                vs_log = wall / walls[(bus, False)] if logging else 1.0
+            for log in (False, True):
+                r = measure(case, "event", bus, log, args.repeat)
+                walls[(bus, log)] = r["wall"]
+                vs_mem = r["wall"] / walls[("memory", log)]
+                vs_log = r["wall"] / walls[(bus, False)]
                 print(
-                    f"{sc.name:<9} {bus:<7} {'full' if logging else 'none':<5} {wall:>8.3f} "
-                    f"{sim:>8.1f} {sim / wall:>15.0f} {size / 1e6 if logging else 0:>7.2f} "
-                    f"{vs_mem:>9.2f}x {vs_log:>9.2f}x"
+                    f"| {load_case(case).name} | {bus} | {'full' if log else 'none'} | "
+                    f"{r['wall']:.3f} | {r['log_mb']:.2f} | {vs_mem:.2f}x | {vs_log:.2f}x |"
                 )
+    print()
+    print(f"Event engine: medians of {args.repeat} runs; the reference: one run (nan: not run).")
 
 
 if __name__ == "__main__":

@@ -8,14 +8,16 @@ work of a run then grows with its events, not with events × units. Lanes are in
 every value depends only on the absolute sample, so how the work is batched or chunked never
 changes a result (docs/engine.md).
 
-A unit asks ``listen(i, boundary, at, watch)``: "advance me up to sample ``boundary``
-(exclusive); wake me at a spike on channel ``watch``" (the one spike its protocol can react
-to). The returned SimPy event fires at that spike's time, or when the boundary is reached at
-time ``at`` (its timer's own sample), with a ``Heard``: every spike of the unit's resonators
-since it last woke, in order, each with its sample. The ears advance only when every listening
-unit has asked, never past the smallest boundary asked for nor past the horizon of the known
-medium (``hear``), and stop at the first watched spike of any unit: what a unit reacts to
-happens in time order, each at its exact sample.
+A unit asks ``listen(i, boundary, at, watch, watch_from)``: "advance me up to sample
+``boundary`` (exclusive); wake me at a spike on channel ``watch`` at or after ``watch_from``"
+(the one spike its protocol can react to). The returned SimPy event fires at that spike's
+time, or when the boundary is reached at time ``at`` (its timer's own sample), with a
+``Heard``: every spike of the unit's resonators since it last woke, in order, each with its
+sample. The ears advance only when every listening unit has asked, never past the smallest
+boundary asked for nor past the horizon of the known medium (``hear``), and stop at the first
+watched spike of any unit: what a unit reacts to happens in time order, each at its exact
+sample. A unit's quench times (``quench_at``: its resonators back to rest before a sample)
+are the ears' to keep: they need no wake-up.
 
 ``dense=True`` is the time-stepped reference: every window of ``window`` samples is fed to
 every unit, silent or not.
@@ -23,6 +25,7 @@ every unit, silent or not.
 
 from __future__ import annotations
 
+import heapq
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,7 +35,14 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.decoder import ReadoutHistory, ReceiverReadout
+from rgtbus.signal.decoder import (
+    Decision,
+    ReadoutHistory,
+    ReceiverReadout,
+    WordSet,
+    decode_among_each,
+    nearest_each,
+)
 from rgtbus.signal.resonator import BankState, ResonatorBank, resonate
 
 TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
@@ -60,6 +70,7 @@ class Listener:
     active: bool = True
     request: tuple[int, int, simpy.Event] | None = None  # (boundary, at, event)
     watch: int | None = None  # the channel whose spike could change this unit's plans
+    watch_from: int = 0  # ... from this sample on (earlier spikes there change nothing)
     heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
     _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _noise_at: int = 0  # sample of _noise[0]
@@ -115,14 +126,20 @@ class Ears:
         self._who = np.zeros(0, dtype=np.int64)
         self._val = np.zeros(0)
         self._cur = 0  # pulses before this index were heard
-        self._poke = env.event()
+        self._poke = env.event()  # fired when the last listening unit has asked
         self._more = env.event()
+        self._asking = len(self.listeners)  # listening units that have not asked yet
+        self._quench: list[tuple[int, int]] = []  # (sample, unit): rest before that sample
         self.quiet = env.event()  # every unit is done listening
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
         self.steps = 0  # bank advances so far
+        # decodes asked at the present end of the readout: every unit of the process decodes
+        # the same code at about the same time, so the first ask reads all of them
+        self._decodes: dict[tuple, list] = {}
+        self._decodes_end = -1
         self.process = env.process(self._run())
 
     @property
@@ -154,32 +171,81 @@ class Ears:
 
     # -- a unit's side --------------------------------------------------------------------------
 
-    def listen(self, i: int, boundary: int, at: int, watch: int | None = None) -> simpy.Event:
+    def listen(
+        self, i: int, boundary: int, at: int, watch: int | None = None, watch_from: int = 0
+    ) -> simpy.Event:
         """Advance unit ``i`` up to sample ``boundary``; see the module docstring. ``watch``:
-        the channel on which a spike could change the unit's plans (the ears stop there; the
-        unit hears every other spike too, each at its sample, but nothing waits on them)."""
+        the channel on which a spike at or after ``watch_from`` could change the unit's plans
+        (the ears stop there; the unit hears every other spike too, each at its sample, but
+        nothing waits on them)."""
         lst = self.listeners[i]
         if not lst.active:
             raise RgtbusError(f"{lst.name} stopped listening")
         if boundary < self.pos:
             raise RgtbusError(f"{lst.name}: boundary {boundary} is behind the ears ({self.pos})")
         ev = self.env.event()
+        if lst.request is None:
+            self._asking -= 1
         lst.request = (boundary, at, ev)
         lst.watch = watch
-        _fire(self._poke)
+        lst.watch_from = watch_from
+        if not self._asking:
+            _fire(self._poke)
         return ev
 
     def readout_of(self, i: int) -> ReceiverReadout:
         """Unit ``i``'s own readout (its resonators' view of the medium)."""
         return self.readout.of(i)
 
-    def quench(self, i: int) -> None:
-        """Unit ``i``'s resonators back to rest, here (before the sample the ears are at)."""
-        self.bank.quench(i)
+    def decode_among(
+        self,
+        i: int,
+        channels: tuple[tuple[int, float], ...],
+        start: float,
+        words: WordSet,
+        search: int,
+    ) -> tuple[Decision, int]:
+        """Unit ``i``'s ``decode_among`` on its own readout (see ``decode_among_each``)."""
+        key = ("among", channels, start, words, search)
+        got = self._decoded(key)
+        if got is None:
+            got = self._decodes[key] = decode_among_each(
+                self.readout, channels, start, words, tau=self.tau, search=search
+            )
+        return got[i]
+
+    def read_code(self, i: int, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
+        """Unit ``i``'s nearest word to its readout at ``samples`` on ``channel``."""
+        key = ("nearest", samples, channel, words)
+        got = self._decoded(key)
+        if got is None:
+            got = self._decodes[key] = nearest_each(self.readout, samples, channel, words)
+        return got[i]
+
+    def _decoded(self, key: tuple) -> list | None:
+        if self._decodes_end != self.readout.end:  # the readout moved on: start afresh
+            self._decodes.clear()
+            self._decodes_end = self.readout.end
+        return self._decodes.get(key)
+
+    def quench_at(self, i: int, sample: int) -> None:
+        """Unit ``i``'s resonators back to rest before ``sample`` (the ears stop there)."""
+        if sample < self.pos:
+            raise RgtbusError(
+                f"{self.listeners[i].name}: quench before sample {sample}, "
+                f"but the ears are at {self.pos}"
+            )
+        heapq.heappush(self._quench, (sample, i))
+
+    def quench_between(self, i: int, lo: int, hi: int) -> list[int]:
+        """The samples in [lo, hi) before which unit ``i``'s resonators go back to rest."""
+        return sorted(q for q, n in self._quench if n == i and lo <= q < hi)
 
     def stop(self, i: int) -> None:
         """Unit ``i`` is done: it listens no more (and draws no more noise)."""
         lst = self.listeners[i]
+        if lst.active and lst.request is None:
+            self._asking -= 1
         lst.active = False
         lst.request = None
         if lst.trace is not None:
@@ -242,16 +308,25 @@ class Ears:
     def _run(self):
         env = self.env
         while True:
+            if self._asking:
+                self._poke = env.event()
+                yield self._poke
+                continue
             live = [lst for lst in self.listeners if lst.active]
             if not live:
                 self.quiet.succeed()
                 return
-            if any(lst.request is None for lst in live):
-                self._poke = env.event()
-                yield self._poke
-                continue
+            while self._quench and self._quench[0][0] == self.pos:  # before this sample
+                n = heapq.heappop(self._quench)[1]
+                if self.listeners[n].active:
+                    self.bank.quench(n)
             boundary = min(lst.request[0] for lst in live)  # type: ignore[index]
             target = min(boundary, self.horizon)
+            if self._quench:
+                target = min(target, self._quench[0][0])
+            for lst in live:  # a watch that starts later splits the advance there
+                if lst.watch is not None and lst.watch_from > self.pos:
+                    target = min(target, lst.watch_from)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
             if self.pos < target:
@@ -271,7 +346,8 @@ class Ears:
             )
             if due:
                 for at, n in due:
-                    yield env.timeout(max(0.0, at * self.tau - env.now))
+                    if at * self.tau > env.now:
+                        yield env.timeout(at * self.tau - env.now)
                     lst = self.listeners[n]
                     if lst.active and lst.request is not None:
                         self._wake(lst, reached=True)
@@ -279,11 +355,11 @@ class Ears:
             self._more = env.event()
             yield self._more  # the medium is known no further: wait for the world
 
-    @staticmethod
-    def _wake(lst: Listener, *, reached: bool) -> None:
+    def _wake(self, lst: Listener, *, reached: bool) -> None:
         assert lst.request is not None
         ev = lst.request[2]
         lst.request = None
+        self._asking += 1
         heard, lst.heard = tuple(lst.heard), []
         ev.succeed(Heard(heard, reached))
 
@@ -310,7 +386,7 @@ class Ears:
         C = self.bank.n_channels
         watched = np.zeros(self.bank.model.lanes, dtype=bool)
         for n, lst in enumerate(self.listeners):
-            if lst.active and lst.watch is not None:
+            if lst.active and lst.watch is not None and lst.watch_from <= lo:
                 watched[n * C + lst.watch] = True
         res = self.bank.advance(
             target,

@@ -12,7 +12,7 @@ import math
 import re
 import stat
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -655,10 +655,11 @@ def _expect(
         pairs[name] = v
     if "relations" in expect:
         out["relations"] = pairs
-    for key, what, parse in (
+    parsers: tuple[tuple[str, str, Callable[[str], Any]], ...] = (
         ("intervals", '"[LOW,HIGH]"', universe.parse_interval),
         ("choices", "an alternative", universe.parse_alternative),
-    ):
+    )
+    for key, what, parse in parsers:
         for name, v in sub_table(key, "unit = value").items():
             known_unit(name, f"expect.{key}")
             if not isinstance(v, str):

@@ -52,7 +52,6 @@ class Member(Protocol):
     def take_outbox(self) -> Pulses: ...
     def promise(self, horizon: int) -> int: ...
     def awaited(self) -> tuple[int, int, int] | None: ...
-    def quench_between(self, lo: int, hi: int) -> list[int]: ...
 
 
 _NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -256,7 +255,7 @@ class World:
                 if u in fresh:
                     parts.append(fresh[u])
                 known[u] = merge_pulses(parts)
-            k = ears.peek(i, until, known, m.quench_between(h, until), aw[0], aw[1])
+            k = ears.peek(i, until, known, ears.quench_between(i, h, until), aw[0], aw[1])
             out[m.name] = m.promise(until if k is None else k)
         # A promise made stays true: a later one computed without a look-ahead may be lower.
         return {u: max(p, self._sent_promise[u]) for u, p in out.items()}

@@ -24,15 +24,11 @@ from rgtbus.hearing import Ears, Listener
 from rgtbus.mind import Mind, choose_influences, choose_relations
 from rgtbus.protocol import NOTHING, Actions, Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
-from rgtbus.signal.decoder import Readout, WordSet, decode_among, nearest
+from rgtbus.signal.decoder import Readout, WordSet
 from rgtbus.sim import ns
 from rgtbus.telemetry import Recorder
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-
-# Timer kinds, in the order they run when due at the same boundary: what happens after a
-# sample comes before what happens before the next one.
-_AFTER, _BEFORE = 0, 1
 
 
 @dataclass
@@ -50,10 +46,9 @@ class Decoded:
 @dataclass(order=True)
 class _Timer:
     boundary: int  # act once every sample before this one has been heard
-    order: int  # _AFTER or _BEFORE
     seq: int
     at: int = field(compare=False)  # the sample it belongs to (its time)
-    kind: str = field(compare=False)  # "listen" | "quench" | "deadline" | "limit"
+    kind: str = field(compare=False)  # "listen" | "deadline" | "limit"
     listen: Listen | None = field(compare=False, default=None)
 
 
@@ -82,6 +77,7 @@ class AutonomousUnit:
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._channels = [(i, w) for i, w in enumerate(self.omegas)]
         self._index = {u: i for i, u in enumerate(self.units)}
+        self._channel_sets: dict[tuple[str, ...], tuple[tuple[int, float], ...]] = {}
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -138,7 +134,7 @@ class AutonomousUnit:
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
         self.env, self.ears, self.index = env, ears, index
         self.readout = ears.readout_of(index)
-        self._add(_AFTER, self.limit, self.limit - 1, "limit")
+        self._add(self.limit, self.limit - 1, "limit")
         self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
         env.process(self._live())
 
@@ -162,10 +158,6 @@ class AutonomousUnit:
         aw = None if self.done else self.protocol.awaited()
         return None if aw is None else (self._index[aw[0]], aw[1], aw[2])
 
-    def quench_between(self, lo: int, hi: int) -> list[int]:
-        """The samples in [lo, hi) before which this unit will set its resonators to rest."""
-        return [t.at for t in self._timers if t.kind == "quench" and lo <= t.at < hi]
-
     # -- living: receive -> protocol -> decode -> reason -> send ------------------------------
 
     def _live(self):
@@ -174,37 +166,44 @@ class AutonomousUnit:
             t = self._timers[0]
             aw = self.awaited()
             heard = yield self.ears.listen(
-                self.index, t.boundary, t.at, None if aw is None else aw[0]
+                self.index,
+                t.boundary,
+                t.at,
+                None if aw is None else aw[0],
+                0 if aw is None else aw[1],
             )
             for k, channels in heard.spikes:  # in order; only the last can be reacted to
                 self._on_spikes(k, channels)
-            if not heard.reached:
-                continue
-            while not self.done and self._timers and self._timers[0].boundary == t.boundary:
+            # every timer whose samples have all been heard is due (its time, the boundary's
+            # last sample, is now or was passed by the spike that woke this unit)
+            pos = self.ears.pos
+            while not self.done and self._timers and self._timers[0].boundary <= pos:
                 self._on_timer(heapq.heappop(self._timers))
         self.ears.stop(self.index)
 
     def _on_spikes(self, k: int, channels: tuple[int, ...]) -> None:
+        t = k * self.tau
+        log = self.recorder.enabled  # nothing to build for a run without a log
         for ch in channels:
             channel = self.units[ch]
-            self.recorder.write(
-                "/rx/spike",
-                {
-                    "unit": self.name,
-                    "channel": channel,
-                    "omega": self.omegas[ch],
-                    "t": k * self.tau,
-                    "sample": k,
-                },
-                ns(k * self.tau),
-            )
-            self._apply(self.protocol.on_spike(channel, k))
+            if log:
+                self.recorder.write(
+                    "/rx/spike",
+                    {
+                        "unit": self.name,
+                        "channel": channel,
+                        "omega": self.omegas[ch],
+                        "t": t,
+                        "sample": k,
+                    },
+                    ns(t),
+                )
+            acts = self.protocol.on_spike(channel, k)
+            if acts is not NOTHING:
+                self._apply(acts)
 
     def _on_timer(self, t: _Timer) -> None:
-        if t.kind == "quench":
-            assert self.ears is not None
-            self.ears.quench(self.index)
-        elif t.kind == "listen":
+        if t.kind == "listen":
             assert t.listen is not None
             self._decode(t.listen)
         elif t.kind == "deadline":
@@ -227,8 +226,8 @@ class AutonomousUnit:
             self.failure = message
             self.recorder.log("error", message, ns(at * self.tau), name=self.name)
 
-    def _add(self, order: int, boundary: int, at: int, kind: str, listen: Listen | None = None):
-        timer = _Timer(boundary, order, next(self._seq), at, kind, listen)
+    def _add(self, boundary: int, at: int, kind: str, listen: Listen | None = None) -> _Timer:
+        timer = _Timer(boundary, next(self._seq), at, kind, listen)
         heapq.heappush(self._timers, timer)
         return timer
 
@@ -238,15 +237,16 @@ class AutonomousUnit:
         for send in acts.sends:
             self._transmit(send)
         for listen in acts.listens:
-            self._add(_AFTER, listen.ready_sample + 1, listen.ready_sample, "listen", listen)
+            self._add(listen.ready_sample + 1, listen.ready_sample, "listen", listen)
+        assert self.ears is not None
         for q in acts.quench:
-            self._add(_BEFORE, q, q, "quench")
+            self.ears.quench_at(self.index, q)
         if acts.deadline is not None:
             if self._deadline is not None:  # one deadline at a time: the current turn's
                 self._timers.remove(self._deadline)
                 heapq.heapify(self._timers)
             d = acts.deadline
-            self._deadline = self._add(_AFTER, d + 1, d, "deadline")
+            self._deadline = self._add(d + 1, d, "deadline")
 
     # -- transmitting ------------------------------------------------------------------------
 
@@ -328,10 +328,10 @@ class AutonomousUnit:
         if listen.kind == "id":
             # An ID counts only if it reads as the ID-code on the sender's own frequency
             # (a↔c crosstalk makes resonators fire for other codes).
-            ch = self.units.index(listen.sender)
+            ch = self._index[listen.sender]
             samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
-            assert self.readout is not None
-            dec = nearest(self.readout.values(samples, ch), self._id_words)
+            assert self.ears is not None
+            dec = self.ears.read_code(self.index, samples, ch, self._id_words)
             accepted = dec.name == "id"
             self._record(listen, listen.sender, dec.name, dec.margin, t_ready, accepted)
             if not accepted:
@@ -342,10 +342,13 @@ class AutonomousUnit:
                 )
             return
         words = self._families["relation" if listen.kind == "relation" else "alternative"]
-        channels = [self._channels[self._index[r]] for r in listen.channels]
-        assert self.readout is not None
-        dec, ch = decode_among(
-            self.readout, channels, listen.start, words, tau=self.tau, search=self.protocol.search
+        channels = self._channel_sets.get(listen.channels)
+        if channels is None:
+            channels = tuple(self._channels[self._index[r]] for r in listen.channels)
+            self._channel_sets[listen.channels] = channels
+        assert self.ears is not None
+        dec, ch = self.ears.decode_among(
+            self.index, channels, listen.start, words, self.protocol.search
         )
         addressee = self.units[ch]
         accepted = addressee == listen.expected_addressee

@@ -109,7 +109,8 @@ def make_config(
             cfg.insert_json5(f"{name}/endpoints", json.dumps([str(e) for e in eps]))
         except Exception as e:
             # Name the endpoint at fault, not the whole list.
-            bad, reason = list(eps), zenoh_reason(e)
+            bad: object = list(eps)
+            reason = zenoh_reason(e)
             for ep in eps:
                 try:
                     zenoh.Config().insert_json5(f"{name}/endpoints", json.dumps([str(ep)]))

@@ -107,7 +107,7 @@ class ControlResult:
     def solutions(self, limit: int | None = None) -> Iterator[dict[str, int]]:
         """Joint influence tuples ``{src: mask}`` (fixed ones included), at most ``limit``."""
         fixed = dict(self.problem.fixed)
-        combos = itertools.product(*self.per_action)
+        combos: Iterator[tuple[int, ...]] = itertools.product(*self.per_action)
         if limit is not None:
             combos = itertools.islice(combos, limit)
         slot = {s: i for i, s in enumerate(self.free)}

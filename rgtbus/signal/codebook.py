@@ -300,6 +300,7 @@ def generate_codebook(
         )
     units = round(total / step)
     lo_u, hi_u = grid(step)
+    cands: list[tuple[int, ...]]
     if pulses == 1:
         cands = [(units,)] if lo_u <= units <= hi_u else []
     else:

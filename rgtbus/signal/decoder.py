@@ -48,6 +48,9 @@ class ReadoutHistory:
     ``values(indices, channels, receiver)`` gives d at absolute sample indices (any shape) of
     the matching channels; ``of(receiver)`` is one receiver's view (what a unit decodes from).
     A quench needs nothing here: the bank's readout already restarts from rest.
+
+    Only the samples that carried input are kept (sorted, with their readout): a run's medium
+    is nearly all silence, so the history costs what was heard, not what was waited through.
     """
 
     def __init__(self, channels: int, capacity: int = 6000, receivers: int = 1) -> None:
@@ -60,7 +63,8 @@ class ReadoutHistory:
         self.channels = channels
         self.capacity = capacity
         self.receivers = receivers
-        self._buf = np.zeros((capacity, receivers, channels))
+        self._rows = np.zeros(0, dtype=np.int64)  # samples that carried input, ascending
+        self._vals = np.zeros((0, receivers, channels))  # their readout
         self._end = 0  # absolute index one past the newest sample
 
     @classmethod
@@ -84,30 +88,57 @@ class ReadoutHistory:
             raise RgtbusError(
                 f"readout: samples from {start} appended, expected {self._end} (in order)"
             )
-        cap = self.capacity
-        if n >= cap:
-            self._buf[:] = 0.0
-        elif n:
-            lo, hi = start % cap, (start + n) % cap
-            if lo < hi:
-                self._buf[lo:hi] = 0.0
-            else:
-                self._buf[lo:] = 0.0
-                self._buf[:hi] = 0.0
-        if len(rows):
-            keep = rows >= start + n - cap  # what still fits in the history
-            self._buf[rows[keep] % cap] = values[keep]
+        end = start + n
+        old = int(np.searchsorted(self._rows, end - self.capacity))  # out of the history now
+        rows = np.asarray(rows, dtype=np.int64)
+        if rows.size:
+            if rows[0] < start or rows[-1] >= end or np.any(rows[1:] <= rows[:-1]):
+                raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
+            keep = rows >= end - self.capacity
+            self._rows = np.concatenate([self._rows[old:], rows[keep]])
+            self._vals = np.concatenate([self._vals[old:], values[keep]])
+        elif old:
+            self._rows, self._vals = self._rows[old:], self._vals[old:]
         self._end = start + n
 
     def values(
         self,
         indices: np.ndarray | Sequence[int],
-        channels: np.ndarray | int,
+        channels: np.ndarray | int | slice,
         receiver: int = 0,
         span: tuple[int, int] | None = None,
     ) -> np.ndarray:
         """d at ``indices`` (``span``: their smallest and largest, when the caller knows)."""
         idx = np.asarray(indices, dtype=np.int64)
+        self._check(idx, span)
+        pos, hit = self._find(idx)
+        got = self._vals[pos, receiver, channels]
+        if isinstance(channels, slice):  # channels make a trailing axis
+            hit = hit.reshape(hit.shape + (1,) * (got.ndim - hit.ndim))
+        return np.where(hit, got, 0.0)
+
+    def gather(
+        self,
+        indices: np.ndarray,
+        channels: np.ndarray | int,
+        span: tuple[int, int] | None = None,
+    ) -> np.ndarray:
+        """d at ``indices`` (any shape S) of ``channels`` (broadcast against them) for every
+        receiver at once: (receivers, *S), C-contiguous."""
+        idx = np.asarray(indices, dtype=np.int64)
+        self._check(idx, span)
+        pos, hit = self._find(idx)
+        rec = np.arange(self.receivers).reshape((-1,) + (1,) * idx.ndim)
+        return np.where(hit[None], self._vals[pos[None], rec, np.asarray(channels)[None]], 0.0)
+
+    def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
+        if not self._rows.size:
+            return np.zeros(idx.shape, dtype=np.int64), np.zeros(idx.shape, dtype=bool)
+        pos = np.minimum(np.searchsorted(self._rows, idx), self._rows.size - 1)
+        return pos, self._rows[pos] == idx
+
+    def _check(self, idx: np.ndarray, span: tuple[int, int] | None) -> None:
         if idx.size:
             lo, hi = span if span is not None else (int(idx.min()), int(idx.max()))
             if lo < max(0, self._end - self.capacity) or hi >= self._end:
@@ -115,7 +146,6 @@ class ReadoutHistory:
                     f"readout: samples {lo}..{hi} are outside "
                     f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
                 )
-        return self._buf[idx % self.capacity, receiver, channels]
 
     def of(self, receiver: int) -> ReceiverReadout:
         if not 0 <= receiver < self.receivers:
@@ -158,31 +188,75 @@ def decode_among(
     """Which of ``channels`` ((channel index, ω) pairs) carries a code that started at ``start``
     (± ``search`` samples), and which word: the (channel, timing, word) with the smallest
     distance, all candidates scored in one vectorised step. Returns (decision, channel index)."""
+    history = readout.history if isinstance(readout, ReceiverReadout) else readout
+    receiver = readout.receiver if isinstance(readout, ReceiverReadout) else 0
+    chans = tuple((int(c), float(w)) for c, w in channels)
+    return decode_among_each(history, chans, float(start), words, tau=tau, search=search)[receiver]
+
+
+def decode_among_each(
+    history: ReadoutHistory,
+    channels: tuple[tuple[int, float], ...],
+    start: float,
+    words: Words,
+    *,
+    tau: float = PAPER_TAU,
+    search: int = 0,
+) -> list[tuple[Decision, int]]:
+    """``decode_among`` for every receiver of ``history`` at once, in receiver order: the
+    values of all receivers are read in one step and every distinct set of values is scored
+    once (receivers that heard the same decode the same; each result depends only on that
+    receiver's own readout)."""
     names, mat = word_matrix(words, None, "decode")
-    chans, shifts, inst, lo, hi = _candidates(
-        tuple((int(c), float(w)) for c, w in channels), float(start), mat.shape[1], tau, search
-    )
-    if hi >= readout.end:  # rarely: candidates past what has been heard
-        ok = inst[:, -1] < readout.end
+    chans, shifts, inst, lo, hi = _candidates(channels, start, mat.shape[1], tau, search)
+    if hi >= history.end:  # rarely: candidates past what has been heard
+        ok = inst[:, -1] < history.end
         if not ok.any():
             raise RgtbusError(
                 f"decode: no pulse instants of a code at {start:g} s are in the readout"
             )
         chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
         hi = int(inst[:, -1].max())
-    vals = np.ascontiguousarray(readout.values(inst, chans[:, None], span=(lo, hi)))  # (M, N)
-    m, w, best, margin, sep = score(vals, mat, _ORDER[: mat.shape[0]])
-    conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
-    decision = Decision(
-        names[w],
-        best,
-        margin,
-        conf,
-        tuple(float(x) for x in vals[m]),
-        tuple(int(k) for k in inst[m]),
-        int(shifts[m]),
-    )
-    return decision, int(chans[m])
+    every = history.gather(inst, chans[:, None], span=(lo, hi))  # (R, M, N)
+    order = _ORDER[: mat.shape[0]]
+    out: list[tuple[Decision, int]] = []
+    seen: dict[bytes, tuple[Decision, int]] = {}
+    for vals in every:
+        key = vals.tobytes()
+        got = seen.get(key)
+        if got is None:
+            m, w, best, margin, sep = score(vals, mat, order)
+            conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
+            decision = Decision(
+                names[w],
+                best,
+                margin,
+                conf,
+                tuple(vals[m].tolist()),
+                tuple(inst[m].tolist()),
+                int(shifts[m]),
+            )
+            got = seen[key] = (decision, int(chans[m]))
+        out.append(got)
+    return out
+
+
+def nearest_each(
+    history: ReadoutHistory, samples: Sequence[int], channel: int, words: Words
+) -> list[Decision]:
+    """``nearest`` of the values at ``samples`` on ``channel``, for every receiver of
+    ``history`` at once (each distinct set of values scored once), in receiver order."""
+    idx = np.asarray(samples, dtype=np.int64)
+    every = history.gather(idx, channel)  # (R, N)
+    out: list[Decision] = []
+    seen: dict[bytes, Decision] = {}
+    for vals in every:
+        key = vals.tobytes()
+        got = seen.get(key)
+        if got is None:
+            got = seen[key] = nearest(vals, words)
+        out.append(got)
+    return out
 
 
 _ORDER = np.arange(4096, dtype=np.int64)
@@ -195,23 +269,59 @@ def _candidates(
     """Every (channel, timing shift, instants) candidate, channels in order, nearest shift
     first: three read-only arrays (M,), (M,), (M, pulses); and the instants' span. Candidates
     before the first sample are left out."""
-    chans: list[int] = []
-    shifts: list[int] = []
-    insts: list[tuple[int, ...]] = []
-    for ch, omega in channels:
-        for shift, inst in _candidate_instants(omega, start, pulses, tau, search):
-            if inst[0] >= 0:
-                chans.append(ch)
-                shifts.append(shift)
-                insts.append(inst)
-    if not insts:
+    chans, shifts, insts = _timings(
+        tuple(c for c, _ in channels), tuple(w for _, w in channels), start, pulses, tau, search
+    )
+    keep = insts[:, 0] >= 0
+    if not keep.any():
         raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
-    a = np.array(chans, dtype=np.int64)
-    b = np.array(shifts, dtype=np.int64)
-    c = np.array(insts, dtype=np.int64)
+    a, b, c = chans[keep], shifts[keep], insts[keep]
     for arr in (a, b, c):
         arr.flags.writeable = False
     return a, b, c, int(c[:, 0].min()), int(c[:, -1].max())
+
+
+def _timings(
+    chans: tuple[int, ...],
+    omegas: tuple[float, ...],
+    start: float,
+    pulses: int,
+    tau: float,
+    search: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every distinct pulse-instant tuple, per channel, of a code on ω that starts within
+    ± ``search`` samples of ``start``: (channel, shift, instants) rows, channels in the order
+    given, within a channel the nearest shift first (then the earlier).
+
+    Instant j of a start t is round((t + j·T)/τ) (the rule of ``pulse_samples``); it changes
+    only where (t + j·T)/τ crosses h + ½. So the distinct tuples are those of ``start`` and of
+    the midpoints between consecutive crossings (and the window's ends): computed for every
+    channel at once; tuples of starts before 0 are left out."""
+    C = len(omegas)
+    period = 2 * np.pi / np.asarray(omegas, dtype=float)  # (C,)
+    jts = np.arange(pulses)[None, :] * period[:, None]  # (C, P): j·T
+    t_lo, t_hi = start - search * tau, start + search * tau
+    h0 = np.floor((t_lo + jts) / tau - 0.5)
+    h1 = np.ceil((t_hi + jts) / tau - 0.5)
+    hs = h0[:, :, None] + np.arange(int((h1 - h0).max()) + 1)  # (C, P, H)
+    t = (hs + 0.5) * tau - jts[:, :, None]
+    inside = (hs <= h1[:, :, None]) & (t_lo < t) & (t < t_hi)
+    cuts = np.where(inside, t, np.inf).reshape(C, -1)
+    cuts = np.sort(np.concatenate([np.full((C, 2), (t_lo, t_hi)), cuts], axis=1), axis=1)
+    mids = (cuts[:, :-1] + cuts[:, 1:]) / 2  # inf where a cut is missing
+    probes = np.sort(np.concatenate([np.full((C, 1), start), mids], axis=1), axis=1)
+    usable = np.isfinite(probes) & (probes >= 0)
+    safe = np.where(usable, probes, 0.0)
+    inst = np.round((safe[:, :, None] + jts[:, None, :]) / tau).astype(np.int64)  # (C, Q, P)
+    # instants grow with t: equal tuples are adjacent among the usable probes (a block)
+    new = usable.copy()
+    new[:, 1:] &= ~(usable[:, :-1] & np.all(inst[:, 1:] == inst[:, :-1], axis=2))
+    shift = inst[:, :, 0] - round(start / tau)
+    c, q = np.nonzero(new)  # channel by channel, probes in order
+    sh = shift[c, q]
+    order = np.lexsort((sh, np.abs(sh), c))  # stable: the earlier probe first on ties
+    c, q = c[order], q[order]
+    return np.asarray(chans, dtype=np.int64)[c], sh[order], inst[c, q]
 
 
 def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:
@@ -238,17 +348,27 @@ class Decision:
 
 @dataclass(frozen=True, eq=False)
 class WordSet:
-    """Candidate words as names and a read-only (W, N) matrix: built once, decoded often."""
+    """Candidate words as names and a read-only (W, N) matrix: built once, decoded often.
+    Equal (and hashed) by value, so equal sets from different units share cached work."""
 
     names: tuple[str, ...]
     matrix: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_key", (self.names, self.matrix.shape, self.matrix.tobytes()))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, WordSet) and self._key == other._key  # type: ignore[attr-defined]
+
+    def __hash__(self) -> int:
+        return hash(self._key)  # type: ignore[attr-defined]
 
     @classmethod
     def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:
         return cls(*word_matrix(words, None, where))
 
 
-Words = Mapping[str, Sequence[float]] | WordSet
+Words = Mapping[str, Sequence[float]] | Mapping[str, np.ndarray] | WordSet
 
 
 def word_matrix(words: Words, n: int | None, where: str) -> tuple[tuple[str, ...], np.ndarray]:
@@ -313,37 +433,9 @@ def candidate_instants(
     omega: float, start: float, pulses: int, tau: float = PAPER_TAU, search: int = 0
 ) -> list[tuple[int, tuple[int, ...]]]:
     """Every distinct pulse-instant tuple for starts within ± ``search`` samples of ``start``,
-    as (shift in samples, instants), nearest shift first."""
-    return list(_candidate_instants(float(omega), float(start), int(pulses), float(tau), search))
-
-
-@lru_cache(maxsize=256)  # every unit of a run decodes the same codes, at about the same time
-def _candidate_instants(
-    omega: float, start: float, pulses: int, tau: float, search: int
-) -> tuple[tuple[int, tuple[int, ...]], ...]:
-    period = 2 * math.pi / omega
-    jts = [j * period for j in range(pulses)]
-    t_lo, t_hi = start - search * tau, start + search * tau
-    cuts = [t_lo, t_hi]
-    for jt in jts:  # instant j changes where (t + j·T)/τ crosses h + 1/2
-        for h in range(math.floor((t_lo + jt) / tau - 0.5), math.ceil((t_hi + jt) / tau - 0.5) + 1):
-            t = (h + 0.5) * tau - jt
-            if t_lo < t < t_hi:
-                cuts.append(t)
-    cuts.sort()
-    probes = sorted([start, *((a + b) / 2 for a, b in itertools.pairwise(cuts))])
-    s0 = round(start / tau)
-    out: list[tuple[int, tuple[int, ...]]] = []
-    prev: tuple[int, ...] | None = None
-    for t in probes:  # the rule of pulse_samples; instants grow with t: equal ones are adjacent
-        if t < 0:
-            continue
-        inst = tuple(round((t + jt) / tau) for jt in jts)
-        if inst != prev:
-            out.append((inst[0] - s0, inst))
-            prev = inst
-    out.sort(key=lambda p: (abs(p[0]), p[0]))
-    return tuple(out)
+    as (shift in samples, instants), nearest shift first (see ``_timings``)."""
+    _, shifts, insts = _timings((0,), (float(omega),), float(start), int(pulses), tau, search)
+    return [(int(s), tuple(i)) for s, i in zip(shifts.tolist(), insts.tolist(), strict=True)]
 
 
 def decode_code(
@@ -389,7 +481,7 @@ def decode_code(
 
 
 def _read(
-    readout: Readout | np.ndarray, inst: Sequence[int], offset: int, channel: int = 0
+    readout: Readout | np.ndarray, inst: Sequence[int] | np.ndarray, offset: int, channel: int = 0
 ) -> np.ndarray:
     if isinstance(readout, ReadoutHistory):
         return readout.values(inst, channel)

@@ -134,15 +134,15 @@ def topics_markdown() -> str:
     for display, _, schema, what in TOPIC_PATTERNS:
         lines.append(f"| `{display}` | `{schema}` | {what} |")
     for name in schema_names():
-        schema = load_schema(name)
+        body = load_schema(name)
         lines += [
             "",
             f"## `{name}`",
             "",
-            schema.get("description", ""),
+            body.get("description", ""),
             "",
             "| Field | Type | Required | Description |",
             "| --- | --- | --- | --- |",
-            *_field_rows(schema),
+            *_field_rows(body),
         ]
     return "\n".join(lines) + "\n"
