@@ -138,6 +138,13 @@ class ProtocolState:
         if self.anchor not in ANCHORS:
             raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
         self.schedule = turns(self.units)
+        self._periods = {u: 2 * math.pi / w for u, w in self.omegas.items()}
+        # per sender: everyone else (the payload's possible channels) and the slowest period
+        # among them (a payload is read as far as that one's code could reach)
+        self._others = {s: tuple(u for u in self.units if u != s) for s in self.units}
+        self._longest = {
+            s: max((self.period(u) for u in o), default=0.0) for s, o in self._others.items()
+        }
         self._own_turns = [t.index for t in self.schedule if t.sender == self.me]
         self.turn_start = self.start
         self.turn_starts = [self.start]  # every turn's start known so far
@@ -151,7 +158,7 @@ class ProtocolState:
     # -- helpers
 
     def period(self, unit: str) -> float:
-        return 2 * math.pi / self.omegas[unit]
+        return self._periods[unit]
 
     def current(self) -> Turn | None:
         return self.schedule[self.turn] if self.turn < len(self.schedule) else None
@@ -244,9 +251,9 @@ class ProtocolState:
                 )
             )
         kind = "relation" if t.phase == "relations" else "influence"
-        others = tuple(u for u in self.units if u != t.sender)
+        others = self._others[t.sender]
         # The payload's channel is read from the medium, so look as far as the slowest one.
-        longest = max(self.period(u) for u in others) * (self.pulses - 1)
+        longest = self._longest[t.sender] * (self.pulses - 1)
         ready = round((payload_start + longest) / self.tau) + self.search
         listens = [
             Listen(

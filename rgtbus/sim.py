@@ -195,6 +195,7 @@ class World:
                 self._held[m.name].append((samples, values))
                 fresh[m.name] = (samples, values)
         promises = self._promises(fresh) if self.engine == "event" else {}
+        binding = self._binding(promises) if promises else set()
         for m in self.members:
             flags = (FAILED if m.failure else FINAL) if m.done else 0
             held = merge_pulses(self._held[m.name])
@@ -209,9 +210,9 @@ class World:
                 promise = promises[m.name]
             changed = (
                 now[0].size
-                or promise != self._sent_promise[m.name]
                 or flags != self._sent_flags[m.name]
                 or self.engine == "dense"
+                or (promise != self._sent_promise[m.name] and m.name in binding)
             )
             if changed:
                 self.bus.publish(
@@ -259,6 +260,23 @@ class World:
             out[m.name] = m.promise(until if k is None else k)
         # A promise made stays true: a later one computed without a look-ahead may be lower.
         return {u: max(p, self._sent_promise[u]) for u, p in out.items()}
+
+    def _binding(self, promises: dict[str, int]) -> set[str]:
+        """The local members whose last promise may hold the horizon back: those not above
+        every other member's newest promise. The others need send no null message yet (an
+        older, lower promise stays true); once theirs is the smallest, the horizon has
+        reached it, the world runs a round, and they send it then."""
+        remote = [s.promise for u, s in self.bus.status().items() if u not in promises]
+        mine = sorted(promises.values())
+        floor = min(remote, default=NEVER)
+        first = min(mine[0], floor)
+        second = min(mine[1] if len(mine) > 1 else NEVER, floor)
+        out = set()
+        for u, p in promises.items():
+            others = second if p == mine[0] else first  # the smallest promise but u's
+            if self._sent_promise[u] <= others:
+                out.add(u)
+        return out
 
     def _finished(self) -> bool:
         status = self.bus.status()

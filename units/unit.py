@@ -182,25 +182,25 @@ class AutonomousUnit:
         self.ears.stop(self.index)
 
     def _on_spikes(self, k: int, channels: tuple[int, ...]) -> None:
-        t = k * self.tau
-        log = self.recorder.enabled  # nothing to build for a run without a log
-        for ch in channels:
-            channel = self.units[ch]
-            if log:
+        """Spikes at sample ``k``: each is logged; the protocol hears the one on the channel
+        it awaits (a spike anywhere else asks nothing of it: ``awaited``)."""
+        if self.recorder.enabled:  # nothing to build for a run without a log
+            t = k * self.tau
+            for ch in channels:
                 self.recorder.write(
                     "/rx/spike",
                     {
                         "unit": self.name,
-                        "channel": channel,
+                        "channel": self.units[ch],
                         "omega": self.omegas[ch],
                         "t": t,
                         "sample": k,
                     },
                     ns(t),
                 )
-            acts = self.protocol.on_spike(channel, k)
-            if acts is not NOTHING:
-                self._apply(acts)
+        aw = self.awaited()
+        if aw is not None and aw[0] in channels:
+            self._apply(self.protocol.on_spike(self.units[aw[0]], k))
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":
