@@ -455,7 +455,9 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
     src = _Tracked(stream)
     # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
     # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
-    reader = StreamReader(cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30)
+    reader = StreamReader(
+        cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30
+    )
     started = finished = False  # a Header read; the data section's end (DataEnd) reached
     start = len(MCAP_MAGIC)  # byte offset of the record being read
 
