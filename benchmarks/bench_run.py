@@ -2,11 +2,12 @@
 
     python -m benchmarks.bench_run [--sizes 4,6,8,10,12,14] [--repeat 3] [--quick]
 
-Every case runs in a fresh process, so no cache of one run helps another: the gate and group6
-(scenario files) and generated groups of n units (serial schedule, 4-pulse codes, automatic
-plan), on both engines over the memory bus without a log. Reported per case: simulated
-seconds, wall seconds of the simulation (the event engine: median of --repeat; the reference:
-one run), their ratio, the process's peak RSS, and the world's steps. Then the slope of log wall
+Every run is a fresh process, so no cache of one run helps another: the gate and group6
+(scenario files) and generated groups of n units (serial schedule, codes of the fewest pulses,
+at least 4, that fit n channels in an octave, automatic plan), on both engines over the memory
+bus without a log. Reported per case: simulated seconds, wall seconds of the simulation (the
+event engine: median of --repeat processes; the reference: one), their ratio, the process's
+peak RSS, and the world's steps. Then the slope of log wall
 over log n (the event engine, n = 4…14), and the costs of zenoh and of the full MCAP log.
 
 Goals (issue 9): group10 at least 30x faster than ``--engine dense``; the gate's simulation
@@ -112,21 +113,30 @@ def one(case: str, engine: str, bus: str, log: bool, repeat: int) -> dict:
 
 
 def measure(case: str, engine: str, bus: str = "memory", log: bool = False, repeat: int = 1):
+    """The median over ``repeat`` fresh processes (a process's caches never help a repeat)."""
     argv = [sys.executable, "-m", "benchmarks.bench_run", "--one", case, engine, bus]
-    argv += ["--log" if log else "--no-log", "--repeat", str(repeat)]
-    proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=3600)
-    if proc.returncode != 0:
-        raise SystemExit(f"{case} {engine} failed: {proc.stderr.strip()[-500:]}")
-    r = json.loads(proc.stdout)
-    if r["error"]:
-        raise SystemExit(f"{case} {engine}: the run failed: {r['error']}")
-    return r
+    argv += ["--log" if log else "--no-log", "--repeat", "1"]
+    runs = []
+    for _ in range(repeat):
+        proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=3600)
+        if proc.returncode != 0:
+            raise SystemExit(f"{case} {engine} failed: {proc.stderr.strip()[-500:]}")
+        r = json.loads(proc.stdout)
+        if r["error"]:
+            raise SystemExit(f"{case} {engine}: the run failed: {r['error']}")
+        runs.append(r)
+    out = dict(runs[0])
+    for key in ("wall", "rss_mb"):
+        out[key] = statistics.median(r[key] for r in runs)
+    return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="4,6,8,10,12,14", help="generated group sizes")
-    ap.add_argument("--repeat", type=int, default=3, help="event-engine runs a case (median)")
+    ap.add_argument(
+        "--repeat", type=int, default=3, help="event-engine runs a case, each a fresh process"
+    )
     ap.add_argument("--quick", action="store_true", help="sizes 4,6,8; the reference to n = 6")
     ap.add_argument("--one", nargs=3, metavar=("CASE", "ENGINE", "BUS"), help=argparse.SUPPRESS)
     ap.add_argument("--log", action="store_true", help=argparse.SUPPRESS)

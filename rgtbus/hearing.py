@@ -140,11 +140,8 @@ class Ears:
         # the same code at about the same time, so the first ask reads all of them
         self._decodes: dict[tuple, list] = {}
         self._decodes_end = -1
+        self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
         self.process = env.process(self._run())
-
-    @property
-    def pos(self) -> int:
-        return self.bank.n_fed
 
     # -- the world's side ---------------------------------------------------------------------
 
@@ -398,19 +395,26 @@ class Ears:
             record=self._traced,
         )
         end = lo + res.n
+        self.pos = end
         self.steps += 1
         self._cur += int(np.searchsorted(self._rows[self._cur : cut], end))
         self.readout.extend(res)
         for n, lst in enumerate(self.listeners):
             if lst.active:
-                lst.used_noise(end)
+                if lst.noise > 0:
+                    lst.used_noise(end)
                 if lst.trace is not None and res.z is not None and res.y is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
-        # sorted by sample, receiver, channel: one entry per (sample, unit)
-        for (k, n), group in itertools.groupby(res.spikes.tolist(), key=lambda s: (s[0], s[1])):
-            lst = self.listeners[n]
-            if lst.active:
-                lst.heard.append((k, tuple(s[2] for s in group)))
+        sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
+        if len(sp):
+            k, n = sp[:, 0], sp[:, 1]
+            cuts = [0, *(np.flatnonzero((k[1:] != k[:-1]) | (n[1:] != n[:-1])) + 1).tolist()]
+            cuts.append(len(sp))
+            ks, ns, cs = k.tolist(), n.tolist(), sp[:, 2].tolist()
+            for a, b in itertools.pairwise(cuts):
+                lst = self.listeners[ns[a]]
+                if lst.active:
+                    lst.heard.append((ks[a], tuple(cs[a:b])))
         return end - 1 if res.stopped else None
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:

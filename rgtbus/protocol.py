@@ -29,6 +29,7 @@ far past the point where attention spikes fail (see the README).
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -58,6 +59,7 @@ def turns(units: Sequence[str]) -> list[Turn]:
     return out
 
 
+@functools.lru_cache(maxsize=1024)  # every unit plans the same codes of every turn
 def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[int, ...]:
     """Sample index of each pulse: ``round((start + m·2π/ω) / τ)``."""
     return pulse_samples(omega, start, pulses, tau)
@@ -152,8 +154,7 @@ class ProtocolState:
         self._ids: tuple[int, ...] = ()
         self._bound_key: tuple[int, int] | None = None
         self._bound = NEVER
-        self._awaited_key: tuple[int, float] | None = None
-        self._awaited: tuple[str, int, int] = ("", 0, 0)
+        self._awaited: tuple[str, int, int] | None = None  # None: not known for this turn yet
 
     # -- helpers
 
@@ -270,6 +271,7 @@ class ProtocolState:
         # Next turn: the chain is known now, well ahead of its first pulse.
         self.turn += 1
         self.turn_start = payload_start + (self.pulses - 1) * self.period(t.addressee) + self.guard
+        self._awaited = None
         quench = []
         if not self.finished:
             self.turn_starts.append(self.turn_start)
@@ -287,13 +289,10 @@ class ProtocolState:
         """The spike the chain waits for: (channel, earliest sample, latest sample), or None
         when nothing this unit hears can plan a send any more (every reaction known, or the
         run's end). Past the latest sample (the ID's deadline) the chain is broken."""
-        if self.anchor != "spike" or self.finished:
+        if self.anchor != "spike" or self.turn >= len(self.schedule):
             return None
-        key = (self.turn, self.turn_start)
-        if self._awaited_key != key:  # asked at every wake: the same until the chain moves
-            t = self.current()
-            assert t is not None
-            self._awaited_key = key
+        if self._awaited is None:  # asked at every wake and spike: the same until the chain moves
+            t = self.schedule[self.turn]
             self._awaited = (t.sender, self.id_samples()[0], self.id_deadline())
         return self._awaited
 

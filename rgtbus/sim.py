@@ -194,12 +194,13 @@ class World:
             if samples.size:
                 self._held[m.name].append((samples, values))
                 fresh[m.name] = (samples, values)
+        dense = self.engine == "dense"
         promises = self._promises(fresh) if self.engine == "event" else {}
         binding = self._binding(promises) if promises else set()
         for m in self.members:
             flags = (FAILED if m.failure else FINAL) if m.done else 0
-            held = merge_pulses(self._held[m.name])
-            if self.engine == "dense":
+            held = merge_pulses(self._held[m.name]) if self._held[m.name] else _NONE
+            if dense:
                 limit = self.horizon + self.window
                 now, later = split_pulses(held, limit)
                 promise = NEVER if m.done and not later[0].size else limit
@@ -211,7 +212,7 @@ class World:
             changed = (
                 now[0].size
                 or flags != self._sent_flags[m.name]
-                or self.engine == "dense"
+                or dense
                 or (promise != self._sent_promise[m.name] and m.name in binding)
             )
             if changed:
@@ -236,13 +237,14 @@ class World:
         B, and its reaction cannot come before its first spike on them."""
         h = self.horizon
         for u, p in list(self._ahead.items()):  # what is before the horizon has been heard
-            self._ahead[u] = split_pulses(p, h)[1]
+            if p[0].size and p[0][0] < h:
+                self._ahead[u] = split_pulses(p, h)[1]
         plain = {m.name: m.promise(h) for m in self.members}
         remote = [s.promise for u, s in self.bus.status().items() if u not in plain]
         out = dict(plain)
+        least = _two_least([*plain.values(), *remote])
         for m in self.members:
-            others = [p for u, p in plain.items() if u != m.name] + remote
-            bound = min(others, default=NEVER)
+            bound = least[1] if plain[m.name] == least[0] else least[0]  # every other's least
             aw = m.awaited()
             if aw is None or plain[m.name] >= bound or m.name not in self._where:
                 continue
@@ -267,13 +269,10 @@ class World:
         older, lower promise stays true); once theirs is the smallest, the horizon has
         reached it, the world runs a round, and they send it then."""
         remote = [s.promise for u, s in self.bus.status().items() if u not in promises]
-        mine = sorted(promises.values())
-        floor = min(remote, default=NEVER)
-        first = min(mine[0], floor)
-        second = min(mine[1] if len(mine) > 1 else NEVER, floor)
+        least = _two_least([*promises.values(), *remote])
         out = set()
         for u, p in promises.items():
-            others = second if p == mine[0] else first  # the smallest promise but u's
+            others = least[1] if p == least[0] else least[0]  # the least promise but u's
             if self._sent_promise[u] <= others:
                 out.add(u)
         return out
@@ -352,6 +351,17 @@ class World:
             bus_stats=dict(self.bus.stats()),
             end_sample=self.end_sample(),
         )
+
+
+def _two_least(values: Sequence[int]) -> tuple[int, int]:
+    """The smallest and second smallest (NEVER where there are too few)."""
+    a = b = NEVER
+    for v in values:
+        if v < a:
+            a, b = v, a
+        elif v < b:
+            b = v
+    return a, b
 
 
 def as_jsonable(value: Any) -> Any:

@@ -7,7 +7,15 @@ import pytest
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
-from rgtbus.signal.decoder import ReadoutHistory, decode_among, decode_code
+from rgtbus.signal.decoder import (
+    ReadoutHistory,
+    WordSet,
+    decode_among,
+    decode_among_each,
+    decode_code,
+    nearest,
+    nearest_each,
+)
 from rgtbus.signal.resonator import READOUT_DIGITS, ResonatorBank
 from rgtbus.signal.waveform import Transmission, superpose
 
@@ -74,3 +82,50 @@ def test_a_shared_history_keeps_each_receivers_view():
     assert np.array_equal(ro.of(0).values(idx, 1), np.round(a[400:], READOUT_DIGITS))
     assert np.array_equal(ro.of(1).values(idx, 3), np.round(b[400:], READOUT_DIGITS))
     assert ro.of(1).end == 900
+
+
+def _three_receivers():
+    """Three receivers of one bank: the same code, heard with different noise."""
+    cb = paper_codebook()
+    n = 1200
+    u = superpose([Transmission(OMEGAS[1], 0.702, cb.alternatives["{alpha}"])], n)
+    rng = np.random.default_rng(7)
+    heard = np.stack([u, u + rng.normal(0, 0.05, n), u], axis=1)  # receivers 0 and 2 agree
+    bank = ResonatorBank(OMEGAS, n_receivers=3)
+    ro = ReadoutHistory.for_bank(bank, capacity=n)
+    for lo in range(0, n, 37):
+        ro.extend(bank.feed(heard[lo : lo + 37], readout=True))
+    return cb, ro
+
+
+def test_gather_reads_every_receiver_as_values_does():
+    _, ro = _three_receivers()
+    idx = np.array([[140, 141, 500], [10, 600, 1199]])
+    chans = np.array([[1], [3]])
+    every = ro.gather(idx, chans)
+    assert every.shape == (3, 2, 3)
+    for r in range(3):
+        assert np.array_equal(every[r], ro.values(idx, chans, r))
+    with pytest.raises(RgtbusError, match="outside the history"):
+        ro.gather(np.array([1200]), 0)
+
+
+def test_decoding_every_receiver_at_once_equals_one_by_one():
+    cb, ro = _three_receivers()
+    chans = tuple((c, w) for c, w in enumerate(OMEGAS))
+    words = WordSet.of(cb.family("alternative"))
+    each = decode_among_each(ro, chans, 0.7, words, search=2)
+    for r in range(3):
+        assert each[r] == decode_among(ro.of(r), chans, 0.7, words, search=2)
+    assert each[0] == each[2] and each[0][0].values != each[1][0].values
+    inst = each[0][0].instants
+    near = nearest_each(ro, inst, 1, WordSet.of(cb.distinct_words()))
+    for r in range(3):
+        assert near[r] == nearest(ro.values(inst, 1, r), cb.distinct_words())
+
+
+def test_word_sets_are_equal_by_value():
+    cb = paper_codebook()
+    a, b = WordSet.of(cb.family("relation")), WordSet.of(dict(cb.family("relation")))
+    assert a == b and hash(a) == hash(b) and a is not b
+    assert a != WordSet.of(cb.family("alternative"))

@@ -78,6 +78,8 @@ class AutonomousUnit:
         self._channels = [(i, w) for i, w in enumerate(self.omegas)]
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[tuple[int, float], ...]] = {}
+        self._aw_named: tuple[str, int, int] | None = None
+        self._aw: tuple[int, int, int] = (0, 0, 0)
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -156,7 +158,11 @@ class AutonomousUnit:
         """The spike this unit's next plans wait for: (channel index, earliest sample, latest
         sample)."""
         aw = None if self.done else self.protocol.awaited()
-        return None if aw is None else (self._index[aw[0]], aw[1], aw[2])
+        if aw is None:
+            return None
+        if aw is not self._aw_named:  # the chain moved on: name its channel by index once
+            self._aw_named, self._aw = aw, (self._index[aw[0]], aw[1], aw[2])
+        return self._aw
 
     # -- living: receive -> protocol -> decode -> reason -> send ------------------------------
 
@@ -173,7 +179,12 @@ class AutonomousUnit:
                 0 if aw is None else aw[1],
             )
             for k, channels in heard.spikes:  # in order; only the last can be reacted to
-                self._on_spikes(k, channels)
+                if self.recorder.enabled:  # nothing to build for a run without a log
+                    self._log_spikes(k, channels)
+                # the protocol hears the spike it awaits (any other asks nothing of it)
+                if aw is not None and aw[0] in channels:
+                    self._apply(self.protocol.on_spike(self.units[aw[0]], k))
+                    aw = self.awaited()
             # every timer whose samples have all been heard is due (its time, the boundary's
             # last sample, is now or was passed by the spike that woke this unit)
             pos = self.ears.pos
@@ -181,26 +192,20 @@ class AutonomousUnit:
                 self._on_timer(heapq.heappop(self._timers))
         self.ears.stop(self.index)
 
-    def _on_spikes(self, k: int, channels: tuple[int, ...]) -> None:
-        """Spikes at sample ``k``: each is logged; the protocol hears the one on the channel
-        it awaits (a spike anywhere else asks nothing of it: ``awaited``)."""
-        if self.recorder.enabled:  # nothing to build for a run without a log
-            t = k * self.tau
-            for ch in channels:
-                self.recorder.write(
-                    "/rx/spike",
-                    {
-                        "unit": self.name,
-                        "channel": self.units[ch],
-                        "omega": self.omegas[ch],
-                        "t": t,
-                        "sample": k,
-                    },
-                    ns(t),
-                )
-        aw = self.awaited()
-        if aw is not None and aw[0] in channels:
-            self._apply(self.protocol.on_spike(self.units[aw[0]], k))
+    def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
+        t = k * self.tau
+        for ch in channels:
+            self.recorder.write(
+                "/rx/spike",
+                {
+                    "unit": self.name,
+                    "channel": self.units[ch],
+                    "omega": self.omegas[ch],
+                    "t": t,
+                    "sample": k,
+                },
+                ns(t),
+            )
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":
@@ -264,7 +269,8 @@ class AutonomousUnit:
         self._outbox.extend(zip(send.samples, magnitudes, strict=True))
         self.sent.append(send)
         assert self.env is not None
-        self.env.process(self._on_air(send, magnitudes))
+        if self.recorder.enabled:  # the process exists to log the pulses at their times
+            self.env.process(self._on_air(send, magnitudes))
 
     def _on_air(self, send: Send, magnitudes: list[float]):
         env = self.env
@@ -368,6 +374,8 @@ class AutonomousUnit:
     ) -> None:
         d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
         self.decoded.append(d)
+        if not self.recorder.enabled:
+            return
         self.recorder.write(
             "/rx/decode",
             {

@@ -300,21 +300,19 @@ def generate_codebook(
         )
     units = round(total / step)
     lo_u, hi_u = grid(step)
-    cands: list[tuple[int, ...]]
+    # Every word on the grid with the given total: the first N − 1 magnitudes in
+    # lexicographic order (as itertools.product), the last one what the total leaves.
+    width = max(0, hi_u - lo_u + 1)
     if pulses == 1:
-        cands = [(units,)] if lo_u <= units <= hi_u else []
+        head = np.zeros((1, 0), dtype=np.int32)  # the one magnitude is the total
     else:
-        cands = [
-            (*c, units - sum(c))
-            for c in itertools.product(range(lo_u, hi_u + 1), repeat=pulses - 1)
-            if lo_u <= units - sum(c) <= hi_u
-        ]
-        if len(cands) > 1_000_000:
-            raise RgtbusError(
-                f"codebook generator: {len(cands)} candidates at step {step:g}; use a coarser step"
-            )
+        grid_ = np.indices((width,) * (pulses - 1), dtype=np.int32)
+        head = grid_.reshape(pulses - 1, -1).T + lo_u
+    last = units - head.sum(axis=1)
+    ok = (last >= lo_u) & (last <= hi_u)
+    cands = np.concatenate([head[ok], last[ok, None]], axis=1)
     id_word = tuple([0.4] * pulses)
-    pts = np.array(cands, dtype=float) * step
+    pts = cands.astype(float) * step
     pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance - 1e-9]
     if len(pts) < need:
         raise RgtbusError(

@@ -128,8 +128,12 @@ class ReadoutHistory:
         idx = np.asarray(indices, dtype=np.int64)
         self._check(idx, span)
         pos, hit = self._find(idx)
-        rec = np.arange(self.receivers).reshape((-1,) + (1,) * idx.ndim)
-        return np.where(hit[None], self._vals[pos[None], rec, np.asarray(channels)[None]], 0.0)
+        out = np.zeros((self.receivers, *idx.shape))
+        at = np.nonzero(hit)  # few: most candidate instants of a code fall on silence
+        if at[0].size:
+            ch = np.broadcast_to(np.asarray(channels), idx.shape)[at]
+            out[(slice(None), *at)] = self._vals[pos[at], :, ch].T
+        return out
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""

@@ -200,6 +200,10 @@ class BankModel:
         return int(self.lane_ch.size)
 
     @functools.cached_property
+    def all_lanes(self) -> np.ndarray:
+        return np.arange(self.lanes, dtype=np.int64)
+
+    @functools.cached_property
     def plain(self) -> bool:
         """One receiver, every channel in order: table rows can be gathered whole."""
         return self.layout is None and self.receivers == 1
@@ -292,8 +296,7 @@ def resonate(
     rule = (M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip)
     stopped = False
     if stop:  # the first spike among the stop lanes decides where every lane stops
-        watch = np.arange(L) if stop_lanes is None else np.flatnonzero(stop_lanes)
-        watch = watch.astype(np.int64)
+        watch = M.all_lanes if stop_lanes is None else np.flatnonzero(stop_lanes)
         buf = np.empty(max(1, watch.size), dtype=np.int64)
         first, found, _ = walk_lanes(
             *common, watch, *rule, wr, wi, flags, start, end, rows, vals, True,
@@ -305,7 +308,7 @@ def resonate(
             rows, vals = rows[:cut], vals[:cut]
     n = end - start
     cap = max(64, 4 * L)
-    all_lanes = np.arange(L, dtype=np.int64)
+    all_lanes = M.all_lanes
     while True:
         sp_k = np.empty(cap, dtype=np.int64)
         sp_l = np.empty(cap, dtype=np.int64)
@@ -325,7 +328,7 @@ def resonate(
     new = BankState(wr, wi, pend, end)
     arr = np.empty((n_sp, 3), dtype=np.int64)
     if n_sp:
-        order = np.lexsort((sp_l[:n_sp], sp_k[:n_sp]))
+        order = np.lexsort((sp_l[:n_sp], sp_k[:n_sp])) if n_sp > 1 else slice(None)
         lanes = sp_l[:n_sp][order]
         arr[:, 0] = sp_k[:n_sp][order]
         arr[:, 1] = M.lane_rec[lanes]
