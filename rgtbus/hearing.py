@@ -407,10 +407,10 @@ class Ears:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
         sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
         if len(sp):
-            k, n = sp[:, 0], sp[:, 1]
-            cuts = [0, *(np.flatnonzero((k[1:] != k[:-1]) | (n[1:] != n[:-1])) + 1).tolist()]
-            cuts.append(len(sp))
-            ks, ns, cs = k.tolist(), n.tolist(), sp[:, 2].tolist()
+            at, who = sp[:, 0], sp[:, 1]
+            new = (at[1:] != at[:-1]) | (who[1:] != who[:-1])
+            cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(sp)]
+            ks, ns, cs = at.tolist(), who.tolist(), sp[:, 2].tolist()
             for a, b in itertools.pairwise(cuts):
                 lst = self.listeners[ns[a]]
                 if lst.active:

@@ -303,11 +303,12 @@ def generate_codebook(
     # Every word on the grid with the given total: the first N − 1 magnitudes in
     # lexicographic order (as itertools.product), the last one what the total leaves.
     width = max(0, hi_u - lo_u + 1)
-    if pulses == 1:
-        head = np.zeros((1, 0), dtype=np.int32)  # the one magnitude is the total
-    else:
-        grid_ = np.indices((width,) * (pulses - 1), dtype=np.int32)
-        head = grid_.reshape(pulses - 1, -1).T + lo_u
+    count = width ** (pulses - 1)  # at most a million (checked above)
+    head = np.empty((count, pulses - 1), dtype=np.int32)
+    rest = np.arange(count)
+    for j in range(pulses - 2, -1, -1):  # mixed radix: the last magnitude runs fastest
+        head[:, j] = rest % width + lo_u
+        rest //= width
     last = units - head.sum(axis=1)
     ok = (last >= lo_u) & (last <= hi_u)
     cands = np.concatenate([head[ok], last[ok, None]], axis=1)

@@ -29,6 +29,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -132,7 +133,8 @@ class ReadoutHistory:
         at = np.nonzero(hit)  # few: most candidate instants of a code fall on silence
         if at[0].size:
             ch = np.broadcast_to(np.asarray(channels), idx.shape)[at]
-            out[(slice(None), *at)] = self._vals[pos[at], :, ch].T
+            where: tuple[Any, ...] = (slice(None), *at)
+            out[where] = self._vals[pos[at], :, ch].T
         return out
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
