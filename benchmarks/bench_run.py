@@ -33,12 +33,18 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def group_scenario(n: int, seed: int = 10):
-    """n units on an automatic plan with generated codes of the fewest pulses (at least 4) that
+    """The scenario of ``group_toml``."""
+    from rgtbus.scenario import parse_scenario
+
+    return parse_scenario(group_toml(n, seed), f"<group{n}>")
+
+
+def group_toml(n: int, seed: int = 10) -> str:
+    """The scenario file of n units on an automatic plan with generated codes of the fewest pulses (at least 4) that
     fit n channels in an octave, fixed relationships forming a random decomposable group,
     random influences."""
     from rgtbus.rgt import polynomial_to_graph, random_polynomial
     from rgtbus.rgt.algebra import Universe
-    from rgtbus.scenario import parse_scenario
     from rgtbus.signal.plan import max_units
 
     pulses = next(p for p in range(4, 64) if max_units(p) >= n)
@@ -72,7 +78,7 @@ def group_scenario(n: int, seed: int = 10):
         for r in units:
             if s != r:
                 lines.append(f'"{s}>{r}" = "{u.format(rng.randrange(4))}"')
-    return parse_scenario("\n".join(lines) + "\n", f"<group{n}>")
+    return "\n".join(lines) + "\n"
 
 
 def load_case(case: str):

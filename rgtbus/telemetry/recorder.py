@@ -90,6 +90,10 @@ def log_message(
     }
 
 
+# One encoder for every message: compact, NaN and infinity refused (JSON has neither).
+_JSON = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_default)
+
+
 class _Encoding:
     """Topic check, JSON encoding and optional validation, shared by the real recorders."""
 
@@ -108,7 +112,7 @@ class _Encoding:
         if not isinstance(message, dict):
             raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
         try:
-            data = json.dumps(message, separators=(",", ":"), allow_nan=False, default=_default)
+            data = _JSON.encode(message)
         except (TypeError, ValueError) as e:
             raise RgtbusError(f"message on {topic} at t_ns={t} is not JSON: {e}") from None
         if self.validate:
@@ -203,9 +207,13 @@ class McapRecorder(_Encoding):
         try:
             yield
         except OSError as e:
-            name = getattr(self.stream, "name", "<stream>")
-            self.failed = f"cannot write log {str(name)!r}: {e.strerror or e}"
-            raise RgtbusError(self.failed) from None
+            raise self._broken(e) from None
+
+    def _broken(self, e: OSError) -> RgtbusError:
+        """The stream failed: remember the one line that says so (nothing more is written)."""
+        name = getattr(self.stream, "name", "<stream>")
+        self.failed = f"cannot write log {str(name)!r}: {e.strerror or e}"
+        return RgtbusError(self.failed)
 
     def _flush(self) -> None:
         flush = getattr(self.stream, "flush", None)
@@ -229,12 +237,19 @@ class McapRecorder(_Encoding):
 
     def write(self, topic: str, message: dict, t_ns: int) -> None:
         schema, data, t = self._encode(topic, message, t_ns)
-        with self._io():
-            cid = self._channel(topic, schema)
-            self._sequence[cid] += 1
+        if self.failed:
+            raise RgtbusError(self.failed)
+        cid = self._channel_ids.get(topic)
+        if cid is None:
+            with self._io():
+                cid = self._channel(topic, schema)
+        seq = self._sequence[cid] = self._sequence[cid] + 1
+        try:  # the hot path: no context manager
             self._writer.add_message(
-                channel_id=cid, log_time=t, publish_time=t, data=data, sequence=self._sequence[cid]
+                channel_id=cid, log_time=t, publish_time=t, data=data, sequence=seq
             )
+        except OSError as e:
+            raise self._broken(e) from None
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         if self._closed:
