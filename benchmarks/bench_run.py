@@ -40,9 +40,9 @@ def group_scenario(n: int, seed: int = 10):
 
 
 def group_toml(n: int, seed: int = 10) -> str:
-    """The scenario file of n units on an automatic plan with generated codes of the fewest pulses (at least 4) that
-    fit n channels in an octave, fixed relationships forming a random decomposable group,
-    random influences."""
+    """The scenario file of n units on an automatic plan with generated codes of the fewest
+    pulses (at least 4) that fit n channels in an octave, fixed relationships forming a random
+    decomposable group, random influences."""
     from rgtbus.rgt import polynomial_to_graph, random_polynomial
     from rgtbus.rgt.algebra import Universe
     from rgtbus.signal.plan import max_units
