@@ -1,4 +1,4 @@
-"""The timed protocol of SPEC §3, as a pure state machine (one per unit).
+"""The timed protocol (docs/protocol.md), as a pure state machine (one per unit).
 
 All units hear the whole medium. To send code X to unit r, unit s
 

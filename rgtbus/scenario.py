@@ -322,7 +322,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
     codebook = _codebook(data.get("codebook", "paper"), universe, ctx)
 
-    # Frequencies: a table per unit, or "auto" (a plan by the rules of SPEC §2).
+    # Frequencies: a table per unit, or "auto" (a plan by the rules of docs/model.md).
     freq = data.get("frequencies", "auto")
     frequencies: dict[str, float] = {}
     frequency_text: dict[str, str] = {}

@@ -28,7 +28,7 @@ def test_paper_inverse_task_ab_plus_c():
     alpha = AB.parse_alternative("{alpha}")
     res = solve_per_action(df, AB, "a", alpha, alpha, "exact")
     assert res.count == 2
-    # SPEC §4: (b, c) = ({α}, {α}) and (0, {α}); the paper prints the second transposed.
+    # docs/errata.md: (b, c) = ({α}, {α}) and (0, {α}); the paper prints the second transposed.
     assert listed(AB, res.solutions()) == [
         (("b", "0"), ("c", "{alpha}")),
         (("b", "{alpha}"), ("c", "{alpha}")),

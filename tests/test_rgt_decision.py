@@ -1,4 +1,4 @@
-"""The paper's worked examples through the API, with SPEC §4's corrected values."""
+"""The paper's worked examples through the API, with the corrected values of docs/errata.md."""
 
 import random
 
@@ -81,7 +81,7 @@ def test_example3_gate(delta):
     forms = {s: canonical_form(df, s).text() for s in df.order}
     assert forms == {
         "a": "a = (bc+d)a + d·not(a)",
-        "b": "b = (ac+d)b + d·not(b)",  # SPEC §4: the paper prints (ad+c)
+        "b": "b = (ac+d)b + d·not(b)",  # docs/errata.md: the paper prints (ad+c)
         "c": "c = (ab+d)c + d·not(c)",
         "d": "d = d + abc·not(d)",
     }

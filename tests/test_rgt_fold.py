@@ -13,7 +13,7 @@ from rgtbus.rgt import (
 )
 from rgtbus.rgt.expr import Not, Var, truth_table
 
-# SPEC §1: the fold table.
+# docs/model.md: the fold table.
 FOLDS = [
     ("a+b", "1"),
     ("ab", "1"),
@@ -35,7 +35,7 @@ def test_fold_table(poly, folded):
 
 
 def reference_fold_table(poly, order):
-    """SPEC's rule, evaluated on truth tables directly: fold(N) = N + not(op(fold(children)))."""
+    """docs/model.md's rule, on truth tables directly: fold(N) = N + not(op(fold(children)))."""
     from rgtbus.rgt.expr import Prod, Sum
 
     n = len(order)

@@ -126,7 +126,7 @@ def test_candidate_instants_cover_all_distinct_timings():
 
 @pytest.mark.parametrize("word", ["1", "{beta}"])
 def test_crosstalk_spike_is_not_accepted_as_an_id(word):
-    # SPEC §2: these codes on ω_c fire ω_a; the ID check must refuse a's "ID".
+    # docs/model.md: these codes on ω_c fire ω_a; the ID check must refuse a's "ID".
     tx = [Transmission(OM[2], 0.001, CB.alternatives[word])]
     u, _, ro = run(tx, n=800)
     spikes = ResonatorBank(OM).feed(u).spikes

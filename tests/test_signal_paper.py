@@ -29,9 +29,9 @@ def test_matched_fires_unmatched_does_not(word, pair):
         assert NAMES[other] not in got
 
 
-# SPEC §2 codes sent on each paper channel -> resonators that fire (start 1 ms, paper mode).
-# The a<->c crosstalk of SPEC §2 ({.2,.3,.7} and {.3,.6,.3} on c fire a) is asserted as it is;
-# so is one more case SPEC does not list: {.2,.3,.7} on a fires b (peak y 1.001, knife-edge).
+# The paper's codes sent on each paper channel -> resonators that fire (start 1 ms, paper mode).
+# The a<->c crosstalk of docs/model.md ({.2,.3,.7} and {.3,.6,.3} on c fire a) is asserted as
+# it is; so is one more case listed there: {.2,.3,.7} on a fires b (peak y 1.001, knife-edge).
 EXPECTED = {
     ("id", 0): "a",
     ("id", 1): "b",

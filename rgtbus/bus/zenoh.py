@@ -29,7 +29,8 @@ from rgtbus.errors import RgtbusError
 _MODES = ("peer", "client", "router")
 
 # A declared callback subscriber leaves a non-daemon zenoh thread behind, and the interpreter
-# waits for it before atexit handlers run: a bus left open hangs the process at exit (SPEC §5).
+# waits for it before atexit handlers run: a bus left open hangs the process at exit
+# (docs/zenoh-notes.md).
 # threading's own pre-join hook (what concurrent.futures uses) runs early enough to close them.
 _open_buses: weakref.WeakSet[ZenohBus] = weakref.WeakSet()
 _exit_hook_lock = threading.Lock()
@@ -352,7 +353,8 @@ class ZenohBus(QueueBus):
 
     def _close_transport(self) -> None:
         # Subscriber first so no callback runs while the rest goes away; then the session
-        # (a declared callback subscriber keeps the interpreter from exiting: SPEC §5).
+        # (a declared callback subscriber keeps the interpreter from exiting:
+        # docs/zenoh-notes.md).
         _open_buses.discard(self)
         errors: list[str] = []
         entities = [self._hello_sub, self._subscriber, *self._publishers.values(), self._token]

@@ -1,4 +1,4 @@
-"""Codebooks as data (SPEC §2, §4): which pulse magnitudes mean what.
+"""Codebooks as data (docs/model.md, docs/errata.md): which pulse magnitudes mean what.
 
 A codebook has N pulses a word and three families, each decoded on its own:
 
@@ -217,9 +217,9 @@ PAPER_ALTERNATIVES = {
 def paper_codebook(
     actions: Sequence[str] = ("alpha", "beta"), names: Mapping[str, str] | None = None
 ) -> Codebook:
-    """The paper's codebook (SPEC §2): 3 pulses, ID/alliance {.4,.4,.4}, conflict {−.4,−.4,−.4}
-    and the four k = 2 alternatives; ``actions`` renames α, β; ``names`` remaps alternative names
-    (e.g. Example 2's other reading ``{"1": "0", "0": "1"}``)."""
+    """The paper's codebook (docs/model.md): 3 pulses, ID/alliance {.4,.4,.4}, conflict
+    {−.4,−.4,−.4} and the four k = 2 alternatives; ``actions`` renames α, β; ``names`` remaps
+    alternative names (e.g. Example 2's other reading ``{"1": "0", "0": "1"}``)."""
     if len(actions) not in (1, 2) or len(set(actions)) != len(actions):
         raise RgtbusError(
             f"the paper codebook has words for k = 1 or 2 distinct actions, got {list(actions)}"

@@ -1,4 +1,4 @@
-"""Detection and decoding (SPEC §2): from spikes and resonator states to code values.
+"""Detection and decoding (docs/model.md): from spikes and resonator states to code values.
 
 - **Detection**: a spike on ω_s says "something arrived on ω_s" (an ID-code spike: "s transmits").
 - **Increment readout**: the resonator's update is ``z[k] = A·z[k-1] + i·u[k]``, so

@@ -1,4 +1,4 @@
-"""Frequency plans (SPEC §2): which ω each unit owns, and the rules a plan must keep.
+"""Frequency plans (docs/model.md): which ω each unit owns, and the rules a plan must keep.
 
 Rules checked by :func:`check_plan` (each refusal names its rule):
 
@@ -25,7 +25,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.signal.resonator import PAPER_B, PAPER_TAU, euler_limit
 
 PI = math.pi
-# The paper's units a, b, c and the gate's fourth unit d (SPEC §2).
+# The paper's units a, b, c and the gate's fourth unit d (docs/model.md).
 PAPER_OMEGAS = (3 * PI / 2, 4 * PI / 3, 5 * PI / 3, 7 * PI / 6)
 PAPER_OMEGA_TEXT = ("3pi/2", "4pi/3", "5pi/3", "7pi/6")
 MIN_SAMPLES_PER_PERIOD = 16

@@ -1,4 +1,4 @@
-"""Resonate-and-fire receiver bank (SPEC §2; docs/model.md): pure numpy, any receivers × channels.
+"""Resonate-and-fire receiver bank (docs/model.md): pure numpy, any receivers × channels.
 
 Model (one resonator, eigen-frequency ω, complex state z = x + i·y, sample period τ)::
 

@@ -1,4 +1,4 @@
-"""Code synthesis and the channel model (SPEC §2): what transmitters put on the medium.
+"""Code synthesis and the channel model (docs/model.md): what transmitters put on the medium.
 
 A code is N pulses on channel ω, one period 2π/ω apart, starting at time t0; pulse j is one
 sample of magnitude word[j] at sample ``round((t0 + j·2π/ω)/τ)`` (round half to even, as

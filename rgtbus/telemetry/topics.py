@@ -15,7 +15,10 @@ from rgtbus.errors import RgtbusError
 
 # topic -> (schema name, what it carries)
 TOPICS: dict[str, tuple[str, str]] = {
-    "/medium": ("rgtbus.MediumWindow", "every window of the shared medium"),
+    "/medium": (
+        "rgtbus.MediumWindow",
+        "every window of the shared medium that carries a pulse (silent ones are not logged)",
+    ),
     "/tx/pulse": ("rgtbus.Pulse", "every transmitted pulse"),
     "/rx/spike": ("rgtbus.Spike", "every resonator spike, per receiving unit"),
     "/rx/decode": ("rgtbus.Decode", "every decoded code, per receiving unit"),
