@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import simpy
 
-from rgtbus.bus.base import Pulses
+from rgtbus.bus.base import Pulses, sample_rows
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.decoder import (
     Decision,
@@ -470,7 +470,7 @@ def _heard_by(
     if unit_gains and (pulses.size == 1 or bool(np.all(pulses[1:] > pulses[:-1]))):
         # one pulse a sample: what everyone hears is that magnitude (0 + v + 0 … is v)
         return pulses, np.repeat(val[:, None], gains.shape[0], axis=1)
-    rows, at = np.unique(pulses, return_inverse=True)
+    rows, at = sample_rows(pulses)
     S = gains.shape[1]
     x = np.zeros(rows.size * S)
     np.add.at(x, at * S + who, val)  # in order, per (row, sender)

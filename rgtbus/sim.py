@@ -29,7 +29,7 @@ import numpy as np
 import simpy
 import simpy.rt
 
-from rgtbus.bus.base import Bus, Pulses, merge_pulses, split_pulses
+from rgtbus.bus.base import Bus, Pulses, merge_pulses, sample_rows, split_pulses
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.hearing import Ears, Listener
@@ -313,7 +313,7 @@ class World:
             return
         rows, values = self._sum_medium(now)
         windows = rows // L
-        for w in np.unique(windows).tolist():
+        for w in sample_rows(windows)[0].tolist():
             sel = windows == w
             samples = np.zeros(L)
             samples[rows[sel] - w * L] = values[sel]
@@ -328,7 +328,7 @@ class World:
         """Each member's magnitudes per sample (in the order it sent them), then the members'
         totals added in member order."""
         names = [u for u in self.bus.members if u in pulses]
-        rows = np.unique(np.concatenate([pulses[u][0] for u in names]))
+        rows = sample_rows(np.concatenate([pulses[u][0] for u in names]))[0]
         x = np.zeros((rows.size, len(names)))
         for j, u in enumerate(names):
             np.add.at(x[:, j], np.searchsorted(rows, pulses[u][0]), pulses[u][1])

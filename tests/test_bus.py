@@ -548,3 +548,14 @@ def test_frame_encode_refuses(frame, msg):
         encode(frame, RATE)
     with pytest.raises(RgtbusError, match="sample rate must be finite"):
         encode(Frame(0, 0), float("inf"))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 30), max_size=20), st.booleans())
+def test_sample_rows_is_unique_with_inverse(samples, ordered):
+    from rgtbus.bus.base import sample_rows
+
+    a = np.array(sorted(samples) if ordered else samples, dtype=np.int64)
+    rows, at = sample_rows(a)
+    want_rows, want_at = np.unique(a, return_inverse=True)
+    assert np.array_equal(rows, want_rows) and np.array_equal(at, want_at.reshape(-1))

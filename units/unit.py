@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import simpy
+from numpy.random import default_rng
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
@@ -128,7 +129,7 @@ class AutonomousUnit:
             name=self.name,
             gains=np.array([sc.gains.get((s, self.name), 1.0) for s in self.units]),
             noise=sc.noise,
-            rng=np.random.default_rng([sc.seed, self.units.index(self.name), 1]),
+            rng=default_rng([sc.seed, self.units.index(self.name), 1]),
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
         )

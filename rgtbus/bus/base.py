@@ -113,6 +113,22 @@ def merge_pulses(parts: Sequence[Pulses]) -> Pulses:
     return s[order], v[order]
 
 
+def sample_rows(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct samples in ascending order, and where each of ``samples`` is among them
+    (``np.unique(..., return_inverse=True)``, without its cost: pulses come nearly sorted)."""
+    s = np.asarray(samples, dtype=np.int64)
+    order = None if s.size < 2 or bool(np.all(s[1:] >= s[:-1])) else np.argsort(s, kind="stable")
+    ordered = s if order is None else s[order]
+    first = np.ones(ordered.size, dtype=bool)
+    first[1:] = ordered[1:] != ordered[:-1]
+    at = np.cumsum(first) - 1
+    if order is not None:
+        inverse = np.empty_like(at)
+        inverse[order] = at
+        at = inverse
+    return ordered[first], at
+
+
 def split_pulses(pulses: Pulses, until: int) -> tuple[Pulses, Pulses]:
     """(pulses before ``until``, the rest)."""
     s, v = pulses
