@@ -89,6 +89,10 @@ def load_case(case: str):
     return load_scenario(ROOT / "scenarios" / f"{case}.toml")
 
 
+def label(case: str) -> str:
+    return f"generated, {case[2:]} units" if case.startswith("n=") else f"{case}.toml"
+
+
 def one(case: str, engine: str, bus: str, log: bool, repeat: int) -> dict:
     """In a child process: the simulation's wall (median of ``repeat``) and the peak RSS."""
     from rgtbus.telemetry import McapRecorder, NullRecorder
@@ -174,7 +178,7 @@ def main() -> None:
             points.append((n, ev["wall"], ev["sim"]))
         ratio = f"{de['wall'] / ev['wall']:.1f}x" if de else "-"
         print(
-            f"| {sc.name} | {n} | {ev['sim']:.1f} | "
+            f"| {label(case)} | {n} | {ev['sim']:.1f} | "
             f"{de['wall'] if de else float('nan'):.2f} | {ev['wall']:.3f} | {ratio} | "
             f"{ev['steps']} | {ev['rss_mb']:.1f} | "
             f"{de['rss_mb'] if de else float('nan'):.1f} |"
@@ -207,7 +211,7 @@ def main() -> None:
                 vs_mem = r["wall"] / walls[("memory", log)]
                 vs_log = r["wall"] / walls[(bus, False)]
                 print(
-                    f"| {load_case(case).name} | {bus} | {'full' if log else 'none'} | "
+                    f"| {label(case)} | {bus} | {'full' if log else 'none'} | "
                     f"{r['wall']:.3f} | {r['log_mb']:.2f} | {vs_mem:.2f}x | {vs_log:.2f}x |"
                 )
     print()
