@@ -276,7 +276,7 @@ class Ears:
         val = np.concatenate([self._val[self._cur :], *(p[1] for _, p in parts)])
         order = np.argsort(rows, kind="stable")
         rows, who, val = rows[order], who[order], val[order]
-        cut = int(np.searchsorted(rows, until))
+        cut = int(rows.searchsorted(until))
         unit_gains = bool(np.all(lst.gains == 1.0))
         at, heard = _heard_by(rows[:cut], who[:cut], val[:cut], lst.gains[None, :], unit_gains)
         heard = heard[:, 0]
@@ -292,7 +292,7 @@ class Ears:
         stops = [*sorted(q for q in quench if lo <= q < until), until]
         for stop in stops:
             while state.n < stop:
-                k0, k1 = np.searchsorted(at, [state.n, stop])
+                k0, k1 = at.searchsorted([state.n, stop])
                 state, res = resonate(model, state, stop, at[k0:k1], heard[k0:k1, None], stop=True)
                 if res.stopped and state.n - 1 >= after:
                     return state.n - 1
@@ -365,7 +365,7 @@ class Ears:
         channel: one call of the core, however many other spikes ring on the way (each unit
         keeps its own until it wakes). Returns the watched spike's sample, if it stopped at one."""
         lo = self.pos
-        cut = self._cur + int(np.searchsorted(self._rows[self._cur :], target))
+        cut = self._cur + int(self._rows[self._cur :].searchsorted(target))
         rows, medium_at = self._medium_rows(slice(self._cur, cut))
         noisy = [n for n, lst in enumerate(self.listeners) if lst.active and lst.noise > 0]
         if noisy:
@@ -397,7 +397,7 @@ class Ears:
         end = lo + res.n
         self.pos = end
         self.steps += 1
-        self._cur += int(np.searchsorted(self._rows[self._cur : cut], end))
+        self._cur += int(self._rows[self._cur : cut].searchsorted(end))
         self.readout.extend(res)
         for n, lst in enumerate(self.listeners):
             if lst.active:
@@ -467,7 +467,7 @@ def _heard_by(
     sender (``gains``: listeners × senders), added in member order."""
     if not pulses.size:
         return pulses, np.zeros((0, gains.shape[0]))
-    if unit_gains and (pulses.size == 1 or bool(np.all(pulses[1:] > pulses[:-1]))):
+    if unit_gains and (pulses.size == 1 or bool((pulses[1:] > pulses[:-1]).all())):
         # one pulse a sample: what everyone hears is that magnitude (0 + v + 0 … is v)
         return pulses, np.repeat(val[:, None], gains.shape[0], axis=1)
     rows, at = sample_rows(pulses)

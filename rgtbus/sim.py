@@ -331,7 +331,7 @@ class World:
         rows = sample_rows(np.concatenate([pulses[u][0] for u in names]))[0]
         x = np.zeros((rows.size, len(names)))
         for j, u in enumerate(names):
-            np.add.at(x[:, j], np.searchsorted(rows, pulses[u][0]), pulses[u][1])
+            np.add.at(x[:, j], rows.searchsorted(pulses[u][0]), pulses[u][1])
         return rows, np.cumsum(x, axis=1)[:, -1]
 
     # -- running ----------------------------------------------------------------------------

@@ -117,7 +117,7 @@ def sample_rows(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct samples in ascending order, and where each of ``samples`` is among them
     (``np.unique(..., return_inverse=True)``, without its cost: pulses come nearly sorted)."""
     s = np.asarray(samples, dtype=np.int64)
-    order = None if s.size < 2 or bool(np.all(s[1:] >= s[:-1])) else np.argsort(s, kind="stable")
+    order = None if s.size < 2 or bool((s[1:] >= s[:-1]).all()) else np.argsort(s, kind="stable")
     ordered = s if order is None else s[order]
     first = np.ones(ordered.size, dtype=bool)
     first[1:] = ordered[1:] != ordered[:-1]
@@ -132,7 +132,7 @@ def sample_rows(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def split_pulses(pulses: Pulses, until: int) -> tuple[Pulses, Pulses]:
     """(pulses before ``until``, the rest)."""
     s, v = pulses
-    k = int(np.searchsorted(s, until))
+    k = int(s.searchsorted(until))
     return (s[:k], v[:k]), (s[k:], v[k:])
 
 

@@ -79,7 +79,7 @@ def _check_pulses(samples: np.ndarray, values: np.ndarray) -> None:
     if samples.size:
         if samples.min() < 0 or samples.max() > NEVER:
             raise RgtbusError("frame sample index out of range 0..2**63-1")
-        if np.any(np.diff(samples) < 0):
+        if (samples[1:] < samples[:-1]).any():
             raise RgtbusError("frame sample indexes are not in order")
         bad = ~np.isfinite(values) | (np.abs(values) > MAX_MAGNITUDE)
         if bad.any():

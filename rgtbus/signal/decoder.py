@@ -90,10 +90,10 @@ class ReadoutHistory:
                 f"readout: samples from {start} appended, expected {self._end} (in order)"
             )
         end = start + n
-        old = int(np.searchsorted(self._rows, end - self.capacity))  # out of the history now
+        old = int(self._rows.searchsorted(end - self.capacity))  # out of the history now
         rows = np.asarray(rows, dtype=np.int64)
         if rows.size:
-            if rows[0] < start or rows[-1] >= end or np.any(rows[1:] <= rows[:-1]):
+            if rows[0] < start or rows[-1] >= end or (rows[1:] <= rows[:-1]).any():
                 raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
             keep = rows >= end - self.capacity
             self._rows = np.concatenate([self._rows[old:], rows[keep]])
@@ -141,7 +141,7 @@ class ReadoutHistory:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
         if not self._rows.size:
             return np.zeros(idx.shape, dtype=np.int64), np.zeros(idx.shape, dtype=bool)
-        pos = np.minimum(np.searchsorted(self._rows, idx), self._rows.size - 1)
+        pos = np.minimum(self._rows.searchsorted(idx), self._rows.size - 1)
         return pos, self._rows[pos] == idx
 
     def _check(self, idx: np.ndarray, span: tuple[int, int] | None) -> None:
@@ -566,7 +566,7 @@ def decode_joint(
     for inst in insts:
         for k in inst:
             col = np.zeros(union.size)
-            col[np.searchsorted(union, k)] += 1.0
+            col[union.searchsorted(k)] += 1.0
             cols.append(col)
     M = np.stack(cols, axis=1)
     c_hat = np.linalg.lstsq(M, d, rcond=None)[0]

@@ -304,7 +304,7 @@ def resonate(
         )  # fmt: skip
         if found:
             end, stopped = int(first), True
-            cut = int(np.searchsorted(rows, end))
+            cut = int(rows.searchsorted(end))
             rows, vals = rows[:cut], vals[:cut]
     n = end - start
     cap = max(64, 4 * L)
@@ -341,7 +341,7 @@ def resonate(
         result.y = np.where(spiked, M.spike_value, ys.reshape(shape))
         result.spiked = spiked
     if readout:
-        has = np.any(vals != 0.0, axis=1)
+        has = (vals != 0.0).any(axis=1)
         result.readout_rows = rows[has]
         result.readout = ds[has].reshape(-1, U, C)
     return new, result
@@ -518,7 +518,7 @@ class ResonatorBank:
             )
         n0 = self.state.n
         if r.size:
-            if r[0] < n0 or r[-1] >= end or (r.size > 1 and np.any(np.diff(r) <= 0)):
+            if r[0] < n0 or r[-1] >= end or (r.size > 1 and bool((r[1:] <= r[:-1]).any())):
                 raise RgtbusError(
                     f"input rows must be sorted, unique and within [{n0}, {end}): got "
                     f"{int(r[0])}..{int(r[-1])}"
