@@ -366,31 +366,38 @@ class Ears:
         keeps its own until it wakes). Returns the watched spike's sample, if it stopped at one."""
         lo = self.pos
         cut = self._cur + int(self._rows[self._cur :].searchsorted(target))
-        rows, medium_at = self._medium_rows(slice(self._cur, cut))
-        noisy = [n for n, lst in enumerate(self.listeners) if lst.active and lst.noise > 0]
-        if noisy:
-            all_rows = np.arange(lo, target, dtype=np.int64)
-            heard = np.zeros((all_rows.size, len(self.listeners)))
-            heard[rows - lo] = medium_at
-            rows = all_rows
-            for n in noisy:
-                heard[:, n] += self.listeners[n].noise_for(lo, target)
-        else:
-            heard = medium_at
+        rows, heard = self._medium_rows(slice(self._cur, cut))
+        C = self.bank.n_channels
+        noisy: list[int] = []
+        done: list[int] = []
+        watched: list[int] = []  # lanes
         for n, lst in enumerate(self.listeners):
             if not lst.active:
-                heard[:, n] = 0.0  # a unit that is done hears nothing more
-        C = self.bank.n_channels
-        watched = np.zeros(self.bank.model.lanes, dtype=bool)
-        for n, lst in enumerate(self.listeners):
-            if lst.active and lst.watch is not None and lst.watch_from <= lo:
-                watched[n * C + lst.watch] = True
+                done.append(n)
+                continue
+            if lst.noise > 0:
+                noisy.append(n)
+            if lst.watch is not None and lst.watch_from <= lo:
+                watched.append(n * C + lst.watch)
+        if noisy:
+            all_rows = np.arange(lo, target, dtype=np.int64)
+            dense = np.zeros((all_rows.size, len(self.listeners)))
+            dense[rows - lo] = heard
+            rows, heard = all_rows, dense
+            for n in noisy:
+                heard[:, n] += self.listeners[n].noise_for(lo, target)
+        if done and heard.size:
+            heard[:, done] = 0.0  # a unit that is done hears nothing more
+        stop_lanes = None
+        if watched:
+            stop_lanes = np.zeros(self.bank.model.lanes, dtype=bool)
+            stop_lanes[watched] = True
         res = self.bank.advance(
             target,
             rows,
             heard,
-            stop=bool(watched.any()),
-            stop_lanes=watched,
+            stop=bool(watched),
+            stop_lanes=stop_lanes,
             readout=True,
             record=self._traced,
         )
@@ -399,11 +406,11 @@ class Ears:
         self.steps += 1
         self._cur += int(self._rows[self._cur : cut].searchsorted(end))
         self.readout.extend(res)
-        for n, lst in enumerate(self.listeners):
-            if lst.active:
-                if lst.noise > 0:
-                    lst.used_noise(end)
-                if lst.trace is not None and res.z is not None and res.y is not None:
+        for n in noisy:
+            self.listeners[n].used_noise(end)
+        if self._traced and res.z is not None and res.y is not None:
+            for n, lst in enumerate(self.listeners):
+                if lst.active and lst.trace is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
         sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
         if len(sp):

@@ -291,12 +291,13 @@ class World:
     def _log_medium(self, pulses: dict[str, Pulses], final_before: int) -> None:
         """Log every window that carries a pulse (silent ones are not logged), once final: the
         sum of every member's samples, added in member order as each unit hears them."""
+        log = self.write_medium and self.recorder.enabled
         for u, p in pulses.items():
             if p[0].size:
                 self._last_pulse = max(self._last_pulse, int(p[0][-1]))
-                if self.write_medium:
+                if log:
                     self._medium.setdefault(u, []).append(p)
-        if not self.write_medium or not self._medium:
+        if not log or not self._medium:
             return
         L = self.window
         cut_at = final_before if final_before >= NEVER else (final_before // L) * L

@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
@@ -190,3 +192,19 @@ def test_decoder_refusals():
     with pytest.raises(RgtbusError, match="sigma"):
         symbol_error_rate(CB.relations, OM[0], -0.1)
     assert superpose([], 3).tolist() == [0, 0, 0]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(0.5, 40.0),
+    st.one_of(st.floats(-0.05, 5.0), st.integers(0, 400_000).map(lambda k: k * 0.005 + 0.5)),
+    st.integers(1, 7),
+    st.sampled_from([0.005, 0.001, 0.0005]),
+    st.integers(0, 4),
+)
+def test_timing_candidates_equal_the_literal_rule(omega, start, pulses, tau, search):
+    from rgtbus.signal.reference import reference_timings
+
+    assert candidate_instants(omega, start, pulses, tau, search) == reference_timings(
+        omega, start, pulses, tau, search
+    )

@@ -101,6 +101,11 @@ STAT_KEYS = (
 )
 
 
+_NO_PULSES: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))  # shared: never written
+_NO_PULSES[0].flags.writeable = False
+_NO_PULSES[1].flags.writeable = False
+
+
 def merge_pulses(parts: Sequence[Pulses]) -> Pulses:
     """Concatenate pulse lists, keeping each sample's magnitudes in arrival order."""
     if not parts:
@@ -269,6 +274,9 @@ class QueueBus:
             )
         out = {}
         for u, m in self._members.items():
+            if not m.pending:
+                out[u] = _NO_PULSES
+                continue
             now, later = split_pulses(merge_pulses(m.pending), until)
             m.pending = [later] if later[0].size else []
             out[u] = now
@@ -282,6 +290,9 @@ class QueueBus:
             self._drain()
         out = {}
         for u, m in self._members.items():
+            if not m.pending:
+                out[u] = _NO_PULSES
+                continue
             merged = merge_pulses(m.pending)
             m.pending = [merged] if merged[0].size else []
             out[u] = split_pulses(merged, until)[0]

@@ -1,12 +1,15 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled loops of the receiver: the resonator walk and the decoder's nearest-word score.
+"""Compiled loops of the receiver: the resonator walk, the decoder's nearest-word score and its
+timing candidates.
 
 The model and its rules are stated in ``rgtbus.signal.resonator`` (docs/model.md); this file
 holds the one place they are computed. Compiled without FMA contraction
 (``-ffp-contract=off``), so every product and sum is rounded as written.
 """
 
-from libc.math cimport INFINITY, rint, sqrt
+import numpy as np
+
+from libc.math cimport INFINITY, ceil, floor, rint, sqrt
 
 
 cdef inline double _round12(double x) noexcept nogil:
@@ -201,3 +204,138 @@ def score(const double[:, ::1] vals, const double[:, ::1] mat, const long[::1] r
     if runner == INFINITY:
         return best_m, best_w, best_d, INFINITY, 0.0
     return best_m, best_w, best_d, runner - best_d, sep
+
+
+def timings(
+    const long[::1] chans, const double[::1] omegas, double start, long pulses, double tau,
+    long search,
+):
+    """Every distinct pulse-instant tuple, per channel, of a code on ω that starts within
+    ± ``search`` samples of ``start`` (see ``rgtbus.signal.decoder._timings``, which states the
+    rule): (channel, shift, instants) rows, channels in the order given, within a channel the
+    nearest shift first (then the earlier); tuples of starts before 0 are left out.
+
+    Instant j of a start t is rint((t + j·T)/τ) (half to even, as Python's round); it changes
+    only where (t + j·T)/τ crosses h + ½, so the tuples are those of ``start`` and of the
+    midpoints between consecutive crossings (and the window's ends)."""
+    cdef Py_ssize_t C = omegas.shape[0], c, j, q, a, b, n_cut, n_probe, n_keep, m = 0, k
+    cdef double t_lo = start - search * tau, t_hi = start + search * tau
+    cdef double period, jt, t, h, h1, tmp
+    cdef long s0 = <long> rint(start / tau), sh
+    cdef bint same
+    # at most 2 + P·(2·search + 3) crossings a channel, one probe more
+    cdef Py_ssize_t cap = 3 + pulses * (2 * search + 4)
+    cuts_np = np.empty(cap, dtype=np.float64)
+    probes_np = np.empty(cap, dtype=np.float64)
+    jts_np = np.empty(pulses, dtype=np.float64)
+    cand_np = np.empty((cap, pulses), dtype=np.int64)
+    key_np = np.empty(cap, dtype=np.int64)
+    owner_np = np.empty(C * cap, dtype=np.int64)
+    shift_np = np.empty(C * cap, dtype=np.int64)
+    inst_np = np.empty((C * cap, pulses), dtype=np.int64)
+    cdef double[::1] cuts = cuts_np, probes = probes_np, jts = jts_np
+    cdef long[:, ::1] cand = cand_np
+    cdef long[::1] key = key_np, owner = owner_np, shift = shift_np
+    cdef long[:, ::1] inst = inst_np
+    cdef long[::1] order = np.empty(cap, dtype=np.int64)
+    for c in range(C):
+        period = 2 * 3.141592653589793 / omegas[c]
+        n_cut = 0
+        cuts[n_cut] = t_lo
+        cuts[n_cut + 1] = t_hi
+        n_cut = 2
+        for j in range(pulses):
+            jt = j * period
+            jts[j] = jt
+            h = floor((t_lo + jt) / tau - 0.5)
+            h1 = ceil((t_hi + jt) / tau - 0.5)
+            while h <= h1:
+                t = (h + 0.5) * tau - jt
+                if t_lo < t and t < t_hi:
+                    cuts[n_cut] = t
+                    n_cut += 1
+                h += 1.0
+        _sort(cuts, n_cut)
+        probes[0] = start
+        n_probe = 1
+        for a in range(n_cut - 1):
+            probes[n_probe] = (cuts[a] + cuts[a + 1]) / 2
+            n_probe += 1
+        _sort(probes, n_probe)
+        n_keep = 0
+        for q in range(n_probe):
+            t = probes[q]
+            if t < 0:
+                continue
+            for j in range(pulses):
+                cand[n_keep, j] = <long> rint((t + jts[j]) / tau)
+            if n_keep:  # instants grow with t: equal tuples are adjacent
+                same = True
+                for j in range(pulses):
+                    if cand[n_keep, j] != cand[n_keep - 1, j]:
+                        same = False
+                        break
+                if same:
+                    continue
+            n_keep += 1
+        # nearest shift first, then the earlier: a stable insertion sort on (|shift|, shift)
+        for q in range(n_keep):
+            sh = cand[q, 0] - s0
+            key[q] = (sh if sh >= 0 else -sh) * 2 + (1 if sh > 0 else 0)
+            order[q] = q
+        for a in range(1, n_keep):
+            b = a
+            while b > 0 and key[order[b - 1]] > key[order[b]]:
+                order[b - 1], order[b] = order[b], order[b - 1]
+                b -= 1
+        for a in range(n_keep):
+            q = order[a]
+            owner[m] = chans[c]
+            shift[m] = cand[q, 0] - s0
+            for j in range(pulses):
+                inst[m, j] = cand[q, j]
+            m += 1
+    return owner_np[:m].copy(), shift_np[:m].copy(), inst_np[:m].copy()
+
+
+cdef void _sort(double[::1] a, Py_ssize_t n) noexcept nogil:
+    """Ascending insertion sort of a[:n] (a few dozen values)."""
+    cdef Py_ssize_t i, j
+    cdef double v
+    for i in range(1, n):
+        v = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
+
+
+def read_rows(
+    const long[::1] rows, const double[:, :, ::1] vals, const long[:, ::1] idx,
+    const long[::1] chans,
+):
+    """The readout at samples ``idx`` (M, N) on channel ``chans[m]`` for row m, for every
+    receiver: (receivers, M, N). ``rows`` (ascending) are the samples kept, ``vals`` (rows,
+    receivers, channels) their readout; any other sample reads 0."""
+    cdef Py_ssize_t K = rows.shape[0], R = vals.shape[1], M = idx.shape[0], N = idx.shape[1]
+    cdef Py_ssize_t m, n, r, lo, hi, mid
+    cdef long s
+    out_np = np.zeros((R, M, N), dtype=np.float64)
+    cdef double[:, :, ::1] out = out_np
+    with nogil:
+        for m in range(M):
+            for n in range(N):
+                s = idx[m, n]
+                lo = 0
+                hi = K
+                while lo < hi:  # the first kept row at or after s
+                    mid = (lo + hi) // 2
+                    if rows[mid] < s:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                if lo < K and rows[lo] == s:
+                    for r in range(R):
+                        out[r, m, n] = vals[lo, r, chans[m]]
+    return out_np

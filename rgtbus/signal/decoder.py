@@ -29,12 +29,11 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal._walk import score
+from rgtbus.signal._walk import read_rows, score, timings
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
 
@@ -90,6 +89,9 @@ class ReadoutHistory:
                 f"readout: samples from {start} appended, expected {self._end} (in order)"
             )
         end = start + n
+        if not len(rows) and (not self._rows.size or self._rows[0] >= end - self.capacity):
+            self._end = end  # silence, and nothing fell out of the history
+            return
         old = int(self._rows.searchsorted(end - self.capacity))  # out of the history now
         rows = np.asarray(rows, dtype=np.int64)
         if rows.size:
@@ -121,21 +123,16 @@ class ReadoutHistory:
     def gather(
         self,
         indices: np.ndarray,
-        channels: np.ndarray | int,
+        channels: np.ndarray,
         span: tuple[int, int] | None = None,
     ) -> np.ndarray:
-        """d at ``indices`` (any shape S) of ``channels`` (broadcast against them) for every
-        receiver at once: (receivers, *S), C-contiguous."""
-        idx = np.asarray(indices, dtype=np.int64)
+        """d at ``indices`` (M, N), row m on channel ``channels[m]``, for every receiver at
+        once: (receivers, M, N)."""
+        idx = np.ascontiguousarray(indices, dtype=np.int64)
         self._check(idx, span)
-        pos, hit = self._find(idx)
-        out = np.zeros((self.receivers, *idx.shape))
-        at = np.nonzero(hit)  # few: most candidate instants of a code fall on silence
-        if at[0].size:
-            ch = np.broadcast_to(np.asarray(channels), idx.shape)[at]
-            where: tuple[Any, ...] = (slice(None), *at)
-            out[where] = self._vals[pos[at], :, ch].T
-        return out
+        return read_rows(
+            self._rows, self._vals, idx, np.ascontiguousarray(channels, dtype=np.int64)
+        )
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
@@ -223,7 +220,7 @@ def decode_among_each(
             )
         chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
         hi = int(inst[:, -1].max())
-    every = history.gather(inst, chans[:, None], span=(lo, hi))  # (R, M, N)
+    every = history.gather(inst, chans, span=(lo, hi))  # (R, M, N)
     order = _ORDER[: mat.shape[0]]
     out: list[tuple[Decision, int]] = []
     seen: dict[bytes, tuple[Decision, int]] = {}
@@ -252,8 +249,8 @@ def nearest_each(
 ) -> list[Decision]:
     """``nearest`` of the values at ``samples`` on ``channel``, for every receiver of
     ``history`` at once (each distinct set of values scored once), in receiver order."""
-    idx = np.asarray(samples, dtype=np.int64)
-    every = history.gather(idx, channel)  # (R, N)
+    idx = np.asarray(samples, dtype=np.int64).reshape(1, -1)
+    every = history.gather(idx, np.array([channel]))[:, 0]  # (R, N)
     out: list[Decision] = []
     seen: dict[bytes, Decision] = {}
     for vals in every:
@@ -301,33 +298,17 @@ def _timings(
 
     Instant j of a start t is round((t + j·T)/τ) (the rule of ``pulse_samples``); it changes
     only where (t + j·T)/τ crosses h + ½. So the distinct tuples are those of ``start`` and of
-    the midpoints between consecutive crossings (and the window's ends): computed for every
-    channel at once; tuples of starts before 0 are left out."""
-    C = len(omegas)
-    period = 2 * np.pi / np.asarray(omegas, dtype=float)  # (C,)
-    jts = np.arange(pulses)[None, :] * period[:, None]  # (C, P): j·T
-    t_lo, t_hi = start - search * tau, start + search * tau
-    h0 = np.floor((t_lo + jts) / tau - 0.5)
-    h1 = np.ceil((t_hi + jts) / tau - 0.5)
-    hs = h0[:, :, None] + np.arange(int((h1 - h0).max()) + 1)  # (C, P, H)
-    t = (hs + 0.5) * tau - jts[:, :, None]
-    inside = (hs <= h1[:, :, None]) & (t_lo < t) & (t < t_hi)
-    cuts = np.where(inside, t, np.inf).reshape(C, -1)
-    cuts = np.sort(np.concatenate([np.full((C, 2), (t_lo, t_hi)), cuts], axis=1), axis=1)
-    mids = (cuts[:, :-1] + cuts[:, 1:]) / 2  # inf where a cut is missing
-    probes = np.sort(np.concatenate([np.full((C, 1), start), mids], axis=1), axis=1)
-    usable = np.isfinite(probes) & (probes >= 0)
-    safe = np.where(usable, probes, 0.0)
-    inst = np.round((safe[:, :, None] + jts[:, None, :]) / tau).astype(np.int64)  # (C, Q, P)
-    # instants grow with t: equal tuples are adjacent among the usable probes (a block)
-    new = usable.copy()
-    new[:, 1:] &= ~(usable[:, :-1] & np.all(inst[:, 1:] == inst[:, :-1], axis=2))
-    shift = inst[:, :, 0] - round(start / tau)
-    c, q = np.nonzero(new)  # channel by channel, probes in order
-    sh = shift[c, q]
-    order = np.lexsort((sh, np.abs(sh), c))  # stable: the earlier probe first on ties
-    c, q = c[order], q[order]
-    return np.asarray(chans, dtype=np.int64)[c], sh[order], inst[c, q]
+    the midpoints between consecutive crossings (and the window's ends); tuples of starts
+    before 0 are left out. Compiled (``_walk.timings``); ``reference.reference_timings``
+    states it literally."""
+    return timings(
+        np.asarray(chans, dtype=np.int64),
+        np.asarray(omegas, dtype=np.float64),
+        float(start),
+        int(pulses),
+        float(tau),
+        int(search),
+    )
 
 
 def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:

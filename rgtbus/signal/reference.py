@@ -1,5 +1,6 @@
-"""The resonator model stated literally, one sample at a time: the oracle for tests and the
-baseline for benchmarks (no run uses it; runs use ``resonator.resonate``).
+"""The resonator model stated literally, one sample at a time, and the decoder's timing
+candidates stated literally: the oracles for tests and the baselines for benchmarks (no run
+uses them; runs use ``resonator.resonate`` and the compiled ``timings``).
 
 For each resonator (A the one-sample transition of its ω and mode, see ``transition``)::
 
@@ -11,6 +12,8 @@ For each resonator (A the one-sample transition of its ω and mode, see ``transi
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -85,4 +88,36 @@ def simulate_python(
             if pend:
                 hits.append(k)
         out.append(hits)
+    return out
+
+
+def reference_timings(
+    omega: float, start: float, pulses: int, tau: float, search: int
+) -> list[tuple[int, tuple[int, ...]]]:
+    """Every distinct pulse-instant tuple of a code on ω starting within ± ``search`` samples
+    of ``start``, as (shift, instants), nearest shift first (then the earlier): instant j of a
+    start t is ``round((t + j·T)/τ)``, which changes only where (t + j·T)/τ crosses h + ½, so
+    the tuples are those of ``start`` and of the midpoints between consecutive crossings."""
+    period = 2 * math.pi / omega
+    jts = [j * period for j in range(pulses)]
+    t_lo, t_hi = start - search * tau, start + search * tau
+    cuts = [t_lo, t_hi]
+    for jt in jts:
+        for h in range(math.floor((t_lo + jt) / tau - 0.5), math.ceil((t_hi + jt) / tau - 0.5) + 1):
+            t = (h + 0.5) * tau - jt
+            if t_lo < t < t_hi:
+                cuts.append(t)
+    cuts.sort()
+    probes = sorted([start, *((a + b) / 2 for a, b in itertools.pairwise(cuts))])
+    s0 = round(start / tau)
+    out: list[tuple[int, tuple[int, ...]]] = []
+    prev: tuple[int, ...] | None = None
+    for t in probes:
+        if t < 0:
+            continue
+        inst = tuple(round((t + jt) / tau) for jt in jts)
+        if inst != prev:
+            out.append((inst[0] - s0, inst))
+            prev = inst
+    out.sort(key=lambda p: (abs(p[0]), p[0]))
     return out

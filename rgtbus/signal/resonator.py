@@ -340,7 +340,10 @@ def resonate(
         spiked = mask.view(np.bool_).reshape(shape)
         result.y = np.where(spiked, M.spike_value, ys.reshape(shape))
         result.spiked = spiked
-    if readout:
+    if readout and not rows.size:  # silence: nothing to read out
+        result.readout_rows = rows
+        result.readout = ds.reshape(0, U, C)
+    elif readout:
         has = (vals != 0.0).any(axis=1)
         result.readout_rows = rows[has]
         result.readout = ds[has].reshape(-1, U, C)
