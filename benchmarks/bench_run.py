@@ -1,14 +1,16 @@
 """The protocol simulation: the event engine against the time-stepped reference, in one run.
 
-    python -m benchmarks.bench_run [--sizes 4,6,8,10,12,14] [--repeat 3] [--quick]
+    python -m benchmarks.bench_run [--sizes 4,6,8,10,12,14] [--repeat 5] [--pairs 3] [--quick]
 
 Every run is a fresh process, so no cache of one run helps another: the gate and group6
 (scenario files) and generated groups of n units (serial schedule, codes of the fewest pulses,
 at least 4, that fit n channels in an octave, automatic plan), on both engines over the memory
-bus without a log. Reported per case: simulated seconds, wall seconds of the simulation (the
-event engine: median of --repeat processes; the reference: one), their ratio, the process's
-peak RSS, and the world's steps. Then the slope of log wall
-over log n (the event engine, n = 4…14), and the costs of zenoh and of the full MCAP log.
+bus without a log. The machine's speed drifts, so figures are taken as drift cannot bias them:
+the event engine in --repeat rounds, each running every case once (median per case); the
+ratio to the reference pair by pair, an event and a reference run in turn (median of --pairs).
+Reported per case: simulated seconds, wall seconds of the simulation, their ratio, peak RSS
+and the world's steps; then the slope of log wall over log n (the event engine, n = 4…14),
+and the costs of zenoh and of the full MCAP log.
 
 Goals (issue 9): group10 at least 30x faster than ``--engine dense``; the gate's simulation
 under 0.1 s; the exponent of wall time over n = 4…14 at most 2.5; n = 10 under 60 MB peak RSS.
@@ -89,6 +91,13 @@ def load_case(case: str):
     return load_scenario(ROOT / "scenarios" / f"{case}.toml")
 
 
+def _median(runs: list[dict]) -> dict:
+    out = dict(runs[0])
+    for key in ("wall", "rss_mb"):
+        out[key] = statistics.median(r[key] for r in runs)
+    return out
+
+
 def label(case: str) -> str:
     return f"generated, {case[2:]} units" if case.startswith("n=") else f"{case}.toml"
 
@@ -135,18 +144,16 @@ def measure(case: str, engine: str, bus: str = "memory", log: bool = False, repe
         if r["error"]:
             raise SystemExit(f"{case} {engine}: the run failed: {r['error']}")
         runs.append(r)
-    out = dict(runs[0])
-    for key in ("wall", "rss_mb"):
-        out[key] = statistics.median(r[key] for r in runs)
-    return out
+    return _median(runs)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="4,6,8,10,12,14", help="generated group sizes")
     ap.add_argument(
-        "--repeat", type=int, default=3, help="event-engine runs a case, each a fresh process"
+        "--repeat", type=int, default=5, help="event-engine runs a case, each a fresh process"
     )
+    ap.add_argument("--pairs", type=int, default=3, help="event/reference pairs a case, n <= 10")
     ap.add_argument("--quick", action="store_true", help="sizes 4,6,8; the reference to n = 6")
     ap.add_argument("--one", nargs=3, metavar=("CASE", "ENGINE", "BUS"), help=argparse.SUPPRESS)
     ap.add_argument("--log", action="store_true", help=argparse.SUPPRESS)
@@ -159,6 +166,14 @@ def main() -> None:
     sizes = [4, 6, 8] if args.quick else [int(x) for x in args.sizes.split(",")]
     dense_upto = 6 if args.quick else max(sizes)
 
+    cases = ["gate", "group6", *(f"n={n}" for n in sizes)]
+    # The machine's speed drifts: every round runs every case once, so drift hits all sizes
+    # alike, and each case's figure is the median over the rounds.
+    runs: dict[str, list[dict]] = {c: [] for c in cases}
+    for _ in range(args.repeat):
+        for case in cases:
+            runs[case].append(measure(case, "event"))
+    event = {c: _median(rs) for c, rs in runs.items()}
     print("## Event engine vs the time-stepped reference (memory bus, no log, fresh processes)")
     print()
     print(
@@ -167,16 +182,25 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|")
     points = []
-    for case in ["gate", "group6", *(f"n={n}" for n in sizes)]:
-        sc = load_case(case)
-        n = len(sc.units)
-        ev = measure(case, "event", repeat=args.repeat)
-        de = measure(case, "dense") if n <= dense_upto else None
-        if ev["sim"] != (de or ev)["sim"]:
-            raise SystemExit(f"{case}: the engines disagree ({ev['sim']} vs {de['sim']} s)")
+    for case in cases:
+        n = len(load_case(case).units)
+        ev = event[case]
+        ratio, de = "-", None
+        if n <= dense_upto:
+            # the reference and the event engine in turn; the ratio taken pair by pair
+            pairs = args.pairs if n <= 10 else 1
+            ratios, dense_runs = [], []
+            for _ in range(pairs):
+                e1 = measure(case, "event")
+                d1 = measure(case, "dense")
+                if d1["sim"] != e1["sim"]:
+                    raise SystemExit(f"{case}: the engines disagree ({e1['sim']} vs {d1['sim']} s)")
+                ratios.append(d1["wall"] / e1["wall"])
+                dense_runs.append(d1)
+            de = _median(dense_runs)
+            ratio = f"{statistics.median(ratios):.1f}x"
         if case.startswith("n="):
             points.append((n, ev["wall"], ev["sim"]))
-        ratio = f"{de['wall'] / ev['wall']:.1f}x" if de else "-"
         print(
             f"| {label(case)} | {n} | {ev['sim']:.1f} | "
             f"{de['wall'] if de else float('nan'):.2f} | {ev['wall']:.3f} | {ratio} | "
@@ -186,7 +210,6 @@ def main() -> None:
     if len(points) >= 2:
         x = np.log([p[0] for p in points])
         y = np.log([p[1] for p in points])
-        del sc
         slope = float(np.polyfit(x, y, 1)[0])
         span = f"{points[0][0]}…{points[-1][0]}"
         sims = np.log([s for _, _, s in points])
@@ -196,6 +219,12 @@ def main() -> None:
             f"(least squares, log wall on log n; simulated time grows as n^"
             f"{float(np.polyfit(x, sims, 1)[0]):.2f})"
         )
+    print()
+    print(
+        f"Event wall: median of {args.repeat} rounds, each running every case once. "
+        f"dense / event: the median of {args.pairs} pairs (one beyond 10 units), each an event "
+        "and a reference run in turn; dense wall: their median."
+    )
 
     print()
     print("## The costs of zenoh and of the full MCAP log (event engine, fresh processes)")
@@ -215,7 +244,7 @@ def main() -> None:
                     f"{r['wall']:.3f} | {r['log_mb']:.2f} | {vs_mem:.2f}x | {vs_log:.2f}x |"
                 )
     print()
-    print(f"Event engine: medians of {args.repeat} runs; the reference: one run (nan: not run).")
+    print(f"Medians of {args.repeat} runs a configuration, each a fresh process.")
 
 
 if __name__ == "__main__":

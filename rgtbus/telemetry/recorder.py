@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, cast, runtime_checkable
 
 import mcap.exceptions
+import orjson
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
@@ -90,8 +91,18 @@ def log_message(
     }
 
 
-# One encoder for every message: compact, NaN and infinity refused (JSON has neither).
+# The standard encoder refuses NaN and infinity (JSON has neither); orjson writes them as null.
 _JSON = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_default)
+_ORJSON = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
+
+
+def encode_json(message: Any) -> bytes:
+    """A message as compact JSON (numpy values as numbers and lists); TypeError for what JSON
+    cannot hold, ValueError for NaN or infinity."""
+    data = orjson.dumps(message, default=_default, option=_ORJSON)
+    if b"null" in data:  # a None, or a NaN or infinity written as null: let json tell
+        _JSON.encode(message)
+    return data
 
 
 class _Encoding:
@@ -112,7 +123,7 @@ class _Encoding:
         if not isinstance(message, dict):
             raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
         try:
-            data = _JSON.encode(message)
+            data = encode_json(message)
         except (TypeError, ValueError) as e:
             raise RgtbusError(f"message on {topic} at t_ns={t} is not JSON: {e}") from None
         if self.validate:
@@ -121,7 +132,7 @@ class _Encoding:
                 more = f" (+{len(errs) - 1} more)" if len(errs) > 1 else ""
                 raise RgtbusError(f"message on {topic} breaks {schema}: {errs[0]}{more}")
         self.counts[topic] += 1
-        return schema, data.encode(), t
+        return schema, data, t
 
     @staticmethod
     def _check_metadata(name: str, values: dict[str, str]) -> dict[str, str]:
