@@ -43,7 +43,7 @@ from rgtbus.signal.decoder import (
     decode_among_each,
     nearest_each,
 )
-from rgtbus.signal.resonator import BankState, ResonatorBank, resonate
+from rgtbus.signal.resonator import BankModel, BankState, ResonatorBank, resonate
 
 TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
 
@@ -133,6 +133,8 @@ class Ears:
         self.quiet = env.event()  # every unit is done listening
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
+        self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
+        self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
         self.steps = 0  # bank advances so far
@@ -277,8 +279,9 @@ class Ears:
         order = np.argsort(rows, kind="stable")
         rows, who, val = rows[order], who[order], val[order]
         cut = int(rows.searchsorted(until))
-        unit_gains = bool(np.all(lst.gains == 1.0))
-        at, heard = _heard_by(rows[:cut], who[:cut], val[:cut], lst.gains[None, :], unit_gains)
+        at, heard = _heard_by(
+            rows[:cut], who[:cut], val[:cut], lst.gains[None, :], self._unit_gain[i]
+        )
         heard = heard[:, 0]
         if lst.noise > 0:
             dense = lst.noise_for(lo, until).copy()
@@ -288,7 +291,10 @@ class Ears:
         lane = i * self.bank.n_channels + channel
         st = self.bank.state
         state = BankState(st.wr[[lane]], st.wi[[lane]], st.pend[[lane]], lo)
-        model = self.bank.model.pick(np.array([channel]), np.array([0]), 1)
+        model = self._lane_models.get(channel)
+        if model is None:
+            model = self.bank.model.pick(np.array([channel]), np.array([0]), 1)
+            self._lane_models[channel] = model
         stops = [*sorted(q for q in quench if lo <= q < until), until]
         for stop in stops:
             while state.n < stop:
