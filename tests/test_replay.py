@@ -159,14 +159,30 @@ def _tamper_delete_decode(msgs):
     return msgs[:i] + msgs[i + 1 :]
 
 
+def _tamper_pulse_time(msgs):
+    i = next(i for i, (tp, _, _) in enumerate(msgs) if tp == "/tx/pulse")
+    tp, t, m = msgs[i]
+    return [*msgs[:i], (tp, t + 1_000_000, m), *msgs[i + 1 :]]
+
+
+def _tamper_flag(msgs):
+    for tp, _, m in msgs:
+        if tp == "/rx/decode" and m["accepted"] is True:
+            m["accepted"] = 1  # equal in Python, not in a log
+            return msgs
+    raise AssertionError("no accepted decode to tamper with")
+
+
 @pytest.mark.parametrize(
     "edit, topic, field",
     [
         (_tamper_choice, "/unit/decision", "choice"),
         (_tamper_sample, "/medium", "samples["),
         (_tamper_delete_decode, "/rx/decode", "from"),
+        (_tamper_pulse_time, "/tx/pulse", "log_time"),
+        (_tamper_flag, "/rx/decode", "accepted"),
     ],
-    ids=["decision-choice", "medium-sample", "deleted-decode"],
+    ids=["decision-choice", "medium-sample", "deleted-decode", "pulse-time", "true-as-1"],
 )
 def test_tampering_is_caught(tmp_path, capsys, edit, topic, field):
     path = write(tmp_path, rewrite(log_bytes(), edit))

@@ -292,7 +292,7 @@ class MemoryRecorder(_Encoding):
 
     def write(self, topic: str, message: dict, t_ns: int) -> None:
         _, data, t = self._encode(topic, message, t_ns)
-        decoded = json.loads(data)
+        decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
         if topic == LOG_TOPIC:
             self.logs.append(decoded)
@@ -620,7 +620,7 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
             messages.append((topics[cid], t, bytes(data)))
             continue
         try:
-            messages.append((topics[cid], t, json.loads(data)))
+            messages.append((topics[cid], t, orjson.loads(data)))
         except ValueError as e:
             raise RgtbusError(
                 f"{label}: message on {topics[cid]} at {t} ns is not JSON: {e}"

@@ -24,10 +24,17 @@ from dataclasses import asdict, dataclass
 from typing import IO, Any
 
 import numpy as np
+import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
-from rgtbus.telemetry.recorder import LogContents, decode_log, require_run_log, scan_log
+from rgtbus.telemetry.recorder import (
+    LogContents,
+    decode_log,
+    encode_json,
+    require_run_log,
+    scan_log,
+)
 
 NS = 1_000_000_000
 
@@ -515,7 +522,7 @@ class Replay:
         if not msgs:
             return {"t": np.zeros(0), "y": np.zeros((0, 0)), "channels": []}
         ts, ys = [], []
-        msgs = [json.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
+        msgs = [orjson.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
         for m in msgs:
             y = np.asarray(m["y"], dtype=float)  # channels × samples
             k = y.shape[1]
@@ -544,7 +551,7 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
 
 def _json(value: Any) -> Any:
     """What the value becomes in a log: the JSON round trip (tuples -> lists, numpy -> plain)."""
-    return json.loads(json.dumps(value, default=lambda o: o.tolist()))
+    return orjson.loads(encode_json(value))
 
 
 def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str, Any, Any]]:
@@ -568,7 +575,7 @@ def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str
 def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
     """Equal as the recorder would write them: JSON floats round-trip exactly, so comparing the
     numbers equals comparing the bytes, at half the cost of encoding the re-run's traces."""
-    m = json.loads(logged) if isinstance(logged, bytes | bytearray) else logged
+    m = orjson.loads(logged) if isinstance(logged, bytes | bytearray) else logged
     if set(m) != set(recomputed):
         return False
     for key, value in recomputed.items():
@@ -647,22 +654,26 @@ def diff_messages(
     """
     unitset = set(units)
 
-    def keyed(msgs: Iterable[tuple[str, int, dict]], norm: bool) -> dict[str, dict[tuple, list]]:
+    traced: dict[str, bool] = {}
+
+    def keyed(msgs: Iterable[tuple[str, int, dict]]) -> dict[str, dict[tuple, list]]:
         out: dict[str, dict[tuple, list]] = defaultdict(lambda: defaultdict(list))
         for topic, t, m in msgs:
             if until_ns is not None and t >= until_ns:
                 continue
-            if _is_trace(topic):  # logged traces may be undecoded bytes: key by time
+            trace = traced.get(topic)
+            if trace is None:
+                trace = traced[topic] = _is_trace(topic)
+            if trace:  # logged traces may be undecoded bytes: key by time
                 out[topic][(t,)].append((t, m))
             elif topic in _KEYS:
                 if topic == "/log" and m.get("name") not in unitset:
                     continue  # not a unit's line
-                m = _json(m) if norm else m
-                out[topic][_KEYS[topic](t, m)].append((t, m))
+                out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
         return out
 
-    a = keyed(logged, norm=False)
-    b = keyed(recomputed, norm=True)
+    a = keyed(logged)
+    b = keyed(recomputed)
     mismatches: list[Mismatch] = []
     checked: Counter[str] = Counter()
     for topic in sorted(set(a) | set(b)):
@@ -678,7 +689,7 @@ def diff_messages(
                     continue
                 t_ns, m = x if x is not None else y  # type: ignore[misc]
                 if isinstance(m, bytes | bytearray):
-                    m = json.loads(m)
+                    m = orjson.loads(m)
                 unit = m.get("unit", m.get("name"))
                 what = _key_text(topic, key)
                 if x is None:
@@ -693,7 +704,11 @@ def diff_messages(
                 if _is_trace(topic):
                     diffs = _trace_diff(m, y[1])
                 else:
-                    diffs = _field_diffs(x[1], y[1])
+                    # the re-run's message as the recorder would log it; the same JSON is the
+                    # same message (== alone would take true for 1)
+                    mine = encode_json(y[1])
+                    same = encode_json(x[1]) == mine
+                    diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
                     if x[0] != y[0]:
                         diffs.append(("log_time", x[0], y[0]))
                 for path, lv, rv in diffs:
