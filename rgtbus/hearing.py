@@ -67,6 +67,7 @@ class Listener:
     rng: np.random.Generator
     keep: int  # samples of readout history the unit decodes from
     trace: TraceSink | None = None
+    every_spike: bool = True  # told every spike (else only the watched one it wakes for)
     active: bool = True
     request: tuple[int, int, simpy.Event] | None = None  # (boundary, at, event)
     watch: int | None = None  # the channel whose spike could change this unit's plans
@@ -134,6 +135,7 @@ class Ears:
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
+        self._every_spike = any(lst.every_spike for lst in self.listeners)
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
@@ -339,7 +341,7 @@ class Ears:
                     for lst in self.listeners:
                         if lst.active and lst.heard and lst.heard[-1][0] == k:
                             chans = lst.heard[-1][1]
-                            if lst.watch in chans:
+                            if lst.watch in chans and k >= lst.watch_from:
                                 self._wake(lst, reached=False)
                 continue
             due = sorted(
@@ -419,15 +421,25 @@ class Ears:
                 if lst.active and lst.trace is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
         sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
-        if len(sp):
+        if len(sp) and not self._every_spike:  # nobody logs: only the watched spike matters
+            if res.stopped:
+                for k, n, ch in sp[sp[:, 0] == end - 1].tolist():
+                    lst = self.listeners[n]
+                    if lst.active and ch == lst.watch and k >= lst.watch_from:
+                        lst.heard.append((k, (ch,)))
+        elif len(sp):
             at, who = sp[:, 0], sp[:, 1]
             new = (at[1:] != at[:-1]) | (who[1:] != who[:-1])
             cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(sp)]
             ks, ns, cs = at.tolist(), who.tolist(), sp[:, 2].tolist()
             for a, b in itertools.pairwise(cuts):
                 lst = self.listeners[ns[a]]
-                if lst.active:
+                if not lst.active:
+                    continue
+                if lst.every_spike:
                     lst.heard.append((ks[a], tuple(cs[a:b])))
+                elif res.stopped and ks[a] == end - 1 >= lst.watch_from and lst.watch in cs[a:b]:
+                    lst.heard.append((ks[a], (lst.watch,)))
         return end - 1 if res.stopped else None
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:

@@ -114,6 +114,23 @@ class Actions:
 
 
 NEVER = 2**63 - 1  # "no such sample": a promise of silence for the rest of the run
+
+
+@functools.lru_cache(maxsize=512)  # every unit chains the same turns from the same spike
+def _chain_steps(
+    k: int, tails: tuple[float, ...], tau: float, delay: float, guard: float
+) -> tuple[tuple[int, int], ...]:
+    """Turn after turn from an ID spike at sample k, each reacting as early as it can: per
+    turn (its payload's first pulse, the next turn's first ID pulse), the next turn starting
+    ``guard`` after the payload's last pulse (``tails``: each turn's (N − 1)·T)."""
+    out = []
+    for tail in tails:
+        payload_start = k * tau + delay
+        k = round((payload_start + tail + guard) / tau)
+        out.append((round(payload_start / tau), k))
+    return tuple(out)
+
+
 NOTHING = Actions()  # what a spike the protocol ignores asks for (shared: never changed)
 
 
@@ -148,6 +165,8 @@ class ProtocolState:
             s: max((self.period(u) for u in o), default=0.0) for s, o in self._others.items()
         }
         self._own_turns = [t.index for t in self.schedule if t.sender == self.me]
+        # each turn's payload length, (N − 1)·T of its addressee (the chain of reactions)
+        self._tails = tuple((self.pulses - 1) * self.period(t.addressee) for t in self.schedule)
         self.turn_start = self.start
         self.turn_starts = [self.start]  # every turn's start known so far
         self._ids_key: tuple[int, float] | None = None
@@ -321,17 +340,14 @@ class ProtocolState:
         return self._bound
 
     def _chain(self, i: int, k: int, mine: int) -> int:
-        tau, delay, guard, tail = self.tau, self.reaction_delay, self.guard, self.pulses - 1
-        for _ in range(8):  # stopping early only loosens the bound, and 8 turns is far enough
-            t = self.schedule[i]
-            payload_start = k * tau + delay
-            if i == mine:
-                return round(payload_start / tau)  # the payload's first pulse
-            k = round((payload_start + tail * self.period(t.addressee) + guard) / tau)
-            if i + 1 == mine:
-                return k  # the next turn's ID, first pulse
-            i += 1
-        return k
+        # stopping early only loosens the bound, and 8 turns is far enough
+        steps = _chain_steps(k, self._tails[i : i + 8], self.tau, self.reaction_delay, self.guard)
+        for j, (payload, next_id) in enumerate(steps):
+            if i + j == mine:
+                return payload  # the payload's first pulse
+            if i + j + 1 == mine:
+                return next_id  # the next turn's ID, first pulse
+        return steps[-1][1]
 
     def check_deadline(self, received_upto: int) -> str | None:
         """An error text when the current ID's spike is overdue (the chain cannot go on)."""

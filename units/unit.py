@@ -132,6 +132,7 @@ class AutonomousUnit:
             rng=default_rng([sc.seed, self.units.index(self.name), 1]),
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
+            every_spike=self.recorder.enabled,  # only a log needs more than the awaited one
         )
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
@@ -183,7 +184,7 @@ class AutonomousUnit:
                 if self.recorder.enabled:  # nothing to build for a run without a log
                     self._log_spikes(k, channels)
                 # the protocol hears the spike it awaits (any other asks nothing of it)
-                if aw is not None and aw[0] in channels:
+                if aw is not None and aw[0] in channels and k >= aw[1]:
                     self._apply(self.protocol.on_spike(self.units[aw[0]], k))
                     aw = self.awaited()
             # every timer whose samples have all been heard is due (its time, the boundary's
