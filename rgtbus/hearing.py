@@ -43,7 +43,13 @@ from rgtbus.signal.decoder import (
     decode_among_each,
     nearest_each,
 )
-from rgtbus.signal.resonator import BankModel, BankState, ResonatorBank, resonate
+from rgtbus.signal.resonator import (
+    BankModel,
+    BankState,
+    ResonatorBank,
+    first_spike,
+    resonate,
+)
 
 TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
 
@@ -199,25 +205,22 @@ class Ears:
         return self.readout.of(i)
 
     def decode_among(
-        self,
-        i: int,
-        channels: tuple[tuple[int, float], ...],
-        start: float,
-        words: WordSet,
-        search: int,
+        self, i: int, channels: tuple[int, ...], start: float, words: WordSet, search: int
     ) -> tuple[Decision, int]:
-        """Unit ``i``'s ``decode_among`` on its own readout (see ``decode_among_each``)."""
-        key = ("among", channels, start, words, search)
+        """Unit ``i``'s ``decode_among`` over these channel indexes, on its own readout (see
+        ``decode_among_each``)."""
+        key = (channels, start, words, search)
         got = self._decoded(key)
         if got is None:
+            pairs = tuple((c, float(self.bank.omegas[c])) for c in channels)
             got = self._decodes[key] = decode_among_each(
-                self.readout, channels, start, words, tau=self.tau, search=search
+                self.readout, pairs, start, words, tau=self.tau, search=search
             )
         return got[i]
 
     def read_code(self, i: int, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
         """Unit ``i``'s nearest word to its readout at ``samples`` on ``channel``."""
-        key = ("nearest", samples, channel, words)
+        key = (samples, channel, words)  # never equal to a decode_among key (4 items)
         got = self._decoded(key)
         if got is None:
             got = self._decodes[key] = nearest_each(self.readout, samples, channel, words)
@@ -301,9 +304,14 @@ class Ears:
         for stop in stops:
             while state.n < stop:
                 k0, k1 = at.searchsorted([state.n, stop])
-                state, res = resonate(model, state, stop, at[k0:k1], heard[k0:k1, None], stop=True)
-                if res.stopped and state.n - 1 >= after:
-                    return state.n - 1
+                k = first_spike(model, state, stop, at[k0:k1], heard[k0:k1, None])
+                if k is None:
+                    break  # silent to the stop: nothing to carry over a quench
+                if k >= after:
+                    return k
+                # too early to react to: walk past it and look on
+                k1 = int(at.searchsorted(k + 1))
+                state, _ = resonate(model, state, k + 1, at[k0:k1], heard[k0:k1, None])
             if stop < until:
                 state = BankState.rest(1, stop)
         return None

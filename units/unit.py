@@ -76,9 +76,9 @@ class AutonomousUnit:
         self.cb = sc.codebook
         self._id_words = WordSet.of(self.cb.distinct_words())
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
-        self._channels = [(i, w) for i, w in enumerate(self.omegas)]
         self._index = {u: i for i, u in enumerate(self.units)}
-        self._channel_sets: dict[tuple[str, ...], tuple[tuple[int, float], ...]] = {}
+        self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
+        self._alternatives: dict[str, int] = {}  # decoded names, parsed once
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
         self.protocol = ProtocolState(
@@ -352,7 +352,7 @@ class AutonomousUnit:
         words = self._families["relation" if listen.kind == "relation" else "alternative"]
         channels = self._channel_sets.get(listen.channels)
         if channels is None:
-            channels = tuple(self._channels[self._index[r]] for r in listen.channels)
+            channels = tuple(self._index[r] for r in listen.channels)
             self._channel_sets[listen.channels] = channels
         assert self.ears is not None
         dec, ch = self.ears.decode_among(
@@ -420,7 +420,10 @@ class AutonomousUnit:
                 if mind.error:
                     self.recorder.log("error", f"{self.name}: {mind.error}", ns(t), self.name)
         else:
-            mind.influences[key] = universe.parse_alternative(code)
+            value = self._alternatives.get(code)
+            if value is None:
+                value = self._alternatives[code] = universe.parse_alternative(code)
+            mind.influences[key] = value
             if mind.influences_complete():
                 self.recorder.write(
                     "/unit/influences",

@@ -342,13 +342,15 @@ class WordSet:
     matrix: np.ndarray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "_key", (self.names, self.matrix.shape, self.matrix.tobytes()))
+        key = (self.names, self.matrix.shape, self.matrix.tobytes())
+        object.__setattr__(self, "_key", key)
+        object.__setattr__(self, "_hash", hash(key))  # asked at every decode: once
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, WordSet) and self._key == other._key  # type: ignore[attr-defined]
 
     def __hash__(self) -> int:
-        return hash(self._key)  # type: ignore[attr-defined]
+        return self._hash  # type: ignore[attr-defined]
 
     @classmethod
     def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:

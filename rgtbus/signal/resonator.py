@@ -296,14 +296,9 @@ def resonate(
     rule = (M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip)
     stopped = False
     if stop:  # the first spike among the stop lanes decides where every lane stops
-        watch = M.all_lanes if stop_lanes is None else np.flatnonzero(stop_lanes)
-        buf = np.empty(max(1, watch.size), dtype=np.int64)
-        first, found, _ = walk_lanes(
-            *common, watch, *rule, wr, wi, flags, start, end, rows, vals, True,
-            False, _NO_2D, _NO_2D, _NO_MASK, False, _NO_2D, buf, buf.copy(),
-        )  # fmt: skip
-        if found:
-            end, stopped = int(first), True
+        first = first_spike(M, state, end, rows, vals, stop_lanes)
+        if first is not None:
+            end, stopped = first + 1, True
             cut = int(rows.searchsorted(end))
             rows, vals = rows[:cut], vals[:cut]
     n = end - start
@@ -348,6 +343,30 @@ def resonate(
         result.readout_rows = rows[has]
         result.readout = ds[has].reshape(-1, U, C)
     return new, result
+
+
+def first_spike(
+    M: BankModel,
+    state: BankState,
+    end: int,
+    rows: np.ndarray,
+    values: np.ndarray,
+    lanes: np.ndarray | None = None,
+) -> int | None:
+    """The first sample in [state.n, end) at which one of ``lanes`` (a mask; default every
+    lane) spikes over this input (as ``resonate``), or None. Pure, and only those lanes walk."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, M.receivers)
+    T = M.tables
+    watch = M.all_lanes if lanes is None else np.flatnonzero(lanes)
+    buf = np.empty(max(1, watch.size), dtype=np.int64)
+    first, found, _ = walk_lanes(
+        T.Pr, T.Pi, T.Qr, T.nQi, T.Ar, T.Ai, T.R, M.lane_ch, M.lane_rec, watch,
+        M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip,
+        state.wr, state.wi, state.pend.view(np.uint8), state.n, end,  # read, never written
+        rows, vals, True, False, _NO_2D, _NO_2D, _NO_MASK, False, _NO_2D, buf, buf.copy(),
+    )  # fmt: skip
+    return int(first) - 1 if found else None
 
 
 _NO_2D = np.zeros((0, 0))
