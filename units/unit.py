@@ -403,20 +403,8 @@ class AutonomousUnit:
             mind.sent[key] = code == "alliance"
             if mind.relations_complete():
                 mind.build_group()
-                self.recorder.write(
-                    "/unit/relations",
-                    {
-                        "unit": self.name,
-                        "t": t,
-                        "sent": {
-                            f"{s}>{r}": "alliance" if v else "conflict"
-                            for (s, r), v in sorted(mind.sent.items())
-                        },
-                        "installed": mind.installed(),
-                        "polynomial": mind.polynomial,
-                    },
-                    ns(t),
-                )
+                if self.recorder.enabled:
+                    self._log_relations(t)
                 if mind.error:
                     self.recorder.log("error", f"{self.name}: {mind.error}", ns(t), self.name)
         else:
@@ -425,27 +413,51 @@ class AutonomousUnit:
                 value = self._alternatives[code] = universe.parse_alternative(code)
             mind.influences[key] = value
             if mind.influences_complete():
-                self.recorder.write(
-                    "/unit/influences",
-                    {
-                        "unit": self.name,
-                        "t": t,
-                        "influences": {
-                            f"{s}>{r}": universe.to_list(v)
-                            for (s, r), v in sorted(mind.influences.items())
-                        },
-                    },
-                    ns(t),
-                )
+                if self.recorder.enabled:
+                    self._log_influences(t)
                 mind.decide()
                 self._log_decisions(t)
                 self.finished = True
+
+    def _log_relations(self, t: float) -> None:
+        mind = self.mind
+        self.recorder.write(
+            "/unit/relations",
+            {
+                "unit": self.name,
+                "t": t,
+                "sent": {
+                    f"{s}>{r}": "alliance" if v else "conflict"
+                    for (s, r), v in sorted(mind.sent.items())
+                },
+                "installed": mind.installed(),
+                "polynomial": mind.polynomial,
+            },
+            ns(t),
+        )
+
+    def _log_influences(self, t: float) -> None:
+        mind = self.mind
+        universe = self.scenario.universe
+        self.recorder.write(
+            "/unit/influences",
+            {
+                "unit": self.name,
+                "t": t,
+                "influences": {
+                    f"{s}>{r}": universe.to_list(v) for (s, r), v in sorted(mind.influences.items())
+                },
+            },
+            ns(t),
+        )
 
     def _log_decisions(self, t: float) -> None:
         mind = self.mind
         u = self.scenario.universe
         if mind.results is None:
             self.recorder.log("error", f"{self.name}: no decision: {mind.error}", ns(t), self.name)
+            return
+        if not self.recorder.enabled:  # the canonical forms cost more than the decision
             return
         for s, r in mind.results.items():
             choice = mind.choice if s == self.name else None
