@@ -134,6 +134,89 @@ def _chain_steps(
 NOTHING = Actions()  # what a spike the protocol ignores asks for (shared: never changed)
 
 
+class Plan:
+    """What every unit knows of a run's schedule before it starts (the same for every unit,
+    so one read-only object serves all: ``plan_of``): the turns, each unit's period, for each
+    sender the other units (a payload's possible channels) and the slowest of their periods
+    (a payload is read as far as that one's code could reach), each turn's payload length."""
+
+    def __init__(
+        self,
+        units: tuple[str, ...],
+        omegas: tuple[tuple[str, float], ...],
+        tau: float,
+        pulses: int,
+        reaction_delay: float,
+        guard: float,
+        search: int,
+    ) -> None:
+        self.units, self.tau, self.pulses = units, tau, pulses
+        self.reaction_delay, self.guard, self.search = reaction_delay, guard, search
+        self.omegas = dict(omegas)
+        self.schedule = tuple(turns(units))
+        self.periods = {u: 2 * math.pi / w for u, w in omegas}
+        self.others = {s: tuple(u for u in units if u != s) for s in units}
+        self.longest = {
+            s: max((self.periods[u] for u in o), default=0.0) for s, o in self.others.items()
+        }
+        self.tails = tuple((pulses - 1) * self.periods[t.addressee] for t in self.schedule)
+        self._reactions: dict[tuple[int, float, int], Reaction] = {}
+
+    def reaction(self, turn: int, turn_start: float, sample: int) -> Reaction:
+        """What follows from turn ``turn`` (started at ``turn_start``) having its ID spike at
+        ``sample``: the payload, what to decode when, and the next turn's start (worked out
+        once for every unit that reacts to the same spike)."""
+        key = (turn, turn_start, sample)
+        got = self._reactions.get(key)
+        if got is None:
+            if len(self._reactions) >= 4096:  # past turns are not asked again
+                self._reactions.clear()
+            got = self._reactions[key] = self._react(turn, turn_start, sample)
+        return got
+
+    def _react(self, turn: int, turn_start: float, sample: int) -> Reaction:
+        t = self.schedule[turn]
+        tau = self.tau
+        ids = code_samples(turn_start, self.omegas[t.sender], self.pulses, tau)
+        payload_start = sample * tau + self.reaction_delay
+        payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, tau)
+        kind = "relation" if t.phase == "relations" else "influence"
+        longest = self.longest[t.sender] * (self.pulses - 1)
+        ready = round((payload_start + longest) / tau) + self.search
+        listens = (
+            Listen(
+                t.index, "id", t.sender, t.addressee, (t.sender,), turn_start, max(ids[-1], sample)
+            ),
+            Listen(
+                t.index, kind, t.sender, t.addressee, self.others[t.sender], payload_start, ready
+            ),
+        )
+        next_start = payload_start + (self.pulses - 1) * self.periods[t.addressee] + self.guard
+        return Reaction(payload_start, payload, listens, next_start, round(next_start / tau))
+
+
+@dataclass(frozen=True)
+class Reaction:
+    payload_start: float
+    payload: tuple[int, ...]
+    listens: tuple[Listen, Listen]
+    next_start: float
+    next_quench: int  # the next turn's start as a sample: resonators to rest before it
+
+
+@functools.lru_cache(maxsize=64)  # one Plan for every unit of a run
+def plan_of(
+    units: tuple[str, ...],
+    omegas: tuple[tuple[str, float], ...],
+    tau: float,
+    pulses: int,
+    reaction_delay: float,
+    guard: float,
+    search: int,
+) -> Plan:
+    return Plan(units, omegas, tau, pulses, reaction_delay, guard, search)
+
+
 @dataclass
 class ProtocolState:
     """What one unit knows of the schedule, and what it must do next."""
@@ -148,7 +231,7 @@ class ProtocolState:
     guard: float = 0.5
     search: int = 2  # samples of timing search around a payload's expected start
     anchor: str = "spike"  # what a reaction counts from: the ID spike, or the ID's last pulse
-    schedule: list[Turn] = field(init=False)
+    schedule: tuple[Turn, ...] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
     errors: list[str] = field(init=False, default_factory=list)
@@ -156,17 +239,20 @@ class ProtocolState:
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
             raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
-        self.schedule = turns(self.units)
-        self._periods = {u: 2 * math.pi / w for u, w in self.omegas.items()}
-        # per sender: everyone else (the payload's possible channels) and the slowest period
-        # among them (a payload is read as far as that one's code could reach)
-        self._others = {s: tuple(u for u in self.units if u != s) for s in self.units}
-        self._longest = {
-            s: max((self.period(u) for u in o), default=0.0) for s, o in self._others.items()
-        }
+        self.plan = plan_of(
+            tuple(self.units),
+            tuple((u, float(self.omegas[u])) for u in self.units),
+            self.tau,
+            self.pulses,
+            self.reaction_delay,
+            self.guard,
+            self.search,
+        )
+        self.schedule = self.plan.schedule
+        self._periods = self.plan.periods
         self._own_turns = [t.index for t in self.schedule if t.sender == self.me]
         # each turn's payload length, (N − 1)·T of its addressee (the chain of reactions)
-        self._tails = tuple((self.pulses - 1) * self.period(t.addressee) for t in self.schedule)
+        self._tails = self.plan.tails
         self.turn_start = self.start
         self.turn_starts = [self.start]  # every turn's start known so far
         self._ids_key: tuple[int, float] | None = None
@@ -252,9 +338,7 @@ class ProtocolState:
         """The current turn's ID counts from ``sample``: plan its payload and the next turn."""
         t = self.current()
         assert t is not None
-        ids = self.id_samples()
-        payload_start = sample * self.tau + self.reaction_delay
-        payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, self.tau)
+        r = self.plan.reaction(self.turn, self.turn_start, sample)
         sends: list[Send] = []
         if t.sender == self.me:
             code = self._codes[t.phase][t.addressee]
@@ -264,39 +348,22 @@ class ProtocolState:
                     "payload",
                     t.addressee,
                     code,
-                    payload_start,
-                    payload,
+                    r.payload_start,
+                    r.payload,
                     t.sender,
                     t.addressee,
                 )
             )
-        kind = "relation" if t.phase == "relations" else "influence"
-        others = self._others[t.sender]
-        # The payload's channel is read from the medium, so look as far as the slowest one.
-        longest = self._longest[t.sender] * (self.pulses - 1)
-        ready = round((payload_start + longest) / self.tau) + self.search
-        listens = [
-            Listen(
-                t.index,
-                "id",
-                t.sender,
-                t.addressee,
-                (t.sender,),
-                self.turn_start,
-                max(ids[-1], sample),
-            ),
-            Listen(t.index, kind, t.sender, t.addressee, others, payload_start, ready),
-        ]
         # Next turn: the chain is known now, well ahead of its first pulse.
         self.turn += 1
-        self.turn_start = payload_start + (self.pulses - 1) * self.period(t.addressee) + self.guard
+        self.turn_start = r.next_start
         self._awaited = None
         quench = []
         if not self.finished:
             self.turn_starts.append(self.turn_start)
-            quench.append(round(self.turn_start / self.tau))
+            quench.append(r.next_quench)
         sends.extend(self._id_actions())
-        return Actions(sends, listens, quench)
+        return Actions(sends, list(r.listens), quench)
 
     def _deadline(self) -> int | None:
         """The current turn's ID deadline when the chain depends on its spike."""
