@@ -284,6 +284,11 @@ def _split(data: bytes, unit: str) -> tuple[bytes, bytes]:
             rec.metadata(
                 name, values | ({"process": unit if keep else "rest"} if name == "run" else {})
             )
+        if keep:  # a unit's own process says how it ended
+            rec.metadata(
+                topics_mod.unit_end_record(unit),
+                {"status": "done", "detail": "", "sim_seconds": "1"},
+            )
         for topic, t, m in messages:
             # both processes log the medium and the summary; the merge keeps one copy
             if mine(topic, m) == keep or topic in ("/medium", "/run"):

@@ -55,6 +55,11 @@ def default_run_id(sc: Scenario) -> str:
     return f"{sc.name}-{sc.seed}"
 
 
+def auth_name(key: bytes | None) -> str:
+    """How a run's frames are authenticated, as its log says (never the key itself)."""
+    return "none" if key is None else "hmac-sha256"
+
+
 def write_metadata(
     recorder: Recorder, sc: Scenario, bus_kind: str, run_id: str, **extra: str
 ) -> None:
@@ -111,12 +116,15 @@ def run_group(
     progress: Callable[[float, int], None] | None = None,
     engine: str = "event",
     realtime: float | None = None,
+    key: bytes | None = None,
 ) -> RunOutput:
+    """Every unit of ``scenario`` in this process on one bus; ``key`` signs and checks every
+    frame (rgtbus.bus.auth)."""
     sc = scenario
     run_id = run_id or default_run_id(sc)
-    write_metadata(recorder, sc, bus_kind, run_id, engine=engine)
+    write_metadata(recorder, sc, bus_kind, run_id, engine=engine, auth=auth_name(key))
     members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
-    with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate) as bus:
+    with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate, key=key) as bus:
         world = scenario_world(
             sc,
             members,
@@ -128,17 +136,29 @@ def run_group(
             realtime=realtime,
         )
         result = world.run()
+        for note in bus.drop_notes():  # what reached the bus and was refused, say why
+            recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
     summary = summarise(sc, [m.report() for m in members], result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)
 
 
+_NO_REPORT: dict[str, Any] = {
+    "polynomial": None,
+    "installed": {},
+    "sent_relations": {},
+    "influences": {},
+}
+
+
 def summarise(
     sc: Scenario, reports: list[dict[str, Any]], result: WorldResult, *, engine: str = "event"
 ) -> dict[str, Any]:
-    """The run's summary from every unit's ``report()`` (one process or many)."""
+    """The run's summary from every unit's ``report()`` (one process or many). Units without
+    a report (a process that died) are absent from ``units`` and the run does not agree; the
+    shared fields are the first reporting unit's (none at all: empty)."""
     by_unit = {r["unit"]: r for r in reports}
-    ref = by_unit[sc.units[0]]
+    ref = next((by_unit[u] for u in sc.units if u in by_unit), _NO_REPORT)
     tables = {r["unit"]: r["installed"] for r in reports}
     agree = len(reports) == len(sc.units) and all(
         r["installed"] == ref["installed"] and r["polynomial"] == ref["polynomial"] for r in reports
@@ -162,7 +182,11 @@ def summarise(
                 )
     units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome: Any = None
-    if sc.outcome is not None and all(v["decided"] for v in units_out.values()):
+    if (
+        sc.outcome is not None
+        and len(units_out) == len(sc.units)
+        and all(v["decided"] for v in units_out.values())
+    ):
         want = sc.universe.to_list(sc.outcome.choose)
         ok = all(units_out[x]["choice"] == want for x in sc.outcome.all_of)
         outcome = f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"

@@ -9,6 +9,7 @@ The decisions and the log content equal the single-process run of the same scena
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import time
 from collections.abc import Callable
@@ -19,13 +20,26 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.sim import ns
 from rgtbus.telemetry import Recorder
-from units.group import default_run_id, scenario_world, write_metadata
+from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
+from units.group import auth_name, default_run_id, scenario_world, write_metadata
 from units.unit import AutonomousUnit
 
 
 def scenario_digest(sc: Scenario) -> str:
     """What every process of one run must share: the scenario text and the seed."""
     return hashlib.sha256(f"{sc.text}\0seed={sc.seed}".encode()).hexdigest()
+
+
+def _write_end(recorder: Recorder, name: str, status: str, detail: str, sim: float) -> None:
+    """How this unit's process ended, as a metadata record (never raises: a log that cannot be
+    written has said so already)."""
+    if getattr(recorder, "failed", None) or getattr(recorder, "closed", False):
+        return
+    with contextlib.suppress(RgtbusError):
+        recorder.metadata(
+            unit_end_record(name),
+            {"status": status, "detail": detail, "sim_seconds": repr(round(sim, 6))},
+        )
 
 
 def run_unit(
@@ -42,38 +56,58 @@ def run_unit(
     engine: str = "event",
     realtime: float | None = None,
     on_open: Callable[[], None] | None = None,
+    key: bytes | None = None,
 ) -> dict[str, Any]:
     """Run unit ``name`` of ``sc`` in this process; returns its part of the run summary.
-    ``on_open``: called once its zenoh session is open (listening), before the join."""
+    ``on_open``: called once its zenoh session is open (listening), before the join.
+    ``key``: the run's shared secret (every frame and hello signed and checked). A failed join
+    is written to the log before it is raised."""
     if name not in sc.units:
         raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
     run_id = run_id or default_run_id(sc)
     t0 = time.perf_counter()
-    write_metadata(recorder, sc, "zenoh", run_id, process=name, engine=engine)
+    write_metadata(recorder, sc, "zenoh", run_id, process=name, engine=engine, auth=auth_name(key))
     unit = AutonomousUnit(name, sc, recorder, traces=traces)
     opts = dict(zenoh_options or {})
-    with open_bus("zenoh", run_id, sc.units, sc.timing.sample_rate, local=[name], **opts) as bus:
-        if on_open is not None:  # e.g. a launcher starting the peers that connect here
-            on_open()
-        bus.join(name, scenario_digest(sc), timeout=join_timeout)
-        world = scenario_world(
-            sc,
-            [unit],
-            bus,
-            recorder,
-            engine=engine,
-            timeout=timeout,
-            progress=progress,
-            realtime=realtime,
-            write_medium=name == sc.units[0],  # one medium in the merged log, as in one process
-        )
-        result = world.run()  # a member gone or stalled ends it with result.failure
-        error = result.failure or unit.failure
-        for note in bus.drop_notes():
-            recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)
-        stats = dict(bus.stats())
-    if result.failure:  # a unit's own failure is in its log already
-        recorder.log("error", result.failure, ns(result.sim_seconds), name=name)
+    rate = sc.timing.sample_rate
+    sim_seconds = 0.0
+    try:
+        with open_bus("zenoh", run_id, sc.units, rate, local=[name], key=key, **opts) as bus:
+            if on_open is not None:  # e.g. a launcher starting the peers that connect here
+                on_open()
+            try:
+                bus.join(name, scenario_digest(sc), timeout=join_timeout)
+            except RgtbusError as exc:
+                for note in bus.drop_notes():  # e.g. the hellos that did not authenticate
+                    recorder.log("warning", f"dropped: {note}", 0, name=name)
+                recorder.log("error", f"{name}: join failed: {exc}", 0, name=name)
+                raise
+            world = scenario_world(
+                sc,
+                [unit],
+                bus,
+                recorder,
+                engine=engine,
+                timeout=timeout,
+                progress=progress,
+                realtime=realtime,
+                write_medium=name == sc.units[0],  # one medium in the merged log
+            )
+            result = world.run()  # a member gone or stalled ends it with result.failure
+            sim_seconds = result.sim_seconds
+            error = result.failure or unit.failure
+            for note in bus.drop_notes():
+                recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)
+            stats = dict(bus.stats())
+        if result.failure:  # a unit's own failure is in its log already
+            recorder.log("error", result.failure, ns(result.sim_seconds), name=name)
+    except BaseException as exc:
+        _write_end(recorder, name, UNIT_ENDED_EARLY, str(exc) or type(exc).__name__, sim_seconds)
+        raise
+    if result.failure:  # the others went silent: the rest of this unit's run never happened
+        _write_end(recorder, name, UNIT_ENDED_EARLY, result.failure, sim_seconds)
+    else:
+        _write_end(recorder, name, UNIT_DONE, unit.failure or "", sim_seconds)
     return {
         "unit": name,
         "run_id": run_id,

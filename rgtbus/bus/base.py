@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import queue
 import re
+import secrets
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -22,6 +23,7 @@ from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
+from rgtbus.bus.auth import AuthError, check_key, check_tag, tag
 from rgtbus.bus.payload import NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
 
@@ -98,6 +100,7 @@ STAT_KEYS = (
     "dropped_late",
     "dropped_duplicate",
     "dropped_ahead",
+    "dropped_unauthenticated",
 )
 
 
@@ -146,6 +149,10 @@ class QueueBus:
 
     Subclasses provide ``_send(key, data)`` and ``_close_transport()``; whatever delivers
     payloads only ever calls ``self._inbox.put((key, data))`` (thread-safe, never blocks).
+
+    ``key`` (bytes, at least 16) closes the run to outsiders: every frame is signed and every
+    received frame must carry a valid tag from the member's process (its ``nonce``, announced
+    when it joined; rgtbus.bus.auth); anything else is dropped as ``dropped_unauthenticated``.
     """
 
     kind = "abstract"
@@ -158,6 +165,7 @@ class QueueBus:
         sample_rate: float,
         *,
         local: Sequence[str] | None = None,
+        key: bytes | None = None,
     ) -> None:
         self.run_id = check_name("run id", run_id)
         if isinstance(members, str):
@@ -187,6 +195,10 @@ class QueueBus:
         self._taken = 0  # samples below this were handed out by take()
         self._stats = dict.fromkeys(STAT_KEYS, 0)
         self._notes: deque[str] = deque(maxlen=_MAX_NOTES)
+        self._key = check_key(key)
+        self.nonce = secrets.token_bytes(16)  # this process's, bound into every tag it makes
+        # Whose tags we can check: our own units now, the others' once their hello is heard.
+        self._nonces: dict[str, bytes] = dict.fromkeys(self.local, self.nonce)
         self._closed = False
 
     # -- public API -------------------------------------------------------------------------
@@ -220,7 +232,14 @@ class QueueBus:
         frame = Frame(
             mine.seq + 1, int(promise), s, np.asarray(values, dtype=np.float64), flags, done_at
         )
-        data = encode(frame, self.sample_rate)
+        sign = None
+        if self._key is not None:
+            key, run_id, nonce = self._key, self.run_id, self.nonce
+
+            def sign(body: bytes) -> bytes:
+                return tag(key, "frame", run_id, unit, nonce, body)
+
+        data = encode(frame, self.sample_rate, sign=sign)
         self._send(self._keys[unit], data)
         mine.seq, mine.promise = frame.seq, frame.promise
         self._stats["published"] += 1
@@ -349,7 +368,13 @@ class QueueBus:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.close()
+        if exc is None:
+            self.close()
+            return
+        try:  # the error that ended the block is the one to report, not a slow close's
+            self.close()
+        except Exception as close_error:
+            exc.add_note(f"and then, closing the bus: {close_error}")
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -398,8 +423,22 @@ class QueueBus:
         if unit not in self._member_set:
             self._drop("dropped_foreign", f"{key}: {unit!r} is not a member")
             return
+        check = None
+        if self._key is not None:
+            nonce = self._nonces.get(unit)
+            if nonce is None:
+                self._drop("dropped_unauthenticated", f"{key}: no hello heard from {unit!r}")
+                return
+            secret, run_id = self._key, self.run_id
+
+            def check(body: bytes, got: bytes) -> None:
+                check_tag(secret, "frame", run_id, unit, nonce, body, got)
+
         try:
-            frame, rate = decode(data)
+            frame, rate = decode(data, check=check)
+        except AuthError as e:
+            self._drop("dropped_unauthenticated", f"{key}: {e}")
+            return
         except RgtbusError as e:
             self._drop("dropped_malformed", f"{key}: {e}")
             return
@@ -410,7 +449,7 @@ class QueueBus:
             return
         m = self._members[unit]
         if frame.seq <= m.seq:
-            self._drop("dropped_duplicate", f"{key}: frame {frame.seq} received twice")
+            self._drop("dropped_duplicate", f"{key}: frame {frame.seq} received twice (replayed?)")
             return
         if frame.seq != m.seq + 1:
             self._drop("dropped_ahead", f"{key}: frame {frame.seq} while {m.seq + 1} is due")

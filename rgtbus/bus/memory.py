@@ -13,7 +13,7 @@ from rgtbus.bus.base import QueueBus, matches_subscription
 
 class MemoryBus(QueueBus):
     kind = "memory"
-    OPTIONS = frozenset({"local", "count_foreign"})
+    OPTIONS = frozenset({"local", "count_foreign", "key"})
 
     def __init__(
         self,
@@ -23,8 +23,9 @@ class MemoryBus(QueueBus):
         *,
         local: Sequence[str] | None = None,
         count_foreign: bool = True,
+        key: bytes | None = None,
     ) -> None:
-        super().__init__(run_id, members, sample_rate, local=local)
+        super().__init__(run_id, members, sample_rate, local=local, key=key)
         # Same filter as the zenoh subscriber's key expression.
         self._sub_run = None if count_foreign else self.run_id
 

@@ -11,7 +11,8 @@ Layout (little-endian, 48-byte header, so the arrays start 8-byte aligned)::
     offset  size  field
     0       4     magic b"RGTB"
     4       1     version (2)
-    5       1     flags: bit 0 FINAL (the unit has decided), bit 1 FAILED (it has failed)
+    5       1     flags: bit 0 FINAL (the unit has decided), bit 1 FAILED (it has failed),
+                  bit 2 TAGGED (a 32-byte authentication tag follows the magnitudes)
     6       2     reserved, zero
     8       8     sequence number, u64 (1, 2, 3, ... per member)
     16      8     promise, u64 (a sample index; 2**63 - 1: silent for the rest of the run)
@@ -21,16 +22,19 @@ Layout (little-endian, 48-byte header, so the arrays start 8-byte aligned)::
     44      4     reserved, zero
     48      8*n   sample indexes, u64, non-decreasing
     48+8n   8*n   magnitudes, f64, finite, |m| <= MAX_MAGNITUDE
+    48+16n  32    TAGGED only: HMAC-SHA256 of everything before it (rgtbus.bus.auth)
 """
 
 from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from rgtbus.bus.auth import TAG_SIZE, AuthError
 from rgtbus.errors import RgtbusError
 
 MAGIC = b"RGTB"
@@ -39,6 +43,7 @@ _HEADER = struct.Struct("<4sBBHQQQdII")
 HEADER_SIZE = _HEADER.size  # 48
 FINAL = 0x01
 FAILED = 0x02
+TAGGED = 0x04  # on the wire only: never in Frame.flags
 _KNOWN_FLAGS = FINAL | FAILED
 NEVER = 2**63 - 1  # a promise of silence for the rest of the run
 MAX_MAGNITUDE = 1e6  # far above any code; keeps a resonator's sums finite whatever a peer sends
@@ -90,8 +95,11 @@ def _check_pulses(samples: np.ndarray, values: np.ndarray) -> None:
             )
 
 
-def encode(frame: Frame, sample_rate: float) -> bytes:
-    """Header + arrays; refuses what ``decode`` would refuse."""
+def encode(
+    frame: Frame, sample_rate: float, *, sign: Callable[[bytes], bytes] | None = None
+) -> bytes:
+    """Header + arrays (+ ``sign(everything before)``, the TAGGED flag set); refuses what
+    ``decode`` would refuse."""
     flags = frame.flags
     if isinstance(flags, bool) or not isinstance(flags, int) or flags & ~_KNOWN_FLAGS:
         raise RgtbusError(f"frame flags {flags!r}: only FINAL (1) and FAILED (2) are defined")
@@ -112,13 +120,25 @@ def encode(frame: Frame, sample_rate: float) -> bytes:
     samples = samples.astype(np.int64, copy=False)
     values = values.astype(np.float64, copy=False)
     _check_pulses(samples, values)
+    if sign is not None:
+        flags |= TAGGED
     header = _HEADER.pack(MAGIC, VERSION, flags, 0, seq, promise, done_at, rate, samples.size, 0)
-    return header + samples.astype("<u8").tobytes() + values.astype("<f8").tobytes()
+    body = header + samples.astype("<u8").tobytes() + values.astype("<f8").tobytes()
+    if sign is None:
+        return body
+    tag = sign(body)
+    if len(tag) != TAG_SIZE:
+        raise RgtbusError(f"frame tag must be {TAG_SIZE} bytes, got {len(tag)}")
+    return body + tag
 
 
-def decode(data: bytes) -> tuple[Frame, float]:
+def decode(
+    data: bytes, *, check: Callable[[bytes, bytes], None] | None = None
+) -> tuple[Frame, float]:
     """Inverse of ``encode``: ``(frame, sample_rate)`` with fresh arrays. Raises RgtbusError
-    (one line, what is wrong) on anything malformed."""
+    (one line, what is wrong) on anything malformed. With ``check`` (a keyed run) a frame must
+    be TAGGED and ``check(body, tag)`` pass (it raises AuthError otherwise); without, a TAGGED
+    frame is refused (AuthError: this run has no key to check it with)."""
     if not isinstance(data, bytes | bytearray):
         raise RgtbusError(f"frame must be bytes, got {type(data).__name__}")
     if len(data) < HEADER_SIZE:
@@ -130,8 +150,10 @@ def decode(data: bytes) -> tuple[Frame, float]:
         raise RgtbusError(f"frame bad magic {magic!r}, expected {MAGIC!r}")
     if version != VERSION:
         raise RgtbusError(f"frame version {version} unsupported, expected {VERSION}")
-    if flags & ~_KNOWN_FLAGS:
+    if flags & ~(_KNOWN_FLAGS | TAGGED):
         raise RgtbusError(f"frame flags 0x{flags:02x} hold unknown bits")
+    tagged = bool(flags & TAGGED)
+    flags &= ~TAGGED
     if res1 or res2:
         raise RgtbusError("frame reserved fields not zero")
     if not (math.isfinite(rate) and rate > 0):
@@ -139,11 +161,18 @@ def decode(data: bytes) -> tuple[Frame, float]:
     for what, v in (("sequence number", seq), ("promise", promise), ("done_at", done_at)):
         if v > NEVER:
             raise RgtbusError(f"frame {what} {v} out of range 0..2**63-1")
-    expected = HEADER_SIZE + 16 * count
+    expected = HEADER_SIZE + 16 * count + (TAG_SIZE if tagged else 0)
     if len(data) != expected:
         raise RgtbusError(
             f"frame length {len(data)} bytes does not match count {count} (expected {expected})"
         )
+    if check is not None:
+        if not tagged:
+            raise AuthError("frame not authenticated (no tag) on a run with a key")
+        body = bytes(data[: expected - TAG_SIZE])
+        check(body, bytes(data[expected - TAG_SIZE :]))
+    elif tagged:
+        raise AuthError("frame authenticated with a key this run does not have")
     raw = np.frombuffer(data, dtype="<u8", count=count, offset=HEADER_SIZE)
     if count and raw.max() > NEVER:
         raise RgtbusError("frame sample index out of range 0..2**63-1")

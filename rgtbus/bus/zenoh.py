@@ -23,7 +23,9 @@ from typing import Any
 
 import zenoh
 
+from rgtbus.bus.auth import AuthError
 from rgtbus.bus.base import QueueBus
+from rgtbus.bus.hello import Hello, encode_hello, read_hello
 from rgtbus.errors import RgtbusError
 
 _MODES = ("peer", "client", "router")
@@ -147,6 +149,7 @@ class ZenohBus(QueueBus):
             "multicast",
             "config",
             "session",
+            "key",
         }
     )
 
@@ -164,8 +167,9 @@ class ZenohBus(QueueBus):
         multicast: bool | None = None,
         config: zenoh.Config | str | os.PathLike[str] | None = None,
         session: zenoh.Session | None = None,
+        key: bytes | None = None,
     ) -> None:
-        super().__init__(run_id, members, sample_rate, local=local)
+        super().__init__(run_id, members, sample_rate, local=local, key=key)
         self._publishers: dict[str, Any] = {}
         self._subscriber: Any = None
         self._hello_sub: Any = None
@@ -230,15 +234,18 @@ class ZenohBus(QueueBus):
         """Barrier before the run: wait until every member is up, on the same scenario.
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and repeats a
-        hello (its unit, scenario digest, and which members it has heard) until it has heard
-        every member and every member says it has heard everyone. Data and subscriber
+        hello (rgtbus.bus.hello: its unit, scenario digest, nonce, and the nonces of the members
+        it has heard) until every member's hello echoes our nonce (it is fresh, not a recording)
+        and says it is ready (it has such a hello from everyone). Data and subscriber
         declarations share a link in order, so a hello from a peer proves its tx subscriber is
         declared: nobody's first frame can be lost. Refused: a member on another scenario or
-        seed (digest differs), or a run that already started (a late joiner). Running members
-        answer late hellos from ``wait``.
+        seed (digest differs), two processes claiming one unit, or a run that already started
+        (a late joiner). Running members answer late hellos from ``wait``. On a keyed run only
+        hellos with a valid tag count; the nonces heard are what later frames are checked with.
         """
         self._check_member(unit)
         members = set(self.members)
+        others = members - {unit}
         put = self._hellos.put
         self._hello_sub = self.session.declare_subscriber(
             f"rgtbus/{self.run_id}/hello/*", lambda s: put(s.payload.to_bytes())
@@ -249,76 +256,89 @@ class ZenohBus(QueueBus):
             )
         except Exception as e:  # liveliness is for presence only; the barrier does the work
             self._notes.append(f"liveliness token not declared: {e}")
-        heard = {unit}
+        echo: dict[str, bytes] = {unit: self.nonce}  # the latest nonce each member said
+        fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
         ready: set[str] = set()
         deadline = time.monotonic() + timeout
+
+        def done() -> bool:
+            return fresh.keys() >= others and ready >= others
+
         while True:
-            self._say_hello(unit, digest, heard, started=False)
+            self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
             until = time.monotonic() + 0.05
             while (left := until - time.monotonic()) > 0:
                 try:
                     raw = self._hellos.get(timeout=left)
                 except queue.Empty:
                     break
-                msg = self._read_hello(raw)
-                if msg is None or msg["unit"] not in members or msg["unit"] == unit:
+                h = self._read_hello(raw)
+                if h is None or h.unit == unit:
                     continue
-                if msg["digest"] != digest:
+                if h.digest != digest:
                     raise RgtbusError(
-                        f"unit {msg['unit']!r} of run {self.run_id!r} runs another scenario or "
-                        f"seed (digest {msg['digest'][:12]}, ours {digest[:12]})"
+                        f"unit {h.unit!r} of run {self.run_id!r} runs another scenario or "
+                        f"seed (digest {h.digest[:12]}, ours {digest[:12]})"
                     )
-                if msg["started"]:
+                if h.heard.get(unit) != self.nonce:  # not (yet) an answer to us
+                    news = echo.get(h.unit) != h.nonce
+                    echo[h.unit] = h.nonce
+                    if news:  # say so at once: it waits for our echo of its nonce
+                        self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+                    continue
+                if h.started:
                     raise RgtbusError(
-                        f"run {self.run_id!r} already started (unit {msg['unit']!r} is at sample "
-                        f"{msg.get('sample')}): {unit!r} joined too late"
+                        f"run {self.run_id!r} already started (unit {h.unit!r} is at sample "
+                        f"{h.sample}): {unit!r} joined too late"
                     )
-                news = msg["unit"] not in heard
-                heard.add(msg["unit"])
-                if set(msg["heard"]) >= members:
-                    ready.add(msg["unit"])
-                if heard == members and ready >= members - {unit}:
+                known = fresh.get(h.unit)
+                if known is not None and known != h.nonce:
+                    raise RgtbusError(
+                        f"two processes say they are unit {h.unit!r} of run {self.run_id!r}"
+                    )
+                news = known is None or echo.get(h.unit) != h.nonce
+                fresh[h.unit] = echo[h.unit] = h.nonce
+                if h.ready:
+                    ready.add(h.unit)
+                if done():
                     break
-                if news:  # say so at once: the others wait for who we have heard
-                    self._say_hello(unit, digest, heard, started=False)
-            if heard == members and ready >= members - {unit}:
-                self._say_hello(unit, digest, heard, started=False)
+                if news:
+                    self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+            if done():
+                self._say_hello(unit, digest, echo, ready=True)
                 # What is queued now was said before the start (a link keeps its order).
                 while not self._hellos.empty():
                     self._hellos.get_nowait()
+                self._nonces.update(fresh)
                 self._joined = (unit, digest)
                 return
             if time.monotonic() > deadline:
-                missing = sorted(members - heard) or sorted(members - ready - {unit})
+                missing = sorted(others - fresh.keys()) or sorted(others - ready)
                 raise RgtbusError(
                     f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
                     f"{', '.join(missing)}"
                 )
 
-    def _say_hello(self, unit: str, digest: str, heard: set[str], started: bool) -> None:
-        msg = {
-            "unit": unit,
-            "digest": digest,
-            "heard": sorted(heard),
-            "started": started,
-            "sample": self._taken,
-        }
-        self.session.put(self.hello_key(unit), json.dumps(msg).encode())
+    def _say_hello(
+        self,
+        unit: str,
+        digest: str,
+        echo: dict[str, bytes],
+        *,
+        ready: bool,
+        started: bool = False,
+    ) -> None:
+        h = Hello(unit, digest, self.nonce, dict(echo), started, self._taken, ready)
+        self.session.put(self.hello_key(unit), encode_hello(h, self.run_id, self._key))
 
-    def _read_hello(self, raw: bytes) -> dict[str, Any] | None:
+    def _read_hello(self, raw: bytes) -> Hello | None:
         try:
-            msg = json.loads(raw)
-            if not (
-                isinstance(msg, dict)
-                and isinstance(msg.get("unit"), str)
-                and isinstance(msg.get("digest"), str)
-                and isinstance(msg.get("heard"), list)
-            ):
-                raise ValueError("fields")
-            return msg
-        except ValueError:
-            self._drop("dropped_malformed", f"hello: not a hello message ({raw[:40]!r})")
-            return None
+            return read_hello(raw, self.run_id, self._member_set, self._key)
+        except AuthError as e:
+            self._drop("dropped_unauthenticated", f"hello: {e}")
+        except RgtbusError as e:
+            self._drop("dropped_malformed", f"hello: {e} ({bytes(raw[:40])!r})")
+        return None
 
     def wait(self, beyond: int, timeout: float = 5.0) -> int:
         if self._joined is not None:
@@ -333,12 +353,14 @@ class ZenohBus(QueueBus):
                 raw = self._hellos.get_nowait()
             except queue.Empty:
                 return
-            msg = self._read_hello(raw)
-            if msg is not None and not msg.get("started") and msg["unit"] != unit:
-                if msg["heard"] and set(msg["heard"]) >= set(self.members):
-                    continue  # a member's last barrier hello, not a late joiner
-                self._notes.append(f"hello from {msg['unit']!r} after the start: refused")
-                self._say_hello(unit, digest, set(self.members), started=True)
+            h = self._read_hello(raw)
+            if h is None or h.started or h.unit == unit:
+                continue
+            if h.ready and self._nonces.get(h.unit) == h.nonce:
+                continue  # a member's last barrier hello, not a late joiner
+            self._notes.append(f"hello from {h.unit!r} after the start: refused")
+            echo = {**self._nonces, h.unit: h.nonce}  # answered to it: fresh for it
+            self._say_hello(unit, digest, echo, ready=True, started=True)
 
     def _send(self, key: str, data: bytes) -> None:
         # Our own units' keys go through their declared publishers; anything else (put_raw)

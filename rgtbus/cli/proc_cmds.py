@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rgtbus.cli.run_cmd import add_key_argument, read_key
 from rgtbus.errors import RgtbusError
 
 
@@ -98,6 +99,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the same on every unit of a run (event: the default; dense: the time-stepped "
         "reference)",
     )
+    add_key_argument(u)
     u.add_argument("--json", action="store_true", help="print one JSON object")
     u.set_defaults(func=run_unit_cmd)
 
@@ -135,6 +137,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="FACTOR",
         help="pace the run: FACTOR simulated seconds per wall second",
     )
+    add_key_argument(la)
     la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
     la.set_defaults(func=run_launch)
 
@@ -193,6 +196,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
             raise RgtbusError(f"--{what.replace('_', '-')} must be positive seconds")
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
+    key = read_key(args)
     log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{args.name}")
     stream, recorder = open_log(log_path)
     # SIGTERM (a launcher giving up) ends the run like Ctrl-C: the log is still finished.
@@ -209,6 +213,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
             traces=args.traces,
             engine=args.engine,
             realtime=args.realtime,
+            key=key,
         )
     except KeyboardInterrupt:
         if not recorder.failed:
@@ -335,6 +340,9 @@ def _router_child(conn: Any, endpoint: str) -> None:
         session.close()
 
 
+_FEW_SECONDS = 5.0  # for the other units to report once one has said a member went silent
+
+
 class Launch:
     """The processes of a launch, forked from the launcher once it has loaded everything (so
     a unit starts in milliseconds), always reaped: terminate, then kill what is left."""
@@ -375,9 +383,12 @@ class Launch:
             raise RgtbusError(f"router did not start within {timeout:g} s")
         reader.recv()
 
-    def collect(self, limit: float) -> dict[str, dict[str, Any]]:
-        """Every unit's result as it comes (at most ``limit`` seconds in all); a unit that dies
-        without one is absent."""
+    def collect(self, limit: float, timeout: float) -> dict[str, dict[str, Any]]:
+        """Every unit's result as it comes, at most ``limit`` seconds in all. Once a unit has
+        died or crashed, the others notice within their ``timeout`` (no news): they get that
+        and a few seconds more; once a unit reports that a member went silent, the rest get a
+        few seconds (a unit still running then is stalled). A unit that dies without a result
+        gets ``{"died": exit code}``; one still running at the end is absent."""
         from multiprocessing.connection import wait
 
         out: dict[str, dict[str, Any]] = {}
@@ -388,11 +399,42 @@ class Launch:
             if not ready:
                 break
             for name, conn in list(waiting.items()):
-                if conn in ready:
-                    with contextlib.suppress(EOFError, OSError):
-                        out[name] = conn.recv()
-                    del waiting[name]
+                if conn not in ready:
+                    continue
+                try:
+                    out[name] = conn.recv()
+                except (EOFError, OSError):  # the process ended without a word
+                    proc = self.procs[name]
+                    proc.join(timeout=5.0)
+                    out[name] = {"died": proc.exitcode}
+                del waiting[name]
+                said = out[name]
+                if "died" in said or said.get("crash"):
+                    end = min(end, time.monotonic() + timeout + _FEW_SECONDS)
+                elif said.get("world_failure"):
+                    end = min(end, time.monotonic() + _FEW_SECONDS)
         return out
+
+    def late_results(self, names: list[str], timeout: float) -> dict[str, dict[str, Any]]:
+        """What units that were asked to stop still said (within ``timeout`` s in all)."""
+        out: dict[str, dict[str, Any]] = {}
+        end = time.monotonic() + timeout
+        for name in names:
+            conn = self._results[name]
+            with contextlib.suppress(EOFError, OSError):
+                if conn.poll(max(0.0, end - time.monotonic())):
+                    out[name] = conn.recv()
+        return out
+
+    def stop(self, names: list[str]) -> None:
+        """Ask units to stop: SIGTERM (a unit then finishes its log and says so), and SIGCONT
+        so that a stopped (SIGSTOP) one can."""
+        for name in names:
+            p = self.procs[name]
+            if p.is_alive() and p.pid is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(p.pid, signal.SIGTERM)
+                    os.kill(p.pid, signal.SIGCONT)
 
     def reap(self) -> None:
         """Every process ended: given a moment to leave on its own (a unit that has sent its
@@ -401,9 +443,10 @@ class Launch:
         for name, p in self.procs.items():
             if name != "router":
                 p.join(timeout=max(0.0, grace - time.monotonic()))
-        for p in self.procs.values():
-            if p.is_alive():
-                p.terminate()
+        self.stop([n for n in self.procs if n != "router"])
+        router = self.procs.get("router")
+        if router is not None and router.is_alive():
+            router.terminate()
         deadline = time.monotonic() + 5
         for p in self.procs.values():
             p.join(timeout=max(0.1, deadline - time.monotonic()))
@@ -412,18 +455,64 @@ class Launch:
                 p.join()
 
 
-def run_launch(args: argparse.Namespace) -> int:
-    from rgtbus.cli.run_cmd import close_log, open_log, print_summary
-    from rgtbus.sim import WorldResult
-    from rgtbus.telemetry.merge import merge_logs
+def _signal_name(code: int | None) -> str:
+    if code is None:
+        return "no exit code"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+def _where(log: Path, window: float) -> str:
+    """Where a unit's log ends: its last message's time and window (logs are flushed as the
+    run goes, so this is at most about a second of simulated time before the unit stopped)."""
     from rgtbus.telemetry.recorder import scan_log
-    from units.group import (
-        default_run_id,
-        summarise,
-        summary_json,
-        write_metadata,
-        write_run_summary,
-    )
+
+    if not log.exists():
+        return "before it opened its log"
+    try:
+        raw = scan_log(log)
+    except RgtbusError:
+        return "(its log is unreadable)"
+    last = max((m[1] for m in raw.messages), default=None)
+    if last is None:
+        return "before it logged a message"
+    t = last / 1e9
+    return f"in window {int(t / window)} (its log ends at t = {t:.3f} s)"
+
+
+def unit_failures(
+    units: list[str], results: dict[str, dict[str, Any]], log_dir: Path, window: float
+) -> tuple[list[str], dict[str, dict[str, Any]]]:
+    """The failures of a launch, root causes first (a unit that stalled, died or crashed; then
+    the units that failed for want of it), and the outputs of the units that finished."""
+    causes: list[str] = []
+    knock_on: list[str] = []
+    outputs: dict[str, dict[str, Any]] = {}
+    for name in units:
+        out = results.get(name)
+        log = log_dir / f"{name}.mcap"
+        if out is None:
+            causes.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
+        elif "died" in out:
+            causes.append(f"unit {name} died ({_signal_name(out['died'])}) {_where(log, window)}")
+        elif "crash" in out:
+            causes.append(f"unit {name}: {out['crash']}")
+        else:
+            outputs[name] = out
+            if out["error"]:
+                knock_on.append(f"unit {name}: {out['error']}")
+    return causes + knock_on, outputs
+
+
+def run_launch(args: argparse.Namespace) -> int:
+    """Fork every unit, collect their results, and always end with a merged ``run.mcap``
+    whose ``/run`` record names the first failure; SIGINT and SIGTERM stop the units (their
+    logs finished) and still merge."""
+    from units.group import default_run_id
 
     t0 = time.perf_counter()
     sc = _load(args.scenario, args.seed)
@@ -431,12 +520,16 @@ def run_launch(args: argparse.Namespace) -> int:
         raise RgtbusError("--timeout must be positive seconds")
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
+    key = read_key(args)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     log_dir = Path(args.log_dir) if args.log_dir else Path("logs") / f"{sc.name}-{stamp}"
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise RgtbusError(f"cannot create log dir {str(log_dir)!r}: {exc.strerror}") from None
+    for stale in [log_dir / f"{u}.mcap" for u in sc.units] + [log_dir / "launch.mcap"]:
+        with contextlib.suppress(FileNotFoundError):  # never merge an earlier launch's log
+            stale.unlink()
     run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
     # Loaded once here, before the units are forked (numpy loads numpy.random lazily).
     import numpy.random  # noqa: F401
@@ -445,87 +538,117 @@ def run_launch(args: argparse.Namespace) -> int:
     import units.process  # noqa: F401
 
     launch = Launch()
-    outputs: dict[str, dict[str, Any]] = {}
-    failures: list[str] = []
+    results: dict[str, dict[str, Any]] = {}
+    interrupted: str | None = None
+    old_term = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends a launch like Ctrl-C
     try:
-        ports = free_ports(len(sc.units) + 1)
-        if args.router:
-            router_ep = f"tcp/127.0.0.1:{ports[-1]}"
-            launch.start_router(router_ep, timeout=10.0)
-        for i, name in enumerate(sc.units):
+        try:
+            ports = free_ports(len(sc.units) + 1)
             if args.router:
-                net = {"mode": "client", "connect": [router_ep]}
-            else:  # a full mesh: each listens on its port and connects to those before it
-                net = {
-                    "listen": [f"tcp/127.0.0.1:{ports[i]}"],
-                    "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
-                }
-            launch.start_unit(
-                name,
-                sc,
-                log_dir / f"{name}.mcap",
-                net,
-                [] if args.router else list(sc.units[:i]),
-                run_id=run_id,
-                timeout=args.timeout,
-                engine=args.engine,
-                realtime=args.realtime,
-            )
-        limit = sc.timing.max_seconds + 60 + 2 * args.timeout
-        results = launch.collect(limit)
-        for name in sc.units:
-            out = results.get(name)
-            if out is None:
-                failures.append(f"unit {name} did not finish within {limit:.0f} s")
-            elif "crash" in out:
-                failures.append(f"unit {name}: {out['crash']}")
-            else:
-                outputs[name] = out
-                if out["error"]:
-                    failures.append(f"unit {name}: {out['error']}")
+                router_ep = f"tcp/127.0.0.1:{ports[-1]}"
+                launch.start_router(router_ep, timeout=10.0)
+            for i, name in enumerate(sc.units):
+                if args.router:
+                    net = {"mode": "client", "connect": [router_ep]}
+                else:  # a full mesh: each listens on its port and connects to those before it
+                    net = {
+                        "listen": [f"tcp/127.0.0.1:{ports[i]}"],
+                        "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
+                    }
+                launch.start_unit(
+                    name,
+                    sc,
+                    log_dir / f"{name}.mcap",
+                    net,
+                    [] if args.router else list(sc.units[:i]),
+                    run_id=run_id,
+                    timeout=args.timeout,
+                    engine=args.engine,
+                    realtime=args.realtime,
+                    key=key,
+                )
+            # A run ends by itself within its simulated length (paced: at the realtime factor)
+            # plus the join; after a failure the others end within their --timeout.
+            paced = sc.timing.max_seconds / args.realtime if args.realtime else 0.0
+            limit = paced + 60 + sc.timing.max_seconds / 10 + 2 * args.timeout
+            results = launch.collect(limit, timeout=args.timeout)
+        except KeyboardInterrupt:
+            interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
+        running = [n for n in sc.units if n not in results and n in launch.procs]
+        launch.stop(running)
+        results.update(launch.late_results(running, timeout=5.0))
+        if interrupted is None:  # not asked to stop: whoever had to be stopped stalled
+            for name in running:
+                results.pop(name, None)
     finally:
         launch.reap()
+        signal.signal(signal.SIGTERM, old_term)
+    failures, outputs = unit_failures(list(sc.units), results, log_dir, sc.timing.window)
+    if interrupted is not None:
+        failures.insert(0, interrupted)
+    return _finish_launch(args, sc, run_id, log_dir, outputs, failures, t0, interrupted)
+
+
+def _finish_launch(
+    args: argparse.Namespace,
+    sc: Any,
+    run_id: str,
+    log_dir: Path,
+    outputs: dict[str, dict[str, Any]],
+    failures: list[str],
+    t0: float,
+    interrupted: str | None,
+) -> int:
+    """Write ``launch.mcap`` (metadata, the run's summary, every failure) and merge it with
+    every unit log that has anything in it into ``run.mcap``; print the summary."""
+    from rgtbus.cli.run_cmd import close_log, open_log, print_summary
+    from rgtbus.sim import WorldResult, ns
+    from rgtbus.telemetry.merge import merge_logs
+    from rgtbus.telemetry.recorder import scan_log
+    from units.group import auth_name, summarise, summary_json, write_metadata, write_run_summary
 
     reports = [outputs[u]["report"] for u in sc.units if u in outputs]
     first = next((outputs[u] for u in sc.units if u in outputs), None)
-    wall = time.perf_counter() - t0
     result = WorldResult(
         steps=first["steps"] if first else 0,
         sim_seconds=max((o["sim_seconds"] for o in outputs.values()), default=0.0),
-        wall_seconds=wall,
+        wall_seconds=time.perf_counter() - t0,
         failure=failures[0] if failures else None,
         bus_stats={u: o["bus"] for u, o in outputs.items()},
     )
-    summary = summarise(sc, reports, result, engine=args.engine) if reports else None
+    summary = summarise(sc, reports, result, engine=args.engine)
     merged = log_dir / "run.mcap"
     f, rec = open_log(log_dir / "launch.mcap")
     try:
-        write_metadata(rec, sc, "zenoh", run_id, process="launch")
-        if summary is not None:
-            write_run_summary(rec, summary)
+        write_metadata(rec, sc, "zenoh", run_id, process="launch", auth=auth_name(read_key(args)))
         for msg in failures:
-            rec.log("error", msg, 0, name="launch")
+            rec.log("error", msg, ns(result.sim_seconds), name="launch")
+        write_run_summary(rec, summary)
     finally:
         close_log(f, rec)
-    inputs = [log_dir / f"{u}.mcap" for u in sc.units if (log_dir / f"{u}.mcap").exists()]
-    logs = [scan_log(p) for p in [*inputs, log_dir / "launch.mcap"]]
+    logs = []
+    for path in [*(log_dir / f"{u}.mcap" for u in sc.units), log_dir / "launch.mcap"]:
+        if not path.exists() or path.stat().st_size == 0:
+            continue  # a unit that died before its log's first byte: named in the failures
+        try:
+            logs.append(scan_log(path))
+        except RgtbusError as exc:
+            failures.append(f"log {path.name} left out of run.mcap: {exc}")
     try:
         with open(merged, "wb") as out:
             merge_logs(logs, out)
     except OSError as exc:
         raise RgtbusError(f"cannot write log {str(merged)!r}: {exc.strerror}") from None
-    if summary is None:
-        raise RgtbusError(f"no unit finished: {failures[0] if failures else 'no output'}")
     summary["log"] = str(merged)
     if args.json:
         print(json.dumps(summary_json(summary)))
     else:
         print_summary(sc, summary)
-    if failures:
-        for msg in failures:
-            print(f"launch: {msg}", file=sys.stderr)
-        return 1
-    return 0
+    for msg in failures:
+        print(f"launch: {msg}", file=sys.stderr)
+    if interrupted is not None:
+        return 130
+    return 1 if failures else 0
 
 
 def run_router(args: argparse.Namespace) -> int:

@@ -53,9 +53,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="verify the scenario's [expect] table; exit 1 if anything differs",
     )
+    add_key_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
+
+
+def add_key_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--key-file",
+        metavar="FILE",
+        help="a shared secret (>= 16 bytes, e.g. head -c 32 /dev/urandom | base64 > FILE): every "
+        "frame and hello is signed with it and anything unsigned is dropped; without it anyone "
+        "who reaches the zenoh endpoints can join the run (docs/security.md)",
+    )
+
+
+def read_key(args: argparse.Namespace) -> bytes | None:
+    from rgtbus.bus.auth import load_key
+
+    return None if args.key_file is None else load_key(args.key_file)
 
 
 def default_log_path(name: str) -> Path:
@@ -140,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.with_seed(args.seed)
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
+    key = read_key(args)
     log_path = Path(args.log) if args.log else default_log_path(scenario.name)
     stream, recorder = open_log(log_path)
 
@@ -154,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
             progress=progress,
             engine=args.engine,
             realtime=args.realtime,
+            key=key,
         )
         summary = out.summary
     except BaseException as exc:
@@ -198,7 +217,10 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
     width = max(len(p) for p in pairs)
     print("  " + " " * 6 + "  ".join(p.ljust(max(width, 8)) for p in pairs))
     for name in units:
-        table = s["unit_relations"][name]
+        table = s["unit_relations"].get(name)
+        if table is None:
+            print(f"  {name:<6}(no report: the unit failed)")
+            continue
         print(f"  {name:<6}" + "  ".join(table.get(p, "?").ljust(max(width, 8)) for p in pairs))
     print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
     print(f"polynomial: {s['polynomial'] or '(none)'}")
@@ -219,7 +241,10 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
     print("decisions:")
     cw = max((len(v["canonical"] or "") for v in s["units"].values()), default=0)
     for name in units:
-        v = s["units"][name]
+        v = s["units"].get(name)
+        if v is None:
+            print(f"  {name}: no report (the unit failed)")
+            continue
         if not v["decided"]:
             print(f"  {name}: no decision")
             continue

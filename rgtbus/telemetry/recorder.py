@@ -179,7 +179,11 @@ class McapRecorder(_Encoding):
     support ``write`` and ``tell``). ``close`` finishes the file (summary, footer).
 
     A failed write (an unwritable path, a full disk) raises ``RgtbusError`` naming the stream;
-    ``failed`` then holds that line and nothing more is written (``close`` writes nothing)."""
+    ``failed`` then holds that line and nothing more is written (``close`` writes nothing).
+
+    The log is written as the run goes: the chunk in progress is finished and flushed to the
+    stream once it holds ``flush_messages`` messages or spans ``flush_seconds`` of log time, so
+    a process killed outright loses at most that much (the file then reads as truncated)."""
 
     def __init__(
         self,
@@ -188,6 +192,8 @@ class McapRecorder(_Encoding):
         compression: str = "zstd",
         validate: bool = False,
         chunk_size: int = 256 * 1024,
+        flush_seconds: float = 1.0,
+        flush_messages: int = 256,
     ) -> None:
         super().__init__(validate)
         if compression not in _COMPRESSION:
@@ -207,6 +213,12 @@ class McapRecorder(_Encoding):
         with self._io():
             self._writer.start(profile="", library=f"rgtbus {__version__}")
             self._flush()  # a target that takes no bytes fails here, before any run starts
+        if not (flush_seconds > 0 and flush_messages > 0):
+            raise RgtbusError("flush_seconds and flush_messages must be positive")
+        self._flush_ns = int(flush_seconds * 1e9)
+        self._flush_messages = int(flush_messages)
+        self._unflushed = 0
+        self._flush_due = 0  # log time at which the oldest unflushed message is flush_ns old
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
         self._sequence: Counter[int] = Counter()
@@ -259,8 +271,21 @@ class McapRecorder(_Encoding):
             self._writer.add_message(
                 channel_id=cid, log_time=t, publish_time=t, data=data, sequence=seq
             )
+            self._unflushed += 1
+            if self._unflushed == 1:
+                self._flush_due = t + self._flush_ns
+            elif self._unflushed >= self._flush_messages or t >= self._flush_due:
+                self.flush()
         except OSError as e:
             raise self._broken(e) from None
+
+    def flush(self) -> None:
+        """Finish the chunk in progress and hand everything to the stream (and flush it)."""
+        if self.failed or self._closed:
+            return
+        self._unflushed = 0
+        with self._io():
+            self._writer.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         if self._closed:

@@ -28,6 +28,7 @@ import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import (
     LogContents,
     decode_log,
@@ -109,6 +110,41 @@ def _phase_of(turn: int, n_units: int) -> str:
     return "relations" if turn < n_units * (n_units - 1) else "influences"
 
 
+def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
+    """The truncation notes of a merged log's inputs (empty for a log that is no merge)."""
+    out: list[str] = []
+    for name, values in metadata.items():
+        if name == "merge" or name.startswith("merge."):
+            try:
+                notes = json.loads(values.get("truncated", "[]"))
+            except ValueError:
+                notes = ["a merge record that does not parse"]
+            if isinstance(notes, list):
+                out += [str(n) for n in notes]
+    return out
+
+
+def _unit_process_ends(
+    metadata: dict[str, dict[str, str]], units: Sequence[str]
+) -> tuple[list[str], list[str]]:
+    """(how the unit processes that did not end "done" ended, every unit process whose log is
+    in this one). A unit process's log has a ``run`` record naming it (``process``) and, once
+    it ended, an ``end.<unit>`` record; a killed one has none."""
+    processes = [
+        v["process"]
+        for n, v in metadata.items()
+        if (n == "run" or n.startswith("run.")) and v.get("process") in units
+    ]
+    early = []
+    for unit in processes:
+        end = metadata.get(topics.unit_end_record(unit))
+        if end is None:
+            early.append(f"unit {unit}'s process ended without a word (killed?)")
+        elif end.get("status") != topics.UNIT_DONE:
+            early.append(f"unit {unit} {topics.UNIT_ENDED_EARLY}: {end.get('detail', '')}")
+    return early, processes
+
+
 class Replay:
     """A log organised for reading. Build with ``load_replay``."""
 
@@ -125,6 +161,13 @@ class Replay:
         self.scenario_error: str | None = None
         self._load_scenario()
         self.units: tuple[str, ...] = self._units()
+        # A merge of unit logs (launch, or ``rgtbus merge`` by hand) whose inputs ended early
+        # (a killed unit) is as incomplete as a truncated file, though the file itself is whole.
+        early, self.unit_processes = _unit_process_ends(self.metadata, self.units)
+        self.cut_inputs: list[str] = _merge_notes(self.metadata) + early
+        if self.cut_inputs:
+            self.truncated = True
+            self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
         self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
@@ -454,14 +497,22 @@ class Replay:
 
     def units_until_ns(self) -> int | None:
         """The log time up to which the units' messages are complete (units write in time
-        order; the medium and traces are logged ahead of them): None when nothing was."""
-        times = [
-            t
-            for topic, msgs in self.by_topic.items()
-            if topic != "/medium" and not _is_trace(topic) and topic != "/run"
-            for t, _ in msgs
-        ]
-        return max(times) if times else None
+        order; the medium and traces are logged ahead of them): None when nothing was. For a
+        merge with inputs that ended early: the earliest of the units' last messages (each
+        unit's log may end at another time)."""
+        last: dict[str, int] = {}
+        for topic, msgs in self.by_topic.items():
+            if topic == "/medium" or _is_trace(topic) or topic == "/run":
+                continue
+            for t, m in msgs:
+                who = str(m.get("unit", m.get("name", "")))
+                if t > last.get(who, -1):
+                    last[who] = t
+        if not last:
+            return None
+        if self.cut_inputs:
+            return min((v for u, v in last.items() if u in self.units), default=None)
+        return max(last.values())
 
     def check_medium(self, until_ns: int | None = None) -> list[Mismatch]:
         """Every logged window exactly equals the sum of the logged pulses (each unit's
@@ -814,7 +865,9 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
                 )
             )
         run = replay.run
-        if run is None:
+        if run is None and set(replay.unit_processes) >= set(sc.units):
+            pass  # a merge of every unit's own log (no launcher wrote a /run): all ended done
+        elif run is None:
             mismatches.append(Mismatch("/run", None, None, "record", "(missing)", "present"))
         else:
             checked["/run"] += 1

@@ -40,6 +40,19 @@ TOPIC_PATTERNS: tuple[tuple[str, re.Pattern[str], str, str], ...] = (
     ),
 )
 
+# Metadata records (besides scenario, run, frequencies, codebook, merge): a unit run as its own
+# process says how it ended in ``end.<unit>``: {"status": "done" or "ended early", "detail",
+# "sim_seconds"}. A merge whose unit processes did not all end "done" is incomplete
+# (docs/protocol.md).
+UNIT_END_PREFIX = "end."
+UNIT_DONE = "done"
+UNIT_ENDED_EARLY = "ended early"
+
+
+def unit_end_record(unit: str) -> str:
+    return f"{UNIT_END_PREFIX}{unit}"
+
+
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
 

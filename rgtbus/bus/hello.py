@@ -1,0 +1,113 @@
+"""The hello of the join barrier: who a process is, on which scenario, and whom it has heard.
+
+Wire form: one UTF-8 JSON object, at most ``MAX_HELLO`` bytes::
+
+    {"unit": "b", "digest": <64 hex: scenario text + seed>, "nonce": <32 hex>,
+     "heard": {"a": <32 hex: a's nonce as b heard it>, ...}, "ready": false,
+     "started": false, "sample": 0, "tag": <64 hex, only on a run with a key>}
+
+``heard`` echoes the nonce of every member the sender has heard: a hello that echoes *our*
+nonce was said after ours, so it cannot be a recording of an earlier run (docs/security.md).
+``ready``: the sender has such an answer from every member (the barrier can open).
+``tag`` is HMAC-SHA256 (rgtbus.bus.auth) over the object without it, in its canonical form
+(sorted keys, no spaces). ``read_hello`` checks every field (type, range, length, membership)
+and raises RgtbusError (AuthError for a missing or bad tag) on anything else: nothing a peer
+says reaches the barrier unchecked. Pure: no transport.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+
+from rgtbus.bus.auth import NONCE_SIZE, TAG_SIZE, AuthError, check_tag, tag
+from rgtbus.errors import RgtbusError
+
+MAX_HELLO = 64 * 1024
+_HEX = re.compile(r"^[0-9a-f]*$")
+_FIELDS = frozenset({"unit", "digest", "nonce", "heard", "ready", "started", "sample"})
+_NEVER = 2**63 - 1
+
+
+@dataclass(frozen=True)
+class Hello:
+    unit: str
+    digest: str
+    nonce: bytes
+    heard: dict[str, bytes] = field(default_factory=dict)
+    started: bool = False
+    sample: int = 0
+    ready: bool = False
+
+
+def _canonical(obj: dict) -> bytes:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
+
+
+def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
+    obj: dict = {
+        "unit": h.unit,
+        "digest": h.digest,
+        "nonce": h.nonce.hex(),
+        "heard": {u: n.hex() for u, n in sorted(h.heard.items())},
+        "ready": h.ready,
+        "started": h.started,
+        "sample": h.sample,
+    }
+    if key is not None:
+        obj["tag"] = tag(key, "hello", run_id, h.unit, h.nonce, _canonical(obj)).hex()
+    return _canonical(obj)
+
+
+def _hex(obj: Mapping, name: str, size: int) -> bytes:
+    v = obj.get(name)
+    if not isinstance(v, str) or len(v) != 2 * size or not _HEX.match(v):
+        raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits")
+    return bytes.fromhex(v)
+
+
+def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | None) -> Hello:
+    """The hello in ``raw``, every field checked; RgtbusError (one line) if anything is off."""
+    if not isinstance(raw, bytes | bytearray):
+        raise RgtbusError(f"hello must be bytes, got {type(raw).__name__}")
+    if len(raw) > MAX_HELLO:
+        raise RgtbusError(f"hello of {len(raw)} bytes, at most {MAX_HELLO}")
+    try:
+        obj = json.loads(bytes(raw).decode("utf-8"))
+    except (ValueError, RecursionError) as e:  # UnicodeDecodeError is a ValueError
+        raise RgtbusError(f"hello is not JSON: {type(e).__name__}") from None
+    if not isinstance(obj, dict):
+        raise RgtbusError(f"hello must be a JSON object, got {type(obj).__name__}")
+    got_tag = obj.pop("tag", None)
+    if set(obj) != _FIELDS:
+        extra, missing = sorted(set(obj) - _FIELDS), sorted(_FIELDS - set(obj))
+        raise RgtbusError(f"hello fields: unknown {extra}, missing {missing}")
+    unit = obj["unit"]
+    if not isinstance(unit, str) or unit not in members:
+        raise RgtbusError(f"hello from {str(unit)[:40]!r}, not a member")
+    digest = obj["digest"]
+    if not isinstance(digest, str) or len(digest) != 64 or not _HEX.match(digest):
+        raise RgtbusError("hello digest must be 64 lowercase hex digits")
+    nonce = _hex(obj, "nonce", NONCE_SIZE)
+    heard_obj = obj["heard"]
+    if not isinstance(heard_obj, dict):
+        raise RgtbusError("hello heard must be an object of member: nonce")
+    heard = {}
+    for u in heard_obj:
+        if u not in members:
+            raise RgtbusError(f"hello heard {str(u)[:40]!r}, not a member")
+        heard[u] = _hex(heard_obj, u, NONCE_SIZE)
+    started, sample, ready = obj["started"], obj["sample"], obj["ready"]
+    if not isinstance(started, bool) or not isinstance(ready, bool):
+        raise RgtbusError("hello started and ready must be true or false")
+    if isinstance(sample, bool) or not isinstance(sample, int) or not 0 <= sample <= _NEVER:
+        raise RgtbusError("hello sample must be an integer 0..2**63-1")
+    if key is not None:
+        if not isinstance(got_tag, str) or len(got_tag) != 2 * TAG_SIZE or not _HEX.match(got_tag):
+            raise AuthError(f"hello of {unit!r} not authenticated (no tag) on a run with a key")
+        check_tag(key, "hello", run_id, unit, nonce, _canonical(obj), bytes.fromhex(got_tag))
+    elif got_tag is not None:
+        raise AuthError(f"hello of {unit!r} authenticated with a key this run does not have")
+    return Hello(unit, digest, nonce, heard, started, sample, ready)
