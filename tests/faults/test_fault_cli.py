@@ -177,3 +177,43 @@ def test_bad_config_file_is_one_line(tmp_path):
         _config(tmp_path, "-c", str(path))
     msg = str(err.value)
     assert msg.startswith(f"zenoh config '{path}': ") and "\n" not in msg and ".rs:" not in msg
+
+
+# -- keys and closing -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", [["run", GATE], ["unit", "a", GATE], ["launch", GATE]])
+def test_bad_key_files_are_one_line_naming_the_file(tmp_path, capsys, command):
+    short = tmp_path / "short.key"
+    short.write_bytes(b"0123456789abcde\n")  # 15 bytes of key
+    big = tmp_path / "big.key"
+    big.write_bytes(b"k" * 5000)
+    for path, reason in [
+        (tmp_path / "missing.key", "No such file or directory"),
+        (tmp_path, "Is a directory"),
+        (short, "15 bytes of key, need at least 16"),
+        (big, "more than 4096 bytes"),
+    ]:
+        log = tmp_path / "never.mcap"
+        argv = [*command, "--key-file", str(path)]
+        argv += (
+            ["--log-dir", str(tmp_path / "L")] if command[0] == "launch" else ["--log", str(log)]
+        )
+        err = one_line_exit_2(main(argv), *capsys.readouterr())
+        assert f"key file '{path}': {reason}" in err, err
+        assert not log.exists() and not (tmp_path / "L").exists()  # refused before anything ran
+
+
+def test_a_slow_close_does_not_replace_the_real_error():
+    from rgtbus.bus.memory import MemoryBus
+
+    class SlowToClose(MemoryBus):
+        def _close_transport(self) -> None:
+            raise RgtbusError("closing timed out")
+
+    with pytest.raises(RgtbusError, match="the real error") as err, SlowToClose("r", ["a"], 200.0):
+        raise RgtbusError("the real error")
+    assert any("closing timed out" in n for n in err.value.__notes__)
+    # Alone, the close error is the one to see.
+    with pytest.raises(RgtbusError, match="closing timed out"), SlowToClose("r", ["a"], 200.0):
+        pass

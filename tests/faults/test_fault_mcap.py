@@ -18,7 +18,7 @@ from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import McapRecorder, read_log, require_run_log, scan_log
 from rgtbus.telemetry.merge import merge_logs
-from rgtbus.telemetry.recorder import MCAP_MAGIC
+from rgtbus.telemetry.recorder import MCAP_MAGIC, log_message
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 SCENARIO = (ROOT / "scenarios" / "example2.toml").read_text()
@@ -265,3 +265,19 @@ def test_a_log_whose_first_record_is_no_header_is_corrupt():
     assert raw.corruption == (
         "<stream>: corrupt log: record at byte 8: the first record is not a Header"
     )
+
+
+def test_a_log_is_written_as_the_run_goes():
+    """A process killed outright loses at most ~1 s of log time or 256 messages: what the
+    recorder was given before that is on the stream, readable, without close()."""
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    for k in range(40):  # one message every 0.1 s of log time
+        rec.write("/log", log_message("info", f"line {k}", k * 100_000_000, "a"), k * 100_000_000)
+    got = read_log(io.BytesIO(buf.getvalue()))  # never closed: read as truncated
+    assert got.truncated and len(got.messages) >= 40 - 11
+    buf2 = io.BytesIO()
+    rec2 = McapRecorder(buf2)
+    for k in range(600):  # all at one instant: the message count bounds what is held back
+        rec2.write("/log", log_message("info", f"line {k}", 0, "a"), 0)
+    assert len(read_log(io.BytesIO(buf2.getvalue())).messages) >= 600 - 256

@@ -1,0 +1,276 @@
+"""Faults of cross-process runs: units killed, stopped or forged, the launcher interrupted.
+
+Each test starts a real launch (one OS process per unit, zenoh on loopback, multicast off) or
+real ``rgtbus unit`` processes. Every wait is bounded and generous; every process is reaped by
+``procs`` (or by the launcher, whose own reaping is under test) even when a test fails.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from rgtbus.bus.auth import tag
+from rgtbus.bus.hello import Hello, encode_hello
+from rgtbus.bus.payload import FINAL, NEVER, Frame, encode
+from rgtbus.bus.zenoh import make_config
+from rgtbus.cli.proc_cmds import free_ports
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import load_scenario
+from rgtbus.telemetry import MemoryRecorder, read_log, scan_log
+from units.group import run_group
+
+ROOT = Path(__file__).parent.parent.parent
+GATE = str(ROOT / "scenarios" / "gate.toml")
+EXE = [sys.executable, "-m", "rgtbus"]
+KEY = b"k" * 32
+
+
+@pytest.fixture
+def procs():
+    spawned: list[subprocess.Popen] = []
+
+    def spawn(*argv: str) -> subprocess.Popen:
+        p = subprocess.Popen(
+            [*EXE, *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        spawned.append(p)
+        return p
+
+    try:
+        yield spawn
+    finally:
+        for p in spawned:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(p.pid, signal.SIGCONT)
+            if p.poll() is None:
+                p.kill()
+            p.communicate(timeout=30)
+
+
+def has_pulse(path: Path) -> bool:
+    """The run is under way: the unit's log (written as it goes) holds a pulse."""
+    if not path.exists():
+        return False
+    try:
+        return any(t == "/tx/pulse" for t, _, _ in read_log(path)[0])
+    except RgtbusError:
+        return False
+
+
+def wait_until(pred, what: str, timeout: float = 60.0, alive=()) -> None:
+    deadline = time.monotonic() + timeout
+    while not pred():
+        for p in alive:
+            assert p.poll() is None, f"ended before {what}: {p.communicate(timeout=30)}"
+        if time.monotonic() > deadline:
+            pytest.fail(f"not {what} within {timeout:g} s")
+        time.sleep(0.1)
+
+
+def unit_pids(launcher: subprocess.Popen, log_dir: Path, units: list[str]) -> dict[str, int]:
+    """The launcher's unit processes, told apart by the log file each holds open."""
+    found: dict[str, int] = {}
+
+    def look() -> bool:
+        kids = Path(f"/proc/{launcher.pid}/task/{launcher.pid}/children").read_text().split()
+        for pid in kids:
+            with contextlib.suppress(OSError):
+                for fd in Path(f"/proc/{pid}/fd").iterdir():
+                    target = os.readlink(fd)
+                    for u in units:
+                        if target == str(log_dir / f"{u}.mcap"):
+                            found[u] = int(pid)
+        return len(found) == len(units)
+
+    wait_until(look, "every unit's log open", alive=[launcher])
+    return found
+
+
+def launch(procs, log_dir: Path, *extra: str) -> subprocess.Popen:
+    return procs(
+        "launch", GATE, "--log-dir", str(log_dir), "--realtime", "20", "--timeout", "3", *extra
+    )
+
+
+def verify_code(path: Path) -> int:
+    argv = [*EXE, "replay", str(path), "--verify", "--json"]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=120).returncode
+
+
+def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
+    la = launch(procs, tmp_path)
+    pids = unit_pids(la, tmp_path, list("abcd"))
+    wait_until(lambda: has_pulse(tmp_path / "a.mcap"), "under way", alive=[la])
+    time.sleep(1.0)  # b has run a while: its flushed log must hold it
+    os.kill(pids["b"], signal.SIGKILL)
+    t0 = time.monotonic()
+    _out, err = la.communicate(timeout=60)
+    took = time.monotonic() - t0
+    assert la.returncode == 1, err
+    first = err.strip().splitlines()[0]
+    assert first.startswith("launch: unit b died (killed by SIGKILL) in window "), err
+    assert took < 3 + 20  # --timeout 3, then a few seconds (generous for a loaded machine)
+    assert scan_log(tmp_path / "b.mcap").truncated  # killed: no footer, read to its cut
+    b_messages = read_log(tmp_path / "b.mcap")[0]
+    assert len(b_messages) > 10  # written as it went
+    messages, _metadata = read_log(tmp_path / "run.mcap")
+    run = [m for t, _, m in messages if t == "/run"]
+    assert len(run) == 1 and run[0]["error"] == first.removeprefix("launch: ")
+    merged = {(t, ns, json.dumps(m, sort_keys=True)) for t, ns, m in messages}
+    assert all((t, ns, json.dumps(m, sort_keys=True)) in merged for t, ns, m in b_messages)
+    assert verify_code(tmp_path / "run.mcap") == 3  # ends early: verified only that far
+
+
+def test_a_stopped_unit_is_named_and_the_launch_ends(procs, tmp_path):
+    la = launch(procs, tmp_path)
+    pids = unit_pids(la, tmp_path, list("abcd"))
+    wait_until(lambda: has_pulse(tmp_path / "a.mcap"), "under way", alive=[la])
+    os.kill(pids["c"], signal.SIGSTOP)
+    t0 = time.monotonic()
+    _, err = la.communicate(timeout=90)
+    took = time.monotonic() - t0
+    assert la.returncode == 1, err
+    assert err.startswith("launch: unit c stalled in window "), err
+    assert "c promised nothing past sample" in err  # the others say why they stopped
+    assert took < 3 + 5 + 25  # --timeout, the launcher's few seconds, and slack for load
+    with contextlib.suppress(ProcessLookupError):  # reaped: gone, not left stopped
+        os.kill(pids["c"], 0)
+        pytest.fail("the stalled unit was left behind")
+    assert read_log(tmp_path / "c.mcap")  # stopped with SIGTERM + SIGCONT: finished its log
+    assert verify_code(tmp_path / "run.mcap") == 3
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_an_interrupted_launch_stops_its_units_and_still_merges(procs, tmp_path, sig):
+    la = launch(procs, tmp_path)
+    pids = unit_pids(la, tmp_path, list("abcd"))
+    wait_until(lambda: has_pulse(tmp_path / "a.mcap"), "under way", alive=[la])
+    la.send_signal(sig)
+    _out, err = la.communicate(timeout=60)
+    assert la.returncode == 130, err
+    assert "Traceback" not in err
+    assert "interrupted" in err.splitlines()[0]
+    for pid in pids.values():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, 0)
+            pytest.fail("a unit was left running")
+    messages, _ = read_log(tmp_path / "run.mcap")
+    assert next(m["error"] for t, _, m in messages if t == "/run").startswith("launch interrupted")
+    assert verify_code(tmp_path / "run.mcap") == 3
+
+
+def test_a_clean_launch_and_its_hand_merge_verify(procs, tmp_path):
+    la = procs("launch", GATE, "--log-dir", str(tmp_path), "--json")
+    _out, err = la.communicate(timeout=120)
+    assert la.returncode == 0, err
+    assert verify_code(tmp_path / "run.mcap") == 0
+    hand = tmp_path / "hand.mcap"
+    merge = [*EXE, "merge", *(str(tmp_path / f"{u}.mcap") for u in "abcd"), "-o", str(hand)]
+    assert subprocess.run(merge, capture_output=True, timeout=60).returncode == 0
+    assert verify_code(hand) == 0  # no launcher, no /run: every unit ended done
+    # A hand merge that leaves a unit out is no whole run.
+    part = tmp_path / "part.mcap"
+    merge = [*EXE, "merge", *(str(tmp_path / f"{u}.mcap") for u in "abc"), "-o", str(part)]
+    assert subprocess.run(merge, capture_output=True, timeout=60).returncode == 0
+    assert verify_code(part) == 1
+
+
+def single(name: str):
+    sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    return run_group(sc, "memory", MemoryRecorder()).summary
+
+
+def test_a_keyed_launch_refuses_forged_frames_and_equals_the_single_run(procs, tmp_path):
+    key_file = tmp_path / "key"
+    key_file.write_bytes(KEY + b"\n")
+    ports = free_ports(4)
+    started = {}
+    for i, name in enumerate("abcd"):
+        net = ["--listen", f"tcp/127.0.0.1:{ports[i]}"]
+        for j in range(i):
+            net += ["--connect", f"tcp/127.0.0.1:{ports[j]}"]
+        started[name] = procs(
+            "unit", name, GATE, *net, "--log", str(tmp_path / f"{name}.mcap"), "--json",
+            "--run-id", "k1", "--key-file", str(key_file), "--realtime", "40",
+        )  # fmt: skip
+    stop = threading.Event()
+    body = Frame(1, NEVER, np.zeros(0, dtype=np.int64), np.zeros(0), FINAL, 0)
+    forged = [
+        encode(body, 200.0),  # unsigned: the attack that used to end a run with exit 0
+        encode(body, 200.0, sign=lambda b: tag(b"x" * 32, "frame", "k1", "a", b"\0" * 16, b)),
+    ]
+
+    unsigned_hello = encode_hello(Hello("c", "0" * 64, b"\0" * 16), "k1", None)
+
+    def mallory() -> None:
+        session = zenoh.open(make_config(mode="peer", connect=[f"tcp/127.0.0.1:{ports[0]}"]))
+        try:
+            while not stop.wait(0.02):
+                for u in "abcd":
+                    for data in forged:
+                        session.put(f"rgtbus/k1/tx/{u}", data)
+                session.put("rgtbus/k1/hello/a", b'{"heard": [[1]]}')
+                session.put("rgtbus/k1/hello/b", b"[" * 60_000)  # nested past the recursion limit
+                session.put("rgtbus/k1/hello/c", unsigned_hello)
+        finally:
+            session.close()
+
+    thread = threading.Thread(target=mallory, daemon=True)
+    thread.start()
+    try:
+        outs = {}
+        for name, p in started.items():
+            out, err = p.communicate(timeout=90)
+            assert p.returncode == 0, err
+            outs[name] = json.loads(out)
+    finally:
+        stop.set()
+        thread.join(timeout=15)
+    ref = single("gate")
+    for name, out in outs.items():
+        assert out["report"]["result"] == ref["units"][name]
+        assert out["bus"]["dropped_unauthenticated"] > 0
+        messages, metadata = read_log(tmp_path / f"{name}.mcap")
+        assert metadata["run"]["auth"] == "hmac-sha256"
+        assert KEY.decode() not in json.dumps(metadata)  # the key itself is never logged
+        assert any("not authenticated" in m.get("message", "") for t, _, m in messages)
+
+
+def test_a_unit_without_the_key_cannot_join_and_says_so_in_its_log(procs, tmp_path):
+    key_file = tmp_path / "key"
+    key_file.write_bytes(KEY)
+    ports = free_ports(2)
+    common = ["--run-id", "k2", "--join-timeout", "4"]
+    a = procs(
+        "unit", "a", GATE, "--listen", f"tcp/127.0.0.1:{ports[0]}", "--log",
+        str(tmp_path / "a.mcap"), "--key-file", str(key_file), *common,
+    )  # fmt: skip
+    b = procs(
+        "unit", "b", GATE, "--connect", f"tcp/127.0.0.1:{ports[0]}", "--log",
+        str(tmp_path / "b.mcap"), *common,
+    )  # fmt: skip
+    _, err_a = a.communicate(timeout=60)
+    _, err_b = b.communicate(timeout=60)
+    assert a.returncode != 0 and b.returncode != 0
+    assert "joining run 'k2' timed out" in err_a and "joining run 'k2' timed out" in err_b
+    messages, metadata = read_log(tmp_path / "a.mcap")
+    lines = [m["message"] for t, _, m in messages if t == "/log"]
+    assert any("join failed" in x for x in lines), lines
+    assert any("hello of 'b' not authenticated" in x for x in lines), lines
+    assert metadata["end.a"]["status"] == "ended early"
