@@ -52,11 +52,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def replay(args: argparse.Namespace) -> int:
-    from rgtbus.telemetry.replay import EXIT_TRUNCATED, load_replay
+    from rgtbus.telemetry.replay import explained, load_replay
 
     if args.plot is None and (args.unit or args.t_from is not None or args.t_to is not None):
         raise RgtbusError("--unit, --from and --to go with --plot OUT.png")
     rp = load_replay(args.log)
+    with explained(rp.contents, rp.label):  # a message that breaks its schema: named, exit 2
+        return _replay(rp, args)
+
+
+def _replay(rp: Replay, args: argparse.Namespace) -> int:
+    from rgtbus.telemetry.replay import EXIT_TRUNCATED
+
     timeline = not (args.json or args.verify or args.csv or args.plot)
     if rp.truncated and not timeline and (args.json or not args.verify):
         print(f"note: {rp.note}", file=sys.stderr)  # the text reports print it themselves

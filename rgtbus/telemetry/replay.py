@@ -14,12 +14,13 @@ sample, to the logged medium. Every disagreement is a ``Mismatch``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 import os
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from typing import IO, Any
 
@@ -594,7 +595,43 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     verification compares them byte for byte, plots decode one unit's."""
     raw = scan_log(source)
     require_run_log(raw)
-    return Replay(decode_log(raw, keep_raw=_is_trace), raw.label)
+    contents = decode_log(raw, keep_raw=_is_trace)
+    with explained(contents, raw.label):
+        return Replay(contents, raw.label)
+
+
+def schema_error(contents: LogContents) -> str | None:
+    """The first message that breaks its topic's schema, in one line (None: all keep them).
+    Run only once reading has failed: a log's messages are not validated on the way in."""
+    from rgtbus.telemetry import validate
+
+    for topic, t_ns, message in contents.messages:
+        try:
+            schema = topics.schema_for(topic)
+        except RgtbusError:
+            continue  # a topic of someone else's: not ours to read
+        if isinstance(message, bytes | bytearray | memoryview):
+            message = orjson.loads(message)
+        errs = validate.errors(message, topics.load_schema(schema))
+        if errs:
+            return f"message on {topic} at t = {t_ns / NS:.3f} s breaks {schema}: {errs[0]}"
+    return None
+
+
+@contextlib.contextmanager
+def explained(contents: LogContents, label: str) -> Iterator[None]:
+    """Reading a log whose messages break their schemas (written by hand or tampered with,
+    with valid CRCs) fails as RgtbusError naming the first such message, not with a KeyError
+    from deep inside; any other failure is a bug and goes on as it is."""
+    try:
+        yield
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError) as exc:
+        if isinstance(exc, RgtbusError):
+            raise
+        why = schema_error(contents)
+        if why is None:
+            raise
+        raise RgtbusError(f"{label}: {why}") from None
 
 
 # -- verification ---------------------------------------------------------------------------

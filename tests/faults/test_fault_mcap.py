@@ -281,3 +281,18 @@ def test_a_log_is_written_as_the_run_goes():
     for k in range(600):  # all at one instant: the message count bounds what is held back
         rec2.write("/log", log_message("info", f"line {k}", 0, "a"), 0)
     assert len(read_log(io.BytesIO(buf2.getvalue())).messages) >= 600 - 256
+
+
+@pytest.mark.parametrize("extra", [[], ["--verify"], ["--json"], ["--csv", "CSV"]])
+def test_messages_that_break_their_schema_are_named_not_a_traceback(tmp_path, capsys, extra):
+    """Whole CRCs, but a message written by hand without its fields: exit 2, one line."""
+    path = tmp_path / "hand.mcap"
+    with open(path, "wb") as f, McapRecorder(f) as rec:
+        rec.metadata("scenario", {"name": "example2", "path": "example2.toml", "text": SCENARIO})
+        rec.metadata("run", {"seed": "2", "version": "0.1.0", "bus": "memory"})
+        rec.write("/rx/decode", {"unit": "a"}, 1_500_000_000)
+        rec.write("/tx/pulse", {"unit": "a"}, 2_000_000_000)
+    argv = [str(tmp_path / "CSV") if a == "CSV" else a for a in extra]
+    code, _out, err = cli(capsys, "replay", path, *argv)
+    assert code == 2 and "Traceback" not in err and err.count("\n") == 1, err
+    assert "message on /rx/decode at t = 1.500 s breaks rgtbus.Decode" in err, err
