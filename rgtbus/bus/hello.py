@@ -26,7 +26,7 @@ from rgtbus.bus.auth import NONCE_SIZE, TAG_SIZE, AuthError, check_tag, tag
 from rgtbus.errors import RgtbusError
 
 MAX_HELLO = 64 * 1024
-_HEX = re.compile(r"^[0-9a-f]*$")
+_HEX = re.compile(r"[0-9a-f]*")  # used with fullmatch: "$" would let a trailing newline in
 _FIELDS = frozenset({"unit", "digest", "nonce", "heard", "ready", "started", "sample"})
 _NEVER = 2**63 - 1
 
@@ -61,9 +61,16 @@ def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
     return _canonical(obj)
 
 
+def check_digest(digest: object) -> str:
+    """A scenario digest: 64 lowercase hex digits (SHA-256), as every hello carries."""
+    if not isinstance(digest, str) or len(digest) != 64 or not _HEX.fullmatch(digest):
+        raise RgtbusError(f"hello digest must be 64 lowercase hex digits, got {str(digest)[:70]!r}")
+    return digest
+
+
 def _hex(obj: Mapping, name: str, size: int) -> bytes:
     v = obj.get(name)
-    if not isinstance(v, str) or len(v) != 2 * size or not _HEX.match(v):
+    if not isinstance(v, str) or len(v) != 2 * size or not _HEX.fullmatch(v):
         raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits")
     return bytes.fromhex(v)
 
@@ -87,9 +94,7 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
     unit = obj["unit"]
     if not isinstance(unit, str) or unit not in members:
         raise RgtbusError(f"hello from {str(unit)[:40]!r}, not a member")
-    digest = obj["digest"]
-    if not isinstance(digest, str) or len(digest) != 64 or not _HEX.match(digest):
-        raise RgtbusError("hello digest must be 64 lowercase hex digits")
+    digest = check_digest(obj["digest"])
     nonce = _hex(obj, "nonce", NONCE_SIZE)
     heard_obj = obj["heard"]
     if not isinstance(heard_obj, dict):
@@ -105,7 +110,11 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
     if isinstance(sample, bool) or not isinstance(sample, int) or not 0 <= sample <= _NEVER:
         raise RgtbusError("hello sample must be an integer 0..2**63-1")
     if key is not None:
-        if not isinstance(got_tag, str) or len(got_tag) != 2 * TAG_SIZE or not _HEX.match(got_tag):
+        if (
+            not isinstance(got_tag, str)
+            or len(got_tag) != 2 * TAG_SIZE
+            or not _HEX.fullmatch(got_tag)
+        ):
             raise AuthError(f"hello of {unit!r} not authenticated (no tag) on a run with a key")
         check_tag(key, "hello", run_id, unit, nonce, _canonical(obj), bytes.fromhex(got_tag))
     elif got_tag is not None:

@@ -25,7 +25,7 @@ import zenoh
 
 from rgtbus.bus.auth import AuthError
 from rgtbus.bus.base import QueueBus
-from rgtbus.bus.hello import Hello, encode_hello, read_hello
+from rgtbus.bus.hello import Hello, check_digest, encode_hello, read_hello
 from rgtbus.errors import RgtbusError
 
 _MODES = ("peer", "client", "router")
@@ -244,6 +244,7 @@ class ZenohBus(QueueBus):
         hellos with a valid tag count; the nonces heard are what later frames are checked with.
         """
         self._check_member(unit)
+        check_digest(digest)
         members = set(self.members)
         others = members - {unit}
         put = self._hellos.put
