@@ -99,6 +99,8 @@ def run_unit(
             for note in bus.drop_notes():
                 recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)
             stats = dict(bus.stats())
+        if bus.close_problem:
+            recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=name)
         if result.failure:  # a unit's own failure is in its log already
             recorder.log("error", result.failure, ns(result.sim_seconds), name=name)
     except BaseException as exc:

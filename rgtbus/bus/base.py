@@ -70,7 +70,12 @@ class Bus(Protocol):
     def drop_notes(self) -> list[str]: ...
     def close(self) -> None: ...
     def __enter__(self) -> Self: ...
-    def __exit__(self, *exc: object) -> None: ...
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None: ...
 
 
 def tx_prefix(run_id: str) -> str:
@@ -200,6 +205,7 @@ class QueueBus:
         # Whose tags we can check: our own units now, the others' once their hello is heard.
         self._nonces: dict[str, bytes] = dict.fromkeys(self.local, self.nonce)
         self._closed = False
+        self.close_problem: str | None = None  # a transport slow to close, once closed
 
     # -- public API -------------------------------------------------------------------------
 

@@ -137,6 +137,34 @@ def make_config(
     return cfg
 
 
+CLOSE_TIMEOUT = 2.0  # seconds; a close that waits longer is waiting for a peer that is gone
+_SLOW_CLOSE = "zenoh session did not close within"
+
+
+def close_session(session: zenoh.Session, timeout: float) -> str | None:
+    """Close ``session``, waiting at most ``timeout`` seconds; what went wrong, or None.
+
+    zenoh's close says goodbye on every link and can block for ~10 s when a peer no longer
+    reads (a process stopped with SIGSTOP fills its socket; docs/zenoh-notes.md): a unit that
+    has finished must not wait for that. The close goes on in a daemon thread, which never
+    holds up the interpreter's exit."""
+    outcome: list[str] = []
+    done = threading.Event()
+
+    def close() -> None:
+        try:
+            session.close()
+        except Exception as e:  # zenoh's ZError: one readable line
+            outcome.append(zenoh_reason(e))
+        finally:
+            done.set()
+
+    threading.Thread(target=close, name="rgtbus-zenoh-close", daemon=True).start()
+    if not done.wait(timeout):
+        return f"{_SLOW_CLOSE} {timeout:g} s (a peer no longer answering?)"
+    return outcome[0] if outcome else None
+
+
 class ZenohBus(QueueBus):
     kind = "zenoh"
     OPTIONS = frozenset(
@@ -392,9 +420,10 @@ class ZenohBus(QueueBus):
             except Exception as e:  # session may already be closed by its owner
                 errors.append(str(e))
         if self._owns_session and getattr(self, "session", None) is not None:
-            try:
-                self.session.close()
-            except Exception as e:
-                errors.append(str(e))
+            problem = close_session(self.session, CLOSE_TIMEOUT)
+            if problem and problem.startswith(_SLOW_CLOSE):
+                self.close_problem = problem  # the run is over and whole: a warning, no error
+            elif problem:
+                errors.append(problem)
         if errors and self._owns_session:
             raise RgtbusError(f"closing zenoh bus of run {self.run_id!r}: {errors[0]}")
