@@ -126,7 +126,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     sc = replay.require_scenario()
     u = sc.universe
     out: list[Mismatch] = []
-    logged_decisions = defaultdict(dict)
+    logged_decisions: defaultdict[str, dict[str, dict]] = defaultdict(dict)
     for d in replay.decisions:
         logged_decisions[d["unit"]][d["subject"]] = d
     for name in sc.units:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
-    from rgtbus.telemetry.replay import Replay
+    from rgtbus.telemetry.replay import DecodeRow, Replay
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -185,7 +185,7 @@ def print_timeline(rp: Replay) -> None:
     )
     if rp.truncated:
         print(f"NOTE: {rp.note}")
-    by_tx: dict[tuple[int, str], list] = {}
+    by_tx: dict[tuple[int | None, str], list[DecodeRow]] = {}
     for d in rp.decodes:
         key = (d.turn, "id" if d.kind == "id" else "payload")
         by_tx.setdefault(key, []).append(d)
@@ -237,7 +237,7 @@ def print_timeline(rp: Replay) -> None:
     print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
     if s["influences"]:
         print("influences (row influences column), as the first unit holds them:")
-        cells = [["", *units]] + [
+        grid = [["", *units]] + [
             [src]
             + [
                 "·" if src == dst else _alt(rp, s["influences"].get(f"{src}>{dst}"))
@@ -245,22 +245,22 @@ def print_timeline(rp: Replay) -> None:
             ]
             for src in units
         ]
-        widths = [max(len(r[i]) for r in cells) for i in range(len(cells[0]))]
-        for r in cells:
+        widths = [max(len(r[i]) for r in grid) for i in range(len(grid[0]))]
+        for r in grid:
             print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
     print("decisions (each unit's own; predictions of the others in --json):")
-    if not any(d["unit"] == d["subject"] for d in rp.decisions):
+    if not any(dec["unit"] == dec["subject"] for dec in rp.decisions):
         print("  (none)")
-    for d in rp.decisions:
-        if d["unit"] != d["subject"]:
+    for dec in rp.decisions:
+        if dec["unit"] != dec["subject"]:
             continue
-        if d["frustrated"]:
+        if dec["frustrated"]:
             verdict = "frustrated: no decision"
         else:
-            lo, hi = (_alt(rp, x) for x in d["interval"])
-            verdict = f"{d['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {d['unit']} ⊇ {lo}"
-            verdict = f"{verdict:<14} choice {_alt(rp, d['choice'])}"
-        print(f"  t={d['t']:.3f}s  {d['canonical']:<28} {verdict}")
+            lo, hi = (_alt(rp, x) for x in dec["interval"])
+            verdict = f"{dec['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {dec['unit']} ⊇ {lo}"
+            verdict = f"{verdict:<14} choice {_alt(rp, dec['choice'])}"
+        print(f"  t={dec['t']:.3f}s  {dec['canonical']:<28} {verdict}")
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
     if rp.run is None:

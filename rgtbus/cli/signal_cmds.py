@@ -11,6 +11,7 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -170,7 +171,8 @@ def cmd_resonate(args: argparse.Namespace) -> int:
         seed=args.seed,
     )
     tau = bank.tau
-    rows = []
+    assert res.y is not None  # run_resonate feeds with record=True
+    rows: list[dict[str, Any]] = []
     for c, w in enumerate(omegas):
         times = res.spikes[res.spikes[:, 2] == c, 0] * tau
         rows.append(
@@ -251,6 +253,7 @@ def _trace(
     n = round(seconds / PAPER_TAU) + 1
     u = hear([Transmission(omegas[on], start, tuple(word))], n)[:, 0]
     res = ResonatorBank(omegas).feed(u, record=True)
+    assert res.y is not None  # fed with record=True
     return np.arange(n) * PAPER_TAU, res.y[:, 0, :]
 
 
@@ -316,6 +319,7 @@ def figure_receiving(path: Path) -> str:
     n = round((t_send + 4.0) / PAPER_TAU)
     u = hear([Transmission(oms[0], 0.001, word), Transmission(oms[2], t_send, word)], n)[:, 0]
     res = ResonatorBank(oms).feed(u, record=True)
+    assert res.y is not None  # fed with record=True
     t = np.arange(n) * PAPER_TAU
     fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
     order = [(0, "a"), (2, "c"), (1, "b")]
@@ -356,7 +360,7 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
     plt = _pyplot()
     cb = paper_codebook()
     wa, wc = PAPER_OMEGAS[0], PAPER_OMEGAS[2]
-    curves = {
+    curves: dict[str, dict[str, Any]] = {
         "alternatives, alone": dict(words=cb.alternatives),
         "alternatives + interferer on ω_c, joint": dict(words=cb.alternatives, interferer=wc),
         "alternatives + interferer, independent": dict(

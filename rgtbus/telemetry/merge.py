@@ -72,22 +72,22 @@ def merge_logs(
             res.notes.append(log.note)
         local_schema: dict[int, int] = {0: 0}  # schema id 0: no schema
         for sid, s in log.schemas.items():
-            key = (s.name, s.encoding, bytes(s.data))
-            if key not in schema_ids:
-                schema_ids[key] = writer.register_schema(s.name, s.encoding, s.data)
-            local_schema[sid] = schema_ids[key]
+            schema_key = (s.name, s.encoding, bytes(s.data))
+            if schema_key not in schema_ids:
+                schema_ids[schema_key] = writer.register_schema(s.name, s.encoding, s.data)
+            local_schema[sid] = schema_ids[schema_key]
         local_channel: dict[int, int] = {}
         for cid, c in log.channels.items():
             if c.schema_id not in local_schema:
                 raise RgtbusError(f"{log.label}: channel {c.topic} names unknown schema")
             sid = local_schema[c.schema_id]
-            key = (c.topic, c.message_encoding, sid, tuple(sorted(c.metadata.items())))
-            if key not in channel_ids:
-                channel_ids[key] = writer.register_channel(
+            channel_key = (c.topic, c.message_encoding, sid, tuple(sorted(c.metadata.items())))
+            if channel_key not in channel_ids:
+                channel_ids[channel_key] = writer.register_channel(
                     c.topic, c.message_encoding, sid, dict(c.metadata)
                 )
-                topic_of[channel_ids[key]] = c.topic
-            local_channel[cid] = channel_ids[key]
+                topic_of[channel_ids[channel_key]] = c.topic
+            local_channel[cid] = channel_ids[channel_key]
         for order, (cid, log_time, publish_time, _, data) in enumerate(log.messages):
             entries.append((log_time, k, order, local_channel[cid], publish_time, data))
     entries.sort(key=lambda e: (e[0], e[1], e[2]))
@@ -96,11 +96,11 @@ def merge_logs(
     sequence: Counter[int] = Counter()
     for log_time, _, _, cid, publish_time, data in entries:
         if dedupe:
-            key = (cid, log_time, data)
-            if key in seen:
+            msg_key = (cid, log_time, data)
+            if msg_key in seen:
                 res.duplicates += 1
                 continue
-            seen.add(key)
+            seen.add(msg_key)
         sequence[cid] += 1
         writer.add_message(cid, log_time, data, publish_time, sequence[cid])
         res.messages += 1

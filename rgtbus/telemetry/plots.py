@@ -227,19 +227,19 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
                 fontsize=7,
             )
     universe = replay.scenario.universe if replay.scenario else None
-    for d in replay.decisions:
-        if d["unit"] != d["subject"] or d["unit"] not in row:
+    for dec in replay.decisions:
+        if dec["unit"] != dec["subject"] or dec["unit"] not in row:
             continue
-        if d["frustrated"]:
-            text = f"{d['unit']}: frustrated"
+        if dec["frustrated"]:
+            text = f"{dec['unit']}: frustrated"
         else:
-            text = f"{d['unit']} chooses {_alt(d['choice'], universe)}"
-            lo_a, hi_a = (_alt(v, universe) for v in d["interval"])
+            text = f"{dec['unit']} chooses {_alt(dec['choice'], universe)}"
+            lo_a, hi_a = (_alt(v, universe) for v in dec["interval"])
             text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
-        ax.plot([d["t"]], [row[d["unit"]]], "D", color=color[d["unit"]], ms=6)
+        ax.plot([dec["t"]], [row[dec["unit"]]], "D", color=color[dec["unit"]], ms=6)
         ax.annotate(
             text,
-            (d["t"], row[d["unit"]]),
+            (dec["t"], row[dec["unit"]]),
             xytext=(-6, 4),
             textcoords="offset points",
             fontsize=7.5,

@@ -245,12 +245,12 @@ class Replay:
     def _decodes(self) -> list[DecodeRow]:
         # A decode reads the latest code of its class its sender started before it.
         starts: dict[tuple[str, str], list[Transmission]] = defaultdict(list)
-        for tx in self.transmissions:
-            starts[(tx.sender, tx.kind)].append(tx)
+        for sent in self.transmissions:
+            starts[(sent.sender, sent.kind)].append(sent)
         rows = []
         for _, d in self.by_topic["/rx/decode"]:
             cls = "id" if d["kind"] == "id" else "payload"
-            tx = None
+            tx: Transmission | None = None
             for cand in starts[(d["sender"], cls)]:
                 if ("turn" in d and cand.turn == d["turn"]) or (
                     "turn" not in d and cand.start <= d["t"] + 1e-9  # logs from before turns
@@ -676,7 +676,7 @@ def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
 
 
 def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
-    out = []
+    out: list[tuple[str, Any, Any]] = []
     for key in ("y", "x"):
         if np.array_equal(
             np.asarray(logged.get(key), dtype=float), np.asarray(recomputed.get(key), dtype=float)

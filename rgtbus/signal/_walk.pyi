@@ -1,0 +1,44 @@
+# Types of the compiled kernels in _walk.pyx (the extension has no annotations mypy can read).
+import numpy as np
+
+def walk_lanes(
+    Pr: np.ndarray,
+    Pi: np.ndarray,
+    Qr: np.ndarray,
+    nQi: np.ndarray,
+    Ar: np.ndarray,
+    Ai: np.ndarray,
+    R: int,
+    lane_ch: np.ndarray,
+    lane_rec: np.ndarray,
+    lanes: np.ndarray,
+    thr: float,
+    thr2: float,
+    rv: float,
+    stable: bool,
+    wr: np.ndarray,
+    wi: np.ndarray,
+    pend: np.ndarray,
+    start: int,
+    end: int,
+    rows: np.ndarray,
+    vals: np.ndarray,
+    stop_first: bool,
+    record: bool,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    mask: np.ndarray,
+    readout: bool,
+    ds: np.ndarray,
+    sp_k: np.ndarray,
+    sp_l: np.ndarray,
+) -> tuple[int, int, bool]: ...
+def score(
+    vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
+) -> tuple[int, int, float, float, float]: ...
+def timings(
+    chans: np.ndarray, omegas: np.ndarray, start: float, pulses: int, tau: float, search: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+def read_rows(
+    rows: np.ndarray, vals: np.ndarray, idx: np.ndarray, chans: np.ndarray
+) -> np.ndarray: ...
