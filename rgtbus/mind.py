@@ -11,9 +11,11 @@ picks its own choice from its interval by its decision policy:
 
 A frustrated unit makes no choice.
 
-What a unit sends is chosen here too: its relationship code to each peer (fixed by the scenario,
-or alliance with probability p, the "positive pole", from its own seeded draws) and its
-influence on each peer.
+What a unit sends is chosen here too: its relationship code to each peer (fixed by the scenario;
+alliance with probability p, the "positive pole", from its own seeded draws; or its side of a
+seeded random decomposable group, ``cograph``, which every unit draws alike from the scenario's
+seed) and its influence on each peer (listed per pair; else one value for all, ``uniform``; or
+drawn from its own seeded generator over weighted alternatives, ``random``).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt import (
@@ -34,8 +37,19 @@ from rgtbus.rgt import (
     forward,
     graph_to_polynomial,
     install_relations,
+    polynomial_to_graph,
+    random_polynomial,
 )
 from rgtbus.rgt.expr import needs_star
+
+
+@lru_cache(maxsize=16)
+def cograph_relations(units: tuple[str, ...], seed: int) -> dict[tuple[str, str], bool]:
+    """A seeded random decomposable group over ``units`` (a random cotree: no induced P4, so
+    decisions exist at any n), as the relationship every unit sends to every other (both
+    directions alike). Every unit draws the same group from the same seed."""
+    graph = polynomial_to_graph(random_polynomial(units, random.Random(f"{seed}:cograph")), units)
+    return {(a, b): graph.allied(a, b) for a in units for b in units if a != b}
 
 
 def choose_relations(
@@ -46,10 +60,15 @@ def choose_relations(
     fixed: Mapping[tuple[str, str], bool],
     draws: Mapping[tuple[str, str], float],
     p: float,
+    policy: str = "random",
 ) -> dict[str, str]:
     """``{peer: "alliance" | "conflict"}``: fixed where the scenario fixes it, else alliance
     iff this unit's draw for the peer is at most ``p`` (an explicit draw replaces the random
-    one). A draw is made for every peer, so fixing one never shifts the others."""
+    one). A draw is made for every peer, so fixing one never shifts the others. ``cograph``:
+    this unit's side of ``cograph_relations``."""
+    if policy == "cograph":
+        group = cograph_relations(tuple(units), seed)
+        return {r: "alliance" if group[(me, r)] else "conflict" for r in units if r != me}
     rng = random.Random(f"{seed}:{me}:relations")
     out = {}
     for r in units:
@@ -65,10 +84,39 @@ def choose_relations(
 
 
 def choose_influences(
-    me: str, units: Sequence[str], influences: Mapping[tuple[str, str], int], universe: Universe
+    me: str,
+    units: Sequence[str],
+    influences: Mapping[tuple[str, str], int],
+    universe: Universe,
+    *,
+    policy: str = "fixed",
+    value: int | None = None,
+    weights: Mapping[int, float] | None = None,
+    seed: int = 0,
 ) -> dict[str, str]:
-    """``{peer: alternative text}``: the influence this unit sends to each peer."""
-    return {r: universe.format(influences[(me, r)]) for r in units if r != me}
+    """``{peer: alternative text}``: the influence this unit sends to each peer. A pair listed
+    in ``influences`` is sent as listed; the others by ``policy``: ``uniform`` sends ``value``;
+    ``random`` draws from this unit's seeded generator over ``weights`` (alternative: weight;
+    none: every alternative alike), one draw per peer in unit order, listed or not (listing
+    one never shifts the others)."""
+    rng = random.Random(f"{seed}:{me}:influences")
+    table = dict(weights) if weights else dict.fromkeys(universe, 1.0)
+    alts, ws = list(table), list(table.values())
+    out = {}
+    for r in units:
+        if r == me:
+            continue
+        drawn = rng.choices(alts, ws)[0] if policy == "random" else None
+        if (me, r) in influences:
+            chosen = influences[(me, r)]
+        elif policy == "uniform" and value is not None:
+            chosen = value
+        elif drawn is not None:
+            chosen = drawn
+        else:
+            raise RgtbusError(f"no influence for {me}>{r} (policy {policy})")
+        out[r] = universe.format(chosen)
+    return out
 
 
 def choose(

@@ -69,7 +69,9 @@ DECISION_KEYS = {"policy", "units"}
 OUTCOME_KEYS = {"name", "all_of", "choose", "then", "else"}
 EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustrated", "relations"}
 DECISION_POLICIES = ("max", "min", "seeded-random")
-RELATION_POLICIES = ("fixed", "random")
+RELATION_POLICIES = ("fixed", "random", "cograph")
+INFLUENCE_POLICIES = ("fixed", "uniform", "random")
+INFLUENCE_KEYS = {"policy", "value", "weights"}  # any other key of [influences] is a pair
 MODES = ("paper", "exact")
 # Noise, gains and pulse magnitudes above this overflow the resonators' floats mid-run (1e200
 # did; 1e3 runs and fails cleanly); pulses are about 0.4, decoding fails from noise ~0.08.
@@ -135,6 +137,10 @@ class Scenario:
     outcome: Outcome | None
     expect: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    # How influences not listed per pair are chosen (rgtbus.mind.choose_influences).
+    influence_policy: str = "fixed"
+    influence_value: int | None = None  # policy uniform
+    influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
 
     def pairs(self) -> list[tuple[str, str]]:
         """Every ordered pair of distinct units, sender-major in unit order."""
@@ -456,7 +462,17 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     unknown(rel, RELATION_KEYS, "relations")
     policy = rel.get("policy", "random")
     if policy not in RELATION_POLICIES:
-        raise ctx.error("relations", "policy", f"unknown policy {policy!r} (fixed or random)")
+        raise ctx.error(
+            "relations", "policy", f"unknown policy {policy!r} (fixed, random or cograph)"
+        )
+    if policy == "cograph":
+        for key in ("fixed", "draws", "p"):
+            if key in rel:
+                raise ctx.error(
+                    "relations",
+                    key,
+                    "not with policy cograph (the seed draws the whole decomposable group)",
+                )
     p = rel.get("p", 0.61)
     if isinstance(p, bool) or not isinstance(p, int | float) or not 0 <= p <= 1:
         raise ctx.error("relations", "p", f"alliance probability must be within [0, 1], got {p!r}")
@@ -486,14 +502,50 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         except RgtbusError as exc:
             raise ctx.error("relations.fixed", None, f"policy fixed: {exc}") from None
 
-    # Influences: fixed per peer; every ordered pair, since every unit influences every other.
+    # Influences: per ordered pair ("a>b" keys), and by policy for the pairs not listed:
+    # fixed (every pair listed), uniform (one value), random (seeded, over weights).
     inf = table("influences")
+    inf_policy = inf.get("policy", "fixed")
+    if inf_policy not in INFLUENCE_POLICIES:
+        raise ctx.error(
+            "influences",
+            "policy",
+            f"unknown policy {inf_policy!r} ({', '.join(INFLUENCE_POLICIES)})",
+        )
+    inf_value = None
+    if "value" in inf:
+        if inf_policy != "uniform":
+            raise ctx.error("influences", "value", "only with policy uniform")
+        inf_value = alternative(inf["value"], "influences", "value")
+    elif inf_policy == "uniform":
+        raise ctx.error("influences", "policy", 'uniform needs a value, e.g. value = "1"')
+    inf_weights: dict[int, float] = {}
+    if "weights" in inf:
+        if inf_policy != "random":
+            raise ctx.error("influences", "weights", "only with policy random")
+        w_table = inf["weights"]
+        if not isinstance(w_table, dict) or not w_table:
+            raise ctx.error("influences", "weights", 'must be a table {"1" = 2, "0" = 1, ...}')
+        for key, w in w_table.items():
+            if not _finite(w) or not 0 <= w <= 1e9:
+                raise ctx.error(
+                    "influences.weights", key, f"weight must be finite and >= 0, got {w!r}"
+                )
+            inf_weights[alternative(key, "influences.weights", key)] = float(w)
+        if not any(inf_weights.values()):
+            raise ctx.error("influences", "weights", "at least one weight must be > 0")
     influences: dict[tuple[str, str], int] = {}
     for key, v in inf.items():
+        if key in INFLUENCE_KEYS:
+            continue
         influences[pair(key, "influences")] = alternative(v, "influences", key)
     missing = [f"{s}>{r}" for s, r in _pairs(units_t) if (s, r) not in influences]
-    if missing:
-        raise ctx.error("influences", None, f"no influence for {missing[0]}")
+    if missing and inf_policy == "fixed":
+        raise ctx.error(
+            "influences",
+            None,
+            f"no influence for {missing[0]} (list every pair, or use policy uniform or random)",
+        )
 
     # Decision policies
     dec = table("decision")
@@ -576,6 +628,9 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         outcome=outcome,
         expect=expect,
         description=description,
+        influence_policy=inf_policy,
+        influence_value=inf_value,
+        influence_weights=inf_weights,
     )
 
 

@@ -107,8 +107,18 @@ class AutonomousUnit:
             fixed=sc.fixed_relations,
             draws=sc.draws,
             p=sc.alliance_p,
+            policy=sc.relation_policy,
         )
-        self.influence_choice = choose_influences(self.name, self.units, sc.influences, sc.universe)
+        self.influence_choice = choose_influences(
+            self.name,
+            self.units,
+            sc.influences,
+            sc.universe,
+            policy=sc.influence_policy,
+            value=sc.influence_value,
+            weights=sc.influence_weights,
+            seed=seed,
+        )
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
