@@ -505,6 +505,13 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     # Influences: per ordered pair ("a>b" keys), and by policy for the pairs not listed:
     # fixed (every pair listed), uniform (one value), random (seeded, over weights).
     inf = table("influences")
+    for key in inf:  # a typo of a policy key would otherwise be blamed on another key
+        if key not in INFLUENCE_KEYS and ">" not in key:
+            raise ctx.error(
+                "influences",
+                key,
+                f'unknown key (allowed: {", ".join(sorted(INFLUENCE_KEYS))}, or a pair "a>b")',
+            )
     inf_policy = inf.get("policy", "fixed")
     if inf_policy not in INFLUENCE_POLICIES:
         raise ctx.error(
@@ -526,12 +533,19 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         w_table = inf["weights"]
         if not isinstance(w_table, dict) or not w_table:
             raise ctx.error("influences", "weights", 'must be a table {"1" = 2, "0" = 1, ...}')
+        named: dict[int, str] = {}
         for key, w in w_table.items():
             if not _finite(w) or not 0 <= w <= 1e9:
                 raise ctx.error(
-                    "influences.weights", key, f"weight must be finite and >= 0, got {w!r}"
+                    "influences.weights", key, f"weight must be within [0, 1e9], got {w!r}"
                 )
-            inf_weights[alternative(key, "influences.weights", key)] = float(w)
+            alt = alternative(key, "influences.weights", key)
+            if alt in named:
+                raise ctx.error(
+                    "influences.weights", key, f"names the same alternative as {named[alt]!r}"
+                )
+            named[alt] = key
+            inf_weights[alt] = float(w)
         if not any(inf_weights.values()):
             raise ctx.error("influences", "weights", "at least one weight must be > 0")
     influences: dict[tuple[str, str], int] = {}
@@ -814,4 +828,7 @@ def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:
     missing = [n for n in alternative_names(universe.actions) if n not in cb.alternatives]
     if missing:
         raise ctx.error(section, key, f"no word for alternative {missing[0]}")
+    missing = [n for n in ("alliance", "conflict") if n not in cb.relations]
+    if missing:
+        raise ctx.error(section, key, f"no word for relationship {missing[0]}")
     return cb

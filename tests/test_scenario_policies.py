@@ -119,7 +119,17 @@ def test_a_run_with_cograph_and_random_influences_agrees_and_decides():
         (
             'policy = "cograph"',
             'policy = "random"\n[influences.weights]\n"1" = -1',
-            r"influences\.weights\.1: weight must be finite and >= 0",
+            r"influences\.weights\.1: weight must be within \[0, 1e9\]",
+        ),
+        (
+            'policy = "cograph"',
+            'policy = "random"\n[influences.weights]\n"1" = 1\n"{open}" = 2',
+            r"influences\.weights\.\{open\}: names the same alternative as '1'",
+        ),
+        (
+            'policy = "cograph"',
+            'polcy = "uniform"\nvalue = 1',
+            r"influences\.polcy: unknown key",
         ),
         (
             'policy = "cograph"',
@@ -132,3 +142,15 @@ def test_a_run_with_cograph_and_random_influences_agrees_and_decides():
 def test_policy_mistakes_are_refused_by_key(relations, influences, pattern):
     with pytest.raises(RgtbusError, match=pattern):
         scenario(relations, influences)
+
+
+def test_a_custom_codebook_without_a_conflict_word_is_refused_at_load():
+    text = GATE.replace(
+        'codebook = "paper"',
+        "codebook = { pulses = 3, id = [0.4, 0.4, 0.4], relation = { alliance = [0.4, 0.4, -0.4] },"
+        ' alternative = { "0" = [-0.4, 0.4, 0.4], "1" = [0.4, -0.4, 0.4] } }',
+    )
+    with pytest.raises(
+        RgtbusError, match=r"gate\.toml:\d+: codebook: no word for relationship conflict"
+    ):
+        parse_scenario(text, "gate.toml")
