@@ -345,3 +345,11 @@ def test_console_script_no_traceback():
     assert proc.stderr.strip() == (
         "rgtbus solve: error: missing ')' for '(' at position 1 in 'a(b+c'"
     )
+
+
+def test_control_beyond_sixteen_subjects_is_refused_by_rule(capsys):
+    poly = "+".join(chr(97 + i) for i in range(17))  # a+b+...+q
+    code = main(["control", poly, "--subject", "a", "--target", "1", "--actions", "alpha"])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "2^17 entries: built only for groups of at most 16" in err

@@ -10,6 +10,13 @@ Folding, bottom-up::
     fold(N) = N + not(W),  W = op(fold(child) for child of N)
 
 where N is the node's own (unfolded) polynomial and ``op`` its operation. ``F = fold(root)``.
+
+Folding needs no truth table: ``N + not(W)`` is F's node whatever W is. Tables only make the
+result shorter (W ≡ 1 gives N, W ≡ N gives 1), so they are used for nodes over at most
+``EXACT_VARS`` subjects; a larger node is simplified structurally (constants, absorption,
+x + not(x)), which is the same function and scales to groups of hundreds (docs/model.md).
+F's own truth table (2^n bits) is built only when asked for: the inverse task (``control``)
+needs it and is refused beyond ``EXACT_VARS`` subjects.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from functools import cached_property, lru_cache
 
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt.expr import (
+    MAX_TABLE_VARS,
     ONE,
     Expr,
     Not,
@@ -38,6 +46,8 @@ from rgtbus.rgt.expr import (
 )
 from rgtbus.rgt.polynomial import is_polynomial
 
+EXACT_VARS = MAX_TABLE_VARS  # nodes and groups up to this size use truth tables
+
 
 def fold(poly: Expr) -> Expr:
     """The structural fold ``N + not(W)`` of every node, locally simplified."""
@@ -50,13 +60,19 @@ def fold(poly: Expr) -> Expr:
     else:
         raise RgtbusError(f"cannot fold {format_expr(poly)!r}: not a polynomial")
     w = simplify(w)
-    names = variables(poly)
-    table = truth_table(w, names)
-    if table == (1 << (1 << len(names))) - 1:
+    if w == ONE:
         return poly  # N + not(1) = N
-    if table == truth_table(poly, names):
+    if w == simplify(poly):
         return ONE  # N + not(N) = 1
+    names = variables(poly)
+    if len(names) <= EXACT_VARS:
+        table = truth_table(w, names)
+        if table == (1 << (1 << len(names))) - 1:
+            return poly
+        if table == truth_table(poly, names):
+            return ONE
     return simplify(Sum((poly, Not(w))))
+
 
 
 @dataclass(frozen=True)
@@ -70,14 +86,26 @@ class DecisionFunction:
     polynomial: Expr
     order: tuple[str, ...]
     structural: Expr
-    table: int
     _masks: dict[int, Callable[..., int]] = field(default_factory=dict, repr=False, compare=False)
+
+    @cached_property
+    def table(self) -> int:
+        """F's truth table over ``order`` (2^n bits); RgtbusError beyond ``EXACT_VARS``."""
+        if self.n > EXACT_VARS:
+            raise RgtbusError(
+                f"F's truth table over {self.n} subjects has 2^{self.n} entries: built only for "
+                f"groups of at most {EXACT_VARS} (the inverse task needs it; the forward task "
+                "does not)"
+            )
+        return truth_table(self.structural, self.order)
 
     @cached_property
     def display(self) -> Expr:
         """Computed on first use: minimisation is for people, not for the solvers."""
         names = self.order
         display = readable(self.structural, names)
+        if self.n > EXACT_VARS:
+            return display
         if len(support(self.table, len(names))) < len(names):
             # Folding eliminated subjects: show that rather than a form that hides it.
             reduced = minimal_sop(self.table, names)
@@ -124,8 +152,7 @@ def decision_function(poly: Expr, order: Sequence[str] | None = None) -> Decisio
 
 @lru_cache(maxsize=512)
 def _decision_function(poly: Expr, names: tuple[str, ...]) -> DecisionFunction:
-    structural = fold(poly)
-    return DecisionFunction(poly, names, structural, truth_table(structural, names))
+    return DecisionFunction(poly, names, fold(poly))
 
 
 # ---------------------------------------------------------------------------------------------

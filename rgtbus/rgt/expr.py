@@ -285,6 +285,9 @@ def support(table: int, n: int) -> list[int]:
 
 
 MAX_MINIMISE_VARS = 10
+# Truth tables are built over at most this many variables (2^16 bits); larger expressions are
+# handled structurally (rgtbus.rgt.diagonal).
+MAX_TABLE_VARS = 16
 
 
 def _prime_implicants(minterms: Sequence[int], m: int) -> set[tuple[int, int]]:
@@ -411,6 +414,12 @@ def readable(local: Expr, order: Sequence[str]) -> Expr:
     Deeply nested folds simplify locally into long ``not(...)`` chains; a sum of products 1.5x
     shorter reads better, while the paper's own forms (``a(b+c)+not(a)``) are kept.
     """
+    # Over the variables ``local`` holds only (in ``order``): the same minimal form, without a
+    # table of 2^n bits for a large group.
+    present = set(variables(local))
+    if len(present) > MAX_TABLE_VARS:
+        return local
+    order = [v for v in order if v in present]
     table = truth_table(local, order)
     sop = minimal_sop(table, order)
     if sop is None:
