@@ -39,6 +39,8 @@ from rgtbus.signal.waveform import pulse_samples
 
 PHASES = ("relations", "influences")
 ANCHORS = ("spike", "schedule")
+SCHEDULES = ("serial", "concurrent")
+MAX_STAGGER = 512  # samples a code may be moved to miss every pulse already placed in its round
 
 
 @dataclass(frozen=True)
@@ -50,12 +52,31 @@ class Turn:
 
 
 def turns(units: Sequence[str]) -> list[Turn]:
+    """The serial schedule: every ordered pair, sender-major, relations then influences."""
     out: list[Turn] = []
     for phase in PHASES:
         for s in units:
             for r in units:
                 if s != r:
                     out.append(Turn(len(out), phase, s, r))
+    return out
+
+
+def rounds(units: Sequence[str]) -> list[list[Turn]]:
+    """The concurrent schedule: per phase n − 1 rounds; in round j (1..n−1) unit i sends to
+    unit (i + j) mod n. Every ordered pair comes once a phase, and in every round each unit
+    sends one code and is addressed by one (a cyclic Latin square: no channel carries two
+    payloads at once). Turn indexes run round by round, relations first."""
+    n = len(units)
+    out: list[list[Turn]] = []
+    index = 0
+    for phase in PHASES:
+        for j in range(1, n):
+            this = []
+            for i, s in enumerate(units):
+                this.append(Turn(index, phase, s, units[(i + j) % n]))
+                index += 1
+            out.append(this)
     return out
 
 
@@ -149,11 +170,18 @@ class Plan:
         reaction_delay: float,
         guard: float,
         search: int,
+        kind: str = "serial",
+        start: float = 0.001,
     ) -> None:
+        if kind not in SCHEDULES:
+            raise RgtbusError(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
         self.units, self.tau, self.pulses = units, tau, pulses
         self.reaction_delay, self.guard, self.search = reaction_delay, guard, search
+        self.kind, self.start = kind, start
         self.omegas = dict(omegas)
-        self.schedule = tuple(turns(units))
+        self.rounds = tuple(tuple(r) for r in rounds(units)) if kind == "concurrent" else ()
+        serial = kind != "concurrent"
+        self.schedule = tuple(turns(units)) if serial else tuple(t for r in self.rounds for t in r)
         self.periods = {u: 2 * math.pi / w for u, w in omegas}
         self.others = {s: tuple(u for u in units if u != s) for s in units}
         self.longest = {
@@ -161,6 +189,13 @@ class Plan:
         }
         self.tails = tuple((pulses - 1) * self.periods[t.addressee] for t in self.schedule)
         self._reactions: dict[tuple[int, float, int], Reaction] = {}
+        self._timing: tuple[RoundTiming, ...] | None = None
+
+    def timing(self) -> tuple[RoundTiming, ...]:
+        """The concurrent schedule's rounds, placed (once for every unit)."""
+        if self._timing is None:
+            self._timing = place_rounds(self)
+        return self._timing
 
     def reaction(self, turn: int, turn_start: float, sample: int) -> Reaction:
         """What follows from turn ``turn`` (started at ``turn_start``) having its ID spike at
@@ -196,6 +231,75 @@ class Plan:
 
 
 @dataclass(frozen=True)
+class Placed:
+    """One turn of a concurrent round, placed: its ID and its payload, start and samples."""
+
+    turn: Turn
+    id_start: float
+    id_samples: tuple[int, ...]
+    payload_start: float
+    payload_samples: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class RoundTiming:
+    start: float
+    quench: int  # the round's first sample: resonators to rest before it
+    placed: tuple[Placed, ...]
+    end: float  # the last payload pulse
+
+
+def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
+    """Every round of a concurrent schedule, timed (docs/protocol.md, "Concurrent schedule").
+
+    In a round every unit sends its ID-code on its own channel from the round's start; the
+    payloads follow together, ``reaction_delay`` after the last ID's last pulse, each on its
+    addressee's channel; the next round starts ``guard`` after the last payload pulse. A code
+    is moved later by whole samples (at most ``MAX_STAGGER``), IDs in unit order and then
+    payloads in sender order, until none of its pulses falls on a sample another code of the
+    round already uses: the medium then never adds two pulses, and each unit reads every code
+    alone (the readout at a sample is what the medium carried there). Pure and the same for
+    every unit, so every unit knows every code's samples before the run."""
+    tau, pulses = plan.tau, plan.pulses
+    out: list[RoundTiming] = []
+    t0 = plan.start
+
+    def place(
+        used: set[int], start: float, omega: float, what: str
+    ) -> tuple[float, tuple[int, ...]]:
+        for j in range(MAX_STAGGER + 1):
+            s = start + j * tau
+            samples = code_samples(s, omega, pulses, tau)
+            if used.isdisjoint(samples) and len(set(samples)) == len(samples):
+                used.update(samples)
+                return s, samples
+        raise RgtbusError(
+            f"concurrent schedule: {what} finds no free samples within {MAX_STAGGER} "
+            "samples of its place (too many codes for the sample rate)"
+        )
+
+    for turns_of_round in plan.rounds:
+        used: set[int] = set()
+        ids = [
+            place(used, t0, plan.omegas[t.sender], f"the ID of {t.sender}") for t in turns_of_round
+        ]
+        payload_at = max(s[-1] for _, s in ids) * tau + plan.reaction_delay
+        placed = []
+        for t, (id_start, id_samples) in zip(turns_of_round, ids, strict=True):
+            p_start, p_samples = place(
+                used,
+                payload_at,
+                plan.omegas[t.addressee],
+                f"the code of {t.sender} to {t.addressee}",
+            )
+            placed.append(Placed(t, id_start, id_samples, p_start, p_samples))
+        end = max(p.payload_samples[-1] for p in placed) * tau
+        out.append(RoundTiming(t0, round(t0 / tau), tuple(placed), end))
+        t0 = end + plan.guard
+    return tuple(out)
+
+
+@dataclass(frozen=True)
 class Reaction:
     payload_start: float
     payload: tuple[int, ...]
@@ -213,8 +317,10 @@ def plan_of(
     reaction_delay: float,
     guard: float,
     search: int,
+    kind: str = "serial",
+    start: float = 0.001,
 ) -> Plan:
-    return Plan(units, omegas, tau, pulses, reaction_delay, guard, search)
+    return Plan(units, omegas, tau, pulses, reaction_delay, guard, search, kind, start)
 
 
 @dataclass
@@ -231,6 +337,7 @@ class ProtocolState:
     guard: float = 0.5
     search: int = 2  # samples of timing search around a payload's expected start
     anchor: str = "spike"  # what a reaction counts from: the ID spike, or the ID's last pulse
+    kind: str = "serial"  # the schedule: one code at a time, or rounds of n at once
     schedule: tuple[Turn, ...] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
@@ -239,6 +346,11 @@ class ProtocolState:
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
             raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
+        if self.kind == "concurrent" and self.anchor != "schedule":
+            raise RgtbusError(
+                "the concurrent schedule is timed by the schedule (anchor schedule): every "
+                "round is known before the run"
+            )
         self.plan = plan_of(
             tuple(self.units),
             tuple((u, float(self.omegas[u])) for u in self.units),
@@ -247,6 +359,8 @@ class ProtocolState:
             self.reaction_delay,
             self.guard,
             self.search,
+            self.kind,
+            self.start,
         )
         self.schedule = self.plan.schedule
         self._periods = self.plan.periods
@@ -295,6 +409,8 @@ class ProtocolState:
         """Start of the run: the first turn's sender sends its ID. Anchored on the schedule,
         the whole run is known now: every send, listen and quench of every turn."""
         self._codes = {"relations": relation_code, "influences": influence_code}
+        if self.kind == "concurrent":
+            return self._begin_concurrent()
         acts = Actions(sends=self._id_actions())
         while self.anchor == "schedule" and not self.finished:
             more = self._react(self.id_samples()[-1])
@@ -302,6 +418,38 @@ class ProtocolState:
             acts.listens += more.listens
             acts.quench += more.quench
         acts.deadline = self._deadline()
+        return acts
+
+    def _begin_concurrent(self) -> Actions:
+        """Every round at once: this unit's IDs and payloads, every decode of every round, a
+        quench at every round's start but the first."""
+        acts = Actions()
+        for i, rnd in enumerate(self.plan.timing()):
+            if i:
+                acts.quench.append(rnd.quench)
+                self.turn_starts.append(rnd.start)
+            for p in rnd.placed:
+                t = p.turn
+                if t.sender == self.me:
+                    acts.sends.append(
+                        Send(t.index, "id", t.sender, "id", p.id_start, p.id_samples, t.sender,
+                             t.addressee)
+                    )  # fmt: skip
+                    acts.sends.append(
+                        Send(t.index, "payload", t.addressee, self._codes[t.phase][t.addressee],
+                             p.payload_start, p.payload_samples, t.sender, t.addressee)
+                    )  # fmt: skip
+                kind = "relation" if t.phase == "relations" else "influence"
+                acts.listens.append(
+                    Listen(t.index, "id", t.sender, t.addressee, (t.sender,), p.id_start,
+                           p.id_samples[-1])
+                )  # fmt: skip
+                acts.listens.append(
+                    Listen(t.index, kind, t.sender, t.addressee, (t.addressee,),
+                           p.payload_start, p.payload_samples[-1] + self.search)
+                )  # fmt: skip
+        acts.sends.sort(key=lambda s: s.samples[0])
+        self.turn = len(self.schedule)  # every reaction is known: nothing left to wait for
         return acts
 
     def _id_actions(self) -> list[Send]:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
-from rgtbus.protocol import ANCHORS
+from rgtbus.protocol import ANCHORS, SCHEDULES
 from rgtbus.rgt import (
     Universe,
     graph_to_polynomial,
@@ -53,7 +53,9 @@ TOP_KEYS = {
     "decision",
     "outcome",
     "expect",
+    "protocol",
 }
+PROTOCOL_KEYS = {"schedule"}
 TIMING_KEYS = {
     "sample_rate",
     "window",
@@ -138,6 +140,9 @@ class Scenario:
     expect: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     # How influences not listed per pair are chosen (rgtbus.mind.choose_influences).
+    schedule: str = (
+        "serial"  # [protocol] schedule: one code at a time, or rounds (docs/protocol.md)
+    )
     influence_policy: str = "fixed"
     influence_value: int | None = None  # policy uniform
     influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
@@ -367,10 +372,25 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
 
     # Timing: every key on its own first (blamed by its own name), then how they fit together.
+    # The schedule first: the concurrent one is timed by the schedule (its default anchor).
+    proto = table("protocol")
+    unknown(proto, PROTOCOL_KEYS, "protocol")
+    schedule = proto.get("schedule", "serial")
+    if schedule not in SCHEDULES:
+        raise ctx.error(
+            "protocol", "schedule", f"unknown schedule {schedule!r} ({', '.join(SCHEDULES)})"
+        )
     t = table("timing")
     unknown(t, TIMING_KEYS, "timing")
     values: dict[str, float] = {}
-    anchor = t.get("anchor", "spike")
+    anchor = t.get("anchor", "schedule" if schedule == "concurrent" else "spike")
+    if schedule == "concurrent" and anchor != "schedule":
+        raise ctx.error(
+            "timing",
+            "anchor",
+            f"{anchor!r} with the concurrent schedule: its rounds are timed by the schedule, "
+            'use anchor = "schedule" (the default with it)',
+        )
     if not isinstance(anchor, str) or anchor not in ANCHORS:
         raise ctx.error("timing", "anchor", f"unknown anchor {anchor!r} (spike or schedule)")
     for key, v in t.items():  # in file order: the first bad line is the one reported
@@ -642,6 +662,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         outcome=outcome,
         expect=expect,
         description=description,
+        schedule=schedule,
         influence_policy=inf_policy,
         influence_value=inf_value,
         influence_weights=inf_weights,

@@ -91,6 +91,7 @@ class AutonomousUnit:
             reaction_delay=sc.timing.reaction_delay,
             guard=sc.timing.guard,
             anchor=sc.timing.anchor,
+            kind=sc.schedule,
         )
         seed = sc.seed
         self.mind = Mind(

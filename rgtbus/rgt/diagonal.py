@@ -74,7 +74,6 @@ def fold(poly: Expr) -> Expr:
     return simplify(Sum((poly, Not(w))))
 
 
-
 @dataclass(frozen=True)
 class DecisionFunction:
     """F for one polynomial: structural and displayed forms, truth table, mask evaluator.
