@@ -33,7 +33,7 @@ from rgtbus.signal.codebook import (
     generate_codebook,
     paper_codebook,
 )
-from rgtbus.signal.plan import auto_plan, check_plan, parse_omega
+from rgtbus.signal.plan import auto_plan, check_plan, make_plan, parse_omega
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
@@ -328,50 +328,6 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         except RgtbusError as exc:
             raise ctx.error(section, key, str(exc)) from None
 
-    mode = data.get("mode", "paper")
-    if mode not in MODES:
-        raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
-    codebook = _codebook(data.get("codebook", "paper"), universe, ctx)
-
-    # Frequencies: a table per unit, or "auto" (a plan by the rules of docs/model.md).
-    freq = data.get("frequencies", "auto")
-    frequencies: dict[str, float] = {}
-    frequency_text: dict[str, str] = {}
-    if freq == "auto":
-        try:
-            plan = auto_plan(len(units_t), pulses=codebook.pulses, mode=mode)
-        except RgtbusError as exc:
-            raise ctx.error("", "frequencies", str(exc)) from None
-        for u, w in zip(units_t, plan, strict=True):
-            frequencies[u] = float(w)
-            frequency_text[u] = f"{float(w):.6g}"
-    elif isinstance(freq, dict):
-        for key, value in freq.items():
-            unit(key, "frequencies", key)
-            try:
-                frequencies[key] = parse_omega(value, "frequency")
-            except RgtbusError as exc:
-                raise ctx.error("frequencies", key, str(exc)) from None
-            frequency_text[key] = str(value)
-        missing = [u for u in units_t if u not in frequencies]
-        if missing:
-            raise ctx.error("frequencies", None, f"no frequency for unit {missing[0]!r}")
-        seen: dict[float, str] = {}
-        for u in units_t:
-            w = frequencies[u]
-            if w in seen:
-                raise ctx.error(
-                    "frequencies", u, f"frequency clash: {u} and {seen[w]} share {w:.6g} rad/s"
-                )
-            seen[w] = u
-        try:
-            check_plan([frequencies[u] for u in units_t], pulses=codebook.pulses, mode=mode)
-        except RgtbusError as exc:
-            raise ctx.error("frequencies", None, str(exc)) from None
-    else:
-        raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
-
-    # Timing: every key on its own first (blamed by its own name), then how they fit together.
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     proto = table("protocol")
     unknown(proto, PROTOCOL_KEYS, "protocol")
@@ -454,6 +410,72 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
             "the run would end before its first transmission",
         )
 
+    mode = data.get("mode", "paper")
+    if mode not in MODES:
+        raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
+    codebook = _codebook(data.get("codebook", "paper"), universe, ctx)
+
+    # Frequencies: a table per unit, or "auto" (a plan by the rules of docs/model.md).
+    # With "auto" and neither mode nor codebook given, the plan chooses them too: the pulses a
+    # code and the mode that n units on this schedule need (rgtbus plan N prints the same).
+    freq = data.get("frequencies", "auto")
+    frequencies: dict[str, float] = {}
+    frequency_text: dict[str, str] = {}
+    if freq == "auto" and "mode" not in data and "codebook" not in data:
+        try:
+            chosen = make_plan(len(units_t), schedule=schedule, tau=timing.tau, crosstalk=False)
+        except RgtbusError as exc:
+            raise ctx.error("", "frequencies", str(exc)) from None
+        mode = chosen.mode
+        if chosen.pulses != codebook.pulses:
+            codebook = _codebook({"kind": "generated", "pulses": chosen.pulses}, universe, ctx)
+    if freq == "auto":
+        try:
+            plan = auto_plan(
+                len(units_t),
+                pulses=codebook.pulses,
+                mode=mode,
+                tau=timing.tau,
+                schedule=schedule,
+            )
+        except RgtbusError as exc:
+            raise ctx.error("", "frequencies", str(exc)) from None
+        for u, w in zip(units_t, plan, strict=True):
+            frequencies[u] = float(w)
+            frequency_text[u] = f"{float(w):.6g}"
+    elif isinstance(freq, dict):
+        for key, value in freq.items():
+            unit(key, "frequencies", key)
+            try:
+                frequencies[key] = parse_omega(value, "frequency")
+            except RgtbusError as exc:
+                raise ctx.error("frequencies", key, str(exc)) from None
+            frequency_text[key] = str(value)
+        missing = [u for u in units_t if u not in frequencies]
+        if missing:
+            raise ctx.error("frequencies", None, f"no frequency for unit {missing[0]!r}")
+        seen: dict[float, str] = {}
+        for u in units_t:
+            w = frequencies[u]
+            if w in seen:
+                raise ctx.error(
+                    "frequencies", u, f"frequency clash: {u} and {seen[w]} share {w:.6g} rad/s"
+                )
+            seen[w] = u
+        try:
+            check_plan(
+                [frequencies[u] for u in units_t],
+                pulses=codebook.pulses,
+                mode=mode,
+                tau=timing.tau,
+                schedule=schedule,
+            )
+        except RgtbusError as exc:
+            raise ctx.error("frequencies", None, str(exc)) from None
+    else:
+        raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
+
+    # Timing: every key on its own first (blamed by its own name), then how they fit together.
     # Channel
     ch = table("channel")
     unknown(ch, CHANNEL_KEYS, "channel")

@@ -63,9 +63,38 @@ class ReadoutHistory:
         self.channels = channels
         self.capacity = capacity
         self.receivers = receivers
-        self._rows = np.zeros(0, dtype=np.int64)  # samples that carried input, ascending
-        self._vals = np.zeros((0, receivers, channels))  # their readout
+        # Samples that carried input (ascending) and their readout, kept in buffers that grow
+        # by doubling: [lo, hi) is the history. Appending costs what is appended (amortised),
+        # not a copy of the whole history (many codes at once make a long history).
+        self._buf_rows = np.zeros(16, dtype=np.int64)
+        self._buf_vals = np.zeros((16, receivers, channels))
+        self._lo = self._hi = 0
         self._end = 0  # absolute index one past the newest sample
+
+    @property
+    def _rows(self) -> np.ndarray:
+        return self._buf_rows[self._lo : self._hi]
+
+    @property
+    def _vals(self) -> np.ndarray:
+        return self._buf_vals[self._lo : self._hi]
+
+    def _append(self, rows: np.ndarray, values: np.ndarray) -> None:
+        k = rows.size
+        if self._hi + k > self._buf_rows.size:
+            live = self._hi - self._lo
+            size = self._buf_rows.size
+            while live + k > size // 2:  # keep room: a half-full buffer after compaction
+                size *= 2
+            new_rows = np.zeros(size, dtype=np.int64)
+            new_vals = np.zeros((size, *self._buf_vals.shape[1:]))
+            new_rows[:live] = self._buf_rows[self._lo : self._hi]
+            new_vals[:live] = self._buf_vals[self._lo : self._hi]
+            self._buf_rows, self._buf_vals = new_rows, new_vals
+            self._lo, self._hi = 0, live
+        self._buf_rows[self._hi : self._hi + k] = rows
+        self._buf_vals[self._hi : self._hi + k] = values
+        self._hi += k
 
     @classmethod
     def for_bank(cls, bank: ResonatorBank, capacity: int = 6000) -> ReadoutHistory:
@@ -98,10 +127,10 @@ class ReadoutHistory:
             if rows[0] < start or rows[-1] >= end or (rows[1:] <= rows[:-1]).any():
                 raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
             keep = rows >= end - self.capacity
-            self._rows = np.concatenate([self._rows[old:], rows[keep]])
-            self._vals = np.concatenate([self._vals[old:], values[keep]])
+            self._lo += old
+            self._append(rows[keep], np.asarray(values)[keep])
         elif old:
-            self._rows, self._vals = self._rows[old:], self._vals[old:]
+            self._lo += old
         self._end = start + n
 
     def values(

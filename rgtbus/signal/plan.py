@@ -12,6 +12,12 @@ Rules checked by :func:`check_plan` (each refusal names its rule):
    pulses a code (the paper's ω_a, ω_c are 11 % apart at N = 3: the limit, with crosstalk).
 6. *decay*: b < 0 and the resonator's memory 1/|b| at least the longest message,
    (N − 1)·2π/min ω seconds, so a code's first pulse still counts at its last.
+
+Rules 4–6 are about *attention*: a resonator must spike on its own channel's ID and not on a
+neighbour's. The serial schedule is timed by those spikes, so it keeps all six. The concurrent
+schedule is timed by the schedule and decodes by reading the medium at each code's pulse
+instants (no two codes share a sample), so only rules 1–3 bind it; rules 4–6 become *margins*
+that :func:`make_plan` reports (spikes are still logged, and may then cross-fire).
 """
 
 from __future__ import annotations
@@ -20,6 +26,9 @@ import itertools
 import math
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.resonator import PAPER_B, PAPER_TAU, euler_limit
@@ -71,8 +80,10 @@ def check_plan(
     mode: str = "paper",
     tau: float = PAPER_TAU,
     b: float = PAPER_B,
+    schedule: str = "serial",
 ) -> None:
-    """Refuse (``RgtbusError`` naming the rule) a plan that breaks a rule of the module doc."""
+    """Refuse (``RgtbusError`` naming the rule) a plan that breaks a rule of the module doc
+    (the concurrent schedule: rules 1–3 only)."""
     if mode not in ("paper", "exact"):
         raise RgtbusError(f"mode {mode!r} is not one of paper, exact")
     if not isinstance(pulses, int) or pulses < 1:
@@ -100,6 +111,10 @@ def check_plan(
                 f"rule euler: omega {s[-1]:.6g} rad/s is beyond Euler's stable band "
                 f"({lim:.4g} rad/s at b = {b:g}, tau = {tau:g}); use mode exact"
             )
+    if b >= 0:
+        raise RgtbusError(f"rule decay: b = {b:g} must be negative (resonators must forget)")
+    if schedule == "concurrent":
+        return  # attention rules are margins there (the module docstring)
     if s[-1] >= 2 * s[0]:
         raise RgtbusError(
             f"rule octave: {s[-1]:.6g} rad/s is not below twice {s[0]:.6g} rad/s "
@@ -112,8 +127,6 @@ def check_plan(
                 f"rule spacing: {lo:.6g} and {hi:.6g} rad/s are {100 * (hi - lo) / lo:.1f} % "
                 f"apart, below 0.3/N = {100 * need:.1f} % for N = {pulses} pulses"
             )
-    if b >= 0:
-        raise RgtbusError(f"rule decay: b = {b:g} must be negative (resonators must forget)")
     length = message_length(s[0], pulses)
     if 1 / abs(b) < length:
         raise RgtbusError(
@@ -136,6 +149,7 @@ def auto_plan(
     tau: float = PAPER_TAU,
     b: float = PAPER_B,
     omega_min: float | None = None,
+    schedule: str = "serial",
 ) -> list[float]:
     """Frequencies (rad/s) for n units, in unit order.
 
@@ -146,6 +160,9 @@ def auto_plan(
     2π rad/s or the lowest ω whose longest message fits 1/|b|),
     then checked by :func:`check_plan`.  Refused when n units cannot fit (the rule is named, with
     the pulse count that would fit).
+
+    The concurrent schedule is bound by rules 1–3 only: beyond what an octave holds at 0.3/N,
+    its ladder is squeezed into one octave (ratio 2^(1/n)), any n, the spacing then a margin.
     """
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise RgtbusError(f"number of units {n!r} must be a positive integer")
@@ -154,13 +171,14 @@ def auto_plan(
     )
     if paper_settings and n <= len(PAPER_OMEGAS):
         return list(PAPER_OMEGAS[:n])
-    if n > max_units(pulses):
+    squeeze = schedule == "concurrent" and n > max_units(pulses)
+    if n > max_units(pulses) and not squeeze:
         more = next(p for p in range(pulses, 10_000) if max_units(p) >= n)
         raise RgtbusError(
             f"rule octave/spacing: {n} units do not fit one octave at 0.3/N spacing with "
             f"N = {pulses} pulses (at most {max_units(pulses)}); use at least {more} pulses"
         )
-    ratio = 1 + SPACING_FACTOR / pulses
+    ratio = 2 ** (1 / n) if squeeze else 1 + SPACING_FACTOR / pulses
     if omega_min is None:
         if mode == "paper":
             top = 0.98 * euler_limit(tau, b)
@@ -168,5 +186,161 @@ def auto_plan(
         else:  # 1 Hz, or higher so the longest message fits the resonator's memory 1/|b|
             omega_min = max(2 * PI, 1.05 * (pulses - 1) * 2 * PI * abs(b))
     plan = [omega_min * ratio**j for j in range(n)]
-    check_plan(plan, pulses=pulses, mode=mode, tau=tau, b=b)
+    check_plan(plan, pulses=pulses, mode=mode, tau=tau, b=b, schedule=schedule)
     return plan
+
+
+@dataclass(frozen=True)
+class Margin:
+    """One figure of a plan against its rule: ``ok`` when it keeps the rule, ``binding`` when
+    the schedule needs it (a margin that is not binding is reported, not refused)."""
+
+    rule: str
+    value: float
+    limit: float
+    ok: bool
+    binding: bool
+    text: str
+
+
+@dataclass(frozen=True)
+class FrequencyPlan:
+    """What ``make_plan`` chose for n units on a schedule, and how close to each rule it is."""
+
+    n: int
+    schedule: str
+    mode: str
+    pulses: int
+    tau: float
+    b: float
+    omegas: tuple[float, ...]
+    codebook: str  # "paper" (3 pulses) or "generated"
+    margins: tuple[Margin, ...] = field(default_factory=tuple)
+
+    def to_json(self) -> dict:
+        return {
+            "n": self.n,
+            "schedule": self.schedule,
+            "mode": self.mode,
+            "pulses": self.pulses,
+            "tau": self.tau,
+            "b": self.b,
+            "codebook": self.codebook,
+            "omegas": list(self.omegas),
+            "band": [min(self.omegas), max(self.omegas)],
+            "margins": [m.__dict__ for m in self.margins],
+        }
+
+
+def crosstalk_peak(
+    omegas: Sequence[float], pulses: int, mode: str, tau: float, b: float
+) -> tuple[float, float]:
+    """(the highest y any resonator reaches on another channel's ID-code, the lowest its own
+    channel's ID reaches), as fractions of the threshold: every channel's ID {0.4, ...} fed
+    alone to a bank of every channel, one receiver per channel (one vectorised run)."""
+    from rgtbus.signal.resonator import ResonatorBank  # numpy-heavy: only when asked
+    from rgtbus.signal.waveform import pulse_instants
+
+    n = len(omegas)
+    longest = int(pulse_instants(min(omegas), 0.0, pulses, tau)[-1]) + 1
+    length = longest + int(2 * PI / min(omegas) / tau) + 2
+    u = np.zeros((length, n))
+    for v, w in enumerate(omegas):
+        u[pulse_instants(w, 0.0, pulses, tau), v] = 0.4
+    bank = ResonatorBank(list(omegas), mode=mode, tau=tau, b=b, n_receivers=n)
+    res = bank.feed(u, record=True)
+    assert res.y is not None  # record=True; a spike records spike_value (above threshold)
+    peak = np.abs(res.y).max(axis=0) / bank.threshold  # (receivers = fed channel, channels)
+    own = float(np.diag(peak).min())
+    np.fill_diagonal(peak, 0.0)
+    return float(peak.max()), own
+
+
+def make_plan(
+    n: int,
+    *,
+    schedule: str = "serial",
+    pulses: int | None = None,
+    mode: str | None = None,
+    tau: float = PAPER_TAU,
+    b: float = PAPER_B,
+    crosstalk: bool = True,
+) -> FrequencyPlan:
+    """The plan for n units on ``schedule``: the pulses a code (given, or the fewest that fit:
+    serial needs the octave at 0.3/N spacing, concurrent takes the paper's 3), the mode (given,
+    or paper unless Euler's band cannot hold the plan: then exact), the frequencies
+    (:func:`auto_plan`) and every margin. RgtbusError naming the rule it cannot keep."""
+    if schedule not in ("serial", "concurrent"):
+        raise RgtbusError(f"unknown schedule {schedule!r} (serial or concurrent)")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise RgtbusError(f"number of units {n!r} must be a positive integer")
+    if pulses is None:
+        pulses = (
+            3
+            if schedule == "concurrent"
+            else next(p for p in range(3, 10_000) if max_units(p) >= n)
+        )
+    modes = [mode] if mode is not None else ["paper", "exact"]
+    errors = []
+    for m in modes:
+        try:
+            omegas = auto_plan(n, pulses=pulses, mode=m, tau=tau, b=b, schedule=schedule)
+            break
+        except RgtbusError as e:
+            errors.append(str(e))
+    else:
+        raise RgtbusError(f"no plan for {n} units ({schedule}): " + "; ".join(errors))
+    s = sorted(omegas)
+    attention = schedule == "serial"
+    need = SPACING_FACTOR / pulses
+    spacing = min(((hi - lo) / lo for lo, hi in itertools.pairwise(s)), default=math.inf)
+    length = message_length(s[0], pulses)
+    margins = [
+        Margin(
+            "spacing", spacing, need, spacing >= need * (1 - 1e-9), attention,
+            f"neighbours {100 * spacing:.2f} % apart (rule: at least 0.3/N = {100 * need:.2f} %)",
+        ),
+        Margin(
+            "octave", s[-1] / s[0], 2.0, s[-1] < 2 * s[0], attention,
+            f"band {s[0]:.4g}–{s[-1]:.4g} rad/s, ratio {s[-1] / s[0]:.3f} (rule: below 2)",
+        ),
+        Margin(
+            "decay", 1 / abs(b), length, 1 / abs(b) >= length, attention,
+            f"resonator memory {1 / abs(b):.3g} s, longest message {length:.3g} s",
+        ),
+        Margin(
+            "nyquist", s[-1], 2 * PI / (MIN_SAMPLES_PER_PERIOD * tau), True, True,
+            f"{2 * PI / (s[-1] * tau):.1f} samples a period at the top "
+            f"(rule: at least {MIN_SAMPLES_PER_PERIOD})",
+        ),
+    ]  # fmt: skip
+    chosen = modes[len(errors)]
+    if chosen == "paper":
+        lim = euler_limit(tau, b)
+        margins.append(
+            Margin("euler", s[-1], lim, s[-1] < lim, True,
+                   f"top {s[-1]:.4g} rad/s, Euler's stable band ends at {lim:.4g} rad/s")
+        )  # fmt: skip
+    if crosstalk:
+        cross, own = crosstalk_peak(s, pulses, chosen, tau, b)
+        margins.append(
+            Margin("attention", own, 1.0, own >= 1.0, attention,
+                   f"its own ID drives every resonator to at least {own:.2f} of its threshold "
+                   "(at 1 it spikes; the serial schedule is timed by that spike)")
+        )  # fmt: skip
+        margins.append(
+            Margin("crosstalk", cross, 1.0, cross < 1.0, False,
+                   f"another channel's ID drives a resonator to at most {cross:.2f} of its "
+                   "threshold (at 1 it spikes: logged, never acted on)")
+        )  # fmt: skip
+    return FrequencyPlan(
+        n=n,
+        schedule=schedule,
+        mode=chosen,
+        pulses=pulses,
+        tau=tau,
+        b=b,
+        omegas=tuple(omegas),
+        codebook="paper" if pulses == 3 else "generated",
+        margins=tuple(margins),
+    )

@@ -1,0 +1,84 @@
+"""``rgtbus plan N``: the frequency plan for N units on a schedule, with its margins."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rgtbus.errors import RgtbusError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "plan",
+        help="the frequency plan for N units: mode, band, pulses, codebook, margins",
+        description="Choose the resonator mode, the band, the pulses a code and the codebook for "
+        "N units on a schedule (docs/model.md, 'Frequency plans'), and state how close the plan "
+        "is to each rule. Rules the schedule needs are enforced; the others are margins. For "
+        "the concurrent schedule it also places every round and reports the round length.",
+    )
+    p.add_argument("n", type=int, metavar="N", help="number of units")
+    p.add_argument("--schedule", choices=("serial", "concurrent"), default="serial")
+    p.add_argument("--pulses", type=int, help="pulses a code (default: chosen)")
+    p.add_argument("--mode", choices=("paper", "exact"), help="resonator mode (default: chosen)")
+    p.add_argument("--sample-rate", type=float, default=200.0, help="samples a second (200)")
+    p.add_argument(
+        "--no-crosstalk", action="store_true", help="skip the crosstalk simulation (large N)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run_plan)
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    from rgtbus.protocol import plan_of
+    from rgtbus.signal.plan import make_plan
+
+    if not args.n >= 1:
+        raise RgtbusError(f"N = {args.n}: must be a positive number of units")
+    if not args.sample_rate > 0:
+        raise RgtbusError(f"--sample-rate {args.sample_rate}: must be positive")
+    if args.pulses is not None and args.pulses < 1:
+        raise RgtbusError(f"--pulses {args.pulses}: must be a positive integer")
+    tau = 1.0 / args.sample_rate
+    plan = make_plan(
+        args.n,
+        schedule=args.schedule,
+        pulses=args.pulses,
+        mode=args.mode,
+        tau=tau,
+        crosstalk=not args.no_crosstalk,
+    )
+    out = plan.to_json()
+    if args.schedule == "concurrent":
+        units = tuple(f"u{i}" for i in range(args.n))
+        timing = plan_of(
+            units, tuple(zip(units, plan.omegas, strict=True)), tau, plan.pulses, 0.5, 0.5, 2,
+            "concurrent", 0.001,
+        ).timing()  # fmt: skip
+        lengths = [r.end + 0.5 - r.start for r in timing]
+        stagger = max(max(round((p.id_start - r.start) / tau), 0) for r in timing for p in r.placed)
+        out["rounds"] = len(timing)
+        out["round_seconds"] = [round(min(lengths), 3), round(max(lengths), 3)]
+        out["simulated_seconds"] = round(timing[-1].end, 3)
+        out["largest_id_stagger_samples"] = stagger
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(
+        f"{plan.n} units, {plan.schedule} schedule: mode {plan.mode}, {plan.pulses} pulses a "
+        f"code ({plan.codebook} codebook), band {min(plan.omegas):.4g}–{max(plan.omegas):.4g} "
+        f"rad/s, tau {tau:g} s"
+    )
+    print("frequencies (rad/s): " + ", ".join(f"{w:.5g}" for w in plan.omegas))
+    print("margins:")
+    for m in plan.margins:
+        state = "ok  " if m.ok else ("FAIL" if m.binding else "over")
+        need = "rule" if m.binding else "margin"
+        print(f"  {state} {m.rule:<10} ({need}) {m.text}")
+    if "rounds" in out:
+        print(
+            f"rounds: {out['rounds']}, {out['round_seconds'][0]:g}–{out['round_seconds'][1]:g} s "
+            f"each (ID stagger up to {out['largest_id_stagger_samples']} samples): "
+            f"{out['simulated_seconds']:g} s of simulated time (relations and influences)"
+        )
+    return 0
