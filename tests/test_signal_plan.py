@@ -106,3 +106,55 @@ def test_parse_omega_refusals(text, needle):
     with pytest.raises(RgtbusError) as e:
         parse_omega(text, where="--omega")
     assert needle in str(e.value) and str(e.value).startswith("--omega")
+
+
+# -- plans for large groups (make_plan, rgtbus plan) -------------------------------------------
+
+
+def test_make_plan_chooses_pulses_and_mode_per_schedule():
+    from rgtbus.signal.plan import make_plan
+
+    serial = make_plan(16, crosstalk=False)
+    assert (serial.mode, serial.pulses, serial.codebook) == ("exact", 7, "generated")
+    assert all(m.ok for m in serial.margins if m.binding)
+    conc = make_plan(50, schedule="concurrent")
+    assert (conc.mode, conc.pulses, conc.codebook) == ("paper", 3, "paper")
+    assert len(set(conc.omegas)) == 50 and max(conc.omegas) < 2 * min(conc.omegas)
+    by_rule = {m.rule: m for m in conc.margins}
+    assert by_rule["euler"].ok and by_rule["euler"].binding and by_rule["nyquist"].binding
+    # attention rules are margins for the concurrent schedule: reported, not enforced
+    assert not by_rule["spacing"].ok and not by_rule["spacing"].binding
+    assert not by_rule["crosstalk"].binding and by_rule["attention"].value >= 1.0
+    assert make_plan(4).omegas == tuple(PAPER_OMEGAS)  # the paper's own four
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "pattern"),
+    [
+        ({"n": 20, "pulses": 3}, r"rule octave/spacing: 20 units do not fit .* use at least"),
+        ({"n": 5, "schedule": "concurrent", "tau": 0.2, "mode": "exact"}, r"rule nyquist"),
+        ({"n": 0}, r"number of units 0"),
+        ({"n": 4, "schedule": "round-robin"}, r"unknown schedule 'round-robin'"),
+    ],
+)
+def test_make_plan_refuses_by_rule(kwargs, pattern):
+    from rgtbus.signal.plan import make_plan
+
+    with pytest.raises(RgtbusError, match=pattern):
+        make_plan(crosstalk=False, **kwargs)
+
+
+def test_plan_cli_prints_margins_and_rounds(capsys):
+    import json
+
+    from rgtbus.cli import main
+
+    assert main(["plan", "12", "--schedule", "concurrent", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n"] == 12 and out["rounds"] == 22 and len(out["omegas"]) == 12
+    assert {m["rule"] for m in out["margins"]} >= {"spacing", "decay", "euler", "crosstalk"}
+    assert main(["plan", "16"]) == 0
+    text = capsys.readouterr().out
+    assert "mode exact, 7 pulses a code" in text and "ok   spacing    (rule)" in text
+    assert main(["plan", "30", "--pulses", "3"]) == 2
+    assert "rule octave/spacing" in capsys.readouterr().err
