@@ -278,3 +278,15 @@ def test_unit_refuses_bad_input(tmp_path):
         proc = subprocess.run([*EXE, *argv], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, (argv, proc.stderr)
         assert needle in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_launch_of_twenty_units_concurrent_equals_the_single_process_run(tmp_path):
+    argv = [*EXE, "launch", str(ROOT / "scenarios" / "group20.toml"), "--log-dir", str(tmp_path)]
+    proc = subprocess.run([*argv, "--json"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    ref, ref_messages = single("group20")
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, _ = read_log(tmp_path / "run.mcap")
+    assert content(messages) == content(ref_messages)
