@@ -66,8 +66,12 @@ class ReadoutHistory:
         # Samples that carried input (ascending) and their readout, kept in buffers that grow
         # by doubling: [lo, hi) is the history. Appending costs what is appended (amortised),
         # not a copy of the whole history (many codes at once make a long history).
+        # One value per receiver and sample: every channel of a receiver reads the same d (the
+        # sample it heard; docs/model.md), so keeping each channel's copy would only multiply
+        # the memory by the number of channels (gigabytes at 100 units). The first channel's
+        # value is kept; the channels' values agree to the readout's rounding (1e-12).
         self._buf_rows = np.zeros(16, dtype=np.int64)
-        self._buf_vals = np.zeros((16, receivers, channels))
+        self._buf_vals = np.zeros((16, receivers, 1))
         self._lo = self._hi = 0
         self._end = 0  # absolute index one past the newest sample
 
@@ -128,7 +132,7 @@ class ReadoutHistory:
                 raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
             keep = rows >= end - self.capacity
             self._lo += old
-            self._append(rows[keep], np.asarray(values)[keep])
+            self._append(rows[keep], np.asarray(values)[keep][:, :, :1])
         elif old:
             self._lo += old
         self._end = start + n
@@ -144,10 +148,12 @@ class ReadoutHistory:
         idx = np.asarray(indices, dtype=np.int64)
         self._check(idx, span)
         pos, hit = self._find(idx)
-        got = self._vals[pos, receiver, channels]
-        if isinstance(channels, slice):  # channels make a trailing axis
-            hit = hit.reshape(hit.shape + (1,) * (got.ndim - hit.ndim))
-        return np.where(hit, got, 0.0)
+        got = np.where(hit, self._vals[pos, receiver, 0], 0.0)
+        if isinstance(channels, slice):  # the channels make a trailing axis
+            width = len(range(self.channels)[channels])
+            return np.repeat(got[..., None], width, axis=-1)
+        # an int, or an array that broadcasts against the indices (as numpy indexing would)
+        return np.broadcast_to(got, np.broadcast_shapes(got.shape, np.shape(channels))).copy()
 
     def gather(
         self,
@@ -159,9 +165,8 @@ class ReadoutHistory:
         once: (receivers, M, N)."""
         idx = np.ascontiguousarray(indices, dtype=np.int64)
         self._check(idx, span)
-        return read_rows(
-            self._rows, self._vals, idx, np.ascontiguousarray(channels, dtype=np.int64)
-        )
+        chans = np.zeros(np.asarray(channels).shape, dtype=np.int64)  # every channel reads d
+        return read_rows(self._rows, self._vals, idx, chans)
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
