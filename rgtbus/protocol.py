@@ -43,7 +43,7 @@ SCHEDULES = ("serial", "concurrent")
 MAX_STAGGER = 512  # samples a code may be moved to miss every pulse already placed in its round
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Turn:
     index: int
     phase: str
@@ -86,7 +86,7 @@ def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[i
     return pulse_samples(omega, start, pulses, tau)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Send:
     """Put ``code`` on ``channel``'s frequency, pulses at ``samples``."""
 
@@ -100,7 +100,7 @@ class Send:
     addressee: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Listen:
     """Decode once every sample up to ``ready_sample`` has been received.
 
@@ -230,7 +230,7 @@ class Plan:
         return Reaction(payload_start, payload, listens, next_start, round(next_start / tau))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Placed:
     """One turn of a concurrent round, placed: its ID and its payload, start and samples."""
 

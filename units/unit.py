@@ -32,7 +32,7 @@ from rgtbus.telemetry import Recorder
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
 
-@dataclass
+@dataclass(slots=True)
 class Decoded:
     turn: int
     kind: str
@@ -44,7 +44,7 @@ class Decoded:
     accepted: bool
 
 
-@dataclass(order=True)
+@dataclass(order=True, slots=True)
 class _Timer:
     boundary: int  # act once every sample before this one has been heard
     seq: int
