@@ -11,7 +11,7 @@ Medium access (paper mode): one transmission at a time, in a fixed order known t
 order), separated by a guard gap G. The timing chain is therefore decided by ID spikes alone::
 
     pulse m of a code starting at t on ω:  sample round((t + m·2π/ω) / τ),  m = 0..N-1
-    payload start      p = k_spike·τ + D
+    payload start      p = max(k_spike, k_last)·τ + D  (k_last: the ID's last pulse)
     next turn's start  t0' = p + (N-1)·2π/ω_r + G
 
 Every unit runs the same machine on what it hears, so every unit knows when each turn starts,
@@ -213,7 +213,9 @@ class Plan:
         t = self.schedule[turn]
         tau = self.tau
         ids = code_samples(turn_start, self.omegas[t.sender], self.pulses, tau)
-        payload_start = sample * tau + self.reaction_delay
+        # An attention spike can come before the ID's last pulse (long codes build up faster):
+        # the reaction counts from the later of the two, so a payload never overlaps its ID.
+        payload_start = max(sample, ids[-1]) * tau + self.reaction_delay
         payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, tau)
         kind = "relation" if t.phase == "relations" else "influence"
         longest = self.longest[t.sender] * (self.pulses - 1)
