@@ -36,27 +36,6 @@ RATE = 200.0
 SHORT = 0.3  # seconds: long enough for in-process zenoh, short enough to keep the suite fast
 
 
-@pytest.fixture(params=["memory", "zenoh"])
-def kind(request):
-    return request.param
-
-
-@pytest.fixture
-def make_bus(kind):
-    opened = []
-
-    def make(members=("a", "b", "c"), run_id="r1", **options):
-        bus = open_bus(kind, run_id, members, RATE, **options)
-        opened.append(bus)
-        return bus
-
-    try:
-        yield make
-    finally:
-        for bus in opened:
-            bus.close()
-
-
 def units(n):
     return tuple(f"u{i}" for i in range(n))
 

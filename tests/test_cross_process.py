@@ -31,30 +31,6 @@ ROOT = Path(__file__).parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]
 
 
-@pytest.fixture
-def procs():
-    spawned: list[subprocess.Popen] = []
-
-    def spawn(*argv: str) -> subprocess.Popen:
-        p = subprocess.Popen(
-            [*EXE, *argv],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            text=True,
-        )
-        spawned.append(p)
-        return p
-
-    try:
-        yield spawn
-    finally:
-        for p in spawned:
-            if p.poll() is None:
-                p.kill()
-            p.communicate(timeout=10)
-
-
 def single(name: str):
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
     rec = MemoryRecorder()

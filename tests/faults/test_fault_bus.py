@@ -47,27 +47,6 @@ BUS_EXAMPLES = {"memory": 80, "zenoh": 40}  # a bus per example; zenoh's cost a 
 HEADER = struct.Struct("<4sBBHQQQdII")
 
 
-@pytest.fixture(params=["memory", "zenoh"])
-def kind(request):
-    return request.param
-
-
-@pytest.fixture
-def make_bus(kind):
-    opened = []
-
-    def make(members=("a", "b"), run_id=RUN, **options):
-        bus = open_bus(kind, run_id, members, RATE, **options)
-        opened.append(bus)
-        return bus
-
-    try:
-        yield make
-    finally:
-        for bus in opened:
-            bus.close()
-
-
 def delivered(bus, n, timeout=2.0):
     """The stats once ``n`` payloads were received (zenoh delivers on its own thread)."""
     deadline = time.monotonic() + timeout

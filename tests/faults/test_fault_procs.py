@@ -37,32 +37,6 @@ EXE = [sys.executable, "-m", "rgtbus"]
 KEY = b"k" * 32
 
 
-@pytest.fixture
-def procs():
-    spawned: list[subprocess.Popen] = []
-
-    def spawn(*argv: str) -> subprocess.Popen:
-        p = subprocess.Popen(
-            [*EXE, *argv],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            text=True,
-        )
-        spawned.append(p)
-        return p
-
-    try:
-        yield spawn
-    finally:
-        for p in spawned:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(p.pid, signal.SIGCONT)
-            if p.poll() is None:
-                p.kill()
-            p.communicate(timeout=30)
-
-
 def has_pulse(path: Path) -> bool:
     """The run is under way: the unit's log (written as it goes) holds a pulse."""
     if not path.exists():

@@ -1,0 +1,67 @@
+"""Fixtures shared by the bus suites and the cross-process suites."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from rgtbus.bus import open_bus
+
+EXE = [sys.executable, "-m", "rgtbus"]
+RATE = 200.0
+
+
+@pytest.fixture
+def procs():
+    """``spawn(*argv)`` starts ``python -m rgtbus *argv``; every process is reaped at the end,
+    even a stopped (SIGSTOP) one, even when the test fails."""
+    spawned: list[subprocess.Popen] = []
+
+    def spawn(*argv: str) -> subprocess.Popen:
+        p = subprocess.Popen(
+            [*EXE, *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            text=True,
+        )
+        spawned.append(p)
+        return p
+
+    try:
+        yield spawn
+    finally:
+        for p in spawned:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(p.pid, signal.SIGCONT)
+            if p.poll() is None:
+                p.kill()
+            p.communicate(timeout=30)
+
+
+@pytest.fixture(params=["memory", "zenoh"])
+def kind(request):
+    """Every bus suite runs on the memory bus and on the zenoh bus."""
+    return request.param
+
+
+@pytest.fixture
+def make_bus(kind):
+    """``make(members, run_id, **options)``: a bus of ``kind``, closed at the end."""
+    opened = []
+
+    def make(members=("a", "b", "c"), run_id="r1", **options):
+        bus = open_bus(kind, run_id, members, RATE, **options)
+        opened.append(bus)
+        return bus
+
+    try:
+        yield make
+    finally:
+        for bus in opened:
+            bus.close()
