@@ -310,19 +310,8 @@ class Reaction:
     next_quench: int  # the next turn's start as a sample: resonators to rest before it
 
 
-@functools.lru_cache(maxsize=64)  # one Plan for every unit of a run
-def plan_of(
-    units: tuple[str, ...],
-    omegas: tuple[tuple[str, float], ...],
-    tau: float,
-    pulses: int,
-    reaction_delay: float,
-    guard: float,
-    search: int,
-    kind: str = "serial",
-    start: float = 0.001,
-) -> Plan:
-    return Plan(units, omegas, tau, pulses, reaction_delay, guard, search, kind, start)
+# One Plan for every unit of a run: the constructor, cached on its (hashable) arguments.
+plan_of = functools.lru_cache(maxsize=64)(Plan)
 
 
 @dataclass
