@@ -34,13 +34,18 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.waveform import pulse_samples
 
 PHASES = ("relations", "influences")
 ANCHORS = ("spike", "schedule")
 SCHEDULES = ("serial", "concurrent")
-MAX_STAGGER = 512  # samples a code may be moved to miss every pulse already placed in its round
+# Samples a code may be moved to miss every pulse already placed in its round: codes on nearby
+# channels start on nearly the same samples, so the i-th is moved about i samples (200 units of
+# 3 pulses: a few hundred).
+MAX_STAGGER = 4096
 
 
 @dataclass(frozen=True, slots=True)
@@ -251,6 +256,27 @@ class RoundTiming:
     end: float  # the last payload pulse
 
 
+class _Occupied:
+    """The samples a round's codes use, as a boolean array from ``origin`` on (grown as
+    needed; no code of the round starts before its origin)."""
+
+    def __init__(self, origin: int) -> None:
+        self.origin = origin
+        self.used = np.zeros(4096, dtype=bool)
+
+    def taken(self, samples: np.ndarray) -> np.ndarray:
+        rel = samples - self.origin
+        if rel.size and int(rel.max()) >= self.used.size:
+            grown = np.zeros(max(2 * self.used.size, int(rel.max()) + 1), dtype=bool)
+            grown[: self.used.size] = self.used
+            self.used = grown
+        return self.used[rel]
+
+    def take(self, samples: tuple[int, ...]) -> None:
+        self.taken(np.array(samples))  # grows the array if needed
+        self.used[np.array(samples) - self.origin] = True
+
+
 def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
     """Every round of a concurrent schedule, timed (docs/protocol.md, "Concurrent schedule").
 
@@ -267,21 +293,28 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
     t0 = plan.start
 
     def place(
-        used: set[int], start: float, omega: float, what: str
+        used: _Occupied, start: float, omega: float, what: str
     ) -> tuple[float, tuple[int, ...]]:
-        for j in range(MAX_STAGGER + 1):
-            s = start + j * tau
-            samples = code_samples(s, omega, pulses, tau)
-            if used.isdisjoint(samples) and len(set(samples)) == len(samples):
-                used.update(samples)
-                return s, samples
+        # Moving a code by j samples moves its pulses by about j: shifts are screened 64 at a
+        # time on the occupancy array, and a screened one is confirmed with the exact instants
+        # (a rounding tie can move one pulse a sample further).
+        base = np.asarray(code_samples(start, omega, pulses, tau), dtype=np.int64)
+        for lo in range(0, MAX_STAGGER + 1, 64):
+            shifts = np.arange(lo, min(lo + 64, MAX_STAGGER + 1))
+            free = ~used.taken(base[:, None] + shifts[None, :]).any(axis=0)
+            for j in shifts[free]:
+                s = start + int(j) * tau
+                samples = code_samples(s, omega, pulses, tau)
+                if len(set(samples)) == len(samples) and not used.taken(np.array(samples)).any():
+                    used.take(samples)
+                    return s, samples
         raise RgtbusError(
             f"concurrent schedule: {what} finds no free samples within {MAX_STAGGER} "
             "samples of its place (too many codes for the sample rate)"
         )
 
     for turns_of_round in plan.rounds:
-        used: set[int] = set()
+        used = _Occupied(round(t0 / tau) - 1)
         ids = [
             place(used, t0, plan.omegas[t.sender], f"the ID of {t.sender}") for t in turns_of_round
         ]

@@ -104,3 +104,17 @@ def test_schedule_mistakes_are_refused_by_key(edit, pattern):
     text = group(4, "serial").replace('[protocol]\nschedule = "serial"\n', edit + "\n")
     with pytest.raises(RgtbusError, match=pattern):
         parse_scenario(text)
+
+
+@pytest.mark.slow
+def test_two_hundred_units_are_placed_without_a_shared_sample():
+    """The plan's upper end: the 200th ID starts ~640 samples late (beyond the old 512 limit)."""
+    from rgtbus.signal.plan import make_plan
+
+    units = tuple(f"u{i}" for i in range(200))
+    p = make_plan(200, schedule="concurrent", crosstalk=False)
+    plan = plan_of(units, tuple(zip(units, p.omegas, strict=True)), 0.005, 3, 0.5, 0.5, 2,
+                   "concurrent", 0.001)  # fmt: skip
+    for rnd in plan.timing()[:3]:
+        samples = [k for q in rnd.placed for k in (*q.id_samples, *q.payload_samples)]
+        assert len(samples) == len(set(samples))

@@ -158,3 +158,12 @@ def test_plan_cli_prints_margins_and_rounds(capsys):
     assert "mode exact, 7 pulses a code" in text and "ok   spacing    (rule)" in text
     assert main(["plan", "30", "--pulses", "3"]) == 2
     assert "rule octave/spacing" in capsys.readouterr().err
+
+
+def test_crosstalk_in_batches_equals_one_run(monkeypatch):
+    from rgtbus.signal import plan as plan_mod
+
+    omegas = plan_mod.auto_plan(12, pulses=5)
+    whole = plan_mod.crosstalk_peak(omegas, 5, "paper", 0.005, -0.1)
+    monkeypatch.setattr(plan_mod, "CROSSTALK_BATCH", 5)  # 5 + 5 + 2 receivers
+    assert plan_mod.crosstalk_peak(omegas, 5, "paper", 0.005, -0.1) == whole
