@@ -413,7 +413,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     mode = data.get("mode", "paper")
     if mode not in MODES:
         raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")
-    codebook = _codebook(data.get("codebook", "paper"), universe, ctx)
+    # No codebook given: the paper's (one or two actions), else the shortest generated one.
+    codebook = _codebook(data.get("codebook", _default_codebook(universe)), universe, ctx)
 
     # Frequencies: a table per unit, or "auto" (a plan by the rules of docs/model.md).
     # With "auto" and neither mode nor codebook given, the plan chooses them too: the pulses a
@@ -424,6 +425,14 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     if freq == "auto" and "mode" not in data and "codebook" not in data:
         try:
             chosen = make_plan(len(units_t), schedule=schedule, tau=timing.tau, crosstalk=False)
+            if chosen.pulses < codebook.pulses:  # the actions need longer words than the plan
+                chosen = make_plan(
+                    len(units_t),
+                    schedule=schedule,
+                    tau=timing.tau,
+                    crosstalk=False,
+                    pulses=codebook.pulses,
+                )
         except RgtbusError as exc:
             raise ctx.error("", "frequencies", str(exc)) from None
         mode = chosen.mode
@@ -810,6 +819,21 @@ def _pairs(units: tuple[str, ...]) -> list[tuple[str, str]]:
 
 CODEBOOK_KINDS = ("paper", "generated", "custom")
 MAX_PULSES = 64  # a code's length grows with N; far beyond any plan's need (the paper's N = 3)
+
+
+def _default_codebook(universe: Universe) -> Any:
+    """The paper's codebook covers one or two actions; for more, the generated codebook of the
+    fewest pulses whose words keep their distance (3 actions: 4 pulses). Searched up to six
+    actions (64 alternatives, under a second); beyond, the paper's refusal asks for one."""
+    if len(universe.actions) <= 2 or len(universe.actions) > 6:
+        return "paper"
+    for pulses in range(3, MAX_PULSES + 1):
+        try:
+            generate_codebook(universe.actions, pulses=pulses)
+        except RgtbusError:
+            continue
+        return {"kind": "generated", "pulses": pulses}
+    return "generated"  # refused by _codebook, with the generator's reason
 
 
 def _codebook(spec: Any, universe: Universe, ctx: _Ctx) -> Codebook:

@@ -154,3 +154,13 @@ def test_a_custom_codebook_without_a_conflict_word_is_refused_at_load():
         RgtbusError, match=r"gate\.toml:\d+: codebook: no word for relationship conflict"
     ):
         parse_scenario(text, "gate.toml")
+
+
+def test_without_a_codebook_three_actions_get_the_shortest_generated_one():
+    text = HEAD.replace('actions = ["open"]', 'actions = ["go", "stay", "wait"]')
+    text = text.replace('codebook = "paper"\n', "").replace('mode = "paper"\n', "")
+    text += '[relations]\npolicy = "cograph"\n[influences]\npolicy = "uniform"\nvalue = "1"\n'
+    sc = parse_scenario(text)
+    assert sc.codebook.pulses == 4 and len(sc.codebook.alternatives) == 8
+    out = run_group(sc, "memory", MemoryRecorder()).summary
+    assert out["error"] is None and out["decode_errors"] == [] and out["agree"]
