@@ -49,7 +49,13 @@ SAMPLES: dict[str, dict] = {
             "addressee": "c",
         },
     },
-    "/rx/spike": {"unit": "b", "channel": "a", "omega": 3 * math.pi / 2, "t": 1.3, "sample": 260},
+    "/rx/spike": {
+        "unit": "b",
+        "t": 1.3,
+        "sample": 260,
+        "channels": ["a", "c"],
+        "omegas": [3 * math.pi / 2, 2 * math.pi],
+    },
     "/rx/decode": {
         "unit": "b",
         "turn": 1,
@@ -185,12 +191,11 @@ def test_metadata_round_trip(harness):
     harness.rec.metadata("run", {"seed": "7", "version": "0.1.0"})
     harness.rec.metadata("codebook", {"alliance": "[.4,.4,.4]", "ω": "3π/2"})
     harness.rec.metadata("run", {"seed": "8"})  # a repeated name: the last wins
-    harness.rec.metadata("empty", {})
+    harness.rec.metadata("empty", {})  # no values: not recorded, by either recorder
     _, metadata = harness.read()
     assert metadata == {
         "run": {"seed": "8"},
         "codebook": {"alliance": "[.4,.4,.4]", "ω": "3π/2"},
-        "empty": {},
     }
 
 

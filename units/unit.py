@@ -206,19 +206,20 @@ class AutonomousUnit:
         self.ears.stop(self.index)
 
     def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
+        # one record per sample: a large run's receivers fire millions of times, and one
+        # message per resonator made the log cost several times the simulation (issue 11)
         t = k * self.tau
-        for ch in channels:
-            self.recorder.write(
-                "/rx/spike",
-                {
-                    "unit": self.name,
-                    "channel": self.units[ch],
-                    "omega": self.omegas[ch],
-                    "t": t,
-                    "sample": k,
-                },
-                ns(t),
-            )
+        self.recorder.write(
+            "/rx/spike",
+            {
+                "unit": self.name,
+                "t": t,
+                "sample": k,
+                "channels": [self.units[ch] for ch in channels],
+                "omegas": [self.omegas[ch] for ch in channels],
+            },
+            ns(t),
+        )
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":

@@ -146,6 +146,21 @@ def _unit_process_ends(
     return early, processes
 
 
+def spike_rows(records: Iterable[dict]) -> list[dict]:
+    """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
+    records, which list every resonator of a unit that fired at one sample (logs written
+    before that change hold one spike a record and read the same)."""
+    rows = []
+    for m in records:
+        if "channels" not in m:
+            rows.append(m)
+            continue
+        unit, t, k = m["unit"], m["t"], m["sample"]
+        for ch, om in zip(m["channels"], m["omegas"], strict=True):
+            rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
+    return rows
+
+
 class Replay:
     """A log organised for reading. Build with ``load_replay``."""
 
@@ -172,7 +187,7 @@ class Replay:
         self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
-        self.spikes = [m for _, m in self.by_topic["/rx/spike"]]
+        self.spikes = spike_rows(m for _, m in self.by_topic["/rx/spike"])
         self.relations = {m["unit"]: m for _, m in self.by_topic["/unit/relations"]}
         self.influences = {m["unit"]: m for _, m in self.by_topic["/unit/influences"]}
         self.decisions = [m for _, m in self.by_topic["/unit/decision"]]
@@ -700,7 +715,7 @@ def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
 # topic -> key of a message (messages with equal keys are paired in order)
 _KEYS: dict[str, Callable[[int, dict], tuple]] = {
     "/tx/pulse": lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
-    "/rx/spike": lambda t, m: (m.get("unit"), m.get("channel"), m.get("sample")),
+    "/rx/spike": lambda t, m: (m.get("unit"), m.get("sample")),
     "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
     "/unit/relations": lambda t, m: (m.get("unit"),),
     "/unit/influences": lambda t, m: (m.get("unit"),),
@@ -714,7 +729,7 @@ def _key_text(topic: str, key: tuple) -> str:
     if topic == "/tx/pulse":
         return f"pulse on {key[2]} at sample {key[1]}"
     if topic == "/rx/spike":
-        return f"spike on {key[1]} at sample {key[2]}"
+        return f"spikes at sample {key[1]}"
     if topic == "/rx/decode":
         return f"{key[1]} from {key[2]}"
     if topic == "/unit/decision":
