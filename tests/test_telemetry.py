@@ -54,7 +54,6 @@ SAMPLES: dict[str, dict] = {
         "t": 1.3,
         "sample": 260,
         "channels": ["a", "c"],
-        "omegas": [3 * math.pi / 2, 2 * math.pi],
     },
     "/rx/decode": {
         "unit": "b",

@@ -78,6 +78,7 @@ class AutonomousUnit:
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
+        self._spike_names: dict[tuple[int, ...], list[str]] = {}
         self._alternatives: dict[str, int] = {}  # decoded names, parsed once
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
@@ -208,17 +209,14 @@ class AutonomousUnit:
     def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
         # one record per sample: a large run's receivers fire millions of times, and one
         # message per resonator made the log cost several times the simulation (issue 11)
+        # every receiver hears the same medium, so the same sets of channels fire again and
+        # again: their names are built once (the lists are only read)
+        names = self._spike_names.get(channels)
+        if names is None:
+            names = self._spike_names[channels] = [self.units[ch] for ch in channels]
         t = k * self.tau
         self.recorder.write(
-            "/rx/spike",
-            {
-                "unit": self.name,
-                "t": t,
-                "sample": k,
-                "channels": [self.units[ch] for ch in channels],
-                "omegas": [self.omegas[ch] for ch in channels],
-            },
-            ns(t),
+            "/rx/spike", {"unit": self.name, "t": t, "sample": k, "channels": names}, ns(t)
         )
 
     def _on_timer(self, t: _Timer) -> None:

@@ -146,17 +146,28 @@ def _unit_process_ends(
     return early, processes
 
 
-def spike_rows(records: Iterable[dict]) -> list[dict]:
+def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
+    """Channel frequencies from a log's ``frequencies`` metadata (values that are no number
+    are left out: the verifier names a damaged scenario, this only labels spikes)."""
+    out = {}
+    for k, v in metadata.get("frequencies", {}).items():
+        with contextlib.suppress(ValueError):
+            out[k] = float(v)
+    return out
+
+
+def spike_rows(records: Iterable[dict], frequencies: dict[str, float]) -> list[dict]:
     """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
-    records, which list every resonator of a unit that fired at one sample (logs written
-    before that change hold one spike a record and read the same)."""
+    records, which list every resonator of a unit that fired at one sample; ω comes from the
+    log's frequencies (logs written before that change hold one spike a record, with its ω)."""
     rows = []
     for m in records:
         if "channels" not in m:
             rows.append(m)
             continue
         unit, t, k = m["unit"], m["t"], m["sample"]
-        for ch, om in zip(m["channels"], m["omegas"], strict=True):
+        for ch in m["channels"]:
+            om = frequencies.get(ch)
             rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
     return rows
 
@@ -187,7 +198,8 @@ class Replay:
         self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
-        self.spikes = spike_rows(m for _, m in self.by_topic["/rx/spike"])
+        self.frequencies = _frequencies(self.metadata)
+        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies)
         self.relations = {m["unit"]: m for _, m in self.by_topic["/unit/relations"]}
         self.influences = {m["unit"]: m for _, m in self.by_topic["/unit/influences"]}
         self.decisions = [m for _, m in self.by_topic["/unit/decision"]]
@@ -407,7 +419,7 @@ class Replay:
             "bus": run.get("bus"),
             "run_id": run.get("run_id"),
             "python": run.get("python"),
-            "frequencies": {k: float(v) for k, v in self.metadata.get("frequencies", {}).items()},
+            "frequencies": self.frequencies,
             "records": sorted(self.metadata),
         }
 
