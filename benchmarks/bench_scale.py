@@ -89,11 +89,35 @@ def measure(n: int, schedule: str, log: bool = False, noise: float = 0.0) -> dic
     return json.loads(proc.stdout)
 
 
+def goals(rows: list) -> None:
+    """The issue's goals against this run's figures (a goal whose case was not run is left out)."""
+    got = {(n, s): (r, lg) for n, s, r, lg in rows if not r["failure"]}
+    lines = []
+    if (10, "serial") in got and (10, "concurrent") in got:
+        ratio = got[(10, "serial")][0]["sim"] / got[(10, "concurrent")][0]["sim"]
+        lines.append(f"n = 10: serial / concurrent simulated time {ratio:.1f}x (goal >= 5x)")
+    if (50, "concurrent") in got:
+        r, lg = got[(50, "concurrent")]
+        lines.append(f"n = 50 concurrent, no log: {r['wall']:.1f} s wall (goal < 60 s)")
+        if lg:
+            ratio = lg["wall"] / r["wall"]
+            lines.append(
+                f"n = 50 concurrent, full log: {lg['wall']:.1f} s wall, {ratio:.2f}x the run "
+                "without a log (goal <= 1.5 x 60 s = 90 s)"
+            )
+    if (100, "concurrent") in got:
+        lines.append(
+            f"n = 100 concurrent: {got[(100, 'concurrent')][0]['wall']:.1f} s wall (goal < 600 s)"
+        )
+    for line in lines:
+        print(f"- {line}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="4,6,8,10,12,16,20", help="serial and concurrent")
     ap.add_argument("--large", default="30,50,100", help="concurrent only")
-    ap.add_argument("--log-upto", type=int, default=20, help="logged runs up to this size")
+    ap.add_argument("--log-upto", type=int, default=50, help="logged runs up to this size")
     ap.add_argument("--ser-sizes", default="10,50", help="noise sweep sizes (concurrent)")
     ap.add_argument("--quick", action="store_true", help="4,6,10; large 30; noise at 10")
     ap.add_argument("--one", nargs=2, metavar=("N", "SCHEDULE"), help=argparse.SUPPRESS)
@@ -145,6 +169,8 @@ def main() -> None:
             f"| {n} | {schedule} | {r['pulses']}, {r['mode']} | {r['sim']:.1f} | {ratio} | "
             f"{r['wall']:.2f} | {r['errors']} of {r['decodes']} | {r['rss_mb']:.0f} | {logged} |"
         )
+    print()
+    goals(rows)
     print()
     print("## Symbol error rate of the concurrent schedule against channel noise (σ per sample)")
     print()
