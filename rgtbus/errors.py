@@ -7,3 +7,12 @@ name the bad value and where it came from (token, file, key).
 
 class RgtbusError(ValueError):
     """Bad input or an impossible request, explained in one line."""
+
+
+class NotDecomposable(RgtbusError):
+    """The relationship graph holds an induced P4, so it has no RGT polynomial. In a random
+    group this is a result (no decisions), not bad input; ``p4`` names the path a-b-c-d."""
+
+    def __init__(self, message: str, p4: tuple[str, str, str, str]) -> None:
+        super().__init__(message)
+        self.p4 = p4

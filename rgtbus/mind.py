@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import NotDecomposable, RgtbusError
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
@@ -146,6 +146,7 @@ class Mind:
     influences: dict[tuple[str, str], int] = field(default_factory=dict)
     polynomial: str | None = None
     error: str | None = None
+    p4: tuple[str, str, str, str] | None = None  # the induced P4 of a group with no polynomial
     df: DecisionFunction | None = None
     results: dict[str, SubjectResult] | None = None
     choice: int | None = None
@@ -178,6 +179,9 @@ class Mind:
         try:
             graph = install_relations(self.units, self.sent)
             poly = graph_to_polynomial(graph)
+        except NotDecomposable as exc:  # a result of random socialisation: no decisions
+            self.p4 = exc.p4
+            return
         except RgtbusError as exc:
             self.error = str(exc)
             return

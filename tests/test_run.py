@@ -353,3 +353,46 @@ def test_noisy_gate_decodes_at_sigma_0_05_when_anchored_on_the_schedule(seed):
     sc_, s, _ = run(sc)
     assert s["error"] is None and s["decode_errors"] == []
     assert [w for w, ok, _ in check_expectations(sc_, s) if not ok] == []
+
+
+RANDOM5 = """
+name = "rand5"
+seed = 0
+units = ["a", "b", "c", "d", "e"]
+actions = ["alpha", "beta"]
+frequencies = "auto"
+[protocol]
+schedule = "concurrent"
+[relations]
+policy = "random"
+p = 0.8
+[influences]
+policy = "random"
+"""
+
+
+def test_a_random_group_that_installs_a_p4_is_a_result_not_an_error(tmp_path, capsys):
+    """Seed 0 of this group installs c-b-e-d as an induced P4 (seed 1 a cograph): the run
+    says so, decides nothing, and succeeds; its log's summary and replay say the same."""
+    path = tmp_path / "rand5.toml"
+    path.write_text(RANDOM5)
+    log = tmp_path / "r.mcap"
+    code = main(["run", str(path), "--bus", "memory", "--quiet", "--log", str(log)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "polynomial: (none): not decomposable: induced P4 c-b-e-d; no decisions" in out
+    assert out.count(": no decision\n") == 5
+    code = main(["run", str(path), "--bus", "memory", "--quiet", "--json", "--log", str(log)])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 0 and s["error"] is None and s["agree"]
+    assert s["decomposable"] is False and s["p4"] == ["c", "b", "e", "d"]
+    assert s["polynomial"] is None and all(not u["decided"] for u in s["units"].values())
+    assert main(["replay", str(log), "--json"]) == 0
+    replayed = json.loads(capsys.readouterr().out)["summary"]
+    assert replayed["decomposable"] is False and replayed["p4"] == ["c", "b", "e", "d"]
+    assert main(["replay", str(log), "--verify"]) == 0
+    capsys.readouterr()
+    argv = ["run", str(path), "--bus", "memory", "--quiet", "--json", "--seed", "1"]
+    code = main([*argv, "--log", str(tmp_path / "r1.mcap")])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 0 and s["decomposable"] is True and s["p4"] is None and s["polynomial"]

@@ -17,7 +17,8 @@ from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.bus.base import Bus
 from rgtbus.scenario import Scenario
-from rgtbus.sim import Receivers, World, WorldResult, ns
+from rgtbus.sim import Receivers, World, ns
+from rgtbus.summary import summarise
 from rgtbus.telemetry import Recorder
 from units.unit import AutonomousUnit
 
@@ -26,29 +27,6 @@ from units.unit import AutonomousUnit
 class RunOutput:
     summary: dict[str, Any]
     units: list[AutonomousUnit]
-
-
-# What `rgtbus run --json` and `rgtbus launch --json` print: one contract for both.
-SUMMARY_JSON_KEYS = (
-    "scenario",
-    "seed",
-    "polynomial",
-    "relations",
-    "agree",
-    "influences",
-    "units",
-    "outcome",
-    "sim_seconds",
-    "wall_seconds",
-    "engine",
-    "log",
-    "decode_errors",
-    "error",
-)
-
-
-def summary_json(summary: dict[str, Any]) -> dict[str, Any]:
-    return {k: summary[k] for k in SUMMARY_JSON_KEYS}
 
 
 def default_run_id(sc: Scenario) -> str:
@@ -141,87 +119,6 @@ def run_group(
     summary = summarise(sc, [m.report() for m in members], result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)
-
-
-_NO_REPORT: dict[str, Any] = {
-    "polynomial": None,
-    "installed": {},
-    "sent_relations": {},
-    "influences": {},
-}
-
-
-def summarise(
-    sc: Scenario, reports: list[dict[str, Any]], result: WorldResult, *, engine: str = "event"
-) -> dict[str, Any]:
-    """The run's summary from every unit's ``report()`` (one process or many). Units without
-    a report (a process that died) are absent from ``units`` and the run does not agree; the
-    shared fields are the first reporting unit's (none at all: empty)."""
-    by_unit = {r["unit"]: r for r in reports}
-    ref = next((by_unit[u] for u in sc.units if u in by_unit), _NO_REPORT)
-    tables = {r["unit"]: r["installed"] for r in reports}
-    agree = len(reports) == len(sc.units) and all(
-        r["installed"] == ref["installed"] and r["polynomial"] == ref["polynomial"] for r in reports
-    )
-    # Ground truth for decode errors: what was actually sent, per (turn, kind).
-    truth = {}
-    for r in reports:
-        for turn, kind, addressee, code in r["sends"]:
-            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-    decode_errors = []
-    for r in reports:
-        for turn, kind, addressee, code in r["decodes"]:
-            key = (turn, "id" if kind == "id" else "payload")
-            if key not in truth:
-                continue
-            sent_to, sent = truth[key]
-            wrong = (code != "id") if kind == "id" else (code != sent or addressee != sent_to)
-            if wrong:
-                decode_errors.append(
-                    {"unit": r["unit"], "turn": turn, "kind": kind, "decoded": code, "sent": sent}
-                )
-    units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
-    outcome: Any = None
-    if (
-        sc.outcome is not None
-        and len(units_out) == len(sc.units)
-        and all(v["decided"] for v in units_out.values())
-    ):
-        want = sc.universe.to_list(sc.outcome.choose)
-        ok = all(units_out[x]["choice"] == want for x in sc.outcome.all_of)
-        outcome = f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
-    # The root cause: the world's own failure (a member gone or stalled), else the earliest
-    # unit failure (others may fail after it, for want of its transmissions), else a unit
-    # whose group was not decomposable.
-    error = result.failure
-    if error is None:
-        failed = sorted(
-            ((r["failed_at"], order) for order, r in enumerate(reports) if r["failure"]),
-        )
-        if failed:
-            error = reports[failed[0][1]]["failure"]
-    if error is None:
-        errs = [r["mind_error"] for r in reports if r["mind_error"]]
-        error = errs[0] if errs else None
-    return {
-        "scenario": sc.name,
-        "seed": sc.seed,
-        "polynomial": ref["polynomial"],
-        "relations": ref["installed"],
-        "sent_relations": ref["sent_relations"],
-        "unit_relations": tables,
-        "agree": agree,
-        "influences": ref["influences"],
-        "units": units_out,
-        "outcome": outcome,
-        "decode_errors": decode_errors,
-        "sim_seconds": round(result.sim_seconds, 6),
-        "wall_seconds": round(result.wall_seconds, 3),
-        "engine": engine,
-        "steps": result.steps,
-        "bus": result.bus_stats,
-        "error": error,
-    }
 
 
 def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:

@@ -24,9 +24,10 @@ from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
+from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
-from units.group import scenario_world, summarise
+from units.group import scenario_world
 from units.unit import AutonomousUnit
 
 

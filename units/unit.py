@@ -27,6 +27,7 @@ from rgtbus.protocol import NOTHING, Actions, Listen, ProtocolState, Send, code_
 from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import Readout, WordSet
 from rgtbus.sim import ns
+from rgtbus.summary import not_decomposable_text
 from rgtbus.telemetry import Recorder
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
@@ -417,6 +418,9 @@ class AutonomousUnit:
                     self._log_relations(t)
                 if mind.error:
                     self.recorder.log("error", f"{self.name}: {mind.error}", ns(t), self.name)
+                elif mind.p4 is not None:  # a result, said once by each unit that found it
+                    text = not_decomposable_text(mind.p4)
+                    self.recorder.log("warning", f"{self.name}: {text}", ns(t), self.name)
         else:
             value = self._alternatives.get(code)
             if value is None:
@@ -442,6 +446,7 @@ class AutonomousUnit:
                 },
                 "installed": mind.installed(),
                 "polynomial": mind.polynomial,
+                "p4": None if mind.p4 is None else list(mind.p4),
             },
             ns(t),
         )
@@ -465,7 +470,9 @@ class AutonomousUnit:
         mind = self.mind
         u = self.scenario.universe
         if mind.results is None:
-            self.recorder.log("error", f"{self.name}: no decision: {mind.error}", ns(t), self.name)
+            if mind.p4 is None:  # a group with no polynomial has said so already
+                why = mind.error or "the relationship phase did not finish"
+                self.recorder.log("error", f"{self.name}: no decision: {why}", ns(t), self.name)
             return
         if not self.recorder.enabled:  # the canonical forms cost more than the decision
             return
@@ -519,4 +526,5 @@ class AutonomousUnit:
             "failed_at": self.done_at if self.failure else None,
             "done_at": self.done_at if self.done else None,
             "mind_error": mind.error,
+            "p4": None if mind.p4 is None else list(mind.p4),
         }

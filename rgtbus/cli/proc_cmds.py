@@ -603,9 +603,10 @@ def _finish_launch(
     every unit log that has anything in it into ``run.mcap``; print the summary."""
     from rgtbus.cli.run_cmd import close_log, open_log, print_summary
     from rgtbus.sim import WorldResult, ns
+    from rgtbus.summary import summarise, summary_json
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.recorder import scan_log
-    from units.group import auth_name, summarise, summary_json, write_metadata, write_run_summary
+    from units.group import auth_name, write_metadata, write_run_summary
 
     reports = [outputs[u]["report"] for u in sc.units if u in outputs]
     first = next((outputs[u] for u in sc.units if u in outputs), None)

@@ -20,7 +20,7 @@ import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import NotDecomposable, RgtbusError
 from rgtbus.rgt.expr import Const, Expr, Not, Prod, Sum, Var, format_expr, variables
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -273,9 +273,10 @@ def graph_to_polynomial(graph: RelationGraph) -> Expr:
         p4 = find_p4(graph, vs)
         assert p4 is not None, "a prime graph on >= 2 vertices always holds an induced P4"
         a, b, c, d = p4
-        raise RgtbusError(
+        raise NotDecomposable(
             f"relationship graph is not decomposable: induced P4 {a}-{b}-{c}-{d} "
-            f"(alliances {a}-{b}, {b}-{c}, {c}-{d}; conflicts {a}-{c}, {a}-{d}, {b}-{d})"
+            f"(alliances {a}-{b}, {b}-{c}, {c}-{d}; conflicts {a}-{c}, {a}-{d}, {b}-{d})",
+            (a, b, c, d),
         )
 
     return build(list(graph.subjects))

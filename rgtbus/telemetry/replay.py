@@ -29,6 +29,7 @@ import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.summary import agreement, decode_error, frustrated_units, outcome_of
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import (
     LogContents,
@@ -332,7 +333,7 @@ class Replay:
     def agree(self) -> bool:
         tables = [self.relations.get(u, {}).get("installed", {}) for u in self.units]
         polys = [self.relations.get(u, {}).get("polynomial") for u in self.units]
-        return all(t == tables[0] for t in tables) and all(p == polys[0] for p in polys)
+        return agreement(tables, polys, len(self.units))
 
     def decode_errors(self) -> list[dict[str, Any]]:
         """As ``summarise`` lists them: per unit (in unit order), decodes of a wrong code."""
@@ -341,15 +342,7 @@ class Replay:
         rows = sorted(self.decodes, key=lambda d: order.get(d.unit, len(order)))
         for d in rows:
             if d.matches is False:
-                out.append(
-                    {
-                        "unit": d.unit,
-                        "turn": d.turn,
-                        "kind": d.kind,
-                        "decoded": d.code,
-                        "sent": d.sent,
-                    }
-                )
+                out.append(decode_error(d.unit, d.turn, d.kind, d.code, d.sent))
         return out
 
     def summary(self) -> dict[str, Any]:
@@ -374,16 +367,22 @@ class Replay:
             }
         run = self.run or {}
         seed = self.metadata.get("run", {}).get("seed")
+        p4 = first.get("p4")
+        complete = first.get("polynomial") is not None or p4 is not None
         return {
             "scenario": run.get("scenario", self.metadata.get("scenario", {}).get("name")),
             "seed": run.get("seed", None if seed is None else int(seed)),
+            "schedule": None if self.scenario is None else self.scenario.schedule,
             "polynomial": first.get("polynomial"),
+            "decomposable": (p4 is None) if complete else None,
+            "p4": p4,
             "relations": first.get("installed", {}),
             "sent_relations": first.get("sent", {}),
             "unit_relations": {u: self.relations.get(u, {}).get("installed", {}) for u in units},
             "agree": self.agree(),
             "influences": first_infl.get("influences", {}),
             "units": units_out,
+            "frustrated": frustrated_units(units_out),
             "outcome": run.get("outcome", self._outcome()),
             "decode_errors": self.decode_errors(),
             "sim_seconds": self.sim_seconds,
@@ -391,15 +390,14 @@ class Replay:
         }
 
     def _outcome(self) -> Any:
-        sc = self.scenario
-        if sc is None or sc.outcome is None:
+        if self.scenario is None:
             return None
-        own = {d["unit"]: d for d in self.decisions if d["unit"] == d["subject"]}
-        if any(u not in own for u in sc.units):
-            return None
-        want = sc.universe.to_list(sc.outcome.choose)
-        ok = all(own[x]["choice"] == want for x in sc.outcome.all_of)
-        return f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
+        own = {
+            d["unit"]: {"choice": d["choice"], "decided": True}
+            for d in self.decisions
+            if d["unit"] == d["subject"]
+        }
+        return outcome_of(self.scenario, own)
 
     def spike_counts(self) -> dict[str, dict[str, int]]:
         counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}

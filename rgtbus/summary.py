@@ -1,0 +1,177 @@
+"""The summary of a run: one contract for ``run``, ``launch``, ``replay`` and ``sweep``.
+
+A run's summary is built here from what its units report (in one process or many), and the
+pieces a log reader recomputes (agreement, outcome, decode errors, the non-decomposable note)
+are the same functions. ``SUMMARY_JSON_KEYS`` is what ``rgtbus run --json`` and ``rgtbus launch
+--json`` print and what a sweep stores per run. Pure: no SimPy, zenoh or MCAP here.
+
+Fields beyond the tables and decisions:
+
+* ``decomposable``: whether the installed group has an RGT polynomial (``None`` when the
+  relationship phase did not finish); ``p4`` the induced path a-b-c-d that made it not
+  decomposable. A non-decomposable random group is a result (no decisions), never an error.
+* ``frustrated``: the units whose own forward task has no solution (empty interval).
+* ``error``: why the run did not finish (the root cause), else ``None``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, Protocol
+
+from rgtbus.scenario import Scenario
+
+SUMMARY_JSON_KEYS = (
+    "scenario",
+    "seed",
+    "schedule",
+    "polynomial",
+    "decomposable",
+    "p4",
+    "relations",
+    "agree",
+    "influences",
+    "units",
+    "frustrated",
+    "outcome",
+    "sim_seconds",
+    "wall_seconds",
+    "engine",
+    "log",
+    "decode_errors",
+    "error",
+)
+
+
+def summary_json(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields ``--json`` prints (a summary without some, e.g. from an old log: ``None``)."""
+    return {k: summary.get(k) for k in SUMMARY_JSON_KEYS}
+
+
+def not_decomposable_text(p4: Sequence[str]) -> str:
+    """How a run (and its units' logs) say a group has no polynomial."""
+    return f"not decomposable: induced P4 {'-'.join(p4)}; no decisions"
+
+
+def agreement(tables: Sequence[Any], polynomials: Sequence[Any], expected: int) -> bool:
+    """Every one of ``expected`` units holds the same relationship table and polynomial."""
+    return (
+        len(tables) == expected
+        and all(t == tables[0] for t in tables)
+        and all(p == polynomials[0] for p in polynomials)
+    )
+
+
+def outcome_of(sc: Scenario, units: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """The scenario's ``[outcome]`` line for these decisions (``None``: no outcome defined, or
+    a unit has not decided). ``units``: unit -> {"choice": [...], "decided": bool}."""
+    if sc.outcome is None or any(not units.get(u, {}).get("decided") for u in sc.units):
+        return None
+    want = sc.universe.to_list(sc.outcome.choose)
+    ok = all(units[x]["choice"] == want for x in sc.outcome.all_of)
+    return f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
+
+
+def is_wrong_decode(kind: str, code: str, addressee: str, sent: str, sent_to: str) -> bool:
+    """Whether a decode differs from what was sent: an ID must read as the ID-code; a payload
+    must be the code sent, found on its addressee's channel."""
+    return (code != "id") if kind == "id" else (code != sent or addressee != sent_to)
+
+
+def decode_error(unit: str, turn: int, kind: str, decoded: str, sent: str) -> dict[str, Any]:
+    """One entry of a summary's ``decode_errors``."""
+    return {"unit": unit, "turn": turn, "kind": kind, "decoded": decoded, "sent": sent}
+
+
+def frustrated_units(units: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    return [u for u, r in units.items() if r.get("frustrated")]
+
+
+class WorldEnd(Protocol):
+    """How a world ended, as ``rgtbus.sim.WorldResult`` says it (``failure``: the world's own
+    root cause, e.g. a member gone)."""
+
+    steps: int
+    sim_seconds: float
+    wall_seconds: float
+    failure: str | None
+    bus_stats: Any
+
+
+def summarise(
+    sc: Scenario, reports: Iterable[dict[str, Any]], result: WorldEnd, *, engine: str = "event"
+) -> dict[str, Any]:
+    """The run's summary from every unit's ``report()`` (one process or many) and how the
+    world ended. Units without a
+    report (a process that died) are absent from ``units`` and the run does not agree; the
+    shared fields are the first reporting unit's (none at all: empty)."""
+    reports = list(reports)
+    by_unit = {r["unit"]: r for r in reports}
+    ref = next((by_unit[u] for u in sc.units if u in by_unit), _NO_REPORT)
+    tables = {r["unit"]: r["installed"] for r in reports}
+    agree = agreement(
+        [r["installed"] for r in reports], [r["polynomial"] for r in reports], len(sc.units)
+    )
+    # Ground truth for decode errors: what was actually sent, per (turn, kind).
+    truth = {}
+    for r in reports:
+        for turn, kind, addressee, code in r["sends"]:
+            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+    decode_errors = []
+    for r in reports:
+        for turn, kind, addressee, code in r["decodes"]:
+            key = (turn, "id" if kind == "id" else "payload")
+            if key not in truth:
+                continue
+            sent_to, sent = truth[key]
+            if is_wrong_decode(kind, code, addressee, sent, sent_to):
+                decode_errors.append(decode_error(r["unit"], turn, kind, code, sent))
+    units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
+    outcome = outcome_of(sc, units_out) if len(units_out) == len(sc.units) else None
+    # The root cause: the world's own failure (a member gone or stalled), else the earliest
+    # unit failure (others may fail after it, for want of its transmissions), else a unit
+    # whose mind could not go on.
+    error = result.failure
+    if error is None:
+        failed = sorted(
+            ((r["failed_at"], order) for order, r in enumerate(reports) if r["failure"]),
+        )
+        if failed:
+            error = reports[failed[0][1]]["failure"]
+    if error is None:
+        errs = [r["mind_error"] for r in reports if r["mind_error"]]
+        error = errs[0] if errs else None
+    p4 = ref.get("p4")
+    decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
+    return {
+        "scenario": sc.name,
+        "seed": sc.seed,
+        "schedule": sc.schedule,
+        "polynomial": ref["polynomial"],
+        "decomposable": decomposable,
+        "p4": None if p4 is None else list(p4),
+        "relations": ref["installed"],
+        "sent_relations": ref["sent_relations"],
+        "unit_relations": tables,
+        "agree": agree,
+        "influences": ref["influences"],
+        "units": units_out,
+        "frustrated": frustrated_units(units_out),
+        "outcome": outcome,
+        "decode_errors": decode_errors,
+        "sim_seconds": round(result.sim_seconds, 6),
+        "wall_seconds": round(result.wall_seconds, 3),
+        "engine": engine,
+        "steps": result.steps,
+        "bus": result.bus_stats,
+        "error": error,
+    }
+
+
+_NO_REPORT: dict[str, Any] = {
+    "polynomial": None,
+    "p4": None,
+    "installed": {},
+    "sent_relations": {},
+    "influences": {},
+}
