@@ -22,7 +22,15 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from rgtbus.cli import plan_cmd, proc_cmds, replay_cmds, rgt_cmds, run_cmd, signal_cmds
+    from rgtbus.cli import (
+        plan_cmd,
+        proc_cmds,
+        replay_cmds,
+        rgt_cmds,
+        run_cmd,
+        signal_cmds,
+        sweep_cmds,
+    )
 
     parser = OneLineParser(
         prog="rgtbus",
@@ -34,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         dest="command", metavar="COMMAND", parser_class=OneLineParser
     )
     subparsers.required = True
-    for module in (rgt_cmds, run_cmd, signal_cmds, plan_cmd, replay_cmds, proc_cmds):
+    for module in (rgt_cmds, run_cmd, signal_cmds, plan_cmd, replay_cmds, proc_cmds, sweep_cmds):
         module.register(subparsers)
     return parser
 

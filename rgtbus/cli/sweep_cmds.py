@@ -1,0 +1,118 @@
+"""``rgtbus sweep`` and ``rgtbus sweep-plot``: experiments across seeds and parameters."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "sweep",
+        help="run a scenario over seeds and a grid of keys; a table of results",
+        description="Run a sweep file (a base scenario, seeds and a [grid] of scenario keys) on "
+        "local worker processes or a Dask distributed cluster; one row per run in "
+        "DIR/results.parquet and DIR/results.csv (docs/sweeps.md).",
+    )
+    p.add_argument(
+        "sweep", metavar="SWEEP", help="a sweep file, e.g. scenarios/sweeps/gate_noise.toml"
+    )
+    p.add_argument("--out", metavar="DIR", help="results directory (default logs/sweeps/<name>)")
+    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (all cores)")
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a Dask scheduler, e.g. tcp://127.0.0.1:8786 (dask-scheduler / dask-worker)",
+    )
+    p.add_argument("--resume", action="store_true", help="finish a sweep stopped halfway")
+    p.add_argument("--logs", action="store_true", help="an MCAP log per run (DIR/logs)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the rows as JSON lines")
+    p.set_defaults(func=run_sweep_cmd)
+
+    q = subparsers.add_parser(
+        "sweep-plot",
+        help="a metric against a parameter across a sweep's runs, with 95 %% intervals",
+        description="Draw a metric of a sweep's results against one of its grid keys, mean "
+        "over seeds with a 95 %% interval (Wilson for yes/no metrics), as a PNG.",
+    )
+    q.add_argument("dir", metavar="DIR", help="a sweep's results directory")
+    q.add_argument("--x", required=True, metavar="KEY", help="grid key on the x axis")
+    q.add_argument(
+        "--y",
+        required=True,
+        metavar="METRIC",
+        help="a column (number or yes/no, e.g. decomposable, decode_error_count), or "
+        "COLUMN=VALUE for the share of runs where it equals VALUE (e.g. 'outcome=gate: open')",
+    )
+    q.add_argument("--by", metavar="KEY", help="one curve per value of this grid key")
+    q.add_argument("--exact", metavar="NAME", help=argparse.SUPPRESS)
+    q.add_argument("-o", "--output", metavar="PNG", help="default DIR/<y>-vs-<x>.png")
+    q.add_argument("--title", help="figure title")
+    q.set_defaults(func=run_sweep_plot_cmd)
+
+
+def run_sweep_cmd(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from rgtbus.errors import RgtbusError
+    from units.sweep import load_sweep, open_executor, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise RgtbusError(f"--workers must be at least 1, got {args.workers}")
+    sweep = load_sweep(args.sweep)
+    out = Path(args.out) if args.out else Path("logs") / "sweeps" / sweep.name
+    bar = tqdm(
+        total=len(sweep.cells()) * len(sweep.seeds),
+        unit="run",
+        desc=sweep.name,
+        disable=args.quiet or not sys.stderr.isatty(),
+        file=sys.stderr,
+    )
+
+    def progress(done: int, total: int, failures: int) -> None:
+        bar.n = done
+        bar.set_postfix(failures=failures, refresh=False)
+        bar.refresh()
+
+    try:
+        with open_executor(args.workers, args.scheduler) as (executor, workers):
+            rows = run_sweep(
+                sweep,
+                out,
+                executor=executor,
+                workers=workers,
+                resume=args.resume,
+                logs=args.logs,
+                progress=progress,
+            )
+    finally:
+        bar.close()
+    failed = sum(1 for r in rows if r.get("failed"))
+    if args.json:
+        for r in rows:
+            print(json.dumps(r))
+    else:
+        print(
+            f"sweep {sweep.name}: {len(rows)} runs ({failed} ended with an error) -> "
+            f"{out / 'results.parquet'}, {out / 'results.csv'}"
+        )
+    return 0
+
+
+def run_sweep_plot_cmd(args: argparse.Namespace) -> int:
+    from rgtbus.telemetry.sweep_plot import plot_sweep
+
+    path = plot_sweep(
+        Path(args.dir),
+        args.x,
+        args.y,
+        by=args.by,
+        output=args.output,
+        title=args.title,
+        exact=args.exact,
+    )
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,193 @@
+"""A metric of a sweep's runs against one of its parameters, with 95 % intervals over seeds.
+
+Per x value (and curve): a yes/no metric is a share p̂ = k/n with its Wilson score interval
+
+    (p̂ + z²/2n ± z·sqrt(p̂(1−p̂)/n + z²/4n²)) / (1 + z²/n),   z = 1.96;
+
+a number is a mean with mean ± z·s/sqrt(n) (s the sample standard deviation). Runs where the
+metric is empty (e.g. ``decomposable`` of a run that failed before its table) are left out and
+counted in the caption.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+
+Z95 = 1.959963984540054
+
+
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float, float]:
+    """Share k/n and its Wilson score interval (lo, hi)."""
+    if n <= 0:
+        raise ValueError("no runs")
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return p, max(0.0, centre - half), min(1.0, centre + half)
+
+
+def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, float]:
+    n = len(values)
+    m = math.fsum(values) / n
+    if n < 2:
+        return m, m, m
+    sd = math.sqrt(math.fsum((v - m) ** 2 for v in values) / (n - 1))
+    return m, m - z * sd / math.sqrt(n), m + z * sd / math.sqrt(n)
+
+
+def read_results(out_dir: Path) -> list[dict[str, Any]]:
+    import pyarrow.parquet as pq
+
+    path = out_dir / "results.parquet"
+    if not path.is_file():
+        raise RgtbusError(f"{str(out_dir)!r}: no results.parquet (run rgtbus sweep first)")
+    return list(pq.read_table(path).to_pylist())
+
+
+def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], bool, str]:
+    """(value of a row or None, whether it is a share, label)."""
+    columns = list(rows[0]) if rows else []
+    col, eq, want = y.partition("=")
+    if col not in columns:
+        raise RgtbusError(f"--y {y!r}: no column {col!r} (columns: {', '.join(columns)})")
+    if eq:
+        return (
+            (lambda r: None if r.get(col) is None else float(str(r[col]) == want)),
+            True,
+            (f"share of runs with {col} = {want}"),
+        )
+    sample = [r[col] for r in rows if r.get(col) is not None]
+    if all(isinstance(v, bool) for v in sample):
+        return (lambda r: None if r.get(col) is None else float(r[col])), True, f"share {col}"
+    if not all(isinstance(v, int | float) for v in sample):
+        raise RgtbusError(
+            f"--y {y!r}: column {col!r} holds text; use {col}=VALUE for the share of runs "
+            "where it equals VALUE"
+        )
+    return (lambda r: None if r.get(col) is None else float(r[col])), False, col
+
+
+def _key(rows: list[dict[str, Any]], key: str, flag: str) -> None:
+    if rows and key not in rows[0]:
+        raise RgtbusError(f"{flag} {key!r}: not a column of the results")
+
+
+def _sort_key(v: Any) -> tuple:
+    return (0, float(v), "") if isinstance(v, int | float) else (1, 0.0, str(v))
+
+
+def exact_cograph(n: int, p: float) -> float:
+    """The exact probability that a group of n units socialised at p is decomposable: each
+    pair allied with probability p² (both must send alliance), so G(n, p²) must be a cograph."""
+    from rgtbus.rgt.cographs import cograph_probability
+
+    return cograph_probability(n, p * p)
+
+
+def plot_sweep(
+    out_dir: Path,
+    x: str,
+    y: str,
+    *,
+    by: str | None = None,
+    output: str | None = None,
+    title: str | None = None,
+    exact: str | None = None,
+) -> Path:
+    """Draw ``y`` against ``x`` (one curve per ``by`` value); return the PNG's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_results(out_dir)
+    if not rows:
+        raise RgtbusError(f"{str(out_dir)!r}: results.parquet holds no runs")
+    _key(rows, x, "--x")
+    if by:
+        _key(rows, by, "--by")
+    value, share, label = _metric(rows, y)
+    groups: dict[Any, dict[Any, list[float]]] = {}
+    skipped = 0
+    for r in rows:
+        v = value(r)
+        if v is None:
+            skipped += 1
+            continue
+        groups.setdefault(r.get(by) if by else None, {}).setdefault(r[x], []).append(v)
+    if not groups:
+        raise RgtbusError(f"--y {y!r}: no run has a value")
+    fig, ax = plt.subplots(figsize=(7.5, 4.8), layout="constrained")
+    counts = set()
+    for curve in sorted(groups, key=_sort_key):
+        pts = groups[curve]
+        xs = sorted(pts, key=_sort_key)
+        stats = []
+        for xv in xs:
+            vals = pts[xv]
+            counts.add(len(vals))
+            if share:
+                stats.append(wilson(round(sum(vals)), len(vals)))
+            else:
+                stats.append(mean_interval(vals))
+        numeric = all(isinstance(v, int | float) for v in xs)
+        pos = [float(v) for v in xs] if numeric else list(range(len(xs)))
+        mid = [s[0] for s in stats]
+        err = [[max(0.0, s[0] - s[1]) for s in stats], [max(0.0, s[2] - s[0]) for s in stats]]
+        name = f"{by} = {curve}" if by else "simulated"
+        line = ax.errorbar(pos, mid, yerr=err, marker="o", capsize=3, label=name)
+        if not numeric:
+            ax.set_xticks(pos, [str(v) for v in xs])
+        if exact == "cograph":
+            ns = xs if x == "n" else [curve if by == "n" else None] * len(xs)
+            ps = xs if x == "relations.p" else [curve if by == "relations.p" else None] * len(xs)
+            if all(isinstance(n, int) for n in ns) and all(isinstance(p, int | float) for p in ps):
+                ex = [exact_cograph(int(n), float(p)) for n, p in zip(ns, ps, strict=True)]
+                ax.plot(
+                    pos,
+                    ex,
+                    ls="--",
+                    color=line.lines[0].get_color(),
+                    alpha=0.8,
+                    label=f"exact ({name})",
+                )
+            else:
+                raise RgtbusError(
+                    "--exact cograph needs n and relations.p as --x and --by (in either order)"
+                )
+        elif exact:
+            raise RgtbusError(f"--exact {exact!r}: unknown (cograph)")
+    ax.set_xlabel(x)
+    ax.set_ylabel(label)
+    if share:
+        ax.set_ylim(-0.03, 1.03)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=9)
+    meta = _sweep_name(out_dir)
+    n_txt = f"{min(counts)}–{max(counts)}" if len(counts) > 1 else f"{next(iter(counts))}"
+    ax.set_title(title or f"{meta}: {label} vs {x}", fontsize=12)
+    note = (
+        f"{n_txt} runs (seeds) a point; bars: 95 % "
+        f"{'Wilson interval' if share else 'interval of the mean'}"
+        + (f"; {skipped} runs without a value left out" if skipped else "")
+    )
+    fig.text(0.01, 0.005, note, fontsize=8, color="0.3")
+    safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in f"{y}-vs-{x}")
+    path = Path(output) if output else out_dir / f"{safe}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _sweep_name(out_dir: Path) -> str:
+    try:
+        return str(json.loads((out_dir / "sweep.json").read_text(encoding="utf-8"))["name"])
+    except (OSError, ValueError, KeyError):
+        return out_dir.name
