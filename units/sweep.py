@@ -288,6 +288,11 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row["decode_error_count"] = len(s["decode_errors"])
         row["frustrated_count"] = len(s["frustrated"])
         row["decided_count"] = sum(1 for u in s["units"].values() if u["decided"])
+        rels = list(s["relations"].values())
+        row["alliance_share"] = rels.count("alliance") / len(rels) if rels else None
+        decodes = sum(len(m.decoded) for m in out.units)
+        row["decodes"] = decodes
+        row["decode_error_rate"] = len(s["decode_errors"]) / decodes if decodes else None
         row["failed"] = s["error"] is not None
     except Exception as exc:  # a run that raises is a result of the sweep, never its end
         last = traceback.extract_tb(exc.__traceback__)[-1:] or None

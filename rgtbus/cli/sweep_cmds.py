@@ -48,7 +48,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "COLUMN=VALUE for the share of runs where it equals VALUE (e.g. 'outcome=gate: open')",
     )
     q.add_argument("--by", metavar="KEY", help="one curve per value of this grid key")
-    q.add_argument("--exact", metavar="NAME", help=argparse.SUPPRESS)
+    q.add_argument(
+        "--exact",
+        choices=("cograph", "alliance"),
+        help="draw the exact curve too: cograph (P that G(n, p²) is decomposable; needs n and "
+        "relations.p as --x/--by) or alliance (p², --x relations.p)",
+    )
     q.add_argument("-o", "--output", metavar="PNG", help="default DIR/<y>-vs-<x>.png")
     q.add_argument("--title", help="figure title")
     q.set_defaults(func=run_sweep_plot_cmd)

@@ -59,7 +59,8 @@ def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], 
         raise RgtbusError(f"--y {y!r}: no column {col!r} (columns: {', '.join(columns)})")
     if eq:
         return (
-            (lambda r: None if r.get(col) is None else float(str(r[col]) == want)),
+            # a run without the column's value (no outcome: it failed) is not one with it
+            (lambda r: float(r.get(col) is not None and str(r[col]) == want)),
             True,
             (f"share of runs with {col} = {want}"),
         )
@@ -162,8 +163,12 @@ def plot_sweep(
                 raise RgtbusError(
                     "--exact cograph needs n and relations.p as --x and --by (in either order)"
                 )
+        elif exact == "alliance":  # both ends must send alliance: p² (the AND rule)
+            if x != "relations.p":
+                raise RgtbusError("--exact alliance needs relations.p as --x")
+            ax.plot(pos, [float(p) ** 2 for p in xs], ls="--", color="0.3", label="p² (AND rule)")
         elif exact:
-            raise RgtbusError(f"--exact {exact!r}: unknown (cograph)")
+            raise RgtbusError(f"--exact {exact!r}: unknown (cograph or alliance)")
     ax.set_xlabel(x)
     ax.set_ylabel(label)
     if share:
