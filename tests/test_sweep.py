@@ -145,6 +145,8 @@ def test_runs_that_fail_are_rows_too(tmp_path, capsys):
         ),
         ('scenario = "{scenario}"\n[grid]\nn = 3\n', ":3: n: must be a non-empty list", "3"),
         ('scenario = "{scenario}"\nseeds = \n', ":2: not valid TOML", ""),
+        ('scenario = "{scenario}"\n[grid]\nseed = [1, 2]\n', ":3: seed:", "seeds key"),
+        ('scenario = "/"\n', ":1: scenario: cannot read scenario '/'", "is a directory"),
     ],
 )
 def test_bad_sweep_files_are_refused_with_file_line_and_key(tmp_path, capsys, body, where, says):

@@ -462,3 +462,17 @@ def test_docs_topics_md_is_generated():
         'docs/topics.md is stale: regenerate with python -c "from rgtbus.telemetry import '
         "topics_markdown; open('docs/topics.md','w').write(topics_markdown())\""
     )
+
+
+def test_spike_rows_read_records_of_one_sample_and_older_logs_of_one_spike_alike():
+    from rgtbus.telemetry.replay import spike_rows
+
+    new = {"unit": "b", "t": 1.3, "sample": 260, "channels": ["a", "c"]}
+    old = {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260}
+    rows = spike_rows([new, old], {"a": 4.7, "c": 5.2})
+    assert rows == [
+        {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260},
+        {"unit": "b", "channel": "c", "omega": 5.2, "t": 1.3, "sample": 260},
+        old,
+    ]
+    assert spike_rows([new], {})[0]["omega"] is None  # a log without frequencies

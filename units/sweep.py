@@ -21,6 +21,7 @@ only what is missing; the table is written as ``results.parquet`` and ``results.
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import itertools
 import json
@@ -40,7 +41,7 @@ import tomli_w
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
-from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
 from rgtbus.summary import summary_json
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid"}
@@ -106,9 +107,9 @@ def _line_of(text: str, key: str) -> int | None:
 
 
 def _error(path: str, text: str, key: str | None, reason: str) -> RgtbusError:
-    line = _line_of(text, key.rpartition(".")[2] if key and "." not in key else key or "")
-    if line is None and key:
-        line = _line_of(text, key)
+    line = _line_of(text, key) if key else None
+    if line is None and key and "." in key:  # [grid.relations] p = ..., or an inline table
+        line = _line_of(text, key.rpartition(".")[2])
     where = f"{path}:{line}" if line else path
     return RgtbusError(f"{where}: {key or 'sweep'}: {reason}")
 
@@ -142,10 +143,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     sweep file, its line and key)."""
     p = Path(path)
     where = str(p)
-    try:
-        data_bytes = p.read_bytes()
-    except OSError as exc:
-        raise RgtbusError(f"cannot read sweep {where!r}: {exc.strerror}") from None
+    data_bytes = _read_capped(p, "sweep")
     try:
         text = data_bytes.decode("utf-8")
         data = tomllib.loads(text)
@@ -166,10 +164,11 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
         raise _error(where, text, "scenario", "must name the base scenario file")
     scen_path = (p.parent / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
     try:
-        scen_text = scen_path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        why = getattr(exc, "strerror", None) or str(exc)
-        raise _error(where, text, "scenario", f"cannot read {str(scen_path)!r}: {why}") from None
+        scen_text = _read_capped(scen_path, "scenario").decode("utf-8")
+    except UnicodeDecodeError:
+        raise _error(where, text, "scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
+    except RgtbusError as exc:
+        raise _error(where, text, "scenario", str(exc)) from None
     try:
         seeds = parse_seeds(data.get("seeds", "0..0"))
     except ValueError as exc:
@@ -181,6 +180,8 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     for key, values in _flatten(grid_table):
         if not isinstance(values, list) or not values:
             raise _error(where, text, key, f"must be a non-empty list of values, got {values!r}")
+        if key == "seed":
+            raise _error(where, text, key, "the seeds of a sweep are its seeds key, not a grid key")
         if key == "engine":
             for v in values:
                 if v not in ENGINES:
@@ -190,18 +191,40 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     runs = len(sweep.cells()) * len(seeds)
     if runs > MAX_RUNS:
         raise _error(where, text, "grid", f"{runs} runs: more than {MAX_RUNS}")
+    try:  # the base scenario as written: its own errors name its own lines
+        parse_scenario(scen_text, str(scen_path))
+    except RgtbusError as exc:
+        raise _error(where, text, "scenario", str(exc)) from None
     base = tomllib.loads(scen_text)
-    for cell in sweep.cells():  # every cell must make a scenario, before anything runs
-        for key, value in cell:
+    # Every value alone first (the error names its key), then every cell: all before any run.
+    for key, values in grid:
+        for value in values:
             try:
                 scenario_for(sweep, ((key, value),), seeds[0], base)
             except RgtbusError as exc:
                 raise _error(where, text, key, f"value {value!r}: {exc}") from None
+    for cell in sweep.cells():
         try:
             scenario_for(sweep, cell, seeds[0], base)
         except RgtbusError as exc:
             raise _error(where, text, "grid", f"cell {dict(cell)}: {exc}") from None
     return sweep
+
+
+def _read_capped(path: Path, what: str) -> bytes:
+    """A sweep or scenario file's bytes; one line if it cannot be read or is far too large."""
+    try:
+        if path.is_dir():
+            raise RgtbusError(f"cannot read {what} {str(path)!r}: is a directory")
+        with open(path, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
+    except OSError as exc:
+        raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise RgtbusError(
+            f"{str(path)!r}: larger than {MAX_SCENARIO_BYTES >> 20} MiB: not a {what}"
+        )
+    return data
 
 
 def _flatten(table: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -224,7 +247,7 @@ def scenario_for(
 ) -> Scenario:
     """The base scenario with a cell's keys set and the seed: parsed from its TOML text, so the
     run's log stores a scenario that re-runs as is."""
-    data = tomllib.loads(sweep.scenario_text) if base is None else json.loads(json.dumps(base))
+    data = tomllib.loads(sweep.scenario_text) if base is None else copy.deepcopy(base)
     for key, value in cell:
         if key == "engine":
             continue
@@ -235,7 +258,8 @@ def scenario_for(
             continue
         _set(data, key, value)
     data["seed"] = seed
-    label = f"{sweep.scenario_path} [{', '.join(f'{k}={v!r}' for k, v in cell)}; seed {seed}]"
+    settings = [f"{k}={v!r}" for k, v in cell] + [f"seed {seed}"]
+    label = f"{sweep.scenario_path} [{'; '.join(settings)}]"
     return parse_scenario(tomli_w.dumps(data), label)
 
 
