@@ -41,6 +41,7 @@ from rgtbus.rgt import (
     random_polynomial,
 )
 from rgtbus.rgt.expr import needs_star
+from rgtbus.scenario import Scenario
 
 
 @lru_cache(maxsize=16)
@@ -199,3 +200,99 @@ class Mind:
     def canonical(self, subject: str) -> str:
         assert self.df is not None
         return canonical_form(self.df, subject).text(needs_star(self.units))
+
+
+# -- a unit's own intents, and the decisions a perfect medium would give ------------------------
+
+
+def intents(sc: Scenario, me: str) -> tuple[dict[str, str], dict[str, str]]:
+    """What unit ``me`` sends under scenario ``sc``: ``({peer: relation}, {peer: influence})``."""
+    relations = choose_relations(
+        me,
+        sc.units,
+        seed=sc.seed,
+        fixed=sc.fixed_relations,
+        draws=sc.draws,
+        p=sc.alliance_p,
+        policy=sc.relation_policy,
+    )
+    influences = choose_influences(
+        me,
+        sc.units,
+        sc.influences,
+        sc.universe,
+        policy=sc.influence_policy,
+        value=sc.influence_value,
+        weights=sc.influence_weights,
+        seed=sc.seed,
+    )
+    return relations, influences
+
+
+def mind_of(sc: Scenario, me: str) -> Mind:
+    """Unit ``me``'s mind before it hears anything (its decision generator seeded by the run)."""
+    return Mind(
+        me, sc.units, sc.universe, sc.decisions[me], random.Random(f"{sc.seed}:{me}:decision")
+    )
+
+
+def result_fields(mind: Mind) -> dict[str, object]:
+    """A unit's decision as its report and the run summary state it (``decided``: it ran the
+    forward task; ``interval``: ``[B, A]``, ``None`` when frustrated)."""
+    u = mind.universe
+    r = mind.results[mind.me] if mind.results else None
+    return {
+        "interval": None if r is None or r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
+        "frustrated": bool(r.frustrated) if r else False,
+        "choice": None if mind.choice is None else u.to_list(mind.choice),
+        "canonical": mind.canonical(mind.me) if mind.df else None,
+        "A": u.to_list(r.A) if r else None,
+        "B": u.to_list(r.B) if r else None,
+        "decided": r is not None,
+    }
+
+
+def noise_free(sc: Scenario) -> dict[str, dict[str, object]]:
+    """Every unit's decision (``result_fields``) had it read every code exactly as sent: the
+    forward task on the group and influences the units intended. A group with no polynomial
+    gives no decisions (``decided`` false for all)."""
+    sent: dict[tuple[str, str], bool] = {}
+    influences: dict[tuple[str, str], int] = {}
+    for s in sc.units:
+        relations, infl = intents(sc, s)
+        for r, code in relations.items():
+            sent[(s, r)] = code == "alliance"
+        for r, text in infl.items():
+            influences[(s, r)] = sc.universe.parse_alternative(text)
+    # The forward task is the same for every unit that knows everything: solve it once.
+    known = mind_of(sc, sc.units[0])
+    known.sent, known.influences = sent, influences
+    known.build_group()
+    known.decide()
+    out = {}
+    for me in sc.units:
+        mind = mind_of(sc, me)
+        mind.df, mind.polynomial, mind.p4, mind.results = (
+            known.df,
+            known.polynomial,
+            known.p4,
+            known.results,
+        )
+        if mind.results is not None:
+            mind.choice = choose(mind.policy, mind.results[me], mind.universe, mind.rng)
+        out[me] = result_fields(mind)
+    return out
+
+
+def wrong_decisions(
+    decided: Mapping[str, Mapping[str, object]], truth: Mapping[str, Mapping[str, object]]
+) -> list[str]:
+    """The units that decided otherwise than a perfect medium would have them decide: another
+    interval, frustration or choice (a unit that decided where no decision exists counts)."""
+    keys = ("interval", "frustrated", "choice")
+    return [
+        u
+        for u, r in decided.items()
+        if r.get("decided")
+        and (not truth.get(u, {}).get("decided") or any(r.get(k) != truth[u].get(k) for k in keys))
+    ]

@@ -11,6 +11,9 @@ Fields beyond the tables and decisions:
   relationship phase did not finish); ``p4`` the induced path a-b-c-d that made it not
   decomposable. A non-decomposable random group is a result (no decisions), never an error.
 * ``frustrated``: the units whose own forward task has no solution (empty interval).
+* ``wrong_decisions``: the units that decided otherwise than they would have on a perfect
+  medium (the forward task on the relations and influences the units intended:
+  ``rgtbus.mind.noise_free``): a misread code that changed a decision.
 * ``error``: why the run did not finish (the root cause), else ``None``.
 """
 
@@ -19,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Protocol
 
+from rgtbus.mind import noise_free, wrong_decisions
 from rgtbus.scenario import Scenario
 
 SUMMARY_JSON_KEYS = (
@@ -33,6 +37,7 @@ SUMMARY_JSON_KEYS = (
     "influences",
     "units",
     "frustrated",
+    "wrong_decisions",
     "outcome",
     "sim_seconds",
     "wall_seconds",
@@ -157,6 +162,7 @@ def summarise(
         "influences": ref["influences"],
         "units": units_out,
         "frustrated": frustrated_units(units_out),
+        "wrong_decisions": wrong_decisions(units_out, noise_free(sc)) if units_out else [],
         "outcome": outcome,
         "decode_errors": decode_errors,
         "sim_seconds": round(result.sim_seconds, 6),

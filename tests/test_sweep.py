@@ -27,7 +27,7 @@ n = [3, 4]
 
 def write_sweep(tmp_path: Path, body: str = SWEEP) -> Path:
     path = tmp_path / "tiny.toml"
-    path.write_text(body.format(scenario=ROOT / "scenarios" / "random_group.toml"))
+    path.write_text(body.replace("{scenario}", str(ROOT / "scenarios" / "random_group.toml")))
     return path
 
 
@@ -203,3 +203,128 @@ def test_wilson_interval():
     assert p == 0 and lo == 0 and 0.27 < hi < 0.28
     p, lo, hi = wilson(5, 10)
     assert p == 0.5 and abs((0.5 - lo) - (hi - 0.5)) < 1e-12 and 0.23 < lo < 0.24
+
+
+CASES = """
+name = "cases"
+scenario = "{scenario}"
+seeds = [4, 9]
+[cases]
+"serial, schedule anchor" = { "protocol.schedule" = "serial", "timing.anchor" = "schedule" }
+concurrent = { protocol = { schedule = "concurrent" } }
+[grid]
+n = [3]
+"channel.noise" = [0.0, 0.003]
+"""
+
+
+def test_cases_are_named_sets_of_keys_crossed_with_the_grid(tmp_path):
+    sw = load_sweep(write_sweep(tmp_path, CASES))
+    assert sw.keys == ["case", "n", "channel.noise"]
+    with ThreadPoolExecutor(1) as ex:
+        rows = run_sweep(sw, tmp_path / "o", executor=ex, workers=1)
+    got = [(r["case"], r["channel.noise"], r["seed"], r["schedule"]) for r in rows]
+    assert got == [
+        ("serial, schedule anchor", 0.0, 4, "serial"),
+        ("serial, schedule anchor", 0.0, 9, "serial"),
+        ("serial, schedule anchor", 0.003, 4, "serial"),
+        ("serial, schedule anchor", 0.003, 9, "serial"),
+        ("concurrent", 0.0, 4, "concurrent"),
+        ("concurrent", 0.0, 9, "concurrent"),
+        ("concurrent", 0.003, 4, "concurrent"),
+        ("concurrent", 0.003, 9, "concurrent"),
+    ]
+    assert not any(r["failed"] for r in rows)
+    # the run of a case is the base scenario with the case's keys set, nothing else
+    from units.sweep import scenario_for
+
+    sc = scenario_for(sw, (("case", "serial, schedule anchor"), ("n", 3)), 4)
+    assert (sc.schedule, sc.timing.anchor, sc.units) == ("serial", "schedule", ("u1", "u2", "u3"))
+
+
+@pytest.mark.parametrize(
+    "cases, line, says",
+    [
+        ("[cases]\nx = 3\n", ":4: x:", "non-empty table"),
+        ("[cases]\nx = {}\n", ":4: x:", "non-empty table"),
+        ("[cases]\nx = { n = 4 }\n", ":4: x:", "'n': not a case key"),
+        ('[cases]\nx = { "channel.noise" = 0.1 }\n', ":4: x:", "set by the grid"),
+        ('[cases]\nx = { engine = "fast" }\n', ":4: x:", "unknown engine 'fast'"),
+        ('[cases]\nbad = { "timing.anchor" = "later" }\n', ":4: bad:", "later"),
+        ("cases = 3\n", ":3: cases:", "must be a table"),
+    ],
+)
+def test_bad_cases_are_refused_naming_the_case(tmp_path, capsys, cases, line, says):
+    body = 'scenario = "{scenario}"\nseeds = "0..1"\n' + cases + '[grid]\n"channel.noise" = [0.0]\n'
+    path = write_sweep(tmp_path, body)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path}{line}" in err and says in err, err
+
+
+def test_case_is_no_grid_key(tmp_path, capsys):
+    path = write_sweep(tmp_path, 'scenario = "{scenario}"\n[grid]\ncase = ["a"]\n')
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert f"{path}:3: case:" in capsys.readouterr().err
+
+
+def test_sweep_plot_draws_several_metrics_side_by_side(tmp_path, capsys):
+    out = tmp_path / "o"
+    with ThreadPoolExecutor(1) as ex:
+        run_sweep(load_sweep(write_sweep(tmp_path, CASES)), out, executor=ex, workers=1)
+    args = ["sweep-plot", str(out), "--x", "channel.noise", "--by", "case"]
+    ys = ["--y", "decode_error_rate", "--y", "wrong_decision_rate", "--y", "failed"]
+    assert main([*args, *ys]) == 0
+    png = out / "decode_error_rate+wrong_decision_rate+failed-vs-channel.noise.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    assert main([*args, "--y", "failed", "--y", "nope", "-o", str(tmp_path / "x.png")]) == 2
+    assert "no column 'nope'" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()  # every metric checked before anything is drawn
+
+
+@pytest.mark.slow
+def test_a_sweep_killed_by_a_signal_resumes_to_the_same_table(tmp_path):
+    """A real kill: the whole process group of a running `rgtbus sweep` (the CLI and its pool
+    workers) gets SIGKILL once some rows are on disk; --resume finishes it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    body = SWEEP.replace('seeds = "0..2"', 'seeds = "0..149"')  # 300 runs: seconds to kill in
+    path = write_sweep(tmp_path, body)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "rgtbus", "sweep", str(path), "--workers", "2", "--quiet"]
+    proc = subprocess.Popen(
+        [*cmd, "--out", str(out)],
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    rows_file = out / "rows.jsonl"
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if rows_file.exists() and rows_file.read_text().count("\n") >= 1:
+                break
+            time.sleep(0.05)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    if proc.stderr:
+        proc.stderr.close()
+    assert proc.returncode == -signal.SIGKILL, err  # killed, not finished
+    assert 1 <= rows_file.read_text().count("\n") < 300
+    resumed = subprocess.run(
+        [*cmd, "--out", str(out), "--resume"], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    full = tmp_path / "full"
+    with ThreadPoolExecutor(1) as ex:
+        run_sweep(load_sweep(path), full, executor=ex, workers=1)
+    assert table(out) == table(full)

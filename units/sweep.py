@@ -9,6 +9,9 @@ A sweep file (TOML) names a base scenario, seeds and a grid::
     n = [3, 4, 5]                        # a group of n units u1..un
     "relations.p" = [0.3, 0.61, 0.9]     # any scenario key, dotted
     engine = ["event"]                   # not a scenario key: the engine of the run
+    [cases]                              # optional: named sets of keys that go together
+    spike = { "timing.anchor" = "spike" }
+    concurrent = { "protocol.schedule" = "concurrent" }
 
 Every (grid cell, seed) is one run on the memory bus (the same results as zenoh, docs/engine.md)
 in a worker process; each run gives one row of the results table (``run_row``). Runs are
@@ -44,11 +47,19 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
 from rgtbus.summary import summary_json
 
-SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid"}
+SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 ENGINES = ("event", "dense")
 MAX_RUNS = 1_000_000
-# The nested fields of a summary, stored as JSON text in a table cell.
-JSON_COLUMNS = ("relations", "influences", "units", "decode_errors", "frustrated", "p4")
+# summary fields stored as JSON text (a nested value: one cell, any shape, in parquet and CSV)
+JSON_COLUMNS = (
+    "relations",
+    "influences",
+    "units",
+    "decode_errors",
+    "frustrated",
+    "wrong_decisions",
+    "p4",
+)
 
 
 @dataclass(frozen=True)
@@ -74,13 +85,24 @@ class Sweep:
     scenario_text: str
     seeds: tuple[int, ...]
     grid: tuple[tuple[str, tuple[Any, ...]], ...]  # key -> values, in file order
+    # case name -> its keys; crossed with the grid as one more key, "case", before the others
+    cases: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = ()
+
+    @property
+    def axes(self) -> list[tuple[str, tuple[Any, ...]]]:
+        """The grid's keys and values, ``case`` first when there are cases."""
+        head = [("case", tuple(name for name, _ in self.cases))] if self.cases else []
+        return head + list(self.grid)
 
     @property
     def keys(self) -> list[str]:
-        return [k for k, _ in self.grid]
+        return [k for k, _ in self.axes]
+
+    def case(self, name: str) -> tuple[tuple[str, Any], ...]:
+        return dict(self.cases)[name]
 
     def cells(self) -> list[tuple[tuple[str, Any], ...]]:
-        values = [vs for _, vs in self.grid]
+        values = [vs for _, vs in self.axes]
         return [tuple(zip(self.keys, combo, strict=True)) for combo in itertools.product(*values)]
 
     def tasks(self) -> list[Task]:
@@ -182,12 +204,31 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
             raise _error(where, text, key, f"must be a non-empty list of values, got {values!r}")
         if key == "seed":
             raise _error(where, text, key, "the seeds of a sweep are its seeds key, not a grid key")
+        if key == "case":
+            raise _error(where, text, key, "'case' names the [cases] of a sweep, not a grid key")
         if key == "engine":
             for v in values:
                 if v not in ENGINES:
                     raise _error(where, text, key, f"unknown engine {v!r} (event or dense)")
         grid.append((key, tuple(values)))
-    sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, tuple(grid))
+    cases_table = data.get("cases", {})
+    if not isinstance(cases_table, dict):
+        raise _error(where, text, "cases", "must be a table of name = { key = value, ... }")
+    cases = []
+    for case, settings in cases_table.items():
+        if not isinstance(settings, dict) or not settings:
+            raise _error(
+                where, text, case, f"a case must be a non-empty table of keys, got {settings!r}"
+            )
+        keys = list(_flatten(settings))
+        for key, value in keys:
+            if key in ("seed", "case", "n") or key in dict(grid):
+                reason = "set by the grid" if key in dict(grid) else "not a case key"
+                raise _error(where, text, case, f"{key!r}: {reason}")
+            if key == "engine" and value not in ENGINES:
+                raise _error(where, text, case, f"unknown engine {value!r} (event or dense)")
+        cases.append((case, tuple(keys)))
+    sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, tuple(grid), tuple(cases))
     runs = len(sweep.cells()) * len(seeds)
     if runs > MAX_RUNS:
         raise _error(where, text, "grid", f"{runs} runs: more than {MAX_RUNS}")
@@ -196,7 +237,13 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     except RgtbusError as exc:
         raise _error(where, text, "scenario", str(exc)) from None
     base = tomllib.loads(scen_text)
-    # Every value alone first (the error names its key), then every cell: all before any run.
+    # Every case and value alone first (the error names its key), then every cell: all before
+    # any run.
+    for case, _ in cases:
+        try:
+            scenario_for(sweep, (("case", case),), seeds[0], base)
+        except RgtbusError as exc:
+            raise _error(where, text, case, str(exc)) from None
     for key, values in grid:
         for value in values:
             try:
@@ -248,7 +295,8 @@ def scenario_for(
     """The base scenario with a cell's keys set and the seed: parsed from its TOML text, so the
     run's log stores a scenario that re-runs as is."""
     data = tomllib.loads(sweep.scenario_text) if base is None else copy.deepcopy(base)
-    for key, value in cell:
+    settings_of = [(k, v) for key, value in cell for k, v in _expand(sweep, key, value)]
+    for key, value in settings_of:
         if key == "engine":
             continue
         if key == "n":  # a group of n units u1..un (the scenario's own names replaced)
@@ -274,8 +322,14 @@ def _set(data: dict[str, Any], key: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
-def engine_of(cell: tuple[tuple[str, Any], ...]) -> str:
-    return str(dict(cell).get("engine", "event"))
+def _expand(sweep: Sweep, key: str, value: Any) -> tuple[tuple[str, Any], ...]:
+    """A cell's key as the settings it stands for (a case: its keys)."""
+    return sweep.case(value) if key == "case" else ((key, value),)
+
+
+def engine_of(sweep: Sweep, cell: tuple[tuple[str, Any], ...]) -> str:
+    settings = dict(kv for key, value in cell for kv in _expand(sweep, key, value))
+    return str(settings.get("engine", "event"))
 
 
 def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, Any]:
@@ -287,7 +341,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
     for key, value in task.cell:
         row[key] = json.dumps(value) if isinstance(value, list | dict) else value
     row["seed"] = task.seed
-    engine = engine_of(task.cell)
+    engine = engine_of(sweep, task.cell)
     row["engine"] = engine
     log_path = None
     try:
@@ -308,10 +362,14 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
                 continue
             # a grid key keeps its name; a summary field of the same name gets a prefix
             name = f"summary.{k}" if k in grid_keys else k
-            row[name] = json.dumps(v) if k in JSON_COLUMNS else v
+            row[name] = json.dumps(v) if k in JSON_COLUMNS or isinstance(v, list | dict) else v
         row["decode_error_count"] = len(s["decode_errors"])
         row["frustrated_count"] = len(s["frustrated"])
-        row["decided_count"] = sum(1 for u in s["units"].values() if u["decided"])
+        decided = sum(1 for u in s["units"].values() if u["decided"])
+        row["decided_count"] = decided
+        row["wrong_decision_count"] = len(s["wrong_decisions"])
+        # per unit that decided; a run that failed before deciding has no rate
+        row["wrong_decision_rate"] = len(s["wrong_decisions"]) / decided if decided else None
         rels = list(s["relations"].values())
         row["alliance_share"] = rels.count("alliance") / len(rels) if rels else None
         decodes = sum(len(m.decoded) for m in out.units)

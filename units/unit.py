@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import heapq
 import itertools
-import random
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +21,7 @@ from numpy.random import default_rng
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
 from rgtbus.hearing import Ears, Listener
-from rgtbus.mind import Mind, choose_influences, choose_relations
+from rgtbus.mind import intents, mind_of, result_fields
 from rgtbus.protocol import NOTHING, Actions, Listen, ProtocolState, Send, code_samples
 from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import Readout, WordSet
@@ -95,33 +94,8 @@ class AutonomousUnit:
             anchor=sc.timing.anchor,
             kind=sc.schedule,
         )
-        seed = sc.seed
-        self.mind = Mind(
-            self.name,
-            self.units,
-            sc.universe,
-            sc.decisions[self.name],
-            random.Random(f"{seed}:{self.name}:decision"),
-        )
-        self.relation_choice = choose_relations(
-            self.name,
-            self.units,
-            seed=seed,
-            fixed=sc.fixed_relations,
-            draws=sc.draws,
-            p=sc.alliance_p,
-            policy=sc.relation_policy,
-        )
-        self.influence_choice = choose_influences(
-            self.name,
-            self.units,
-            sc.influences,
-            sc.universe,
-            policy=sc.influence_policy,
-            value=sc.influence_value,
-            weights=sc.influence_weights,
-            seed=seed,
-        )
+        self.mind = mind_of(sc, self.name)
+        self.relation_choice, self.influence_choice = intents(sc, self.name)
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
@@ -499,7 +473,6 @@ class AutonomousUnit:
     def report(self) -> dict:
         u = self.scenario.universe
         mind = self.mind
-        r = mind.results[self.name] if mind.results else None
         return {
             "unit": self.name,
             "installed": mind.installed(),
@@ -511,15 +484,7 @@ class AutonomousUnit:
             "influences": {
                 f"{s}>{t}": u.to_list(v) for (s, t), v in sorted(mind.influences.items())
             },
-            "result": {
-                "interval": None if r is None or r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
-                "frustrated": bool(r.frustrated) if r else False,
-                "choice": None if mind.choice is None else u.to_list(mind.choice),
-                "canonical": mind.canonical(self.name) if mind.df else None,
-                "A": u.to_list(r.A) if r else None,
-                "B": u.to_list(r.B) if r else None,
-                "decided": r is not None,
-            },
+            "result": result_fields(mind),
             "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
             "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
             "failure": self.failure,

@@ -43,9 +43,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     q.add_argument(
         "--y",
         required=True,
+        action="append",
         metavar="METRIC",
         help="a column (number or yes/no, e.g. decomposable, decode_error_count), or "
-        "COLUMN=VALUE for the share of runs where it equals VALUE (e.g. 'outcome=gate: open')",
+        "COLUMN=VALUE for the share of runs where it equals VALUE (e.g. 'outcome=gate: open'); "
+        "repeat for panels side by side",
     )
     q.add_argument("--by", metavar="KEY", help="one curve per value of this grid key")
     q.add_argument(
@@ -54,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="draw the exact curve too: cograph (P that G(n, p²) is decomposable; needs n and "
         "relations.p as --x/--by) or alliance (p², --x relations.p)",
     )
-    q.add_argument("-o", "--output", metavar="PNG", help="default DIR/<y>-vs-<x>.png")
+    q.add_argument("-o", "--output", metavar="PNG", help="default DIR/<y>[+<y>...]-vs-<x>.png")
     q.add_argument("--title", help="figure title")
     q.set_defaults(func=run_sweep_plot_cmd)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -95,26 +95,75 @@ def exact_cograph(n: int, p: float) -> float:
 def plot_sweep(
     out_dir: Path,
     x: str,
-    y: str,
+    y: str | Sequence[str],
     *,
     by: str | None = None,
     output: str | None = None,
     title: str | None = None,
     exact: str | None = None,
 ) -> Path:
-    """Draw ``y`` against ``x`` (one curve per ``by`` value); return the PNG's path."""
+    """Draw each metric of ``y`` against ``x`` in its own panel, side by side (one curve per
+    ``by`` value); return the PNG's path."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    ys = [y] if isinstance(y, str) else list(y)
+    if not ys:
+        raise RgtbusError("--y: name at least one metric")
     rows = read_results(out_dir)
     if not rows:
         raise RgtbusError(f"{str(out_dir)!r}: results.parquet holds no runs")
     _key(rows, x, "--x")
     if by:
         _key(rows, by, "--by")
-    value, share, label = _metric(rows, y)
+    metrics = [_metric(rows, m) for m in ys]  # every --y checked before anything is drawn
+    fig, axes = plt.subplots(
+        1, len(ys), figsize=(7.5 if len(ys) == 1 else 5.6 * len(ys), 4.8), layout="constrained"
+    )
+    axes = [axes] if len(ys) == 1 else list(axes)
+    counts: set[int] = set()
+    skipped = []
+    for ax, m, (value, share, label) in zip(axes, ys, metrics, strict=True):
+        c, k = _panel(ax, rows, x, m, by, exact, value, share, label)
+        counts |= c
+        if k:
+            skipped.append(f"{k} runs without {m}")
+    meta = _sweep_name(out_dir)
+    n_txt = f"{min(counts)}–{max(counts)}" if len(counts) > 1 else f"{next(iter(counts))}"
+    labels = [label for _, _, label in metrics]
+    default = f"{meta}: {labels[0]} vs {x}" if len(ys) == 1 else f"{meta}: vs {x}"
+    if len(ys) == 1:
+        axes[0].set_title(title or default, fontsize=12, wrap=True)
+    else:
+        fig.suptitle(title or default, fontsize=13, wrap=True)
+    kinds = {share for _, share, _ in metrics}
+    names = {True: "Wilson interval", False: "interval of the mean"}
+    interval = " / ".join(names[k] for k in (True, False) if k in kinds)
+    note = f"{n_txt} runs (seeds) a point; bars: 95 % {interval}" + (
+        f"; left out: {', '.join(skipped)}" if skipped else ""
+    )
+    fig.supxlabel(note, fontsize=8, color="0.3", x=0.01, ha="left")  # laid out: never overlaps
+    safe = "".join(c if c.isalnum() or c in "._-+" else "_" for c in f"{'+'.join(ys)}-vs-{x}")
+    path = Path(output) if output else out_dir / f"{safe}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _panel(
+    ax: Any,
+    rows: list[dict[str, Any]],
+    x: str,
+    y: str,
+    by: str | None,
+    exact: str | None,
+    value: Callable[[dict], Any],
+    share: bool,
+    label: str,
+) -> tuple[set[int], int]:
+    """One metric's curves on ``ax``; the runs a point (set) and the runs without a value."""
     groups: dict[Any, dict[Any, list[float]]] = {}
     skipped = 0
     for r in rows:
@@ -125,7 +174,6 @@ def plot_sweep(
         groups.setdefault(r.get(by) if by else None, {}).setdefault(r[x], []).append(v)
     if not groups:
         raise RgtbusError(f"--y {y!r}: no run has a value")
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), layout="constrained")
     counts = set()
     for curve in sorted(groups, key=_sort_key):
         pts = groups[curve]
@@ -137,7 +185,10 @@ def plot_sweep(
             if share:
                 stats.append(wilson(round(sum(vals)), len(vals)))
             else:
-                stats.append(mean_interval(vals))
+                m, lo, hi = mean_interval(vals)
+                if min(vals) >= 0:  # counts and rates: a mean of them is never below 0
+                    lo = max(0.0, lo)
+                stats.append((m, lo, hi))
         numeric = all(isinstance(v, int | float) for v in xs)
         pos = [float(v) for v in xs] if numeric else list(range(len(xs)))
         mid = [s[0] for s in stats]
@@ -171,24 +222,12 @@ def plot_sweep(
             raise RgtbusError(f"--exact {exact!r}: unknown (cograph or alliance)")
     ax.set_xlabel(x)
     ax.set_ylabel(label)
-    if share:
+    flat = all(v == 0 for pts in groups.values() for vals in pts.values() for v in vals)
+    if share or flat:  # a metric that is 0 everywhere: the zero line at the bottom, not mid-air
         ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=9)
-    meta = _sweep_name(out_dir)
-    n_txt = f"{min(counts)}–{max(counts)}" if len(counts) > 1 else f"{next(iter(counts))}"
-    ax.set_title(title or f"{meta}: {label} vs {x}", fontsize=12)
-    note = (
-        f"{n_txt} runs (seeds) a point; bars: 95 % "
-        f"{'Wilson interval' if share else 'interval of the mean'}"
-        + (f"; {skipped} runs without a value left out" if skipped else "")
-    )
-    fig.text(0.01, 0.005, note, fontsize=8, color="0.3")
-    safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in f"{y}-vs-{x}")
-    path = Path(output) if output else out_dir / f"{safe}.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return counts, skipped
 
 
 def _sweep_name(out_dir: Path) -> str:

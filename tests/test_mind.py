@@ -1,0 +1,76 @@
+"""The noise-free forward task (what a perfect medium would have each unit decide) and the
+wrong-decision count built on it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rgtbus.mind import intents, noise_free, wrong_decisions
+from rgtbus.scenario import load_scenario, parse_scenario
+from rgtbus.telemetry import NullRecorder
+from units.group import run_group
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+FIVE = '\nunits = ["u1", "u2", "u3", "u4", "u5"]\n[decision]\npolicy = "seeded-random"\n'
+
+
+def _random5(seed: int):
+    """random_group with five units deciding at random within their intervals."""
+    base = (ROOT / "scenarios" / "random_group.toml").read_text()
+    text = base.replace("seed = 0", f"seed = {seed}", 1).replace(
+        'units = ["u1", "u2", "u3"]', FIVE.split("\n")[1]
+    )
+    return parse_scenario(text + "\n".join(FIVE.split("\n")[2:]), f"random5 seed {seed}")
+
+
+@pytest.mark.parametrize("name", ["gate", "example1", "example2", "group20"])
+def test_a_clean_run_decides_exactly_as_the_noise_free_task(name):
+    sc = load_scenario(str(ROOT / "scenarios" / f"{name}.toml"))
+    out = run_group(sc, "memory", NullRecorder())
+    assert out.summary["units"] == noise_free(sc)
+    assert out.summary["wrong_decisions"] == []
+
+
+@pytest.mark.parametrize("seed", [4, 5, 7])
+def test_random_decisions_too(seed):
+    sc = _random5(seed)
+    out = run_group(sc, "memory", NullRecorder())
+    assert out.summary["decomposable"] is True
+    assert out.summary["units"] == noise_free(sc)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_group_with_an_induced_p4_has_no_noise_free_decision(seed):
+    sc = _random5(seed)
+    out = run_group(sc, "memory", NullRecorder())
+    assert out.summary["decomposable"] is False
+    truth = noise_free(sc)
+    assert out.summary["units"] == truth and not any(r["decided"] for r in truth.values())
+
+
+def test_intents_are_what_each_unit_sends():
+    sc = load_scenario(str(ROOT / "scenarios" / "gate.toml"))
+    relations, influences = intents(sc, "d")
+    assert set(relations) == set(influences) == {"a", "b", "c"}
+    assert set(relations.values()) <= {"alliance", "conflict"}
+
+
+def test_wrong_decisions_names_units_that_decided_otherwise():
+    truth = {
+        "a": {"decided": True, "interval": [[], ["x"]], "frustrated": False, "choice": ["x"]},
+        "b": {"decided": True, "interval": None, "frustrated": True, "choice": None},
+        "c": {"decided": False, "interval": None, "frustrated": False, "choice": None},
+    }
+    same = {u: dict(r) for u, r in truth.items()}
+    assert wrong_decisions(same, truth) == []
+    other = {u: dict(r) for u, r in truth.items()}
+    other["a"]["choice"] = []  # another choice in the same interval
+    other["b"] = {"decided": True, "interval": [[], []], "frustrated": False, "choice": []}
+    other["c"] = {"decided": True, "interval": [[], []], "frustrated": False, "choice": []}
+    assert wrong_decisions(other, truth) == ["a", "b", "c"]  # c decided where none exists
+    undecided = {"a": {"decided": False}}
+    assert wrong_decisions(undecided, truth) == []  # no decision is no wrong decision
