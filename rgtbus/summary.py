@@ -83,7 +83,9 @@ def is_wrong_decode(kind: str, code: str, addressee: str, sent: str, sent_to: st
     return (code != "id") if kind == "id" else (code != sent or addressee != sent_to)
 
 
-def decode_error(unit: str, turn: int, kind: str, decoded: str, sent: str) -> dict[str, Any]:
+def decode_error(
+    unit: str, turn: int | None, kind: str, decoded: str, sent: str | None
+) -> dict[str, Any]:
     """One entry of a summary's ``decode_errors``."""
     return {"unit": unit, "turn": turn, "kind": kind, "decoded": decoded, "sent": sent}
 

@@ -106,7 +106,7 @@ class Sweep:
         return [tuple(zip(self.keys, combo, strict=True)) for combo in itertools.product(*values)]
 
     def tasks(self) -> list[Task]:
-        out = []
+        out: list[Task] = []
         for cell in self.cells():
             for seed in self.seeds:
                 out.append(Task(len(out), cell, seed))

@@ -195,7 +195,7 @@ class _WatchedStream:
                 self.error = e
             raise
 
-    def write(self, data: bytes) -> int:
+    def write(self, data: bytes | bytearray) -> int:
         return cast(int, self._watch(lambda: self.stream.write(data)))
 
     def seek(self, offset: int, whence: int = 0) -> int:

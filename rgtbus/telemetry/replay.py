@@ -28,6 +28,7 @@ import numpy as np
 import orjson
 
 from rgtbus.errors import RgtbusError
+from rgtbus.mind import noise_free, wrong_decisions
 from rgtbus.scenario import Scenario, parse_scenario
 from rgtbus.summary import agreement, decode_error, frustrated_units, outcome_of
 from rgtbus.telemetry import topics
@@ -383,11 +384,20 @@ class Replay:
             "influences": first_infl.get("influences", {}),
             "units": units_out,
             "frustrated": frustrated_units(units_out),
+            "wrong_decisions": self._wrong_decisions(units_out),
             "outcome": run.get("outcome", self._outcome()),
             "decode_errors": self.decode_errors(),
             "sim_seconds": self.sim_seconds,
             "error": run.get("error"),
         }
+
+    def _wrong_decisions(self, units_out: dict[str, dict[str, Any]]) -> list[str] | None:
+        """As ``summarise`` names them (``None``: the log stores no scenario to compare with)."""
+        if self.scenario is None:
+            return None
+        if not any(r["decided"] for r in units_out.values()):
+            return []
+        return wrong_decisions(units_out, noise_free(self.scenario))
 
     def _outcome(self) -> Any:
         if self.scenario is None:
