@@ -409,7 +409,13 @@ def test_csv_tables(tmp_path, capsys):
         with open(out / f"{name}.csv", newline="", encoding="utf-8") as f:
             rows[name] = list(csv.DictReader(f))
     assert len(rows["transmissions"]) == 24 and rows["transmissions"][0]["meaning"] == "ID"
-    assert list(rows["transmissions"][0])[:5] == ["turn", "phase", "kind", "sender", "addressee"]
+    head = ["run_id", "scenario", "seed", "turn", "phase", "kind", "sender", "addressee"]
+    assert list(rows["transmissions"][0])[:8] == head
+    # every row says which run it is from, so tables of many runs concatenate
+    for table in rows.values():
+        assert {(r["run_id"], r["scenario"], r["seed"]) for r in table} == {
+            ("example2-2", "example2", "2")
+        }
     assert len(rows["decodes"]) == 72 and {r["matches"] for r in rows["decodes"]} == {"true"}
     assert float(rows["decodes"][0]["margin"]) > 0
     own = [r for r in rows["decisions"] if r["unit"] == r["subject"]]
@@ -418,7 +424,30 @@ def test_csv_tables(tmp_path, capsys):
         ("b", "{alpha}", "{alpha}"),
         ("c", "0", "{beta}"),
     ]
-    assert rows["spikes"] and set(rows["spikes"][0]) == {"t", "unit", "channel", "omega", "sample"}
+    assert rows["spikes"] and list(rows["spikes"][0]) == [
+        "run_id",
+        "scenario",
+        "seed",
+        "t",
+        "unit",
+        "channel",
+        "omega",
+        "sample",
+    ]
+    # times on the sample grid, printed without float noise
+    for r in rows["spikes"] + rows["decodes"]:
+        assert len(r["t"].partition(".")[2]) <= 4, r["t"]
+    for r in rows["spikes"]:
+        assert float(r["t"]) == round(int(r["sample"]) * 0.005, 4)
+    # an ID is decoded for the turn's addressee, on the sender's channel
+    ids = [r for r in rows["decodes"] if r["kind"] == "id"]
+    assert ids and all(r["channel"] == r["sender"] != r["addressee"] for r in ids)
+    # --from/--to keep what happens in the span
+    part = tmp_path / "part"
+    assert cli(capsys, "replay", path, "--csv", part, "--from", "10", "--to", "20")[0] == 0
+    with open(part / "decodes.csv", newline="", encoding="utf-8") as f:
+        some = list(csv.DictReader(f))
+    assert some and all(10 <= float(r["t"]) <= 20 for r in some) and len(some) < 72
 
 
 def test_every_logged_message_validates_against_its_schema():
@@ -471,6 +500,17 @@ def test_foxglove_layout_names_only_existing_topics():
         schema_for(topic)  # a topic the recorder registers
         assert topic in logged, topic
     assert {"/medium", "/log", "/unit/decision", "/trace/a"} <= set(topics)
+    # the trace plot draws every sample: one number a message per path, not a block
+    paths = [p["value"] for p in layout["configById"]["Plot!rgtbus-traces"]["paths"]]
+    traces = [
+        m for t, _, m in read_log(io.BytesIO(log_bytes(traces=True))).messages if t == "/trace/a"
+    ]
+    channels = len(traces[0]["y"])  # 3 here; a path past the run's channels draws nothing
+    for path in paths:
+        index = int(path.removeprefix("/trace/a.y[").removesuffix("]"))
+        assert index >= channels or all(isinstance(m["y"][index], float) for m in traces)
+    samples = [m["sample"] for m in traces]
+    assert samples == list(range(samples[0], samples[0] + len(samples)))  # no sample left out
 
 
 def test_unreadable_input_exit_2(tmp_path, capsys):

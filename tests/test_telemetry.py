@@ -100,12 +100,10 @@ SAMPLES: dict[str, dict] = {
     },
     "/trace/a": {
         "unit": "a",
-        "window": 0,
-        "t": 0.0,
-        "sample_rate": 200.0,
-        "channels": ["a", "b"],
-        "y": [[0.0, 0.1], [0.0, -0.2]],
-        "x": [[1.0, 0.9], [0.5, 0.4]],
+        "sample": 3,
+        "t": 0.015,
+        "y": [0.0, 0.1],
+        "x": [1.0, 0.9],
     },
     "/run": {
         "scenario": "gate",
@@ -476,3 +474,120 @@ def test_spike_rows_read_records_of_one_sample_and_older_logs_of_one_spike_alike
         old,
     ]
     assert spike_rows([new], {})[0]["omega"] is None  # a log without frequencies
+
+
+# -- plots: the activity figure (rgtbus.telemetry.plots) ------------------------------------
+
+
+@pytest.fixture(scope="module")
+def example2_log(tmp_path_factory):
+    """example2 run on the memory bus with traces, logged to an MCAP file."""
+    from rgtbus.scenario import load_scenario
+    from units.group import run_group
+
+    path = tmp_path_factory.mktemp("plots") / "example2.mcap"
+    sc = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml")
+    with open(path, "wb") as f:
+        rec = McapRecorder(f)
+        run_group(sc, "memory", rec, traces=True)
+        rec.close()
+    return path
+
+
+@pytest.mark.parametrize(
+    ("t_from", "t_to", "expected"),
+    [
+        (None, None, (0.0, 162.1)),
+        (10, None, (10.0, 162.1)),
+        (None, 40, (0.0, 40.0)),
+        (-5, 3, (-5.0, 3.0)),  # overlaps the run in part: kept as asked
+        (100, 500, (100.0, 500.0)),
+    ],
+)
+def test_check_time_range_keeps_a_range_that_holds_some_of_the_run(t_from, t_to, expected):
+    from rgtbus.telemetry.logtools import check_time_range
+
+    assert check_time_range(t_from, t_to, 0.0, 162.1) == expected
+
+
+@pytest.mark.parametrize(
+    ("t_from", "t_to", "message"),
+    [
+        (500, 600, "--from 500 --to 600: outside the run (0 to 162.1 s)"),
+        (162.1, None, "--from 162.1: outside the run (0 to 162.1 s)"),
+        (None, 0, "--to 0: outside the run (0 to 162.1 s)"),
+        (-10, -1, "--from -10 --to -1: outside the run (0 to 162.1 s)"),
+        (5, 5, "--from 5 --to 5: empty time range (the run is 0 to 162.1 s)"),
+        (40, 10, "--from 40 --to 10: empty time range (the run is 0 to 162.1 s)"),
+        (math.nan, None, "--from nan: not a time (the run is 0 to 162.1 s)"),
+        (None, math.inf, "--to inf: not a time (the run is 0 to 162.1 s)"),
+    ],
+)
+def test_check_time_range_refuses_a_range_outside_the_run(t_from, t_to, message):
+    from rgtbus.telemetry.logtools import check_time_range
+
+    with pytest.raises(RgtbusError) as e:
+        check_time_range(t_from, t_to, 0.0, 162.1)
+    assert str(e.value) == message
+
+
+def test_plots_module_imports_no_matplotlib():
+    import subprocess
+    import sys
+
+    code = "import sys, rgtbus.telemetry.plots; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_replay_plot_refuses_a_range_past_the_end_in_one_line(example2_log, tmp_path, capsys):
+    from rgtbus.cli import main
+
+    png = tmp_path / "x.png"
+    code = main(["replay", str(example2_log), "--plot", str(png), "--from", "500", "--to", "600"])
+    err = capsys.readouterr().err
+    assert code == 2 and not png.exists()
+    # one line naming the value and the run's span (76.04 s)
+    assert len(err.splitlines()) == 1 and "--from 500" in err and "76.04 s" in err
+
+
+def test_attention_spikes_are_the_spikes_of_accepted_ids(example2_log):
+    from rgtbus.telemetry.plots import attention_spikes
+    from rgtbus.telemetry.replay import load_replay
+
+    rp = load_replay(example2_log)
+    mine = {(s["channel"], s["t"]) for s in rp.spikes if s["unit"] == "a"}
+    ids = [d for d in rp.decodes if d.unit == "a" and d.kind == "id" and d.accepted]
+    got = attention_spikes(rp, "a")
+    assert len(ids) == 12 and got <= mine
+    # One a turn: the spike anchor reacts at the spike, on the sender's channel (its ID at 3
+    # pulses fires at its last pulse, so the decode is due then).
+    assert got == {(d.sender, d.t) for d in ids}
+    assert mine - got  # crosstalk: spikes on a channel that are no accepted attention spike
+    ids[0].accepted = False  # an ID the unit refused gives no attention spike
+    assert attention_spikes(rp, "a") == got - {(ids[0].sender, ids[0].t)}
+
+
+def test_activity_figure_draws_attention_and_other_spikes_apart(example2_log):
+    from rgtbus.telemetry.plots import FONT, activity_figure, attention_spikes
+    from rgtbus.telemetry.replay import load_replay
+    from units.replay import traces_for
+
+    rp = load_replay(example2_log)
+    fig = activity_figure(rp, "a", traces_for(rp, "a"))
+    attention = attention_spikes(rp, "a")
+    filled, hollow = [], []
+    for ax in fig.axes[:3]:
+        for line in ax.get_lines():
+            if line.get_marker() == "v":
+                xs = list(line.get_xdata())
+                (hollow if line.get_markerfacecolor() == "none" else filled).extend(xs)
+    spikes = [s for s in rp.spikes if s["unit"] == "a"]
+    assert sorted(filled) == sorted(t for _, t in attention)
+    assert len(filled) + len(hollow) == len(spikes) and hollow
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "attention spike (accepted ID)" in labels
+    assert "other spike (crosstalk, noise)" in labels
+    # readable: no text below the base font (labels of transmissions are a notch smaller)
+    sizes = {t.get_fontsize() for t in fig.findobj(lambda o: hasattr(o, "get_fontsize"))}
+    assert min(sizes) >= FONT - 1

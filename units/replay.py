@@ -225,6 +225,6 @@ def traces_for(replay: Replay, unit: str) -> dict[str, Any]:
     out = rerun_replay(replay, traces=[unit], only=[unit])
     topic = f"/trace/{unit}"
     return {
-        **Replay.stack_traces([m for t, _, m in out.messages if t == topic]),
+        **replay.stack_traces([m for t, _, m in out.messages if t == topic]),
         "recomputed": True,
     }

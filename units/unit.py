@@ -297,21 +297,16 @@ class AutonomousUnit:
     # -- traces --------------------------------------------------------------------------------
 
     def _trace(self, first: int, x: np.ndarray, y: np.ndarray) -> None:
-        """Resonator states of one window (or the part of it this unit heard)."""
-        self.recorder.write(
-            f"/trace/{self.name}",
-            {
-                "unit": self.name,
-                "window": first // self.L,
-                "t": first * self.tau,
-                "sample_rate": 1 / self.tau,
-                "channels": list(self.units),
-                # arrays: the recorder encodes them; a verifying re-run compares them as is
-                "y": y.T,
-                "x": x.T,
-            },
-            ns(first * self.tau),
-        )
+        """Resonator states from sample ``first`` on (x, y: samples × channels), one message a
+        sample: Foxglove's Plot panel draws ``/trace/<unit>.y[i]`` as channel i's curve at the
+        full sample rate (docs/foxglove.md)."""
+        topic = f"/trace/{self.name}"
+        write = self.recorder.write
+        tau = self.tau
+        for k, (yk, xk) in enumerate(zip(y.tolist(), x.tolist(), strict=True)):
+            s = first + k
+            t = s * tau
+            write(topic, {"unit": self.name, "sample": s, "t": t, "y": yk, "x": xk}, ns(t))
 
     # -- decoding and reasoning --------------------------------------------------------------
 
@@ -326,7 +321,16 @@ class AutonomousUnit:
             assert self.ears is not None
             dec = self.ears.read_code(self.index, samples, ch, self._id_words)
             accepted = dec.name == "id"
-            self._record(listen, listen.sender, dec.name, dec.margin, t_ready, accepted)
+            # an ID is for the turn's addressee; it is carried on the sender's own channel
+            self._record(
+                listen,
+                listen.expected_addressee,
+                dec.name,
+                dec.margin,
+                t_ready,
+                accepted,
+                channel=listen.sender,
+            )
             if not accepted:
                 self._fail(
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
@@ -345,7 +349,7 @@ class AutonomousUnit:
         )
         addressee = self.units[ch]
         accepted = addressee == listen.expected_addressee
-        self._record(listen, addressee, dec.name, dec.margin, t_ready, accepted)
+        self._record(listen, addressee, dec.name, dec.margin, t_ready, accepted, channel=addressee)
         if not accepted:
             self.recorder.log(
                 "warning",
@@ -357,7 +361,15 @@ class AutonomousUnit:
         self._learn(listen, dec.name, t_ready)
 
     def _record(
-        self, listen: Listen, addressee: str, code: str, margin: float, t: float, accepted: bool
+        self,
+        listen: Listen,
+        addressee: str,
+        code: str,
+        margin: float,
+        t: float,
+        accepted: bool,
+        *,
+        channel: str,
     ) -> None:
         d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
         self.decoded.append(d)
@@ -370,6 +382,7 @@ class AutonomousUnit:
                 "turn": listen.turn,
                 "sender": listen.sender,
                 "addressee": addressee,
+                "channel": channel,
                 "kind": listen.kind,
                 "code": code,
                 "value": code,

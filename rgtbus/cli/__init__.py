@@ -23,6 +23,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from rgtbus.cli import (
+        log_cmds,
         plan_cmd,
         proc_cmds,
         replay_cmds,
@@ -42,7 +43,16 @@ def build_parser() -> argparse.ArgumentParser:
         dest="command", metavar="COMMAND", parser_class=OneLineParser
     )
     subparsers.required = True
-    for module in (rgt_cmds, run_cmd, signal_cmds, plan_cmd, replay_cmds, proc_cmds, sweep_cmds):
+    for module in (
+        rgt_cmds,
+        run_cmd,
+        signal_cmds,
+        plan_cmd,
+        replay_cmds,
+        log_cmds,
+        proc_cmds,
+        sweep_cmds,
+    ):
         module.register(subparsers)
     return parser
 

@@ -185,7 +185,8 @@ def _load(path: str, seed: int | None):
 
 
 def run_unit_cmd(args: argparse.Namespace) -> int:
-    from rgtbus.cli.run_cmd import close_log, default_log_path, open_log
+    from rgtbus.cli.run_cmd import close_log, decision_text, default_log_path, open_log
+    from rgtbus.summary import not_decomposable_text
     from units.process import run_unit
 
     sc = _load(args.scenario, args.seed)
@@ -226,17 +227,18 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        res = out["report"]["result"]
-        verdict = (
-            "no decision"
-            if not res["decided"]
-            else "frustrated"
-            if res["frustrated"]
-            else f"interval {res['interval']}, choice {res['choice']}"
+        rep = out["report"]
+        res = rep["result"]
+        # The decision line and polynomial of ``rgtbus run``: one formatting rule for both.
+        canonical = f"{res['canonical']}   " if res["decided"] else ""
+        print(f"unit {args.name}: {canonical}{decision_text(sc.universe, args.name, res)}")
+        poly = (
+            f"(none): {not_decomposable_text(rep['p4'])}"
+            if rep.get("p4")
+            else rep["polynomial"] or "(none)"
         )
-        print(f"unit {args.name}: {res['canonical'] or ''}  {verdict}")
         print(
-            f"  polynomial {out['report']['polynomial']}; {out['steps']} steps, "
+            f"  polynomial {poly}; {out['steps']} steps, "
             f"{out['sim_seconds']:.1f} s simulated in {out['wall_seconds']:.2f} s; log {log_path}"
         )
     if out["error"]:

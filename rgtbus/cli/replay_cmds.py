@@ -31,8 +31,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--verify", action="store_true", help="re-run the units and compare")
     p.add_argument("--plot", metavar="OUT.png", help="the activity-of-unit figure as PNG")
     p.add_argument("--unit", metavar="NAME", help="unit to plot (default: the first)")
-    p.add_argument("--from", dest="t_from", type=float, metavar="T", help="plot from T s")
-    p.add_argument("--to", dest="t_to", type=float, metavar="T", help="plot up to T s")
+    p.add_argument(
+        "--from",
+        dest="t_from",
+        type=float,
+        metavar="T",
+        help="the timeline, CSV tables and plot from T simulated s",
+    )
+    p.add_argument("--to", dest="t_to", type=float, metavar="T", help="... up to T simulated s")
     p.add_argument("--csv", metavar="DIR", help="write transmissions/decodes/decisions/spikes.csv")
     p.set_defaults(func=replay)
 
@@ -54,22 +60,29 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def replay(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.replay import explained, load_replay
 
-    if args.plot is None and (args.unit or args.t_from is not None or args.t_to is not None):
-        raise RgtbusError("--unit, --from and --to go with --plot OUT.png")
+    if args.plot is None and args.unit:
+        raise RgtbusError("--unit goes with --plot OUT.png")
+    if (args.t_from is not None or args.t_to is not None) and (args.verify or args.json):
+        raise RgtbusError("--from and --to go with the timeline, --csv and --plot")
     rp = load_replay(args.log)
     with explained(rp.contents, rp.label):  # a message that breaks its schema: named, exit 2
         return _replay(rp, args)
 
 
 def _replay(rp: Replay, args: argparse.Namespace) -> int:
+    from rgtbus.telemetry.logtools import check_time_range
     from rgtbus.telemetry.replay import EXIT_TRUNCATED
 
+    span = None
+    if args.t_from is not None or args.t_to is not None:
+        check_time_range(args.t_from, args.t_to, 0.0, rp.sim_seconds)
+        span = (args.t_from, args.t_to)
     timeline = not (args.json or args.verify or args.csv or args.plot)
     if rp.truncated and not timeline and (args.json or not args.verify):
         print(f"note: {rp.note}", file=sys.stderr)  # the text reports print it themselves
     side = []
     if args.csv:
-        side.append(_write_csv(rp, Path(args.csv)))
+        side.append(_write_csv(rp, Path(args.csv), span))
     if args.plot:
         side.append(_plot(rp, args))
     for line in side:
@@ -90,22 +103,23 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rp.to_json()))
     elif timeline:
-        print_timeline(rp)
+        print_timeline(rp, span)
     # A log that ends early was read as far as it goes: say so in the exit code too.
     return EXIT_TRUNCATED if rp.truncated else 0
 
 
-def _write_csv(rp, out: Path) -> str:
+def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) -> str:
     from rgtbus.telemetry.replay import csv_tables, write_csv
 
+    tables = csv_tables(rp, span)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        for name, (header, rows) in csv_tables(rp).items():
+        for name, (header, rows) in tables.items():
             with open(out / name, "w", newline="", encoding="utf-8") as f:
                 write_csv(header, rows, f)
     except OSError as e:
         raise RgtbusError(f"--csv {str(out)!r}: {e.strerror}") from None
-    return f"wrote {', '.join(csv_tables(rp))} to {out}"
+    return f"wrote {', '.join(tables)} to {out}"
 
 
 def _plot(rp, args: argparse.Namespace) -> str:
@@ -171,7 +185,10 @@ def _alt(rp, v: Any) -> str:
     return u.format(u.from_list(v)) if u else "{" + ",".join(v) + "}"
 
 
-def print_timeline(rp: Replay) -> None:
+def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = None) -> None:
+    """What happened, in order; with ``span`` (from, to) only what happens in it."""
+    from rgtbus.telemetry.replay import in_span
+
     info = rp.info()
     s = rp.summary()
     units = list(rp.units)
@@ -185,16 +202,30 @@ def print_timeline(rp: Replay) -> None:
     )
     if rp.truncated:
         print(f"NOTE: {rp.note}")
+    if span is not None:
+        lo = "start" if span[0] is None else f"{span[0]:g} s"
+        hi = "end" if span[1] is None else f"{span[1]:g} s"
+        print(f"showing {lo} to {hi} (--from/--to)")
+    txs = [
+        tx
+        for tx in rp.transmissions
+        if span is None
+        or (
+            (span[0] is None or tx.end >= span[0] - 1e-9)
+            and (span[1] is None or tx.start <= span[1] + 1e-9)
+        )
+    ]
+    decodes = [d for d in rp.decodes if in_span(d.t, span)]
     by_tx: dict[tuple[int | None, str], list[DecodeRow]] = {}
-    for d in rp.decodes:
+    for d in decodes:
         key = (d.turn, "id" if d.kind == "id" else "payload")
         by_tx.setdefault(key, []).append(d)
     print(
-        f"transmissions ({len(rp.transmissions)}), each with its decodes "
+        f"transmissions ({len(txs)}), each with its decodes "
         "(unit ✓/✗ margin; ✗ = not what was sent):"
     )
-    width = max((len(tx.label) for tx in rp.transmissions), default=10)
-    for tx in rp.transmissions:
+    width = max((len(tx.label) for tx in txs), default=10)
+    for tx in txs:
         decs = by_tx.get((tx.turn, tx.kind), [])
         marks = "  ".join(
             f"{d.unit}{'✓' if d.matches else '✗'}{d.margin:.3f}"
@@ -209,17 +240,17 @@ def print_timeline(rp: Replay) -> None:
             f"  {tx.start:8.3f}–{tx.end:8.3f} s  turn {tx.turn:3d}  {tx.label:<{width}}  "
             f"on {tx.channel}  {marks or '(no decodes)'}"
         )
-    lost = [d for d in rp.decodes if d.turn is None]
+    lost = [d for d in decodes if d.turn is None]
     if lost:
         print(f"  decodes matching no logged transmission: {len(lost)}")
-    bad = [d for d in rp.decodes if d.matches is False]
-    margins = [d.margin for d in rp.decodes]
+    bad = [d for d in decodes if d.matches is False]
+    margins = [d.margin for d in decodes]
     print(
-        f"decodes: {len(rp.decodes)}, {len(bad)} not what was sent"
+        f"decodes: {len(decodes)}, {len(bad)} not what was sent"
         + (f"; smallest margin {min(margins):.3f}" if margins else "")
     )
     print("spikes per unit (rows) and channel (columns):")
-    counts = rp.spike_counts()
+    counts = rp.spike_counts(span)
     print("       " + "".join(f"{c:>6}" for c in units))
     for u in units:
         print(f"  {u:<5}" + "".join(f"{counts.get(u, {}).get(c, 0):>6}" for c in units))
@@ -229,8 +260,8 @@ def print_timeline(rp: Replay) -> None:
     print("  " + " " * 6 + "  ".join(p.ljust(w) for p in pairs) + "  polynomial")
     for u in units:
         rel = rp.relations.get(u)
-        if rel is None:
-            print(f"  {u:<6}(no table)")
+        if rel is None or not in_span(rel["t"], span):
+            print(f"  {u:<6}(no table{'' if rel is None else ' in this span'})")
             continue
         cells = "  ".join(rel["installed"].get(p, "?").ljust(w) for p in pairs)
         print(f"  {u:<6}{cells}  {rel['polynomial'] or '(none)'}  t={rel['t']:.3f}s")
@@ -249,11 +280,10 @@ def print_timeline(rp: Replay) -> None:
         for r in grid:
             print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
     print("decisions (each unit's own; predictions of the others in --json):")
-    if not any(dec["unit"] == dec["subject"] for dec in rp.decisions):
+    own = [d for d in rp.decisions if d["unit"] == d["subject"] and in_span(d["t"], span)]
+    if not own:
         print("  (none)")
-    for dec in rp.decisions:
-        if dec["unit"] != dec["subject"]:
-            continue
+    for dec in own:
         if dec["frustrated"]:
             verdict = "frustrated: no decision"
         else:

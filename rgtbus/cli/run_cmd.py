@@ -16,6 +16,7 @@ from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
 
 if TYPE_CHECKING:
+    from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry import McapRecorder
 
 
@@ -55,9 +56,59 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="verify the scenario's [expect] table; exit 1 if anything differs",
     )
     add_key_argument(p)
+    add_live_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
+
+
+def add_live_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--live",
+        nargs="?",
+        const="127.0.0.1:8765",
+        metavar="HOST:PORT",
+        help="serve the run live to Foxglove over its WebSocket protocol (default "
+        "127.0.0.1:8765; port 0: any free port); paced by --realtime (docs/foxglove.md)",
+    )
+    p.add_argument(
+        "--live-wait",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="with --live: wait up to SECONDS for a client to subscribe before starting",
+    )
+
+
+def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Any:
+    """The live view ``--live`` asks for (None without it): listening, channels advertised,
+    waited for a client if ``--live-wait``; its address on stderr."""
+    if args.live is None:
+        if args.live_wait:
+            raise RgtbusError("--live-wait goes with --live")
+        return None
+    if not args.live_wait >= 0:
+        raise RgtbusError(f"--live-wait {args.live_wait}: must be 0 or more seconds")
+    from rgtbus.telemetry.live import LiveView, parse_address
+
+    host, port = parse_address(args.live)
+    live = LiveView(host, port, realtime=args.realtime)
+    live.advertise(advertise)
+    print(f"live: {live.url} (Foxglove: Open connection, Foxglove WebSocket)", file=sys.stderr)
+    sys.stderr.flush()
+    if args.live_wait and not live.wait_for_client(args.live_wait):
+        print(f"live: no client after {args.live_wait:g} s; starting", file=sys.stderr)
+    return live
+
+
+def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
+    """Every (topic, schema) a run logs: advertised before it starts."""
+    from rgtbus.telemetry import topics
+
+    out = [(t, schema) for t, (schema, _) in topics.TOPICS.items()]
+    if traces:
+        out += [(f"/trace/{u}", topics.schema_for(f"/trace/{u}")) for u in units]
+    return out
 
 
 def add_key_argument(p: argparse.ArgumentParser) -> None:
@@ -81,9 +132,10 @@ def default_log_path(name: str) -> Path:
     return Path("logs") / f"{name}-{stamp}.mcap"
 
 
-def open_log(path: Path) -> tuple[BinaryIO, McapRecorder]:
+def open_log(path: Path, live: Any = None) -> tuple[BinaryIO, McapRecorder]:
     """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
-    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk)."""
+    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk).
+    ``live``: a live view offered every message too."""
     from rgtbus.telemetry import McapRecorder
 
     for parent in path.parents:  # mkdir says "File exists" for a file on the way
@@ -97,7 +149,7 @@ def open_log(path: Path) -> tuple[BinaryIO, McapRecorder]:
     except OSError as exc:
         raise RgtbusError(f"cannot write log {str(path)!r}: {exc.strerror}") from None
     try:
-        return stream, McapRecorder(stream)
+        return stream, McapRecorder(stream, live=live)
     except RgtbusError:
         with contextlib.suppress(OSError):  # its buffer cannot be flushed: already reported
             stream.close()
@@ -161,11 +213,19 @@ def run(args: argparse.Namespace) -> int:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
     log_path = Path(args.log) if args.log else default_log_path(scenario.name)
-    stream, recorder = open_log(log_path)
+    live = open_live(args, live_topics(scenario.units, args.traces))
+    try:
+        stream, recorder = open_log(log_path, live)
+    except BaseException:
+        if live is not None:
+            live.close()
+        raise
 
     progress = Progress(not args.quiet and sys.stderr.isatty())
     summary: dict[str, Any] | None = None
     try:
+        if live is not None:
+            live.begin()
         out = run_group(
             scenario,
             args.bus,
@@ -183,7 +243,11 @@ def run(args: argparse.Namespace) -> int:
         raise
     finally:
         progress.done()
-        close_log(stream, recorder)
+        try:
+            close_log(stream, recorder)
+        finally:
+            if live is not None:
+                live.close()
     summary["log"] = str(log_path)
 
     checks = check_expectations(scenario, summary) if args.check else []
@@ -205,6 +269,20 @@ def run(args: argparse.Namespace) -> int:
     if any(not ok for _, ok, _ in checks):
         return 1
     return 0
+
+
+def decision_text(universe: Universe, name: str, v: dict[str, Any]) -> str:
+    """Unit ``name``'s decision as every command prints it (one rule: ``rgtbus run``,
+    ``launch`` and ``unit``): ``no decision``, ``frustrated: no decision``, or its interval
+    [B, A] (``a = {beta}`` when B = A, else ``1 ⊇ a ⊇ {beta}``) and its choice, alternatives
+    in set notation. ``v``: the decision's fields (``rgtbus.mind.result_fields``)."""
+    if not v["decided"]:
+        return "no decision"
+    if v["frustrated"]:
+        return "frustrated: no decision"
+    lo, hi = (universe.format(universe.from_list(x)) for x in v["interval"])
+    interval = f"{name} = {lo}" if lo == hi else f"{hi} ⊇ {name} ⊇ {lo}"
+    return f"{interval:<18} choice {universe.format(universe.from_list(v['choice']))}"
 
 
 def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
@@ -250,15 +328,10 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         if v is None:
             print(f"  {name}: no report (the unit failed)")
             continue
+        verdict = decision_text(u, name, v)
         if not v["decided"]:
-            print(f"  {name}: no decision")
+            print(f"  {name}: {verdict}")
             continue
-        if v["frustrated"]:
-            verdict = "frustrated: no decision"
-        else:
-            lo, hi = (u.format(u.from_list(x)) for x in v["interval"])
-            interval = f"{name} = {lo}" if lo == hi else f"{hi} ⊇ {name} ⊇ {lo}"
-            verdict = f"{interval:<18} choice {u.format(u.from_list(v['choice']))}"
         print(f"  {v['canonical']:<{cw}}   {verdict}")
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")

@@ -10,6 +10,7 @@ import json
 import math
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -184,13 +185,23 @@ def cmd_resonate(args: argparse.Namespace) -> int:
         )
     if args.plot:
         _plot_resonate(
-            Path(args.plot), omegas, texts, word, args.on, args.start, res, tau, args.mode
+            Path(args.plot),
+            omegas,
+            texts,
+            word,
+            args.on,
+            args.start,
+            res,
+            tau,
+            args.mode,
+            noise=args.noise,
+            seed=args.seed,
         )
     if args.json:
         print(json.dumps({"resonators": rows}))
     else:
         print(
-            f"code {list(word)} on {texts[args.on]} from {args.start:g} s, mode {args.mode}"
+            f"code {_word_text(word)} on {texts[args.on]} from {args.start:g} s, mode {args.mode}"
             + (f", noise {args.noise:g} (seed {args.seed})" if args.noise else "")
         )
         print(f"{'omega':>12}  {'rad/s':>8}  {'peak y':>7}  spikes (s)")
@@ -223,12 +234,24 @@ def _save(fig, path: Path, caption: str) -> None:
         _pyplot().close(fig)
 
 
-def _plot_resonate(path: Path, omegas, texts, word, on, start, res, tau, mode) -> None:
+def pi_text(text: str) -> str:
+    """A frequency as figures write it: ``3pi/2`` → ``3π/2`` (``4.71`` unchanged)."""
+    return text.replace("pi", "π")
+
+
+def _word_text(word: Sequence[float]) -> str:
+    return "{" + ", ".join(f"{m:g}" for m in word) + "}"
+
+
+def _plot_resonate(
+    path: Path, omegas, texts, word, on, start, res, tau, mode, *, noise: float, seed: int
+) -> None:
     plt = _pyplot()
     n = res.y.shape[0]
     t = np.arange(n) * tau
+    names = [pi_text(x) for x in texts]
     fig, axes = plt.subplots(
-        len(omegas), 1, figsize=(8, 1.9 * len(omegas) + 0.8), sharex=True, squeeze=False
+        len(omegas), 1, figsize=(8, 1.9 * len(omegas) + 1.3), sharex=True, squeeze=False
     )
     inst = pulse_instants(omegas[on], start, len(word), tau) * tau
     for c, ax in enumerate(axes[:, 0]):
@@ -236,14 +259,24 @@ def _plot_resonate(path: Path, omegas, texts, word, on, start, res, tau, mode) -
         ax.axhline(1.0, color="k", lw=0.6, ls=":")
         for x in inst:
             ax.axvline(x, color="g", lw=0.8, alpha=0.7)
-        ax.set_ylabel(f"y, ω={texts[c]}", fontsize=8)
+        ax.set_ylabel(f"y, ω={names[c]}", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(
+        f"Resonators fed the code {_word_text(word)} on ω = {names[on]}, "
+        + (f"noise σ = {noise:g}" if noise else "no noise"),
+        fontsize=11,
+    )
     fig.tight_layout(rect=(0, 0.09, 1, 1))
+    noise_text = (
+        f"white Gaussian noise σ = {noise:g} per sample (seed {seed})"
+        if noise
+        else "no noise (σ = 0)"
+    )
     _save(
         fig,
         path,
-        f"Code {list(word)} sent on ω = {texts[on]} ({mode} mode); green lines: "
-        "pulses; dotted: threshold 1; spikes are drawn as y = 1.5.",
+        f"Code {_word_text(word)} sent on ω = {names[on]} from {start:g} s ({mode} mode), "
+        f"{noise_text}; green lines: pulses; dotted: threshold 1; spikes are drawn as y = 1.5.",
     )
 
 
@@ -261,7 +294,7 @@ def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title:
     """The paper's matched/unmatched figure for one series on one frequency pair."""
     plt = _pyplot()
     oms = [PAPER_OMEGAS[pair[0]], PAPER_OMEGAS[pair[1]]]
-    names = [PAPER_OMEGA_TEXT[pair[0]], PAPER_OMEGA_TEXT[pair[1]]]
+    names = [pi_text(PAPER_OMEGA_TEXT[pair[0]]), pi_text(PAPER_OMEGA_TEXT[pair[1]])]
     seconds = 5.0
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     colors = ("tab:green", "tab:red")
@@ -305,47 +338,123 @@ def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title:
     return caption
 
 
-def figure_receiving(path: Path) -> str:
-    """Paper's "receiving messages": a's ID on ω_a, then 0.5 s after its spike the ID on ω_c."""
-    plt = _pyplot()
+RECEIVING_DELAY = 0.5  # the protocol's reaction delay D, s
+
+
+@dataclass(frozen=True)
+class Receiving:
+    """One run of the "receiving messages" experiment: y traces (samples × [a, b, c]), the
+    spike times per channel (s), when the ω_c code started and whether the bank was quenched
+    just before it."""
+
+    t: np.ndarray
+    y: np.ndarray
+    spikes: dict[str, list[float]]
+    t_send: float
+    quench: bool
+
+
+def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
+    """a's ID-code on ω_a from 1 ms; ``delay`` s after the ω_a spike, the ID-code on ω_c
+    (a addressing c, the paper's "receiving messages"), into a paper-mode bank of ω_a, ω_b,
+    ω_c. ``quench``: put every resonator back to rest just before the ω_c code, as if it
+    arrived alone; without it a's ID still rings (1/|b| = 10 s), as within a protocol turn."""
     oms = list(PAPER_OMEGAS[:3])
     word = (0.4, 0.4, 0.4)
-    n1 = round(4.0 / PAPER_TAU)
-    u = hear([Transmission(oms[0], 0.001, word)], n1)[:, 0]
-    bank = ResonatorBank(oms)
-    first = bank.feed(u, record=True)
-    spike = first.spikes[first.spikes[:, 2] == 0, 0]
-    t_send = (int(spike[0]) + round(0.5 / PAPER_TAU)) * PAPER_TAU
+    # 4 s (800 samples) hold the ID's three pulses and its spike (2.67 s)
+    first = ResonatorBank(oms).feed(hear([Transmission(oms[0], 0.001, word)], 800)[:, 0])
+    k_spike = int(first.spikes[first.spikes[:, 2] == 0, 0][0])
+    t_send = (k_spike + round(delay / PAPER_TAU)) * PAPER_TAU
     n = round((t_send + 4.0) / PAPER_TAU)
     u = hear([Transmission(oms[0], 0.001, word), Transmission(oms[2], t_send, word)], n)[:, 0]
-    res = ResonatorBank(oms).feed(u, record=True)
-    assert res.y is not None  # fed with record=True
-    t = np.arange(n) * PAPER_TAU
-    fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
-    order = [(0, "a"), (2, "c"), (1, "b")]
-    for ax, (c, name) in zip(axes, order, strict=True):
-        ax.plot(t, res.y[:, 0, c], lw=1)
-        ax.axhline(1.0, color="k", lw=0.6, ls=":")
-        for x in pulse_instants(oms[0], 0.001, 3) * PAPER_TAU:
-            ax.axvline(x, color="tab:green", lw=0.8, alpha=0.6)
-        for x in pulse_instants(oms[2], t_send, 3) * PAPER_TAU:
-            ax.axvline(x, color="tab:red", lw=0.8, alpha=0.6)
-        ax.set_ylabel("y")
-        ax.set_title(f"channel ω_{name} = {PAPER_OMEGA_TEXT[c]}", fontsize=10)
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle("Receiving messages: unit a addresses unit c", fontsize=11)
-    fig.tight_layout(rect=(0, 0.09, 1, 1))
-    fired = []
-    for c, name in order:
-        ts = res.spikes[res.spikes[:, 2] == c, 0] * PAPER_TAU
-        fired.append(
-            f"ω_{name} "
-            + (("spikes at " + ", ".join(f"{x:.2f}" for x in ts) + " s") if len(ts) else "no spike")
+    bank = ResonatorBank(oms)
+    k_send = int(pulse_instants(oms[2], t_send, 1)[0])
+    parts = [bank.feed(u[:k_send], record=True)]
+    if quench:
+        bank.quench()
+    parts.append(bank.feed(u[k_send:], record=True))
+    assert parts[0].y is not None and parts[1].y is not None  # fed with record=True
+    y = np.concatenate([parts[0].y[:, 0, :], parts[1].y[:, 0, :]])
+    spikes: dict[str, list[float]] = {"a": [], "b": [], "c": []}
+    for part in parts:
+        for k, _, c in part.spikes:
+            spikes["abc"[int(c)]].append(round(int(k) * PAPER_TAU, 6))
+    return Receiving(np.arange(n) * PAPER_TAU, y, spikes, t_send, quench)
+
+
+def _spike_text(run: Receiving) -> str:
+    def one(name: str) -> str:
+        ts = [x for x in run.spikes[name] if x >= run.t_send]
+        return f"ω_{name} " + (
+            "spikes at " + ", ".join(f"{x:.2f}" for x in ts) + " s" if ts else "no spike"
         )
+
+    return ", ".join(one(name) for name in "cba")
+
+
+def _ring_text(run: Receiving) -> str:
+    """y of ω_c and ω_b just before each pulse of the ω_c code: why they spike or not."""
+    ks = pulse_instants(PAPER_OMEGAS[2], run.t_send, 3)
+    return "; ".join(
+        f"ω_{name}'s y before the ω_c pulses "
+        + ", ".join(f"{run.y[k - 1, c]:.2f}".replace("-", "−") for k in ks)
+        for c, name in ((2, "c"), (1, "b"))
+    )
+
+
+def figure_receiving(path: Path) -> str:
+    """The paper's "receiving messages" (a's ID on ω_a, then 0.5 s after its spike the ID on
+    ω_c), twice: left under the conditions the paper's claim implies (the bank at rest when
+    the ω_c code arrives), right as a protocol turn has it (a's ID still ringing)."""
+    plt = _pyplot()
+    oms = list(PAPER_OMEGAS[:3])
+    runs = (receiving_run(quench=True), receiving_run(quench=False))
+    fig, axes = plt.subplots(3, 2, figsize=(13, 7.4), sharex=True, sharey=True)
+    order = [(0, "a"), (2, "c"), (1, "b")]
+    heads = (
+        "Paper's claim: bank at rest (quenched)\nwhen the ω_c code arrives",
+        "rgtbus default (a protocol turn): no quench,\n"
+        "a's ID still rings when the ω_c code arrives",
+    )
+    for col, (run, head) in enumerate(zip(runs, heads, strict=True)):
+        for row, (c, name) in enumerate(order):
+            ax = axes[row, col]
+            ax.plot(run.t, run.y[:, c], lw=1)
+            ax.axhline(1.0, color="k", lw=0.6, ls=":")
+            for x in pulse_instants(oms[0], 0.001, 3) * PAPER_TAU:
+                ax.axvline(x, color="tab:green", lw=0.8, alpha=0.6)
+            for x in pulse_instants(oms[2], run.t_send, 3) * PAPER_TAU:
+                ax.axvline(x, color="tab:red", lw=0.8, alpha=0.6)
+            if run.quench:
+                ax.axvline(run.t_send, color="0.3", lw=1.0, ls="--")
+            late = [x for x in run.spikes[name] if x >= run.t_send]
+            verdict = "spikes" if late else "no spike"
+            ax.set_title(
+                f"ω_{name} = {pi_text(PAPER_OMEGA_TEXT[c])}"
+                + (f": {verdict} on the ω_c code" if name != "a" else ""),
+                fontsize=10,
+            )
+            if col == 0:
+                ax.set_ylabel("y")
+        axes[0, col].text(
+            0.5, 1.32, head, transform=axes[0, col].transAxes, ha="center", fontsize=11
+        )
+        axes[-1, col].set_xlabel("time (s)")
+    fig.suptitle("Receiving messages: unit a addresses unit c", fontsize=12)
+    fig.tight_layout(rect=(0, 0.1, 1, 0.97))
+    left, right = runs
+
+    def claim(run: Receiving) -> str:  # said only when this run shows it
+        c, b = (any(x >= run.t_send for x in run.spikes[k]) for k in "cb")
+        return ", the paper's outcome" if c and not b else ", not the paper's outcome"
+
     caption = (
-        f"a sends its ID-code on ω_a (green), then 0.5 s after the ω_a spike the ID-code "
-        f"on ω_c (red, from {t_send:.2f} s): " + "; ".join(fired) + ". The first code "
-        "still rings (1/|b| = 10 s) when the second arrives."
+        f"a sends its ID-code on ω_a (green), then {RECEIVING_DELAY:g} s after the ω_a spike "
+        f"(at {left.spikes['a'][0]:.2f} s) the ID-code on ω_c (red, from {left.t_send:.2f} s); "
+        f"paper mode, b = −0.1, τ = 5 ms. Left, every resonator put back to rest just before "
+        f"the ω_c code (dashed): {_spike_text(left)}{claim(left)}. Right, as in a protocol "
+        f"turn (no quench between ID and payload): {_spike_text(right)}{claim(right)}. "
+        f"a's ID still rings (1/|b| = 10 s): {_ring_text(right)}."
     )
     _save(fig, path, caption)
     return caption
@@ -381,7 +490,7 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
     ax.axhline(floor, color="k", lw=0.5, ls=":")
     ax.set_xlabel("noise σ (per sample)")
     ax.set_ylabel("symbol error rate")
-    ax.set_title(f"Decoder symbol error rate, code on ω_a = 3pi/2, {trials} trials a point")
+    ax.set_title(f"Decoder symbol error rate, code on ω_a = 3π/2, {trials} trials a point")
     ax.legend(fontsize=8)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     caption = (
@@ -416,7 +525,7 @@ def cmd_figures(args: argparse.Namespace) -> int:
         raise RgtbusError(f"OUTDIR {str(out)!r} is not writable")
     made = []
     for pair, tag in PAIRS:
-        a, b = PAPER_OMEGA_TEXT[pair[0]], PAPER_OMEGA_TEXT[pair[1]]
+        a, b = (pi_text(PAPER_OMEGA_TEXT[i]) for i in pair)
         for key, word, title in SERIES:
             p = out / f"resonators-{key}-{tag}.png"
             made.append((p, figure_pair(p, pair, word, f"{title}, ω = {a} vs {b}")))

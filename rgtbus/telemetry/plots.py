@@ -1,10 +1,16 @@
 """The paper's "activity of unit" figure for a logged run (matplotlib, Agg, imported lazily).
 
 One panel per channel (one resonator of the unit's bank): its y trace, the pulses on the
-medium on that channel (stems, coloured by sender), the unit's spikes, and each transmission
-labelled with its meaning ("a → c: ID", "a → c: conflict"). Below, the decision timeline of the
-whole run: per unit, its decodes (green: read what was sent, red: not), when its relationship
-table was complete (with the polynomial) and its decision; the zoomed range is shaded.
+medium on that channel (stems, coloured by sender), the unit's spikes (filled: the attention
+spike of an ID the unit accepted; hollow grey: any other spike, e.g. crosstalk), and each
+transmission labelled with its meaning ("a → c: ID", "a → c: conflict"). Below, the decision
+timeline of the whole run: per unit, its decodes (green: read what was sent, red: not), when its
+relationship table was complete (with the polynomial) and its decision; the zoomed range is
+shaded.
+
+``attention_spikes`` is pure (no matplotlib): it tells attention from other spikes without
+drawing. A ``--from``/``--to`` range is checked by ``logtools.check_time_range``, the one rule
+for the timeline, CSV, ``cat`` and plots.
 
 Labels are placed in up to ``LABEL_ROWS`` staggered rows; a label that fits in no row is left
 out and the panel says how many were (zoom in with ``t_from``/``t_to``).
@@ -12,11 +18,14 @@ out and the panel says how many were (zoom in with ``t_from``/``t_to``).
 
 from __future__ import annotations
 
+import bisect
+import math
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.logtools import check_time_range
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -24,12 +33,19 @@ if TYPE_CHECKING:
     from rgtbus.telemetry.replay import Replay
 
 WIDTH_IN = 14.0
-CHANNEL_IN = 2.1
-TIMELINE_MIN_IN = 1.6
+CHANNEL_IN = 2.5
+TIMELINE_MIN_IN = 2.0
 DPI = 100
 LABEL_ROWS = 3
-LABEL_FONT = 7.5
-_Y_LABELS = (1.85, 2.3, 2.75)  # label rows above the threshold
+# Sizes in points, read at the PNG's own size (1400 px wide) and still when a viewer shrinks a
+# six-unit figure to a screen's height.
+LABEL_FONT = 9.5  # transmission labels
+FONT = 10.5  # ticks, axis labels, annotations
+TITLE_FONT = 12  # panel titles, legend
+SUPTITLE_FONT = 14
+_Y_LABELS = (1.85, 2.4, 2.95)  # label rows above the threshold
+_Y_SPIKE = 1.5  # where spikes are drawn (a resonator's recorded y at a spike)
+_EPS = 1e-6  # s: two logged times of the same sample agree far closer than this
 _COLORS = [
     "#1f77b4",
     "#d62728",
@@ -47,8 +63,43 @@ _COLORS = [
 def figure_size(n_channels: int, n_units: int) -> tuple[float, float]:
     """Figure size in inches for a unit with ``n_channels`` resonators in a group of
     ``n_units`` (the PNG is ``DPI`` times this)."""
-    timeline = max(TIMELINE_MIN_IN, 0.6 + 0.32 * n_units)
+    timeline = max(TIMELINE_MIN_IN, 0.9 + 0.4 * n_units)
     return WIDTH_IN, CHANNEL_IN * n_channels + timeline
+
+
+def attention_spikes(replay: Replay, unit: str) -> set[tuple[str, float]]:
+    """The (channel, t) of every *accepted attention spike* of ``unit``: for each ID it
+    decoded and accepted, the spike of its resonator on the ID's channel that the protocol
+    takes as "the sender transmits". With the spike anchor that is the first spike from the
+    ID's first pulse to the decode (due at the later of the spike and the ID's last pulse);
+    with the schedule anchor nothing waits for a spike, and it is the spike at the ID's last
+    pulse, where a clean ID fires. Every other spike of the unit (crosstalk, noise, an ID it
+    refused) is not in the set."""
+    anchor = replay.scenario.timing.anchor if replay.scenario is not None else "spike"
+    ids = {(tx.turn, tx.sender): tx for tx in replay.transmissions if tx.kind == "id"}
+    times: dict[str, list[float]] = {}
+    for s in replay.spikes:
+        if s["unit"] == unit:
+            times.setdefault(s["channel"], []).append(s["t"])
+    for ts in times.values():
+        ts.sort()
+    out: set[tuple[str, float]] = set()
+    for d in replay.decodes:
+        if d.unit != unit or d.kind != "id" or not d.accepted or d.turn is None:
+            continue
+        tx = ids.get((d.turn, d.sender))
+        ts = times.get(tx.channel, []) if tx is not None else []
+        if tx is None or not ts:
+            continue
+        if anchor == "spike":
+            i = bisect.bisect_left(ts, tx.start - _EPS)
+            if i < len(ts) and ts[i] <= max(d.t, tx.end) + _EPS:
+                out.add((tx.channel, ts[i]))
+        else:
+            i = bisect.bisect_left(ts, tx.end - _EPS)
+            if i < len(ts) and ts[i] <= tx.end + _EPS:
+                out.add((tx.channel, ts[i]))
+    return out
 
 
 def activity_figure(
@@ -68,10 +119,7 @@ def activity_figure(
     if unit not in units:
         raise RgtbusError(f"--unit {unit!r}: not a unit of this log (units: {', '.join(units)})")
     end = max(replay.sim_seconds, trace["t"][-1] if len(trace["t"]) else 0.0)
-    lo = 0.0 if t_from is None else float(t_from)
-    hi = end if t_to is None else float(t_to)
-    if not hi > lo:
-        raise RgtbusError(f"--from {lo:g} --to {hi:g}: empty time range (the run is {end:g} s)")
+    lo, hi = check_time_range(t_from, t_to, 0.0, end)
     channels = list(trace["channels"]) or units
     color = {u: _COLORS[i % len(_COLORS)] for i, u in enumerate(units)}
     omegas = replay.info()["frequencies"]
@@ -88,8 +136,9 @@ def activity_figure(
     fig.suptitle(
         f"Activity of unit {unit} — scenario {replay.info()['scenario']}, "
         f"seed {replay.info()['seed']} ({source}); {lo:g}–{hi:g} s",
-        fontsize=11,
+        fontsize=SUPTITLE_FONT,
     )
+    attention = attention_spikes(replay, unit)
 
     t = np.asarray(trace["t"])
     y = np.asarray(trace["y"])
@@ -108,25 +157,32 @@ def activity_figure(
             ts = [p[0] for p in tx.pulses]
             ms = [p[1] for p in tx.pulses]
             ax.vlines(ts, 0, ms, color=color[tx.sender], lw=1.6)
-        spikes = [s["t"] for s in replay.spikes if s["unit"] == unit and s["channel"] == ch]
-        spikes = [s for s in spikes if lo <= s <= hi]
-        if spikes:
-            ax.plot(spikes, [1.5] * len(spikes), "v", color="#d62728", ms=5, label="spike")
+        spikes = [
+            s["t"]
+            for s in replay.spikes
+            if s["unit"] == unit and s["channel"] == ch and lo <= s["t"] <= hi
+        ]
+        other = [x for x in spikes if (ch, x) not in attention]
+        accepted = [x for x in spikes if (ch, x) in attention]
+        if other:  # drawn first: an attention spike on the same sample stays on top
+            ax.plot(other, [_Y_SPIKE] * len(other), ls="", **_OTHER_SPIKE)
+        if accepted:
+            ax.plot(accepted, [_Y_SPIKE] * len(accepted), ls="", **_ATTENTION_SPIKE)
         hidden_total += _labels(ax, replay, ch, lo, hi, px_per_s, color)
         om = omegas.get(ch)
         ax.set_title(
             f"channel {ch}" + (f" (ω = {om:.3f} rad/s)" if om else ""),
             loc="left",
-            fontsize=9,
+            fontsize=TITLE_FONT,
         )
-        ax.set_ylim(-1.7, 3.05)
+        ax.set_ylim(-1.7, 3.3)
         ax.set_yticks([-1, 0, 1])
-        ax.set_ylabel("y", fontsize=8)
-        ax.tick_params(labelsize=8)
+        ax.set_ylabel("y", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
         ax.set_xlim(lo, hi)
         if ci < len(channels) - 1:
             ax.tick_params(labelbottom=False)
-    chan_axes[-1].set_xlabel("t (s)", fontsize=8)
+    chan_axes[-1].set_xlabel("t (s)", fontsize=FONT)
     if hidden_total:
         chan_axes[0].text(
             1.0,
@@ -135,7 +191,7 @@ def activity_figure(
             transform=chan_axes[0].transAxes,
             ha="right",
             va="bottom",
-            fontsize=7,
+            fontsize=FONT,
             color="0.4",
         )
     _timeline(axes[-1], replay, lo, hi, end, color)
@@ -144,13 +200,24 @@ def activity_figure(
     handles = [
         Line2D([], [], color="0.25", lw=0.8, label="resonator y"),
         Line2D([], [], color="0.6", lw=0.8, ls="--", label="threshold"),
-        Line2D([], [], color="#d62728", marker="v", ls="", label=f"spike of {unit}"),
+        Line2D([], [], ls="", label="attention spike (accepted ID)", **_ATTENTION_SPIKE),
+        Line2D([], [], ls="", label="other spike (crosstalk, noise)", **_OTHER_SPIKE),
         *(Line2D([], [], color=color[u], lw=2, label=f"pulses from {u}") for u in units),
     ]
+    # At most 6 entries a row fit the width at this font; rows filled evenly.
+    rows = math.ceil(len(handles) / 6)
     fig.legend(
-        handles=handles, loc="outside lower center", ncols=len(handles), fontsize=7.5, frameon=False
+        handles=handles,
+        loc="outside lower center",
+        ncols=math.ceil(len(handles) / rows),
+        fontsize=FONT,
+        frameon=False,
     )
     return fig
+
+
+_ATTENTION_SPIKE: dict[str, Any] = {"marker": "v", "color": "#d62728", "ms": 8}
+_OTHER_SPIKE: dict[str, Any] = {"marker": "v", "mfc": "none", "mec": "0.5", "mew": 0.9, "ms": 5.5}
 
 
 def _labels(
@@ -208,23 +275,23 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
                 f"{phase} phase",
                 ha="center",
                 va="center",
-                fontsize=7.5,
+                fontsize=FONT,
                 color="0.35",
             )
     if lo > 0 or hi < end:  # the zoomed range of the panels above
         ax.axvspan(lo, hi, facecolor="0.5", alpha=0.12, edgecolor="0.2", lw=0.8, zorder=1)
     for d in replay.decodes:
         c = "#2ca02c" if d.matches is not False else "#d62728"
-        ax.plot([d.t], [row[d.unit]], "|", color=c, ms=7, mew=1.0) if d.unit in row else None
+        ax.plot([d.t], [row[d.unit]], "|", color=c, ms=9, mew=1.0) if d.unit in row else None
     for u, rel in replay.relations.items():
         if u in row:
-            ax.plot([rel["t"]], [row[u]], "s", color=color[u], ms=5)
+            ax.plot([rel["t"]], [row[u]], "s", color=color[u], ms=7)
             ax.annotate(
                 rel["polynomial"] or "no polynomial",
                 (rel["t"], row[u]),
-                xytext=(4, 4),
+                xytext=(5, 4),
                 textcoords="offset points",
-                fontsize=7,
+                fontsize=FONT,
             )
     universe = replay.scenario.universe if replay.scenario else None
     for dec in replay.decisions:
@@ -236,13 +303,13 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
             text = f"{dec['unit']} chooses {_alt(dec['choice'], universe)}"
             lo_a, hi_a = (_alt(v, universe) for v in dec["interval"])
             text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
-        ax.plot([dec["t"]], [row[dec["unit"]]], "D", color=color[dec["unit"]], ms=6)
+        ax.plot([dec["t"]], [row[dec["unit"]]], "D", color=color[dec["unit"]], ms=8)
         ax.annotate(
             text,
             (dec["t"], row[dec["unit"]]),
-            xytext=(-6, 4),
+            xytext=(-7, 4),
             textcoords="offset points",
-            fontsize=7.5,
+            fontsize=FONT,
             ha="right",
         )
     outcome = replay.summary()["outcome"]
@@ -250,13 +317,13 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
         "decision timeline: decodes (green ok, red wrong), tables complete (■), decisions (◆)"
         + (f" — outcome {outcome}" if outcome else ""),
         loc="left",
-        fontsize=9,
+        fontsize=TITLE_FONT,
     )
-    ax.set_yticks([row[u] for u in units], units, fontsize=8)
+    ax.set_yticks([row[u] for u in units], units, fontsize=FONT)
     ax.set_ylim(-0.6, len(units) - 0.1)
     ax.set_xlim(0, end * 1.01 if end else 1)
-    ax.tick_params(labelsize=8)
-    ax.set_xlabel("t (s), whole run", fontsize=8)
+    ax.tick_params(labelsize=FONT)
+    ax.set_xlabel("t (s), whole run", fontsize=FONT)
 
 
 def _alt(value: Any, universe) -> str:

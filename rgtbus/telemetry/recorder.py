@@ -48,6 +48,12 @@ class Recorder(Protocol):
     def close(self) -> None: ...
 
 
+class LiveSink(Protocol):
+    """Where a recorder also offers each encoded message (a live view)."""
+
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None: ...
+
+
 def _default(obj: Any) -> Any:
     # numpy arrays and scalars without importing numpy here
     if hasattr(obj, "tolist"):
@@ -210,6 +216,19 @@ class _WatchedStream:
             self._watch(flush)
 
 
+def topic_channel(context: foxglove.Context, topic: str, schema: str) -> foxglove.Channel:
+    """A foxglove channel for ``topic``: JSON messages under the topic's JSON Schema (the same
+    for the MCAP file and the live view)."""
+    return foxglove.Channel(
+        topic,
+        schema=foxglove.Schema(
+            name=schema, encoding=topics.SCHEMA_ENCODING, data=topics.schema_bytes(schema)
+        ),
+        message_encoding=topics.MESSAGE_ENCODING,
+        context=context,
+    )
+
+
 class McapRecorder(_Encoding):
     """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
     support ``write``, ``seek`` and ``tell``). ``close`` finishes the file (summary, footer).
@@ -235,8 +254,10 @@ class McapRecorder(_Encoding):
         chunk_size: int = 256 * 1024,
         flush_seconds: float = 1.0,
         flush_messages: int = 4096,
+        live: LiveSink | None = None,
     ) -> None:
         super().__init__(validate)
+        self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
         if compression not in _COMPRESSION:
             raise RgtbusError(
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
@@ -291,14 +312,7 @@ class McapRecorder(_Encoding):
         return RgtbusError(self.failed)
 
     def _channel(self, topic: str, schema: str) -> foxglove.Channel:
-        channel = foxglove.Channel(
-            topic,
-            schema=foxglove.Schema(
-                name=schema, encoding=topics.SCHEMA_ENCODING, data=topics.schema_bytes(schema)
-            ),
-            message_encoding=topics.MESSAGE_ENCODING,
-            context=self.context,
-        )
+        channel = topic_channel(self.context, topic, schema)
         self._channels[topic] = channel
         return channel
 
@@ -308,6 +322,8 @@ class McapRecorder(_Encoding):
             raise RgtbusError(self.failed)
         channel = self._channels.get(topic) or self._channel(topic, schema)
         channel.log(data, log_time=t)  # the hot path: no context manager
+        if self.live is not None:
+            self.live.put(topic, schema, data, t)
         if self._sink.error is not None:
             raise self._broken(self._sink.error)
         self._unflushed += 1

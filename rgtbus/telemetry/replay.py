@@ -82,6 +82,7 @@ class DecodeRow:
     turn: int | None  # of the transmission it read (None: no such transmission logged)
     sent: str | None  # the code that transmission carried
     matches: bool | None  # decoded what was sent (None: nothing to compare with)
+    channel: str | None = None  # the unit whose channel carried it (None: an older log)
 
 
 @dataclass
@@ -304,6 +305,7 @@ class Replay:
                     turn=None if tx is None else tx.turn,
                     sent=None if tx is None else tx.code,
                     matches=matches,
+                    channel=d.get("channel"),
                 )
             )
         return rows
@@ -409,10 +411,13 @@ class Replay:
         }
         return outcome_of(self.scenario, own)
 
-    def spike_counts(self) -> dict[str, dict[str, int]]:
+    def spike_counts(
+        self, span: tuple[float | None, float | None] | None = None
+    ) -> dict[str, dict[str, int]]:
         counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
         for s in self.spikes:
-            counts.setdefault(s["unit"], Counter())[s["channel"]] += 1
+            if in_span(s["t"], span):
+                counts.setdefault(s["unit"], Counter())[s["channel"]] += 1
         return {u: dict(c) for u, c in counts.items()}
 
     def info(self) -> dict[str, Any]:
@@ -603,19 +608,23 @@ class Replay:
         msgs = [m for _, m in self.by_topic.get(f"/trace/{unit}", [])]
         return self.stack_traces(msgs) if msgs else None
 
-    @staticmethod
-    def stack_traces(msgs: Sequence[dict]) -> dict[str, Any]:
-        """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``."""
+    def stack_traces(self, msgs: Sequence[dict | bytes]) -> dict[str, Any]:
+        """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``: one message
+        a sample, or (logs of rgtbus before the per-sample layout) one a window."""
         if not msgs:
             return {"t": np.zeros(0), "y": np.zeros((0, 0)), "channels": []}
-        ts, ys = [], []
-        msgs = [orjson.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
-        for m in msgs:
-            y = np.asarray(m["y"], dtype=float)  # channels × samples
-            k = y.shape[1]
-            ts.append(m["t"] + np.arange(k) / m["sample_rate"])
-            ys.append(y.T)
-        return {"t": np.concatenate(ts), "y": np.concatenate(ys), "channels": msgs[0]["channels"]}
+        ms = [orjson.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
+        if "window" in ms[0]:
+            ts, ys = [], []
+            for m in ms:
+                y = np.asarray(m["y"], dtype=float)  # channels × samples
+                ts.append(m["t"] + np.arange(y.shape[1]) / m["sample_rate"])
+                ys.append(y.T)
+            t, yy = np.concatenate(ts), np.concatenate(ys)
+            return {"t": t, "y": yy, "channels": ms[0]["channels"]}
+        t = np.fromiter((m["t"] for m in ms), dtype=float, count=len(ms))
+        yy = np.asarray([m["y"] for m in ms], dtype=float)
+        return {"t": t, "y": yy, "channels": list(self.units)}
 
 
 def _is_trace(topic: str) -> bool:
@@ -713,20 +722,18 @@ def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
 def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
     out: list[tuple[str, Any, Any]] = []
     for key in ("y", "x"):
-        if np.array_equal(
-            np.asarray(logged.get(key), dtype=float), np.asarray(recomputed.get(key), dtype=float)
-        ):
-            continue
         a = np.asarray(logged.get(key), dtype=float)
         b = np.asarray(recomputed.get(key), dtype=float)
+        if np.array_equal(a, b):
+            continue
         if a.shape != b.shape:
             out.append((f"{key} shape", list(a.shape), list(b.shape)))
             continue
-        ch, k = (int(i) for i in np.argwhere(a != b)[0])
+        where = tuple(int(i) for i in np.argwhere(a != b)[0])
         n = int(np.count_nonzero(a != b))
         more = f" (+{n - 1} more)" if n > 1 else ""
-        name = logged.get("channels", [])[ch] if ch < len(logged.get("channels", [])) else ch
-        out.append((f"{key}[{name}][{k}]{more}", float(a[ch, k]), float(b[ch, k])))
+        index = "".join(f"[{i}]" for i in where)
+        out.append((f"{key}{index}{more}", float(a[where]), float(b[where])))
     rest = {k: v for k, v in logged.items() if k not in ("y", "x")}
     rest_r = {k: v for k, v in recomputed.items() if k not in ("y", "x")}
     return out + _field_diffs(rest, _json(rest_r))
@@ -757,7 +764,7 @@ def _key_text(topic: str, key: tuple) -> str:
     if topic == "/log":
         return f"line {key[3]!r}"
     if _is_trace(topic):
-        return f"window at {key[0] / NS:.3f} s"
+        return f"trace at {key[0] / NS:.3f} s"
     return "table"
 
 
@@ -969,9 +976,38 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
 # -- CSV ------------------------------------------------------------------------------------
 
 
-def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
-    """``{file name: (header, rows)}``: transmissions, decodes, decisions, spikes."""
+def sample_time(t: float, tau: float | None) -> float:
+    """A time on the sample grid, without float noise: 162.04500000000002 -> 162.045."""
+    if not tau:
+        return round(t, 9)
+    digits = min(9, max(0, math.ceil(-math.log10(tau)) + 1))
+    return round(round(t / tau) * tau, digits)
+
+
+def in_span(t: float, span: tuple[float | None, float | None] | None) -> bool:
+    if span is None:
+        return True
+    lo, hi = span
+    return (lo is None or t >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
+
+
+def csv_tables(
+    replay: Replay, span: tuple[float | None, float | None] | None = None
+) -> dict[str, tuple[list[str], list[list[Any]]]]:
+    """``{file name: (header, rows)}``: transmissions, decodes, decisions, spikes. Every row
+    starts with the run's id, scenario and seed (tables of many runs concatenate); times are
+    on the sample grid; ``span`` (from, to) keeps what happens in it (a transmission: any of
+    its pulses)."""
+    tau = replay.scenario.timing.tau if replay.scenario is not None else None
+    info = replay.info()
+    run_cols = ["run_id", "scenario", "seed"]
+    run_vals = [info["run_id"], info["scenario"], info["seed"]]
+
+    def ts(t: float) -> float:
+        return sample_time(t, tau)
+
     tx_head = [
+        *run_cols,
         "turn",
         "phase",
         "kind",
@@ -986,6 +1022,7 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
     ]
     tx_rows = [
         [
+            *run_vals,
             x.turn,
             x.phase,
             x.kind,
@@ -994,17 +1031,24 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
             x.channel,
             x.code,
             x.meaning,
-            x.start,
-            x.end,
+            ts(x.start),
+            ts(x.end),
             len(x.pulses),
         ]
         for x in replay.transmissions
+        if span is None
+        or (
+            (span[0] is None or x.end >= span[0] - 1e-9)
+            and (span[1] is None or x.start <= span[1] + 1e-9)
+        )
     ]
     dec_head = [
+        *run_cols,
         "t",
         "unit",
         "sender",
         "addressee",
+        "channel",
         "kind",
         "code",
         "margin",
@@ -1015,10 +1059,12 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
     ]
     dec_rows = [
         [
-            d.t,
+            *run_vals,
+            ts(d.t),
             d.unit,
             d.sender,
             d.addressee,
+            d.channel,
             d.kind,
             d.code,
             d.margin,
@@ -1028,6 +1074,7 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
             d.matches,
         ]
         for d in replay.decodes
+        if in_span(d.t, span)
     ]
 
     u = replay.scenario.universe if replay.scenario is not None else None
@@ -1037,10 +1084,23 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
             return ""
         return u.format(u.from_list(v)) if u is not None else "{" + ",".join(v) + "}"
 
-    dn_head = ["t", "unit", "subject", "A", "B", "low", "high", "frustrated", "choice", "canonical"]
+    dn_head = [
+        *run_cols,
+        "t",
+        "unit",
+        "subject",
+        "A",
+        "B",
+        "low",
+        "high",
+        "frustrated",
+        "choice",
+        "canonical",
+    ]
     dn_rows = [
         [
-            d["t"],
+            *run_vals,
+            ts(d["t"]),
             d["unit"],
             d["subject"],
             alt(d["A"]),
@@ -1052,9 +1112,14 @@ def csv_tables(replay: Replay) -> dict[str, tuple[list[str], list[list[Any]]]]:
             d["canonical"],
         ]
         for d in replay.decisions
+        if in_span(d["t"], span)
     ]
-    sp_head = ["t", "unit", "channel", "omega", "sample"]
-    sp_rows = [[s["t"], s["unit"], s["channel"], s["omega"], s["sample"]] for s in replay.spikes]
+    sp_head = [*run_cols, "t", "unit", "channel", "omega", "sample"]
+    sp_rows = [
+        [*run_vals, ts(s["t"]), s["unit"], s["channel"], s["omega"], s["sample"]]
+        for s in replay.spikes
+        if in_span(s["t"], span)
+    ]
     return {
         "transmissions.csv": (tx_head, tx_rows),
         "decodes.csv": (dec_head, dec_rows),

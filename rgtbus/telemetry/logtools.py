@@ -1,0 +1,393 @@
+"""What ``rgtbus info``, ``rgtbus cat`` and ``rgtbus scenario`` read from a run's MCAP log.
+
+``log_info`` reads a finished log from its summary section (statistics, schemas, channels,
+chunk indexes, metadata index) and the ``/run`` record through the chunk index, so it costs
+the same on a 100 MB log as on a small one. A log without a summary (cut short: the run was
+killed) is scanned record by record instead, and says so.
+
+``cat_messages`` yields messages as JSON-ready dicts, filtered by topic, unit and time (the
+index narrows the chunks read). ``stored_scenario`` gives the scenario text a log was run
+with, its seed set to the run's, so ``rgtbus run`` repeats the run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tomllib
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from typing import IO, Any
+
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader, make_reader
+
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.recorder import require_run_log, scan_log
+
+NS = 1_000_000_000
+
+
+def _open(path: str | os.PathLike[str]) -> IO[bytes]:
+    try:
+        if os.path.isdir(path):
+            raise RgtbusError(f"cannot read log {os.fspath(path)!r}: is a directory")
+        return open(path, "rb")
+    except OSError as e:
+        raise RgtbusError(f"cannot read log {os.fspath(path)!r}: {e.strerror}") from None
+
+
+def _summary(f: IO[bytes]) -> Any:
+    """The log's summary section, or None (no footer or summary: a cut or foreign file)."""
+    try:
+        reader = make_reader(f)
+        return reader.get_summary() if isinstance(reader, SeekingReader) else None
+    except (McapError, ValueError, EOFError, AssertionError, KeyError, UnicodeDecodeError):
+        return None
+
+
+def log_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Duration, messages per topic, schemas, compression, scenario, seed, version, units and
+    outcome of a log (see the module docstring)."""
+    label = os.fspath(path)
+    with _open(path) as f:
+        size = os.fstat(f.fileno()).st_size
+        summary = _summary(f)
+        if summary is None or summary.statistics is None:
+            return _scanned_info(label, size)
+        f.seek(0)
+        reader = make_reader(f)
+        header = reader.get_header()
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        if not {"scenario", "run"} & set(metadata):
+            by = f" (written by {header.library!r})" if header.library else ""
+            raise RgtbusError(f"{label}: not an rgtbus run log: no scenario or run metadata{by}")
+        stats = summary.statistics
+        channels = summary.channels
+        counts = {channels[cid].topic: n for cid, n in sorted(stats.channel_message_counts.items())}
+        schema_of = {
+            ch.topic: summary.schemas[ch.schema_id].name
+            for ch in channels.values()
+            if ch.schema_id in summary.schemas
+        }
+        run = None
+        if any(ch.topic == "/run" for ch in channels.values()):
+            for _, _, m in reader.iter_messages(topics=["/run"]):
+                run = json.loads(m.data)
+        compression = sorted({c.compression or "none" for c in summary.chunk_indexes})
+        return _info(
+            label,
+            size,
+            library=header.library,
+            start=stats.message_start_time if stats.message_count else None,
+            end=stats.message_end_time if stats.message_count else None,
+            counts=counts,
+            schemas=schema_of,
+            compression=compression,
+            chunks=len(summary.chunk_indexes),
+            metadata=metadata,
+            run=run,
+            truncated=False,
+            note="",
+        )
+
+
+def _scanned_info(label: str, size: int) -> dict[str, Any]:
+    raw = scan_log(label)
+    require_run_log(raw)
+    topics = {cid: ch.topic for cid, ch in raw.channels.items()}
+    counts: Counter[str] = Counter(topics[cid] for cid, *_ in raw.messages)
+    schema_of = {
+        ch.topic: raw.schemas[ch.schema_id].name
+        for ch in raw.channels.values()
+        if ch.schema_id in raw.schemas
+    }
+    times = [t for _, t, *_ in raw.messages]
+    run = None
+    for cid, _, _, _, data in raw.messages:
+        if topics[cid] == "/run":
+            run = json.loads(data)
+    metadata: dict[str, dict[str, str]] = {}
+    for name, values in raw.metadata:
+        metadata[name] = dict(values)
+    return _info(
+        label,
+        size,
+        library=raw.library,
+        start=min(times) if times else None,
+        end=max(times) if times else None,
+        counts=dict(sorted(counts.items())),
+        schemas=schema_of,
+        compression=[],
+        chunks=None,
+        metadata=metadata,
+        run=run,
+        truncated=bool(raw.note),
+        note=raw.note or "no summary section: read record by record",
+    )
+
+
+def _info(
+    label: str,
+    size: int,
+    *,
+    library: str,
+    start: int | None,
+    end: int | None,
+    counts: dict[str, int],
+    schemas: dict[str, str],
+    compression: list[str],
+    chunks: int | None,
+    metadata: dict[str, dict[str, str]],
+    run: dict[str, Any] | None,
+    truncated: bool,
+    note: str,
+) -> dict[str, Any]:
+    sc = metadata.get("scenario", {})
+    meta_run = metadata.get("run", {})
+    units = _units_of(sc.get("text"), metadata.get("frequencies"))
+    seed = meta_run.get("seed")
+    return {
+        "log": label,
+        "bytes": size,
+        "library": library,
+        "start": None if start is None else start / NS,
+        "end": None if end is None else end / NS,
+        "duration": None if start is None or end is None else (end - start) / NS,
+        "messages": sum(counts.values()),
+        "topics": {t: {"count": n, "schema": schemas.get(t)} for t, n in counts.items()},
+        "compression": compression,
+        "chunks": chunks,
+        "scenario": sc.get("name"),
+        "scenario_path": sc.get("path"),
+        "seed": None if seed is None else int(seed),
+        "version": meta_run.get("version"),
+        "bus": meta_run.get("bus"),
+        "engine": meta_run.get("engine"),
+        "run_id": meta_run.get("run_id"),
+        "units": units,
+        "outcome": None if run is None else run.get("outcome"),
+        "agree": None if run is None else run.get("agree"),
+        "error": None if run is None else run.get("error"),
+        "finished": run is not None,
+        "truncated": truncated,
+        "note": note,
+    }
+
+
+def _units_of(text: str | None, frequencies: dict[str, str] | None) -> list[str]:
+    """The run's units: from its scenario (the units key, or a generated group's count); else
+    the frequencies metadata, which names one channel per unit."""
+    if text:
+        try:
+            data = tomllib.loads(text)
+            units = data.get("units")
+            if isinstance(units, list) and all(isinstance(u, str) for u in units):
+                return list(units)
+        except tomllib.TOMLDecodeError:
+            pass
+    return list(frequencies or {})
+
+
+def info_text(info: dict[str, Any]) -> str:
+    """``rgtbus info`` as text, in the manner of ``mcap info``."""
+    lines = [f"log:         {info['log']} ({_size(info['bytes'])})"]
+    if info["note"]:
+        lines.append(f"note:        {info['note']}")
+    lines += [
+        f"scenario:    {info['scenario']} ({info['scenario_path']})",
+        f"seed:        {info['seed']}",
+        f"rgtbus:      {info['version']} (bus {info['bus']}, engine {info['engine'] or 'event'}, "
+        f"run {info['run_id']})",
+        f"units:       {', '.join(info['units'])} ({len(info['units'])})",
+    ]
+    if info["duration"] is not None:
+        lines.append(
+            f"duration:    {info['duration']:.6g} s (log time {info['start']:.6g} to "
+            f"{info['end']:.6g} s)"
+        )
+    lines.append(
+        f"compression: {', '.join(info['compression']) or '-'}"
+        + ("" if info["chunks"] is None else f" ({info['chunks']} chunks)")
+    )
+    if not info["finished"]:
+        lines.append("outcome:     (no /run record: the run did not finish its log)")
+    elif info["error"]:
+        lines.append(f"outcome:     failed: {info['error']}")
+    else:
+        agree = "all units agree" if info["agree"] else "units DISAGREE"
+        lines.append(f"outcome:     {info['outcome'] or '(no outcome rule)'}; {agree}")
+    lines.append(f"messages:    {info['messages']}")
+    width = max([len(t) for t in info["topics"]] + [5])
+    for topic, v in info["topics"].items():
+        lines.append(f"  {topic:<{width}}  {v['count']:>10}  {v['schema']}")
+    return "\n".join(lines)
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024  # type: ignore[assignment]
+    return f"{n} B"
+
+
+# -- cat -----------------------------------------------------------------------------------------
+
+
+def _unit_of(topic: str, message: dict[str, Any]) -> str | None:
+    """The unit a message is about: the receiving, sending or reasoning unit; a trace's unit;
+    a log line's name. The medium and the run summary belong to no unit."""
+    if topic.startswith("/trace/"):
+        return topic[len("/trace/") :]
+    if topic == "/log":
+        return message.get("name")
+    unit = message.get("unit")
+    return unit if isinstance(unit, str) else None
+
+
+def cat_messages(
+    path: str | os.PathLike[str],
+    *,
+    topics: Sequence[str] = (),
+    unit: str | None = None,
+    t_from: float | None = None,
+    t_to: float | None = None,
+) -> Iterator[dict[str, Any]]:
+    """Messages in log-time order as ``{"topic", "t", "log_time", "message"}`` (t in
+    simulated seconds), on ``topics`` (all when empty), about ``unit``, with from <= t <= to.
+    Unknown topics or units: RgtbusError naming them and what the log has."""
+    info = log_info(path)
+    known = list(info["topics"])
+    for t in topics:
+        if t not in known:
+            raise RgtbusError(f"--topic {t!r}: not in this log (topics: {', '.join(known)})")
+    if unit is not None and unit not in info["units"]:
+        raise RgtbusError(f"--unit {unit!r}: not a unit of this log ({', '.join(info['units'])})")
+    if info["start"] is not None:
+        check_time_range(t_from, t_to, info["start"], info["end"])
+    start = None if t_from is None else round(t_from * NS)
+    end = None if t_to is None else round(t_to * NS)  # inclusive, like start
+    wanted = set(topics) if topics else None
+    if info["truncated"] or info["chunks"] is None:
+        yield from _cat_scanned(path, wanted, unit, start, end)
+        return
+    with _open(path) as f:
+        reader = make_reader(f)
+        for _, channel, m in reader.iter_messages(
+            topics=list(wanted) if wanted else None,
+            starting_at=start,
+            ending_at=end,
+            log_time_order=True,
+        ):
+            msg = _record(channel.topic, m.log_time, m.data, unit)
+            if msg is not None:
+                yield msg
+
+
+def _cat_scanned(
+    path: str | os.PathLike[str],
+    wanted: set[str] | None,
+    unit: str | None,
+    start: int | None,
+    end: int | None,
+) -> Iterator[dict[str, Any]]:
+    raw = scan_log(os.fspath(path))
+    topics = {cid: ch.topic for cid, ch in raw.channels.items()}
+    rows = sorted(
+        ((t, i, cid, data) for i, (cid, t, _, _, data) in enumerate(raw.messages)),
+        key=lambda r: (r[0], r[1]),
+    )
+    for t, _, cid, data in rows:
+        if (wanted and topics[cid] not in wanted) or (start is not None and t < start):
+            continue
+        if end is not None and t > end:
+            continue
+        msg = _record(topics[cid], t, data, unit)
+        if msg is not None:
+            yield msg
+
+
+def _record(topic: str, log_time: int, data: bytes, unit: str | None) -> dict[str, Any] | None:
+    try:
+        message = json.loads(data)
+    except ValueError:
+        message = {"undecodable": len(data)}
+    if unit is not None and _unit_of(topic, message) != unit:
+        return None
+    return {"topic": topic, "t": log_time / NS, "log_time": log_time, "message": message}
+
+
+def check_time_range(
+    t_from: float | None, t_to: float | None, start: float, end: float
+) -> tuple[float, float]:
+    """The range ``--from``/``--to`` ask for within a run from ``start`` to ``end`` s, as
+    ``(lo, hi)`` (a missing bound is the run's); ``RgtbusError``, one line naming the values
+    and the run's span, when it holds none of the run: a bound that is no number, from ≥ to,
+    from at or past the run's end, or to at or before its start. A range that overlaps the run
+    only in part is kept as asked."""
+    bounds = (("from", t_from), ("to", t_to))
+    given = " ".join(f"--{name} {value:g}" for name, value in bounds if value is not None)
+    span = f"{start:g} to {end:g} s"
+    for value in (t_from, t_to):
+        if value is not None and not math.isfinite(value):
+            raise RgtbusError(f"{given}: not a time (the run is {span})")
+    if t_from is not None and t_to is not None and not t_to > t_from:
+        raise RgtbusError(f"{given}: empty time range (the run is {span})")
+    lo = start if t_from is None else float(t_from)
+    hi = end if t_to is None else float(t_to)
+    if lo >= end or hi <= start:
+        raise RgtbusError(f"{given or 'the log'}: outside the run ({span})")
+    return lo, hi
+
+
+# -- scenario ------------------------------------------------------------------------------------
+
+_SEED_LINE = re.compile(r"^(\s*seed\s*=\s*)(\d+)(.*)$")
+
+
+def stored_scenario(path: str | os.PathLike[str]) -> str:
+    """The scenario TOML a log was run with, its top-level seed set to the run's seed (a run
+    with ``--seed`` stores the file's text as written): ``rgtbus run`` on it repeats the run."""
+    label = os.fspath(path)
+    with _open(path) as f:
+        summary = _summary(f)
+        f.seek(0)
+        if summary is not None:
+            metadata = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+        else:
+            raw = scan_log(f)
+            require_run_log(raw)
+            metadata = {name: dict(values) for name, values in raw.metadata}
+    text = metadata.get("scenario", {}).get("text")
+    if text is None:
+        raise RgtbusError(f"{label}: stores no scenario (not an rgtbus run log, or a unit's part)")
+    seed = metadata.get("run", {}).get("seed")
+    return text if seed is None else with_seed_text(text, int(seed))
+
+
+def with_seed_text(text: str, seed: int) -> str:
+    """``text`` with its top-level ``seed`` set to ``seed`` (comments and layout kept)."""
+    data = tomllib.loads(text)
+    if data.get("seed") == seed:
+        return text
+    lines = text.splitlines(keepends=True)
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("["):  # past the top level: insert before the first table
+            lines.insert(i, f"seed = {seed}\n")
+            break
+        m = _SEED_LINE.match(line.rstrip("\n"))
+        if m:
+            lines[i] = f"{m.group(1)}{seed}{m.group(3)}\n"
+            break
+    else:
+        lines.append(f"\nseed = {seed}\n")
+    out = "".join(lines)
+    if tomllib.loads(out).get("seed") != seed:  # a layout the line edit cannot handle
+        import tomli_w
+
+        data["seed"] = seed
+        return tomli_w.dumps(data)
+    return out
