@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import queue
 import re
 import socket
 import subprocess
@@ -128,3 +129,112 @@ def test_live_cli_errors_are_one_line(tmp_path, capsys):
         code = main(["run", gate, "--bus", "memory", "--log", log, "--live", f"127.0.0.1:{port}"])
     err = capsys.readouterr().err
     assert code == 2 and f"127.0.0.1:{port}: cannot listen" in err and err.count("\n") == 1
+
+
+def test_watch_serves_a_cross_process_run_as_an_observer(procs, tmp_path):
+    """Three `rgtbus unit` processes and a watcher they connect to: a WebSocket client of the
+    watcher gets every message the units log (their MCAP files), and the run is the same."""
+    from rgtbus.cli.proc_cmds import free_ports
+
+    scenario = str(ROOT / "scenarios" / "example2.toml")
+    units = ["a", "b", "c"]
+    ports = free_ports(len(units) + 1)
+    watch_ep = f"tcp/127.0.0.1:{ports[-1]}"
+    watcher = procs(
+        "watch", "-l", watch_ep, "--run", "watched", "--live", "127.0.0.1:0",
+        "--idle-exit", "5",
+    )  # fmt: skip
+    lines: queue.Queue[str] = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put(x) for x in watcher.stderr], daemon=True)
+    reader.start()
+    line = lines.get(timeout=60)
+    url = re.search(r"ws://[\w.:\[\]]+", line)
+    assert url, line
+    result: dict = {}
+    client = threading.Thread(
+        target=lambda: result.setdefault(
+            "r", collect_sync(url.group(0), until_topic=None, timeout=180)
+        )
+    )
+    client.start()
+    line = lines.get(timeout=60)  # the client's subscriptions, settled
+    assert "channel subscriptions" in line, line
+    started = []
+    for i, name in enumerate(units):
+        net = ["--listen", f"tcp/127.0.0.1:{ports[i]}", "--connect", watch_ep]
+        for j in range(i):
+            net += ["--connect", f"tcp/127.0.0.1:{ports[j]}"]
+        log = str(tmp_path / f"{name}.mcap")
+        started.append(procs("unit", name, scenario, *net, "--log", log, "--run-id", "watched"))
+    for p in started:
+        _, err = p.communicate(timeout=180)
+        assert p.returncode == 0, err
+    assert watcher.wait(timeout=120) == 0
+    reader.join(timeout=30)
+    err = "".join(lines.get() for _ in range(lines.qsize()))
+    client.join(timeout=60)
+    got = sorted((topic, t, data) for topic, t, data, _ in result["r"].messages)
+    logged = sorted(m for u in units for m in _mcap(tmp_path / f"{u}.mcap")[0])
+    assert got == logged and len(got) > 100
+    assert "from run(s) watched" in err
+
+
+def test_telemetry_frames_round_trip_and_garbage_is_refused():
+    from rgtbus.bus.payload import decode_telemetry, encode_telemetry
+
+    frame = encode_telemetry("/rx/decode", "rgtbus.Decode", b'{"unit": "\\u00e9"}', 2**63 + 5)
+    assert decode_telemetry(frame) == (
+        "/rx/decode",
+        "rgtbus.Decode",
+        b'{"unit": "\\u00e9"}',
+        2**63 + 5,
+    )
+    for bad in (b"", b"RGT1", b"XXXX" + frame[4:], frame[:20], frame[:16] + b"\xff" * 30):
+        with pytest.raises(ValueError):
+            decode_telemetry(bad)
+
+
+def test_a_watcher_drops_what_is_not_telemetry():
+    """Frames on the telemetry keys that are garbage, or name a topic under a foreign schema,
+    never reach the live view."""
+    import zenoh
+
+    from rgtbus.bus.payload import encode_telemetry
+    from rgtbus.bus.watch import Watcher
+    from rgtbus.bus.zenoh import make_config
+
+    class Sink:
+        def __init__(self) -> None:
+            self.got: list[tuple] = []
+
+        def put(self, *a) -> None:
+            self.got.append(a)
+
+    from rgtbus.cli.proc_cmds import free_ports
+
+    ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    sink = Sink()
+    with Watcher(sink, run_id="r1", listen=[ep]) as w:
+        s = zenoh.open(make_config(connect=[ep]))
+        try:
+            deadline = time.monotonic() + 30
+            good = encode_telemetry("/log", "foxglove.Log", b"{}", 7)
+            while not w.heard.is_set() and time.monotonic() < deadline:
+                s.put("rgtbus/r1/telemetry/a", good)  # until the subscription has arrived
+                time.sleep(0.05)
+            for bad in (
+                b"garbage",
+                encode_telemetry("/log", "rgtbus.Decode", b"{}", 8),  # the wrong schema
+                encode_telemetry("/nope", "foxglove.Log", b"{}", 9),  # no such topic
+            ):
+                s.put("rgtbus/r1/telemetry/a", bad)
+            s.put("rgtbus/r2/telemetry/a", good)  # another run
+            s.put("rgtbus/r1/telemetry/a", encode_telemetry("/run", "rgtbus.RunSummary", b"{}", 10))
+            while (w.dropped < 3 or not any(g[0] == "/run" for g in sink.got)) and (
+                time.monotonic() < deadline
+            ):
+                time.sleep(0.02)
+        finally:
+            s.close()
+    assert w.dropped == 3
+    assert {g[0] for g in sink.got} == {"/log", "/run"} and w.runs == {"r1"}

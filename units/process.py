@@ -19,7 +19,7 @@ from rgtbus.bus import open_bus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.sim import ns
-from rgtbus.telemetry import Recorder
+from rgtbus.telemetry import McapRecorder, Recorder
 from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
 from units.group import auth_name, default_run_id, scenario_world, write_metadata
 from units.unit import AutonomousUnit
@@ -73,6 +73,8 @@ def run_unit(
     sim_seconds = 0.0
     try:
         with open_bus("zenoh", run_id, sc.units, rate, local=[name], key=key, **opts) as bus:
+            if isinstance(recorder, McapRecorder) and recorder.live is None:
+                recorder.live = bus.telemetry_feed(name)  # what `rgtbus watch` serves
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()
             try:

@@ -182,3 +182,33 @@ def decode(
     )  # astype copies: the caller owns writable arrays
     _check_pulses(samples, values)
     return Frame(seq, promise, samples, values, flags, done_at), rate
+
+
+# -- telemetry frames: a unit process's log messages for watchers --------------------------------
+
+_TELEMETRY = struct.Struct("<4sQHH")  # magic, log time ns, topic length, schema length
+_TELEMETRY_MAGIC = b"RGT1"
+
+
+def encode_telemetry(topic: str, schema: str, data: bytes, t_ns: int) -> bytes:
+    """One logged message as a zenoh payload: header, topic, schema name, the JSON as logged."""
+    tb, sb = topic.encode(), schema.encode()
+    return _TELEMETRY.pack(_TELEMETRY_MAGIC, t_ns, len(tb), len(sb)) + tb + sb + data
+
+
+def decode_telemetry(payload: bytes) -> tuple[str, str, bytes, int]:
+    """``(topic, schema, data, t_ns)``; a payload that is not a telemetry frame: ValueError."""
+    if len(payload) < _TELEMETRY.size:
+        raise ValueError(f"telemetry frame of {len(payload)} bytes: too short")
+    magic, t_ns, nt, ns_ = _TELEMETRY.unpack_from(payload)
+    if magic != _TELEMETRY_MAGIC:
+        raise ValueError(f"not a telemetry frame (magic {magic!r})")
+    at = _TELEMETRY.size
+    if len(payload) < at + nt + ns_:
+        raise ValueError("telemetry frame cut short")
+    try:
+        topic = payload[at : at + nt].decode()
+        schema = payload[at + nt : at + nt + ns_].decode()
+    except UnicodeDecodeError:
+        raise ValueError("telemetry frame: topic or schema is not UTF-8") from None
+    return topic, schema, bytes(payload[at + nt + ns_ :]), t_ns

@@ -26,6 +26,7 @@ import zenoh
 from rgtbus.bus.auth import AuthError
 from rgtbus.bus.base import QueueBus
 from rgtbus.bus.hello import Hello, check_digest, encode_hello, read_hello
+from rgtbus.bus.payload import encode_telemetry
 from rgtbus.errors import RgtbusError
 
 _MODES = ("peer", "client", "router")
@@ -165,6 +166,22 @@ def close_session(session: zenoh.Session, timeout: float) -> str | None:
     return outcome[0] if outcome else None
 
 
+def telemetry_key(run_id: str, unit: str) -> str:
+    return f"rgtbus/{run_id}/telemetry/{unit}"
+
+
+class TelemetryFeed:
+    """A unit process's log messages on zenoh (``encode_telemetry`` frames); a live sink."""
+
+    def __init__(self, publisher: Any) -> None:
+        self.publisher = publisher
+        self.closed = False
+
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        if not self.closed:
+            self.publisher.put(encode_telemetry(topic, schema, data, t_ns))
+
+
 class ZenohBus(QueueBus):
     kind = "zenoh"
     OPTIONS = frozenset(
@@ -199,6 +216,7 @@ class ZenohBus(QueueBus):
     ) -> None:
         super().__init__(run_id, members, sample_rate, local=local, key=key)
         self._publishers: dict[str, Any] = {}
+        self._telemetry: list[TelemetryFeed] = []
         self._subscriber: Any = None
         self._hello_sub: Any = None
         self._token: Any = None
@@ -252,6 +270,22 @@ class ZenohBus(QueueBus):
             raise
         _ensure_exit_hook()
         _open_buses.add(self)
+
+    # -- telemetry for watchers ----------------------------------------------------------------
+
+    def telemetry_feed(self, unit: str) -> TelemetryFeed:
+        """Where unit ``unit``'s process publishes every message it logs, for ``rgtbus watch``
+        (``McapRecorder.live``): ``rgtbus/<run>/telemetry/<unit>``. Watchers only subscribe,
+        so they are never members and cannot hold the run back."""
+        self._check_member(unit)
+        pub = self.session.declare_publisher(
+            telemetry_key(self.run_id, unit),
+            # DROP: a slow watcher loses telemetry, never delays the run's own frames
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        feed = TelemetryFeed(pub)
+        self._telemetry.append(feed)
+        return feed
 
     # -- joining a cross-process run --------------------------------------------------------
 
@@ -408,7 +442,16 @@ class ZenohBus(QueueBus):
         # docs/zenoh-notes.md).
         _open_buses.discard(self)
         errors: list[str] = []
-        entities = [self._hello_sub, self._subscriber, *self._publishers.values(), self._token]
+        for feed in self._telemetry:
+            feed.closed = True  # the recorder may still log after the bus is gone: dropped
+        entities = [
+            self._hello_sub,
+            self._subscriber,
+            *self._publishers.values(),
+            *(f.publisher for f in self._telemetry),
+            self._token,
+        ]
+        self._telemetry = []
         self._hello_sub = self._token = None
         self._subscriber = None
         self._publishers = {}

@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
         run_cmd,
         signal_cmds,
         sweep_cmds,
+        watch_cmd,
     )
 
     parser = OneLineParser(
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         replay_cmds,
         log_cmds,
         proc_cmds,
+        watch_cmd,
         sweep_cmds,
     ):
         module.register(subparsers)

@@ -1,0 +1,78 @@
+"""``rgtbus watch``: serve a cross-process run live to Foxglove, as an observer."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
+from rgtbus.errors import RgtbusError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    w = subparsers.add_parser(
+        "watch",
+        help="watch a cross-process run live in Foxglove, as an observer (never a member)",
+        description="Join a run's zenoh network as an observer and serve what every unit "
+        "process logs over the Foxglove WebSocket protocol (the same topics and schemas as "
+        "the MCAP log, as rgtbus run --live). The watcher only subscribes: the run neither "
+        "waits for it nor notices it come or go. Ends with Ctrl-C, or --idle-exit.",
+    )
+    _zenoh_arguments(w)
+    w.add_argument("--run", default="*", metavar="RUN_ID", help="only this run (default: any)")
+    w.add_argument(
+        "--live",
+        default="127.0.0.1:8765",
+        metavar="HOST:PORT",
+        help="where to serve the live view (default 127.0.0.1:8765; port 0: any free port)",
+    )
+    w.add_argument(
+        "--idle-exit",
+        type=float,
+        metavar="S",
+        help="end once S seconds pass without telemetry, after some came",
+    )
+    w.add_argument("--quiet", action="store_true", help="no status lines")
+    w.set_defaults(func=run_watch)
+
+
+def run_watch(args: argparse.Namespace) -> int:
+    from rgtbus.bus.watch import Watcher
+    from rgtbus.telemetry.live import LiveView, parse_address
+
+    if args.idle_exit is not None and not args.idle_exit > 0:
+        raise RgtbusError(f"--idle-exit {args.idle_exit}: must be a positive number of seconds")
+    host, port = parse_address(args.live)
+    say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    with LiveView(host, port, name="rgtbus watch", linger=1.0) as live:
+        live.advertise(_topics())
+        with Watcher(live, run_id=args.run, **zenoh_options(args)) as watcher:
+            say(f"watch: serving {live.url} (listening for the telemetry of run {args.run})")
+            subscribed = 0
+            try:
+                while True:
+                    time.sleep(0.1)
+                    now = len(live.subscriptions.pairs)
+                    settled = time.monotonic() - live.subscriptions.last_change > 0.3
+                    if now != subscribed and settled:
+                        subscribed = now
+                        say(f"watch: {now} channel subscriptions")
+                    idle = time.monotonic() - watcher.last_heard
+                    waited = watcher.heard.is_set() and args.idle_exit is not None
+                    if waited and idle >= args.idle_exit:
+                        break
+            except KeyboardInterrupt:
+                pass
+            say(
+                f"watch: {watcher.received} messages from run(s) "
+                f"{', '.join(sorted(watcher.runs)) or '(none)'}"
+                + (f"; {watcher.dropped} frames dropped (not telemetry)" if watcher.dropped else "")
+            )
+    return 0
+
+
+def _topics() -> list[tuple[str, str]]:
+    from rgtbus.telemetry import topics
+
+    return [(t, schema) for t, (schema, _) in topics.TOPICS.items()]
