@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rgtbus.bus import open_bus
+from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.sim import ns
@@ -73,7 +74,11 @@ def run_unit(
     sim_seconds = 0.0
     try:
         with open_bus("zenoh", run_id, sc.units, rate, local=[name], key=key, **opts) as bus:
-            if isinstance(recorder, McapRecorder) and recorder.live is None:
+            if (
+                isinstance(bus, ZenohBus)
+                and isinstance(recorder, McapRecorder)
+                and recorder.live is None
+            ):
                 recorder.live = bus.telemetry_feed(name)  # what `rgtbus watch` serves
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()

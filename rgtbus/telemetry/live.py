@@ -29,7 +29,7 @@ from collections.abc import Iterable
 from typing import Any
 
 import foxglove
-from foxglove.websocket import Capability
+from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.recorder import topic_channel
@@ -54,7 +54,7 @@ def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
     return host, port
 
 
-class _Subscriptions:
+class _Subscriptions(ServerListener):
     """The server's listener: which (client, channel) pairs are subscribed. Callbacks come
     from the server's threads and never block."""
 

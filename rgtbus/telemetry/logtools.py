@@ -133,7 +133,7 @@ def _info(
     label: str,
     size: int,
     *,
-    library: str,
+    library: str | None,
     start: int | None,
     end: int | None,
     counts: dict[str, int],
