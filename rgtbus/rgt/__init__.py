@@ -5,7 +5,13 @@ forward task (intervals, frustration) and inverse task (reflexive control).
 """
 
 from rgtbus.rgt.algebra import Universe
-from rgtbus.rgt.control import ControlResult, solve_brute_force, solve_per_action
+from rgtbus.rgt.control import (
+    ControlResult,
+    SteeringChoice,
+    solve_brute_force,
+    solve_per_action,
+    steer,
+)
 from rgtbus.rgt.decision import (
     CanonicalForm,
     InfluenceMatrix,
@@ -41,6 +47,7 @@ __all__ = [
     "Expr",
     "InfluenceMatrix",
     "RelationGraph",
+    "SteeringChoice",
     "SubjectResult",
     "Universe",
     "canonical_form",
@@ -60,5 +67,6 @@ __all__ = [
     "random_polynomial",
     "solve_brute_force",
     "solve_per_action",
+    "steer",
     "stratification_text",
 ]

@@ -230,3 +230,63 @@ def solve_brute_force(
         if ok:
             out.append({s: args[df.index(s)] for s in others})
     return out
+
+
+# -- steering: one subject's own influence on a target, given what it has heard ------------------
+
+
+@dataclass(frozen=True)
+class SteeringChoice:
+    """How subject ``me`` steers ``target`` by its own influence (``steer``).
+
+    ``value``: the influence to send (None: no influence of its own can reach the goal);
+    ``robust``: it reaches the goal whatever the influences not heard yet; ``reached`` of ``of``:
+    the completions of those influences with which it does; ``rule``: ``robust``,
+    ``most completions`` or ``unreachable``."""
+
+    target: str
+    value: int | None
+    robust: bool
+    reached: int
+    of: int
+    rule: str
+
+
+def steer(
+    df: DecisionFunction,
+    universe: Universe,
+    me: str,
+    target: str,
+    lo: int,
+    hi: int,
+    mode: str = "exact",
+    heard: Mapping[str, int] | None = None,
+) -> SteeringChoice:
+    """Choose ``me``'s influence on ``target`` so that ``target``'s interval is ``[lo, hi]``
+    (``exact``) or holds it (``contains``), knowing the influences on ``target`` in ``heard``
+    (source -> alternative) and not the others'.
+
+    Rule (one place, docs/goals.md): for each alternative v of ``me``, ascending, count the
+    completions c of the unheard influences with which the inverse task holds for
+    ``heard ∪ {me: v} ∪ c`` (``solve_per_action`` with those fixed: a count, no listing).
+    The smallest v that works for every completion is chosen (robust); else the v that works
+    for the most completions (ties: the smallest); when every count is 0, none (unreachable).
+    """
+    if me == target:
+        raise RgtbusError(f"influence {me}>{target}: a subject does not influence itself")
+    heard = dict(heard or {})
+    if me in heard:
+        raise RgtbusError(f"influence {me}>{target}: {me}'s own influence is what is chosen")
+    df.index(me)
+    unheard = [s for s in df.order if s not in (target, me) and s not in heard]
+    total = len(universe) ** len(unheard)
+    best: tuple[int, int] | None = None  # (count, v)
+    for v in universe:
+        count = solve_per_action(df, universe, target, lo, hi, mode, {**heard, me: v}).count
+        if count == total:
+            return SteeringChoice(target, v, True, count, total, "robust")
+        if count and (best is None or count > best[0]):
+            best = (count, v)
+    if best is None:
+        return SteeringChoice(target, None, False, 0, total, "unreachable")
+    return SteeringChoice(target, best[1], False, best[0], total, "most completions")
