@@ -37,10 +37,9 @@ class Watcher:
         self.last_heard = time.monotonic()
         self.heard = threading.Event()  # set at the first message
         self.runs: set[str] = set()
+        config = make_config(**zenoh_options)  # its own errors are one line already
         try:
-            self.session = zenoh.open(make_config(**zenoh_options))
-        except RgtbusError:
-            raise
+            self.session = zenoh.open(config)
         except Exception as e:
             raise RgtbusError(f"cannot open zenoh session: {zenoh_reason(e)}") from None
         self._sub = self.session.declare_subscriber(f"rgtbus/{run_id}/telemetry/*", self._on_sample)

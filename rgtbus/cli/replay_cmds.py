@@ -206,15 +206,7 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         lo = "start" if span[0] is None else f"{span[0]:g} s"
         hi = "end" if span[1] is None else f"{span[1]:g} s"
         print(f"showing {lo} to {hi} (--from/--to)")
-    txs = [
-        tx
-        for tx in rp.transmissions
-        if span is None
-        or (
-            (span[0] is None or tx.end >= span[0] - 1e-9)
-            and (span[1] is None or tx.start <= span[1] + 1e-9)
-        )
-    ]
+    txs = [tx for tx in rp.transmissions if in_span(tx.start, span, until=tx.end)]
     decodes = [d for d in rp.decodes if in_span(d.t, span)]
     by_tx: dict[tuple[int | None, str], list[DecodeRow]] = {}
     for d in decodes:

@@ -18,6 +18,7 @@ from rgtbus.summary import not_decomposable_text
 if TYPE_CHECKING:
     from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry import McapRecorder
+    from rgtbus.telemetry.live import LiveView
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -62,14 +63,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+LIVE_ADDRESS = "127.0.0.1:8765"  # Foxglove's own default for a WebSocket connection
+
+
 def add_live_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--live",
         nargs="?",
-        const="127.0.0.1:8765",
+        const=LIVE_ADDRESS,
         metavar="HOST:PORT",
-        help="serve the run live to Foxglove over its WebSocket protocol (default "
-        "127.0.0.1:8765; port 0: any free port); paced by --realtime (docs/foxglove.md)",
+        help=f"serve the run live to Foxglove over its WebSocket protocol (default "
+        f"{LIVE_ADDRESS}; port 0: any free port); paced by --realtime (docs/foxglove.md)",
     )
     p.add_argument(
         "--live-wait",
@@ -80,7 +84,7 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Any:
+def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> LiveView | None:
     """The live view ``--live`` asks for (None without it): listening, channels advertised,
     waited for a client if ``--live-wait``; its address on stderr."""
     if args.live is None:
@@ -132,7 +136,7 @@ def default_log_path(name: str) -> Path:
     return Path("logs") / f"{name}-{stamp}.mcap"
 
 
-def open_log(path: Path, live: Any = None) -> tuple[BinaryIO, McapRecorder]:
+def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRecorder]:
     """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
     directory, no permission, a target that takes no bytes (``/proc/version``, a full disk).
     ``live``: a live view offered every message too."""

@@ -7,6 +7,7 @@ import sys
 import time
 
 from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
+from rgtbus.cli.run_cmd import LIVE_ADDRESS
 from rgtbus.errors import RgtbusError
 
 
@@ -23,9 +24,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     w.add_argument("--run", default="*", metavar="RUN_ID", help="only this run (default: any)")
     w.add_argument(
         "--live",
-        default="127.0.0.1:8765",
+        default=LIVE_ADDRESS,
         metavar="HOST:PORT",
-        help="where to serve the live view (default 127.0.0.1:8765; port 0: any free port)",
+        help=f"where to serve the live view (default {LIVE_ADDRESS}; port 0: any free port)",
     )
     w.add_argument(
         "--idle-exit",

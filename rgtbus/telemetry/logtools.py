@@ -178,8 +178,8 @@ def _info(
 
 
 def _units_of(text: str | None, frequencies: dict[str, str] | None) -> list[str]:
-    """The run's units: from its scenario (the units key, or a generated group's count); else
-    the frequencies metadata, which names one channel per unit."""
+    """The run's units, in order: the scenario's ``units`` list; else (no scenario stored) the
+    frequencies metadata, which names one channel per unit."""
     if text:
         try:
             data = tomllib.loads(text)
@@ -227,11 +227,14 @@ def info_text(info: dict[str, Any]) -> str:
 
 
 def _size(n: int) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024  # type: ignore[assignment]
-    return f"{n} B"
+    if n < 1024:
+        return f"{n} B"
+    size = float(n)
+    for unit in ("KiB", "MiB", "GiB"):
+        size /= 1024
+        if size < 1024 or unit == "GiB":
+            break
+    return f"{size:.1f} {unit}"
 
 
 # -- cat -----------------------------------------------------------------------------------------

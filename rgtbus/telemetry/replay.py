@@ -984,11 +984,16 @@ def sample_time(t: float, tau: float | None) -> float:
     return round(round(t / tau) * tau, digits)
 
 
-def in_span(t: float, span: tuple[float | None, float | None] | None) -> bool:
+def in_span(
+    t: float, span: tuple[float | None, float | None] | None, until: float | None = None
+) -> bool:
+    """Whether the instant ``t`` (or the interval ``t``..``until``) meets ``span`` (from, to;
+    None: unbounded), within a nanosecond."""
     if span is None:
         return True
     lo, hi = span
-    return (lo is None or t >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
+    end = t if until is None else until
+    return (lo is None or end >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
 
 
 def csv_tables(
@@ -1036,11 +1041,7 @@ def csv_tables(
             len(x.pulses),
         ]
         for x in replay.transmissions
-        if span is None
-        or (
-            (span[0] is None or x.end >= span[0] - 1e-9)
-            and (span[1] is None or x.start <= span[1] + 1e-9)
-        )
+        if in_span(x.start, span, until=x.end)
     ]
     dec_head = [
         *run_cols,
