@@ -3,7 +3,9 @@ task given what it has heard; checked against brute force on small random groups
 
 from __future__ import annotations
 
+import itertools
 import random
+from fractions import Fraction
 
 import pytest
 
@@ -11,10 +13,12 @@ from rgtbus.errors import RgtbusError
 from rgtbus.rgt import (
     Universe,
     decision_function,
+    meets,
     parse_polynomial,
     random_polynomial,
     solve_brute_force,
     steer,
+    steerable_share,
 )
 
 AB = Universe(("alpha", "beta"))
@@ -47,18 +51,31 @@ def test_steering_follows_its_rule_against_brute_force(seed):
     names = [f"s{i}" for i in range(n)]
     df = decision_function(random_polynomial(names, rng), names)
     me, target = rng.sample(names, 2)
+    mode = rng.choice(["exact", "contains", "largest", "smallest"])
     lo = rng.choice(list(universe))
-    hi = lo | rng.choice(list(universe))
-    mode = rng.choice(["exact", "contains"])
+    hi = lo if mode in ("largest", "smallest") else lo | rng.choice(list(universe))
     others = [s for s in names if s not in (me, target)]
     heard = {s: rng.choice(list(universe)) for s in others if rng.random() < 0.5}
+    predicted = {s: rng.choice(list(universe)) for s in others if s not in heard}
+    if rng.random() < 0.3:
+        predicted = {}
     counts = _brute_counts(df, universe, me, target, lo, hi, mode, heard)
     total = len(universe) ** (len(others) - len(heard))
-    got = steer(df, universe, me, target, lo, hi, mode, heard)
+    got = steer(df, universe, me, target, lo, hi, mode, heard, predicted)
     assert got.of == total
+    assert got.solutions == sum(counts.values())
     robust = [v for v in universe if counts[v] == total]
+    fits = [
+        v
+        for v in universe
+        if solve_brute_force(df, universe, target, lo, hi, mode, {**heard, **predicted, me: v})
+    ]
     if robust:  # every goal brute force says is reachable for sure is reached
         assert (got.value, got.robust, got.reached) == (min(robust), True, total)
+    elif fits and predicted:  # else what works if the others do as predicted
+        best = max(counts[v] for v in fits)
+        assert got.value == min(v for v in fits if counts[v] == best)
+        assert (got.robust, got.rule) == (False, "predicted")
     elif any(counts.values()):
         best = max(counts.values())
         assert got.value == min(v for v in universe if counts[v] == best)
@@ -75,3 +92,41 @@ def test_steering_refuses_nonsense():
         steer(df, AB, "b", "a", 0, 0, heard={"b": 1})
     with pytest.raises(RgtbusError):
         steer(df, AB, "z", "a", 0, 0)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_steerable_share_is_the_brute_force_share(seed):
+    """How often one subject can steer another alone, over every joint influence of the rest."""
+    rng = random.Random(1000 + seed)
+    n = rng.randint(2, 4)
+    universe = AB if rng.random() < 0.5 else ONE
+    names = [f"s{i}" for i in range(n)]
+    df = decision_function(random_polynomial(names, rng), names)
+    me, target = rng.sample(names, 2)
+    mode = rng.choice(["exact", "contains", "largest", "smallest"])
+    lo = rng.choice(list(universe))
+    hi = lo if mode in ("largest", "smallest") else lo | rng.choice(list(universe))
+    rest = [s for s in names if s not in (me, target)]
+    hits = 0
+    for combo in itertools.product(list(universe), repeat=len(rest)):
+        fixed = dict(zip(rest, combo, strict=True))
+        if any(
+            solve_brute_force(df, universe, target, lo, hi, mode, {**fixed, me: v})
+            for v in universe
+        ):
+            hits += 1
+    assert steerable_share(df, universe, me, target, lo, hi, mode) == Fraction(
+        hits, len(universe) ** len(rest)
+    )
+
+
+def test_choice_modes_are_what_max_and_min_subjects_choose():
+    for a in range(4):
+        for b in range(4):
+            for v in range(4):
+                ok = not b & ~a
+                assert meets(a, b, v, v, "largest") == (ok and a == v)
+                assert meets(a, b, v, v, "smallest") == (ok and b == v)
+    df = decision_function(parse_polynomial("ab+c"))
+    with pytest.raises(RgtbusError, match="wants one alternative"):
+        steer(df, AB, "b", "a", 0, AB.full, "largest")

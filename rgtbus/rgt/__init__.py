@@ -6,11 +6,14 @@ forward task (intervals, frustration) and inverse task (reflexive control).
 
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.control import (
+    STEER_RULES,
     ControlResult,
     SteeringChoice,
+    meets,
     solve_brute_force,
     solve_per_action,
     steer,
+    steerable_share,
 )
 from rgtbus.rgt.decision import (
     CanonicalForm,
@@ -41,6 +44,7 @@ from rgtbus.rgt.polynomial import (
 )
 
 __all__ = [
+    "STEER_RULES",
     "CanonicalForm",
     "ControlResult",
     "DecisionFunction",
@@ -62,11 +66,13 @@ __all__ = [
     "forward",
     "graph_to_polynomial",
     "install_relations",
+    "meets",
     "parse_polynomial",
     "polynomial_to_graph",
     "random_polynomial",
     "solve_brute_force",
     "solve_per_action",
     "steer",
+    "steerable_share",
     "stratification_text",
 ]

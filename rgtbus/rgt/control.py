@@ -5,9 +5,13 @@ influences on x such that
 
 * mode ``exact``:    the interval is exactly the target: ``A = hi`` and ``B = lo``;
 * mode ``contains``: the target lies within the interval: ``B ⊆ lo`` and ``hi ⊆ A``;
+* mode ``largest``:  the interval's largest alternative is the target: ``A = hi``, ``B ⊆ A``
+  (what a subject deciding by ``max`` chooses; ``lo = hi``);
+* mode ``smallest``: its smallest is the target: ``B = lo``, ``B ⊆ A`` (a ``min`` subject's
+  choice; ``lo = hi``);
 
 where the target is one alternative (``lo = hi``) or an interval ``[lo, hi]``. Some influences
-may be fixed in advance.
+may be fixed in advance. ``meets`` is the condition on (A, B), the one rule every solver uses.
 
 **Per-action solving.** Every operation is bitwise, so the condition splits over the k actions:
 action j only sees bit j of every influence. Per action the question is which assignments of the
@@ -22,6 +26,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from fractions import Fraction
 from math import prod
 
 from rgtbus.errors import RgtbusError
@@ -29,7 +34,22 @@ from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
 from rgtbus.rgt.expr import variable_table
 
-MODES = ("exact", "contains")
+MODES = ("exact", "contains", "largest", "smallest")
+SINGLE_MODES = ("largest", "smallest")  # a target of one alternative only
+
+
+def meets(a: int, b: int, lo: int, hi: int, mode: str) -> bool:
+    """Whether a subject with ``A = a``, ``B = b`` meets the target ``[lo, hi]`` in ``mode``
+    (see the module docstring; bitwise, so it holds per action too)."""
+    if mode == "exact":
+        return a == hi and b == lo
+    if mode == "contains":
+        return not b & ~lo and not hi & ~a
+    if mode == "largest":
+        return a == hi and not b & ~a
+    if mode == "smallest":
+        return b == lo and not b & ~a
+    raise RgtbusError(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
 
 
 @dataclass(frozen=True)
@@ -55,6 +75,11 @@ def _check(
         raise RgtbusError(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
     universe.check(lo)
     universe.check(hi)
+    if mode in SINGLE_MODES and lo != hi:
+        raise RgtbusError(
+            f"mode {mode} wants one alternative, got the interval "
+            f"[{universe.format(lo)}, {universe.format(hi)}]"
+        )
     if lo & ~hi:
         raise RgtbusError(
             f"target interval [{universe.format(lo)}, {universe.format(hi)}] is empty: "
@@ -153,14 +178,19 @@ def solve_per_action(
         fixed_bits = tuple(fixed[s] >> j & 1 for s in others if s in fixed)
         key = (lo_j, hi_j, fixed_bits)
         if key not in cache:
+            # ``meets`` per action, as truth tables over the x = 0 indexes
             if mode == "exact":
                 ok = (a_aligned if hi_j else not_a) & (b_aligned if lo_j else not_b)
-            else:  # contains: B_j <= lo_j and hi_j <= A_j
+            elif mode == "contains":  # B_j <= lo_j and hi_j <= A_j
                 ok = x0
                 if not lo_j:
                     ok &= not_b
                 if hi_j:
                     ok &= a_aligned
+            elif mode == "largest":  # A_j = hi_j and B_j <= A_j
+                ok = a_aligned if hi_j else not_a & not_b
+            else:  # smallest: B_j = lo_j and B_j <= A_j
+                ok = b_aligned & a_aligned if lo_j else not_b
             for s in others:
                 if s in fixed:
                     v = variable_table(df.index(s), n)
@@ -226,13 +256,14 @@ def solve_brute_force(
         a = f(*args)
         args[x] = 0
         b = f(*args)
-        ok = (a == hi and b == lo) if mode == "exact" else (not b & ~lo and not hi & ~a)
-        if ok:
+        if meets(a, b, lo, hi, mode):
             out.append({s: args[df.index(s)] for s in others})
     return out
 
 
 # -- steering: one subject's own influence on a target, given what it has heard ------------------
+
+STEER_RULES = ("robust", "predicted", "most completions", "unreachable")
 
 
 @dataclass(frozen=True)
@@ -241,8 +272,9 @@ class SteeringChoice:
 
     ``value``: the influence to send (None: no influence of its own can reach the goal);
     ``robust``: it reaches the goal whatever the influences not heard yet; ``reached`` of ``of``:
-    the completions of those influences with which it does; ``rule``: ``robust``,
-    ``most completions`` or ``unreachable``."""
+    the completions of those influences with which it does; ``rule``: one of ``STEER_RULES``;
+    ``solutions``: how many joint influences on ``target`` (its own free, the heard ones fixed)
+    meet the goal at all."""
 
     target: str
     value: int | None
@@ -250,6 +282,7 @@ class SteeringChoice:
     reached: int
     of: int
     rule: str
+    solutions: int = 0
 
 
 def steer(
@@ -261,16 +294,23 @@ def steer(
     hi: int,
     mode: str = "exact",
     heard: Mapping[str, int] | None = None,
+    predicted: Mapping[str, int] | None = None,
 ) -> SteeringChoice:
-    """Choose ``me``'s influence on ``target`` so that ``target``'s interval is ``[lo, hi]``
-    (``exact``) or holds it (``contains``), knowing the influences on ``target`` in ``heard``
-    (source -> alternative) and not the others'.
+    """Choose ``me``'s influence on ``target`` so that ``target`` meets ``[lo, hi]`` in ``mode``,
+    knowing the influences on ``target`` in ``heard`` (source -> alternative) and not the
+    others', of which ``predicted`` may hold a guess (e.g. what they sent last round).
 
     Rule (one place, docs/goals.md): for each alternative v of ``me``, ascending, count the
-    completions c of the unheard influences with which the inverse task holds for
+    completions c of the unheard influences with which the goal is met for
     ``heard ∪ {me: v} ∪ c`` (``solve_per_action`` with those fixed: a count, no listing).
-    The smallest v that works for every completion is chosen (robust); else the v that works
-    for the most completions (ties: the smallest); when every count is 0, none (unreachable).
+
+    1. **robust**: the smallest v that works for every completion;
+    2. **predicted**: else, among the v that work when the unheard influences are as
+       ``predicted`` (those without a prediction still counted over), the one that works for
+       the most completions (ties: the smallest);
+    3. **most completions**: else the v that works for the most completions (ties: the
+       smallest): the best chance when every unheard influence is equally likely;
+    4. **unreachable**: every count is 0: no influence of ``me`` can meet the goal.
     """
     if me == target:
         raise RgtbusError(f"influence {me}>{target}: a subject does not influence itself")
@@ -279,14 +319,53 @@ def steer(
         raise RgtbusError(f"influence {me}>{target}: {me}'s own influence is what is chosen")
     df.index(me)
     unheard = [s for s in df.order if s not in (target, me) and s not in heard]
+    guess = {s: v for s, v in (predicted or {}).items() if s in unheard}
     total = len(universe) ** len(unheard)
-    best: tuple[int, int] | None = None  # (count, v)
+    solutions = solve_per_action(df, universe, target, lo, hi, mode, heard).count
+    counts = {
+        v: solve_per_action(df, universe, target, lo, hi, mode, {**heard, me: v}).count
+        for v in universe
+    }
+
+    def choice(v: int | None, rule: str) -> SteeringChoice:
+        reached = 0 if v is None else counts[v]
+        return SteeringChoice(
+            target, v, rule == "robust", reached, total, rule, solutions
+        )  # fmt: skip
+
     for v in universe:
-        count = solve_per_action(df, universe, target, lo, hi, mode, {**heard, me: v}).count
-        if count == total:
-            return SteeringChoice(target, v, True, count, total, "robust")
-        if count and (best is None or count > best[0]):
-            best = (count, v)
-    if best is None:
-        return SteeringChoice(target, None, False, 0, total, "unreachable")
-    return SteeringChoice(target, best[1], False, best[0], total, "most completions")
+        if counts[v] == total:
+            return choice(v, "robust")
+    if guess:
+        fits = [
+            v
+            for v in universe
+            if counts[v]
+            and solve_per_action(
+                df, universe, target, lo, hi, mode, {**heard, **guess, me: v}
+            ).count
+        ]
+        if fits:
+            return choice(max(fits, key=lambda v: (counts[v], -v)), "predicted")
+    best = max(universe, key=lambda v: (counts[v], -v))
+    return choice(best, "most completions") if counts[best] else choice(None, "unreachable")
+
+
+def steerable_share(
+    df: DecisionFunction, universe: Universe, me: str, target: str, lo: int, hi: int, mode: str
+) -> Fraction:
+    """The share of the other subjects' joint influences on ``target`` (every one but ``me``'s,
+    all equally likely) for which some influence of ``me`` meets the goal: per action, the
+    valid assignments with ``me``'s bit projected out (exists), counted; the product over
+    actions (the inverse task's answer to "how often can ``me`` steer ``target`` alone")."""
+    if me == target:
+        raise RgtbusError(f"influence {me}>{target}: a subject does not influence itself")
+    res = solve_per_action(df, universe, target, lo, hi, mode)
+    n = df.n
+    full = (1 << (1 << n)) - 1
+    x, m = df.index(target), df.index(me)
+    keep = (full ^ variable_table(x, n)) & (full ^ variable_table(m, n))
+    share = Fraction(1)
+    for t in res._tables:
+        share *= Fraction(((t | (t >> (1 << m))) & keep).bit_count(), 1 << (n - 2))
+    return share
