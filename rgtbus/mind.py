@@ -11,6 +11,13 @@ picks its own choice from its interval by its decision policy:
 
 A frustrated unit makes no choice.
 
+Influence rounds (``[protocol] influence_rounds``): every unit re-sends its influences in each
+round and decides after each (the forward task on that round's influences); its last round's
+decision is its decision. A goal-driven unit (``[goals.UNIT]``) chooses its influence on each
+target when its turn comes, by the inverse task (``steer``, docs/goals.md), on the group it
+decoded, the influences on the target heard so far in this round, and, as a prediction of the
+rest, what they sent the round before.
+
 What a unit sends is chosen here too: its relationship code to each peer (fixed by the scenario;
 alliance with probability p, the "positive pole", from its own seeded draws; or its side of a
 seeded random decomposable group, ``cograph``, which every unit draws alike from the scenario's
@@ -24,11 +31,14 @@ import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 from rgtbus.errors import NotDecomposable, RgtbusError
+from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
+    SteeringChoice,
     SubjectResult,
     Universe,
     canonical_form,
@@ -37,11 +47,16 @@ from rgtbus.rgt import (
     forward,
     graph_to_polynomial,
     install_relations,
+    meets,
     polynomial_to_graph,
     random_polynomial,
+    steer,
+    steerable_share,
 )
 from rgtbus.rgt.expr import needs_star
-from rgtbus.scenario import Scenario
+from rgtbus.scenario import Goal, Scenario
+
+Pair = tuple[str, str]
 
 
 @lru_cache(maxsize=16)
@@ -151,6 +166,9 @@ class Mind:
     df: DecisionFunction | None = None
     results: dict[str, SubjectResult] | None = None
     choice: int | None = None
+    rounds: int = 1  # influence rounds to hear and decide
+    heard: dict[int, dict[Pair, int]] = field(default_factory=dict)  # round -> influences
+    decided_rounds: int = 0  # rounds decided so far (their influences complete)
 
     def pairs(self) -> list[tuple[str, str]]:
         return [(s, r) for s in self.units for r in self.units if s != r]
@@ -197,6 +215,49 @@ class Mind:
         self.results = forward(self.df, self.universe, matrix)
         self.choice = choose(self.policy, self.results[self.me], self.universe, self.rng)
 
+    def hear_influence(self, rnd: int, pair: Pair, value: int) -> list[int]:
+        """An influence decoded in round ``rnd``; decides every round whose influences are now
+        complete, in order, and returns those rounds (``influences`` is then the last one's)."""
+        self.heard.setdefault(rnd, {})[pair] = value
+        done = []
+        n = len(self.units)
+        while self.decided_rounds < self.rounds:
+            nxt = self.heard.get(self.decided_rounds + 1, {})
+            if len(nxt) != n * (n - 1):
+                break
+            self.decided_rounds += 1
+            self.influences = dict(nxt)
+            self.decide()
+            done.append(self.decided_rounds)
+        return done
+
+    @property
+    def all_rounds_decided(self) -> bool:
+        return self.decided_rounds >= self.rounds
+
+    def steer(self, goal: Goal, rnd: int) -> SteeringChoice | str:
+        """This unit's influence on ``goal.target`` in round ``rnd`` by the inverse task on
+        the group it decoded: the influences on the target heard in this round so far, and
+        what the others sent it the round before as the prediction of the rest. A text says
+        why there is none to compute (the group is not known, or has no polynomial)."""
+        if self.df is None:
+            if self.p4 is not None:
+                return "the group is not decomposable: no decision function to invert"
+            return self.error or "the relationship phase is not complete: no group yet"
+        heard, predicted = self.steering_inputs(goal.target, rnd)
+        return steer(
+            self.df, self.universe, self.me, goal.target, goal.lo, goal.hi, goal.mode, heard,
+            predicted,
+        )  # fmt: skip
+
+    def steering_inputs(self, target: str, rnd: int) -> tuple[dict[str, int], dict[str, int]]:
+        """What steering ``target`` in round ``rnd`` knows: the influences on it heard in this
+        round, and (the prediction) those of the round before not heard again yet."""
+        heard = {s: v for (s, r), v in self.heard.get(rnd, {}).items() if r == target}
+        before = {s: v for (s, r), v in self.heard.get(rnd - 1, {}).items() if r == target}
+        heard.pop(self.me, None)
+        return heard, {s: v for s, v in before.items() if s != self.me and s not in heard}
+
     def canonical(self, subject: str) -> str:
         assert self.df is not None
         return canonical_form(self.df, subject).text(needs_star(self.units))
@@ -232,8 +293,70 @@ def intents(sc: Scenario, me: str) -> tuple[dict[str, str], dict[str, str]]:
 def mind_of(sc: Scenario, me: str) -> Mind:
     """Unit ``me``'s mind before it hears anything (its decision generator seeded by the run)."""
     return Mind(
-        me, sc.units, sc.universe, sc.decisions[me], random.Random(f"{sc.seed}:{me}:decision")
+        me,
+        sc.units,
+        sc.universe,
+        sc.decisions[me],
+        random.Random(f"{sc.seed}:{me}:decision"),
+        rounds=sc.influence_rounds,
     )
+
+
+def goal_text(goal: Goal, universe: Universe) -> str:
+    """A goal in words: ``a: exactly 1``, ``a: [0, 1] within``, ``a: largest {alpha}``."""
+    lo, hi = universe.format(goal.lo), universe.format(goal.hi)
+    want = lo if goal.lo == goal.hi else f"[{lo}, {hi}]"
+    how = {"exact": "exactly", "contains": "within", "largest": "largest", "smallest": "smallest"}
+    return f"{goal.target}: {how.get(goal.mode, goal.mode)} {want}"
+
+
+def steering_reason(choice: SteeringChoice | str, goal: Goal, universe: Universe) -> str:
+    """Why a goal-driven unit sends what it sends (its log line and the goal record's
+    ``reason``)."""
+    what = goal_text(goal, universe)
+    if isinstance(choice, str):
+        return f"{what}: no inverse task ({choice}); keeps its policy's influence"
+    if choice.value is None:
+        return (
+            f"{what}: unreachable by its own influence ({choice.solutions} joint influences "
+            "meet it, none with what it heard); keeps its policy's influence"
+        )
+    v = universe.format(choice.value)
+    if choice.rule == "robust" and choice.of == 1:
+        return f"{what}: {v} meets it (every other influence on {goal.target} heard)"
+    if choice.rule == "robust":
+        return f"{what}: {v} meets it whatever the unheard send ({choice.of} completions)"
+    if choice.rule == "predicted":
+        return (
+            f"{what}: {v} meets it if the unheard send as last round "
+            f"({choice.reached} of {choice.of} completions)"
+        )
+    return f"{what}: {v} meets it for the most completions ({choice.reached} of {choice.of})"
+
+
+def round_dynamics(trajectory: Sequence[Mapping[Any, Any]]) -> dict[str, Any]:
+    """What the influences did over the rounds: ``{"state", "since", "length"}``.
+
+    The first round equal to an earlier one: equal to the one before, a **fixed point**
+    (``since``: the first round of it); to one ``L`` rounds before, a **cycle** of ``length``
+    L entered at ``since``; none, **neither**. Each round's influences are a function of the
+    round before (every goal-driven choice is), so a repeat repeats for ever. One round
+    tells nothing: ``None``."""
+    if len(trajectory) < 2:
+        return {"state": None, "since": None, "length": None}
+    seen: dict[tuple, int] = {}
+    for r, infl in enumerate(trajectory, 1):
+        key = tuple(sorted(infl.items()))
+        if key in seen:
+            first = seen[key]
+            length = r - first
+            return {
+                "state": "fixed point" if length == 1 else "cycle",
+                "since": first,
+                "length": length,
+            }
+        seen[key] = r
+    return {"state": "neither", "since": None, "length": None}
 
 
 def result_fields(mind: Mind) -> dict[str, object]:
@@ -252,36 +375,169 @@ def result_fields(mind: Mind) -> dict[str, object]:
     }
 
 
+def clean_timeline(sc: Scenario) -> tuple[ProtocolState, list[Listen]]:
+    """The run's schedule and every decode as a perfect medium times them (anchored on the
+    schedule: on a clean channel an ID fires its resonator at its last pulse, where the
+    schedule puts it)."""
+    me = sc.units[0]
+    relations, influences = intents(sc, me)
+    plan = ProtocolState(
+        me,
+        sc.units,
+        dict(sc.frequencies),
+        sc.timing.tau,
+        pulses=sc.codebook.pulses,
+        start=sc.timing.start,
+        reaction_delay=sc.timing.reaction_delay,
+        guard=sc.timing.guard,
+        anchor="schedule",
+        kind=sc.schedule,
+        influence_rounds=sc.influence_rounds,
+    )
+    return plan, plan.begin(relations, influences).listens
+
+
+def clean_rounds(sc: Scenario) -> tuple[Mind, list[dict[Pair, int]]]:
+    """What every unit would send in every influence round on a perfect medium: the policy's
+    influences, and a goal-driven unit's choices made exactly as the unit makes them (each
+    with the influences decoded before its choice sample, in the schedule's order of
+    decodes and choices). Returns the group (a mind that knows every relationship) and the
+    trajectory: the influences of each round."""
+    policy: dict[Pair, int] = {}
+    for s in sc.units:
+        for r, text in intents(sc, s)[1].items():
+            policy[(s, r)] = sc.universe.parse_alternative(text)
+    known = intended_group(sc)
+    k = sc.influence_rounds
+    if not sc.goals:
+        return known, [dict(policy) for _ in range(k)]
+    plan, listens = clean_timeline(sc)
+    tau, delay = sc.timing.tau, sc.timing.reaction_delay
+    goals = {(g.unit, g.target): g for g in sc.goals}
+    # (boundary, rank, turn): a decode is done once its ready sample is heard (rank 0); a
+    # choice once every sample before its choice sample is heard, after the decodes then due
+    events: list[tuple[int, int, int, str]] = []
+    for listen in listens:
+        if listen.kind == "id":
+            continue
+        events.append((listen.ready_sample + 1, 0, listen.turn, listen.kind))
+        t = plan.schedule[listen.turn]
+        if listen.kind == "influence" and (t.sender, t.addressee) in goals:
+            events.append((choice_sample(listen.start, delay, tau), 1, listen.turn, "choice"))
+    events.sort()
+    sent: dict[int, int] = {}
+    minds = {u: mind_of(sc, u) for u in {g.unit for g in sc.goals}}
+    relation_turns = len(sc.units) * (len(sc.units) - 1)
+    relations_heard = 0
+    for _, _, index, kind in events:
+        t = plan.schedule[index]
+        pair = (t.sender, t.addressee)
+        if kind == "relation":
+            relations_heard += 1
+            if relations_heard == relation_turns:  # every goal-driven unit knows the group
+                for m in minds.values():
+                    m.df, m.p4, m.error = known.df, known.p4, known.error
+        elif kind == "choice":
+            got = minds[t.sender].steer(goals[pair], t.round)
+            value = None if isinstance(got, str) else got.value
+            sent[index] = policy[pair] if value is None else value
+        else:
+            value = sent.get(index, policy[pair])
+            for m in minds.values():
+                m.heard.setdefault(t.round, {})[pair] = value
+    trajectory: list[dict[Pair, int]] = [{} for _ in range(k)]
+    for t in plan.schedule:
+        if t.phase == PHASES[1]:
+            trajectory[t.round - 1][(t.sender, t.addressee)] = sent.get(
+                t.index, policy[(t.sender, t.addressee)]
+            )
+    return known, trajectory
+
+
 def noise_free(sc: Scenario) -> dict[str, dict[str, object]]:
     """Every unit's decision (``result_fields``) had it read every code exactly as sent: the
-    forward task on the group and influences the units intended. A group with no polynomial
-    gives no decisions (``decided`` false for all)."""
-    sent: dict[tuple[str, str], bool] = {}
-    influences: dict[tuple[str, str], int] = {}
-    for s in sc.units:
-        relations, infl = intents(sc, s)
-        for r, code in relations.items():
-            sent[(s, r)] = code == "alliance"
-        for r, text in infl.items():
-            influences[(s, r)] = sc.universe.parse_alternative(text)
-    # The forward task is the same for every unit that knows everything: solve it once.
-    known = mind_of(sc, sc.units[0])
-    known.sent, known.influences = sent, influences
-    known.build_group()
-    known.decide()
+    forward task, round after round, on the group the units intended and the influences they
+    would send (``clean_rounds``). A group with no polynomial gives no decisions (``decided``
+    false for all)."""
+    known, trajectory = clean_rounds(sc)
+    # The forward task is the same for every unit that knows everything: solve it once a
+    # distinct round.
+    solved: dict[tuple, dict[str, SubjectResult] | None] = {}
+    per_round = []
+    for infl in trajectory:
+        key = tuple(sorted(infl.items()))
+        if key not in solved:
+            known.influences = infl
+            known.results = None
+            known.decide()
+            solved[key] = known.results
+        per_round.append(solved[key])
     out = {}
     for me in sc.units:
         mind = mind_of(sc, me)
-        mind.df, mind.polynomial, mind.p4, mind.results = (
-            known.df,
-            known.polynomial,
-            known.p4,
-            known.results,
-        )
-        if mind.results is not None:
-            mind.choice = choose(mind.policy, mind.results[me], mind.universe, mind.rng)
+        mind.df, mind.polynomial, mind.p4 = known.df, known.polynomial, known.p4
+        for results in per_round:  # a unit decides every round (a random policy draws each)
+            mind.results = results
+            if results is not None:
+                mind.choice = choose(mind.policy, results[me], mind.universe, mind.rng)
         out[me] = result_fields(mind)
     return out
+
+
+def goal_outcomes(
+    sc: Scenario,
+    units: Mapping[str, Mapping[str, Any]],
+    last_round: Mapping[Pair, int] | None,
+) -> list[dict[str, Any]]:
+    """Each goal of the scenario, judged: ``reached`` (the target decided so; ``None`` when it
+    did not decide), ``reachable`` (some influence of the unit's own meets it given what the
+    others sent the target in the last round: the inverse task with everything known;
+    ``None`` without that round or a group), ``share`` (the share of the others' joint
+    influences for which it could: ``steerable_share``). On the group the units intended."""
+    if not sc.goals:
+        return []
+    u = sc.universe
+    known = intended_group(sc)
+    out: list[dict[str, Any]] = []
+    for g in sc.goals:
+        r = units.get(g.target, {})
+        reached = None
+        if r.get("decided"):
+            a, b = r.get("A"), r.get("B")
+            if isinstance(a, list) and isinstance(b, list):
+                reached = meets(u.from_list(a), u.from_list(b), g.lo, g.hi, g.mode)
+        reachable = share = None
+        if known.df is not None:
+            share = float(steerable_share(known.df, u, g.unit, g.target, g.lo, g.hi, g.mode))
+            if last_round is not None:
+                heard = {s: v for (s, t), v in last_round.items() if t == g.target and s != g.unit}
+                if len(heard) == len(sc.units) - 2:
+                    got = steer(known.df, u, g.unit, g.target, g.lo, g.hi, g.mode, heard)
+                    reachable = got.value is not None
+        out.append(
+            {
+                "unit": g.unit,
+                "target": g.target,
+                "want": [u.to_list(g.lo), u.to_list(g.hi)],
+                "mode": g.mode,
+                "reached": reached,
+                "reachable": reachable,
+                "share": share,
+            }
+        )
+    return out
+
+
+def intended_group(sc: Scenario) -> Mind:
+    """A mind that knows every relationship the units intend (phase 2 done on them)."""
+    sent: dict[Pair, bool] = {}
+    for s in sc.units:
+        for r, code in intents(sc, s)[0].items():
+            sent[(s, r)] = code == "alliance"
+    known = mind_of(sc, sc.units[0])
+    known.sent = sent
+    known.build_group()
+    return known
 
 
 def wrong_decisions(

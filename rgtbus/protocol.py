@@ -48,26 +48,41 @@ SCHEDULES = ("serial", "concurrent")
 MAX_STAGGER = 4096
 
 
+MAX_INFLUENCE_ROUNDS = 1000  # far beyond any fixed point or cycle of a small group
+
+
 @dataclass(frozen=True, slots=True)
 class Turn:
     index: int
     phase: str
     sender: str
     addressee: str
+    round: int = 0  # the influence round (1..K); 0 in the relationship phase
 
 
-def turns(units: Sequence[str]) -> list[Turn]:
-    """The serial schedule: every ordered pair, sender-major, relations then influences."""
+def phases(influence_rounds: int = 1) -> list[tuple[str, int]]:
+    """The phases in order, each with its influence round: relations, then K influence rounds
+    (every unit re-sends its influences in each; the paper has one)."""
+    if not 1 <= influence_rounds <= MAX_INFLUENCE_ROUNDS:
+        raise RgtbusError(
+            f"influence_rounds must be 1..{MAX_INFLUENCE_ROUNDS}, got {influence_rounds!r}"
+        )
+    return [("relations", 0)] + [("influences", r) for r in range(1, influence_rounds + 1)]
+
+
+def turns(units: Sequence[str], influence_rounds: int = 1) -> list[Turn]:
+    """The serial schedule: every ordered pair, sender-major, relations then each influence
+    round."""
     out: list[Turn] = []
-    for phase in PHASES:
+    for phase, rnd in phases(influence_rounds):
         for s in units:
             for r in units:
                 if s != r:
-                    out.append(Turn(len(out), phase, s, r))
+                    out.append(Turn(len(out), phase, s, r, rnd))
     return out
 
 
-def rounds(units: Sequence[str]) -> list[list[Turn]]:
+def rounds(units: Sequence[str], influence_rounds: int = 1) -> list[list[Turn]]:
     """The concurrent schedule: per phase n − 1 rounds; in round j (1..n−1) unit i sends to
     unit (i + j) mod n. Every ordered pair comes once a phase, and in every round each unit
     sends one code and is addressed by one (a cyclic Latin square: no channel carries two
@@ -75,14 +90,21 @@ def rounds(units: Sequence[str]) -> list[list[Turn]]:
     n = len(units)
     out: list[list[Turn]] = []
     index = 0
-    for phase in PHASES:
+    for phase, rnd in phases(influence_rounds):
         for j in range(1, n):
             this = []
             for i, s in enumerate(units):
-                this.append(Turn(index, phase, s, units[(i + j) % n]))
+                this.append(Turn(index, phase, s, units[(i + j) % n], rnd))
                 index += 1
             out.append(this)
     return out
+
+
+def choice_sample(payload_start: float, reaction_delay: float, tau: float) -> int:
+    """The sample from which a payload's code is chosen: one reaction delay before it starts
+    (the moment its sender reacts to its turn's ID). What a unit decoded from samples before
+    it is what it knows when it chooses (docs/goals.md); the same for every engine and bus."""
+    return round((payload_start - reaction_delay) / tau)
 
 
 @functools.lru_cache(maxsize=1024)  # every unit plans the same codes of every turn
@@ -177,6 +199,7 @@ class Plan:
         search: int,
         kind: str = "serial",
         start: float = 0.001,
+        influence_rounds: int = 1,
     ) -> None:
         if kind not in SCHEDULES:
             raise RgtbusError(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
@@ -184,9 +207,16 @@ class Plan:
         self.reaction_delay, self.guard, self.search = reaction_delay, guard, search
         self.kind, self.start = kind, start
         self.omegas = dict(omegas)
-        self.rounds = tuple(tuple(r) for r in rounds(units)) if kind == "concurrent" else ()
+        self.influence_rounds = influence_rounds
+        self.rounds = (
+            tuple(tuple(r) for r in rounds(units, influence_rounds)) if kind == "concurrent" else ()
+        )
         serial = kind != "concurrent"
-        self.schedule = tuple(turns(units)) if serial else tuple(t for r in self.rounds for t in r)
+        self.schedule = (
+            tuple(turns(units, influence_rounds))
+            if serial
+            else tuple(t for r in self.rounds for t in r)
+        )
         self.periods = {u: 2 * math.pi / w for u, w in omegas}
         self.others = {s: tuple(u for u in units if u != s) for s in units}
         self.longest = {
@@ -362,6 +392,7 @@ class ProtocolState:
     search: int = 2  # samples of timing search around a payload's expected start
     anchor: str = "spike"  # what a reaction counts from: the ID spike, or the ID's last pulse
     kind: str = "serial"  # the schedule: one code at a time, or rounds of n at once
+    influence_rounds: int = 1  # influence phases after the relationship phase (the paper: 1)
     schedule: tuple[Turn, ...] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
@@ -385,6 +416,7 @@ class ProtocolState:
             self.search,
             self.kind,
             self.start,
+            self.influence_rounds,
         )
         self.schedule = self.plan.schedule
         self._periods = self.plan.periods

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
-from rgtbus.protocol import ANCHORS, SCHEDULES
+from rgtbus.protocol import ANCHORS, MAX_INFLUENCE_ROUNDS, SCHEDULES
 from rgtbus.rgt import (
     Universe,
     graph_to_polynomial,
@@ -54,8 +54,13 @@ TOP_KEYS = {
     "outcome",
     "expect",
     "protocol",
+    "goals",
 }
-PROTOCOL_KEYS = {"schedule"}
+PROTOCOL_KEYS = {"schedule", "influence_rounds"}
+GOAL_KEYS = {"mode", "outcome"}  # any other key of [goals.UNIT] is a target unit
+GOAL_TARGET_KEYS = {"want", "mode"}
+GOAL_MODES = ("exact", "contains", "choice")
+DYNAMICS = ("fixed point", "cycle", "neither")
 TIMING_KEYS = {
     "sample_rate",
     "window",
@@ -69,7 +74,18 @@ CHANNEL_KEYS = {"noise", "gain"}
 RELATION_KEYS = {"policy", "p", "fixed", "draws"}
 DECISION_KEYS = {"policy", "units"}
 OUTCOME_KEYS = {"name", "all_of", "choose", "then", "else"}
-EXPECT_KEYS = {"polynomial", "agree", "outcome", "choices", "intervals", "frustrated", "relations"}
+EXPECT_KEYS = {
+    "polynomial",
+    "agree",
+    "outcome",
+    "choices",
+    "intervals",
+    "frustrated",
+    "relations",
+    "influences",
+    "goals",
+    "dynamics",
+}
 DECISION_POLICIES = ("max", "min", "seeded-random")
 RELATION_POLICIES = ("fixed", "random", "cograph")
 INFLUENCE_POLICIES = ("fixed", "uniform", "random")
@@ -116,6 +132,20 @@ class Outcome:
 
 
 @dataclass(frozen=True)
+class Goal:
+    """Unit ``unit`` wants subject ``target`` to meet ``[lo, hi]`` in ``mode`` (one of
+    ``rgtbus.rgt.control.MODES``; a scenario's ``choice`` is resolved to the mode that is the
+    target's choice under its decision policy: ``max`` -> ``largest``, ``min`` ->
+    ``smallest``, any other -> ``exact``, the one interval that leaves no choice)."""
+
+    unit: str
+    target: str
+    lo: int
+    hi: int
+    mode: str
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     path: str
@@ -146,6 +176,12 @@ class Scenario:
     influence_policy: str = "fixed"
     influence_value: int | None = None  # policy uniform
     influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
+    influence_rounds: int = 1  # [protocol] influence_rounds: influence phases (the paper: 1)
+    goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
+
+    def goals_of(self, unit: str) -> dict[str, Goal]:
+        """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""
+        return {g.target: g for g in self.goals if g.unit == unit}
 
     def pairs(self) -> list[tuple[str, str]]:
         """Every ordered pair of distinct units, sender-major in unit order."""
@@ -312,21 +348,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         raise ctx.error("", "actions", str(exc)) from None
 
     def alternative(value: Any, section: str, key: str) -> int:
-        if isinstance(value, list):
-            if not all(isinstance(x, str) for x in value):
-                raise ctx.error(section, key, f"bad alternative {value!r}: a list of action names")
-            try:
-                return universe.from_list(value)
-            except RgtbusError as exc:
-                raise ctx.error(section, key, str(exc)) from None
-        if isinstance(value, int) and not isinstance(value, bool) and value in (0, 1):
-            return universe.full if value else 0
-        if not isinstance(value, str):
-            raise ctx.error(section, key, f"bad alternative {value!r}")
-        try:
-            return universe.parse_alternative(value)
-        except RgtbusError as exc:
-            raise ctx.error(section, key, str(exc)) from None
+        return _alternative_of(value, universe, ctx, section, key)
 
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     proto = table("protocol")
@@ -335,6 +357,13 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     if schedule not in SCHEDULES:
         raise ctx.error(
             "protocol", "schedule", f"unknown schedule {schedule!r} ({', '.join(SCHEDULES)})"
+        )
+    influence_rounds = proto.get("influence_rounds", 1)
+    if not _int(influence_rounds) or not 1 <= influence_rounds <= MAX_INFLUENCE_ROUNDS:
+        raise ctx.error(
+            "protocol",
+            "influence_rounds",
+            f"must be an integer 1..{MAX_INFLUENCE_ROUNDS}, got {influence_rounds!r}",
         )
     t = table("timing")
     unknown(t, TIMING_KEYS, "timing")
@@ -664,7 +693,11 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
             otherwise=o["else"],
         )
 
+    goals = _goals(table("goals"), units_t, universe, decisions, outcome, ctx)
     expect = _expect(table("expect"), units_t, universe, outcome, ctx)
+    for who in expect.get("goals", {}):
+        if not any(g.unit == who for g in goals):
+            raise ctx.error("expect.goals", who, f"unit {who!r} has no [goals.{who}] table")
 
     description = data.get("description", "")
     if not isinstance(description, str):
@@ -697,7 +730,113 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         influence_policy=inf_policy,
         influence_value=inf_value,
         influence_weights=inf_weights,
+        influence_rounds=influence_rounds,
+        goals=goals,
     )
+
+
+def _goals(
+    goals: dict[str, Any],
+    units: tuple[str, ...],
+    universe: Universe,
+    decisions: dict[str, str],
+    outcome: Outcome | None,
+    ctx: _Ctx,
+) -> tuple[Goal, ...]:
+    """``[goals.UNIT]``: target = alternative or "[LOW,HIGH]" (or an inline table with
+    ``want`` and ``mode``), ``mode`` for the table's targets (exact, the default; contains;
+    choice), ``outcome`` = the ``then`` of the scenario's [outcome]: every unit of its
+    ``all_of`` is a target that must choose its alternative (mode choice unless given)."""
+    out: list[Goal] = []
+    for name, spec in goals.items():
+        section = f"goals.{name}"
+        if name not in units:
+            raise ctx.error(section, None, f"unknown unit {name!r} (units: {', '.join(units)})")
+        if not isinstance(spec, dict):
+            raise ctx.error("goals", name, 'must be a table [goals.UNIT] with target = "1", ...')
+        mode = spec.get("mode", "exact")
+        if mode not in GOAL_MODES:
+            raise ctx.error(section, "mode", f"unknown mode {mode!r} ({', '.join(GOAL_MODES)})")
+        wanted: dict[str, tuple[int, int, str]] = {}
+        if "outcome" in spec:
+            said = spec["outcome"]
+            if outcome is None:
+                raise ctx.error(section, "outcome", "the scenario has no [outcome] rule")
+            if said not in (outcome.then, f"{outcome.name}: {outcome.then}"):
+                raise ctx.error(
+                    section,
+                    "outcome",
+                    f"{said!r}: a goal names the outcome's then ({outcome.then!r}); "
+                    "its else is not a choice each target can make",
+                )
+            for target in outcome.all_of:
+                if target != name:
+                    v = outcome.choose
+                    wanted[target] = (v, v, spec.get("mode", "choice"))
+        for key, value in spec.items():
+            if key in GOAL_KEYS:
+                continue
+            if key not in units:
+                allowed = ", ".join(sorted(GOAL_KEYS))
+                raise ctx.error(section, key, f"unknown unit {key!r} (a target unit, or {allowed})")
+            if key == name:
+                raise ctx.error(section, key, "a unit does not influence itself")
+            target_mode = mode
+            if isinstance(value, dict):
+                for k in value:
+                    if k not in GOAL_TARGET_KEYS:
+                        raise ctx.error(
+                            section, key, f"unknown key {k!r} (want, mode)"
+                        )  # fmt: skip
+                if "want" not in value:
+                    raise ctx.error(section, key, 'an inline goal needs want = "..."')
+                target_mode = value.get("mode", mode)
+                if target_mode not in GOAL_MODES:
+                    raise ctx.error(
+                        section, key, f"unknown mode {target_mode!r} ({', '.join(GOAL_MODES)})"
+                    )
+                value = value["want"]
+            if isinstance(value, str) and value.strip().startswith("["):
+                try:
+                    lo, hi = universe.parse_interval(value)
+                except RgtbusError as exc:
+                    raise ctx.error(section, key, str(exc)) from None
+                if lo & ~hi:
+                    raise ctx.error(
+                        section, key, f"empty interval {value!r}: its low end is not within "
+                        "its high end"
+                    )  # fmt: skip
+            else:
+                lo = hi = _alternative_of(value, universe, ctx, section, key)
+            wanted[key] = (lo, hi, target_mode)
+        if not wanted:
+            raise ctx.error(section, None, "names no target")
+        for target, (lo, hi, m) in wanted.items():
+            if m == "choice":
+                if lo != hi:
+                    raise ctx.error(
+                        section, target, "mode choice wants one alternative, not an interval"
+                    )
+                policy = decisions[target]
+                m = {"max": "largest", "min": "smallest"}.get(policy, "exact")
+            out.append(Goal(name, target, lo, hi, m))
+    return tuple(out)
+
+
+def _alternative_of(value: Any, universe: Universe, ctx: _Ctx, section: str, key: str) -> int:
+    """An alternative as a scenario writes it: "1", "{alpha}", a list of actions, 0 or 1."""
+    if isinstance(value, list) and not all(isinstance(x, str) for x in value):
+        raise ctx.error(section, key, f"bad alternative {value!r}: a list of action names")
+    try:
+        if isinstance(value, list):
+            return universe.from_list(value)
+        if isinstance(value, int) and not isinstance(value, bool) and value in (0, 1):
+            return universe.full if value else 0
+        if isinstance(value, str):
+            return universe.parse_alternative(value)
+    except RgtbusError as exc:
+        raise ctx.error(section, key, str(exc)) from None
+    raise ctx.error(section, key, f"bad alternative {value!r}")
 
 
 def _expect(
@@ -797,10 +936,30 @@ def _expect(
                         name,
                         f"empty interval {v!r}: its low end is not within its high end",
                     )
-    for name, v in sub_table("frustrated", "unit = true").items():
-        known_unit(name, "expect.frustrated")
-        if not isinstance(v, bool):
-            raise ctx.error("expect.frustrated", name, f"must be true or false, got {v!r}")
+    for key in ("frustrated", "goals"):
+        for name, v in sub_table(key, "unit = true").items():
+            known_unit(name, f"expect.{key}")
+            if not isinstance(v, bool):
+                raise ctx.error(f"expect.{key}", name, f"must be true or false, got {v!r}")
+    sent: dict[str, list[str]] = {}
+    for key, v in sub_table("influences", '"a>b" = "1"').items():
+        parts = [x.strip() for x in key.split(">")]
+        if len(parts) != 2:
+            raise ctx.error("expect.influences", key, 'write the pair as SENDER>ADDRESSEE, "a>b"')
+        for x in parts:
+            known_unit(x, "expect.influences", key)
+        if parts[0] == parts[1]:
+            raise ctx.error("expect.influences", key, "a unit does not address itself")
+        value = _alternative_of(v, universe, ctx, "expect.influences", key)
+        sent[f"{parts[0]}>{parts[1]}"] = universe.to_list(value)
+    if "influences" in expect:
+        out["influences"] = sent
+    if "dynamics" in expect and expect["dynamics"] not in DYNAMICS:
+        raise ctx.error(
+            "expect",
+            "dynamics",
+            f"{expect['dynamics']!r} is not one of {', '.join(repr(d) for d in DYNAMICS)}",
+        )
     return out
 
 

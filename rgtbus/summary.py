@@ -14,6 +14,12 @@ Fields beyond the tables and decisions:
 * ``wrong_decisions``: the units that decided otherwise than they would have on a perfect
   medium (the forward task on the relations and influences the units intended:
   ``rgtbus.mind.noise_free``): a misread code that changed a decision.
+* ``goals``: each goal of ``[goals.UNIT]``, judged (``rgtbus.mind.goal_outcomes``): reached
+  by the target's decision, reachable by the unit's own influence given what the others sent,
+  and the share of the others' influences for which it would be.
+* ``rounds``: the influence rounds: ``count``; ``influences``, what was sent in each round
+  (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for one round),
+  ``since`` and ``length`` (``rgtbus.mind.round_dynamics``).
 * ``error``: why the run did not finish (the root cause), else ``None``.
 """
 
@@ -22,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Protocol
 
-from rgtbus.mind import noise_free, wrong_decisions
+from rgtbus.mind import goal_outcomes, noise_free, round_dynamics, wrong_decisions
 from rgtbus.scenario import Scenario
 
 SUMMARY_JSON_KEYS = (
@@ -38,6 +44,8 @@ SUMMARY_JSON_KEYS = (
     "units",
     "frustrated",
     "wrong_decisions",
+    "goals",
+    "rounds",
     "outcome",
     "sim_seconds",
     "wall_seconds",
@@ -148,6 +156,15 @@ def summarise(
     if error is None:
         errs = [r["mind_error"] for r in reports if r["mind_error"]]
         error = errs[0] if errs else None
+    rounds = sent_rounds(sc, reports)
+    u = sc.universe
+    last = rounds[-1] if rounds else {}
+    complete = len(last) == len(sc.units) * (len(sc.units) - 1)
+    last_round = (
+        {tuple(k.split(">", 1)): u.parse_alternative(v) for k, v in last.items()}
+        if complete
+        else None
+    )
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
     return {
@@ -165,6 +182,14 @@ def summarise(
         "units": units_out,
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, noise_free(sc)) if units_out else [],
+        "goals": goal_outcomes(sc, units_out, last_round),  # type: ignore[arg-type]
+        "rounds": {
+            "count": sc.influence_rounds,
+            **round_dynamics(rounds),
+            "influences": [
+                {k: u.to_list(u.parse_alternative(v)) for k, v in r.items()} for r in rounds
+            ],
+        },
         "outcome": outcome,
         "decode_errors": decode_errors,
         "sim_seconds": round(result.sim_seconds, 6),
@@ -174,6 +199,19 @@ def summarise(
         "bus": result.bus_stats,
         "error": error,
     }
+
+
+def sent_rounds(sc: Scenario, reports: Iterable[Mapping[str, Any]]) -> list[dict[str, str]]:
+    """What the units sent in each influence round: ``[{"s>r": code}, ...]`` (pairs in
+    scenario order; a unit without a report is missing from them)."""
+    out: list[dict[str, str]] = [{} for _ in range(sc.influence_rounds)]
+    by_unit = {r["unit"]: r.get("sent_influences", []) for r in reports}
+    for rnd, row in enumerate(out):
+        for s, r in sc.pairs():
+            sent = by_unit.get(s)
+            if sent and rnd < len(sent) and r in sent[rnd]:
+                row[f"{s}>{r}"] = sent[rnd][r]
+    return out
 
 
 _NO_REPORT: dict[str, Any] = {

@@ -51,12 +51,21 @@ RESULT_KEYS = (
     "outcome",
     "sim_seconds",
     "decode_errors",
+    "goals",
+    "rounds",
     "error",
 )
 
 
 @pytest.mark.parametrize(
-    ("name", "router"), [("example2", False), ("gate", False), ("example2", True)]
+    ("name", "router"),
+    [
+        ("example2", False),
+        ("gate", False),
+        ("example2", True),
+        # goal-driven choices over three influence rounds (issue 14)
+        ("tug_of_war", False),
+    ],
 )
 def test_launch_equals_the_single_process_run(tmp_path, name, router):
     argv = [

@@ -145,5 +145,12 @@ def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str,
         check(f"choice of {name}", s["units"][name]["choice"], u.to_list(u.parse_alternative(text)))
     for name, flag in exp.get("frustrated", {}).items():
         check(f"frustration of {name}", s["units"][name]["frustrated"], flag)
+    for pair, alt in exp.get("influences", {}).items():
+        check(f"influence {pair}", s["influences"].get(pair), alt)
+    for name, flag in exp.get("goals", {}).items():
+        mine = [g["reached"] for g in s.get("goals") or [] if g["unit"] == name]
+        check(f"goals of {name} reached", bool(mine) and all(x is True for x in mine), flag)
+    if "dynamics" in exp:
+        check("influence dynamics", (s.get("rounds") or {}).get("state"), exp["dynamics"])
     check("no decode errors", len(s["decode_errors"]), 0)
     return out

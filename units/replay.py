@@ -125,11 +125,13 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     table gives its installed relations and polynomial (RGT phase 2), and its relations and
     influence tables give its decisions (phase 4), by a fresh copy of the unit's own mind."""
     sc = replay.require_scenario()
-    u = sc.universe
     out: list[Mismatch] = []
-    logged_decisions: defaultdict[str, dict[str, dict]] = defaultdict(dict)
+    logged_decisions: defaultdict[tuple[str, int], dict[str, dict]] = defaultdict(dict)
     for d in replay.decisions:
-        logged_decisions[d["unit"]][d["subject"]] = d
+        logged_decisions[(d["unit"], d.get("round", 1))][d["subject"]] = d
+    tables: defaultdict[str, list[dict]] = defaultdict(list)  # a unit's tables, round by round
+    for _, m in replay.by_topic["/unit/influences"]:
+        tables[str(m.get("unit"))].append(m)
     for name in sc.units:
         rel = replay.relations.get(name)
         if rel is None:
@@ -157,54 +159,65 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
                         value,
                     )
                 )
-        infl = replay.influences.get(name)
-        if infl is None or mind.df is None:
+        if mind.df is None:
             continue
-        try:
-            mind.influences = {
-                tuple(k.split(">", 1)): u.from_list(v) for k, v in infl["influences"].items()
-            }
-        except (AttributeError, ValueError, RgtbusError):
+        # every round in order: a seeded-random policy draws once a round
+        for infl in tables.get(name, []):
+            out.extend(_check_round(unit, infl, logged_decisions))
+    return out
+
+
+def _check_round(
+    unit: AutonomousUnit, infl: dict, logged_decisions: Mapping[tuple[str, int], dict[str, dict]]
+) -> list[Mismatch]:
+    """One round's decisions of ``unit`` re-derived from its logged influence table."""
+    name, mind, u = unit.name, unit.mind, unit.scenario.universe
+    rnd = infl.get("round", 1)
+    try:
+        mind.influences = {
+            tuple(k.split(">", 1)): u.from_list(v) for k, v in infl["influences"].items()
+        }
+    except (AttributeError, ValueError, RgtbusError):
+        return [
+            Mismatch(
+                "/unit/influences", infl.get("t"), name, "influences", infl["influences"], None
+            )
+        ]
+    if not mind.influences_complete():
+        return []
+    mind.decide()
+    cap = CaptureRecorder()
+    unit.recorder = cap
+    unit._log_decisions(infl["t"], rnd)
+    out = []
+    for _, _, m in cap.messages:
+        if m.get("subject") is None:  # a "no decision" log line
+            continue
+        logged = logged_decisions.get((name, rnd), {}).get(m["subject"])
+        if logged is None:
             out.append(
                 Mismatch(
-                    "/unit/influences", infl.get("t"), name, "influences", infl["influences"], None
+                    "/unit/decision",
+                    m["t"],
+                    name,
+                    f"subject {m['subject']} (from its tables)",
+                    "(missing)",
+                    m,
                 )
             )
             continue
-        if not mind.influences_complete():
-            continue
-        mind.decide()
-        cap = CaptureRecorder()
-        unit.recorder = cap
-        unit._log_decisions(infl["t"])
-        for _, _, m in cap.messages:
-            if m.get("subject") is None:  # a "no decision" log line
-                continue
-            logged = logged_decisions[name].get(m["subject"])
-            if logged is None:
+        for key, value in m.items():
+            if logged.get(key) != value:
                 out.append(
                     Mismatch(
                         "/unit/decision",
-                        m["t"],
+                        logged["t"],
                         name,
-                        f"subject {m['subject']} (from its tables)",
-                        "(missing)",
-                        m,
+                        f"subject {m['subject']}: {key} (from its tables)",
+                        logged.get(key),
+                        value,
                     )
                 )
-                continue
-            for key, value in m.items():
-                if logged.get(key) != value:
-                    out.append(
-                        Mismatch(
-                            "/unit/decision",
-                            logged["t"],
-                            name,
-                            f"subject {m['subject']}: {key} (from its tables)",
-                            logged.get(key),
-                            value,
-                        )
-                    )
     return out
 
 

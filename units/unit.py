@@ -10,6 +10,7 @@ failed, it listens no more.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import itertools
 from dataclasses import dataclass, field
@@ -21,8 +22,18 @@ from numpy.random import default_rng
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
 from rgtbus.hearing import Ears, Listener
-from rgtbus.mind import intents, mind_of, result_fields
-from rgtbus.protocol import NOTHING, Actions, Listen, ProtocolState, Send, code_samples
+from rgtbus.mind import intents, mind_of, result_fields, steering_reason
+from rgtbus.protocol import (
+    NOTHING,
+    PHASES,
+    Actions,
+    Listen,
+    ProtocolState,
+    Send,
+    choice_sample,
+    code_samples,
+)
+from rgtbus.rgt import SteeringChoice
 from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import Readout, WordSet
 from rgtbus.sim import ns
@@ -47,10 +58,12 @@ class Decoded:
 @dataclass(order=True, slots=True)
 class _Timer:
     boundary: int  # act once every sample before this one has been heard
+    rank: int  # at one boundary: decodes and checks (0) before choices (1)
     seq: int
     at: int = field(compare=False)  # the sample it belongs to (its time)
-    kind: str = field(compare=False)  # "listen" | "deadline" | "limit"
+    kind: str = field(compare=False)  # "listen" | "deadline" | "limit" | "choose"
     listen: Listen | None = field(compare=False, default=None)
+    send: Send | None = field(compare=False, default=None)
 
 
 @dataclass
@@ -93,8 +106,14 @@ class AutonomousUnit:
             guard=sc.timing.guard,
             anchor=sc.timing.anchor,
             kind=sc.schedule,
+            influence_rounds=sc.influence_rounds,
         )
         self.mind = mind_of(sc, self.name)
+        self.goals = sc.goals_of(self.name)
+        # goal-driven influence sends: timed by the protocol, their code chosen at their
+        # choice sample (``choice_sample``); nothing goes out before (the promise says so)
+        self._pending: dict[int, Send] = {}
+        self._pending_first = NEVER
         self.relation_choice, self.influence_choice = intents(sc, self.name)
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
@@ -141,7 +160,9 @@ class AutonomousUnit:
     def promise(self, horizon: int) -> int:
         """Nothing unplanned from this unit before this sample, given no spike it reacts to
         before ``horizon``."""
-        return NEVER if self.done else self.protocol.send_bound(horizon)
+        if self.done:
+            return NEVER
+        return min(self.protocol.send_bound(horizon), self._pending_first)
 
     def awaited(self) -> tuple[int, int, int] | None:
         """The spike this unit's next plans wait for: (channel index, earliest sample, latest
@@ -203,6 +224,9 @@ class AutonomousUnit:
             err = self.protocol.check_deadline(t.at + 1)
             if err:
                 self._fail(err, t.at)
+        elif t.kind == "choose":
+            assert t.send is not None
+            self._choose(t.send, t.at)
         elif t.kind == "limit":
             self._fail(
                 f"{self.name}: not finished after {self.scenario.timing.max_seconds:g} s of "
@@ -217,9 +241,20 @@ class AutonomousUnit:
         if self.failure is None:
             self.failure = message
             self.recorder.log("error", message, ns(at * self.tau), name=self.name)
+            # what the protocol planned still goes out; an unchosen code is the policy's
+            for _, send in sorted(self._pending.items()):
+                self._choose(send, at, why="it failed before its choice")
 
-    def _add(self, boundary: int, at: int, kind: str, listen: Listen | None = None) -> _Timer:
-        timer = _Timer(boundary, next(self._seq), at, kind, listen)
+    def _add(
+        self,
+        boundary: int,
+        at: int,
+        kind: str,
+        listen: Listen | None = None,
+        *,
+        send: Send | None = None,
+    ) -> _Timer:
+        timer = _Timer(boundary, int(kind == "choose"), next(self._seq), at, kind, listen, send)
         heapq.heappush(self._timers, timer)
         return timer
 
@@ -251,7 +286,62 @@ class AutonomousUnit:
 
     def _transmit(self, send: Send) -> None:
         """Plan a transmission: its pulses go out to the bus now (ahead of time), and a SimPy
-        process puts each on the medium's log at its sample."""
+        process puts each on the medium's log at its sample. An influence on a goal's target
+        waits for its choice sample (``_choose``)."""
+        turn = self.protocol.schedule[send.turn]
+        if send.kind == "payload" and turn.phase == PHASES[1] and send.addressee in self.goals:
+            b = choice_sample(send.start, self.scenario.timing.reaction_delay, self.tau)
+            timer = self._add(b, b - 1, "choose", send=send)
+            self._pending[timer.seq] = send
+            self._pending_first = min(self._pending_first, send.samples[0])
+            return
+        self._emit(send)
+
+    def _choose(self, send: Send, at: int, why: str | None = None) -> None:
+        """A goal-driven influence: its code by the inverse task on what this unit decoded
+        before sample ``at + 1`` (or its policy's, with the reason), logged on /unit/goal."""
+        self._pending = {k: v for k, v in self._pending.items() if v is not send}
+        self._pending_first = min((s.samples[0] for s in self._pending.values()), default=NEVER)
+        if self.done and why is None:  # failed: already sent with its policy's code
+            return
+        rnd = self.protocol.schedule[send.turn].round
+        goal = self.goals[send.addressee]
+        got: SteeringChoice | str = why or self.mind.steer(goal, rnd)
+        u = self.scenario.universe
+        value = None if isinstance(got, str) else got.value
+        code = send.code if value is None else u.format(value)
+        reason = steering_reason(got, goal, u)
+        t = at * self.tau
+        if self.recorder.enabled:
+            heard, predicted = self.mind.steering_inputs(goal.target, rnd)
+            steered = None if isinstance(got, str) else got
+            self.recorder.write(
+                "/unit/goal",
+                {
+                    "unit": self.name,
+                    "t": t,
+                    "round": rnd,
+                    "turn": send.turn,
+                    "target": goal.target,
+                    "want": [u.to_list(goal.lo), u.to_list(goal.hi)],
+                    "mode": goal.mode,
+                    "heard": {k: u.to_list(v) for k, v in sorted(heard.items())},
+                    "predicted": {k: u.to_list(v) for k, v in sorted(predicted.items())},
+                    "rule": steered.rule if steered else "none",
+                    "solutions": steered.solutions if steered else None,
+                    "reached": steered.reached if steered else None,
+                    "of": steered.of if steered else None,
+                    "value": None if value is None else u.to_list(value),
+                    "sent": u.to_list(u.parse_alternative(code)),
+                    "reason": reason,
+                },
+                ns(t),
+            )
+            level = "info" if value is not None else "warning"
+            self.recorder.log(level, f"{self.name}: goal {reason}", ns(t), name=self.name)
+        self._emit(dataclasses.replace(send, code=code))
+
+    def _emit(self, send: Send) -> None:
         magnitudes = [float(m) for m in self.word(send)]
         self._outbox.extend(zip(send.samples, magnitudes, strict=True))
         self.sent.append(send)
@@ -412,12 +502,12 @@ class AutonomousUnit:
             value = self._alternatives.get(code)
             if value is None:
                 value = self._alternatives[code] = universe.parse_alternative(code)
-            mind.influences[key] = value
-            if mind.influences_complete():
+            rnd = self.protocol.schedule[listen.turn].round
+            for done in mind.hear_influence(rnd, key, value):  # rounds now complete, decided
                 if self.recorder.enabled:
-                    self._log_influences(t)
-                mind.decide()
-                self._log_decisions(t)
+                    self._log_influences(t, done)
+                self._log_decisions(t, done)
+            if mind.all_rounds_decided:
                 self.finished = True
 
     def _log_relations(self, t: float) -> None:
@@ -438,7 +528,7 @@ class AutonomousUnit:
             ns(t),
         )
 
-    def _log_influences(self, t: float) -> None:
+    def _log_influences(self, t: float, rnd: int = 1) -> None:
         mind = self.mind
         universe = self.scenario.universe
         self.recorder.write(
@@ -449,11 +539,12 @@ class AutonomousUnit:
                 "influences": {
                     f"{s}>{r}": universe.to_list(v) for (s, r), v in sorted(mind.influences.items())
                 },
+                "round": rnd,
             },
             ns(t),
         )
 
-    def _log_decisions(self, t: float) -> None:
+    def _log_decisions(self, t: float, rnd: int = 1) -> None:
         mind = self.mind
         u = self.scenario.universe
         if mind.results is None:
@@ -477,11 +568,21 @@ class AutonomousUnit:
                     "frustrated": r.frustrated,
                     "choice": None if choice is None else u.to_list(choice),
                     "canonical": mind.canonical(s),
+                    "round": rnd,
                 },
                 ns(t),
             )
 
     # -- what this unit knows, as plain data (one process's share of a run summary) ----------
+
+    def sent_influences(self) -> list[dict[str, str]]:
+        """The influences this unit sent, per influence round: ``[{addressee: code}, ...]``."""
+        out: list[dict[str, str]] = [{} for _ in range(self.scenario.influence_rounds)]
+        for send in self.sent:
+            turn = self.protocol.schedule[send.turn]
+            if send.kind == "payload" and turn.phase == PHASES[1]:
+                out[turn.round - 1][send.addressee] = send.code
+        return out
 
     def report(self) -> dict:
         u = self.scenario.universe
@@ -499,6 +600,7 @@ class AutonomousUnit:
             },
             "result": result_fields(mind),
             "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
+            "sent_influences": self.sent_influences(),
             "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
             "failure": self.failure,
             "failed_at": self.done_at if self.failure else None,

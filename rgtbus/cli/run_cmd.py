@@ -289,6 +289,16 @@ def decision_text(universe: Universe, name: str, v: dict[str, Any]) -> str:
     return f"{interval:<18} choice {universe.format(universe.from_list(v['choice']))}"
 
 
+def goal_line(universe: Universe, g: dict[str, Any]) -> str:
+    """One judged goal (``summary["goals"]``) as ``run`` prints it."""
+    lo, hi = (universe.format(universe.from_list(x)) for x in g["want"])
+    want = lo if lo == hi else f"[{lo}, {hi}]"
+    verdict = {True: "reached", False: "NOT reached", None: "no decision"}[g["reached"]]
+    could = {True: "reachable", False: "unreachable", None: "?"}[g["reachable"]]
+    share = "" if g["share"] is None else f", steerable for {g['share']:.0%} of influences"
+    return f"{g['unit']} wants {g['target']} {g['mode']} {want}: {verdict} ({could}{share})"
+
+
 def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
     u = scenario.universe
     units = scenario.units
@@ -337,6 +347,14 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
             print(f"  {name}: {verdict}")
             continue
         print(f"  {v['canonical']:<{cw}}   {verdict}")
+    rounds = s.get("rounds") or {}
+    if rounds.get("count", 1) > 1:
+        state = rounds.get("state")
+        since = f" from round {rounds['since']}" if rounds.get("since") else ""
+        length = f" of length {rounds['length']}" if state == "cycle" else ""
+        print(f"influence rounds: {rounds['count']}; influences: {state}{length}{since}")
+    for g in s.get("goals") or []:
+        print(f"goal: {goal_line(u, g)}")
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
     errors = s["decode_errors"]

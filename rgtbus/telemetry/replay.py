@@ -745,8 +745,9 @@ _KEYS: dict[str, Callable[[int, dict], tuple]] = {
     "/rx/spike": lambda t, m: (m.get("unit"), m.get("sample")),
     "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
     "/unit/relations": lambda t, m: (m.get("unit"),),
-    "/unit/influences": lambda t, m: (m.get("unit"),),
-    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject")),
+    "/unit/influences": lambda t, m: (m.get("unit"), m.get("round", 1)),
+    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
+    "/unit/goal": lambda t, m: (m.get("unit"), m.get("turn")),
     "/log": lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
 }
 
@@ -760,7 +761,9 @@ def _key_text(topic: str, key: tuple) -> str:
     if topic == "/rx/decode":
         return f"{key[1]} from {key[2]}"
     if topic == "/unit/decision":
-        return f"subject {key[1]}"
+        return f"subject {key[1]}" if key[2] == 1 else f"subject {key[1]}, round {key[2]}"
+    if topic == "/unit/goal":
+        return f"goal choice of turn {key[1]}"
     if topic == "/log":
         return f"line {key[3]!r}"
     if _is_trace(topic):

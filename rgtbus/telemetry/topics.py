@@ -23,8 +23,18 @@ TOPICS: dict[str, tuple[str, str]] = {
     "/rx/spike": ("rgtbus.Spike", "every resonator spike, per receiving unit and sample"),
     "/rx/decode": ("rgtbus.Decode", "every decoded code, per receiving unit"),
     "/unit/relations": ("rgtbus.Relations", "relationship table as a unit holds it"),
-    "/unit/influences": ("rgtbus.Influences", "influence table as a unit holds it"),
-    "/unit/decision": ("rgtbus.Decision", "forward task and choice, per unit and subject"),
+    "/unit/influences": (
+        "rgtbus.Influences",
+        "influence table as a unit holds it, per influence round",
+    ),
+    "/unit/decision": (
+        "rgtbus.Decision",
+        "forward task and choice, per unit, subject and influence round",
+    ),
+    "/unit/goal": (
+        "rgtbus.Goal",
+        "a goal-driven unit's influence on a target, chosen by the inverse task",
+    ),
     "/log": ("foxglove.Log", "text log lines (Foxglove's Log panel)"),
     "/run": ("rgtbus.RunSummary", "how the run ended, written last"),
 }
