@@ -328,3 +328,39 @@ def test_a_sweep_killed_by_a_signal_resumes_to_the_same_table(tmp_path):
     with ThreadPoolExecutor(1) as ex:
         run_sweep(load_sweep(path), full, executor=ex, workers=1)
     assert table(out) == table(full)
+
+
+def test_a_goal_sweep_has_goal_columns_and_where_selects_runs(tmp_path, capsys):
+    """The steering study's shape (issue 14): goal columns per run, and --where to plot one
+    value of a grid key."""
+    body = f"""
+name = "steer"
+scenario = "{ROOT / "scenarios" / "steering.toml"}"
+seeds = "0..2"
+[grid]
+n = [3]
+"goals.u1.u2" = ["1", "[0,1]"]
+"""
+    path = tmp_path / "steer.toml"
+    path.write_text(body)
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--quiet"]) == 0
+    rows = table(out)
+    assert len(rows) == 6
+    for r in rows:
+        assert r["goal_count"] == 1 and r["failed"] is False
+        assert isinstance(r["goal_reached"], bool) and isinstance(r["goal_reachable"], bool)
+        assert 0 <= r["goal_share_mean"] <= 1
+        assert r["rounds_state"] == "fixed point"  # the steering base has two rounds
+        goals = json.loads(r["goals"])
+        assert goals[0]["reached"] == r["goal_reached"]
+    capsys.readouterr()
+    png = tmp_path / "s.png"
+    args = ["sweep-plot", str(out), "--x", "n", "--y", "goal_reached", "-o", str(png)]
+    assert main([*args, "--where", "goals.u1.u2=1"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    assert main([*args, "--where", "goals.u1.u2=0"]) == 2
+    assert "no run has goals.u1.u2 = 0" in capsys.readouterr().err
+    assert main([*args, "--where", "nope"]) == 2
+    assert "KEY=VALUE" in capsys.readouterr().err

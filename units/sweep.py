@@ -59,6 +59,8 @@ JSON_COLUMNS = (
     "frustrated",
     "wrong_decisions",
     "p4",
+    "goals",
+    "rounds",
 )
 
 
@@ -370,6 +372,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row["wrong_decision_count"] = len(s["wrong_decisions"])
         # per unit that decided; a run that failed before deciding has no rate
         row["wrong_decision_rate"] = len(s["wrong_decisions"]) / decided if decided else None
+        row.update(goal_columns(s))
         rels = list(s["relations"].values())
         row["alliance_share"] = rels.count("alliance") / len(rels) if rels else None
         decodes = sum(len(m.decoded) for m in out.units)
@@ -384,6 +387,34 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row["failed"] = True
     row["log"] = log_path
     return row
+
+
+def goal_columns(s: dict[str, Any]) -> dict[str, Any]:
+    """A run's goals and rounds as plain columns: how many goals; of the judged ones the share
+    reached by the targets' decisions (simulated) and the share reachable by the unit's own
+    influence given what the others sent (the inverse task); the mean steerable share (the
+    inverse task over every joint influence of the others); the rounds' state and cycle
+    length. ``goal_reached`` / ``goal_reachable``: the same for a run with exactly one goal,
+    as yes/no (``sweep-plot`` draws a share with Wilson intervals)."""
+    goals = s.get("goals") or []
+    rounds = s.get("rounds") or {}
+
+    def share(key: str) -> float | None:
+        judged = [g[key] for g in goals if g[key] is not None]
+        return sum(judged) / len(judged) if judged else None
+
+    shares = [g["share"] for g in goals if g["share"] is not None]
+    one = goals[0] if len(goals) == 1 else None
+    return {
+        "goal_count": len(goals),
+        "goal_reached_rate": share("reached"),
+        "goal_reachable_rate": share("reachable"),
+        "goal_share_mean": sum(shares) / len(shares) if shares else None,
+        "goal_reached": None if one is None else one["reached"],
+        "goal_reachable": None if one is None else one["reachable"],
+        "rounds_state": rounds.get("state"),
+        "rounds_cycle_length": rounds.get("length") if rounds.get("state") == "cycle" else None,
+    }
 
 
 def run_batch(sweep: Sweep, tasks: list[Task], log_dir: str | None) -> list[dict[str, Any]]:

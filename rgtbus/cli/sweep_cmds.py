@@ -51,6 +51,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     q.add_argument("--by", metavar="KEY", help="one curve per value of this grid key")
     q.add_argument(
+        "--where",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="only the runs whose KEY is VALUE (e.g. protocol.influence_rounds=1); repeatable",
+    )
+    q.add_argument(
         "--exact",
         choices=("cograph", "alliance"),
         help="draw the exact curve too: cograph (P that G(n, p²) is decomposable; needs n and "
@@ -120,6 +127,7 @@ def run_sweep_plot_cmd(args: argparse.Namespace) -> int:
         output=args.output,
         title=args.title,
         exact=args.exact,
+        where=args.where,
     )
     print(f"wrote {path}")
     return 0

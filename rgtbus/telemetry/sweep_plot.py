@@ -75,6 +75,24 @@ def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], 
     return (lambda r: None if r.get(col) is None else float(r[col])), False, col
 
 
+def select_rows(rows: list[dict[str, Any]], where: Sequence[str]) -> list[dict[str, Any]]:
+    """The rows whose column KEY reads VALUE for every ``KEY=VALUE`` (compared as text, so
+    ``n=5`` and ``x=0.5`` match the numbers)."""
+    for cond in where:
+        key, eq, want = cond.partition("=")
+        if not eq:
+            raise RgtbusError(f"--where {cond!r}: write KEY=VALUE")
+        _key(rows, key, "--where")
+        rows = [r for r in rows if r.get(key) is not None and _text(r[key]) == want]
+        if not rows:
+            raise RgtbusError(f"--where {cond!r}: no run has {key} = {want}")
+    return rows
+
+
+def _text(v: Any) -> str:
+    return json.dumps(v) if isinstance(v, bool) else str(v)
+
+
 def _key(rows: list[dict[str, Any]], key: str, flag: str) -> None:
     if rows and key not in rows[0]:
         raise RgtbusError(f"{flag} {key!r}: not a column of the results")
@@ -101,9 +119,11 @@ def plot_sweep(
     output: str | None = None,
     title: str | None = None,
     exact: str | None = None,
+    where: Sequence[str] = (),
 ) -> Path:
     """Draw each metric of ``y`` against ``x`` in its own panel, side by side (one curve per
-    ``by`` value); return the PNG's path."""
+    ``by`` value), of the runs that match every ``where`` (``KEY=VALUE``); return the PNG's
+    path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -118,6 +138,7 @@ def plot_sweep(
     _key(rows, x, "--x")
     if by:
         _key(rows, by, "--by")
+    rows = select_rows(rows, where)
     metrics = [_metric(rows, m) for m in ys]  # every --y checked before anything is drawn
     fig, axes = plt.subplots(
         1, len(ys), figsize=(7.5 if len(ys) == 1 else 5.6 * len(ys), 4.8), layout="constrained"
