@@ -344,9 +344,9 @@ def round_dynamics(trajectory: Sequence[Mapping[Any, Any]]) -> dict[str, Any]:
     tells nothing: ``None``."""
     if len(trajectory) < 2:
         return {"state": None, "since": None, "length": None}
-    seen: dict[tuple, int] = {}
+    seen: dict[str, int] = {}
     for r, infl in enumerate(trajectory, 1):
-        key = tuple(sorted(infl.items()))
+        key = repr(sorted(infl.items()))  # values may be lists (alternatives as action names)
         if key in seen:
             first = seen[key]
             length = r - first

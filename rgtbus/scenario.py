@@ -26,6 +26,7 @@ from rgtbus.rgt import (
     parse_polynomial,
     polynomial_to_graph,
 )
+from rgtbus.rgt.diagonal import EXACT_VARS
 from rgtbus.rgt.expr import format_expr, needs_star
 from rgtbus.signal.codebook import (
     Codebook,
@@ -748,6 +749,14 @@ def _goals(
     choice), ``outcome`` = the ``then`` of the scenario's [outcome]: every unit of its
     ``all_of`` is a target that must choose its alternative (mode choice unless given)."""
     out: list[Goal] = []
+    if goals and len(units) > EXACT_VARS:
+        first = next(iter(goals))
+        raise ctx.error(
+            f"goals.{first}",
+            None,
+            f"goals need the inverse task, solved on F's truth table: groups of at most "
+            f"{EXACT_VARS} units (this one has {len(units)})",
+        )
     for name, spec in goals.items():
         section = f"goals.{name}"
         if name not in units:

@@ -18,7 +18,8 @@ Fields beyond the tables and decisions:
   by the target's decision, reachable by the unit's own influence given what the others sent,
   and the share of the others' influences for which it would be.
 * ``rounds``: the influence rounds: ``count``; ``influences``, what was sent in each round
-  (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for one round),
+  (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for fewer than two
+  whole rounds: a run that stopped early is judged on the rounds every pair was sent in),
   ``since`` and ``length`` (``rgtbus.mind.round_dynamics``).
 * ``error``: why the run did not finish (the root cause), else ``None``.
 """
@@ -158,11 +159,15 @@ def summarise(
         error = errs[0] if errs else None
     rounds = sent_rounds(sc, reports)
     u = sc.universe
-    last = rounds[-1] if rounds else {}
-    complete = len(last) == len(sc.units) * (len(sc.units) - 1)
+    # the rounds every pair was sent in (a run that stopped early sends no more): the dynamics
+    # are what those did, and a goal is judged on the last round only when it is whole
+    pairs = len(sc.units) * (len(sc.units) - 1)
+    whole = 0
+    while whole < len(rounds) and len(rounds[whole]) == pairs:
+        whole += 1
     last_round = (
-        {tuple(k.split(">", 1)): u.parse_alternative(v) for k, v in last.items()}
-        if complete
+        {tuple(k.split(">", 1)): u.parse_alternative(v) for k, v in rounds[-1].items()}
+        if rounds and whole == len(rounds)
         else None
     )
     p4 = ref.get("p4")
@@ -185,7 +190,7 @@ def summarise(
         "goals": goal_outcomes(sc, units_out, last_round),  # type: ignore[arg-type]
         "rounds": {
             "count": sc.influence_rounds,
-            **round_dynamics(rounds),
+            **round_dynamics(rounds[:whole]),
             "influences": [
                 {k: u.to_list(u.parse_alternative(v)) for k, v in r.items()} for r in rounds
             ],

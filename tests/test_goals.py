@@ -122,6 +122,24 @@ def test_bad_goals_are_one_line_errors_naming_file_line_and_key(extra, where, sa
     assert says in msg
 
 
+def test_goals_in_a_group_beyond_the_inverse_tasks_reach_are_refused_at_load():
+    units = [f"u{i}" for i in range(17)]
+    text = f"""
+name = "big"
+units = {json.dumps(units)}
+actions = ["go"]
+[relations]
+policy = "cograph"
+[influences]
+policy = "uniform"
+value = "1"
+[goals.u1]
+u2 = "1"
+"""
+    with pytest.raises(RgtbusError, match=r"big.toml:\d+: goals.u1: .*at most 16 units"):
+        parse_scenario(text, "big.toml")
+
+
 def test_a_bad_goal_on_the_cli_exits_2(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(BASE + '[goals.a]\nb = "{gamma}"\n')
@@ -302,3 +320,24 @@ def test_the_clean_trajectory_is_what_the_units_send():
             {f"{a}>{b}": u.to_list(v) for (a, b), v in r.items()} for r in trajectory
         ]
         assert s["wrong_decisions"] == []
+
+
+def test_a_run_that_stops_mid_rounds_is_judged_on_its_whole_rounds():
+    sc = load_scenario(SCENARIOS / "tug_of_war.toml")
+    s, _ = _run(parse_scenario(sc.text.replace("guard = 0.5", "guard = 0.5\nmax_seconds = 250")))
+    assert s["error"] and "max_seconds" in s["error"]
+    sent = s["rounds"]["influences"]
+    whole = [r for r in sent if len(r) == 12]
+    assert len(whole) < 3 and len(sent[-1]) < 12  # the last round was cut
+    want = round_dynamics(whole)
+    assert (s["rounds"]["state"], s["rounds"]["since"]) == (want["state"], want["since"])
+    assert all(g["reachable"] is None for g in s["goals"])  # no whole last round to judge on
+
+
+def test_the_rounds_trajectory_is_reproducible_from_the_seed():
+    sc = load_scenario(SCENARIOS / "steering.toml")
+    runs = [_run(sc.with_seed(seed)) for seed in (4, 4, 5)]
+    (a, ma), (b, mb), (c, _) = runs
+    assert a["rounds"] == b["rounds"] and a["goals"] == b["goals"]
+    assert _topic(ma, "/unit/goal") == _topic(mb, "/unit/goal")
+    assert a["rounds"]["influences"] != c["rounds"]["influences"]  # the seed draws them
