@@ -302,18 +302,19 @@ def mind_of(sc: Scenario, me: str) -> Mind:
     )
 
 
-def goal_text(goal: Goal, universe: Universe) -> str:
-    """A goal in words: ``a: exactly 1``, ``a: [0, 1] within``, ``a: largest {alpha}``."""
-    lo, hi = universe.format(goal.lo), universe.format(goal.hi)
-    want = lo if goal.lo == goal.hi else f"[{lo}, {hi}]"
-    how = {"exact": "exactly", "contains": "within", "largest": "largest", "smallest": "smallest"}
-    return f"{goal.target}: {how.get(goal.mode, goal.mode)} {want}"
+def goal_text(target: str, lo: int, hi: int, mode: str, universe: Universe) -> str:
+    """A goal in words, as logs and ``run`` say it: ``a: exactly 1``, ``a: within [0, 1]``,
+    ``a: largest {alpha}``."""
+    low, high = universe.format(lo), universe.format(hi)
+    want = low if lo == hi else f"[{low}, {high}]"
+    how = {"exact": "exactly", "contains": "within"}.get(mode, mode)
+    return f"{target}: {how} {want}"
 
 
 def steering_reason(choice: SteeringChoice | str, goal: Goal, universe: Universe) -> str:
     """Why a goal-driven unit sends what it sends (its log line and the goal record's
     ``reason``)."""
-    what = goal_text(goal, universe)
+    what = goal_text(goal.target, goal.lo, goal.hi, goal.mode, universe)
     if isinstance(choice, str):
         return f"{what}: no inverse task ({choice}); keeps its policy's influence"
     if choice.value is None:
@@ -403,11 +404,8 @@ def clean_rounds(sc: Scenario) -> tuple[Mind, list[dict[Pair, int]]]:
     with the influences decoded before its choice sample, in the schedule's order of
     decodes and choices). Returns the group (a mind that knows every relationship) and the
     trajectory: the influences of each round."""
-    policy: dict[Pair, int] = {}
-    for s in sc.units:
-        for r, text in intents(sc, s)[1].items():
-            policy[(s, r)] = sc.universe.parse_alternative(text)
-    known = intended_group(sc)
+    relations, policy = intended(sc)
+    known = group_of(sc, relations)
     k = sc.influence_rounds
     if not sc.goals:
         return known, [dict(policy) for _ in range(k)]
@@ -528,16 +526,30 @@ def goal_outcomes(
     return out
 
 
-def intended_group(sc: Scenario) -> Mind:
-    """A mind that knows every relationship the units intend (phase 2 done on them)."""
-    sent: dict[Pair, bool] = {}
+def intended(sc: Scenario) -> tuple[dict[Pair, bool], dict[Pair, int]]:
+    """Every relationship (alliance?) and policy influence the units intend, by pair."""
+    relations: dict[Pair, bool] = {}
+    influences: dict[Pair, int] = {}
     for s in sc.units:
-        for r, code in intents(sc, s)[0].items():
-            sent[(s, r)] = code == "alliance"
+        rel, infl = intents(sc, s)
+        for r, code in rel.items():
+            relations[(s, r)] = code == "alliance"
+        for r, text in infl.items():
+            influences[(s, r)] = sc.universe.parse_alternative(text)
+    return relations, influences
+
+
+def group_of(sc: Scenario, relations: Mapping[Pair, bool]) -> Mind:
+    """A mind that knows every relationship in ``relations`` (phase 2 done on them)."""
     known = mind_of(sc, sc.units[0])
-    known.sent = sent
+    known.sent = dict(relations)
     known.build_group()
     return known
+
+
+def intended_group(sc: Scenario) -> Mind:
+    """A mind that knows every relationship the units intend."""
+    return group_of(sc, intended(sc)[0])
 
 
 def wrong_decisions(

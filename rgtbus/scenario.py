@@ -12,7 +12,7 @@ import math
 import re
 import stat
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -794,9 +794,7 @@ def _goals(
             if isinstance(value, dict):
                 for k in value:
                     if k not in GOAL_TARGET_KEYS:
-                        raise ctx.error(
-                            section, key, f"unknown key {k!r} (want, mode)"
-                        )  # fmt: skip
+                        raise ctx.error(section, key, f"unknown key {k!r} (want, mode)")
                 if "want" not in value:
                     raise ctx.error(section, key, 'an inline goal needs want = "..."')
                 target_mode = value.get("mode", mode)
@@ -806,15 +804,7 @@ def _goals(
                     )
                 value = value["want"]
             if isinstance(value, str) and value.strip().startswith("["):
-                try:
-                    lo, hi = universe.parse_interval(value)
-                except RgtbusError as exc:
-                    raise ctx.error(section, key, str(exc)) from None
-                if lo & ~hi:
-                    raise ctx.error(
-                        section, key, f"empty interval {value!r}: its low end is not within "
-                        "its high end"
-                    )  # fmt: skip
+                lo, hi = _interval_of(value, universe, ctx, section, key)
             else:
                 lo = hi = _alternative_of(value, universe, ctx, section, key)
             wanted[key] = (lo, hi, target_mode)
@@ -830,6 +820,21 @@ def _goals(
                 m = {"max": "largest", "min": "smallest"}.get(policy, "exact")
             out.append(Goal(name, target, lo, hi, m))
     return tuple(out)
+
+
+def _interval_of(
+    text: str, universe: Universe, ctx: _Ctx, section: str, key: str
+) -> tuple[int, int]:
+    """An interval as a scenario writes it, "[LOW,HIGH]", non-empty (LOW within HIGH)."""
+    try:
+        lo, hi = universe.parse_interval(text)
+    except RgtbusError as exc:
+        raise ctx.error(section, key, str(exc)) from None
+    if lo & ~hi:
+        raise ctx.error(
+            section, key, f"empty interval {text!r}: its low end is not within its high end"
+        )
+    return lo, hi
 
 
 def _alternative_of(value: Any, universe: Universe, ctx: _Ctx, section: str, key: str) -> int:
@@ -924,27 +929,15 @@ def _expect(
         pairs[name] = v
     if "relations" in expect:
         out["relations"] = pairs
-    parsers: tuple[tuple[str, str, Callable[[str], Any]], ...] = (
-        ("intervals", '"[LOW,HIGH]"', universe.parse_interval),
-        ("choices", "an alternative", universe.parse_alternative),
-    )
-    for key, what, parse in parsers:
+    for key, what in (("intervals", '"[LOW,HIGH]"'), ("choices", "an alternative")):
         for name, v in sub_table(key, "unit = value").items():
             known_unit(name, f"expect.{key}")
             if not isinstance(v, str):
                 raise ctx.error(f"expect.{key}", name, f"must be a string ({what}), got {v!r}")
-            try:
-                value = parse(v)
-            except RgtbusError as exc:
-                raise ctx.error(f"expect.{key}", name, str(exc)) from None
             if key == "intervals":
-                lo, hi = value
-                if lo & ~hi:
-                    raise ctx.error(
-                        "expect.intervals",
-                        name,
-                        f"empty interval {v!r}: its low end is not within its high end",
-                    )
+                _interval_of(v, universe, ctx, "expect.intervals", name)
+            else:
+                _alternative_of(v, universe, ctx, "expect.choices", name)
     for key in ("frustrated", "goals"):
         for name, v in sub_table(key, "unit = true").items():
             known_unit(name, f"expect.{key}")

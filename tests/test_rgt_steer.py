@@ -33,6 +33,19 @@ def _brute_counts(df, universe, me, target, lo, hi, mode, heard):
     }
 
 
+def _random_goal(rng: random.Random, two_actions: float):
+    """A random group of 2-4 subjects, a steering subject, a target and a goal in any mode."""
+    n = rng.randint(2, 4)
+    universe = AB if rng.random() < two_actions else ONE
+    names = [f"s{i}" for i in range(n)]
+    df = decision_function(random_polynomial(names, rng), names)
+    me, target = rng.sample(names, 2)
+    mode = rng.choice(["exact", "contains", "largest", "smallest"])
+    lo = rng.choice(list(universe))
+    hi = lo if mode in ("largest", "smallest") else lo | rng.choice(list(universe))
+    return universe, names, df, me, target, mode, lo, hi
+
+
 def test_the_gate_robot_d_finds_the_influence_1_itself():
     """Example 3 (abc+d): d wants a to choose 1 while b and c urge 0 on a."""
     df = decision_function(parse_polynomial("abc+d"))
@@ -46,14 +59,7 @@ def test_the_gate_robot_d_finds_the_influence_1_itself():
 @pytest.mark.parametrize("seed", range(60))
 def test_steering_follows_its_rule_against_brute_force(seed):
     rng = random.Random(seed)
-    n = rng.randint(2, 4)
-    universe = AB if rng.random() < 0.6 else ONE
-    names = [f"s{i}" for i in range(n)]
-    df = decision_function(random_polynomial(names, rng), names)
-    me, target = rng.sample(names, 2)
-    mode = rng.choice(["exact", "contains", "largest", "smallest"])
-    lo = rng.choice(list(universe))
-    hi = lo if mode in ("largest", "smallest") else lo | rng.choice(list(universe))
+    universe, names, df, me, target, mode, lo, hi = _random_goal(rng, two_actions=0.6)
     others = [s for s in names if s not in (me, target)]
     heard = {s: rng.choice(list(universe)) for s in others if rng.random() < 0.5}
     predicted = {s: rng.choice(list(universe)) for s in others if s not in heard}
@@ -98,14 +104,7 @@ def test_steering_refuses_nonsense():
 def test_steerable_share_is_the_brute_force_share(seed):
     """How often one subject can steer another alone, over every joint influence of the rest."""
     rng = random.Random(1000 + seed)
-    n = rng.randint(2, 4)
-    universe = AB if rng.random() < 0.5 else ONE
-    names = [f"s{i}" for i in range(n)]
-    df = decision_function(random_polynomial(names, rng), names)
-    me, target = rng.sample(names, 2)
-    mode = rng.choice(["exact", "contains", "largest", "smallest"])
-    lo = rng.choice(list(universe))
-    hi = lo if mode in ("largest", "smallest") else lo | rng.choice(list(universe))
+    universe, names, df, me, target, mode, lo, hi = _random_goal(rng, two_actions=0.5)
     rest = [s for s in names if s not in (me, target)]
     hits = 0
     for combo in itertools.product(list(universe), repeat=len(rest)):

@@ -63,7 +63,6 @@ class _Timer:
     at: int = field(compare=False)  # the sample it belongs to (its time)
     kind: str = field(compare=False)  # "listen" | "deadline" | "limit" | "choose"
     listen: Listen | None = field(compare=False, default=None)
-    send: Send | None = field(compare=False, default=None)
 
 
 @dataclass
@@ -225,8 +224,7 @@ class AutonomousUnit:
             if err:
                 self._fail(err, t.at)
         elif t.kind == "choose":
-            assert t.send is not None
-            self._choose(t.send, t.at)
+            self._choose(t.seq, t.at)
         elif t.kind == "limit":
             self._fail(
                 f"{self.name}: not finished after {self.scenario.timing.max_seconds:g} s of "
@@ -242,8 +240,8 @@ class AutonomousUnit:
             self.failure = message
             self.recorder.log("error", message, ns(at * self.tau), name=self.name)
             # what the protocol planned still goes out; an unchosen code is the policy's
-            for _, send in sorted(self._pending.items()):
-                self._choose(send, at, why="it failed before its choice")
+            for seq in sorted(self._pending):
+                self._choose(seq, at, why="it failed before its choice")
 
     def _add(
         self,
@@ -251,10 +249,8 @@ class AutonomousUnit:
         at: int,
         kind: str,
         listen: Listen | None = None,
-        *,
-        send: Send | None = None,
     ) -> _Timer:
-        timer = _Timer(boundary, int(kind == "choose"), next(self._seq), at, kind, listen, send)
+        timer = _Timer(boundary, int(kind == "choose"), next(self._seq), at, kind, listen)
         heapq.heappush(self._timers, timer)
         return timer
 
@@ -291,19 +287,20 @@ class AutonomousUnit:
         turn = self.protocol.schedule[send.turn]
         if send.kind == "payload" and turn.phase == PHASES[1] and send.addressee in self.goals:
             b = choice_sample(send.start, self.scenario.timing.reaction_delay, self.tau)
-            timer = self._add(b, b - 1, "choose", send=send)
+            timer = self._add(b, b - 1, "choose")  # its seq names the send
             self._pending[timer.seq] = send
             self._pending_first = min(self._pending_first, send.samples[0])
             return
         self._emit(send)
 
-    def _choose(self, send: Send, at: int, why: str | None = None) -> None:
-        """A goal-driven influence: its code by the inverse task on what this unit decoded
-        before sample ``at + 1`` (or its policy's, with the reason), logged on /unit/goal."""
-        self._pending = {k: v for k, v in self._pending.items() if v is not send}
-        self._pending_first = min((s.samples[0] for s in self._pending.values()), default=NEVER)
-        if self.done and why is None:  # failed: already sent with its policy's code
+    def _choose(self, seq: int, at: int, why: str | None = None) -> None:
+        """Pending send ``seq``, a goal-driven influence: its code by the inverse task on what
+        this unit decoded before sample ``at + 1`` (or its policy's, with the reason ``why``),
+        logged on /unit/goal."""
+        send = self._pending.pop(seq, None)
+        if send is None:  # sent already, with its policy's code, when the unit failed
             return
+        self._pending_first = min((s.samples[0] for s in self._pending.values()), default=NEVER)
         rnd = self.protocol.schedule[send.turn].round
         goal = self.goals[send.addressee]
         got: SteeringChoice | str = why or self.mind.steer(goal, rnd)

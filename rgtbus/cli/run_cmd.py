@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
 from rgtbus.errors import RgtbusError
+from rgtbus.mind import goal_text
 from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
 
@@ -291,12 +292,12 @@ def decision_text(universe: Universe, name: str, v: dict[str, Any]) -> str:
 
 def goal_line(universe: Universe, g: dict[str, Any]) -> str:
     """One judged goal (``summary["goals"]``) as ``run`` prints it."""
-    lo, hi = (universe.format(universe.from_list(x)) for x in g["want"])
-    want = lo if lo == hi else f"[{lo}, {hi}]"
+    lo, hi = (universe.from_list(x) for x in g["want"])
     verdict = {True: "reached", False: "NOT reached", None: "no decision"}[g["reached"]]
     could = {True: "reachable", False: "unreachable", None: "?"}[g["reachable"]]
     share = "" if g["share"] is None else f", steerable for {g['share']:.0%} of influences"
-    return f"{g['unit']} wants {g['target']} {g['mode']} {want}: {verdict} ({could}{share})"
+    what = goal_text(g["target"], lo, hi, g["mode"], universe)
+    return f"{g['unit']} wants {what}: {verdict} ({could}{share})"
 
 
 def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
