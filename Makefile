@@ -4,9 +4,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint typecheck bench clean
 
-$(STAMP): pyproject.toml setup.py rgtbus/signal/_walk.pyx
+$(STAMP): pyproject.toml setup.py MANIFEST.in rgtbus/signal/_walk.pyx
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
@@ -17,10 +17,17 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
+	$(MAKE) --no-print-directory typecheck
 	$(PY) -m pytest -q
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
+
+# mypy sees the package as it installs (units/ is rgtbus.units): a tree of links, made anew
+typecheck: $(STAMP)
+	@rm -rf build/typecheck && mkdir -p build/typecheck/rgtbus
+	@ln -s $(CURDIR)/rgtbus/* build/typecheck/rgtbus/ && ln -s $(CURDIR)/units build/typecheck/rgtbus/units
+	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p rgtbus
 
 bench: $(STAMP)
 	$(PY) -m benchmarks

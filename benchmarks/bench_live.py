@@ -110,10 +110,11 @@ def run_once(
     sc: Any, d: Path, *, live: bool, realtime: float | None = None, stamp: bool = False
 ) -> dict[str, Any]:
     """One run of ``sc`` logged to a file in ``d``, with a live view and its client or not."""
+    from rgtbus.units.group import run_group
+
     from rgtbus.cli.run_cmd import live_topics
     from rgtbus.telemetry import McapRecorder
     from rgtbus.telemetry.live import LiveView
-    from units.group import run_group
 
     log = d / "run.mcap"
     view = client = sink = None
@@ -259,10 +260,11 @@ def part_latency(d: Path, repeat: int, until: float) -> None:
 
 
 def make_big_log(path: Path, units: int) -> float:
+    from rgtbus.units.group import run_group
+
     from benchmarks.bench_scale import scale_toml
     from rgtbus.scenario import parse_scenario
     from rgtbus.telemetry import McapRecorder
-    from units.group import run_group
 
     sc = parse_scenario(scale_toml(units, "concurrent"), f"<scale{units}>")
     t0 = time.perf_counter()

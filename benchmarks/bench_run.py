@@ -104,8 +104,9 @@ def label(case: str) -> str:
 
 def one(case: str, engine: str, bus: str, log: bool, repeat: int) -> dict:
     """In a child process: the simulation's wall (median of ``repeat``) and the peak RSS."""
+    from rgtbus.units.group import run_group
+
     from rgtbus.telemetry import McapRecorder, NullRecorder
-    from units.group import run_group
 
     sc = load_case(case)
     walls = []

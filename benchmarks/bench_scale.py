@@ -54,9 +54,10 @@ def scale_toml(n: int, schedule: str, seed: int = 11, noise: float = 0.0) -> str
 
 def one(n: int, schedule: str, log: bool, noise: float) -> dict:
     """In a child process: one run's figures."""
+    from rgtbus.units.group import run_group
+
     from rgtbus.scenario import parse_scenario
     from rgtbus.telemetry import McapRecorder, NullRecorder
-    from units.group import run_group
 
     sc = parse_scenario(scale_toml(n, schedule, noise=noise), f"<scale{n}>")
     buf = io.BytesIO()

@@ -23,7 +23,7 @@ import time
 from concurrent.futures import Executor
 from pathlib import Path
 
-from units.sweep import Sweep, load_sweep, open_executor, run_batch, run_row, run_sweep
+from rgtbus.units.sweep import Sweep, load_sweep, open_executor, run_batch, run_row, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -280,9 +280,10 @@ def gate_runs(tmp_path_factory):
     from pathlib import Path
     from types import SimpleNamespace
 
+    from rgtbus.units.group import run_group
+
     from rgtbus.scenario import load_scenario
     from rgtbus.telemetry import McapRecorder, MemoryRecorder
-    from units.group import run_group
 
     sc = load_scenario(Path(__file__).parent.parent / "scenarios" / "gate.toml")
     out = {}
@@ -302,8 +303,9 @@ def gate_runs(tmp_path_factory):
 def test_a_run_is_identical_over_every_bus(gate_runs):
     """Memory, zenoh, and a re-run of the memory run's log over the log bus: the same
     decisions, tables and unit messages."""
+    from rgtbus.units.replay import rerun_replay
+
     from rgtbus.telemetry.replay import load_replay
-    from units.replay import rerun_replay
 
     mem, zen = gate_runs["memory"], gate_runs["zenoh"]
     replayed = rerun_replay(load_replay(mem.path))

@@ -9,12 +9,12 @@ import math
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
 
 from rgtbus.errors import RgtbusError
 from rgtbus.protocol import PHASES, plan_of, rounds
 from rgtbus.scenario import parse_scenario
 from rgtbus.telemetry import MemoryRecorder
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent
 RESULT_KEYS = ("polynomial", "relations", "agree", "influences", "units", "outcome", "error")

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from rgtbus.units.group import run_group
 
 from rgtbus.bus.payload import Frame, encode
 from rgtbus.bus.zenoh import make_config
@@ -25,7 +26,6 @@ from rgtbus.cli.proc_cmds import free_ports
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]

@@ -12,10 +12,10 @@ import random
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
 
 from rgtbus.scenario import Scenario, load_scenario, parse_scenario
 from rgtbus.telemetry import MemoryRecorder
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent
 # The dense engine walks every window of every unit: a reference for groups of up to 12 (the

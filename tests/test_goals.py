@@ -9,6 +9,7 @@ import re
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import check_expectations, run_group
 
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
@@ -17,7 +18,6 @@ from rgtbus.protocol import rounds, turns
 from rgtbus.rgt import solve_brute_force
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.telemetry import MemoryRecorder
-from units.group import check_expectations, run_group
 
 ROOT = Path(__file__).parent.parent
 SCENARIOS = ROOT / "scenarios"

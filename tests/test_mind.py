@@ -6,11 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
 
 from rgtbus.mind import intents, noise_free, wrong_decisions
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.telemetry import NullRecorder
-from units.group import run_group
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -7,14 +7,14 @@ import signal
 from pathlib import Path
 
 import pytest
+import rgtbus.units.process
+from rgtbus.units.group import run_group
 
-import units.process
 from rgtbus.cli import main
 from rgtbus.cli.proc_cmds import free_ports
 from rgtbus.cli.run_cmd import decision_text
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent
 EXAMPLE2 = ROOT / "scenarios" / "example2.toml"
@@ -80,7 +80,7 @@ def test_unit_prints_the_decision_line_of_run(example2, capsys, monkeypatch, tmp
                 "wall_seconds": 0.1,
                 "error": None,
             }
-            monkeypatch.setattr(units.process, "run_unit", lambda *a, _r=result, **k: _r)
+            monkeypatch.setattr(rgtbus.units.process, "run_unit", lambda *a, _r=result, **k: _r)
             code = main(["unit", name, str(EXAMPLE2), "--log", str(tmp_path / f"{name}.mcap")])
             text = capsys.readouterr().out
             assert code == 0

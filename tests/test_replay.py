@@ -12,6 +12,8 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
+from rgtbus.units.replay import rerun, traces_for, verify_log
 
 from rgtbus.cli import main
 from rgtbus.scenario import load_scenario, parse_scenario
@@ -20,8 +22,6 @@ from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
 from rgtbus.telemetry.replay import EXIT_TRUNCATED, load_replay
-from units.group import run_group
-from units.replay import rerun, traces_for, verify_log
 
 ROOT = Path(__file__).resolve().parent.parent
 RUN_KEYS = (

@@ -7,13 +7,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import check_expectations, run_group
+from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.cli import main
 from rgtbus.mind import choose_relations
 from rgtbus.scenario import Timing, load_scenario, parse_scenario
 from rgtbus.telemetry import McapRecorder, MemoryRecorder, read_log
-from units.group import check_expectations, run_group
-from units.unit import AutonomousUnit
 
 ROOT = Path(__file__).parent.parent
 PAPER = ["overview", "example1", "example2", "gate"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
 
 from rgtbus.mind import choose_influences, cograph_relations
 from rgtbus.rgt import (
@@ -18,7 +19,6 @@ from rgtbus.rgt import (
 from rgtbus.rgt.polynomial import polynomial_text
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import NullRecorder
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent
 

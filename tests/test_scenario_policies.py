@@ -7,6 +7,7 @@ import itertools
 from pathlib import Path
 
 import pytest
+from rgtbus.units.group import run_group
 
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import choose_influences, choose_relations, cograph_relations
@@ -14,7 +15,6 @@ from rgtbus.rgt import graph_to_polynomial, install_relations
 from rgtbus.rgt.polynomial import polynomial_text
 from rgtbus.scenario import parse_scenario
 from rgtbus.telemetry import MemoryRecorder
-from units.group import run_group
 
 GATE = (Path(__file__).parent.parent / "scenarios" / "gate.toml").read_text()
 HEAD = GATE.split("[relations]")[0]  # units, frequencies, timing, channel of the gate

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from rgtbus.units import sweep as sweep_mod
+from rgtbus.units.sweep import load_sweep, run_sweep
 
 from rgtbus.cli import main
-from units import sweep as sweep_mod
-from units.sweep import load_sweep, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -95,7 +95,7 @@ def test_a_sweep_killed_halfway_resumes_with_only_what_is_missing(tmp_path):
 
 
 def test_a_run_that_raises_is_a_row_with_its_error(tmp_path, monkeypatch):
-    import units.group
+    import rgtbus.units.group
 
     calls = []
 
@@ -105,8 +105,8 @@ def test_a_run_that_raises_is_a_row_with_its_error(tmp_path, monkeypatch):
             raise ZeroDivisionError("division by zero")
         return real(sc, *a, **k)
 
-    real = units.group.run_group
-    monkeypatch.setattr(units.group, "run_group", boom)
+    real = rgtbus.units.group.run_group
+    monkeypatch.setattr(rgtbus.units.group, "run_group", boom)
     with ThreadPoolExecutor(1) as ex:
         rows = run_sweep(load_sweep(write_sweep(tmp_path)), tmp_path / "o", executor=ex, workers=1)
     assert len(rows) == 6 and sorted(calls) == [0, 0, 1, 1, 2, 2]
@@ -236,7 +236,7 @@ def test_cases_are_named_sets_of_keys_crossed_with_the_grid(tmp_path):
     ]
     assert not any(r["failed"] for r in rows)
     # the run of a case is the base scenario with the case's keys set, nothing else
-    from units.sweep import scenario_for
+    from rgtbus.units.sweep import scenario_for
 
     sc = scenario_for(sw, (("case", "serial, schedule anchor"), ("n", 3)), 4)
     assert (sc.schedule, sc.timing.anchor, sc.units) == ("serial", "schedule", ("u1", "u2", "u3"))

@@ -501,8 +501,9 @@ def test_spike_rows_read_records_of_one_sample_and_older_logs_of_one_spike_alike
 @pytest.fixture(scope="module")
 def example2_log(tmp_path_factory):
     """example2 run on the memory bus with traces, logged to an MCAP file."""
+    from rgtbus.units.group import run_group
+
     from rgtbus.scenario import load_scenario
-    from units.group import run_group
 
     path = tmp_path_factory.mktemp("plots") / "example2.mcap"
     sc = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / "example2.toml")
@@ -588,9 +589,10 @@ def test_attention_spikes_are_the_spikes_of_accepted_ids(example2_log):
 
 
 def test_activity_figure_draws_attention_and_other_spikes_apart(example2_log):
+    from rgtbus.units.replay import traces_for
+
     from rgtbus.telemetry.plots import FONT, activity_figure, attention_spikes
     from rgtbus.telemetry.replay import load_replay
-    from units.replay import traces_for
 
     rp = load_replay(example2_log)
     fig = activity_figure(rp, "a", traces_for(rp, "a"))

@@ -13,6 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from rgtbus.units.unit import AutonomousUnit
+
 from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.bus.base import Bus
@@ -20,7 +22,6 @@ from rgtbus.scenario import Scenario
 from rgtbus.sim import Receivers, World, ns
 from rgtbus.summary import summarise
 from rgtbus.telemetry import Recorder
-from units.unit import AutonomousUnit
 
 
 @dataclass

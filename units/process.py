@@ -15,6 +15,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from rgtbus.units.group import auth_name, default_run_id, scenario_world, write_metadata
+from rgtbus.units.unit import AutonomousUnit
+
 from rgtbus.bus import open_bus
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.errors import RgtbusError
@@ -22,8 +25,6 @@ from rgtbus.scenario import Scenario
 from rgtbus.sim import ns
 from rgtbus.telemetry import McapRecorder, Recorder
 from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
-from units.group import auth_name, default_run_id, scenario_world, write_metadata
-from units.unit import AutonomousUnit
 
 
 def scenario_digest(sc: Scenario) -> str:

@@ -19,6 +19,9 @@ from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import IO, Any
 
+from rgtbus.units.group import scenario_world
+from rgtbus.units.unit import AutonomousUnit
+
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
@@ -27,8 +30,6 @@ from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
-from units.group import scenario_world
-from units.unit import AutonomousUnit
 
 
 class CaptureRecorder:

@@ -336,8 +336,9 @@ def engine_of(sweep: Sweep, cell: tuple[tuple[str, Any], ...]) -> str:
 
 def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, Any]:
     """One run as one row of the results table; a run that raises is a row with its error."""
+    from rgtbus.units.group import run_group
+
     from rgtbus.telemetry import McapRecorder, NullRecorder
-    from units.group import run_group
 
     row: dict[str, Any] = {"run": task.index}
     for key, value in task.cell:

@@ -187,7 +187,7 @@ def _load(path: str, seed: int | None):
 def run_unit_cmd(args: argparse.Namespace) -> int:
     from rgtbus.cli.run_cmd import close_log, decision_text, default_log_path, open_log
     from rgtbus.summary import not_decomposable_text
-    from units.process import run_unit
+    from rgtbus.units.process import run_unit
 
     sc = _load(args.scenario, args.seed)
     if args.name not in sc.units:
@@ -289,7 +289,7 @@ def _unit_child(
     sent back on ``conn``. It opens its session once the peers it connects to listen
     (``after``), and says when it listens itself (``listening``)."""
     from rgtbus.cli.run_cmd import close_log, open_log
-    from units.process import run_unit
+    from rgtbus.units.process import run_unit
 
     _die_with_parent()
     signal.signal(signal.SIGTERM, _interrupt)
@@ -514,7 +514,7 @@ def run_launch(args: argparse.Namespace) -> int:
     """Fork every unit, collect their results, and always end with a merged ``run.mcap``
     whose ``/run`` record names the first failure; SIGINT and SIGTERM stop the units (their
     logs finished) and still merge."""
-    from units.group import default_run_id
+    from rgtbus.units.group import default_run_id
 
     t0 = time.perf_counter()
     sc = _load(args.scenario, args.seed)
@@ -536,8 +536,8 @@ def run_launch(args: argparse.Namespace) -> int:
     # Loaded once here, before the units are forked (numpy loads numpy.random lazily).
     import numpy.random  # noqa: F401
 
-    import rgtbus.bus.zenoh  # noqa: F401
-    import units.process  # noqa: F401
+    import rgtbus.bus.zenoh
+    import rgtbus.units.process  # noqa: F401
 
     launch = Launch()
     results: dict[str, dict[str, Any]] = {}
@@ -608,7 +608,7 @@ def _finish_launch(
     from rgtbus.summary import summarise, summary_json
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.recorder import scan_log
-    from units.group import auth_name, write_metadata, write_run_summary
+    from rgtbus.units.group import auth_name, write_metadata, write_run_summary
 
     reports = [outputs[u]["report"] for u in sc.units if u in outputs]
     first = next((outputs[u] for u in sc.units if u in outputs), None)

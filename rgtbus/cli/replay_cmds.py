@@ -88,7 +88,7 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
     for line in side:
         print(line, file=sys.stderr)
     if args.verify:
-        from units.replay import verify_log
+        from rgtbus.units.replay import verify_log
 
         report = verify_log(rp)
         if args.json:
@@ -124,7 +124,7 @@ def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) ->
 
 def _plot(rp, args: argparse.Namespace) -> str:
     from rgtbus.telemetry.plots import activity_figure, save_png
-    from units.replay import traces_for
+    from rgtbus.units.replay import traces_for
 
     unit = args.unit or (rp.units[0] if rp.units else None)
     if unit is None or unit not in rp.units:

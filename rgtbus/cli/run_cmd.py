@@ -207,7 +207,7 @@ class Progress:
 def run(args: argparse.Namespace) -> int:
     from rgtbus.scenario import load_scenario
     from rgtbus.summary import summary_json
-    from units.group import check_expectations, run_group
+    from rgtbus.units.group import check_expectations, run_group
 
     scenario = load_scenario(args.scenario)
     if args.seed is not None:

@@ -72,7 +72,7 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from rgtbus.errors import RgtbusError
-    from units.sweep import load_sweep, open_executor, run_sweep
+    from rgtbus.units.sweep import load_sweep, open_executor, run_sweep
 
     if args.workers is not None and args.workers < 1:
         raise RgtbusError(f"--workers must be at least 1, got {args.workers}")

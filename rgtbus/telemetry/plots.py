@@ -111,7 +111,7 @@ def activity_figure(
     t_to: float | None = None,
 ) -> Figure:
     """The figure (not yet saved). ``trace``: ``{"t", "y" (n × channels), "channels",
-    "recomputed"}`` as ``units.replay.traces_for`` returns it."""
+    "recomputed"}`` as ``rgtbus.units.replay.traces_for`` returns it."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -902,7 +902,7 @@ class VerifyReport:
 
 
 def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> VerifyReport:
-    """Compare a log with a re-run of its units (``units.replay.rerun_replay``).
+    """Compare a log with a re-run of its units (``rgtbus.units.replay.rerun_replay``).
 
     Checks: the metadata matches the scenario; the pulses add up to the medium; every spike,
     decode, table, decision, trace and unit log line recomputed equals the logged one (no

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from rgtbus.units.group import run_group
 
 from rgtbus.bus.auth import tag
 from rgtbus.bus.hello import Hello, encode_hello
@@ -29,7 +30,6 @@ from rgtbus.cli.proc_cmds import free_ports
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log, scan_log
-from units.group import run_group
 
 ROOT = Path(__file__).parent.parent.parent
 GATE = str(ROOT / "scenarios" / "gate.toml")
