@@ -19,12 +19,12 @@ import time
 from pathlib import Path
 
 from rgtbus.units.group import run_group
-from rgtbus.units.replay import verify_log
+from rgtbus.units.rerun import verify_log
 
 from benchmarks.bench_run import group_scenario
 from rgtbus.scenario import Scenario, load_scenario
 from rgtbus.telemetry import McapRecorder
-from rgtbus.telemetry.replay import load_replay
+from rgtbus.telemetry.read import load_replay
 
 ROOT = Path(__file__).resolve().parent.parent
 

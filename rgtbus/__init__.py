@@ -1,6 +1,60 @@
-"""rgtbus: socialised autonomous units by Reflexive Game Theory over a shared resonator medium."""
+"""rgtbus: socialised autonomous units by Reflexive Game Theory over a shared resonator medium.
+
+The library (docs/api.md)::
+
+    import rgtbus
+    result = rgtbus.run("gate", seed=1, log="logs/gate.mcap")
+    log = rgtbus.open_log(result.log)
+    log.decisions()          # a pandas DataFrame, one row per unit and round
+
+Names are imported on first use, so ``import rgtbus`` stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.errors import RgtbusError
 
 __version__ = "0.1.0"
-__all__ = ["RgtbusError", "__version__"]
+
+if TYPE_CHECKING:
+    from rgtbus.api import RunResult, load_scenario, open_log, run, sweep
+    from rgtbus.scenario import Scenario
+    from rgtbus.telemetry.frames import Log
+
+_LAZY = {
+    "load_scenario": "rgtbus.api",
+    "run": "rgtbus.api",
+    "open_log": "rgtbus.api",
+    "sweep": "rgtbus.api",
+    "RunResult": "rgtbus.api",
+    "Log": "rgtbus.telemetry.frames",
+    "Scenario": "rgtbus.scenario",
+}
+
+__all__ = [
+    "Log",
+    "RgtbusError",
+    "RunResult",
+    "Scenario",
+    "__version__",
+    "load_scenario",
+    "open_log",
+    "run",
+    "sweep",
+]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'rgtbus' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import simpy
 
-from rgtbus.bus.base import Pulses, sample_rows
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.channel import heard_by
 from rgtbus.signal.decoder import (
     Decision,
     ReadoutHistory,
@@ -43,6 +43,7 @@ from rgtbus.signal.decoder import (
     decode_among_each,
     nearest_each,
 )
+from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import (
     BankModel,
     BankState,
@@ -284,7 +285,7 @@ class Ears:
         order = np.argsort(rows, kind="stable")
         rows, who, val = rows[order], who[order], val[order]
         cut = int(rows.searchsorted(until))
-        at, heard = _heard_by(
+        at, heard = heard_by(
             rows[:cut], who[:cut], val[:cut], lst.gains[None, :], self._unit_gain[i]
         )
         heard = heard[:, 0]
@@ -452,7 +453,7 @@ class Ears:
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""
-        return _heard_by(
+        return heard_by(
             self._rows[part], self._who[part], self._val[part], self._gains, self._unit_gains
         )
 
@@ -490,28 +491,6 @@ class Ears:
         buf = self._trace_buf.get(n, [])
         if buf:
             self._emit_trace(n, buf[-1][0] + buf[-1][1].shape[0])
-
-
-def _heard_by(
-    pulses: np.ndarray, who: np.ndarray, val: np.ndarray, gains: np.ndarray, unit_gains: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """The samples that carry pulses, and what each listener hears there (rows, listeners):
-    each sender's magnitudes added in the order sent, times the listener's link gain for that
-    sender (``gains``: listeners × senders), added in member order."""
-    if not pulses.size:
-        return pulses, np.zeros((0, gains.shape[0]))
-    if unit_gains and (pulses.size == 1 or bool((pulses[1:] > pulses[:-1]).all())):
-        # one pulse a sample: what everyone hears is that magnitude (0 + v + 0 … is v)
-        return pulses, np.repeat(val[:, None], gains.shape[0], axis=1)
-    rows, at = sample_rows(pulses)
-    S = gains.shape[1]
-    x = np.zeros(rows.size * S)
-    np.add.at(x, at * S + who, val)  # in order, per (row, sender)
-    x = x.reshape(rows.size, S)
-    if unit_gains:
-        total = np.cumsum(x, axis=1)[:, -1]  # sequential: the same sum everywhere
-        return rows, np.repeat(total[:, None], gains.shape[0], axis=1)
-    return rows, np.cumsum(x[:, None, :] * gains[None, :, :], axis=2)[:, :, -1]
 
 
 def _fire(ev: simpy.Event) -> None:

@@ -34,6 +34,7 @@ from functools import lru_cache
 from typing import Any
 
 from rgtbus.errors import NotDecomposable, RgtbusError
+from rgtbus.pairs import ordered_pairs, pair_key
 from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
@@ -169,9 +170,13 @@ class Mind:
     rounds: int = 1  # influence rounds to hear and decide
     heard: dict[int, dict[Pair, int]] = field(default_factory=dict)  # round -> influences
     decided_rounds: int = 0  # rounds decided so far (their influences complete)
+    # round -> (every subject's result, this unit's choice) as decided in that round
+    round_results: dict[int, tuple[dict[str, SubjectResult], int | None]] = field(
+        default_factory=dict
+    )
 
     def pairs(self) -> list[tuple[str, str]]:
-        return [(s, r) for s in self.units for r in self.units if s != r]
+        return ordered_pairs(self.units)
 
     def relations_complete(self) -> bool:
         n = len(self.units)
@@ -192,6 +197,18 @@ class Mind:
                     both = self.sent[(a, b)] and self.sent[(b, a)]
                     out[f"{a}-{b}"] = "alliance" if both else "conflict"
         return out
+
+    def sent_table(self) -> dict[str, str]:
+        """The relation codes heard (and sent): ``{"s>r": "alliance" | "conflict"}``."""
+        return {
+            pair_key(s, r): "alliance" if v else "conflict"
+            for (s, r), v in sorted(self.sent.items())
+        }
+
+    def influence_table(self) -> dict[str, list[str]]:
+        """The influences of the last round decided: ``{"s>r": [action, ...]}``."""
+        u = self.universe
+        return {pair_key(s, r): u.to_list(v) for (s, r), v in sorted(self.influences.items())}
 
     def build_group(self) -> None:
         """Phase 2: graph and polynomial from the decoded relationship codes."""
@@ -215,6 +232,13 @@ class Mind:
         self.results = forward(self.df, self.universe, matrix)
         self.choice = choose(self.policy, self.results[self.me], self.universe, self.rng)
 
+    def decide_round(self, rnd: int) -> None:
+        """``decide`` on the current influences as round ``rnd``'s decision (kept in
+        ``round_results``)."""
+        self.decide()
+        if self.results is not None:
+            self.round_results[rnd] = (self.results, self.choice)
+
     def hear_influence(self, rnd: int, pair: Pair, value: int) -> list[int]:
         """An influence decoded in round ``rnd``; decides every round whose influences are now
         complete, in order, and returns those rounds (``influences`` is then the last one's)."""
@@ -227,7 +251,7 @@ class Mind:
                 break
             self.decided_rounds += 1
             self.influences = dict(nxt)
-            self.decide()
+            self.decide_round(self.decided_rounds)
             done.append(self.decided_rounds)
         return done
 
@@ -360,18 +384,35 @@ def round_dynamics(trajectory: Sequence[Mapping[Any, Any]]) -> dict[str, Any]:
     return {"state": "neither", "since": None, "length": None}
 
 
-def result_fields(mind: Mind) -> dict[str, object]:
-    """A unit's decision as its report and the run summary state it (``decided``: it ran the
-    forward task; ``interval``: ``[B, A]``, ``None`` when frustrated)."""
-    u = mind.universe
-    r = mind.results[mind.me] if mind.results else None
+def decision_fields(
+    result: SubjectResult | None, choice: int | None, universe: Universe
+) -> dict[str, Any]:
+    """One subject's decision as every record, report and summary states it (the one place):
+    ``interval`` ``[B, A]`` (``None`` when frustrated or undecided), ``frustrated``, ``choice``,
+    ``A`` and ``B``, alternatives as sorted lists of action names."""
+    u = universe
+    r = result
     return {
         "interval": None if r is None or r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
         "frustrated": bool(r.frustrated) if r else False,
-        "choice": None if mind.choice is None else u.to_list(mind.choice),
-        "canonical": mind.canonical(mind.me) if mind.df else None,
+        "choice": None if choice is None else u.to_list(choice),
         "A": u.to_list(r.A) if r else None,
         "B": u.to_list(r.B) if r else None,
+    }
+
+
+def result_fields(mind: Mind) -> dict[str, Any]:
+    """A unit's decision as its report and the run summary state it (``decided``: it ran the
+    forward task; ``interval``: ``[B, A]``, ``None`` when frustrated)."""
+    r = mind.results[mind.me] if mind.results else None
+    fields = decision_fields(r, mind.choice, mind.universe)
+    return {
+        "interval": fields["interval"],
+        "frustrated": fields["frustrated"],
+        "choice": fields["choice"],
+        "canonical": mind.canonical(mind.me) if mind.df else None,
+        "A": fields["A"],
+        "B": fields["B"],
         "decided": r is not None,
     }
 
@@ -452,15 +493,22 @@ def clean_rounds(sc: Scenario) -> tuple[Mind, list[dict[Pair, int]]]:
     return known, trajectory
 
 
-def noise_free(sc: Scenario) -> dict[str, dict[str, object]]:
+def noise_free(sc: Scenario) -> dict[str, dict[str, Any]]:
     """Every unit's decision (``result_fields``) had it read every code exactly as sent: the
     forward task, round after round, on the group the units intended and the influences they
     would send (``clean_rounds``). A group with no polynomial gives no decisions (``decided``
     false for all)."""
+    rounds = noise_free_rounds(sc)
+    return rounds[-1]
+
+
+def noise_free_rounds(sc: Scenario) -> list[dict[str, dict[str, Any]]]:
+    """``noise_free`` after each influence round: ``[{unit: result_fields}, ...]`` (round 1
+    first; at least one entry)."""
     known, trajectory = clean_rounds(sc)
     # The forward task is the same for every unit that knows everything: solve it once a
     # distinct round.
-    solved: dict[tuple, dict[str, SubjectResult] | None] = {}
+    solved: dict[tuple[Any, ...], dict[str, SubjectResult] | None] = {}
     per_round = []
     for infl in trajectory:
         key = tuple(sorted(infl.items()))
@@ -470,15 +518,17 @@ def noise_free(sc: Scenario) -> dict[str, dict[str, object]]:
             known.decide()
             solved[key] = known.results
         per_round.append(solved[key])
-    out = {}
+    out: list[dict[str, dict[str, Any]]] = [{} for _ in per_round] or [{}]
     for me in sc.units:
         mind = mind_of(sc, me)
         mind.df, mind.polynomial, mind.p4 = known.df, known.polynomial, known.p4
-        for results in per_round:  # a unit decides every round (a random policy draws each)
-            mind.results = results
+        if not per_round:
+            out[0][me] = result_fields(mind)
+        for i, results in enumerate(per_round):  # a unit decides every round (a random
+            mind.results = results  # policy draws each)
             if results is not None:
                 mind.choice = choose(mind.policy, results[me], mind.universe, mind.rng)
-        out[me] = result_fields(mind)
+            out[i][me] = result_fields(mind)
     return out
 
 

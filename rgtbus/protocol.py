@@ -300,7 +300,8 @@ class _Occupied:
             grown = np.zeros(max(2 * self.used.size, int(rel.max()) + 1), dtype=bool)
             grown[: self.used.size] = self.used
             self.used = grown
-        return self.used[rel]
+        taken: np.ndarray = self.used[rel]
+        return taken
 
     def take(self, samples: tuple[int, ...]) -> None:
         self.taken(np.array(samples))  # grows the array if needed

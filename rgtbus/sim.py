@@ -29,12 +29,14 @@ import numpy as np
 import simpy
 import simpy.rt
 
-from rgtbus.bus.base import Bus, Pulses, merge_pulses, sample_rows, split_pulses
+from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.hearing import Ears, Listener
+from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, sample_rows, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
-from rgtbus.telemetry import Recorder
+from rgtbus.telemetry import Recorder, records
+from rgtbus.timebase import ns
 
 ENGINES = ("event", "dense")
 
@@ -55,11 +57,6 @@ class Member(Protocol):
 
 
 _NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))
-
-
-def ns(seconds: float) -> int:
-    """Simulated seconds -> integer nanoseconds (the MCAP ``log_time``)."""
-    return round(seconds * 1e9)
 
 
 @dataclass(frozen=True)
@@ -319,21 +316,12 @@ class World:
             samples = np.zeros(L)
             samples[rows[sel] - w * L] = values[sel]
             t = w * L * self.tau
-            self.recorder.write(
-                "/medium",
-                {"window": w, "t": t, "sample_rate": 1.0 / self.tau, "samples": samples.tolist()},
-                ns(t),
-            )
+            record = records.medium_window(w, t, 1.0 / self.tau, samples.tolist())
+            self.recorder.write("/medium", record, ns(t))
 
     def _sum_medium(self, pulses: dict[str, Pulses]) -> Pulses:
-        """Each member's magnitudes per sample (in the order it sent them), then the members'
-        totals added in member order."""
-        names = [u for u in self.bus.members if u in pulses]
-        rows = sample_rows(np.concatenate([pulses[u][0] for u in names]))[0]
-        x = np.zeros((rows.size, len(names)))
-        for j, u in enumerate(names):
-            np.add.at(x[:, j], rows.searchsorted(pulses[u][0]), pulses[u][1])
-        return rows, np.cumsum(x, axis=1)[:, -1]
+        """The medium from each member's pulses, members in order (``medium_sum``)."""
+        return medium_sum([pulses[u] for u in self.bus.members if u in pulses])
 
     # -- running ----------------------------------------------------------------------------
 

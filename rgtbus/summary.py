@@ -27,10 +27,22 @@ Fields beyond the tables and decisions:
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any, Protocol
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
-from rgtbus.mind import goal_outcomes, noise_free, round_dynamics, wrong_decisions
+from rgtbus.mind import (
+    decision_fields,
+    goal_outcomes,
+    noise_free_rounds,
+    round_dynamics,
+    wrong_decisions,
+)
+from rgtbus.pairs import pair_key, parse_pair_key
+from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.records import DecisionRow
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -45,6 +57,7 @@ SUMMARY_JSON_KEYS = (
     "units",
     "frustrated",
     "wrong_decisions",
+    "decisions",
     "goals",
     "rounds",
     "outcome",
@@ -99,8 +112,65 @@ def decode_error(
     return {"unit": unit, "turn": turn, "kind": kind, "decoded": decoded, "sent": sent}
 
 
+def decision_row(
+    unit: str,
+    rnd: int,
+    t: float,
+    result: SubjectResult,
+    choice: int | None,
+    universe: Universe,
+) -> DecisionRow:
+    """A unit's own decision after influence round ``rnd`` at ``t`` seconds: a row of the
+    summary's ``decisions`` (``low``/``high`` the interval's ends, ``None`` when frustrated;
+    ``wrong`` is filled in by ``summarise``)."""
+    f = decision_fields(result, choice, universe)
+    low, high = f["interval"] or (None, None)
+    return {
+        "round": rnd,
+        "unit": unit,
+        "low": low,
+        "high": high,
+        "choice": f["choice"],
+        "frustrated": f["frustrated"],
+        "t": t,
+    }
+
+
+def judged_decisions(
+    sc: Scenario, reports: Sequence[Mapping[str, Any]], truth: Sequence[Mapping[str, Any]]
+) -> list[dict[str, Any]]:
+    """Every unit's decision of every round (units in scenario order, then rounds), each with
+    ``wrong``: whether it differs from the noise-free decision of that round
+    (``noise_free_rounds``)."""
+    by_unit = {r["unit"]: r for r in reports}
+    out = []
+    for u in sc.units:
+        for row in by_unit.get(u, {}).get("decisions", ()):
+            clean = truth[min(row["round"], len(truth)) - 1].get(u, {})
+            interval = None if row["low"] is None else [row["low"], row["high"]]
+            wrong = not clean.get("decided") or (
+                interval != clean.get("interval")
+                or row["frustrated"] != clean.get("frustrated")
+                or row["choice"] != clean.get("choice")
+            )
+            out.append({**row, "wrong": bool(wrong)})
+    return out
+
+
 def frustrated_units(units: Mapping[str, Mapping[str, Any]]) -> list[str]:
     return [u for u, r in units.items() if r.get("frustrated")]
+
+
+@dataclass
+class RunEnd:
+    """How a run ended, as a log states it (``failure``: the run's error from its ``/run``
+    record; a log does not keep steps, wall time or bus statistics)."""
+
+    steps: int = 0
+    sim_seconds: float = 0.0
+    wall_seconds: float = 0.0
+    failure: str | None = None
+    bus_stats: Any = None
 
 
 class WorldEnd(Protocol):
@@ -166,10 +236,11 @@ def summarise(
     while whole < len(rounds) and len(rounds[whole]) == pairs:
         whole += 1
     last_round = (
-        {tuple(k.split(">", 1)): u.parse_alternative(v) for k, v in rounds[-1].items()}
+        {parse_pair_key(k): u.parse_alternative(v) for k, v in rounds[-1].items()}
         if rounds and whole == len(rounds)
         else None
     )
+    clean = noise_free_rounds(sc) if units_out else [{}]
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
     return {
@@ -186,7 +257,8 @@ def summarise(
         "influences": ref["influences"],
         "units": units_out,
         "frustrated": frustrated_units(units_out),
-        "wrong_decisions": wrong_decisions(units_out, noise_free(sc)) if units_out else [],
+        "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
+        "decisions": judged_decisions(sc, reports, clean) if units_out else [],
         "goals": goal_outcomes(sc, units_out, last_round),  # type: ignore[arg-type]
         "rounds": {
             "count": sc.influence_rounds,
@@ -215,7 +287,7 @@ def sent_rounds(sc: Scenario, reports: Iterable[Mapping[str, Any]]) -> list[dict
         for s, r in sc.pairs():
             sent = by_unit.get(s)
             if sent and rnd < len(sent) and r in sent[rnd]:
-                row[f"{s}>{r}"] = sent[rnd][r]
+                row[pair_key(s, r)] = sent[rnd][r]
     return out
 
 

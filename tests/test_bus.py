@@ -303,9 +303,9 @@ def gate_runs(tmp_path_factory):
 def test_a_run_is_identical_over_every_bus(gate_runs):
     """Memory, zenoh, and a re-run of the memory run's log over the log bus: the same
     decisions, tables and unit messages."""
-    from rgtbus.units.replay import rerun_replay
+    from rgtbus.units.rerun import rerun_replay
 
-    from rgtbus.telemetry.replay import load_replay
+    from rgtbus.telemetry.read import load_replay
 
     mem, zen = gate_runs["memory"], gate_runs["zenoh"]
     replayed = rerun_replay(load_replay(mem.path))
@@ -535,7 +535,7 @@ def test_frame_encode_refuses(frame, msg):
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.integers(0, 30), max_size=20), st.booleans())
 def test_sample_rows_is_unique_with_inverse(samples, ordered):
-    from rgtbus.bus.base import sample_rows
+    from rgtbus.signal.pulses import sample_rows
 
     a = np.array(sorted(samples) if ordered else samples, dtype=np.int64)
     rows, at = sample_rows(a)

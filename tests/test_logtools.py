@@ -150,3 +150,100 @@ def test_with_seed_text_sets_only_the_top_level_seed(text):
     data = tomllib.loads(out)
     assert data["seed"] == 17 and data["name"] == "x"
     assert data.get("channel", {}) == tomllib.loads(text).get("channel", {})
+
+
+# -- a cross-process run merged by hand (issue 21, item 6) -----------------------------------------
+
+EXAMPLE2 = ROOT / "scenarios" / "example2.toml"
+
+
+def _unit_log(path: Path, unit: str, status: str | None, detail: str = "") -> Path:
+    """A unit process's log as ``rgtbus unit`` writes its metadata: the scenario, a ``run``
+    record naming the process, and (unless killed) the ``end.<unit>`` record."""
+    from rgtbus.telemetry import McapRecorder
+
+    with open(path, "wb") as f, McapRecorder(f) as rec:
+        rec.metadata("scenario", {"name": "example2", "path": "x", "text": EXAMPLE2.read_text()})
+        rec.metadata("run", {"seed": "2", "version": "0.1.0", "bus": "zenoh", "process": unit})
+        rec.log("info", f"{unit} here", 1_000_000_000, name=unit)
+        if status is not None:
+            rec.metadata(f"end.{unit}", {"status": status, "detail": detail, "sim_seconds": "1"})
+    return path
+
+
+def _merged(tmp_path: Path, ends: dict[str, tuple[str | None, str]]) -> Path:
+    logs = [str(_unit_log(tmp_path / f"{u}.mcap", u, *end)) for u, end in ends.items()]
+    out = tmp_path / "merged.mcap"
+    assert main(["merge", *logs, "-o", str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.mark.parametrize(
+    "ends, finished, says",
+    [
+        (
+            {"a": ("done", ""), "b": ("done", ""), "c": ("done", "")},
+            True,
+            "every unit finished (a merge of unit logs has no /run summary",
+        ),
+        (
+            {"a": ("done", ""), "b": ("done", "b: no ID spike"), "c": ("done", "")},
+            True,
+            "failed: unit b: b: no ID spike",
+        ),
+        ({"a": ("done", ""), "b": ("done", "")}, False, "no log of unit c in this one"),
+        (
+            {"a": ("done", ""), "b": (None, ""), "c": ("ended early", "a went silent")},
+            False,
+            "unit b's process did not end its log (killed?); unit c ended early: a went silent",
+        ),
+    ],
+)
+def test_info_judges_a_merge_of_unit_logs_by_their_ends(tmp_path, capsys, ends, finished, says):
+    merged = _merged(tmp_path, ends)
+    capsys.readouterr()
+    assert main(["info", str(merged), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["finished"] is finished and set(info["unit_processes"]) == set(ends)
+    assert main(["info", str(merged)]) == 0
+    out = capsys.readouterr().out
+    assert says in out and "did not finish its log" not in out
+
+
+def test_router_units_and_merge_by_hand_is_a_finished_run(tmp_path, capsys, procs):
+    """The README's run on several machines, on loopback: a router, a client unit process per
+    unit, their logs merged by hand. Every unit finished, so neither ``info`` nor ``replay``
+    says the run did not finish its log."""
+    from rgtbus.cli.proc_cmds import free_ports
+    from rgtbus.scenario import load_scenario
+
+    units = load_scenario(EXAMPLE2).units
+    router_at = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    router = procs("router", "--listen", router_at)
+    assert router.stdout is not None and "router listening" in router.stdout.readline()
+    started = {
+        u: procs(
+            "unit", u, str(EXAMPLE2), "--mode", "client", "--connect", router_at,
+            "--log", str(tmp_path / f"{u}.mcap"), "--run-id", "by-hand", "--quiet",
+        )
+        for u in units
+    }  # fmt: skip
+    for u, p in started.items():
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0 and out == "", (u, err)
+    merged = tmp_path / "run.mcap"
+    logs = [str(tmp_path / f"{u}.mcap") for u in units]
+    assert main(["merge", *logs, "-o", str(merged)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(merged), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["finished"] is True and info["error"] is None
+    assert all(e and e["status"] == "done" for e in info["unit_processes"].values())
+    assert main(["info", str(merged)]) == 0
+    assert "did not finish" not in capsys.readouterr().out
+    assert main(["replay", str(merged)]) == 0
+    out = capsys.readouterr().out
+    assert "no /run record" not in out and "did not finish" not in out and "NOTE" not in out
+    # one unit's log alone is not the whole run, and says so
+    assert main(["info", logs[0]]) == 0
+    assert f"no log of units {', '.join(units[1:])} in this one" in capsys.readouterr().out

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 from rgtbus.units.group import run_group
-from rgtbus.units.replay import rerun, traces_for, verify_log
+from rgtbus.units.rerun import rerun, traces_for, verify_log
 
 from rgtbus.cli import main
 from rgtbus.scenario import load_scenario, parse_scenario
@@ -21,7 +21,8 @@ from rgtbus.telemetry import McapRecorder, read_log, schema_for
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
-from rgtbus.telemetry.replay import EXIT_TRUNCATED, load_replay
+from rgtbus.telemetry.read import load_replay
+from rgtbus.telemetry.verify import EXIT_TRUNCATED
 
 ROOT = Path(__file__).resolve().parent.parent
 RUN_KEYS = (
@@ -260,7 +261,7 @@ def test_gains_and_noise_verify_from_per_sender_pulses():
     assert rp.has_gains()
     assert verify_log(rp).ok
     # fed the summed medium instead, b's receiver hears a's codes 2 % too loud: caught
-    from rgtbus.telemetry.replay import verify
+    from rgtbus.telemetry.verify import verify
 
     wrong = verify(rp, rerun(rp.scenario, {rp.scenario.units[0]: rp.medium_pulses()}))
     assert wrong.mismatches and {m.unit for m in wrong.mismatches if m.unit} <= {"b"}

@@ -311,27 +311,6 @@ def test_realtime_paces_the_run(tmp_path, capsys):
     assert "--realtime 0.0: must be a positive factor" in capsys.readouterr().err
 
 
-def test_progress_line_is_rate_limited_and_only_for_long_runs(monkeypatch, capsys):
-    from rgtbus.cli import run_cmd
-
-    clock = iter([0.0, 1.0, 2.5, 2.7, 3.1, 3.2, 0.0, 9.0])  # t0, then one reading a call
-
-    class FakeTime:
-        perf_counter = staticmethod(lambda: next(clock))
-
-    monkeypatch.setattr(run_cmd, "time", FakeTime)
-    progress = run_cmd.Progress(show=True)
-    for w in range(5):
-        progress(w * 0.1, w)
-    progress.done()
-    err = capsys.readouterr().err
-    # 1.0 s: too early; 2.5 s: shown; 2.7 s: rate-limited; 3.1 s: shown; 3.2 s: rate-limited
-    assert err.count("simulated") == 2 and err.endswith("\n")
-    quiet = run_cmd.Progress(show=False)
-    quiet(1.0, 1)
-    assert capsys.readouterr().err == ""
-
-
 def test_schedule_anchor_changes_nothing_on_a_clean_channel():
     base = load_scenario(ROOT / "scenarios" / "gate.toml")
     _, spike, (m_spike, _) = run(base)
@@ -377,7 +356,7 @@ def test_a_random_group_that_installs_a_p4_is_a_result_not_an_error(tmp_path, ca
     path = tmp_path / "rand5.toml"
     path.write_text(RANDOM5)
     log = tmp_path / "r.mcap"
-    code = main(["run", str(path), "--bus", "memory", "--quiet", "--log", str(log)])
+    code = main(["run", str(path), "--bus", "memory", "--log", str(log)])
     out = capsys.readouterr().out
     assert code == 0
     assert "polynomial: (none): not decomposable: induced P4 c-b-e-d; no decisions" in out

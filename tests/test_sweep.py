@@ -9,7 +9,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from rgtbus.units import sweep as sweep_mod
-from rgtbus.units.sweep import load_sweep, run_sweep
+from rgtbus.units.sweep import load_sweep, run_sweep, table_rows
 
 from rgtbus.cli import main
 
@@ -32,7 +32,7 @@ def write_sweep(tmp_path: Path, body: str = SWEEP) -> Path:
 
 
 def table(out: Path) -> list[dict]:
-    rows = pq.read_table(out / "results.parquet").to_pylist()
+    rows = table_rows(pq.read_table(out / "results.parquet"))
     for r in rows:
         r.pop("wall_seconds")
     return rows
@@ -63,7 +63,7 @@ def test_a_sweep_gives_one_row_per_run_in_parquet_and_csv(tmp_path, capsys):
     ):
         assert col in r
     assert r["engine"] == "event" and r["schedule"] == "concurrent" and r["error"] is None
-    assert json.loads(r["units"]).keys() == {"u1", "u2", "u3"}
+    assert [u["unit"] for u in r["units"]] == ["u1", "u2", "u3"]
     assert (out / "results.csv").read_text().count("\n") == 7
     assert json.loads((out / "sweep.json").read_text())["runs"] == 6
     assert (out / "sweep.toml").read_text() == path.read_text()
@@ -352,8 +352,7 @@ n = [3]
         assert isinstance(r["goal_reached"], bool) and isinstance(r["goal_reachable"], bool)
         assert 0 <= r["goal_share_mean"] <= 1
         assert r["rounds_state"] == "fixed point"  # the steering base has two rounds
-        goals = json.loads(r["goals"])
-        assert goals[0]["reached"] == r["goal_reached"]
+        assert r["goals"][0]["reached"] == r["goal_reached"]
     capsys.readouterr()
     png = tmp_path / "s.png"
     args = ["sweep-plot", str(out), "--x", "n", "--y", "goal_reached", "-o", str(png)]
@@ -364,3 +363,222 @@ n = [3]
     assert "no run has goals.u1.u2 = 0" in capsys.readouterr().err
     assert main([*args, "--where", "nope"]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
+
+
+# -- the library function, native tables, decisions, old directories (issue 21) ----------------
+
+RANDOM = str(ROOT / "scenarios" / "random_group.toml")
+
+
+def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
+    import pandas as pd
+    from rgtbus.units.sweep import read_sweep, sweep
+
+    out = tmp_path / "lib"
+    df = sweep(RANDOM, grid={"n": [3, 4], "relations.p": [0.61]}, seeds=2, workers=1, out=out)
+    pd.testing.assert_frame_equal(df, pd.read_parquet(out / "results.parquet"))
+    assert list(zip(df["n"], df["seed"], strict=True)) == [(3, 0), (3, 1), (4, 0), (4, 1)]
+    assert df["relations.p"].dtype == "float64" and df["n"].dtype == "int64"
+    # native types: no json.loads
+    assert {u["unit"] for u in df["units"][0]} == {"u1", "u2", "u3"}
+    assert dict(df["relations"][0]).keys() == {"u1-u2", "u1-u3", "u2-u3"}
+    info = json.loads((out / "sweep.json").read_text())
+    assert info["executor"] == "in-process" and info["workers"] == 1
+    assert info["scheduler"] is None and info["tables"] == 2
+    # the directory holds a sweep file that re-runs it as is (scenario.toml beside it)
+    again = load_sweep(out / "sweep.toml")
+    assert again.digest != "" and again.seeds == (0, 1) and again.keys == ["n", "relations.p"]
+    # one row per run, unit and round: "how often does a unit choose y" is one groupby
+    results, decisions = read_sweep(out)
+    assert len(decisions) == results["decided_count"].sum() > 0  # one round each
+    assert list(decisions.columns) == [
+        "run",
+        "n",
+        "relations.p",
+        "seed",
+        "unit",
+        "round",
+        "low",
+        "high",
+        "choice",
+        "frustrated",
+        "wrong",
+        "t",
+    ]
+    assert decisions["wrong"].dtype == bool and not decisions["wrong"].any()
+    alpha = decisions["choice"].map(lambda c: c is not None and "alpha" in c)  # None: frustrated
+    chose = decisions.assign(alpha=alpha)
+    assert chose.groupby("n")["alpha"].mean().index.tolist() == [3, 4]
+    # out=None: nothing kept on disk, the same table
+    again_df = sweep(RANDOM, grid={"n": [3, 4], "relations.p": [0.61]}, seeds=[0, 1], workers=1)
+    cols = [c for c in df.columns if c != "wall_seconds"]
+    pd.testing.assert_frame_equal(again_df[cols], df[cols])
+
+
+def test_the_cli_and_the_library_give_the_same_table(tmp_path, capsys):
+    from rgtbus.units.sweep import sweep
+
+    path = write_sweep(tmp_path)
+    args = ["sweep", str(path), "--out", str(tmp_path / "cli"), "--workers", "2", "--quiet"]
+    assert main([*args, "--json"]) == 0
+    printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(printed) == 6 and printed[0]["units"][0]["unit"] == "u1"
+    # in this process (one worker) and on the command's pool of two: the same table
+    grid = {"n": [3, 4], "relations.p": [0.61]}
+    sweep(RANDOM, grid=grid, seeds=3, workers=1, out=tmp_path / "lib")
+    assert table(tmp_path / "lib") == table(tmp_path / "cli")
+    assert json.loads((tmp_path / "cli" / "sweep.json").read_text())["executor"] == "process-pool"
+
+
+@pytest.mark.parametrize("how", ["script", "module"])
+def test_a_sweep_from_a_script_without_a_main_guard_uses_worker_processes(tmp_path, how):
+    """No `if __name__ == "__main__"`: the spawned workers must not run the script again (they
+    would start the sweep again, and the pool would break)."""
+    import subprocess
+    import sys
+
+    out, marker = tmp_path / "out", tmp_path / "ran"
+    (tmp_path / "noguard.py").write_text(
+        "from rgtbus.units.sweep import sweep\n"
+        f"open({str(marker)!r}, 'a').write('x')\n"
+        f"df = sweep({RANDOM!r}, grid={{'n': [2, 3]}}, seeds=2, workers=2, out={str(out)!r})\n"
+        "print('ROWS', len(df), int(df['failed'].sum()))\n"
+    )
+    cmd = [sys.executable, "noguard.py"] if how == "script" else [sys.executable, "-m", "noguard"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["ROWS 4 0"], done.stdout
+    assert marker.read_text() == "x"  # the script ran once: in this process, not in the workers
+    assert done.stderr == "", done.stderr  # no fallback line, no traceback
+    info = json.loads((out / "sweep.json").read_text())
+    assert (info["executor"], info["workers"], info["start_method"]) == ("process-pool", 2, "spawn")
+
+
+def test_a_pool_that_cannot_start_falls_back_to_this_process_in_one_line(tmp_path, capsys):
+    from concurrent.futures import Executor, Future
+    from concurrent.futures.process import BrokenProcessPool
+
+    class Broken(Executor):
+        def submit(self, fn, /, *args, **kwargs):
+            f: Future = Future()
+            f.set_exception(BrokenProcessPool("A child process terminated abruptly"))
+            return f
+
+    out = tmp_path / "o"
+    rows = run_sweep(load_sweep(write_sweep(tmp_path)), out, executor=Broken(), workers=2)
+    assert len(rows) == 6 and not any(r["failed"] for r in rows)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "running 6 runs in this process" in err
+    assert "Traceback" not in err
+    info = json.loads((out / "sweep.json").read_text())
+    assert info["executor"] == "in-process" and "BrokenProcessPool" in info["fallback"]
+
+
+def test_tables_have_one_schema_whatever_the_data(tmp_path):
+    """A column whose runs are all empty keeps its type, so two sweeps concatenate."""
+    import pandas as pd
+    import pyarrow as pa
+    from rgtbus.units.sweep import sweep
+
+    grid = {"channel.noise": [0.0]}
+    a = sweep(RANDOM, grid=grid, seeds=1, workers=1, out=tmp_path / "a")  # no [outcome]
+    b = sweep(str(ROOT / "scenarios" / "gate.toml"), grid=grid, seeds=1, out=tmp_path / "b")
+    ta = pq.read_table(tmp_path / "a" / "results.parquet")
+    tb = pq.read_table(tmp_path / "b" / "results.parquet")
+    assert a["outcome"].isna().all() and b["outcome"][0] == "gate: open"
+    assert ta.schema.equals(tb.schema)
+    s = ta.schema
+    assert s.field("outcome").type == pa.string() and s.field("error").type == pa.string()
+    assert s.field("goal_reached").type == pa.bool_()  # no goals: all empty, still bool
+    assert s.field("p4").type == pa.list_(pa.string())
+    assert s.field("relations").type == pa.map_(pa.string(), pa.string())
+    assert pa.types.is_struct(s.field("rounds").type)
+    assert pa.types.is_struct(s.field("units").type.value_type)
+    assert pa.types.is_struct(s.field("decode_errors").type.value_type)
+    both = pa.concat_tables([ta, tb])
+    assert both.num_rows == 2
+    assert len(pd.concat([a, b], ignore_index=True)) == 2
+    da = pq.read_table(tmp_path / "a" / "decisions.parquet")
+    db = pq.read_table(tmp_path / "b" / "decisions.parquet")
+    assert pa.concat_tables([da, db]).num_rows == da.num_rows + db.num_rows == 3 + 4
+    # a failed run (no summary at all) has the same columns and types
+    c = sweep(RANDOM, grid={"timing.max_seconds": [2.0]}, seeds=1, out=tmp_path / "c")
+    tc = pq.read_table(tmp_path / "c" / "results.parquet")
+    assert bool(c["failed"][0]) and tc.schema.field("units").type == s.field("units").type
+    assert pq.read_table(tmp_path / "c" / "decisions.parquet").num_rows == 0
+
+
+def test_sweep_refuses_bad_arguments_in_one_line(tmp_path):
+    from rgtbus.units.sweep import sweep
+
+    from rgtbus.errors import RgtbusError
+
+    with pytest.raises(RgtbusError, match=r"sweep: relations.p: value 1.5"):
+        sweep(RANDOM, grid={"relations.p": [0.5, 1.5]}, seeds=1)
+    with pytest.raises(RgtbusError, match=r"sweep: n: must be a non-empty list"):
+        sweep(RANDOM, grid={"n": 3}, seeds=1)
+    with pytest.raises(RgtbusError, match=r"sweep seeds: N must be"):
+        sweep(RANDOM, grid={}, seeds=0)
+    with pytest.raises(RgtbusError, match=r"needs out="):
+        sweep(RANDOM, grid={}, seeds=1, logs=True)
+
+
+def _as_old(out: Path) -> None:
+    """Make ``out`` look written by the rgtbus before native tables: nested columns as JSON
+    text in rows.jsonl, no decisions, no tables version, no decisions.parquet."""
+    lines = []
+    for line in (out / "rows.jsonl").read_text().splitlines():
+        row = json.loads(line)
+        row.pop("_decisions", None)
+        for k in ("relations", "influences", "units", "goals", "rounds", "decode_errors", "p4"):
+            if k in row:
+                row[k] = json.dumps(row[k])
+        lines.append(json.dumps(row))
+    (out / "rows.jsonl").write_text("\n".join(lines[:3]) + "\n")
+    info = json.loads((out / "sweep.json").read_text())
+    info.pop("tables")
+    (out / "sweep.json").write_text(json.dumps(info))
+    (out / "decisions.parquet").unlink()
+
+
+def test_an_old_sweep_directory_resumes_into_the_native_tables(tmp_path, capsys):
+    path = write_sweep(tmp_path)
+    full, old = tmp_path / "full", tmp_path / "old"
+    with ThreadPoolExecutor(1) as ex:
+        run_sweep(load_sweep(path), full, executor=ex, workers=1)
+        run_sweep(load_sweep(path), old, executor=ex, workers=1)
+    _as_old(old)
+    assert main(["sweep", str(path), "--out", str(old), "--resume", "--quiet"]) == 0
+    assert table(old) == table(full)
+    decisions = pq.read_table(old / "decisions.parquet").to_pylist()
+    every = pq.read_table(full / "decisions.parquet").to_pylist()
+    assert decisions == [d for d in every if d["run"] >= 3] != []  # the old rows had none
+
+
+def test_an_old_sweep_directory_that_does_not_fit_is_refused_in_one_line(tmp_path, capsys):
+    path = write_sweep(tmp_path)
+    out = tmp_path / "old"
+    with ThreadPoolExecutor(1) as ex:
+        run_sweep(load_sweep(path), out, executor=ex, workers=1)
+    _as_old(out)
+    rows = (out / "rows.jsonl").read_text().splitlines()
+    bad = json.loads(rows[0])
+    bad["units"] = "u1 decided, u2 did not"  # neither JSON nor a table of units
+    (out / "rows.jsonl").write_text("\n".join([json.dumps(bad), *rows[1:]]) + "\n")
+    capsys.readouterr()
+    assert main(["sweep", str(path), "--out", str(out), "--resume", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(out) in err and "cannot resume" in err, err
+
+
+def test_sweep_plot_reads_native_tables_and_names_nested_columns(tmp_path, capsys):
+    out = tmp_path / "o"
+    main(["sweep", str(write_sweep(tmp_path)), "--out", str(out), "--quiet"])
+    capsys.readouterr()
+    png = tmp_path / "a.png"
+    args = ["sweep-plot", str(out), "--x", "n", "-o", str(png)]
+    assert main([*args, "--y", "alliance_share", "--where", "relations.p=0.61"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    assert main([*args, "--y", "units"]) == 2
+    assert "holds lists or tables" in capsys.readouterr().err

@@ -109,6 +109,40 @@ SAMPLES: dict[str, dict] = {
         "sent": ["go"],
         "reason": "a: exactly 1: 1 meets it whatever the 1 completions of the unheard",
     },
+    "/unit/report": {
+        "unit": "a",
+        "installed": {"a-b": "alliance"},
+        "polynomial": "ab",
+        "p4": None,
+        "sent_relations": {"a>b": "alliance", "b>a": "alliance"},
+        "influences": {"a>b": ["go"], "b>a": []},
+        "result": {
+            "interval": [[], ["go"]],
+            "frustrated": False,
+            "choice": ["go"],
+            "canonical": "a = a + not(a)",
+            "A": ["go"],
+            "B": [],
+            "decided": True,
+        },
+        "decisions": [
+            {
+                "round": 1,
+                "unit": "a",
+                "low": [],
+                "high": ["go"],
+                "choice": ["go"],
+                "frustrated": False,
+                "t": 40.5,
+            }
+        ],
+        "sends": [[0, "id", "b", "id"], [0, "payload", "b", "alliance"]],
+        "sent_influences": [{"b": "{go}"}],
+        "failure": None,
+        "failed_at": None,
+        "done_at": 8100,
+        "mind_error": None,
+    },
     "/log": {
         "timestamp": {"sec": 1, "nsec": 5},
         "level": 2,
@@ -474,6 +508,36 @@ def test_validator_refuses_unknown_keywords():
         validate_mod.check_schema({"type": "object", "properties": {"a": {"format": "date"}}}, "x")
 
 
+@pytest.mark.parametrize(
+    ("schema", "says"),
+    [
+        ({"type": "strng"}, r"x\.type: not a valid JSON Schema: 'strng' is not valid"),
+        ({"type": "array", "minItems": -1}, r"x\.minItems: not a valid JSON Schema"),
+        ({"properties": {"a": {"enum": "x"}}}, r"x\.properties\.a\.enum: not a valid JSON"),
+    ],
+)
+def test_validator_refuses_what_is_no_json_schema(schema, says):
+    """The schemas are checked by the jsonschema library against the draft's meta-schema."""
+    with pytest.raises(RgtbusError, match=says):
+        validate_mod.check_schema(schema, "x")
+
+
+def test_validation_names_every_error_in_the_messages_order():
+    """fastjsonschema says a message breaks its schema; jsonschema then names every way, in
+    the project's words, in the order the message has its fields. JSON Schema's types: a
+    whole float is an integer, a boolean is no number."""
+    schema = topics_mod.load_schema("rgtbus.MediumWindow")
+    msg = {**SAMPLES["/medium"], "window": "3", "samples": [0.0, None, True], "extra": 1}
+    assert validate_mod.errors(msg, schema) == [
+        "$: unexpected field 'extra'",
+        "$.window: expected integer, got string",
+        "$.samples[1]: expected number, got null",
+        "$.samples[2]: expected number, got boolean",
+    ]
+    assert validate_mod.errors({**SAMPLES["/medium"], "window": 3.0}, schema) == []
+    assert validate_mod.errors(SAMPLES["/medium"], schema) == []
+
+
 def test_docs_topics_md_is_generated():
     assert DOCS.read_text() == topics_markdown(), (
         'docs/topics.md is stale: regenerate with python -c "from rgtbus.telemetry import '
@@ -482,7 +546,7 @@ def test_docs_topics_md_is_generated():
 
 
 def test_spike_rows_read_records_of_one_sample_and_older_logs_of_one_spike_alike():
-    from rgtbus.telemetry.replay import spike_rows
+    from rgtbus.telemetry.read import spike_rows
 
     new = {"unit": "b", "t": 1.3, "sample": 260, "channels": ["a", "c"]}
     old = {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260}
@@ -573,7 +637,7 @@ def test_replay_plot_refuses_a_range_past_the_end_in_one_line(example2_log, tmp_
 
 def test_attention_spikes_are_the_spikes_of_accepted_ids(example2_log):
     from rgtbus.telemetry.plots import attention_spikes
-    from rgtbus.telemetry.replay import load_replay
+    from rgtbus.telemetry.read import load_replay
 
     rp = load_replay(example2_log)
     mine = {(s["channel"], s["t"]) for s in rp.spikes if s["unit"] == "a"}
@@ -589,10 +653,10 @@ def test_attention_spikes_are_the_spikes_of_accepted_ids(example2_log):
 
 
 def test_activity_figure_draws_attention_and_other_spikes_apart(example2_log):
-    from rgtbus.units.replay import traces_for
+    from rgtbus.units.rerun import traces_for
 
     from rgtbus.telemetry.plots import FONT, activity_figure, attention_spikes
-    from rgtbus.telemetry.replay import load_replay
+    from rgtbus.telemetry.read import load_replay
 
     rp = load_replay(example2_log)
     fig = activity_figure(rp, "a", traces_for(rp, "a"))

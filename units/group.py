@@ -19,9 +19,10 @@ from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.bus.base import Bus
 from rgtbus.scenario import Scenario
-from rgtbus.sim import Receivers, World, ns
+from rgtbus.sim import Receivers, World
 from rgtbus.summary import summarise
-from rgtbus.telemetry import Recorder
+from rgtbus.telemetry import Recorder, records
+from rgtbus.timebase import ns
 
 
 @dataclass
@@ -69,19 +70,15 @@ def scenario_world(
     )
 
 
+def write_unit_report(recorder: Recorder, unit: AutonomousUnit, sim_seconds: float) -> None:
+    """The unit's ``/unit/report`` at the end of the run: what the log's summary is computed
+    from (with the unit's ``/rx/decode`` records), exactly as the live summary is."""
+    if recorder.enabled:
+        recorder.write("/unit/report", unit.report_record(), ns(sim_seconds))
+
+
 def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
-    recorder.write(
-        "/run",
-        {
-            "scenario": summary["scenario"],
-            "seed": summary["seed"],
-            "outcome": summary["outcome"],
-            "agree": summary["agree"],
-            "sim_seconds": summary["sim_seconds"],
-            "error": summary["error"],
-        },
-        ns(summary["sim_seconds"]),
-    )
+    recorder.write("/run", records.run_record(summary), ns(summary["sim_seconds"]))
 
 
 def run_group(
@@ -117,6 +114,8 @@ def run_group(
         result = world.run()
         for note in bus.drop_notes():  # what reached the bus and was refused, say why
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
+    for m in members:
+        write_unit_report(recorder, m, result.sim_seconds)
     summary = summarise(sc, [m.report() for m in members], result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)

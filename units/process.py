@@ -15,16 +15,22 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from rgtbus.units.group import auth_name, default_run_id, scenario_world, write_metadata
+from rgtbus.units.group import (
+    auth_name,
+    default_run_id,
+    scenario_world,
+    write_metadata,
+    write_unit_report,
+)
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.bus import open_bus
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.sim import ns
 from rgtbus.telemetry import McapRecorder, Recorder
 from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
+from rgtbus.timebase import ns
 
 
 def scenario_digest(sc: Scenario) -> str:
@@ -103,6 +109,7 @@ def run_unit(
             )
             result = world.run()  # a member gone or stalled ends it with result.failure
             sim_seconds = result.sim_seconds
+            write_unit_report(recorder, unit, sim_seconds)  # while the watch feed is open
             error = result.failure or unit.failure
             for note in bus.drop_notes():
                 recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=name)

@@ -13,12 +13,23 @@ A sweep file (TOML) names a base scenario, seeds and a grid::
     spike = { "timing.anchor" = "spike" }
     concurrent = { "protocol.schedule" = "concurrent" }
 
+The library function ``sweep(scenario, grid=..., seeds=...)`` builds the same ``Sweep`` from
+arguments; ``rgtbus sweep FILE`` builds it from the file (``load_sweep``); both then run
+``execute_sweep``: one code path.
+
 Every (grid cell, seed) is one run on the memory bus (the same results as zenoh, docs/engine.md)
 in a worker process; each run gives one row of the results table (``run_row``). Runs are
 handed out in batches to any ``concurrent.futures.Executor``: a local process pool by default,
-or a Dask distributed cluster's (``Client(address).get_executor()``), the same code path.
-Rows are appended to ``rows.jsonl`` as they arrive, so a sweep stopped halfway resumes with
-only what is missing; the table is written as ``results.parquet`` and ``results.csv``.
+or a Dask distributed cluster's (``Client(address).get_executor()``), the same code path; one
+worker runs them in this process. Rows are appended to ``rows.jsonl`` as they arrive, so a
+sweep stopped halfway resumes with only what is missing; the tables are written as
+``results.parquet`` (one row per run, native Arrow types: ``RESULTS_SCHEMA``),
+``results.csv`` (the same, nested columns as JSON text) and ``decisions.parquet`` (one row per
+run, unit and influence round).
+
+The local pool never imports the caller's ``__main__`` in its workers (``_NoMainSpawnContext``):
+the task function lives here, so a script or notebook cell without an
+``if __name__ == "__main__"`` guard can run a sweep on many processes.
 """
 
 from __future__ import annotations
@@ -29,39 +40,46 @@ import hashlib
 import itertools
 import json
 import math
+import multiprocessing
+import multiprocessing.context
+import numbers
 import os
 import platform
 import re
+import sys
+import tempfile
+import threading
 import tomllib
 import traceback
-from collections.abc import Callable, Iterator
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, wait
+import types
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import tomli_w
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
-from rgtbus.summary import summary_json
+from rgtbus.summary import SUMMARY_JSON_KEYS, summary_json
+
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 ENGINES = ("event", "dense")
 MAX_RUNS = 1_000_000
-# summary fields stored as JSON text (a nested value: one cell, any shape, in parquet and CSV)
-JSON_COLUMNS = (
-    "relations",
-    "influences",
-    "units",
-    "decode_errors",
-    "frustrated",
-    "wrong_decisions",
-    "p4",
-    "goals",
-    "rounds",
-)
+# the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
+# types and decisions.parquet; 1 (no key) held nested columns as JSON text
+TABLES_VERSION = 2
+# summary fields that are no column of the results: the run's own (its grid cell says them),
+# and the decisions (decisions.parquet)
+_NOT_COLUMNS = ("seed", "engine", "schedule", "log", "decisions")
+
+ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
 
 @dataclass(frozen=True)
@@ -113,6 +131,10 @@ class Sweep:
             for seed in self.seeds:
                 out.append(Task(len(out), cell, seed))
         return out
+
+    @property
+    def runs(self) -> int:
+        return math.prod(len(vs) for _, vs in self.axes) * len(self.seeds)
 
     @property
     def digest(self) -> str:
@@ -176,88 +198,105 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
         raise RgtbusError(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
+
+    def err(key: str | None, reason: str) -> RgtbusError:
+        return _error(where, text, key, reason)
+
     for key in data:
         if key not in SWEEP_KEYS:
             allowed = ", ".join(sorted(SWEEP_KEYS))
-            raise _error(where, text, key, f"unknown key (allowed: {allowed})")
+            raise err(key, f"unknown key (allowed: {allowed})")
     name = data.get("name", p.stem)
     if not isinstance(name, str) or not name:
-        raise _error(where, text, "name", f"must be a non-empty string, got {name!r}")
+        raise err("name", f"must be a non-empty string, got {name!r}")
     scen = data.get("scenario")
     if not isinstance(scen, str) or not scen:
-        raise _error(where, text, "scenario", "must name the base scenario file")
+        raise err("scenario", "must name the base scenario file")
     scen_path = (p.parent / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
     try:
         scen_text = _read_capped(scen_path, "scenario").decode("utf-8")
     except UnicodeDecodeError:
-        raise _error(where, text, "scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
+        raise err("scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
     except RgtbusError as exc:
-        raise _error(where, text, "scenario", str(exc)) from None
+        raise err("scenario", str(exc)) from None
     try:
         seeds = parse_seeds(data.get("seeds", "0..0"))
     except ValueError as exc:
-        raise _error(where, text, "seeds", str(exc)) from None
+        raise err("seeds", str(exc)) from None
     grid_table = data.get("grid", {})
     if not isinstance(grid_table, dict):
-        raise _error(where, text, "grid", "must be a table of key = [values]")
+        raise err("grid", "must be a table of key = [values]")
+    cases_table = data.get("cases", {})
+    if not isinstance(cases_table, dict):
+        raise err("cases", "must be a table of name = { key = value, ... }")
+    grid, cases = _axes(list(_flatten(grid_table)), list(cases_table.items()), err)
+    sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, grid, cases)
+    check_sweep(sweep, err)
+    return sweep
+
+
+def _axes(
+    grid_items: list[tuple[str, Any]], case_items: list[tuple[str, Any]], err: ErrorAt
+) -> tuple[
+    tuple[tuple[str, tuple[Any, ...]], ...], tuple[tuple[str, tuple[tuple[str, Any], ...]], ...]
+]:
+    """The grid and the cases of a sweep, checked key by key (not yet against the scenario)."""
     grid = []
-    for key, values in _flatten(grid_table):
+    for key, values in grid_items:
         if not isinstance(values, list) or not values:
-            raise _error(where, text, key, f"must be a non-empty list of values, got {values!r}")
+            raise err(key, f"must be a non-empty list of values, got {values!r}")
         if key == "seed":
-            raise _error(where, text, key, "the seeds of a sweep are its seeds key, not a grid key")
+            raise err(key, "the seeds of a sweep are its seeds key, not a grid key")
         if key == "case":
-            raise _error(where, text, key, "'case' names the [cases] of a sweep, not a grid key")
+            raise err(key, "'case' names the [cases] of a sweep, not a grid key")
         if key == "engine":
             for v in values:
                 if v not in ENGINES:
-                    raise _error(where, text, key, f"unknown engine {v!r} (event or dense)")
+                    raise err(key, f"unknown engine {v!r} (event or dense)")
         grid.append((key, tuple(values)))
-    cases_table = data.get("cases", {})
-    if not isinstance(cases_table, dict):
-        raise _error(where, text, "cases", "must be a table of name = { key = value, ... }")
     cases = []
-    for case, settings in cases_table.items():
+    for case, settings in case_items:
         if not isinstance(settings, dict) or not settings:
-            raise _error(
-                where, text, case, f"a case must be a non-empty table of keys, got {settings!r}"
-            )
+            raise err(case, f"a case must be a non-empty table of keys, got {settings!r}")
         keys = list(_flatten(settings))
         for key, value in keys:
             if key in ("seed", "case", "n") or key in dict(grid):
                 reason = "set by the grid" if key in dict(grid) else "not a case key"
-                raise _error(where, text, case, f"{key!r}: {reason}")
+                raise err(case, f"{key!r}: {reason}")
             if key == "engine" and value not in ENGINES:
-                raise _error(where, text, case, f"unknown engine {value!r} (event or dense)")
+                raise err(case, f"unknown engine {value!r} (event or dense)")
         cases.append((case, tuple(keys)))
-    sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, tuple(grid), tuple(cases))
-    runs = len(sweep.cells()) * len(seeds)
+    return tuple(grid), tuple(cases)
+
+
+def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
+    """Every case, grid value and cell of ``sweep`` makes a valid scenario, checked before any
+    run: each case and value alone first (the error names its key), then every cell."""
+    runs = sweep.runs
     if runs > MAX_RUNS:
-        raise _error(where, text, "grid", f"{runs} runs: more than {MAX_RUNS}")
+        raise err("grid", f"{runs} runs: more than {MAX_RUNS}")
     try:  # the base scenario as written: its own errors name its own lines
-        parse_scenario(scen_text, str(scen_path))
+        parse_scenario(sweep.scenario_text, sweep.scenario_path)
     except RgtbusError as exc:
-        raise _error(where, text, "scenario", str(exc)) from None
-    base = tomllib.loads(scen_text)
-    # Every case and value alone first (the error names its key), then every cell: all before
-    # any run.
-    for case, _ in cases:
+        raise err("scenario", str(exc)) from None
+    base = tomllib.loads(sweep.scenario_text)
+    seed = sweep.seeds[0]
+    for case, _ in sweep.cases:
         try:
-            scenario_for(sweep, (("case", case),), seeds[0], base)
+            scenario_for(sweep, (("case", case),), seed, base)
         except RgtbusError as exc:
-            raise _error(where, text, case, str(exc)) from None
-    for key, values in grid:
+            raise err(case, str(exc)) from None
+    for key, values in sweep.grid:
         for value in values:
             try:
-                scenario_for(sweep, ((key, value),), seeds[0], base)
+                scenario_for(sweep, ((key, value),), seed, base)
             except RgtbusError as exc:
-                raise _error(where, text, key, f"value {value!r}: {exc}") from None
+                raise err(key, f"value {value!r}: {exc}") from None
     for cell in sweep.cells():
         try:
-            scenario_for(sweep, cell, seeds[0], base)
+            scenario_for(sweep, cell, seed, base)
         except RgtbusError as exc:
-            raise _error(where, text, "grid", f"cell {dict(cell)}: {exc}") from None
-    return sweep
+            raise err("grid", f"cell {dict(cell)}: {exc}") from None
 
 
 def _read_capped(path: Path, what: str) -> bytes:
@@ -276,13 +315,100 @@ def _read_capped(path: Path, what: str) -> bytes:
     return data
 
 
-def _flatten(table: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
     """``[grid]`` keys, dotted (``relations.p = [...]`` and ``"relations.p" = [...]`` alike)."""
     for k, v in table.items():
-        if isinstance(v, dict):
+        if isinstance(v, Mapping):
             yield from _flatten(v, f"{prefix}{k}.")
         else:
             yield f"{prefix}{k}", v
+
+
+# -- a sweep from arguments (the library) ------------------------------------------------------
+
+
+def _plain(value: Any) -> Any:
+    """A grid value as a TOML value: numpy scalars and arrays as Python ones, tuples as lists."""
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    return value
+
+
+def _seeds_arg(seeds: int | Sequence[int] | str) -> tuple[int, ...]:
+    """``seeds=N``: seeds 0..N-1; a sequence: those seeds; ``"a..b"``: as in a sweep file."""
+    if isinstance(seeds, bool):
+        raise RgtbusError(f"sweep seeds: an integer N (seeds 0..N-1) or a list, got {seeds!r}")
+    if isinstance(seeds, numbers.Integral):
+        n = int(seeds)
+        if not 1 <= n <= MAX_RUNS:
+            raise RgtbusError(f"sweep seeds: N must be 1..{MAX_RUNS} (seeds 0..N-1), got {n}")
+        return tuple(range(n))
+    try:
+        if isinstance(seeds, str):
+            return parse_seeds(seeds)
+        if isinstance(seeds, int):  # not reached (an Integral above); for the type checker
+            raise TypeError(seeds)
+        return parse_seeds(_plain(list(seeds)))
+    except (TypeError, ValueError) as exc:
+        raise RgtbusError(f"sweep seeds: {exc}") from None
+
+
+def _seeds_text(seeds: tuple[int, ...]) -> str | list[int]:
+    first, last = seeds[0], seeds[-1]
+    return f"{first}..{last}" if seeds == tuple(range(first, last + 1)) else list(seeds)
+
+
+def make_sweep(
+    scenario: Scenario | str | os.PathLike[str],
+    *,
+    grid: Mapping[str, Any],
+    seeds: int | Sequence[int] | str,
+    cases: Mapping[str, Mapping[str, Any]] | None = None,
+    name: str | None = None,
+) -> Sweep:
+    """A checked ``Sweep`` from arguments: what ``load_sweep`` gives for the equivalent sweep
+    file (its text is that file, stored as ``sweep.toml`` beside the results, with
+    ``scenario = "scenario.toml"``: the copy beside it, so the directory re-runs as is)."""
+    from rgtbus.scenario import load_scenario
+
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if not isinstance(grid, Mapping):
+        raise RgtbusError(f"sweep grid: a mapping of key -> [values], got {type(grid).__name__}")
+    if cases is not None and not isinstance(cases, Mapping):
+        raise RgtbusError(f"sweep cases: a mapping of name -> {{key: value}}, got {cases!r}")
+
+    def err(key: str | None, reason: str) -> RgtbusError:
+        return RgtbusError(f"sweep: {key}: {reason}" if key else f"sweep: {reason}")
+
+    items = []
+    for key, values in _flatten(grid):
+        try:
+            if isinstance(values, str | bytes):
+                raise TypeError
+            listed = list(values)
+        except TypeError:
+            raise err(key, f"must be a non-empty list of values, got {values!r}") from None
+        items.append((key, _plain(listed)))
+    case_items = [(str(k), _plain(v)) for k, v in (cases or {}).items()]
+    grid_t, cases_t = _axes(items, case_items, err)
+    seeds_t = _seeds_arg(seeds)
+    sweep_name = name or sc.name
+    doc: dict[str, Any] = {"name": sweep_name, "scenario": "scenario.toml"}
+    doc["seeds"] = _seeds_text(seeds_t)
+    if cases_t:
+        doc["cases"] = {c: dict(kv) for c, kv in cases_t}
+    doc["grid"] = {k: list(vs) for k, vs in grid_t}
+    try:
+        text = tomli_w.dumps(doc)
+    except TypeError as exc:
+        raise RgtbusError(f"sweep grid: a value TOML cannot hold: {exc}") from None
+    sw = Sweep(f"sweep({sc.path})", text, sweep_name, sc.path, sc.text, seeds_t, grid_t, cases_t)
+    check_sweep(sw, err)
+    return sw
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -310,7 +436,11 @@ def scenario_for(
     data["seed"] = seed
     settings = [f"{k}={v!r}" for k, v in cell] + [f"seed {seed}"]
     label = f"{sweep.scenario_path} [{'; '.join(settings)}]"
-    return parse_scenario(tomli_w.dumps(data), label)
+    try:
+        text = tomli_w.dumps(data)
+    except TypeError as exc:  # a value TOML cannot hold (None, an object)
+        raise RgtbusError(f"not a TOML value: {exc}") from None
+    return parse_scenario(text, label)
 
 
 def _set(data: dict[str, Any], key: str, value: Any) -> None:
@@ -335,7 +465,9 @@ def engine_of(sweep: Sweep, cell: tuple[tuple[str, Any], ...]) -> str:
 
 
 def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, Any]:
-    """One run as one row of the results table; a run that raises is a row with its error."""
+    """One run as one row of the results table, its fields as the run summary states them
+    (``table_row`` shapes it for the table); the run's decisions under ``"_decisions"``. A run
+    that raises is a row with its error."""
     from rgtbus.units.group import run_group
 
     from rgtbus.telemetry import McapRecorder, NullRecorder
@@ -361,11 +493,11 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         s = summary_json({**out.summary, "log": log_path})
         grid_keys = {k for k, _ in task.cell}
         for k, v in s.items():
-            if k in ("seed", "engine", "schedule", "log"):
+            if k in _NOT_COLUMNS:
                 continue
             # a grid key keeps its name; a summary field of the same name gets a prefix
-            name = f"summary.{k}" if k in grid_keys else k
-            row[name] = json.dumps(v) if k in JSON_COLUMNS or isinstance(v, list | dict) else v
+            row[f"summary.{k}" if k in grid_keys else k] = v
+        row["_decisions"] = s.get("decisions") or []
         row["decode_error_count"] = len(s["decode_errors"])
         row["frustrated_count"] = len(s["frustrated"])
         decided = sum(1 for u in s["units"].values() if u["decided"])
@@ -390,7 +522,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
     return row
 
 
-def goal_columns(s: dict[str, Any]) -> dict[str, Any]:
+def goal_columns(s: Mapping[str, Any]) -> dict[str, Any]:
     """A run's goals and rounds as plain columns: how many goals; of the judged ones the share
     reached by the targets' decisions (simulated) and the share reachable by the unit's own
     influence given what the others sent (the inverse task); the mean steerable share (the
@@ -423,33 +555,521 @@ def run_batch(sweep: Sweep, tasks: list[Task], log_dir: str | None) -> list[dict
     return [run_row(sweep, t, log_dir) for t in tasks]
 
 
-# -- the whole sweep ---------------------------------------------------------------------------
+# -- the tables --------------------------------------------------------------------------------
+
+
+def _summary_types() -> dict[str, pa.DataType]:
+    """The Arrow type of each summary field that is a column of the results (a field not named
+    here, e.g. one a later summary adds, is stored as JSON text)."""
+    import pyarrow as pa
+
+    text, alts = pa.string(), pa.list_(pa.string())
+    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
+    influences = pa.map_(text, alts)  # "s>r" -> the alternative sent (sorted action names)
+    unit = pa.struct(
+        [
+            ("unit", text),
+            ("low", alts),  # the interval [low, high] of its decision (B and A); None: frustrated
+            ("high", alts),
+            ("choice", alts),
+            ("frustrated", yes),
+            ("decided", yes),
+            ("A", alts),
+            ("B", alts),
+            ("canonical", text),
+        ]
+    )
+    goal = pa.struct(
+        [
+            ("unit", text),
+            ("target", text),
+            ("want_low", alts),
+            ("want_high", alts),
+            ("mode", text),
+            ("reached", yes),
+            ("reachable", yes),
+            ("share", f64),
+        ]
+    )
+    rounds = pa.struct(
+        [
+            ("count", i64),
+            ("state", text),
+            ("since", i64),
+            ("length", i64),
+            ("influences", pa.list_(influences)),
+        ]
+    )
+    decode_error = pa.struct(
+        [("unit", text), ("turn", i64), ("kind", text), ("decoded", text), ("sent", text)]
+    )
+    return {
+        "scenario": text,
+        "polynomial": text,
+        "decomposable": yes,
+        "p4": alts,
+        "relations": pa.map_(text, text),  # "a-b" -> alliance | conflict
+        "agree": yes,
+        "influences": influences,
+        "units": pa.list_(unit),
+        "frustrated": alts,
+        "wrong_decisions": alts,
+        "goals": pa.list_(goal),
+        "rounds": rounds,
+        "outcome": text,
+        "sim_seconds": f64,
+        "wall_seconds": f64,
+        "decode_errors": pa.list_(decode_error),
+        "error": text,
+    }
+
+
+def _derived_types() -> list[tuple[str, pa.DataType]]:
+    import pyarrow as pa
+
+    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
+    return [
+        ("decode_error_count", i64),
+        ("frustrated_count", i64),
+        ("decided_count", i64),
+        ("wrong_decision_count", i64),
+        ("wrong_decision_rate", f64),
+        ("goal_count", i64),
+        ("goal_reached_rate", f64),
+        ("goal_reachable_rate", f64),
+        ("goal_share_mean", f64),
+        ("goal_reached", yes),
+        ("goal_reachable", yes),
+        ("rounds_state", pa.string()),
+        ("rounds_cycle_length", i64),
+        ("alliance_share", f64),
+        ("decodes", i64),
+        ("decode_error_rate", f64),
+        ("failed", yes),
+        ("log", pa.string()),
+    ]
+
+
+def grid_type(key: str, values: Sequence[Any]) -> pa.DataType:
+    """A grid column's type, from the grid's values (never from the runs): all booleans bool,
+    all integers int64, numbers float64, anything else text (a list or table as JSON text)."""
+    import pyarrow as pa
+
+    kinds = {type(v) for v in values}
+    if key in ("case", "engine") or not kinds:
+        return pa.string()
+    if kinds == {bool}:
+        return pa.bool_()
+    if kinds == {int}:
+        return pa.int64()
+    if kinds <= {int, float}:
+        return pa.float64()
+    return pa.string()
+
+
+def _grid_fields(sweep: Sweep) -> list[tuple[str, pa.DataType]]:
+    return [(key, grid_type(key, values)) for key, values in sweep.axes]
+
+
+def results_schema(sweep: Sweep) -> pa.Schema:
+    """The results table's schema: fixed but for the grid columns (``grid_type``), so two
+    sweeps' tables concatenate and a column whose runs are all empty keeps its type."""
+    import pyarrow as pa
+
+    keys = set(sweep.keys)
+    fields: list[tuple[str, pa.DataType]] = [("run", pa.int64())]
+    fields += _grid_fields(sweep)
+    fields.append(("seed", pa.int64()))
+    if "engine" not in keys:
+        fields.append(("engine", pa.string()))
+    fields += [("digest", pa.string()), ("schedule", pa.string()), ("n_units", pa.int64())]
+    types_ = _summary_types()
+    for k in SUMMARY_JSON_KEYS:
+        if k not in _NOT_COLUMNS:
+            fields.append((f"summary.{k}" if k in keys else k, types_.get(k, pa.string())))
+    fields += _derived_types()
+    names = [n for n, _ in fields]
+    clash = sorted({n for n in names if names.count(n) > 1})
+    if clash:
+        raise RgtbusError(f"sweep grid: {clash[0]!r} is a column of the results, not a grid key")
+    return pa.schema(fields)
+
+
+def decisions_schema(sweep: Sweep) -> pa.Schema:
+    """decisions.parquet: one row per run, unit and influence round."""
+    import pyarrow as pa
+
+    alts = pa.list_(pa.string())
+    return pa.schema(
+        [
+            ("run", pa.int64()),
+            *_grid_fields(sweep),
+            ("seed", pa.int64()),
+            ("unit", pa.string()),
+            ("round", pa.int64()),
+            ("low", alts),
+            ("high", alts),
+            ("choice", alts),
+            ("frustrated", pa.bool_()),
+            ("wrong", pa.bool_()),
+            ("t", pa.float64()),
+        ]
+    )
+
+
+def _loaded(value: Any) -> Any:
+    """A nested value as the summary states it (rows of an older rgtbus: JSON text)."""
+    return json.loads(value) if isinstance(value, str) else value
+
+
+def _influence_map(value: Any) -> list[tuple[str, Any]] | None:
+    return None if value is None else list(value.items())
+
+
+def _unit_rows(units: Any) -> list[dict[str, Any]]:
+    out = []
+    for name, r in units.items():
+        interval = r.get("interval")
+        out.append(
+            {
+                "unit": name,
+                "low": interval[0] if interval else None,
+                "high": interval[1] if interval else None,
+                **{k: r.get(k) for k in ("choice", "frustrated", "decided", "A", "B", "canonical")},
+            }
+        )
+    return out
+
+
+def _goal_rows(goals: Any) -> list[dict[str, Any]]:
+    out = []
+    for g in goals:
+        want = g.get("want") or [None, None]
+        out.append({**g, "want_low": want[0], "want_high": want[1]})
+    return out
+
+
+def _rounds_struct(rounds: Any) -> dict[str, Any]:
+    infl = rounds.get("influences")
+    return {
+        **{k: rounds.get(k) for k in ("count", "state", "since", "length")},
+        "influences": None if infl is None else [_influence_map(r) for r in infl],
+    }
+
+
+_SHAPES: dict[str, Callable[[Any], Any]] = {
+    "relations": _influence_map,
+    "influences": _influence_map,
+    "units": _unit_rows,
+    "goals": _goal_rows,
+    "rounds": _rounds_struct,
+}
+
+
+def _shaped(sweep: Sweep, schema: pa.Schema, row: Mapping[str, Any]) -> dict[str, Any]:
+    """A row as ``run_row`` gives it (or an older rgtbus stored it) in the table's shapes."""
+    import pyarrow as pa
+
+    grid = {k for k, _ in sweep.axes}
+    out: dict[str, Any] = {}
+    for f in schema:
+        v = row.get(f.name)
+        if v is None:
+            out[f.name] = None
+            continue
+        # the summary field a column holds (a grid column: none)
+        if f.name.startswith("summary."):
+            summary_field: str | None = f.name.removeprefix("summary.")
+        else:
+            summary_field = None if f.name in grid else f.name
+        nested = pa.types.is_nested(f.type)
+        if nested:
+            v = _loaded(v)
+            if summary_field in _SHAPES and v is not None:
+                v = _SHAPES[summary_field](v)
+        elif pa.types.is_string(f.type) and not isinstance(v, str):
+            v = json.dumps(v)
+        elif pa.types.is_floating(f.type) and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
+        out[f.name] = v
+    return out
+
+
+def results_table(sweep: Sweep, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
+    """The results table of ``rows`` (one a run, in order), typed by ``results_schema``."""
+    import pyarrow as pa
+
+    schema = results_schema(sweep)
+    return pa.Table.from_pylist([_shaped(sweep, schema, r) for r in rows], schema=schema)
+
+
+def decisions_table(sweep: Sweep, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
+    """Every decision of every run: one row per run, unit and influence round."""
+    import pyarrow as pa
+
+    schema = decisions_schema(sweep)
+    head = ["run", *sweep.keys, "seed"]
+    grid = {f.name: f.type for f in schema if f.name in sweep.keys}
+    out = []
+    for r in rows:
+        decisions = r.get("_decisions")
+        if decisions is None and "decisions" not in sweep.keys:  # an older row, if it had them
+            decisions = r.get("decisions")
+        cell = {k: r.get(k) for k in head}
+        for k, t in grid.items():
+            v = cell[k]
+            if v is not None and pa.types.is_string(t) and not isinstance(v, str):
+                cell[k] = json.dumps(v)
+            elif v is not None and pa.types.is_floating(t):
+                cell[k] = float(v)
+        for d in _loaded(decisions) or ():
+            out.append({**cell, **{k: d.get(k) for k in schema.names if k not in cell}})
+    return pa.Table.from_pylist(out, schema=schema)
+
+
+def jsonable(value: Any, typ: pa.DataType) -> Any:
+    """An Arrow value (``to_pylist``) as plain JSON: a map as an object."""
+    import pyarrow as pa
+
+    if value is None:
+        return None
+    if pa.types.is_map(typ):
+        return {k: jsonable(v, typ.item_type) for k, v in value}
+    if pa.types.is_list(typ) or pa.types.is_large_list(typ):
+        return [jsonable(v, typ.value_type) for v in value]
+    if pa.types.is_struct(typ):
+        return {f.name: jsonable(value.get(f.name), f.type) for f in typ}
+    return value
+
+
+def table_rows(table: pa.Table) -> list[dict[str, Any]]:
+    """A table's rows as plain Python and JSON values (maps as dicts)."""
+    import pyarrow as pa
+
+    nested = {f.name: f.type for f in table.schema if pa.types.is_nested(f.type)}
+    rows = table.to_pylist()
+    for r in rows:
+        for name, typ in nested.items():
+            r[name] = jsonable(r[name], typ)
+    return rows
+
+
+def _csv_table(table: pa.Table) -> pa.Table:
+    """The table with nested columns as JSON text (CSV holds no nested values)."""
+    import pyarrow as pa
+
+    for i, f in enumerate(table.schema):
+        if pa.types.is_nested(f.type):
+            text = [
+                None if v is None else json.dumps(jsonable(v, f.type))
+                for v in table.column(i).to_pylist()
+            ]
+            table = table.set_column(i, pa.field(f.name, pa.string()), pa.array(text, pa.string()))
+    return table
+
+
+def write_tables(sweep: Sweep, rows: Sequence[Mapping[str, Any]], out_dir: Path) -> pa.Table:
+    """``results.parquet`` and ``results.csv`` (one row per run, the same columns in both) and
+    ``decisions.parquet``; each written whole, then moved into place. Returns the results."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    results = results_table(sweep, rows)
+    decisions = decisions_table(sweep, rows)
+    writes: list[tuple[str, Callable[[Path], None]]] = [
+        ("results.parquet", lambda p: pq.write_table(results, p)),
+        ("decisions.parquet", lambda p: pq.write_table(decisions, p)),
+        ("results.csv", lambda p: pacsv.write_csv(_csv_table(results), p)),
+    ]
+    for name, write in writes:
+        tmp = out_dir / f".{name}.part"
+        write(tmp)
+        os.replace(tmp, out_dir / name)
+    return results
+
+
+class SweepTables(NamedTuple):
+    """A sweep directory's tables as pandas DataFrames (``read_sweep``)."""
+
+    results: pd.DataFrame
+    decisions: pd.DataFrame
+
+
+def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
+    """``(results, decisions)`` of the sweep written to ``out`` (``sweep(..., out=DIR)`` or
+    ``rgtbus sweep --out DIR``), as ``pd.read_parquet`` gives them. A directory without
+    ``decisions.parquet`` (an older rgtbus) gives an empty decisions table."""
+    import pandas as pd
+
+    d = Path(out)
+    path = d / "results.parquet"
+    if not path.is_file():
+        raise RgtbusError(f"{str(d)!r}: no results.parquet (run the sweep first)")
+    dec = d / "decisions.parquet"
+    columns = ["run", "seed", "unit", "round", "low", "high", "choice", "frustrated", "wrong", "t"]
+    decisions = pd.read_parquet(dec) if dec.is_file() else pd.DataFrame(columns=columns)
+    return SweepTables(pd.read_parquet(path), decisions)
+
+
+# -- where the runs run ------------------------------------------------------------------------
+
+_HIDING = threading.Lock()
+
+
+@contextlib.contextmanager
+def _main_hidden() -> Iterator[None]:
+    """``__main__`` is a bare module while a worker process starts.
+
+    The spawn start method sends a new process the caller's main script path or module name
+    (``multiprocessing.spawn.get_preparation_data``: ``init_main_from_path`` /
+    ``init_main_from_name``) and the worker runs that script again as ``__mp_main__``; a script
+    or notebook without an ``if __name__ == "__main__"`` guard then starts the sweep again in
+    every worker, and the pool breaks. The workers of a sweep need nothing from ``__main__``
+    (the task, ``run_batch``, and its arguments live in this module), so while one starts
+    ``sys.modules["__main__"]`` is a module without ``__file__`` or ``__spec__``: the worker
+    is told of no main module and imports only what it unpickles."""
+    with _HIDING:
+        main = sys.modules.get("__main__")
+        sys.modules["__main__"] = types.ModuleType("__main__")
+        try:
+            yield
+        finally:
+            if main is not None:
+                sys.modules["__main__"] = main
+            else:
+                del sys.modules["__main__"]
+
+
+class _NoMainSpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawned process that is never told of the caller's ``__main__`` (``_main_hidden``)."""
+
+    @staticmethod
+    def _Popen(process_obj: Any) -> Any:
+        with _main_hidden():
+            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+
+
+class _NoMainSpawnContext(multiprocessing.context.SpawnContext):
+    """The spawn context (no state of this process leaks into a run) with workers that never
+    import the caller's ``__main__``; pools may start workers at any ``submit``: each start
+    hides it."""
+
+    Process = _NoMainSpawnProcess  # type: ignore[assignment]
+
+
+@dataclass
+class Pool:
+    """Where a sweep's runs go: ``executor`` (``None``: in this process) with ``workers``;
+    ``record()`` is what sweep.json says of it."""
+
+    executor: Executor | None
+    workers: int
+    kind: str  # "process-pool", "dask" or "in-process"
+    scheduler: str | None = None
+    start_method: str | None = None
+    fallback: str | None = None  # why the runs went to this process instead of a pool
+
+    def record(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "executor": self.kind,
+            "scheduler": self.scheduler,
+            "workers": self.workers,
+            "start_method": self.start_method,
+        }
+        if self.fallback:
+            out["fallback"] = self.fallback
+        return out
+
+    def fall_back(self, reason: str, runs: int) -> None:
+        """Run the rest here; say so in one line on stderr."""
+        print(
+            f"rgtbus sweep: worker processes unavailable ({reason}); running {runs} runs in "
+            "this process",
+            file=sys.stderr,
+            flush=True,
+        )
+        self.executor, self.workers, self.kind = None, 1, "in-process"
+        self.start_method, self.fallback = None, reason
+
+
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception as one short line (some, e.g. multiprocessing's, span many)."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _pool_of(executor: Executor | None, workers: int) -> Pool:
+    """How sweep.json names an executor handed to ``run_sweep``."""
+    if executor is None:
+        return Pool(None, 1, "in-process")
+    if isinstance(executor, ProcessPoolExecutor):
+        ctx = getattr(executor, "_mp_context", None)
+        method = ctx.get_start_method() if ctx is not None else None
+        return Pool(executor, workers, "process-pool", start_method=method)
+    if type(executor).__module__.startswith("distributed"):
+        return Pool(executor, workers, "dask")
+    return Pool(executor, workers, type(executor).__name__)
+
+
+@contextlib.contextmanager
+def _dask(scheduler: str) -> Iterator[tuple[Executor, int]]:
+    from distributed import Client
+
+    try:
+        client = Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        raise RgtbusError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
+    try:
+        n = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
+        yield client.get_executor(pure=False), n
+    finally:
+        client.close()
+
+
+@contextlib.contextmanager
+def open_pool(
+    workers: int | None, scheduler: str | None, runs: int | None = None
+) -> Iterator[Pool]:
+    """The Dask cluster at ``scheduler`` (``tcp://host:port``); else a local spawn process pool
+    of ``workers`` (all cores by default, no more than ``runs``) whose workers never import
+    ``__main__``; one worker: this process. A pool that cannot be made (no process support
+    here) falls back to this process, said in one line on stderr."""
+    if scheduler:
+        with _dask(scheduler) as (ex, n):
+            yield Pool(ex, n, "dask", scheduler=scheduler)
+        return
+    n = workers or os.cpu_count() or 1
+    if runs is not None:
+        n = max(1, min(n, runs))
+    if n == 1:
+        yield Pool(None, 1, "in-process")
+        return
+    try:
+        pool = ProcessPoolExecutor(max_workers=n, mp_context=_NoMainSpawnContext())
+    except (OSError, NotImplementedError, ImportError) as exc:
+        p = Pool(None, n, "process-pool")
+        p.fall_back(_one_line(exc), runs or 0)
+        yield p
+        return
+    try:
+        yield Pool(pool, n, "process-pool", start_method="spawn")
+    except BaseException:  # Ctrl-C, a broken pool: the batches not started are dropped
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
 
 
 @contextlib.contextmanager
 def open_executor(workers: int | None, scheduler: str | None) -> Iterator[tuple[Executor, int]]:
-    """A local process pool of ``workers`` (all cores by default), or the executor of the Dask
-    cluster at ``scheduler`` (``tcp://host:port``); with the number of workers it has."""
+    """A local process pool of ``workers`` (all cores by default; its workers never import
+    ``__main__``), or the executor of the Dask cluster at ``scheduler``; with the number of
+    workers it has. Always an executor (``open_pool`` runs one worker in this process)."""
     if scheduler:
-        from distributed import Client
-
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise RgtbusError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
-        try:
-            n = max(
-                1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
-            )
-            yield client.get_executor(pure=False), n
-        finally:
-            client.close()
+        with _dask(scheduler) as got:
+            yield got
         return
-    import multiprocessing
-
     n = workers or os.cpu_count() or 1
-    ctx = multiprocessing.get_context("spawn")  # no state of this process leaks into a run
-    with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=n, mp_context=_NoMainSpawnContext()) as pool:
         yield pool, n
 
 
@@ -457,6 +1077,60 @@ def batches(tasks: list[Task], workers: int) -> list[list[Task]]:
     """Enough batches to keep every worker busy to the end (8 a worker), at most 50 runs each."""
     size = max(1, min(50, math.ceil(len(tasks) / (workers * 8))))
     return [tasks[i : i + size] for i in range(0, len(tasks), size)]
+
+
+def _batch_results(
+    sweep: Sweep, todo: list[Task], pool: Pool, log_dir: str | None, out_dir: Path
+) -> Iterator[list[dict[str, Any]]]:
+    """The rows of each batch as it finishes. A pool that breaks before any batch came back
+    (its workers could not start) falls back to this process; one that breaks later is an
+    error of one line (the rows so far are kept: resume)."""
+    groups = batches(todo, pool.workers)
+    redo: list[list[Task]] = []
+    reason = None
+    if pool.executor is not None:
+        pending: dict[Future, list[Task]] = {}
+        got = 0
+        try:
+            for b in groups:
+                pending[pool.executor.submit(run_batch, sweep, b, log_dir)] = b
+        except (BrokenExecutor, OSError, RuntimeError) as exc:
+            for fut in pending:
+                fut.cancel()
+            reason, redo, pending = _one_line(exc), groups, {}
+        while pending:
+            finished, _ = wait(pending, return_when="FIRST_COMPLETED")
+            broken = None
+            for fut in finished:
+                batch = pending.pop(fut)
+                try:
+                    rows = fut.result()
+                except BrokenExecutor as exc:
+                    broken = exc
+                    redo.append(batch)
+                    continue
+                got += 1
+                yield rows
+            if broken is not None:
+                if got:
+                    raise RgtbusError(
+                        f"a worker process died ({_one_line(broken)}); the runs "
+                        f"so far are in {str(out_dir / 'rows.jsonl')!r}: resume to finish"
+                    ) from None
+                for fut in pending:
+                    fut.cancel()
+                reason = _one_line(broken)
+                redo += list(pending.values())
+                pending = {}
+        if reason is None:
+            return
+        pool.fall_back(reason, sum(len(b) for b in redo))
+        groups = redo
+    for b in groups:
+        yield run_batch(sweep, b, log_dir)
+
+
+# -- the whole sweep ---------------------------------------------------------------------------
 
 
 def read_rows(out_dir: Path) -> list[dict[str, Any]]:
@@ -472,28 +1146,62 @@ def read_rows(out_dir: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any]]:
+def prepare_out(
+    sweep: Sweep, out_dir: Path, resume: bool, pool: Pool | None = None
+) -> list[dict[str, Any]]:
     """Create ``out_dir`` with the sweep file and versions beside it; on resume, the rows
-    already there (they must be of this sweep)."""
+    already there (they must be of this sweep, and fit its tables)."""
     rows_path = out_dir / "rows.jsonl"
     stored = out_dir / "sweep.json"
     if rows_path.exists() and not resume:
         raise RgtbusError(
-            f"{str(out_dir)!r} holds results already: --resume to finish that sweep, or "
-            "choose another --out"
+            f"{str(out_dir)!r} holds results already: --resume (resume=True) to finish that "
+            "sweep, or choose another --out"
         )
+    if out_dir.exists() and not out_dir.is_dir():
+        raise RgtbusError(f"{str(out_dir)!r}: not a directory")
+    rows: list[dict[str, Any]] = []
     if resume and stored.exists():
-        before = json.loads(stored.read_text(encoding="utf-8")).get("digest")
-        if before != sweep.digest:
+        try:
+            before = json.loads(stored.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
             raise RgtbusError(
-                f"{str(out_dir)!r} holds results of another sweep (digest {before}, this "
-                f"one {sweep.digest}): cannot resume it with {sweep.path!r}"
+                f"{str(out_dir)!r}: cannot resume: sweep.json unreadable: {exc}"
+            ) from None
+        if before.get("digest") != sweep.digest:
+            raise RgtbusError(
+                f"{str(out_dir)!r} holds results of another sweep (digest "
+                f"{before.get('digest')}, this one {sweep.digest}): cannot resume it with "
+                f"{sweep.path!r}"
             )
+        if before.get("tables", 1) > TABLES_VERSION:
+            raise RgtbusError(
+                f"{str(out_dir)!r}: cannot resume: its tables are of a newer rgtbus (version "
+                f"{before.get('tables')}, this one writes {TABLES_VERSION})"
+            )
+    if resume:
+        rows = read_rows(out_dir)
+        try:  # rows of an older rgtbus (JSON text columns) are re-tabled, or refused here
+            results_table(sweep, rows)
+            decisions_table(sweep, rows)
+        except Exception as exc:
+            raise RgtbusError(
+                f"{str(out_dir)!r}: cannot resume: its rows.jsonl does not fit this rgtbus's "
+                f"tables ({_one_line(exc)}); "
+                "run the sweep into another directory"
+            ) from None
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "sweep.toml").write_text(sweep.text, encoding="utf-8")
     (out_dir / "scenario.toml").write_text(sweep.scenario_text, encoding="utf-8")
-    stored.write_text(json.dumps(versions(sweep), indent=2) + "\n", encoding="utf-8")
-    return read_rows(out_dir) if resume else []
+    _write_versions(sweep, out_dir, pool)
+    return rows
+
+
+def _write_versions(sweep: Sweep, out_dir: Path, pool: Pool | None) -> None:
+    record = versions(sweep)
+    if pool is not None:
+        record.update(pool.record())
+    (out_dir / "sweep.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
 
 
 def versions(sweep: Sweep) -> dict[str, Any]:
@@ -508,7 +1216,8 @@ def versions(sweep: Sweep) -> dict[str, Any]:
         "name": sweep.name,
         "scenario": sweep.scenario_path,
         "digest": sweep.digest,
-        "runs": len(sweep.cells()) * len(sweep.seeds),
+        "runs": sweep.runs,
+        "tables": TABLES_VERSION,
         "rgtbus": __version__,
         "python": platform.python_version(),
         "libraries": libs,
@@ -519,21 +1228,26 @@ def run_sweep(
     sweep: Sweep,
     out_dir: Path,
     *,
-    executor: Executor,
-    workers: int,
+    executor: Executor | None = None,
+    workers: int = 1,
     resume: bool = False,
     logs: bool = False,
     progress: Callable[[int, int, int], None] | None = None,
+    pool: Pool | None = None,
 ) -> list[dict[str, Any]]:
-    """Run every task not yet in ``out_dir``; return all rows in task order and write the
-    tables. ``progress(done, total, failures)`` after every batch."""
-    done_rows = prepare_out(sweep, out_dir, resume)
+    """Run every task not yet in ``out_dir`` on ``executor`` (``None``: in this process) or
+    ``pool``; write the tables and return the results table's rows in task order (plain
+    values: ``table_rows``). ``progress(done, total, failures)`` after every batch."""
+    out_dir = Path(out_dir)
+    pool = pool or _pool_of(executor, workers)
+    done_rows = prepare_out(sweep, out_dir, resume, pool)
     tasks = sweep.tasks()
     by_key = {t.key: t for t in tasks}
     have = {}
     for r in done_rows:
         key = r.pop("_key", None)
         if key in by_key:
+            r["run"] = by_key[key].index  # the run's place in this sweep
             have[key] = r
     todo = [t for t in tasks if t.key not in have]
     log_dir = None
@@ -543,47 +1257,129 @@ def run_sweep(
     failures = sum(1 for r in have.values() if r.get("failed"))
     if progress:
         progress(len(have), len(tasks), failures)
+    keys = {t.index: t.key for t in todo}
     with open(out_dir / "rows.jsonl", "a", encoding="utf-8") as sink:
-        pending: set[Future] = {
-            executor.submit(run_batch, sweep, batch, log_dir) for batch in batches(todo, workers)
-        }
-        keys = {t.index: t.key for t in todo}
-        while pending:
-            finished, pending = wait(pending, return_when="FIRST_COMPLETED")
-            for fut in finished:
-                for row in fut.result():
-                    key = keys[row["run"]]
-                    have[key] = row
-                    failures += bool(row.get("failed"))
-                    sink.write(json.dumps({**row, "_key": key}) + "\n")
-                sink.flush()
+        for batch_rows in _batch_results(sweep, todo, pool, log_dir, out_dir):
+            for row in batch_rows:
+                key = keys[row["run"]]
+                have[key] = row
+                failures += bool(row.get("failed"))
+                sink.write(json.dumps({**row, "_key": key}) + "\n")
+            sink.flush()
             if progress:
                 progress(len(have), len(tasks), failures)
+    if pool.fallback:
+        _write_versions(sweep, out_dir, pool)
     rows = [have[t.key] for t in tasks]
-    write_tables(rows, out_dir)
-    return rows
+    return table_rows(write_tables(sweep, rows, out_dir))
 
 
-def write_tables(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    """``results.parquet`` and ``results.csv``: one row per run, the same columns in both."""
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
+def execute_sweep(
+    sweep: Sweep,
+    out_dir: str | os.PathLike[str],
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    logs: bool = False,
+    progress: bool | Callable[[int, int, int], None] = False,
+) -> list[dict[str, Any]]:
+    """Run ``sweep`` into ``out_dir`` on the pool ``open_pool`` gives (what ``rgtbus sweep``
+    and ``sweep()`` both do); ``progress``: a tqdm bar on stderr, or a callback
+    ``(done, total, failures)``. Returns the results' rows."""
+    if workers is not None and (isinstance(workers, bool) or workers < 1):
+        raise RgtbusError(f"workers must be at least 1, got {workers}")
+    bar = None
+    callback = progress if callable(progress) else None
+    if progress is True:
+        from tqdm import tqdm
 
-    columns: dict[str, None] = {}
-    for r in rows:
-        columns.update(dict.fromkeys(r))
-    data = {c: _column([r.get(c) for r in rows]) for c in columns}
-    table = pa.table(data)
-    pq.write_table(table, out_dir / "results.parquet")
-    pacsv.write_csv(table, out_dir / "results.csv")
+        bar = tqdm(total=sweep.runs, unit="run", desc=sweep.name, file=sys.stderr)
+
+        def callback(done: int, total: int, failures: int) -> None:
+            assert bar is not None
+            bar.n = done
+            bar.set_postfix(failures=failures, refresh=False)
+            bar.refresh()
+
+    try:
+        with open_pool(workers, scheduler, runs=sweep.runs) as pool:
+            return run_sweep(
+                sweep,
+                Path(out_dir),
+                executor=pool.executor,
+                workers=pool.workers,
+                resume=resume,
+                logs=logs,
+                progress=callback,
+                pool=pool,
+            )
+    finally:
+        if bar is not None:
+            bar.close()
 
 
-def _column(values: list[Any]) -> list[Any]:
-    """One type a column: numbers of mixed kinds become floats; anything else mixed, text."""
-    kinds = {type(v) for v in values if v is not None}
-    if len(kinds) <= 1:
-        return values
-    if kinds <= {int, float}:
-        return [None if v is None else float(v) for v in values]
-    return [None if v is None else (v if isinstance(v, str) else json.dumps(v)) for v in values]
+def sweep(
+    scenario_or_path: Scenario | str | os.PathLike[str],
+    *,
+    grid: Mapping[str, Sequence[Any]],
+    seeds: int | Sequence[int],
+    workers: int | None = None,
+    out: str | os.PathLike[str] | None = None,
+    scheduler: str | None = None,
+    cases: Mapping[str, Mapping[str, Any]] | None = None,
+    progress: bool = False,
+    resume: bool = False,
+    logs: bool = False,
+    name: str | None = None,
+) -> pd.DataFrame:
+    """Run a scenario over seeds and a grid of keys; the results table ``rgtbus sweep`` writes.
+
+    ``scenario_or_path``: a ``Scenario``, or what ``rgtbus.scenario.load_scenario`` reads.
+    ``grid``: key -> values, crossed (every combination, in order): ``n`` (a group of n units
+    u1..un), ``engine`` (``"event"``/``"dense"``), any dotted scenario key
+    (``"relations.p"``, ``"channel.noise"``); ``cases``: name -> {key: value}, crossed with the
+    grid as one more key, ``case``. ``seeds``: ``N`` for seeds 0..N-1, or a list of seeds.
+    Each (cell, seed) is one run: the base scenario with the cell's keys and the seed set.
+
+    Runs go to ``workers`` local processes (all cores by default; one: this process), or the
+    Dask cluster at ``scheduler``. Workers never import the caller's ``__main__``, so this
+    works from a plain script or notebook cell without an ``if __name__ == "__main__"`` guard.
+
+    Returns one row per run (in grid-then-seed order), as ``pd.read_parquet`` reads
+    ``results.parquet``: native types (``relations`` a map, ``units`` a list of structs, ...;
+    docs/sweeps.md). Equation-free: the table holds what the simulated units did (their
+    intervals, choices, decode errors) and judgements against the noise-free forward task; it
+    computes no RGT of its own. ``out=None`` keeps nothing on disk; a directory keeps what
+    ``rgtbus sweep --out DIR`` writes there (``read_sweep(out)`` gives results and
+    decisions, one row per run, unit and round); ``resume=True`` finishes one stopped
+    halfway; ``logs=True`` an MCAP log per run (needs ``out``). A run that raises is a row with
+    ``failed`` and its ``error``, never the end of the sweep.
+
+    >>> df = sweep("scenarios/random_group.toml", grid={"n": [3, 4], "relations.p": [0.3, 0.9]},
+    ...            seeds=20)                                              # doctest: +SKIP
+    >>> df.groupby(["n", "relations.p"])["decomposable"].mean()           # doctest: +SKIP
+    """
+    import pandas as pd
+
+    sw = make_sweep(scenario_or_path, grid=grid, seeds=seeds, cases=cases, name=name)
+    kw: dict[str, Any] = {
+        "workers": workers,
+        "scheduler": scheduler,
+        "resume": resume,
+        "logs": logs,
+        "progress": progress,
+    }
+    if out is None:
+        if logs:
+            raise RgtbusError("sweep: logs=True needs out= (a directory to keep them in)")
+        with tempfile.TemporaryDirectory(prefix="rgtbus-sweep-") as tmp:
+            execute_sweep(sw, tmp, **kw)
+            return pd.read_parquet(Path(tmp) / "results.parquet")
+    execute_sweep(sw, out, **kw)
+    return pd.read_parquet(Path(out) / "results.parquet")
+
+
+def decisions(out: str | os.PathLike[str]) -> pd.DataFrame:
+    """decisions.parquet of the sweep written to ``out``: ``read_sweep(out).decisions``."""
+    return read_sweep(out).decisions

@@ -17,12 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import simpy
-from numpy.random import default_rng
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
 from rgtbus.hearing import Ears, Listener
-from rgtbus.mind import intents, mind_of, result_fields, steering_reason
+from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
 from rgtbus.protocol import (
     NOTHING,
     PHASES,
@@ -35,10 +34,11 @@ from rgtbus.protocol import (
 )
 from rgtbus.rgt import SteeringChoice
 from rgtbus.scenario import Scenario
+from rgtbus.signal.channel import noise_rng
 from rgtbus.signal.decoder import Readout, WordSet
-from rgtbus.sim import ns
-from rgtbus.summary import not_decomposable_text
-from rgtbus.telemetry import Recorder
+from rgtbus.summary import decision_row, not_decomposable_text
+from rgtbus.telemetry import Recorder, records
+from rgtbus.timebase import ns
 
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
@@ -78,6 +78,8 @@ class AutonomousUnit:
     done_at: int = 0
     decoded: list[Decoded] = field(default_factory=list)
     sent: list[Send] = field(default_factory=list)
+    # this unit's own decision after each influence round it decided (``decision_row``)
+    decisions: list[records.DecisionRow] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         sc = self.scenario
@@ -132,9 +134,9 @@ class AutonomousUnit:
         sc = self.scenario
         return Listener(
             name=self.name,
-            gains=np.array([sc.gains.get((s, self.name), 1.0) for s in self.units]),
-            noise=sc.noise,
-            rng=default_rng([sc.seed, self.units.index(self.name), 1]),
+            gains=sc.channel.gain_row(self.units, self.name),
+            noise=sc.channel.noise,
+            rng=noise_rng(sc.seed, self.units.index(self.name)),
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
             every_spike=self.recorder.enabled,  # only a log needs more than the awaited one
@@ -209,9 +211,8 @@ class AutonomousUnit:
         names = self._spike_names.get(channels)
         if names is None:
             names = self._spike_names[channels] = [self.units[ch] for ch in channels]
-        t = k * self.tau
         self.recorder.write(
-            "/rx/spike", {"unit": self.name, "t": t, "sample": k, "channels": names}, ns(t)
+            "/rx/spike", records.spike(self.name, self.tau, k, names), ns(k * self.tau)
         )
 
     def _on_timer(self, t: _Timer) -> None:
@@ -312,28 +313,21 @@ class AutonomousUnit:
         if self.recorder.enabled:
             heard, predicted = self.mind.steering_inputs(goal.target, rnd)
             steered = None if isinstance(got, str) else got
-            self.recorder.write(
-                "/unit/goal",
-                {
-                    "unit": self.name,
-                    "t": t,
-                    "round": rnd,
-                    "turn": send.turn,
-                    "target": goal.target,
-                    "want": [u.to_list(goal.lo), u.to_list(goal.hi)],
-                    "mode": goal.mode,
-                    "heard": {k: u.to_list(v) for k, v in sorted(heard.items())},
-                    "predicted": {k: u.to_list(v) for k, v in sorted(predicted.items())},
-                    "rule": steered.rule if steered else "none",
-                    "solutions": steered.solutions if steered else None,
-                    "reached": steered.reached if steered else None,
-                    "of": steered.of if steered else None,
-                    "value": None if value is None else u.to_list(value),
-                    "sent": u.to_list(u.parse_alternative(code)),
-                    "reason": reason,
-                },
-                ns(t),
-            )
+            record = records.goal(
+                self.name, t, rnd, send.turn, goal.target,
+                want=[u.to_list(goal.lo), u.to_list(goal.hi)],
+                mode=goal.mode,
+                heard={k: u.to_list(v) for k, v in sorted(heard.items())},
+                predicted={k: u.to_list(v) for k, v in sorted(predicted.items())},
+                rule=steered.rule if steered else "none",
+                solutions=steered.solutions if steered else None,
+                reached=steered.reached if steered else None,
+                of=steered.of if steered else None,
+                value=None if value is None else u.to_list(value),
+                sent=u.to_list(u.parse_alternative(code)),
+                reason=reason,
+            )  # fmt: skip
+            self.recorder.write("/unit/goal", record, ns(t))
             level = "info" if value is not None else "warning"
             self.recorder.log(level, f"{self.name}: goal {reason}", ns(t), name=self.name)
         self._emit(dataclasses.replace(send, code=code))
@@ -357,29 +351,12 @@ class AutonomousUnit:
             ns(send.start),
             name=self.name,
         )
-        message = {
-            "id": send.turn * 2 + (send.kind == "payload"),
-            "kind": send.kind,
-            "code": send.code,
-            "sender": send.sender,
-            "addressee": send.addressee,
-        }
+        message = records.message_ref(send.turn, send.kind, send.code, send.sender, send.addressee)
         omega = self.scenario.frequencies[send.channel]
         for k, m in zip(send.samples, magnitudes, strict=True):
             yield env.timeout(max(0.0, k * self.tau - env.now))
-            self.recorder.write(
-                "/tx/pulse",
-                {
-                    "unit": self.name,
-                    "channel": send.channel,
-                    "omega": omega,
-                    "magnitude": m,
-                    "t": k * self.tau,
-                    "sample": k,
-                    "message": message,
-                },
-                ns(k * self.tau),
-            )
+            record = records.pulse(self.name, send.channel, omega, m, self.tau, k, message)
+            self.recorder.write("/tx/pulse", record, ns(k * self.tau))
 
     # -- traces --------------------------------------------------------------------------------
 
@@ -393,7 +370,7 @@ class AutonomousUnit:
         for k, (yk, xk) in enumerate(zip(y.tolist(), x.tolist(), strict=True)):
             s = first + k
             t = s * tau
-            write(topic, {"unit": self.name, "sample": s, "t": t, "y": yk, "x": xk}, ns(t))
+            write(topic, records.trace(self.name, s, t, yk, xk), ns(t))
 
     # -- decoding and reasoning --------------------------------------------------------------
 
@@ -462,23 +439,11 @@ class AutonomousUnit:
         self.decoded.append(d)
         if not self.recorder.enabled:
             return
-        self.recorder.write(
-            "/rx/decode",
-            {
-                "unit": self.name,
-                "turn": listen.turn,
-                "sender": listen.sender,
-                "addressee": addressee,
-                "channel": channel,
-                "kind": listen.kind,
-                "code": code,
-                "value": code,
-                "margin": float(margin),
-                "t": t,
-                "accepted": accepted,
-            },
-            ns(t),
-        )
+        record = records.decode(
+            self.name, listen.turn, listen.sender, addressee, channel, listen.kind, code,
+            margin, t, accepted,
+        )  # fmt: skip
+        self.recorder.write("/rx/decode", record, ns(t))
 
     def _learn(self, listen: Listen, code: str, t: float) -> None:
         mind = self.mind
@@ -509,66 +474,32 @@ class AutonomousUnit:
 
     def _log_relations(self, t: float) -> None:
         mind = self.mind
-        self.recorder.write(
-            "/unit/relations",
-            {
-                "unit": self.name,
-                "t": t,
-                "sent": {
-                    f"{s}>{r}": "alliance" if v else "conflict"
-                    for (s, r), v in sorted(mind.sent.items())
-                },
-                "installed": mind.installed(),
-                "polynomial": mind.polynomial,
-                "p4": None if mind.p4 is None else list(mind.p4),
-            },
-            ns(t),
+        record = records.relations(
+            self.name, t, mind.sent_table(), mind.installed(), mind.polynomial, mind.p4
         )
+        self.recorder.write("/unit/relations", record, ns(t))
 
     def _log_influences(self, t: float, rnd: int = 1) -> None:
-        mind = self.mind
-        universe = self.scenario.universe
-        self.recorder.write(
-            "/unit/influences",
-            {
-                "unit": self.name,
-                "t": t,
-                "influences": {
-                    f"{s}>{r}": universe.to_list(v) for (s, r), v in sorted(mind.influences.items())
-                },
-                "round": rnd,
-            },
-            ns(t),
-        )
+        record = records.influences(self.name, t, self.mind.influence_table(), rnd)
+        self.recorder.write("/unit/influences", record, ns(t))
 
     def _log_decisions(self, t: float, rnd: int = 1) -> None:
         mind = self.mind
         u = self.scenario.universe
-        if mind.results is None:
+        decided = mind.round_results.get(rnd)
+        if decided is None:
             if mind.p4 is None:  # a group with no polynomial has said so already
                 why = mind.error or "the relationship phase did not finish"
                 self.recorder.log("error", f"{self.name}: no decision: {why}", ns(t), self.name)
             return
+        results, choice = decided
+        self.decisions.append(decision_row(self.name, rnd, t, results[self.name], choice, u))
         if not self.recorder.enabled:  # the canonical forms cost more than the decision
             return
-        for s, r in mind.results.items():
-            choice = mind.choice if s == self.name else None
-            self.recorder.write(
-                "/unit/decision",
-                {
-                    "unit": self.name,
-                    "subject": s,
-                    "t": t,
-                    "A": u.to_list(r.A),
-                    "B": u.to_list(r.B),
-                    "interval": None if r.frustrated else [u.to_list(r.B), u.to_list(r.A)],
-                    "frustrated": r.frustrated,
-                    "choice": None if choice is None else u.to_list(choice),
-                    "canonical": mind.canonical(s),
-                    "round": rnd,
-                },
-                ns(t),
-            )
+        for s, r in results.items():
+            fields = decision_fields(r, choice if s == self.name else None, u)
+            record = records.decision(self.name, s, t, fields, mind.canonical(s), rnd)
+            self.recorder.write("/unit/decision", record, ns(t))
 
     # -- what this unit knows, as plain data (one process's share of a run summary) ----------
 
@@ -581,27 +512,31 @@ class AutonomousUnit:
                 out[turn.round - 1][send.addressee] = send.code
         return out
 
-    def report(self) -> dict:
-        u = self.scenario.universe
+    def report_record(self) -> records.UnitReportRecord:
+        """What this unit knows at the end of its run (``/unit/report``): everything its share
+        of the run summary needs but its decodes (those are ``/rx/decode``)."""
         mind = self.mind
         return {
             "unit": self.name,
             "installed": mind.installed(),
             "polynomial": mind.polynomial,
-            "sent_relations": {
-                f"{s}>{t}": "alliance" if v else "conflict"
-                for (s, t), v in sorted(mind.sent.items())
-            },
-            "influences": {
-                f"{s}>{t}": u.to_list(v) for (s, t), v in sorted(mind.influences.items())
-            },
+            "p4": None if mind.p4 is None else list(mind.p4),
+            "sent_relations": mind.sent_table(),
+            "influences": mind.influence_table(),
             "result": result_fields(mind),
+            "decisions": list(self.decisions),
             "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
             "sent_influences": self.sent_influences(),
-            "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
             "failure": self.failure,
             "failed_at": self.done_at if self.failure else None,
             "done_at": self.done_at if self.done else None,
             "mind_error": mind.error,
-            "p4": None if mind.p4 is None else list(mind.p4),
+        }
+
+    def report(self) -> dict:
+        """This unit's share of the run summary (``rgtbus.summary.summarise``): its report
+        record and its decodes."""
+        return {
+            **self.report_record(),
+            "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
         }

@@ -24,13 +24,14 @@ from typing import Protocol, Self, runtime_checkable
 import numpy as np
 
 from rgtbus.bus.auth import AuthError, check_key, check_tag, tag
+from rgtbus.bus.keys import tx_key, tx_prefix
 from rgtbus.bus.payload import NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 _MAX_NOTES = 100
-Pulses = tuple[np.ndarray, np.ndarray]  # (sample indexes int64, magnitudes float64)
 
 
 @dataclass
@@ -78,14 +79,6 @@ class Bus(Protocol):
     ) -> None: ...
 
 
-def tx_prefix(run_id: str) -> str:
-    return f"rgtbus/{run_id}/tx/"
-
-
-def tx_key(run_id: str, unit: str) -> str:
-    return f"rgtbus/{run_id}/tx/{unit}"
-
-
 def check_name(kind: str, name: object) -> str:
     if not isinstance(name, str) or not _NAME.match(name):
         raise RgtbusError(
@@ -112,41 +105,6 @@ STAT_KEYS = (
 _NO_PULSES: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))  # shared: never written
 _NO_PULSES[0].flags.writeable = False
 _NO_PULSES[1].flags.writeable = False
-
-
-def merge_pulses(parts: Sequence[Pulses]) -> Pulses:
-    """Concatenate pulse lists, keeping each sample's magnitudes in arrival order."""
-    if not parts:
-        return np.zeros(0, dtype=np.int64), np.zeros(0)
-    if len(parts) == 1:
-        return parts[0]
-    s = np.concatenate([p[0] for p in parts])
-    v = np.concatenate([p[1] for p in parts])
-    order = np.argsort(s, kind="stable")
-    return s[order], v[order]
-
-
-def sample_rows(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct samples in ascending order, and where each of ``samples`` is among them
-    (``np.unique(..., return_inverse=True)``, without its cost: pulses come nearly sorted)."""
-    s = np.asarray(samples, dtype=np.int64)
-    order = None if s.size < 2 or bool((s[1:] >= s[:-1]).all()) else np.argsort(s, kind="stable")
-    ordered = s if order is None else s[order]
-    first = np.ones(ordered.size, dtype=bool)
-    first[1:] = ordered[1:] != ordered[:-1]
-    at = np.cumsum(first) - 1
-    if order is not None:
-        inverse = np.empty_like(at)
-        inverse[order] = at
-        at = inverse
-    return ordered[first], at
-
-
-def split_pulses(pulses: Pulses, until: int) -> tuple[Pulses, Pulses]:
-    """(pulses before ``until``, the rest)."""
-    s, v = pulses
-    k = int(s.searchsorted(until))
-    return (s[:k], v[:k]), (s[k:], v[k:])
 
 
 class QueueBus:
@@ -479,14 +437,3 @@ class QueueBus:
         if frame.samples.size:
             m.pending.append((frame.samples, frame.values))
         self._stats["accepted"] += 1
-
-
-def matches_subscription(key: str, run_id: str | None) -> bool:
-    """Would a subscriber on ``rgtbus/<run_id>/tx/*`` (or ``rgtbus/*/tx/*`` when run_id is
-    None) see ``key``? The memory bus uses this to deliver exactly what zenoh would."""
-    parts = key.split("/")
-    if len(parts) != 4 or parts[0] != "rgtbus" or parts[2] != "tx":
-        return False
-    if not parts[1] or not parts[3]:
-        return False
-    return run_id is None or parts[1] == run_id

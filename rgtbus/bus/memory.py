@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from rgtbus.bus.base import QueueBus, matches_subscription
+from rgtbus.bus.base import QueueBus
+from rgtbus.bus.keys import matches_subscription
 
 
 class MemoryBus(QueueBus):

@@ -16,6 +16,7 @@ from typing import Any
 
 import zenoh
 
+from rgtbus.bus import keys
 from rgtbus.bus.payload import decode_telemetry
 from rgtbus.bus.zenoh import close_session, make_config, zenoh_reason
 from rgtbus.errors import RgtbusError
@@ -42,7 +43,9 @@ class Watcher:
             self.session = zenoh.open(config)
         except Exception as e:
             raise RgtbusError(f"cannot open zenoh session: {zenoh_reason(e)}") from None
-        self._sub = self.session.declare_subscriber(f"rgtbus/{run_id}/telemetry/*", self._on_sample)
+        self._sub = self.session.declare_subscriber(
+            keys.every_unit(keys.TELEMETRY, run_id), self._on_sample
+        )
 
     def _on_sample(self, sample: Any) -> None:
         payload = sample.payload.to_bytes()

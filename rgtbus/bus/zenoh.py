@@ -23,6 +23,7 @@ from typing import Any
 
 import zenoh
 
+from rgtbus.bus import keys
 from rgtbus.bus.auth import AuthError
 from rgtbus.bus.base import QueueBus
 from rgtbus.bus.hello import Hello, check_digest, encode_hello, read_hello
@@ -167,7 +168,7 @@ def close_session(session: zenoh.Session, timeout: float) -> str | None:
 
 
 def telemetry_key(run_id: str, unit: str) -> str:
-    return f"rgtbus/{run_id}/telemetry/{unit}"
+    return keys.key(keys.TELEMETRY, run_id, unit)
 
 
 class TelemetryFeed:
@@ -251,7 +252,7 @@ class ZenohBus(QueueBus):
         self.session = session
         try:
             # Count foreign runs: listen one level wider than our own run's keys.
-            sub_key = "rgtbus/*/tx/*" if count_foreign else f"rgtbus/{self.run_id}/tx/*"
+            sub_key = keys.every_unit(keys.TX, None if count_foreign else self.run_id)
             put = self._inbox.put
             self._subscriber = session.declare_subscriber(
                 sub_key, lambda s: put((str(s.key_expr), s.payload.to_bytes()))
@@ -290,7 +291,7 @@ class ZenohBus(QueueBus):
     # -- joining a cross-process run --------------------------------------------------------
 
     def hello_key(self, unit: str) -> str:
-        return f"rgtbus/{self.run_id}/hello/{unit}"
+        return keys.key(keys.HELLO, self.run_id, unit)
 
     def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
         """Barrier before the run: wait until every member is up, on the same scenario.
@@ -311,11 +312,11 @@ class ZenohBus(QueueBus):
         others = members - {unit}
         put = self._hellos.put
         self._hello_sub = self.session.declare_subscriber(
-            f"rgtbus/{self.run_id}/hello/*", lambda s: put(s.payload.to_bytes())
+            keys.every_unit(keys.HELLO, self.run_id), lambda s: put(s.payload.to_bytes())
         )
         try:
             self._token = self.session.liveliness().declare_token(
-                f"rgtbus/{self.run_id}/alive/{unit}"
+                keys.key(keys.ALIVE, self.run_id, unit)
             )
         except Exception as e:  # liveliness is for presence only; the barrier does the work
             self._notes.append(f"liveliness token not declared: {e}")

@@ -2,13 +2,19 @@
 
 Each subcommand lives in a module of this package that exposes ``register(subparsers)``; the
 module adds its parser and sets ``func`` to a callable ``(args) -> int``.
+
+Two rules hold for every command, here in ``main``: ``--quiet`` (``add_quiet_argument``) prints
+nothing on stdout but the ``--json`` output if asked (errors go to stderr as ever), and a reader
+that goes away (``rgtbus cat LOG | head -1``) ends the command quietly with exit code 0.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
@@ -21,6 +27,37 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def add_quiet_argument(p: argparse.ArgumentParser) -> None:
+    """``--quiet``: print nothing but errors (and the ``--json`` output if asked); ``main``
+    holds stdout back, the command itself leaves out its progress and notes on stderr."""
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="print nothing but errors (and the --json output if asked)",
+    )
+    p.set_defaults(quiet_holds_stdout=True)
+
+
+@contextlib.contextmanager
+def _held_stdout(hold: bool) -> Iterator[None]:
+    if not hold:
+        yield
+        return
+    with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(devnull):
+        yield
+
+
+def _stdout_to_devnull() -> None:
+    """After a BrokenPipeError: point stdout's file descriptor at /dev/null, so that what is
+    still buffered is flushed there at exit, not reported as "Exception ignored" (the
+    Python docs' recipe for SIGPIPE)."""
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from rgtbus.cli import (
         log_cmds,
@@ -29,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
         replay_cmds,
         rgt_cmds,
         run_cmd,
+        scenarios_cmd,
         signal_cmds,
         sweep_cmds,
         watch_cmd,
@@ -47,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     for module in (
         rgt_cmds,
         run_cmd,
+        scenarios_cmd,
         signal_cmds,
         plan_cmd,
         replay_cmds,
@@ -62,10 +101,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    hold = getattr(args, "quiet_holds_stdout", False) and args.quiet
     try:
-        return int(args.func(args) or 0)
+        with _held_stdout(hold and not getattr(args, "json", False)):
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()  # a reader that has gone: BrokenPipeError here, not at exit
+        return code
     except RgtbusError as exc:
         print(f"rgtbus {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except BrokenPipeError:
-        return 1
+    except BrokenPipeError:  # rgtbus cat LOG | head -1: the reader has what it wanted
+        _stdout_to_devnull()
+        return 0

@@ -7,6 +7,8 @@ import argparse
 import json
 import sys
 
+from rgtbus.cli import add_quiet_argument
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -19,6 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("log", metavar="LOG", help="an MCAP log written by rgtbus")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(p)
     p.set_defaults(func=info)
 
     c = subparsers.add_parser(

@@ -5,7 +5,23 @@ from __future__ import annotations
 import argparse
 import json
 
+from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
+
+# What a margin the plan does not keep means, and why the schedule can do without it.
+NOT_KEPT = {
+    "spacing": "channels closer than the serial schedule allows; the concurrent schedule reads "
+    "each code at its own pulse instants, where no other code has a pulse",
+    "octave": "the band spans an octave or more (a pulse train on ω excites 2ω too); the "
+    "concurrent schedule reads each code at its own pulse instants",
+    "decay": "a code's first pulse fades before its last; the concurrent schedule reads the "
+    "pulses one by one, not by a spike",
+    "attention": "an ID may not make its own resonator spike; the concurrent schedule is timed "
+    "by the schedule, not by ID spikes",
+    "crosstalk": "other channels' IDs make resonators spike too (crosstalk spikes); they are "
+    "logged and never acted on",
+}
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,6 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--no-crosstalk", action="store_true", help="skip the crosstalk simulation (large N)"
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(p)
     p.set_defaults(func=run_plan)
 
 
@@ -70,11 +87,15 @@ def run_plan(args: argparse.Namespace) -> int:
         f"rad/s, tau {tau:g} s"
     )
     print("frequencies (rad/s): " + ", ".join(f"{w:.5g}" for w in plan.omegas))
-    print("margins:")
+    print("rules (the schedule needs them: a plan that breaks one is refused) and margins:")
+    rows = []
     for m in plan.margins:
-        state = "ok  " if m.ok else ("FAIL" if m.binding else "over")
-        need = "rule" if m.binding else "margin"
-        print(f"  {state} {m.rule:<10} ({need}) {m.text}")
+        state = "ok" if m.ok else ("FAIL" if m.binding else "not met")
+        rows.append([state, m.rule, "(rule)" if m.binding else "(margin)", m.text])
+    for m, line in zip(plan.margins, table_lines(rows), strict=True):
+        print(line)
+        if not m.ok and not m.binding:
+            print(f"    -> margin not met, allowed: {NOT_KEPT.get(m.rule, 'not needed here')}")
     if "rounds" in out:
         print(
             f"rounds: {out['rounds']}, {out['round_seconds'][0]:g}–{out['round_seconds'][1]:g} s "

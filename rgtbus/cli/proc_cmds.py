@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.run_cmd import add_key_argument, read_key
 from rgtbus.errors import RgtbusError
 
@@ -101,6 +102,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_key_argument(u)
     u.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(u)
     u.set_defaults(func=run_unit_cmd)
 
     la = subparsers.add_parser(
@@ -139,6 +141,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_key_argument(la)
     la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
+    add_quiet_argument(la)
     la.set_defaults(func=run_launch)
 
     r = subparsers.add_parser(
@@ -158,6 +161,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument(
         "-c", "--config", dest="zenoh_config", metavar="FILE", help="a zenoh JSON5 config file"
     )
+    add_quiet_argument(r)
     r.set_defaults(func=run_router)
 
 
@@ -185,8 +189,9 @@ def _load(path: str, seed: int | None):
 
 
 def run_unit_cmd(args: argparse.Namespace) -> int:
-    from rgtbus.cli.run_cmd import close_log, decision_text, default_log_path, open_log
+    from rgtbus.cli.run_cmd import decision_text, default_log_path
     from rgtbus.summary import not_decomposable_text
+    from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.units.process import run_unit
 
     sc = _load(args.scenario, args.seed)
@@ -288,7 +293,7 @@ def _unit_child(
     """One unit of a launch, in its own forked process: what ``rgtbus unit`` does, its result
     sent back on ``conn``. It opens its session once the peers it connects to listen
     (``after``), and says when it listens itself (``listening``)."""
-    from rgtbus.cli.run_cmd import close_log, open_log
+    from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.units.process import run_unit
 
     _die_with_parent()
@@ -603,11 +608,13 @@ def _finish_launch(
 ) -> int:
     """Write ``launch.mcap`` (metadata, the run's summary, every failure) and merge it with
     every unit log that has anything in it into ``run.mcap``; print the summary."""
-    from rgtbus.cli.run_cmd import close_log, open_log, print_summary
-    from rgtbus.sim import WorldResult, ns
+    from rgtbus.cli.run_cmd import print_summary
+    from rgtbus.sim import WorldResult
     from rgtbus.summary import summarise, summary_json
+    from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.recorder import scan_log
+    from rgtbus.timebase import ns
     from rgtbus.units.group import auth_name, write_metadata, write_run_summary
 
     reports = [outputs[u]["report"] for u in sc.units if u in outputs]

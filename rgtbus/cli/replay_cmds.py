@@ -9,10 +9,17 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.tables import (
+    fitted_table_lines,
+    relations_lines,
+    table_lines,
+    wrapped_table_lines,
+)
 from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
-    from rgtbus.telemetry.replay import DecodeRow, Replay
+    from rgtbus.telemetry.read import DecodeRow, Replay
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,6 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--to", dest="t_to", type=float, metavar="T", help="... up to T simulated s")
     p.add_argument("--csv", metavar="DIR", help="write transmissions/decodes/decisions/spikes.csv")
+    add_quiet_argument(p)
     p.set_defaults(func=replay)
 
     m = subparsers.add_parser(
@@ -54,11 +62,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     m.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="merged log")
     m.add_argument("--keep-duplicates", action="store_true", help="keep byte-identical messages")
     m.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    add_quiet_argument(m)
     m.set_defaults(func=merge)
 
 
 def replay(args: argparse.Namespace) -> int:
-    from rgtbus.telemetry.replay import explained, load_replay
+    from rgtbus.telemetry.read import explained, load_replay
 
     if args.plot is None and args.unit:
         raise RgtbusError("--unit goes with --plot OUT.png")
@@ -71,7 +80,7 @@ def replay(args: argparse.Namespace) -> int:
 
 def _replay(rp: Replay, args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import check_time_range
-    from rgtbus.telemetry.replay import EXIT_TRUNCATED
+    from rgtbus.telemetry.verify import EXIT_TRUNCATED
 
     span = None
     if args.t_from is not None or args.t_to is not None:
@@ -85,10 +94,10 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
         side.append(_write_csv(rp, Path(args.csv), span))
     if args.plot:
         side.append(_plot(rp, args))
-    for line in side:
+    for line in side if not args.quiet else ():
         print(line, file=sys.stderr)
     if args.verify:
-        from rgtbus.units.replay import verify_log
+        from rgtbus.units.rerun import verify_log
 
         report = verify_log(rp)
         if args.json:
@@ -109,7 +118,7 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
 
 
 def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) -> str:
-    from rgtbus.telemetry.replay import csv_tables, write_csv
+    from rgtbus.telemetry.export import csv_tables, write_csv
 
     tables = csv_tables(rp, span)
     try:
@@ -124,7 +133,7 @@ def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) ->
 
 def _plot(rp, args: argparse.Namespace) -> str:
     from rgtbus.telemetry.plots import activity_figure, save_png
-    from rgtbus.units.replay import traces_for
+    from rgtbus.units.rerun import traces_for
 
     unit = args.unit or (rp.units[0] if rp.units else None)
     if unit is None or unit not in rp.units:
@@ -187,7 +196,7 @@ def _alt(rp, v: Any) -> str:
 
 def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = None) -> None:
     """What happened, in order; with ``span`` (from, to) only what happens in it."""
-    from rgtbus.telemetry.replay import in_span
+    from rgtbus.telemetry.read import in_span
 
     info = rp.info()
     s = rp.summary()
@@ -216,7 +225,7 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         f"transmissions ({len(txs)}), each with its decodes "
         "(unit ✓/✗ margin; ✗ = not what was sent):"
     )
-    width = max((len(tx.label) for tx in txs), default=10)
+    rows = []
     for tx in txs:
         decs = by_tx.get((tx.turn, tx.kind), [])
         marks = "  ".join(
@@ -228,10 +237,12 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
             )
             for d in decs
         )
-        print(
-            f"  {tx.start:8.3f}–{tx.end:8.3f} s  turn {tx.turn:3d}  {tx.label:<{width}}  "
-            f"on {tx.channel}  {marks or '(no decodes)'}"
-        )
+        rows.append(
+            [f"{tx.start:.3f}–{tx.end:.3f} s", f"turn {tx.turn}", tx.label, f"on {tx.channel}",
+             marks or "(no decodes)"]
+        )  # fmt: skip
+    for line in table_lines(rows, align=("right", "right", "left", "left", "left")):
+        print(line)
     lost = [d for d in decodes if d.turn is None]
     if lost:
         print(f"  decodes matching no logged transmission: {len(lost)}")
@@ -243,24 +254,30 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
     )
     print("spikes per unit (rows) and channel (columns):")
     counts = rp.spike_counts(span)
-    print("       " + "".join(f"{c:>6}" for c in units))
-    for u in units:
-        print(f"  {u:<5}" + "".join(f"{counts.get(u, {}).get(c, 0):>6}" for c in units))
+    spike_rows = [[u, *(str(counts.get(u, {}).get(c, 0)) for c in units)] for u in units]
+    align = ["left", *(["right"] * len(units))]
+    for line in wrapped_table_lines(spike_rows, ["", *units], align=align):
+        print(line)
     print("relationship tables (as each unit holds them):")
-    pairs = [f"{a}-{b}" for i, a in enumerate(units) for b in units[i + 1 :]]
-    w = max([len(p) for p in pairs] + [8])
-    print("  " + " " * 6 + "  ".join(p.ljust(w) for p in pairs) + "  polynomial")
+    held: dict[str, dict[str, str] | None] = {}
+    extra: dict[str, list[str]] = {}
+    missing: dict[str, str] = {}
     for u in units:
         rel = rp.relations.get(u)
         if rel is None or not in_span(rel["t"], span):
-            print(f"  {u:<6}(no table{'' if rel is None else ' in this span'})")
+            held[u] = None
+            missing[u] = "no table" if rel is None else "no table in this span"
             continue
-        cells = "  ".join(rel["installed"].get(p, "?").ljust(w) for p in pairs)
-        print(f"  {u:<6}{cells}  {rel['polynomial'] or '(none)'}  t={rel['t']:.3f}s")
+        held[u] = rel["installed"]
+        extra[u] = [rel["polynomial"] or "(none)", f"t={rel['t']:.3f}s"]
+    for line in relations_lines(
+        units, held, missing=missing, extra=extra, extra_headers=["polynomial", ""]
+    ):
+        print(line)
     print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
     if s["influences"]:
         print("influences (row influences column), as the first unit holds them:")
-        grid = [["", *units]] + [
+        grid = [
             [src]
             + [
                 "·" if src == dst else _alt(rp, s["influences"].get(f"{src}>{dst}"))
@@ -268,24 +285,31 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
             ]
             for src in units
         ]
-        widths = [max(len(r[i]) for r in grid) for i in range(len(grid[0]))]
-        for r in grid:
-            print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+        for line in wrapped_table_lines(grid, ["", *units]):
+            print(line)
     print("decisions (each unit's own; predictions of the others in --json):")
     own = [d for d in rp.decisions if d["unit"] == d["subject"] and in_span(d["t"], span)]
     if not own:
         print("  (none)")
+    rows = []
     for dec in own:
         if dec["frustrated"]:
-            verdict = "frustrated: no decision"
+            verdict, choice = "frustrated: no decision", ""
         else:
             lo, hi = (_alt(rp, x) for x in dec["interval"])
             verdict = f"{dec['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {dec['unit']} ⊇ {lo}"
-            verdict = f"{verdict:<14} choice {_alt(rp, dec['choice'])}"
-        print(f"  t={dec['t']:.3f}s  {dec['canonical']:<28} {verdict}")
+            choice = f"choice {_alt(rp, dec['choice'])}"
+        rows.append([f"t={dec['t']:.3f}s", dec["canonical"], verdict, choice])
+    for line in fitted_table_lines(rows):
+        print(line)
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
-    if rp.run is None:
+    if rp.run is None and not rp.unit_processes:
         print("no /run record: the run did not finish writing its log")
+    elif rp.run is None and rp.cut_inputs:
+        pass  # a merge of unit logs with a unit that ended early: the NOTE above says which
+    elif rp.run is None and set(rp.unit_processes) != set(units):
+        absent = ", ".join(u for u in units if u not in rp.unit_processes)
+        print(f"no /run record, and no log of {absent} in this one: not the whole run")
     elif s["error"]:
         print(f"run failed: {s['error']}")

@@ -6,6 +6,8 @@ import argparse
 import json
 from typing import Any
 
+from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.tables import fitted_table_lines, wrapped_table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt import (
     DecisionFunction,
@@ -46,6 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="print the structure and symbolic canonical forms only (no influences)",
     )
     solve.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(solve)
     solve.set_defaults(func=run_solve)
 
     control = subparsers.add_parser(
@@ -86,6 +89,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="enumerate whole alternatives instead of solving per action",
     )
     control.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(control)
     control.set_defaults(func=run_control)
 
 
@@ -192,9 +196,9 @@ def run_solve(args: argparse.Namespace) -> int:
         print("influences (row influences column):")
         print(_matrix_text(df, universe, InfluenceMatrix.parse(args.influence, df.order, universe)))
     print("subjects:")
-    width = max(len(forms[s].text(star)) for s in df.order)
+    rows = []
     for s in df.order:
-        line = f"  {forms[s].text(star):<{width}}"
+        row = [forms[s].text(star)]
         if results is not None:
             r = results[s]
             a, b = universe.format(r.A), universe.format(r.B)
@@ -205,23 +209,22 @@ def run_solve(args: argparse.Namespace) -> int:
             else:
                 choices = ", ".join(universe.format(c) for c in r.choices(universe))
                 verdict = f"interval {a} ⊇ {s} ⊇ {b}: choices {choices}"
-            line += f"   {verdict}"
-        print(line.rstrip())
+            row.append(verdict)
+        rows.append(row)
+    for line in fitted_table_lines(rows):
+        print(line)
     return 0
 
 
 def _matrix_text(df: DecisionFunction, universe: Universe, matrix: InfluenceMatrix) -> str:
-    cells = [["", *list(df.order)]]
+    rows = []
     for src in df.order:
         row = [src]
         for dst in df.order:
             v = matrix.get(src, dst)
             row.append(dst if src == dst else universe.format(v) if v is not None else "?")
-        cells.append(row)
-    widths = [max(len(r[i]) for r in cells) for i in range(len(cells[0]))]
-    return "\n".join(
-        "  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in cells
-    )
+        rows.append(row)
+    return "\n".join(wrapped_table_lines(rows, ["", *df.order]))
 
 
 def run_control(args: argparse.Namespace) -> int:

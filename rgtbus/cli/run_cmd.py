@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
-import time
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import TYPE_CHECKING, Any
 
+from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import goal_text
 from rgtbus.scenario import Scenario
@@ -18,7 +18,6 @@ from rgtbus.summary import not_decomposable_text
 
 if TYPE_CHECKING:
     from rgtbus.rgt.algebra import Universe
-    from rgtbus.telemetry import McapRecorder
     from rgtbus.telemetry.live import LiveView
 
 
@@ -59,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_key_argument(p)
     add_live_arguments(p)
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    add_quiet_argument(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -137,125 +136,72 @@ def default_log_path(name: str) -> Path:
     return Path("logs") / f"{name}-{stamp}.mcap"
 
 
-def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRecorder]:
-    """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
-    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk).
-    ``live``: a live view offered every message too."""
-    from rgtbus.telemetry import McapRecorder
-
-    for parent in path.parents:  # mkdir says "File exists" for a file on the way
-        if parent.exists():
-            if not parent.is_dir():
-                raise RgtbusError(f"cannot write log {str(path)!r}: {str(parent)!r} is a file")
-            break
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        stream = open(path, "wb")  # noqa: SIM115 - closed by close_log
-    except OSError as exc:
-        raise RgtbusError(f"cannot write log {str(path)!r}: {exc.strerror}") from None
-    try:
-        return stream, McapRecorder(stream, live=live)
-    except RgtbusError:
-        with contextlib.suppress(OSError):  # its buffer cannot be flushed: already reported
-            stream.close()
-        raise
-
-
-def close_log(stream: BinaryIO, recorder: McapRecorder) -> None:
-    """Finish the log and close its file; a write that fails here is one line too."""
-    try:
-        recorder.close()
-    finally:
-        if recorder.failed:
-            with contextlib.suppress(OSError):  # the recorder's error says it already
-                stream.close()
-        else:
-            try:
-                stream.close()
-            except OSError as exc:
-                raise RgtbusError(
-                    f"cannot write log {str(stream.name)!r}: {exc.strerror}"
-                ) from None
-
-
 class Progress:
-    """A rate-limited progress line on stderr (pacing is the world's: ``--realtime``)."""
+    """The run's progress on stderr, a tqdm counter of simulated seconds (``t = 120.5 s
+    simulated, step 3400``), drawn from 2 s of wall time on (a short run shows none) and at
+    most twice a second; pacing is the world's (``--realtime``). ``show`` False: nothing."""
 
     def __init__(self, show: bool) -> None:
-        self.show = show
-        self.t0 = time.perf_counter()
-        self.last = 0.0
-        self.shown = False
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            disable=not show,
+            file=sys.stderr,
+            delay=2.0,
+            mininterval=0.5,
+            leave=True,
+            unit=" s",
+            bar_format="  t = {n:.1f} s simulated{postfix}, {elapsed} wall",
+        )
+        self.bar.set_postfix_str("step 0", refresh=False)
 
     def __call__(self, sim_now: float, step: int) -> None:
-        wall = time.perf_counter() - self.t0
-        if self.show and wall > 2.0 and wall - self.last >= 0.5:
-            self.last = wall
-            self.shown = True
-            print(
-                f"\r  t = {sim_now:8.1f} s simulated, step {step}, {wall:6.1f} s wall",
-                end="",
-                file=sys.stderr,
-                flush=True,
-            )
+        if self.bar.disable:
+            return
+        self.bar.set_postfix_str(f"step {step}", refresh=False)
+        self.bar.update(sim_now - self.bar.n)  # tqdm draws it when mininterval has passed
 
     def done(self) -> None:
-        if self.shown:
-            print(file=sys.stderr)
+        self.bar.close()
 
 
 def run(args: argparse.Namespace) -> int:
+    """``rgtbus run``: ``rgtbus.run`` with a log (and a live view), then the summary."""
+    from rgtbus.api import run as run_scenario
     from rgtbus.scenario import load_scenario
     from rgtbus.summary import summary_json
-    from rgtbus.units.group import check_expectations, run_group
+    from rgtbus.units.group import check_expectations
 
     scenario = load_scenario(args.scenario)
-    if args.seed is not None:
-        if args.seed < 0:
-            raise RgtbusError(f"--seed {args.seed}: must be a non-negative integer")
-        scenario = scenario.with_seed(args.seed)
+    if args.seed is not None and args.seed < 0:
+        raise RgtbusError(f"--seed {args.seed}: must be a non-negative integer")
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
     log_path = Path(args.log) if args.log else default_log_path(scenario.name)
     live = open_live(args, live_topics(scenario.units, args.traces))
+    progress = Progress(not (args.quiet or args.json) and sys.stderr.isatty())
     try:
-        stream, recorder = open_log(log_path, live)
-    except BaseException:
-        if live is not None:
-            live.close()
-        raise
-
-    progress = Progress(not args.quiet and sys.stderr.isatty())
-    summary: dict[str, Any] | None = None
-    try:
-        if live is not None:
-            live.begin()
-        out = run_group(
+        result = run_scenario(
             scenario,
-            args.bus,
-            recorder,
-            traces=args.traces,
-            progress=progress,
+            seed=args.seed,
+            bus=args.bus,
             engine=args.engine,
-            realtime=args.realtime,
+            log=log_path,
+            traces=args.traces,
             key=key,
+            realtime=args.realtime,
+            progress=progress,
+            live=live,
         )
-        summary = out.summary
-    except BaseException as exc:
-        if not recorder.failed:  # a log that cannot be written cannot take the line either
-            recorder.log("fatal", f"run failed: {exc}", 0)
-        raise
     finally:
         progress.done()
-        try:
-            close_log(stream, recorder)
-        finally:
-            if live is not None:
-                live.close()
-    summary["log"] = str(log_path)
+    summary = result.details
+    scenario = result.scenario
 
-    checks = check_expectations(scenario, summary) if args.check else []
+    checks = (
+        judged_checks(check_expectations(scenario, summary), summary["error"]) if args.check else []
+    )
     if args.json:
         out_json = summary_json(summary)
         if args.check:
@@ -264,9 +210,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print_summary(scenario, summary)
         if args.check:
-            print("checks:")
-            for what, ok, detail in checks:
-                print(f"  {'ok  ' if ok else 'FAIL'} {what}{'' if ok else ': ' + detail}")
+            print_checks(checks, summary["error"], quiet=args.quiet)
     if summary["error"]:
         if not args.json:
             print(f"run failed: {summary['error']}", file=sys.stderr)
@@ -276,18 +220,56 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def decision_text(universe: Universe, name: str, v: dict[str, Any]) -> str:
+NOT_JUDGED = "not judged: the run failed"
+
+
+def judged_checks(
+    checks: list[tuple[str, bool, str]], error: str | None
+) -> list[tuple[str, bool | None, str]]:
+    """The ``[expect]`` checks as ``run --check`` reports them: after a failed run none is
+    judged (``ok`` None: what the failed run held is no result to pass or fail on; the run's
+    exit code is 1 already)."""
+    if error:
+        return [(what, None, NOT_JUDGED) for what, _, _ in checks]
+    return list(checks)
+
+
+def print_checks(
+    checks: list[tuple[str, bool | None, str]], error: str | None, *, quiet: bool = False
+) -> None:
+    """``checks:`` and one line a check (``ok``/``FAIL``); after a failed run one line saying
+    they were not judged. ``quiet``: only the failed checks, on stderr."""
+    if quiet:
+        for what, ok, detail in checks:
+            if ok is False:
+                print(f"check failed: {what}: {detail}", file=sys.stderr)
+        return
+    if error:
+        print(f"checks: {NOT_JUDGED} ({error})")
+        return
+    print("checks:")
+    for what, ok, detail in checks:
+        print(f"  {'ok  ' if ok else 'FAIL'} {what}{'' if ok else ': ' + detail}")
+
+
+def decision_cells(universe: Universe, name: str, v: dict[str, Any]) -> tuple[str, str]:
     """Unit ``name``'s decision as every command prints it (one rule: ``rgtbus run``,
-    ``launch`` and ``unit``): ``no decision``, ``frustrated: no decision``, or its interval
-    [B, A] (``a = {beta}`` when B = A, else ``1 ⊇ a ⊇ {beta}``) and its choice, alternatives
-    in set notation. ``v``: the decision's fields (``rgtbus.mind.result_fields``)."""
+    ``launch`` and ``unit``), as (verdict, choice): ``no decision`` or ``frustrated: no
+    decision`` with no choice, or its interval [B, A] (``a = {beta}`` when B = A, else
+    ``1 ⊇ a ⊇ {beta}``) and ``choice X``, alternatives in set notation. ``v``: the decision's
+    fields (``rgtbus.mind.result_fields``)."""
     if not v["decided"]:
-        return "no decision"
+        return "no decision", ""
     if v["frustrated"]:
-        return "frustrated: no decision"
+        return "frustrated: no decision", ""
     lo, hi = (universe.format(universe.from_list(x)) for x in v["interval"])
     interval = f"{name} = {lo}" if lo == hi else f"{hi} ⊇ {name} ⊇ {lo}"
-    return f"{interval:<18} choice {universe.format(universe.from_list(v['choice']))}"
+    return interval, f"choice {universe.format(universe.from_list(v['choice']))}"
+
+
+def decision_text(universe: Universe, name: str, v: dict[str, Any]) -> str:
+    """``decision_cells`` on one line (``rgtbus unit``; ``run`` puts them in columns)."""
+    return "  ".join(c for c in decision_cells(universe, name, v) if c)
 
 
 def goal_line(universe: Universe, g: dict[str, Any]) -> str:
@@ -308,15 +290,8 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         f"actions {', '.join(u.actions)}"
     )
     print("relationships decoded by each unit:")
-    pairs = [f"{a}-{b}" for i, a in enumerate(units) for b in units[i + 1 :]]
-    width = max(len(p) for p in pairs)
-    print("  " + " " * 6 + "  ".join(p.ljust(max(width, 8)) for p in pairs))
-    for name in units:
-        table = s["unit_relations"].get(name)
-        if table is None:
-            print(f"  {name:<6}(no report: the unit failed)")
-            continue
-        print(f"  {name:<6}" + "  ".join(table.get(p, "?").ljust(max(width, 8)) for p in pairs))
+    for line in relations_lines(units, s["unit_relations"], missing="no report: the unit failed"):
+        print(line)
     print(f"  all units agree: {'yes' if s['agree'] else 'NO'}")
     if s.get("p4"):  # a random group can install one: a result, the run still succeeds
         print(f"polynomial: (none): {not_decomposable_text(s['p4'])}")
@@ -324,7 +299,7 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         print(f"polynomial: {s['polynomial'] or '(none)'}")
     if s["influences"]:
         print("influences (row influences column):")
-        cells = [["", *list(units)]]
+        rows = []
         for src in units:
             row = [src]
             for dst in units:
@@ -332,22 +307,24 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
                 row.append(
                     dst if src == dst else (u.format(u.from_list(v)) if v is not None else "?")
                 )
-            cells.append(row)
-        widths = [max(len(r[i]) for r in cells) for i in range(len(cells[0]))]
-        for r in cells:
-            print("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+            rows.append(row)
+        for line in wrapped_table_lines(rows, ["", *units]):
+            print(line)
     print("decisions:")
-    cw = max((len(v["canonical"] or "") for v in s["units"].values()), default=0)
+    decided = [
+        [v["canonical"], *decision_cells(u, name, v)]
+        for name in units
+        if (v := s["units"].get(name)) is not None and v["decided"]
+    ]
+    table = iter(fitted_table_lines(decided))
     for name in units:
         v = s["units"].get(name)
         if v is None:
             print(f"  {name}: no report (the unit failed)")
-            continue
-        verdict = decision_text(u, name, v)
-        if not v["decided"]:
-            print(f"  {name}: {verdict}")
-            continue
-        print(f"  {v['canonical']:<{cw}}   {verdict}")
+        elif not v["decided"]:
+            print(f"  {name}: {decision_text(u, name, v)}")
+        else:
+            print(next(table))
     rounds = s.get("rounds") or {}
     if rounds.get("count", 1) > 1:
         state = rounds.get("state")

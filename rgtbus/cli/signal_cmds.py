@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
@@ -77,6 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--plot", metavar="PNG", help="also write the y trajectories to this PNG")
+    add_quiet_argument(p)
     p.set_defaults(func=cmd_resonate)
 
     f = subparsers.add_parser(
@@ -94,6 +97,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="Monte-Carlo trials per point of the error-rate figure (default 1000)",
     )
     f.add_argument("--seed", type=int, default=0)
+    add_quiet_argument(f)
     f.set_defaults(func=cmd_figures)
 
 
@@ -204,10 +208,18 @@ def cmd_resonate(args: argparse.Namespace) -> int:
             f"code {_word_text(word)} on {texts[args.on]} from {args.start:g} s, mode {args.mode}"
             + (f", noise {args.noise:g} (seed {args.seed})" if args.noise else "")
         )
-        print(f"{'omega':>12}  {'rad/s':>8}  {'peak y':>7}  spikes (s)")
-        for t, r in zip(texts, rows, strict=True):
-            sp = ", ".join(f"{s:.3f}" for s in r["spikes"]) or "-"
-            print(f"{t:>12}  {r['omega']:8.4f}  {r['peak_y']:7.3f}  {sp}")
+        cells = [
+            [
+                t,
+                f"{r['omega']:.4f}",
+                f"{r['peak_y']:.3f}",
+                ", ".join(f"{s:.3f}" for s in r["spikes"]) or "-",
+            ]
+            for t, r in zip(texts, rows, strict=True)
+        ]
+        headers = ["omega", "rad/s", "peak y", "spikes (s)"]
+        for line in table_lines(cells, headers, align=("right",) * 3 + ("left",), indent=""):
+            print(line)
     return 0
 
 

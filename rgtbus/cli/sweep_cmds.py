@@ -14,17 +14,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run a scenario over seeds and a grid of keys; a table of results",
         description="Run a sweep file (a base scenario, seeds and a [grid] of scenario keys) on "
         "local worker processes or a Dask distributed cluster; one row per run in "
-        "DIR/results.parquet and DIR/results.csv (docs/sweeps.md).",
+        "DIR/results.parquet and DIR/results.csv, one per run, unit and round in "
+        "DIR/decisions.parquet (docs/sweeps.md).",
     )
     p.add_argument(
         "sweep", metavar="SWEEP", help="a sweep file, e.g. scenarios/sweeps/gate_noise.toml"
     )
     p.add_argument("--out", metavar="DIR", help="results directory (default logs/sweeps/<name>)")
-    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (all cores)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="local worker processes (default: all cores; 1: in this process)",
+    )
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="a Dask scheduler, e.g. tcp://127.0.0.1:8786 (dask-scheduler / dask-worker)",
+        help="a Dask scheduler, e.g. tcp://127.0.0.1:8786 (dask scheduler / dask worker)",
     )
     p.add_argument("--resume", action="store_true", help="finish a sweep stopped halfway")
     p.add_argument("--logs", action="store_true", help="an MCAP log per run (DIR/logs)")
@@ -69,41 +75,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_sweep_cmd(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from rgtbus.errors import RgtbusError
-    from rgtbus.units.sweep import load_sweep, open_executor, run_sweep
+    from rgtbus.units.sweep import execute_sweep, load_sweep
 
     if args.workers is not None and args.workers < 1:
         raise RgtbusError(f"--workers must be at least 1, got {args.workers}")
+    # the same call as rgtbus.sweep(): a Sweep (here from the file) run by execute_sweep
     sweep = load_sweep(args.sweep)
     out = Path(args.out) if args.out else Path("logs") / "sweeps" / sweep.name
-    bar = tqdm(
-        total=len(sweep.cells()) * len(sweep.seeds),
-        unit="run",
-        desc=sweep.name,
-        disable=args.quiet or not sys.stderr.isatty(),
-        file=sys.stderr,
+    rows = execute_sweep(
+        sweep,
+        out,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        resume=args.resume,
+        logs=args.logs,
+        progress=not args.quiet and sys.stderr.isatty(),
     )
-
-    def progress(done: int, total: int, failures: int) -> None:
-        bar.n = done
-        bar.set_postfix(failures=failures, refresh=False)
-        bar.refresh()
-
-    try:
-        with open_executor(args.workers, args.scheduler) as (executor, workers):
-            rows = run_sweep(
-                sweep,
-                out,
-                executor=executor,
-                workers=workers,
-                resume=args.resume,
-                logs=args.logs,
-                progress=progress,
-            )
-    finally:
-        bar.close()
     failed = sum(1 for r in rows if r.get("failed"))
     if args.json:
         for r in rows:
@@ -111,7 +99,7 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
     else:
         print(
             f"sweep {sweep.name}: {len(rows)} runs ({failed} ended with an error) -> "
-            f"{out / 'results.parquet'}, {out / 'results.csv'}"
+            f"{out / 'results.parquet'}, {out / 'results.csv'}, {out / 'decisions.parquet'}"
         )
     return 0
 

@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
 from rgtbus.cli.run_cmd import LIVE_ADDRESS
 from rgtbus.errors import RgtbusError
@@ -34,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="end once S seconds pass without telemetry, after some came",
     )
-    w.add_argument("--quiet", action="store_true", help="no status lines")
+    add_quiet_argument(w)
     w.set_defaults(func=run_watch)
 
 

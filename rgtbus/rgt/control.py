@@ -219,7 +219,8 @@ def _compress(indexes: list[int], positions: list[int]) -> tuple[int, ...]:
 
 def brute_force_count(df: DecisionFunction, universe: Universe) -> int:
     """How many evaluations brute force needs per controlled subject: (2^k)^(n-1)."""
-    return (1 << universe.k) ** (df.n - 1)
+    count: int = (1 << universe.k) ** (df.n - 1)
+    return count
 
 
 def solve_brute_force(

@@ -265,7 +265,8 @@ def compile_masks(e: Expr, order: Sequence[str], full: int) -> Callable[..., int
 
     params = ", ".join(f"v{i}" for i in range(len(order)))
     # The source is generated from our own tree: variable indexes and integers only.
-    return eval(f"lambda {params}: {src(e)}", {"__builtins__": {}})
+    fn: Callable[..., int] = eval(f"lambda {params}: {src(e)}", {"__builtins__": {}})
+    return fn
 
 
 def support(table: int, n: int) -> list[int]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import itertools
 import random
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from rgtbus.errors import NotDecomposable, RgtbusError
@@ -218,7 +218,7 @@ class RelationGraph:
         }
 
 
-def _components(vertices: Sequence[str], adjacent) -> list[list[str]]:
+def _components(vertices: Sequence[str], adjacent: Callable[[str, str], bool]) -> list[list[str]]:
     remaining = list(vertices)
     comps: list[list[str]] = []
     while remaining:
@@ -330,7 +330,7 @@ def random_polynomial(subjects: Sequence[str], rng: random.Random) -> Expr:
     names = list(subjects)
     rng.shuffle(names)
 
-    def build(vs: list[str], op: type) -> Expr:
+    def build(vs: list[str], op: type[Sum] | type[Prod]) -> Expr:
         if len(vs) == 1:
             return Var(vs[0])
         parts = rng.randint(2, len(vs))

@@ -284,7 +284,8 @@ def generate_codebook(
 
     def enumeration(step: float) -> int:
         lo_u, hi_u = grid(step)
-        return max(0, hi_u - lo_u + 1) ** max(0, pulses - 1)
+        count: int = max(0, hi_u - lo_u + 1) ** max(0, pulses - 1)
+        return count
 
     if step is None:  # finest grid in 0.05 steps whose enumeration stays small
         step = next((s * 0.05 for s in range(1, 100) if enumeration(s * 0.05) <= 1_000_000), None)

@@ -348,7 +348,8 @@ def _timings(
 def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:
     """Euclidean distance of each row of ``values`` (M, N) to each word of ``mat`` (W, N)."""
     diff = values[:, None, :] - mat[None, :, :]
-    return np.sqrt((diff * diff).sum(axis=2))
+    distances: np.ndarray = np.sqrt((diff * diff).sum(axis=2))
+    return distances
 
 
 @dataclass(frozen=True)
@@ -384,7 +385,7 @@ class WordSet:
         return isinstance(other, WordSet) and self._key == other._key  # type: ignore[attr-defined]
 
     def __hash__(self) -> int:
-        return self._hash  # type: ignore[attr-defined]
+        return self._hash  # type: ignore[attr-defined,no-any-return]
 
     @classmethod
     def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:

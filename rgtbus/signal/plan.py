@@ -27,6 +27,7 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -217,7 +218,7 @@ class FrequencyPlan:
     codebook: str  # "paper" (3 pulses) or "generated"
     margins: tuple[Margin, ...] = field(default_factory=tuple)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "n": self.n,
             "schedule": self.schedule,

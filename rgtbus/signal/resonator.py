@@ -109,7 +109,8 @@ class FeedResult:
         """Spike times in seconds (sample index × τ) of one receiver, one channel or all."""
         sel = self.spikes[self.spikes[:, 1] == receiver]
         if channel is not None:
-            return sel[sel[:, 2] == channel, 0] * tau
+            times: np.ndarray = sel[sel[:, 2] == channel, 0] * tau
+            return times
         n_ch = 0 if self.z is None else self.z.shape[2]
         n_ch = max(n_ch, int(self.spikes[:, 2].max()) + 1 if len(self.spikes) else 0)
         return [sel[sel[:, 2] == c, 0] * tau for c in range(n_ch)]
@@ -247,7 +248,9 @@ class BankState:
 # -- the frame arithmetic (same expressions everywhere → same bits) ------------------------------
 
 
-def _z_of(T: Tables, ch: np.ndarray, m, wr: np.ndarray, wi: np.ndarray):
+def _z_of(
+    T: Tables, ch: np.ndarray, m: int, wr: np.ndarray, wi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """z = A^m·w (real and imaginary parts)."""
     C = T.Pr.shape[1]
     flat = m * C + ch
@@ -550,7 +553,16 @@ class ResonatorBank:
                 raise RgtbusError(f"sample {bad} is not finite")
         return self._run(int(end), r, v, stop, record, readout, stop_lanes)
 
-    def _run(self, end, rows, values, stop, record, readout, stop_lanes=None) -> FeedResult:
+    def _run(
+        self,
+        end: int,
+        rows: np.ndarray,
+        values: np.ndarray,
+        stop: bool,
+        record: bool,
+        readout: bool,
+        stop_lanes: np.ndarray | None = None,
+    ) -> FeedResult:
         self.state, result = resonate(
             self.model,
             self.state,
@@ -564,7 +576,7 @@ class ResonatorBank:
         )
         return result
 
-    def _as_input(self, samples) -> np.ndarray:
+    def _as_input(self, samples: np.ndarray | Sequence[float]) -> np.ndarray:
         u = np.asarray(samples, dtype=float)
         if u.ndim == 1:
             u = u[:, None]

@@ -25,6 +25,7 @@ from mcap.exceptions import McapError
 from mcap.reader import SeekingReader, make_reader
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.recorder import require_run_log, scan_log
 
 NS = 1_000_000_000
@@ -149,6 +150,7 @@ def _info(
     meta_run = metadata.get("run", {})
     units = _units_of(sc.get("text"), metadata.get("frequencies"))
     seed = meta_run.get("seed")
+    ends = unit_process_ends(metadata, units)
     return {
         "log": label,
         "bytes": size,
@@ -170,11 +172,45 @@ def _info(
         "units": units,
         "outcome": None if run is None else run.get("outcome"),
         "agree": None if run is None else run.get("agree"),
-        "error": None if run is None else run.get("error"),
-        "finished": run is not None,
+        "error": run.get("error") if run is not None else _unit_error(ends),
+        # A run's log ends with its /run record; a merge of unit processes' logs (rgtbus unit
+        # and merge by hand) has none, and is finished when every unit's process ended "done".
+        "finished": run is not None or _all_done(ends, units),
+        "unit_processes": ends,
         "truncated": truncated,
         "note": note,
     }
+
+
+def unit_process_ends(
+    metadata: dict[str, dict[str, str]], units: Sequence[str]
+) -> dict[str, dict[str, str] | None]:
+    """How each unit process whose log is in this one ended, by unit: its ``end.<unit>``
+    record (``status`` done or ended early, ``detail``), None when it has none (killed, or
+    still running when its log was read). A unit process's log names it in its ``run``
+    record (``process``); a merge keeps every input's ``run`` record as ``run.K``. Empty for
+    the log of a single-process run."""
+    processes = [
+        v["process"]
+        for n, v in metadata.items()
+        if (n == "run" or n.startswith("run.")) and v.get("process") in units
+    ]
+    return {u: metadata.get(topics_mod.unit_end_record(u)) for u in dict.fromkeys(processes)}
+
+
+def _all_done(ends: dict[str, dict[str, str] | None], units: Sequence[str]) -> bool:
+    return bool(units) and all(
+        (ends.get(u) or {}).get("status") == topics_mod.UNIT_DONE for u in units
+    )
+
+
+def _unit_error(ends: dict[str, dict[str, str] | None]) -> str | None:
+    """The first failure a unit process that ended "done" reports (a unit that failed on its
+    own, e.g. a missing ID spike, still ends its process "done", the failure as detail)."""
+    for unit, end in ends.items():
+        if end and end.get("status") == topics_mod.UNIT_DONE and end.get("detail"):
+            return f"unit {unit}: {end['detail']}"
+    return None
 
 
 def _units_of(text: str | None, frequencies: dict[str, str] | None) -> list[str]:
@@ -212,18 +248,45 @@ def info_text(info: dict[str, Any]) -> str:
         f"compression: {', '.join(info['compression']) or '-'}"
         + ("" if info["chunks"] is None else f" ({info['chunks']} chunks)")
     )
-    if not info["finished"]:
-        lines.append("outcome:     (no /run record: the run did not finish its log)")
-    elif info["error"]:
-        lines.append(f"outcome:     failed: {info['error']}")
-    else:
-        agree = "all units agree" if info["agree"] else "units DISAGREE"
-        lines.append(f"outcome:     {info['outcome'] or '(no outcome rule)'}; {agree}")
+    lines.append(f"outcome:     {_outcome_text(info)}")
     lines.append(f"messages:    {info['messages']}")
-    width = max([len(t) for t in info["topics"]] + [5])
-    for topic, v in info["topics"].items():
-        lines.append(f"  {topic:<{width}}  {v['count']:>10}  {v['schema']}")
+    from tabulate import tabulate  # 50 ms to import: only for the text
+
+    rows = [[topic, str(v["count"]), v["schema"] or ""] for topic, v in info["topics"].items()]
+    table = tabulate(
+        rows, tablefmt="plain", disable_numparse=True, colalign=("left", "right", "left")
+    )
+    lines += [f"  {line}".rstrip() for line in table.splitlines()]
     return "\n".join(lines)
+
+
+def _outcome_text(info: dict[str, Any]) -> str:
+    ends = info.get("unit_processes") or {}
+    if info["finished"] and info["error"]:
+        return f"failed: {info['error']}"
+    if info["finished"] and info["outcome"] is None and info["agree"] is None and ends:
+        return (
+            "every unit finished (a merge of unit logs has no /run summary: "
+            f"rgtbus replay {info['log']} gives the outcome)"
+        )
+    if info["finished"]:
+        agree = "all units agree" if info["agree"] else "units DISAGREE"
+        return f"{info['outcome'] or '(no outcome rule)'}; {agree}"
+    if not ends:
+        return "(no /run record: the run did not finish its log)"
+    said = []
+    for unit, end in ends.items():
+        if end is None:
+            said.append(f"unit {unit}'s process did not end its log (killed?)")
+        elif end.get("status") != topics_mod.UNIT_DONE:
+            said.append(f"unit {unit} {end.get('status')}: {end.get('detail', '')}")
+    absent = [u for u in info["units"] if u not in ends]
+    if absent:
+        said.append(
+            f"no log of {'unit' if len(absent) == 1 else 'units'} {', '.join(absent)} in this "
+            "one: rgtbus merge takes every unit's log"
+        )
+    return f"({'; '.join(said)})"
 
 
 def _size(n: int) -> str:

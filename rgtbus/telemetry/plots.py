@@ -30,7 +30,7 @@ from rgtbus.telemetry.logtools import check_time_range
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from rgtbus.telemetry.replay import Replay
+    from rgtbus.telemetry.read import Replay
 
 WIDTH_IN = 14.0
 CHANNEL_IN = 2.5
@@ -111,7 +111,7 @@ def activity_figure(
     t_to: float | None = None,
 ) -> Figure:
     """The figure (not yet saved). ``trace``: ``{"t", "y" (n × channels), "channels",
-    "recomputed"}`` as ``rgtbus.units.replay.traces_for`` returns it."""
+    "recomputed"}`` as ``rgtbus.units.rerun.traces_for`` returns it."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -13,7 +13,7 @@ import os
 import struct
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, cast, runtime_checkable
 
@@ -42,7 +42,7 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 class Recorder(Protocol):
     enabled: bool
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None: ...
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None: ...
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None: ...
     def metadata(self, name: str, values: dict[str, str]) -> None: ...
     def close(self) -> None: ...
@@ -122,7 +122,7 @@ class _Encoding:
         self._closed = False
         self._schemas: dict[str, str] = {}  # topic -> schema name, once looked up
 
-    def _encode(self, topic: str, message: dict, t_ns: int) -> tuple[str, bytes, int]:
+    def _encode(self, topic: str, message: Mapping[str, Any], t_ns: int) -> tuple[str, bytes, int]:
         if self._closed:
             raise RgtbusError(f"write to {topic!r} on a closed recorder")
         schema = self._schemas.get(topic) or self._schemas.setdefault(
@@ -167,7 +167,7 @@ class _Encoding:
     ) -> None:
         self.write(LOG_TOPIC, log_message(level, text, t_ns, name, file, line), t_ns)
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None:
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         raise NotImplementedError
 
     @property
@@ -316,7 +316,7 @@ class McapRecorder(_Encoding):
         self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None:
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         schema, data, t = self._encode(topic, message, t_ns)
         if self.failed:
             raise RgtbusError(self.failed)
@@ -370,7 +370,7 @@ class MemoryRecorder(_Encoding):
         self.metadata_records: dict[str, dict[str, str]] = {}
         self.logs: list[dict[str, Any]] = []
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None:
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         _, data, t = self._encode(topic, message, t_ns)
         decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
@@ -399,7 +399,7 @@ class NullRecorder:
     enabled = False
     closed = False
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None:
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         pass
 
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:

@@ -43,12 +43,16 @@ def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, fl
 
 
 def read_results(out_dir: Path) -> list[dict[str, Any]]:
+    """The runs of ``out_dir/results.parquet`` as plain values (nested columns, native Arrow
+    types since tables version 2, as lists and dicts; an older table's JSON text as text)."""
     import pyarrow.parquet as pq
+
+    from rgtbus.units.sweep import table_rows
 
     path = out_dir / "results.parquet"
     if not path.is_file():
         raise RgtbusError(f"{str(out_dir)!r}: no results.parquet (run rgtbus sweep first)")
-    return list(pq.read_table(path).to_pylist())
+    return table_rows(pq.read_table(path))
 
 
 def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], bool, str]:
@@ -67,6 +71,12 @@ def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], 
     sample = [r[col] for r in rows if r.get(col) is not None]
     if all(isinstance(v, bool) for v in sample):
         return (lambda r: None if r.get(col) is None else float(r[col])), True, f"share {col}"
+    if any(isinstance(v, list | dict | tuple) for v in sample):
+        raise RgtbusError(
+            f"--y {y!r}: column {col!r} holds lists or tables, not one number a run (e.g. "
+            "units: decided_count, frustrated_count; relations: alliance_share; "
+            "decode_errors: decode_error_count)"
+        )
     if not all(isinstance(v, int | float) for v in sample):
         raise RgtbusError(
             f"--y {y!r}: column {col!r} holds text; use {col}=VALUE for the share of runs "

@@ -35,6 +35,10 @@ TOPICS: dict[str, tuple[str, str]] = {
         "rgtbus.Goal",
         "a goal-driven unit's influence on a target, chosen by the inverse task",
     ),
+    "/unit/report": (
+        "rgtbus.UnitReport",
+        "what a unit knows at the end of its run: its share of the run summary",
+    ),
     "/log": ("foxglove.Log", "text log lines (Foxglove's Log panel)"),
     "/run": ("rgtbus.RunSummary", "how the run ended, written last"),
 }

@@ -5,7 +5,7 @@ scenario and runs them in the SimPy ``World`` over a ``LogBus`` that serves the 
 medium instead of a live bus:
 the units render their own transmissions again (so their pulses can be compared with the
 log), hear the logged medium (with their own seeded noise), spike, decode, build tables and
-decide. What they record goes into a ``CaptureRecorder``; ``rgtbus.telemetry.replay`` diffs it
+decide. What they record goes into a ``CaptureRecorder``; ``rgtbus.telemetry.verify`` diffs it
 against the log. ``verify_log`` glues reading, re-running and diffing for the CLI.
 
 It lives in ``units/`` because it needs the unit itself: adapters never import ``units/``.
@@ -26,10 +26,12 @@ from rgtbus.bus.base import Pulses
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import parse_pair_key
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message
-from rgtbus.telemetry.replay import Mismatch, Replay, VerifyReport, load_replay, verify
+from rgtbus.telemetry.read import Mismatch, Replay, load_replay
+from rgtbus.telemetry.verify import VerifyReport, verify
 
 
 class CaptureRecorder:
@@ -41,8 +43,8 @@ class CaptureRecorder:
     def __init__(self) -> None:
         self.messages: list[tuple[str, int, dict]] = []
 
-    def write(self, topic: str, message: dict, t_ns: int) -> None:
-        self.messages.append((topic, t_ns, message))
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        self.messages.append((topic, t_ns, dict(message)))
 
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
         self.messages.append(("/log", t_ns, log_message(level, text, t_ns, name)))
@@ -140,7 +142,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
         unit = AutonomousUnit(name, sc, CaptureRecorder())  # a fresh mind, same policy and rng
         mind = unit.mind
         try:
-            mind.sent = {tuple(k.split(">", 1)): v == "alliance" for k, v in rel["sent"].items()}
+            mind.sent = {parse_pair_key(k): v == "alliance" for k, v in rel["sent"].items()}
         except (AttributeError, ValueError):
             out.append(Mismatch("/unit/relations", rel.get("t"), name, "sent", rel["sent"], None))
             continue
@@ -176,7 +178,7 @@ def _check_round(
     rnd = infl.get("round", 1)
     try:
         mind.influences = {
-            tuple(k.split(">", 1)): u.from_list(v) for k, v in infl["influences"].items()
+            parse_pair_key(k): u.from_list(v) for k, v in infl["influences"].items()
         }
     except (AttributeError, ValueError, RgtbusError):
         return [
@@ -186,7 +188,7 @@ def _check_round(
         ]
     if not mind.influences_complete():
         return []
-    mind.decide()
+    mind.decide_round(rnd)
     cap = CaptureRecorder()
     unit.recorder = cap
     unit._log_decisions(infl["t"], rnd)

@@ -1,0 +1,182 @@
+"""The library face of rgtbus: what ``import rgtbus`` offers (docs/api.md).
+
+* ``load_scenario(path_or_text_or_name)`` -> ``Scenario``;
+* ``run(scenario, *, seed, bus, engine, log)`` -> ``RunResult`` (``.summary`` is what
+  ``rgtbus run --json`` prints);
+* ``open_log(path)`` -> ``Log`` (``.summary()``, ``.metadata``, DataFrames);
+* ``sweep(scenario, *, grid, seeds, ...)`` -> a DataFrame of the rows ``rgtbus sweep`` writes.
+
+Every command is a thin wrapper over these: the same errors (``RgtbusError``, one line with
+file:line: key), the same results.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from rgtbus.scenario import Scenario
+    from rgtbus.telemetry.frames import Log
+    from rgtbus.telemetry.live import LiveView
+
+BUSES = ("memory", "zenoh")
+ENGINES = ("event", "dense")
+
+
+@dataclass
+class RunResult:
+    """What ``rgtbus.run`` returns. ``summary``: the dict ``rgtbus run --json`` prints (its
+    keys are ``rgtbus.summary.SUMMARY_JSON_KEYS``); ``log``: the log written (``None``
+    without one); ``scenario``: the scenario as run (its seed set)."""
+
+    summary: dict[str, Any]
+    scenario: Scenario
+    log: Path | None = None
+    # the whole summary (``rgtbus.summary.summarise``): also steps, bus statistics, each
+    # unit's own relationship table
+    details: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """The run finished without an error."""
+        return self.summary.get("error") is None
+
+    def open_log(self) -> Log:
+        """The run's log, read back (``RgtbusError`` if the run wrote none)."""
+        if self.log is None:
+            raise RgtbusError("this run wrote no log: run it with log=PATH")
+        return open_log(self.log)
+
+    def decisions(self) -> Any:
+        """The summary's decisions as a DataFrame (one row per unit and round), as
+        ``Log.decisions()`` gives them."""
+        import pandas as pd
+
+        from rgtbus.telemetry.frames import DECISION_COLUMNS
+
+        return pd.DataFrame(self.summary.get("decisions") or [], columns=DECISION_COLUMNS)
+
+
+def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:
+    """A scenario from a file path, TOML text, or the name of a shipped scenario (``"gate"``;
+    ``rgtbus scenarios`` lists them). Bad input: ``RgtbusError`` naming file:line: key."""
+    from rgtbus.scenario import Scenario
+    from rgtbus.scenario import load_scenario as load
+
+    if isinstance(source, Scenario):
+        return source
+    return load(source)
+
+
+def run(
+    scenario: str | os.PathLike[str] | Scenario,
+    *,
+    seed: int | None = None,
+    bus: str = "memory",
+    engine: str = "event",
+    log: str | os.PathLike[str] | None = None,
+    traces: bool = False,
+    key: bytes | None = None,
+    realtime: float | None = None,
+    progress: Callable[[float, int], None] | None = None,
+    live: LiveView | None = None,
+) -> RunResult:
+    """Run every unit of ``scenario`` in this process and return its summary.
+
+    ``seed`` overrides the scenario's; ``bus``: ``"memory"`` (in-process) or ``"zenoh"``;
+    ``engine``: ``"event"`` or ``"dense"`` (identical results); ``log``: a path to write the
+    MCAP log to (``None``: no log); ``traces``: resonator states in the log; ``key``: the
+    run's shared secret (frames signed and checked); ``realtime``: pace the run at that many
+    simulated seconds per wall second; ``progress(sim_seconds, step)``: called as the run
+    goes; ``live``: a Foxglove live view offered every message (needs ``log``). A run that
+    fails returns its summary with ``error`` set (and its log closed and readable); bad
+    arguments raise ``RgtbusError``."""
+    from rgtbus.summary import summary_json
+    from rgtbus.telemetry.recorder import NullRecorder
+    from rgtbus.units.group import run_group
+
+    sc = load_scenario(scenario)
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise RgtbusError(f"seed {seed!r}: must be a non-negative integer")
+        sc = sc.with_seed(seed)
+    if bus not in BUSES:
+        raise RgtbusError(f"bus {bus!r}: must be one of {', '.join(BUSES)}")
+    if engine not in ENGINES:
+        raise RgtbusError(f"engine {engine!r}: must be one of {', '.join(ENGINES)}")
+    if realtime is not None and not realtime > 0:
+        raise RgtbusError(f"realtime {realtime!r}: must be a positive factor")
+    options: dict[str, Any] = {
+        "traces": traces, "engine": engine, "key": key, "realtime": realtime,
+        "progress": progress,
+    }  # fmt: skip
+    if log is None:
+        if live is not None:
+            live.close()
+            raise RgtbusError("a live view needs a log (log=PATH): it serves what is logged")
+        out = run_group(sc, bus, NullRecorder(), **options)
+        return RunResult(summary_json(out.summary), sc, None, out.summary)
+    from rgtbus.telemetry.logfile import close_log
+    from rgtbus.telemetry.logfile import open_log as open_file
+
+    path = Path(log)
+    try:
+        stream, recorder = open_file(path, live)
+    except BaseException:
+        if live is not None:
+            live.close()
+        raise
+    try:
+        if live is not None:
+            live.begin()
+        out = run_group(sc, bus, recorder, **options)
+    except BaseException as exc:
+        if not recorder.failed:  # a log that cannot be written cannot take the line either
+            recorder.log("fatal", f"run failed: {exc}", 0)
+        raise
+    finally:
+        try:
+            close_log(stream, recorder)
+        finally:
+            if live is not None:
+                live.close()
+    out.summary["log"] = str(path)
+    return RunResult(summary_json(out.summary), sc, path, out.summary)
+
+
+def open_log(source: str | os.PathLike[str]) -> Log:
+    """A run's MCAP log, read (CRC-checked) and organised: ``.summary()`` (the summary of
+    ``rgtbus run --json``, from the log alone), ``.metadata``, and DataFrames ``.decisions()``,
+    ``.decodes()``, ``.spikes()``, ``.transmissions()``, ``.medium()``, ``.messages(topic)``."""
+    from rgtbus.telemetry.frames import open_log as open_frames
+
+    return open_frames(source)
+
+
+def sweep(
+    scenario: str | os.PathLike[str] | Scenario,
+    *,
+    grid: dict[str, Any],
+    seeds: int | list[int] | range,
+    workers: int | None = None,
+    out: str | os.PathLike[str] | None = None,
+    scheduler: str | None = None,
+    **options: Any,
+) -> Any:
+    """Run ``scenario`` over ``seeds`` and the ``grid`` of keys (``n``, ``engine``, any dotted
+    scenario key) on a process pool (or the Dask cluster at ``scheduler``) and return the
+    rows ``rgtbus sweep`` writes, as a pandas DataFrame. Works from a script or notebook cell
+    without a main guard. ``out``: a directory to keep the tables in (``results.parquet``,
+    ``decisions.parquet``)."""
+    from rgtbus.units.sweep import sweep as run_sweep
+
+    return run_sweep(
+        scenario, grid=grid, seeds=seeds, workers=workers, out=out, scheduler=scheduler, **options
+    )

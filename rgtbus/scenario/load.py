@@ -1,0 +1,178 @@
+"""Loading a scenario: from a file, from TOML text or by a shipped scenario's name; then every
+section in turn (the first refusal is the one reported, so the order is part of the format)."""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import stat
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario.channel import channel_of
+from rgtbus.scenario.codebook_section import codebook_of, default_codebook, mode_of
+from rgtbus.scenario.context import Ctx, check_keys, sub_table
+from rgtbus.scenario.decisions import decisions_of
+from rgtbus.scenario.expect import check_expected_goals, expect_of
+from rgtbus.scenario.frequencies import frequencies_of
+from rgtbus.scenario.goals import goals_of
+from rgtbus.scenario.group import description_of, group_of
+from rgtbus.scenario.influences import influences_of
+from rgtbus.scenario.model import Scenario
+from rgtbus.scenario.outcome import outcome_of
+from rgtbus.scenario.relations import relations_of
+from rgtbus.scenario.schedule import protocol_of
+from rgtbus.scenario.shipped import find_shipped, is_name
+from rgtbus.scenario.timing import timing_of
+
+TOP_KEYS = {
+    "name",
+    "description",
+    "seed",
+    "units",
+    "actions",
+    "frequencies",
+    "codebook",
+    "mode",
+    "timing",
+    "channel",
+    "relations",
+    "influences",
+    "decision",
+    "outcome",
+    "expect",
+    "protocol",
+    "goals",
+}
+# Far beyond any real scenario (six units are ~2 KB); stops a device or a huge file early.
+MAX_SCENARIO_BYTES = 8 * 1024 * 1024
+TEXT = "<text>"  # the file name errors give for a scenario loaded from text
+
+
+def load_scenario(source: str | os.PathLike[str]) -> Scenario:
+    """A scenario from ``source``: the path of a file; TOML text (a string with a newline;
+    errors name ``<text>``); or, when no such file exists, the name of a shipped scenario
+    (``gate``, ``gate.toml``; ``rgtbus scenarios`` lists them)."""
+    if isinstance(source, str) and "\n" in source:
+        return parse_scenario(source, TEXT)
+    p = Path(source)
+    if not os.path.exists(p):  # False for a path with a NUL: refused below, as it reads
+        found = find_shipped(str(p))
+        if found is not None and found.parent.name == "sweeps":
+            raise RgtbusError(
+                f"cannot read scenario {str(p)!r}: {found} is a sweep file, not a scenario "
+                "(rgtbus sweep runs it)"
+            )
+        p = p if found is None else found
+    where = str(p)
+    return parse_scenario(_decode_text(_read_file(p, where), where), where)
+
+
+def _read_file(p: Path, where: str) -> bytes:
+    """The file's bytes, at most one past the limit; one line if it is not a readable file."""
+    try:
+        mode = p.stat().st_mode
+        if stat.S_ISDIR(mode):
+            raise RgtbusError(f"cannot read scenario {where!r}: is a directory")
+        if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+            raise RgtbusError(f"cannot read scenario {where!r}: not a regular file")
+        with open(p, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
+    except OSError as exc:
+        hint = ""
+        if exc.errno == errno.ENOENT and is_name(where):
+            hint = ", nor the name of a shipped scenario (rgtbus scenarios lists them)"
+        raise RgtbusError(f"cannot read scenario {where!r}: {exc.strerror}{hint}") from None
+    except ValueError as exc:  # a NUL in the path
+        raise RgtbusError(f"cannot read scenario {where!r}: {exc}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise RgtbusError(
+            f"{where}: larger than {MAX_SCENARIO_BYTES // 2**20} MiB: not a scenario file"
+        )
+    return data
+
+
+def _decode_text(data: bytes, where: str) -> str:
+    """UTF-8 text, or one line saying where the first bad byte is (a binary file, Latin-1)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise RgtbusError(
+            f"{where}:{line}: not a UTF-8 text file "
+            f"(byte 0x{data[exc.start]:02x} at line {line}, column {col})"
+        ) from None
+    nul = text.find("\0")
+    if nul >= 0:
+        line = text.count("\n", 0, nul) + 1
+        raise RgtbusError(
+            f"{where}:{line}: a binary file, not a scenario (NUL byte on line {line})"
+        )
+    return text
+
+
+def _toml_of(text: str, path: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
+        where = f"{path}:{m.group(1)}" if m else path
+        raise RgtbusError(f"{where}: not valid TOML: {exc}") from None
+
+
+def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
+    """A scenario from its TOML ``text``; errors name ``path``, the line and the key."""
+    ctx = Ctx(path, text)
+    data = _toml_of(text, path)
+    check_keys(ctx, data, TOP_KEYS, "")
+    group = group_of(ctx, data)
+    units, universe = group.units, group.universe
+    # The schedule first: the concurrent one is timed by the schedule (its default anchor).
+    protocol = protocol_of(ctx, data)
+    timing = timing_of(ctx, data, protocol.schedule)
+    mode = mode_of(ctx, data)
+    # No codebook given: the paper's (one or two actions), else the shortest generated one.
+    codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
+    freq = frequencies_of(ctx, data, units, universe, mode, codebook, timing.tau, protocol.schedule)
+    channel = channel_of(ctx, data, units)
+    relations = relations_of(ctx, data, units)
+    influences = influences_of(ctx, data, units, universe)
+    decisions = decisions_of(ctx, data, units, universe)
+    outcome = outcome_of(ctx, data, units, universe)
+    goals = goals_of(ctx, sub_table(ctx, data, "goals"), units, universe, decisions, outcome)
+    expect = expect_of(ctx, sub_table(ctx, data, "expect"), units, universe, outcome)
+    check_expected_goals(ctx, expect, goals)
+    return Scenario(
+        name=group.name,
+        path=path,
+        text=text,
+        seed=group.seed,
+        units=units,
+        universe=universe,
+        frequencies=freq.frequencies,
+        frequency_text=freq.text,
+        codebook=freq.codebook,
+        mode=freq.mode,
+        timing=timing,
+        noise=channel.noise,
+        gains=dict(channel.gains),
+        relation_policy=relations.policy,
+        alliance_p=relations.p,
+        fixed_relations=relations.fixed,
+        draws=relations.draws,
+        influences=influences.pairs,
+        decisions=decisions,
+        outcome=outcome,
+        expect=expect,
+        description=description_of(ctx, data),
+        schedule=protocol.schedule,
+        influence_policy=influences.policy,
+        influence_value=influences.value,
+        influence_weights=influences.weights,
+        influence_rounds=protocol.influence_rounds,
+        goals=goals,
+    )

@@ -1,0 +1,106 @@
+"""What a scenario file becomes: a validated, typed ``Scenario`` and its parts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from rgtbus.pairs import ordered_pairs
+from rgtbus.rgt import Universe
+from rgtbus.signal.channel import Channel
+from rgtbus.signal.codebook import Codebook
+
+
+@dataclass(frozen=True)
+class Timing:
+    sample_rate: float = 200.0  # samples per second (tau = 5 ms)
+    window: float = 0.1  # seconds per bus window; at most the reaction delay (the lookahead)
+    start: float = 0.001  # first transmission, seconds after onset (the paper's 1 ms)
+    reaction_delay: float = 0.5  # from the ID spike to the addressed code
+    guard: float = 0.5  # silence between one transmission's end and the next ID
+    max_seconds: float = 3600.0  # a run that has not finished by then fails
+    anchor: str = "spike"  # reactions count from the ID spike (paper) or the ID's last pulse
+
+    @property
+    def tau(self) -> float:
+        return 1.0 / self.sample_rate
+
+    @property
+    def window_samples(self) -> int:
+        return round(self.window * self.sample_rate)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """``name: then`` when every unit of ``all_of`` chooses ``choose``, else ``name: else``."""
+
+    name: str
+    all_of: tuple[str, ...]
+    choose: int
+    then: str
+    otherwise: str
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Unit ``unit`` wants subject ``target`` to meet ``[lo, hi]`` in ``mode`` (one of
+    ``rgtbus.rgt.control.MODES``; a scenario's ``choice`` is resolved to the mode that is the
+    target's choice under its decision policy: ``max`` -> ``largest``, ``min`` ->
+    ``smallest``, any other -> ``exact``, the one interval that leaves no choice)."""
+
+    unit: str
+    target: str
+    lo: int
+    hi: int
+    mode: str
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    path: str
+    text: str
+    seed: int
+    units: tuple[str, ...]
+    universe: Universe
+    frequencies: dict[str, float]
+    frequency_text: dict[str, str]
+    codebook: Codebook
+    mode: str
+    timing: Timing
+    noise: float
+    gains: dict[tuple[str, str], float]
+    relation_policy: str
+    alliance_p: float
+    fixed_relations: dict[tuple[str, str], bool]
+    draws: dict[tuple[str, str], float]
+    influences: dict[tuple[str, str], int]
+    decisions: dict[str, str]
+    outcome: Outcome | None
+    expect: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+    # How influences not listed per pair are chosen (rgtbus.mind.choose_influences).
+    schedule: str = (
+        "serial"  # [protocol] schedule: one code at a time, or rounds (docs/protocol.md)
+    )
+    influence_policy: str = "fixed"
+    influence_value: int | None = None  # policy uniform
+    influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
+    influence_rounds: int = 1  # [protocol] influence_rounds: influence phases (the paper: 1)
+    goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
+
+    def goals_of(self, unit: str) -> dict[str, Goal]:
+        """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""
+        return {g.target: g for g in self.goals if g.unit == unit}
+
+    @property
+    def channel(self) -> Channel:
+        """What each receiver hears from each sender (``rgtbus.signal.channel``)."""
+        return Channel(self.noise, self.gains)
+
+    def pairs(self) -> list[tuple[str, str]]:
+        """Every ordered pair of distinct units, sender-major in unit order."""
+        return ordered_pairs(self.units)
+
+    def with_seed(self, seed: int) -> Scenario:
+        return replace(self, seed=seed)

@@ -1,0 +1,123 @@
+"""``[timing]``: every key on its own first (blamed by its own name), then how they fit
+together (blamed on a key the file sets)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rgtbus.protocol import ANCHORS
+from rgtbus.scenario.context import Ctx, check_keys, sub_table
+from rgtbus.scenario.model import Timing
+
+TIMING_KEYS = {
+    "sample_rate",
+    "window",
+    "start",
+    "reaction_delay",
+    "guard",
+    "max_seconds",
+    "anchor",
+}
+# Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
+# run fails only after simulating its whole length.
+_GUARD_WHY = (
+    ": the next ID's first pulse would fall on the previous code's last sample and be misread"
+)
+
+
+def timing_of(ctx: Ctx, data: dict[str, Any], schedule: str) -> Timing:
+    """The timing; the concurrent schedule times its own rounds (its default anchor)."""
+    t = sub_table(ctx, data, "timing")
+    check_keys(ctx, t, TIMING_KEYS, "timing")
+    anchor = _anchor_of(ctx, t, schedule)
+    timing = Timing(**_values_of(ctx, t), anchor=anchor)
+    _check_window(ctx, t, timing)
+    _check_gaps(ctx, t, timing)
+    return timing
+
+
+def _anchor_of(ctx: Ctx, t: dict[str, Any], schedule: str) -> str:
+    anchor = t.get("anchor", "schedule" if schedule == "concurrent" else "spike")
+    if schedule == "concurrent" and anchor != "schedule":
+        raise ctx.error(
+            "timing",
+            "anchor",
+            f"{anchor!r} with the concurrent schedule: its rounds are timed by the schedule, "
+            'use anchor = "schedule" (the default with it)',
+        )
+    if not isinstance(anchor, str) or anchor not in ANCHORS:
+        raise ctx.error("timing", "anchor", f"unknown anchor {anchor!r} (spike or schedule)")
+    return anchor
+
+
+def _values_of(ctx: Ctx, t: dict[str, Any]) -> dict[str, float]:
+    values: dict[str, float] = {}
+    for key, v in t.items():  # in file order: the first bad line is the one reported
+        if key != "anchor":
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ctx.error("timing", key, f"must be a finite number, got {v!r}")
+            values[key] = float(v)
+            if key == "start":
+                if v < 0:
+                    raise ctx.error("timing", key, f"must not be negative, got {v!r}")
+            elif not v > 0:
+                why = _GUARD_WHY if key == "guard" else ""
+                raise ctx.error("timing", key, f"must be positive, got {v!r}{why}")
+    return values
+
+
+def _blame(t: dict[str, Any], key: str, other: str) -> str:
+    # A cross-key rule names a key the file sets: a default is nobody's typo.
+    return key if key in t or other not in t else other
+
+
+def _check_window(ctx: Ctx, t: dict[str, Any], timing: Timing) -> None:
+    """A whole number of samples, and no longer than the reaction delay (the lookahead)."""
+    samples = timing.window * timing.sample_rate
+    if not math.isfinite(samples) or abs(samples - round(samples)) > 1e-9:
+        if _blame(t, "window", "sample_rate") == "window":
+            raise ctx.error(
+                "timing",
+                "window",
+                f"must be a positive whole number of samples ({timing.window:g} s at "
+                f"{timing.sample_rate:g} samples/s is {samples:g})",
+            )
+        raise ctx.error(
+            "timing",
+            "sample_rate",
+            f"{timing.sample_rate:g} samples/s makes the window {timing.window:g} s (default) "
+            f"{samples:g} samples: not a whole number",
+        )
+    if timing.window > timing.reaction_delay:
+        if _blame(t, "window", "reaction_delay") == "window":
+            raise ctx.error(
+                "timing",
+                "window",
+                f"{timing.window:g} s exceeds the reaction delay {timing.reaction_delay:g} s "
+                "(the lookahead)",
+            )
+        raise ctx.error(
+            "timing",
+            "reaction_delay",
+            f"{timing.reaction_delay:g} s is shorter than the window {timing.window:g} s "
+            "(default; the window is the lookahead and must fit in the reaction delay)",
+        )
+
+
+def _check_gaps(ctx: Ctx, t: dict[str, Any], timing: Timing) -> None:
+    """A guard of at least one sample; the first transmission before the run's end."""
+    if timing.guard < timing.tau - 1e-12:
+        raise ctx.error(
+            "timing",
+            _blame(t, "guard", "sample_rate"),
+            f"guard {timing.guard:g} s is shorter than one sample "
+            f"(1/sample_rate = {timing.tau:g} s){_GUARD_WHY}",
+        )
+    if timing.start >= timing.max_seconds:
+        raise ctx.error(
+            "timing",
+            _blame(t, "start", "max_seconds"),
+            f"start {timing.start:g} s is not before max_seconds {timing.max_seconds:g} s: "
+            "the run would end before its first transmission",
+        )

@@ -1,0 +1,148 @@
+"""A run's log as pandas DataFrames: ``rgtbus.open_log(path)`` returns a ``Log``.
+
+Every table comes from the same reading of the log as ``rgtbus replay`` (``Replay``), and
+``Log.summary()`` is the summary ``rgtbus run --json`` printed for the run, computed from the
+log alone by the one summary function. Alternatives are plain Python values (sorted lists of
+action names), never text to parse. See docs/api.md.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from typing import IO, TYPE_CHECKING, Any
+
+from rgtbus.summary import summary_json
+from rgtbus.telemetry.read import NS, Replay, load_replay
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from rgtbus.scenario import Scenario
+
+DECISION_COLUMNS = ["round", "unit", "low", "high", "choice", "frustrated", "t", "wrong"]
+
+
+class Log:
+    """A run's MCAP log, read once (CRC-checked as ``rgtbus replay`` reads it).
+
+    ``metadata`` holds the log's metadata records (scenario text, seed, bus, engine, ...);
+    ``truncated`` says the log ends early (``note`` says why)."""
+
+    def __init__(self, replay: Replay) -> None:
+        self.replay = replay
+        self.path = replay.label
+        self.metadata: dict[str, dict[str, str]] = replay.metadata
+        self.truncated: bool = replay.truncated
+        self.note: str = replay.note
+        self._summary: dict[str, Any] | None = None
+
+    def __repr__(self) -> str:
+        return f"Log({self.path!r}, units={list(self.units)}, truncated={self.truncated})"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return self.replay.units
+
+    @property
+    def scenario(self) -> Scenario | None:
+        """The scenario the run ran (from the log's metadata, with the run's seed)."""
+        return self.replay.scenario
+
+    @property
+    def topics(self) -> list[str]:
+        """Every topic that holds a message."""
+        return sorted(t for t, msgs in self.replay.by_topic.items() if msgs)
+
+    def summary(self) -> dict[str, Any]:
+        """The run's summary: the keys and values ``rgtbus run --json`` printed (a log does
+        not time its writer: ``wall_seconds`` is ``None``; ``log`` is this log)."""
+        if self._summary is None:
+            self._summary = summary_json(self.replay.summary())
+        return dict(self._summary)
+
+    def decisions(self) -> pd.DataFrame:
+        """One row per unit and influence round: ``round, unit, low, high, choice,
+        frustrated, t, wrong`` (``low``/``high`` the interval's ends, ``None`` when
+        frustrated; ``wrong``: not what a perfect medium gives)."""
+        import pandas as pd
+
+        rows = self.summary().get("decisions") or []
+        return pd.DataFrame(rows, columns=DECISION_COLUMNS)
+
+    def decodes(self) -> pd.DataFrame:
+        """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
+        margin, accepted, sent, matches`` (``value``: the code as a plain value, a list of
+        action names for an influence)."""
+        import pandas as pd
+
+        rows = [asdict(d) for d in self.replay.decodes]
+        sc = self.scenario
+        for r in rows:
+            r["value"] = _value(sc, r["kind"], r["code"])
+        cols = ["unit", "t", "turn", "kind", "sender", "addressee", "channel", "code", "value",
+                "margin", "accepted", "sent", "matches"]  # fmt: skip
+        return pd.DataFrame(rows, columns=cols)
+
+    def spikes(self) -> pd.DataFrame:
+        """One row per unit, sample and channel that fired: ``unit, sample, t, channel,
+        omega``."""
+        import pandas as pd
+
+        return pd.DataFrame(self.replay.spikes, columns=["unit", "sample", "t", "channel", "omega"])
+
+    def transmissions(self) -> pd.DataFrame:
+        """One row per code on the medium: ``turn, kind, phase, sender, addressee, channel,
+        code, value, meaning, start, end, pulses`` (``pulses``: how many)."""
+        import pandas as pd
+
+        sc = self.scenario
+        rows = []
+        for tx in self.replay.transmissions:
+            r = asdict(tx)
+            r["pulses"] = len(tx.pulses)
+            r["value"] = _value(sc, "influence" if tx.phase == "influences" else tx.kind, tx.code)
+            rows.append(r)
+        cols = ["turn", "kind", "phase", "sender", "addressee", "channel", "code", "value",
+                "meaning", "start", "end", "pulses"]  # fmt: skip
+        return pd.DataFrame(rows, columns=cols)
+
+    def medium(self) -> pd.DataFrame:
+        """The shared medium's non-silent samples: ``sample, t, value`` (what every unit
+        heard before its own noise)."""
+        import pandas as pd
+
+        samples, values = self.replay.medium_pulses()
+        tau = self.replay.require_scenario().timing.tau
+        return pd.DataFrame({"sample": samples, "t": samples * tau, "value": values})
+
+    def messages(self, topic: str) -> pd.DataFrame:
+        """Every message of ``topic`` (e.g. ``"/unit/goal"``, ``"/log"``), one row each:
+        ``log_time`` (integer ns), ``log_seconds``, then the message's fields."""
+        import pandas as pd
+
+        msgs = self.replay.by_topic.get(topic, [])
+        rows = [{"log_time": t, "log_seconds": t / NS, **_fields(m)} for t, m in msgs]
+        return pd.DataFrame(rows)
+
+
+def _fields(message: Any) -> dict[str, Any]:
+    return message if isinstance(message, dict) else {"data": message}
+
+
+def _value(sc: Scenario | None, kind: str, code: str | None) -> Any:
+    """A decoded or sent code as a plain value: an alternative as its sorted action names."""
+    if sc is None or code is None or kind not in ("influence", "payload"):
+        return code
+    if code in ("alliance", "conflict", "id"):
+        return code
+    try:
+        return sc.universe.to_list(sc.universe.parse_alternative(code))
+    except Exception:  # a misread that names no alternative stays as read
+        return code
+
+
+def open_log(source: str | os.PathLike[str] | IO[bytes]) -> Log:
+    """Read a run's log (a path or a binary stream). Raises ``RgtbusError`` with one line on
+    a file that is no readable rgtbus log."""
+    return Log(load_replay(source))

@@ -1,0 +1,654 @@
+"""Reading a run back from its MCAP log (CRC-checked): ``load_replay(source)`` organises a
+log (path or stream) into a ``Replay``: transmissions (the logged pulses grouped into codes,
+with their meaning), spikes, decodes (each matched with the transmission it read), the tables
+each unit built, decisions, the ``/run`` record and the metadata. ``Replay.summary()`` is the
+run's summary computed from the log alone by the one summary function
+(``rgtbus.summary.summarise``). Verifying a log is ``rgtbus.telemetry.verify``; exporting it
+(CSV) ``rgtbus.telemetry.export``; DataFrames ``rgtbus.telemetry.frames``. Every disagreement
+found while reading or verifying is a ``Mismatch``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+from collections import Counter, defaultdict
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from typing import IO, Any
+
+import numpy as np
+import orjson
+
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.summary import (
+    RunEnd,
+    agreement,
+    decode_error,
+    summarise,
+    summary_json,
+)
+from rgtbus.telemetry import topics
+from rgtbus.telemetry.recorder import (
+    LogContents,
+    decode_log,
+    require_run_log,
+    scan_log,
+)
+from rgtbus.timebase import NS_PER_SECOND
+
+NS = NS_PER_SECOND  # log_time units per second (rgtbus.timebase)
+
+
+@dataclass
+class Transmission:
+    """One code on the medium: the logged pulses of one message, with what it means."""
+
+    turn: int
+    kind: str  # "id" | "payload"
+    phase: str  # "relations" | "influences"
+    sender: str
+    addressee: str
+    channel: str
+    code: str
+    meaning: str  # "ID", "alliance", "conflict", "influence {alpha}", ...
+    start: float
+    end: float
+    pulses: list[tuple[float, float]]  # (t, magnitude)
+
+    @property
+    def label(self) -> str:
+        return f"{self.sender} → {self.addressee}: {self.meaning}"
+
+
+@dataclass
+class DecodeRow:
+    unit: str
+    t: float
+    sender: str
+    addressee: str
+    kind: str
+    code: str
+    margin: float
+    accepted: bool
+    turn: int | None  # of the transmission it read (None: no such transmission logged)
+    sent: str | None  # the code that transmission carried
+    matches: bool | None  # decoded what was sent (None: nothing to compare with)
+    channel: str | None = None  # the unit whose channel carried it (None: an older log)
+
+
+@dataclass
+class Mismatch:
+    """One disagreement between the log and what verification recomputed."""
+
+    topic: str
+    t: float | None
+    unit: str | None
+    field: str
+    logged: Any
+    recomputed: Any
+
+    def text(self) -> str:
+        when = "" if self.t is None else f" t={self.t:.3f}s"
+        who = "" if self.unit is None else f" unit={self.unit}"
+        return (
+            f"{self.topic}{when}{who} {self.field}: logged {_short(self.logged)}, "
+            f"recomputed {_short(self.recomputed)}"
+        )
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    text = json.dumps(value, ensure_ascii=False, default=str)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _phase_of(turn: int, n_units: int) -> str:
+    return "relations" if turn < n_units * (n_units - 1) else "influences"
+
+
+def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
+    """The truncation notes of a merged log's inputs (empty for a log that is no merge)."""
+    out: list[str] = []
+    for name, values in metadata.items():
+        if name == "merge" or name.startswith("merge."):
+            try:
+                notes = json.loads(values.get("truncated", "[]"))
+            except ValueError:
+                notes = ["a merge record that does not parse"]
+            if isinstance(notes, list):
+                out += [str(n) for n in notes]
+    return out
+
+
+def _unit_process_ends(
+    metadata: dict[str, dict[str, str]], units: Sequence[str]
+) -> tuple[list[str], list[str]]:
+    """(how the unit processes that did not end "done" ended, every unit process whose log is
+    in this one). A unit process's log has a ``run`` record naming it (``process``) and, once
+    it ended, an ``end.<unit>`` record; a killed one has none."""
+    processes = [
+        v["process"]
+        for n, v in metadata.items()
+        if (n == "run" or n.startswith("run.")) and v.get("process") in units
+    ]
+    early = []
+    for unit in processes:
+        end = metadata.get(topics.unit_end_record(unit))
+        if end is None:
+            early.append(f"unit {unit}'s process ended without a word (killed?)")
+        elif end.get("status") != topics.UNIT_DONE:
+            early.append(f"unit {unit} {topics.UNIT_ENDED_EARLY}: {end.get('detail', '')}")
+    return early, processes
+
+
+def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
+    """Channel frequencies from a log's ``frequencies`` metadata (values that are no number
+    are left out: the verifier names a damaged scenario, this only labels spikes)."""
+    out = {}
+    for k, v in metadata.get("frequencies", {}).items():
+        with contextlib.suppress(ValueError):
+            out[k] = float(v)
+    return out
+
+
+def spike_rows(records: Iterable[dict], frequencies: dict[str, float]) -> list[dict]:
+    """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
+    records, which list every resonator of a unit that fired at one sample; ω comes from the
+    log's frequencies (logs written before that change hold one spike a record, with its ω)."""
+    rows = []
+    for m in records:
+        if "channels" not in m:
+            rows.append(m)
+            continue
+        unit, t, k = m["unit"], m["t"], m["sample"]
+        for ch in m["channels"]:
+            om = frequencies.get(ch)
+            rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
+    return rows
+
+
+class Replay:
+    """A log organised for reading. Build with ``load_replay``."""
+
+    def __init__(self, contents: LogContents, label: str = "<log>") -> None:
+        self.contents = contents
+        self.label = label
+        self.metadata: dict[str, dict[str, str]] = contents.metadata
+        self.truncated: bool = contents.truncated
+        self.note: str = contents.note
+        self.by_topic: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+        for topic, t, msg in contents.messages:
+            self.by_topic[topic].append((t, msg))
+        self.scenario: Scenario | None = None
+        self.scenario_error: str | None = None
+        self._load_scenario()
+        self.units: tuple[str, ...] = self._units()
+        # A merge of unit logs (launch, or ``rgtbus merge`` by hand) whose inputs ended early
+        # (a killed unit) is as incomplete as a truncated file, though the file itself is whole.
+        early, self.unit_processes = _unit_process_ends(self.metadata, self.units)
+        self.cut_inputs: list[str] = _merge_notes(self.metadata) + early
+        if self.cut_inputs:
+            self.truncated = True
+            self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
+        self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
+        self.transmissions = self._transmissions()
+        self.decodes = self._decodes()
+        self.frequencies = _frequencies(self.metadata)
+        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies)
+        self.relations = {m["unit"]: m for _, m in self.by_topic["/unit/relations"]}
+        self.influences = {m["unit"]: m for _, m in self.by_topic["/unit/influences"]}
+        self.decisions = [m for _, m in self.by_topic["/unit/decision"]]
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _load_scenario(self) -> None:
+        meta = self.metadata.get("scenario")
+        if not meta or "text" not in meta:
+            self.scenario_error = "the log has no scenario metadata"
+            return
+        try:
+            sc = parse_scenario(meta["text"], meta.get("path", "<scenario>"))
+            seed = self.metadata.get("run", {}).get("seed")
+            if seed is not None:
+                sc = sc.with_seed(int(seed))
+        except (RgtbusError, ValueError) as e:
+            self.scenario_error = f"the log's scenario does not load: {e}"
+            return
+        self.scenario = sc
+
+    def require_scenario(self) -> Scenario:
+        if self.scenario is None:
+            raise RgtbusError(f"{self.label}: cannot re-run: {self.scenario_error}")
+        return self.scenario
+
+    def _units(self) -> tuple[str, ...]:
+        if self.scenario is not None:
+            return self.scenario.units
+        seen: dict[str, None] = {}
+        for topic in ("/tx/pulse", "/rx/spike", "/rx/decode", "/unit/relations"):
+            for _, m in self.by_topic[topic]:
+                seen.setdefault(m["unit"], None)
+        return tuple(seen)
+
+    def _transmissions(self) -> list[Transmission]:
+        groups: dict[tuple[str, int], list[dict]] = {}
+        for _, p in self.by_topic["/tx/pulse"]:
+            groups.setdefault((p["unit"], p["message"]["id"]), []).append(p)
+        out = []
+        n = len(self.units)
+        for (_, mid), pulses in groups.items():
+            msg = pulses[0]["message"]
+            turn = mid // 2
+            phase = _phase_of(turn, n)
+            if msg["kind"] == "id":
+                meaning = "ID"
+            elif phase == "relations":
+                meaning = msg["code"]
+            else:
+                meaning = f"influence {msg['code']}"
+            out.append(
+                Transmission(
+                    turn=turn,
+                    kind=msg["kind"],
+                    phase=phase,
+                    sender=msg["sender"],
+                    addressee=msg["addressee"],
+                    channel=pulses[0]["channel"],
+                    code=msg["code"],
+                    meaning=meaning,
+                    start=pulses[0]["t"],
+                    end=pulses[-1]["t"],
+                    pulses=[(p["t"], p["magnitude"]) for p in pulses],
+                )
+            )
+        out.sort(key=lambda x: (x.start, x.turn, x.kind))
+        return out
+
+    def _decodes(self) -> list[DecodeRow]:
+        # A decode reads the latest code of its class its sender started before it.
+        starts: dict[tuple[str, str], list[Transmission]] = defaultdict(list)
+        for sent in self.transmissions:
+            starts[(sent.sender, sent.kind)].append(sent)
+        rows = []
+        for _, d in self.by_topic["/rx/decode"]:
+            cls = "id" if d["kind"] == "id" else "payload"
+            tx: Transmission | None = None
+            for cand in starts[(d["sender"], cls)]:
+                if ("turn" in d and cand.turn == d["turn"]) or (
+                    "turn" not in d and cand.start <= d["t"] + 1e-9  # logs from before turns
+                ):
+                    tx = cand
+            if tx is None:
+                matches = None
+            elif cls == "id":
+                matches = d["code"] == "id"
+            else:
+                matches = d["code"] == tx.code and d["addressee"] == tx.addressee
+            rows.append(
+                DecodeRow(
+                    unit=d["unit"],
+                    t=d["t"],
+                    sender=d["sender"],
+                    addressee=d["addressee"],
+                    kind=d["kind"],
+                    code=d["code"],
+                    margin=d["margin"],
+                    accepted=d["accepted"],
+                    turn=None if tx is None else tx.turn,
+                    sent=None if tx is None else tx.code,
+                    matches=matches,
+                    channel=d.get("channel"),
+                )
+            )
+        return rows
+
+    # -- what the log says -------------------------------------------------------------------
+
+    @property
+    def window_seconds(self) -> float | None:
+        if self.scenario is not None:
+            t = self.scenario.timing
+            return t.window_samples / t.sample_rate
+        med = self.by_topic["/medium"]
+        if med:
+            return len(med[0][1]["samples"]) / med[0][1]["sample_rate"]
+        return None
+
+    @property
+    def windows(self) -> int:
+        return len(self.by_topic["/medium"])
+
+    @property
+    def sim_seconds(self) -> float:
+        """The run's simulated length: from its ``/run`` record, else as far as the log goes."""
+        if self.run is not None:
+            return float(self.run["sim_seconds"])
+        return round(max((m[1] for m in self.contents.messages), default=0) / NS, 6)
+
+    def agree(self) -> bool:
+        tables = [self.relations.get(u, {}).get("installed", {}) for u in self.units]
+        polys = [self.relations.get(u, {}).get("polynomial") for u in self.units]
+        return agreement(tables, polys, len(self.units))
+
+    def decode_errors(self) -> list[dict[str, Any]]:
+        """As ``summarise`` lists them: per unit (in unit order), decodes of a wrong code."""
+        out = []
+        order = {u: i for i, u in enumerate(self.units)}
+        rows = sorted(self.decodes, key=lambda d: order.get(d.unit, len(order)))
+        for d in rows:
+            if d.matches is False:
+                out.append(decode_error(d.unit, d.turn, d.kind, d.code, d.sent))
+        return out
+
+    def unit_reports(self) -> list[dict[str, Any]]:
+        """Each unit's share of the run summary, from its ``/unit/report`` and its
+        ``/rx/decode`` records: what the live run's summary is computed from. A unit without
+        a report (its process died) is left out, as the live run leaves it out. Logs from
+        before ``/unit/report`` get reports rebuilt from their tables and decisions."""
+        decodes: dict[str, list[list[Any]]] = defaultdict(list)
+        for _, d in self.by_topic["/rx/decode"]:
+            decodes[d["unit"]].append([d.get("turn"), d["kind"], d["addressee"], d["code"]])
+        reports = {m["unit"]: m for _, m in self.by_topic["/unit/report"]}
+        if not reports:
+            reports = {u: self._legacy_report(u) for u in self.units}
+        return [{**reports[u], "decodes": decodes[u]} for u in self.units if u in reports]
+
+    def _legacy_report(self, unit: str) -> dict[str, Any]:
+        rel = self.relations.get(unit, {})
+        own = [d for d in self.decisions if d["unit"] == unit and d["subject"] == unit]
+        last = own[-1] if own else None
+        result = {
+            "interval": None if last is None else last["interval"],
+            "frustrated": False if last is None else bool(last["frustrated"]),
+            "choice": None if last is None else last["choice"],
+            "canonical": None if last is None else last["canonical"],
+            "A": None if last is None else last["A"],
+            "B": None if last is None else last["B"],
+            "decided": last is not None,
+        }
+        rows = []
+        for d in own:
+            low, high = d["interval"] or (None, None)
+            rows.append(
+                {"round": d.get("round", 1), "unit": unit, "low": low, "high": high,
+                 "choice": d["choice"], "frustrated": bool(d["frustrated"]), "t": d["t"]}
+            )  # fmt: skip
+        return {
+            "unit": unit,
+            "installed": rel.get("installed", {}),
+            "polynomial": rel.get("polynomial"),
+            "p4": rel.get("p4"),
+            "sent_relations": rel.get("sent", {}),
+            "influences": self.influences.get(unit, {}).get("influences", {}),
+            "result": result,
+            "decisions": rows,
+            "sends": [
+                [tx.turn, tx.kind, tx.addressee, tx.code]
+                for tx in self.transmissions
+                if tx.sender == unit
+            ],
+            "sent_influences": [],
+            "failure": None,
+            "failed_at": None,
+            "done_at": None,
+            "mind_error": None,
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """The run's summary computed from the log alone by the one summary function
+        (``rgtbus.summary.summarise``) on the records the live run used: every key of
+        ``rgtbus run --json`` with the same values, and the rest of the live summary but for
+        what a log does not keep (steps, bus statistics). ``wall_seconds`` is ``None`` (a log
+        does not time its writer) and ``log`` is this log."""
+        run = self.run or {}
+        sc = self.scenario
+        if sc is None:  # no scenario to judge with: what the /run record says
+            out = summary_json(run)
+            out["sim_seconds"] = self.sim_seconds
+        else:
+            end = RunEnd(sim_seconds=self.sim_seconds, failure=run.get("error"))
+            engine = self.metadata.get("run", {}).get("engine", "event")
+            out = summarise(sc, self.unit_reports(), end, engine=engine)
+            for key in ("steps", "bus"):
+                out.pop(key, None)
+        out["wall_seconds"] = None
+        out["log"] = self.label
+        return out
+
+    def spike_counts(
+        self, span: tuple[float | None, float | None] | None = None
+    ) -> dict[str, dict[str, int]]:
+        counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
+        for s in self.spikes:
+            if in_span(s["t"], span):
+                counts.setdefault(s["unit"], Counter())[s["channel"]] += 1
+        return {u: dict(c) for u, c in counts.items()}
+
+    def info(self) -> dict[str, Any]:
+        """The run's metadata: scenario, seed, version, bus, run id, frequencies."""
+        sc = self.metadata.get("scenario", {})
+        run = self.metadata.get("run", {})
+        return {
+            "scenario": sc.get("name"),
+            "path": sc.get("path"),
+            "seed": None if run.get("seed") is None else int(run["seed"]),
+            "version": run.get("version"),
+            "bus": run.get("bus"),
+            "run_id": run.get("run_id"),
+            "python": run.get("python"),
+            "frequencies": self.frequencies,
+            "records": sorted(self.metadata),
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        """``rgtbus replay --json``: one object."""
+        return {
+            "log": self.label,
+            "metadata": self.info(),
+            "truncated": self.truncated,
+            "note": self.note,
+            "transmissions": [
+                {k: v for k, v in asdict(tx).items() if k != "pulses"}
+                | {"pulses": [{"t": t, "magnitude": m} for t, m in tx.pulses]}
+                for tx in self.transmissions
+            ],
+            "spikes": self.spikes,
+            "spike_counts": self.spike_counts(),
+            "decodes": [asdict(d) for d in self.decodes],
+            "tables": {
+                u: {
+                    "relations": self.relations.get(u),
+                    "influences": self.influences.get(u),
+                }
+                for u in self.units
+            },
+            "agree": self.agree(),
+            "decisions": self.decisions,
+            "outcome": self.summary()["outcome"],
+            "run": self.run,
+            "summary": self.summary(),
+        }
+
+    # -- inputs for a re-run -----------------------------------------------------------------
+
+    def medium_windows(self) -> tuple[dict[int, np.ndarray], list[Mismatch]]:
+        """The logged medium's windows (only windows that carried a pulse are logged), with
+        repeated and malformed windows reported."""
+        sc = self.require_scenario()
+        L = sc.timing.window_samples
+        ws = L / sc.timing.sample_rate
+        out: dict[int, np.ndarray] = {}
+        bad: list[Mismatch] = []
+        for t_ns, m in self.by_topic["/medium"]:
+            w = m["window"]
+            if w in out:
+                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w}", "twice", "once"))
+                continue
+            if len(m["samples"]) != L:
+                bad.append(
+                    Mismatch("/medium", t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
+                )
+                continue
+            if not math.isclose(m["t"], w * ws, abs_tol=1e-9) or t_ns != round(w * ws * NS):
+                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w} t", m["t"], w * ws))
+            if m["sample_rate"] != sc.timing.sample_rate:
+                bad.append(
+                    Mismatch(
+                        "/medium",
+                        t_ns / NS,
+                        None,
+                        f"window {w} sample_rate",
+                        m["sample_rate"],
+                        sc.timing.sample_rate,
+                    )
+                )
+            out[w] = np.asarray(m["samples"], dtype=float)
+        return out, bad
+
+    def medium_pulses(self) -> tuple[np.ndarray, np.ndarray]:
+        """The logged medium as (sample indexes, values) of its non-silent samples: what every
+        unit heard, bit for bit (each unit's magnitudes added up, then the units in order)."""
+        sc = self.require_scenario()
+        L = sc.timing.window_samples
+        windows, _ = self.medium_windows()
+        rows, vals = [], []
+        for w in sorted(windows):
+            nz = np.flatnonzero(windows[w])
+            rows.append(nz + w * L)
+            vals.append(windows[w][nz])
+        if not rows:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        return np.concatenate(rows).astype(np.int64), np.concatenate(vals)
+
+    def sender_pulses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each unit's own transmissions, rebuilt from its logged pulses (in the order it sent
+        them: the floats add up as the unit added them)."""
+        rows: dict[str, list[int]] = {u: [] for u in self.units}
+        vals: dict[str, list[float]] = {u: [] for u in self.units}
+        for _, p in self.by_topic["/tx/pulse"]:
+            if p["unit"] in rows:
+                rows[p["unit"]].append(int(p["sample"]))
+                vals[p["unit"]].append(float(p["magnitude"]))
+        out = {}
+        for u in self.units:
+            r = np.array(rows[u], dtype=np.int64)
+            order = np.argsort(r, kind="stable")
+            out[u] = (r[order], np.array(vals[u])[order])
+        return out
+
+    def has_gains(self) -> bool:
+        sc = self.require_scenario()
+        return not sc.channel.unit_gains
+
+    def units_until_ns(self) -> int | None:
+        """The log time up to which the units' messages are complete (units write in time
+        order; the medium and traces are logged ahead of them): None when nothing was. For a
+        merge with inputs that ended early: the earliest of the units' last messages (each
+        unit's log may end at another time)."""
+        last: dict[str, int] = {}
+        for topic, msgs in self.by_topic.items():
+            if topic == "/medium" or _is_trace(topic) or topic == "/run":
+                continue
+            for t, m in msgs:
+                who = str(m.get("unit", m.get("name", "")))
+                if t > last.get(who, -1):
+                    last[who] = t
+        if not last:
+            return None
+        if self.cut_inputs:
+            return min((v for u, v in last.items() if u in self.units), default=None)
+        return max(last.values())
+
+    def traced_units(self) -> list[str]:
+        return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]
+
+    def trace_arrays(self, unit: str) -> dict[str, Any] | None:
+        msgs = [m for _, m in self.by_topic.get(f"/trace/{unit}", [])]
+        return self.stack_traces(msgs) if msgs else None
+
+    def stack_traces(self, msgs: Sequence[dict | bytes]) -> dict[str, Any]:
+        """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``: one message
+        a sample, or (logs of rgtbus before the per-sample layout) one a window."""
+        if not msgs:
+            return {"t": np.zeros(0), "y": np.zeros((0, 0)), "channels": []}
+        ms = [orjson.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
+        if "window" in ms[0]:
+            ts, ys = [], []
+            for m in ms:
+                y = np.asarray(m["y"], dtype=float)  # channels × samples
+                ts.append(m["t"] + np.arange(y.shape[1]) / m["sample_rate"])
+                ys.append(y.T)
+            t, yy = np.concatenate(ts), np.concatenate(ys)
+            return {"t": t, "y": yy, "channels": ms[0]["channels"]}
+        t = np.fromiter((m["t"] for m in ms), dtype=float, count=len(ms))
+        yy = np.asarray([m["y"] for m in ms], dtype=float)
+        return {"t": t, "y": yy, "channels": list(self.units)}
+
+
+def in_span(
+    t: float, span: tuple[float | None, float | None] | None, until: float | None = None
+) -> bool:
+    """Whether the instant ``t`` (or the interval ``t``..``until``) meets ``span`` (from, to;
+    None: unbounded), within a nanosecond."""
+    if span is None:
+        return True
+    lo, hi = span
+    end = t if until is None else until
+    return (lo is None or end >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
+
+
+def _is_trace(topic: str) -> bool:
+    return topic.startswith("/trace/")
+
+
+def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
+    """Read and organise a log (path or binary stream). Unreadable, not MCAP, corrupt, only a
+    header, or not written by an rgtbus run: RgtbusError. A truncated log reads up to its cut.
+
+    Resonator traces (the bulk of a traced log) stay undecoded until something needs them:
+    verification compares them byte for byte, plots decode one unit's."""
+    raw = scan_log(source)
+    require_run_log(raw)
+    contents = decode_log(raw, keep_raw=_is_trace)
+    with explained(contents, raw.label):
+        return Replay(contents, raw.label)
+
+
+def schema_error(contents: LogContents) -> str | None:
+    """The first message that breaks its topic's schema, in one line (None: all keep them).
+    Run only once reading has failed: a log's messages are not validated on the way in."""
+    from rgtbus.telemetry import validate
+
+    for topic, t_ns, message in contents.messages:
+        try:
+            schema = topics.schema_for(topic)
+        except RgtbusError:
+            continue  # a topic of someone else's: not ours to read
+        if isinstance(message, bytes | bytearray | memoryview):
+            message = orjson.loads(message)
+        errs = validate.errors(message, topics.load_schema(schema))
+        if errs:
+            return f"message on {topic} at t = {t_ns / NS:.3f} s breaks {schema}: {errs[0]}"
+    return None
+
+
+@contextlib.contextmanager
+def explained(contents: LogContents, label: str) -> Iterator[None]:
+    """Reading a log whose messages break their schemas (written by hand or tampered with,
+    with valid CRCs) fails as RgtbusError naming the first such message, not with a KeyError
+    from deep inside; any other failure is a bug and goes on as it is."""
+    try:
+        yield
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError) as exc:
+        if isinstance(exc, RgtbusError):
+            raise
+        why = schema_error(contents)
+        if why is None:
+            raise
+        raise RgtbusError(f"{label}: {why}") from None
+
+
+# -- verification ---------------------------------------------------------------------------

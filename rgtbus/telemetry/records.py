@@ -1,0 +1,301 @@
+"""The log's records: one TypedDict per topic and one function that builds each.
+
+Every writer (the units, the world, the runners) builds its messages here, and the reader,
+the verifier and the live view read them as these types; each topic's JSON Schema
+(``schemas/``, the table in ``topics.py``) states the same fields, and a test checks every
+builder's output against its schema. Alternatives are sorted lists of action names; pair keys
+are ``"s>r"`` (``rgtbus.pairs``); ``t`` is simulated seconds (the MCAP ``log_time`` is its
+integer nanoseconds, ``rgtbus.timebase.ns``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, TypedDict
+
+Alternative = list[str]
+
+
+class MessageRef(TypedDict):
+    id: int  # turn * 2 (+1 for the payload)
+    kind: str  # "id" | "payload"
+    code: str
+    sender: str
+    addressee: str
+
+
+class PulseRecord(TypedDict):
+    unit: str
+    channel: str
+    omega: float
+    magnitude: float
+    t: float
+    sample: int
+    message: MessageRef
+
+
+class SpikeRecord(TypedDict):
+    unit: str
+    t: float
+    sample: int
+    channels: list[str]
+
+
+class DecodeRecord(TypedDict):
+    unit: str
+    turn: int
+    sender: str
+    addressee: str
+    channel: str
+    kind: str
+    code: str
+    value: str
+    margin: float
+    t: float
+    accepted: bool
+
+
+class RelationsRecord(TypedDict):
+    unit: str
+    t: float
+    sent: dict[str, str]
+    installed: dict[str, str]
+    polynomial: str | None
+    p4: list[str] | None
+
+
+class InfluencesRecord(TypedDict):
+    unit: str
+    t: float
+    influences: dict[str, Alternative]
+    round: int
+
+
+class DecisionRecord(TypedDict):
+    unit: str
+    subject: str
+    t: float
+    interval: list[Alternative] | None
+    frustrated: bool
+    choice: Alternative | None
+    A: Alternative | None
+    B: Alternative | None
+    canonical: str
+    round: int
+
+
+class GoalRecord(TypedDict):
+    unit: str
+    t: float
+    round: int
+    turn: int
+    target: str
+    want: list[Alternative]
+    mode: str
+    heard: dict[str, Alternative]
+    predicted: dict[str, Alternative]
+    rule: str
+    solutions: int | None
+    reached: int | None
+    of: int | None
+    value: Alternative | None
+    sent: Alternative
+    reason: str
+
+
+class DecisionRow(TypedDict):
+    round: int
+    unit: str
+    low: Alternative | None
+    high: Alternative | None
+    choice: Alternative | None
+    frustrated: bool
+    t: float
+
+
+class UnitReportRecord(TypedDict):
+    unit: str
+    installed: dict[str, str]
+    polynomial: str | None
+    p4: list[str] | None
+    sent_relations: dict[str, str]
+    influences: dict[str, Alternative]
+    result: dict[str, Any]
+    decisions: list[DecisionRow]
+    sends: list[list[Any]]
+    sent_influences: list[dict[str, str]]
+    failure: str | None
+    failed_at: int | None
+    done_at: int | None
+    mind_error: str | None
+
+
+class RunRecord(TypedDict):
+    scenario: str
+    seed: int
+    outcome: Any
+    agree: bool
+    sim_seconds: float
+    error: str | None
+
+
+class MediumRecord(TypedDict):
+    window: int
+    t: float
+    sample_rate: float
+    samples: list[float]
+
+
+class TraceRecord(TypedDict):
+    unit: str
+    sample: int
+    t: float
+    y: list[float]
+    x: list[float]
+
+
+# topic -> its record type (``/trace/<unit>`` is a family: ``TraceRecord``)
+RECORD_TYPES: dict[str, type] = {
+    "/medium": MediumRecord,
+    "/tx/pulse": PulseRecord,
+    "/rx/spike": SpikeRecord,
+    "/rx/decode": DecodeRecord,
+    "/unit/relations": RelationsRecord,
+    "/unit/influences": InfluencesRecord,
+    "/unit/decision": DecisionRecord,
+    "/unit/goal": GoalRecord,
+    "/unit/report": UnitReportRecord,
+    "/run": RunRecord,
+}
+
+
+def message_ref(turn: int, kind: str, code: str, sender: str, addressee: str) -> MessageRef:
+    """Which message a pulse belongs to (``id``: two per turn, the ID-code first)."""
+    return {
+        "id": turn * 2 + (kind == "payload"),
+        "kind": kind,
+        "code": code,
+        "sender": sender,
+        "addressee": addressee,
+    }
+
+
+def pulse(
+    unit: str, channel: str, omega: float, magnitude: float, tau: float, sample: int,
+    message: MessageRef,
+) -> PulseRecord:  # fmt: skip
+    return {
+        "unit": unit,
+        "channel": channel,
+        "omega": omega,
+        "magnitude": magnitude,
+        "t": sample * tau,
+        "sample": sample,
+        "message": message,
+    }
+
+
+def spike(unit: str, tau: float, sample: int, channels: list[str]) -> SpikeRecord:
+    """Every resonator of ``unit`` that fired at ``sample`` (one record a sample)."""
+    return {"unit": unit, "t": sample * tau, "sample": sample, "channels": channels}
+
+
+def decode(
+    unit: str, turn: int, sender: str, addressee: str, channel: str, kind: str, code: str,
+    margin: float, t: float, accepted: bool,
+) -> DecodeRecord:  # fmt: skip
+    return {
+        "unit": unit,
+        "turn": turn,
+        "sender": sender,
+        "addressee": addressee,
+        "channel": channel,
+        "kind": kind,
+        "code": code,
+        "value": code,
+        "margin": float(margin),
+        "t": t,
+        "accepted": accepted,
+    }
+
+
+def relations(
+    unit: str, t: float, sent: dict[str, str], installed: dict[str, str],
+    polynomial: str | None, p4: Sequence[str] | None,
+) -> RelationsRecord:  # fmt: skip
+    return {
+        "unit": unit,
+        "t": t,
+        "sent": sent,
+        "installed": installed,
+        "polynomial": polynomial,
+        "p4": None if p4 is None else list(p4),
+    }
+
+
+def influences(unit: str, t: float, table: dict[str, Alternative], rnd: int) -> InfluencesRecord:
+    return {"unit": unit, "t": t, "influences": table, "round": rnd}
+
+
+def decision(
+    unit: str, subject: str, t: float, fields: Mapping[str, Any], canonical: str, rnd: int
+) -> DecisionRecord:
+    """``fields``: ``rgtbus.mind.decision_fields`` (interval, frustrated, choice, A, B)."""
+    return {
+        "unit": unit,
+        "subject": subject,
+        "t": t,
+        "interval": fields["interval"],
+        "frustrated": fields["frustrated"],
+        "choice": fields["choice"],
+        "A": fields["A"],
+        "B": fields["B"],
+        "canonical": canonical,
+        "round": rnd,
+    }
+
+
+def goal(
+    unit: str, t: float, rnd: int, turn: int, target: str, want: list[Alternative], mode: str,
+    heard: dict[str, Alternative], predicted: dict[str, Alternative], rule: str,
+    solutions: int | None, reached: int | None, of: int | None, value: Alternative | None,
+    sent: Alternative, reason: str,
+) -> GoalRecord:  # fmt: skip
+    return {
+        "unit": unit,
+        "t": t,
+        "round": rnd,
+        "turn": turn,
+        "target": target,
+        "want": want,
+        "mode": mode,
+        "heard": heard,
+        "predicted": predicted,
+        "rule": rule,
+        "solutions": solutions,
+        "reached": reached,
+        "of": of,
+        "value": value,
+        "sent": sent,
+        "reason": reason,
+    }
+
+
+def run_record(summary: Mapping[str, Any]) -> RunRecord:
+    """How the run ended (``/run``), from its summary."""
+    return {
+        "scenario": summary["scenario"],
+        "seed": summary["seed"],
+        "outcome": summary["outcome"],
+        "agree": summary["agree"],
+        "sim_seconds": summary["sim_seconds"],
+        "error": summary["error"],
+    }
+
+
+def medium_window(window: int, t: float, sample_rate: float, samples: list[float]) -> MediumRecord:
+    return {"window": window, "t": t, "sample_rate": sample_rate, "samples": samples}
+
+
+def trace(unit: str, sample: int, t: float, y: list[float], x: list[float]) -> TraceRecord:
+    return {"unit": unit, "sample": sample, "t": t, "y": y, "x": x}

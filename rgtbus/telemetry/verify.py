@@ -1,0 +1,370 @@
+"""Verifying a run's log: ``verify(replay, rerun)`` compares the log with a re-run of its
+units on its own medium (the re-run needs the units: ``rgtbus.units.rerun``; anything with
+``messages``, ``summary`` and ``complete`` will do), and ``check_medium`` checks that the
+logged pulses add up, sample for sample, to the logged medium (``rgtbus.signal.pulses``).
+Every disagreement is a ``Mismatch``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import orjson
+
+from rgtbus.signal.pulses import medium_sum
+from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
+from rgtbus.telemetry.recorder import (
+    encode_json,
+)
+
+# Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
+EXIT_VERIFIED = 0
+EXIT_MISMATCH = 1
+EXIT_TRUNCATED = 3  # everything read agrees, but the log ends early: the run is not verified
+
+
+def _json(value: Any) -> Any:
+    """What the value becomes in a log: the JSON round trip (tuples -> lists, numpy -> plain)."""
+    return orjson.loads(encode_json(value))
+
+
+def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str, Any, Any]]:
+    if isinstance(logged, dict) and isinstance(recomputed, dict):
+        out = []
+        for key in [*logged, *(k for k in recomputed if k not in logged)]:
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in recomputed:
+                out.append((sub, logged[key], "(absent)"))
+            elif key not in logged:
+                out.append((sub, "(absent)", recomputed[key]))
+            else:
+                out += _field_diffs(logged[key], recomputed[key], sub)
+        return out
+    # True == 1 in Python, not in a log; 3 == 3.0 is fine (JSON numbers)
+    if logged == recomputed and isinstance(logged, bool) == isinstance(recomputed, bool):
+        return []
+    return [(path or "(message)", logged, recomputed)]
+
+
+def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
+    """Equal as the recorder would write them: JSON floats round-trip exactly, so comparing the
+    numbers equals comparing the bytes, at half the cost of encoding the re-run's traces."""
+    m = orjson.loads(logged) if isinstance(logged, bytes | bytearray) else logged
+    if set(m) != set(recomputed):
+        return False
+    for key, value in recomputed.items():
+        if key in ("y", "x"):
+            if not np.array_equal(np.asarray(m[key], dtype=float), np.asarray(value, dtype=float)):
+                return False
+        elif m[key] != value:
+            return False
+    return True
+
+
+def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
+    out: list[tuple[str, Any, Any]] = []
+    for key in ("y", "x"):
+        a = np.asarray(logged.get(key), dtype=float)
+        b = np.asarray(recomputed.get(key), dtype=float)
+        if np.array_equal(a, b):
+            continue
+        if a.shape != b.shape:
+            out.append((f"{key} shape", list(a.shape), list(b.shape)))
+            continue
+        where = tuple(int(i) for i in np.argwhere(a != b)[0])
+        n = int(np.count_nonzero(a != b))
+        more = f" (+{n - 1} more)" if n > 1 else ""
+        index = "".join(f"[{i}]" for i in where)
+        out.append((f"{key}{index}{more}", float(a[where]), float(b[where])))
+    rest = {k: v for k, v in logged.items() if k not in ("y", "x")}
+    rest_r = {k: v for k, v in recomputed.items() if k not in ("y", "x")}
+    return out + _field_diffs(rest, _json(rest_r))
+
+
+# topic -> key of a message (messages with equal keys are paired in order)
+_KEYS: dict[str, Callable[[int, dict], tuple]] = {
+    "/tx/pulse": lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
+    "/rx/spike": lambda t, m: (m.get("unit"), m.get("sample")),
+    "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
+    "/unit/relations": lambda t, m: (m.get("unit"),),
+    "/unit/influences": lambda t, m: (m.get("unit"), m.get("round", 1)),
+    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
+    "/unit/goal": lambda t, m: (m.get("unit"), m.get("turn")),
+    "/log": lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+}
+
+
+def _key_text(topic: str, key: tuple) -> str:
+    """The paired messages' key in words (part of a mismatch's field)."""
+    if topic == "/tx/pulse":
+        return f"pulse on {key[2]} at sample {key[1]}"
+    if topic == "/rx/spike":
+        return f"spikes at sample {key[1]}"
+    if topic == "/rx/decode":
+        return f"{key[1]} from {key[2]}"
+    if topic == "/unit/decision":
+        return f"subject {key[1]}" if key[2] == 1 else f"subject {key[1]}, round {key[2]}"
+    if topic == "/unit/goal":
+        return f"goal choice of turn {key[1]}"
+    if topic == "/log":
+        return f"line {key[3]!r}"
+    if _is_trace(topic):
+        return f"trace at {key[0] / NS:.3f} s"
+    return "table"
+
+
+def diff_messages(
+    logged: Iterable[tuple[str, int, dict]],
+    recomputed: Iterable[tuple[str, int, dict]],
+    units: Sequence[str],
+    *,
+    until_ns: int | None = None,
+) -> tuple[list[Mismatch], Counter[str]]:
+    """Pair logged and recomputed messages per topic by key; list what differs.
+
+    /log: every line the re-run units write must be in the log; the log may hold more (the
+    CLI and per-process wrappers write lines too, some under a unit's name);
+    ``until_ns`` ignores messages at or after that time on both sides (a truncated log).
+    Returns the mismatches and how many messages of each topic were compared.
+    """
+    unitset = set(units)
+
+    traced: dict[str, bool] = {}
+
+    def keyed(msgs: Iterable[tuple[str, int, dict]]) -> dict[str, dict[tuple, list]]:
+        out: dict[str, dict[tuple, list]] = defaultdict(lambda: defaultdict(list))
+        for topic, t, m in msgs:
+            if until_ns is not None and t >= until_ns:
+                continue
+            trace = traced.get(topic)
+            if trace is None:
+                trace = traced[topic] = _is_trace(topic)
+            if trace:  # logged traces may be undecoded bytes: key by time
+                out[topic][(t,)].append((t, m))
+            elif topic in _KEYS:
+                if topic == "/log" and m.get("name") not in unitset:
+                    continue  # not a unit's line
+                out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
+        return out
+
+    a = keyed(logged)
+    b = keyed(recomputed)
+    mismatches: list[Mismatch] = []
+    checked: Counter[str] = Counter()
+    for topic in sorted(set(a) | set(b)):
+        la, lb = a.get(topic, {}), b.get(topic, {})
+        for key in [*la, *(k for k in lb if k not in la)]:
+            xs, ys = la.get(key, []), lb.get(key, [])
+            for i in range(max(len(xs), len(ys))):
+                x = xs[i] if i < len(xs) else None
+                y = ys[i] if i < len(ys) else None
+                checked[topic] += 1
+                # Byte for byte as the recorder encodes; decode only to explain a difference.
+                if _is_trace(topic) and x is not None and y is not None and _same_trace(x[1], y[1]):
+                    continue
+                t_ns, m = x if x is not None else y  # type: ignore[misc]
+                if isinstance(m, bytes | bytearray):
+                    m = orjson.loads(m)
+                unit = m.get("unit", m.get("name"))
+                what = _key_text(topic, key)
+                if x is None:
+                    mismatches.append(Mismatch(topic, t_ns / NS, unit, what, "(missing)", _json(m)))
+                    continue
+                if y is None:
+                    if topic != "/log":  # other writers (CLI, process wrappers) add lines
+                        mismatches.append(
+                            Mismatch(topic, t_ns / NS, unit, what, m, "(not produced)")
+                        )
+                    continue
+                if _is_trace(topic):
+                    diffs = _trace_diff(m, y[1])
+                else:
+                    # the re-run's message as the recorder would log it; the same JSON is the
+                    # same message (== alone would take true for 1)
+                    mine = encode_json(y[1])
+                    same = encode_json(x[1]) == mine
+                    diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
+                    if x[0] != y[0]:
+                        diffs.append(("log_time", x[0], y[0]))
+                for path, lv, rv in diffs:
+                    field_name = (
+                        path
+                        if topic in ("/unit/relations", "/unit/influences")
+                        else (f"{what}: {path}")
+                    )
+                    mismatches.append(Mismatch(topic, t_ns / NS, unit, field_name, lv, rv))
+    mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
+    return mismatches, checked
+
+
+@dataclass
+class VerifyReport:
+    label: str
+    mismatches: list[Mismatch]
+    checked: dict[str, int]
+    truncated: bool
+    note: str
+    medium_windows: int  # non-silent windows of the medium in the log
+    until: float | None = None  # compared up to this time (a truncated log)
+
+    @property
+    def ok(self) -> bool:
+        return not self.mismatches and not self.truncated
+
+    @property
+    def exit_code(self) -> int:
+        if self.mismatches:
+            return EXIT_MISMATCH
+        return EXIT_TRUNCATED if self.truncated else EXIT_VERIFIED
+
+    def verdict(self) -> str:
+        n = sum(self.checked.values())
+        if self.mismatches:
+            return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
+        if self.truncated:
+            return (
+                f"INCOMPLETE: the {n} messages before t = {self.until or 0.0:.3f} s agree, but "
+                "the log is truncated, so the run is verified only that far"
+            )
+        return f"verified: {n} messages agree with the re-run"
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "log": self.label,
+            "ok": self.ok,
+            "exit_code": self.exit_code,
+            "verdict": self.verdict(),
+            "truncated": self.truncated,
+            "note": self.note,
+            "until": self.until,
+            "medium_windows": self.medium_windows,
+            "checked": dict(self.checked),
+            "mismatches": [asdict(m) for m in self.mismatches],
+        }
+
+
+def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> VerifyReport:
+    """Compare a log with a re-run of its units (``rgtbus.units.rerun.rerun_replay``).
+
+    Checks: the metadata matches the scenario; the pulses add up to the medium; every spike,
+    decode, table, decision, trace and unit log line recomputed equals the logged one (no
+    more, no fewer); the ``/run`` record equals the re-run's summary; plus ``checks`` (e.g.
+    decisions re-derived from the logged tables). ``rerun`` needs ``messages``, ``summary``
+    and ``complete`` (every re-run unit ended within the logged medium).
+    """
+    sc = replay.require_scenario()
+    mismatches: list[Mismatch] = []
+    # The scenario rebuilt from its text must be the one that ran.
+    freq = {u: repr(w) for u, w in sc.frequencies.items()}
+    for name, want in (
+        ("frequencies", freq),
+        ("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()}),
+    ):
+        got = replay.metadata.get(name)
+        if got is not None and got != want:
+            mismatches.append(Mismatch(f"metadata {name}", None, None, "values", got, want))
+    until_ns = None
+    until = None
+    if replay.truncated:
+        # Units write in time order: what is logged before their last message is complete.
+        until_ns = replay.units_until_ns() or 0
+        until = until_ns / NS
+    mismatches += check_medium(replay, until_ns)
+    diffs, checked = diff_messages(
+        replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns
+    )
+    mismatches += diffs
+    mismatches += list(checks)
+    checked["/medium"] = replay.windows
+    if not replay.truncated:
+        if not rerun.complete:
+            mismatches.append(
+                Mismatch(
+                    "/medium",
+                    replay.sim_seconds,
+                    None,
+                    "the run's length",
+                    "the logged medium",
+                    "units still listening when it ends",
+                )
+            )
+        run = replay.run
+        if run is None and set(replay.unit_processes) >= set(sc.units):
+            pass  # a merge of every unit's own log (no launcher wrote a /run): all ended done
+        elif run is None:
+            mismatches.append(Mismatch("/run", None, None, "record", "(missing)", "present"))
+        else:
+            checked["/run"] += 1
+            s = rerun.summary
+            want_run = {
+                "scenario": s["scenario"],
+                "seed": s["seed"],
+                "outcome": s["outcome"],
+                "agree": s["agree"],
+                "sim_seconds": s["sim_seconds"],
+                "error": s["error"],
+            }
+            for path, lv, rv in _field_diffs(run, want_run):
+                mismatches.append(Mismatch("/run", run.get("sim_seconds"), None, path, lv, rv))
+    mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))  # stable
+    return VerifyReport(
+        label=replay.label,
+        mismatches=mismatches,
+        checked=dict(checked),
+        truncated=replay.truncated,
+        note=replay.note,
+        medium_windows=replay.windows,
+        until=until,
+    )
+
+
+# -- CSV ------------------------------------------------------------------------------------
+
+
+def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
+    """Every logged window exactly equals the sum of the logged pulses (each unit's
+    magnitudes in the order sent, then the units in order), and every window that carries
+    a pulse is logged; only windows that end before ``until_ns`` when given (a truncated
+    log: the medium is logged ahead of the pulses)."""
+    sc = replay.require_scenario()
+    L = sc.timing.window_samples
+    tau = sc.timing.tau
+    windows, bad = replay.medium_windows()
+    parts = replay.sender_pulses()
+    rows, expected = medium_sum([parts[u] for u in replay.units])
+    want: dict[int, np.ndarray] = {}
+    for k, v in zip(rows.tolist(), expected.tolist(), strict=True):
+        if v != 0.0:
+            want.setdefault(k // L, np.zeros(L))[k % L] = v
+    end = replay.sim_seconds / tau if replay.run is not None else math.inf
+    if until_ns is not None:
+        end = min(end, until_ns / NS / tau - L)
+    for w in sorted(set(windows) | set(want)):
+        if until_ns is not None and (w + 1) * L * tau * NS > until_ns:
+            continue
+        logged = windows.get(w)
+        exp = want.get(w, np.zeros(L))
+        if logged is None:
+            if w * L <= end:  # a run logs its medium up to its end
+                bad.append(
+                    Mismatch("/medium", w * L * tau, None, f"window {w}", "missing", "present")
+                )
+            continue
+        for k in np.flatnonzero(logged != exp):
+            bad.append(
+                Mismatch(
+                    "/medium",
+                    (w * L + int(k)) * tau,
+                    None,
+                    f"window {w} samples[{int(k)}]",
+                    float(logged[k]),
+                    float(exp[k]),
+                )
+            )
+    return bad

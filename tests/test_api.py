@@ -1,0 +1,186 @@
+"""The library face (``import rgtbus``) and the one truth of a run: the summary a run returns,
+the summary its log gives (``rgtbus.open_log``) and ``rgtbus replay --json``'s agree key by
+key, on every shipped scenario and on random groups (goals, several rounds, both schedules,
+groups with no polynomial, failed runs)."""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import rgtbus
+from rgtbus.cli import main
+from rgtbus.summary import SUMMARY_JSON_KEYS
+
+ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = sorted(p for p in (ROOT / "scenarios").glob("*.toml") if p.stem != "group50")
+NOT_COMPARED = ("wall_seconds", "log")  # the run's clock and where its log went
+
+
+def three_summaries(source, tmp_path, capsys, **kw):
+    log = tmp_path / "run.mcap"
+    result = rgtbus.run(source, log=log, **kw)
+    from_log = rgtbus.open_log(log).summary()
+    capsys.readouterr()
+    assert main(["replay", str(log), "--json"]) == 0
+    from_replay = json.loads(capsys.readouterr().out)["summary"]
+    return result, from_log, from_replay
+
+
+def assert_same(result, from_log, from_replay):
+    ran = result.summary
+    assert list(ran) == list(SUMMARY_JSON_KEYS)
+    for key in SUMMARY_JSON_KEYS:
+        if key in NOT_COMPARED:
+            continue
+        assert from_log[key] == ran[key], key
+        assert from_replay[key] == ran[key], key
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_a_run_its_log_and_replay_give_one_summary(path, tmp_path, capsys):
+    assert_same(*three_summaries(path, tmp_path, capsys))
+
+
+def random_group_text(rng: random.Random) -> str:
+    n = rng.randint(3, 5)
+    units = [f"r{i}" for i in range(n)]
+    lines = [
+        'name = "random_api"',
+        f"seed = {rng.randint(0, 10_000)}",
+        f"units = {json.dumps(units)}",
+        'actions = ["alpha", "beta"]',
+        'frequencies = "auto"',
+        "[protocol]",
+        f'schedule = "{rng.choice(["serial", "concurrent"])}"',
+        f"influence_rounds = {rng.randint(1, 3)}",
+        "[relations]",
+        'policy = "random"',
+        f"p = {rng.choice([0.3, 0.6, 0.9])}",
+        "[influences]",
+        'policy = "random"',
+    ]
+    noise = rng.choice([0.0, 0.0, 0.2])  # 0.2 breaks many runs: a failed run is a result too
+    if noise:
+        lines += ["[channel]", f"noise = {noise}"]
+    if rng.random() < 0.5:
+        lines += [f"[goals.{units[-1]}]", f'{units[0]} = "{rng.choice(["1", "0", "[0,1]"])}"']
+    return "\n".join(lines) + "\n"
+
+
+def p4_group_text() -> str:
+    """Five units socialised at random whose seed installs an induced P4 (a-b-c-d): no
+    polynomial, no decisions: a result, not an error."""
+    return (
+        'name = "p4"\nseed = 4\nunits = ["a", "b", "c", "d", "e"]\nactions = ["go"]\n'
+        'frequencies = "auto"\n[relations]\npolicy = "random"\np = 0.5\n'
+        '[influences]\npolicy = "random"\n'
+    )
+
+
+CASES = 8
+
+
+def case_text(case: int) -> str:
+    return p4_group_text() if case == CASES else random_group_text(random.Random(case))
+
+
+@pytest.mark.parametrize("case", range(CASES + 1))
+def test_random_groups_give_one_summary(case, tmp_path, capsys):
+    text = case_text(case)
+    path = tmp_path / "random_api.toml"
+    path.write_text(text)
+    assert_same(*three_summaries(path, tmp_path, capsys))
+
+
+def test_the_cases_cover_what_they_claim(tmp_path):
+    """The random cases above include goals, several rounds, a group with no polynomial and
+    a failed run (so the equality holds where the summary is hardest)."""
+    seen = {"goals": False, "rounds": False, "p4": False, "failed": False, "decided": False}
+    for case in range(CASES + 1):
+        path = tmp_path / f"c{case}.toml"
+        path.write_text(case_text(case))
+        s = rgtbus.run(path).summary
+        seen["goals"] |= bool(s["goals"])
+        seen["rounds"] |= s["rounds"]["count"] > 1
+        seen["p4"] |= s["decomposable"] is False
+        seen["failed"] |= s["error"] is not None
+        seen["decided"] |= bool(s["decisions"])
+    assert all(seen.values()), seen
+
+
+def test_run_without_a_log_and_with_one_agree(tmp_path):
+    a = rgtbus.run("gate" if _shipped_by_name() else ROOT / "scenarios/gate.toml", seed=2)
+    b = rgtbus.run(ROOT / "scenarios/gate.toml", seed=2, log=tmp_path / "g.mcap")
+    assert a.log is None and b.log == tmp_path / "g.mcap"
+    assert {k: v for k, v in a.summary.items() if k not in NOT_COMPARED} == {
+        k: v for k, v in b.summary.items() if k not in NOT_COMPARED
+    }
+    assert a.summary["seed"] == 2 and a.ok
+
+
+def _shipped_by_name() -> bool:
+    try:
+        rgtbus.load_scenario("gate")
+    except rgtbus.RgtbusError:
+        return False
+    return True
+
+
+def test_log_tables(tmp_path):
+    result = rgtbus.run(ROOT / "scenarios/tug_of_war.toml", log=tmp_path / "t.mcap")
+    log = result.open_log()
+    assert log.metadata["run"]["seed"] == str(result.summary["seed"])
+    d = log.decisions()
+    assert list(d.columns[:7]) == ["round", "unit", "low", "high", "choice", "frustrated", "t"]
+    assert sorted(set(d["round"])) == [1, 2, 3] and set(d["unit"]) == {"a", "b", "c", "d"}
+    assert len(d) == 4 * 3
+    last = d[d["round"] == 3].set_index("unit")
+    for u, v in result.summary["units"].items():  # plain values, as the summary has them
+        assert last.loc[u, "choice"] == v["choice"]
+    pd.testing.assert_frame_equal(d, result.decisions())
+    dec = log.decodes()
+    assert {"unit", "turn", "kind", "code", "value", "margin", "matches"} <= set(dec.columns)
+    infl = dec[dec["kind"] == "influence"]
+    assert len(infl) and all(isinstance(v, list) for v in infl["value"])
+    spikes = log.spikes()
+    assert len(spikes) and set(spikes.columns) == {"unit", "sample", "t", "channel", "omega"}
+    assert spikes["channel"].map(type).eq(str).all()  # one row per channel that fired
+    tx = log.transmissions()
+    pulses = log.messages("/tx/pulse")
+    assert len(tx) == pulses["message"].map(lambda m: (m["sender"], m["id"])).nunique()
+    assert tx["pulses"].sum() == len(pulses)
+    assert set(tx["kind"]) == {"id", "payload"}
+    medium = log.medium()
+    assert len(medium) and (medium["t"] == medium["sample"] * 0.005).all()
+    goals = log.messages("/unit/goal")
+    assert len(goals) and {"log_time", "log_seconds", "unit", "target", "sent"} <= set(goals)
+    assert goals["log_time"].dtype.kind == "i"
+
+
+def test_bad_arguments_are_one_line(tmp_path):
+    with pytest.raises(rgtbus.RgtbusError, match="bus 'carrier-pigeon'"):
+        rgtbus.run(ROOT / "scenarios/gate.toml", bus="carrier-pigeon")
+    with pytest.raises(rgtbus.RgtbusError, match="engine 'warp'"):
+        rgtbus.run(ROOT / "scenarios/gate.toml", engine="warp")
+    with pytest.raises(rgtbus.RgtbusError, match="seed -1"):
+        rgtbus.run(ROOT / "scenarios/gate.toml", seed=-1)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not a log")
+    with pytest.raises(rgtbus.RgtbusError):
+        rgtbus.open_log(bad)
+
+
+def test_the_face_is_lazy_and_typed():
+    import subprocess
+    import sys
+
+    code = "import sys, rgtbus; print('pandas' in sys.modules, 'rgtbus.units.group' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout.split() == ["False", "False"], out.stderr
+    assert (ROOT / "rgtbus" / "py.typed").exists()
+    assert set(rgtbus.__all__) >= {"load_scenario", "run", "open_log", "sweep", "RgtbusError"}

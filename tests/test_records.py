@@ -1,0 +1,102 @@
+"""The log's records (rgtbus.telemetry.records): every topic has one record type, each
+builder's output is what its schema allows (the recorder validates every message), and the
+TypedDicts name the schemas' fields."""
+
+from __future__ import annotations
+
+import typing
+
+from rgtbus.telemetry import records, topics
+from rgtbus.telemetry.recorder import MemoryRecorder
+
+
+def built() -> dict[str, dict]:
+    ref = records.message_ref(3, "payload", "{go}", "a", "b")
+    return {
+        "/medium": records.medium_window(2, 0.2, 200.0, [0.0, 0.4]),
+        "/tx/pulse": records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref),
+        "/rx/spike": records.spike("b", 0.005, 41, ["a", "b"]),
+        "/rx/decode": records.decode("b", 3, "a", "b", "b", "influence", "{go}", 0.3, 9.5, True),
+        "/unit/relations": records.relations(
+            "b", 9.0, {"a>b": "alliance", "b>a": "alliance"}, {"a-b": "alliance"}, "ab", None
+        ),
+        "/unit/influences": records.influences("b", 9.5, {"a>b": ["go"], "b>a": []}, 1),
+        "/unit/decision": records.decision(
+            "b",
+            "b",
+            9.5,
+            {"interval": [[], ["go"]], "frustrated": False, "choice": ["go"], "A": ["go"], "B": []},
+            "b = b + not(b)",
+            1,
+        ),
+        "/unit/goal": records.goal(
+            "a",
+            9.0,
+            1,
+            3,
+            "b",
+            [["go"], ["go"]],
+            "exact",
+            {},
+            {},
+            "robust",
+            1,
+            1,
+            1,
+            ["go"],
+            ["go"],
+            "b: exactly 1",
+        ),
+        "/unit/report": {
+            "unit": "b",
+            "installed": {},
+            "polynomial": None,
+            "p4": None,
+            "sent_relations": {},
+            "influences": {},
+            "result": {
+                "interval": None,
+                "frustrated": False,
+                "choice": None,
+                "canonical": None,
+                "A": None,
+                "B": None,
+                "decided": False,
+            },
+            "decisions": [],
+            "sends": [[0, "id", "a", "id"]],
+            "sent_influences": [{}],
+            "failure": "b: turn 0: the ID of a decoded as 'x'",
+            "failed_at": 12,
+            "done_at": None,
+            "mind_error": None,
+        },
+        "/run": records.run_record(
+            {
+                "scenario": "s",
+                "seed": 1,
+                "outcome": None,
+                "agree": True,
+                "sim_seconds": 9.5,
+                "error": None,
+            }
+        ),
+    }
+
+
+def test_every_topic_has_one_record_type_and_builder():
+    assert set(records.RECORD_TYPES) == set(topics.TOPICS) - {"/log"}
+    assert set(built()) == set(records.RECORD_TYPES)
+
+
+def test_every_built_record_passes_its_schema():
+    rec = MemoryRecorder(validate=True)
+    for topic, message in built().items():
+        rec.write(topic, message, 1)  # raises on a field the schema does not allow
+    rec.write("/trace/a", records.trace("a", 5, 0.025, [0.1], [0.2]), 2)
+
+
+def test_the_types_name_the_schemas_fields():
+    for topic, cls in records.RECORD_TYPES.items():
+        schema = topics.load_schema(topics.schema_for(topic))
+        assert set(typing.get_type_hints(cls)) == set(schema["properties"]), topic

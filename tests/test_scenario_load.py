@@ -1,0 +1,156 @@
+"""Loading a scenario by path, by TOML text or by a shipped scenario's name; ``rgtbus
+scenarios`` lists the shipped ones."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from rgtbus.cli import main
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import (
+    ShippedScenario,
+    find_shipped,
+    load_scenario,
+    shipped_dir,
+    shipped_scenarios,
+)
+from rgtbus.scenario import shipped as shipped_module
+
+ROOT = Path(__file__).resolve().parent.parent
+GATE = ROOT / "scenarios" / "gate.toml"
+SHIPPED = sorted(p.stem for p in (ROOT / "scenarios").glob("*.toml"))
+
+SMALL = """name = "small"
+units = ["a", "b"]
+actions = ["go"]
+[influences]
+policy = "uniform"
+value = 1
+"""
+
+
+# -- TOML text ---------------------------------------------------------------------------------
+
+
+def test_text_loads_as_the_file_does():
+    by_text, by_path = load_scenario(GATE.read_text()), load_scenario(GATE)
+    assert by_text.path == "<text>" and by_text.text == by_path.text
+    assert by_text.units == by_path.units and by_text.influences == by_path.influences
+    assert by_text.frequencies == by_path.frequencies and by_text.timing == by_path.timing
+    assert load_scenario(SMALL).units == ("a", "b")
+
+
+def test_text_errors_name_text_and_line():
+    text = 'name = "t"\nunits = ["a", "b"]\nactions = ["go"]\n[timing]\nsample_rate = -5\n'
+    with pytest.raises(RgtbusError) as err:
+        load_scenario(text)
+    assert str(err.value) == "<text>:5: timing.sample_rate: must be positive, got -5"
+    with pytest.raises(RgtbusError, match=r"^<text>:2: not valid TOML"):
+        load_scenario('name = "t"\nunits = = 1\n')
+
+
+# -- shipped names -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["gate", "gate.toml"])
+def test_shipped_name_loads_from_any_directory(tmp_path, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    sc = load_scenario(name)
+    assert sc.name == "gate" and sc.text == GATE.read_text()
+    assert Path(sc.path).resolve() == GATE.resolve()
+    assert load_scenario(Path(name)).text == sc.text
+
+
+def test_a_file_of_that_name_comes_first(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "gate.toml").write_text(SMALL)
+    assert load_scenario("gate.toml").name == "small"  # the file here, not the shipped gate
+    assert load_scenario("gate").name == "gate"  # no file called "gate": the shipped one
+
+
+def test_unknown_name_is_one_line_naming_the_command(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RgtbusError) as err:
+        load_scenario("no_such_scenario")
+    msg = str(err.value)
+    assert msg.startswith("cannot read scenario 'no_such_scenario': No such file or directory")
+    assert "rgtbus scenarios" in msg and "\n" not in msg
+    # A path, not a name: today's message, no hint.
+    with pytest.raises(RgtbusError) as err:
+        load_scenario("no/such/dir.toml")
+    assert str(err.value) == "cannot read scenario 'no/such/dir.toml': No such file or directory"
+
+
+def test_a_shipped_sweep_is_not_a_scenario(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert find_shipped("sweeps/noise") == shipped_dir() / "sweeps" / "noise.toml"
+    with pytest.raises(RgtbusError, match=r"^cannot read scenario 'sweeps/noise': .* sweep file"):
+        load_scenario("sweeps/noise")
+
+
+@pytest.mark.parametrize("name", ["../gate", "/gate", "gate/", "ga te", "", "sweeps/../gate"])
+def test_only_plain_names_are_looked_up(name):
+    assert find_shipped(name) is None
+
+
+def test_shipped_dir_installed_or_source_checkout(tmp_path, monkeypatch):
+    fake = tmp_path / "site" / "rgtbus" / "scenario" / "shipped.py"
+    monkeypatch.setattr(shipped_module, "__file__", str(fake))
+    assert shipped_dir() is None and find_shipped("gate") is None and shipped_scenarios() == []
+    checkout = tmp_path / "site" / "scenarios"  # a source checkout: next to rgtbus/
+    checkout.mkdir(parents=True)
+    (checkout / "mine.toml").write_text(SMALL)
+    assert find_shipped("mine") == checkout / "mine.toml"
+    installed = tmp_path / "site" / "rgtbus" / "scenarios"  # installed package data: first
+    installed.mkdir(parents=True)
+    (installed / "mine.toml").write_text(SMALL)
+    assert shipped_dir() == installed and find_shipped("mine.toml") == installed / "mine.toml"
+    assert [s.name for s in shipped_scenarios()] == ["mine"]
+
+
+# -- the list ----------------------------------------------------------------------------------
+
+
+def test_shipped_scenarios_are_the_scenario_files():
+    found = shipped_scenarios()
+    assert [s.name for s in found] == SHIPPED and "noise" not in SHIPPED
+    gate = next(s for s in found if s.name == "gate")
+    assert gate == ShippedScenario(
+        "gate", gate.path, 4, "serial", "Example 3: abc+d, robot d asks for help and the gate opens"
+    )
+    assert gate.path.resolve() == GATE.resolve()
+
+
+@pytest.mark.parametrize("entry", shipped_scenarios(), ids=lambda s: s.name)
+def test_every_listed_scenario_loads_by_name(entry):
+    sc = load_scenario(entry.name)
+    assert sc.name == entry.name and Path(sc.path) == entry.path
+    assert len(sc.units) == entry.units and sc.schedule == entry.schedule
+
+
+def test_scenarios_command_text(capsys):
+    assert main(["scenarios"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split() == ["NAME", "UNITS", "SCHEDULE", "PATH"]
+    rows = {line.split()[0]: line.split() for line in lines[1:]}
+    assert sorted(rows) == SHIPPED
+    assert rows["gate"][1:3] == ["4", "serial"]
+    assert Path(rows["gate"][3]).resolve() == GATE.resolve()
+
+
+def test_scenarios_command_json(capsys):
+    assert main(["scenarios", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert [d["name"] for d in data] == SHIPPED
+    gate = next(d for d in data if d["name"] == "gate")
+    assert set(gate) == {"name", "path", "units", "schedule", "description"}
+    assert gate["units"] == 4 and gate["schedule"] == "serial"
+    assert gate["description"].startswith("Example 3")
+
+
+def test_run_by_name_from_another_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    log = tmp_path / "g.mcap"
+    assert main(["run", "gate", "--bus", "memory", "--log", str(log), "--check"]) == 0
+    assert log.exists() and "gate" in capsys.readouterr().out
