@@ -32,6 +32,7 @@ from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.read import Mismatch, Replay, load_replay
 from rgtbus.telemetry.verify import VerifyReport, verify
+from rgtbus.timebase import seconds
 
 
 class CaptureRecorder:
@@ -117,7 +118,9 @@ def rerun_replay(
     if replay.truncated:
         until = replay.units_until_ns() or 0
         w_last = max((m["window"] for _, m in replay.by_topic["/medium"]), default=-1)
-        end = max((w_last + 1) * sc.timing.window_samples, round(until / 1e9 / sc.timing.tau) + 1)
+        end = max(
+            (w_last + 1) * sc.timing.window_samples, round(seconds(until) / sc.timing.tau) + 1
+        )
     if traces is None:
         traces = replay.traced_units()
     return rerun(sc, medium, end=end, traces=traces, only=only)
@@ -129,7 +132,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     influence tables give its decisions (phase 4), by a fresh copy of the unit's own mind."""
     sc = replay.require_scenario()
     out: list[Mismatch] = []
-    logged_decisions: defaultdict[tuple[str, int], dict[str, dict]] = defaultdict(dict)
+    logged_decisions: defaultdict[tuple[str, int], dict[str, Mapping[str, Any]]] = defaultdict(dict)
     for d in replay.decisions:
         logged_decisions[(d["unit"], d.get("round", 1))][d["subject"]] = d
     tables: defaultdict[str, list[dict]] = defaultdict(list)  # a unit's tables, round by round
@@ -171,15 +174,15 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
 
 
 def _check_round(
-    unit: AutonomousUnit, infl: dict, logged_decisions: Mapping[tuple[str, int], dict[str, dict]]
+    unit: AutonomousUnit,
+    infl: dict,
+    logged_decisions: Mapping[tuple[str, int], Mapping[str, Mapping[str, Any]]],
 ) -> list[Mismatch]:
     """One round's decisions of ``unit`` re-derived from its logged influence table."""
     name, mind, u = unit.name, unit.mind, unit.scenario.universe
     rnd = infl.get("round", 1)
     try:
-        mind.influences = {
-            parse_pair_key(k): u.from_list(v) for k, v in infl["influences"].items()
-        }
+        mind.influences = {parse_pair_key(k): u.from_list(v) for k, v in infl["influences"].items()}
     except (AttributeError, ValueError, RgtbusError):
         return [
             Mismatch(

@@ -477,6 +477,7 @@ def _where(log: Path, window: float) -> str:
     """Where a unit's log ends: its last message's time and window (logs are flushed as the
     run goes, so this is at most about a second of simulated time before the unit stopped)."""
     from rgtbus.telemetry.recorder import scan_log
+    from rgtbus.timebase import seconds
 
     if not log.exists():
         return "before it opened its log"
@@ -487,7 +488,7 @@ def _where(log: Path, window: float) -> str:
     last = max((m[1] for m in raw.messages), default=None)
     if last is None:
         return "before it logged a message"
-    t = last / 1e9
+    t = seconds(last)
     return f"in window {int(t / window)} (its log ends at t = {t:.3f} s)"
 
 

@@ -296,7 +296,7 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         if dec["frustrated"]:
             verdict, choice = "frustrated: no decision", ""
         else:
-            lo, hi = (_alt(rp, x) for x in dec["interval"])
+            lo, hi = (_alt(rp, x) for x in dec["interval"] or ())
             verdict = f"{dec['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {dec['unit']} ⊇ {lo}"
             choice = f"choice {_alt(rp, dec['choice'])}"
         rows.append([f"t={dec['t']:.3f}s", dec["canonical"], verdict, choice])

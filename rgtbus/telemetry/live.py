@@ -33,6 +33,7 @@ from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.recorder import topic_channel
+from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
 _TICK = 0.05  # s of wall time between time broadcasts while paced and idle
@@ -181,7 +182,7 @@ class LiveView:
     def due_wall(self, t_ns: int) -> float:
         """The monotonic wall time at which a message of log time ``t_ns`` is due."""
         origin = self._origin if self._origin is not None else time.monotonic()
-        return origin + t_ns / 1e9 / (self.realtime or float("inf"))
+        return origin + seconds(t_ns) / (self.realtime or float("inf"))
 
     def _send(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
         channel = self._channels.get(topic) or self._channel(topic, schema)
@@ -202,7 +203,7 @@ class LiveView:
 
     def _release_loop(self) -> None:
         assert self.realtime is not None and self._origin is not None
-        per_ns = 1e-9 / self.realtime
+        per_ns = seconds(1) / self.realtime
         while True:
             with self._wake:
                 now = time.monotonic()

@@ -301,7 +301,7 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
             text = f"{dec['unit']}: frustrated"
         else:
             text = f"{dec['unit']} chooses {_alt(dec['choice'], universe)}"
-            lo_a, hi_a = (_alt(v, universe) for v in dec["interval"])
+            lo_a, hi_a = (_alt(v, universe) for v in dec["interval"] or ())
             text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
         ax.plot([dec["t"]], [row[dec["unit"]]], "D", color=color[dec["unit"]], ms=8)
         ax.annotate(

@@ -15,9 +15,9 @@ import json
 import math
 import os
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import numpy as np
 import orjson
@@ -37,6 +37,12 @@ from rgtbus.telemetry.recorder import (
     decode_log,
     require_run_log,
     scan_log,
+)
+from rgtbus.telemetry.records import (
+    DecisionRecord,
+    InfluencesRecord,
+    RelationsRecord,
+    RunRecord,
 )
 from rgtbus.timebase import NS_PER_SECOND
 
@@ -193,14 +199,23 @@ class Replay:
         if self.cut_inputs:
             self.truncated = True
             self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
-        self.run: dict | None = self.by_topic["/run"][-1][1] if self.by_topic["/run"] else None
+        # the records as their writers built them (rgtbus.telemetry.records)
+        self.run: RunRecord | None = (
+            cast(RunRecord, self.by_topic["/run"][-1][1]) if self.by_topic["/run"] else None
+        )
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
         self.frequencies = _frequencies(self.metadata)
         self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies)
-        self.relations = {m["unit"]: m for _, m in self.by_topic["/unit/relations"]}
-        self.influences = {m["unit"]: m for _, m in self.by_topic["/unit/influences"]}
-        self.decisions = [m for _, m in self.by_topic["/unit/decision"]]
+        self.relations: dict[str, RelationsRecord] = {
+            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic["/unit/relations"]
+        }
+        self.influences: dict[str, InfluencesRecord] = {
+            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic["/unit/influences"]
+        }
+        self.decisions: list[DecisionRecord] = [
+            cast(DecisionRecord, m) for _, m in self.by_topic["/unit/decision"]
+        ]
 
     # -- construction ------------------------------------------------------------------------
 
@@ -329,8 +344,9 @@ class Replay:
         return round(max((m[1] for m in self.contents.messages), default=0) / NS, 6)
 
     def agree(self) -> bool:
-        tables = [self.relations.get(u, {}).get("installed", {}) for u in self.units]
-        polys = [self.relations.get(u, {}).get("polynomial") for u in self.units]
+        held = [self.relations.get(u) for u in self.units]
+        tables = [{} if r is None else r["installed"] for r in held]
+        polys = [None if r is None else r["polynomial"] for r in held]
         return agreement(tables, polys, len(self.units))
 
     def decode_errors(self) -> list[dict[str, Any]]:
@@ -357,7 +373,8 @@ class Replay:
         return [{**reports[u], "decodes": decodes[u]} for u in self.units if u in reports]
 
     def _legacy_report(self, unit: str) -> dict[str, Any]:
-        rel = self.relations.get(unit, {})
+        rel: Mapping[str, Any] = self.relations.get(unit) or {}
+        infl: Mapping[str, Any] = self.influences.get(unit) or {}
         own = [d for d in self.decisions if d["unit"] == unit and d["subject"] == unit]
         last = own[-1] if own else None
         result = {
@@ -382,7 +399,7 @@ class Replay:
             "polynomial": rel.get("polynomial"),
             "p4": rel.get("p4"),
             "sent_relations": rel.get("sent", {}),
-            "influences": self.influences.get(unit, {}).get("influences", {}),
+            "influences": infl.get("influences", {}),
             "result": result,
             "decisions": rows,
             "sends": [
@@ -403,7 +420,7 @@ class Replay:
         ``rgtbus run --json`` with the same values, and the rest of the live summary but for
         what a log does not keep (steps, bus statistics). ``wall_seconds`` is ``None`` (a log
         does not time its writer) and ``log`` is this log."""
-        run = self.run or {}
+        run: Mapping[str, Any] = self.run or {}
         sc = self.scenario
         if sc is None:  # no scenario to judge with: what the /run record says
             out = summary_json(run)

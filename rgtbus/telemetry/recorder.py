@@ -26,6 +26,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
+from rgtbus.timebase import ns, seconds
 
 LOG_TOPIC = "/log"
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
@@ -286,7 +287,7 @@ class McapRecorder(_Encoding):
             self._writer.flush()  # a target that takes no bytes fails here, before any run
         except (OSError, RuntimeError) as e:
             raise self._broken(e) from None
-        self._flush_ns = int(flush_seconds * 1e9)
+        self._flush_ns = ns(flush_seconds)
         self._flush_messages = int(flush_messages)
         self._unflushed = 0
         self._flush_due = 0  # log time at which the oldest unflushed message is flush_ns old
@@ -567,7 +568,7 @@ def _chunk_in_progress(stream: IO[bytes], start: int) -> bool:
 
 
 def _seconds(t_ns: int) -> str:
-    return f"{t_ns / 1e9:.3f}"
+    return f"{seconds(t_ns):.3f}"
 
 
 def _scan(stream: IO[bytes], label: str) -> RawLog:
@@ -728,5 +729,5 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
     metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
     note = raw.note
     if note and messages:
-        note += f"; last message at {messages[-1][1] / 1e9:.6f} s"
+        note += f"; last message at {seconds(messages[-1][1]):.6f} s"
     return LogContents(messages, metadata, bool(note), note)
