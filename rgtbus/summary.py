@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol, TypedDict
 
 from rgtbus.mind import (
     decision_fields,
@@ -40,9 +40,6 @@ from rgtbus.mind import (
 from rgtbus.pairs import pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
-
-if TYPE_CHECKING:
-    from rgtbus.telemetry.records import DecisionRow
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -110,6 +107,19 @@ def decode_error(
 ) -> dict[str, Any]:
     """One entry of a summary's ``decode_errors``."""
     return {"unit": unit, "turn": turn, "kind": kind, "decoded": decoded, "sent": sent}
+
+
+class DecisionRow(TypedDict):
+    """A unit's own decision after one influence round (``low``/``high``: the interval's ends,
+    alternatives as sorted lists of action names)."""
+
+    round: int
+    unit: str
+    low: list[str] | None
+    high: list[str] | None
+    choice: list[str] | None
+    frustrated: bool
+    t: float
 
 
 def decision_row(

@@ -40,34 +40,55 @@ import hashlib
 import itertools
 import json
 import math
-import multiprocessing
-import multiprocessing.context
 import numbers
 import os
 import platform
 import re
 import sys
 import tempfile
-import threading
 import tomllib
 import traceback
-import types
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import tomli_w
+from rgtbus.units.workers import Pool, one_line, open_executor, open_pool, pool_of
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
-from rgtbus.summary import SUMMARY_JSON_KEYS, summary_json
+from rgtbus.summary import summary_json
+from rgtbus.telemetry.sweep_tables import (
+    NOT_COLUMNS,
+    SweepTables,
+    decisions_table,
+    read_sweep,
+    results_table,
+    table_rows,
+    write_tables,
+)
+
+__all__ = [
+    "Sweep",
+    "SweepTables",
+    "Task",
+    "decisions",
+    "execute_sweep",
+    "load_sweep",
+    "make_sweep",
+    "open_executor",
+    "read_sweep",
+    "run_row",
+    "run_sweep",
+    "sweep",
+    "table_rows",
+]
 
 if TYPE_CHECKING:
     import pandas as pd
-    import pyarrow as pa
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 ENGINES = ("event", "dense")
@@ -77,7 +98,6 @@ MAX_RUNS = 1_000_000
 TABLES_VERSION = 2
 # summary fields that are no column of the results: the run's own (its grid cell says them),
 # and the decisions (decisions.parquet)
-_NOT_COLUMNS = ("seed", "engine", "schedule", "log", "decisions")
 
 ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
@@ -493,7 +513,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         s = summary_json({**out.summary, "log": log_path})
         grid_keys = {k for k, _ in task.cell}
         for k, v in s.items():
-            if k in _NOT_COLUMNS:
+            if k in NOT_COLUMNS:
                 continue
             # a grid key keeps its name; a summary field of the same name gets a prefix
             row[f"summary.{k}" if k in grid_keys else k] = v
@@ -555,522 +575,7 @@ def run_batch(sweep: Sweep, tasks: list[Task], log_dir: str | None) -> list[dict
     return [run_row(sweep, t, log_dir) for t in tasks]
 
 
-# -- the tables --------------------------------------------------------------------------------
-
-
-def _summary_types() -> dict[str, pa.DataType]:
-    """The Arrow type of each summary field that is a column of the results (a field not named
-    here, e.g. one a later summary adds, is stored as JSON text)."""
-    import pyarrow as pa
-
-    text, alts = pa.string(), pa.list_(pa.string())
-    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
-    influences = pa.map_(text, alts)  # "s>r" -> the alternative sent (sorted action names)
-    unit = pa.struct(
-        [
-            ("unit", text),
-            ("low", alts),  # the interval [low, high] of its decision (B and A); None: frustrated
-            ("high", alts),
-            ("choice", alts),
-            ("frustrated", yes),
-            ("decided", yes),
-            ("A", alts),
-            ("B", alts),
-            ("canonical", text),
-        ]
-    )
-    goal = pa.struct(
-        [
-            ("unit", text),
-            ("target", text),
-            ("want_low", alts),
-            ("want_high", alts),
-            ("mode", text),
-            ("reached", yes),
-            ("reachable", yes),
-            ("share", f64),
-        ]
-    )
-    rounds = pa.struct(
-        [
-            ("count", i64),
-            ("state", text),
-            ("since", i64),
-            ("length", i64),
-            ("influences", pa.list_(influences)),
-        ]
-    )
-    decode_error = pa.struct(
-        [("unit", text), ("turn", i64), ("kind", text), ("decoded", text), ("sent", text)]
-    )
-    return {
-        "scenario": text,
-        "polynomial": text,
-        "decomposable": yes,
-        "p4": alts,
-        "relations": pa.map_(text, text),  # "a-b" -> alliance | conflict
-        "agree": yes,
-        "influences": influences,
-        "units": pa.list_(unit),
-        "frustrated": alts,
-        "wrong_decisions": alts,
-        "goals": pa.list_(goal),
-        "rounds": rounds,
-        "outcome": text,
-        "sim_seconds": f64,
-        "wall_seconds": f64,
-        "decode_errors": pa.list_(decode_error),
-        "error": text,
-    }
-
-
-def _derived_types() -> list[tuple[str, pa.DataType]]:
-    import pyarrow as pa
-
-    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
-    return [
-        ("decode_error_count", i64),
-        ("frustrated_count", i64),
-        ("decided_count", i64),
-        ("wrong_decision_count", i64),
-        ("wrong_decision_rate", f64),
-        ("goal_count", i64),
-        ("goal_reached_rate", f64),
-        ("goal_reachable_rate", f64),
-        ("goal_share_mean", f64),
-        ("goal_reached", yes),
-        ("goal_reachable", yes),
-        ("rounds_state", pa.string()),
-        ("rounds_cycle_length", i64),
-        ("alliance_share", f64),
-        ("decodes", i64),
-        ("decode_error_rate", f64),
-        ("failed", yes),
-        ("log", pa.string()),
-    ]
-
-
-def grid_type(key: str, values: Sequence[Any]) -> pa.DataType:
-    """A grid column's type, from the grid's values (never from the runs): all booleans bool,
-    all integers int64, numbers float64, anything else text (a list or table as JSON text)."""
-    import pyarrow as pa
-
-    kinds = {type(v) for v in values}
-    if key in ("case", "engine") or not kinds:
-        return pa.string()
-    if kinds == {bool}:
-        return pa.bool_()
-    if kinds == {int}:
-        return pa.int64()
-    if kinds <= {int, float}:
-        return pa.float64()
-    return pa.string()
-
-
-def _grid_fields(sweep: Sweep) -> list[tuple[str, pa.DataType]]:
-    return [(key, grid_type(key, values)) for key, values in sweep.axes]
-
-
-def results_schema(sweep: Sweep) -> pa.Schema:
-    """The results table's schema: fixed but for the grid columns (``grid_type``), so two
-    sweeps' tables concatenate and a column whose runs are all empty keeps its type."""
-    import pyarrow as pa
-
-    keys = set(sweep.keys)
-    fields: list[tuple[str, pa.DataType]] = [("run", pa.int64())]
-    fields += _grid_fields(sweep)
-    fields.append(("seed", pa.int64()))
-    if "engine" not in keys:
-        fields.append(("engine", pa.string()))
-    fields += [("digest", pa.string()), ("schedule", pa.string()), ("n_units", pa.int64())]
-    types_ = _summary_types()
-    for k in SUMMARY_JSON_KEYS:
-        if k not in _NOT_COLUMNS:
-            fields.append((f"summary.{k}" if k in keys else k, types_.get(k, pa.string())))
-    fields += _derived_types()
-    names = [n for n, _ in fields]
-    clash = sorted({n for n in names if names.count(n) > 1})
-    if clash:
-        raise RgtbusError(f"sweep grid: {clash[0]!r} is a column of the results, not a grid key")
-    return pa.schema(fields)
-
-
-def decisions_schema(sweep: Sweep) -> pa.Schema:
-    """decisions.parquet: one row per run, unit and influence round."""
-    import pyarrow as pa
-
-    alts = pa.list_(pa.string())
-    return pa.schema(
-        [
-            ("run", pa.int64()),
-            *_grid_fields(sweep),
-            ("seed", pa.int64()),
-            ("unit", pa.string()),
-            ("round", pa.int64()),
-            ("low", alts),
-            ("high", alts),
-            ("choice", alts),
-            ("frustrated", pa.bool_()),
-            ("wrong", pa.bool_()),
-            ("t", pa.float64()),
-        ]
-    )
-
-
-def _loaded(value: Any) -> Any:
-    """A nested value as the summary states it (rows of an older rgtbus: JSON text)."""
-    return json.loads(value) if isinstance(value, str) else value
-
-
-def _influence_map(value: Any) -> list[tuple[str, Any]] | None:
-    return None if value is None else list(value.items())
-
-
-def _unit_rows(units: Any) -> list[dict[str, Any]]:
-    out = []
-    for name, r in units.items():
-        interval = r.get("interval")
-        out.append(
-            {
-                "unit": name,
-                "low": interval[0] if interval else None,
-                "high": interval[1] if interval else None,
-                **{k: r.get(k) for k in ("choice", "frustrated", "decided", "A", "B", "canonical")},
-            }
-        )
-    return out
-
-
-def _goal_rows(goals: Any) -> list[dict[str, Any]]:
-    out = []
-    for g in goals:
-        want = g.get("want") or [None, None]
-        out.append({**g, "want_low": want[0], "want_high": want[1]})
-    return out
-
-
-def _rounds_struct(rounds: Any) -> dict[str, Any]:
-    infl = rounds.get("influences")
-    return {
-        **{k: rounds.get(k) for k in ("count", "state", "since", "length")},
-        "influences": None if infl is None else [_influence_map(r) for r in infl],
-    }
-
-
-_SHAPES: dict[str, Callable[[Any], Any]] = {
-    "relations": _influence_map,
-    "influences": _influence_map,
-    "units": _unit_rows,
-    "goals": _goal_rows,
-    "rounds": _rounds_struct,
-}
-
-
-def _shaped(sweep: Sweep, schema: pa.Schema, row: Mapping[str, Any]) -> dict[str, Any]:
-    """A row as ``run_row`` gives it (or an older rgtbus stored it) in the table's shapes."""
-    import pyarrow as pa
-
-    grid = {k for k, _ in sweep.axes}
-    out: dict[str, Any] = {}
-    for f in schema:
-        v = row.get(f.name)
-        if v is None:
-            out[f.name] = None
-            continue
-        # the summary field a column holds (a grid column: none)
-        if f.name.startswith("summary."):
-            summary_field: str | None = f.name.removeprefix("summary.")
-        else:
-            summary_field = None if f.name in grid else f.name
-        nested = pa.types.is_nested(f.type)
-        if nested:
-            v = _loaded(v)
-            if summary_field in _SHAPES and v is not None:
-                v = _SHAPES[summary_field](v)
-        elif pa.types.is_string(f.type) and not isinstance(v, str):
-            v = json.dumps(v)
-        elif pa.types.is_floating(f.type) and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
-        out[f.name] = v
-    return out
-
-
-def results_table(sweep: Sweep, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
-    """The results table of ``rows`` (one a run, in order), typed by ``results_schema``."""
-    import pyarrow as pa
-
-    schema = results_schema(sweep)
-    return pa.Table.from_pylist([_shaped(sweep, schema, r) for r in rows], schema=schema)
-
-
-def decisions_table(sweep: Sweep, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
-    """Every decision of every run: one row per run, unit and influence round."""
-    import pyarrow as pa
-
-    schema = decisions_schema(sweep)
-    head = ["run", *sweep.keys, "seed"]
-    grid = {f.name: f.type for f in schema if f.name in sweep.keys}
-    out = []
-    for r in rows:
-        decisions = r.get("_decisions")
-        if decisions is None and "decisions" not in sweep.keys:  # an older row, if it had them
-            decisions = r.get("decisions")
-        cell = {k: r.get(k) for k in head}
-        for k, t in grid.items():
-            v = cell[k]
-            if v is not None and pa.types.is_string(t) and not isinstance(v, str):
-                cell[k] = json.dumps(v)
-            elif v is not None and pa.types.is_floating(t):
-                cell[k] = float(v)
-        for d in _loaded(decisions) or ():
-            out.append({**cell, **{k: d.get(k) for k in schema.names if k not in cell}})
-    return pa.Table.from_pylist(out, schema=schema)
-
-
-def jsonable(value: Any, typ: pa.DataType) -> Any:
-    """An Arrow value (``to_pylist``) as plain JSON: a map as an object."""
-    import pyarrow as pa
-
-    if value is None:
-        return None
-    if pa.types.is_map(typ):
-        return {k: jsonable(v, typ.item_type) for k, v in value}
-    if pa.types.is_list(typ) or pa.types.is_large_list(typ):
-        return [jsonable(v, typ.value_type) for v in value]
-    if pa.types.is_struct(typ):
-        return {f.name: jsonable(value.get(f.name), f.type) for f in typ}
-    return value
-
-
-def table_rows(table: pa.Table) -> list[dict[str, Any]]:
-    """A table's rows as plain Python and JSON values (maps as dicts)."""
-    import pyarrow as pa
-
-    nested = {f.name: f.type for f in table.schema if pa.types.is_nested(f.type)}
-    rows = table.to_pylist()
-    for r in rows:
-        for name, typ in nested.items():
-            r[name] = jsonable(r[name], typ)
-    return rows
-
-
-def _csv_table(table: pa.Table) -> pa.Table:
-    """The table with nested columns as JSON text (CSV holds no nested values)."""
-    import pyarrow as pa
-
-    for i, f in enumerate(table.schema):
-        if pa.types.is_nested(f.type):
-            text = [
-                None if v is None else json.dumps(jsonable(v, f.type))
-                for v in table.column(i).to_pylist()
-            ]
-            table = table.set_column(i, pa.field(f.name, pa.string()), pa.array(text, pa.string()))
-    return table
-
-
-def write_tables(sweep: Sweep, rows: Sequence[Mapping[str, Any]], out_dir: Path) -> pa.Table:
-    """``results.parquet`` and ``results.csv`` (one row per run, the same columns in both) and
-    ``decisions.parquet``; each written whole, then moved into place. Returns the results."""
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    results = results_table(sweep, rows)
-    decisions = decisions_table(sweep, rows)
-    writes: list[tuple[str, Callable[[Path], None]]] = [
-        ("results.parquet", lambda p: pq.write_table(results, p)),
-        ("decisions.parquet", lambda p: pq.write_table(decisions, p)),
-        ("results.csv", lambda p: pacsv.write_csv(_csv_table(results), p)),
-    ]
-    for name, write in writes:
-        tmp = out_dir / f".{name}.part"
-        write(tmp)
-        os.replace(tmp, out_dir / name)
-    return results
-
-
-class SweepTables(NamedTuple):
-    """A sweep directory's tables as pandas DataFrames (``read_sweep``)."""
-
-    results: pd.DataFrame
-    decisions: pd.DataFrame
-
-
-def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
-    """``(results, decisions)`` of the sweep written to ``out`` (``sweep(..., out=DIR)`` or
-    ``rgtbus sweep --out DIR``), as ``pd.read_parquet`` gives them. A directory without
-    ``decisions.parquet`` (an older rgtbus) gives an empty decisions table."""
-    import pandas as pd
-
-    d = Path(out)
-    path = d / "results.parquet"
-    if not path.is_file():
-        raise RgtbusError(f"{str(d)!r}: no results.parquet (run the sweep first)")
-    dec = d / "decisions.parquet"
-    columns = ["run", "seed", "unit", "round", "low", "high", "choice", "frustrated", "wrong", "t"]
-    decisions = pd.read_parquet(dec) if dec.is_file() else pd.DataFrame(columns=columns)
-    return SweepTables(pd.read_parquet(path), decisions)
-
-
-# -- where the runs run ------------------------------------------------------------------------
-
-_HIDING = threading.Lock()
-
-
-@contextlib.contextmanager
-def _main_hidden() -> Iterator[None]:
-    """``__main__`` is a bare module while a worker process starts.
-
-    The spawn start method sends a new process the caller's main script path or module name
-    (``multiprocessing.spawn.get_preparation_data``: ``init_main_from_path`` /
-    ``init_main_from_name``) and the worker runs that script again as ``__mp_main__``; a script
-    or notebook without an ``if __name__ == "__main__"`` guard then starts the sweep again in
-    every worker, and the pool breaks. The workers of a sweep need nothing from ``__main__``
-    (the task, ``run_batch``, and its arguments live in this module), so while one starts
-    ``sys.modules["__main__"]`` is a module without ``__file__`` or ``__spec__``: the worker
-    is told of no main module and imports only what it unpickles."""
-    with _HIDING:
-        main = sys.modules.get("__main__")
-        sys.modules["__main__"] = types.ModuleType("__main__")
-        try:
-            yield
-        finally:
-            if main is not None:
-                sys.modules["__main__"] = main
-            else:
-                del sys.modules["__main__"]
-
-
-class _NoMainSpawnProcess(multiprocessing.context.SpawnProcess):
-    """A spawned process that is never told of the caller's ``__main__`` (``_main_hidden``)."""
-
-    @staticmethod
-    def _Popen(process_obj: Any) -> Any:
-        with _main_hidden():
-            return multiprocessing.context.SpawnProcess._Popen(process_obj)
-
-
-class _NoMainSpawnContext(multiprocessing.context.SpawnContext):
-    """The spawn context (no state of this process leaks into a run) with workers that never
-    import the caller's ``__main__``; pools may start workers at any ``submit``: each start
-    hides it."""
-
-    Process = _NoMainSpawnProcess  # type: ignore[assignment]
-
-
-@dataclass
-class Pool:
-    """Where a sweep's runs go: ``executor`` (``None``: in this process) with ``workers``;
-    ``record()`` is what sweep.json says of it."""
-
-    executor: Executor | None
-    workers: int
-    kind: str  # "process-pool", "dask" or "in-process"
-    scheduler: str | None = None
-    start_method: str | None = None
-    fallback: str | None = None  # why the runs went to this process instead of a pool
-
-    def record(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "executor": self.kind,
-            "scheduler": self.scheduler,
-            "workers": self.workers,
-            "start_method": self.start_method,
-        }
-        if self.fallback:
-            out["fallback"] = self.fallback
-        return out
-
-    def fall_back(self, reason: str, runs: int) -> None:
-        """Run the rest here; say so in one line on stderr."""
-        print(
-            f"rgtbus sweep: worker processes unavailable ({reason}); running {runs} runs in "
-            "this process",
-            file=sys.stderr,
-            flush=True,
-        )
-        self.executor, self.workers, self.kind = None, 1, "in-process"
-        self.start_method, self.fallback = None, reason
-
-
-def _one_line(exc: BaseException, limit: int = 200) -> str:
-    """An exception as one short line (some, e.g. multiprocessing's, span many)."""
-    text = " ".join(f"{type(exc).__name__}: {exc}".split())
-    return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _pool_of(executor: Executor | None, workers: int) -> Pool:
-    """How sweep.json names an executor handed to ``run_sweep``."""
-    if executor is None:
-        return Pool(None, 1, "in-process")
-    if isinstance(executor, ProcessPoolExecutor):
-        ctx = getattr(executor, "_mp_context", None)
-        method = ctx.get_start_method() if ctx is not None else None
-        return Pool(executor, workers, "process-pool", start_method=method)
-    if type(executor).__module__.startswith("distributed"):
-        return Pool(executor, workers, "dask")
-    return Pool(executor, workers, type(executor).__name__)
-
-
-@contextlib.contextmanager
-def _dask(scheduler: str) -> Iterator[tuple[Executor, int]]:
-    from distributed import Client
-
-    try:
-        client = Client(scheduler, timeout="20s")
-    except (OSError, TimeoutError) as exc:
-        raise RgtbusError(f"cannot reach Dask scheduler {scheduler!r}: {exc}") from None
-    try:
-        n = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
-        yield client.get_executor(pure=False), n
-    finally:
-        client.close()
-
-
-@contextlib.contextmanager
-def open_pool(
-    workers: int | None, scheduler: str | None, runs: int | None = None
-) -> Iterator[Pool]:
-    """The Dask cluster at ``scheduler`` (``tcp://host:port``); else a local spawn process pool
-    of ``workers`` (all cores by default, no more than ``runs``) whose workers never import
-    ``__main__``; one worker: this process. A pool that cannot be made (no process support
-    here) falls back to this process, said in one line on stderr."""
-    if scheduler:
-        with _dask(scheduler) as (ex, n):
-            yield Pool(ex, n, "dask", scheduler=scheduler)
-        return
-    n = workers or os.cpu_count() or 1
-    if runs is not None:
-        n = max(1, min(n, runs))
-    if n == 1:
-        yield Pool(None, 1, "in-process")
-        return
-    try:
-        pool = ProcessPoolExecutor(max_workers=n, mp_context=_NoMainSpawnContext())
-    except (OSError, NotImplementedError, ImportError) as exc:
-        p = Pool(None, n, "process-pool")
-        p.fall_back(_one_line(exc), runs or 0)
-        yield p
-        return
-    try:
-        yield Pool(pool, n, "process-pool", start_method="spawn")
-    except BaseException:  # Ctrl-C, a broken pool: the batches not started are dropped
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown()
-
-
-@contextlib.contextmanager
-def open_executor(workers: int | None, scheduler: str | None) -> Iterator[tuple[Executor, int]]:
-    """A local process pool of ``workers`` (all cores by default; its workers never import
-    ``__main__``), or the executor of the Dask cluster at ``scheduler``; with the number of
-    workers it has. Always an executor (``open_pool`` runs one worker in this process)."""
-    if scheduler:
-        with _dask(scheduler) as got:
-            yield got
-        return
-    n = workers or os.cpu_count() or 1
-    with ProcessPoolExecutor(max_workers=n, mp_context=_NoMainSpawnContext()) as pool:
-        yield pool, n
+# -- runs in batches --------------------------------------------------------------------------
 
 
 def batches(tasks: list[Task], workers: int) -> list[list[Task]]:
@@ -1097,7 +602,7 @@ def _batch_results(
         except (BrokenExecutor, OSError, RuntimeError) as exc:
             for fut in pending:
                 fut.cancel()
-            reason, redo, pending = _one_line(exc), groups, {}
+            reason, redo, pending = one_line(exc), groups, {}
         while pending:
             finished, _ = wait(pending, return_when="FIRST_COMPLETED")
             broken = None
@@ -1114,12 +619,12 @@ def _batch_results(
             if broken is not None:
                 if got:
                     raise RgtbusError(
-                        f"a worker process died ({_one_line(broken)}); the runs "
+                        f"a worker process died ({one_line(broken)}); the runs "
                         f"so far are in {str(out_dir / 'rows.jsonl')!r}: resume to finish"
                     ) from None
                 for fut in pending:
                     fut.cancel()
-                reason = _one_line(broken)
+                reason = one_line(broken)
                 redo += list(pending.values())
                 pending = {}
         if reason is None:
@@ -1182,12 +687,12 @@ def prepare_out(
     if resume:
         rows = read_rows(out_dir)
         try:  # rows of an older rgtbus (JSON text columns) are re-tabled, or refused here
-            results_table(sweep, rows)
-            decisions_table(sweep, rows)
+            results_table(sweep.axes, rows)
+            decisions_table(sweep.axes, rows)
         except Exception as exc:
             raise RgtbusError(
                 f"{str(out_dir)!r}: cannot resume: its rows.jsonl does not fit this rgtbus's "
-                f"tables ({_one_line(exc)}); "
+                f"tables ({one_line(exc)}); "
                 "run the sweep into another directory"
             ) from None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1239,7 +744,7 @@ def run_sweep(
     ``pool``; write the tables and return the results table's rows in task order (plain
     values: ``table_rows``). ``progress(done, total, failures)`` after every batch."""
     out_dir = Path(out_dir)
-    pool = pool or _pool_of(executor, workers)
+    pool = pool or pool_of(executor, workers)
     done_rows = prepare_out(sweep, out_dir, resume, pool)
     tasks = sweep.tasks()
     by_key = {t.key: t for t in tasks}
@@ -1271,7 +776,7 @@ def run_sweep(
     if pool.fallback:
         _write_versions(sweep, out_dir, pool)
     rows = [have[t.key] for t in tasks]
-    return table_rows(write_tables(sweep, rows, out_dir))
+    return table_rows(write_tables(sweep.axes, rows, out_dir))
 
 
 def execute_sweep(

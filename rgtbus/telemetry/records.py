@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, TypedDict
 
+from rgtbus.summary import DecisionRow
+
 Alternative = list[str]
 
 
@@ -101,16 +103,6 @@ class GoalRecord(TypedDict):
     value: Alternative | None
     sent: Alternative
     reason: str
-
-
-class DecisionRow(TypedDict):
-    round: int
-    unit: str
-    low: Alternative | None
-    high: Alternative | None
-    choice: Alternative | None
-    frustrated: bool
-    t: float
 
 
 class UnitReportRecord(TypedDict):

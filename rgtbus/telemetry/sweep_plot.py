@@ -47,7 +47,7 @@ def read_results(out_dir: Path) -> list[dict[str, Any]]:
     types since tables version 2, as lists and dicts; an older table's JSON text as text)."""
     import pyarrow.parquet as pq
 
-    from rgtbus.units.sweep import table_rows
+    from rgtbus.telemetry.sweep_tables import table_rows
 
     path = out_dir / "results.parquet"
     if not path.is_file():
