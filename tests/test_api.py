@@ -17,7 +17,11 @@ from rgtbus.cli import main
 from rgtbus.summary import SUMMARY_JSON_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
-SHIPPED = sorted(p for p in (ROOT / "scenarios").glob("*.toml") if p.stem != "group50")
+SHIPPED = [
+    pytest.param(p, marks=pytest.mark.slow) if p.stem == "group20" else p
+    for p in sorted((ROOT / "scenarios").glob("*.toml"))
+    if p.stem != "group50"  # minutes with a log (issue 23); group20 runs in CI's slow pass
+]
 NOT_COMPARED = ("wall_seconds", "log")  # the run's clock and where its log went
 
 
@@ -41,7 +45,7 @@ def assert_same(result, from_log, from_replay):
         assert from_replay[key] == ran[key], key
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
 def test_a_run_its_log_and_replay_give_one_summary(path, tmp_path, capsys):
     assert_same(*three_summaries(path, tmp_path, capsys))
 

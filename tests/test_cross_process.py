@@ -181,6 +181,7 @@ def test_foreign_and_malformed_samples_are_dropped_counted_and_logged(procs, tmp
         assert any(t == "/log" and m["message"].startswith("dropped:") for t, _, m in messages)
 
 
+@pytest.mark.slow  # waits out a join timeout
 def test_late_joiner_and_other_scenario_are_refused(procs, tmp_path):
     scenario = str(ROOT / "scenarios" / "gate.toml")
     ports, started = start_mesh(procs, scenario, tmp_path, "--realtime", "20")

@@ -53,7 +53,11 @@ def assert_same_run(sc: Scenario):
     return event
 
 
-@pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.parametrize(
+    "name",
+    # coalition10's ten units over the dense engine take ~10 s: CI's slow pass
+    [pytest.param(n, marks=pytest.mark.slow) if n == "coalition10" else n for n in SCENARIOS],
+)
 def test_every_scenario_is_the_same_on_both_engines(name):
     assert_same_run(load_scenario(ROOT / "scenarios" / f"{name}.toml"))
 

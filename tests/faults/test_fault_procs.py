@@ -111,6 +111,7 @@ def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     assert verify_code(tmp_path / "run.mcap") == 3  # ends early: verified only that far
 
 
+@pytest.mark.slow  # waits out the stall timeout
 def test_a_stopped_unit_is_named_and_the_launch_ends(procs, tmp_path):
     la = launch(procs, tmp_path)
     pids = unit_pids(la, tmp_path, list("abcd"))
