@@ -1,0 +1,417 @@
+"""What a sweep runs: a base scenario over seeds and a grid of keys (``Sweep``, its ``Task``s),
+read from a sweep file (``load_sweep``: every error one line with file:line: key) or built from
+arguments (``make_sweep``, the library's ``sweep()``). Running it: ``rgtbus.units.sweep``."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import math
+import numbers
+import os
+import re
+import tomllib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from rgtbus.errors import RgtbusError
+from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
+
+SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
+ENGINES = ("event", "dense")
+MAX_RUNS = 1_000_000
+# the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
+# types and decisions.parquet; 1 (no key) held nested columns as JSON text
+TABLES_VERSION = 2
+# summary fields that are no column of the results: the run's own (its grid cell says them),
+# and the decisions (decisions.parquet)
+
+ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
+
+
+@dataclass(frozen=True)
+class Task:
+    """One run: its place in the sweep, grid cell and seed."""
+
+    index: int
+    cell: tuple[tuple[str, Any], ...]
+    seed: int
+
+    @property
+    def key(self) -> str:
+        """Identifies the run across a resume (cell and seed, not its position)."""
+        return json.dumps([list(self.cell), self.seed], sort_keys=False)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    path: str
+    text: str
+    name: str
+    scenario_path: str
+    scenario_text: str
+    seeds: tuple[int, ...]
+    grid: tuple[tuple[str, tuple[Any, ...]], ...]  # key -> values, in file order
+    # case name -> its keys; crossed with the grid as one more key, "case", before the others
+    cases: tuple[tuple[str, tuple[tuple[str, Any], ...]], ...] = ()
+
+    @property
+    def axes(self) -> list[tuple[str, tuple[Any, ...]]]:
+        """The grid's keys and values, ``case`` first when there are cases."""
+        head = [("case", tuple(name for name, _ in self.cases))] if self.cases else []
+        return head + list(self.grid)
+
+    @property
+    def keys(self) -> list[str]:
+        return [k for k, _ in self.axes]
+
+    def case(self, name: str) -> tuple[tuple[str, Any], ...]:
+        return dict(self.cases)[name]
+
+    def cells(self) -> list[tuple[tuple[str, Any], ...]]:
+        values = [vs for _, vs in self.axes]
+        return [tuple(zip(self.keys, combo, strict=True)) for combo in itertools.product(*values)]
+
+    def tasks(self) -> list[Task]:
+        out: list[Task] = []
+        for cell in self.cells():
+            for seed in self.seeds:
+                out.append(Task(len(out), cell, seed))
+        return out
+
+    @property
+    def runs(self) -> int:
+        return math.prod(len(vs) for _, vs in self.axes) * len(self.seeds)
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha256((self.text + "\0" + self.scenario_text).encode()).hexdigest()[:16]
+
+
+# -- reading a sweep file ----------------------------------------------------------------------
+
+
+def _line_of(text: str, key: str) -> int | None:
+    pattern = re.compile(r'\s*"?' + re.escape(key) + r'"?\s*=')
+    for i, line in enumerate(text.splitlines(), 1):
+        if pattern.match(line):
+            return i
+    return None
+
+
+def _error(path: str, text: str, key: str | None, reason: str) -> RgtbusError:
+    line = _line_of(text, key) if key else None
+    if line is None and key and "." in key:  # [grid.relations] p = ..., or an inline table
+        line = _line_of(text, key.rpartition(".")[2])
+    where = f"{path}:{line}" if line else path
+    return RgtbusError(f"{where}: {key or 'sweep'}: {reason}")
+
+
+def parse_seeds(value: Any) -> tuple[int, ...]:
+    """``"a..b"`` (inclusive), one integer, or a list of distinct integers >= 0."""
+    if isinstance(value, str):
+        m = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", value)
+        if not m:
+            raise ValueError(f'must be "FIRST..LAST" (e.g. "0..999"), got {value!r}')
+        a, b = int(m.group(1)), int(m.group(2))
+        if b < a:
+            raise ValueError(f"empty range {value!r} (LAST < FIRST)")
+        if b - a + 1 > MAX_RUNS:
+            raise ValueError(f"{value!r} is more than {MAX_RUNS} seeds")
+        return tuple(range(a, b + 1))
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = [value]
+    if not isinstance(value, list) or not value:
+        raise ValueError(f'must be "FIRST..LAST" or a non-empty list of integers, got {value!r}')
+    for s in value:
+        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
+            raise ValueError(f"a seed must be an integer >= 0, got {s!r}")
+    if len(set(value)) != len(value):
+        raise ValueError("seeds repeat")
+    return tuple(value)
+
+
+def load_sweep(path: str | os.PathLike[str]) -> Sweep:
+    """Read and check a sweep file: every grid cell must make a valid scenario (errors name the
+    sweep file, its line and key)."""
+    p = Path(path)
+    where = str(p)
+    data_bytes = _read_capped(p, "sweep")
+    try:
+        text = data_bytes.decode("utf-8")
+        data = tomllib.loads(text)
+    except UnicodeDecodeError:
+        raise RgtbusError(f"{where}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
+        raise RgtbusError(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
+
+    def err(key: str | None, reason: str) -> RgtbusError:
+        return _error(where, text, key, reason)
+
+    for key in data:
+        if key not in SWEEP_KEYS:
+            allowed = ", ".join(sorted(SWEEP_KEYS))
+            raise err(key, f"unknown key (allowed: {allowed})")
+    name = data.get("name", p.stem)
+    if not isinstance(name, str) or not name:
+        raise err("name", f"must be a non-empty string, got {name!r}")
+    scen = data.get("scenario")
+    if not isinstance(scen, str) or not scen:
+        raise err("scenario", "must name the base scenario file")
+    scen_path = (p.parent / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
+    try:
+        scen_text = _read_capped(scen_path, "scenario").decode("utf-8")
+    except UnicodeDecodeError:
+        raise err("scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
+    except RgtbusError as exc:
+        raise err("scenario", str(exc)) from None
+    try:
+        seeds = parse_seeds(data.get("seeds", "0..0"))
+    except ValueError as exc:
+        raise err("seeds", str(exc)) from None
+    grid_table = data.get("grid", {})
+    if not isinstance(grid_table, dict):
+        raise err("grid", "must be a table of key = [values]")
+    cases_table = data.get("cases", {})
+    if not isinstance(cases_table, dict):
+        raise err("cases", "must be a table of name = { key = value, ... }")
+    grid, cases = _axes(list(_flatten(grid_table)), list(cases_table.items()), err)
+    sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, grid, cases)
+    check_sweep(sweep, err)
+    return sweep
+
+
+def _axes(
+    grid_items: list[tuple[str, Any]], case_items: list[tuple[str, Any]], err: ErrorAt
+) -> tuple[
+    tuple[tuple[str, tuple[Any, ...]], ...], tuple[tuple[str, tuple[tuple[str, Any], ...]], ...]
+]:
+    """The grid and the cases of a sweep, checked key by key (not yet against the scenario)."""
+    grid = []
+    for key, values in grid_items:
+        if not isinstance(values, list) or not values:
+            raise err(key, f"must be a non-empty list of values, got {values!r}")
+        if key == "seed":
+            raise err(key, "the seeds of a sweep are its seeds key, not a grid key")
+        if key == "case":
+            raise err(key, "'case' names the [cases] of a sweep, not a grid key")
+        if key == "engine":
+            for v in values:
+                if v not in ENGINES:
+                    raise err(key, f"unknown engine {v!r} (event or dense)")
+        grid.append((key, tuple(values)))
+    cases = []
+    for case, settings in case_items:
+        if not isinstance(settings, dict) or not settings:
+            raise err(case, f"a case must be a non-empty table of keys, got {settings!r}")
+        keys = list(_flatten(settings))
+        for key, value in keys:
+            if key in ("seed", "case", "n") or key in dict(grid):
+                reason = "set by the grid" if key in dict(grid) else "not a case key"
+                raise err(case, f"{key!r}: {reason}")
+            if key == "engine" and value not in ENGINES:
+                raise err(case, f"unknown engine {value!r} (event or dense)")
+        cases.append((case, tuple(keys)))
+    return tuple(grid), tuple(cases)
+
+
+def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
+    """Every case, grid value and cell of ``sweep`` makes a valid scenario, checked before any
+    run: each case and value alone first (the error names its key), then every cell."""
+    runs = sweep.runs
+    if runs > MAX_RUNS:
+        raise err("grid", f"{runs} runs: more than {MAX_RUNS}")
+    try:  # the base scenario as written: its own errors name its own lines
+        parse_scenario(sweep.scenario_text, sweep.scenario_path)
+    except RgtbusError as exc:
+        raise err("scenario", str(exc)) from None
+    base = tomllib.loads(sweep.scenario_text)
+    seed = sweep.seeds[0]
+    for case, _ in sweep.cases:
+        try:
+            scenario_for(sweep, (("case", case),), seed, base)
+        except RgtbusError as exc:
+            raise err(case, str(exc)) from None
+    for key, values in sweep.grid:
+        for value in values:
+            try:
+                scenario_for(sweep, ((key, value),), seed, base)
+            except RgtbusError as exc:
+                raise err(key, f"value {value!r}: {exc}") from None
+    for cell in sweep.cells():
+        try:
+            scenario_for(sweep, cell, seed, base)
+        except RgtbusError as exc:
+            raise err("grid", f"cell {dict(cell)}: {exc}") from None
+
+
+def _read_capped(path: Path, what: str) -> bytes:
+    """A sweep or scenario file's bytes; one line if it cannot be read or is far too large."""
+    try:
+        if path.is_dir():
+            raise RgtbusError(f"cannot read {what} {str(path)!r}: is a directory")
+        with open(path, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
+    except OSError as exc:
+        raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise RgtbusError(
+            f"{str(path)!r}: larger than {MAX_SCENARIO_BYTES >> 20} MiB: not a {what}"
+        )
+    return data
+
+
+def _flatten(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """``[grid]`` keys, dotted (``relations.p = [...]`` and ``"relations.p" = [...]`` alike)."""
+    for k, v in table.items():
+        if isinstance(v, Mapping):
+            yield from _flatten(v, f"{prefix}{k}.")
+        else:
+            yield f"{prefix}{k}", v
+
+
+# -- a sweep from arguments (the library) ------------------------------------------------------
+
+
+def _plain(value: Any) -> Any:
+    """A grid value as a TOML value: numpy scalars and arrays as Python ones, tuples as lists."""
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    return value
+
+
+def _seeds_arg(seeds: int | Sequence[int] | str) -> tuple[int, ...]:
+    """``seeds=N``: seeds 0..N-1; a sequence: those seeds; ``"a..b"``: as in a sweep file."""
+    if isinstance(seeds, bool):
+        raise RgtbusError(f"sweep seeds: an integer N (seeds 0..N-1) or a list, got {seeds!r}")
+    if isinstance(seeds, numbers.Integral):
+        n = int(seeds)
+        if not 1 <= n <= MAX_RUNS:
+            raise RgtbusError(f"sweep seeds: N must be 1..{MAX_RUNS} (seeds 0..N-1), got {n}")
+        return tuple(range(n))
+    try:
+        if isinstance(seeds, str):
+            return parse_seeds(seeds)
+        if isinstance(seeds, int):  # not reached (an Integral above); for the type checker
+            raise TypeError(seeds)
+        return parse_seeds(_plain(list(seeds)))
+    except (TypeError, ValueError) as exc:
+        raise RgtbusError(f"sweep seeds: {exc}") from None
+
+
+def _seeds_text(seeds: tuple[int, ...]) -> str | list[int]:
+    first, last = seeds[0], seeds[-1]
+    return f"{first}..{last}" if seeds == tuple(range(first, last + 1)) else list(seeds)
+
+
+def make_sweep(
+    scenario: Scenario | str | os.PathLike[str],
+    *,
+    grid: Mapping[str, Any],
+    seeds: int | Sequence[int] | str,
+    cases: Mapping[str, Mapping[str, Any]] | None = None,
+    name: str | None = None,
+) -> Sweep:
+    """A checked ``Sweep`` from arguments: what ``load_sweep`` gives for the equivalent sweep
+    file (its text is that file, stored as ``sweep.toml`` beside the results, with
+    ``scenario = "scenario.toml"``: the copy beside it, so the directory re-runs as is)."""
+    from rgtbus.scenario import load_scenario
+
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if not isinstance(grid, Mapping):
+        raise RgtbusError(f"sweep grid: a mapping of key -> [values], got {type(grid).__name__}")
+    if cases is not None and not isinstance(cases, Mapping):
+        raise RgtbusError(f"sweep cases: a mapping of name -> {{key: value}}, got {cases!r}")
+
+    def err(key: str | None, reason: str) -> RgtbusError:
+        return RgtbusError(f"sweep: {key}: {reason}" if key else f"sweep: {reason}")
+
+    items = []
+    for key, values in _flatten(grid):
+        try:
+            if isinstance(values, str | bytes):
+                raise TypeError
+            listed = list(values)
+        except TypeError:
+            raise err(key, f"must be a non-empty list of values, got {values!r}") from None
+        items.append((key, _plain(listed)))
+    case_items = [(str(k), _plain(v)) for k, v in (cases or {}).items()]
+    grid_t, cases_t = _axes(items, case_items, err)
+    seeds_t = _seeds_arg(seeds)
+    sweep_name = name or sc.name
+    doc: dict[str, Any] = {"name": sweep_name, "scenario": "scenario.toml"}
+    doc["seeds"] = _seeds_text(seeds_t)
+    if cases_t:
+        doc["cases"] = {c: dict(kv) for c, kv in cases_t}
+    doc["grid"] = {k: list(vs) for k, vs in grid_t}
+    try:
+        text = tomli_w.dumps(doc)
+    except TypeError as exc:
+        raise RgtbusError(f"sweep grid: a value TOML cannot hold: {exc}") from None
+    sw = Sweep(f"sweep({sc.path})", text, sweep_name, sc.path, sc.text, seeds_t, grid_t, cases_t)
+    check_sweep(sw, err)
+    return sw
+
+
+# -- a task's scenario -------------------------------------------------------------------------
+
+
+def scenario_for(
+    sweep: Sweep,
+    cell: tuple[tuple[str, Any], ...],
+    seed: int,
+    base: dict[str, Any] | None = None,
+) -> Scenario:
+    """The base scenario with a cell's keys set and the seed: parsed from its TOML text, so the
+    run's log stores a scenario that re-runs as is."""
+    data = tomllib.loads(sweep.scenario_text) if base is None else copy.deepcopy(base)
+    settings_of = [(k, v) for key, value in cell for k, v in _expand(sweep, key, value)]
+    for key, value in settings_of:
+        if key == "engine":
+            continue
+        if key == "n":  # a group of n units u1..un (the scenario's own names replaced)
+            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 200:
+                raise RgtbusError(f"n: a group size must be an integer 1..200, got {value!r}")
+            _set(data, "units", [f"u{i}" for i in range(1, value + 1)])
+            continue
+        _set(data, key, value)
+    data["seed"] = seed
+    settings = [f"{k}={v!r}" for k, v in cell] + [f"seed {seed}"]
+    label = f"{sweep.scenario_path} [{'; '.join(settings)}]"
+    try:
+        text = tomli_w.dumps(data)
+    except TypeError as exc:  # a value TOML cannot hold (None, an object)
+        raise RgtbusError(f"not a TOML value: {exc}") from None
+    return parse_scenario(text, label)
+
+
+def _set(data: dict[str, Any], key: str, value: Any) -> None:
+    parts = key.split(".")
+    node = data
+    for part in parts[:-1]:
+        nxt = node.setdefault(part, {})
+        if not isinstance(nxt, dict):
+            raise RgtbusError(f"{key}: {part!r} is not a table in the scenario")
+        node = nxt
+    node[parts[-1]] = value
+
+
+def _expand(sweep: Sweep, key: str, value: Any) -> tuple[tuple[str, Any], ...]:
+    """A cell's key as the settings it stands for (a case: its keys)."""
+    return sweep.case(value) if key == "case" else ((key, value),)
+
+
+def engine_of(sweep: Sweep, cell: tuple[tuple[str, Any], ...]) -> str:
+    settings = dict(kv for key, value in cell for kv in _expand(sweep, key, value))
+    return str(settings.get("engine", "event"))
