@@ -325,13 +325,20 @@ class World:
 
     # -- running ----------------------------------------------------------------------------
 
-    def run(self) -> WorldResult:
+    def run(self, *, interruptible: bool = False) -> WorldResult:
+        """Run until every local member is done. ``interruptible``: a KeyboardInterrupt (a
+        unit process asked to stop: SIGTERM, SIGINT) ends the run as a failure that says so,
+        so what the units know so far is still reported (else it propagates)."""
         t0 = time.perf_counter()
         done = self.env.process(self._coordinate())
         try:
             self.env.run(until=done)
         except RgtbusError as exc:  # a member gone or stalled, or a log that ends early
             self.failure = str(exc)
+        except KeyboardInterrupt:
+            if not interruptible:
+                raise
+            self.failure = f"stopped (asked to, at t = {self.env.now:.3f} s)"
         return WorldResult(
             steps=self.steps,
             sim_seconds=round((self.end_sample() + 1) * self.tau, 9),

@@ -676,3 +676,37 @@ def test_activity_figure_draws_attention_and_other_spikes_apart(example2_log):
     # readable: no text below the base font (labels of transmissions are a notch smaller)
     sizes = {t.get_fontsize() for t in fig.findobj(lambda o: hasattr(o, "get_fontsize"))}
     assert min(sizes) >= FONT - 1
+
+
+def test_a_log_is_flushed_by_wall_time_too(tmp_path):
+    """A run that writes little (paced, or waiting) still has its records on disk within
+    about ``flush_wall`` seconds: what a process killed outright keeps."""
+    import time
+
+    from rgtbus.telemetry import McapRecorder, scan_log
+
+    path = tmp_path / "slow.mcap"
+    with open(path, "wb") as f:
+        rec = McapRecorder(f, flush_wall=0.2)
+        rec.write("/log", SAMPLES["/log"], 1_000)
+        deadline = time.monotonic() + 30  # generous: the flusher runs every 0.1 s
+        while not scan_log(path).messages and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [m[1] for m in scan_log(path).messages] == [1_000]
+        rec.close()
+
+
+def test_a_message_written_ahead_does_not_hold_the_others_back(tmp_path):
+    """The medium is logged ahead of the units' records: a chunk is flushed once it spans
+    ``flush_seconds`` from its oldest message, not from its first."""
+    from rgtbus.telemetry import McapRecorder, scan_log
+
+    path = tmp_path / "ahead.mcap"
+    second = 1_000_000_000
+    with open(path, "wb") as f:
+        rec = McapRecorder(f, flush_wall=3600)  # no flush by the clock in this test
+        rec.write("/medium", SAMPLES["/medium"], 50 * second)  # far ahead
+        rec.write("/log", SAMPLES["/log"], 0)  # the records of now
+        rec.write("/log", SAMPLES["/log"], 2 * second)  # two seconds on: due
+        assert len(scan_log(path).messages) == 3
+        rec.close()

@@ -107,7 +107,8 @@ def run_unit(
                 realtime=realtime,
                 write_medium=name == sc.units[0],  # one medium in the merged log
             )
-            result = world.run()  # a member gone or stalled ends it with result.failure
+            # a member gone or stalled ends it with result.failure; so does a request to stop
+            result = world.run(interruptible=True)
             sim_seconds = result.sim_seconds
             write_unit_report(recorder, unit, sim_seconds)  # while the watch feed is open
             error = result.failure or unit.failure

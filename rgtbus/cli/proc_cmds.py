@@ -11,6 +11,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -493,27 +494,41 @@ def _where(log: Path, window: float) -> str:
 
 
 def unit_failures(
-    units: list[str], results: dict[str, dict[str, Any]], log_dir: Path, window: float
+    units: list[str],
+    results: dict[str, dict[str, Any]],
+    log_dir: Path,
+    window: float,
+    stopped: Collection[str] = (),
 ) -> tuple[list[str], dict[str, dict[str, Any]]]:
-    """The failures of a launch, root causes first (a unit that stalled, died or crashed; then
-    the units that failed for want of it), and the outputs of the units that finished."""
-    causes: list[str] = []
+    """The failures of a launch, root causes first (a unit that died or crashed; then one that
+    stalled; then the units that failed for want of them), and the outputs of every unit that
+    reported (its share of the summary), those the launcher had to stop (``stopped``)
+    included: a healthy unit stopped after another died keeps what it knew."""
+    died: list[str] = []
+    stalled: list[str] = []
     knock_on: list[str] = []
     outputs: dict[str, dict[str, Any]] = {}
     for name in units:
         out = results.get(name)
         log = log_dir / f"{name}.mcap"
         if out is None:
-            causes.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
+            stalled.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
         elif "died" in out:
-            causes.append(f"unit {name} died ({_signal_name(out['died'])}) {_where(log, window)}")
+            died.append(f"unit {name} died ({_signal_name(out['died'])}) {_where(log, window)}")
         elif "crash" in out:
-            causes.append(f"unit {name}: {out['crash']}")
+            died.append(f"unit {name}: {out['crash']}")
         else:
             outputs[name] = out
-            if out["error"]:
+            if name in stopped:
+                stalled.append(f"unit {name} stalled {_where(log, window)}: stopped")
+            elif out["error"]:
                 knock_on.append(f"unit {name}: {out['error']}")
-    return causes + knock_on, outputs
+    if died:  # the units the launcher stopped were waiting for the dead one: not a cause
+        knock_on = [
+            f"unit {n}: stopped while waiting for the others" for n in units if n in stopped
+        ] + knock_on
+        stalled = [x for x in stalled if not x.endswith(": stopped")]
+    return died + stalled + knock_on, outputs
 
 
 def run_launch(args: argparse.Namespace) -> int:
@@ -584,14 +599,17 @@ def run_launch(args: argparse.Namespace) -> int:
             interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
         running = [n for n in sc.units if n not in results and n in launch.procs]
         launch.stop(running)
-        results.update(launch.late_results(running, timeout=5.0))
-        if interrupted is None:  # not asked to stop: whoever had to be stopped stalled
-            for name in running:
-                results.pop(name, None)
+        late = launch.late_results(running, timeout=10.0)
+        # a unit asked to stop reports what it knew (its share of the summary); one that
+        # could not say even that is named as stalled
+        results.update({n: out for n, out in late.items() if "report" in out})
     finally:
         launch.reap()
         signal.signal(signal.SIGTERM, old_term)
-    failures, outputs = unit_failures(list(sc.units), results, log_dir, sc.timing.window)
+    stopped = set() if interrupted is not None else set(running)
+    failures, outputs = unit_failures(
+        list(sc.units), results, log_dir, sc.timing.window, stopped=stopped
+    )
     if interrupted is not None:
         failures.insert(0, interrupted)
     return _finish_launch(args, sc, run_id, log_dir, outputs, failures, t0, interrupted)

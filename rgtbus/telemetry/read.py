@@ -176,6 +176,9 @@ def spike_rows(records: Iterable[dict], frequencies: dict[str, float]) -> list[d
     return rows
 
 
+_NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
+
+
 class Replay:
     """A log organised for reading. Build with ``load_replay``."""
 
@@ -561,23 +564,34 @@ class Replay:
         return not sc.channel.unit_gains
 
     def units_until_ns(self) -> int | None:
-        """The log time up to which the units' messages are complete (units write in time
-        order; the medium and traces are logged ahead of them): None when nothing was. For a
-        merge with inputs that ended early: the earliest of the units' last messages (each
-        unit's log may end at another time)."""
+        """The log time before which every unit's messages are complete in a log cut short
+        (a truncated file, or a merge whose inputs ended early): the earliest, over the units,
+        of each unit's last record and last spike (records are logged at their time, spikes as
+        the ears walk, the medium and traces ahead); None when nothing was logged."""
         last: dict[str, int] = {}
         for topic, msgs in self.by_topic.items():
-            if topic == "/medium" or _is_trace(topic) or topic == "/run":
+            # what is logged ahead of time (the medium, traces) or once the run is over (the
+            # run's and units' reports, and log lines, which a stopped unit writes at its end)
+            # says nothing of how far its records are complete
+            if topic in _NOT_PROGRESS or _is_trace(topic):
                 continue
+            stream = "spikes" if topic == "/rx/spike" else "records"
             for t, m in msgs:
                 who = str(m.get("unit", m.get("name", "")))
-                if t > last.get(who, -1):
-                    last[who] = t
-        if not last:
+                if t > last.get(f"{who}\0{stream}", -1):
+                    last[f"{who}\0{stream}"] = t
+        # A unit logs its spikes as its ears walk the medium, which can trail its other records
+        # (logged at their own time): its log is complete before the earlier of the two.
+        by_unit: dict[str, int] = {}
+        for key, t in last.items():
+            who = key.split("\0", 1)[0]
+            by_unit[who] = min(by_unit.get(who, t), t)
+        if not by_unit:
             return None
-        if self.cut_inputs:
-            return min((v for u, v in last.items() if u in self.units), default=None)
-        return max(last.values())
+        # every unit's log is complete before its own bound (a unit with no record of its own
+        # yet, e.g. killed before its first flush, only before the start); in one file cut
+        # short, the records written last need not be the latest in log time either
+        return min((by_unit.get(u, 0) for u in self.units), default=None)
 
     def traced_units(self) -> list[str]:
         return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]

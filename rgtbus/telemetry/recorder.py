@@ -11,6 +11,8 @@ import json
 import operator
 import os
 import struct
+import threading
+import time
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
@@ -243,8 +245,12 @@ class McapRecorder(_Encoding):
     ``failed`` then holds that line and nothing more is written (``close`` writes nothing).
 
     The log is written as the run goes: the chunk in progress is finished and flushed to the
-    stream once it holds ``flush_messages`` messages or spans ``flush_seconds`` of log time, so
-    a process killed outright loses at most that much (the file then reads as truncated)."""
+    stream once it holds ``flush_messages`` messages, once it spans ``flush_seconds`` of log
+    time (from its oldest message: a message written ahead of time, like ``/medium``, never
+    holds the others back), and at least every ``flush_wall`` seconds of wall time (a
+    background flusher: a paced or waiting run writes little), so a process killed outright
+    loses at most about ``flush_wall`` seconds of its records (the file then reads as
+    truncated)."""
 
     def __init__(
         self,
@@ -255,6 +261,7 @@ class McapRecorder(_Encoding):
         chunk_size: int = 256 * 1024,
         flush_seconds: float = 1.0,
         flush_messages: int = 4096,
+        flush_wall: float = 0.5,
         live: LiveSink | None = None,
     ) -> None:
         super().__init__(validate)
@@ -263,8 +270,8 @@ class McapRecorder(_Encoding):
             raise RgtbusError(
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
             )
-        if not (flush_seconds > 0 and flush_messages > 0):
-            raise RgtbusError("flush_seconds and flush_messages must be positive")
+        if not (flush_seconds > 0 and flush_messages > 0 and flush_wall > 0):
+            raise RgtbusError("flush_seconds, flush_messages and flush_wall must be positive")
         self.stream = stream
         self.failed: str | None = None
         self._sink = _WatchedStream(stream)
@@ -292,6 +299,23 @@ class McapRecorder(_Encoding):
         self._unflushed = 0
         self._flush_due = 0  # log time at which the oldest unflushed message is flush_ns old
         self._channels: dict[str, foxglove.Channel] = {}
+        # the writer is used from the run's thread and the wall-clock flusher: one at a time
+        self._lock = threading.Lock()
+        self._flush_wall = float(flush_wall)
+        self._flushed_at = time.monotonic()
+        self._stop_flusher = threading.Event()
+        self._flusher = threading.Thread(
+            target=self._flush_by_wall, name="rgtbus-log-flusher", daemon=True
+        )
+        self._flusher.start()
+
+    def _flush_by_wall(self) -> None:
+        """Flush what waits longer than ``flush_wall`` of wall time (never raises: a failed
+        write is the run thread's to report)."""
+        while not self._stop_flusher.wait(self._flush_wall / 2):
+            if self._unflushed and time.monotonic() - self._flushed_at >= self._flush_wall:
+                with contextlib.suppress(RgtbusError):
+                    self.flush()
 
     @contextlib.contextmanager
     def _io(self) -> Iterator[None]:
@@ -322,35 +346,46 @@ class McapRecorder(_Encoding):
         if self.failed:
             raise RgtbusError(self.failed)
         channel = self._channels.get(topic) or self._channel(topic, schema)
-        channel.log(data, log_time=t)  # the hot path: no context manager
+        with self._lock:
+            channel.log(data, log_time=t)
+            self._unflushed += 1
+            if self._unflushed == 1:
+                self._flush_due = t + self._flush_ns
+            else:
+                # due one span after the chunk's oldest message (one written ahead, e.g. the
+                # medium, must not push the due time away from the records before it)
+                self._flush_due = min(self._flush_due, t + self._flush_ns)
+            due = self._unflushed >= self._flush_messages or t >= self._flush_due
         if self.live is not None:
             self.live.put(topic, schema, data, t)
         if self._sink.error is not None:
             raise self._broken(self._sink.error)
-        self._unflushed += 1
-        if self._unflushed == 1:
-            self._flush_due = t + self._flush_ns
-        elif self._unflushed >= self._flush_messages or t >= self._flush_due:
+        if due:
             self.flush()
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand everything to the stream (and flush it)."""
         if self.failed or self._closed:
             return
-        self._unflushed = 0
-        with self._io():
+        with self._lock, self._io():
+            if self._closed:
+                return
+            self._unflushed = 0
+            self._flushed_at = time.monotonic()
             self._writer.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
-        with self._io():
+        with self._lock, self._io():
             self._writer.write_metadata(name, values)
 
     def close(self) -> None:
         if self._closed:
             return
+        self._stop_flusher.set()
+        self._flusher.join()
         self._closed = True
         for channel in self._channels.values():
             channel.close()

@@ -272,7 +272,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     until_ns = None
     until = None
     if replay.truncated:
-        # Units write in time order: what is logged before their last message is complete.
+        # what every unit logged before its bound is complete (Replay.units_until_ns)
         until_ns = replay.units_until_ns() or 0
         until = until_ns / NS
     mismatches += check_medium(replay, until_ns)

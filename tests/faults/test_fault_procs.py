@@ -249,3 +249,40 @@ def test_a_unit_without_the_key_cannot_join_and_says_so_in_its_log(procs, tmp_pa
     assert any("join failed" in x for x in lines), lines
     assert any("hello of 'b' not authenticated" in x for x in lines), lines
     assert metadata["end.a"]["status"] == "ended early"
+
+
+def own_records(path: Path, unit: str) -> list[str]:
+    """The topics of what ``unit`` logged of its own (not the medium logged ahead)."""
+    return [t for t, _, m in read_log(path)[0] if t != "/medium" and m.get("unit") == unit]
+
+
+@pytest.mark.slow  # ten unit processes, paced
+def test_a_killed_unit_of_a_paced_crowd_loses_little_and_the_survivors_report(procs, tmp_path):
+    """crowd10 at --realtime 25, one unit killed outright once it has logged its own pulses:
+    its log keeps its own records (flushed by wall time, not held back by the medium written
+    ahead), the launcher names it first, keeps the nine survivors' results, and the merged
+    log reads as truncated with everything before the cut agreeing."""
+    sc = load_scenario(ROOT / "scenarios" / "crowd10.toml")
+    victim = sc.units[7]
+    la = procs(
+        "launch", str(ROOT / "scenarios" / "crowd10.toml"), "--log-dir", str(tmp_path),
+        "--realtime", "25", "--timeout", "3", "--json",
+    )  # fmt: skip
+    pids = unit_pids(la, tmp_path, list(sc.units))
+    log = tmp_path / f"{victim}.mcap"
+
+    def victim_sent() -> bool:
+        with contextlib.suppress(RgtbusError, OSError):
+            return "/tx/pulse" in own_records(log, victim)
+        return False
+
+    wait_until(victim_sent, f"{victim} has logged a pulse of its own", alive=[la])
+    os.kill(pids[victim], signal.SIGKILL)
+    out, err = la.communicate(timeout=180)
+    assert la.returncode == 1, err
+    summary = json.loads(out)
+    assert summary["error"].startswith(f"unit {victim} died (killed by SIGKILL)"), summary
+    assert err.strip().splitlines()[0] == f"launch: {summary['error']}"
+    assert sorted(summary["units"]) == sorted(u for u in sc.units if u != victim)
+    assert "/tx/pulse" in own_records(log, victim)  # its own records were not lost
+    assert verify_code(tmp_path / "run.mcap") == 3
