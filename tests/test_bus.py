@@ -236,6 +236,100 @@ def test_foreign_malformed_replayed_and_late_frames_are_dropped_and_counted(make
     assert bus.take(10)["a"][0].tolist() == [3]
 
 
+# -- the gate: what a bus receives is bounded (issue 22) -----------------------------------------
+
+KEY = bytes(range(1, 33))
+
+
+def _signed(bus, unit, seq, promise, samples=(), values=()):
+    """A frame of ``unit`` signed as the bus's own process would sign it."""
+    from rgtbus.bus.auth import tag
+
+    def sign(body: bytes) -> bytes:
+        return tag(KEY, "frame", bus.run_id, unit, bus.nonce, body)
+
+    frame = Frame(seq, promise, np.array(samples, dtype=np.int64), np.array(values, float))
+    return encode(frame, RATE, sign=sign)
+
+
+@pytest.mark.parametrize("keyed", [False, True], ids=["open", "keyed"])
+def test_frames_over_the_runs_bound_are_dropped_unread(make_bus, keyed):
+    bus = make_bus(("a", "b"), key=KEY if keyed else None)
+    assert bus.max_pulses == 4096 and bus.max_frame == HEADER_SIZE + 16 * 4096 + 32 * keyed
+    assert make_bus(units(100)).max_pulses == 25600  # scales with the run
+    n = bus.max_pulses + 3  # over the bound in bytes, tag or not
+    big = _frame(1, 10, list(range(n)), [0.5] * n)  # a valid frame, a few pulses too many
+    for _ in range(30):
+        bus.put_raw("rgtbus/r1/tx/a", big)
+    bus.put_raw("rgtbus/r1/tx/a", b"x" * (16 << 20))
+    wait_for(lambda: bus.stats()["received"] == 31)
+    st_ = bus.stats()
+    assert st_["dropped_oversize"] == 31 and st_["accepted"] == 0, st_
+    notes = bus.drop_notes()  # at most 20 a reason, then how many more
+    assert len(notes) == 21 and notes[-1] == "... and 11 more dropped_oversize (counted)"
+    assert "the run's bound is" in notes[0]
+    # and a bus refuses to send what its peers would drop
+    with pytest.raises(RgtbusError, match="carries at most 4096"):
+        bus.publish("a", np.arange(4097), np.ones(4097), promise=5000)
+    bus.publish("a", np.arange(4096), np.ones(4096), promise=5000)  # the bound itself is fine
+    wait_for(lambda: bus.stats()["accepted"] == 1)
+
+
+def test_an_open_runs_receive_queue_is_bounded_per_member():
+    from rgtbus.bus.base import INBOX_BYTES_OPEN
+
+    bus = MemoryBus("r1", ("a", "b"), RATE)
+    try:
+        n = 4000
+        frame = _frame(1, 10, list(range(n)), [0.5] * n)  # 64 KB: under the frame bound
+        fits = INBOX_BYTES_OPEN // len(frame)
+        for _ in range(fits + 40):
+            bus.put_raw("rgtbus/r1/tx/a", frame)  # nothing drains in between
+        bus.put_raw("rgtbus/r1/tx/b", _frame(1, 10))  # another member's queue is its own
+        assert sum(bus._queued_bytes.values()) <= INBOX_BYTES_OPEN + len(frame)
+        st_ = bus.stats()
+        assert st_["dropped_overflow"] == 40 and st_["received"] == fits + 41, st_
+        assert st_["accepted"] == 2 and st_["dropped_duplicate"] == fits - 1, st_
+        assert sum(bus._queued_bytes.values()) == 0  # drained
+    finally:
+        bus.close()
+
+
+def test_a_keyed_bus_queues_each_signed_frame_once(make_bus):
+    """A frame seen on the network and replayed many times costs one queue place: the gate
+    checks its tag and drops every further copy of its sequence number at once."""
+    bus = make_bus(("a", "b"), key=KEY)
+    good = _signed(bus, "a", 1, 10, [3], [0.25])
+    for _ in range(50):
+        bus.put_raw("rgtbus/r1/tx/a", good)
+    wait_for(lambda: bus.stats()["received"] == 50)
+    st_ = bus.stats()
+    assert st_["accepted"] == 1 and st_["dropped_duplicate"] == 49, st_
+    for _ in range(5):  # once accepted, a copy is a duplicate too
+        bus.put_raw("rgtbus/r1/tx/a", good)
+    wait_for(lambda: bus.stats()["received"] == 55)
+    assert bus.stats()["dropped_duplicate"] == 54
+
+
+def test_the_gate_never_raises_into_the_transport():
+    bus = MemoryBus("r1", ("a",), RATE)
+    try:
+
+        class Broken:
+            def __len__(self) -> int:
+                return 100
+
+            def to_bytes(self) -> bytes:
+                raise RuntimeError("boom")
+
+        bus._deliver("rgtbus/r1/tx/a", Broken())  # a transport's payload that fails
+        st_ = bus.stats()
+        assert st_["dropped_malformed"] == 1 and st_["received"] == 1
+        assert "RuntimeError: boom" in bus.drop_notes()[0]
+    finally:
+        bus.close()
+
+
 def test_count_foreign_off_never_sees_other_runs(make_bus):
     bus = make_bus(("a",), count_foreign=False)
     bus.put_raw("rgtbus/other/tx/a", _frame(1, 10))

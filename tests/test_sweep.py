@@ -530,6 +530,7 @@ def _as_old(out: Path) -> None:
     for line in (out / "rows.jsonl").read_text().splitlines():
         row = json.loads(line)
         row.pop("_decisions", None)
+        row.pop("_sha256", None)  # nor digests
         for k in ("relations", "influences", "units", "goals", "rounds", "decode_errors", "p4"):
             if k in row:
                 row[k] = json.dumps(row[k])
@@ -537,6 +538,7 @@ def _as_old(out: Path) -> None:
     (out / "rows.jsonl").write_text("\n".join(lines[:3]) + "\n")
     info = json.loads((out / "sweep.json").read_text())
     info.pop("tables")
+    info.pop("rows")
     (out / "sweep.json").write_text(json.dumps(info))
     (out / "decisions.parquet").unlink()
 

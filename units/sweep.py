@@ -19,10 +19,13 @@ arguments; ``rgtbus sweep FILE`` builds it from the file (``load_sweep``); both 
 
 Every (grid cell, seed) is one run on the memory bus (the same results as zenoh, docs/engine.md)
 in a worker process; each run gives one row of the results table (``run_row``). Runs are
-handed out in batches to any ``concurrent.futures.Executor``: a local process pool by default,
-or a Dask distributed cluster's (``Client(address).get_executor()``), the same code path; one
-worker runs them in this process. Rows are appended to ``rows.jsonl`` as they arrive, so a
-sweep stopped halfway resumes with only what is missing; the tables are written as
+handed out to any ``concurrent.futures.Executor``: a local process pool by default (one run a
+submission: ``SweepPool``, where a worker that dies costs only its run), or a Dask distributed
+cluster's (``Client(address).get_executor()``, small batches), the same code path; one worker
+runs them in this process. Rows are appended to ``rows.jsonl`` as they arrive, each with its
+digest, in a directory locked against a second writer, so a sweep stopped halfway (Ctrl-C, a
+kill, a lost cluster: docs/sweeps.md, "Faults") resumes with only what is missing; the tables
+are written as
 ``results.parquet`` (one row per run, native Arrow types: ``RESULTS_SCHEMA``),
 ``results.csv`` (the same, nested columns as JSON text) and ``decisions.parquet`` (one row per
 run, unit and influence round).
@@ -34,7 +37,9 @@ the task function lives here, so a script or notebook cell without an
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import errno
 import hashlib
 import json
 import math
@@ -44,9 +49,9 @@ import sys
 import tempfile
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import BrokenExecutor, Executor, Future, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from rgtbus.units.sweep_spec import (
     TABLES_VERSION,
@@ -57,7 +62,14 @@ from rgtbus.units.sweep_spec import (
     make_sweep,
     scenario_for,
 )
-from rgtbus.units.workers import Pool, one_line, open_executor, open_pool, pool_of
+from rgtbus.units.workers import (
+    Pool,
+    WorkerDied,
+    one_line,
+    open_executor,
+    open_pool,
+    pool_of,
+)
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
@@ -103,12 +115,8 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
 
     from rgtbus.telemetry import McapRecorder, NullRecorder
 
-    row: dict[str, Any] = {"run": task.index}
-    for key, value in task.cell:
-        row[key] = json.dumps(value) if isinstance(value, list | dict) else value
-    row["seed"] = task.seed
-    engine = engine_of(sweep, task.cell)
-    row["engine"] = engine
+    row = _row_head(sweep, task)
+    engine = row["engine"]
     log_path = None
     try:
         sc = scenario_for(sweep, task.cell, task.seed)
@@ -153,6 +161,25 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
     return row
 
 
+def _row_head(sweep: Sweep, task: Task) -> dict[str, Any]:
+    row: dict[str, Any] = {"run": task.index}
+    for key, value in task.cell:
+        row[key] = json.dumps(value) if isinstance(value, list | dict) else value
+    row["seed"] = task.seed
+    row["engine"] = engine_of(sweep, task.cell)
+    return row
+
+
+def lost_row(sweep: Sweep, task: Task, why: str) -> dict[str, Any]:
+    """The row of a run whose worker died under it (``kill -9``, the OOM killer, a crash of
+    the interpreter): an error row, marked so that ``--resume`` runs it again (an error the run
+    itself raised is its result, kept)."""
+    row = _row_head(sweep, task)
+    error = f"{WORKER_DIED}: {why}; --resume runs it again"
+    row.update(error=error, failed=True, log=None, _worker_died=True)
+    return row
+
+
 def goal_columns(s: Mapping[str, Any]) -> dict[str, Any]:
     """A run's goals and rounds as plain columns: how many goals; of the judged ones the share
     reached by the targets' decisions (simulated) and the share reachable by the unit's own
@@ -186,100 +213,273 @@ def run_batch(sweep: Sweep, tasks: list[Task], log_dir: str | None) -> list[dict
     return [run_row(sweep, t, log_dir) for t in tasks]
 
 
-# -- runs in batches --------------------------------------------------------------------------
+# -- runs as they finish -----------------------------------------------------------------------
+
+# the error of a run whose worker process died under it; --resume runs such a run again
+WORKER_DIED = "worker died"
 
 
-def batches(tasks: list[Task], workers: int) -> list[list[Task]]:
-    """Enough batches to keep every worker busy to the end (8 a worker), at most 50 runs each."""
-    size = max(1, min(50, math.ceil(len(tasks) / (workers * 8))))
+def batches(tasks: list[Task], workers: int, most: int = 10) -> list[list[Task]]:
+    """Batches for an executor with a cost per submission (Dask): enough to keep every worker
+    busy to the end (8 a worker), at most ``most`` runs each (a batch's rows come back
+    together: what a stop or a lost cluster can take with it)."""
+    size = max(1, min(most, math.ceil(len(tasks) / (workers * 8))))
     return [tasks[i : i + size] for i in range(0, len(tasks), size)]
 
 
-def _batch_results(
+def _worker_death(exc: BaseException) -> str | None:
+    """Why a submission's worker died (the local pool's ``WorkerDied``, Dask's
+    ``KilledWorker``), else ``None``."""
+    if isinstance(exc, WorkerDied):
+        return str(exc)
+    if type(exc).__name__ == "KilledWorker":
+        return one_line(exc)
+    return None
+
+
+def _lost(pool: Pool, exc: BaseException, out_dir: Path) -> RgtbusError:
+    where = (
+        f"lost the Dask scheduler {pool.scheduler!r}"
+        if pool.kind == "dask"
+        else f"the {pool.kind} failed"
+    )
+    return RgtbusError(
+        f"{where} ({one_line(exc)}); the finished runs are in "
+        f"{str(out_dir / 'rows.jsonl')!r}: --resume (resume=True) to finish"
+    )
+
+
+def _rows_as_they_finish(
     sweep: Sweep, todo: list[Task], pool: Pool, log_dir: str | None, out_dir: Path
 ) -> Iterator[list[dict[str, Any]]]:
-    """The rows of each batch as it finishes. A pool that breaks before any batch came back
-    (its workers could not start) falls back to this process; one that breaks later is an
-    error of one line (the rows so far are kept: resume)."""
-    groups = batches(todo, pool.workers)
-    redo: list[list[Task]] = []
+    """The rows of the runs as they finish. The local pool gets one run a submission (a stop
+    loses no finished run; a dead worker costs only the run it ran), Dask small batches; at
+    most two submissions a worker are out at once (a stop has little to cancel). A run whose
+    worker died is its ``lost_row``. A pool that breaks before any run came back (its workers
+    could not start) falls back to this process; one that breaks later, or a lost Dask
+    scheduler, is an error of one line (the rows so far are kept: resume)."""
+    if pool.executor is None:
+        for t in todo:
+            yield [run_row(sweep, t, log_dir)]
+        return
+    groups = collections.deque(
+        batches(todo, pool.workers) if pool.kind == "dask" else [[t] for t in todo]
+    )
+    limit = max(4, 2 * pool.workers)
+    pending: dict[Future[list[dict[str, Any]]], list[Task]] = {}
+    got = 0
     reason = None
-    if pool.executor is not None:
-        pending: dict[Future, list[Task]] = {}
-        got = 0
-        try:
-            for b in groups:
-                pending[pool.executor.submit(run_batch, sweep, b, log_dir)] = b
-        except (BrokenExecutor, OSError, RuntimeError) as exc:
-            for fut in pending:
-                fut.cancel()
-            reason, redo, pending = one_line(exc), groups, {}
-        while pending:
-            finished, _ = wait(pending, return_when="FIRST_COMPLETED")
-            broken = None
-            for fut in finished:
+    try:
+        while (groups or pending) and reason is None:
+            while groups and len(pending) < limit:
+                try:
+                    fut = pool.executor.submit(run_batch, sweep, groups[0], log_dir)
+                except (BrokenExecutor, OSError, RuntimeError) as exc:
+                    if got:
+                        raise _lost(pool, exc, out_dir) from None
+                    reason = one_line(exc)
+                    break
+                pending[fut] = groups.popleft()
+            if reason is not None:
+                break
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in sorted(finished, key=lambda f: pending[f][0].index):
                 batch = pending.pop(fut)
                 try:
                     rows = fut.result()
                 except BrokenExecutor as exc:
-                    broken = exc
-                    redo.append(batch)
+                    if got:
+                        raise _lost(pool, exc, out_dir) from None
+                    reason = one_line(exc)
+                    groups.appendleft(batch)
                     continue
+                except Exception as exc:  # run_row catches what a run raises: this is not one
+                    why = _worker_death(exc)
+                    if why is None:
+                        raise _lost(pool, exc, out_dir) from None
+                    rows = [lost_row(sweep, t, why) for t in batch]
                 got += 1
                 yield rows
-            if broken is not None:
-                if got:
-                    raise RgtbusError(
-                        f"a worker process died ({one_line(broken)}); the runs "
-                        f"so far are in {str(out_dir / 'rows.jsonl')!r}: resume to finish"
-                    ) from None
-                for fut in pending:
-                    fut.cancel()
-                reason = one_line(broken)
-                redo += list(pending.values())
-                pending = {}
-        if reason is None:
-            return
-        pool.fall_back(reason, sum(len(b) for b in redo))
-        groups = redo
-    for b in groups:
-        yield run_batch(sweep, b, log_dir)
+    except BaseException:  # Ctrl-C, a lost cluster: what is still out is not waited for
+        for fut in pending:
+            fut.cancel()
+        raise
+    if reason is None:
+        return
+    for fut in pending:
+        fut.cancel()
+    redo = sorted([*groups, *pending.values()], key=lambda b: b[0].index)
+    pool.fall_back(reason, sum(len(b) for b in redo))
+    for b in redo:
+        for t in b:
+            yield [run_row(sweep, t, log_dir)]
 
 
-# -- the whole sweep ---------------------------------------------------------------------------
+# -- the sweep's directory ---------------------------------------------------------------------
+
+ROWS = "rows.jsonl"
+LOCK = "sweep.lock"
+ROW_DIGEST = "_sha256"  # each line of rows.jsonl: SHA-256 of the rest of it and the sweep
 
 
-def read_rows(out_dir: Path) -> list[dict[str, Any]]:
-    """The rows a sweep has written so far (a line cut by a kill is dropped)."""
-    path = out_dir / "rows.jsonl"
-    if not path.exists():
-        return []
-    rows = []
-    with open(path, encoding="utf-8") as f:
-        for line in f:
-            with contextlib.suppress(json.JSONDecodeError):
-                rows.append(json.loads(line))
-    return rows
+def row_digest(row: Mapping[str, Any], sweep_digest: str) -> str:
+    """The digest a line of rows.jsonl carries: SHA-256 over the sweep's digest and the row's
+    canonical JSON (sorted keys, no spaces), the digest itself left out."""
+    body = json.dumps(
+        {k: v for k, v in row.items() if k != ROW_DIGEST}, sort_keys=True, separators=(",", ":")
+    )
+    return hashlib.sha256(f"{sweep_digest}\n{body}".encode()).hexdigest()
 
 
-def prepare_out(
-    sweep: Sweep, out_dir: Path, resume: bool, pool: Pool | None = None
-) -> list[dict[str, Any]]:
-    """Create ``out_dir`` with the sweep file and versions beside it; on resume, the rows
-    already there (they must be of this sweep, and fit its tables)."""
-    rows_path = out_dir / "rows.jsonl"
+def sealed_line(row: Mapping[str, Any], sweep_digest: str) -> str:
+    """A row as one line of rows.jsonl, with its digest."""
+    plain = json.loads(json.dumps(row))  # what a reader gets back (keys as text, lists)
+    plain.pop(ROW_DIGEST, None)
+    plain[ROW_DIGEST] = row_digest(plain, sweep_digest)
+    return json.dumps(plain) + "\n"
+
+
+def _short(raw: bytes, limit: int = 40) -> str:
+    text = raw.decode("utf-8", "replace").strip()
+    return repr(text if len(text) <= limit else text[: limit - 1] + "…")
+
+
+def read_rows(
+    out_dir: Path, sweep_digest: str, sealed: bool = True
+) -> tuple[list[dict[str, Any]], bool]:
+    """The rows a sweep has written to ``out_dir`` (each with its ``_key``), in file order, and
+    whether rows.jsonl must be written anew (a last line cut by a kill, dropped with a note on
+    stderr; rows of an older rgtbus, without digests). Every other line must be a row of this
+    sweep whose digest matches, and no run may have two rows (but a run whose worker died,
+    run again): else one line naming rows.jsonl and the line. ``sealed``: the directory's rows
+    carry digests (rows without one are refused)."""
+    path = out_dir / ROWS
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return [], False
+    except OSError as exc:
+        raise RgtbusError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+    lines = data.split(b"\n")
+    tail = lines.pop()  # b"" when the file ends with a newline
+
+    def bad(n: int, why: str) -> RgtbusError:
+        return RgtbusError(f"cannot resume: {path}:{n}: {why}")
+
+    rewrite = False
+    rows: list[dict[str, Any]] = []
+    seen: dict[str, tuple[int, bool]] = {}
+    for n, raw in enumerate([*lines, tail], 1):
+        last = n == len(lines) + 1
+        if not raw.strip():
+            continue
+        try:
+            row = json.loads(raw)
+        except ValueError:
+            row = None
+            if not last:
+                raise bad(n, f"not a row (not JSON: {_short(raw)})") from None
+        if last and not isinstance(row, dict):  # cut by a kill: its run runs again
+            print(
+                f"rgtbus sweep: {path}:{n}: a line cut short (the sweep was killed while "
+                "writing it): its run runs again",
+                file=sys.stderr,
+                flush=True,
+            )
+            rewrite = True
+            continue
+        if not isinstance(row, dict):
+            raise bad(n, f"not a row (a JSON object expected, got {_short(raw)})")
+        digest = row.pop(ROW_DIGEST, None)
+        if digest is None:
+            if sealed:
+                raise bad(
+                    n,
+                    "a row without its digest (not written by rgtbus sweep): remove "
+                    "the line to run that run again",
+                )
+            rewrite = True  # an older rgtbus's row: sealed when written anew
+        elif digest != row_digest(row, sweep_digest):
+            raise bad(
+                n,
+                "a row altered, or of another sweep (its digest does not match): "
+                "remove the line to run that run again",
+            )
+        key = row.get("_key")
+        if isinstance(key, str):
+            before = seen.get(key)
+            if before is not None and not before[1]:
+                raise bad(
+                    n,
+                    f"a second row of the run of line {before[0]} (appended twice, "
+                    "or two sweeps wrote here): remove one of them",
+                )
+            seen[key] = (n, bool(row.get("_worker_died")))
+        if last:
+            rewrite = True  # whole, but its newline is missing
+        rows.append(row)
+    return rows, rewrite
+
+
+def _lock(out_dir: Path) -> IO[str]:
+    """Create ``out_dir`` and hold it: an exclusive ``flock`` on ``DIR/sweep.lock`` (holding
+    this process's pid), refused at once (one line naming the holder) when another sweep holds
+    it. Released when the returned file is closed (or the process ends, however it ends)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise RgtbusError(f"{str(out_dir)!r}: exists and is not a directory")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        f = open(out_dir / LOCK, "a+", encoding="utf-8")  # noqa: SIM115 (held until closed)
+    except OSError as exc:
+        reason = exc.strerror or one_line(exc)
+        raise RgtbusError(f"{str(out_dir)!r}: cannot write a sweep there ({reason})") from None
+    try:
+        import fcntl
+    except ImportError:  # no flock here: unlocked
+        return f
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+            return f  # a file system without locks: unlocked
+        f.seek(0)
+        holder = f.read().strip() or "unknown"
+        f.close()
+        raise RgtbusError(
+            f"{str(out_dir)!r} is in use by another sweep (pid {holder}): wait for it to end, "
+            "or stop it"
+        ) from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"{os.getpid()}\n")
+    f.flush()
+    return f
+
+
+def _write_text(path: Path, text: str) -> None:
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror or one_line(exc)}") from None
+
+
+def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any]]:
+    """Fill ``out_dir`` (created and held by ``_lock``) with the sweep file and versions; on
+    resume, the rows already there (they must be of this sweep, intact, and fit its tables)."""
+    rows_path = out_dir / ROWS
     stored = out_dir / "sweep.json"
-    if rows_path.exists() and not resume:
+    if not resume and rows_path.exists() and rows_path.stat().st_size:
         raise RgtbusError(
             f"{str(out_dir)!r} holds results already: --resume (resume=True) to finish that "
             "sweep, or choose another --out"
         )
-    if out_dir.exists() and not out_dir.is_dir():
-        raise RgtbusError(f"{str(out_dir)!r}: not a directory")
     rows: list[dict[str, Any]] = []
+    sealed = False
     if resume and stored.exists():
         try:
             before = json.loads(stored.read_text(encoding="utf-8"))
+            if not isinstance(before, dict):
+                raise ValueError("not a JSON object")
         except (OSError, ValueError) as exc:
             raise RgtbusError(
                 f"{str(out_dir)!r}: cannot resume: sweep.json unreadable: {exc}"
@@ -295,8 +495,9 @@ def prepare_out(
                 f"{str(out_dir)!r}: cannot resume: its tables are of a newer rgtbus (version "
                 f"{before.get('tables')}, this one writes {TABLES_VERSION})"
             )
+        sealed = before.get("rows") == "sha256"
     if resume:
-        rows = read_rows(out_dir)
+        rows, rewrite = read_rows(out_dir, sweep.digest, sealed)
         try:  # rows of an older rgtbus (JSON text columns) are re-tabled, or refused here
             results_table(sweep.axes, rows)
             decisions_table(sweep.axes, rows)
@@ -306,10 +507,13 @@ def prepare_out(
                 f"tables ({one_line(exc)}); "
                 "run the sweep into another directory"
             ) from None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "sweep.toml").write_text(sweep.text, encoding="utf-8")
-    (out_dir / "scenario.toml").write_text(sweep.scenario_text, encoding="utf-8")
-    _write_versions(sweep, out_dir, pool)
+        if rewrite:  # every row sealed, a cut last line gone: written whole, then moved in
+            tmp = out_dir / f".{ROWS}.part"
+            _write_text(tmp, "".join(sealed_line(r, sweep.digest) for r in rows))
+            os.replace(tmp, rows_path)
+    _write_text(out_dir / "sweep.toml", sweep.text)
+    _write_text(out_dir / "scenario.toml", sweep.scenario_text)
+    _write_versions(sweep, out_dir, None)
     return rows
 
 
@@ -317,7 +521,7 @@ def _write_versions(sweep: Sweep, out_dir: Path, pool: Pool | None) -> None:
     record = versions(sweep)
     if pool is not None:
         record.update(pool.record())
-    (out_dir / "sweep.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    _write_text(out_dir / "sweep.json", json.dumps(record, indent=2) + "\n")
 
 
 def versions(sweep: Sweep) -> dict[str, Any]:
@@ -334,10 +538,102 @@ def versions(sweep: Sweep) -> dict[str, Any]:
         "digest": sweep.digest,
         "runs": sweep.runs,
         "tables": TABLES_VERSION,
+        "rows": "sha256",  # each line of rows.jsonl carries its digest (row_digest)
         "rgtbus": __version__,
         "python": platform.python_version(),
         "libraries": libs,
     }
+
+
+class _Held:
+    """A sweep's directory while a sweep writes it: locked, the rows there so far (``have``:
+    run key -> row) and what is left to run (``todo``)."""
+
+    def __init__(self, sweep: Sweep, out_dir: Path, resume: bool) -> None:
+        self.sweep, self.out_dir = sweep, out_dir
+        self._lock = _lock(out_dir)
+        try:
+            done_rows = prepare_out(sweep, out_dir, resume)
+        except BaseException:
+            self._lock.close()
+            raise
+        self.tasks = sweep.tasks()
+        by_key = {t.key: t for t in self.tasks}
+        self.have: dict[str, dict[str, Any]] = {}
+        for r in done_rows:
+            key = r.pop("_key", None)
+            if key in by_key:
+                r["run"] = by_key[key].index  # the run's place in this sweep
+                self.have[key] = r  # a later row of a run (run again) replaces the earlier
+        for key in [k for k, r in self.have.items() if r.get("_worker_died")]:
+            del self.have[key]  # its worker died under it: run it again
+        self.todo = [t for t in self.tasks if t.key not in self.have]
+
+    def close(self) -> None:
+        self._lock.close()
+
+    def __enter__(self) -> _Held:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _run(
+    held: _Held,
+    pool: Pool,
+    *,
+    logs: bool = False,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run what ``held`` lacks on ``pool``, each row appended to rows.jsonl (and flushed) as it
+    comes; write the tables; their rows in task order."""
+    sweep, out_dir, tasks, have = held.sweep, held.out_dir, held.tasks, held.have
+    _write_versions(sweep, out_dir, pool)
+    log_dir = None
+    if logs:
+        log_dir = str(out_dir / "logs")
+        try:
+            os.makedirs(log_dir, exist_ok=True)
+        except OSError as exc:
+            raise RgtbusError(f"cannot write {log_dir!r}: {exc.strerror}") from None
+    failures = sum(1 for r in have.values() if r.get("failed"))
+    if progress:
+        progress(len(have), len(tasks), failures)
+    keys = {t.index: t.key for t in held.todo}
+    rows_path = out_dir / ROWS
+    try:
+        sink = open(rows_path, "a", encoding="utf-8")  # noqa: SIM115 (closed below)
+    except OSError as exc:
+        raise RgtbusError(f"cannot write {str(rows_path)!r}: {exc.strerror}") from None
+    with sink:
+        for batch_rows in _rows_as_they_finish(sweep, held.todo, pool, log_dir, out_dir):
+            lines = []
+            for row in batch_rows:
+                key = keys[row["run"]]
+                have[key] = row
+                failures += bool(row.get("failed"))
+                lines.append(sealed_line({**row, "_key": key}, sweep.digest))
+            try:
+                sink.write("".join(lines))
+                sink.flush()
+            except OSError as exc:
+                raise RgtbusError(
+                    f"cannot write {str(rows_path)!r} ({exc.strerror}): the rows before are "
+                    "kept: --resume (resume=True) to finish"
+                ) from None
+            if progress:
+                progress(len(have), len(tasks), failures)
+    if pool.fallback:
+        _write_versions(sweep, out_dir, pool)
+    rows = [have[t.key] for t in tasks]
+    try:
+        return table_rows(write_tables(sweep.axes, rows, out_dir))
+    except OSError as exc:
+        raise RgtbusError(
+            f"cannot write the tables in {str(out_dir)!r} ({exc.strerror}): every row is in "
+            f"{str(rows_path)!r}: --resume (resume=True) writes them"
+        ) from None
 
 
 def run_sweep(
@@ -353,41 +649,10 @@ def run_sweep(
 ) -> list[dict[str, Any]]:
     """Run every task not yet in ``out_dir`` on ``executor`` (``None``: in this process) or
     ``pool``; write the tables and return the results table's rows in task order (plain
-    values: ``table_rows``). ``progress(done, total, failures)`` after every batch."""
-    out_dir = Path(out_dir)
-    pool = pool or pool_of(executor, workers)
-    done_rows = prepare_out(sweep, out_dir, resume, pool)
-    tasks = sweep.tasks()
-    by_key = {t.key: t for t in tasks}
-    have = {}
-    for r in done_rows:
-        key = r.pop("_key", None)
-        if key in by_key:
-            r["run"] = by_key[key].index  # the run's place in this sweep
-            have[key] = r
-    todo = [t for t in tasks if t.key not in have]
-    log_dir = None
-    if logs:
-        log_dir = str(out_dir / "logs")
-        os.makedirs(log_dir, exist_ok=True)
-    failures = sum(1 for r in have.values() if r.get("failed"))
-    if progress:
-        progress(len(have), len(tasks), failures)
-    keys = {t.index: t.key for t in todo}
-    with open(out_dir / "rows.jsonl", "a", encoding="utf-8") as sink:
-        for batch_rows in _batch_results(sweep, todo, pool, log_dir, out_dir):
-            for row in batch_rows:
-                key = keys[row["run"]]
-                have[key] = row
-                failures += bool(row.get("failed"))
-                sink.write(json.dumps({**row, "_key": key}) + "\n")
-            sink.flush()
-            if progress:
-                progress(len(have), len(tasks), failures)
-    if pool.fallback:
-        _write_versions(sweep, out_dir, pool)
-    rows = [have[t.key] for t in tasks]
-    return table_rows(write_tables(sweep.axes, rows, out_dir))
+    values: ``table_rows``). ``progress(done, total, failures)`` after every batch (every run
+    on the local pool)."""
+    with _Held(sweep, Path(out_dir), resume) as held:
+        return _run(held, pool or pool_of(executor, workers), logs=logs, progress=progress)
 
 
 def execute_sweep(
@@ -402,7 +667,11 @@ def execute_sweep(
 ) -> list[dict[str, Any]]:
     """Run ``sweep`` into ``out_dir`` on the pool ``open_pool`` gives (what ``rgtbus sweep``
     and ``sweep()`` both do); ``progress``: a tqdm bar on stderr, or a callback
-    ``(done, total, failures)``. Returns the results' rows."""
+    ``(done, total, failures)``. Returns the results' rows.
+
+    The directory is checked and locked before any worker starts. A ``KeyboardInterrupt``
+    (Ctrl-C) stops the workers at once (none is left behind) and propagates; every run that
+    finished is in rows.jsonl, and ``resume=True`` runs the rest."""
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise RgtbusError(f"workers must be at least 1, got {workers}")
     bar = None
@@ -419,17 +688,11 @@ def execute_sweep(
             bar.refresh()
 
     try:
-        with open_pool(workers, scheduler, runs=sweep.runs) as pool:
-            return run_sweep(
-                sweep,
-                Path(out_dir),
-                executor=pool.executor,
-                workers=pool.workers,
-                resume=resume,
-                logs=logs,
-                progress=callback,
-                pool=pool,
-            )
+        with (
+            _Held(sweep, Path(out_dir), resume) as held,
+            open_pool(workers, scheduler, runs=max(1, len(held.todo))) as pool,
+        ):
+            return _run(held, pool, logs=logs, progress=callback)
     finally:
         if bar is not None:
             bar.close()
@@ -470,7 +733,10 @@ def sweep(
     ``rgtbus sweep --out DIR`` writes there (``read_sweep(out)`` gives results and
     decisions, one row per run, unit and round); ``resume=True`` finishes one stopped
     halfway; ``logs=True`` an MCAP log per run (needs ``out``). A run that raises is a row with
-    ``failed`` and its ``error``, never the end of the sweep.
+    ``failed`` and its ``error``, never the end of the sweep. ``KeyboardInterrupt`` (Ctrl-C)
+    stops the workers at once and propagates; the finished runs are kept in ``out`` for
+    ``resume=True``. Faults (a bad ``out`` or ``scheduler``, ``out`` in use by another sweep, a
+    tampered rows.jsonl, a lost scheduler) raise ``RgtbusError``, one line (docs/sweeps.md).
 
     >>> df = sweep("scenarios/random_group.toml", grid={"n": [3, 4], "relations.p": [0.3, 0.9]},
     ...            seeds=20)                                              # doctest: +SKIP

@@ -22,6 +22,7 @@ import tomli_w
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
+from rgtbus.scenario.limits import key_depth_error, nesting_error, read_regular
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 ENGINES = ("event", "dense")
@@ -145,12 +146,18 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     data_bytes = _read_capped(p, "sweep")
     try:
         text = data_bytes.decode("utf-8")
+        too_deep = nesting_error(text, where)  # before tomllib, which recurses
+        if too_deep:
+            raise RgtbusError(too_deep)
         data = tomllib.loads(text)
     except UnicodeDecodeError:
         raise RgtbusError(f"{where}: not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
         raise RgtbusError(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
+    too_deep = key_depth_error(data, text, where)  # a dotted key: [grid] is flattened below
+    if too_deep:
+        raise RgtbusError(too_deep)
 
     def err(key: str | None, reason: str) -> RgtbusError:
         return _error(where, text, key, reason)
@@ -253,12 +260,14 @@ def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
 
 
 def _read_capped(path: Path, what: str) -> bytes:
-    """A sweep or scenario file's bytes; one line if it cannot be read or is far too large."""
+    """A sweep or scenario file's bytes; one line if it cannot be read, is no regular file (a
+    FIFO, a device: refused before a byte is read) or is far too large."""
     try:
-        if path.is_dir():
-            raise RgtbusError(f"cannot read {what} {str(path)!r}: is a directory")
-        with open(path, "rb") as f:
-            data = f.read(MAX_SCENARIO_BYTES + 1)
+        data = read_regular(path, what, MAX_SCENARIO_BYTES)
+    except RgtbusError:  # already one line (a directory, a FIFO, a device)
+        raise
+    except ValueError as exc:  # a NUL in the path
+        raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc}") from None
     except OSError as exc:
         raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
     if len(data) > MAX_SCENARIO_BYTES:

@@ -3,9 +3,17 @@
 A bus carries every member's frames (docs/engine.md): the pulses it transmits and its promise
 "nothing more from me before sample t". ``wait(h)`` blocks until every member has promised past
 sample h and returns the horizon H (the smallest promise): the medium before H is then final and
-``take(H)`` hands it out. Received payloads go through one path (``QueueBus._accept``): key check,
-frame decode, checks against the run and the member's earlier frames, then into the member's
-state. Everything else is dropped and counted, never returned.
+``take(H)`` hands it out. Received payloads go through one path: first the gate
+(``QueueBus._deliver``, on the transport's thread, O(1) but for the tag): key, size, header and,
+on a keyed run, the tag and the sequence number; then, queued, ``QueueBus._accept`` on the
+caller's thread: frame decode, checks against the run and the member's earlier frames, then into
+the member's state. Everything else is dropped and counted, never returned.
+
+Bounded whatever arrives: the gate drops a frame larger than the run's bound
+(``dropped_oversize``) before any other work, and queues at most a bounded number of bytes per
+member (``dropped_overflow``). On a keyed run only frames with a valid tag, each sequence number
+once, are queued at all: what an outsider sends costs at most one HMAC over a bounded frame and
+never memory, and a member's own frames are never crowded out (docs/security.md).
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ import math
 import queue
 import re
 import secrets
+import threading
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -23,15 +32,29 @@ from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 
-from rgtbus.bus.auth import AuthError, check_key, check_tag, tag
+from rgtbus.bus.auth import TAG_SIZE, AuthError, check_key, check_tag, tag
 from rgtbus.bus.keys import tx_key, tx_prefix
-from rgtbus.bus.payload import NEVER, Frame, decode, encode
+from rgtbus.bus.payload import (
+    NEVER,
+    Frame,
+    check_header,
+    decode,
+    encode,
+    frame_size,
+    max_frame_pulses,
+)
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 _MAX_NOTES = 100
+_NOTES_PER_REASON = 20  # notes kept per drop counter between two drop_notes(); the rest counted
+# Bytes queued per member, not yet drained by wait(): frames that passed the gate. A member in
+# lockstep has a few frames in flight; on a keyed run only its own (tag checked, each sequence
+# number once) get here, so the cap is a safety net; on an open run it is what bounds a flood.
+INBOX_BYTES_OPEN = 4 << 20
+INBOX_BYTES_KEYED = 64 << 20
 
 
 @dataclass
@@ -99,7 +122,33 @@ STAT_KEYS = (
     "dropped_duplicate",
     "dropped_ahead",
     "dropped_unauthenticated",
+    "dropped_oversize",  # larger than the run's frame (or hello) bound: dropped unread
+    "dropped_overflow",  # the member's receive queue was full (or the hello queue)
+    "hellos_unanswered",  # hellos heard again or too fast (replays): not answered
 )
+
+
+class Payload(Protocol):
+    """What a transport hands the gate: ``bytes``, or zenoh's ``ZBytes`` (its length is known
+    before it is copied out)."""
+
+    def __len__(self) -> int: ...
+    def to_bytes(self) -> bytes: ...
+
+
+class _Bytes:
+    """``bytes`` as a ``Payload``."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def to_bytes(self) -> bytes:
+        return self.data
 
 
 _NO_PULSES: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))  # shared: never written
@@ -111,7 +160,8 @@ class QueueBus:
     """Shared core: publish validation + encode, and a receive queue drained by ``wait``.
 
     Subclasses provide ``_send(key, data)`` and ``_close_transport()``; whatever delivers
-    payloads only ever calls ``self._inbox.put((key, data))`` (thread-safe, never blocks).
+    payloads only ever calls ``self._deliver(key, payload)`` (the gate: thread-safe, never
+    blocks, bounded work per payload; it queues what passes for ``wait``).
 
     ``key`` (bytes, at least 16) closes the run to outsiders: every frame is signed and every
     received frame must carry a valid tag from the member's process (its ``nonce``, announced
@@ -152,13 +202,24 @@ class QueueBus:
         self.local = local_units
         self._prefix = tx_prefix(self.run_id)
         self._keys = {u: tx_key(self.run_id, u) for u in self.members}
-        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        # (key, data, unit, seq, tag checked): what passed the gate (_deliver), for _accept
+        self._inbox: queue.SimpleQueue[tuple[str, bytes, str, int, bool]] = queue.SimpleQueue()
+        self._tx_units = {k: u for u, k in self._keys.items()}
+        self.max_pulses = max_frame_pulses(len(self.members))
         self._members = {u: MemberStatus() for u in self.members}
         self._sent = {u: MemberStatus() for u in self.local}  # what we published, per local unit
         self._taken = 0  # samples below this were handed out by take()
         self._stats = dict.fromkeys(STAT_KEYS, 0)
         self._notes: deque[str] = deque(maxlen=_MAX_NOTES)
         self._key = check_key(key)
+        self.max_frame = frame_size(self.max_pulses, tagged=self._key is not None)
+        # The gate's own state, shared with the transport's threads: under _gate_lock.
+        self._gate_lock = threading.Lock()
+        self._gate_stats = dict.fromkeys(STAT_KEYS, 0)
+        self._noted = dict.fromkeys(STAT_KEYS, 0)  # notes kept per counter since drop_notes()
+        self._queued_bytes = dict.fromkeys(self.members, 0)
+        self._queued_seqs: dict[str, set[int]] = {u: set() for u in self.members}
+        self._inbox_cap = INBOX_BYTES_OPEN if self._key is None else INBOX_BYTES_KEYED
         self.nonce = secrets.token_bytes(16)  # this process's, bound into every tag it makes
         # Whose tags we can check: our own units now, the others' once their hello is heard.
         self._nonces: dict[str, bytes] = dict.fromkeys(self.local, self.nonce)
@@ -193,6 +254,11 @@ class QueueBus:
             )
         if promise < mine.promise:
             raise RgtbusError(f"unit {unit!r}: promise {promise} goes back from {mine.promise}")
+        if s.size > self.max_pulses:  # every receiver would drop it unread: say so here
+            raise RgtbusError(
+                f"unit {unit!r}: a frame of {s.size} pulses, a run of {len(self.members)} "
+                f"units carries at most {self.max_pulses} in one"
+            )
         frame = Frame(
             mine.seq + 1, int(promise), s, np.asarray(values, dtype=np.float64), flags, done_at
         )
@@ -293,19 +359,27 @@ class QueueBus:
         self._check_member(unit)
 
     def stats(self) -> dict[str, int]:
-        """Counters so far; drains what already arrived first so they are current."""
+        """Counters so far; drains what already arrived first so they are current. Every
+        payload received is counted once as accepted or under one ``dropped_*`` reason."""
         if not self._closed:
             self._drain()
-        out = dict(self._stats)
+        with self._gate_lock:
+            out = {k: v + self._gate_stats[k] for k, v in self._stats.items()}
         out["pending"] = sum(int(p[0].size) for m in self._members.values() for p in m.pending)
         return out
 
     def drop_notes(self) -> list[str]:
-        """Why recent payloads were dropped (one line each, at most 100 kept); clears them."""
+        """Why recent payloads were dropped (one line each; at most 20 a reason, 100 in all,
+        then how many more there were); clears them."""
         if not self._closed:
             self._drain()
-        notes = list(self._notes)
-        self._notes.clear()
+        with self._gate_lock:
+            notes = list(self._notes)
+            self._notes.clear()
+            for counter, n in self._noted.items():
+                if n > _NOTES_PER_REASON:
+                    notes.append(f"... and {n - _NOTES_PER_REASON} more {counter} (counted)")
+            self._noted = dict.fromkeys(STAT_KEYS, 0)
         return notes
 
     def put_raw(self, key: str, data: bytes) -> None:
@@ -374,29 +448,132 @@ class QueueBus:
                 return
             self._accept(*item)
 
-    def _drop(self, counter: str, note: str) -> None:
-        self._stats[counter] += 1
-        self._notes.append(note)
+    def _noting(self, counter: str) -> bool:
+        """Whether a drop under ``counter`` gets its note (a flood is counted, not noted:
+        at most _NOTES_PER_REASON a reason between two drop_notes()). Under _gate_lock."""
+        self._noted[counter] += 1
+        return self._noted[counter] <= _NOTES_PER_REASON
 
-    def _accept(self, key: str, data: bytes) -> None:
-        self._stats["received"] += 1
-        if not key.startswith(self._prefix):
-            self._drop("dropped_foreign", f"{key}: not run {self.run_id!r}")
+    def _drop(self, counter: str, note: str) -> None:
+        # On the caller's thread (_accept, hellos); the notes are shared with the gate.
+        self._stats[counter] += 1
+        with self._gate_lock:
+            if self._noting(counter):
+                self._notes.append(note)
+
+    def _gate_drop(self, counter: str, key: str, why: object, received: bool = True) -> None:
+        """A payload dropped at the gate (any thread): counted, its note kept if not flooded."""
+        with self._gate_lock:
+            self._gate_stats[counter] += 1
+            if received:
+                self._gate_stats["received"] += 1
+            if self._noting(counter):
+                self._notes.append(f"{key}: {why}")
+
+    def _deliver(self, key: str, payload: Payload | bytes) -> None:
+        """The gate: what a transport received on ``key``, checked in O(1) (on a keyed run one
+        HMAC over at most ``max_frame`` bytes) and queued for ``wait``, or dropped and counted.
+        Runs on the transport's threads: never blocks, never raises, holds nothing but a short
+        lock."""
+        if isinstance(payload, bytes | bytearray):
+            payload = _Bytes(bytes(payload))
+        try:
+            self._gate(key, payload)
+        except Exception as e:  # a callback must not raise (docs/zenoh-notes.md)
+            self._gate_drop("dropped_malformed", key, f"{type(e).__name__}: {e}")
+
+    def _gate(self, key: str, payload: Payload) -> None:
+        unit = self._tx_units.get(key)
+        if unit is None:
+            if not key.startswith(self._prefix):
+                self._gate_drop("dropped_foreign", key, f"not run {self.run_id!r}")
+            else:
+                self._gate_drop(
+                    "dropped_foreign", key, f"{key[len(self._prefix) :]!r} is not a member"
+                )
             return
-        unit = key[len(self._prefix) :]
-        if unit not in self._member_set:
-            self._drop("dropped_foreign", f"{key}: {unit!r} is not a member")
+        size = len(payload)
+        if size > self.max_frame:  # before anything else: not even copied out
+            self._gate_drop(
+                "dropped_oversize",
+                key,
+                f"frame of {size} bytes, the run's bound is {self.max_frame}",
+            )
             return
-        check = None
+        nonce = None
         if self._key is not None:
             nonce = self._nonces.get(unit)
             if nonce is None:
-                self._drop("dropped_unauthenticated", f"{key}: no hello heard from {unit!r}")
+                self._gate_drop("dropped_unauthenticated", key, f"no hello heard from {unit!r}")
                 return
-            secret, run_id = self._key, self.run_id
+        data = payload.to_bytes()
+        try:
+            header = check_header(data)
+        except RgtbusError as e:
+            self._gate_drop("dropped_malformed", key, e)
+            return
+        checked = False
+        if self._key is not None and nonce is not None:
+            if not header.tagged:
+                self._gate_drop(
+                    "dropped_unauthenticated",
+                    key,
+                    "frame not authenticated (no tag) on a run with a key",
+                )
+                return
+            try:
+                check_tag(
+                    self._key, "frame", self.run_id, unit, nonce, data[:-TAG_SIZE], data[-TAG_SIZE:]
+                )
+            except AuthError as e:
+                self._gate_drop("dropped_unauthenticated", key, e)
+                return
+            checked = True
+        with self._gate_lock:
+            if checked:
+                # Signed frames are the member's own: each sequence number is queued once (a
+                # replay of a frame seen on the network can cost one queue place, not more).
+                seqs = self._queued_seqs[unit]
+                if header.seq <= self._members[unit].seq or header.seq in seqs:
+                    self._gate_stats["dropped_duplicate"] += 1
+                    self._gate_stats["received"] += 1
+                    if self._noting("dropped_duplicate"):
+                        self._notes.append(f"{key}: frame {header.seq} received twice (replayed?)")
+                    return
+            if self._queued_bytes[unit] + size > self._inbox_cap:
+                self._gate_stats["dropped_overflow"] += 1
+                self._gate_stats["received"] += 1
+                if self._noting("dropped_overflow"):
+                    self._notes.append(
+                        f"{key}: receive queue full ({self._queued_bytes[unit]} bytes of "
+                        f"{unit!r} not yet read)"
+                    )
+                return
+            if checked:
+                seqs.add(header.seq)
+            self._queued_bytes[unit] += size
+            self._inbox.put((key, data, unit, header.seq, checked))  # never blocks
+
+    def _accept(self, key: str, data: bytes, unit: str, seq: int, checked: bool) -> None:
+        """A queued frame (it passed the gate), on the caller's thread."""
+        try:
+            self._accept_frame(key, data, unit, checked)
+        finally:
+            with self._gate_lock:
+                self._queued_bytes[unit] -= len(data)
+                if checked:
+                    self._queued_seqs[unit].discard(seq)
+
+    def _accept_frame(self, key: str, data: bytes, unit: str, checked: bool) -> None:
+        self._stats["received"] += 1
+        check = None
+        if self._key is not None:
+            if not checked:  # every frame of a keyed run had its tag checked at the gate
+                self._drop("dropped_unauthenticated", f"{key}: tag not checked")
+                return
 
             def check(body: bytes, got: bytes) -> None:
-                check_tag(secret, "frame", run_id, unit, nonce, body, got)
+                pass  # checked at the gate
 
         try:
             frame, rate = decode(data, check=check)

@@ -1,7 +1,8 @@
 """The in-process twin of the zenoh bus: a queue instead of a network.
 
-Payloads still go through the codec and the shared receive path, so the memory bus drops and
-counts exactly what the zenoh bus would.
+Payloads still go through the codec and the shared receive path (the gate, then the queue), so
+the memory bus drops and counts exactly what the zenoh bus would, and stays bounded the same way
+whatever ``put_raw`` sends.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ class MemoryBus(QueueBus):
 
     def _send(self, key: str, data: bytes) -> None:
         if matches_subscription(key, self._sub_run):
-            self._inbox.put((key, data))
+            self._deliver(key, data)  # the same gate as the zenoh bus's callback
 
     def _close_transport(self) -> None:
         pass

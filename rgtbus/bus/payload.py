@@ -31,6 +31,7 @@ import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -48,6 +49,11 @@ _KNOWN_FLAGS = FINAL | FAILED
 NEVER = 2**63 - 1  # a promise of silence for the rest of the run
 MAX_MAGNITUDE = 1e6  # far above any code; keeps a resonator's sums finite whatever a peer sends
 MAX_PULSES = 2**24  # one frame; a run's whole schedule of one unit is far below this
+# What a live bus receives (and lets its own units send) in one frame: the pulses a unit plans
+# at once (its codes to every other member; measured at most 12 per member, 588 on group50),
+# with a wide margin. Larger frames are dropped before any other work (``dropped_oversize``).
+FRAME_PULSES_MIN = 4096
+FRAME_PULSES_PER_MEMBER = 256
 _EMPTY_I = np.zeros(0, dtype=np.int64)
 _EMPTY_F = np.zeros(0, dtype=np.float64)
 
@@ -132,13 +138,34 @@ def encode(
     return body + tag
 
 
-def decode(
-    data: bytes, *, check: Callable[[bytes, bytes], None] | None = None
-) -> tuple[Frame, float]:
-    """Inverse of ``encode``: ``(frame, sample_rate)`` with fresh arrays. Raises RgtbusError
-    (one line, what is wrong) on anything malformed. With ``check`` (a keyed run) a frame must
-    be TAGGED and ``check(body, tag)`` pass (it raises AuthError otherwise); without, a TAGGED
-    frame is refused (AuthError: this run has no key to check it with)."""
+def max_frame_pulses(members: int) -> int:
+    """The most pulses one frame of a run of ``members`` units may carry (see
+    ``FRAME_PULSES_PER_MEMBER``): what every bus of the run receives and sends."""
+    return max(FRAME_PULSES_MIN, FRAME_PULSES_PER_MEMBER * members)
+
+
+def frame_size(count: int, *, tagged: bool) -> int:
+    """The length in bytes of a frame of ``count`` pulses."""
+    return HEADER_SIZE + 16 * count + (TAG_SIZE if tagged else 0)
+
+
+class Header(NamedTuple):
+    """A frame's header, checked on its own (``check_header``): what a receiver can learn of a
+    frame without reading its pulses or its tag."""
+
+    flags: int  # without TAGGED
+    tagged: bool
+    seq: int
+    promise: int
+    done_at: int
+    rate: float
+    pulses: int  # the count field
+
+
+def check_header(data: bytes) -> Header:
+    """The header of the frame in ``data``, every header rule checked (magic, version, flags,
+    reserved fields, ranges, the length matching the count): O(1), no pulse read. Raises
+    RgtbusError (one line) like ``decode``."""
     if not isinstance(data, bytes | bytearray):
         raise RgtbusError(f"frame must be bytes, got {type(data).__name__}")
     if len(data) < HEADER_SIZE:
@@ -161,11 +188,23 @@ def decode(
     for what, v in (("sequence number", seq), ("promise", promise), ("done_at", done_at)):
         if v > NEVER:
             raise RgtbusError(f"frame {what} {v} out of range 0..2**63-1")
-    expected = HEADER_SIZE + 16 * count + (TAG_SIZE if tagged else 0)
+    expected = frame_size(count, tagged=tagged)
     if len(data) != expected:
         raise RgtbusError(
             f"frame length {len(data)} bytes does not match count {count} (expected {expected})"
         )
+    return Header(flags, tagged, seq, promise, done_at, rate, count)
+
+
+def decode(
+    data: bytes, *, check: Callable[[bytes, bytes], None] | None = None
+) -> tuple[Frame, float]:
+    """Inverse of ``encode``: ``(frame, sample_rate)`` with fresh arrays. Raises RgtbusError
+    (one line, what is wrong) on anything malformed. With ``check`` (a keyed run) a frame must
+    be TAGGED and ``check(body, tag)`` pass (it raises AuthError otherwise); without, a TAGGED
+    frame is refused (AuthError: this run has no key to check it with)."""
+    flags, tagged, seq, promise, done_at, rate, count = check_header(data)
+    expected = len(data)
     if check is not None:
         if not tagged:
             raise AuthError("frame not authenticated (no tag) on a run with a key")
@@ -212,3 +251,42 @@ def decode_telemetry(payload: bytes) -> tuple[str, str, bytes, int]:
     except UnicodeDecodeError:
         raise ValueError("telemetry frame: topic or schema is not UTF-8") from None
     return topic, schema, bytes(payload[at + nt + ns_ :]), t_ns
+
+
+# -- signed telemetry: a keyed run's telemetry frames ---------------------------------------------
+#
+# On a run with a key each telemetry frame is wrapped (docs/security.md)::
+#
+#     offset  size  field
+#     0       4     magic b"RGS1"
+#     4       16    nonce of the publishing process (its bus's)
+#     20      8     sequence number, u64 (1, 2, 3, ... per process and unit)
+#     28      ...   the telemetry frame (encode_telemetry)
+#     end-32  32    HMAC-SHA256 of everything before it (rgtbus.bus.auth, kind "telemetry")
+
+_SIGNED_TELEMETRY = struct.Struct("<4s16sQ")
+_SIGNED_TELEMETRY_MAGIC = b"RGS1"
+
+
+def sign_telemetry(frame: bytes, nonce: bytes, seq: int, sign: Callable[[bytes], bytes]) -> bytes:
+    """``frame`` (an ``encode_telemetry`` frame) wrapped with ``nonce``, ``seq`` and its tag
+    ``sign(everything before the tag)``."""
+    body = _SIGNED_TELEMETRY.pack(_SIGNED_TELEMETRY_MAGIC, nonce, seq) + frame
+    return body + sign(body)
+
+
+def is_signed_telemetry(payload: bytes) -> bool:
+    return payload[:4] == _SIGNED_TELEMETRY_MAGIC
+
+
+def open_signed_telemetry(
+    payload: bytes, check: Callable[[bytes, bytes, bytes], None]
+) -> tuple[bytes, int, bytes]:
+    """``(nonce, seq, telemetry frame)`` of a signed telemetry payload once ``check(nonce,
+    body, tag)`` passed (it raises AuthError otherwise); ValueError if ``payload`` is not one."""
+    if len(payload) < _SIGNED_TELEMETRY.size + TAG_SIZE or not is_signed_telemetry(payload):
+        raise ValueError("not a signed telemetry frame")
+    _, nonce, seq = _SIGNED_TELEMETRY.unpack_from(payload)
+    body = bytes(payload[:-TAG_SIZE])
+    check(nonce, body, bytes(payload[-TAG_SIZE:]))
+    return nonce, seq, body[_SIGNED_TELEMETRY.size :]

@@ -4,8 +4,10 @@ Default: one in-process session, peer mode, no listen/connect endpoints, multica
 a session's own puts reach its own subscriber, so a single process hears itself. For
 cross-process runs pass ``connect``/``listen``/``mode`` (or a zenoh config file or a session).
 
-The subscriber callback runs on a zenoh thread: it only copies ``(key, bytes)`` into a
-``SimpleQueue``; decoding and bookkeeping happen in ``wait`` on the caller's thread.
+The subscriber callbacks run on zenoh threads and never block: the frame callback is the bus's
+gate (``QueueBus._deliver``: size, header and, on a keyed run, tag checks, then a bounded queue),
+the hello callback checks key and size and puts into a bounded queue; decoding and bookkeeping
+happen in ``wait`` (and ``join``) on the caller's thread. Hellos are answered at a bounded rate.
 """
 
 from __future__ import annotations
@@ -18,16 +20,16 @@ import re
 import threading
 import time
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import zenoh
 
 from rgtbus.bus import keys
-from rgtbus.bus.auth import AuthError
+from rgtbus.bus.auth import AuthError, tag
 from rgtbus.bus.base import QueueBus
-from rgtbus.bus.hello import Hello, check_digest, encode_hello, read_hello
-from rgtbus.bus.payload import encode_telemetry
+from rgtbus.bus.hello import MAX_HELLO, Hello, check_digest, encode_hello, read_hello
+from rgtbus.bus.payload import encode_telemetry, sign_telemetry
 from rgtbus.errors import RgtbusError
 
 _MODES = ("peer", "client", "router")
@@ -172,15 +174,61 @@ def telemetry_key(run_id: str, unit: str) -> str:
 
 
 class TelemetryFeed:
-    """A unit process's log messages on zenoh (``encode_telemetry`` frames); a live sink."""
+    """A unit process's log messages on zenoh (``encode_telemetry`` frames); a live sink. On a
+    keyed run each frame is signed (``sign_telemetry``: the process's nonce, a sequence number,
+    an HMAC tag), so ``rgtbus watch --key-file`` shows only what the run's processes said."""
 
-    def __init__(self, publisher: Any) -> None:
+    def __init__(
+        self,
+        publisher: Any,
+        sign: Callable[[bytes], bytes] | None = None,
+        nonce: bytes = b"",
+    ) -> None:
         self.publisher = publisher
         self.closed = False
+        self.seq = 0
+        self._sign = sign
+        self._nonce = nonce
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
-        if not self.closed:
-            self.publisher.put(encode_telemetry(topic, schema, data, t_ns))
+        if self.closed:
+            return
+        frame = encode_telemetry(topic, schema, data, t_ns)
+        if self._sign is not None:
+            self.seq += 1
+            frame = sign_telemetry(frame, self._nonce, self.seq, self._sign)
+        self.publisher.put(frame)
+
+
+HELLO_QUEUE = 256  # hellos heard, not yet read (more: dropped_overflow; members repeat theirs)
+_REPLIES_PER_ROUND = 2  # immediate join replies per member and 50 ms round (the rest: next round)
+_LATE_ANSWERS_PER_S = 20.0  # answers to hellos heard after the start ("too late")
+_ANSWERED_MAX = 4096  # (unit, nonce) pairs remembered as answered
+
+
+def max_hello(members: Sequence[str]) -> int:
+    """The largest hello a member of this run can say: fixed fields and a tag (~300 bytes) and
+    one ``"unit":"<32 hex>"`` per member heard, with room to spare; larger ones are dropped
+    unread (``dropped_oversize``)."""
+    return min(MAX_HELLO, 1024 + sum(len(u) + 64 for u in members))
+
+
+class _Rate:
+    """A token bucket: ``take()`` at most ``rate`` times a second (bursts of ``burst``)."""
+
+    def __init__(self, rate: float, burst: float) -> None:
+        self.rate, self.burst = rate, burst
+        self.tokens = burst
+        self.at = time.monotonic()
+
+    def take(self) -> bool:
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
+        self.at = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
 
 
 class ZenohBus(QueueBus):
@@ -221,8 +269,12 @@ class ZenohBus(QueueBus):
         self._subscriber: Any = None
         self._hello_sub: Any = None
         self._token: Any = None
-        self._hellos: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+        self._hellos: queue.Queue[bytes] = queue.Queue(maxsize=HELLO_QUEUE)
+        self._hello_prefix = keys.prefix(keys.HELLO, self.run_id)
+        self.max_hello = max_hello(self.members)
         self._joined: tuple[str, str] | None = None  # (unit, digest) once the run has started
+        self._late_answered: set[tuple[str, bytes]] = set()
+        self._late_rate = _Rate(_LATE_ANSWERS_PER_S, _LATE_ANSWERS_PER_S)
         self._owns_session = session is None
         if session is None:
             cfg = make_config(
@@ -253,9 +305,9 @@ class ZenohBus(QueueBus):
         try:
             # Count foreign runs: listen one level wider than our own run's keys.
             sub_key = keys.every_unit(keys.TX, None if count_foreign else self.run_id)
-            put = self._inbox.put
+            deliver = self._deliver  # the gate: bounded work, never blocks
             self._subscriber = session.declare_subscriber(
-                sub_key, lambda s: put((str(s.key_expr), s.payload.to_bytes()))
+                sub_key, lambda s: deliver(str(s.key_expr), s.payload)
             )
             for unit in self.local:
                 # BLOCK: a frame must never be lost to congestion (the run would stall);
@@ -284,7 +336,14 @@ class ZenohBus(QueueBus):
             # DROP: a slow watcher loses telemetry, never delays the run's own frames
             congestion_control=zenoh.CongestionControl.DROP,
         )
-        feed = TelemetryFeed(pub)
+        sign = None
+        if self._key is not None:
+            secret, run_id, nonce = self._key, self.run_id, self.nonce
+
+            def sign(body: bytes) -> bytes:
+                return tag(secret, "telemetry", run_id, unit, nonce, body)
+
+        feed = TelemetryFeed(pub, sign, self.nonce)
         self._telemetry.append(feed)
         return feed
 
@@ -304,15 +363,20 @@ class ZenohBus(QueueBus):
         declared: nobody's first frame can be lost. Refused: a member on another scenario or
         seed (digest differs), two processes claiming one unit, or a run that already started
         (a late joiner). Running members answer late hellos from ``wait``. On a keyed run only
-        hellos with a valid tag count; the nonces heard are what later frames are checked with.
+        hellos with a valid tag count; the nonces heard are what later frames are checked with,
+        from the moment a member's hello proves fresh (it starts sending only once we said we
+        are ready, after that). A hello is answered at once only the first time its (unit,
+        nonce) brings news, and at most a few times a round; the rest wait for the next round
+        and are counted (``hellos_unanswered``): replayed hellos buy no flood of answers.
         """
         self._check_member(unit)
         check_digest(digest)
         members = set(self.members)
         others = members - {unit}
-        put = self._hellos.put
+        hello_gate = self._hello_gate
         self._hello_sub = self.session.declare_subscriber(
-            keys.every_unit(keys.HELLO, self.run_id), lambda s: put(s.payload.to_bytes())
+            keys.every_unit(keys.HELLO, self.run_id),
+            lambda s: hello_gate(str(s.key_expr), s.payload),
         )
         try:
             self._token = self.session.liveliness().declare_token(
@@ -328,7 +392,27 @@ class ZenohBus(QueueBus):
         def done() -> bool:
             return fresh.keys() >= others and ready >= others
 
+        replied: set[tuple[str, bytes, bool]] = set()  # (unit, nonce, fresh) answered at once
+        budget = [0]
+
+        def answer(h: Hello, is_fresh: bool) -> None:
+            """Our hello at once, for news in ``h``: once per (unit, nonce, fresh), a few a
+            round; else counted, and the next round's hello says it."""
+            k = (h.unit, h.nonce, is_fresh)
+            if k in replied or budget[0] <= 0:
+                self._drop(
+                    "hellos_unanswered",
+                    f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
+                    "not answered at once (replayed?)",
+                )
+                return
+            if len(replied) < _ANSWERED_MAX:
+                replied.add(k)
+            budget[0] -= 1
+            self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+
         while True:
+            budget[0] = _REPLIES_PER_ROUND * len(self.members)
             self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
             until = time.monotonic() + 0.05
             while (left := until - time.monotonic()) > 0:
@@ -348,7 +432,7 @@ class ZenohBus(QueueBus):
                     news = echo.get(h.unit) != h.nonce
                     echo[h.unit] = h.nonce
                     if news:  # say so at once: it waits for our echo of its nonce
-                        self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+                        answer(h, False)
                     continue
                 if h.started:
                     raise RgtbusError(
@@ -362,12 +446,15 @@ class ZenohBus(QueueBus):
                     )
                 news = known is None or echo.get(h.unit) != h.nonce
                 fresh[h.unit] = echo[h.unit] = h.nonce
+                # Its frames are checked with this nonce from now on (at the gate): it sends
+                # its first only after our ready, which says we heard it fresh.
+                self._nonces[h.unit] = h.nonce
                 if h.ready:
                     ready.add(h.unit)
                 if done():
                     break
                 if news:
-                    self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+                    answer(h, True)
             if done():
                 self._say_hello(unit, digest, echo, ready=True)
                 # What is queued now was said before the start (a link keeps its order).
@@ -422,9 +509,46 @@ class ZenohBus(QueueBus):
                 continue
             if h.ready and self._nonces.get(h.unit) == h.nonce:
                 continue  # a member's last barrier hello, not a late joiner
-            self._notes.append(f"hello from {h.unit!r} after the start: refused")
+            # A late joiner (or a replay of an old hello): answered once per (unit, nonce), at
+            # a bounded rate; a joiner repeats its hello until answered.
+            pair = (h.unit, h.nonce)
+            if pair in self._late_answered or not self._late_rate.take():
+                self._drop(
+                    "hellos_unanswered",
+                    f"hello from {h.unit!r} after the start (nonce {h.nonce.hex()[:8]}), heard "
+                    "again or too fast: not answered (replayed?)",
+                )
+                continue
+            if len(self._late_answered) < _ANSWERED_MAX:
+                self._late_answered.add(pair)
+            with self._gate_lock:
+                self._notes.append(f"hello from {h.unit!r} after the start: refused")
             echo = {**self._nonces, h.unit: h.nonce}  # answered to it: fresh for it
             self._say_hello(unit, digest, echo, ready=True, started=True)
+
+    def _hello_gate(self, key: str, payload: Any) -> None:
+        """The hello subscriber's callback (a zenoh thread, never blocks): a member's key, at
+        most ``max_hello`` bytes, room in the queue; else dropped and counted."""
+        try:
+            who = key[len(self._hello_prefix) :] if key.startswith(self._hello_prefix) else ""
+            if who not in self._member_set:
+                self._gate_drop("dropped_foreign", key, "hello on a non-member's key", False)
+                return
+            size = len(payload)
+            if size > self.max_hello:
+                self._gate_drop(
+                    "dropped_oversize",
+                    key,
+                    f"hello of {size} bytes, the run's bound is {self.max_hello}",
+                    False,
+                )
+                return
+            raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+            self._hellos.put_nowait(raw)
+        except queue.Full:
+            self._gate_drop("dropped_overflow", key, "hello queue full", False)
+        except Exception as e:  # a callback must not raise (docs/zenoh-notes.md)
+            self._gate_drop("dropped_malformed", key, f"hello: {type(e).__name__}", False)
 
     def _send(self, key: str, data: bytes) -> None:
         # Our own units' keys go through their declared publishers; anything else (put_raw)

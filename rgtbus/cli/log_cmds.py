@@ -1,5 +1,11 @@
 """``rgtbus info LOG``, ``rgtbus cat LOG`` and ``rgtbus scenario LOG``: the log tools users of
-``mcap`` and ``ros2 bag`` expect (rgtbus/telemetry/logtools.py)."""
+``mcap`` and ``ros2 bag`` expect (rgtbus/telemetry/logtools.py).
+
+Each opens its log with ``check_log``, which checks it whole before anything is printed. Exit
+codes, as ``rgtbus replay``'s: 0 read; 2 unreadable, not MCAP, corrupt (a chunk, data-section
+or summary CRC mismatch, a damaged record), only a header, or not an rgtbus run log: one line,
+nothing on stdout; 3 truncated (a killed run): what is there is printed, and one line on stderr
+says where the log ends and the last log time read."""
 
 from __future__ import annotations
 
@@ -9,15 +15,18 @@ import sys
 
 from rgtbus.cli import add_quiet_argument
 
+EXIT_TRUNCATED = 3  # as rgtbus replay's (rgtbus.telemetry.verify.EXIT_TRUNCATED)
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "info",
         help="a log at a glance: duration, messages per topic, scenario, seed, outcome",
-        description="What a run's MCAP log holds, read from its summary section (fast on large "
-        "logs; a log cut short is read record by record and says so): duration, messages "
-        "per topic with their schemas, compression, scenario, seed, rgtbus version, units, "
-        "outcome.",
+        description="What a run's MCAP log holds, read from its summary section once its CRCs "
+        "have checked the whole file (fast on large logs; a log cut short is read record by "
+        "record and says so): duration, messages per topic with their schemas, compression, "
+        "scenario, seed, rgtbus version, units, outcome. Exit 0: read; 2: unreadable, "
+        "corrupt, header-only or not an rgtbus log; 3: truncated.",
     )
     p.add_argument("log", metavar="LOG", help="an MCAP log written by rgtbus")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -53,28 +62,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     s.set_defaults(func=scenario)
 
 
+def _ended(note: str) -> int:
+    """A log that ends early was read as far as it goes: one line saying so, exit 3 (as
+    ``rgtbus replay``)."""
+    if not note:
+        return 0
+    sys.stdout.flush()
+    print(f"note: {note}", file=sys.stderr)
+    return EXIT_TRUNCATED
+
+
 def info(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import info_text, log_info
+    from rgtbus.telemetry.recorder import check_log
 
-    data = log_info(args.log)
+    with check_log(args.log) as log:
+        data = log_info(log)
     print(json.dumps(data) if args.json else info_text(data))
-    return 0
+    return _ended(log.note)
 
 
 def cat(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import cat_messages
+    from rgtbus.telemetry.recorder import check_log
 
     out = sys.stdout
-    for msg in cat_messages(
-        args.log, topics=args.topic, unit=args.unit, t_from=args.t_from, t_to=args.t_to
-    ):
-        out.write(json.dumps(msg) + "\n")
-    return 0
+    with check_log(args.log) as log:
+        for msg in cat_messages(
+            log, topics=args.topic, unit=args.unit, t_from=args.t_from, t_to=args.t_to
+        ):
+            out.write(json.dumps(msg) + "\n")
+    return _ended(log.note)
 
 
 def scenario(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import stored_scenario
+    from rgtbus.telemetry.recorder import check_log
 
-    text = stored_scenario(args.log)
+    with check_log(args.log) as log:
+        text = stored_scenario(log)
     sys.stdout.write(text if text.endswith("\n") else text + "\n")
-    return 0
+    return _ended(log.note)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import table_lines
@@ -46,25 +47,46 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_plan)
 
 
+def _check_size(args: argparse.Namespace) -> None:
+    """The plan's run is bounded as a scenario's is (docs/scenarios.md, "Budgets"): N units
+    by the decodes of a run with one influence round, the sample rate by the samples of a run
+    at the default max_seconds (3600 s) and of a default window (0.1 s)."""
+    from rgtbus.scenario import limits
+
+    try:
+        checks = [
+            (f"N = {args.n}", limits.DECODES, limits.decodes(args.n, 1)),
+            (f"--sample-rate {args.sample_rate:g}", limits.SAMPLES, 3600 * args.sample_rate),
+            (f"--sample-rate {args.sample_rate:g}", limits.WINDOW_SAMPLES, 0.1 * args.sample_rate),
+        ]
+        for what, budget, estimate in checks:
+            why = limits.over_budget(budget, estimate)
+            if why:
+                raise RgtbusError(f"{what}: a run of this plan: {why}")
+    except OverflowError:  # N beyond floats: beyond every budget
+        raise RgtbusError(f"N = {args.n}: far beyond every budget") from None
+
+
 def run_plan(args: argparse.Namespace) -> int:
     from rgtbus.protocol import plan_of
-    from rgtbus.signal.plan import make_plan
+    from rgtbus.scenario import limits
+    from rgtbus.signal.plan import MAX_PLAN_PULSES, crosstalk_size, make_plan
 
     if not args.n >= 1:
         raise RgtbusError(f"N = {args.n}: must be a positive number of units")
-    if not args.sample_rate > 0:
-        raise RgtbusError(f"--sample-rate {args.sample_rate}: must be positive")
-    if args.pulses is not None and args.pulses < 1:
-        raise RgtbusError(f"--pulses {args.pulses}: must be a positive integer")
+    if not (math.isfinite(args.sample_rate) and args.sample_rate > 0):
+        raise RgtbusError(f"--sample-rate {args.sample_rate}: must be a positive finite number")
+    if args.pulses is not None and not 1 <= args.pulses <= MAX_PLAN_PULSES:
+        raise RgtbusError(f"--pulses {args.pulses}: must be an integer 1..{MAX_PLAN_PULSES}")
+    _check_size(args)
     tau = 1.0 / args.sample_rate
-    plan = make_plan(
-        args.n,
-        schedule=args.schedule,
-        pulses=args.pulses,
-        mode=args.mode,
-        tau=tau,
-        crosstalk=not args.no_crosstalk,
-    )
+    options = {"schedule": args.schedule, "pulses": args.pulses, "mode": args.mode, "tau": tau}
+    plan = make_plan(args.n, crosstalk=False, **options)
+    if not args.no_crosstalk:  # its simulation counted before it runs
+        why = limits.over_budget(limits.CROSSTALK, crosstalk_size(plan.omegas, plan.pulses, tau))
+        if why:
+            raise RgtbusError(f"the crosstalk simulation: {why}; or plan with --no-crosstalk")
+        plan = make_plan(args.n, crosstalk=True, **options)
     out = plan.to_json()
     if args.schedule == "concurrent":
         units = tuple(f"u{i}" for i in range(args.n))

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import signal
 import sys
+import threading
 from pathlib import Path
 
 
@@ -83,15 +86,30 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
     # the same call as rgtbus.sweep(): a Sweep (here from the file) run by execute_sweep
     sweep = load_sweep(args.sweep)
     out = Path(args.out) if args.out else Path("logs") / "sweeps" / sweep.name
-    rows = execute_sweep(
-        sweep,
-        out,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        resume=args.resume,
-        logs=args.logs,
-        progress=not args.quiet and sys.stderr.isatty(),
-    )
+    # SIGTERM (a scheduler or a supervisor stopping the sweep) stops it like Ctrl-C
+    main_thread = threading.current_thread() is threading.main_thread()
+    term = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None
+    sigint = signal.getsignal(signal.SIGINT)
+    try:
+        rows = execute_sweep(
+            sweep,
+            out,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            resume=args.resume,
+            logs=args.logs,
+            progress=not args.quiet and sys.stderr.isatty(),
+        )
+    except KeyboardInterrupt:
+        if main_thread:  # a second Ctrl-C does not cut the note short
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print(_interrupted(args, sweep.runs, out), file=sys.stderr, flush=True)
+        return 130
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, term)
+            if sigint is not None:
+                signal.signal(signal.SIGINT, sigint)
     failed = sum(1 for r in rows if r.get("failed"))
     if args.json:
         for r in rows:
@@ -102,6 +120,29 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
             f"{out / 'results.parquet'}, {out / 'results.csv'}, {out / 'decisions.parquet'}"
         )
     return 0
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _interrupted(args: argparse.Namespace, runs: int, out: Path) -> str:
+    """The one line of a stopped sweep: how many runs are kept, and how to finish."""
+    rows = out / "rows.jsonl"
+    try:
+        with open(rows, "rb") as f:
+            kept = sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+    except OSError:
+        kept = 0
+    again = ["rgtbus", "sweep", args.sweep, "--out", str(out), "--resume"]
+    if args.workers:
+        again[-1:-1] = ["--workers", str(args.workers)]
+    if args.scheduler:
+        again[-1:-1] = ["--scheduler", args.scheduler]
+    return (
+        f"rgtbus sweep: interrupted: {kept} of {runs} runs are in {rows}; to finish: "
+        + " ".join(shlex.quote(a) for a in again)
+    )
 
 
 def run_sweep_plot_cmd(args: argparse.Namespace) -> int:

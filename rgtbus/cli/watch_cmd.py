@@ -8,7 +8,7 @@ import time
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
-from rgtbus.cli.run_cmd import LIVE_ADDRESS
+from rgtbus.cli.run_cmd import LIVE_ADDRESS, read_key
 from rgtbus.errors import RgtbusError
 
 
@@ -30,6 +30,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f"where to serve the live view (default {LIVE_ADDRESS}; port 0: any free port)",
     )
     w.add_argument(
+        "--key-file",
+        metavar="FILE",
+        help="the run's shared secret (its --key-file): show only telemetry signed with it; "
+        "without it, a keyed run's (signed) telemetry is not shown (docs/security.md)",
+    )
+    w.add_argument(
         "--idle-exit",
         type=float,
         metavar="S",
@@ -46,15 +52,20 @@ def run_watch(args: argparse.Namespace) -> int:
     if args.idle_exit is not None and not args.idle_exit > 0:
         raise RgtbusError(f"--idle-exit {args.idle_exit}: must be a positive number of seconds")
     host, port = parse_address(args.live)
+    key = read_key(args)
     say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    with LiveView(host, port, name="rgtbus watch", linger=1.0) as live:
+    with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say) as live:
         live.advertise(_topics())
-        with Watcher(live, run_id=args.run, **zenoh_options(args)) as watcher:
+        with Watcher(live, run_id=args.run, key=key, **zenoh_options(args)) as watcher:
             say(f"watch: serving {live.url} (listening for the telemetry of run {args.run})")
             subscribed = 0
+            hinted = False
             try:
                 while True:
                     time.sleep(0.1)
+                    if watcher.drops["signed"] and not hinted:
+                        hinted = True
+                        say("watch: the run is keyed: its telemetry is shown with --key-file")
                     now = len(live.subscriptions.pairs)
                     settled = time.monotonic() - live.subscriptions.last_change > 0.3
                     if now != subscribed and settled:
@@ -66,10 +77,11 @@ def run_watch(args: argparse.Namespace) -> int:
                         break
             except KeyboardInterrupt:
                 pass
+            drops = ", ".join(f"{n} {why}" for why, n in watcher.drops.items() if n)
             say(
                 f"watch: {watcher.received} messages from run(s) "
                 f"{', '.join(sorted(watcher.runs)) or '(none)'}"
-                + (f"; {watcher.dropped} frames dropped (not telemetry)" if watcher.dropped else "")
+                + (f"; {watcher.dropped} frames dropped ({drops})" if watcher.dropped else "")
             )
     return 0
 

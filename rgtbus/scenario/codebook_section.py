@@ -9,6 +9,7 @@ from typing import Any
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
+from rgtbus.scenario.limits import CODEBOOK_SEARCH, codebook_search, over_budget
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, is_int
 from rgtbus.signal.codebook import (
     Codebook,
@@ -58,6 +59,13 @@ def codebook_of(ctx: Ctx, spec: Any, universe: Universe) -> Codebook:
     key = None if isinstance(spec, dict) else "codebook"
     # Options are checked first and blamed by name; the builders' own refusals name the table.
     options = _options_of(ctx, kind, opts)
+    if kind == "generated":  # its search is counted before it starts (docs: "Budgets")
+        k = len(universe.actions)
+        why = over_budget(CODEBOOK_SEARCH, codebook_search(k, options["pulses"]))
+        if why:
+            raise ctx.error(
+                section, key, f"generated for {k} actions at N = {options['pulses']}: {why}"
+            )
     try:
         cb = _build(kind, opts, options, universe)
     except RgtbusError as exc:

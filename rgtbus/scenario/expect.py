@@ -65,6 +65,26 @@ def expect_of(
     return out
 
 
+# Influence rounds a dynamics needs before it can be seen (rgtbus.mind.round_dynamics): one
+# round tells nothing; a fixed point, or neither, shows from the second; a cycle (a round equal
+# to one at least two before) from the third.
+DYNAMICS_ROUNDS = {"fixed point": 2, "neither": 2, "cycle": 3}
+
+
+def check_expected_dynamics(ctx: Ctx, expect: dict[str, Any], influence_rounds: int) -> None:
+    """``[expect] dynamics`` the run's influence rounds could show (a check that can never
+    hold is refused at load, not failed after the run)."""
+    want = expect.get("dynamics")
+    need = DYNAMICS_ROUNDS.get(want) if isinstance(want, str) else None
+    if need is not None and influence_rounds < need:
+        raise ctx.error(
+            "expect",
+            "dynamics",
+            f"{want!r} shows only from {need} influence rounds, and the run has "
+            f"{influence_rounds} (protocol.influence_rounds)",
+        )
+
+
 def check_expected_goals(ctx: Ctx, expect: dict[str, Any], goals: tuple[Goal, ...]) -> None:
     """``[expect.goals]`` names only units that have goals."""
     for who in expect.get("goals", {}):

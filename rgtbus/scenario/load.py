@@ -6,7 +6,6 @@ from __future__ import annotations
 import errno
 import os
 import re
-import stat
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -16,11 +15,12 @@ from rgtbus.scenario.channel import channel_of
 from rgtbus.scenario.codebook_section import codebook_of, default_codebook, mode_of
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.decisions import decisions_of
-from rgtbus.scenario.expect import check_expected_goals, expect_of
+from rgtbus.scenario.expect import check_expected_dynamics, check_expected_goals, expect_of
 from rgtbus.scenario.frequencies import frequencies_of
 from rgtbus.scenario.goals import goals_of
 from rgtbus.scenario.group import description_of, group_of
 from rgtbus.scenario.influences import influences_of
+from rgtbus.scenario.limits import check_size, key_depth_error, nesting_error, read_regular
 from rgtbus.scenario.model import Scenario
 from rgtbus.scenario.outcome import outcome_of
 from rgtbus.scenario.relations import relations_of
@@ -72,20 +72,17 @@ def load_scenario(source: str | os.PathLike[str]) -> Scenario:
 
 
 def _read_file(p: Path, where: str) -> bytes:
-    """The file's bytes, at most one past the limit; one line if it is not a readable file."""
+    """The file's bytes, at most one past the limit; one line if it is not a readable regular
+    file (a directory, FIFO, device or socket is refused before a byte is read)."""
     try:
-        mode = p.stat().st_mode
-        if stat.S_ISDIR(mode):
-            raise RgtbusError(f"cannot read scenario {where!r}: is a directory")
-        if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
-            raise RgtbusError(f"cannot read scenario {where!r}: not a regular file")
-        with open(p, "rb") as f:
-            data = f.read(MAX_SCENARIO_BYTES + 1)
+        data = read_regular(p, "scenario", MAX_SCENARIO_BYTES)
     except OSError as exc:
         hint = ""
         if exc.errno == errno.ENOENT and is_name(where):
             hint = ", nor the name of a shipped scenario (rgtbus scenarios lists them)"
         raise RgtbusError(f"cannot read scenario {where!r}: {exc.strerror}{hint}") from None
+    except RgtbusError:  # already one line (a directory, a FIFO, a device)
+        raise
     except ValueError as exc:  # a NUL in the path
         raise RgtbusError(f"cannot read scenario {where!r}: {exc}") from None
     if len(data) > MAX_SCENARIO_BYTES:
@@ -116,12 +113,19 @@ def _decode_text(data: bytes, where: str) -> str:
 
 
 def _toml_of(text: str, path: str) -> dict[str, Any]:
+    too_deep = nesting_error(text, path)  # before tomllib, which recurses
+    if too_deep:
+        raise RgtbusError(too_deep)
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
         where = f"{path}:{m.group(1)}" if m else path
         raise RgtbusError(f"{where}: not valid TOML: {exc}") from None
+    too_deep = key_depth_error(data, text, path)
+    if too_deep:
+        raise RgtbusError(too_deep)
+    return data
 
 
 def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
@@ -134,6 +138,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     protocol = protocol_of(ctx, data)
     timing = timing_of(ctx, data, protocol.schedule)
+    # How big the run would be, before anything is built (the codebook's search: codebook_of).
+    check_size(ctx, data, len(units), protocol.influence_rounds, timing)
     mode = mode_of(ctx, data)
     # No codebook given: the paper's (one or two actions), else the shortest generated one.
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
@@ -146,6 +152,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     goals = goals_of(ctx, sub_table(ctx, data, "goals"), units, universe, decisions, outcome)
     expect = expect_of(ctx, sub_table(ctx, data, "expect"), units, universe, outcome)
     check_expected_goals(ctx, expect, goals)
+    check_expected_dynamics(ctx, expect, protocol.influence_rounds)
     return Scenario(
         name=group.name,
         path=path,

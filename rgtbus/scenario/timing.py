@@ -8,6 +8,7 @@ from typing import Any
 
 from rgtbus.protocol import ANCHORS
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
+from rgtbus.scenario.limits import MAX_SECONDS
 from rgtbus.scenario.model import Timing
 
 TIMING_KEYS = {
@@ -57,6 +58,9 @@ def _values_of(ctx: Ctx, t: dict[str, Any]) -> dict[str, float]:
         if key != "anchor":
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ctx.error("timing", key, f"must be a finite number, got {v!r}")
+            # log times are 64-bit nanoseconds (the window is bounded by reaction_delay)
+            if key not in ("sample_rate", "window") and v > MAX_SECONDS:
+                raise ctx.error("timing", key, f"must be at most {MAX_SECONDS:g} s, got {v!r}")
             values[key] = float(v)
             if key == "start":
                 if v < 0:

@@ -142,6 +142,42 @@ def max_units(pulses: int = 3) -> int:
     return 1 + math.floor(math.log(2) / math.log(step) - 1e-9)
 
 
+MAX_PLAN_PULSES = 10_000  # beyond, a code outlasts any resonator's memory (rule decay)
+
+
+def pulses_for(n: int) -> int | None:
+    """The fewest pulses a code (from 3) whose 0.3/N spacing fits n channels in one octave;
+    None when no N up to ``MAX_PLAN_PULSES`` does (max_units grows about as 2.3·N)."""
+    if max_units(MAX_PLAN_PULSES) < n:
+        return None
+    lo, hi = 3, MAX_PLAN_PULSES  # max_units is non-decreasing in N: bisect
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if max_units(mid) >= n:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+def check_tau(tau: float) -> None:
+    """A sample period a plan can use: positive and finite (1/inf samples a second is 0)."""
+    if (
+        isinstance(tau, bool)
+        or not isinstance(tau, int | float)
+        or not (math.isfinite(tau) and tau > 0)
+    ):
+        raise RgtbusError(f"tau = {tau!r} s: the sample period must be positive and finite")
+
+
+def crosstalk_size(omegas: Sequence[float], pulses: int, tau: float) -> float:
+    """The work of ``crosstalk_peak`` before it starts: n² resonators (a receiver per
+    channel, each with every channel) through the longest ID plus one period, in samples."""
+    slowest = min(omegas)
+    length = (pulses - 1) * 2 * PI / slowest / tau + 2 * PI / slowest / tau + 3
+    return float(len(omegas)) ** 2 * length
+
+
 def auto_plan(
     n: int,
     *,
@@ -174,10 +210,11 @@ def auto_plan(
         return list(PAPER_OMEGAS[:n])
     squeeze = schedule == "concurrent" and n > max_units(pulses)
     if n > max_units(pulses) and not squeeze:
-        more = next(p for p in range(pulses, 10_000) if max_units(p) >= n)
+        more = pulses_for(n)
+        use = f"use at least {more} pulses" if more else "use the concurrent schedule"
         raise RgtbusError(
             f"rule octave/spacing: {n} units do not fit one octave at 0.3/N spacing with "
-            f"N = {pulses} pulses (at most {max_units(pulses)}); use at least {more} pulses"
+            f"N = {pulses} pulses (at most {max_units(pulses)}); {use}"
         )
     ratio = 2 ** (1 / n) if squeeze else 1 + SPACING_FACTOR / pulses
     if omega_min is None:
@@ -284,12 +321,15 @@ def make_plan(
         raise RgtbusError(f"unknown schedule {schedule!r} (serial or concurrent)")
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise RgtbusError(f"number of units {n!r} must be a positive integer")
+    check_tau(tau)
     if pulses is None:
-        pulses = (
-            3
-            if schedule == "concurrent"
-            else next(p for p in range(3, 10_000) if max_units(p) >= n)
-        )
+        fit = 3 if schedule == "concurrent" else pulses_for(n)
+        if fit is None:
+            raise RgtbusError(
+                f"no plan for {n} units (serial): no code of up to {MAX_PLAN_PULSES} pulses "
+                "fits them in one octave; use the concurrent schedule"
+            )
+        pulses = fit
     modes = [mode] if mode is not None else ["paper", "exact"]
     errors = []
     for m in modes:

@@ -14,6 +14,19 @@ message is not sent when written but when due: at wall time
 (``origin``: ``begin()``, just before the run starts) a thread releases every message whose
 log time t has come, and broadcasts the time. Unpaced, a message goes out when written.
 
+Bounded, whatever the clients do. Handing a message to the server costs ~0.5 µs per client
+(each gets a copy, under the GIL). While that is cheap (``_DIRECT``, measured as it goes),
+``put`` hands an unpaced message over itself; when it is not (many clients), ``put`` only
+queues, and the view's thread hands messages over in batches, resting in proportion to its work
+(``_SHARE``: 10% of the time at most; the server's own threads still write to every client's
+socket, measured: 120 clients cost a traced gate run ~1.3x). What is queued and not
+yet handed over is capped (``queue_bytes``: beyond it the oldest messages are dropped, counted
+in ``dropped``); the server keeps at most ``backlog`` messages per client (the SDK drops a slow
+client's oldest first), so a client that never reads costs at most its backlog; at most
+``max_channels`` topics are served (more: counted in ``refused``). ``close`` gives the server
+``STOP_TIMEOUT`` seconds to stop: a client that no longer reads holds the SDK's last close frame
+forever, and is left behind (said on stderr) rather than waited for.
+
 What the server speaks: foxglove-sdk 0.30's WebSocket server, subprotocol ``foxglove.sdk.v1``
 (Foxglove desktop and app.foxglove.dev: "Open connection", "Foxglove WebSocket",
 ``ws://HOST:PORT``). See docs/foxglove.md.
@@ -23,9 +36,11 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import sys
 import threading
 import time
-from collections.abc import Iterable
+from collections import deque
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import foxglove
@@ -37,6 +52,20 @@ from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
 _TICK = 0.05  # s of wall time between time broadcasts while paced and idle
+BACKLOG = 4096  # messages per client in the server (~1 MB of a traced gate's; oldest dropped)
+QUEUE_BYTES = 32 << 20  # put, not yet handed to the server (beyond: the oldest dropped)
+MAX_CHANNELS = 1024  # topics served (a run's own: ~12, plus one /trace/<unit> per unit)
+STOP_TIMEOUT = 2.0  # s that close() waits for the server to stop
+FLUSH_TIMEOUT = 2.0  # s that close() gives the view's thread to hand over what is queued
+_BATCH = 256  # messages handed over between two chances for the run's thread to run
+_SHARE = 0.1  # at most this share of the time handing messages over (the GIL is the run's too)
+_DIRECT = 10e-6  # s a message: cheaper than this (a few clients), put() hands it over itself
+_SAMPLE = 16  # put() measures what one message in this many costs (its thread's CPU time)
+_OVERHEAD = 160  # bytes counted per queued message besides its topic and data (the tuple etc.)
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
 
 
 def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
@@ -81,8 +110,9 @@ class LiveView:
     """Serves a run's messages over the Foxglove WebSocket protocol; see the module docstring.
 
     ``put`` is what a recorder calls for every message (``McapRecorder(live=...)``); a watcher
-    of a cross-process run calls it for what it hears. ``close`` releases what is still queued,
-    gives subscribed clients up to ``linger`` seconds to take it and leave, and stops.
+    of a cross-process run calls it for what it hears (from any thread: it only queues).
+    ``close`` releases what is still queued, gives subscribed clients up to ``linger`` seconds
+    to take it and leave, and stops. ``say`` gets the view's warnings (default: stderr).
     """
 
     def __init__(
@@ -92,14 +122,20 @@ class LiveView:
         *,
         realtime: float | None = None,
         name: str = "rgtbus",
-        backlog: int = 1 << 16,
+        backlog: int = BACKLOG,
         linger: float = 2.0,
+        queue_bytes: int = QUEUE_BYTES,
+        max_channels: int = MAX_CHANNELS,
+        say: Callable[[str], None] | None = None,
     ) -> None:
         if realtime is not None and not realtime > 0:
             raise RgtbusError(f"realtime {realtime}: must be a positive factor")
         self.host = host
         self.realtime = realtime
         self.linger = linger
+        self.queue_bytes = queue_bytes
+        self.max_channels = max_channels
+        self._say = say or _stderr
         self.context = foxglove.Context()
         self.subscriptions = _Subscriptions()
         try:
@@ -115,16 +151,26 @@ class LiveView:
         except Exception as exc:  # the SDK raises its own error type for a port in use
             raise RgtbusError(f"live view on {host}:{port}: cannot listen: {exc}") from None
         self._channels: dict[str, foxglove.Channel] = {}
-        self._queue: list[tuple[int, int, str, str, bytes]] = []
+        self._queue: list[tuple[int, int, str, str, bytes]] = []  # paced: by due time
+        self._fifo: deque[tuple[int, int, str, str, bytes]] = deque()  # unpaced: as put
+        self._queued = 0  # bytes in _queue or _fifo
         self._order = itertools.count()
-        self._wake = threading.Condition()
+        self._wake = threading.Condition(threading.Lock())
         self._origin: float | None = None
         self._time = 0  # the latest log time sent, ns
         self._computed = 0  # the latest log time put (a paced clock never runs past it)
         self._last_broadcast = 0.0
         self._closing = False
-        self._thread: threading.Thread | None = None
+        self._abandon = False  # close() ran out of time: drop what is left
+        self._sending = False  # someone is handing messages to the server (one at a time)
+        self._cost = 0.0  # s a message costs the server (moving average)
+        self._direct_count = 0
         self.sent = 0  # messages released to the server
+        self.dropped = 0  # put, never released: the view fell behind by more than queue_bytes
+        self.refused = 0  # on a topic beyond max_channels
+        self.stop_problem: str | None = None  # the server did not stop in time
+        self._thread = threading.Thread(target=self._release_loop, name="live", daemon=True)
+        self._thread.start()
 
     # -- set-up ---------------------------------------------------------------------------------
 
@@ -160,24 +206,62 @@ class LiveView:
 
     def begin(self) -> None:
         """The run starts now: simulated time 0 is this wall instant (paced runs)."""
-        self._origin = time.monotonic()
-        if self.realtime is not None and self._thread is None:
-            self._thread = threading.Thread(target=self._release_loop, name="live", daemon=True)
-            self._thread.start()
+        with self._wake:
+            self._origin = time.monotonic()
+            self._wake.notify()
 
     # -- messages -------------------------------------------------------------------------------
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
-        if self.realtime is None:
+        """Offer one message: unpaced and cheap (a few clients), handed to the server at once;
+        else queued for the view's thread. Never waits for the server or a client."""
+        if self.realtime is None and self._direct(topic, schema, data, t_ns):
+            return
+        # A copy: the recorder's JSON (orjson's bytes) keeps ~4 KB of allocation behind each
+        # ~200-byte message (measured, orjson 3.13), which the queue's budget would not see.
+        item = (t_ns, next(self._order), topic, schema, bytes(memoryview(data)))
+        with self._wake:
+            if self._closing:
+                self.dropped += 1
+                return
+            self._queued += len(data) + len(topic) + _OVERHEAD
+            if self.realtime is None:
+                self._fifo.append(item)
+                wake = len(self._fifo) == 1  # the thread takes what piles up meanwhile
+            else:
+                self._computed = max(self._computed, t_ns)
+                heapq.heappush(self._queue, item)
+                wake = self._queue[0] is item  # due before what the thread sleeps for
+            while self._queued > self.queue_bytes:  # the view fell behind: the oldest go
+                old = self._fifo.popleft() if self.realtime is None else heapq.heappop(self._queue)
+                self._queued -= len(old[4]) + len(old[2]) + _OVERHEAD
+                self.dropped += 1
+                wake = True
+            if wake:
+                self._wake.notify()
+
+    def _direct(self, topic: str, schema: str, data: bytes, t_ns: int) -> bool:
+        """Hand one message to the server from the caller's thread, if that is cheap (what a
+        message costs is measured, per message, as it goes) and nothing is queued before it;
+        whether it did. A thread hop a message would cost the run more than the server does
+        with a few clients; with many, the view's thread takes over, at its bounded share."""
+        with self._wake:
+            if self._sending or self._fifo or self._closing or self._cost > _DIRECT:
+                return False
+            self._sending = True
+            self._direct_count += 1
+            sample = self._direct_count % _SAMPLE == 0
+        try:
+            t0 = time.thread_time() if sample else 0.0  # CPU time: not the GIL's waits
             self._send(topic, schema, data, t_ns)
             if time.monotonic() - self._last_broadcast >= _TICK:
                 self._broadcast(self._time)
-            return
-        with self._wake:
-            self._computed = max(self._computed, t_ns)
-            heapq.heappush(self._queue, (t_ns, next(self._order), topic, schema, data))
-            if self._queue[0][0] == t_ns:  # due before what the thread sleeps for
-                self._wake.notify()
+            cost = time.thread_time() - t0 if sample else 0.0
+        finally:
+            self._sending = False  # a plain store: the thread reads it under the lock
+        if sample:
+            self._cost += (cost - self._cost) * 0.25
+        return True
 
     def due_wall(self, t_ns: int) -> float:
         """The monotonic wall time at which a message of log time ``t_ns`` is due."""
@@ -186,14 +270,19 @@ class LiveView:
 
     def _send(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
         channel = self._channels.get(topic) or self._channel(topic, schema)
+        if channel is None:
+            self.refused += 1
+            return
         channel.log(data, log_time=t_ns)
         self.sent += 1
         if t_ns > self._time:
             self._time = t_ns
 
-    def _channel(self, topic: str, schema: str) -> foxglove.Channel:
+    def _channel(self, topic: str, schema: str) -> foxglove.Channel | None:
         channel = self._channels.get(topic)
         if channel is None:
+            if len(self._channels) >= self.max_channels:
+                return None
             channel = self._channels[topic] = topic_channel(self.context, topic, schema)
         return channel
 
@@ -202,36 +291,81 @@ class LiveView:
         self.server.broadcast_time(int(t_ns))
 
     def _release_loop(self) -> None:
-        assert self.realtime is not None and self._origin is not None
-        per_ns = seconds(1) / self.realtime
+        """The view's thread: hands queued messages to the server (paced: once due), a batch
+        at a time, and broadcasts the time."""
+        paced = self.realtime is not None
+        per_ns = seconds(1) / self.realtime if self.realtime is not None else 0.0
         while True:
             with self._wake:
-                now = time.monotonic()
-                clock = int((now - self._origin) / per_ns)
-                due = []
-                while self._queue and (self._queue[0][0] <= clock or self._closing):
-                    due.append(heapq.heappop(self._queue))
+                due: list[tuple[int, int, str, str, bytes]] = []
+                if not paced:
+                    while self._fifo and len(due) < _BATCH:
+                        due.append(self._fifo.popleft())
+                elif self._origin is not None:
+                    clock = int((time.monotonic() - self._origin) / per_ns)
+                    while (
+                        self._queue
+                        and len(due) < _BATCH
+                        and (self._queue[0][0] <= clock or self._closing)
+                    ):
+                        due.append(heapq.heappop(self._queue))
+                for item in due:
+                    self._queued -= len(item[4]) + len(item[2]) + _OVERHEAD
+                if due and not paced and self._sending:  # put() is sending one: next round
+                    self._fifo.extendleft(reversed(due))
+                    for item in due:
+                        self._queued += len(item[4]) + len(item[2]) + _OVERHEAD
+                    due = []
                 if not due:
                     if self._closing:
                         return
-                    nxt = self._queue[0][0] if self._queue else None
-                    wait = _TICK if nxt is None else (nxt - clock) * per_ns
+                    wait = _TICK
+                    if paced and self._origin is not None and self._queue:
+                        wait = (self._queue[0][0] - clock) * per_ns
                     self._wake.wait(max(0.0005, min(_TICK, wait)))
-            for t_ns, _, topic, schema, data in due:
-                self._send(topic, schema, data, t_ns)
-            now_clock = int((time.monotonic() - self._origin) / per_ns)
-            self._broadcast(max(self._time, min(now_clock, self._computed)))
+                    if not paced or self._origin is None:
+                        continue
+                abandon, closing = self._abandon, self._closing
+                if abandon:
+                    self.dropped += len(due)
+                self._sending = bool(due)
+            busy, cpu = time.perf_counter(), time.thread_time()
+            try:
+                if not abandon:
+                    for t_ns, _, topic, schema, data in due:
+                        self._send(topic, schema, data, t_ns)
+            finally:
+                with self._wake:
+                    self._sending = False
+            busy = time.perf_counter() - busy
+            if due and not abandon:
+                self._cost += ((time.thread_time() - cpu) / len(due) - self._cost) * 0.5
+            if paced and self._origin is not None:
+                now_clock = int((time.monotonic() - self._origin) / per_ns)
+                self._broadcast(max(self._time, min(now_clock, self._computed)))
+            elif time.monotonic() - self._last_broadcast >= _TICK:
+                self._broadcast(self._time)
+            if due and not closing and self._cost > _DIRECT:
+                # The server's work grows with its clients (each message is copied to each one,
+                # holding the GIL): rest in proportion, so the run keeps at least 1 - _SHARE of
+                # the time however many clients there are; the queue drops what piles up.
+                time.sleep(busy * (1 - _SHARE) / _SHARE)
 
     # -- the end --------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Release what is queued, give subscribed clients ``linger`` s to leave, stop."""
-        if self._closing:
-            return
+        """Release what is queued (for up to ``FLUSH_TIMEOUT`` s: what is left then is
+        dropped), give subscribed clients ``linger`` s to leave, stop the server (waiting at
+        most ``STOP_TIMEOUT`` s: a client that no longer reads is left behind)."""
         with self._wake:
+            if self._closing:
+                return
             self._closing = True
             self._wake.notify()
-        if self._thread is not None:
+        self._thread.join(max(FLUSH_TIMEOUT, self.linger))
+        if self._thread.is_alive():  # the clients take too long: what is left is dropped
+            with self._wake:
+                self._abandon = True
             self._thread.join()
         self._broadcast(self._time)
         subs = self.subscriptions
@@ -239,7 +373,33 @@ class LiveView:
         with subs.changed:
             while subs.pairs and time.monotonic() < deadline:
                 subs.changed.wait(max(0.01, deadline - time.monotonic()))
-        self.server.stop()
+        stopped = threading.Event()
+
+        def stop() -> None:
+            try:
+                self.server.stop()
+            finally:
+                stopped.set()
+
+        # The SDK's stop waits for every client's last frame to be written: forever, for a
+        # client that stopped reading. A daemon thread never holds up the interpreter's exit.
+        threading.Thread(target=stop, name="live-stop", daemon=True).start()
+        if not stopped.wait(STOP_TIMEOUT):
+            self.stop_problem = (
+                f"live: the server did not stop within {STOP_TIMEOUT:g} s (a client that no "
+                "longer reads?): left to stop in the background"
+            )
+            self._say(self.stop_problem)
+        if self.dropped or self.refused:
+            what = []
+            if self.dropped:
+                what.append(
+                    f"{self.dropped} messages dropped (the view fell more than "
+                    f"{self.queue_bytes >> 20} MiB behind the run)"
+                )
+            if self.refused:
+                what.append(f"{self.refused} refused (more than {self.max_channels} topics)")
+            self._say(f"live: {'; '.join(what)}; the log has every message")
 
     def __enter__(self) -> LiveView:
         return self

@@ -4,6 +4,10 @@
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
+import os
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO
 
@@ -14,10 +18,60 @@ if TYPE_CHECKING:
     from rgtbus.telemetry.recorder import McapRecorder
 
 
+def _lock_holder(fd: int) -> str:
+    """Who holds the lock on the file ``fd`` is open on: " (pid N)" from /proc/locks (Linux),
+    else nothing."""
+    try:
+        st = os.fstat(fd)
+        here = (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino)
+        with open("/proc/locks") as f:
+            for line in f:
+                # "1: FLOCK  ADVISORY  WRITE 12345 08:01:123456 0 EOF" (a waiter has "->")
+                fields = line.split()
+                if len(fields) >= 6 and fields[1] == "FLOCK":
+                    major, minor, inode = fields[5].split(":")
+                    if (int(major, 16), int(minor, 16), int(inode)) == here:
+                        return f" (pid {fields[4]})"
+    except (OSError, ValueError):
+        pass
+    return ""
+
+
+def _open_locked(path: Path) -> BinaryIO:
+    """``path`` opened for writing, held by an exclusive lock for as long as it is open (so a
+    second run given the same log is refused before it writes a byte), then emptied. A device
+    or another file that is not a regular one (``/dev/full``, ``/proc/version``) is opened as
+    it is: it holds no run's log."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+    try:
+        if stat.S_ISREG(os.fstat(fd).st_mode):
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                    pass  # a file system without locks: written unguarded, as before
+                elif exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise
+                else:
+                    raise RgtbusError(
+                        f"log {str(path)!r} is being written by another run"
+                        f"{_lock_holder(fd)}: give this run another --log"
+                    ) from None
+            if os.fstat(fd).st_size:  # only now: the other run's file was never touched
+                os.ftruncate(fd, 0)
+        stream = os.fdopen(fd, "wb")
+        stream.raw.name = str(path)  # type: ignore[attr-defined]  # errors name the path
+        return stream
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRecorder]:
     """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
-    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk).
-    ``live``: a live view offered every message too."""
+    directory, no permission, a target that takes no bytes (``/proc/version``, a full disk),
+    a log another run is writing (each run holds an exclusive lock on its log file until
+    ``close_log``). ``live``: a live view offered every message too."""
     from rgtbus.telemetry.recorder import McapRecorder
 
     for parent in path.parents:  # mkdir says "File exists" for a file on the way
@@ -27,7 +81,7 @@ def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRe
             break
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        stream = open(path, "wb")  # noqa: SIM115 - closed by close_log
+        stream = _open_locked(path)  # closed by close_log (which ends the lock)
     except OSError as exc:
         raise RgtbusError(f"cannot write log {str(path)!r}: {exc.strerror}") from None
     try:

@@ -1,0 +1,231 @@
+"""How big a run may be before it starts: estimates and budgets (docs/scenarios.md, "Budgets").
+
+A run's size is estimated from its scenario before anything is built: samples (``max_seconds ×
+sample_rate``), samples a bus window (``window × sample_rate``), decodes (every unit decodes
+every code: ``2·n²·(n−1)·(1 + influence_rounds)``, the ``/rx/decode`` records of a finished
+run) and the generated codebook's search (its ``2^k`` words against every candidate word). One
+beyond its budget is refused in one line naming the key and the estimate. ``RGTBUS_BUDGET=large``
+(environment) raises every budget a hundredfold; the hard limits below it never move.
+
+Also here: how deep a TOML text may nest (tomllib recurses, and gives up at about 400 levels)
+and the files a scenario or sweep may be read from (regular files only: a FIFO blocks forever).
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import os
+import re
+import stat
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+from rgtbus.errors import RgtbusError
+
+BUDGET_ENV = "RGTBUS_BUDGET"
+LARGE_FACTOR = 100  # RGTBUS_BUDGET=large: every budget this many times larger
+
+
+class Budget(NamedTuple):
+    name: str
+    limit: float
+    what: str  # what the estimate counts, for the message
+
+
+# Measured on a 2-core machine (issue 22): the largest shipped scenario, group50, is 490,000
+# decodes (~250 MB, a minute); 16 units × 1000 rounds (7.7 million) took 3.4 GB before failing;
+# 1e8 samples in one window crashed orjson. A generated codebook searches ~4e7 word pairs a
+# second. Every shipped scenario and sweep, and the benchmarks (100 concurrent units: 4
+# million decodes; 1e5 s at 200 samples/s), fit.
+SAMPLES = Budget("samples", 1e9, "samples (max_seconds × sample_rate)")
+WINDOW_SAMPLES = Budget("window", 1e5, "samples a bus window (window × sample_rate)")
+DECODES = Budget("decodes", 5e6, "decodes (2·n²·(n−1)·(1 + influence_rounds))")
+CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
+# rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
+# n²·L resonator-samples (L: the longest ID plus a period, in samples); 5e7 is ~2 s, 400 MB.
+CROSSTALK = Budget("crosstalk", 5e7, "resonator-samples (n² × samples an ID)")
+
+# Hard limits (no budget lifts them): log times are unsigned 64-bit nanoseconds.
+MAX_SECONDS = 1e9  # any timing value, s (31 years)
+MAX_NESTING = 32  # brackets and braces, and a key's depth (a scenario needs 3)
+
+
+def budget_scale() -> float:
+    """1, or ``LARGE_FACTOR`` with ``RGTBUS_BUDGET=large``. RgtbusError for another value."""
+    value = os.environ.get(BUDGET_ENV, "").strip().lower()
+    if value in ("", "default"):
+        return 1.0
+    if value == "large":
+        return float(LARGE_FACTOR)
+    raise RgtbusError(
+        f"{BUDGET_ENV}={os.environ.get(BUDGET_ENV)!r}: unknown budget (default or large)"
+    )
+
+
+def over_budget(budget: Budget, estimate: float) -> str | None:
+    """None when ``estimate`` fits ``budget`` (scaled); else the reason, in one line."""
+    limit = budget.limit * budget_scale()
+    if estimate <= limit:
+        return None
+    raise_it = (
+        f"set {BUDGET_ENV}=large for {LARGE_FACTOR}× the budget"
+        if limit == budget.limit
+        else f"beyond {BUDGET_ENV}=large too"
+    )
+    return (
+        f"about {estimate:.3g} {budget.what}, beyond the budget of {limit:.3g} "
+        f'({raise_it}; docs/scenarios.md, "Budgets")'
+    )
+
+
+# -- estimates ---------------------------------------------------------------------------------
+
+
+def decodes(n: int, influence_rounds: int) -> float:
+    """Decodes of a run of ``n`` units: each of the n units decodes every one of the n·(n−1)
+    codes of the relationship phase and of each influence round, twice (the ID and the
+    payload), ``2·n²·(n−1)·(1 + rounds)``. Exact for a run that finishes (the /rx/decode
+    records: 192 for the 4-unit gate, 3,600 for crowd10); the memory and time of a run grow
+    with it."""
+    return 2.0 * n * n * (n - 1) * (1 + influence_rounds)
+
+
+def codebook_candidates(pulses: int, low: float = 0.1, high: float = 0.7) -> int:
+    """Words the generated codebook enumerates at N pulses (rgtbus.signal.codebook's grid: the
+    finest 0.05 step that keeps it under a million)."""
+    for s in range(1, 100):
+        step = s * 0.05
+        width = max(0, math.floor(high / step + 1e-9) - math.ceil(low / step - 1e-9) + 1)
+        count: int = width ** max(0, pulses - 1)
+        if count <= 1_000_000:
+            return count
+    return 1_000_000
+
+
+def codebook_search(actions: int, pulses: int) -> float:
+    """The generated codebook's farthest-first search: 2^actions words, each against every
+    candidate word (measured: 8 actions at 8 pulses, 2.1e8, five seconds)."""
+    return float(2**actions) * codebook_candidates(pulses)
+
+
+# -- TOML text ---------------------------------------------------------------------------------
+
+# What can hold a bracket that is no nesting: comments and strings (multi-line ones first).
+_TOKENS = re.compile(
+    r'#[^\n]*|"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|[\[\]{}]',
+    re.DOTALL,
+)
+
+
+def nesting_error(text: str, where: str, limit: int = MAX_NESTING) -> str | None:
+    """``file:line: nesting deeper than N`` when brackets and braces (outside strings and
+    comments) nest deeper than ``limit`` in ``text``, else None. Checked before tomllib reads
+    it: tomllib recurses, and 5,000 ``[`` are a RecursionError."""
+    if text.count("[") + text.count("{") <= limit:
+        return None
+    depth = 0
+    for m in _TOKENS.finditer(text):
+        tok = m.group()
+        if tok in "[{":
+            depth += 1
+            if depth > limit:
+                line = text.count("\n", 0, m.start()) + 1
+                return f"{where}:{line}: nesting deeper than {limit} (brackets and braces)"
+        elif tok in "]}":
+            depth = max(0, depth - 1)
+    return None
+
+
+def key_depth_error(data: Mapping[str, Any], text: str, where: str) -> str | None:
+    """``file[:line]: nesting deeper than N`` when the tables of parsed TOML ``data`` nest
+    deeper than ``MAX_NESTING`` (dotted keys: ``a.a.a…`` = 1 takes no bracket), else None.
+    Iterative: the check must not recurse itself."""
+    stack: list[tuple[Any, int]] = [(data, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if depth > MAX_NESTING:
+            line = next(
+                (
+                    i
+                    for i, ln in enumerate(text.splitlines(), 1)
+                    if ln.split("=", 1)[0].count(".") >= MAX_NESTING - 1
+                ),
+                None,
+            )
+            at = f"{where}:{line}" if line else where
+            return f"{at}: nesting deeper than {MAX_NESTING} (a dotted key or table name)"
+        if isinstance(node, Mapping):
+            stack.extend((v, depth + 1) for v in node.values())
+        elif isinstance(node, list):
+            stack.extend((v, depth + 1) for v in node)
+    return None
+
+
+# -- files -------------------------------------------------------------------------------------
+
+
+def read_regular(path: str | os.PathLike[str], what: str, cap: int) -> bytes:
+    """The bytes of a regular file, at most ``cap + 1`` of them; one line (RgtbusError, naming
+    ``what`` and the path) for a directory, a FIFO, a device or a socket (refused before a
+    byte is read: a FIFO would block forever) or a file that cannot be read. Opened without
+    blocking and checked on the open file, so nothing can be swapped in between."""
+    where = os.fspath(path)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        if exc.errno == errno.EISDIR:
+            raise RgtbusError(f"cannot read {what} {where!r}: is a directory") from None
+        raise
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise RgtbusError(f"cannot read {what} {where!r}: is a directory")
+        if not stat.S_ISREG(mode):
+            kind = "a FIFO, " if stat.S_ISFIFO(mode) else ""  # a device: as it always said
+            kind = "a socket, " if stat.S_ISSOCK(mode) else kind
+            raise RgtbusError(f"cannot read {what} {where!r}: {kind}not a regular file")
+        f = open(fd, "rb", closefd=False)  # noqa: SIM115 - fd is closed below
+        return f.read(cap + 1)
+    finally:
+        os.close(fd)
+
+
+# -- a scenario's size -------------------------------------------------------------------------
+
+_TIMING_DEFAULTS = {"sample_rate": 200.0, "window": 0.1, "max_seconds": 3600.0}
+
+
+def _blamed(t: Mapping[str, Any], keys: tuple[str, ...]) -> str:
+    """Of the timing ``keys`` whose product is too large, the one the file sets furthest
+    above its default (a default is nobody's typo)."""
+    set_keys = [k for k in keys if k in t] or list(keys)
+
+    def ratio(k: str) -> float:
+        v = t.get(k, _TIMING_DEFAULTS[k])
+        return float(v) / _TIMING_DEFAULTS[k] if isinstance(v, int | float) else 0.0
+
+    return max(set_keys, key=ratio)
+
+
+def check_size(ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: Any) -> None:
+    """Refuse (``ctx.error``: file:line: key) a run whose estimated size is beyond its budget:
+    samples, samples a window, decodes. Called as soon as the units, the protocol and the
+    timing are read, before anything costly is built (codebook, frequency plan, groups)."""
+    try:
+        budget_scale()
+    except RgtbusError as exc:
+        raise ctx.error("", None, str(exc)) from None
+    t = data.get("timing", {})
+    t = t if isinstance(t, Mapping) else {}
+    why = over_budget(SAMPLES, timing.max_seconds * timing.sample_rate)
+    if why:
+        raise ctx.error("timing", _blamed(t, ("max_seconds", "sample_rate")), why)
+    why = over_budget(WINDOW_SAMPLES, timing.window * timing.sample_rate)
+    if why:
+        raise ctx.error("timing", _blamed(t, ("window", "sample_rate")), why)
+    why = over_budget(DECODES, decodes(n, rounds))
+    if why:
+        if rounds > 1 and over_budget(DECODES, decodes(n, 1)) is None:
+            raise ctx.error("protocol", "influence_rounds", f"{rounds} rounds of {n} units: {why}")
+        raise ctx.error("", "units", f"{n} units, {rounds} influence round(s): {why}")
