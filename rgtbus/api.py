@@ -57,11 +57,9 @@ class RunResult:
     def decisions(self) -> Any:
         """The summary's decisions as a DataFrame (one row per unit and round), as
         ``Log.decisions()`` gives them."""
-        import pandas as pd
+        from rgtbus.telemetry.frames import decisions_frame
 
-        from rgtbus.telemetry.frames import DECISION_COLUMNS
-
-        return pd.DataFrame(self.summary.get("decisions") or [], columns=DECISION_COLUMNS)
+        return decisions_frame(self.summary)
 
 
 def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:

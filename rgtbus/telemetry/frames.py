@@ -9,6 +9,7 @@ action names), never text to parse. See docs/api.md.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any
 
@@ -65,10 +66,7 @@ class Log:
         """One row per unit and influence round: ``round, unit, low, high, choice,
         frustrated, t, wrong`` (``low``/``high`` the interval's ends, ``None`` when
         frustrated; ``wrong``: not what a perfect medium gives)."""
-        import pandas as pd
-
-        rows = self.summary().get("decisions") or []
-        return pd.DataFrame(rows, columns=DECISION_COLUMNS)
+        return decisions_frame(self.summary())
 
     def decodes(self) -> pd.DataFrame:
         """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
@@ -124,6 +122,14 @@ class Log:
         msgs = self.replay.by_topic.get(topic, [])
         rows = [{"log_time": t, "log_seconds": t / NS, **_fields(m)} for t, m in msgs]
         return pd.DataFrame(rows)
+
+
+def decisions_frame(summary: Mapping[str, Any]) -> pd.DataFrame:
+    """A run summary's ``decisions`` as a DataFrame (``DECISION_COLUMNS``): what
+    ``Log.decisions()`` and ``RunResult.decisions()`` both give."""
+    import pandas as pd
+
+    return pd.DataFrame(summary.get("decisions") or [], columns=DECISION_COLUMNS)
 
 
 def _fields(message: Any) -> dict[str, Any]:
