@@ -375,3 +375,27 @@ def test_a_random_group_that_installs_a_p4_is_a_result_not_an_error(tmp_path, ca
     code = main([*argv, "--log", str(tmp_path / "r1.mcap")])
     s = json.loads(capsys.readouterr().out)
     assert code == 0 and s["decomposable"] is True and s["p4"] is None and s["polynomial"]
+
+
+def test_no_log_writes_nothing_and_summarises_the_same(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the default log would land in ./logs
+    gate = str(ROOT / "scenarios/gate.toml")
+    assert main(["run", gate, "--bus", "memory", "--no-log", "--json", "--check"]) == 0
+    bare = json.loads(capsys.readouterr().out)
+    assert bare["log"] is None and all(c["ok"] for c in bare["checks"])
+    assert list(tmp_path.iterdir()) == []
+    log = tmp_path / "g.mcap"
+    assert main(["run", gate, "--bus", "memory", "--log", str(log), "--json"]) == 0
+    logged = json.loads(capsys.readouterr().out)
+    for key in set(bare) - {"wall_seconds", "log", "checks"}:
+        assert bare[key] == logged[key], key
+    assert main(["run", gate, "--no-log"]) == 0
+    assert "log: none (--no-log)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra", [["--traces"], ["--live", "127.0.0.1:0"]])
+def test_no_log_refuses_what_needs_a_log(tmp_path, capsys, extra):
+    gate = str(ROOT / "scenarios/gate.toml")
+    assert main(["run", gate, "--no-log", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--no-log with {extra[0]}" in err and "\n" not in err

@@ -14,6 +14,7 @@ import dataclasses
 import heapq
 import itertools
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import simpy
@@ -55,14 +56,16 @@ class Decoded:
     accepted: bool
 
 
-@dataclass(order=True, slots=True)
-class _Timer:
+class _Timer(NamedTuple):
+    """A unit's timer. A plain tuple, so the heap orders timers in C: by boundary, then rank,
+    then seq (unique, so the fields after it are never compared)."""
+
     boundary: int  # act once every sample before this one has been heard
     rank: int  # at one boundary: decodes and checks (0) before choices (1)
     seq: int
-    at: int = field(compare=False)  # the sample it belongs to (its time)
-    kind: str = field(compare=False)  # "listen" | "deadline" | "limit" | "choose"
-    listen: Listen | None = field(compare=False, default=None)
+    at: int  # the sample it belongs to (its time)
+    kind: str  # "listen" | "deadline" | "limit" | "choose"
+    listen: Listen | None = None
 
 
 @dataclass

@@ -35,7 +35,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="zenoh",
         help="zenoh (in-process session, no network; the default) or memory",
     )
-    p.add_argument("--log", metavar="PATH", help="MCAP log (default logs/<scenario>-<time>.mcap)")
+    logs = p.add_mutually_exclusive_group()
+    logs.add_argument("--log", metavar="PATH", help="MCAP log (default logs/<scenario>-<time>.mcap)")
+    logs.add_argument(
+        "--no-log",
+        action="store_true",
+        help="no log at all (speed runs; the summary is the same, nothing is written)",
+    )
     p.add_argument("--seed", type=int, help="override the scenario's seed")
     p.add_argument(
         "--realtime",
@@ -178,7 +184,10 @@ def run(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
-    log_path = Path(args.log) if args.log else default_log_path(scenario.name)
+    if args.no_log and (args.live is not None or args.traces):
+        what = "--live" if args.live is not None else "--traces"
+        raise RgtbusError(f"--no-log with {what}: {what} needs a log (it serves what is logged)")
+    log_path = None if args.no_log else Path(args.log) if args.log else default_log_path(scenario.name)
     live = open_live(args, live_topics(scenario.units, args.traces))
     progress = Progress(not (args.quiet or args.json) and sys.stderr.isatty())
     try:
@@ -352,4 +361,4 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         f"time: {s['sim_seconds']:.1f} s simulated in {s['wall_seconds']:.2f} s wall "
         f"({s['engine']} engine, {s['steps']} steps)"
     )
-    print(f"log: {s['log']}")
+    print(f"log: {s.get('log') or 'none (--no-log)'}")
