@@ -8,12 +8,15 @@ work of a run then grows with its events, not with events × units. Lanes are in
 every value depends only on the absolute sample, so how the work is batched or chunked never
 changes a result (docs/engine.md).
 
-A unit asks ``listen(i, boundary, at, watch, watch_from)``: "advance me up to sample
+A unit asks ``listen(i, boundary, at, wake, watch, watch_from)``: "advance me up to sample
 ``boundary`` (exclusive); wake me at a spike on channel ``watch`` at or after ``watch_from``"
-(the one spike its protocol can react to). The returned SimPy event fires at that spike's
-time, or when the boundary is reached at time ``at`` (its timer's own sample), with a
+(the one spike its protocol can react to). The ears' SimPy process calls ``wake`` at that
+spike's time, or when the boundary is reached at time ``at`` (its timer's own sample), with a
 ``Heard``: every spike of the unit's resonators since it last woke, in order, each with its
-sample. The ears advance only when every listening unit has asked, never past the smallest
+sample. A wake is a plain call, not a SimPy event per unit: a large run wakes its units millions
+of times (once per decode), and an event, a generator resume and a heap entry each time were
+most of its cost (issue 23). The simulated time of a wake is exact all the same. The ears
+advance only when every listening unit has asked, never past the smallest
 boundary asked for nor past the horizon of the known medium (``hear``), and stop at the first
 watched spike of any unit: what a unit reacts to happens in time order, each at its exact
 sample. A unit's quench times (``quench_at``: its resonators back to rest before a sample)
@@ -64,6 +67,9 @@ class Heard:
     reached: bool
 
 
+Wake = Callable[[Heard], None]  # a unit's handler: what it heard, then it asks again or stops
+
+
 @dataclass
 class Listener:
     """One unit's share of the ears."""
@@ -76,7 +82,7 @@ class Listener:
     trace: TraceSink | None = None
     every_spike: bool = True  # told every spike (else only the watched one it wakes for)
     active: bool = True
-    request: tuple[int, int, simpy.Event] | None = None  # (boundary, at, event)
+    request: tuple[int, int, Wake] | None = None  # (boundary, at, what to call)
     watch: int | None = None  # the channel whose spike could change this unit's plans
     watch_from: int = 0  # ... from this sample on (earlier spikes there change nothing)
     heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
@@ -180,8 +186,14 @@ class Ears:
     # -- a unit's side --------------------------------------------------------------------------
 
     def listen(
-        self, i: int, boundary: int, at: int, watch: int | None = None, watch_from: int = 0
-    ) -> simpy.Event:
+        self,
+        i: int,
+        boundary: int,
+        at: int,
+        wake: Wake,
+        watch: int | None = None,
+        watch_from: int = 0,
+    ) -> None:
         """Advance unit ``i`` up to sample ``boundary``; see the module docstring. ``watch``:
         the channel on which a spike at or after ``watch_from`` could change the unit's plans
         (the ears stop there; the unit hears every other spike too, each at its sample, but
@@ -191,15 +203,13 @@ class Ears:
             raise RgtbusError(f"{lst.name} stopped listening")
         if boundary < self.pos:
             raise RgtbusError(f"{lst.name}: boundary {boundary} is behind the ears ({self.pos})")
-        ev = self.env.event()
         if lst.request is None:
             self._asking -= 1
-        lst.request = (boundary, at, ev)
+        lst.request = (boundary, at, wake)
         lst.watch = watch
         lst.watch_from = watch_from
         if not self._asking:
             _fire(self._poke)
-        return ev
 
     def readout_of(self, i: int) -> ReceiverReadout:
         """Unit ``i``'s own readout (its resonators' view of the medium)."""
@@ -371,11 +381,11 @@ class Ears:
 
     def _wake(self, lst: Listener, *, reached: bool) -> None:
         assert lst.request is not None
-        ev = lst.request[2]
+        wake = lst.request[2]
         lst.request = None
         self._asking += 1
         heard, lst.heard = tuple(lst.heard), []
-        ev.succeed(Heard(heard, reached))
+        wake(Heard(heard, reached))  # the unit asks again (or stops) before this returns
 
     def _advance(self, target: int) -> int | None:
         """Every unit's lanes from here towards ``target``, up to the first spike on a watched

@@ -1,7 +1,8 @@
 """The autonomous unit: transmitter + receiver + protocol + RGT reasoning + decision policy.
 
-One unit is one SimPy process (driven by ``rgtbus.sim.World``): it receives (its ears fire at its
-resonators' spikes and at its own timers), runs the pure protocol machine on what it heard,
+One unit lives in the SimPy world (``rgtbus.sim.World``) at its own samples: the ears' process
+wakes it (a plain call, at the exact simulated time) at its resonators' spike it awaits and at
+its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
@@ -21,7 +22,7 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
-from rgtbus.hearing import Ears, Listener
+from rgtbus.hearing import Ears, Heard, Listener
 from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
 from rgtbus.protocol import (
     NOTHING,
@@ -99,6 +100,7 @@ class AutonomousUnit:
         self._alternatives: dict[str, int] = {}  # decoded names, parsed once
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
+        self._asked: tuple[int, int, int] | None = None  # what the last ask awaited
         self.protocol = ProtocolState(
             self.name,
             self.units,
@@ -150,7 +152,7 @@ class AutonomousUnit:
         self.readout = ears.readout_of(index)
         self._add(self.limit, self.limit - 1, "limit")
         self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
-        env.process(self._live())
+        self._ask()
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
@@ -180,31 +182,42 @@ class AutonomousUnit:
 
     # -- living: receive -> protocol -> decode -> reason -> send ------------------------------
 
-    def _live(self):
+    def _ask(self) -> None:
+        """Ask the ears for the next thing this unit must act on: its first timer's boundary,
+        or the spike it awaits, whichever comes first (``_woken`` is called then)."""
         assert self.ears is not None
-        while not self.done:
-            t = self._timers[0]
-            aw = self.awaited()
-            heard = yield self.ears.listen(
-                self.index,
-                t.boundary,
-                t.at,
-                None if aw is None else aw[0],
-                0 if aw is None else aw[1],
-            )
-            for k, channels in heard.spikes:  # in order; only the last can be reacted to
-                if self.recorder.enabled:  # nothing to build for a run without a log
-                    self._log_spikes(k, channels)
-                # the protocol hears the spike it awaits (any other asks nothing of it)
-                if aw is not None and aw[0] in channels and k >= aw[1]:
-                    self._apply(self.protocol.on_spike(self.units[aw[0]], k))
-                    aw = self.awaited()
-            # every timer whose samples have all been heard is due (its time, the boundary's
-            # last sample, is now or was passed by the spike that woke this unit)
-            pos = self.ears.pos
-            while not self.done and self._timers and self._timers[0].boundary <= pos:
-                self._on_timer(heapq.heappop(self._timers))
-        self.ears.stop(self.index)
+        if self.done:
+            self.ears.stop(self.index)
+            return
+        t = self._timers[0]
+        aw = self._asked = self.awaited()
+        self.ears.listen(
+            self.index,
+            t[0],
+            t[3],
+            self._woken,
+            None if aw is None else aw[0],
+            0 if aw is None else aw[1],
+        )
+
+    def _woken(self, heard: Heard) -> None:
+        """Receive -> protocol -> decode -> reason -> send, at the sample the ears woke it."""
+        assert self.ears is not None
+        aw = self._asked
+        for k, channels in heard.spikes:  # in order; only the last can be reacted to
+            if self.recorder.enabled:  # nothing to build for a run without a log
+                self._log_spikes(k, channels)
+            # the protocol hears the spike it awaits (any other asks nothing of it)
+            if aw is not None and aw[0] in channels and k >= aw[1]:
+                self._apply(self.protocol.on_spike(self.units[aw[0]], k))
+                aw = self.awaited()
+        # every timer whose samples have all been heard is due (its time, the boundary's
+        # last sample, is now or was passed by the spike that woke this unit)
+        pos = self.ears.pos
+        timers = self._timers
+        while not self.done and timers and timers[0][0] <= pos:
+            self._on_timer(heapq.heappop(timers))
+        self._ask()
 
     def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
         # one record per sample: a large run's receivers fire millions of times, and one

@@ -36,7 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="zenoh (in-process session, no network; the default) or memory",
     )
     logs = p.add_mutually_exclusive_group()
-    logs.add_argument("--log", metavar="PATH", help="MCAP log (default logs/<scenario>-<time>.mcap)")
+    logs.add_argument(
+        "--log", metavar="PATH", help="MCAP log (default logs/<scenario>-<time>.mcap)"
+    )
     logs.add_argument(
         "--no-log",
         action="store_true",
@@ -187,7 +189,9 @@ def run(args: argparse.Namespace) -> int:
     if args.no_log and (args.live is not None or args.traces):
         what = "--live" if args.live is not None else "--traces"
         raise RgtbusError(f"--no-log with {what}: {what} needs a log (it serves what is logged)")
-    log_path = None if args.no_log else Path(args.log) if args.log else default_log_path(scenario.name)
+    log_path = (
+        None if args.no_log else Path(args.log) if args.log else default_log_path(scenario.name)
+    )
     live = open_live(args, live_topics(scenario.units, args.traces))
     progress = Progress(not (args.quiet or args.json) and sys.stderr.isatty())
     try:

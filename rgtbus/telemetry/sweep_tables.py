@@ -379,5 +379,3 @@ def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     columns = ["run", "seed", "unit", "round", "low", "high", "choice", "frustrated", "wrong", "t"]
     decisions = pd.read_parquet(dec) if dec.is_file() else pd.DataFrame(columns=columns)
     return SweepTables(pd.read_parquet(path), decisions)
-
-
