@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean
+.PHONY: demo test lint typecheck bench clean bytecode
 
 $(STAMP): pyproject.toml setup.py MANIFEST.in rgtbus/signal/_walk.pyx
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -12,13 +12,18 @@ $(STAMP): pyproject.toml setup.py MANIFEST.in rgtbus/signal/_walk.pyx
 	$(PY) -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-demo: $(STAMP)
+demo: $(STAMP) bytecode
 	$(VENV)/bin/rgtbus run scenarios/gate.toml --check
 
-test: $(STAMP)
+test: $(STAMP) bytecode
 	$(VENV)/bin/ruff check .
 	$(MAKE) --no-print-directory typecheck
 	$(PY) -m pytest -q
+
+# Byte-compile the tree (only what changed): a shell that sets PYTHONDONTWRITEBYTECODE would
+# otherwise compile every module at every start, ~0.3 s of a command's start-up (issue 23).
+bytecode: $(STAMP)
+	@$(PY) -m compileall -q -j 0 rgtbus units scenarios benchmarks > /dev/null
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -150,10 +150,12 @@ class Progress:
     most twice a second; pacing is the world's (``--realtime``). ``show`` False: nothing."""
 
     def __init__(self, show: bool) -> None:
+        self.bar: Any = None
+        if not show:  # no tqdm import for a run that shows nothing (start-up, issue 23)
+            return
         from tqdm import tqdm
 
         self.bar = tqdm(
-            disable=not show,
             file=sys.stderr,
             delay=2.0,
             mininterval=0.5,
@@ -164,13 +166,14 @@ class Progress:
         self.bar.set_postfix_str("step 0", refresh=False)
 
     def __call__(self, sim_now: float, step: int) -> None:
-        if self.bar.disable:
+        if self.bar is None:
             return
         self.bar.set_postfix_str(f"step {step}", refresh=False)
         self.bar.update(sim_now - self.bar.n)  # tqdm draws it when mininterval has passed
 
     def done(self) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def run(args: argparse.Namespace) -> int:
