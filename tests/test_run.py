@@ -399,3 +399,20 @@ def test_no_log_refuses_what_needs_a_log(tmp_path, capsys, extra):
     assert main(["run", gate, "--no-log", *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert f"--no-log with {extra[0]}" in err and "\n" not in err
+
+
+def test_spike_name_cache_is_bounded_and_changes_no_record(monkeypatch):
+    import rgtbus.units.unit as unit_module
+
+    _, _, (full, _) = run("example2")
+    monkeypatch.setattr(unit_module, "SPIKE_NAMES_MAX", 1)
+    seen = []
+    real = AutonomousUnit._log_spikes
+
+    def spy(self, k, channels):
+        real(self, k, channels)
+        seen.append(len(self._spike_names))
+
+    monkeypatch.setattr(AutonomousUnit, "_log_spikes", spy)
+    _, _, (small, _) = run("example2")
+    assert small == full and seen and max(seen) == 1

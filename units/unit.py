@@ -42,6 +42,7 @@ from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
 
+SPIKE_NAMES_MAX = 4096  # sets of channels whose names a unit keeps built (the common ones)
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
 
@@ -226,6 +227,8 @@ class AutonomousUnit:
         # again: their names are built once (the lists are only read)
         names = self._spike_names.get(channels)
         if names is None:
+            if len(self._spike_names) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
+                self._spike_names.clear()
             names = self._spike_names[channels] = [self.units[ch] for ch in channels]
         self.recorder.write(
             "/rx/spike", records.spike(self.name, self.tau, k, names), ns(k * self.tau)
