@@ -357,6 +357,7 @@ class Ears:
                 k = self._advance(target)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time
                     yield env.timeout(max(0.0, k * self.tau - env.now))
+                    yield env.timeout(0)  # after what is already due then (see _after_due)
                     for lst in self.listeners:
                         if lst.active and lst.heard and lst.heard[-1][0] == k:
                             chans = lst.heard[-1][1]
@@ -369,15 +370,24 @@ class Ears:
                 if lst.active and lst.request is not None and lst.request[0] == self.pos
             )
             if due:
+                woke_at = None
                 for at, n in due:
                     if at * self.tau > env.now:
                         yield env.timeout(at * self.tau - env.now)
+                    if woke_at != at:  # one hop a sample, not a SimPy event per unit
+                        woke_at = at
+                        yield env.timeout(0)
                     lst = self.listeners[n]
                     if lst.active and lst.request is not None:
                         self._wake(lst, reached=True)
                 continue
             self._more = env.event()
             yield self._more  # the medium is known no further: wait for the world
+
+    # _after_due: a woken unit acts after every event already due at its sample (a pulse
+    # logged at that sample, say), whichever way the horizon reached it: the hop puts the wakes
+    # at the end of SimPy's queue for that time, so a log's order of records at one log time
+    # does not depend on the bus (memory, zenoh, log replay) or on how frames arrived.
 
     def _wake(self, lst: Listener, *, reached: bool) -> None:
         assert lst.request is not None
