@@ -417,7 +417,7 @@ def result_fields(mind: Mind) -> dict[str, Any]:
     }
 
 
-def clean_timeline(sc: Scenario) -> tuple[ProtocolState, list[Listen]]:
+def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
     """The run's schedule and every decode as a perfect medium times them (anchored on the
     schedule: on a clean channel an ID fires its resonator at its last pulse, where the
     schedule puts it)."""

@@ -144,6 +144,28 @@ class Listen:
     ready_sample: int
 
 
+@dataclass(frozen=True, slots=True)
+class ListenQueue:
+    """Listens in the order they fall due, to be taken one at a time: ``listens[order[i]]`` is
+    the i-th due, at ``boundaries[i]`` (its ready sample + 1); listens due at one boundary keep
+    their planning order. One queue is shared by every unit that plans the same listens (the
+    concurrent schedule: every unit decodes every code), so a unit holds a cursor into it, not
+    an object per (unit, code) (issue 23)."""
+
+    listens: tuple[Listen, ...]
+    boundaries: tuple[int, ...]
+    order: tuple[int, ...]
+
+    @classmethod
+    def of(cls, listens: Sequence[Listen]) -> ListenQueue:
+        order = sorted(range(len(listens)), key=lambda i: listens[i].ready_sample)  # stable
+        return cls(
+            tuple(listens),
+            tuple(listens[i].ready_sample + 1 for i in order),
+            tuple(order),
+        )
+
+
 @dataclass
 class Actions:
     """What a protocol event asks of its unit: transmit ``sends``, decode ``listens`` when their
@@ -153,9 +175,10 @@ class Actions:
     that sample that the current turn's ID spike came (``check_deadline``)."""
 
     sends: list[Send] = field(default_factory=list)
-    listens: list[Listen] = field(default_factory=list)
+    listens: Sequence[Listen] = field(default_factory=list)
     quench: list[int] = field(default_factory=list)
     deadline: int | None = None
+    queue: ListenQueue | None = None  # ``listens`` in the order they fall due, when shared
 
     def __bool__(self) -> bool:
         return bool(self.sends or self.listens or self.quench or self.deadline is not None)
@@ -225,12 +248,33 @@ class Plan:
         self.tails = tuple((pulses - 1) * self.periods[t.addressee] for t in self.schedule)
         self._reactions: dict[tuple[int, float, int], Reaction] = {}
         self._timing: tuple[RoundTiming, ...] | None = None
+        self._listens: ListenQueue | None = None
 
     def timing(self) -> tuple[RoundTiming, ...]:
         """The concurrent schedule's rounds, placed (once for every unit)."""
         if self._timing is None:
             self._timing = place_rounds(self)
         return self._timing
+
+    def concurrent_listens(self) -> ListenQueue:
+        """Every decode of the concurrent schedule, the same for every unit (each unit decodes
+        every turn's ID and payload, its own too), worked out once for all of them."""
+        if self._listens is None:
+            listens: list[Listen] = []
+            for rnd in self.timing():
+                for p in rnd.placed:
+                    t = p.turn
+                    kind = "relation" if t.phase == "relations" else "influence"
+                    listens.append(
+                        Listen(t.index, "id", t.sender, t.addressee, (t.sender,), p.id_start,
+                               p.id_samples[-1])
+                    )  # fmt: skip
+                    listens.append(
+                        Listen(t.index, kind, t.sender, t.addressee, (t.addressee,),
+                               p.payload_start, p.payload_samples[-1] + self.search)
+                    )  # fmt: skip
+            self._listens = ListenQueue.of(listens)
+        return self._listens
 
     def reaction(self, turn: int, turn_start: float, sample: int) -> Reaction:
         """What follows from turn ``turn`` (started at ``turn_start``) having its ID spike at
@@ -469,11 +513,13 @@ class ProtocolState:
         if self.kind == "concurrent":
             return self._begin_concurrent()
         acts = Actions(sends=self._id_actions())
+        listens: list[Listen] = []
         while self.anchor == "schedule" and not self.finished:
             more = self._react(self.id_samples()[-1])
             acts.sends += more.sends
-            acts.listens += more.listens
+            listens += more.listens
             acts.quench += more.quench
+        acts.listens = listens
         acts.deadline = self._deadline()
         return acts
 
@@ -496,15 +542,8 @@ class ProtocolState:
                         Send(t.index, "payload", t.addressee, self._codes[t.phase][t.addressee],
                              p.payload_start, p.payload_samples, t.sender, t.addressee)
                     )  # fmt: skip
-                kind = "relation" if t.phase == "relations" else "influence"
-                acts.listens.append(
-                    Listen(t.index, "id", t.sender, t.addressee, (t.sender,), p.id_start,
-                           p.id_samples[-1])
-                )  # fmt: skip
-                acts.listens.append(
-                    Listen(t.index, kind, t.sender, t.addressee, (t.addressee,),
-                           p.payload_start, p.payload_samples[-1] + self.search)
-                )  # fmt: skip
+        acts.queue = self.plan.concurrent_listens()
+        acts.listens = acts.queue.listens
         acts.sends.sort(key=lambda s: s.samples[0])
         self.turn = len(self.schedule)  # every reaction is known: nothing left to wait for
         return acts

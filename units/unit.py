@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
-import itertools
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -29,6 +28,7 @@ from rgtbus.protocol import (
     PHASES,
     Actions,
     Listen,
+    ListenQueue,
     ProtocolState,
     Send,
     choice_sample,
@@ -46,16 +46,7 @@ SPIKE_NAMES_MAX = 4096  # sets of channels whose names a unit keeps built (the c
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
 
-@dataclass(slots=True)
-class Decoded:
-    turn: int
-    kind: str
-    sender: str
-    addressee: str
-    code: str
-    margin: float
-    t: float
-    accepted: bool
+DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
 
 
 class _Timer(NamedTuple):
@@ -68,6 +59,9 @@ class _Timer(NamedTuple):
     at: int  # the sample it belongs to (its time)
     kind: str  # "listen" | "deadline" | "limit" | "choose"
     listen: Listen | None = None
+    # a listen from a shared queue: (queue, its first seq, its place in the queue); when it
+    # is taken the next of the queue goes on the heap (one entry per queue, not per listen)
+    queued: tuple[ListenQueue, int, int] | None = None
 
 
 @dataclass
@@ -81,7 +75,9 @@ class AutonomousUnit:
     failure: str | None = None
     done: bool = False
     done_at: int = 0
-    decoded: list[Decoded] = field(default_factory=list)
+    # every decode, as the summary reads it (one small tuple each: a large run makes millions,
+    # and the margin and time are in the log's /rx/decode already)
+    decoded: list[DecodedRow] = field(default_factory=list)
     sent: list[Send] = field(default_factory=list)
     # this unit's own decision after each influence round it decided (``decision_row``)
     decisions: list[records.DecisionRow] = field(default_factory=list)
@@ -125,7 +121,7 @@ class AutonomousUnit:
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
-        self._seq = itertools.count()
+        self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
         self.env: simpy.Environment | None = None
@@ -237,6 +233,9 @@ class AutonomousUnit:
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":
             assert t.listen is not None
+            if t.queued is not None:
+                queue, first_seq, i = t.queued
+                self._queue_next(queue, first_seq, i + 1)
             self._decode(t.listen)
         elif t.kind == "deadline":
             self._deadline = None
@@ -270,17 +269,34 @@ class AutonomousUnit:
         kind: str,
         listen: Listen | None = None,
     ) -> _Timer:
-        timer = _Timer(boundary, int(kind == "choose"), next(self._seq), at, kind, listen)
+        timer = _Timer(boundary, int(kind == "choose"), self._seq, at, kind, listen)
+        self._seq += 1
         heapq.heappush(self._timers, timer)
         return timer
+
+    def _queue_next(self, queue: ListenQueue, first_seq: int, i: int) -> None:
+        """The i-th listen of ``queue`` to fall due goes on the heap, with the seq it would
+        have had as a timer of its own (so timers keep their order)."""
+        if i < len(queue.order):
+            n = queue.order[i]
+            b = queue.boundaries[i]
+            listen = queue.listens[n]
+            heapq.heappush(
+                self._timers,
+                _Timer(b, 0, first_seq + n, b - 1, "listen", listen, (queue, first_seq, i)),
+            )
 
     def _apply(self, acts: Actions) -> None:
         if acts is NOTHING:
             return
         for send in acts.sends:
             self._transmit(send)
-        for listen in acts.listens:
-            self._add(listen.ready_sample + 1, listen.ready_sample, "listen", listen)
+        if acts.queue is not None:  # shared: a cursor into it, not a timer per listen
+            self._queue_next(acts.queue, self._seq, 0)
+            self._seq += len(acts.queue.order)
+        else:
+            for listen in acts.listens:
+                self._add(listen.ready_sample + 1, listen.ready_sample, "listen", listen)
         assert self.ears is not None
         for q in acts.quench:
             self.ears.quench_at(self.index, q)
@@ -454,8 +470,7 @@ class AutonomousUnit:
         *,
         channel: str,
     ) -> None:
-        d = Decoded(listen.turn, listen.kind, listen.sender, addressee, code, margin, t, accepted)
-        self.decoded.append(d)
+        self.decoded.append((listen.turn, listen.kind, addressee, code))
         if not self.recorder.enabled:
             return
         record = records.decode(
@@ -557,5 +572,5 @@ class AutonomousUnit:
         record and its decodes."""
         return {
             **self.report_record(),
-            "decodes": [[d.turn, d.kind, d.addressee, d.code] for d in self.decoded],
+            "decodes": list(self.decoded),
         }
