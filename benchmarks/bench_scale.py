@@ -1,7 +1,8 @@
 """Scale: the serial schedule against the concurrent one, and the concurrent one up to 100 units.
 
     python -m benchmarks.bench_scale [--sizes 4,6,8,10,12,16,20] [--large 30,50,100]
-                                     [--log-upto 20] [--ser-sizes 10,50] [--quick]
+                                     [--log-upto 50] [--ser-sizes 10,50] [--quick]
+    python -m benchmarks.bench_scale --scale-sizes 10,30,50,100 [--repeat R] [--calls-upto 30]
 
 Every run is a fresh process (no cache of one run helps another) over the memory bus with the
 event engine. Groups of n units: a seeded decomposable group (relations policy cograph), random
@@ -13,18 +14,39 @@ concurrent schedule against channel noise.
 Goals (issue 11): at n = 10 the concurrent schedule's simulated time at least 5x shorter than
 the serial one's; n = 50 concurrent socialises in under 60 s wall without a log and at most 1.5x
 that with the full log; n = 100 under 10 min.
+
+``--scale-sizes`` prints only the engine table of the concurrent schedule (issue 23): per n the
+wall without and with the full log (median of ``--repeat`` fresh processes; default 3 up to
+n = 30, 1 above), peak RSS of both, a NumPy reference doing the run's necessary work (a dense
+per-sample resonator bank over the medium for every distinct receiver view, then a vectorised
+nearest-codeword decode of every code for every receiver) and the run's ratio to it, Python
+calls per pulse (cProfile, up to ``--calls-upto`` units), the fitted exponent of wall in n and
+the machine's load. Goals (issue 23, 2 cores): n = 100 concurrent with its full log under 20 s
+and 250 MB, n = 200 under 2 min and 1 GB; the run within 3x the NumPy reference at n = 50; log /
+no log <= 1.3x at n = 50; exponent of wall over n = 10...100 <= 3.0 (the decodes are n^3).
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import itertools
 import json
+import math
+import os
 import resource
+import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rgtbus.units.unit import AutonomousUnit
+
+    from rgtbus.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -52,38 +74,205 @@ def scale_toml(n: int, schedule: str, seed: int = 11, noise: float = 0.0) -> str
     )
 
 
-def one(n: int, schedule: str, log: bool, noise: float) -> dict:
-    """In a child process: one run's figures."""
+def medium_pulses(members: list[AutonomousUnit]) -> int:
+    """Every pulse the run put on the medium (each send's samples, every unit)."""
+    return sum(len(send.samples) for m in members for send in m.sent)
+
+
+def one(
+    n: int,
+    schedule: str,
+    log: bool,
+    noise: float,
+    *,
+    log_file: bool = False,
+    reference: bool = False,
+) -> dict[str, Any]:
+    """In a child process: one run's figures (``reference``: then the NumPy reference's)."""
     from rgtbus.units.group import run_group
 
     from rgtbus.scenario import parse_scenario
     from rgtbus.telemetry import McapRecorder, NullRecorder
 
     sc = parse_scenario(scale_toml(n, schedule, noise=noise), f"<scale{n}>")
-    buf = io.BytesIO()
-    rec = McapRecorder(buf) if log else NullRecorder()
-    t0 = time.perf_counter()
-    out = run_group(sc, "memory", rec)
-    rec.close()
-    wall = time.perf_counter() - t0
+    # a log file on disk, as `rgtbus run` writes it: in memory its bytes would count as RSS
+    with tempfile.TemporaryFile() if log and log_file else io.BytesIO() as buf:
+        rec = McapRecorder(buf) if log else NullRecorder()
+        t0 = time.perf_counter()
+        out = run_group(sc, "memory", rec)
+        rec.close()
+        wall = time.perf_counter() - t0
+        log_mb = buf.seek(0, io.SEEK_END) / 1e6
     s = out.summary
     decodes = sum(len(m.decoded) for m in out.units)
-    return {
+    got = {
         "wall": wall,
         "sim": s["sim_seconds"],
         "errors": len(s["decode_errors"]),
         "decodes": decodes,
         "failure": s["error"],
+        # before the reference runs: its arrays must not count as the run's peak
         "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "log_mb": len(buf.getvalue()) / 1e6,
+        "log_mb": log_mb,
         "pulses": sc.codebook.pulses,
+        "medium_pulses": medium_pulses(out.units),
         "mode": sc.mode,
+    }
+    if reference and not s["error"]:
+        got.update(numpy_reference(sc, out.units, s["sim_seconds"]))
+    return got
+
+
+def count_calls(n: int, schedule: str) -> dict[str, Any]:
+    """In a child process: the run under cProfile; every call it makes, per pulse on the medium
+    (cProfile counts calls of Python functions and of C builtins alike)."""
+    import cProfile
+    import pstats
+
+    from rgtbus.units.group import run_group
+
+    from rgtbus.scenario import parse_scenario
+    from rgtbus.telemetry import NullRecorder
+
+    sc = parse_scenario(scale_toml(n, schedule), f"<scale{n}>")
+    pr = cProfile.Profile()
+    pr.enable()
+    out = run_group(sc, "memory", NullRecorder())
+    pr.disable()
+    calls = pstats.Stats(pr).total_calls  # type: ignore[attr-defined]
+    pulses = medium_pulses(out.units)
+    return {"calls": calls, "medium_pulses": pulses, "calls_per_pulse": calls / max(pulses, 1)}
+
+
+REF_CHUNK = 1 << 22  # scores per decode block: bounds the reference's memory (32 MB a block)
+
+
+def numpy_reference(
+    sc: Scenario, members: list[AutonomousUnit], sim_seconds: float
+) -> dict[str, Any]:
+    """The run's necessary work in plain NumPy, timed apart from the run (noise 0 assumed).
+
+    (a) The medium rebuilt from the units' sends, then a dense per-sample resonator bank over
+    every sample of the run for (distinct receiver views x n channels) lanes, literally as in
+    ``rgtbus.signal.reference.reference_trajectory``; the readout is kept only at the (sample,
+    channel) pairs some code is decoded from. (b) Every code decoded by every receiver at once:
+    the readout at the code's pulse samples on its channel, nearest word of its family."""
+    import numpy as np
+
+    from rgtbus.protocol import PHASES
+    from rgtbus.signal.resonator import PAPER_B, PAPER_RESET_VALUE, PAPER_THRESHOLD, transition
+
+    units = list(sc.units)
+    n = len(units)
+    index = {u: i for i, u in enumerate(units)}
+    tau = sc.timing.tau
+    cb = sc.codebook
+    families = {
+        "id": cb.distinct_words(),  # an ID is judged against every distinct word
+        "relation": cb.family("relation"),
+        "alternative": cb.family("alternative"),
+    }
+    fam_index = {f: i for i, f in enumerate(families)}
+    # what the sends say, as plain arrays (Python bookkeeping: not timed)
+    rows_s, rows_m, chans, senders, fams, want = [], [], [], [], [], []
+    for m in members:
+        for send in m.sent:
+            if send.kind == "id":
+                fam, name = "id", "id"
+            else:  # a receiver knows a payload's family from the schedule's phase
+                phase = m.protocol.schedule[send.turn].phase
+                fam, name = ("relation" if phase == PHASES[0] else "alternative"), send.code
+            rows_s.append(send.samples)
+            rows_m.append(m.word(send))
+            chans.append(index[send.channel])
+            senders.append(index[m.name])
+            fams.append(fam_index[fam])
+            want.append(list(families[fam]).index(name))
+    S = np.array(rows_s, dtype=np.int64)  # (codes, pulses)
+    M = np.array(rows_m, dtype=float)
+    ch = np.array(chans, dtype=np.int64)
+    fam_of = np.array(fams)
+    want_of = np.array(want)
+    reaction = round(sc.timing.reaction_delay / tau)
+    end = max(round(sim_seconds / tau), int(S.max()) + reaction) + 1
+
+    # (a) the dense bank
+    t0 = time.perf_counter()
+    gains = np.array([sc.channel.gain_row(units, u) for u in units])  # [receiver, sender]
+    views, view_of = np.unique(gains, axis=0, return_inverse=True)
+    view_of = view_of.reshape(-1)
+    n_views = len(views)
+    medium = np.zeros((end, n_views))
+    # each view hears every pulse times its sender's link gain
+    heard = M[:, :, None] * views[:, senders].T[:, None, :]  # (codes, pulses, views)
+    np.add.at(medium, S.ravel(), heard.reshape(-1, n_views))
+    keys = np.unique((S * n + ch[:, None]).ravel())  # (sample, channel) pairs decoded from
+    need_k = keys // n
+    starts = np.flatnonzero(np.r_[True, need_k[1:] != need_k[:-1]])
+    bounds = np.r_[starts, keys.size]
+    plan = {int(need_k[a]): (int(a), int(b), keys[a:b] % n) for a, b in itertools.pairwise(bounds)}
+    readout = np.empty((keys.size, n_views))
+    A = np.array([transition(sc.frequencies[u], mode=sc.mode, tau=tau, b=PAPER_B) for u in units])
+    z = np.zeros((n_views, n), dtype=complex)
+    zi = z.imag  # a view: writes go to z
+    pend = np.zeros(z.shape, dtype=bool)
+    for k in range(end):
+        np.multiply(z, A, out=z)
+        if pend.any():  # after a spike: y restarts from the reset value
+            np.copyto(zi, PAPER_RESET_VALUE, where=pend)
+        hit = plan.get(k)
+        if hit is not None:
+            a, b, c = hit
+            before = zi[:, c]  # fancy indexing: a copy, the state before the input
+        zi += medium[k][:, None]
+        np.greater_equal(zi, PAPER_THRESHOLD, out=pend)
+        if hit is not None:  # d = Im z - Im(before the input), only where a decode reads it
+            readout[a:b] = (zi[:, c] - before).T
+    bank_s = time.perf_counter() - t0
+
+    # (b) every code, every receiver, at once (in blocks of receivers to bound the memory)
+    t0 = time.perf_counter()
+    X = readout[np.searchsorted(keys, S * n + ch[:, None])].transpose(2, 0, 1)  # (views, C, P)
+    decodes = mismatches = 0
+    for fam, words in families.items():
+        sel = np.flatnonzero(fam_of == fam_index[fam])
+        if not sel.size:
+            continue
+        W = np.array(list(words.values()))  # (words, pulses)
+        weights, bias = -2.0 * W.T, (W * W).sum(1)  # |x - w|^2 - |x|^2 = |w|^2 - 2 x.w
+        Xf, wf = X[:, sel], want_of[sel]
+        block = max(1, REF_CHUNK // (sel.size * len(W)))
+        for r0 in range(0, n, block):
+            Xr = Xf[view_of[r0 : r0 + block]]  # each receiver's copy of its view
+            got = (Xr @ weights + bias).argmin(-1)  # the nearest word's index: its name
+            mismatches += int(np.count_nonzero(got != wf))
+            decodes += got.size
+    decode_s = time.perf_counter() - t0
+    return {
+        "ref_s": bank_s + decode_s,
+        "ref_bank_s": bank_s,
+        "ref_decode_s": decode_s,
+        "ref_decodes": decodes,
+        "ref_mismatches": mismatches,
+        "ref_views": n_views,
+        "ref_samples": end,
+        "ref_lanes": n_views * n,
     }
 
 
-def measure(n: int, schedule: str, log: bool = False, noise: float = 0.0) -> dict:
+def measure(
+    n: int,
+    schedule: str,
+    log: bool = False,
+    noise: float = 0.0,
+    *,
+    log_file: bool = False,
+    reference: bool = False,
+    calls: bool = False,
+) -> dict[str, Any]:
     argv = [sys.executable, "-m", "benchmarks.bench_scale", "--one", str(n), schedule]
     argv += ["--log" if log else "--no-log", "--noise", repr(noise)]
+    argv += ["--log-file"] * log_file + ["--reference"] * reference + ["--count-calls"] * calls
     proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=7200)
     if proc.returncode != 0:
         raise SystemExit(f"n={n} {schedule} failed: {proc.stderr.strip()[-800:]}")
@@ -114,6 +303,121 @@ def goals(rows: list) -> None:
         print(f"- {line}")
 
 
+def fit_exponent(points: list[tuple[int, float]]) -> float | None:
+    """Least-squares slope of log(wall) against log(n): wall ~ n^slope."""
+    if len({n for n, _ in points}) < 2:
+        return None
+    xs = [math.log(n) for n, _ in points]
+    ys = [math.log(w) for _, w in points]
+    mx, my = statistics.fmean(xs), statistics.fmean(ys)
+    return sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / sum(
+        (x - mx) ** 2 for x in xs
+    )
+
+
+def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
+    """Issue 23's table of the concurrent schedule, every figure from fresh child processes."""
+    load0 = os.getloadavg()
+    cases: dict[int, dict[str, Any]] = {}
+    for n in sizes:
+        runs: list[dict[str, Any]] = []
+        logs: list[dict[str, Any]] = []
+        for _ in range(repeat or (3 if n <= 30 else 1)):
+            # alternated, so a change of the machine's load hits both alike
+            runs.append(measure(n, "concurrent", reference=True))
+            logs.append(measure(n, "concurrent", log=True, log_file=True))
+        calls = measure(n, "concurrent", calls=True) if n <= calls_upto else None
+        cases[n] = {"runs": runs, "logs": logs, "calls": calls}
+    load1 = os.getloadavg()
+
+    def med(rs: list[dict[str, Any]], key: str) -> float:
+        return statistics.median(r[key] for r in rs)
+
+    print("## Engine at scale: concurrent schedule (memory bus, event engine, fresh processes)")
+    print()
+    print(
+        "| n | R | pulses | decodes: run / reference (ref. mismatches) | wall s no log | "
+        "wall s full log | log / no log | peak MB no log / log | NumPy reference s "
+        "(bank + decode) | run / reference | Python calls per pulse |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    fig: dict[int, dict[str, float]] = {}
+    for n, case in cases.items():
+        runs, logs, calls = case["runs"], case["logs"], case["calls"]
+        bad = [r["failure"] for r in runs + logs if r["failure"]]
+        r0 = runs[0]
+        if bad:  # a run that cannot finish is a result too: say where it stopped
+            print(f"| {n} | {len(runs)} | - | failed: {bad[0]} |" + " - |" * 7)
+            continue
+        f = {k: med(runs, k) for k in ("wall", "rss_mb", "ref_s", "ref_bank_s", "ref_decode_s")}
+        f |= {"log_wall": med(logs, "wall"), "log_rss_mb": med(logs, "rss_mb")}
+        f["log_ratio"] = f["log_wall"] / f["wall"]
+        f["ref_ratio"] = f["wall"] / f["ref_s"]
+        fig[n] = f
+        per_pulse = f"{calls['calls_per_pulse']:.0f}" if calls else "-"
+        print(
+            f"| {n} | {len(runs)} | {r0['medium_pulses']} | {r0['decodes']} / "
+            f"{r0['ref_decodes']} ({max(r['ref_mismatches'] for r in runs)}) | "
+            f"{f['wall']:.2f} | {f['log_wall']:.2f} | {f['log_ratio']:.2f}x | "
+            f"{f['rss_mb']:.0f} / {f['log_rss_mb']:.0f} | {f['ref_s']:.2f} "
+            f"({f['ref_bank_s']:.2f} + {f['ref_decode_s']:.2f}) | {f['ref_ratio']:.2f}x | "
+            f"{per_pulse} |"
+        )
+    print()
+    slope = fit_exponent([(n, f["wall"]) for n, f in fig.items()])
+    span = f"n = {min(fig)}...{max(fig)}" if fig else "no size"
+    print(
+        f"Exponent of wall (no log) in n over {span}: "
+        + (f"{slope:.2f}" if slope is not None else "- (needs two sizes)")
+    )
+    print(
+        f"Machine: {os.cpu_count()} CPUs; load average (1, 5, 15 min) at start "
+        f"{', '.join(f'{x:.2f}' for x in load0)}, at end {', '.join(f'{x:.2f}' for x in load1)}"
+    )
+    print(
+        "Medians of R fresh processes per cell; the log run writes its MCAP to a temporary "
+        "file; the reference assumes noise 0 and is timed after the run, in its process."
+    )
+    print()
+    engine_goals(fig)
+
+
+def engine_goals(fig: dict[int, dict[str, float]]) -> None:
+    """Issue 23's goals against the engine table (a goal whose case was not run is left out)."""
+
+    def verdict(ok: bool) -> str:
+        return "met" if ok else "NOT met"
+
+    lines = []
+    for n, wall_goal, mb_goal in ((100, 20.0, 250.0), (200, 120.0, 1024.0)):
+        if n in fig:
+            f = fig[n]
+            ok = f["log_wall"] < wall_goal and f["log_rss_mb"] < mb_goal
+            lines.append(
+                f"n = {n} concurrent, full log: {f['log_wall']:.1f} s, {f['log_rss_mb']:.0f} MB "
+                f"(goal < {wall_goal:g} s and < {mb_goal:g} MB): {verdict(ok)}"
+            )
+    if 50 in fig:
+        f = fig[50]
+        lines.append(
+            f"n = 50 run / NumPy reference: {f['ref_ratio']:.2f}x (goal <= 3x): "
+            f"{verdict(f['ref_ratio'] <= 3.0)}"
+        )
+        lines.append(
+            f"n = 50 log / no log: {f['log_ratio']:.2f}x (goal <= 1.3x): "
+            f"{verdict(f['log_ratio'] <= 1.3)}"
+        )
+    if 10 in fig and 100 in fig:
+        slope = fit_exponent([(n, f["wall"]) for n, f in fig.items() if 10 <= n <= 100])
+        assert slope is not None
+        lines.append(
+            f"exponent of wall over n = 10...100: {slope:.2f} (goal <= 3.0): "
+            f"{verdict(slope <= 3.0)}"
+        )
+    for line in lines:
+        print(f"- {line}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="4,6,8,10,12,16,20", help="serial and concurrent")
@@ -125,9 +429,32 @@ def main() -> None:
     ap.add_argument("--log", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--no-log", dest="log", action="store_false", help=argparse.SUPPRESS)
     ap.add_argument("--noise", type=float, default=0.0, help=argparse.SUPPRESS)
+    ap.add_argument("--log-file", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--reference", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--count-calls", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--scale-sizes", help="only the engine table (issue 23) at these sizes, e.g. 10,30,50,100"
+    )
+    ap.add_argument(
+        "--repeat", type=int, help="engine table: runs per cell (default 3 up to n = 30, else 1)"
+    )
+    ap.add_argument(
+        "--calls-upto", type=int, default=30, help="engine table: count calls up to this size"
+    )
     args = ap.parse_args()
     if args.one:
-        print(json.dumps(one(int(args.one[0]), args.one[1], args.log, args.noise)))
+        n, schedule = int(args.one[0]), args.one[1]
+        if args.count_calls:
+            print(json.dumps(count_calls(n, schedule)))
+            return
+        got = one(
+            n, schedule, args.log, args.noise, log_file=args.log_file, reference=args.reference
+        )
+        print(json.dumps(got))
+        return
+    if args.scale_sizes:
+        sizes = [int(x) for x in args.scale_sizes.split(",") if x]
+        engine_table(sizes, args.repeat, args.calls_upto)
         return
     sizes = [4, 6, 10] if args.quick else [int(x) for x in args.sizes.split(",")]
     large = [30] if args.quick else [int(x) for x in args.large.split(",") if x]
