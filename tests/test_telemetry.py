@@ -696,6 +696,26 @@ def test_a_log_is_flushed_by_wall_time_too(tmp_path):
         rec.close()
 
 
+def test_records_told_late_do_not_finish_a_chunk(tmp_path):
+    """A unit logs its spikes when it wakes, after records of later times: a chunk is due by
+    how far the present has moved, not by how old its oldest record is."""
+    from rgtbus.telemetry import McapRecorder, scan_log
+
+    path = tmp_path / "late.mcap"
+    second = 1_000_000_000
+    with open(path, "wb") as f:
+        rec = McapRecorder(f, flush_wall=3600)  # no flush by the clock in this test
+        rec.write("/log", SAMPLES["/log"], 5 * second)  # the present
+        for k in range(50):  # told late: earlier than the present
+            rec.write("/log", SAMPLES["/log"], k * second // 100)
+        rec.write("/log", SAMPLES["/log"], 5 * second + second // 2)
+        rec.write("/medium", SAMPLES["/medium"], 90 * second)  # ahead: finishes nothing
+        assert scan_log(path).messages == []
+        rec.write("/log", SAMPLES["/log"], 6 * second)  # one span on: due
+        assert len(scan_log(path).messages) == 54  # the medium and all 53 records
+        rec.close()
+
+
 def test_a_message_written_ahead_does_not_hold_the_others_back(tmp_path):
     """The medium is logged ahead of the units' records: a chunk is flushed once it spans
     ``flush_seconds`` from its oldest message, not from its first."""

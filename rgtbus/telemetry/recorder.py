@@ -15,7 +15,7 @@ import threading
 import time
 import zlib
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, BinaryIO, Protocol, Self, cast, runtime_checkable
 
@@ -245,9 +245,11 @@ class McapRecorder(_Encoding):
     ``failed`` then holds that line and nothing more is written (``close`` writes nothing).
 
     The log is written as the run goes: the chunk in progress is finished and flushed to the
-    stream once it holds ``flush_messages`` messages, once it spans ``flush_seconds`` of log
-    time (from its oldest message: a message written ahead of time, like ``/medium``, never
-    holds the others back), and at least every ``flush_wall`` seconds of wall time (a
+    stream once it holds ``flush_messages`` messages, once the present (the latest log time
+    of a record) is ``flush_seconds`` past where it was at the chunk's first record (records
+    told late, like a unit's spikes, change nothing; a topic written ahead of the present by
+    design, ``ahead_topics``, the medium, neither holds the others back nor finishes a chunk
+    by its time), and at least every ``flush_wall`` seconds of wall time (a
     background flusher: a paced or waiting run writes little), so a process killed outright
     loses at most about ``flush_wall`` seconds of its records (the file then reads as
     truncated)."""
@@ -263,6 +265,7 @@ class McapRecorder(_Encoding):
         flush_messages: int = 4096,
         flush_wall: float = 0.5,
         live: LiveSink | None = None,
+        ahead_topics: Collection[str] = ("/medium",),
     ) -> None:
         super().__init__(validate)
         self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
@@ -297,7 +300,10 @@ class McapRecorder(_Encoding):
         self._flush_ns = ns(flush_seconds)
         self._flush_messages = int(flush_messages)
         self._unflushed = 0
-        self._flush_due = 0  # log time at which the oldest unflushed message is flush_ns old
+        # the present at which the chunk in progress is due (flush_ns after its first record)
+        self._flush_due = _U64_MAX
+        self._present = 0  # the latest log time of a record of the present so far
+        self._ahead_topics = frozenset(ahead_topics)
         self._channels: dict[str, foxglove.Channel] = {}
         # the writer is used from the run's thread and the wall-clock flusher: one at a time
         self._lock = threading.Lock()
@@ -349,13 +355,20 @@ class McapRecorder(_Encoding):
         with self._lock:
             channel.log(data, log_time=t)
             self._unflushed += 1
-            if self._unflushed == 1:
-                self._flush_due = t + self._flush_ns
+            if topic in self._ahead_topics:
+                # written ahead of the present by design: its time says nothing of how far
+                # the run has come, so it neither sets nor meets the due time (the medium
+                # used to finish a chunk every few dozen messages: ~2,800 flushes at n = 20)
+                due = self._unflushed >= self._flush_messages
             else:
-                # due one span after the chunk's oldest message (one written ahead, e.g. the
-                # medium, must not push the due time away from the records before it)
-                self._flush_due = min(self._flush_due, t + self._flush_ns)
-            due = self._unflushed >= self._flush_messages or t >= self._flush_due
+                # due once the present (the latest record's time) is one span past where it
+                # was at the chunk's first record: records told late (a unit's spikes, logged
+                # when it wakes) do not finish a chunk every few dozen messages
+                if t > self._present:
+                    self._present = t
+                if self._flush_due == _U64_MAX:
+                    self._flush_due = self._present + self._flush_ns
+                due = self._unflushed >= self._flush_messages or self._present >= self._flush_due
         if self.live is not None:
             self.live.put(topic, schema, data, t)
         if self._sink.error is not None:
@@ -371,6 +384,7 @@ class McapRecorder(_Encoding):
             if self._closed:
                 return
             self._unflushed = 0
+            self._flush_due = _U64_MAX  # set by the next chunk's first record of the present
             self._flushed_at = time.monotonic()
             self._writer.flush()
 
