@@ -15,7 +15,7 @@ def built() -> dict[str, dict]:
     return {
         "/medium": records.medium_window(2, 0.2, 200.0, [0.0, 0.4]),
         "/tx/pulse": records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref),
-        "/rx/spike": records.spike("b", 0.005, 41, ["a", "b"]),
+        "/rx/spike": records.spikes("b", 0.005, [41, 44], [["a", "b"], ["b"]]),
         "/rx/decode": records.decode("b", 3, "a", "b", "b", "influence", "{go}", 0.3, 9.5, True),
         "/unit/relations": records.relations(
             "b", 9.0, {"a>b": "alliance", "b>a": "alliance"}, {"a-b": "alliance"}, "ab", None

@@ -53,7 +53,8 @@ SAMPLES: dict[str, dict] = {
         "unit": "b",
         "t": 1.3,
         "sample": 260,
-        "channels": ["a", "c"],
+        "samples": [260, 262],
+        "channels": [["a", "c"], ["c"]],
     },
     "/rx/decode": {
         "unit": "b",
@@ -545,9 +546,22 @@ def test_docs_topics_md_is_generated():
     )
 
 
-def test_spike_rows_read_records_of_one_sample_and_older_logs_of_one_spike_alike():
+def test_spike_rows_read_blocks_records_of_one_sample_and_logs_of_one_spike_alike():
     from rgtbus.telemetry.read import spike_rows
 
+    block = {
+        "unit": "b",
+        "t": 1.3,
+        "sample": 260,
+        "samples": [260, 263],
+        "channels": [["a"], ["a", "c"]],
+    }
+    assert spike_rows([block], {"a": 4.7, "c": 5.2}, 0.005) == [
+        {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260},
+        {"unit": "b", "channel": "a", "omega": 4.7, "t": 263 * 0.005, "sample": 263},
+        {"unit": "b", "channel": "c", "omega": 5.2, "t": 263 * 0.005, "sample": 263},
+    ]
+    assert spike_rows([block], {})[2]["t"] == 1.3 / 260 * 263  # no τ: the record's own
     new = {"unit": "b", "t": 1.3, "sample": 260, "channels": ["a", "c"]}
     old = {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260}
     rows = spike_rows([new, old], {"a": 4.7, "c": 5.2})

@@ -98,6 +98,8 @@ def rerun(
         write_medium=False,  # the log has the medium; the diff compares what units did
     )
     result = world.run()
+    for m in members:  # as the run's units did at its end
+        m.end_log()
     complete = all(m.done for m in members)
     summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
     return Rerun(rec.messages, summary, members, complete)

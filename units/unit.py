@@ -42,6 +42,7 @@ from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
 
+SPIKE_BLOCK_SECONDS = 0.1  # a unit's spikes of this much time make one /rx/spike record
 SPIKE_NAMES_MAX = 4096  # sets of channels whose names a unit keeps built (the common ones)
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
@@ -94,6 +95,12 @@ class AutonomousUnit:
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         self._spike_names: dict[tuple[int, ...], list[str]] = {}
+        self._spikes_at: list[int] = []  # spikes kept for the log: one window's samples ...
+        self._spikes_on: list[list[str]] = []  # ... and the channels fired at each
+        self._spikes_window = -1
+        # spikes go to the log in blocks of this many samples (a fixed span of time, not the
+        # engine's window: what a record holds never depends on how the run was stepped)
+        self._block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
         self._alternatives: dict[str, int] = {}  # decoded names, parsed once
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
@@ -184,6 +191,7 @@ class AutonomousUnit:
         or the spike it awaits, whichever comes first (``_woken`` is called then)."""
         assert self.ears is not None
         if self.done:
+            self.end_log()
             self.ears.stop(self.index)
             return
         t = self._timers[0]
@@ -201,34 +209,57 @@ class AutonomousUnit:
         """Receive -> protocol -> decode -> reason -> send, at the sample the ears woke it."""
         assert self.ears is not None
         aw = self._asked
+        logged = self.recorder.enabled  # nothing to build for a run without a log
         for k, channels in heard.spikes:  # in order; only the last can be reacted to
-            if self.recorder.enabled:  # nothing to build for a run without a log
+            if logged:
                 self._log_spikes(k, channels)
             # the protocol hears the spike it awaits (any other asks nothing of it)
             if aw is not None and aw[0] in channels and k >= aw[1]:
                 self._apply(self.protocol.on_spike(self.units[aw[0]], k))
                 aw = self.awaited()
+        pos = self.ears.pos
+        if self._spikes_at and self._spikes_window < pos // self._block:  # its block is heard
+            self._write_spikes()
         # every timer whose samples have all been heard is due (its time, the boundary's
         # last sample, is now or was passed by the spike that woke this unit)
-        pos = self.ears.pos
         timers = self._timers
         while not self.done and timers and timers[0][0] <= pos:
             self._on_timer(heapq.heappop(timers))
         self._ask()
 
     def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
-        # one record per sample: a large run's receivers fire millions of times, and one
-        # message per resonator made the log cost several times the simulation (issue 11)
-        # every receiver hears the same medium, so the same sets of channels fire again and
-        # again: their names are built once (the lists are only read)
+        """Keep a spike for the log: one record per block of ``SPIKE_BLOCK_SECONDS`` with a
+        spike (``_write_spikes``), not per sample
+        (a large run's receivers fire millions of times: the records cost more than the run,
+        issue 23). Every receiver hears the same medium, so the same sets of channels fire
+        again and again: their names are built once (the lists are only read)."""
+        w = k // self._block
+        if self._spikes_at and w != self._spikes_window:
+            self._write_spikes()
+        self._spikes_window = w
         names = self._spike_names.get(channels)
         if names is None:
             if len(self._spike_names) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
                 self._spike_names.clear()
             names = self._spike_names[channels] = [self.units[ch] for ch in channels]
+        self._spikes_at.append(k)
+        self._spikes_on.append(names)
+
+    def _write_spikes(self) -> None:
+        """The spikes kept of one block, as one ``/rx/spike`` record (at its first spike):
+        written once the block has been heard, or when the unit is done. Which spikes make a
+        record depends only on the block, so every engine and bus logs the same records."""
+        at, on = self._spikes_at, self._spikes_on
+        self._spikes_at, self._spikes_on = [], []
         self.recorder.write(
-            "/rx/spike", records.spike(self.name, self.tau, k, names), ns(k * self.tau)
+            "/rx/spike", records.spikes(self.name, self.tau, at, on), ns(at[0] * self.tau)
         )
+
+    def end_log(self) -> None:
+        """The run is over for this unit (done, or the world stopped): write what it still
+        keeps for the log."""
+        if self._spikes_at:
+            self._write_spikes()
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":

@@ -160,12 +160,25 @@ def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
     return out
 
 
-def spike_rows(records: Iterable[dict], frequencies: dict[str, float]) -> list[dict]:
+def spike_rows(
+    records: Iterable[dict], frequencies: dict[str, float], tau: float | None = None
+) -> list[dict]:
     """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
-    records, which list every resonator of a unit that fired at one sample; ω comes from the
-    log's frequencies (logs written before that change hold one spike a record, with its ω)."""
+    records: a unit's spikes of one window as columns (``samples``, ``channels``); ω comes
+    from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
+    names) or one spike a record (with its ω); both still read. ``tau``: the sample period
+    (else each spike's time is worked out from the record's first)."""
     rows = []
     for m in records:
+        if "samples" in m:
+            unit, k0, t0 = m["unit"], m["sample"], m["t"]
+            step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
+            for k, chans in zip(m["samples"], m["channels"], strict=True):
+                t = k * step if k != k0 else t0
+                for ch in chans:
+                    om = frequencies.get(ch)
+                    rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
+            continue
         if "channels" not in m:
             rows.append(m)
             continue
@@ -209,7 +222,8 @@ class Replay:
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
         self.frequencies = _frequencies(self.metadata)
-        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies)
+        tau = self.scenario.timing.tau if self.scenario is not None else None
+        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies, tau)
         self.relations: dict[str, RelationsRecord] = {
             m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic["/unit/relations"]
         }

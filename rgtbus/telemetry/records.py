@@ -39,8 +39,9 @@ class PulseRecord(TypedDict):
 class SpikeRecord(TypedDict):
     unit: str
     t: float
-    sample: int
-    channels: list[str]
+    sample: int  # the first spike's
+    samples: list[int]
+    channels: list[list[str]]
 
 
 class DecodeRecord(TypedDict):
@@ -187,9 +188,17 @@ def pulse(
     }
 
 
-def spike(unit: str, tau: float, sample: int, channels: list[str]) -> SpikeRecord:
-    """Every resonator of ``unit`` that fired at ``sample`` (one record a sample)."""
-    return {"unit": unit, "t": sample * tau, "sample": sample, "channels": channels}
+def spikes(unit: str, tau: float, samples: list[int], channels: list[list[str]]) -> SpikeRecord:
+    """Every spike of ``unit`` in one window, as columns: at ``samples[i]`` the resonators of
+    ``channels[i]`` fired (one record per unit and window: a large run's receivers fire
+    millions of times; logs before it held one record a sample, which ``spike_rows`` reads)."""
+    return {
+        "unit": unit,
+        "t": samples[0] * tau,
+        "sample": samples[0],
+        "samples": samples,
+        "channels": channels,
+    }
 
 
 def decode(

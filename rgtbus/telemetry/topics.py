@@ -20,7 +20,10 @@ TOPICS: dict[str, tuple[str, str]] = {
         "every window of the shared medium that carries a pulse (silent ones are not logged)",
     ),
     "/tx/pulse": ("rgtbus.Pulse", "every transmitted pulse"),
-    "/rx/spike": ("rgtbus.Spike", "every resonator spike, per receiving unit and sample"),
+    "/rx/spike": (
+        "rgtbus.Spikes",
+        "every resonator spike, per receiving unit and window: samples and the channels fired",
+    ),
     "/rx/decode": ("rgtbus.Decode", "every decoded code, per receiving unit"),
     "/unit/relations": ("rgtbus.Relations", "relationship table as a unit holds it"),
     "/unit/influences": (
