@@ -167,7 +167,8 @@ def spike_rows(
     records: a unit's spikes of one window as columns (``samples``, ``channels``); ω comes
     from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
     names) or one spike a record (with its ω); both still read. ``tau``: the sample period
-    (else each spike's time is worked out from the record's first)."""
+    (else each spike's time is worked out from the record's first). Rows are in sample order
+    (stable: as logged within a sample)."""
     rows = []
     for m in records:
         if "samples" in m:
@@ -186,6 +187,7 @@ def spike_rows(
         for ch in m["channels"]:
             om = frequencies.get(ch)
             rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
+    rows.sort(key=lambda r: r["sample"])  # in time order, however they were written
     return rows
 
 

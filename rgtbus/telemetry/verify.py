@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -18,6 +18,7 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
+from rgtbus.timebase import ns
 from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
 from rgtbus.telemetry.recorder import (
     encode_json,
@@ -119,18 +120,36 @@ def _key_text(topic: str, key: tuple) -> str:
     return "table"
 
 
+def spikes_per_sample(
+    messages: Iterable[tuple[str, int, dict]], tau: float
+) -> Iterator[tuple[str, int, dict]]:
+    """The messages with every ``/rx/spike`` block as one message per sample (as logs before
+    the columnar record held them): spikes are compared sample by sample, so a log of either
+    form verifies, and a mismatch names its sample."""
+    for topic, t_ns, m in messages:
+        if topic != "/rx/spike" or not isinstance(m, dict) or "samples" not in m:
+            yield topic, t_ns, m
+            continue
+        unit = m["unit"]
+        for k, chans in zip(m["samples"], m["channels"], strict=True):
+            t = k * tau
+            yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
+
+
 def diff_messages(
     logged: Iterable[tuple[str, int, dict]],
     recomputed: Iterable[tuple[str, int, dict]],
     units: Sequence[str],
     *,
     until_ns: int | None = None,
+    tau: float | None = None,
 ) -> tuple[list[Mismatch], Counter[str]]:
     """Pair logged and recomputed messages per topic by key; list what differs.
 
     /log: every line the re-run units write must be in the log; the log may hold more (the
     CLI and per-process wrappers write lines too, some under a unit's name);
     ``until_ns`` ignores messages at or after that time on both sides (a truncated log).
+    ``tau``: spikes are compared one sample at a time (``spikes_per_sample``).
     Returns the mismatches and how many messages of each topic were compared.
     """
     unitset = set(units)
@@ -153,6 +172,9 @@ def diff_messages(
                 out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
         return out
 
+    if tau is not None:
+        logged = spikes_per_sample(logged, tau)
+        recomputed = spikes_per_sample(recomputed, tau)
     a = keyed(logged)
     b = keyed(recomputed)
     mismatches: list[Mismatch] = []
@@ -277,7 +299,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         until = until_ns / NS
     mismatches += check_medium(replay, until_ns)
     diffs, checked = diff_messages(
-        replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns
+        replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
     )
     mismatches += diffs
     mismatches += list(checks)
