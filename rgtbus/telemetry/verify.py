@@ -18,11 +18,11 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
-from rgtbus.timebase import ns
 from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
 from rgtbus.telemetry.recorder import (
     encode_json,
 )
+from rgtbus.timebase import ns
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
 EXIT_VERIFIED = 0
