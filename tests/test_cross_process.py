@@ -90,6 +90,105 @@ def test_launch_equals_the_single_process_run(tmp_path, name, router):
     )
 
 
+@pytest.mark.parametrize(
+    ("name", "procs", "files", "shared"),
+    [
+        # goals over three rounds, 4 units in 2 processes; a group of 6 in 4 uneven processes
+        ("tug_of_war", 2, ["proc-0", "proc-1"], 2),
+        ("group6", 4, ["proc-0", "proc-1", "proc-2", "proc-3"], 2),
+        ("gate", 1, ["proc-0"], 1),
+    ],
+)
+def test_launch_with_several_units_a_process_equals_the_single_process_run(
+    tmp_path, name, procs, files, shared
+):
+    argv = [*EXE, "launch", str(ROOT / "scenarios" / f"{name}.toml"), "--log-dir", str(tmp_path)]
+    proc = subprocess.run(
+        [*argv, "--procs", str(procs), "--json"], capture_output=True, text=True, timeout=180
+    )
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    ref, ref_messages = single(name)
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, metadata = read_log(tmp_path / "run.mcap")
+    assert content(messages) == content(ref_messages)
+    assert sorted(p.stem for p in tmp_path.glob("*.mcap")) == sorted([*files, "launch", "run"])
+    # the processes that ran several units say which (and every unit is in one of them)
+    hosted = [v["units"] for k, v in metadata.items() if k.startswith("run") and "units" in v]
+    assert len(hosted) == shared
+    verify = subprocess.run(
+        [*EXE, "replay", str(tmp_path / "run.mcap"), "--verify", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert verify.returncode == 0, verify.stderr
+
+
+def test_launch_with_the_users_zenoh_options_goes_through_their_router(procs, tmp_path):
+    port = free_ports(1)[0]
+    router = procs("router", "--listen", f"tcp/127.0.0.1:{port}")
+    assert router.stdout.readline().startswith("router listening")  # bounded by its start
+    argv = [*EXE, "launch", str(ROOT / "scenarios" / "gate.toml"), "--log-dir", str(tmp_path)]
+    argv += ["--procs", "2", "-m", "client", "-e", f"tcp/127.0.0.1:{port}", "--json"]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    ref, _ = single("gate")
+    cross = json.loads(proc.stdout)
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+
+
+def test_process_groups_are_even_and_in_order():
+    from rgtbus.cli.proc_cmds import process_groups
+
+    units = ["a", "b", "c", "d", "e", "f", "g"]
+    assert process_groups(units, None) == {u: [u] for u in units}
+    assert process_groups(units, 3) == {
+        "proc-0": ["a", "b", "c"],
+        "proc-1": ["d", "e"],
+        "proc-2": ["f", "g"],
+    }
+    assert process_groups(units, 7)["proc-6"] == ["g"]
+    for bad in (0, 8, -1, True):
+        with pytest.raises(RgtbusError, match="--procs"):
+            process_groups(units, bad)
+
+
+def test_launch_refuses_bad_procs_and_one_endpoint_for_many_processes(tmp_path):
+    scenario = str(ROOT / "scenarios" / "gate.toml")
+    for extra, needle in [
+        (["--procs", "9"], "--procs 9: must be 1 to 4"),
+        (["--procs", "2", "-l", "tcp/127.0.0.1:7999"], "-l/--listen with 2 processes"),
+    ]:
+        argv = [*EXE, "launch", scenario, "--log-dir", str(tmp_path), *extra]
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, (extra, proc.stderr)
+        assert needle in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_two_processes_of_several_units_each_equal_the_single_run(procs, tmp_path):
+    """``rgtbus unit a,b`` runs two units in one process; two such processes make the run."""
+    scenario = str(ROOT / "scenarios" / "gate.toml")
+    ports = free_ports(2)
+    net = [["--listen", f"tcp/127.0.0.1:{ports[0]}"]]
+    net.append(["--listen", f"tcp/127.0.0.1:{ports[1]}", "--connect", f"tcp/127.0.0.1:{ports[0]}"])
+    started = [
+        procs("unit", names, scenario, *net[i], "--log", str(tmp_path / f"{i}.mcap"), "--json",
+              "--run-id", "multi")
+        for i, names in enumerate(["a,c", "b,d"])
+    ]  # fmt: skip
+    outs = {}
+    for p in started:
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err
+        outs.update(json.loads(out))
+    ref, _ = single("gate")
+    assert sorted(outs) == ["a", "b", "c", "d"]
+    for u, o in outs.items():
+        assert o["report"]["result"] == ref["units"][u], u
+        assert o["error"] is None and o["sim_seconds"] == ref["sim_seconds"]
+
+
 def start_mesh(procs, scenario: str, tmp_path: Path, *extra: str, units=None):
     sc = load_scenario(scenario)
     names = units or sc.units

@@ -81,7 +81,7 @@ class LogBus:
     def status(self) -> dict[str, MemberStatus]:
         return self._status
 
-    def join(self, unit: str, digest: str, timeout: float = 0.0) -> None:
+    def join(self, units: str | Sequence[str], digest: str, timeout: float = 0.0) -> None:
         pass
 
     def stats(self) -> dict[str, int]:

@@ -272,7 +272,8 @@ class ZenohBus(QueueBus):
         self._hellos: queue.Queue[bytes] = queue.Queue(maxsize=HELLO_QUEUE)
         self._hello_prefix = keys.prefix(keys.HELLO, self.run_id)
         self.max_hello = max_hello(self.members)
-        self._joined: tuple[str, str] | None = None  # (unit, digest) once the run has started
+        # (this process's units, digest) once the run has started
+        self._joined: tuple[tuple[str, ...], str] | None = None
         self._late_answered: set[tuple[str, bytes]] = set()
         self._late_rate = _Rate(_LATE_ANSWERS_PER_S, _LATE_ANSWERS_PER_S)
         self._owns_session = session is None
@@ -352,8 +353,10 @@ class ZenohBus(QueueBus):
     def hello_key(self, unit: str) -> str:
         return keys.key(keys.HELLO, self.run_id, unit)
 
-    def join(self, unit: str, digest: str, timeout: float = 10.0) -> None:
+    def join(self, units: str | Sequence[str], digest: str, timeout: float = 10.0) -> None:
         """Barrier before the run: wait until every member is up, on the same scenario.
+        ``units``: the units this process runs (one, or several: each says its hello, all with
+        the process's nonce, and counts the others of its process as heard).
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and repeats a
         hello (rgtbus.bus.hello: its unit, scenario digest, nonce, and the nonces of the members
@@ -369,10 +372,18 @@ class ZenohBus(QueueBus):
         nonce) brings news, and at most a few times a round; the rest wait for the next round
         and are counted (``hellos_unanswered``): replayed hellos buy no flood of answers.
         """
-        self._check_member(unit)
+        mine = [units] if isinstance(units, str) else list(units)
+        if not mine:
+            raise RgtbusError("join: no unit to join as")
+        for u in mine:
+            self._check_member(u)
+        if len(set(mine)) != len(mine):
+            raise RgtbusError(f"join: a unit named twice in {mine}")
+        unit = mine[0]  # the process's voice for what it says once (tokens, late answers)
         check_digest(digest)
         members = set(self.members)
-        others = members - {unit}
+        local = set(mine)
+        others = members - local
         hello_gate = self._hello_gate
         self._hello_sub = self.session.declare_subscriber(
             keys.every_unit(keys.HELLO, self.run_id),
@@ -384,7 +395,7 @@ class ZenohBus(QueueBus):
             )
         except Exception as e:  # liveliness is for presence only; the barrier does the work
             self._notes.append(f"liveliness token not declared: {e}")
-        echo: dict[str, bytes] = {unit: self.nonce}  # the latest nonce each member said
+        echo: dict[str, bytes] = dict.fromkeys(mine, self.nonce)  # each member's latest nonce
         fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
         ready: set[str] = set()
         deadline = time.monotonic() + timeout
@@ -409,11 +420,13 @@ class ZenohBus(QueueBus):
             if len(replied) < _ANSWERED_MAX:
                 replied.add(k)
             budget[0] -= 1
-            self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+            for u in mine:
+                self._say_hello(u, digest, echo, ready=fresh.keys() >= others)
 
         while True:
             budget[0] = _REPLIES_PER_ROUND * len(self.members)
-            self._say_hello(unit, digest, echo, ready=fresh.keys() >= others)
+            for u in mine:
+                self._say_hello(u, digest, echo, ready=fresh.keys() >= others)
             until = time.monotonic() + 0.05
             while (left := until - time.monotonic()) > 0:
                 try:
@@ -421,14 +434,14 @@ class ZenohBus(QueueBus):
                 except queue.Empty:
                     break
                 h = self._read_hello(raw)
-                if h is None or h.unit == unit:
+                if h is None or h.unit in local:
                     continue
                 if h.digest != digest:
                     raise RgtbusError(
                         f"unit {h.unit!r} of run {self.run_id!r} runs another scenario or "
                         f"seed (digest {h.digest[:12]}, ours {digest[:12]})"
                     )
-                if h.heard.get(unit) != self.nonce:  # not (yet) an answer to us
+                if any(h.heard.get(u) != self.nonce for u in mine):  # not (yet) an answer
                     news = echo.get(h.unit) != h.nonce
                     echo[h.unit] = h.nonce
                     if news:  # say so at once: it waits for our echo of its nonce
@@ -456,12 +469,13 @@ class ZenohBus(QueueBus):
                 if news:
                     answer(h, True)
             if done():
-                self._say_hello(unit, digest, echo, ready=True)
+                for u in mine:
+                    self._say_hello(u, digest, echo, ready=True)
                 # What is queued now was said before the start (a link keeps its order).
                 while not self._hellos.empty():
                     self._hellos.get_nowait()
                 self._nonces.update(fresh)
-                self._joined = (unit, digest)
+                self._joined = (tuple(mine), digest)
                 return
             if time.monotonic() > deadline:
                 missing = sorted(others - fresh.keys()) or sorted(others - ready)
@@ -498,14 +512,15 @@ class ZenohBus(QueueBus):
 
     def _answer_late_hellos(self) -> None:
         assert self._joined is not None
-        unit, digest = self._joined
+        mine, digest = self._joined
+        unit = mine[0]
         while True:
             try:
                 raw = self._hellos.get_nowait()
             except queue.Empty:
                 return
             h = self._read_hello(raw)
-            if h is None or h.started or h.unit == unit:
+            if h is None or h.started or h.unit in mine:
                 continue
             if h.ready and self._nonces.get(h.unit) == h.nonce:
                 continue  # a member's last barrier hello, not a late joiner

@@ -11,7 +11,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -62,15 +62,18 @@ def _zenoh_arguments(p: argparse.ArgumentParser) -> None:
 def register(subparsers: argparse._SubParsersAction) -> None:
     u = subparsers.add_parser(
         "unit",
-        help="run one unit of a scenario as its own process, over zenoh",
-        description="Run unit NAME of SCENARIO in this process. Every unit of the scenario must "
-        "be started (on this machine or others) and reachable through zenoh; they join, then "
-        "advance together, each to the smallest promise of all (conservative synchronisation).",
+        help="run units of a scenario in this process, over zenoh",
+        description="Run unit NAME (or units NAME,NAME,...) of SCENARIO in this process. Every "
+        "unit of the scenario must be started (on this machine or others) and reachable through "
+        "zenoh; they join, then advance together, each to the smallest promise of all "
+        "(conservative synchronisation).",
     )
-    u.add_argument("name", metavar="NAME", help="the unit to run, e.g. a")
+    u.add_argument(
+        "name", metavar="NAME", help="the unit to run, e.g. a; several: a,b,c (one process)"
+    )
     u.add_argument("scenario", metavar="SCENARIO", help="the scenario file (same on every unit)")
     _zenoh_arguments(u)
-    u.add_argument("--log", metavar="PATH", help="this unit's MCAP log (default logs/...)")
+    u.add_argument("--log", metavar="PATH", help="this process's MCAP log (default logs/...)")
     u.add_argument(
         "--timeout",
         type=float,
@@ -108,11 +111,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     la = subparsers.add_parser(
         "launch",
-        help="run every unit of a scenario as its own OS process on loopback",
-        description="Start every unit of SCENARIO as a separate process (zenoh on loopback, free "
-        "ports), wait for all, merge their logs into one, and print the run's summary.",
+        help="run the units of a scenario as OS processes (one per unit, or --procs P)",
+        description="Start the units of SCENARIO as separate processes (zenoh on loopback, free "
+        "ports; or the zenoh options given, the same for every process), wait for all, merge "
+        "their logs into one, and print the run's summary.",
     )
     la.add_argument("scenario", metavar="SCENARIO")
+    la.add_argument(
+        "--procs",
+        type=int,
+        metavar="P",
+        help="run the units in P processes, as even groups in the scenario's order (default: "
+        "one process per unit); the results and log content are the same",
+    )
+    la.add_argument("--traces", action="store_true", help="log resonator traces")
+    _zenoh_arguments(la)
     la.add_argument(
         "--log-dir",
         metavar="DIR",
@@ -193,25 +206,25 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     from rgtbus.cli.run_cmd import decision_text, default_log_path
     from rgtbus.summary import not_decomposable_text
     from rgtbus.telemetry.logfile import close_log, open_log
-    from rgtbus.units.process import run_unit
+    from rgtbus.units.process import run_units
 
     sc = _load(args.scenario, args.seed)
-    if args.name not in sc.units:
-        raise RgtbusError(f"unknown unit {args.name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    names = unit_names(args.name, sc)
     for what in ("timeout", "join_timeout"):
         if not getattr(args, what) > 0:
             raise RgtbusError(f"--{what.replace('_', '-')} must be positive seconds")
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
-    log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{args.name}")
+    label = "+".join(names)
+    log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{label}")
     stream, recorder = open_log(log_path)
     # SIGTERM (a launcher giving up) ends the run like Ctrl-C: the log is still finished.
     signal.signal(signal.SIGTERM, _interrupt)
     try:
-        out = run_unit(
+        outs = run_units(
             sc,
-            args.name,
+            names,
             recorder,
             zenoh_options=zenoh_options(args),
             run_id=args.run_id,
@@ -224,33 +237,48 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
         )
     except KeyboardInterrupt:
         if not recorder.failed:
-            recorder.log("error", f"{args.name}: interrupted", 0, name=args.name)
-        print(f"rgtbus unit: {args.name}: interrupted", file=sys.stderr)
+            for name in names:
+                recorder.log("error", f"{name}: interrupted", 0, name=name)
+        print(f"rgtbus unit: {label}: interrupted", file=sys.stderr)
         return 130
     finally:
         close_log(stream, recorder)
-    out["log"] = str(log_path)
-    if args.json:
-        print(json.dumps(out))
+    for out in outs.values():
+        out["log"] = str(log_path)
+    if args.json:  # one unit: its object, as ever; several: one object per unit, by name
+        print(json.dumps(outs[names[0]] if len(names) == 1 else outs))
     else:
-        rep = out["report"]
-        res = rep["result"]
-        # The decision line and polynomial of ``rgtbus run``: one formatting rule for both.
-        canonical = f"{res['canonical']}   " if res["decided"] else ""
-        print(f"unit {args.name}: {canonical}{decision_text(sc.universe, args.name, res)}")
-        poly = (
-            f"(none): {not_decomposable_text(rep['p4'])}"
-            if rep.get("p4")
-            else rep["polynomial"] or "(none)"
-        )
-        print(
-            f"  polynomial {poly}; {out['steps']} steps, "
-            f"{out['sim_seconds']:.1f} s simulated in {out['wall_seconds']:.2f} s; log {log_path}"
-        )
-    if out["error"]:
-        print(f"rgtbus unit: {out['error']}", file=sys.stderr)
-        return 1
-    return 0
+        for name, out in outs.items():
+            rep = out["report"]
+            res = rep["result"]
+            # The decision line and polynomial of ``rgtbus run``: one formatting rule for both.
+            canonical = f"{res['canonical']}   " if res["decided"] else ""
+            print(f"unit {name}: {canonical}{decision_text(sc.universe, name, res)}")
+            poly = (
+                f"(none): {not_decomposable_text(rep['p4'])}"
+                if rep.get("p4")
+                else rep["polynomial"] or "(none)"
+            )
+            print(
+                f"  polynomial {poly}; {out['steps']} steps, {out['sim_seconds']:.1f} s "
+                f"simulated in {out['wall_seconds']:.2f} s; log {log_path}"
+            )
+    errors = list(dict.fromkeys(out["error"] for out in outs.values() if out["error"]))
+    for error in errors:
+        print(f"rgtbus unit: {error}", file=sys.stderr)
+    return 1 if errors else 0
+
+
+def unit_names(text: str, sc: Any) -> list[str]:
+    """``a`` or ``a,b,c``: the units one process runs (each a unit of the scenario, once)."""
+    names = [n.strip() for n in text.split(",")]
+    for name in names:
+        if name not in sc.units:
+            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise RgtbusError(f"unit {dup!r} named twice in {text!r}")
+    return names
 
 
 def _interrupt(*_: object) -> None:
@@ -284,43 +312,48 @@ def _die_with_parent() -> None:
 def _unit_child(
     conn: Any,
     sc: Any,
-    name: str,
+    names: list[str],
     log: Path,
     net: dict[str, Any],
     after: list[Any],
     listening: Any,
     **opts: Any,
 ) -> None:
-    """One unit of a launch, in its own forked process: what ``rgtbus unit`` does, its result
-    sent back on ``conn``. It opens its session once the peers it connects to listen
-    (``after``), and says when it listens itself (``listening``)."""
+    """The units ``names`` of a launch, in their own forked process: what ``rgtbus unit``
+    does, the result (``{"units": {name: output}}``, or ``{"crash": why}``) sent back on
+    ``conn``. It opens its session once the peers it connects to listen (``after``), and
+    says when it listens itself (``listening``)."""
     from rgtbus.telemetry.logfile import close_log, open_log
-    from rgtbus.units.process import run_unit
+    from rgtbus.units.process import run_units
 
     _die_with_parent()
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the launcher's to handle
+    out: dict[str, Any]
     try:
         for ev in after:  # bounded: a peer that never listens is named by the join
             ev.wait(10.0)
         stream, recorder = open_log(log)
         try:
-            out = run_unit(
+            outs = run_units(
                 sc,
-                name,
+                names,
                 recorder,
                 zenoh_options=net,
                 join_timeout=30.0,
                 on_open=listening.set,
                 **opts,
             )
+            for o in outs.values():
+                o["log"] = str(log)
+            out = {"units": outs}
         except KeyboardInterrupt:
             if not recorder.failed:
-                recorder.log("error", f"{name}: interrupted", 0, name=name)
+                for name in names:
+                    recorder.log("error", f"{name}: interrupted", 0, name=name)
             out = {"crash": "interrupted"}
         finally:
             close_log(stream, recorder)
-        out["log"] = str(log)
     except RgtbusError as exc:
         out = {"crash": str(exc)}
     except BaseException as exc:  # a bug: say what, not a traceback on the launcher's terminal
@@ -363,16 +396,24 @@ class Launch:
         self._results: dict[str, Any] = {}
         self._listening: dict[str, Any] = {}
 
-    def start_unit(
-        self, name: str, sc: Any, log: Path, net: dict[str, Any], after: list[str], **opts: Any
+    def start_process(
+        self,
+        name: str,
+        units: list[str],
+        sc: Any,
+        log: Path,
+        net: dict[str, Any],
+        after: list[str],
+        **opts: Any,
     ) -> None:
-        """Fork unit ``name``; it opens its session once the units ``after`` listen."""
+        """Fork process ``name`` running ``units``; it opens its session once the processes
+        ``after`` listen."""
         reader, writer = self._mp.Pipe(duplex=False)
         self._listening[name] = self._mp.Event()
-        waits = [self._listening[u] for u in after]
+        waits = [self._listening[p] for p in after]
         proc = self._mp.Process(
             target=_unit_child,
-            args=(writer, sc, name, log, net, waits, self._listening[name]),
+            args=(writer, sc, units, log, net, waits, self._listening[name]),
             kwargs=opts,
             name=name,
         )
@@ -392,11 +433,11 @@ class Launch:
         reader.recv()
 
     def collect(self, limit: float, timeout: float) -> dict[str, dict[str, Any]]:
-        """Every unit's result as it comes, at most ``limit`` seconds in all. Once a unit has
+        """Every process's result as it comes, at most ``limit`` seconds in all. Once one has
         died or crashed, the others notice within their ``timeout`` (no news): they get that
-        and a few seconds more; once a unit reports that a member went silent, the rest get a
-        few seconds (a unit still running then is stalled). A unit that dies without a result
-        gets ``{"died": exit code}``; one still running at the end is absent."""
+        and a few seconds more; once one reports that a member went silent, the rest get a
+        few seconds (a process still running then is stalled). A process that dies without a
+        result gets ``{"died": exit code}``; one still running at the end is absent."""
         from multiprocessing.connection import wait
 
         out: dict[str, dict[str, Any]] = {}
@@ -419,12 +460,12 @@ class Launch:
                 said = out[name]
                 if "died" in said or said.get("crash"):
                     end = min(end, time.monotonic() + timeout + _FEW_SECONDS)
-                elif said.get("world_failure"):
+                elif any(o.get("world_failure") for o in said.get("units", {}).values()):
                     end = min(end, time.monotonic() + _FEW_SECONDS)
         return out
 
     def late_results(self, names: list[str], timeout: float) -> dict[str, dict[str, Any]]:
-        """What units that were asked to stop still said (within ``timeout`` s in all)."""
+        """What processes that were asked to stop still said (within ``timeout`` s in all)."""
         out: dict[str, dict[str, Any]] = {}
         end = time.monotonic() + timeout
         for name in names:
@@ -435,8 +476,8 @@ class Launch:
         return out
 
     def stop(self, names: list[str]) -> None:
-        """Ask units to stop: SIGTERM (a unit then finishes its log and says so), and SIGCONT
-        so that a stopped (SIGSTOP) one can."""
+        """Ask processes to stop: SIGTERM (its units then finish the log and say so), and
+        SIGCONT so that a stopped (SIGSTOP) one can."""
         for name in names:
             p = self.procs[name]
             if p.is_alive() and p.pid is not None:
@@ -496,7 +537,7 @@ def _where(log: Path, window: float) -> str:
 def unit_failures(
     units: list[str],
     results: dict[str, dict[str, Any]],
-    log_dir: Path,
+    logs: Mapping[str, Path],
     window: float,
     stopped: Collection[str] = (),
 ) -> tuple[list[str], dict[str, dict[str, Any]]]:
@@ -510,7 +551,7 @@ def unit_failures(
     outputs: dict[str, dict[str, Any]] = {}
     for name in units:
         out = results.get(name)
-        log = log_dir / f"{name}.mcap"
+        log = logs[name]
         if out is None:
             stalled.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
         elif "died" in out:
@@ -544,15 +585,25 @@ def run_launch(args: argparse.Namespace) -> int:
     if args.realtime is not None and not args.realtime > 0:
         raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
+    groups = process_groups(sc.units, args.procs)
+    net_given = {k: v for k, v in zenoh_options(args).items() if v is not None}
+    if net_given.get("listen") and len(groups) > 1:
+        raise RgtbusError(
+            f"-l/--listen with {len(groups)} processes: each would listen on the same "
+            "endpoint (give --procs 1, or -e/--connect to a router, or no endpoint at all)"
+        )
     stamp = time.strftime("%Y%m%d-%H%M%S")
     log_dir = Path(args.log_dir) if args.log_dir else Path("logs") / f"{sc.name}-{stamp}"
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise RgtbusError(f"cannot create log dir {str(log_dir)!r}: {exc.strerror}") from None
-    for stale in [log_dir / f"{u}.mcap" for u in sc.units] + [log_dir / "launch.mcap"]:
+    # one process per unit: its log is <unit>.mcap; several units a process: proc-<i>.mcap
+    logs = {p: log_dir / f"{p}.mcap" for p in groups}
+    stale = [log_dir / f"{u}.mcap" for u in sc.units] + [log_dir / "launch.mcap"]
+    for path in [*stale, *(log_dir.glob("proc-*.mcap"))]:
         with contextlib.suppress(FileNotFoundError):  # never merge an earlier launch's log
-            stale.unlink()
+            path.unlink()
     run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
     # Loaded once here, before the units are forked (numpy loads numpy.random lazily).
     import numpy.random  # noqa: F401
@@ -561,34 +612,42 @@ def run_launch(args: argparse.Namespace) -> int:
     import rgtbus.units.process  # noqa: F401
 
     launch = Launch()
-    results: dict[str, dict[str, Any]] = {}
+    results: dict[str, dict[str, Any]] = {}  # by process
     interrupted: str | None = None
+    procs = list(groups)
     old_term = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends a launch like Ctrl-C
     try:
         try:
-            ports = free_ports(len(sc.units) + 1)
+            ports = free_ports(len(procs) + 1)
             if args.router:
                 router_ep = f"tcp/127.0.0.1:{ports[-1]}"
                 launch.start_router(router_ep, timeout=10.0)
-            for i, name in enumerate(sc.units):
-                if args.router:
+            for i, name in enumerate(procs):
+                if net_given:  # the user's zenoh options, the same for every process
+                    net = dict(zenoh_options(args))
+                    after: list[str] = []
+                elif args.router:
                     net = {"mode": "client", "connect": [router_ep]}
+                    after = []
                 else:  # a full mesh: each listens on its port and connects to those before it
                     net = {
                         "listen": [f"tcp/127.0.0.1:{ports[i]}"],
                         "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
                     }
-                launch.start_unit(
+                    after = procs[:i]
+                launch.start_process(
                     name,
+                    groups[name],
                     sc,
-                    log_dir / f"{name}.mcap",
+                    logs[name],
                     net,
-                    [] if args.router else list(sc.units[:i]),
+                    after,
                     run_id=run_id,
                     timeout=args.timeout,
                     engine=args.engine,
                     realtime=args.realtime,
                     key=key,
+                    traces=args.traces,
                 )
             # A run ends by itself within its simulated length (paced: at the realtime factor)
             # plus the join; after a failure the others end within their --timeout.
@@ -597,22 +656,45 @@ def run_launch(args: argparse.Namespace) -> int:
             results = launch.collect(limit, timeout=args.timeout)
         except KeyboardInterrupt:
             interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
-        running = [n for n in sc.units if n not in results and n in launch.procs]
+        running = [p for p in procs if p not in results and p in launch.procs]
         launch.stop(running)
         late = launch.late_results(running, timeout=10.0)
-        # a unit asked to stop reports what it knew (its share of the summary); one that
-        # could not say even that is named as stalled
-        results.update({n: out for n, out in late.items() if "report" in out})
+        # a process asked to stop reports what its units knew (their share of the summary);
+        # one that could not say even that is named as stalled
+        results.update({p: out for p, out in late.items() if "units" in out})
     finally:
         launch.reap()
         signal.signal(signal.SIGTERM, old_term)
-    stopped = set() if interrupted is not None else set(running)
+    by_unit: dict[str, dict[str, Any]] = {}
+    for p, said in results.items():
+        for u in groups[p]:
+            by_unit[u] = said["units"][u] if "units" in said else said
+    stopped = set() if interrupted is not None else {u for p in running for u in groups[p]}
+    unit_logs = {u: logs[p] for p, us in groups.items() for u in us}
     failures, outputs = unit_failures(
-        list(sc.units), results, log_dir, sc.timing.window, stopped=stopped
+        list(sc.units), by_unit, unit_logs, sc.timing.window, stopped=stopped
     )
     if interrupted is not None:
         failures.insert(0, interrupted)
-    return _finish_launch(args, sc, run_id, log_dir, outputs, failures, t0, interrupted)
+    return _finish_launch(args, sc, run_id, log_dir, outputs, failures, t0, interrupted, logs)
+
+
+def process_groups(units: Sequence[str], procs: int | None) -> dict[str, list[str]]:
+    """The units of each process of a launch, by process name: one process per unit (named
+    by its unit) by default; with ``procs`` P, P even groups in the scenario's order, named
+    ``proc-<i>``."""
+    if procs is None:
+        return {u: [u] for u in units}
+    if isinstance(procs, bool) or not isinstance(procs, int) or not 1 <= procs <= len(units):
+        raise RgtbusError(f"--procs {procs}: must be 1 to {len(units)} (the number of units)")
+    size, extra = divmod(len(units), procs)
+    out: dict[str, list[str]] = {}
+    at = 0
+    for i in range(procs):
+        n = size + (i < extra)
+        out[f"proc-{i}"] = list(units[at : at + n])
+        at += n
+    return out
 
 
 def _finish_launch(
@@ -624,9 +706,10 @@ def _finish_launch(
     failures: list[str],
     t0: float,
     interrupted: str | None,
+    process_logs: Mapping[str, Path],
 ) -> int:
     """Write ``launch.mcap`` (metadata, the run's summary, every failure) and merge it with
-    every unit log that has anything in it into ``run.mcap``; print the summary."""
+    every process log that has anything in it into ``run.mcap``; print the summary."""
     from rgtbus.cli.run_cmd import print_summary
     from rgtbus.sim import WorldResult
     from rgtbus.summary import summarise, summary_json
@@ -656,7 +739,7 @@ def _finish_launch(
     finally:
         close_log(f, rec)
     logs = []
-    for path in [*(log_dir / f"{u}.mcap" for u in sc.units), log_dir / "launch.mcap"]:
+    for path in [*process_logs.values(), log_dir / "launch.mcap"]:
         if not path.exists() or path.stat().st_size == 0:
             continue  # a unit that died before its log's first byte: named in the failures
         try:

@@ -132,14 +132,15 @@ def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
 def _unit_process_ends(
     metadata: dict[str, dict[str, str]], units: Sequence[str]
 ) -> tuple[list[str], list[str]]:
-    """(how the unit processes that did not end "done" ended, every unit process whose log is
-    in this one). A unit process's log has a ``run`` record naming it (``process``) and, once
-    it ended, an ``end.<unit>`` record; a killed one has none."""
-    processes = [
-        v["process"]
-        for n, v in metadata.items()
-        if (n == "run" or n.startswith("run.")) and v.get("process") in units
-    ]
+    """(how the units of unit processes that did not end "done" ended, every unit whose
+    process's log is in this one). A unit process's log has a ``run`` record naming it
+    (``process``; and ``units``, comma-separated, when it ran several) and, once each unit
+    ended, an ``end.<unit>`` record; a killed process has none."""
+    processes = []
+    for n, v in metadata.items():
+        if (n == "run" or n.startswith("run.")) and v.get("process") in units:
+            hosted = v["units"].split(",") if v.get("units") else [v["process"]]
+            processes += [u for u in hosted if u in units]
     early = []
     for unit in processes:
         end = metadata.get(topics.unit_end_record(unit))
