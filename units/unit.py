@@ -95,9 +95,9 @@ class AutonomousUnit:
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         self._spike_names: dict[tuple[int, ...], list[str]] = {}
-        self._spikes_at: list[int] = []  # spikes kept for the log: one window's samples ...
+        self._spikes_at: list[int] = []  # spikes kept for the log: one block's samples ...
         self._spikes_on: list[list[str]] = []  # ... and the channels fired at each
-        self._spikes_window = -1
+        self._spikes_block = -1
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
         # engine's window: what a record holds never depends on how the run was stepped)
         self._block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
@@ -198,8 +198,8 @@ class AutonomousUnit:
         aw = self._asked = self.awaited()
         self.ears.listen(
             self.index,
-            t[0],
-            t[3],
+            t.boundary,
+            t.at,
             self._woken,
             None if aw is None else aw[0],
             0 if aw is None else aw[1],
@@ -218,7 +218,7 @@ class AutonomousUnit:
                 self._apply(self.protocol.on_spike(self.units[aw[0]], k))
                 aw = self.awaited()
         pos = self.ears.pos
-        if self._spikes_at and self._spikes_window < pos // self._block:  # its block is heard
+        if self._spikes_at and self._spikes_block < pos // self._block:  # its block is heard
             self._write_spikes()
         # every timer whose samples have all been heard is due (its time, the boundary's
         # last sample, is now or was passed by the spike that woke this unit)
@@ -234,9 +234,9 @@ class AutonomousUnit:
         issue 23). Every receiver hears the same medium, so the same sets of channels fire
         again and again: their names are built once (the lists are only read)."""
         w = k // self._block
-        if self._spikes_at and w != self._spikes_window:
+        if self._spikes_at and w != self._spikes_block:
             self._write_spikes()
-        self._spikes_window = w
+        self._spikes_block = w
         names = self._spike_names.get(channels)
         if names is None:
             if len(self._spike_names) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
