@@ -32,6 +32,7 @@ import heapq
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import simpy
@@ -70,6 +71,18 @@ class Heard:
 Wake = Callable[[Heard], None]  # a unit's handler: what it heard, then it asks again or stops
 
 
+class SpikeLog(Protocol):
+    """Where a unit's every spike goes the moment the ears hear it, in time order (its log):
+    a unit wakes only for the spike it awaits, and records written at its wake could trail
+    the run's clock by seconds (issue 23). ``flush`` is called once the ears have heard every
+    sample before ``due``."""
+
+    due: int
+
+    def spike(self, sample: int, channels: tuple[int, ...]) -> None: ...
+    def flush(self) -> None: ...
+
+
 @dataclass
 class Listener:
     """One unit's share of the ears."""
@@ -80,7 +93,7 @@ class Listener:
     rng: np.random.Generator
     keep: int  # samples of readout history the unit decodes from
     trace: TraceSink | None = None
-    every_spike: bool = True  # told every spike (else only the watched one it wakes for)
+    spike_log: SpikeLog | None = None  # where its every spike goes as it is heard (a log)
     active: bool = True
     request: tuple[int, int, Wake] | None = None  # (boundary, at, what to call)
     watch: int | None = None  # the channel whose spike could change this unit's plans
@@ -148,7 +161,7 @@ class Ears:
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
-        self._every_spike = any(lst.every_spike for lst in self.listeners)
+        self._logged = [lst for lst in self.listeners if lst.spike_log is not None]
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
@@ -450,25 +463,25 @@ class Ears:
                 if lst.active and lst.trace is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
         sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
-        if len(sp) and not self._every_spike:  # nobody logs: only the watched spike matters
-            if res.stopped:
-                for k, n, ch in sp[sp[:, 0] == end - 1].tolist():
-                    lst = self.listeners[n]
-                    if lst.active and ch == lst.watch and k >= lst.watch_from:
-                        lst.heard.append((k, (ch,)))
-        elif len(sp):
-            at, who = sp[:, 0], sp[:, 1]
-            new = (at[1:] != at[:-1]) | (who[1:] != who[:-1])
-            cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(sp)]
-            ks, ns, cs = at.tolist(), who.tolist(), sp[:, 2].tolist()
-            for a, b in itertools.pairwise(cuts):
-                lst = self.listeners[ns[a]]
-                if not lst.active:
-                    continue
-                if lst.every_spike:
-                    lst.heard.append((ks[a], tuple(cs[a:b])))
-                elif res.stopped and ks[a] == end - 1 >= lst.watch_from and lst.watch in cs[a:b]:
-                    lst.heard.append((ks[a], (lst.watch,)))
+        if len(sp) and res.stopped:  # a watched spike: the unit that watched it wakes for it
+            for k, n, ch in sp[sp[:, 0] == end - 1].tolist():
+                lst = self.listeners[n]
+                if lst.active and ch == lst.watch and k >= lst.watch_from:
+                    lst.heard.append((k, (ch,)))
+        if self._logged:  # every spike to its unit's log, in time order, as it is heard
+            if len(sp):
+                at, who = sp[:, 0], sp[:, 1]
+                new = (at[1:] != at[:-1]) | (who[1:] != who[:-1])
+                cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(sp)]
+                ks, ns, cs = at.tolist(), who.tolist(), sp[:, 2].tolist()
+                for a, b in itertools.pairwise(cuts):
+                    lst = self.listeners[ns[a]]
+                    if lst.active and lst.spike_log is not None:
+                        lst.spike_log.spike(ks[a], tuple(cs[a:b]))
+            for lst in self._logged:
+                log = lst.spike_log
+                if log is not None and log.due <= end:
+                    log.flush()
         return end - 1 if res.stopped else None
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:

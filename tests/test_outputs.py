@@ -86,7 +86,11 @@ def test_unit_prints_the_decision_line_of_run(example2, capsys, monkeypatch, tmp
                 "wall_seconds": 0.1,
                 "error": None,
             }
-            monkeypatch.setattr(rgtbus.units.process, "run_unit", lambda *a, _r=result, **k: _r)
+            monkeypatch.setattr(
+                rgtbus.units.process,
+                "run_units",
+                lambda *a, _n=name, _r=result, **k: {_n: _r},
+            )
             code = main(["unit", name, str(EXAMPLE2), "--log", str(tmp_path / f"{name}.mcap")])
             text = capsys.readouterr().out
             assert code == 0

@@ -407,12 +407,12 @@ def test_spike_name_cache_is_bounded_and_changes_no_record(monkeypatch):
     _, _, (full, _) = run("example2")
     monkeypatch.setattr(unit_module, "SPIKE_NAMES_MAX", 1)
     seen = []
-    real = AutonomousUnit._log_spikes
+    real = AutonomousUnit.spike
 
     def spy(self, k, channels):
         real(self, k, channels)
         seen.append(len(self._spike_names))
 
-    monkeypatch.setattr(AutonomousUnit, "_log_spikes", spy)
+    monkeypatch.setattr(AutonomousUnit, "spike", spy)
     _, _, (small, _) = run("example2")
     assert small == full and seen and max(seen) == 1

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+from array import array
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import simpy
@@ -50,6 +52,41 @@ KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reactio
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
 
 
+class DecodeColumns:
+    """A unit's decodes as columns: the turn of each (4 bytes) and which (kind, addressee,
+    code) it read (4 bytes, an index into the few distinct ones), not a Python object per
+    decode: a run of n units makes 4n²(n−1) of them (3.96 M at n = 100). Iterates as
+    ``DecodedRow`` tuples, in order; ``tolist()`` for JSON."""
+
+    __slots__ = ("_rows", "_seen", "_turns", "_what")
+
+    def __init__(self) -> None:
+        self._turns = array("i")
+        self._what = array("I")
+        self._rows: list[tuple[str, str, str]] = []
+        self._seen: dict[tuple[str, str, str], int] = {}
+
+    def append(self, turn: int, kind: str, addressee: str, code: str) -> None:
+        key = (kind, addressee, code)
+        i = self._seen.get(key)
+        if i is None:
+            i = self._seen[key] = len(self._rows)
+            self._rows.append(key)
+        self._turns.append(turn)
+        self._what.append(i)
+
+    def __len__(self) -> int:
+        return len(self._turns)
+
+    def __iter__(self) -> Iterator[DecodedRow]:
+        rows = self._rows
+        for turn, i in zip(self._turns, self._what, strict=True):
+            yield (turn, *rows[i])
+
+    def tolist(self) -> list[list[Any]]:
+        return [list(row) for row in self]
+
+
 class _Timer(NamedTuple):
     """A unit's timer. A plain tuple, so the heap orders timers in C: by boundary, then rank,
     then seq (unique, so the fields after it are never compared)."""
@@ -76,9 +113,8 @@ class AutonomousUnit:
     failure: str | None = None
     done: bool = False
     done_at: int = 0
-    # every decode, as the summary reads it (one small tuple each: a large run makes millions,
-    # and the margin and time are in the log's /rx/decode already)
-    decoded: list[DecodedRow] = field(default_factory=list)
+    # every decode, as the summary reads it (the margin and time are in the log's /rx/decode)
+    decoded: DecodeColumns = field(default_factory=DecodeColumns)
     sent: list[Send] = field(default_factory=list)
     # this unit's own decision after each influence round it decided (``decision_row``)
     decisions: list[records.DecisionRow] = field(default_factory=list)
@@ -98,6 +134,7 @@ class AutonomousUnit:
         self._spikes_at: list[int] = []  # spikes kept for the log: one block's samples ...
         self._spikes_on: list[list[str]] = []  # ... and the channels fired at each
         self._spikes_block = -1
+        self.due = NEVER  # the ears flush its block of spikes once they have heard this far
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
         # engine's window: what a record holds never depends on how the run was stepped)
         self._block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
@@ -148,7 +185,7 @@ class AutonomousUnit:
             rng=noise_rng(sc.seed, self.units.index(self.name)),
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
-            every_spike=self.recorder.enabled,  # only a log needs more than the awaited one
+            spike_log=self if self.recorder.enabled else None,  # only a log needs every spike
         )
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
@@ -209,17 +246,11 @@ class AutonomousUnit:
         """Receive -> protocol -> decode -> reason -> send, at the sample the ears woke it."""
         assert self.ears is not None
         aw = self._asked
-        logged = self.recorder.enabled  # nothing to build for a run without a log
-        for k, channels in heard.spikes:  # in order; only the last can be reacted to
-            if logged:
-                self._log_spikes(k, channels)
-            # the protocol hears the spike it awaits (any other asks nothing of it)
+        for k, channels in heard.spikes:  # the spike it awaited (the ears log every spike)
             if aw is not None and aw[0] in channels and k >= aw[1]:
                 self._apply(self.protocol.on_spike(self.units[aw[0]], k))
                 aw = self.awaited()
         pos = self.ears.pos
-        if self._spikes_at and self._spikes_block < pos // self._block:  # its block is heard
-            self._write_spikes()
         # every timer whose samples have all been heard is due (its time, the boundary's
         # last sample, is now or was passed by the spike that woke this unit)
         timers = self._timers
@@ -227,16 +258,19 @@ class AutonomousUnit:
             self._on_timer(heapq.heappop(timers))
         self._ask()
 
-    def _log_spikes(self, k: int, channels: tuple[int, ...]) -> None:
-        """Keep a spike for the log: one record per block of ``SPIKE_BLOCK_SECONDS`` with a
-        spike (``_write_spikes``), not per sample
-        (a large run's receivers fire millions of times: the records cost more than the run,
-        issue 23). Every receiver hears the same medium, so the same sets of channels fire
-        again and again: their names are built once (the lists are only read)."""
+    # -- its log of spikes (the ears' SpikeLog): one record per block, not per sample --------
+
+    def spike(self, k: int, channels: tuple[int, ...]) -> None:
+        """A spike of this unit's resonators, as the ears hear it: kept for one record per
+        block of ``SPIKE_BLOCK_SECONDS`` with a spike (``flush``): a large run's receivers fire
+        millions of times, and a record a sample cost more than the run (issue 23). Every
+        receiver hears the same medium, so the same sets of channels fire again and again:
+        their names are built once (the lists are only read)."""
         w = k // self._block
         if self._spikes_at and w != self._spikes_block:
-            self._write_spikes()
+            self.flush()
         self._spikes_block = w
+        self.due = (w + 1) * self._block
         names = self._spike_names.get(channels)
         if names is None:
             if len(self._spike_names) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
@@ -245,21 +279,25 @@ class AutonomousUnit:
         self._spikes_at.append(k)
         self._spikes_on.append(names)
 
-    def _write_spikes(self) -> None:
-        """The spikes kept of one block, as one ``/rx/spike`` record (at its first spike):
-        written once the block has been heard, or when the unit is done. Which spikes make a
-        record depends only on the block, so every engine and bus logs the same records."""
+    def flush(self) -> None:
+        """The spikes kept of one block, as one ``/rx/spike`` record: written once the ears
+        have heard the whole block (or when the unit is done), at the block's end as its log
+        time, so it is never behind the run's clock (a live view gets it on time). Which
+        spikes make a record depends only on the block, so every engine and bus logs the same
+        records."""
+        self.due = NEVER
+        if not self._spikes_at:
+            return
         at, on = self._spikes_at, self._spikes_on
         self._spikes_at, self._spikes_on = [], []
-        self.recorder.write(
-            "/rx/spike", records.spikes(self.name, self.tau, at, on), ns(at[0] * self.tau)
-        )
+        record = records.spikes(self.name, self.tau, at, on)
+        end = (self._spikes_block + 1) * self._block
+        self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:
         """The run is over for this unit (done, or the world stopped): write what it still
         keeps for the log."""
-        if self._spikes_at:
-            self._write_spikes()
+        self.flush()
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":
@@ -501,7 +539,7 @@ class AutonomousUnit:
         *,
         channel: str,
     ) -> None:
-        self.decoded.append((listen.turn, listen.kind, addressee, code))
+        self.decoded.append(listen.turn, listen.kind, addressee, code)
         if not self.recorder.enabled:
             return
         record = records.decode(
@@ -603,5 +641,5 @@ class AutonomousUnit:
         record and its decodes."""
         return {
             **self.report_record(),
-            "decodes": list(self.decoded),
+            "decodes": self.decoded,  # columns (DecodeColumns): iterates as rows
         }

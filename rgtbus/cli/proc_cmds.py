@@ -246,7 +246,8 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     for out in outs.values():
         out["log"] = str(log_path)
     if args.json:  # one unit: its object, as ever; several: one object per unit, by name
-        print(json.dumps(outs[names[0]] if len(names) == 1 else outs))
+        shown = outs[names[0]] if len(names) == 1 else outs
+        print(json.dumps(shown, default=_columns_as_lists))
     else:
         for name, out in outs.items():
             rep = out["report"]
@@ -267,6 +268,13 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     for error in errors:
         print(f"rgtbus unit: {error}", file=sys.stderr)
     return 1 if errors else 0
+
+
+def _columns_as_lists(obj: Any) -> Any:
+    """JSON for what a unit's output holds as columns (its decodes): rows as lists."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
 def unit_names(text: str, sc: Any) -> list[str]:
