@@ -74,7 +74,7 @@ def _ended(note: str) -> int:
 
 def info(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import info_text, log_info
-    from rgtbus.telemetry.recorder import check_log
+    from rgtbus.telemetry.scan import check_log
 
     with check_log(args.log) as log:
         data = log_info(log)
@@ -84,7 +84,7 @@ def info(args: argparse.Namespace) -> int:
 
 def cat(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import cat_messages
-    from rgtbus.telemetry.recorder import check_log
+    from rgtbus.telemetry.scan import check_log
 
     out = sys.stdout
     with check_log(args.log) as log:
@@ -97,7 +97,7 @@ def cat(args: argparse.Namespace) -> int:
 
 def scenario(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.logtools import stored_scenario
-    from rgtbus.telemetry.recorder import check_log
+    from rgtbus.telemetry.scan import check_log
 
     with check_log(args.log) as log:
         text = stored_scenario(log)

@@ -526,7 +526,7 @@ def _signal_name(code: int | None) -> str:
 def _where(log: Path, window: float) -> str:
     """Where a unit's log ends: its last message's time and window (logs are flushed as the
     run goes, so this is at most about a second of simulated time before the unit stopped)."""
-    from rgtbus.telemetry.recorder import scan_log
+    from rgtbus.telemetry.scan import scan_log
     from rgtbus.timebase import seconds
 
     if not log.exists():
@@ -723,7 +723,7 @@ def _finish_launch(
     from rgtbus.summary import summarise, summary_json
     from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.telemetry.merge import merge_logs
-    from rgtbus.telemetry.recorder import scan_log
+    from rgtbus.telemetry.scan import scan_log
     from rgtbus.timebase import ns
     from rgtbus.units.group import auth_name, write_metadata, write_run_summary
 

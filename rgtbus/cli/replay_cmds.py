@@ -151,7 +151,7 @@ def _plot(rp, args: argparse.Namespace) -> str:
 
 def merge(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.merge import merge_logs
-    from rgtbus.telemetry.recorder import require_run_log, scan_log
+    from rgtbus.telemetry.scan import require_run_log, scan_log
 
     out = Path(args.output)
     for src in args.inputs:

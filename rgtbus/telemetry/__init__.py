@@ -2,9 +2,12 @@
 
 ``McapRecorder(stream)`` for real runs, ``MemoryRecorder()`` for tests, ``NullRecorder()`` to
 record nothing; ``read_log(path_or_stream)`` reads a log back (truncated files too),
-``scan_log`` its undecoded records. Reading a run back: ``replay`` (timeline, summary,
-verification against a re-run), ``merge`` (per-process logs into one), ``plots`` (figures).
+``scan_log`` its undecoded records (``rgtbus.telemetry.scan``, loaded on first use). Reading
+a run back: ``replay`` (timeline, summary, verification against a re-run), ``merge``
+(per-process logs into one), ``plots`` (figures).
 """
+
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.telemetry.recorder import (
     LOG_LEVELS,
@@ -13,16 +16,26 @@ from rgtbus.telemetry.recorder import (
     McapRecorder,
     MemoryRecorder,
     NullRecorder,
-    RawLog,
     Recorder,
-    decode_log,
     level_number,
     log_message,
-    read_log,
-    require_run_log,
-    scan_log,
 )
 from rgtbus.telemetry.topics import TOPIC_PATTERNS, TOPICS, schema_for, topics_markdown
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.scan import RawLog, decode_log, read_log, require_run_log, scan_log
+
+# The reader (mcap-py) loads on first use: a run that only writes its log never needs it.
+_READING = ("RawLog", "decode_log", "read_log", "require_run_log", "scan_log")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _READING:
+        from rgtbus.telemetry import scan
+
+        return getattr(scan, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "LOG_LEVELS",

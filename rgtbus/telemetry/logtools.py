@@ -1,6 +1,6 @@
 """What ``rgtbus info``, ``rgtbus cat`` and ``rgtbus scenario`` read from a run's MCAP log.
 
-Every reader opens the log with ``check_log`` (rgtbus.telemetry.recorder), which checks it
+Every reader opens the log with ``check_log`` (rgtbus.telemetry.scan), which checks it
 whole first: a damaged log is refused in one line (``RgtbusError``), never read as if it were
 whole. ``log_info`` reads a finished log from its summary section (statistics, schemas,
 channels, chunk indexes, metadata index) and the ``/run`` record through the chunk index, once
@@ -28,7 +28,7 @@ from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
-from rgtbus.telemetry.recorder import CheckedLog, RawLog, check_log
+from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
 
 NS = 1_000_000_000
 

@@ -22,7 +22,7 @@ from mcap.writer import CompressionType, Writer
 
 from rgtbus import __version__
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import RawLog
+from rgtbus.telemetry.scan import RawLog
 
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,

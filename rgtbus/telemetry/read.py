@@ -32,18 +32,14 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics
-from rgtbus.telemetry.recorder import (
-    LogContents,
-    decode_log,
-    require_run_log,
-    scan_log,
-)
+from rgtbus.telemetry.recorder import LogContents
 from rgtbus.telemetry.records import (
     DecisionRecord,
     InfluencesRecord,
     RelationsRecord,
     RunRecord,
 )
+from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.timebase import NS_PER_SECOND
 
 NS = NS_PER_SECOND  # log_time units per second (rgtbus.timebase)

@@ -1,0 +1,448 @@
+"""Reading an MCAP log back, checked: ``scan_log`` (its records, undecoded, with every chunk's
+CRC checked and a cut or corrupt file told apart), ``read_log`` (decoded messages and metadata),
+``check_log`` (the summary section's CRCs first, for the log tools). Apart from the recorder, so
+a run that only writes its log never loads the reader (start-up, issue 23).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import struct
+import zlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import IO, Any, cast
+
+import mcap.exceptions
+import orjson
+from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.recorder import MCAP_MAGIC, LogContents
+from rgtbus.timebase import seconds
+
+
+def read_log(source: str | os.PathLike[str] | IO[bytes]) -> LogContents:
+    """Read an MCAP log written by McapRecorder: a path or a binary stream.
+
+    Reads sequentially (no index needed), so a truncated file yields every complete record
+    before the cut and ``truncated=True`` with a note. Not an MCAP file: RgtbusError.
+    """
+    if isinstance(source, str | os.PathLike):
+        try:
+            with open(source, "rb") as f:
+                return _read(f, os.fspath(source))
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
+    return _read(source, getattr(source, "name", "<stream>"))
+
+
+@dataclass
+class RawLog:
+    """An MCAP file's records as written, undecoded (what ``merge`` needs).
+
+    ``messages``: ``[(channel_id, log_time, publish_time, sequence, data), ...]`` in file
+    order; ``metadata``: every Metadata record in file order (repeated names kept);
+    ``note``: empty, or one line saying where and why the file was cut.
+    """
+
+    label: str
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    messages: list[tuple[int, int, int, int, bytes]] = field(default_factory=list)
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+    note: str = ""
+    corruption: str = ""  # one line: what is damaged and where (read up to there)
+    library: str | None = None  # the writer named in the Header (None: no header read)
+
+    @property
+    def truncated(self) -> bool:
+        return bool(self.note)
+
+    @property
+    def corrupt(self) -> bool:
+        return bool(self.corruption)
+
+    @property
+    def header_only(self) -> bool:
+        """Nothing but a Header: no schema, channel, message or metadata record."""
+        return not (self.schemas or self.channels or self.messages or self.metadata)
+
+
+def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
+    """Every record of an MCAP file (path or binary stream), read sequentially so a truncated
+    file yields all complete records before the cut. Not an MCAP file: RgtbusError."""
+    if isinstance(source, str | os.PathLike):
+        try:
+            with open(source, "rb") as f:
+                return _scan(f, os.fspath(source))
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
+    return _scan(source, getattr(source, "name", "<stream>"))
+
+
+class _Corrupt(Exception):
+    """Raised inside the scan to stop at damage; its text says what and where."""
+
+
+class _Tracked:
+    """The stream as StreamReader reads it (exact reads, no read-ahead): the position, whether
+    a read came back short (the file ended inside a record: truncation, not damage), and from
+    the data section's end on, the bytes the footer's summary CRC covers."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self.stream = stream
+        self.pos = 0
+        self.short = False
+        self.capture: bytearray | None = None
+
+    def read(self, n: int = -1) -> bytes:
+        data = self.stream.read(n)
+        if n is not None and n >= 0 and len(data) < n:
+            self.short = True
+        self.pos += len(data)
+        if self.capture is not None:
+            self.capture += data
+        return data
+
+
+def _ends_with_magic(stream: IO[bytes]) -> bool:
+    """A finished MCAP file ends with the magic: a record running past the end of such a file
+    has a damaged length, it was not cut. False when the stream cannot tell."""
+    try:
+        if not stream.seekable():
+            return False
+        here = stream.tell()
+        size = stream.seek(0, os.SEEK_END)
+        if size < 2 * len(MCAP_MAGIC):
+            stream.seek(here)
+            return False
+        stream.seek(size - len(MCAP_MAGIC))
+        tail = stream.read(len(MCAP_MAGIC))
+        stream.seek(here)
+        return tail == MCAP_MAGIC
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _chunk_in_progress(stream: IO[bytes], start: int) -> bool:
+    """Whether the record at ``start`` is a chunk whose length is still the placeholder a
+    streaming writer (foxglove-sdk's) puts there until the chunk is finished: the writer
+    stopped inside it, so the file is cut, not damaged."""
+    try:
+        stream.seek(start)
+        head = stream.read(9)
+    except (OSError, ValueError):
+        return False
+    return len(head) == 9 and head[0] == 0x06 and head[1:] == b"\xff" * 8
+
+
+def _seconds(t_ns: int) -> str:
+    return f"{seconds(t_ns):.3f}"
+
+
+def _scan(stream: IO[bytes], label: str) -> RawLog:
+    raw = RawLog(label)
+    src = _Tracked(stream)
+    # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
+    # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
+    reader = StreamReader(
+        cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30
+    )
+    started = finished = False  # a Header read; the data section's end (DataEnd) reached
+    start = len(MCAP_MAGIC)  # byte offset of the record being read
+
+    def take(rec: Any) -> None:
+        if isinstance(rec, Message):
+            if rec.channel_id not in raw.channels:
+                raise _Corrupt(
+                    f"record at byte {start}: message on unknown channel {rec.channel_id}"
+                )
+            raw.messages.append(
+                (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
+            )
+        elif isinstance(rec, Channel):
+            raw.channels[rec.id] = rec
+        elif isinstance(rec, Schema):
+            raw.schemas[rec.id] = rec
+
+    try:
+        for rec in reader.records:
+            if src.short:  # the record's declared length ran past the end: not taken
+                raise mcap.exceptions.EndOfFile()
+            if not started and not isinstance(rec, Header):
+                raise _Corrupt(f"record at byte {start}: the first record is not a Header")
+            if isinstance(rec, Header):
+                started = True
+                raw.library = rec.library
+            elif isinstance(rec, Chunk):
+                where = (
+                    f"chunk at byte {start} (log time {_seconds(rec.message_start_time)}"
+                    f"–{_seconds(rec.message_end_time)} s)"
+                )
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except CRCValidationError as e:
+                    raise _Corrupt(
+                        f"{where}: CRC mismatch (stored {e.expected:#010x}, "
+                        f"computed {e.actual:#010x})"
+                    ) from None
+                except Exception as e:  # a complete chunk that does not decompress or parse
+                    raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
+                for r in inner:
+                    take(r)
+            elif isinstance(rec, Metadata) and not finished:
+                raw.metadata.append((rec.name, dict(rec.metadata)))
+            elif isinstance(rec, DataEnd):
+                finished = True
+                src.capture = bytearray()  # the summary, then the footer
+            elif isinstance(rec, Footer):
+                finished = True
+                covered = bytes(src.capture or b"")[:-4]  # all but the CRC field itself
+                if rec.summary_crc != 0 and zlib.crc32(covered) != rec.summary_crc:
+                    raise _Corrupt(
+                        f"summary section (from byte {rec.summary_start}): CRC mismatch "
+                        f"(stored {rec.summary_crc:#010x}, computed {zlib.crc32(covered):#010x})"
+                    )
+                src.capture = None
+            elif not finished:
+                take(rec)  # unchunked records; the summary's copies are not needed
+            start = src.pos
+        extra = len(src.read(1))
+        while extra and (more := len(stream.read(1 << 20))):
+            extra += more
+        if extra:
+            raise _Corrupt(
+                f"{extra} bytes of trailing garbage after the footer (the log itself is complete)"
+            )
+    except _Corrupt as e:
+        raw.corruption = f"{label}: corrupt log: {e}"
+    except mcap.exceptions.InvalidMagic:
+        if not started:
+            raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
+        raw.corruption = f"{label}: corrupt log: bad magic after the footer"
+    except CRCValidationError as e:  # the data section's CRC, checked at DataEnd
+        raw.corruption = (
+            f"{label}: corrupt log: data section CRC mismatch (stored {e.expected:#010x}, "
+            f"computed {e.actual:#010x})"
+        )
+    except Exception as e:  # EndOfFile, short struct reads, a damaged record
+        if not started:
+            if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
+                raise RgtbusError(
+                    f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
+                ) from None
+            raise RgtbusError(
+                f"{label}: not an MCAP file (empty or cut before its header)"
+            ) from None
+        if _chunk_in_progress(stream, start) and not _ends_with_magic(stream):
+            raw.note = (
+                f"{label}: log truncated after {len(raw.messages)} messages (cut in a chunk "
+                "the writer had not finished)"
+            )
+        elif src.short and not _ends_with_magic(stream):
+            n = len(raw.messages)
+            where = "in its summary (all messages present)" if finished else f"after {n} messages"
+            cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
+            why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
+            raw.note = f"{label}: log truncated {where} ({why})"
+        elif src.short:
+            raw.corruption = (
+                f"{label}: corrupt log: record at byte {start} runs past the end of a file "
+                "that ends with MCAP's closing magic (a damaged record length)"
+            )
+        else:
+            raw.corruption = (
+                f"{label}: corrupt log: record at byte {start}: {type(e).__name__}: {e}"
+            )
+    if raw.note and raw.messages:  # how far it read, in the run's own time
+        raw.note += f"; last log time read {seconds(max(m[1] for m in raw.messages)):.6f} s"
+    return raw
+
+
+def require_run_log(raw: RawLog) -> None:
+    """Refuse (one-line ``RgtbusError``) a log that is corrupt, holds only a header, or was
+    not written by an rgtbus run (no ``scenario`` or ``run`` metadata). Truncation passes:
+    everything before the cut is good."""
+    if raw.corrupt:
+        raise RgtbusError(raw.corruption)
+    _require_run(raw.label, raw.library, {name for name, _ in raw.metadata}, raw.header_only)
+
+
+def _require_run(label: str, library: str | None, names: set[str], header_only: bool) -> None:
+    by = f" (written by {library!r})" if library else ""
+    if header_only:
+        raise RgtbusError(f"{label}: holds only an MCAP header{by}: no records to read")
+    if not names & {"scenario", "run"}:
+        raise RgtbusError(f"{label}: not an rgtbus run log: no scenario or run metadata{by}")
+
+
+# -- one way to open a log: checked whole before anything is read from it ----------------------
+
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, CRC
+_DATA_END_BYTES = 1 + 8 + 4  # opcode, length, data_section_crc
+
+
+def _crc_of(stream: IO[bytes], start: int, end: int) -> int | None:
+    """CRC-32 of the bytes ``start:end`` (None when the file ends before ``end``)."""
+    stream.seek(start)
+    crc, left = 0, end - start
+    while left > 0:
+        block = stream.read(min(left, 1 << 20))
+        if not block:
+            return None
+        crc = zlib.crc32(block, crc)
+        left -= len(block)
+    return crc
+
+
+def verified_by_crcs(stream: IO[bytes]) -> bool:
+    """Whether ``stream`` is a finished MCAP file whose data-section CRC and summary CRC were
+    both written and both hold: together they cover every byte but the closing magic (checked
+    too), so the whole file is vouched for without decompressing anything (zlib's CRC-32 runs
+    at about 2 GB/s). False when it cannot tell (cut short, a CRC not written, not seekable)
+    or a CRC does not hold: ``scan_log`` then says which and where."""
+    magic = len(MCAP_MAGIC)
+    try:
+        size = stream.seek(0, os.SEEK_END)
+        if size < 2 * magic + _DATA_END_BYTES + _FOOTER_BYTES:
+            return False
+        footer_at = size - magic - _FOOTER_BYTES
+        stream.seek(footer_at)
+        tail = stream.read(_FOOTER_BYTES + magic)
+        if len(tail) != _FOOTER_BYTES + magic or tail[_FOOTER_BYTES:] != MCAP_MAGIC:
+            return False
+        opcode, length, summary_start, _, summary_crc = struct.unpack_from("<BQQQI", tail)
+        if opcode != 0x02 or length != _FOOTER_BYTES - 9 or summary_crc == 0:
+            return False
+        data_end_at = (summary_start or footer_at) - _DATA_END_BYTES
+        if not magic <= data_end_at <= footer_at - _DATA_END_BYTES:
+            return False
+        stream.seek(data_end_at)
+        rec = stream.read(_DATA_END_BYTES)
+        if len(rec) != _DATA_END_BYTES:
+            return False
+        opcode, length, data_crc = struct.unpack_from("<BQI", rec)
+        if opcode != 0x0F or length != 4 or data_crc == 0:
+            return False
+        # the data section from the opening magic to DataEnd's CRC field; the summary section
+        # (from DataEnd's end) through the footer's last field before its own CRC
+        return (
+            _crc_of(stream, 0, data_end_at) == data_crc
+            and _crc_of(stream, data_end_at + _DATA_END_BYTES, footer_at + _FOOTER_BYTES - 4)
+            == summary_crc
+        )
+    except (OSError, ValueError, AttributeError, struct.error):
+        return False
+
+
+@dataclass
+class CheckedLog:
+    """A run's log file, opened and checked whole by ``check_log`` (so nothing read from it
+    later can be damaged). ``raw`` is the file's records as scanned (every chunk CRC-checked)
+    when it was read record by record; None when its CRCs vouched for every byte: read it
+    then through ``summary`` (mcap's) and its index, from ``stream``. ``metadata``: every
+    Metadata record, in file order. ``truncated``: the file ends early; ``note`` says where
+    and how far it was read (the last log time)."""
+
+    label: str
+    stream: IO[bytes]
+    size: int
+    raw: RawLog | None
+    summary: Any = None
+    library: str | None = None
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
+
+    @property
+    def truncated(self) -> bool:
+        return self.raw is not None and self.raw.truncated
+
+    @property
+    def note(self) -> str:
+        return self.raw.note if self.raw is not None else ""
+
+
+def _by_summary(stream: IO[bytes], label: str, size: int) -> CheckedLog | None:
+    """A file its CRCs vouch for, read through its summary (None: no usable summary)."""
+    from mcap.reader import SeekingReader, make_reader
+
+    try:
+        stream.seek(0)
+        reader = make_reader(stream)
+        if not isinstance(reader, SeekingReader):
+            return None
+        summary = reader.get_summary()
+        if summary is None or summary.statistics is None:
+            return None
+        library = reader.get_header().library
+        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+    except Exception:  # a layout mcap's reader does not take: scan it instead
+        return None
+    empty = not (summary.schemas or summary.channels or summary.statistics.message_count)
+    _require_run(label, library, {name for name, _ in metadata}, empty and not metadata)
+    return CheckedLog(label, stream, size, None, summary, library, metadata)
+
+
+@contextlib.contextmanager
+def check_log(path: str | os.PathLike[str], *, scan: bool = False) -> Iterator[CheckedLog]:
+    """Open a run's log and check it whole: the one way ``rgtbus info``, ``cat`` and
+    ``scenario`` open a log (``rgtbus replay``, ``merge`` and ``rgtbus.open_log`` scan it
+    with ``scan_log`` and refuse with ``require_run_log``: the same checks, record by record).
+
+    A finished file whose data-section and summary CRCs hold (``verified_by_crcs``) is not
+    scanned unless ``scan``: it is read through its summary. Anything else is scanned record by
+    record, every chunk's CRC checked. Refused with one line (``RgtbusError``): unreadable, a
+    directory, not an MCAP file, corrupt (where and what), only a header, not an rgtbus run
+    log. A file cut short (a killed run) is read to its cut: ``truncated``, with a note."""
+    label = os.fspath(path)
+    try:
+        if os.path.isdir(path):
+            raise RgtbusError(f"cannot read log {label!r}: is a directory")
+        stream = open(path, "rb")  # noqa: SIM115 - closed below
+    except OSError as e:
+        raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
+    with stream:
+        try:
+            size = os.fstat(stream.fileno()).st_size
+            log = None
+            if not scan and verified_by_crcs(stream):
+                log = _by_summary(stream, label, size)
+            if log is None:
+                stream.seek(0)
+                raw = _scan(stream, label)
+                require_run_log(raw)
+                log = CheckedLog(label, stream, size, raw, None, raw.library, raw.metadata)
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
+        yield log
+
+
+def _read(stream: IO[bytes], label: str) -> LogContents:
+    return decode_log(_scan(stream, label))
+
+
+def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> LogContents:
+    """A scanned log as ``read_log`` returns it. Messages on topics for which ``keep_raw``
+    is true stay undecoded JSON ``bytes`` (for readers that may never need them)."""
+    label = raw.label
+    if raw.corrupt:
+        raise RgtbusError(raw.corruption)
+    messages: list[tuple[str, int, Any]] = []
+    topics = {cid: ch.topic for cid, ch in raw.channels.items()}
+    lazy = {cid for cid, t in topics.items() if keep_raw is not None and keep_raw(t)}
+    for cid, t, _, _, data in raw.messages:
+        if cid in lazy:
+            messages.append((topics[cid], t, bytes(data)))
+            continue
+        try:
+            messages.append((topics[cid], t, orjson.loads(data)))
+        except ValueError as e:
+            raise RgtbusError(
+                f"{label}: message on {topics[cid]} at {t} ns is not JSON: {e}"
+            ) from None
+    messages.sort(key=lambda m: m[1])
+    metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
+    note = raw.note  # says how far it read (the scan's last log time)
+    return LogContents(messages, metadata, bool(note), note)
