@@ -250,6 +250,7 @@ def test_replayed_hellos_are_answered_once_at_a_bounded_rate_and_counted():
         assert a.wait(5, timeout=10) == 10
         spy = zenoh.open(make_config(connect=[eps[0]]))  # keyless, loopback
         notes: list[str] = []
+        per_drain: list[int] = []  # such notes in each drop_notes() (it clears them)
         try:
             pub = spy.declare_publisher(b.hello_key("b"))
             deadline = time.monotonic() + 20
@@ -268,6 +269,7 @@ def test_replayed_hellos_are_answered_once_at_a_bounded_rate_and_counted():
                 a.wait(5, timeout=1)  # a running member answers late hellos from wait
                 got = a.drop_notes()
                 notes += got
+                per_drain.append(sum("heard again or too fast" in n for n in got))
                 answers += sum(1 for n in got if n.endswith("after the start: refused"))
                 time.sleep(0.01)
             elapsed = time.monotonic() - t0
@@ -280,7 +282,9 @@ def test_replayed_hellos_are_answered_once_at_a_bounded_rate_and_counted():
         assert 1 <= answers <= min(len(old), 20 + 20 * elapsed + 1), (answers, elapsed)
         assert any("heard again or too fast" in n for n in notes), notes
         # the notes are bounded too: 20 a reason, then a count
-        assert sum("heard again or too fast" in n for n in notes) <= 20
+        # (20 a reason between two reads; how many reads the replays spread over is up to the
+        # machine's timing)
+        assert max(per_drain) <= 20
         assert any(n.startswith("... and ") and "hellos_unanswered" in n for n in notes)
 
 
