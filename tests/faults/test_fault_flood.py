@@ -281,11 +281,11 @@ def test_replayed_hellos_are_answered_once_at_a_bounded_rate_and_counted():
         # once per (unit, nonce); the bucket: a burst of 20, then 20 a second
         assert 1 <= answers <= min(len(old), 20 + 20 * elapsed + 1), (answers, elapsed)
         assert any("heard again or too fast" in n for n in notes), notes
-        # the notes are bounded too: 20 a reason, then a count
-        # (20 a reason between two reads; how many reads the replays spread over is up to the
-        # machine's timing)
+        # the notes are bounded too: 20 a reason between two reads, then a count (how many
+        # reads the replays spread over is up to the machine's timing)
         assert max(per_drain) <= 20
-        assert any(n.startswith("... and ") and "hellos_unanswered" in n for n in notes)
+        counted = any(n.startswith("... and ") and "hellos_unanswered" in n for n in notes)
+        assert counted or sum(per_drain) == unanswered  # past 20 a read: counted, not noted
 
 
 def test_the_hello_gate_bounds_what_it_queues():
