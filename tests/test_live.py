@@ -133,6 +133,7 @@ def test_live_cli_errors_are_one_line(tmp_path, capsys):
     assert code == 2 and f"127.0.0.1:{port}: cannot listen" in err and err.count("\n") == 1
 
 
+@pytest.mark.slow  # one of the longest waits: CI's slow pass runs it
 def test_watch_serves_a_cross_process_run_as_an_observer(procs, tmp_path):
     """Three `rgtbus unit` processes and a watcher they connect to: a WebSocket client of the
     watcher gets every message the units log (their MCAP files), and the run is the same."""

@@ -87,6 +87,7 @@ def verify_code(path: Path) -> int:
     return subprocess.run(argv, capture_output=True, text=True, timeout=120).returncode
 
 
+@pytest.mark.slow  # one of the longest waits: CI's slow pass runs it
 def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     la = launch(procs, tmp_path)
     pids = unit_pids(la, tmp_path, list("abcd"))
@@ -171,6 +172,7 @@ def single(name: str):
     return run_group(sc, "memory", MemoryRecorder()).summary
 
 
+@pytest.mark.slow  # one of the longest waits: CI's slow pass runs it
 def test_a_keyed_launch_refuses_forged_frames_and_equals_the_single_run(procs, tmp_path):
     key_file = tmp_path / "key"
     key_file.write_bytes(KEY + b"\n")

@@ -226,6 +226,7 @@ def _run_log_open(pid: int, logs: Path) -> int | None:
     return None
 
 
+@pytest.mark.slow  # one of the longest waits: CI's slow pass runs it
 def test_a_killed_worker_costs_only_its_run_which_resume_runs_again(tmp_path, sweeps):
     """kill -9 of one pool worker inside a run: that run is an error row naming the death,
     the others complete (exit 0), and --resume runs that one run again."""
@@ -499,6 +500,7 @@ def test_a_bad_scheduler_is_one_line(tmp_path, capsys, address, says):
     assert not (out / "rows.jsonl").exists()
 
 
+@pytest.mark.slow  # one of the longest waits: CI's slow pass runs it
 def test_a_scheduler_that_does_not_answer_is_one_line_within_the_connect_timeout(tmp_path):
     """A peer that accepts and says nothing (no Dask there, or a hung one): bounded by the
     connect timeout (here Dask's distributed.comm.timeouts.connect, 2 s)."""
