@@ -281,8 +281,9 @@ class AutonomousUnit:
 
     def flush(self) -> None:
         """The spikes kept of one block, as one ``/rx/spike`` record: written once the ears
-        have heard the whole block (or when the unit is done), at the block's end as its log
-        time, so it is never behind the run's clock (a live view gets it on time). Which
+        have heard the whole block (or when the unit is done), at the block's end (or as far
+        as it was heard) as its log time, so it is never behind the run's clock (a live view
+        gets it on time). Which
         spikes make a record depends only on the block, so every engine and bus logs the same
         records."""
         self.due = NEVER
@@ -291,7 +292,12 @@ class AutonomousUnit:
         at, on = self._spikes_at, self._spikes_on
         self._spikes_at, self._spikes_on = [], []
         record = records.spikes(self.name, self.tau, at, on)
+        # at the block's end, or, for the unfinished block of a unit that is done or stopped,
+        # where its ears had heard to: a log cut there is complete before this time (the
+        # verifier's bound), no further
         end = (self._spikes_block + 1) * self._block
+        if self.ears is not None:
+            end = min(end, self.ears.pos)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:

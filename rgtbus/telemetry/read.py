@@ -579,8 +579,9 @@ class Replay:
     def units_until_ns(self) -> int | None:
         """The log time before which every unit's messages are complete in a log cut short
         (a truncated file, or a merge whose inputs ended early): the earliest, over the units,
-        of each unit's last record and last spike (records are logged at their time, spikes as
-        the ears walk, the medium and traces ahead); None when nothing was logged."""
+        of each unit's last record and last block of spikes (records are logged at their time,
+        spikes as the ears hear them, the medium and traces ahead); None when nothing was
+        logged."""
         last: dict[str, int] = {}
         for topic, msgs in self.by_topic.items():
             # what is logged ahead of time (the medium, traces) or once the run is over (the
@@ -593,18 +594,21 @@ class Replay:
                 who = str(m.get("unit", m.get("name", "")))
                 if t > last.get(f"{who}\0{stream}", -1):
                     last[f"{who}\0{stream}"] = t
-        # A unit logs its spikes as its ears walk the medium, which can trail its other records
-        # (logged at their own time): its log is complete before the earlier of the two.
-        by_unit: dict[str, int] = {}
-        for key, t in last.items():
-            who = key.split("\0", 1)[0]
-            by_unit[who] = min(by_unit.get(who, t), t)
-        if not by_unit:
+        if not last:
             return None
-        # every unit's log is complete before its own bound (a unit with no record of its own
-        # yet, e.g. killed before its first flush, only before the start); in one file cut
-        # short, the records written last need not be the latest in log time either
-        return min((by_unit.get(u, 0) for u in self.units), default=None)
+        # A unit's spikes go to the log in blocks as its ears hear them, which runs ahead of
+        # its other records (logged at their own time) and behind them within a block not yet
+        # heard through: its log is complete before the earlier of the two streams, and a unit
+        # with either stream still empty (e.g. killed before its first flush, or stopped
+        # before its first decode) only before the start. In one file cut short, the records
+        # written last need not be the latest in log time either.
+        return min(
+            (
+                min(last.get(f"{u}\0records", 0), last.get(f"{u}\0spikes", 0))
+                for u in self.units
+            ),
+            default=None,
+        )
 
     def traced_units(self) -> list[str]:
         return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]
