@@ -17,23 +17,14 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from benchmarks.bench_lockstep import timed  # a whole process's wall seconds
 
 ROOT = Path(__file__).resolve().parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]
-
-
-def timed(argv: list[str]) -> float:
-    """Wall seconds of a whole process."""
-    t0 = time.perf_counter()
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=1800, cwd=ROOT)
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(argv)} failed: {proc.stderr.strip()[-800:]}")
-    return time.perf_counter() - t0
 
 
 def cases(tmp: str, with_50: bool) -> dict[str, tuple[str, list[str]]]:

@@ -57,6 +57,19 @@ RESULT_KEYS = (
 )
 
 
+def launch_equals_single(argv: list[str], name: str, tmp_path: Path) -> dict:
+    """Run a launch; its summary and merged log content equal the single-process run of
+    ``name``. Returns the merged log's metadata."""
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    ref, ref_messages = single(name)
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, metadata = read_log(tmp_path / "run.mcap")
+    assert content(messages) == content(ref_messages)
+    return metadata
+
+
 @pytest.mark.parametrize(
     ("name", "router"),
     [
@@ -76,13 +89,7 @@ def test_launch_equals_the_single_process_run(tmp_path, name, router):
         str(tmp_path),
         "--json",
     ] + (["--router"] if router else [])
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    cross = json.loads(proc.stdout)
-    ref, ref_messages = single(name)
-    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
-    messages, metadata = read_log(tmp_path / "run.mcap")
-    assert content(messages) == content(ref_messages)
+    metadata = launch_equals_single(argv, name, tmp_path)
     assert metadata["scenario"]["name"] == name
     units = load_scenario(ROOT / "scenarios" / f"{name}.toml").units
     assert sorted(p.name for p in tmp_path.glob("*.mcap")) == sorted(
@@ -103,15 +110,7 @@ def test_launch_with_several_units_a_process_equals_the_single_process_run(
     tmp_path, name, procs, files, shared
 ):
     argv = [*EXE, "launch", str(ROOT / "scenarios" / f"{name}.toml"), "--log-dir", str(tmp_path)]
-    proc = subprocess.run(
-        [*argv, "--procs", str(procs), "--json"], capture_output=True, text=True, timeout=180
-    )
-    assert proc.returncode == 0, proc.stderr
-    cross = json.loads(proc.stdout)
-    ref, ref_messages = single(name)
-    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
-    messages, metadata = read_log(tmp_path / "run.mcap")
-    assert content(messages) == content(ref_messages)
+    metadata = launch_equals_single([*argv, "--procs", str(procs), "--json"], name, tmp_path)
     assert sorted(p.stem for p in tmp_path.glob("*.mcap")) == sorted([*files, "launch", "run"])
     # the processes that ran several units say which (and every unit is in one of them)
     hosted = [v["units"] for k, v in metadata.items() if k.startswith("run") and "units" in v]
