@@ -603,10 +603,7 @@ class Replay:
         # before its first decode) only before the start. In one file cut short, the records
         # written last need not be the latest in log time either.
         return min(
-            (
-                min(last.get(f"{u}\0records", 0), last.get(f"{u}\0spikes", 0))
-                for u in self.units
-            ),
+            (min(last.get(f"{u}\0records", 0), last.get(f"{u}\0spikes", 0)) for u in self.units),
             default=None,
         )
 

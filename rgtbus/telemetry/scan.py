@@ -128,15 +128,30 @@ def _ends_with_magic(stream: IO[bytes]) -> bool:
 
 
 def _chunk_in_progress(stream: IO[bytes], start: int) -> bool:
-    """Whether the record at ``start`` is a chunk whose length is still the placeholder a
-    streaming writer (foxglove-sdk's) puts there until the chunk is finished: the writer
-    stopped inside it, so the file is cut, not damaged."""
+    """Whether the record at ``start`` is a chunk a streaming writer (foxglove-sdk's) had not
+    finished: it writes the chunk's record length and its records' length as placeholders
+    (all ones) and fills them in when the chunk is done, the record length first, then the
+    chunk header in a second write. Either still a placeholder: the writer stopped inside
+    the chunk, so the file is cut, not damaged."""
     try:
         stream.seek(start)
-        head = stream.read(9)
+        head = stream.read(9 + 8 + 8 + 8 + 4 + 4)  # opcode, length, times, size, crc, name
+        if len(head) < 9 or head[0] != 0x06:
+            return False
+        if head[1:9] == _PLACEHOLDER:
+            return True
+        if len(head) < 41:
+            return False
+        (name_length,) = struct.unpack_from("<I", head, 37)
+        if name_length > 64:  # no compression has such a name: not a chunk header in progress
+            return False
+        stream.seek(start + 41 + name_length)
+        return stream.read(8) == _PLACEHOLDER
     except (OSError, ValueError):
         return False
-    return len(head) == 9 and head[0] == 0x06 and head[1:] == b"\xff" * 8
+
+
+_PLACEHOLDER = b"\xff" * 8  # a length the writer fills in once the chunk is finished
 
 
 def _seconds(t_ns: int) -> str:
