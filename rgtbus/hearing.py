@@ -72,15 +72,20 @@ Wake = Callable[[Heard], None]  # a unit's handler: what it heard, then it asks 
 
 
 class SpikeLog(Protocol):
-    """Where a unit's every spike goes the moment the ears hear it, in time order (its log):
-    a unit wakes only for the spike it awaits, and records written at its wake could trail
-    the run's clock by seconds (issue 23). ``flush`` is called once the ears have heard every
-    sample before ``due``."""
+    """Where a unit's spikes go for its log, a block of ``block`` samples at a time. The ears
+    keep the spikes of the units they log in arrays (no call per spike: a large run's
+    receivers fire millions of times, issue 23) and hand each unit a block's spikes once they
+    have heard the whole block, or as far as they heard when the unit stops or the run ends:
+    a unit wakes only for the spike it awaits, and records written at its wake could trail the
+    run's clock by seconds."""
 
-    due: int
+    block: int
 
-    def spike(self, sample: int, channels: tuple[int, ...]) -> None: ...
-    def flush(self) -> None: ...
+    def spikes(self, samples: np.ndarray, channels: np.ndarray, end: int) -> None:
+        """The spikes of one block: at ``samples[i]`` (ascending) the resonator of
+        ``channels[i]`` fired (a sample's channels ascending); heard up to sample ``end``
+        (the block's end, or less for the last block of a unit that stopped)."""
+        ...
 
 
 @dataclass
@@ -162,6 +167,13 @@ class Ears:
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
         self._logged = [lst for lst in self.listeners if lst.spike_log is not None]
+        blocks = {lst.spike_log.block for lst in self.listeners if lst.spike_log is not None}
+        if len(blocks) > 1:
+            raise RgtbusError(f"the units log spikes in blocks of different sizes: {blocks}")
+        self._spike_block = blocks.pop() if blocks else 1
+        # the spikes of logged units not yet handed to their logs: (sample, unit, channel)
+        self._spike_rows: list[np.ndarray] = []
+        self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
@@ -276,6 +288,7 @@ class Ears:
             self._asking -= 1
         lst.active = False
         lst.request = None
+        self.end_spikes(i)
         if lst.trace is not None:
             self._flush_trace(i)
         _fire(self._poke)
@@ -468,21 +481,52 @@ class Ears:
                 lst = self.listeners[n]
                 if lst.active and ch == lst.watch and k >= lst.watch_from:
                     lst.heard.append((k, (ch,)))
-        if self._logged:  # every spike to its unit's log, in time order, as it is heard
+        if self._logged:  # kept for the logs, handed over a block at a time
             if len(sp):
-                at, who = sp[:, 0], sp[:, 1]
-                new = (at[1:] != at[:-1]) | (who[1:] != who[:-1])
-                cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(sp)]
-                ks, ns, cs = at.tolist(), who.tolist(), sp[:, 2].tolist()
-                for a, b in itertools.pairwise(cuts):
-                    lst = self.listeners[ns[a]]
-                    if lst.active and lst.spike_log is not None:
-                        lst.spike_log.spike(ks[a], tuple(cs[a:b]))
-            for lst in self._logged:
-                log = lst.spike_log
-                if log is not None and log.due <= end:
-                    log.flush()
+                logged = np.array([lst.active and lst.spike_log is not None
+                                   for lst in self.listeners])  # fmt: skip
+                keep = sp[logged[sp[:, 1]]]
+                if len(keep):
+                    self._spike_rows.append(keep)
+            if end >= self._spikes_due:
+                upto = end // self._spike_block * self._spike_block
+                self._hand_spikes(upto)
+                self._spikes_due = upto + self._spike_block
         return end - 1 if res.stopped else None
+
+    def end_spikes(self, i: int) -> None:
+        """Hand unit ``i`` every spike kept for its log (it stopped, or the run ended): its
+        last block as far as the ears heard."""
+        self._hand_spikes(None, only=i)
+
+    def _hand_spikes(self, upto: int | None, only: int | None = None) -> None:
+        """Each logged unit's kept spikes before sample ``upto`` (None: all), a block at a
+        time, in the order (block, unit): which records a log holds, and their order, depend
+        only on the blocks, not on how the ears advanced."""
+        if not self._spike_rows:
+            return
+        rows = np.concatenate(self._spike_rows)
+        take = np.ones(len(rows), dtype=bool)
+        if upto is not None:
+            take &= rows[:, 0] < upto
+        if only is not None:
+            take &= rows[:, 1] == only
+        rest = rows[~take]
+        self._spike_rows = [rest] if len(rest) else []
+        rows = rows[take]
+        if not len(rows):
+            return
+        B = self._spike_block
+        block = rows[:, 0] // B
+        rows = rows[np.lexsort((rows[:, 1], block))]  # stable: sample order kept within
+        block = rows[:, 0] // B
+        unit = rows[:, 1]
+        new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
+        cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(rows)]
+        for a, b in itertools.pairwise(cuts):
+            log = self.listeners[int(unit[a])].spike_log
+            assert log is not None
+            log.spikes(rows[a:b, 0], rows[a:b, 2], min((int(block[a]) + 1) * B, self.pos))
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""

@@ -407,12 +407,12 @@ def test_spike_name_cache_is_bounded_and_changes_no_record(monkeypatch):
     _, _, (full, _) = run("example2")
     monkeypatch.setattr(unit_module, "SPIKE_NAMES_MAX", 1)
     seen = []
-    real = AutonomousUnit.spike
+    real = AutonomousUnit.spikes
 
-    def spy(self, k, channels):
-        real(self, k, channels)
+    def spy(self, samples, channels, end):
+        real(self, samples, channels, end)
         seen.append(len(self._spike_names))
 
-    monkeypatch.setattr(AutonomousUnit, "spike", spy)
+    monkeypatch.setattr(AutonomousUnit, "spikes", spy)
     _, _, (small, _) = run("example2")
     assert small == full and seen and max(seen) == 1

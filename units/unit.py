@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import itertools
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -44,7 +45,7 @@ from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
 
-SPIKE_BLOCK_SECONDS = 0.1  # a unit's spikes of this much time make one /rx/spike record
+SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 SPIKE_NAMES_MAX = 4096  # sets of channels whose names a unit keeps built (the common ones)
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
@@ -131,13 +132,9 @@ class AutonomousUnit:
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         self._spike_names: dict[tuple[int, ...], list[str]] = {}
-        self._spikes_at: list[int] = []  # spikes kept for the log: one block's samples ...
-        self._spikes_on: list[list[str]] = []  # ... and the channels fired at each
-        self._spikes_block = -1
-        self.due = NEVER  # the ears flush its block of spikes once they have heard this far
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
         # engine's window: what a record holds never depends on how the run was stepped)
-        self._block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
+        self.block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
         self._alternatives: dict[str, int] = {}  # decoded names, parsed once
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
@@ -228,8 +225,7 @@ class AutonomousUnit:
         or the spike it awaits, whichever comes first (``_woken`` is called then)."""
         assert self.ears is not None
         if self.done:
-            self.end_log()
-            self.ears.stop(self.index)
+            self.ears.stop(self.index)  # and hands it what it kept for its log
             return
         t = self._timers[0]
         aw = self._asked = self.awaited()
@@ -260,50 +256,35 @@ class AutonomousUnit:
 
     # -- its log of spikes (the ears' SpikeLog): one record per block, not per sample --------
 
-    def spike(self, k: int, channels: tuple[int, ...]) -> None:
-        """A spike of this unit's resonators, as the ears hear it: kept for one record per
-        block of ``SPIKE_BLOCK_SECONDS`` with a spike (``flush``): a large run's receivers fire
-        millions of times, and a record a sample cost more than the run (issue 23). Every
+    def spikes(self, samples: np.ndarray, channels: np.ndarray, end: int) -> None:
+        """One block's spikes of this unit's resonators (``SpikeLog``), as one ``/rx/spike``
+        record at the block's end (or as far as its ears heard, for the last block of a unit
+        that stopped: a log cut there is complete before this time, the verifier's bound) as
+        its log time: never behind the run's clock, so a live view gets it on time. Every
         receiver hears the same medium, so the same sets of channels fire again and again:
         their names are built once (the lists are only read)."""
-        w = k // self._block
-        if self._spikes_at and w != self._spikes_block:
-            self.flush()
-        self._spikes_block = w
-        self.due = (w + 1) * self._block
-        names = self._spike_names.get(channels)
-        if names is None:
-            if len(self._spike_names) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
-                self._spike_names.clear()
-            names = self._spike_names[channels] = [self.units[ch] for ch in channels]
-        self._spikes_at.append(k)
-        self._spikes_on.append(names)
-
-    def flush(self) -> None:
-        """The spikes kept of one block, as one ``/rx/spike`` record: written once the ears
-        have heard the whole block (or when the unit is done), at the block's end (or as far
-        as it was heard) as its log time, so it is never behind the run's clock (a live view
-        gets it on time). Which
-        spikes make a record depends only on the block, so every engine and bus logs the same
-        records."""
-        self.due = NEVER
-        if not self._spikes_at:
-            return
-        at, on = self._spikes_at, self._spikes_on
-        self._spikes_at, self._spikes_on = [], []
-        record = records.spikes(self.name, self.tau, at, on)
-        # at the block's end, or, for the unfinished block of a unit that is done or stopped,
-        # where its ears had heard to: a log cut there is complete before this time (the
-        # verifier's bound), no further
-        end = (self._spikes_block + 1) * self._block
-        if self.ears is not None:
-            end = min(end, self.ears.pos)
+        at = samples.tolist()
+        cs = channels.tolist()
+        cuts = [0, *(np.flatnonzero(samples[1:] != samples[:-1]) + 1).tolist(), len(at)]
+        names_of = self._spike_names
+        units = self.units
+        on = []
+        for a, b in itertools.pairwise(cuts):
+            key = tuple(cs[a:b])
+            names = names_of.get(key)
+            if names is None:
+                if len(names_of) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
+                    names_of.clear()
+                names = names_of[key] = [units[ch] for ch in key]
+            on.append(names)
+        record = records.spikes(self.name, self.tau, [at[a] for a in cuts[:-1]], on)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:
-        """The run is over for this unit (done, or the world stopped): write what it still
-        keeps for the log."""
-        self.flush()
+        """The run is over for this unit (done, or the world stopped): what its ears still
+        keep for its log is written."""
+        if self.ears is not None:
+            self.ears.end_spikes(self.index)
 
     def _on_timer(self, t: _Timer) -> None:
         if t.kind == "listen":

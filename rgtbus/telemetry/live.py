@@ -47,7 +47,7 @@ import foxglove
 from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import topic_channel
+from rgtbus.telemetry.recorder import sdk_logs_to_python, topic_channel
 from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
@@ -139,6 +139,7 @@ class LiveView:
         self.context = foxglove.Context()
         self.subscriptions = _Subscriptions()
         try:
+            sdk_logs_to_python()
             self.server = foxglove.start_server(
                 name=name,
                 host=host,

@@ -7,7 +7,9 @@ Time is simulated: ``log_time = publish_time = t_ns`` (integer nanoseconds from 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
+import logging
 import operator
 import threading
 import time
@@ -212,6 +214,22 @@ class _WatchedStream:
             self._watch(flush)
 
 
+@functools.cache
+def sdk_logs_to_python() -> None:
+    """foxglove-sdk's own messages go to Python's ``logging``, from level ERROR, instead of
+    straight to stderr: a write that fails inside its writer ("error logging message: ...", a
+    warning) is reported by the recorder itself, in one line. Called before the first sink
+    (the SDK takes its level once); the root logger is left as the caller configured it
+    (the SDK would otherwise ``basicConfig`` it)."""
+    root = logging.getLogger()
+    placeholder = logging.NullHandler()
+    root.addHandler(placeholder)
+    try:
+        foxglove.set_log_level("ERROR")
+    finally:
+        root.removeHandler(placeholder)
+
+
 def topic_channel(context: foxglove.Context, topic: str, schema: str) -> foxglove.Channel:
     """A foxglove channel for ``topic``: JSON messages under the topic's JSON Schema (the same
     for the MCAP file and the live view)."""
@@ -283,6 +301,7 @@ class McapRecorder(_Encoding):
             calculate_data_section_crc=True,
             calculate_summary_section_crc=True,
         )
+        sdk_logs_to_python()
         try:
             self._writer = foxglove.open_mcap(
                 self._sink, context=self.context, writer_options=options
