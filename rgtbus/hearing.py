@@ -32,7 +32,7 @@ import heapq
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import simpy
@@ -53,21 +53,23 @@ from rgtbus.signal.resonator import (
     BankState,
     ResonatorBank,
     first_spike,
+    input_readout,
     resonate,
 )
 
 TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
 
 
-@dataclass(frozen=True)
-class Heard:
+class Heard(NamedTuple):
     """What woke a unit: ``spikes`` of its resonators since it last woke, in order, as
-    (sample, channel indexes); ``reached``: its boundary (else: its watched spike, the last)."""
+    (sample, channel indexes); ``reached``: its boundary (else: its watched spike, the last).
+    A plain tuple: made at every wake, millions of times in a large run."""
 
     spikes: tuple[tuple[int, tuple[int, ...]], ...]
     reached: bool
 
 
+_HEARD_NOTHING = Heard((), True)  # a unit woken at its boundary that heard no spike
 Wake = Callable[[Heard], None]  # a unit's handler: what it heard, then it asks again or stops
 
 
@@ -99,6 +101,10 @@ class Listener:
     keep: int  # samples of readout history the unit decodes from
     trace: TraceSink | None = None
     spike_log: SpikeLog | None = None  # where its every spike goes as it is heard (a log)
+    # whether its plans can wait for a spike (an ID spike, under anchor "spike"): when no
+    # unit's can and none logs or traces its spikes, the event engine's ears never walk the
+    # resonators (the readout a decode needs is the input itself)
+    awaits: bool = True
     active: bool = True
     request: tuple[int, int, Wake] | None = None  # (boundary, at, what to call)
     watch: int | None = None  # the channel whose spike could change this unit's plans
@@ -176,6 +182,11 @@ class Ears:
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
+        # the dense engine is the reference: it walks every resonator every sample, always
+        self._walks = dense or any(
+            lst.awaits or lst.spike_log is not None or lst.trace is not None
+            for lst in self.listeners
+        )
         self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
         self.steps = 0  # bank advances so far
         # decodes asked at the present end of the readout: every unit of the process decodes
@@ -420,8 +431,12 @@ class Ears:
         wake = lst.request[2]
         lst.request = None
         self._asking += 1
-        heard, lst.heard = tuple(lst.heard), []
-        wake(Heard(heard, reached))  # the unit asks again (or stops) before this returns
+        # the unit asks again (or stops) before this returns
+        if lst.heard:
+            heard, lst.heard = tuple(lst.heard), []
+            wake(Heard(heard, reached))
+        else:
+            wake(_HEARD_NOTHING if reached else Heard((), False))
 
     def _advance(self, target: int) -> int | None:
         """Every unit's lanes from here towards ``target``, up to the first spike on a watched
@@ -451,6 +466,15 @@ class Ears:
                 heard[:, n] += self.listeners[n].noise_for(lo, target)
         if done and heard.size:
             heard[:, done] = 0.0  # a unit that is done hears nothing more
+        if not self._walks:  # no spike is awaited, logged or traced: decoding needs the input
+            at, d = input_readout(rows, heard)
+            self.readout.store(lo, target - lo, at, d[:, :, None])
+            self.pos = target
+            self.steps += 1
+            self._cur = cut
+            for n in noisy:
+                self.listeners[n].used_noise(target)
+            return None
         stop_lanes = None
         if watched:
             stop_lanes = np.zeros(self.bank.model.lanes, dtype=bool)

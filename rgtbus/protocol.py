@@ -142,6 +142,12 @@ class Listen:
     channels: tuple[str, ...]
     start: float
     ready_sample: int
+    # (sender, expected addressee), made once: the key of what a unit learns from it, shared
+    # by every unit of a shared queue (not a tuple per unit and code)
+    pair: tuple[str, str] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pair", (self.sender, self.expected_addressee))
 
 
 @dataclass(frozen=True, slots=True)

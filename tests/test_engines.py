@@ -147,3 +147,35 @@ def test_promises_hold_however_frames_arrive(seed):
         k: v for k, v in b.items() if k not in NOT_RESULTS
     }
     assert content(mem.read()[0]) == content(zen.read()[0])
+
+
+@pytest.mark.parametrize(
+    ("source", "noise", "gains"),
+    [("crowd10", None, None), ("gate_noisy", None, None), (7, 0.0, True), (8, 0.01, True)],
+)
+def test_a_run_that_walks_no_resonator_is_the_same_run(monkeypatch, source, noise, gains):
+    """Timed by the schedule and without a log, no unit awaits or logs a spike, so the event
+    engine's ears never walk a resonator (the readout a decode needs is the input itself):
+    the run's summary is the logged run's and the dense reference's, and no walk happened."""
+    from rgtbus.signal.resonator import ResonatorBank
+    from rgtbus.telemetry import NullRecorder
+
+    if isinstance(source, str):
+        sc = load_scenario(ROOT / "scenarios" / f"{source}.toml")
+    else:
+        sc = random_group(source, noise=noise, gains=gains, anchor="schedule")
+    assert sc.timing.anchor == "schedule"
+    logged, _ = run(sc, "event")
+    dense, _ = run(sc, "dense")
+    walks = []
+    real = ResonatorBank.advance
+    monkeypatch.setattr(
+        ResonatorBank, "advance", lambda self, *a, **k: walks.append(1) or real(self, *a, **k)
+    )
+    bare = run_group(sc, "memory", NullRecorder()).summary
+    assert walks == []
+    for other in (logged, dense):
+        assert {k: v for k, v in bare.items() if k not in NOT_RESULTS} == {
+            k: v for k, v in other.items() if k not in NOT_RESULTS
+        }
+    assert bare["decisions"] and (not bare["error"] or noise)

@@ -183,6 +183,7 @@ class AutonomousUnit:
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
             spike_log=self if self.recorder.enabled else None,  # only a log needs every spike
+            awaits=self.protocol.anchor == "spike",  # else its plans never wait for a spike
         )
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
@@ -538,7 +539,7 @@ class AutonomousUnit:
     def _learn(self, listen: Listen, code: str, t: float) -> None:
         mind = self.mind
         universe = self.scenario.universe
-        key = (listen.sender, listen.expected_addressee)
+        key = listen.pair
         if listen.kind == "relation":
             mind.sent[key] = code == "alliance"
             if mind.relations_complete():

@@ -28,8 +28,6 @@ def walk_lanes(
     xs: np.ndarray,
     ys: np.ndarray,
     mask: np.ndarray,
-    readout: bool,
-    ds: np.ndarray,
     sp_k: np.ndarray,
     sp_l: np.ndarray,
 ) -> tuple[int, int, bool]: ...

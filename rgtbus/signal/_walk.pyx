@@ -12,11 +12,6 @@ import numpy as np
 from libc.math cimport INFINITY, ceil, floor, rint, sqrt
 
 
-cdef inline double _round12(double x) noexcept nogil:
-    # numpy's round(x, 12): rint(x·1e12)/1e12, rint rounding half to even
-    return rint(x * 1e12) / 1e12
-
-
 cdef inline (double, double, bint, long, long, bint) walk(
     const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
     const double[:, ::1] nQi, double ar, double ai, long R, long ch, long rec,
@@ -24,8 +19,7 @@ cdef inline (double, double, bint, long, long, bint) walk(
     double w_r, double w_i, bint pend, long start, long end,
     const long[::1] rows, const double[:, ::1] vals, bint stop_first,
     bint record, long col, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
-    bint readout, double[:, ::1] ds, long[::1] sp_k, long[::1] sp_l, long lane,
-    long n_sp,
+    long[::1] sp_k, long[::1] sp_l, long lane, long n_sp,
 ) noexcept nogil:
     """One resonator (channel ``ch``, receiver ``rec``) from sample ``start`` to ``end``.
 
@@ -35,7 +29,9 @@ cdef inline (double, double, bint, long, long, bint) walk(
                   after a spike at k−1 w ← Q[m]·(Re(A·z[k−1]) + i·rv) (reset)
         input:    w ← w + i·u[k]·Q[m]                                 (u = vals[j, rec])
         state:    z[k] = P[m]·w;  spike at k  ⇔  Im z[k] ≥ thr
-        readout:  d[k] = Im z[k] − Im(P[m]·w before the input), rounded to 12 decimals
+
+(The increment readout, Im z[k] − Im ẑ[k] = u[k], needs no walk: ``resonate`` takes it from
+the input.)
 
     Between inputs w is constant: a resonator with |z|² < thr2 (below threshold, with room for
     table rounding) cannot spike before its next input (|A| < 1), so the walk jumps there,
@@ -48,7 +44,7 @@ cdef inline (double, double, bint, long, long, bint) walk(
     cdef Py_ssize_t j = 0
     cdef Py_ssize_t lo = 0, hi = E, mid
     cdef long k = start, m, mp, nxt, b
-    cdef double pr, pi, zr, zi, xr, b_r, b_i, u, t_r, t_i
+    cdef double pr, pi, zr, zi, xr, u, t_r, t_i
     cdef bint has_input
     while lo < hi:  # the first input row at or after start
         mid = (lo + hi) // 2
@@ -76,16 +72,12 @@ cdef inline (double, double, bint, long, long, bint) walk(
         pi = Pi[m, ch]
         has_input = j < E and rows[j] == k
         if has_input:
-            b_r = w_r
-            b_i = w_i
             u = vals[j, rec]
             w_r = w_r + u * nQi[m, ch]
             w_i = w_i + u * Qr[m, ch]
         zr = pr * w_r - pi * w_i
         zi = pr * w_i + pi * w_r
         if has_input:
-            if readout:
-                ds[j, col] = _round12(zi - (pr * b_i + pi * b_r))
             j += 1
         if record:
             xs[k - start, col] = zr
@@ -128,7 +120,7 @@ def walk_lanes(
     double[::1] wr, double[::1] wi, unsigned char[::1] pend, long start, long end,
     const long[::1] rows, const double[:, ::1] vals, bint stop_first,
     bint record, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
-    bint readout, double[:, ::1] ds, long[::1] sp_k, long[::1] sp_l,
+    long[::1] sp_k, long[::1] sp_l,
 ):
     """``walk`` each of ``lanes``. With ``stop_first``: only find the first spike (returns one
     past it and 1, or ``end`` and 0; later lanes look no further; the state is left alone).
@@ -146,7 +138,7 @@ def walk_lanes(
             w_r, w_i, p, at, n_new, over = walk(
                 Pr, Pi, Qr, nQi, Ar[c], Ai[c], R, c, lane_rec[lane], thr, thr2, rv, stable,
                 wr[lane], wi[lane], pend[lane], start, first, rows, vals, stop_first,
-                record, lane, xs, ys, mask, readout, ds, sp_k, sp_l, lane, n_sp,
+                record, lane, xs, ys, mask, sp_k, sp_l, lane, n_sp,
             )
             if over:
                 break

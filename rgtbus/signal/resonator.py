@@ -9,7 +9,8 @@ Model (one resonator, eigen-frequency ω, complex state z = x + i·y, sample per
     reset:    after a spike at k, sample k+1 starts from  Re(A·z[k]) + i·reset_value
               (x is the Euler step of the pre-spike state, y = 0.1), then adds i·u[k+1]
     readout:  d[k] = Im(z[k] − ẑ[k]), ẑ[k] = the state at k before its input (A·z[k-1], or the
-              reset state): the medium sample as this resonator heard it
+              reset state): exactly u[k], the medium sample as this resonator heard it, so it
+              is taken from the input (rounded to READOUT_DIGITS; ``input_readout``)
 
 ``z[k]`` is the pre-spike state.  Defaults are the paper's: b = −0.1, τ = 0.005 s, threshold 1,
 spike 1.5, reset 0.1.
@@ -259,6 +260,25 @@ def _z_of(
     return pr * wr - pi * wi, pr * wi + pi * wr
 
 
+# -- the readout ---------------------------------------------------------------------------
+
+
+def input_readout(rows: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The increment readout of an input: ``d[k] = Im z[k] − Im ẑ[k] = u[k]`` (ẑ: the state
+    before the input), the sample each receiver heard, rounded to ``READOUT_DIGITS``, at the
+    samples that carry input (``rows``; ``values``: (len(rows), receivers)), with every other
+    sample reading 0. Returns (the rows with input, their readout (rows, receivers)).
+
+    Taken from the input, not from the walk's state (where it is the same value to the
+    frame's rounding): the same bits however the bank is stepped, and no walk at all is
+    needed when no spike is awaited or logged (docs/model.md)."""
+    vals = np.asarray(values, dtype=np.float64)
+    vals = vals.reshape(len(rows), vals.shape[-1] if vals.ndim > 1 else 1)
+    has = (vals != 0.0).any(axis=1)
+    scale = 10.0**READOUT_DIGITS
+    return np.asarray(rows)[has], np.rint(vals[has] * scale) / scale
+
+
 # -- the one dynamics function ---------------------------------------------------------------
 
 
@@ -313,10 +333,9 @@ def resonate(
         xs = np.empty((n, L)) if record else _NO_2D
         ys = np.empty((n, L)) if record else _NO_2D
         mask = np.zeros((n, L), dtype=np.uint8) if record else _NO_MASK
-        ds = np.zeros((rows.size, L)) if readout else _NO_2D
         _, n_sp, over = walk_lanes(
             *common, all_lanes, *rule, wr, wi, flags, start, end, rows, vals, False,
-            record, xs, ys, mask, readout, ds, sp_k, sp_l,
+            record, xs, ys, mask, sp_k, sp_l,
         )  # fmt: skip
         if not over:
             break
@@ -338,13 +357,10 @@ def resonate(
         spiked = mask.view(np.bool_).reshape(shape)
         result.y = np.where(spiked, M.spike_value, ys.reshape(shape))
         result.spiked = spiked
-    if readout and not rows.size:  # silence: nothing to read out
-        result.readout_rows = rows
-        result.readout = ds.reshape(0, U, C)
-    elif readout:
-        has = (vals != 0.0).any(axis=1)
-        result.readout_rows = rows[has]
-        result.readout = ds[has].reshape(-1, U, C)
+    if readout:  # every channel of a receiver reads the sample it heard
+        at, d = input_readout(rows, vals)
+        result.readout_rows = at
+        result.readout = np.broadcast_to(d[:, :, None], (at.size, U, C))
     return new, result
 
 
@@ -367,7 +383,7 @@ def first_spike(
         T.Pr, T.Pi, T.Qr, T.nQi, T.Ar, T.Ai, T.R, M.lane_ch, M.lane_rec, watch,
         M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip,
         state.wr, state.wi, state.pend.view(np.uint8), state.n, end,  # read, never written
-        rows, vals, True, False, _NO_2D, _NO_2D, _NO_MASK, False, _NO_2D, buf, buf.copy(),
+        rows, vals, True, False, _NO_2D, _NO_2D, _NO_MASK, buf, buf.copy(),
     )  # fmt: skip
     return int(first) - 1 if found else None
 
