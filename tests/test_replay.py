@@ -22,6 +22,7 @@ from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
 from rgtbus.telemetry.read import load_replay
+from rgtbus.telemetry.records import spike_samples
 from rgtbus.telemetry.verify import EXIT_TRUNCATED
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -562,7 +563,7 @@ def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
             if topic != "/rx/spike":
                 rec.write(topic, m, t_ns)
                 continue
-            for k, chans in zip(m["samples"], m["channels"], strict=True):
+            for k, chans in spike_samples(m):
                 one = {"unit": m["unit"], "t": k * 0.005, "sample": k, "channels": chans}
                 rec.write(topic, one, round(k * 0.005 * 1e9))
         rec.close()

@@ -401,18 +401,17 @@ def test_no_log_refuses_what_needs_a_log(tmp_path, capsys, extra):
     assert f"--no-log with {extra[0]}" in err and "\n" not in err
 
 
-def test_spike_name_cache_is_bounded_and_changes_no_record(monkeypatch):
-    import rgtbus.units.unit as unit_module
-
-    _, _, (full, _) = run("example2")
-    monkeypatch.setattr(unit_module, "SPIKE_NAMES_MAX", 1)
-    seen = []
-    real = AutonomousUnit.spikes
-
-    def spy(self, samples, channels, end):
-        real(self, samples, channels, end)
-        seen.append(len(self._spike_names))
-
-    monkeypatch.setattr(AutonomousUnit, "spikes", spy)
-    _, _, (small, _) = run("example2")
-    assert small == full and seen and max(seen) == 1
+def test_spike_records_are_columns_one_entry_a_spike():
+    """A unit's spikes of a block are one record of columns (each spike's sample, and its
+    channel as an index into the block's names), at the block's end as its log time: no
+    record a sample, no list a sample."""
+    _, _, (messages, _) = run("example2")
+    blocks = [(t, m) for topic, t, m in messages if topic == "/rx/spike"]
+    assert blocks and any(len(set(m["samples"])) > 1 for _, m in blocks)
+    for t, m in blocks:
+        assert m["samples"] == sorted(m["samples"]) and m["sample"] == m["samples"][0]
+        assert len(m["channel"]) == len(m["samples"])
+        assert sorted(set(m["channel"])) == list(range(len(m["names"])))
+        block_end = (m["sample"] // 200 + 1) * 1_000_000_000  # τ = 5 ms: 200 samples a second
+        assert m["samples"][-1] * 5_000_000 < t <= block_end  # its end, or where a unit stopped
+        assert m["samples"][-1] < (m["sample"] // 200 + 1) * 200  # one block

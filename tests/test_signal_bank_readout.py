@@ -15,6 +15,7 @@ from rgtbus.signal.decoder import (
     decode_code,
     nearest,
     nearest_each,
+    word_matrix,
 )
 from rgtbus.signal.resonator import READOUT_DIGITS, ResonatorBank
 from rgtbus.signal.waveform import Transmission, superpose
@@ -128,5 +129,8 @@ def test_decoding_every_receiver_at_once_equals_one_by_one():
 def test_word_sets_are_equal_by_value():
     cb = paper_codebook()
     a, b = WordSet.of(cb.family("relation")), WordSet.of(dict(cb.family("relation")))
-    assert a == b and hash(a) == hash(b) and a is not b
+    assert a == b and hash(a) == hash(b)
+    assert a is b  # one object while one lives: a cache keyed by it finds it by identity
+    c = WordSet(*word_matrix(cb.family("relation"), None, "words"))  # made directly: not shared
+    assert c == a and hash(c) == hash(a) and c is not a
     assert a != WordSet.of(cb.family("alternative"))

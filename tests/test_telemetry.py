@@ -53,8 +53,9 @@ SAMPLES: dict[str, dict] = {
         "unit": "b",
         "t": 1.3,
         "sample": 260,
-        "samples": [260, 262],
-        "channels": [["a", "c"], ["c"]],
+        "samples": [260, 260, 262],
+        "channel": [0, 1, 1],
+        "names": ["a", "c"],
     },
     "/rx/decode": {
         "unit": "b",
@@ -549,19 +550,32 @@ def test_docs_topics_md_is_generated():
 def test_spike_rows_read_blocks_records_of_one_sample_and_logs_of_one_spike_alike():
     from rgtbus.telemetry.read import spike_rows
 
-    block = {
+    columns = {  # one entry a spike (this version)
+        "unit": "b",
+        "t": 1.3,
+        "sample": 260,
+        "samples": [260, 263, 263],
+        "channel": [1, 1, 0],
+        "names": ["c", "a"],
+    }
+    block = {  # a list of names a sample (the version before)
         "unit": "b",
         "t": 1.3,
         "sample": 260,
         "samples": [260, 263],
         "channels": [["a"], ["a", "c"]],
     }
-    assert spike_rows([block], {"a": 4.7, "c": 5.2}, 0.005) == [
-        {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260},
-        {"unit": "b", "channel": "a", "omega": 4.7, "t": 263 * 0.005, "sample": 263},
-        {"unit": "b", "channel": "c", "omega": 5.2, "t": 263 * 0.005, "sample": 263},
-    ]
-    assert spike_rows([block], {})[2]["t"] == 1.3 / 260 * 263  # no τ: the record's own
+    for form in (columns, block):
+        assert spike_rows([form], {"a": 4.7, "c": 5.2}, 0.005) == [
+            {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260},
+            {"unit": "b", "channel": "a", "omega": 4.7, "t": 263 * 0.005, "sample": 263},
+            {"unit": "b", "channel": "c", "omega": 5.2, "t": 263 * 0.005, "sample": 263},
+        ], form
+        assert spike_rows([form], {})[2]["t"] == 1.3 / 260 * 263  # no τ: the record's own
+    for bad, why in [({"channel": [1, 2, 0]}, "channel 2 is not one of its 2 names"),
+                     ({"channel": [1, 0]}, "3 samples but 2 channels")]:  # fmt: skip
+        with pytest.raises(RgtbusError, match=why):
+            spike_rows([{**columns, **bad}], {})
     new = {"unit": "b", "t": 1.3, "sample": 260, "channels": ["a", "c"]}
     old = {"unit": "b", "channel": "a", "omega": 4.7, "t": 1.3, "sample": 260}
     rows = spike_rows([new, old], {"a": 4.7, "c": 5.2})

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
-import itertools
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -46,7 +45,6 @@ from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
-SPIKE_NAMES_MAX = 4096  # sets of channels whose names a unit keeps built (the common ones)
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 
 
@@ -131,7 +129,6 @@ class AutonomousUnit:
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
-        self._spike_names: dict[tuple[int, ...], list[str]] = {}
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
         # engine's window: what a record holds never depends on how the run was stepped)
         self.block = max(1, round(SPIKE_BLOCK_SECONDS / self.tau))
@@ -259,26 +256,14 @@ class AutonomousUnit:
 
     def spikes(self, samples: np.ndarray, channels: np.ndarray, end: int) -> None:
         """One block's spikes of this unit's resonators (``SpikeLog``), as one ``/rx/spike``
-        record at the block's end (or as far as its ears heard, for the last block of a unit
-        that stopped: a log cut there is complete before this time, the verifier's bound) as
-        its log time: never behind the run's clock, so a live view gets it on time. Every
-        receiver hears the same medium, so the same sets of channels fire again and again:
-        their names are built once (the lists are only read)."""
-        at = samples.tolist()
-        cs = channels.tolist()
-        cuts = [0, *(np.flatnonzero(samples[1:] != samples[:-1]) + 1).tolist(), len(at)]
-        names_of = self._spike_names
-        units = self.units
-        on = []
-        for a, b in itertools.pairwise(cuts):
-            key = tuple(cs[a:b])
-            names = names_of.get(key)
-            if names is None:
-                if len(names_of) >= SPIKE_NAMES_MAX:  # bounded: 435 MB at n = 50 unbounded
-                    names_of.clear()
-                names = names_of[key] = [units[ch] for ch in key]
-            on.append(names)
-        record = records.spikes(self.name, self.tau, [at[a] for a in cuts[:-1]], on)
+        record of columns (each spike's sample and channel, as arrays the encoder writes
+        whole: no Python object per spike) at the block's end (or as far as its ears heard,
+        for the last block of a unit that stopped: a log cut there is complete before this
+        time, the verifier's bound) as its log time: never behind the run's clock, so a live
+        view gets it on time."""
+        fired, channel = np.unique(channels, return_inverse=True)
+        names = [self.units[c] for c in fired.tolist()]
+        record = records.spikes(self.name, self.tau, samples, channel, names)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:

@@ -38,6 +38,7 @@ from rgtbus.telemetry.records import (
     InfluencesRecord,
     RelationsRecord,
     RunRecord,
+    spike_samples,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.timebase import NS_PER_SECOND
@@ -161,7 +162,7 @@ def spike_rows(
     records: Iterable[dict], frequencies: dict[str, float], tau: float | None = None
 ) -> list[dict]:
     """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
-    records: a unit's spikes of one window as columns (``samples``, ``channels``); ω comes
+    records: a unit's spikes of one block as columns (``spike_samples``); ω comes
     from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
     names) or one spike a record (with its ω); both still read. ``tau``: the sample period
     (else each spike's time is worked out from the record's first). Rows are in sample order
@@ -171,7 +172,7 @@ def spike_rows(
         if "samples" in m:
             unit, k0, t0 = m["unit"], m["sample"], m["t"]
             step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
-            for k, chans in zip(m["samples"], m["channels"], strict=True):
+            for k, chans in spike_samples(m):
                 t = k * step if k != k0 else t0
                 for ch in chans:
                     om = frequencies.get(ch)

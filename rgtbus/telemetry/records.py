@@ -10,10 +10,18 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Any, TypedDict
+from collections.abc import Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, TypeAlias, TypedDict
 
+from rgtbus.errors import RgtbusError
 from rgtbus.summary import DecisionRow
+
+if TYPE_CHECKING:
+    import numpy as np
+
+# a column of integers: a numpy array as a writer builds it (the encoder takes it whole), a
+# list as a reader gets it back
+IntColumn: TypeAlias = "Sequence[int] | np.ndarray"
 
 Alternative = list[str]
 
@@ -40,8 +48,9 @@ class SpikeRecord(TypedDict):
     unit: str
     t: float
     sample: int  # the first spike's
-    samples: list[int]
-    channels: list[list[str]]
+    samples: IntColumn  # one per spike
+    channel: IntColumn  # one per spike: an index into names
+    names: list[str]
 
 
 class DecodeRecord(TypedDict):
@@ -188,17 +197,54 @@ def pulse(
     }
 
 
-def spikes(unit: str, tau: float, samples: list[int], channels: list[list[str]]) -> SpikeRecord:
-    """Every spike of ``unit`` in one window, as columns: at ``samples[i]`` the resonators of
-    ``channels[i]`` fired (one record per unit and window: a large run's receivers fire
-    millions of times; logs before it held one record a sample, which ``spike_rows`` reads)."""
+def spikes(
+    unit: str, tau: float, samples: IntColumn, channel: IntColumn, names: list[str]
+) -> SpikeRecord:
+    """Every spike of ``unit`` in one block, as columns, one entry per spike: at
+    ``samples[i]`` the resonator of ``names[channel[i]]`` fired. Numpy arrays are written as
+    they are (the encoder takes them whole: a large run's receivers fire millions of times).
+    Logs before it held the block as ``samples`` and per-sample lists of names, and before
+    that one record a sample; ``spike_rows`` reads them all."""
+    first = int(samples[0])
     return {
         "unit": unit,
-        "t": samples[0] * tau,
-        "sample": samples[0],
+        "t": first * tau,
+        "sample": first,
         "samples": samples,
-        "channels": channels,
+        "channel": channel,
+        "names": names,
     }
+
+
+def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
+    """A block of spikes (``/rx/spike``, as read) one sample at a time: (sample, the names
+    of the channels that fired there, in order). Reads the columns of one entry a spike
+    (``samples``, ``channel`` into ``names``) and the block of logs before them (``samples``
+    and a list of names per sample). A channel index outside ``names``: RgtbusError."""
+    samples = record["samples"]
+    if "names" not in record:
+        yield from zip(samples, record["channels"], strict=True)
+        return
+    names, channel = record["names"], record["channel"]
+    if len(channel) != len(samples):
+        raise RgtbusError(
+            f"/rx/spike of {record.get('unit')!r} at sample {record.get('sample')}: "
+            f"{len(samples)} samples but {len(channel)} channels"
+        )
+    i, n = 0, len(samples)
+    while i < n:
+        k = samples[i]
+        fired = []
+        while i < n and samples[i] == k:
+            c = channel[i]
+            if not 0 <= c < len(names):
+                raise RgtbusError(
+                    f"/rx/spike of {record.get('unit')!r} at sample {k}: channel {c} is not "
+                    f"one of its {len(names)} names"
+                )
+            fired.append(names[c])
+            i += 1
+        yield k, fired
 
 
 def decode(

@@ -22,6 +22,7 @@ from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
 from rgtbus.telemetry.recorder import (
     encode_json,
 )
+from rgtbus.telemetry.records import spike_samples
 from rgtbus.timebase import ns
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -131,7 +132,7 @@ def spikes_per_sample(
             yield topic, t_ns, m
             continue
         unit = m["unit"]
-        for k, chans in zip(m["samples"], m["channels"], strict=True):
+        for k, chans in spike_samples(m):
             t = k * tau
             yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
 
