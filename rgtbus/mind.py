@@ -34,7 +34,7 @@ from functools import lru_cache
 from typing import Any
 
 from rgtbus.errors import NotDecomposable, RgtbusError
-from rgtbus.pairs import ordered_pairs, pair_key
+from rgtbus.pairs import ordered_pairs, pair_key, relation_key
 from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
@@ -195,7 +195,7 @@ class Mind:
             for b in self.units[i + 1 :]:
                 if (a, b) in self.sent and (b, a) in self.sent:
                     both = self.sent[(a, b)] and self.sent[(b, a)]
-                    out[f"{a}-{b}"] = "alliance" if both else "conflict"
+                    out[relation_key(a, b)] = "alliance" if both else "conflict"
         return out
 
     def sent_table(self) -> dict[str, str]:
@@ -208,7 +208,11 @@ class Mind:
     def influence_table(self) -> dict[str, list[str]]:
         """The influences of the last round decided: ``{"s>r": [action, ...]}``."""
         u = self.universe
-        return {pair_key(s, r): u.to_list(v) for (s, r), v in sorted(self.influences.items())}
+        lists: dict[int, list[str]] = {}  # one list an alternative (a few), not one a pair
+        return {
+            pair_key(s, r): lists[v] if v in lists else lists.setdefault(v, u.to_list(v))
+            for (s, r), v in sorted(self.influences.items())
+        }
 
     def build_group(self) -> None:
         """Phase 2: graph and polynomial from the decoded relationship codes."""
@@ -250,7 +254,7 @@ class Mind:
             if len(nxt) != n * (n - 1):
                 break
             self.decided_rounds += 1
-            self.influences = dict(nxt)
+            self.influences = nxt  # complete: the round's table itself, not a copy a unit
             self.decide_round(self.decided_rounds)
             done.append(self.decided_rounds)
         return done

@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from rgtbus.errors import RgtbusError
-from rgtbus.pairs import pair_key
+from rgtbus.pairs import pair_key, relation_key
 from rgtbus.rgt import Universe, graph_to_polynomial, parse_polynomial, polynomial_to_graph
 from rgtbus.rgt.expr import format_expr, needs_star
 from rgtbus.scenario.context import Ctx
@@ -150,7 +150,7 @@ def _relations(ctx: Ctx, relations: dict[str, Any], units: tuple[str, ...]) -> d
             raise ctx.error(section, key, f'must be "alliance" or "conflict", got {v!r}')
         if units.index(a) > units.index(b):
             a, b = b, a
-        name = f"{a}-{b}"
+        name = relation_key(a, b)
         if name in pairs:
             raise ctx.error(section, key, f"the pair {name} is given twice")
         pairs[name] = v
