@@ -46,6 +46,7 @@ from rgtbus.timebase import ns
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
+BATCH_SECONDS = 1.0  # without a log, a unit's decodes of this much time wait for one wake
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -159,6 +160,10 @@ class AutonomousUnit:
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
+        # without a log (or traces), its decodes may wait for one wake a batch (_ask)
+        self._batches = not self.recorder.enabled and not self.traces
+        self._batch_span = max(1, round(BATCH_SECONDS / self.tau))
+        self._others: list[int] = []  # boundaries of its timers that are not listens
         self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
@@ -227,6 +232,10 @@ class AutonomousUnit:
             return
         t = self._timers[0]
         aw = self._asked = self.awaited()
+        if aw is None and self._batches:
+            boundary = self._batch_boundary(t.boundary)
+            self.ears.listen(self.index, boundary, boundary - 1, self._woken)
+            return
         self.ears.listen(
             self.index,
             t.boundary,
@@ -235,6 +244,21 @@ class AutonomousUnit:
             None if aw is None else aw[0],
             0 if aw is None else aw[1],
         )
+
+    def _batch_boundary(self, first: int) -> int:
+        """How far this unit may let the ears go before it decodes, when nothing it hears can
+        change its plans (no spike awaited) and nothing it does is logged as it happens: its
+        decodes up to the next timer of another kind (a deadline, a goal's choice, the limit),
+        at most ``BATCH_SECONDS`` past the first, all at one wake. Each decode is the same
+        (the readout keeps ``KEEP_SECONDS``; every result carries its own time), but a large
+        run wakes each unit about once a second, not once a decode (issue 23)."""
+        others = self._others
+        while others and others[0] < first:  # timers of the past (taken, or replaced)
+            heapq.heappop(others)
+        far = first + self._batch_span
+        if others and others[0] < far:
+            far = others[0]
+        return max(first, far)
 
     def _woken(self, heard: Heard) -> None:
         """Receive -> protocol -> decode -> reason -> send, at the sample the ears woke it."""
@@ -314,6 +338,8 @@ class AutonomousUnit:
         timer = _Timer(boundary, int(kind == "choose"), self._seq, at, kind, listen)
         self._seq += 1
         heapq.heappush(self._timers, timer)
+        if kind != "listen":
+            heapq.heappush(self._others, boundary)
         return timer
 
     def _queue_next(self, queue: ListenQueue, first_seq: int, i: int) -> None:
