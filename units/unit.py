@@ -285,7 +285,10 @@ class AutonomousUnit:
         for the last block of a unit that stopped: a log cut there is complete before this
         time, the verifier's bound) as its log time: never behind the run's clock, so a live
         view gets it on time."""
-        fired, channel = np.unique(channels, return_inverse=True)
+        present = np.zeros(len(self.units), dtype=np.int32)
+        present[channels] = 1
+        fired = np.flatnonzero(present)  # ascending: the channels that fired in the block
+        channel = (np.cumsum(present) - 1)[channels]  # each spike's index into them
         names = [self.units[c] for c in fired.tolist()]
         record = records.spikes(self.name, self.tau, samples, channel, names)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
