@@ -22,7 +22,7 @@ TOPICS: dict[str, tuple[str, str]] = {
     "/tx/pulse": ("rgtbus.Pulse", "every transmitted pulse"),
     "/rx/spike": (
         "rgtbus.Spikes",
-        "every resonator spike, per receiving unit and window: samples and the channels fired",
+        "every resonator spike, per receiving unit and second: each spike's sample and channel",
     ),
     "/rx/decode": ("rgtbus.Decode", "every decoded code, per receiving unit"),
     "/unit/relations": ("rgtbus.Relations", "relationship table as a unit holds it"),
