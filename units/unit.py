@@ -273,8 +273,36 @@ class AutonomousUnit:
         # last sample, is now or was passed by the spike that woke this unit)
         timers = self._timers
         while not self.done and timers and timers[0][0] <= pos:
-            self._on_timer(heapq.heappop(timers))
+            t = heapq.heappop(timers)
+            if t.queued is None:
+                self._on_timer(t)
+            else:
+                self._take_queue(t, pos)
         self._ask()
+
+    def _take_queue(self, t: _Timer, pos: int) -> None:
+        """A listen of a shared queue, and the queue's next ones while they fall due before
+        ``pos`` ahead of every other timer: in the order the heap would give them (boundary,
+        then seq), without a heap entry each (a batch holds dozens)."""
+        queue, first_seq, i = t.queued  # type: ignore[misc]
+        order, bounds, listens = queue.order, queue.boundaries, queue.listens
+        timers = self._timers
+        listen = t.listen
+        at = t.at
+        while True:
+            assert listen is not None
+            self._decode(listen)
+            if (self.finished or self.failure) and not self.done:
+                self.done = True
+                self.done_at = at
+            i += 1
+            if self.done or i >= len(order) or bounds[i] > pos:
+                break
+            b = bounds[i]
+            if timers and timers[0][:3] < (b, 0, first_seq + order[i]):
+                break  # another timer comes first
+            listen, at = listens[order[i]], b - 1
+        self._queue_next(queue, first_seq, i)
 
     # -- its log of spikes (the ears' SpikeLog): one record per block, not per sample --------
 
