@@ -22,6 +22,11 @@ watched spike of any unit: what a unit reacts to happens in time order, each at 
 sample. A unit's quench times (``quench_at``: its resonators back to rest before a sample)
 are the ears' to keep: they need no wake-up.
 
+The ears walk the resonators only when a spike matters: a unit whose plans can wait for one
+(``Listener.awaits``), a log of spikes (``SpikeLog``, handed a block at a time) or traces. A
+decode reads the increment readout, which is the input each unit heard
+(``input_readout``), so a run with none of the three needs no walk at all.
+
 ``dense=True`` is the time-stepped reference: every window of ``window`` samples is fed to
 every unit, silent or not.
 """
