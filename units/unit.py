@@ -6,7 +6,8 @@ its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
-failed, it listens no more.
+failed, it listens no more. Without a log, a unit that awaits no spike takes its decodes a
+batch at a time (``BATCH_SECONDS``; docs/engine.md): the same decodes, fewer wakes.
 """
 
 from __future__ import annotations
