@@ -415,3 +415,39 @@ def test_spike_records_are_columns_one_entry_a_spike():
         block_end = (m["sample"] // 200 + 1) * 1_000_000_000  # τ = 5 ms: 200 samples a second
         assert m["samples"][-1] * 5_000_000 < t <= block_end  # its end, or where a unit stopped
         assert m["samples"][-1] < (m["sample"] // 200 + 1) * 200  # one block
+
+
+def test_wrong_decodes_judge_columns_as_rows():
+    """The summary judges a unit's decodes held as columns (a live run) in one vectorised
+    step, and rows (read from a log) one by one: the same errors, in decode order."""
+    from rgtbus.units.unit import DecodeColumns
+
+    from rgtbus.summary import wrong_decodes
+
+    truth = {
+        (0, "id"): ("b", "id"), (0, "payload"): ("b", "alliance"),
+        (1, "id"): ("c", "id"), (1, "payload"): ("c", "{go}"),
+        (7, "payload"): ("a", "conflict"),
+    }  # fmt: skip
+    rows = [
+        (0, "id", "b", "id"),  # right
+        (0, "relation", "b", "conflict"),  # wrong code
+        (1, "id", "c", "alliance"),  # an ID misread
+        (1, "influence", "a", "{go}"),  # right code on the wrong channel
+        (1, "influence", "c", "{go}"),  # right
+        (5, "relation", "b", "alliance"),  # no known send: not judged
+        (7, "relation", "a", "conflict"),  # right
+        (0, "relation", "b", "conflict"),  # wrong again, later
+    ]
+    cols = DecodeColumns()
+    for row in rows:
+        cols.append(*row)
+    got = wrong_decodes("u", cols, truth)
+    assert got == wrong_decodes("u", [list(r) for r in rows], truth)
+    assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
+        (0, "conflict", "alliance"),
+        (1, "alliance", "id"),
+        (1, "{go}", "{go}"),
+        (0, "conflict", "alliance"),
+    ]
+    assert wrong_decodes("u", DecodeColumns(), truth) == [] == wrong_decodes("u", cols, {})

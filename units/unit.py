@@ -79,6 +79,15 @@ class DecodeColumns:
     def __len__(self) -> int:
         return len(self._turns)
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
+        """(each decode's turn, the index of its (kind, addressee, code) in the third),
+        as arrays over the columns' own memory (``rgtbus.summary.wrong_decodes``)."""
+        return (
+            np.frombuffer(self._turns, dtype=np.intc),
+            np.frombuffer(self._what, dtype=np.uintc),
+            self._rows,
+        )
+
     def __iter__(self) -> Iterator[DecodedRow]:
         rows = self._rows
         for turn, i in zip(self._turns, self._what, strict=True):
