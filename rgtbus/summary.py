@@ -111,46 +111,65 @@ class DecodeArrays(Protocol):
     def arrays(self) -> tuple[np.ndarray, np.ndarray, Sequence[tuple[str, str, str]]]: ...
 
 
+class SentTruth:
+    """What was sent, per (turn, "id" | "payload"): (addressee, code), the ground truth of
+    decode errors. Built once a run; its arrays (by turn) once, on first use by columns."""
+
+    def __init__(self, sent: Mapping[tuple[int, str], tuple[str, str]]) -> None:
+        self.sent = sent
+        self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.names: dict[str, int] = {}  # every addressee and code, as a number
+
+    def number(self, text: str) -> int:
+        return self.names.setdefault(text, len(self.names))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """[class (0: ID, 1: payload), turn] -> known, the addressee's and the code's number."""
+        if self._arrays is None:
+            span = max((t for t, _ in self.sent), default=-1) + 1
+            known = np.zeros((2, span), dtype=bool)
+            to_of = np.full((2, span), -1)
+            code_of = np.full((2, span), -1)
+            for (turn, cls), (addressee, code) in self.sent.items():
+                if turn >= 0:
+                    c = int(cls != "id")
+                    known[c, turn] = True
+                    to_of[c, turn], code_of[c, turn] = self.number(addressee), self.number(code)
+            self._arrays = (known, to_of, code_of)
+        return self._arrays
+
+
 def wrong_decodes(
-    unit: str,
-    decodes: Iterable[Sequence[Any]] | DecodeArrays,
-    truth: Mapping[tuple[int, str], tuple[str, str]],
+    unit: str, decodes: Iterable[Sequence[Any]] | DecodeArrays, truth: SentTruth
 ) -> list[dict[str, Any]]:
     """A unit's decodes that differ from what was sent (``is_wrong_decode``), in decode
     order, as ``decode_error`` entries; a decode of a turn with no known send is not judged.
-    ``truth``: (turn, "id" | "payload") -> (addressee, code) sent. Rows (turn, kind, addressee,
-    code) are judged one by one; columns in one vectorised step (n³ decodes at n units)."""
+    Rows (turn, kind, addressee, code) are judged one by one; columns in one vectorised step
+    (n³ decodes at n units)."""
+    sent_of = truth.sent
     arrays = getattr(decodes, "arrays", None)
     if arrays is None:
         out = []
         for turn, kind, addressee, code in cast(Iterable[Sequence[Any]], decodes):
             key = (turn, "id" if kind == "id" else "payload")
-            if key in truth:
-                sent_to, sent = truth[key]
+            if key in sent_of:
+                sent_to, sent = sent_of[key]
                 if is_wrong_decode(kind, code, addressee, sent, sent_to):
                     out.append(decode_error(unit, turn, kind, code, sent))
         return out
     turns, what, rows = arrays()
-    if not len(turns) or not truth:
+    if not len(turns) or not sent_of:
         return []
-    names: dict[str, int] = {}  # every addressee and code, as a number
-    number = lambda text: names.setdefault(text, len(names))  # noqa: E731
-    span = max(max(t for t, _ in truth), int(turns.max())) + 1
-    known = np.zeros((2, span), dtype=bool)  # [0: ID, 1: payload][turn]
-    to_of = np.full((2, span), -1)  # [class, turn] -> the addressee sent to, as a number
-    code_of = np.full((2, span), -1)  # ... and the code sent
-    for (turn, cls), (addressee, code) in truth.items():
-        if turn >= 0:
-            c = int(cls != "id")
-            known[c, turn], to_of[c, turn], code_of[c, turn] = True, number(addressee), number(code)
+    known, to_of, code_of = truth.arrays()
+    number = truth.number
     row_cls = np.array([int(k != "id") for k, _, _ in rows])
     row_id_ok = np.array([k != "id" or c == "id" for k, _, c in rows])  # an ID read as the ID
     row_to = np.array([number(a) for _, a, _ in rows])
     row_code = np.array([number(c) for _, _, c in rows])
     cls, t = row_cls[what], turns.astype(np.int64)
-    ok_turn = t >= 0
-    t = np.where(ok_turn, t, 0)
-    judged = ok_turn & known[cls, t]
+    in_span = (t >= 0) & (t < known.shape[1])
+    t = np.where(in_span, t, 0)
+    judged = in_span & known[cls, t]
     bad = np.where(
         cls == 0,
         ~row_id_ok[what],
@@ -161,7 +180,7 @@ def wrong_decodes(
         turn = int(turns[i])
         kind, _, code = rows[what[i]]
         key = (turn, "id" if kind == "id" else "payload")
-        out.append(decode_error(unit, turn, kind, code, truth[key][1]))
+        out.append(decode_error(unit, turn, kind, code, sent_of[key][1]))
     return out
 
 
@@ -276,9 +295,10 @@ def summarise(
     for r in reports:
         for turn, kind, addressee, code in r["sends"]:
             truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+    sent_truth = SentTruth(truth)
     decode_errors = []
     for r in reports:
-        decode_errors.extend(wrong_decodes(r["unit"], r["decodes"], truth))
+        decode_errors.extend(wrong_decodes(r["unit"], r["decodes"], sent_truth))
     units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome = outcome_of(sc, units_out) if len(units_out) == len(sc.units) else None
     # The root cause: the world's own failure (a member gone or stalled), else the earliest

@@ -422,13 +422,13 @@ def test_wrong_decodes_judge_columns_as_rows():
     step, and rows (read from a log) one by one: the same errors, in decode order."""
     from rgtbus.units.unit import DecodeColumns
 
-    from rgtbus.summary import wrong_decodes
+    from rgtbus.summary import SentTruth, wrong_decodes
 
-    truth = {
+    truth = SentTruth({
         (0, "id"): ("b", "id"), (0, "payload"): ("b", "alliance"),
         (1, "id"): ("c", "id"), (1, "payload"): ("c", "{go}"),
         (7, "payload"): ("a", "conflict"),
-    }  # fmt: skip
+    })  # fmt: skip
     rows = [
         (0, "id", "b", "id"),  # right
         (0, "relation", "b", "conflict"),  # wrong code
@@ -438,6 +438,7 @@ def test_wrong_decodes_judge_columns_as_rows():
         (5, "relation", "b", "alliance"),  # no known send: not judged
         (7, "relation", "a", "conflict"),  # right
         (0, "relation", "b", "conflict"),  # wrong again, later
+        (9, "relation", "b", "conflict"),  # a turn past every known send: not judged
     ]
     cols = DecodeColumns()
     for row in rows:
@@ -450,4 +451,6 @@ def test_wrong_decodes_judge_columns_as_rows():
         (1, "{go}", "{go}"),
         (0, "conflict", "alliance"),
     ]
-    assert wrong_decodes("u", DecodeColumns(), truth) == [] == wrong_decodes("u", cols, {})
+    assert (
+        wrong_decodes("u", DecodeColumns(), truth) == [] == wrong_decodes("u", cols, SentTruth({}))
+    )
