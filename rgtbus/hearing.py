@@ -185,6 +185,8 @@ class Ears:
         # the spikes of logged units not yet handed to their logs: (sample, unit, channel)
         self._spike_rows: list[np.ndarray] = []
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
+        # which units' spikes are kept for a log: logged and still listening (``stop``)
+        self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         # the dense engine is the reference: it walks every resonator every sample, always
@@ -304,6 +306,7 @@ class Ears:
             self._asking -= 1
         lst.active = False
         lst.request = None
+        self._log_mask[i] = False
         self.end_spikes(i)
         if lst.trace is not None:
             self._flush_trace(i)
@@ -512,9 +515,7 @@ class Ears:
                     lst.heard.append((k, (ch,)))
         if self._logged:  # kept for the logs, handed over a block at a time
             if len(sp):
-                logged = np.array([lst.active and lst.spike_log is not None
-                                   for lst in self.listeners])  # fmt: skip
-                keep = sp[logged[sp[:, 1]]]
+                keep = sp[self._log_mask[sp[:, 1]]]
                 if len(keep):
                     self._spike_rows.append(keep)
             if end >= self._spikes_due:

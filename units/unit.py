@@ -294,7 +294,8 @@ class AutonomousUnit:
         """A listen of a shared queue, and the queue's next ones while they fall due before
         ``pos`` ahead of every other timer: in the order the heap would give them (boundary,
         then seq), without a heap entry each (a batch holds dozens)."""
-        queue, first_seq, i = t.queued  # type: ignore[misc]
+        assert t.queued is not None
+        queue, first_seq, i = t.queued
         order, bounds, listens = queue.order, queue.boundaries, queue.listens
         timers = self._timers
         listen = t.listen
@@ -302,9 +303,7 @@ class AutonomousUnit:
         while True:
             assert listen is not None
             self._decode(listen)
-            if (self.finished or self.failure) and not self.done:
-                self.done = True
-                self.done_at = at
+            self._settle(at)
             i += 1
             if self.done or i >= len(order) or bounds[i] > pos:
                 break
@@ -338,11 +337,9 @@ class AutonomousUnit:
             self.ears.end_spikes(self.index)
 
     def _on_timer(self, t: _Timer) -> None:
+        """A timer of its own (a shared queue's listens are ``_take_queue``'s)."""
         if t.kind == "listen":
             assert t.listen is not None
-            if t.queued is not None:
-                queue, first_seq, i = t.queued
-                self._queue_next(queue, first_seq, i + 1)
             self._decode(t.listen)
         elif t.kind == "deadline":
             self._deadline = None
@@ -357,9 +354,13 @@ class AutonomousUnit:
                 "simulated time (timing.max_seconds)",
                 t.at,
             )
+        self._settle(t.at)
+
+    def _settle(self, at: int) -> None:
+        """Done once it has decided or failed, at the sample of what made it so."""
         if (self.finished or self.failure) and not self.done:
             self.done = True
-            self.done_at = t.at
+            self.done_at = at
 
     def _fail(self, message: str, at: int) -> None:
         if self.failure is None:

@@ -397,9 +397,7 @@ class WordSet:
         return _WORD_SETS.setdefault(made._key, made)  # type: ignore[attr-defined]
 
 
-_WORD_SETS: weakref.WeakValueDictionary[tuple[object, ...], WordSet] = (
-    weakref.WeakValueDictionary()
-)
+_WORD_SETS: weakref.WeakValueDictionary[tuple[object, ...], WordSet] = weakref.WeakValueDictionary()
 
 
 Words = Mapping[str, Sequence[float]] | Mapping[str, np.ndarray] | WordSet

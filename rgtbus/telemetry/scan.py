@@ -12,7 +12,7 @@ import struct
 import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import IO, Any, cast
+from typing import IO, Any, TypeVar, cast
 
 import mcap.exceptions
 import orjson
@@ -30,13 +30,7 @@ def read_log(source: str | os.PathLike[str] | IO[bytes]) -> LogContents:
     Reads sequentially (no index needed), so a truncated file yields every complete record
     before the cut and ``truncated=True`` with a note. Not an MCAP file: RgtbusError.
     """
-    if isinstance(source, str | os.PathLike):
-        try:
-            with open(source, "rb") as f:
-                return _read(f, os.fspath(source))
-        except OSError as e:
-            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
-    return _read(source, getattr(source, "name", "<stream>"))
+    return _from_source(source, _read)
 
 
 @dataclass
@@ -74,13 +68,23 @@ class RawLog:
 def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
     """Every record of an MCAP file (path or binary stream), read sequentially so a truncated
     file yields all complete records before the cut. Not an MCAP file: RgtbusError."""
+    return _from_source(source, _scan)
+
+
+T = TypeVar("T")
+
+
+def _from_source(
+    source: str | os.PathLike[str] | IO[bytes], read: Callable[[IO[bytes], str], T]
+) -> T:
+    """``read(stream, label)`` on a path (opened here, its error in one line) or a stream."""
     if isinstance(source, str | os.PathLike):
         try:
             with open(source, "rb") as f:
-                return _scan(f, os.fspath(source))
+                return read(f, os.fspath(source))
         except OSError as e:
             raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
-    return _scan(source, getattr(source, "name", "<stream>"))
+    return read(source, getattr(source, "name", "<stream>"))
 
 
 class _Corrupt(Exception):
