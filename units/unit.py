@@ -6,8 +6,8 @@ its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
-failed, it listens no more. Without a log, a unit that awaits no spike takes its decodes a
-batch at a time (``BATCH_SECONDS``; docs/engine.md): the same decodes, fewer wakes.
+failed, it listens no more. A unit that awaits no spike takes its decodes a batch at a time
+(``BATCH_SECONDS``; docs/engine.md): the same decodes and records, fewer wakes.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from rgtbus.timebase import ns
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-BATCH_SECONDS = 1.0  # without a log, a unit's decodes of this much time wait for one wake
+BATCH_SECONDS = 1.0  # a unit's decodes of this much time wait for one wake (no live view)
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -170,8 +170,10 @@ class AutonomousUnit:
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
-        # without a log (or traces), its decodes may wait for one wake a batch (_ask)
-        self._batches = not self.recorder.enabled and not self.traces
+        # its decodes may wait for one wake a batch (_ask); their records then leave at the
+        # wake, each at its own log time (up to BATCH_SECONDS behind the run's clock), so not
+        # when a live view must get each record as the clock reaches it, nor with traces
+        self._batches = not self.traces and getattr(self.recorder, "live", None) is None
         self._batch_span = max(1, round(BATCH_SECONDS / self.tau))
         self._others: list[int] = []  # boundaries of its timers that are not listens
         self._seq = 0  # the next timer's seq
@@ -257,11 +259,13 @@ class AutonomousUnit:
 
     def _batch_boundary(self, first: int) -> int:
         """How far this unit may let the ears go before it decodes, when nothing it hears can
-        change its plans (no spike awaited) and nothing it does is logged as it happens: its
+        change its plans (no spike awaited) and no live view waits for its records: its
         decodes up to the next timer of another kind (a deadline, a goal's choice, the limit),
         at most ``BATCH_SECONDS`` past the first, all at one wake. Each decode is the same
         (the readout keeps ``KEEP_SECONDS``; every result carries its own time), but a large
-        run wakes each unit about once a second, not once a decode (issue 23)."""
+        run wakes each unit about once a second, not once a decode (issue 23). What they log
+        leaves at the wake with each record's own time, in time order for this unit (a log
+        cut short is complete before a unit's last record: ``Replay.units_until_ns``)."""
         others = self._others
         while others and others[0] < first:  # timers of the past (taken, or replaced)
             heapq.heappop(others)

@@ -58,19 +58,37 @@ def _stdout_to_devnull() -> None:
         os.close(devnull)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from rgtbus.cli import (
-        log_cmds,
-        plan_cmd,
-        proc_cmds,
-        replay_cmds,
-        rgt_cmds,
-        run_cmd,
-        scenarios_cmd,
-        signal_cmds,
-        sweep_cmds,
-        watch_cmd,
-    )
+# Each command's module, in the order ``rgtbus --help`` lists them. ``main`` imports and
+# registers only the module of the command it runs (a command module imports what its
+# command needs: ``rgtbus run`` must not pay for ``launch``'s sockets or ``cat``'s JSON);
+# ``tests/test_cli_lazy.py`` holds this map equal to what the modules register.
+COMMANDS: dict[str, str] = {
+    "solve": "rgt_cmds",
+    "control": "rgt_cmds",
+    "run": "run_cmd",
+    "scenarios": "scenarios_cmd",
+    "resonate": "signal_cmds",
+    "figures": "signal_cmds",
+    "plan": "plan_cmd",
+    "replay": "replay_cmds",
+    "merge": "replay_cmds",
+    "info": "log_cmds",
+    "cat": "log_cmds",
+    "scenario": "log_cmds",
+    "unit": "proc_cmds",
+    "launch": "proc_cmds",
+    "router": "proc_cmds",
+    "watch": "watch_cmd",
+    "sweep": "sweep_cmds",
+    "sweep-plot": "sweep_cmds",
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``rgtbus`` parser: every command's, or only ``command``'s module's when it names
+    one (what ``main`` builds to run it; usage, help and errors of that command are the
+    same)."""
+    import importlib
 
     parser = OneLineParser(
         prog="rgtbus",
@@ -82,24 +100,15 @@ def build_parser() -> argparse.ArgumentParser:
         dest="command", metavar="COMMAND", parser_class=OneLineParser
     )
     subparsers.required = True
-    for module in (
-        rgt_cmds,
-        run_cmd,
-        scenarios_cmd,
-        signal_cmds,
-        plan_cmd,
-        replay_cmds,
-        log_cmds,
-        proc_cmds,
-        watch_cmd,
-        sweep_cmds,
-    ):
-        module.register(subparsers)
+    wanted = [COMMANDS[command]] if command in COMMANDS else COMMANDS.values()
+    for name in dict.fromkeys(wanted):
+        importlib.import_module(f"rgtbus.cli.{name}").register(subparsers)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     hold = getattr(args, "quiet_holds_stdout", False) and args.quiet
     try:

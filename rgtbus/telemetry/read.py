@@ -190,6 +190,10 @@ def spike_rows(
 
 
 _NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
+# logged by a unit's transmitter as the clock reaches each pulse, ahead of its other records
+# (a batch of decodes leaves at its wake, up to a second behind): what a unit logged before
+# its last record or spike block holds every pulse before that time as well
+_ON_TIME = frozenset({"/tx/pulse"})
 
 
 class Replay:
@@ -580,15 +584,15 @@ class Replay:
     def units_until_ns(self) -> int | None:
         """The log time before which every unit's messages are complete in a log cut short
         (a truncated file, or a merge whose inputs ended early): the earliest, over the units,
-        of each unit's last record and last block of spikes (records are logged at their time,
-        spikes as the ears hear them, the medium and traces ahead); None when nothing was
-        logged."""
+        of each unit's last record and last block of spikes (a unit's records leave in its own
+        time order, a batch of decodes at its wake; spikes as the ears hear them; pulses, the
+        medium and traces ahead); None when nothing was logged."""
         last: dict[str, int] = {}
         for topic, msgs in self.by_topic.items():
             # what is logged ahead of time (the medium, traces) or once the run is over (the
             # run's and units' reports, and log lines, which a stopped unit writes at its end)
             # says nothing of how far its records are complete
-            if topic in _NOT_PROGRESS or _is_trace(topic):
+            if topic in _NOT_PROGRESS or topic in _ON_TIME or _is_trace(topic):
                 continue
             stream = "spikes" if topic == "/rx/spike" else "records"
             for t, m in msgs:
