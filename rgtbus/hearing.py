@@ -102,7 +102,7 @@ class Listener:
     name: str
     gains: np.ndarray  # gain of each sender's signal at this unit, in member order
     noise: float  # σ of the white noise this unit's receiver adds to every sample
-    rng: np.random.Generator
+    rng: np.random.Generator | None  # its noise's generator (None: a receiver with no noise)
     keep: int  # samples of readout history the unit decodes from
     trace: TraceSink | None = None
     spike_log: SpikeLog | None = None  # where its every spike goes as it is heard (a log)
@@ -125,6 +125,7 @@ class Listener:
         if lo < self._noise_at:
             raise RgtbusError(f"{self.name}: noise for sample {lo} was already used")
         if hi > have:
+            assert self.rng is not None, f"{self.name}: noise {self.noise} with no generator"
             more = self.rng.normal(0.0, self.noise, hi - have)
             self._noise = np.concatenate([self._noise[lo - self._noise_at :], more])
             self._noise_at = lo

@@ -31,7 +31,7 @@ import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.errors import NotDecomposable, RgtbusError
 from rgtbus.pairs import ordered_pairs, pair_key, relation_key
@@ -39,7 +39,6 @@ from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
-    SteeringChoice,
     SubjectResult,
     Universe,
     canonical_form,
@@ -48,14 +47,14 @@ from rgtbus.rgt import (
     forward,
     graph_to_polynomial,
     install_relations,
-    meets,
     polynomial_to_graph,
     random_polynomial,
-    steer,
-    steerable_share,
 )
 from rgtbus.rgt.expr import needs_star
 from rgtbus.scenario import Goal, Scenario
+
+if TYPE_CHECKING:
+    from rgtbus.rgt.control import SteeringChoice
 
 Pair = tuple[str, str]
 
@@ -272,6 +271,8 @@ class Mind:
             if self.p4 is not None:
                 return "the group is not decomposable: no decision function to invert"
             return self.error or "the relationship phase is not complete: no group yet"
+        from rgtbus.rgt.control import steer  # a run without goals never loads it
+
         heard, predicted = self.steering_inputs(goal.target, rnd)
         return steer(
             self.df, self.universe, self.me, goal.target, goal.lo, goal.hi, goal.mode, heard,
@@ -551,6 +552,8 @@ def goal_outcomes(
     u = sc.universe
     known = intended_group(sc)
     out: list[dict[str, Any]] = []
+    from rgtbus.rgt.control import meets, steer, steerable_share
+
     for g in sc.goals:
         r = units.get(g.target, {})
         reached = None

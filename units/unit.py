@@ -17,7 +17,7 @@ import heapq
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import simpy
@@ -37,13 +37,15 @@ from rgtbus.protocol import (
     choice_sample,
     code_samples,
 )
-from rgtbus.rgt import SteeringChoice
 from rgtbus.scenario import Scenario
 from rgtbus.signal.channel import noise_rng
 from rgtbus.signal.decoder import Readout, WordSet
 from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
+
+if TYPE_CHECKING:
+    from rgtbus.rgt.control import SteeringChoice
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
@@ -193,7 +195,8 @@ class AutonomousUnit:
             name=self.name,
             gains=sc.channel.gain_row(self.units, self.name),
             noise=sc.channel.noise,
-            rng=noise_rng(sc.seed, self.units.index(self.name)),
+            # numpy.random costs 8 ms to import: a noise-free run never draws
+            rng=noise_rng(sc.seed, self.units.index(self.name)) if sc.channel.noise > 0 else None,
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
             spike_log=self if self.recorder.enabled else None,  # only a log needs every spike

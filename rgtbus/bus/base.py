@@ -19,9 +19,9 @@ never memory, and a member's own frames are never crowded out (docs/security.md)
 from __future__ import annotations
 
 import math
+import os
 import queue
 import re
-import secrets
 import threading
 import time
 from collections import deque
@@ -220,7 +220,7 @@ class QueueBus:
         self._queued_bytes = dict.fromkeys(self.members, 0)
         self._queued_seqs: dict[str, set[int]] = {u: set() for u in self.members}
         self._inbox_cap = INBOX_BYTES_OPEN if self._key is None else INBOX_BYTES_KEYED
-        self.nonce = secrets.token_bytes(16)  # this process's, bound into every tag it makes
+        self.nonce = os.urandom(16)  # this process's, bound into every tag it makes
         # Whose tags we can check: our own units now, the others' once their hello is heard.
         self._nonces: dict[str, bytes] = dict.fromkeys(self.local, self.nonce)
         self._closed = False

@@ -9,7 +9,6 @@ holds, as a table when it fits and one line a pair when not.
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -18,6 +17,8 @@ INDENT = "  "
 
 def terminal_width() -> int:
     """The terminal's columns (``COLUMNS`` when set; 80 in a pipe or a file)."""
+    import shutil  # 3 ms to import: not before a run starts
+
     return shutil.get_terminal_size((80, 24)).columns
 
 

@@ -4,17 +4,9 @@ graph -> polynomial -> stratification tree / diagonal form -> fold -> F -> canon
 forward task (intervals, frustration) and inverse task (reflexive control).
 """
 
+from typing import TYPE_CHECKING, Any
+
 from rgtbus.rgt.algebra import Universe
-from rgtbus.rgt.control import (
-    STEER_RULES,
-    ControlResult,
-    SteeringChoice,
-    meets,
-    solve_brute_force,
-    solve_per_action,
-    steer,
-    steerable_share,
-)
 from rgtbus.rgt.decision import (
     CanonicalForm,
     InfluenceMatrix,
@@ -42,6 +34,41 @@ from rgtbus.rgt.polynomial import (
     polynomial_to_graph,
     random_polynomial,
 )
+
+# The inverse task is imported when first used (a run without goals never steers, and a
+# command's start-up pays 6 ms for it and ``fractions`` otherwise: issue 23).
+_CONTROL = (
+    "STEER_RULES",
+    "ControlResult",
+    "SteeringChoice",
+    "meets",
+    "solve_brute_force",
+    "solve_per_action",
+    "steer",
+    "steerable_share",
+)
+if TYPE_CHECKING:
+    from rgtbus.rgt.control import (
+        STEER_RULES,
+        ControlResult,
+        SteeringChoice,
+        meets,
+        solve_brute_force,
+        solve_per_action,
+        steer,
+        steerable_share,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    if name in _CONTROL:
+        from rgtbus.rgt import control
+
+        value = getattr(control, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'rgtbus.rgt' has no attribute {name!r}")
+
 
 __all__ = [
     "STEER_RULES",
