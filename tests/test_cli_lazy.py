@@ -49,3 +49,32 @@ def test_a_run_imports_no_other_command():
     )
     imported = out.stdout.strip().splitlines()[-1]
     assert imported == "scenarios_cmd", imported
+
+
+def test_a_run_of_the_gate_loads_nothing_it_does_not_use():
+    """What only some runs need is imported when first used (start-up, issue 23): a
+    noise-free open run without goals never steers, validates, tags or draws noise."""
+    code = (
+        "import sys; from rgtbus.cli import main; "
+        "rc = main(['run', 'gate', '--bus', 'memory', '--no-log', '--quiet']); "
+        "lazy = ('rgtbus.rgt.control', 'fastjsonschema', 'jsonschema', 'hmac', 'numpy.random', "
+        "'rgtbus.cli.proc_cmds', 'pandas', 'pyarrow', 'zenoh', 'matplotlib'); "
+        "print(','.join(m for m in lazy if m in sys.modules)); sys.exit(rc)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert out.stdout.strip() == "", out.stdout  # --quiet: the line printed is the list
+
+
+def test_what_is_imported_late_still_works_when_asked_for():
+    import rgtbus.rgt as rgt
+
+    assert rgt.steer.__module__ == "rgtbus.rgt.control"
+    assert "steer" in rgt.__all__
+    try:
+        rgt.no_such_name  # noqa: B018
+    except AttributeError as e:
+        assert "no_such_name" in str(e)
+    else:
+        raise AssertionError("no AttributeError")
