@@ -53,7 +53,7 @@ def assert_same_run(sc: Scenario):
         raise AssertionError(f"logs differ at message {first}: {a[first]} != {b[first]}")
     assert len(a) == len(b)
     topics = {t for _, t, _ in a}
-    assert {"/tx/pulse", "/rx/spike", "/rx/decode", "/medium", "/run"} <= topics
+    assert {"/tx/pulse", "/rx/spike", "/rx/decodes", "/medium", "/run"} <= topics
     return event
 
 
@@ -184,3 +184,48 @@ def test_a_run_that_walks_no_resonator_is_the_same_run(monkeypatch, source, nois
         k: v for k, v in logged.items() if k not in NOT_RESULTS
     }
     assert bare["decisions"] and (not bare["error"] or noise)
+
+
+def _unit_rows(messages, tau):
+    """A log's unit records as comparable rows (topic, log time, JSON), decodes and spikes
+    one a row: what a cut log must hold in full before its bound."""
+    from rgtbus.telemetry.verify import decodes_per_row, spikes_per_sample
+
+    skip = {"/log", "/medium", "/run", "/unit/report"}
+    rows = spikes_per_sample(decodes_per_row(messages), tau)
+    return [(tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rows if tp not in skip]
+
+
+@pytest.mark.parametrize(
+    "seed, noise, schedule",
+    [(5, 0.03, "serial"), (7, 0.0, "concurrent"), (8, 0.01, "concurrent"), (11, 0.004, "serial")],
+)
+def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
+    """A logged unit's decodes go out a batch a wake, behind the clock, while its pulses go
+    out on time: each unit's records still leave in time order, so a log cut after any write
+    holds every unit record before ``Replay.units_until_ns`` (what --verify compares)."""
+    import dataclasses
+
+    from rgtbus.telemetry.read import Replay
+    from rgtbus.telemetry.recorder import LogContents
+
+    sc = random_group(seed, noise=noise, gains=True, anchor="schedule")
+    sc = dataclasses.replace(sc, schedule=schedule)
+    rec = MemoryRecorder()
+    run_group(sc, "memory", rec)
+    written = rec.messages  # in the order they were written
+    per_unit: dict[str, int] = {}
+    for tp, t, m in written:
+        if tp in ("/rx/decodes", "/unit/relations", "/unit/influences", "/unit/decision"):
+            assert t >= per_unit.get(m["unit"], 0), (tp, t, m["unit"])
+            per_unit[m["unit"]] = t
+    if schedule == "concurrent":  # no spike awaited: decodes of different times share a wake
+        assert any(len(set(m["times"])) > 1 for tp, _, m in written if tp == "/rx/decodes")
+    meta = {k: dict(v) for k, v in rec.metadata_records.items()}
+    whole = _unit_rows(written, sc.timing.tau)
+    for cut in range(0, len(written), max(1, len(written) // 40)):
+        kept = sorted(written[:cut], key=lambda x: x[1])
+        bound = Replay(LogContents(kept, meta, truncated=True)).units_until_ns() or 0
+        want = sorted(r for r in whole if r[1] < bound)
+        got = sorted(r for r in _unit_rows(kept, sc.timing.tau) if r[1] < bound)
+        assert got == want, f"cut after {cut} of {len(written)} writes, bound {bound}"

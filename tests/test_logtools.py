@@ -39,7 +39,7 @@ def test_info_reads_the_summary(gate_log, capsys):
     info = json.loads(capsys.readouterr().out)
     msgs = _messages(gate_log)
     assert {t: v["count"] for t, v in info["topics"].items()} == Counter(t for t, _, _ in msgs)
-    assert info["topics"]["/rx/decode"]["schema"] == "rgtbus.Decode"
+    assert info["topics"]["/rx/decodes"]["schema"] == "rgtbus.Decodes"
     assert info["messages"] == len(msgs)
     assert info["duration"] == pytest.approx(max(t for _, t, _ in msgs) / 1e9)
     assert (info["scenario"], info["seed"], info["units"]) == ("gate", 11, ["a", "b", "c", "d"])
@@ -49,7 +49,7 @@ def test_info_reads_the_summary(gate_log, capsys):
     assert main(["info", str(gate_log)]) == 0
     text = capsys.readouterr().out
     assert "seed:        11" in text and "outcome:     gate: open" in text
-    assert "/rx/decode" in text and "[" not in text.split("units:")[1].splitlines()[0]
+    assert "/rx/decodes" in text and "[" not in text.split("units:")[1].splitlines()[0]
 
 
 def test_info_on_a_log_cut_short(gate_log, tmp_path, capsys):
@@ -81,16 +81,16 @@ def test_info_refuses_what_is_no_log(tmp_path, capsys, content, says):
 
 def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     capsys.readouterr()
-    args = ["cat", str(gate_log), "--topic", "/rx/decode", "--unit", "b", "--from", "10"]
+    args = ["cat", str(gate_log), "--topic", "/rx/decodes", "--unit", "b", "--from", "10"]
     assert main([*args, "--to", "40"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     want = [
         (t, m)
         for topic, t, m in _messages(gate_log)
-        if topic == "/rx/decode" and m["unit"] == "b" and 10e9 <= t <= 40e9
+        if topic == "/rx/decodes" and m["unit"] == "b" and 10e9 <= t <= 40e9
     ]
     assert [(x["log_time"], x["message"]) for x in lines] == want and want
-    assert all(x["topic"] == "/rx/decode" and x["t"] == x["log_time"] / 1e9 for x in lines)
+    assert all(x["topic"] == "/rx/decodes" and x["t"] == x["log_time"] / 1e9 for x in lines)
     # several topics, every unit: log-time order
     assert main(["cat", str(gate_log), "--topic", "/unit/decision", "--topic", "/run"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]

@@ -15,6 +15,13 @@ def built() -> dict[str, dict]:
         "/tx/pulse": records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref),
         "/rx/spike": records.spikes("b", 0.005, [41, 41, 44], [0, 1, 1], ["a", "b"]),
         "/rx/decode": records.decode("b", 3, "a", "b", "b", "influence", "{go}", 0.3, 9.5, True),
+        "/rx/decodes": records.decodes(
+            "b",
+            [
+                (3, "a", "b", "b", "influence", "{go}", 0.3, 9.5, True),
+                (3, "c", "a", "b", "influence", "{}", 0.1, 9.5, False),
+            ],
+        ),
         "/unit/relations": records.relations(
             "b", 9.0, {"a>b": "alliance", "b>a": "alliance"}, {"a-b": "alliance"}, "ab", None
         ),
@@ -98,3 +105,38 @@ def test_the_types_name_the_schemas_fields():
     for topic, cls in records.RECORD_TYPES.items():
         schema = topics.load_schema(topics.schema_for(topic))
         assert set(cls.__annotations__) == set(schema["properties"]), topic  # names only
+
+
+def test_a_decodes_record_reads_back_as_the_records_of_one_decode_each():
+    rows = [
+        (1, "a", "b", "a", "id", "id", 0.5, 1.25, True),
+        (2, "a", "c", "c", "relation", "conflict", 0.25, 2.5, True),
+        (5, "c", "b", "d", "influence", "{go}", 0.0, 2.5, False),
+    ]
+    rec = MemoryRecorder(validate=True)
+    rec.write("/rx/decodes", records.decodes("b", rows), 2_500_000_000)
+    ((_, t_ns, back),) = rec.messages
+    assert t_ns == 2_500_000_000 and back["t"] == 2.5  # the last decode's time
+    assert list(records.decode_rows(back)) == [records.decode("b", *row) for row in rows]
+
+
+def test_a_damaged_decodes_record_is_named():
+    import pytest
+
+    from rgtbus.errors import RgtbusError
+
+    good = records.decodes("b", [(1, "a", "b", "a", "id", "id", 0.5, 1.25, True)])
+    for column, value, says in (
+        ("code", [], "column 'code' is 0 entries, not 1"),
+        ("margin", None, "column 'margin' is missing"),
+        ("kind", "id", "column 'kind' is str"),
+    ):
+        bad = {**good}
+        if value is None:
+            del bad[column]  # type: ignore[misc]
+        else:
+            bad[column] = value  # type: ignore[literal-required]
+        with pytest.raises(RgtbusError, match="/rx/decodes of 'b' at t = 1.25: " + says):
+            list(records.decode_rows(bad))
+    with pytest.raises(RgtbusError, match="no decode to log"):
+        records.decodes("b", [])

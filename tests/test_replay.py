@@ -17,7 +17,7 @@ from rgtbus.units.rerun import rerun, traces_for, verify_log
 
 from rgtbus.cli import main
 from rgtbus.scenario import load_scenario, parse_scenario
-from rgtbus.telemetry import McapRecorder, read_log, schema_for
+from rgtbus.telemetry import McapRecorder, read_log, records, schema_for
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
@@ -157,8 +157,14 @@ def _tamper_sample(msgs):
 
 
 def _tamper_delete_decode(msgs):
-    i = next(i for i, (tp, _, m) in enumerate(msgs) if tp == "/rx/decode" and m["kind"] != "id")
-    return msgs[:i] + msgs[i + 1 :]
+    """One decode (not an ID's) taken out of its /rx/decodes record."""
+    for tp, _, m in msgs:
+        if tp == "/rx/decodes" and "relation" in m["kind"]:
+            i = m["kind"].index("relation")
+            for column in records.DECODE_COLUMNS:
+                del m[column][i]
+            return msgs
+    raise AssertionError("no relation decode to delete")
 
 
 def _tamper_pulse_time(msgs):
@@ -169,8 +175,8 @@ def _tamper_pulse_time(msgs):
 
 def _tamper_flag(msgs):
     for tp, _, m in msgs:
-        if tp == "/rx/decode" and m["accepted"] is True:
-            m["accepted"] = 1  # equal in Python, not in a log
+        if tp == "/rx/decodes" and True in m["accepted"]:
+            m["accepted"][m["accepted"].index(True)] = 1  # equal in Python, not in a log
             return msgs
     raise AssertionError("no accepted decode to tamper with")
 
@@ -463,7 +469,7 @@ def test_every_logged_message_validates_against_its_schema():
         "/medium",
         "/tx/pulse",
         "/rx/spike",
-        "/rx/decode",
+        "/rx/decodes",
         "/unit/relations",
         "/unit/influences",
         "/unit/decision",
@@ -572,3 +578,35 @@ def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
     pd.testing.assert_frame_equal(before.spikes(), after.spikes())
     assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
     assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # spikes compare per sample
+
+
+def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):
+    """Logs before the columnar /rx/decodes held one /rx/decode per decode: the same run
+    written that way reads to the same decodes and summary, and verifies."""
+    import pandas as pd
+
+    import rgtbus
+    from rgtbus.telemetry import McapRecorder, read_log
+
+    new = tmp_path / "new.mcap"
+    rgtbus.run("random_group", bus="memory", log=new)  # concurrent: decodes in batches
+    messages, metadata = read_log(new)
+    assert any(len(set(m["times"])) > 1 for tp, _, m in messages if tp == "/rx/decodes")
+    old = tmp_path / "old.mcap"
+    with open(old, "wb") as f:
+        rec = McapRecorder(f)
+        for name, values in metadata.items():
+            rec.metadata(name, values)
+        for topic, t_ns, m in messages:
+            if topic != "/rx/decodes":
+                rec.write(topic, m, t_ns)
+                continue
+            for row in records.decode_rows(m):
+                rec.write("/rx/decode", row, round(row["t"] * 1e9))
+        rec.close()
+    before, after = rgtbus.open_log(new), rgtbus.open_log(old)
+    assert len(after.messages("/rx/decodes")) == 0 < len(after.messages("/rx/decode"))
+    assert len(after.decodes()) == len(before.decodes()) > 0
+    pd.testing.assert_frame_equal(before.decodes(), after.decodes())
+    assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
+    assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # decodes compare one by one

@@ -144,7 +144,7 @@ def test_noisy_channel_still_decodes(seed):
     sc = replace(base, noise=0.002, seed=seed)
     _, s, (messages, _) = run(sc)
     assert s["error"] is None and s["outcome"] == "gate: open" and s["decode_errors"] == []
-    margins = [m["margin"] for t, _, m in messages if t == "/rx/decode"]
+    margins = [x for t, _, m in messages if t == "/rx/decodes" for x in m["margin"]]
     assert min(margins) > 0.1
 
 
@@ -195,7 +195,7 @@ def test_cli_run_json_and_log(tmp_path, capsys):
         "/medium",
         "/tx/pulse",
         "/rx/spike",
-        "/rx/decode",
+        "/rx/decodes",
         "/unit/relations",
         "/unit/influences",
         "/unit/decision",

@@ -72,7 +72,7 @@ def scenario_world(
 
 def write_unit_report(recorder: Recorder, unit: AutonomousUnit, sim_seconds: float) -> None:
     """The unit's ``/unit/report`` at the end of the run: what the log's summary is computed
-    from (with the unit's ``/rx/decode`` records), exactly as the live summary is."""
+    from (with the unit's ``/rx/decodes`` records), exactly as the live summary is."""
     unit.end_log()  # what it keeps for the log, if the run stopped before it was done
     if recorder.enabled:
         recorder.write("/unit/report", unit.report_record(), ns(sim_seconds))

@@ -125,7 +125,7 @@ class AutonomousUnit:
     failure: str | None = None
     done: bool = False
     done_at: int = 0
-    # every decode, as the summary reads it (the margin and time are in the log's /rx/decode)
+    # every decode, as the summary reads it (the margin and time are in the log's /rx/decodes)
     decoded: DecodeColumns = field(default_factory=DecodeColumns)
     sent: list[Send] = field(default_factory=list)
     # this unit's own decision after each influence round it decided (``decision_row``)
@@ -181,6 +181,7 @@ class AutonomousUnit:
         self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
+        self._decode_rows: list[records.DecodeFields] = []  # this wake's, for the log
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
@@ -295,6 +296,7 @@ class AutonomousUnit:
                 self._on_timer(t)
             else:
                 self._take_queue(t, pos)
+        self._flush_decodes()
         self._ask()
 
     def _take_queue(self, t: _Timer, pos: int) -> None:
@@ -338,8 +340,9 @@ class AutonomousUnit:
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:
-        """The run is over for this unit (done, or the world stopped): what its ears still
-        keep for its log is written."""
+        """The run is over for this unit (done, or the world stopped): what it and its ears
+        still keep for its log is written."""
+        self._flush_decodes()
         if self.ears is not None:
             self.ears.end_spikes(self.index)
 
@@ -479,7 +482,7 @@ class AutonomousUnit:
                 sent=u.to_list(u.parse_alternative(code)),
                 reason=reason,
             )  # fmt: skip
-            self.recorder.write("/unit/goal", record, ns(t))
+            self._write("/unit/goal", record, ns(t))
             level = "info" if value is not None else "warning"
             self.recorder.log(level, f"{self.name}: goal {reason}", ns(t), name=self.name)
         self._emit(dataclasses.replace(send, code=code))
@@ -588,13 +591,25 @@ class AutonomousUnit:
         channel: str,
     ) -> None:
         self.decoded.append(listen.turn, listen.kind, addressee, code)
-        if not self.recorder.enabled:
-            return
-        record = records.decode(
-            self.name, listen.turn, listen.sender, addressee, channel, listen.kind, code,
-            margin, t, accepted,
-        )  # fmt: skip
-        self.recorder.write("/rx/decode", record, ns(t))
+        if self.recorder.enabled:  # logged as one record a wake (_flush_decodes)
+            self._decode_rows.append(
+                (listen.turn, listen.sender, addressee, channel, listen.kind, code, margin, t,
+                 accepted)
+            )  # fmt: skip
+
+    def _flush_decodes(self) -> None:
+        """Log the decodes of this wake so far as one ``/rx/decodes`` record at the last
+        one's time: at the end of each wake, and before any other record of this unit, so
+        its records stay in time order (a log cut short is complete before its last one)."""
+        rows = self._decode_rows
+        if rows:
+            self._decode_rows = []
+            self.recorder.write("/rx/decodes", records.decodes(self.name, rows), ns(rows[-1][7]))
+
+    def _write(self, topic: str, record: Any, t_ns: int) -> None:
+        """A record of this unit's own, after the decodes that came before it."""
+        self._flush_decodes()
+        self.recorder.write(topic, record, t_ns)
 
     def _learn(self, listen: Listen, code: str, t: float) -> None:
         mind = self.mind
@@ -628,11 +643,11 @@ class AutonomousUnit:
         record = records.relations(
             self.name, t, mind.sent_table(), mind.installed(), mind.polynomial, mind.p4
         )
-        self.recorder.write("/unit/relations", record, ns(t))
+        self._write("/unit/relations", record, ns(t))
 
     def _log_influences(self, t: float, rnd: int = 1) -> None:
         record = records.influences(self.name, t, self.mind.influence_table(), rnd)
-        self.recorder.write("/unit/influences", record, ns(t))
+        self._write("/unit/influences", record, ns(t))
 
     def _log_decisions(self, t: float, rnd: int = 1) -> None:
         mind = self.mind
@@ -650,7 +665,7 @@ class AutonomousUnit:
         for s, r in results.items():
             fields = decision_fields(r, choice if s == self.name else None, u)
             record = records.decision(self.name, s, t, fields, mind.canonical(s), rnd)
-            self.recorder.write("/unit/decision", record, ns(t))
+            self._write("/unit/decision", record, ns(t))
 
     # -- what this unit knows, as plain data (one process's share of a run summary) ----------
 
@@ -665,7 +680,7 @@ class AutonomousUnit:
 
     def report_record(self) -> records.UnitReportRecord:
         """What this unit knows at the end of its run (``/unit/report``): everything its share
-        of the run summary needs but its decodes (those are ``/rx/decode``)."""
+        of the run summary needs but its decodes (those are ``/rx/decodes``)."""
         mind = self.mind
         return {
             "unit": self.name,

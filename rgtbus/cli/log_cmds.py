@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="TOPIC",
-        help="only this topic (repeat for several), e.g. /rx/decode",
+        help="only this topic (repeat for several), e.g. /rx/decodes",
     )
     c.add_argument("--unit", metavar="NAME", help="only messages about this unit")
     c.add_argument("--from", dest="t_from", type=float, metavar="S", help="from S simulated s")

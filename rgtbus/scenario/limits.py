@@ -2,7 +2,7 @@
 
 A run's size is estimated from its scenario before anything is built: samples (``max_seconds ×
 sample_rate``), samples a bus window (``window × sample_rate``), decodes (every unit decodes
-every code: ``2·n²·(n−1)·(1 + influence_rounds)``, the ``/rx/decode`` records of a finished
+every code: ``2·n²·(n−1)·(1 + influence_rounds)``, the decodes in ``/rx/decodes`` of a finished
 run) and the generated codebook's search (its ``2^k`` words against every candidate word). One
 beyond its budget is refused in one line naming the key and the estimate. ``RGTBUS_BUDGET=large``
 (environment) raises every budget a hundredfold; the hard limits below it never move.
@@ -85,7 +85,7 @@ def over_budget(budget: Budget, estimate: float) -> str | None:
 def decodes(n: int, influence_rounds: int) -> float:
     """Decodes of a run of ``n`` units: each of the n units decodes every one of the n·(n−1)
     codes of the relationship phase and of each influence round, twice (the ID and the
-    payload), ``2·n²·(n−1)·(1 + rounds)``. Exact for a run that finishes (the /rx/decode
+    payload), ``2·n²·(n−1)·(1 + rounds)``. Exact for a run that finishes (the decodes in /rx/decodes
     records: 192 for the 4-unit gate, 3,600 for crowd10); the memory and time of a run grow
     with it."""
     return 2.0 * n * n * (n - 1) * (1 + influence_rounds)

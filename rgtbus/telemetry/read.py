@@ -38,10 +38,11 @@ from rgtbus.telemetry.records import (
     InfluencesRecord,
     RelationsRecord,
     RunRecord,
+    decode_rows,
     spike_samples,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
-from rgtbus.timebase import NS_PER_SECOND
+from rgtbus.timebase import NS_PER_SECOND, ns
 
 NS = NS_PER_SECOND  # log_time units per second (rgtbus.timebase)
 
@@ -208,6 +209,7 @@ class Replay:
         self.by_topic: dict[str, list[tuple[int, dict]]] = defaultdict(list)
         for topic, t, msg in contents.messages:
             self.by_topic[topic].append((t, msg))
+        self._decodes_as_rows()
         self.scenario: Scenario | None = None
         self.scenario_error: str | None = None
         self._load_scenario()
@@ -239,6 +241,18 @@ class Replay:
         ]
 
     # -- construction ------------------------------------------------------------------------
+
+    def _decodes_as_rows(self) -> None:
+        """Every decode as one ``/rx/decode`` message at its own time, however the log holds
+        it (one a decode, or columns a wake in ``/rx/decodes``): what every reader reads."""
+        blocks = self.by_topic.get("/rx/decodes")
+        if not blocks:
+            return
+        rows = self.by_topic["/rx/decode"]
+        for _, m in blocks:
+            for row in decode_rows(m):
+                rows.append((ns(row["t"]), cast(dict, row)))
+        rows.sort(key=lambda r: r[0])  # stable: a unit's decodes of one time keep their order
 
     def _load_scenario(self) -> None:
         meta = self.metadata.get("scenario")

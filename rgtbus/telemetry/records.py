@@ -67,6 +67,26 @@ class DecodeRecord(TypedDict):
     accepted: bool
 
 
+class DecodesRecord(TypedDict):
+    unit: str
+    t: float  # the last decode's time: the record's log time
+    turn: list[int]  # each decode's, in the order the unit made them
+    sender: list[str]
+    addressee: list[str]
+    channel: list[str]
+    kind: list[str]
+    code: list[str]
+    margin: list[float]
+    times: list[float]
+    accepted: list[bool]
+
+
+# the columns of a /rx/decodes record, in the order ``decodes`` takes a row's fields
+DECODE_COLUMNS = (
+    "turn", "sender", "addressee", "channel", "kind", "code", "margin", "times", "accepted",
+)  # fmt: skip
+
+
 class RelationsRecord(TypedDict):
     unit: str
     t: float
@@ -162,6 +182,7 @@ RECORD_TYPES: dict[str, type] = {
     "/tx/pulse": PulseRecord,
     "/rx/spike": SpikeRecord,
     "/rx/decode": DecodeRecord,
+    "/rx/decodes": DecodesRecord,
     "/unit/relations": RelationsRecord,
     "/unit/influences": InfluencesRecord,
     "/unit/decision": DecisionRecord,
@@ -264,6 +285,58 @@ def decode(
         "t": t,
         "accepted": accepted,
     }
+
+
+DecodeFields = tuple[int, str, str, str, str, str, float, float, bool]
+
+
+def decodes(unit: str, rows: Sequence[DecodeFields]) -> DecodesRecord:
+    """A unit's decodes of one wake (at least one), as columns (``/rx/decodes``): each row is
+    (turn, sender, addressee, channel, kind, code, margin, t, accepted), the fields of
+    ``decode``. One record a wake, not one a decode: a run of n units decodes 4n²(n−1)
+    codes. Logs before it held one ``/rx/decode`` a decode; ``decode_rows`` reads both."""
+    if not rows:
+        raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
+    cols = list(zip(*rows, strict=True))
+    return {
+        "unit": unit,
+        "t": rows[-1][7],
+        "turn": list(cols[0]),
+        "sender": list(cols[1]),
+        "addressee": list(cols[2]),
+        "channel": list(cols[3]),
+        "kind": list(cols[4]),
+        "code": list(cols[5]),
+        "margin": [float(m) for m in cols[6]],
+        "times": list(cols[7]),
+        "accepted": list(cols[8]),
+    }
+
+
+def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
+    """The decodes of a ``/rx/decodes`` record (as read) one at a time, each as ``decode``
+    builds it (what a log of one record a decode holds). Columns of unequal length:
+    RgtbusError naming the unit and the column."""
+    unit = record.get("unit")
+    n = len(record["times"])
+    for name in DECODE_COLUMNS:
+        col = record.get(name)
+        if not isinstance(col, list) or len(col) != n:
+            got = (
+                "missing"
+                if col is None
+                else f"{len(col)} entries"
+                if isinstance(col, list)
+                else type(col).__name__
+            )
+            raise RgtbusError(
+                f"/rx/decodes of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
+                f"not {n} entries like times"
+            )
+    for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
+        *(record[c] for c in DECODE_COLUMNS), strict=True
+    ):
+        yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)  # type: ignore[arg-type]
 
 
 def relations(

@@ -24,7 +24,14 @@ TOPICS: dict[str, tuple[str, str]] = {
         "rgtbus.Spikes",
         "every resonator spike, per receiving unit and second: each spike's sample and channel",
     ),
-    "/rx/decode": ("rgtbus.Decode", "every decoded code, per receiving unit"),
+    "/rx/decode": (
+        "rgtbus.Decode",
+        "every decoded code, one record each (logs before /rx/decodes)",
+    ),
+    "/rx/decodes": (
+        "rgtbus.Decodes",
+        "every decoded code, per receiving unit and wake: one column a field",
+    ),
     "/unit/relations": ("rgtbus.Relations", "relationship table as a unit holds it"),
     "/unit/influences": (
         "rgtbus.Influences",

@@ -12,7 +12,7 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import orjson
@@ -22,7 +22,7 @@ from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
 from rgtbus.telemetry.recorder import (
     encode_json,
 )
-from rgtbus.telemetry.records import spike_samples
+from rgtbus.telemetry.records import decode_rows, spike_samples
 from rgtbus.timebase import ns
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -137,6 +137,20 @@ def spikes_per_sample(
             yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
 
 
+def decodes_per_row(
+    messages: Iterable[tuple[str, int, dict]],
+) -> Iterator[tuple[str, int, dict]]:
+    """The messages with every ``/rx/decodes`` record as one ``/rx/decode`` message a decode
+    at its own time (as logs before the columnar record held them): decodes are compared one
+    by one, however a run grouped them into records, and a mismatch names its decode."""
+    for topic, t_ns, m in messages:
+        if topic != "/rx/decodes" or not isinstance(m, dict):
+            yield topic, t_ns, m
+            continue
+        for row in decode_rows(m):
+            yield "/rx/decode", ns(row["t"]), cast(dict, row)
+
+
 def diff_messages(
     logged: Iterable[tuple[str, int, dict]],
     recomputed: Iterable[tuple[str, int, dict]],
@@ -173,6 +187,7 @@ def diff_messages(
                 out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
         return out
 
+    logged, recomputed = decodes_per_row(logged), decodes_per_row(recomputed)
     if tau is not None:
         logged = spikes_per_sample(logged, tau)
         recomputed = spikes_per_sample(recomputed, tau)
