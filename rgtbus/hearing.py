@@ -536,28 +536,37 @@ class Ears:
         only on the blocks, not on how the ears advanced."""
         if not self._spike_rows:
             return
-        rows = np.concatenate(self._spike_rows)
-        take = np.ones(len(rows), dtype=bool)
-        if upto is not None:
-            take &= rows[:, 0] < upto
-        if only is not None:
-            take &= rows[:, 1] == only
-        rest = rows[~take]
+        rows = np.concatenate(self._spike_rows)  # in sample order (the walk's)
+        if only is None:  # a block boundary: the rows before it, a slice (no copy)
+            cut = len(rows) if upto is None else int(rows[:, 0].searchsorted(upto))
+            rows, rest = rows[:cut], rows[cut:]
+        else:
+            take = rows[:, 1] == only
+            if upto is not None:
+                take &= rows[:, 0] < upto
+            rows, rest = rows[take], rows[~take]
         self._spike_rows = [rest] if len(rest) else []
-        rows = rows[take]
         if not len(rows):
             return
         B = self._spike_block
         block = rows[:, 0] // B
-        rows = rows[np.lexsort((rows[:, 1], block))]  # stable: sample order kept within
-        block = rows[:, 0] // B
-        unit = rows[:, 1]
+        # stable by (block, unit): sample order kept within. A hand holds a block or two, so
+        # the key fits in 16 bits, where numpy's stable sort is a radix sort
+        b0 = int(block[0])
+        units = len(self.listeners)
+        if (int(block[-1]) - b0 + 1) * units < 2**15:
+            order = np.argsort(((block - b0) * units + rows[:, 1]).astype(np.int16), kind="stable")
+        else:
+            order = np.lexsort((rows[:, 1], block))
+        # columns of their own: contiguous, so the log's encoder writes each slice whole
+        samples, unit, channel = (rows[order, j] for j in range(3))
+        block = block[order]
         new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
         cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(rows)]
         for a, b in itertools.pairwise(cuts):
             log = self.listeners[int(unit[a])].spike_log
             assert log is not None
-            log.spikes(rows[a:b, 0], rows[a:b, 2], min((int(block[a]) + 1) * B, self.pos))
+            log.spikes(samples[a:b], channel[a:b], min((int(block[a]) + 1) * B, self.pos))
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""
