@@ -309,3 +309,18 @@ def test_a_spike_on_the_last_sample_is_a_stop():
     lanes[1] = True
     res = ResonatorBank(PAPER).advance(11, [10], [1.2], stop=True, stop_lanes=lanes)
     assert res.stopped and res.spikes[:, 2].tolist() == [0, 1, 2]
+
+
+@pytest.mark.parametrize("n", [3000, 40_000])  # a short advance and one past the 16-bit sort
+def test_spikes_come_in_sample_receiver_channel_order(n):
+    u = sparse_medium(n, n // 60, 5, scale=0.9, receivers=3)
+    om = np.linspace(3, 6, 5)
+    res = ResonatorBank(om, n_receivers=3).feed(u)
+    sp = res.spikes
+    k, rec, ch = sp[:, 0], sp[:, 1], sp[:, 2]
+    assert len(sp) > 100 and np.any(np.diff(k) == 0)  # samples where several lanes fire
+    assert np.array_equal(sp, sp[np.lexsort((ch, rec, k))])
+    # the same spikes walked in pieces (each sorted on its own)
+    b = ResonatorBank(om, n_receivers=3)
+    outs = _feed_chunks(b, u, [977, 5000, 20_000, n], record=False)
+    assert np.array_equal(np.concatenate([o.spikes for o in outs]), sp)
