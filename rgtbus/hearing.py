@@ -188,6 +188,7 @@ class Ears:
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         # which units' spikes are kept for a log: logged and still listening (``stop``)
         self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
+        self._log_all = bool(self._log_mask.all())  # every unit's: no mask to apply
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         # the dense engine is the reference: it walks every resonator every sample, always
@@ -308,6 +309,7 @@ class Ears:
         lst.active = False
         lst.request = None
         self._log_mask[i] = False
+        self._log_all = False
         self.end_spikes(i)
         if lst.trace is not None:
             self._flush_trace(i)
@@ -516,7 +518,7 @@ class Ears:
                     lst.heard.append((k, (ch,)))
         if self._logged:  # kept for the logs, handed over a block at a time
             if len(sp):
-                keep = sp[self._log_mask[sp[:, 1]]]
+                keep = sp if self._log_all else sp[self._log_mask[sp[:, 1]]]
                 if len(keep):
                     self._spike_rows.append(keep)
             if end >= self._spikes_due:
@@ -559,8 +561,8 @@ class Ears:
         else:
             order = np.lexsort((rows[:, 1], block))
         # columns of their own: contiguous, so the log's encoder writes each slice whole
-        samples, unit, channel = (rows[order, j] for j in range(3))
-        block = block[order]
+        samples, unit, channel = (np.take(rows[:, j], order) for j in range(3))  # 4x a [order, j]
+        block = np.take(block, order)
         new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
         cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(rows)]
         for a, b in itertools.pairwise(cuts):
