@@ -88,10 +88,11 @@ class SpikeLog(Protocol):
 
     block: int
 
-    def spikes(self, samples: np.ndarray, channels: np.ndarray, end: int) -> None:
-        """The spikes of one block: at ``samples[i]`` (ascending) the resonator of
-        ``channels[i]`` fired (a sample's channels ascending); heard up to sample ``end``
-        (the block's end, or less for the last block of a unit that stopped)."""
+    def spikes(self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int) -> None:
+        """The spikes of one block: at ``samples[i]`` (ascending) the resonator of channel
+        ``fired[index[i]]`` fired (a sample's channels ascending; ``fired``: the channels
+        that fired in the block, ascending); heard up to sample ``end`` (the block's end, or
+        less for the last block of a unit that stopped)."""
         ...
 
 
@@ -564,11 +565,29 @@ class Ears:
         samples, unit, channel = (np.take(rows[:, j], order) for j in range(3))  # 4x a [order, j]
         block = np.take(block, order)
         new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
-        cuts = [0, *(np.flatnonzero(new) + 1).tolist(), len(rows)]
-        for a, b in itertools.pairwise(cuts):
+        starts = np.flatnonzero(np.concatenate(([True], new)))  # each (block, unit)'s first
+        # which channels fired in each (block, unit), and each spike's index among them, for
+        # every block and unit at once (a few calls a hand, not a few a record)
+        width = int(channel.max()) + 1
+        seg = np.cumsum(np.concatenate(([0], new)))
+        fired = np.zeros(len(starts) * width, dtype=np.int64)
+        fired[seg * width + channel] = 1
+        index = (fired.reshape(len(starts), width).cumsum(axis=1).ravel() - 1)[
+            seg * width + channel
+        ]
+        fired_at = np.flatnonzero(fired)
+        fired_cuts = np.searchsorted(fired_at // width, np.arange(len(starts) + 1)).tolist()
+        fired_ch = fired_at % width
+        cuts = [*starts.tolist(), len(rows)]
+        for s, (a, b) in enumerate(itertools.pairwise(cuts)):
             log = self.listeners[int(unit[a])].spike_log
             assert log is not None
-            log.spikes(samples[a:b], channel[a:b], min((int(block[a]) + 1) * B, self.pos))
+            log.spikes(
+                samples[a:b],
+                index[a:b],
+                fired_ch[fired_cuts[s] : fired_cuts[s + 1]],
+                min((int(block[a]) + 1) * B, self.pos),
+            )
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""

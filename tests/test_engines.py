@@ -229,3 +229,57 @@ def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
         want = sorted(r for r in whole if r[1] < bound)
         got = sorted(r for r in _unit_rows(kept, sc.timing.tau) if r[1] < bound)
         assert got == want, f"cut after {cut} of {len(written)} writes, bound {bound}"
+
+
+def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
+    """The hand-over alone: random spikes (sample, unit, channel), in the walk's order, come
+    out as one call per (block, unit) in that order, each with its samples and, through the
+    channels that fired and each spike's index among them, exactly its channels."""
+    import types
+
+    import numpy as np
+
+    from rgtbus.hearing import Ears
+
+    rng = np.random.default_rng(3)
+    units, channels, block = 5, 7, 50
+    got: list[tuple[int, int, list[tuple[int, int]], int]] = []
+
+    def sink(u):
+        def spikes(samples, index, fired, end):
+            assert list(fired) == sorted(set(fired)) and sorted(set(index)) == list(
+                range(len(fired))
+            )
+            got.append((u, int(samples[0]) // block, [
+                (int(k), int(fired[i])) for k, i in zip(samples, index, strict=True)
+            ], end))  # fmt: skip
+
+        return types.SimpleNamespace(spikes=spikes)
+
+    rows = np.array(
+        sorted(
+            {
+                (int(k), int(u), int(c))
+                for k, u, c in rng.integers(0, (420, units, channels), (900, 3))
+            }
+        )
+    )
+    ears = types.SimpleNamespace(
+        _spike_rows=[rows[:300], rows[300:]],
+        _spike_block=block,
+        listeners=[types.SimpleNamespace(spike_log=sink(u)) for u in range(units)],
+        pos=400,
+    )
+    Ears._hand_spikes(ears, 200)  # the blocks before sample 200
+    Ears._hand_spikes(ears, None, only=2)  # unit 2 stops: the rest of its spikes
+    Ears._hand_spikes(ears, None)  # the run ends
+    want = []
+    for b in range(9):
+        for u in range(units):
+            mine = [(k, c) for k, uu, c in rows.tolist() if uu == u and k // block == b]
+            if mine:
+                want.append((u, b, mine))
+    order = sorted(want, key=lambda w: (w[0] != 2 and w[1] >= 4, w[1], w[0]))
+    assert [g[:3] for g in got] == order
+    for _, b, _, end in got:
+        assert end == min((b + 1) * block, 400)

@@ -324,19 +324,15 @@ class AutonomousUnit:
 
     # -- its log of spikes (the ears' SpikeLog): one record per block, not per sample --------
 
-    def spikes(self, samples: np.ndarray, channels: np.ndarray, end: int) -> None:
+    def spikes(self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int) -> None:
         """One block's spikes of this unit's resonators (``SpikeLog``), as one ``/rx/spike``
         record of columns (each spike's sample and channel, as arrays the encoder writes
         whole: no Python object per spike) at the block's end (or as far as its ears heard,
         for the last block of a unit that stopped: a log cut there is complete before this
         time, the verifier's bound) as its log time: never behind the run's clock, so a live
         view gets it on time."""
-        present = np.zeros(len(self.units), dtype=np.int32)
-        present[channels] = 1
-        fired = np.flatnonzero(present)  # ascending: the channels that fired in the block
-        channel = (np.cumsum(present) - 1)[channels]  # each spike's index into them
         names = [self.units[c] for c in fired.tolist()]
-        record = records.spikes(self.name, self.tau, samples, channel, names)
+        record = records.spikes(self.name, self.tau, samples, index, names)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:
