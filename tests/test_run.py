@@ -454,3 +454,18 @@ def test_wrong_decodes_judge_columns_as_rows():
     assert (
         wrong_decodes("u", DecodeColumns(), truth) == [] == wrong_decodes("u", cols, SentTruth({}))
     )
+
+
+def test_units_that_agree_share_one_copy_of_the_tables_in_their_reports():
+    """A run's reports keep one copy of tables the units agree on (n³ entries in all), and a
+    unit's own table where it differs."""
+    from rgtbus.units.group import shared_tables
+
+    first = {"installed": {"a-b": "alliance"}, "sent_relations": {"a>b": "alliance"},
+             "influences": {"a>b": ["go"]}}  # fmt: skip
+    same = {k: dict(v) for k, v in first.items()}
+    other = {**same, "influences": {"a>b": []}}
+    assert all(shared_tables(same, first)[k] is first[k] for k in first)
+    got = shared_tables(other, first)
+    assert got["installed"] is first["installed"] and got["influences"] == {"a>b": []}
+    assert shared_tables(dict(first), None) == first

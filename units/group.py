@@ -78,6 +78,20 @@ def write_unit_report(recorder: Recorder, unit: AutonomousUnit, sim_seconds: flo
         recorder.write("/unit/report", unit.report_record(), ns(sim_seconds))
 
 
+_TABLES = ("installed", "sent_relations", "influences")
+
+
+def shared_tables(report: dict[str, Any], first: dict[str, Any] | None) -> dict[str, Any]:
+    """``report`` with each of its tables that equals ``first``'s replaced by that very
+    object: units that agree keep one copy of the group's tables, not one each (n units'
+    tables hold n³ entries: ~60 MB at n = 100). Reports are read, never changed."""
+    if first is not None:
+        for key in _TABLES:
+            if report[key] == first[key]:
+                report[key] = first[key]
+    return report
+
+
 def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
     recorder.write("/run", records.run_record(summary), ns(summary["sim_seconds"]))
 
@@ -117,7 +131,10 @@ def run_group(
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
     for m in members:
         write_unit_report(recorder, m, result.sim_seconds)
-    summary = summarise(sc, [m.report() for m in members], result, engine=engine)
+    reports: list[dict[str, Any]] = []
+    for m in members:
+        reports.append(shared_tables(m.report(), reports[0] if reports else None))
+    summary = summarise(sc, reports, result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)
 
