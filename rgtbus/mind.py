@@ -28,13 +28,13 @@ drawn from its own seeded generator over weighted alternatives, ``random``).
 from __future__ import annotations
 
 import random
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping, MutableMapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from rgtbus.errors import NotDecomposable, RgtbusError
-from rgtbus.pairs import ordered_pairs, pair_key, relation_key
+from rgtbus.pairs import PairTable, ordered_pairs, pair_key, relation_key
 from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
@@ -158,8 +158,9 @@ class Mind:
     universe: Universe
     policy: str
     rng: random.Random
-    sent: dict[tuple[str, str], bool] = field(default_factory=dict)  # s>r: alliance?
-    influences: dict[tuple[str, str], int] = field(default_factory=dict)
+    # s>r: alliance? (a PairTable once the mind exists: n² small slots, not a dict)
+    sent: MutableMapping[Pair, bool] = field(default_factory=dict)
+    influences: Mapping[Pair, int] = field(default_factory=dict)  # the last round decided
     polynomial: str | None = None
     error: str | None = None
     p4: tuple[str, str, str, str] | None = None  # the induced P4 of a group with no polynomial
@@ -167,12 +168,24 @@ class Mind:
     results: dict[str, SubjectResult] | None = None
     choice: int | None = None
     rounds: int = 1  # influence rounds to hear and decide
-    heard: dict[int, dict[Pair, int]] = field(default_factory=dict)  # round -> influences
+    heard: dict[int, MutableMapping[Pair, int]] = field(default_factory=dict)  # round -> table
     decided_rounds: int = 0  # rounds decided so far (their influences complete)
     # round -> (every subject's result, this unit's choice) as decided in that round
     round_results: dict[int, tuple[dict[str, SubjectResult], int | None]] = field(
         default_factory=dict
     )
+
+    def __post_init__(self) -> None:
+        if not self.sent:  # every unit holds the group's tables: arrays, not dicts (n³ in all)
+            # boolean: it reads back bools
+            self.sent = cast(MutableMapping[Pair, bool], PairTable(self.units, boolean=True))
+
+    def heard_in(self, rnd: int) -> MutableMapping[Pair, int]:
+        """The influences heard in round ``rnd`` so far (a table made on first use)."""
+        table = self.heard.get(rnd)
+        if table is None:
+            table = self.heard[rnd] = PairTable(self.units)
+        return table
 
     def pairs(self) -> list[tuple[str, str]]:
         return ordered_pairs(self.units)
@@ -245,7 +258,7 @@ class Mind:
     def hear_influence(self, rnd: int, pair: Pair, value: int) -> list[int]:
         """An influence decoded in round ``rnd``; decides every round whose influences are now
         complete, in order, and returns those rounds (``influences`` is then the last one's)."""
-        self.heard.setdefault(rnd, {})[pair] = value
+        self.heard_in(rnd)[pair] = value
         done = []
         n = len(self.units)
         while self.decided_rounds < self.rounds:
@@ -488,7 +501,7 @@ def clean_rounds(sc: Scenario) -> tuple[Mind, list[dict[Pair, int]]]:
         else:
             value = sent.get(index, policy[pair])
             for m in minds.values():
-                m.heard.setdefault(t.round, {})[pair] = value
+                m.heard_in(t.round)[pair] = value
     trajectory: list[dict[Pair, int]] = [{} for _ in range(k)]
     for t in plan.schedule:
         if t.phase == PHASES[1]:

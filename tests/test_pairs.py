@@ -1,0 +1,83 @@
+"""Ordered pairs and the tables a unit keeps of them (rgtbus.pairs)."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rgtbus.pairs import PairTable, ordered_pairs, pair_key
+
+UNITS = ("ann", "bob", "cy", "dee")
+
+
+def test_a_pair_table_is_a_mapping_of_the_groups_pairs():
+    t = PairTable(UNITS)
+    assert len(t) == 0 and dict(t) == {} and ("ann", "bob") not in t
+    t[("cy", "ann")] = 5
+    t[("ann", "bob")] = 0
+    t[("ann", "bob")] = 3  # again: replaced, not counted twice
+    assert len(t) == 2 and t[("ann", "bob")] == 3 and t.get(("bob", "ann")) is None
+    assert list(t) == [("ann", "bob"), ("cy", "ann")]  # the group's order
+    assert t == {("cy", "ann"): 5, ("ann", "bob"): 3}  # equal to the same dict
+    del t[("cy", "ann")]
+    assert len(t) == 1 and ("cy", "ann") not in t
+    with pytest.raises(KeyError):
+        del t[("cy", "ann")]
+
+
+def test_a_boolean_table_reads_back_bools():
+    t = PairTable(UNITS, boolean=True)
+    t[("ann", "bob")] = True
+    t[("bob", "ann")] = False
+    assert t[("ann", "bob")] is True and t[("bob", "ann")] is False
+    assert dict(t.items()) == {("ann", "bob"): True, ("bob", "ann"): False}
+
+
+@pytest.mark.parametrize(
+    "key", [("ann", "zed"), ("zed", "ann"), "ann>bob", ("ann",), ("ann", "bob", "cy"), None]
+)
+def test_a_key_outside_the_group_is_a_key_error_and_changes_nothing(key):
+    t = PairTable(UNITS)
+    t[("ann", "bob")] = 1
+    assert key not in t
+    with pytest.raises(KeyError):
+        t[key]
+    with pytest.raises(KeyError):
+        t[key] = 2
+    assert t == {("ann", "bob"): 1}
+
+
+@pytest.mark.parametrize(
+    "value, error",
+    [(1.5, TypeError), ("1", TypeError), (2**63, OverflowError), (-(2**63), ValueError)],
+)
+def test_a_value_it_cannot_hold_is_refused_and_changes_nothing(value, error):
+    t = PairTable(UNITS)
+    t[("ann", "bob")] = 7
+    with pytest.raises(error):
+        t[("ann", "bob")] = value
+    with pytest.raises(error):
+        t[("bob", "ann")] = value
+    assert t == {("ann", "bob"): 7} and len(t) == 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32), st.integers(2, 7))
+def test_a_pair_table_behaves_as_a_dict(seed, n):
+    rng = random.Random(seed)
+    units = [f"u{i}" for i in rng.sample(range(50), n)]
+    pairs = ordered_pairs(units)
+    t, d = PairTable(units), {}
+    for _ in range(40):
+        p = rng.choice(pairs)
+        if rng.random() < 0.2 and p in d:
+            del t[p], d[p]
+        else:
+            v = rng.randrange(-(2**62), 2**62)
+            t[p], d[p] = v, v
+        assert len(t) == len(d) and t == d and set(t) == set(d)
+    assert sorted(t.items()) == sorted(d.items())
+    assert pair_key(*pairs[0]) == f"{pairs[0][0]}>{pairs[0][1]}"
