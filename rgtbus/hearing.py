@@ -185,7 +185,7 @@ class Ears:
             raise RgtbusError(f"the units log spikes in blocks of different sizes: {blocks}")
         self._spike_block = blocks.pop() if blocks else 1
         # the spikes of logged units not yet handed to their logs: (sample, unit, channel)
-        self._spike_rows: list[np.ndarray] = []
+        self._spike_rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         # which units' spikes are kept for a log: logged and still listening (``stop``)
         self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
@@ -520,8 +520,14 @@ class Ears:
         if self._logged:  # kept for the logs, handed over a block at a time
             if len(sp):
                 keep = sp if self._log_all else sp[self._log_mask[sp[:, 1]]]
-                if len(keep):
-                    self._spike_rows.append(keep)
+                if len(keep):  # as columns, unit and channel in 4 bytes: 16 bytes a spike
+                    self._spike_rows.append(
+                        (
+                            keep[:, 0].copy(),
+                            keep[:, 1].astype(np.int32),
+                            keep[:, 2].astype(np.int32),
+                        )
+                    )
             if end >= self._spikes_due:
                 upto = end // self._spike_block * self._spike_block
                 self._hand_spikes(upto)
@@ -539,46 +545,52 @@ class Ears:
         only on the blocks, not on how the ears advanced."""
         if not self._spike_rows:
             return
-        rows = np.concatenate(self._spike_rows)  # in sample order (the walk's)
-        if only is None:  # a block boundary: the rows before it, a slice (no copy)
-            cut = len(rows) if upto is None else int(rows[:, 0].searchsorted(upto))
-            rows, rest = rows[:cut], rows[cut:]
+        # (sample, unit, channel) columns, in sample order (the walk's): a block of a large
+        # run holds millions of spikes, so every array here is a column of a narrow type
+        cols = [np.concatenate(c) for c in zip(*self._spike_rows, strict=True)]
+        if only is None:  # a block boundary: the spikes before it, slices (no copy)
+            cut = len(cols[0]) if upto is None else int(cols[0].searchsorted(upto))
+            mine, rest = [c[:cut] for c in cols], [c[cut:] for c in cols]
         else:
-            take = rows[:, 1] == only
+            take = cols[1] == only
             if upto is not None:
-                take &= rows[:, 0] < upto
-            rows, rest = rows[take], rows[~take]
-        self._spike_rows = [rest] if len(rest) else []
-        if not len(rows):
+                take &= cols[0] < upto
+            mine, rest = [c[take] for c in cols], [c[~take] for c in cols]
+        self._spike_rows = [(rest[0], rest[1], rest[2])] if len(rest[0]) else []
+        del cols, rest
+        samples, unit, channel = mine
+        if not len(samples):
             return
         B = self._spike_block
-        block = rows[:, 0] // B
+        b0, b1 = int(samples[0]) // B, int(samples[-1]) // B
         # stable by (block, unit): sample order kept within. A hand holds a block or two, so
         # the key fits in 16 bits, where numpy's stable sort is a radix sort
-        b0 = int(block[0])
         units = len(self.listeners)
-        if (int(block[-1]) - b0 + 1) * units < 2**15:
-            order = np.argsort(((block - b0) * units + rows[:, 1]).astype(np.int16), kind="stable")
+        if (b1 - b0 + 1) * units < 2**15:
+            key = ((samples // B - b0) * units + unit).astype(np.int16)
+            order = np.argsort(key, kind="stable")
+            del key
         else:
-            order = np.lexsort((rows[:, 1], block))
+            order = np.lexsort((unit, samples // B))
         # columns of their own: contiguous, so the log's encoder writes each slice whole
-        samples, unit, channel = (np.take(rows[:, j], order) for j in range(3))  # 4x a [order, j]
-        block = np.take(block, order)
+        samples, unit, channel = (np.take(c, order) for c in mine)  # 4x the time of [order]
+        del mine, order
+        block = samples // B
         new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
         starts = np.flatnonzero(np.concatenate(([True], new)))  # each (block, unit)'s first
         # which channels fired in each (block, unit), and each spike's index among them, for
         # every block and unit at once (a few calls a hand, not a few a record)
         width = int(channel.max()) + 1
-        seg = np.cumsum(np.concatenate(([0], new)))
-        fired = np.zeros(len(starts) * width, dtype=np.int64)
-        fired[seg * width + channel] = 1
-        index = (fired.reshape(len(starts), width).cumsum(axis=1).ravel() - 1)[
-            seg * width + channel
-        ]
+        cell = np.cumsum(np.concatenate(([0], new)), dtype=np.int64) * width + channel
+        del new
+        fired = np.zeros(len(starts) * width, dtype=np.int32)
+        fired[cell] = 1
+        index = (fired.reshape(len(starts), width).cumsum(axis=1, dtype=np.int32).ravel() - 1)[cell]
+        del cell
         fired_at = np.flatnonzero(fired)
         fired_cuts = np.searchsorted(fired_at // width, np.arange(len(starts) + 1)).tolist()
         fired_ch = fired_at % width
-        cuts = [*starts.tolist(), len(rows)]
+        cuts = [*starts.tolist(), len(samples)]
         for s, (a, b) in enumerate(itertools.pairwise(cuts)):
             log = self.listeners[int(unit[a])].spike_log
             assert log is not None

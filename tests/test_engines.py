@@ -265,7 +265,9 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
         )
     )
     ears = types.SimpleNamespace(
-        _spike_rows=[rows[:300], rows[300:]],
+        _spike_rows=[
+            tuple(part[:, j].copy() for j in range(3)) for part in (rows[:300], rows[300:])
+        ],
         _spike_block=block,
         listeners=[types.SimpleNamespace(spike_log=sink(u)) for u in range(units)],
         pos=400,
