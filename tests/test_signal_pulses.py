@@ -46,3 +46,27 @@ def test_medium_sum_is_the_loop_bit_for_bit(parts):
 def test_no_senders_no_medium():
     rows, values = medium_sum([])
     assert rows.size == 0 and values.size == 0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(sender, min_size=1, max_size=5), st.integers(1, 12))
+def test_the_medium_summed_in_slices_is_the_loop_bit_for_bit(parts, cells):
+    """A long run's medium is summed a few samples at a time (``MEDIUM_CELLS``): the same
+    numbers, whatever the slice."""
+    import rgtbus.signal.pulses as pulses_mod
+
+    arrays = []
+    for pulses in parts:
+        pulses = sorted(pulses, key=lambda p: p[0])
+        arrays.append(
+            (np.array([k for k, _ in pulses], dtype=np.int64), np.array([v for _, v in pulses]))
+        )
+    kept = pulses_mod.MEDIUM_CELLS
+    pulses_mod.MEDIUM_CELLS = cells
+    try:
+        rows, values = medium_sum(arrays)
+    finally:
+        pulses_mod.MEDIUM_CELLS = kept
+    want_rows, want = loop_sum([sorted(p, key=lambda p: p[0]) for p in parts])
+    assert rows.tolist() == want_rows
+    assert values.tolist() == want
