@@ -258,7 +258,8 @@ class Mind:
     def hear_influence(self, rnd: int, pair: Pair, value: int) -> list[int]:
         """An influence decoded in round ``rnd``; decides every round whose influences are now
         complete, in order, and returns those rounds (``influences`` is then the last one's)."""
-        self.heard_in(rnd)[pair] = value
+        table = self.heard.get(rnd)
+        (table if table is not None else self.heard_in(rnd))[pair] = value
         done = []
         n = len(self.units)
         while self.decided_rounds < self.rounds:

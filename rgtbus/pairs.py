@@ -77,7 +77,10 @@ class PairTable(MutableMapping[Pair, int]):
         return bool(v) if self._bool else v
 
     def __setitem__(self, key: Pair, value: int) -> None:
-        i = self._slot(key)
+        try:  # the lookup inline: a unit sets a value for every code it decodes
+            i = self._slots[key]
+        except (KeyError, TypeError):
+            raise KeyError(key) from None
         vals = self._vals
         old = vals[i]
         vals[i] = value  # an int (a bool is one): the array refuses anything else
