@@ -469,3 +469,29 @@ def test_units_that_agree_share_one_copy_of_the_tables_in_their_reports():
     got = shared_tables(other, first)
     assert got["installed"] is first["installed"] and got["influences"] == {"a>b": []}
     assert shared_tables(dict(first), None) == first
+
+
+def test_a_unit_batches_its_decodes_only_when_no_live_view_waits_for_its_records():
+    """A live sink may be attached to the recorder after the unit is made (a unit process
+    publishes its telemetry for ``rgtbus watch`` once its bus is open): the unit asks when
+    the run begins whether it may batch."""
+    sc = load_scenario(ROOT / "scenarios" / "gate.toml")
+    rec = MemoryRecorder()
+    unit = AutonomousUnit("a", sc, rec)
+    assert unit.batching()
+    rec.live = object()  # type: ignore[attr-defined]
+    assert not unit.batching()
+    assert not AutonomousUnit("a", sc, MemoryRecorder(), traces=True).batching()
+
+
+def test_a_live_view_gets_each_decode_on_time():
+    """With a live sink on the recorder every /rx/decodes record holds the decodes of one
+    sample (each wake is a decode's own), in a concurrent group where a logged run without
+    one batches them."""
+    sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
+    for live in (None, object()):
+        rec = MemoryRecorder()
+        rec.live = live  # type: ignore[attr-defined]
+        run_group(sc, "memory", rec)
+        spans = [len(set(m["times"])) for tp, _, m in rec.messages if tp == "/rx/decodes"]
+        assert spans and (max(spans) == 1) == (live is not None), spans

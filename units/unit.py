@@ -172,10 +172,7 @@ class AutonomousUnit:
         self.limit = round(sc.timing.max_seconds / self.tau)  # listen to samples before it
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
-        # its decodes may wait for one wake a batch (_ask); their records then leave at the
-        # wake, each at its own log time (up to BATCH_SECONDS behind the run's clock), so not
-        # when a live view must get each record as the clock reaches it, nor with traces
-        self._batches = not self.traces and getattr(self.recorder, "live", None) is None
+        self._batches = False  # its decodes may wait for one wake a batch (set at begin)
         self._batch_span = max(1, round(BATCH_SECONDS / self.tau))
         self._others: list[int] = []  # boundaries of its timers that are not listens
         self._seq = 0  # the next timer's seq
@@ -206,10 +203,20 @@ class AutonomousUnit:
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
         self.env, self.ears, self.index = env, ears, index
+        self._batches = self.batching()
         self.readout = ears.readout_of(index)
         self._add(self.limit, self.limit - 1, "limit")
         self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
         self._ask()
+
+    def batching(self) -> bool:
+        """Whether this unit may take its decodes a batch at a wake (``_batch_boundary``):
+        their records then leave at the wake, each at its own log time, up to
+        ``BATCH_SECONDS`` behind the run's clock. Not with traces, nor when a live view must
+        get every record as the clock reaches it: a live sink on its recorder (``run
+        --live``, or the telemetry a unit process publishes for ``rgtbus watch``, attached
+        once its bus is open). Asked when the run begins, not when the unit is made."""
+        return not self.traces and getattr(self.recorder, "live", None) is None
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
