@@ -589,9 +589,8 @@ def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):
     from rgtbus.telemetry import McapRecorder, read_log
 
     new = tmp_path / "new.mcap"
-    rgtbus.run("random_group", bus="memory", log=new)  # concurrent: decodes in batches
+    rgtbus.run("random_group", bus="memory", log=new)
     messages, metadata = read_log(new)
-    assert any(len(set(m["times"])) > 1 for tp, _, m in messages if tp == "/rx/decodes")
     old = tmp_path / "old.mcap"
     with open(old, "wb") as f:
         rec = McapRecorder(f)

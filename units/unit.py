@@ -6,8 +6,8 @@ its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
-failed, it listens no more. A unit that awaits no spike takes its decodes a batch at a time
-(``BATCH_SECONDS``; docs/engine.md): the same decodes and records, fewer wakes.
+failed, it listens no more. Without a log, a unit that awaits no spike takes its decodes a
+batch at a time (``BATCH_SECONDS``; docs/engine.md): the same decodes, fewer wakes.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-BATCH_SECONDS = 1.0  # a unit's decodes of this much time wait for one wake (no live view)
+BATCH_SECONDS = 1.0  # without a log, a unit's decodes of this much time wait for one wake
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -211,12 +211,12 @@ class AutonomousUnit:
 
     def batching(self) -> bool:
         """Whether this unit may take its decodes a batch at a wake (``_batch_boundary``):
-        their records then leave at the wake, each at its own log time, up to
-        ``BATCH_SECONDS`` behind the run's clock. Not with traces, nor when a live view must
-        get every record as the clock reaches it: a live sink on its recorder (``run
-        --live``, or the telemetry a unit process publishes for ``rgtbus watch``, attached
-        once its bus is open). Asked when the run begins, not when the unit is made."""
-        return not self.traces and getattr(self.recorder, "live", None) is None
+        only when it logs nothing. A unit's log holds its spikes up to the sample where it
+        was done, and in a batch it learns that only at the wake, after the ears have handed
+        on blocks past it (a logged run that batched wrote a different last block than the
+        same run in unit processes, which feed ``rgtbus watch`` and so wake for each decode).
+        Asked when the run begins, not when the unit is made."""
+        return not self.traces and not self.recorder.enabled
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
@@ -270,13 +270,11 @@ class AutonomousUnit:
 
     def _batch_boundary(self, first: int) -> int:
         """How far this unit may let the ears go before it decodes, when nothing it hears can
-        change its plans (no spike awaited) and no live view waits for its records: its
+        change its plans (no spike awaited) and it logs nothing (``batching``): its
         decodes up to the next timer of another kind (a deadline, a goal's choice, the limit),
         at most ``BATCH_SECONDS`` past the first, all at one wake. Each decode is the same
         (the readout keeps ``KEEP_SECONDS``; every result carries its own time), but a large
-        run wakes each unit about once a second, not once a decode (issue 23). What they log
-        leaves at the wake with each record's own time, in time order for this unit (a log
-        cut short is complete before a unit's last record: ``Replay.units_until_ns``)."""
+        run wakes each unit about once a second, not once a decode (issue 23)."""
         others = self._others
         while others and others[0] < first:  # timers of the past (taken, or replaced)
             heapq.heappop(others)

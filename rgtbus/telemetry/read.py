@@ -191,9 +191,9 @@ def spike_rows(
 
 
 _NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
-# logged by a unit's transmitter as the clock reaches each pulse, ahead of its other records
-# (a batch of decodes leaves at its wake, up to a second behind): what a unit logged before
-# its last record or spike block holds every pulse before that time as well
+# logged by a unit's transmitter (a process of its own) as the clock reaches each pulse, not
+# in step with the unit's other records: what a unit logged before its last record or spike
+# block holds every pulse before that time as well
 _ON_TIME = frozenset({"/tx/pulse"})
 
 
@@ -599,8 +599,8 @@ class Replay:
         """The log time before which every unit's messages are complete in a log cut short
         (a truncated file, or a merge whose inputs ended early): the earliest, over the units,
         of each unit's last record and last block of spikes (a unit's records leave in its own
-        time order, a batch of decodes at its wake; spikes as the ears hear them; pulses, the
-        medium and traces ahead); None when nothing was logged."""
+        time order; spikes as the ears hear them; pulses, the medium and traces ahead); None
+        when nothing was logged."""
         last: dict[str, int] = {}
         for topic, msgs in self.by_topic.items():
             # what is logged ahead of time (the medium, traces) or once the run is over (the
