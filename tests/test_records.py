@@ -130,6 +130,8 @@ def test_a_damaged_decodes_record_is_named():
         ("code", [], "column 'code' is 0 entries, not 1"),
         ("margin", None, "column 'margin' is missing"),
         ("kind", "id", "column 'kind' is str"),
+        ("times", None, "column 'times' is missing, not a list"),
+        ("times", 1.25, "column 'times' is float, not a list"),
     ):
         bad = {**good}
         if value is None:

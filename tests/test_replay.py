@@ -555,24 +555,20 @@ def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
     import pandas as pd
 
     import rgtbus
-    from rgtbus.telemetry import McapRecorder, read_log
 
     new = tmp_path / "new.mcap"
     rgtbus.run("gate", bus="memory", log=new)  # a few blocks hold more than one sample
-    messages, metadata = read_log(new)
-    old = tmp_path / "old.mcap"
-    with open(old, "wb") as f:
-        rec = McapRecorder(f)
-        for name, values in metadata.items():
-            rec.metadata(name, values)
-        for topic, t_ns, m in messages:
+
+    def per_sample(msgs):
+        for topic, t_ns, m in msgs:
             if topic != "/rx/spike":
-                rec.write(topic, m, t_ns)
+                yield topic, t_ns, m
                 continue
             for k, chans in spike_samples(m):
                 one = {"unit": m["unit"], "t": k * 0.005, "sample": k, "channels": chans}
-                rec.write(topic, one, round(k * 0.005 * 1e9))
-        rec.close()
+                yield topic, round(k * 0.005 * 1e9), one
+
+    old = write(tmp_path, rewrite(new.read_bytes(), per_sample), "old.mcap")
     before, after = rgtbus.open_log(new), rgtbus.open_log(old)
     assert len(after.messages("/rx/spike")) > len(before.messages("/rx/spike"))
     pd.testing.assert_frame_equal(before.spikes(), after.spikes())
@@ -586,26 +582,42 @@ def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):
     import pandas as pd
 
     import rgtbus
-    from rgtbus.telemetry import McapRecorder, read_log
 
     new = tmp_path / "new.mcap"
     rgtbus.run("random_group", bus="memory", log=new)
-    messages, metadata = read_log(new)
-    old = tmp_path / "old.mcap"
-    with open(old, "wb") as f:
-        rec = McapRecorder(f)
-        for name, values in metadata.items():
-            rec.metadata(name, values)
-        for topic, t_ns, m in messages:
+
+    def per_decode(msgs):
+        for topic, t_ns, m in msgs:
             if topic != "/rx/decodes":
-                rec.write(topic, m, t_ns)
+                yield topic, t_ns, m
                 continue
             for row in records.decode_rows(m):
-                rec.write("/rx/decode", row, round(row["t"] * 1e9))
-        rec.close()
+                yield "/rx/decode", round(row["t"] * 1e9), row
+
+    old = write(tmp_path, rewrite(new.read_bytes(), per_decode), "old.mcap")
     before, after = rgtbus.open_log(new), rgtbus.open_log(old)
     assert len(after.messages("/rx/decodes")) == 0 < len(after.messages("/rx/decode"))
     assert len(after.decodes()) == len(before.decodes()) > 0
     pd.testing.assert_frame_equal(before.decodes(), after.decodes())
     assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
     assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # decodes compare one by one
+
+
+def test_a_damaged_decodes_record_is_named_in_one_line(tmp_path, capsys):
+    """Columns of unequal length in a /rx/decodes record: every reader says which, exit 2."""
+
+    def damage(msgs):
+        out, done = [], False
+        for topic, t_ns, m in msgs:
+            if topic == "/rx/decodes" and not done:
+                m["code"].append("extra")
+                done = True
+            out.append((topic, t_ns, m))
+        assert done
+        return out
+
+    path = write(tmp_path, rewrite(log_bytes(), damage), "bad.mcap")
+    for extra in ([], ["--json"], ["--verify"]):
+        code, _, err = cli(capsys, "replay", path, *extra)
+        assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert "/rx/decodes of" in err and "column 'code' is" in err, err

@@ -11,7 +11,7 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, TypeAlias, TypedDict
+from typing import TYPE_CHECKING, Any, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
 from rgtbus.summary import DecisionRow
@@ -317,26 +317,29 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     """The decodes of a ``/rx/decodes`` record (as read) one at a time, each as ``decode``
     builds it (what a log of one record a decode holds). Columns of unequal length:
     RgtbusError naming the unit and the column."""
-    unit = record.get("unit")
-    n = len(record["times"])
-    for name in DECODE_COLUMNS:
+    unit = cast(str, record.get("unit"))
+    times = record.get("times")
+    n = len(times) if isinstance(times, list) else -1
+    for name in ("times", *DECODE_COLUMNS):  # the times first: the others are held to them
         col = record.get(name)
-        if not isinstance(col, list) or len(col) != n:
-            got = (
-                "missing"
-                if col is None
-                else f"{len(col)} entries"
-                if isinstance(col, list)
-                else type(col).__name__
-            )
-            raise RgtbusError(
-                f"/rx/decodes of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
-                f"not {n} entries like times"
-            )
+        if isinstance(col, list) and len(col) == n:
+            continue
+        got = (
+            "missing"
+            if col is None
+            else f"{len(col)} entries"
+            if isinstance(col, list)
+            else type(col).__name__
+        )
+        want = "a list" if n < 0 else f"{n} entries like times"
+        raise RgtbusError(
+            f"/rx/decodes of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
+            f"not {want}"
+        )
     for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
         *(record[c] for c in DECODE_COLUMNS), strict=True
     ):
-        yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)  # type: ignore[arg-type]
+        yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)
 
 
 def relations(
