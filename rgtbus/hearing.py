@@ -82,9 +82,9 @@ class SpikeLog(Protocol):
     """Where a unit's spikes go for its log, a block of ``block`` samples at a time. The ears
     keep the spikes of the units they log in arrays (no call per spike: a large run's
     receivers fire millions of times, issue 23) and hand each unit a block's spikes once they
-    have heard the whole block, or as far as they heard when the unit stops or the run ends:
-    a unit wakes only for the spike it awaits, and records written at its wake could trail the
-    run's clock by seconds."""
+    have heard the whole block, or as far as they heard when the unit stops (or up to the
+    sample it names then) or the run ends: a unit wakes only for the spike it awaits, and
+    records written at its wake could trail the run's clock by seconds."""
 
     block: int
 
@@ -302,8 +302,11 @@ class Ears:
         """The samples in [lo, hi) before which unit ``i``'s resonators go back to rest."""
         return sorted(q for q, n in self._quench if n == i and lo <= q < hi)
 
-    def stop(self, i: int) -> None:
-        """Unit ``i`` is done: it listens no more (and draws no more noise)."""
+    def stop(self, i: int, at: int | None = None) -> None:
+        """Unit ``i`` is done: it listens no more (and draws no more noise). ``at``: the
+        sample it was done before, if the ears went on past it meanwhile (a unit that took a
+        batch of decodes at one wake learns it only then): its log holds its spikes before
+        that sample, the last block ending there, as if it had stopped on time."""
         lst = self.listeners[i]
         if lst.active and lst.request is None:
             self._asking -= 1
@@ -311,7 +314,7 @@ class Ears:
         lst.request = None
         self._log_mask[i] = False
         self._log_all = False
-        self.end_spikes(i)
+        self.end_spikes(i, at)
         if lst.trace is not None:
             self._flush_trace(i)
         _fire(self._poke)
@@ -534,28 +537,33 @@ class Ears:
                 self._spikes_due = upto + self._spike_block
         return end - 1 if res.stopped else None
 
-    def end_spikes(self, i: int) -> None:
+    def end_spikes(self, i: int, at: int | None = None) -> None:
         """Hand unit ``i`` every spike kept for its log (it stopped, or the run ended): its
-        last block as far as the ears heard."""
-        self._hand_spikes(None, only=i)
+        last block as far as the ears heard, or up to sample ``at`` (the rest is dropped)."""
+        self._hand_spikes(at, only=i)
 
     def _hand_spikes(self, upto: int | None, only: int | None = None) -> None:
         """Each logged unit's kept spikes before sample ``upto`` (None: all), a block at a
         time, in the order (block, unit): which records a log holds, and their order, depend
-        only on the blocks, not on how the ears advanced."""
+        only on the blocks, not on how the ears advanced. ``only``: unit ``only``'s last
+        spikes, its last block ending at ``upto`` (or as far as the ears heard); its spikes
+        at or after ``upto`` are dropped."""
         if not self._spike_rows:
             return
         # (sample, unit, channel) columns, in sample order (the walk's): a block of a large
         # run holds millions of spikes, so every array here is a column of a narrow type
         cols = [np.concatenate(c) for c in zip(*self._spike_rows, strict=True)]
+        heard = self.pos
         if only is None:  # a block boundary: the spikes before it, slices (no copy)
             cut = len(cols[0]) if upto is None else int(cols[0].searchsorted(upto))
             mine, rest = [c[:cut] for c in cols], [c[cut:] for c in cols]
         else:
             take = cols[1] == only
+            others = ~take
             if upto is not None:
                 take &= cols[0] < upto
-            mine, rest = [c[take] for c in cols], [c[~take] for c in cols]
+                heard = min(heard, upto)
+            mine, rest = [c[take] for c in cols], [c[others] for c in cols]
         self._spike_rows = [(rest[0], rest[1], rest[2])] if len(rest[0]) else []
         del cols, rest
         samples, unit, channel = mine
@@ -598,7 +606,7 @@ class Ears:
                 samples[a:b],
                 index[a:b],
                 fired_ch[fired_cuts[s] : fired_cuts[s + 1]],
-                min((int(block[a]) + 1) * B, self.pos),
+                min((int(block[a]) + 1) * B, heard),
             )
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:

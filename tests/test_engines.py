@@ -201,8 +201,9 @@ def _unit_rows(messages, tau):
     [(5, 0.03, "serial"), (7, 0.0, "concurrent"), (8, 0.01, "concurrent"), (11, 0.004, "serial")],
 )
 def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
-    """A unit's records leave in its own time order, its decodes a record a wake, while its
-    pulses go out from a process of their own: a log cut after any write holds every unit
+    """A logged unit's decodes go out a batch a wake, behind the clock, with the spike blocks
+    held for that wake, while its pulses go out on time from a process of their own: each
+    unit's records still leave in time order, so a log cut after any write holds every unit
     record before ``Replay.units_until_ns`` (what --verify compares)."""
     import dataclasses
 
@@ -219,7 +220,8 @@ def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
         if tp in ("/rx/decodes", "/unit/relations", "/unit/influences", "/unit/decision"):
             assert t >= per_unit.get(m["unit"], 0), (tp, t, m["unit"])
             per_unit[m["unit"]] = t
-
+    if schedule == "concurrent":  # no spike awaited: decodes of different times share a wake
+        assert any(len(set(m["times"])) > 1 for tp, _, m in written if tp == "/rx/decodes")
     meta = {k: dict(v) for k, v in rec.metadata_records.items()}
     whole = _unit_rows(written, sc.timing.tau)
     for cut in range(0, len(written), max(1, len(written) // 40)):
@@ -228,6 +230,28 @@ def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
         want = sorted(r for r in whole if r[1] < bound)
         got = sorted(r for r in _unit_rows(kept, sc.timing.tau) if r[1] < bound)
         assert got == want, f"cut after {cut} of {len(written)} writes, bound {bound}"
+
+
+@pytest.mark.parametrize("seed, noise", [(5, 0.0), (9, 0.01), (12, 0.004)])
+def test_a_unit_that_batches_logs_what_it_logs_waking_for_each_decode(seed, noise):
+    """A batching unit learns it is done only at its wake, after the ears have walked on and
+    handed it blocks of spikes past that sample: it holds them until the wake and cuts them
+    there. Its log then equals that of the same run with a live view (a wake a decode, the
+    spikes written as handed), decodes one a row."""
+    import dataclasses
+
+    from rgtbus.telemetry.verify import decodes_per_row
+
+    sc = random_group(seed, noise=noise, gains=True, anchor="schedule")
+    sc = dataclasses.replace(sc, schedule="concurrent")
+    logs = []
+    for live in (None, object()):
+        rec = MemoryRecorder()
+        rec.live = live  # type: ignore[attr-defined]
+        run_group(sc, "memory", rec)
+        rows = decodes_per_row(rec.messages)
+        logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows))
+    assert logs[0] == logs[1]
 
 
 def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():

@@ -471,22 +471,37 @@ def test_units_that_agree_share_one_copy_of_the_tables_in_their_reports():
     assert shared_tables(dict(first), None) == first
 
 
-def test_a_unit_batches_its_decodes_only_when_it_logs_nothing():
-    """A unit that logs takes each decode at its own wake (its log holds its spikes up to
-    where it was done); without a log, or with traces, the rule is asked at the run's start."""
+def test_a_unit_batches_its_decodes_only_when_no_live_view_waits_for_its_records():
+    """A live sink may be attached to the recorder after the unit is made (a unit process
+    publishes its telemetry for ``rgtbus watch`` once its bus is open): the unit asks when
+    the run begins whether it may batch."""
     from rgtbus.telemetry import NullRecorder
 
     sc = load_scenario(ROOT / "scenarios" / "gate.toml")
     assert AutonomousUnit("a", sc, NullRecorder()).batching()
-    assert not AutonomousUnit("a", sc, MemoryRecorder()).batching()
-    assert not AutonomousUnit("a", sc, NullRecorder(), traces=True).batching()
-
-
-def test_a_logged_run_logs_each_wake_s_decodes_of_one_time():
-    """In a concurrent group a logged unit is woken for each decode: every /rx/decodes
-    record holds the decodes of one sample."""
-    sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
     rec = MemoryRecorder()
-    run_group(sc, "memory", rec)
-    blocks = [m for tp, _, m in rec.messages if tp == "/rx/decodes"]
-    assert blocks and max(len(set(m["times"])) for m in blocks) == 1
+    unit = AutonomousUnit("a", sc, rec)
+    assert unit.batching()
+    rec.live = object()  # type: ignore[attr-defined]
+    assert not unit.batching()
+    assert not AutonomousUnit("a", sc, MemoryRecorder(), traces=True).batching()
+
+
+def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
+    """With a live sink on the recorder every /rx/decodes record holds the decodes of one
+    sample (each wake is a decode's own), in a concurrent group where a logged run without
+    one batches them. Either way the log is the same, decodes one a row: the spikes of a
+    batching unit wait for its wake, which cuts them where it was done."""
+    from rgtbus.telemetry.verify import decodes_per_row
+
+    sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
+    logs = []
+    for live in (None, object()):
+        rec = MemoryRecorder()
+        rec.live = live  # type: ignore[attr-defined]
+        run_group(sc, "memory", rec)
+        spans = [len(set(m["times"])) for tp, _, m in rec.messages if tp == "/rx/decodes"]
+        assert spans and (max(spans) == 1) == (live is not None), spans
+        rows = decodes_per_row(rec.messages)
+        logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows))
+    assert logs[0] == logs[1]

@@ -173,6 +173,9 @@ class AutonomousUnit:
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
+        # blocks of its spikes the ears handed on before a batch's wake said whether it was
+        # done before them (``spikes``): (samples, index, fired, end) each
+        self._held: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
         self._batch_span = max(1, round(BATCH_SECONDS / self.tau))
         self._others: list[int] = []  # boundaries of its timers that are not listens
         self._seq = 0  # the next timer's seq
@@ -211,12 +214,13 @@ class AutonomousUnit:
 
     def batching(self) -> bool:
         """Whether this unit may take its decodes a batch at a wake (``_batch_boundary``):
-        only when it logs nothing. A unit's log holds its spikes up to the sample where it
-        was done, and in a batch it learns that only at the wake, after the ears have handed
-        on blocks past it (a logged run that batched wrote a different last block than the
-        same run in unit processes, which feed ``rgtbus watch`` and so wake for each decode).
-        Asked when the run begins, not when the unit is made."""
-        return not self.traces and not self.recorder.enabled
+        their records then leave at the wake, each at its own log time, up to
+        ``BATCH_SECONDS`` behind the run's clock, and the blocks of spikes the ears hand on
+        meanwhile wait for the wake too (``spikes``). Not with traces, nor when a live view
+        must get every record as the clock reaches it: a live sink on its recorder (``run
+        --live``, or the telemetry a unit process publishes for ``rgtbus watch``, attached
+        once its bus is open). Asked when the run begins, not when the unit is made."""
+        return not self.traces and getattr(self.recorder, "live", None) is None
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
@@ -250,9 +254,13 @@ class AutonomousUnit:
         """Ask the ears for the next thing this unit must act on: its first timer's boundary,
         or the spike it awaits, whichever comes first (``_woken`` is called then)."""
         assert self.ears is not None
-        if self.done:
-            self.ears.stop(self.index)  # and hands it what it kept for its log
+        if self.done:  # its log holds its spikes before the sample after the one it was done at
+            stop = self.done_at + 1
+            self._release_spikes(stop)
+            self.ears.stop(self.index, stop)  # and hands it what it kept for its log
             return
+        if self._held:  # not done before the samples of this wake: the blocks are its
+            self._release_spikes(None)
         t = self._timers[0]
         aw = self._asked = self.awaited()
         if aw is None and self._batches:
@@ -270,11 +278,14 @@ class AutonomousUnit:
 
     def _batch_boundary(self, first: int) -> int:
         """How far this unit may let the ears go before it decodes, when nothing it hears can
-        change its plans (no spike awaited) and it logs nothing (``batching``): its
-        decodes up to the next timer of another kind (a deadline, a goal's choice, the limit),
-        at most ``BATCH_SECONDS`` past the first, all at one wake. Each decode is the same
-        (the readout keeps ``KEEP_SECONDS``; every result carries its own time), but a large
-        run wakes each unit about once a second, not once a decode (issue 23)."""
+        change its plans (no spike awaited) and no live view waits for its records
+        (``batching``): its decodes up to the next timer of another kind (a deadline, a goal's
+        choice, the limit), at most ``BATCH_SECONDS`` past the first, all at one wake. Each
+        decode is the same (the readout keeps ``KEEP_SECONDS``; every result carries its own
+        time), but a large run wakes each unit about once a second, not once a decode (issue
+        23). What they log leaves at the wake with each record's own time, in time order for
+        this unit (a log cut short is complete before a unit's last record:
+        ``Replay.units_until_ns``)."""
         others = self._others
         while others and others[0] < first:  # timers of the past (taken, or replaced)
             heapq.heappop(others)
@@ -332,10 +343,34 @@ class AutonomousUnit:
     def spikes(self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int) -> None:
         """One block's spikes of this unit's resonators (``SpikeLog``), as one ``/rx/spike``
         record of columns (each spike's sample and channel, as arrays the encoder writes
-        whole: no Python object per spike) at the block's end (or as far as its ears heard,
-        for the last block of a unit that stopped: a log cut there is complete before this
-        time, the verifier's bound) as its log time: never behind the run's clock, so a live
-        view gets it on time."""
+        whole: no Python object per spike) at the block's end (or where the unit was done,
+        for its last block: a log cut there is complete before this time, the verifier's
+        bound) as its log time. Written now, ahead of the run's clock, so a live view gets it
+        on time; a unit that batches its decodes holds it until its wake says whether it was
+        done before the block (``_release_spikes``): the ears walk on past a unit that does
+        not yet know it is done."""
+        if self._batches and not self.done:
+            self._held.append((samples, index, fired, end))
+        else:
+            self._log_spikes(samples, index, fired, end)
+
+    def _release_spikes(self, stop: int | None) -> None:
+        """Log the blocks held for this wake: all of them, or (``stop``: done before that
+        sample) their spikes before ``stop``, the last block ending there."""
+        held, self._held = self._held, []
+        for samples, index, fired, end in held:
+            if stop is not None and end > stop:
+                cut = int(samples.searchsorted(stop))
+                if not cut:
+                    continue
+                channels = fired[index[:cut]]
+                fired = np.unique(channels)
+                samples, index, end = samples[:cut], np.searchsorted(fired, channels), stop
+            self._log_spikes(samples, index, fired, end)
+
+    def _log_spikes(
+        self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int
+    ) -> None:
         names = [self.units[c] for c in fired.tolist()]
         record = records.spikes(self.name, self.tau, samples, index, names)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
@@ -344,6 +379,7 @@ class AutonomousUnit:
         """The run is over for this unit (done, or the world stopped): what it and its ears
         still keep for its log is written."""
         self._flush_decodes()
+        self._release_spikes(None)
         if self.ears is not None:
             self.ears.end_spikes(self.index)
 
