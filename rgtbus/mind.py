@@ -28,10 +28,10 @@ drawn from its own seeded generator over weighted alternatives, ``random``).
 from __future__ import annotations
 
 import random
-from collections.abc import Mapping, MutableMapping, Sequence
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from rgtbus.errors import NotDecomposable, RgtbusError
 from rgtbus.pairs import PairTable, ordered_pairs, pair_key, relation_key
@@ -151,6 +151,27 @@ def choose(
     return preferred if preferred in choices else result.A
 
 
+_T = TypeVar("_T")
+_MEMO: dict[tuple[str, tuple[tuple[str, ...], bool, bytes]], Any] = {}
+_MEMO_SIZE = 16
+
+
+def _memo(kind: str, table: Mapping[Pair, Any], build: Callable[[], _T]) -> _T:
+    """``build()``, the same object for every table equal to ``table`` (a ``PairTable``;
+    another mapping is built afresh): the units of a group mostly hold equal tables, and a
+    report built from one of n² entries for each of n units was n³ work (issue 23). What is
+    returned is shared: read, never changed."""
+    if not isinstance(table, PairTable):
+        return build()
+    key = (kind, table.snapshot())
+    got = _MEMO.get(key)
+    if got is None:
+        if len(_MEMO) >= _MEMO_SIZE:  # a few tables at a time are the run's; drop the old
+            _MEMO.clear()
+        got = _MEMO[key] = build()
+    return cast(_T, got)
+
+
 @dataclass
 class Mind:
     me: str
@@ -202,6 +223,9 @@ class Mind:
 
     def installed(self) -> dict[str, str]:
         """``{"a-b": "alliance" | "conflict"}`` for every pair known from both sides."""
+        return _memo("installed", self.sent, self._installed)
+
+    def _installed(self) -> dict[str, str]:
         out = {}
         for i, a in enumerate(self.units):
             for b in self.units[i + 1 :]:
@@ -212,6 +236,9 @@ class Mind:
 
     def sent_table(self) -> dict[str, str]:
         """The relation codes heard (and sent): ``{"s>r": "alliance" | "conflict"}``."""
+        return _memo("sent", self.sent, self._sent_table)
+
+    def _sent_table(self) -> dict[str, str]:
         return {
             pair_key(s, r): "alliance" if v else "conflict"
             for (s, r), v in sorted(self.sent.items())
@@ -219,6 +246,10 @@ class Mind:
 
     def influence_table(self) -> dict[str, list[str]]:
         """The influences of the last round decided: ``{"s>r": [action, ...]}``."""
+        key = f"influences {self.universe.actions}"
+        return _memo(key, self.influences, self._influence_table)
+
+    def _influence_table(self) -> dict[str, list[str]]:
         u = self.universe
         lists: dict[int, list[str]] = {}  # one list an alternative (a few), not one a pair
         return {

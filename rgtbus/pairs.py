@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 from array import array
-from collections.abc import Iterator, MutableMapping, Sequence
+from collections.abc import ItemsView, Iterator, MutableMapping, Sequence, ValuesView
 
 Pair = tuple[str, str]
 
@@ -44,6 +44,28 @@ def _slots_of(units: tuple[str, ...]) -> dict[Pair, int]:
     a group: a pair is found by one lookup)."""
     n = len(units)
     return {(s, r): i * n + j for i, s in enumerate(units) for j, r in enumerate(units)}
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs_of(units: tuple[str, ...]) -> tuple[Pair, ...]:
+    """The pair of each slot of a ``PairTable`` of ``units`` (one tuple for every table)."""
+    return tuple((s, r) for s in units for r in units)
+
+
+class _PairItems(ItemsView[Pair, int]):
+    """A table's items without a lookup each: its slots in one pass over the array."""
+
+    _mapping: PairTable
+
+    def __iter__(self) -> Iterator[tuple[Pair, int]]:
+        return self._mapping._items()
+
+
+class _PairValues(ValuesView[int]):
+    _mapping: PairTable
+
+    def __iter__(self) -> Iterator[int]:
+        return (v for _, v in self._mapping._items())
 
 
 class PairTable(MutableMapping[Pair, int]):
@@ -104,10 +126,29 @@ class PairTable(MutableMapping[Pair, int]):
             return False
 
     def __iter__(self) -> Iterator[Pair]:
-        units, n = self._units, self._n
+        pairs = _pairs_of(self._units)
         for i, v in enumerate(self._vals):
             if v != _ABSENT:
-                yield units[i // n], units[i % n]
+                yield pairs[i]
+
+    def items(self) -> ItemsView[Pair, int]:
+        return _PairItems(self)
+
+    def values(self) -> ValuesView[int]:
+        return _PairValues(self)
+
+    def snapshot(self) -> tuple[tuple[str, ...], bool, bytes]:
+        """What the table holds, hashable: equal tables, equal snapshots (what a table
+        derived from one is memoised on: the units of a group mostly hold equal ones)."""
+        return self._units, self._bool, self._vals.tobytes()
+
+    def _items(self) -> Iterator[tuple[Pair, int]]:
+        # a report or a decision reads a whole table: n² items, n tables, each round
+        pairs = _pairs_of(self._units)
+        vals = self._vals
+        if self._bool:
+            return ((pairs[i], bool(v)) for i, v in enumerate(vals) if v != _ABSENT)
+        return ((pairs[i], v) for i, v in enumerate(vals) if v != _ABSENT)
 
     def __len__(self) -> int:
         return self._count

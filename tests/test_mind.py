@@ -74,3 +74,28 @@ def test_wrong_decisions_names_units_that_decided_otherwise():
     assert wrong_decisions(other, truth) == ["a", "b", "c"]  # c decided where none exists
     undecided = {"a": {"decided": False}}
     assert wrong_decisions(undecided, truth) == []  # no decision is no wrong decision
+
+
+def test_minds_with_equal_tables_share_one_copy_of_what_they_derive_from_them():
+    """The tables a report holds (relation codes, pairs installed, influences) are built once
+    for every mind whose table is equal, and afresh once a table changes."""
+    from rgtbus.mind import mind_of
+
+    sc = load_scenario(ROOT / "scenarios" / "gate.toml")
+    a, b = mind_of(sc, sc.units[0]), mind_of(sc, sc.units[1])
+    pairs = [(s, r) for s in sc.units for r in sc.units if s != r]
+    for i, p in enumerate(pairs):
+        a.sent[p] = b.sent[p] = i % 3 == 0
+    assert a.sent_table() is b.sent_table() and a.installed() is b.installed()
+    assert a.sent_table() == {
+        f"{s}>{r}": "alliance" if i % 3 == 0 else "conflict"
+        for i, (s, r) in sorted(enumerate(pairs), key=lambda x: x[1])
+    }
+    before = a.sent_table()
+    b.sent[pairs[1]] = True
+    assert b.sent_table()[f"{pairs[1][0]}>{pairs[1][1]}"] == "alliance"
+    assert a.sent_table() is before and before[f"{pairs[1][0]}>{pairs[1][1]}"] == "conflict"
+    for m in (a, b):
+        for i, p in enumerate(pairs):
+            m.hear_influence(1, p, i % 2)
+    assert a.influence_table() is b.influence_table()

@@ -79,5 +79,11 @@ def test_a_pair_table_behaves_as_a_dict(seed, n):
             v = rng.randrange(-(2**62), 2**62)
             t[p], d[p] = v, v
         assert len(t) == len(d) and t == d and set(t) == set(d)
-    assert sorted(t.items()) == sorted(d.items())
+    assert sorted(t.items()) == sorted(d.items()) and len(t.items()) == len(d)
+    assert sorted(t.values()) == sorted(d.values()) and list(t) == [p for p, _ in t.items()]
+    b = PairTable(units, boolean=True)
+    b.update({p: v % 2 for p, v in d.items()})
+    assert all(type(v) is bool for v in b.values()) and dict(b.items()) == {
+        p: bool(v % 2) for p, v in d.items()
+    }
     assert pair_key(*pairs[0]) == f"{pairs[0][0]}>{pairs[0][1]}"

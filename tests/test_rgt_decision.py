@@ -145,3 +145,22 @@ def test_influence_errors(specs, needle):
     df = decision_function(parse_polynomial("ab+c"))
     with pytest.raises(RgtbusError, match=needle):
         forward(df, AB, InfluenceMatrix.parse(specs, df.order, AB))
+
+
+def test_an_influence_matrix_from_a_mapping_refuses_what_set_refuses():
+    """The mapping is read in one pass (a unit decides on n² influences a round), each bad
+    entry still named as ``set`` names it."""
+    from rgtbus.pairs import PairTable
+
+    u = Universe(["alpha", "beta"])
+    t = PairTable(["a", "b", "c"])
+    t.update({("a", "b"): 1, ("b", "a"): 3, ("c", "a"): 0})
+    m = InfluenceMatrix.from_mapping(t, ["a", "b", "c"], u)
+    assert dict(m.items()) == dict(t.items())
+    for bad, message in [
+        ({("a", "a"): 1}, "does not influence itself"),
+        ({("a", "z"): 1}, "unknown subject 'z'"),
+        ({("a", "b"): 9}, "outside the algebra"),
+    ]:
+        with pytest.raises(RgtbusError, match=message):
+            InfluenceMatrix.from_mapping(bad, ["a", "b", "c"], u)

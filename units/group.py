@@ -87,7 +87,7 @@ def shared_tables(report: dict[str, Any], first: dict[str, Any] | None) -> dict[
     tables hold n³ entries: ~60 MB at n = 100). Reports are read, never changed."""
     if first is not None:
         for key in _TABLES:
-            if report[key] == first[key]:
+            if report[key] is not first[key] and report[key] == first[key]:
                 report[key] = first[key]
     return report
 

@@ -76,11 +76,12 @@ class InfluenceMatrix:
         self.subjects = tuple(subjects)
         self.universe = universe
         self._values: dict[tuple[str, str], int] = {}
+        self._known = frozenset(self.subjects)  # a lookup, not a scan: n² influences a matrix
 
     def set(self, src: str, dst: str, value: int, origin: str = "") -> None:
         where = f" in {origin}" if origin else ""
         for s in (src, dst):
-            if s not in self.subjects:
+            if s not in self._known:
                 raise RgtbusError(
                     f"unknown subject {s!r}{where} (subjects: {', '.join(self.subjects)})"
                 )
@@ -133,8 +134,12 @@ class InfluenceMatrix:
         cls, values: Mapping[tuple[str, str], int], subjects: Iterable[str], universe: Universe
     ) -> InfluenceMatrix:
         m = cls(subjects, universe)
-        for (src, dst), v in values.items():
-            m.set(src, dst, v)
+        known, put, check = m._known, m._values.__setitem__, universe.check
+        for (src, dst), v in values.items():  # each unit decides on n² of them, every round
+            if src in known and dst in known and src != dst:
+                put((src, dst), check(v))
+            else:
+                m.set(src, dst, v)  # which one is wrong, said as ``set`` says it
         return m
 
 
