@@ -494,6 +494,10 @@ class Ears:
         if watched:
             stop_lanes = np.zeros(self.bank.model.lanes, dtype=bool)
             stop_lanes[watched] = True
+        walking = None
+        if done:  # a unit that is done hears nothing more: its resonators stand still
+            walking = np.ones(len(self.listeners), dtype=bool)
+            walking[done] = False
         res = self.bank.advance(
             target,
             rows,
@@ -502,6 +506,7 @@ class Ears:
             stop_lanes=stop_lanes,
             readout=True,
             record=self._traced,
+            receivers=walking,
         )
         end = lo + res.n
         self.pos = end

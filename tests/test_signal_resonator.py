@@ -324,3 +324,45 @@ def test_spikes_come_in_sample_receiver_channel_order(n):
     b = ResonatorBank(om, n_receivers=3)
     outs = _feed_chunks(b, u, [977, 5000, 20_000, n], record=False)
     assert np.array_equal(np.concatenate([o.spikes for o in outs]), sp)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.lists(st.integers(0, 2), min_size=2, max_size=7),
+    st.integers(0, 10_000),
+    st.sampled_from([3000, 40_000]),
+    st.booleans(),
+)
+def test_receivers_that_hear_alike_walk_once_with_the_same_results(views, seed, n, mask):
+    """Receivers of one view (the same input column from the same state) walk once and share
+    the walk (``share``): state and spikes (sorted by sample, receiver, channel) equal, bit
+    for bit, those of every lane walking, stepped in pieces, after a quench of one receiver
+    (which splits its view off), with some receivers standing still (``receivers``)."""
+    rng = np.random.default_rng(seed)
+    U, om = len(views), np.linspace(3, 6, 4)
+    cols = sparse_medium(n, n // 80, seed, scale=0.9, receivers=3)
+    u = cols[:, views]  # receivers of one view hear one column
+    walking = rng.random(U) < 0.7 if mask else None
+    banks = {share: ResonatorBank(om, n_receivers=U) for share in (True, False)}
+    got = {}
+    for share, b in banks.items():
+        rows = np.flatnonzero(np.any(u != 0.0, axis=1))
+        outs, pos = [], 0
+        for cut in sorted({n // 3, n // 2, n}):
+            r = rows[(rows >= pos) & (rows < cut)]
+            b.state, res = resonate(b.model, b.state, cut, r, u[r], receivers=walking, share=share)
+            outs.append(res.spikes)
+            if pos == 0:
+                b.quench(0)  # receiver 0 back to rest: its view is its own now
+            pos = cut
+        got[share] = (np.concatenate(outs), b.state)
+    (sp, st_), (ref, ref_st) = got[True], got[False]
+    assert np.array_equal(sp, ref)
+    k, rec, ch = sp[:, 0], sp[:, 1], sp[:, 2]
+    assert np.array_equal(sp, sp[np.lexsort((ch, rec, k))])
+    for a, b in ((st_.wr, ref_st.wr), (st_.wi, ref_st.wi), (st_.pend, ref_st.pend)):
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8))  # bit for bit
+    if walking is not None:
+        still = np.repeat(~walking, len(om))
+        assert not np.isin(sp[:, 1], np.flatnonzero(~walking)).any()
+        assert not st_.wr[still].any()  # never walked: still at rest

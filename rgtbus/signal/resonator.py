@@ -293,6 +293,8 @@ def resonate(
     stop_lanes: np.ndarray | None = None,
     record: bool = False,
     readout: bool = False,
+    receivers: np.ndarray | None = None,
+    share: bool = True,
 ) -> tuple[BankState, FeedResult]:
     """Advance a bank from ``state.n`` to ``end`` (exclusive) over the given input: every
     resonator walks (``walk``) on its own.
@@ -303,6 +305,13 @@ def resonate(
     (a lane mask) — with its reset pending in the returned state; every other spike before it
     is returned too.  ``record``: every sample's state (the trajectory).  ``readout``: the
     increment readout at the input rows.  Pure: ``state`` is not modified.
+
+    ``receivers``: a mask of the receivers whose resonators walk (default: all); the others'
+    lanes keep the state they had and never spike (their unit listens no more). ``share``:
+    receivers whose lanes start from the same state and hear the same input, bit for bit (a
+    noise-free medium through equal link gains), walk once and the others take the walk's
+    state and spikes (the same values: the walk of a lane depends on nothing else); False
+    walks every lane, the reference it is tested against. A bank that records walks every lane.
     """
     start = state.n
     if end < start:
@@ -327,6 +336,14 @@ def resonate(
     n = end - start
     cap = max(64, 4 * L)
     all_lanes = M.all_lanes
+    views = None
+    if M.layout is None and not record:
+        live = np.arange(U) if receivers is None else np.flatnonzero(receivers)
+        views = _shared_views(M, state, vals, live) if share else None
+        if views is not None:
+            all_lanes = views.lanes
+        elif receivers is not None:
+            all_lanes = (live[:, None] * C + np.arange(C)).ravel()
     while True:
         sp_k = np.empty(cap, dtype=np.int64)
         sp_l = np.empty(cap, dtype=np.int64)
@@ -342,9 +359,15 @@ def resonate(
         cap *= 4  # more spikes than room: walk again with more
         wr, wi, pend = state.wr.copy(), state.wi.copy(), state.pend.copy()
         flags = pend.view(np.uint8)
+    if views is not None:  # every receiver of a view takes its walker's lanes
+        for w in (wr, wi, pend):
+            grid = w.reshape(U, C)
+            grid[views.live] = grid[views.walker_of]
     new = BankState(wr, wi, pend, end)
     arr = np.empty((n_sp, 3), dtype=np.int64)
-    if n_sp:
+    if n_sp and views is not None:
+        arr = views.spikes(sp_k[:n_sp], sp_l[:n_sp], start, n, M)
+    elif n_sp:
         if n < 2**15:
             # the lanes walk in ascending order (all_lanes), so a stable sort by sample keeps
             # lane order within one: on a 16-bit key numpy's stable sort is a radix sort,
@@ -368,6 +391,78 @@ def resonate(
         result.readout_rows = at
         result.readout = np.broadcast_to(d[:, :, None], (at.size, U, C))
     return new, result
+
+
+@dataclass(frozen=True)
+class _Views:
+    """Receivers that walk as one (``resonate``'s ``share``): ``live`` the receivers that
+    walk, ``walker_of`` the receiver whose walk each takes (itself for a walker), ``lanes``
+    the walkers' lanes (ascending)."""
+
+    live: np.ndarray
+    walker_of: np.ndarray
+    lanes: np.ndarray
+
+    def spikes(
+        self, sp_k: np.ndarray, sp_l: np.ndarray, start: int, n: int, M: BankModel
+    ) -> np.ndarray:
+        """The walkers' spikes (sample, lane; lanes in ascending order within a sample, as
+        they walk) as every live receiver's: (sample, receiver, channel), sorted by sample,
+        receiver, channel."""
+        C = M.channels
+        if n < 2**15:  # by sample, stable (radix): the walkers' lane order is kept within
+            order = np.argsort((sp_k - start).astype(np.int16), kind="stable")
+        else:
+            order = np.lexsort((sp_l, sp_k))
+        k, lane = sp_k[order], sp_l[order]
+        walker = lane // C
+        # segments: the spikes of one walker at one sample (contiguous in this order)
+        new = np.flatnonzero((k[1:] != k[:-1]) | (walker[1:] != walker[:-1])) + 1
+        seg_start = np.concatenate(([0], new))
+        seg_len = np.diff(np.concatenate((seg_start, [k.size])))
+        seg_k = k[seg_start]
+        runs, seg_run = np.unique(seg_k, return_inverse=True)
+        # each live receiver, at each sample with spikes, takes its walker's segment there
+        live, walker_of = self.live, self.walker_of
+        walkers, col = np.unique(walker_of, return_inverse=True)
+        table = np.full((runs.size, walkers.size), -1, dtype=np.int64)
+        table[seg_run, np.searchsorted(walkers, walker[seg_start])] = np.arange(seg_start.size)
+        take = table[:, col]  # (run, live receiver) -> segment, or -1
+        counts = np.where(take >= 0, seg_len[take], 0).ravel()
+        total = int(counts.sum())
+        first = np.repeat(np.where(take >= 0, seg_start[take], 0).ravel(), counts)
+        offset = np.repeat(np.cumsum(counts) - counts, counts)
+        src = first + (np.arange(total) - offset)
+        out = np.empty((total, 3), dtype=np.int64)
+        out[:, 0] = k[src]
+        out[:, 1] = np.repeat(np.tile(live, runs.size), counts)
+        out[:, 2] = lane[src] % C
+        return out
+
+
+def _shared_views(
+    M: BankModel, state: BankState, vals: np.ndarray, live: np.ndarray
+) -> _Views | None:
+    """Which of the ``live`` receivers start from the same lane states and hear the same input
+    (bit for bit), so that one walk serves them all; None when no two do."""
+    U, C = M.receivers, M.channels
+    if live.size < 2:
+        return None
+    inputs = np.ascontiguousarray(vals[:, live].T).view(np.int64)
+    wr = state.wr.reshape(U, C)[live].view(np.int64)
+    wi = state.wi.reshape(U, C)[live].view(np.int64)
+    pend = state.pend.reshape(U, C)[live].astype(np.int64)
+    key = np.concatenate([inputs, wr, wi, pend], axis=1)
+    if (key == key[0]).all():  # the usual case when any is: one view for all
+        walker_of = np.full(live.size, live[0])
+    else:
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        if first.size * 2 > live.size:  # little to share: walking each is cheaper
+            return None
+        walker_of = live[first][inverse.reshape(-1)]
+    walkers = np.unique(walker_of)
+    lanes = (walkers[:, None] * C + np.arange(C)).ravel()
+    return _Views(live, walker_of, lanes)
 
 
 def first_spike(
@@ -548,12 +643,14 @@ class ResonatorBank:
         stop_lanes: np.ndarray | None = None,
         record: bool = False,
         readout: bool = False,
+        receivers: np.ndarray | None = None,
     ) -> FeedResult:
         """Advance to sample ``end`` (exclusive) with input only at the absolute samples ``rows``
         (sorted, unique, from the bank's position on) of ``values`` ((len(rows),) for every
         receiver alike, or (len(rows), n_receivers)).  ``stop``: return right after the first
         sample with a spike (of a lane in ``stop_lanes``, a mask, if given; ``result.stopped``:
-        the bank is then just past it)."""
+        the bank is then just past it). ``receivers``: a mask of the receivers that walk (the
+        others' resonators stand still: their units listen no more; see ``resonate``)."""
         r = np.asarray(rows, dtype=np.int64).reshape(-1)
         v = np.asarray(values, dtype=float)
         if v.ndim <= 1:
@@ -573,7 +670,7 @@ class ResonatorBank:
             if not np.isfinite(v).all():
                 bad = int(r[np.flatnonzero(~np.isfinite(v).all(axis=1))[0]])
                 raise RgtbusError(f"sample {bad} is not finite")
-        return self._run(int(end), r, v, stop, record, readout, stop_lanes)
+        return self._run(int(end), r, v, stop, record, readout, stop_lanes, receivers)
 
     def _run(
         self,
@@ -584,6 +681,7 @@ class ResonatorBank:
         record: bool,
         readout: bool,
         stop_lanes: np.ndarray | None = None,
+        receivers: np.ndarray | None = None,
     ) -> FeedResult:
         self.state, result = resonate(
             self.model,
@@ -595,6 +693,7 @@ class ResonatorBank:
             stop_lanes=stop_lanes,
             record=record,
             readout=readout,
+            receivers=receivers,
         )
         return result
 
