@@ -37,7 +37,7 @@ import heapq
 import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol
+from typing import NamedTuple, Protocol, TypeVar, cast
 
 import numpy as np
 import simpy
@@ -63,6 +63,9 @@ from rgtbus.signal.resonator import (
 )
 
 TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
+
+
+_T = TypeVar("_T")
 
 
 class Heard(NamedTuple):
@@ -203,6 +206,10 @@ class Ears:
         # the same code at about the same time, so the first ask reads all of them
         self._decodes: dict[tuple, list] = {}
         self._decodes_end = -1
+        # the decodes of shared listen queues, for every receiver, a chunk at a time
+        self._queues: dict[int, _QueueDecodes] = {}
+        self._shared: dict[int, tuple[object, object]] = {}
+        self._listening = np.ones(len(self.listeners), dtype=bool)
         self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
         self.process = env.process(self._run())
 
@@ -283,6 +290,36 @@ class Ears:
             got = self._decodes[key] = nearest_each(self.readout, samples, channel, words)
         return got[i]
 
+    def shared(self, key: object, build: Callable[[], _T]) -> _T:
+        """What every unit of these ears works out alike from ``key`` (a listen queue, say),
+        built once by the first that asks (``key`` is kept alive: it is found by id)."""
+        got = self._shared.get(id(key))
+        if got is None:
+            got = self._shared[id(key)] = (key, build())
+        return cast(_T, got[1])
+
+    def queue_decodes(
+        self, i: int, queue: object, lo: int, hi: int, read: QueueRead
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit ``i``'s decodes of positions [lo, hi) of a listen queue shared by the units of
+        these ears (all heard): each one's word, channel index and margin, as columns.
+        ``read(q)`` decodes position q for every receiver at once; each position is read
+        once, by whichever unit gets there first, and kept until every listening unit has
+        taken it (a chunk of ``QUEUE_CHUNK`` positions at a time)."""
+        cache = self._queues.get(id(queue))
+        if cache is None:
+            cache = self._queues[id(queue)] = _QueueDecodes(queue, len(self.listeners))
+        parts = [
+            cache.rows(c, lo, hi, read, i)
+            for c in range(lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK + 1)
+        ]
+        cache.cursor[i] = hi
+        cache.forget(int(cache.cursor[self._listening].min(initial=hi)))
+        if len(parts) == 1:
+            return parts[0]
+        word, chan, margin = zip(*parts, strict=True)
+        return np.concatenate(word), np.concatenate(chan), np.concatenate(margin)
+
     def _decoded(self, key: tuple) -> list | None:
         if self._decodes_end != self.readout.end:  # the readout moved on: start afresh
             self._decodes.clear()
@@ -312,6 +349,7 @@ class Ears:
             self._asking -= 1
         lst.active = False
         lst.request = None
+        self._listening[i] = False
         self._log_mask[i] = False
         self._log_all = False
         self.end_spikes(i, at)
@@ -654,6 +692,49 @@ class Ears:
         buf = self._trace_buf.get(n, [])
         if buf:
             self._emit_trace(n, buf[-1][0] + buf[-1][1].shape[0])
+
+
+QUEUE_CHUNK = 256  # positions of a shared queue read (for every receiver) and kept together
+QueueRead = Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+class _QueueDecodes:
+    """A shared listen queue's decodes for every receiver of the ears: chunks of
+    ``QUEUE_CHUNK`` positions, each (positions × receivers) arrays of word, channel and
+    margin, filled in order as units reach them and dropped once every listening unit has
+    passed them (a run of n units decodes 4n²(n−1) codes: no object each)."""
+
+    def __init__(self, queue: object, receivers: int) -> None:
+        self.queue = queue  # kept alive: the ears find it by id
+        self.receivers = receivers
+        self.cursor = np.zeros(receivers, dtype=np.int64)  # each unit's next position
+        self.chunks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]] = {}
+
+    def rows(
+        self, c: int, lo: int, hi: int, read: QueueRead, i: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        chunk = self.chunks.get(c)
+        if chunk is None:
+            R = self.receivers
+            chunk = self.chunks[c] = (
+                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
+                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
+                np.empty((QUEUE_CHUNK, R)),
+                [0],  # positions filled
+            )
+        word, chan, margin, filled = chunk
+        base = c * QUEUE_CHUNK
+        a, b = max(lo, base) - base, min(hi, base + QUEUE_CHUNK) - base
+        while filled[0] < b:  # in order: every position before is heard too
+            k = filled[0]
+            word[k], chan[k], margin[k] = read(base + k)
+            filled[0] = k + 1
+        return word[a:b, i], chan[a:b, i], margin[a:b, i]
+
+    def forget(self, low: int) -> None:
+        """Drop the chunks every listening unit has passed (``low``: the least cursor)."""
+        for c in [c for c in self.chunks if (c + 1) * QUEUE_CHUNK <= low]:
+            del self.chunks[c]
 
 
 def _fire(ev: simpy.Event) -> None:

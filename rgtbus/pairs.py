@@ -6,6 +6,10 @@ from __future__ import annotations
 import functools
 from array import array
 from collections.abc import ItemsView, Iterator, MutableMapping, Sequence, ValuesView
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 Pair = tuple[str, str]
 
@@ -136,6 +140,39 @@ class PairTable(MutableMapping[Pair, int]):
 
     def values(self) -> ValuesView[int]:
         return _PairValues(self)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """The group, in order: the pair (units[i], units[j]) is slot i·n + j."""
+        return self._units
+
+    def absent(self, slots: np.ndarray) -> np.ndarray:
+        """Whether each of these slots holds nothing yet (a bool array)."""
+        import numpy as np  # a table is made and read without numpy; a batch brings it
+
+        empty: np.ndarray = np.frombuffer(self._vals, dtype=np.int64)[slots] == _ABSENT
+        return empty
+
+    def set_slots(self, slots: np.ndarray, values: np.ndarray, *, unique: bool = False) -> None:
+        """``self[pair of slots[k]] = values[k]`` for every k, in order (the last of a slot
+        given twice stays; ``unique``: the caller knows none is): a unit's batch of decodes at
+        once. Slots are ``units``' i·n + j."""
+        import numpy as np
+
+        slots = np.asarray(slots, dtype=np.int64)
+        values = np.asarray(values, dtype=np.int64)
+        if not slots.size:
+            return
+        if slots.min() < 0 or slots.max() >= self._n * self._n:
+            raise KeyError(f"slot outside the {self._n}-unit table")
+        if (values == _ABSENT).any():
+            raise ValueError(f"{_ABSENT} cannot be held")
+        if not unique:
+            last = slots.size - 1 - np.unique(slots[::-1], return_index=True)[1]
+            slots, values = slots[last], values[last]
+        vals = np.frombuffer(self._vals, dtype=np.int64)
+        self._count += int((vals[slots] == _ABSENT).sum())
+        vals[slots] = values
 
     def snapshot(self) -> tuple[tuple[str, ...], bool, bytes]:
         """What the table holds, hashable: equal tables, equal snapshots (what a table

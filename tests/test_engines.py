@@ -308,3 +308,75 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
     assert [g[:3] for g in got] == order
     for _, b, _, end in got:
         assert end == min((b + 1) * block, 400)
+
+
+def _one_decode_at_a_time(self, queue, reads, a, b):
+    """The reference for a unit's batch of queued decodes: each on its own, read from the
+    unit's own readout (``_decode``: the ears' per-decode path, no column of the queue)."""
+    listen = queue.listens[int(reads.seq[a])]
+    self._decode(listen)
+    self._settle(int(reads.bounds[a]) - 1)
+    return a + 1
+
+
+@pytest.mark.parametrize(
+    "seed, noise, rounds, goals",
+    [(3, 0.0, 1, False), (4, 0.02, 2, False), (6, 0.05, 3, True), (10, 0.3, 1, False)],
+)
+def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
+    monkeypatch, seed, noise, rounds, goals
+):
+    """A unit takes the decodes of a shared queue a batch at a time as columns (read once
+    for every unit, recorded and learned from as arrays, one at a time only where a code is
+    refused or a table completes): its log and summary equal those of each decode taken on
+    its own, on noisy groups (refused codes, wrong channels), rounds, goals."""
+    from rgtbus.units.unit import AutonomousUnit
+
+    from rgtbus.telemetry.verify import decodes_per_row
+
+    base = random_group(seed, noise=noise, gains=True, anchor="schedule")
+    text = base.text + f'[protocol]\nschedule = "concurrent"\ninfluence_rounds = {rounds}\n'
+    if goals:  # the last unit steers the first: its influences wait for a choice
+        text += f'[goals.{base.units[-1]}]\n{base.units[0]} = "1"\n'
+    sc = parse_scenario(text, f"<batch{seed}>")
+    got = []
+    for reference in (False, True):
+        if reference:
+            monkeypatch.setattr(AutonomousUnit, "_take_decodes", _one_decode_at_a_time)
+        rec = MemoryRecorder()
+        out = run_group(sc, "memory", rec)
+        rows = decodes_per_row(rec.messages)
+        summary = {k: v for k, v in out.summary.items() if k != "wall_seconds"}
+        got.append((summary, sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows)))
+    assert got[0] == got[1]
+
+
+def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passed(
+    monkeypatch,
+):
+    """The ears read each position of a shared queue once, for every receiver, whichever
+    unit gets there first, and drop a chunk once every listening unit has passed it: the
+    run is the same with chunks of 8 positions."""
+    from rgtbus import hearing
+
+    sc = random_group(7, noise=0.01, gains=True, anchor="schedule")
+    text = sc.text + '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 3\n'
+    sc = parse_scenario(text, "<chunks>")
+    whole = run_group(sc, "memory", MemoryRecorder()).summary
+    monkeypatch.setattr(hearing, "QUEUE_CHUNK", 8)
+    reads: list[int] = []
+    held: list[int] = []
+    rows = hearing._QueueDecodes.rows
+
+    def counted(self, c, lo, hi, read, i):
+        got = rows(self, c, lo, hi, lambda q: (reads.append(q), read(q))[1], i)
+        held.append(len(self.chunks))
+        return got
+
+    monkeypatch.setattr(hearing._QueueDecodes, "rows", counted)
+    summary = run_group(sc, "memory", MemoryRecorder()).summary
+    assert {k: v for k, v in summary.items() if k != "wall_seconds"} == {
+        k: v for k, v in whole.items() if k != "wall_seconds"
+    }
+    assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
+    assert max(held) <= 3  # a few chunks at a time, never the whole queue

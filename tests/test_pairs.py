@@ -87,3 +87,28 @@ def test_a_pair_table_behaves_as_a_dict(seed, n):
         p: bool(v % 2) for p, v in d.items()
     }
     assert pair_key(*pairs[0]) == f"{pairs[0][0]}>{pairs[0][1]}"
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32), st.integers(2, 6), st.booleans())
+def test_a_batch_of_slots_set_at_once_is_each_set_in_order(seed, n, boolean):
+    """``set_slots`` (a unit's batch of decodes) leaves the table as setting each pair in
+    order would, a slot given twice keeping the last; ``absent`` says which slots are empty."""
+    import numpy as np
+
+    rng = random.Random(seed)
+    units = [f"u{i}" for i in range(n)]
+    pairs = ordered_pairs(units)
+    slot = {p: units.index(p[0]) * n + units.index(p[1]) for p in pairs}
+    t, d = PairTable(units, boolean=boolean), PairTable(units, boolean=boolean)
+    for _ in range(4):
+        batch = [rng.choice(pairs) for _ in range(rng.randint(0, 8))]
+        values = [rng.randrange(2) if boolean else rng.randrange(-99, 99) for _ in batch]
+        slots = np.array([slot[p] for p in batch], dtype=np.int64)
+        assert t.absent(slots).tolist() == [p not in t for p in batch]
+        t.set_slots(slots, np.array(values, dtype=np.int64))
+        for p, v in zip(batch, values, strict=True):
+            d[p] = v
+        assert t == d and len(t) == len(d)
+    with pytest.raises(KeyError):
+        t.set_slots(np.array([n * n]), np.array([1]))

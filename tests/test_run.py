@@ -317,8 +317,10 @@ def test_schedule_anchor_changes_nothing_on_a_clean_channel():
     sched = replace(base, timing=replace(base.timing, anchor="schedule"))
     _, s, (m_sched, _) = run(sched)
 
-    def content(ms):
-        return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in ms)
+    def content(ms):  # decodes one a row: on the schedule a unit takes them a batch a wake
+        from rgtbus.telemetry.verify import decodes_per_row
+
+        return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in decodes_per_row(ms))
 
     assert content(m_sched) == content(m_spike)
     assert s["units"] == spike["units"]

@@ -11,9 +11,11 @@ from rgtbus.signal.decoder import (
     ReadoutHistory,
     WordSet,
     decode_among,
+    decode_among_columns,
     decode_among_each,
     decode_code,
     nearest,
+    nearest_columns,
     nearest_each,
     word_matrix,
 )
@@ -124,6 +126,37 @@ def test_decoding_every_receiver_at_once_equals_one_by_one():
     near = nearest_each(ro, inst, 1, WordSet.of(cb.distinct_words()))
     for r in range(3):
         assert near[r] == nearest(ro.values(inst, 1, r), cb.distinct_words())
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.05, 0.4])
+def test_decoding_as_columns_equals_a_decision_each(noise):
+    """The columns a unit's batch of decodes reads (each receiver's word, channel, margin)
+    are those of ``decode_among_each`` and ``nearest_each``, with every receiver alike,
+    some alike and all apart, at several starts and searches."""
+    cb = paper_codebook()
+    n = 1200
+    u = superpose([Transmission(OMEGAS[1], 0.702, cb.alternatives["{alpha}"])], n)
+    rng = np.random.default_rng(11)
+    heard = np.stack([u, u + rng.normal(0, noise, n), u, u + rng.normal(0, noise, n)], axis=1)
+    bank = ResonatorBank(OMEGAS, n_receivers=4)
+    ro = ReadoutHistory.for_bank(bank, capacity=n)
+    ro.extend(bank.feed(heard, readout=True))
+    chans = tuple((c, w) for c, w in enumerate(OMEGAS))
+    for family in ("alternative", "relation"):
+        words = WordSet.of(cb.family(family))
+        for start, search in ((0.7, 2), (0.702, 0), (0.69, 5)):
+            each = decode_among_each(ro, chans, start, words, search=search)
+            word, chan, margin = decode_among_columns(ro, chans, start, words, search=search)
+            assert [words.names[w] for w in word] == [d.name for d, _ in each]
+            assert chan.tolist() == [c for _, c in each]
+            assert margin.tolist() == [d.margin for d, _ in each]
+    ids = WordSet.of(cb.distinct_words())
+    for inst in ((140, 141, 500, 700), tuple(range(300, 340, 10))):
+        for channel in range(len(OMEGAS)):
+            near = nearest_each(ro, inst[: cb.pulses], channel, ids)
+            word, margin = nearest_columns(ro, inst[: cb.pulses], channel, ids)
+            assert [ids.names[w] for w in word] == [d.name for d in near]
+            assert margin.tolist() == [d.margin for d in near]
 
 
 def test_word_sets_are_equal_by_value():

@@ -6,8 +6,9 @@ its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
-failed, it listens no more. Without a log, a unit that awaits no spike takes its decodes a
-batch at a time (``BATCH_SECONDS``; docs/engine.md): the same decodes, fewer wakes.
+failed, it listens no more. Unless a live view waits for its records, a unit that awaits no
+spike takes its decodes a batch at a time (``BATCH_SECONDS``; docs/engine.md), those of a
+shared queue as columns: the same decodes, fewer wakes, no Python call per decode.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -26,6 +27,7 @@ from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
 from rgtbus.hearing import Ears, Heard, Listener
 from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
+from rgtbus.pairs import PairTable
 from rgtbus.protocol import (
     NOTHING,
     PHASES,
@@ -39,7 +41,7 @@ from rgtbus.protocol import (
 )
 from rgtbus.scenario import Scenario
 from rgtbus.signal.channel import noise_rng
-from rgtbus.signal.decoder import Readout, WordSet
+from rgtbus.signal.decoder import Readout, WordSet, decode_among_columns, nearest_columns
 from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
@@ -49,7 +51,7 @@ if TYPE_CHECKING:
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-BATCH_SECONDS = 1.0  # without a log, a unit's decodes of this much time wait for one wake
+BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -77,6 +79,19 @@ class DecodeColumns:
             self._rows.append(key)
         self._turns.append(turn)
         self._what.append(i)
+
+    def index(self, key: tuple[str, str, str]) -> int:
+        """The index of a (kind, addressee, code) among the distinct ones (made on first use)."""
+        i = self._seen.get(key)
+        if i is None:
+            i = self._seen[key] = len(self._rows)
+            self._rows.append(key)
+        return i
+
+    def extend_index(self, turns: np.ndarray, what: np.ndarray) -> None:
+        """A batch of decodes at once: their turns, and each one's ``index``."""
+        self._turns.frombytes(np.asarray(turns, dtype=np.intc).tobytes())
+        self._what.frombytes(np.asarray(what, dtype=np.uintc).tobytes())
 
     def __len__(self) -> int:
         return len(self._turns)
@@ -112,6 +127,130 @@ class _Timer(NamedTuple):
     # a listen from a shared queue: (queue, its first seq, its place in the queue); when it
     # is taken the next of the queue goes on the heap (one entry per queue, not per listen)
     queued: tuple[ListenQueue, int, int] | None = None
+
+
+def _completes(table: PairTable | None, had: int, slots: np.ndarray, full: int) -> int:
+    """Which of ``slots``, set in order into ``table`` (holding ``had`` entries; None: none
+    yet), first makes it hold ``full``, or every one when it holds them already (each then
+    completes it again); ``len(slots)`` if none."""
+    if had >= full:
+        return 0
+    new = np.ones(slots.size, dtype=bool) if table is None else table.absent(slots)
+    first = np.zeros(slots.size, dtype=bool)
+    first[np.unique(slots, return_index=True)[1]] = True  # a slot counts once
+    hit = np.flatnonzero(had + np.cumsum(new & first) >= full)
+    return int(hit[0]) if hit.size else slots.size
+
+
+_ID, _RELATION, _INFLUENCE = 0, 1, 2  # the kinds of a listen, as a column
+_KINDS = ("id", "relation", "influence")
+
+
+@dataclass(frozen=True, eq=False)
+class _QueueReads:
+    """A shared listen queue as columns over its positions (the i-th to fall due), worked out
+    once for every unit of a process (``Ears.shared``): what a unit needs to take a batch of
+    its decodes as arrays (``AutonomousUnit._take_decodes``), and ``read``, which decodes one
+    position for every receiver at once (``Ears.queue_decodes``)."""
+
+    bounds: np.ndarray  # boundary (ready sample + 1)
+    seq: np.ndarray  # the listen's index in the queue (its seq after the queue's first)
+    kind: np.ndarray  # _ID, _RELATION, _INFLUENCE
+    turn: np.ndarray
+    sender: np.ndarray  # unit index
+    expected: np.ndarray  # unit index of the expected addressee
+    slot: np.ndarray  # the (sender, expected) pair's slot in a PairTable of the units
+    rnd: np.ndarray  # the turn's influence round
+    t_ready: np.ndarray  # the decode's time, s
+    is_id: np.ndarray  # bool: an ID
+    is_rel: np.ndarray  # bool: a relation code
+    is_inf: np.ndarray  # bool: an influence
+    n_rel: np.ndarray  # relation codes before each position (one more entry than positions)
+    n_inf: np.ndarray  # influences before each position (likewise)
+    unique: bool  # no pair of one table twice (a batch sets each slot once)
+    what: np.ndarray  # (kind · units + addressee) · len(names): + the word, a decoded row
+    channel: np.ndarray  # unit index of the channel it is carried on (an ID: its sender's)
+    unit_names: np.ndarray  # the units' names (objects), to name columns of indexes
+    kind_names: np.ndarray  # each position's kind, by name (objects)
+    names: tuple[str, ...]  # every word name a decode can read
+    name_array: np.ndarray  # the same, as objects
+    alliance: np.ndarray  # per name: 1 if "alliance"
+    value: np.ndarray  # per name: its alternative (-1: not one)
+    id_word: int  # the name index of "id"
+    read: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def queue_reads(unit: AutonomousUnit, queue: ListenQueue) -> _QueueReads:
+    """``_QueueReads`` of ``queue`` for the units of ``unit``'s ears."""
+    ears = unit.ears
+    assert ears is not None
+    index, tau, cb = unit._index, unit.tau, unit.cb
+    listens = [queue.listens[i] for i in queue.order]
+    names: list[str] = []
+    maps = {}
+    for key, words in (("id", unit._id_words), *unit._families.items()):
+        ix = []
+        for name in words.names:
+            if name not in names:
+                names.append(name)
+            ix.append(names.index(name))
+        maps[key] = np.array(ix, dtype=np.int64)
+    universe = unit.scenario.universe
+    alternatives = set(unit._families["alternative"].names)
+    value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
+    n = len(unit.units)
+    sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
+    expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
+    schedule = unit.protocol.schedule
+    search = unit.protocol.search
+    omegas = ears.bank.omegas
+
+    def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        listen = listens[q]
+        if listen.kind == "id":
+            ch = index[listen.sender]
+            samples = code_samples(listen.start, unit.omegas[ch], cb.pulses, tau)
+            w, m = nearest_columns(ears.readout, samples, ch, unit._id_words)
+            return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
+        family = "relation" if listen.kind == "relation" else "alternative"
+        pairs = tuple((c, float(omegas[c])) for c in unit._channels_of(listen))
+        w, c, m = decode_among_columns(
+            ears.readout, pairs, listen.start, unit._families[family], tau=tau, search=search
+        )
+        return maps[family][w], c, m
+
+    kind = np.array([_KINDS.index(li.kind) for li in listens], dtype=np.int64)
+    rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
+    slot = sender * n + expected
+    payload = kind != _ID
+    tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
+    return _QueueReads(
+        bounds=np.array(queue.boundaries, dtype=np.int64),
+        seq=np.array(queue.order, dtype=np.int64),
+        kind=kind,
+        turn=np.array([li.turn for li in listens], dtype=np.int64),
+        sender=sender,
+        expected=expected,
+        slot=slot,
+        rnd=rnd,
+        t_ready=np.array([li.ready_sample * tau for li in listens]),
+        is_id=kind == _ID,
+        is_rel=kind == _RELATION,
+        is_inf=kind == _INFLUENCE,
+        n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
+        n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
+        unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
+        what=(kind * n + expected) * len(names),
+        channel=np.where(kind == _ID, sender, expected),
+        unit_names=np.array(unit.units, dtype=object),
+        kind_names=np.array(_KINDS, dtype=object)[kind],
+        names=tuple(names),
+        name_array=np.array(names, dtype=object),
+        alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
+        value=np.array(value, dtype=np.int64),
+        id_word=names.index("id") if "id" in names else -1,
+        read=read,
+    )
 
 
 @dataclass
@@ -173,6 +312,8 @@ class AutonomousUnit:
         self.readout: Readout | None = None  # the ears give it at the start
         self._timers: list[_Timer] = []
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
+        # a decoded row's index in ``decoded``, by its integer code (``_take_batch``)
+        self._what_of = np.zeros(0, dtype=np.int64)
         # blocks of its spikes the ears handed on before a batch's wake said whether it was
         # done before them (``spikes``): (samples, index, fired, end) each
         self._held: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
@@ -181,7 +322,8 @@ class AutonomousUnit:
         self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
-        self._decode_rows: list[records.DecodeFields] = []  # this wake's, for the log
+        # this wake's decodes for the log, as the nine columns of /rx/decodes
+        self._decode_cols: list[list[Any]] = [[] for _ in range(9)]
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
@@ -282,7 +424,7 @@ class AutonomousUnit:
         (``batching``): its decodes up to the next timer of another kind (a deadline, a goal's
         choice, the limit), at most ``BATCH_SECONDS`` past the first, all at one wake. Each
         decode is the same (the readout keeps ``KEEP_SECONDS``; every result carries its own
-        time), but a large run wakes each unit about once a second, not once a decode (issue
+        time), but a large run wakes each unit every few seconds, not once a decode (issue
         23). What they log leaves at the wake with each record's own time, in time order for
         this unit (a log cut short is complete before a unit's last record:
         ``Replay.units_until_ns``)."""
@@ -318,25 +460,131 @@ class AutonomousUnit:
     def _take_queue(self, t: _Timer, pos: int) -> None:
         """A listen of a shared queue, and the queue's next ones while they fall due before
         ``pos`` ahead of every other timer: in the order the heap would give them (boundary,
-        then seq), without a heap entry each (a batch holds dozens)."""
-        assert t.queued is not None
+        then seq), without a heap entry each, and a batch at a time as columns
+        (``_take_decodes``)."""
+        assert t.queued is not None and self.ears is not None
         queue, first_seq, i = t.queued
-        order, bounds, listens = queue.order, queue.boundaries, queue.listens
-        timers = self._timers
-        listen = t.listen
-        at = t.at
-        while True:
-            assert listen is not None
-            self._decode(listen)
-            self._settle(at)
-            i += 1
-            if self.done or i >= len(order) or bounds[i] > pos:
-                break
-            b = bounds[i]
-            if timers and timers[0][:3] < (b, 0, first_seq + order[i]):
-                break  # another timer comes first
-            listen, at = listens[order[i]], b - 1
+        reads = self.ears.shared(queue, lambda: queue_reads(self, queue))
+        end = self._queue_due(reads, first_seq, i, pos)
+        while i < end and not self.done:
+            i = self._take_decodes(queue, reads, i, end)
         self._queue_next(queue, first_seq, i)
+
+    def _queue_due(self, reads: _QueueReads, first_seq: int, i: int, pos: int) -> int:
+        """The end of the run of queue positions from ``i`` (due) that fall due before
+        ``pos`` ahead of every other timer (the heap's order: boundary, rank, seq)."""
+        bounds = reads.bounds
+        end = max(i + 1, int(bounds.searchsorted(pos, side="right")))
+        if self._timers:
+            top = self._timers[0]
+            q = max(i + 1, int(bounds.searchsorted(top.boundary, side="left")))
+            while (
+                q < end
+                and bounds[q] == top.boundary
+                and (0, first_seq + int(reads.seq[q])) < (top.rank, top.seq)
+            ):
+                q += 1
+            end = min(end, q)
+        return end
+
+    def _take_decodes(self, queue: ListenQueue, reads: _QueueReads, a: int, b: int) -> int:
+        """Decode queue positions from ``a`` on (before ``b``) and act on them: as arrays up
+        to the first that needs more than recording and learning (a code refused, a table
+        completed: ``_first_event``), that one as a decode of its own (``_act``). Returns the
+        next position to take."""
+        assert self.ears is not None
+        word, chan, margin = self.ears.queue_decodes(self.index, queue, a, b, reads.read)
+        # accepted: an ID read as "id", a payload found on its addressee's channel
+        refused = np.flatnonzero(
+            (word != reads.id_word) & reads.is_id[a:b]
+            | (chan != reads.expected[a:b]) & ~reads.is_id[a:b]
+        )
+        e = self._first_event(reads, a, int(refused[0]) if refused.size else b - a)
+        if e:
+            self._take_batch(reads, a, a + e, word[:e], margin[:e])
+        q = a + e
+        if q < b:
+            listen = queue.listens[int(reads.seq[q])]
+            self._act(listen, reads.names[int(word[e])], float(margin[e]), int(chan[e]))
+            self._settle(int(reads.bounds[q]) - 1)
+            return q + 1
+        return b
+
+    def _first_event(self, reads: _QueueReads, a: int, e: int) -> int:
+        """The first of positions [a, a + e) (relative to a) whose decode completes a table
+        of the mind (the relations, or the next round's influences, which the unit then acts
+        on), else ``e``; 0 when the mind's tables are not this run's arrays."""
+        mind = self.mind
+        sent = mind.sent
+        if not isinstance(sent, PairTable) or sent.units != self.units or not reads.unique:
+            return 0
+        full = len(self.units) * (len(self.units) - 1)
+        had = len(sent)
+        if had + int(reads.n_rel[a + e] - reads.n_rel[a]) >= full:  # it may complete here
+            rel = np.flatnonzero(reads.is_rel[a : a + e])
+            k = _completes(sent, had, reads.slot[a + rel], full)
+            e = min(e, int(rel[k]) if k < rel.size else e)
+        if mind.decided_rounds < mind.rounds:
+            nxt = mind.decided_rounds + 1
+            table = mind.heard.get(nxt)
+            if table is not None and not isinstance(table, PairTable):
+                return 0
+            had = 0 if table is None else len(table)
+            if had + int(reads.n_inf[a + e] - reads.n_inf[a]) >= full:
+                inf = np.flatnonzero(reads.is_inf[a : a + e] & (reads.rnd[a : a + e] == nxt))
+                k = _completes(table, had, reads.slot[a + inf], full)
+                e = min(e, int(inf[k]) if k < inf.size else e)
+        return e
+
+    def _take_batch(
+        self, reads: _QueueReads, a: int, b: int, word: np.ndarray, margin: np.ndarray
+    ) -> None:
+        """Positions [a, b), each accepted and completing no table: recorded (and logged)
+        and learned from as arrays, as ``_act`` would one by one."""
+        names = reads.names
+        # (kind, addressee, code) as one integer, and as the unit's index of it
+        code = reads.what[a:b] + word
+        if self._what_of.size != len(_KINDS) * len(self.units) * len(names):
+            self._what_of = np.full(len(_KINDS) * len(self.units) * len(names), -1)
+        what = self._what_of[code]
+        if (what < 0).any():
+            for c in np.unique(code[what < 0]).tolist():
+                k, w = divmod(c, len(names))
+                kind, addressee = divmod(k, len(self.units))
+                key = (_KINDS[kind], self.units[addressee], names[w])
+                self._what_of[c] = self.decoded.index(key)
+            what = self._what_of[code]
+        self.decoded.extend_index(reads.turn[a:b], what)
+        if self.recorder.enabled:
+            units = reads.unit_names
+            cols = (
+                reads.turn[a:b].tolist(),
+                units[reads.sender[a:b]].tolist(),
+                units[reads.expected[a:b]].tolist(),
+                units[reads.channel[a:b]].tolist(),
+                reads.kind_names[a:b].tolist(),
+                reads.name_array[word].tolist(),
+                margin.tolist(),
+                reads.t_ready[a:b].tolist(),
+                [True] * (b - a),
+            )
+            for col, part in zip(self._decode_cols, cols, strict=True):
+                col.extend(part)
+        mind = self.mind
+        if reads.n_rel[b] > reads.n_rel[a]:
+            rel = reads.is_rel[a:b]
+            sent = mind.sent
+            assert isinstance(sent, PairTable)
+            sent.set_slots(reads.slot[a:b][rel], reads.alliance[word[rel]], unique=True)
+        if reads.n_inf[b] > reads.n_inf[a]:
+            inf = reads.is_inf[a:b]
+            rnd = reads.rnd[a:b]
+            first, last = int(reads.rnd[a + int(np.argmax(inf))]), int(rnd[inf].max())
+            for r in range(first, last + 1):
+                mine = inf & (rnd == r) if first != last else inf
+                table = mind.heard_in(r)
+                assert isinstance(table, PairTable)
+                table.set_slots(reads.slot[a:b][mine], reads.value[word[mine]], unique=True)
 
     # -- its log of spikes (the ears' SpikeLog): one record per block, not per sample --------
 
@@ -567,22 +815,46 @@ class AutonomousUnit:
     # -- decoding and reasoning --------------------------------------------------------------
 
     def _decode(self, listen: Listen) -> None:
-        t_ready = listen.ready_sample * self.tau
+        """Decode ``listen`` on this unit's own readout, and act on it (``_act``)."""
         pulses = self.cb.pulses
+        assert self.ears is not None
         if listen.kind == "id":
             # An ID counts only if it reads as the ID-code on the sender's own frequency
             # (a↔c crosstalk makes resonators fire for other codes).
             ch = self._index[listen.sender]
             samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
-            assert self.ears is not None
             dec = self.ears.read_code(self.index, samples, ch, self._id_words)
-            accepted = dec.name == "id"
+            self._act(listen, dec.name, dec.margin, ch)
+            return
+        dec, ch = self.ears.decode_among(
+            self.index, self._channels_of(listen), listen.start, self._words_of(listen),
+            self.protocol.search,
+        )  # fmt: skip
+        self._act(listen, dec.name, dec.margin, ch)
+
+    def _words_of(self, listen: Listen) -> WordSet:
+        """The words a payload listen reads (an ID reads ``_id_words``)."""
+        return self._families["relation" if listen.kind == "relation" else "alternative"]
+
+    def _channels_of(self, listen: Listen) -> tuple[int, ...]:
+        channels = self._channel_sets.get(listen.channels)
+        if channels is None:
+            channels = tuple(self._index[r] for r in listen.channels)
+            self._channel_sets[listen.channels] = channels
+        return channels
+
+    def _act(self, listen: Listen, code: str, margin: float, ch: int) -> None:
+        """What ``listen`` decoded (``code`` at ``margin``, found on channel index ``ch``):
+        recorded, checked, learned from."""
+        t_ready = listen.ready_sample * self.tau
+        if listen.kind == "id":
+            accepted = code == "id"
             # an ID is for the turn's addressee; it is carried on the sender's own channel
             self._record(
                 listen,
                 listen.expected_addressee,
-                dec.name,
-                dec.margin,
+                code,
+                margin,
                 t_ready,
                 accepted,
                 channel=listen.sender,
@@ -590,22 +862,13 @@ class AutonomousUnit:
             if not accepted:
                 self._fail(
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
-                    f"decoded as {dec.name!r}",
+                    f"decoded as {code!r}",
                     listen.ready_sample,
                 )
             return
-        words = self._families["relation" if listen.kind == "relation" else "alternative"]
-        channels = self._channel_sets.get(listen.channels)
-        if channels is None:
-            channels = tuple(self._index[r] for r in listen.channels)
-            self._channel_sets[listen.channels] = channels
-        assert self.ears is not None
-        dec, ch = self.ears.decode_among(
-            self.index, channels, listen.start, words, self.protocol.search
-        )
         addressee = self.units[ch]
         accepted = addressee == listen.expected_addressee
-        self._record(listen, addressee, dec.name, dec.margin, t_ready, accepted, channel=addressee)
+        self._record(listen, addressee, code, margin, t_ready, accepted, channel=addressee)
         if not accepted:
             self.recorder.log(
                 "warning",
@@ -614,7 +877,7 @@ class AutonomousUnit:
                 ns(t_ready),
                 name=self.name,
             )
-        self._learn(listen, dec.name, t_ready)
+        self._learn(listen, code, t_ready)
 
     def _record(
         self,
@@ -629,19 +892,20 @@ class AutonomousUnit:
     ) -> None:
         self.decoded.append(listen.turn, listen.kind, addressee, code)
         if self.recorder.enabled:  # logged as one record a wake (_flush_decodes)
-            self._decode_rows.append(
-                (listen.turn, listen.sender, addressee, channel, listen.kind, code, margin, t,
-                 accepted)
-            )  # fmt: skip
+            row = (listen.turn, listen.sender, addressee, channel, listen.kind, code, margin,
+                   t, accepted)  # fmt: skip
+            for col, v in zip(self._decode_cols, row, strict=True):
+                col.append(v)
 
     def _flush_decodes(self) -> None:
         """Log the decodes of this wake so far as one ``/rx/decodes`` record at the last
         one's time: at the end of each wake, and before any other record of this unit, so
         its records stay in time order (a log cut short is complete before its last one)."""
-        rows = self._decode_rows
-        if rows:
-            self._decode_rows = []
-            self.recorder.write("/rx/decodes", records.decodes(self.name, rows), ns(rows[-1][7]))
+        cols = self._decode_cols
+        if cols[7]:
+            self._decode_cols = [[] for _ in range(9)]
+            record = records.decodes_of_columns(self.name, cols)
+            self.recorder.write("/rx/decodes", record, ns(cols[7][-1]))
 
     def _write(self, topic: str, record: Any, t_ns: int) -> None:
         """A record of this unit's own, after the decodes that came before it."""

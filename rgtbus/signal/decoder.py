@@ -297,6 +297,74 @@ def nearest_each(
     return out
 
 
+def _distinct(every: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The receivers whose values (``every``: receivers first) differ, bit for bit: the first
+    receiver of each distinct set, and each receiver's set (an index into the first)."""
+    flat = every.reshape(every.shape[0], -1)
+    if (flat == flat[0]).all():  # a noise-free medium through equal gains: one set
+        return np.zeros(1, dtype=np.int64), np.zeros(flat.shape[0], dtype=np.int64)
+    firsts: list[int] = []
+    seen: dict[bytes, int] = {}
+    which = np.empty(flat.shape[0], dtype=np.int64)
+    for r, vals in enumerate(flat):
+        k = seen.setdefault(vals.tobytes(), len(firsts))
+        if k == len(firsts):
+            firsts.append(r)
+        which[r] = k
+    return np.array(firsts, dtype=np.int64), which
+
+
+def decode_among_columns(
+    history: ReadoutHistory,
+    channels: tuple[tuple[int, float], ...],
+    start: float,
+    words: Words,
+    *,
+    tau: float = PAPER_TAU,
+    search: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``decode_among_each`` as columns over the receivers: each one's word (an index into
+    the words' names), channel index and margin, without a ``Decision`` each (a unit's batch
+    of decodes reads them as arrays; every distinct set of values is scored once, as there)."""
+    _, mat = word_matrix(words, None, "decode")
+    chans, _, inst, lo, hi = _candidates(channels, start, mat.shape[1], tau, search)
+    if hi >= history.end:  # rarely: candidates past what has been heard
+        ok = inst[:, -1] < history.end
+        if not ok.any():
+            raise RgtbusError(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
+        chans, inst = chans[ok], inst[ok]
+        hi = int(inst[:, -1].max())
+    every = history.gather(inst, chans, span=(lo, hi))  # (R, M, N)
+    order = _ORDER[: mat.shape[0]]
+    firsts, which = _distinct(every)
+    word = np.empty(firsts.size, dtype=np.int64)
+    chan = np.empty(firsts.size, dtype=np.int64)
+    margin = np.empty(firsts.size)
+    for k, r in enumerate(firsts.tolist()):
+        m, word[k], _, margin[k], _ = score(every[r], mat, order)
+        chan[k] = chans[m]
+    return word[which], chan[which], margin[which]
+
+
+def nearest_columns(
+    history: ReadoutHistory, samples: Sequence[int], channel: int, words: Words
+) -> tuple[np.ndarray, np.ndarray]:
+    """``nearest_each`` as columns over the receivers: each one's word (an index into the
+    words' names) and margin."""
+    idx = np.asarray(samples, dtype=np.int64).reshape(1, -1)
+    every = history.gather(idx, np.array([channel]))[:, 0]  # (R, N)
+    names, mat = word_matrix(words, every.shape[1], "nearest")
+    rank = _alphabetical(names)
+    firsts, which = _distinct(every)
+    word = np.empty(firsts.size, dtype=np.int64)
+    margin = np.empty(firsts.size)
+    for k, r in enumerate(firsts.tolist()):
+        _, word[k], _, margin[k], _ = score(np.ascontiguousarray(every[r : r + 1]), mat, rank)
+    return word[which], margin[which]
+
+
 _ORDER = np.arange(4096, dtype=np.int64)
 
 

@@ -295,12 +295,17 @@ def decodes(unit: str, rows: Sequence[DecodeFields]) -> DecodesRecord:
     (turn, sender, addressee, channel, kind, code, margin, t, accepted), the fields of
     ``decode``. One record a wake, not one a decode: a run of n units decodes 4n²(n−1)
     codes. Logs before it held one ``/rx/decode`` a decode; ``decode_rows`` reads both."""
-    if not rows:
+    return decodes_of_columns(unit, [list(c) for c in zip(*rows, strict=True)])
+
+
+def decodes_of_columns(unit: str, cols: Sequence[list[Any]]) -> DecodesRecord:
+    """``decodes`` from its nine columns, in the order of a row (a unit that takes a batch of
+    decodes as arrays gives them so)."""
+    if not cols or not cols[7]:
         raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
-    cols = list(zip(*rows, strict=True))
     return {
         "unit": unit,
-        "t": rows[-1][7],
+        "t": cols[7][-1],
         "turn": list(cols[0]),
         "sender": list(cols[1]),
         "addressee": list(cols[2]),
