@@ -443,6 +443,8 @@ class Ears:
                     target = min(target, lst.watch_from)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
+            if self._logged and self._walks:  # a block of spikes at a time: what the walk
+                target = min(target, self._spikes_due)  # and the hand-over hold stays small
             if self.pos < target:
                 k = self._advance(target)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time

@@ -507,3 +507,34 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
         rows = decodes_per_row(rec.messages)
         logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows))
     assert logs[0] == logs[1]
+
+
+@pytest.mark.parametrize("name", ["steering", "coalition10", "gate"])
+def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name):
+    """One transmitter process a unit logs each send as it goes on air: every pulse of every
+    send the unit made (goal-driven ones chosen late, ahead of sends planned earlier, wake it),
+    at its sample's time, with its magnitude, written in time order; a log line a send."""
+    sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    rec = MemoryRecorder()
+    out = run_group(sc, "memory", rec)
+    for unit in out.units:
+        want = sorted(
+            (k, send.kind, send.sender, send.addressee, float(m))
+            for send in unit.sent
+            for k, m in zip(send.samples, unit.word(send), strict=True)
+        )
+        pulses = [
+            (t, m) for tp, t, m in rec.messages if tp == "/tx/pulse" and m["unit"] == unit.name
+        ]
+        assert [t for t, _ in pulses] == sorted(t for t, _ in pulses)  # on time, in order
+        got = sorted(
+            (
+                m["sample"],
+                *(m["message"][f] for f in ("kind", "sender", "addressee")),
+                m["magnitude"],
+            )
+            for _, m in pulses
+        )
+        assert got == want and all(t == round(m["t"] * 1e9) for t, m in pulses)
+        lines = [m for tp, _, m in rec.messages if tp == "/log" and m["name"] == unit.name]
+        assert sum(" -> " in m["message"] for m in lines) == len(unit.sent)

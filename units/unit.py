@@ -51,6 +51,7 @@ if TYPE_CHECKING:
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
+AWAKE = -1.0  # the transmitter is not asleep: it reads the next send before it sleeps
 BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
 
 
@@ -180,79 +181,6 @@ class _QueueReads:
     read: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def queue_reads(unit: AutonomousUnit, queue: ListenQueue) -> _QueueReads:
-    """``_QueueReads`` of ``queue`` for the units of ``unit``'s ears."""
-    ears = unit.ears
-    assert ears is not None
-    index, tau, cb = unit._index, unit.tau, unit.cb
-    listens = [queue.listens[i] for i in queue.order]
-    names: list[str] = []
-    maps = {}
-    for key, words in (("id", unit._id_words), *unit._families.items()):
-        ix = []
-        for name in words.names:
-            if name not in names:
-                names.append(name)
-            ix.append(names.index(name))
-        maps[key] = np.array(ix, dtype=np.int64)
-    universe = unit.scenario.universe
-    alternatives = set(unit._families["alternative"].names)
-    value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
-    n = len(unit.units)
-    sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
-    expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
-    schedule = unit.protocol.schedule
-    search = unit.protocol.search
-    omegas = ears.bank.omegas
-
-    def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        listen = listens[q]
-        if listen.kind == "id":
-            ch = index[listen.sender]
-            samples = code_samples(listen.start, unit.omegas[ch], cb.pulses, tau)
-            w, m = nearest_columns(ears.readout, samples, ch, unit._id_words)
-            return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
-        family = "relation" if listen.kind == "relation" else "alternative"
-        pairs = tuple((c, float(omegas[c])) for c in unit._channels_of(listen))
-        w, c, m = decode_among_columns(
-            ears.readout, pairs, listen.start, unit._families[family], tau=tau, search=search
-        )
-        return maps[family][w], c, m
-
-    kind = np.array([_KINDS.index(li.kind) for li in listens], dtype=np.int64)
-    rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
-    slot = sender * n + expected
-    payload = kind != _ID
-    tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
-    return _QueueReads(
-        bounds=np.array(queue.boundaries, dtype=np.int64),
-        seq=np.array(queue.order, dtype=np.int64),
-        kind=kind,
-        turn=np.array([li.turn for li in listens], dtype=np.int64),
-        sender=sender,
-        expected=expected,
-        slot=slot,
-        rnd=rnd,
-        t_ready=np.array([li.ready_sample * tau for li in listens]),
-        is_id=kind == _ID,
-        is_rel=kind == _RELATION,
-        is_inf=kind == _INFLUENCE,
-        n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
-        n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
-        unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
-        what=(kind * n + expected) * len(names),
-        channel=np.where(kind == _ID, sender, expected),
-        unit_names=np.array(unit.units, dtype=object),
-        kind_names=np.array(_KINDS, dtype=object)[kind],
-        names=tuple(names),
-        name_array=np.array(names, dtype=object),
-        alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
-        value=np.array(value, dtype=np.int64),
-        id_word=names.index("id") if "id" in names else -1,
-        read=read,
-    )
-
-
 @dataclass
 class AutonomousUnit:
     name: str
@@ -322,6 +250,11 @@ class AutonomousUnit:
         self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
+        # sends to log on air (``_on_air``): (time, seq, pulse index or -1, send, word)
+        self._air: list[tuple[float, int, int, Send, tuple[float, ...]]] = []
+        self._air_seq = 0
+        self._air_until = AWAKE  # when the transmitter sleeps until (AWAKE: it will look)
+        self._transmitter: simpy.Process | None = None
         # this wake's decodes for the log, as the nine columns of /rx/decodes
         self._decode_cols: list[list[Any]] = [[] for _ in range(9)]
         self.env: simpy.Environment | None = None
@@ -464,11 +397,85 @@ class AutonomousUnit:
         (``_take_decodes``)."""
         assert t.queued is not None and self.ears is not None
         queue, first_seq, i = t.queued
-        reads = self.ears.shared(queue, lambda: queue_reads(self, queue))
+        reads = self.ears.shared(queue, lambda: self._queue_reads(queue))
         end = self._queue_due(reads, first_seq, i, pos)
         while i < end and not self.done:
             i = self._take_decodes(queue, reads, i, end)
         self._queue_next(queue, first_seq, i)
+
+    def _queue_reads(self, queue: ListenQueue) -> _QueueReads:
+        """``_QueueReads`` of ``queue`` for the units of this unit's ears (each builds the same:
+        the first to ask does, ``Ears.shared``)."""
+        unit = self
+        ears = unit.ears
+        assert ears is not None
+        index, tau, cb = unit._index, unit.tau, unit.cb
+        listens = [queue.listens[i] for i in queue.order]
+        names: list[str] = []
+        maps = {}
+        for key, words in (("id", unit._id_words), *unit._families.items()):
+            ix = []
+            for name in words.names:
+                if name not in names:
+                    names.append(name)
+                ix.append(names.index(name))
+            maps[key] = np.array(ix, dtype=np.int64)
+        universe = unit.scenario.universe
+        alternatives = set(unit._families["alternative"].names)
+        value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
+        n = len(unit.units)
+        sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
+        expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
+        schedule = unit.protocol.schedule
+        search = unit.protocol.search
+        omegas = ears.bank.omegas
+
+        def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            listen = listens[q]
+            if listen.kind == "id":
+                ch = index[listen.sender]
+                samples = code_samples(listen.start, unit.omegas[ch], cb.pulses, tau)
+                w, m = nearest_columns(ears.readout, samples, ch, unit._id_words)
+                return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
+            family = "relation" if listen.kind == "relation" else "alternative"
+            pairs = tuple((c, float(omegas[c])) for c in unit._channels_of(listen))
+            w, c, m = decode_among_columns(
+                ears.readout, pairs, listen.start, unit._families[family], tau=tau, search=search
+            )
+            return maps[family][w], c, m
+
+        kind = np.array([_KINDS.index(li.kind) for li in listens], dtype=np.int64)
+        rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
+        slot = sender * n + expected
+        payload = kind != _ID
+        tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
+        return _QueueReads(
+            bounds=np.array(queue.boundaries, dtype=np.int64),
+            seq=np.array(queue.order, dtype=np.int64),
+            kind=kind,
+            turn=np.array([li.turn for li in listens], dtype=np.int64),
+            sender=sender,
+            expected=expected,
+            slot=slot,
+            rnd=rnd,
+            t_ready=np.array([li.ready_sample * tau for li in listens]),
+            is_id=kind == _ID,
+            is_rel=kind == _RELATION,
+            is_inf=kind == _INFLUENCE,
+            n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
+            n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
+            unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
+            what=(kind * n + expected) * len(names),
+            channel=np.where(kind == _ID, sender, expected),
+            unit_names=np.array(unit.units, dtype=object),
+            kind_names=np.array(_KINDS, dtype=object)[kind],
+            names=tuple(names),
+            name_array=np.array(names, dtype=object),
+            alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
+            value=np.array(value, dtype=np.int64),
+            id_word=names.index("id") if "id" in names else -1,
+            read=read,
+        )
 
     def _queue_due(self, reads: _QueueReads, first_seq: int, i: int, pos: int) -> int:
         """The end of the run of queue positions from ``i`` (due) that fall due before
@@ -773,30 +780,58 @@ class AutonomousUnit:
         self._emit(dataclasses.replace(send, code=code))
 
     def _emit(self, send: Send) -> None:
-        magnitudes = [float(m) for m in self.word(send)]
-        self._outbox.extend(zip(send.samples, magnitudes, strict=True))
+        word = self.word(send)  # the codebook's own tuple: shared, not a list a send
+        self._outbox.extend((k, float(m)) for k, m in zip(send.samples, word, strict=True))
         self.sent.append(send)
         assert self.env is not None
-        if self.recorder.enabled:  # the process exists to log the pulses at their times
-            self.env.process(self._on_air(send, magnitudes))
+        if self.recorder.enabled:  # its transmitter logs the pulses at their times
+            at = min(send.start, send.samples[0] * self.tau)
+            heapq.heappush(self._air, (at, self._air_seq, -1, send, word))
+            self._air_seq += 1
+            if self._transmitter is None:
+                self._transmitter = self.env.process(self._on_air())
+            elif at < self._air_until:  # it sleeps until later: wake it for this one
+                self._transmitter.interrupt()
 
-    def _on_air(self, send: Send, magnitudes: list[float]):
+    def _on_air(self):
+        """This unit's transmitter: one SimPy process (not one a send: a 100-unit group
+        plans 40,000 sends at once) that logs each planned send as it goes on air: a log
+        line at its start, then each pulse at its sample, in time order (then planning order)."""
         env = self.env
         assert env is not None
-        yield env.timeout(max(0.0, min(send.start, send.samples[0] * self.tau) - env.now))
-        what = "ID" if send.kind == "id" else send.code
-        self.recorder.log(
-            "info",
-            f"{send.sender} -> {send.addressee}: {what} on {send.channel}'s frequency",
-            ns(send.start),
-            name=self.name,
-        )
-        message = records.message_ref(send.turn, send.kind, send.code, send.sender, send.addressee)
-        omega = self.scenario.frequencies[send.channel]
-        for k, m in zip(send.samples, magnitudes, strict=True):
-            yield env.timeout(max(0.0, k * self.tau - env.now))
-            record = records.pulse(self.name, send.channel, omega, m, self.tau, k, message)
-            self.recorder.write("/tx/pulse", record, ns(k * self.tau))
+        air, tau = self._air, self.tau
+        while air:
+            at, seq, j, send, word = air[0]
+            if at > env.now:
+                self._air_until = at
+                try:
+                    yield env.timeout(at - env.now)
+                except simpy.Interrupt:  # a send planned meanwhile goes out earlier
+                    continue
+                finally:
+                    self._air_until = AWAKE
+            heapq.heappop(air)
+            if j < 0:
+                what = "ID" if send.kind == "id" else send.code
+                self.recorder.log(
+                    "info",
+                    f"{send.sender} -> {send.addressee}: {what} on {send.channel}'s frequency",
+                    ns(send.start),
+                    name=self.name,
+                )
+            else:
+                k = send.samples[j]
+                message = records.message_ref(
+                    send.turn, send.kind, send.code, send.sender, send.addressee
+                )
+                omega = self.scenario.frequencies[send.channel]
+                record = records.pulse(
+                    self.name, send.channel, omega, float(word[j]), tau, k, message
+                )
+                self.recorder.write("/tx/pulse", record, ns(k * tau))
+            if j + 1 < len(send.samples):
+                heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word))
+        self._transmitter = None
 
     # -- traces --------------------------------------------------------------------------------
 
