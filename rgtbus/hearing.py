@@ -443,8 +443,11 @@ class Ears:
                     target = min(target, lst.watch_from)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
-            if self._logged and self._walks:  # a block of spikes at a time: what the walk
-                target = min(target, self._spikes_due)  # and the hand-over hold stays small
+            if self._logged and self._walks:  # what the walk and the hand-over hold stays
+                # small in a large run (a block or so of every lane's spikes), while a small
+                # one still advances a long wait at once
+                blocks = WALK_LANE_SAMPLES // (self.bank.model.lanes * self._spike_block)
+                target = min(target, self._spikes_due + blocks * self._spike_block)
             if self.pos < target:
                 k = self._advance(target)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time
@@ -696,6 +699,7 @@ class Ears:
             self._emit_trace(n, buf[-1][0] + buf[-1][1].shape[0])
 
 
+WALK_LANE_SAMPLES = 1 << 20  # a logged run's advance: about this many lane-samples at most
 QUEUE_CHUNK = 256  # positions of a shared queue read (for every receiver) and kept together
 QueueRead = Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 

@@ -311,7 +311,8 @@ def resonate(
     receivers whose lanes start from the same state and hear the same input, bit for bit (a
     noise-free medium through equal link gains), walk once and the others take the walk's
     state and spikes (the same values: the walk of a lane depends on nothing else); False
-    walks every lane, the reference it is tested against. A bank that records walks every lane.
+    walks every lane, the reference it is tested against; an advance of fewer than
+    ``SHARE_MIN_WORK`` lane-samples walks every lane too. A bank that records walks every lane.
     """
     start = state.n
     if end < start:
@@ -339,6 +340,9 @@ def resonate(
     views = None
     if M.layout is None and not record:
         live = np.arange(U) if receivers is None else np.flatnonzero(receivers)
+        # sharing costs a comparison of the views and a copy of the spikes: worth it on
+        # long advances of many lanes, not on the short ones a serial run stops at
+        share = share and n * live.size * C >= SHARE_MIN_WORK
         views = _shared_views(M, state, vals, live) if share else None
         if views is not None:
             all_lanes = views.lanes
@@ -391,6 +395,9 @@ def resonate(
         result.readout_rows = at
         result.readout = np.broadcast_to(d[:, :, None], (at.size, U, C))
     return new, result
+
+
+SHARE_MIN_WORK = 1 << 16  # lanes × samples of an advance from which receivers share views
 
 
 @dataclass(frozen=True)
