@@ -344,18 +344,27 @@ class _Occupied:
         self.origin = origin
         self.used = np.zeros(4096, dtype=bool)
 
-    def taken(self, samples: np.ndarray) -> np.ndarray:
-        rel = samples - self.origin
-        if rel.size and int(rel.max()) >= self.used.size:
-            grown = np.zeros(max(2 * self.used.size, int(rel.max()) + 1), dtype=bool)
+    def reach(self, last: int) -> np.ndarray:
+        """The array, grown to hold sample ``last``."""
+        need = last - self.origin + 1
+        if need > self.used.size:
+            grown = np.zeros(max(2 * self.used.size, need), dtype=bool)
             grown[: self.used.size] = self.used
             self.used = grown
-        taken: np.ndarray = self.used[rel]
-        return taken
+        return self.used
+
+    def free(self, samples: tuple[int, ...]) -> bool:
+        """None of these samples (ascending) is taken."""
+        used, o = self.reach(samples[-1]), self.origin
+        return not any(used[k - o] for k in samples)
 
     def take(self, samples: tuple[int, ...]) -> None:
-        self.taken(np.array(samples))  # grows the array if needed
-        self.used[np.array(samples) - self.origin] = True
+        used, o = self.reach(samples[-1]), self.origin
+        for k in samples:
+            used[k - o] = True
+
+
+_SHIFTS = np.arange(64)  # a block of shifts screened at once (``place_rounds``)
 
 
 def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
@@ -378,24 +387,32 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
     ) -> tuple[float, tuple[int, ...]]:
         # Moving a code by j samples moves its pulses by about j: shifts are screened 64 at a
         # time on the occupancy array, and a screened one is confirmed with the exact instants
-        # (a rounding tie can move one pulse a sample further).
-        base = np.asarray(code_samples(start, omega, pulses, tau), dtype=np.int64)
-        for lo in range(0, MAX_STAGGER + 1, 64):
-            shifts = np.arange(lo, min(lo + 64, MAX_STAGGER + 1))
-            free = ~used.taken(base[:, None] + shifts[None, :]).any(axis=0)
-            for j in shifts[free]:
-                s = start + int(j) * tau
+        # (a rounding tie can move one pulse a sample further). A round only takes samples,
+        # so a shift refused to a code stays refused to the next with the same start and ω
+        # (a sender's IDs, an addressee's payloads): the search goes on from there.
+        first_samples = code_samples(start, omega, pulses, tau)
+        base = np.asarray(first_samples, dtype=np.int64)[:, None] - used.origin
+        first = hints.get((start, omega), 0)
+        for lo in range(first, MAX_STAGGER + 1, 64):
+            hi = min(lo + 64, MAX_STAGGER + 1)
+            occupied = used.reach(first_samples[-1] + hi - 1)
+            free = ~occupied[base + _SHIFTS[: hi - lo] + lo].any(axis=0)
+            for j in (np.flatnonzero(free) + lo).tolist():
+                s = start + j * tau
                 samples = code_samples(s, omega, pulses, tau)
-                if len(set(samples)) == len(samples) and not used.taken(np.array(samples)).any():
+                if len(set(samples)) == len(samples) and used.free(samples):
                     used.take(samples)
+                    hints[(start, omega)] = j + 1
                     return s, samples
         raise RgtbusError(
             f"concurrent schedule: {what} finds no free samples within {MAX_STAGGER} "
             "samples of its place (too many codes for the sample rate)"
         )
 
+    hints: dict[tuple[float, float], int] = {}  # (start, ω) -> the first shift not refused
     for turns_of_round in plan.rounds:
         used = _Occupied(round(t0 / tau) - 1)
+        hints.clear()  # a round's samples of its own
         ids = [
             place(used, t0, plan.omegas[t.sender], f"the ID of {t.sender}") for t in turns_of_round
         ]

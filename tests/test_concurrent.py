@@ -69,6 +69,36 @@ def test_every_round_uses_each_sample_once_and_payloads_follow_every_id(n):
         prev_end = rnd.end + 0.5
 
 
+@pytest.mark.parametrize("n", [3, 7, 16])
+def test_each_code_takes_the_first_free_shift_as_the_literal_search_finds_it(n):
+    """``place_rounds`` screens shifts in blocks and goes on from the last shift a code of the
+    same start and ω took: every code still gets the first shift j >= 0 whose exact instants
+    are distinct and free, in the order IDs, then payloads (the literal search, here)."""
+    from rgtbus.protocol import MAX_STAGGER, code_samples
+
+    units = tuple(f"u{i}" for i in range(n))
+    omegas = tuple((u, 2.0 + 0.37 * ((i * 7) % n)) for i, u in enumerate(units))
+    plan = plan_of(units, omegas, 0.005, 4, 0.5, 0.5, 2, "concurrent", 0.001)
+    tau = 0.005
+    for rnd in plan.timing():
+        used: set[int] = set()
+
+        def first_free(start, omega, used=used):
+            for j in range(MAX_STAGGER + 1):
+                got = code_samples(start + j * tau, omega, 4, tau)
+                if len(set(got)) == len(got) and not used & set(got):
+                    used.update(got)
+                    return start + j * tau, got
+            raise AssertionError("no free shift")
+
+        om = dict(omegas)
+        ids = [first_free(rnd.start, om[p.turn.sender]) for p in rnd.placed]
+        assert [(p.id_start, p.id_samples) for p in rnd.placed] == ids
+        at = max(s[-1] for _, s in ids) * tau + 0.5
+        for p in rnd.placed:
+            assert (p.payload_start, p.payload_samples) == first_free(at, om[p.turn.addressee])
+
+
 @pytest.mark.parametrize(("n", "seed"), [(4, 1), (4, 2), (6, 1), (6, 3), (10, 5)])
 def test_concurrent_and_serial_reach_the_same_tables_and_decisions(n, seed):
     serial = run_group(parse_scenario(group(n, "serial", seed)), "memory", MemoryRecorder())
