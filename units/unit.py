@@ -404,43 +404,42 @@ class AutonomousUnit:
         self._queue_next(queue, first_seq, i)
 
     def _queue_reads(self, queue: ListenQueue) -> _QueueReads:
-        """``_QueueReads`` of ``queue`` for the units of this unit's ears (each builds the same:
-        the first to ask does, ``Ears.shared``)."""
-        unit = self
-        ears = unit.ears
+        """``_QueueReads`` of ``queue`` for the units of this unit's ears (each would build the
+        same: the first to ask does, ``Ears.shared``; ``read`` decodes for all of them)."""
+        ears = self.ears
         assert ears is not None
-        index, tau, cb = unit._index, unit.tau, unit.cb
+        index, tau, cb = self._index, self.tau, self.cb
         listens = [queue.listens[i] for i in queue.order]
         names: list[str] = []
         maps = {}
-        for key, words in (("id", unit._id_words), *unit._families.items()):
+        for key, words in (("id", self._id_words), *self._families.items()):
             ix = []
             for name in words.names:
                 if name not in names:
                     names.append(name)
                 ix.append(names.index(name))
             maps[key] = np.array(ix, dtype=np.int64)
-        universe = unit.scenario.universe
-        alternatives = set(unit._families["alternative"].names)
+        universe = self.scenario.universe
+        alternatives = set(self._families["alternative"].names)
         value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
-        n = len(unit.units)
+        n = len(self.units)
         sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
         expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
-        schedule = unit.protocol.schedule
-        search = unit.protocol.search
+        schedule = self.protocol.schedule
+        search = self.protocol.search
         omegas = ears.bank.omegas
 
         def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             listen = listens[q]
             if listen.kind == "id":
                 ch = index[listen.sender]
-                samples = code_samples(listen.start, unit.omegas[ch], cb.pulses, tau)
-                w, m = nearest_columns(ears.readout, samples, ch, unit._id_words)
+                samples = code_samples(listen.start, self.omegas[ch], cb.pulses, tau)
+                w, m = nearest_columns(ears.readout, samples, ch, self._id_words)
                 return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
             family = "relation" if listen.kind == "relation" else "alternative"
-            pairs = tuple((c, float(omegas[c])) for c in unit._channels_of(listen))
+            pairs = tuple((c, float(omegas[c])) for c in self._channels_of(listen))
             w, c, m = decode_among_columns(
-                ears.readout, pairs, listen.start, unit._families[family], tau=tau, search=search
+                ears.readout, pairs, listen.start, self._families[family], tau=tau, search=search
             )
             return maps[family][w], c, m
 
@@ -467,7 +466,7 @@ class AutonomousUnit:
             unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
             what=(kind * n + expected) * len(names),
             channel=np.where(kind == _ID, sender, expected),
-            unit_names=np.array(unit.units, dtype=object),
+            unit_names=np.array(self.units, dtype=object),
             kind_names=np.array(_KINDS, dtype=object)[kind],
             names=tuple(names),
             name_array=np.array(names, dtype=object),
