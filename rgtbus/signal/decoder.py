@@ -232,6 +232,29 @@ def decode_among(
     return decode_among_each(history, chans, float(start), words, tau=tau, search=search)[receiver]
 
 
+def _heard_candidates(
+    history: ReadoutHistory,
+    channels: tuple[tuple[int, float], ...],
+    start: float,
+    mat: np.ndarray,
+    tau: float,
+    search: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates of a code at ``start`` that have been heard (channel, shift, instants)
+    and every receiver's values at them, (R, M, N): what ``decode_among_each`` and
+    ``decode_among_columns`` score."""
+    chans, shifts, inst, lo, hi = _candidates(channels, start, mat.shape[1], tau, search)
+    if hi >= history.end:  # rarely: candidates past what has been heard
+        ok = inst[:, -1] < history.end
+        if not ok.any():
+            raise RgtbusError(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
+        chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
+        hi = int(inst[:, -1].max())
+    return chans, shifts, inst, history.gather(inst, chans, span=(lo, hi))
+
+
 def decode_among_each(
     history: ReadoutHistory,
     channels: tuple[tuple[int, float], ...],
@@ -246,16 +269,7 @@ def decode_among_each(
     once (receivers that heard the same decode the same; each result depends only on that
     receiver's own readout)."""
     names, mat = word_matrix(words, None, "decode")
-    chans, shifts, inst, lo, hi = _candidates(channels, start, mat.shape[1], tau, search)
-    if hi >= history.end:  # rarely: candidates past what has been heard
-        ok = inst[:, -1] < history.end
-        if not ok.any():
-            raise RgtbusError(
-                f"decode: no pulse instants of a code at {start:g} s are in the readout"
-            )
-        chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
-        hi = int(inst[:, -1].max())
-    every = history.gather(inst, chans, span=(lo, hi))  # (R, M, N)
+    chans, shifts, inst, every = _heard_candidates(history, channels, start, mat, tau, search)
     order = _ORDER[: mat.shape[0]]
     out: list[tuple[Decision, int]] = []
     seen: dict[bytes, tuple[Decision, int]] = {}
@@ -327,16 +341,7 @@ def decode_among_columns(
     the words' names), channel index and margin, without a ``Decision`` each (a unit's batch
     of decodes reads them as arrays; every distinct set of values is scored once, as there)."""
     _, mat = word_matrix(words, None, "decode")
-    chans, _, inst, lo, hi = _candidates(channels, start, mat.shape[1], tau, search)
-    if hi >= history.end:  # rarely: candidates past what has been heard
-        ok = inst[:, -1] < history.end
-        if not ok.any():
-            raise RgtbusError(
-                f"decode: no pulse instants of a code at {start:g} s are in the readout"
-            )
-        chans, inst = chans[ok], inst[ok]
-        hi = int(inst[:, -1].max())
-    every = history.gather(inst, chans, span=(lo, hi))  # (R, M, N)
+    chans, _, _, every = _heard_candidates(history, channels, start, mat, tau, search)
     order = _ORDER[: mat.shape[0]]
     firsts, which = _distinct(every)
     word = np.empty(firsts.size, dtype=np.int64)
