@@ -34,7 +34,6 @@ every unit, silent or not.
 from __future__ import annotations
 
 import heapq
-import itertools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol, TypeVar, cast
@@ -97,6 +96,62 @@ class SpikeLog(Protocol):
         that fired in the block, ascending); heard up to sample ``end`` (the block's end, or
         less for the last block of a unit that stopped)."""
         ...
+
+    def shared_spikes(self, block: SharedSpikes) -> None:
+        """The spikes of one block that this unit and others heard alike (``SharedSpikes``):
+        the unit settles it (``SharedSpikes.settle``) once it knows whether it listened
+        through the block's end."""
+        ...
+
+
+class SharedSpikes:
+    """One block's spikes that several logged units of one process heard alike, bit for bit
+    (a noise-free medium through equal link gains: they walk as one, ``resonate``'s share),
+    for a single ``/rx/spike`` record of them all instead of one copy a unit (fields as
+    ``SpikeLog.spikes``; ``members`` the units' indices among the listeners, ``names`` theirs).
+
+    Each member settles it once: it kept the block (it listened through its end) or it left
+    it (it was done before: its own record holds its spikes up to there). The last to settle
+    learns which members kept it, and writes their record."""
+
+    __slots__ = ("_kept", "end", "fired", "index", "members", "names", "samples")
+
+    def __init__(
+        self,
+        samples: np.ndarray,
+        index: np.ndarray,
+        fired: np.ndarray,
+        end: int,
+        members: Sequence[int],
+        names: Sequence[str],
+    ) -> None:
+        self.samples, self.index, self.fired, self.end = samples, index, fired, end
+        self.members, self.names = list(members), list(names)
+        self._kept: dict[int, bool] = {}
+
+    def settle(self, member: int, kept: bool) -> list[str] | None:
+        """Member ``member`` kept the block, or left it; once every member has settled, the
+        names of those that kept it (member order), else None."""
+        if member not in self.members or member in self._kept:
+            raise RgtbusError(f"unit {member} settles a block of units {self.members} again")
+        self._kept[member] = kept
+        if len(self._kept) < len(self.members):
+            return None
+        return [n for m, n in zip(self.members, self.names, strict=True) if self._kept[m]]
+
+
+class _SpikePiece(NamedTuple):
+    """The kept spikes of one advance: ``k`` sample, ``w`` walker (the receiver that walked),
+    ``c`` channel, in the walk's order (sample, walker, channel); ``walker_of`` each
+    receiver's walker (-1: it stood still), None when every receiver walked on its own."""
+
+    k: np.ndarray
+    w: np.ndarray
+    c: np.ndarray
+    walker_of: np.ndarray | None
+
+    def cut(self, a: int, b: int) -> _SpikePiece:
+        return _SpikePiece(self.k[a:b], self.w[a:b], self.c[a:b], self.walker_of)
 
 
 @dataclass
@@ -187,12 +242,12 @@ class Ears:
         if len(blocks) > 1:
             raise RgtbusError(f"the units log spikes in blocks of different sizes: {blocks}")
         self._spike_block = blocks.pop() if blocks else 1
-        # the spikes of logged units not yet handed to their logs: (sample, unit, channel)
-        self._spike_rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        # the spikes of logged units not yet handed to their logs, an advance a piece
+        self._spike_pieces: list[_SpikePiece] = []
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         # which units' spikes are kept for a log: logged and still listening (``stop``)
         self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
-        self._log_all = bool(self._log_mask.all())  # every unit's: no mask to apply
+        self._spikes_ended = np.zeros(len(self.listeners), dtype=bool)  # its last handed
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         # the dense engine is the reference: it walks every resonator every sample, always
@@ -351,7 +406,6 @@ class Ears:
         lst.request = None
         self._listening[i] = False
         self._log_mask[i] = False
-        self._log_all = False
         self.end_spikes(i, at)
         if lst.trace is not None:
             self._flush_trace(i)
@@ -550,6 +604,7 @@ class Ears:
             readout=True,
             record=self._traced,
             receivers=walking,
+            expand=False,  # units that walk as one keep one copy of their spikes
         )
         end = lo + res.n
         self.pos = end
@@ -562,21 +617,30 @@ class Ears:
             for n, lst in enumerate(self.listeners):
                 if lst.active and lst.trace is not None:
                     self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
-        sp = res.spikes  # sorted by sample, receiver, channel: one entry per (sample, unit)
+        # sorted by sample, receiver, channel: the walkers' alone when receivers walked as
+        # one (``walker_of``: each receiver's walker), every receiver's otherwise
+        sp, walker_of = res.spikes, res.walker_of
         if len(sp) and res.stopped:  # a watched spike: the unit that watched it wakes for it
-            for k, n, ch in sp[sp[:, 0] == end - 1].tolist():
-                lst = self.listeners[n]
-                if lst.active and ch == lst.watch and k >= lst.watch_from:
-                    lst.heard.append((k, (ch,)))
+            for k, w, ch in sp[sp[:, 0] == end - 1].tolist():
+                for n in [w] if walker_of is None else np.flatnonzero(walker_of == w).tolist():
+                    lst = self.listeners[n]
+                    if lst.active and ch == lst.watch and k >= lst.watch_from:
+                        lst.heard.append((k, (ch,)))
         if self._logged:  # kept for the logs, handed over a block at a time
             if len(sp):
-                keep = sp if self._log_all else sp[self._log_mask[sp[:, 1]]]
-                if len(keep):  # as columns, unit and channel in 4 bytes: 16 bytes a spike
-                    self._spike_rows.append(
-                        (
+                if walker_of is None:
+                    serves = self._log_mask
+                else:  # a walk is kept while a logged unit took it
+                    serves = np.zeros(len(self.listeners), dtype=bool)
+                    serves[walker_of[self._log_mask & (walker_of >= 0)]] = True
+                keep = sp if serves.all() else sp[serves[sp[:, 1]]]
+                if len(keep):  # as columns, walker and channel in 4 bytes: 16 bytes a spike
+                    self._spike_pieces.append(
+                        _SpikePiece(
                             keep[:, 0].copy(),
                             keep[:, 1].astype(np.int32),
                             keep[:, 2].astype(np.int32),
+                            walker_of,
                         )
                     )
             if end >= self._spikes_due:
@@ -593,69 +657,117 @@ class Ears:
     def _hand_spikes(self, upto: int | None, only: int | None = None) -> None:
         """Each logged unit's kept spikes before sample ``upto`` (None: all), a block at a
         time, in the order (block, unit): which records a log holds, and their order, depend
-        only on the blocks, not on how the ears advanced. ``only``: unit ``only``'s last
-        spikes, its last block ending at ``upto`` (or as far as the ears heard); its spikes
-        at or after ``upto`` are dropped."""
-        if not self._spike_rows:
+        only on the blocks, not on how the ears advanced. Units that heard the same spikes in
+        a block get them as one ``SharedSpikes``. ``only``: unit ``only``'s last spikes, its
+        last block ending at ``upto`` (or as far as the ears heard); its spikes at or after
+        ``upto`` are dropped, and it gets no more."""
+        if not self._spike_pieces:
             return
-        # (sample, unit, channel) columns, in sample order (the walk's): a block of a large
-        # run holds millions of spikes, so every array here is a column of a narrow type
-        cols = [np.concatenate(c) for c in zip(*self._spike_rows, strict=True)]
         heard = self.pos
         if only is None:  # a block boundary: the spikes before it, slices (no copy)
-            cut = len(cols[0]) if upto is None else int(cols[0].searchsorted(upto))
-            mine, rest = [c[:cut] for c in cols], [c[cut:] for c in cols]
-        else:
-            take = cols[1] == only
-            others = ~take
+            mine, rest = [], []
+            for p in self._spike_pieces:
+                cut = len(p.k) if upto is None else int(p.k.searchsorted(upto))
+                mine.append(p.cut(0, cut))
+                if cut < len(p.k):
+                    rest.append(p.cut(cut, len(p.k)))
+            self._spike_pieces = rest
+            members = np.flatnonzero(self._log_mask)
+        else:  # the others still need the walks it took: read, not taken
+            if self._spikes_ended[only]:  # handed its last already
+                return
+            self._spikes_ended[only] = True
             if upto is not None:
-                take &= cols[0] < upto
                 heard = min(heard, upto)
-            mine, rest = [c[take] for c in cols], [c[others] for c in cols]
-        self._spike_rows = [(rest[0], rest[1], rest[2])] if len(rest[0]) else []
-        del cols, rest
-        samples, unit, channel = mine
-        if not len(samples):
+            mine = [
+                p if upto is None else p.cut(0, int(p.k.searchsorted(upto)))
+                for p in self._spike_pieces
+            ]
+            members = np.array([only])
+            self._log_mask[only] = False
+        self._hand_blocks([p for p in mine if len(p.k)], members, heard)
+
+    def _hand_blocks(self, pieces: list[_SpikePiece], members: np.ndarray, heard: int) -> None:
+        """Hand the ``members`` their spikes in ``pieces`` (in time order), a block at a time:
+        a unit's spikes in a block are its walker's in each piece. Units whose spikes in a
+        block are equal share one ``SharedSpikes``, whichever walks they came from."""
+        if not pieces or not members.size:
             return
+        U = len(self.listeners)
         B = self._spike_block
-        b0, b1 = int(samples[0]) // B, int(samples[-1]) // B
-        # stable by (block, unit): sample order kept within. A hand holds a block or two, so
-        # the key fits in 16 bits, where numpy's stable sort is a radix sort
-        units = len(self.listeners)
-        if (b1 - b0 + 1) * units < 2**15:
-            key = ((samples // B - b0) * units + unit).astype(np.int16)
-            order = np.argsort(key, kind="stable")
-            del key
+        k = np.concatenate([p.k for p in pieces])
+        w = np.concatenate([p.w for p in pieces])
+        c = np.concatenate([p.c for p in pieces])
+        piece = np.repeat(np.arange(len(pieces)), [len(p.k) for p in pieces])
+        block = k // B
+        # segments: one piece within one block (in time order); sorted by (segment, walker),
+        # stable, each walker's spikes of a segment are one run, in (sample, channel) order
+        new = np.concatenate(([True], (block[1:] != block[:-1]) | (piece[1:] != piece[:-1])))
+        seg = np.cumsum(new) - 1
+        n_seg = int(seg[-1]) + 1
+        if n_seg * U < 2**15:  # numpy's stable sort of a 16-bit key is a radix sort
+            order = np.argsort((seg * U + w).astype(np.int16), kind="stable")
         else:
-            order = np.lexsort((unit, samples // B))
-        # columns of their own: contiguous, so the log's encoder writes each slice whole
-        samples, unit, channel = (np.take(c, order) for c in mine)  # 4x the time of [order]
-        del mine, order
-        block = samples // B
-        new = (block[1:] != block[:-1]) | (unit[1:] != unit[:-1])
-        starts = np.flatnonzero(np.concatenate(([True], new)))  # each (block, unit)'s first
-        # which channels fired in each (block, unit), and each spike's index among them, for
-        # every block and unit at once (a few calls a hand, not a few a record)
-        width = int(channel.max()) + 1
-        cell = np.cumsum(np.concatenate(([0], new)), dtype=np.int64) * width + channel
-        del new
-        fired = np.zeros(len(starts) * width, dtype=np.int32)
-        fired[cell] = 1
-        index = (fired.reshape(len(starts), width).cumsum(axis=1, dtype=np.int32).ravel() - 1)[cell]
-        del cell
-        fired_at = np.flatnonzero(fired)
-        fired_cuts = np.searchsorted(fired_at // width, np.arange(len(starts) + 1)).tolist()
-        fired_ch = fired_at % width
-        cuts = [*starts.tolist(), len(samples)]
-        for s, (a, b) in enumerate(itertools.pairwise(cuts)):
-            log = self.listeners[int(unit[a])].spike_log
-            assert log is not None
-            log.spikes(
-                samples[a:b],
-                index[a:b],
-                fired_ch[fired_cuts[s] : fired_cuts[s + 1]],
-                min((int(block[a]) + 1) * B, heard),
-            )
+            order = np.lexsort((w, seg))
+        k, w, c, seg = k[order], w[order], c[order], seg[order]
+        starts = np.flatnonzero(np.concatenate(([True], (seg[1:] != seg[:-1]) | (w[1:] != w[:-1]))))
+        ends = np.append(starts[1:], len(k))
+        run = np.full((n_seg, U), -1, dtype=np.int64)  # (segment, walker) -> its run
+        run[seg[starts], w[starts]] = np.arange(starts.size)
+        seg_first = np.flatnonzero(new)  # in the unsorted order: each segment's block, piece
+        seg_block, seg_piece = block[seg_first], piece[seg_first]
+        # each segment's walker of every member (a piece where every receiver walked alone:
+        # the member itself)
+        src = np.empty((n_seg, members.size), dtype=np.int64)
+        for p in np.unique(seg_piece).tolist():
+            wo = pieces[p].walker_of
+            src[seg_piece == p] = members if wo is None else wo[members]
+        runs_of = np.where(src >= 0, run[np.arange(n_seg)[:, None], np.maximum(src, 0)], -1)
+        blocks, first = np.unique(seg_block, return_index=True)
+        bounds = [*first.tolist(), n_seg]
+        starts_l, ends_l = starts.tolist(), ends.tolist()
+        for b, s0, s1 in zip(blocks.tolist(), bounds, bounds[1:], strict=False):
+            # a member's runs in this block, one per segment: equal rows, equal spikes
+            sigs, inverse = np.unique(runs_of[s0:s1].T, axis=0, return_inverse=True)
+            groups: dict[tuple, list[int]] = {}  # equal spikes, from whichever walks
+            arrays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+            for g, sig in enumerate(sigs.tolist()):
+                cuts = [(starts_l[r], ends_l[r]) for r in sig if r >= 0]
+                if not cuts:
+                    continue
+                samples = np.concatenate([k[x:y] for x, y in cuts])
+                channel = np.concatenate([c[x:y] for x, y in cuts])
+                key: tuple[int, ...] = (len(samples), int(samples.sum()), int(channel.sum()))
+                while key in arrays and not (
+                    np.array_equal(arrays[key][0], samples)
+                    and np.array_equal(arrays[key][1], channel)
+                ):
+                    key = (*key, g)  # the same sums, other spikes: a group of its own
+                arrays.setdefault(key, (samples, channel))
+                groups.setdefault(key, []).extend(
+                    members[np.flatnonzero(inverse.reshape(-1) == g)].tolist()
+                )
+            end = min((b + 1) * B, heard)
+            for key in sorted(groups, key=lambda key: min(groups[key])):
+                units = sorted(groups[key])
+                samples, channel = arrays[key]
+                # the channels that fired and each spike's index among them
+                present = np.zeros(int(channel.max()) + 1, dtype=bool)
+                present[channel] = True
+                fired = np.flatnonzero(present)
+                index = (np.cumsum(present, dtype=np.int32) - 1)[channel]
+                if len(units) == 1:
+                    log = self.listeners[units[0]].spike_log
+                    assert log is not None
+                    log.spikes(samples, index, fired, end)
+                    continue
+                share = SharedSpikes(
+                    samples, index, fired, end, units, [self.listeners[u].name for u in units]
+                )
+                for u in units:
+                    log = self.listeners[u].spike_log
+                    assert log is not None
+                    log.shared_spikes(share)
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""

@@ -40,10 +40,11 @@ def single(name: str):
 def content(messages):
     """Log content, order-free among simultaneous messages, decodes one a row: how a unit's
     wakes group its decodes into records depends on whether a live view waits for them (a
-    unit process feeds ``rgtbus watch``), what it decoded does not."""
-    from rgtbus.telemetry.verify import decodes_per_row
+    unit process feeds ``rgtbus watch``), what it decoded does not; spikes one record a unit
+    (the units of one process share their records)."""
+    from rgtbus.telemetry.verify import decodes_per_row, spikes_per_unit
 
-    rows = decodes_per_row(messages)
+    rows = spikes_per_unit(decodes_per_row(messages))
     return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in rows)
 
 

@@ -17,6 +17,7 @@ from rgtbus.units.group import run_group
 
 from rgtbus.scenario import Scenario, load_scenario, parse_scenario
 from rgtbus.telemetry import MemoryRecorder, NullRecorder
+from rgtbus.telemetry.verify import spikes_per_unit
 
 ROOT = Path(__file__).parent.parent
 # The dense engine walks every window of every unit: a reference for groups of up to 12 (the
@@ -34,8 +35,9 @@ def run(sc: Scenario, engine: str):
 
 
 def content(messages):
-    """The log's content, order-free among messages of the same time."""
-    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in messages)
+    """The log's content, order-free among messages of the same time; a block of spikes
+    units shared as each unit's own (the dense engine's ears are a unit's own)."""
+    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in spikes_per_unit(messages))
 
 
 def assert_same_run(sc: Scenario):
@@ -255,57 +257,85 @@ def test_a_unit_that_batches_logs_what_it_logs_waking_for_each_decode(seed, nois
 
 
 def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
-    """The hand-over alone: random spikes (sample, unit, channel), in the walk's order, come
-    out as one call per (block, unit) in that order, each with its samples and, through the
-    channels that fired and each spike's index among them, exactly its channels."""
+    """The hand-over alone: random spikes (sample, walker, channel) of two advances, the first
+    walked by two receivers for all (one stood still), the second by each on its own, come
+    out a block at a time, in the order (block, first unit): each unit exactly its walker's
+    spikes in each advance, through the channels that fired and each spike's index among
+    them; units whose spikes in a block are equal (however they walked) as one shared block.
+    A unit that stops gets the rest of its own and no more."""
     import types
 
     import numpy as np
 
-    from rgtbus.hearing import Ears
+    from rgtbus.hearing import Ears, SharedSpikes, _SpikePiece
 
     rng = np.random.default_rng(3)
     units, channels, block = 5, 7, 50
-    got: list[tuple[int, int, list[tuple[int, int]], int]] = []
+    got: list[tuple[tuple[int, ...], int, list[tuple[int, int]], int]] = []
+
+    def spikes_of(samples, index, fired):
+        assert list(fired) == sorted(set(fired)) and sorted(set(index)) == list(range(len(fired)))
+        return [(int(k), int(fired[i])) for k, i in zip(samples, index, strict=True)]
 
     def sink(u):
         def spikes(samples, index, fired, end):
-            assert list(fired) == sorted(set(fired)) and sorted(set(index)) == list(
-                range(len(fired))
-            )
-            got.append((u, int(samples[0]) // block, [
-                (int(k), int(fired[i])) for k, i in zip(samples, index, strict=True)
-            ], end))  # fmt: skip
+            got.append(((u,), int(samples[0]) // block, spikes_of(samples, index, fired), end))
 
-        return types.SimpleNamespace(spikes=spikes)
+        def shared_spikes(share):
+            assert isinstance(share, SharedSpikes) and u in share.members
+            assert share.names == [f"u{m}" for m in share.members]
+            if u == share.members[0]:
+                got.append((
+                    tuple(share.members), int(share.samples[0]) // block,
+                    spikes_of(share.samples, share.index, share.fired), share.end,
+                ))  # fmt: skip
 
-    rows = np.array(
-        sorted(
-            {
-                (int(k), int(u), int(c))
-                for k, u, c in rng.integers(0, (420, units, channels), (900, 3))
-            }
-        )
-    )
+        return types.SimpleNamespace(spikes=spikes, shared_spikes=shared_spikes)
+
+    def rows(lo, hi, walkers):
+        drawn = rng.integers((lo, 0, 0), (hi, len(walkers), channels), (400, 3))
+        return sorted({(int(k), walkers[int(w)], int(c)) for k, w, c in drawn})
+
+    first_walker = [0, 0, 2, 0, -1]  # unit 4 stood still through the first advance
+    first, second = rows(0, 210, [0, 2]), rows(210, 420, list(range(units)))
+    # unit 3 walked on its own and heard what unit 1 heard: one block of theirs all the same
+    second = sorted([r for r in second if r[1] != 3] + [(k, 3, c) for k, w, c in second if w == 1])
     ears = types.SimpleNamespace(
-        _spike_rows=[
-            tuple(part[:, j].copy() for j in range(3)) for part in (rows[:300], rows[300:])
+        _spike_pieces=[
+            _SpikePiece(*(np.array([r[j] for r in part]) for j in range(3)), walker_of=wo)
+            for part, wo in ((first, np.array(first_walker)), (second, None))
         ],
         _spike_block=block,
-        listeners=[types.SimpleNamespace(spike_log=sink(u)) for u in range(units)],
+        _log_mask=np.ones(units, dtype=bool),
+        _spikes_ended=np.zeros(units, dtype=bool),
+        listeners=[types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)],
         pos=400,
     )
+    ears._hand_blocks = lambda *a: Ears._hand_blocks(ears, *a)
     Ears._hand_spikes(ears, 200)  # the blocks before sample 200
     Ears._hand_spikes(ears, None, only=2)  # unit 2 stops: the rest of its spikes
+    Ears._hand_spikes(ears, None, only=2)  # and its end: nothing more
     Ears._hand_spikes(ears, None)  # the run ends
-    want = []
-    for b in range(9):
-        for u in range(units):
-            mine = [(k, c) for k, uu, c in rows.tolist() if uu == u and k // block == b]
-            if mine:
-                want.append((u, b, mine))
-    order = sorted(want, key=lambda w: (w[0] != 2 and w[1] >= 4, w[1], w[0]))
-    assert [g[:3] for g in got] == order
+
+    def mine(u, b):
+        return [(k, c) for k, w, c in first if w == first_walker[u] and k // block == b] + [
+            (k, c) for k, w, c in second if w == u and k // block == b
+        ]
+
+    def groups(b, who):
+        out: dict[tuple, list[int]] = {}
+        for u in who:
+            if mine(u, b):
+                out.setdefault(tuple(mine(u, b)), []).append(u)
+        return sorted((tuple(us), b, list(sp)) for sp, us in out.items())
+
+    everyone = list(range(units))
+    want = [g for b in range(4) for g in groups(b, everyone)]
+    want += [g for b in range(4, 9) for g in groups(b, [2])]
+    want += [g for b in range(4, 9) for g in groups(b, [0, 1, 3, 4])]
+    assert [g[:3] for g in got] == want
+    assert any(len(g[0]) > 1 for g in got) and any(len(g[0]) == 1 for g in got)
+    assert any(g[0] == (1, 3) and g[1] >= 5 for g in got)
     for _, b, _, end in got:
         assert end == min((b + 1) * block, 400)
 

@@ -22,7 +22,7 @@ from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
 from rgtbus.telemetry.read import load_replay
-from rgtbus.telemetry.records import spike_samples
+from rgtbus.telemetry.records import each_unit_spikes, spike_samples, spike_units
 from rgtbus.telemetry.verify import EXIT_TRUNCATED
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -550,8 +550,9 @@ def test_log_without_scenario_cannot_be_verified(tmp_path, capsys):
 
 
 def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
-    """Logs before the columnar /rx/spike held one record per unit and sample: the same run
-    written that way reads to the same spikes and summary, and verifies."""
+    """Logs before the columnar /rx/spike held one record per unit and sample, and before
+    shared records one per unit and block: the same run written either way reads to the same
+    spikes and summary, and verifies."""
     import pandas as pd
 
     import rgtbus
@@ -565,15 +566,23 @@ def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
                 yield topic, t_ns, m
                 continue
             for k, chans in spike_samples(m):
-                one = {"unit": m["unit"], "t": k * 0.005, "sample": k, "channels": chans}
-                yield topic, round(k * 0.005 * 1e9), one
+                for unit in spike_units(m):
+                    one = {"unit": unit, "t": k * 0.005, "sample": k, "channels": chans}
+                    yield topic, round(k * 0.005 * 1e9), one
 
-    old = write(tmp_path, rewrite(new.read_bytes(), per_sample), "old.mcap")
-    before, after = rgtbus.open_log(new), rgtbus.open_log(old)
-    assert len(after.messages("/rx/spike")) > len(before.messages("/rx/spike"))
-    pd.testing.assert_frame_equal(before.spikes(), after.spikes())
-    assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
-    assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # spikes compare per sample
+    def per_unit(msgs):  # the columnar records before units shared them
+        for topic, t_ns, m in msgs:
+            for one in each_unit_spikes(m) if topic == "/rx/spike" else [m]:
+                yield topic, t_ns, one
+
+    assert any("units" in m for m in rgtbus.open_log(new).messages("/rx/spike"))
+    for form in (per_sample, per_unit):
+        old = write(tmp_path, rewrite(new.read_bytes(), form), f"{form.__name__}.mcap")
+        before, after = rgtbus.open_log(new), rgtbus.open_log(old)
+        assert len(after.messages("/rx/spike")) > len(before.messages("/rx/spike"))
+        pd.testing.assert_frame_equal(before.spikes(), after.spikes())
+        assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
+        assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # compared per sample
 
 
 def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):

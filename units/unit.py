@@ -25,7 +25,7 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
-from rgtbus.hearing import Ears, Heard, Listener
+from rgtbus.hearing import Ears, Heard, Listener, SharedSpikes
 from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import (
@@ -244,7 +244,7 @@ class AutonomousUnit:
         self._what_of = np.zeros(0, dtype=np.int64)
         # blocks of its spikes the ears handed on before a batch's wake said whether it was
         # done before them (``spikes``): (samples, index, fired, end) each
-        self._held: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []
+        self._held: list[SharedSpikes] = []  # blocks of spikes handed, until its wake
         self._batch_span = max(1, round(BATCH_SECONDS / self.tau))
         self._others: list[int] = []  # boundaries of its timers that are not listens
         self._seq = 0  # the next timer's seq
@@ -604,29 +604,52 @@ class AutonomousUnit:
         done before the block (``_release_spikes``): the ears walk on past a unit that does
         not yet know it is done."""
         if self._batches and not self.done:
-            self._held.append((samples, index, fired, end))
+            self._held.append(SharedSpikes(samples, index, fired, end, [self.index], [self.name]))
         else:
-            self._log_spikes(samples, index, fired, end)
+            self._log_spikes(self.name, samples, index, fired, end)
+
+    def shared_spikes(self, block: SharedSpikes) -> None:
+        """A block of spikes this unit heard alike with others of its process: held until
+        its wake, as its own blocks are, then settled (``_release_spikes``)."""
+        if self._batches and not self.done:
+            self._held.append(block)
+        else:
+            self._settle_spikes(block, None)
 
     def _release_spikes(self, stop: int | None) -> None:
         """Log the blocks held for this wake: all of them, or (``stop``: done before that
         sample) their spikes before ``stop``, the last block ending there."""
         held, self._held = self._held, []
-        for samples, index, fired, end in held:
-            if stop is not None and end > stop:
-                cut = int(samples.searchsorted(stop))
-                if not cut:
-                    continue
-                channels = fired[index[:cut]]
-                fired = np.unique(channels)
-                samples, index, end = samples[:cut], np.searchsorted(fired, channels), stop
-            self._log_spikes(samples, index, fired, end)
+        for block in held:
+            self._settle_spikes(block, stop)
+
+    def _settle_spikes(self, block: SharedSpikes, stop: int | None) -> None:
+        """Keep a block (its units' record is written once every unit of it has settled), or,
+        done before its end (``stop``), leave it and log its spikes before ``stop`` alone."""
+        samples, index, fired, end = block.samples, block.index, block.fired, block.end
+        kept = stop is None or end <= stop
+        units = block.settle(self.index, kept)
+        if units:
+            self._log_spikes(units, samples, index, fired, end)
+        if stop is None or kept:
+            return
+        cut = int(samples.searchsorted(stop))
+        if cut:
+            channels = fired[index[:cut]]
+            fired = np.unique(channels)
+            index = np.searchsorted(fired, channels)
+            self._log_spikes(self.name, samples[:cut], index, fired, stop)
 
     def _log_spikes(
-        self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int
+        self,
+        units: str | list[str],
+        samples: np.ndarray,
+        index: np.ndarray,
+        fired: np.ndarray,
+        end: int,
     ) -> None:
         names = [self.units[c] for c in fired.tolist()]
-        record = records.spikes(self.name, self.tau, samples, index, names)
+        record = records.spikes(units, self.tau, samples, index, names)
         self.recorder.write("/rx/spike", record, ns(end * self.tau))
 
     def end_log(self) -> None:

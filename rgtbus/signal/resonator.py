@@ -82,7 +82,10 @@ class FeedResult:
     """What one advance of a bank produced.
 
     ``spikes``: int64 (S, 3) of absolute sample, receiver, channel, sorted by sample, receiver,
-    channel.  With ``record``: ``z`` (n, receivers, channels) pre-spike states, ``y`` the
+    channel. ``walker_of`` (an advance that shared walks and was asked not to ``expand``): per
+    receiver, the receiver whose walk it took (itself for a walker; -1: it stood still), and
+    ``spikes`` holds the walkers' alone: every other receiver's are its walker's.  With
+    ``record``: ``z`` (n, receivers, channels) pre-spike states, ``y`` the
     recorded y (``spike_value`` at spike samples) and ``spiked`` the spike mask.  With
     ``readout``: ``readout_rows`` (absolute samples that carried input) and ``readout``
     (rows, receivers, channels) the increment readout there, rounded to ``READOUT_DIGITS`` (every
@@ -99,6 +102,7 @@ class FeedResult:
     readout_rows: np.ndarray | None = None
     readout: np.ndarray | None = None
     stopped: bool = False
+    walker_of: np.ndarray | None = None
 
     @property
     def x(self) -> np.ndarray | None:
@@ -295,6 +299,7 @@ def resonate(
     readout: bool = False,
     receivers: np.ndarray | None = None,
     share: bool = True,
+    expand: bool = True,
 ) -> tuple[BankState, FeedResult]:
     """Advance a bank from ``state.n`` to ``end`` (exclusive) over the given input: every
     resonator walks (``walk``) on its own.
@@ -313,6 +318,8 @@ def resonate(
     state and spikes (the same values: the walk of a lane depends on nothing else); False
     walks every lane, the reference it is tested against; an advance of fewer than
     ``SHARE_MIN_WORK`` lane-samples walks every lane too. A bank that records walks every lane.
+    ``expand`` False: an advance that shared walks returns the walkers' spikes alone and who
+    took whose walk (``FeedResult.walker_of``), not a copy of them for every receiver.
     """
     start = state.n
     if end < start:
@@ -369,7 +376,11 @@ def resonate(
             grid[views.live] = grid[views.walker_of]
     new = BankState(wr, wi, pend, end)
     arr = np.empty((n_sp, 3), dtype=np.int64)
-    if n_sp and views is not None:
+    walker_of = None
+    if views is not None and not expand:
+        walker_of = np.full(U, -1, dtype=np.int64)
+        walker_of[views.live] = views.walker_of
+    if n_sp and views is not None and expand:
         arr = views.spikes(sp_k[:n_sp], sp_l[:n_sp], start, n, M)
     elif n_sp:
         if n < 2**15:
@@ -383,7 +394,7 @@ def resonate(
         arr[:, 0] = sp_k[:n_sp][order]
         arr[:, 1] = M.lane_rec[lanes]
         arr[:, 2] = M.lane_ch[lanes]
-    result = FeedResult(start=start, n=n, spikes=arr, stopped=stopped)
+    result = FeedResult(start=start, n=n, spikes=arr, stopped=stopped, walker_of=walker_of)
     if record:
         shape = (n, U, C)
         result.z = xs.reshape(shape) + 1j * ys.reshape(shape)
@@ -651,13 +662,15 @@ class ResonatorBank:
         record: bool = False,
         readout: bool = False,
         receivers: np.ndarray | None = None,
+        expand: bool = True,
     ) -> FeedResult:
         """Advance to sample ``end`` (exclusive) with input only at the absolute samples ``rows``
         (sorted, unique, from the bank's position on) of ``values`` ((len(rows),) for every
         receiver alike, or (len(rows), n_receivers)).  ``stop``: return right after the first
         sample with a spike (of a lane in ``stop_lanes``, a mask, if given; ``result.stopped``:
         the bank is then just past it). ``receivers``: a mask of the receivers that walk (the
-        others' resonators stand still: their units listen no more; see ``resonate``)."""
+        others' resonators stand still: their units listen no more; see ``resonate``, as for
+        ``expand``)."""
         r = np.asarray(rows, dtype=np.int64).reshape(-1)
         v = np.asarray(values, dtype=float)
         if v.ndim <= 1:
@@ -677,7 +690,7 @@ class ResonatorBank:
             if not np.isfinite(v).all():
                 bad = int(r[np.flatnonzero(~np.isfinite(v).all(axis=1))[0]])
                 raise RgtbusError(f"sample {bad} is not finite")
-        return self._run(int(end), r, v, stop, record, readout, stop_lanes, receivers)
+        return self._run(int(end), r, v, stop, record, readout, stop_lanes, receivers, expand)
 
     def _run(
         self,
@@ -689,6 +702,7 @@ class ResonatorBank:
         readout: bool,
         stop_lanes: np.ndarray | None = None,
         receivers: np.ndarray | None = None,
+        expand: bool = True,
     ) -> FeedResult:
         self.state, result = resonate(
             self.model,
@@ -701,6 +715,7 @@ class ResonatorBank:
             record=record,
             readout=readout,
             receivers=receivers,
+            expand=expand,
         )
         return result
 

@@ -376,7 +376,11 @@ def _record(topic: str, log_time: int, data: bytes, unit: str | None) -> dict[st
     except ValueError:
         message = {"undecodable": len(data)}
     if unit is not None and _unit_of(topic, message) != unit:
-        return None
+        shared = message.get("units") if isinstance(message, dict) else None
+        if not (isinstance(shared, list) and unit in shared):
+            return None
+        # a record units share (/rx/spike): shown as that unit's own
+        message = {"unit": unit, **{k: v for k, v in message.items() if k != "units"}}
     return {"topic": topic, "t": log_time / NS, "log_time": log_time, "message": message}
 
 

@@ -40,6 +40,7 @@ from rgtbus.telemetry.records import (
     RunRecord,
     decode_rows,
     spike_samples,
+    spike_units,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.timebase import NS_PER_SECOND, ns
@@ -168,16 +169,17 @@ def spike_rows(
     names) or one spike a record (with its ω); both still read. ``tau``: the sample period
     (else each spike's time is worked out from the record's first). Rows are in sample order
     (stable: as logged within a sample)."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for m in records:
         if "samples" in m:
-            unit, k0, t0 = m["unit"], m["sample"], m["t"]
+            units, k0, t0 = spike_units(m), m["sample"], m["t"]
             step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
             for k, chans in spike_samples(m):
                 t = k * step if k != k0 else t0
-                for ch in chans:
-                    om = frequencies.get(ch)
-                    rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
+                for unit in units:  # a shared record: each unit heard the same spikes
+                    for ch in chans:
+                        om = frequencies.get(ch)
+                        rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
             continue
         if "channels" not in m:
             rows.append(m)
@@ -610,9 +612,13 @@ class Replay:
                 continue
             stream = "spikes" if topic == "/rx/spike" else "records"
             for t, m in msgs:
-                who = str(m.get("unit", m.get("name", "")))
-                if t > last.get(f"{who}\0{stream}", -1):
-                    last[f"{who}\0{stream}"] = t
+                if "units" in m and stream == "spikes":  # one record for several units
+                    whos = [str(u) for u in m["units"]]
+                else:
+                    whos = [str(m.get("unit", m.get("name", "")))]
+                for who in whos:
+                    if t > last.get(f"{who}\0{stream}", -1):
+                        last[f"{who}\0{stream}"] = t
         if not last:
             return None
         # A unit's spikes go to the log in blocks as its ears hear them, which runs ahead of

@@ -44,8 +44,9 @@ class PulseRecord(TypedDict):
     message: MessageRef
 
 
-class SpikeRecord(TypedDict):
-    unit: str
+class SpikeRecord(TypedDict, total=False):
+    unit: str  # the one unit whose spikes these are, or
+    units: list[str]  # the units (two or more) that heard these same spikes
     t: float
     sample: int  # the first spike's
     samples: IntColumn  # one per spike
@@ -219,22 +220,55 @@ def pulse(
 
 
 def spikes(
-    unit: str, tau: float, samples: IntColumn, channel: IntColumn, names: list[str]
+    unit: str | Sequence[str],
+    tau: float,
+    samples: IntColumn,
+    channel: IntColumn,
+    names: list[str],
 ) -> SpikeRecord:
     """Every spike of ``unit`` in one block, as columns, one entry per spike: at
     ``samples[i]`` the resonator of ``names[channel[i]]`` fired. Numpy arrays are written as
     they are (the encoder takes them whole: a large run's receivers fire millions of times).
+    ``unit`` a list of two or more names: each of those units heard exactly these spikes in
+    the block (units of one process on a noise-free medium hear alike), one record for all
+    (``units``); a list of one is that unit's own record. ``spike_units`` reads either.
     Logs before it held the block as ``samples`` and per-sample lists of names, and before
     that one record a sample; ``spike_rows`` reads them all."""
     first = int(samples[0])
-    return {
-        "unit": unit,
-        "t": first * tau,
-        "sample": first,
-        "samples": samples,
-        "channel": channel,
-        "names": names,
-    }
+    record: SpikeRecord
+    if isinstance(unit, str) or len(unit) == 1:
+        record = {"unit": unit if isinstance(unit, str) else unit[0]}
+    elif not unit:
+        raise RgtbusError("a block of spikes of no unit")
+    else:
+        record = {"units": list(unit)}
+    record.update(
+        {"t": first * tau, "sample": first, "samples": samples, "channel": channel, "names": names}
+    )
+    return record
+
+
+def spike_units(record: Mapping[str, Any]) -> list[str]:
+    """The units whose spikes a ``/rx/spike`` record holds: its ``units``, or its one
+    ``unit`` (the only form before records were shared)."""
+    units = record.get("units")
+    if units is None:
+        return [record["unit"]]
+    return list(units)
+
+
+def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """A ``/rx/spike`` record as one record a unit: a shared record's spikes once for each of
+    its units (with its ``unit``), any other as it is. How two logs compare whose units kept
+    their spikes in other groups (another engine, another split of units into processes)."""
+    if "units" not in record:
+        return [dict(record)]
+    rest = {k: v for k, v in record.items() if k != "units"}
+    return [{"unit": u, **rest} for u in spike_units(record)]
+
+
+def _spikes_of(record: Mapping[str, Any]) -> str:
+    return f"/rx/spike of {record.get('unit', record.get('units'))!r}"
 
 
 def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
@@ -249,7 +283,7 @@ def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
     names, channel = record["names"], record["channel"]
     if len(channel) != len(samples):
         raise RgtbusError(
-            f"/rx/spike of {record.get('unit')!r} at sample {record.get('sample')}: "
+            f"{_spikes_of(record)} at sample {record.get('sample')}: "
             f"{len(samples)} samples but {len(channel)} channels"
         )
     i, n = 0, len(samples)
@@ -260,7 +294,7 @@ def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
             c = channel[i]
             if not 0 <= c < len(names):
                 raise RgtbusError(
-                    f"/rx/spike of {record.get('unit')!r} at sample {k}: channel {c} is not "
+                    f"{_spikes_of(record)} at sample {k}: channel {c} is not "
                     f"one of its {len(names)} names"
                 )
             fired.append(names[c])

@@ -142,10 +142,14 @@ def _type_text(s: dict[str, Any]) -> str:
 def _field_rows(schema: dict[str, Any], prefix: str = "") -> list[str]:
     rows = []
     required = set(schema.get("required", ()))
+    # a oneOf of required fields: exactly one of them is present
+    either = [k for sub in schema.get("oneOf", ()) for k in sub.get("required", ())]
     for name, sub in schema.get("properties", {}).items():
         path = f"{prefix}{name}"
         desc = sub.get("description", "").replace("|", "\\|")
         req = "yes" if name in required else "no"
+        if name in either:
+            req = "one of " + ", ".join(f"`{k}`" for k in either)
         rows.append(
             f"| `{path}` | {_type_text(sub).replace('|', chr(92) + '|')} | {req} | {desc} |"
         )

@@ -22,7 +22,7 @@ from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
 from rgtbus.telemetry.recorder import (
     encode_json,
 )
-from rgtbus.telemetry.records import decode_rows, spike_samples
+from rgtbus.telemetry.records import decode_rows, each_unit_spikes, spike_samples, spike_units
 from rgtbus.timebase import ns
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -131,10 +131,25 @@ def spikes_per_sample(
         if topic != "/rx/spike" or not isinstance(m, dict) or "samples" not in m:
             yield topic, t_ns, m
             continue
-        unit = m["unit"]
+        units = spike_units(m)  # a record the units of a process share: each unit's own
         for k, chans in spike_samples(m):
             t = k * tau
-            yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
+            for unit in units:
+                yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
+
+
+def spikes_per_unit(
+    messages: Iterable[tuple[str, int, dict]],
+) -> Iterator[tuple[str, int, dict]]:
+    """The messages with every ``/rx/spike`` record that units shared as one record a unit
+    (``each_unit_spikes``): how logs compare whose units were split into processes, or
+    engines, that share records differently."""
+    for topic, t_ns, m in messages:
+        if topic != "/rx/spike" or not isinstance(m, dict):
+            yield topic, t_ns, m
+            continue
+        for one in each_unit_spikes(m):
+            yield topic, t_ns, one
 
 
 def decodes_per_row(
