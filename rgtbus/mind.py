@@ -173,6 +173,19 @@ def _memo(kind: str, table: Mapping[Pair, Any], build: Callable[[], _T]) -> _T:
 
 
 @dataclass
+class _Group:
+    """What a relations table builds (``Mind.build_group``): the decision function and its
+    polynomial, or the P4 or error that left the group without one; ``texts`` the canonical
+    forms of its subjects as text, filled as they are asked for."""
+
+    df: DecisionFunction | None
+    polynomial: str | None
+    p4: tuple[str, str, str, str] | None
+    error: str | None
+    texts: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
 class Mind:
     me: str
     units: tuple[str, ...]
@@ -195,6 +208,9 @@ class Mind:
     round_results: dict[int, tuple[dict[str, SubjectResult], int | None]] = field(
         default_factory=dict
     )
+    # subject -> its canonical form as text, of the decision function ``_texts_of``
+    _texts: dict[str, str] = field(default_factory=dict, repr=False, compare=False)
+    _texts_of: DecisionFunction | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.sent:  # every unit holds the group's tables: arrays, not dicts (n³ in all)
@@ -258,18 +274,28 @@ class Mind:
         }
 
     def build_group(self) -> None:
-        """Phase 2: graph and polynomial from the decoded relationship codes."""
+        """Phase 2: graph and polynomial from the decoded relationship codes. Units that
+        decoded equal tables share the result (``_memo``), and with it the canonical texts
+        of its decisions (``canonical``)."""
+        group = _memo("group", self.sent, self._group)
+        self.df, self.polynomial, self.p4, self.error = (
+            group.df,
+            group.polynomial,
+            group.p4,
+            (group.error),
+        )
+        self._texts, self._texts_of = group.texts, group.df
+
+    def _group(self) -> _Group:
         try:
             graph = install_relations(self.units, self.sent)
             poly = graph_to_polynomial(graph)
         except NotDecomposable as exc:  # a result of random socialisation: no decisions
-            self.p4 = exc.p4
-            return
+            return _Group(None, None, exc.p4, None)
         except RgtbusError as exc:
-            self.error = str(exc)
-            return
-        self.df = decision_function(poly, self.units)
-        self.polynomial = format_expr(poly, needs_star(self.units))
+            return _Group(None, None, None, str(exc))
+        df = decision_function(poly, self.units)
+        return _Group(df, format_expr(poly, needs_star(self.units)), None, None)
 
     def decide(self) -> None:
         """Phase 4: forward task for every subject, then this unit's own choice."""
@@ -333,8 +359,15 @@ class Mind:
         return heard, {s: v for s, v in before.items() if s != self.me and s not in heard}
 
     def canonical(self, subject: str) -> str:
+        """The canonical form of ``subject``'s decision in this unit's group, as text."""
         assert self.df is not None
-        return canonical_form(self.df, subject).text(needs_star(self.units))
+        if self._texts_of is not self.df:  # a group set by hand (a copy of another's)
+            self._texts, self._texts_of = {}, self.df
+        text = self._texts.get(subject)
+        if text is None:
+            text = canonical_form(self.df, subject).text(needs_star(self.units))
+            self._texts[subject] = text
+        return text
 
 
 # -- a unit's own intents, and the decisions a perfect medium would give ------------------------

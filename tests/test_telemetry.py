@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
@@ -771,3 +773,41 @@ def test_a_message_written_ahead_does_not_hold_the_others_back(tmp_path):
         rec.write("/log", SAMPLES["/log"], 2 * second)  # two seconds on: due
         assert len(scan_log(path).messages) == 3
         rec.close()
+
+
+_LEAF = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**40), 2**40),
+    st.floats(),  # NaN and infinities among them
+    st.text(max_size=6),  # "null" in a string is no null
+    st.lists(st.floats(), max_size=4).map(np.array),
+)
+_NESTED = st.recursive(
+    _LEAF,
+    lambda kids: st.one_of(
+        st.lists(kids, max_size=4),
+        st.tuples(kids, kids),
+        st.dictionaries(st.text(max_size=4), kids, max_size=4),
+    ),
+    max_leaves=20,
+)
+
+
+@given(_NESTED)
+@settings(max_examples=300, deadline=None)
+def test_encode_json_refuses_exactly_the_values_strict_json_refuses(value):
+    """orjson writes NaN and infinity as null, as it writes None: the encoder looks into the
+    parts that hold a null and refuses a non-finite number wherever it is, as the standard
+    library's strict encoder does, and otherwise writes what orjson wrote."""
+    from rgtbus.telemetry.recorder import encode_json
+
+    message = {"m": value, "none": None}
+    strict = json.JSONEncoder(allow_nan=False, default=lambda o: o.tolist())
+    try:
+        want = json.loads(strict.encode(message))
+    except ValueError:
+        with pytest.raises(ValueError, match="not JSON compliant"):
+            encode_json(message)
+        return
+    assert json.loads(encode_json(message)) == want
