@@ -133,7 +133,9 @@ class ReadoutHistory:
                 raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
             keep = rows >= end - self.capacity
             self._lo += old
-            self._append(rows[keep], np.asarray(values)[keep][:, :, :1])
+            # the first channel before the rows: an advance's readout is a view broadcast
+            # over every channel (receivers × channels a row: 10⁴ at n = 100)
+            self._append(rows[keep], np.asarray(values)[:, :, :1][keep])
         elif old:
             self._lo += old
         self._end = start + n
