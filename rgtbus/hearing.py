@@ -244,6 +244,8 @@ class Ears:
         self._spike_block = blocks.pop() if blocks else 1
         # the spikes of logged units not yet handed to their logs, an advance a piece
         self._spike_pieces: list[_SpikePiece] = []
+        self._pending: list[np.ndarray] = []  # advances' spikes not yet made a piece
+        self._pending_of: np.ndarray | None = None  # their walkers (None: each its own)
         self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
         # which units' spikes are kept for a log: logged and still listening (``stop``)
         self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
@@ -635,19 +637,42 @@ class Ears:
                     serves[walker_of[self._log_mask & (walker_of >= 0)]] = True
                 keep = sp if serves.all() else sp[serves[sp[:, 1]]]
                 if len(keep):  # as columns, walker and channel in 4 bytes: 16 bytes a spike
-                    self._spike_pieces.append(
-                        _SpikePiece(
-                            keep[:, 0].copy(),
-                            keep[:, 1].astype(np.int32),
-                            keep[:, 2].astype(np.int32),
-                            walker_of,
-                        )
-                    )
+                    self._keep_spikes(keep, walker_of)
             if end >= self._spikes_due:
                 upto = end // self._spike_block * self._spike_block
                 self._hand_spikes(upto)
                 self._spikes_due = upto + self._spike_block
         return end - 1 if res.stopped else None
+
+    def _keep_spikes(self, keep: np.ndarray, walker_of: np.ndarray | None) -> None:
+        """Keep one advance's spikes (sample, walker, channel) for the logs. Advances that
+        walked alike (the same walker for each receiver) make one piece: a serial run
+        advances a few samples at a time, and a piece each made the hand-over's work grow
+        with the advances, not the spikes."""
+        same = self._pending_of is walker_of or (
+            self._pending_of is not None
+            and walker_of is not None
+            and np.array_equal(self._pending_of, walker_of)
+        )
+        if self._pending and not same:
+            self._close_pending()
+        self._pending.append(keep)
+        self._pending_of = walker_of
+
+    def _close_pending(self) -> None:
+        """The spikes kept since the walkers last changed, as one piece."""
+        if not self._pending:
+            return
+        rows = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
+        self._pending = []
+        self._spike_pieces.append(
+            _SpikePiece(
+                rows[:, 0].copy(),
+                rows[:, 1].astype(np.int32),
+                rows[:, 2].astype(np.int32),
+                self._pending_of,
+            )
+        )
 
     def end_spikes(self, i: int, at: int | None = None) -> None:
         """Hand unit ``i`` every spike kept for its log (it stopped, or the run ended): its
@@ -661,6 +686,7 @@ class Ears:
         a block get them as one ``SharedSpikes``. ``only``: unit ``only``'s last spikes, its
         last block ending at ``upto`` (or as far as the ears heard); its spikes at or after
         ``upto`` are dropped, and it gets no more."""
+        self._close_pending()
         if not self._spike_pieces:
             return
         heard = self.pos

@@ -312,6 +312,7 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
         pos=400,
     )
     ears._hand_blocks = lambda *a: Ears._hand_blocks(ears, *a)
+    ears._close_pending = lambda: None
     Ears._hand_spikes(ears, 200)  # the blocks before sample 200
     Ears._hand_spikes(ears, None, only=2)  # unit 2 stops: the rest of its spikes
     Ears._hand_spikes(ears, None, only=2)  # and its end: nothing more
