@@ -754,7 +754,11 @@ class Ears:
         starts_l, ends_l = starts.tolist(), ends.tolist()
         for b, s0, s1 in zip(blocks.tolist(), bounds, bounds[1:], strict=False):
             # a member's runs in this block, one per segment: equal rows, equal spikes
-            sigs, inverse = np.unique(runs_of[s0:s1].T, axis=0, return_inverse=True)
+            if s1 - s0 == 1:  # one piece in this block (the usual case): a run a member
+                sigs, inverse = np.unique(runs_of[s0], return_inverse=True)
+                sigs = sigs[:, None]
+            else:
+                sigs, inverse = np.unique(runs_of[s0:s1].T, axis=0, return_inverse=True)
             groups: dict[tuple, list[int]] = {}  # equal spikes, from whichever walks
             arrays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
             for g, sig in enumerate(sigs.tolist()):
