@@ -229,7 +229,10 @@ class Mind:
 
     def relations_complete(self) -> bool:
         n = len(self.units)
-        return len(self.sent) == n * (n - 1) and all(p in self.sent for p in self.pairs())
+        sent = self.sent
+        if isinstance(sent, PairTable) and sent.units == self.units:
+            return sent.holds_every_pair()
+        return len(sent) == n * (n - 1) and all(p in sent for p in self.pairs())
 
     def influences_complete(self) -> bool:
         n = len(self.units)

@@ -123,6 +123,14 @@ class PairTable(MutableMapping[Pair, int]):
         self._vals[i] = _ABSENT
         self._count -= 1
 
+    def holds_every_pair(self) -> bool:
+        """Whether every ordered pair of two distinct units has a value (``ordered_pairs``):
+        n(n−1) values off the diagonal (a unit paired with itself counts for none), n reads
+        instead of n² lookups."""
+        n, vals = self._n, self._vals
+        diagonal = sum(vals[i * (n + 1)] != _ABSENT for i in range(n))
+        return self._count - diagonal == n * (n - 1)
+
     def __contains__(self, key: object) -> bool:
         try:
             return self._vals[self._slot(key)] != _ABSENT  # type: ignore[arg-type]

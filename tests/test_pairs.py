@@ -112,3 +112,23 @@ def test_a_batch_of_slots_set_at_once_is_each_set_in_order(seed, n, boolean):
         assert t == d and len(t) == len(d)
     with pytest.raises(KeyError):
         t.set_slots(np.array([n * n]), np.array([1]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32), st.integers(2, 6))
+def test_a_pair_table_holds_every_pair_once_each_pair_of_two_units_has_a_value(seed, n):
+    """``holds_every_pair``: every ordered pair of two distinct units has a value, however
+    many values the table holds on its diagonal (a unit paired with itself counts for none)."""
+    rng = random.Random(seed)
+    units = [f"u{i}" for i in range(n)]
+    pairs = ordered_pairs(units)
+    t = PairTable(units)
+    for p in rng.sample(pairs, rng.randrange(len(pairs) + 1)):
+        t[p] = 1
+    for u in rng.sample(units, rng.randrange(n + 1)):
+        t[(u, u)] = 2
+    want = all(p in t for p in pairs)
+    assert t.holds_every_pair() == want
+    for u in units:  # off the diagonal again: only the pairs count
+        t.pop((u, u), None)
+    assert t.holds_every_pair() == want
