@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 from array import array
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -255,8 +255,10 @@ class AutonomousUnit:
         self._air_seq = 0
         self._air_until = AWAKE  # when the transmitter sleeps until (AWAKE: it will look)
         self._transmitter: simpy.Process | None = None
-        # this wake's decodes for the log, as the nine columns of /rx/decodes
-        self._decode_cols: list[list[Any]] = [[] for _ in range(9)]
+        # this wake's decodes for the log (/rx/decodes): batches as parts of the nine columns
+        # (arrays, made lists once, at the flush), single decodes as rows until the next part
+        self._decode_parts: list[Sequence[Any]] = []
+        self._decode_rows: list[tuple[Any, ...]] = []
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
@@ -563,19 +565,20 @@ class AutonomousUnit:
         self.decoded.extend_index(reads.turn[a:b], what)
         if self.recorder.enabled:
             units = reads.unit_names
-            cols = (
-                reads.turn[a:b].tolist(),
-                units[reads.sender[a:b]].tolist(),
-                units[reads.expected[a:b]].tolist(),
-                units[reads.channel[a:b]].tolist(),
-                reads.kind_names[a:b].tolist(),
-                reads.name_array[word].tolist(),
-                margin.tolist(),
-                reads.t_ready[a:b].tolist(),
-                [True] * (b - a),
+            self._rows_to_part()
+            self._decode_parts.append(
+                (
+                    reads.turn[a:b],
+                    units[reads.sender[a:b]],
+                    units[reads.expected[a:b]],
+                    units[reads.channel[a:b]],
+                    reads.kind_names[a:b],
+                    reads.name_array[word],
+                    margin,
+                    reads.t_ready[a:b],
+                    [True] * (b - a),
+                )
             )
-            for col, part in zip(self._decode_cols, cols, strict=True):
-                col.extend(part)
         mind = self.mind
         if reads.n_rel[b] > reads.n_rel[a]:
             rel = reads.is_rel[a:b]
@@ -951,18 +954,30 @@ class AutonomousUnit:
         if self.recorder.enabled:  # logged as one record a wake (_flush_decodes)
             row = (listen.turn, listen.sender, addressee, channel, listen.kind, code, margin,
                    t, accepted)  # fmt: skip
-            for col, v in zip(self._decode_cols, row, strict=True):
-                col.append(v)
+            self._decode_rows.append(row)
+
+    def _rows_to_part(self) -> None:
+        """The single decodes logged since the last batch, as a part of columns."""
+        if self._decode_rows:
+            self._decode_parts.append([list(c) for c in zip(*self._decode_rows, strict=True)])
+            self._decode_rows = []
 
     def _flush_decodes(self) -> None:
         """Log the decodes of this wake so far as one ``/rx/decodes`` record at the last
         one's time: at the end of each wake, and before any other record of this unit, so
         its records stay in time order (a log cut short is complete before its last one)."""
-        cols = self._decode_cols
-        if cols[7]:
-            self._decode_cols = [[] for _ in range(9)]
-            record = records.decodes_of_columns(self.name, cols)
-            self.recorder.write("/rx/decodes", record, ns(cols[7][-1]))
+        self._rows_to_part()
+        parts, self._decode_parts = self._decode_parts, []
+        if not parts:
+            return
+        cols: list[list[Any]] = [
+            [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
+            if len(parts) > 1
+            else (parts[0][j] if type(parts[0][j]) is list else parts[0][j].tolist())
+            for j in range(9)
+        ]
+        record = records.decodes_of_columns(self.name, cols)
+        self.recorder.write("/rx/decodes", record, ns(cols[7][-1]))
 
     def _write(self, topic: str, record: Any, t_ns: int) -> None:
         """A record of this unit's own, after the decodes that came before it."""
