@@ -33,7 +33,7 @@ from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.hearing import Ears, Listener
-from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, sample_rows, split_pulses
+from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
@@ -309,12 +309,16 @@ class World:
                 del self._medium[u]
         if not now:
             return
-        rows, values = self._sum_medium(now)
+        rows, values = self._sum_medium(now)  # rows ascending: each window's are a slice
+        if not rows.size:  # pulses that cancel out: silence
+            return
         windows = rows // L
-        for w in sample_rows(windows)[0].tolist():
-            sel = windows == w
+        first = np.flatnonzero(np.concatenate(([True], windows[1:] != windows[:-1])))
+        bounds = [*first.tolist(), len(rows)]
+        for i, w in enumerate(windows[first].tolist()):
+            a, b = bounds[i], bounds[i + 1]
             samples = np.zeros(L)
-            samples[rows[sel] - w * L] = values[sel]
+            samples[rows[a:b] - w * L] = values[a:b]
             t = w * L * self.tau
             record = records.medium_window(w, t, 1.0 / self.tau, samples.tolist())
             self.recorder.write("/medium", record, ns(t))
