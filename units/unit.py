@@ -250,8 +250,11 @@ class AutonomousUnit:
         self._seq = 0  # the next timer's seq
         self._deadline: _Timer | None = None
         self._outbox: list[tuple[int, float]] = []
-        # sends to log on air (``_on_air``): (time, seq, pulse index or -1, send, word)
-        self._air: list[tuple[float, int, int, Send, tuple[float, ...]]] = []
+        # sends to log on air (``_on_air``): (time, seq, pulse index or -1, send, word, and
+        # once on air its pulses' message and ω)
+        self._air: list[
+            tuple[float, int, int, Send, tuple[float, ...], tuple[Any, float] | None]
+        ] = []
         self._air_seq = 0
         self._air_until = AWAKE  # when the transmitter sleeps until (AWAKE: it will look)
         self._transmitter: simpy.Process | None = None
@@ -811,7 +814,7 @@ class AutonomousUnit:
         assert self.env is not None
         if self.recorder.enabled:  # its transmitter logs the pulses at their times
             at = min(send.start, send.samples[0] * self.tau)
-            heapq.heappush(self._air, (at, self._air_seq, -1, send, word))
+            heapq.heappush(self._air, (at, self._air_seq, -1, send, word, None))
             self._air_seq += 1
             if self._transmitter is None:
                 self._transmitter = self.env.process(self._on_air())
@@ -826,7 +829,7 @@ class AutonomousUnit:
         assert env is not None
         air, tau = self._air, self.tau
         while air:
-            at, seq, j, send, word = air[0]
+            at, seq, j, send, word, ref = air[0]
             if at > env.now:
                 self._air_until = at
                 try:
@@ -844,18 +847,20 @@ class AutonomousUnit:
                     ns(send.start),
                     name=self.name,
                 )
-            else:
-                k = send.samples[j]
+                # what every pulse of the send names: built once a send, not once a pulse
                 message = records.message_ref(
                     send.turn, send.kind, send.code, send.sender, send.addressee
                 )
-                omega = self.scenario.frequencies[send.channel]
+                ref = (message, self.scenario.frequencies[send.channel])
+            else:
+                assert ref is not None
+                k = send.samples[j]
                 record = records.pulse(
-                    self.name, send.channel, omega, float(word[j]), tau, k, message
+                    self.name, send.channel, ref[1], float(word[j]), tau, k, ref[0]
                 )
                 self.recorder.write("/tx/pulse", record, ns(k * tau))
             if j + 1 < len(send.samples):
-                heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word))
+                heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word, ref))
         self._transmitter = None
 
     # -- traces --------------------------------------------------------------------------------
