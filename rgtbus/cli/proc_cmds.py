@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import socket
@@ -392,6 +393,14 @@ def _router_child(conn: Any, endpoint: str) -> None:
 _FEW_SECONDS = 5.0  # for the other units to report once one has said a member went silent
 
 
+def _size(path: Path | None) -> int:
+    """A log's size so far (-1: none yet): a unit that still writes is still running."""
+    try:
+        return -1 if path is None else os.stat(path).st_size
+    except OSError:
+        return -1
+
+
 class Launch:
     """The processes of a launch, forked from the launcher once it has loaded everything (so
     a unit starts in milliseconds), always reaped: terminate, then kill what is left."""
@@ -403,6 +412,7 @@ class Launch:
         self.procs: dict[str, Any] = {}
         self._results: dict[str, Any] = {}
         self._listening: dict[str, Any] = {}
+        self._logs: dict[str, Path] = {}
 
     def start_process(
         self,
@@ -429,6 +439,7 @@ class Launch:
         writer.close()
         self.procs[name] = proc
         self._results[name] = reader
+        self._logs[name] = log
 
     def start_router(self, endpoint: str, timeout: float) -> None:
         reader, writer = self._mp.Pipe(duplex=False)
@@ -442,19 +453,36 @@ class Launch:
 
     def collect(self, limit: float, timeout: float) -> dict[str, dict[str, Any]]:
         """Every process's result as it comes, at most ``limit`` seconds in all. Once one has
-        died or crashed, the others notice within their ``timeout`` (no news): they get that
-        and a few seconds more; once one reports that a member went silent, the rest get a
-        few seconds (a process still running then is stalled). A process that dies without a
-        result gets ``{"died": exit code}``; one still running at the end is absent."""
+        died or crashed, the others notice within their ``timeout`` (no news): a process gets
+        that and a few seconds more since its log last grew (a paced one may still be running
+        up to where the dead one had promised, seconds of wall time); once one reports that a
+        member went silent, the rest get a few seconds since theirs did. A process that is
+        still quiet then is stalled (absent from the result). A process that dies without a
+        result gets ``{"died": exit code}``."""
         from multiprocessing.connection import wait
 
         out: dict[str, dict[str, Any]] = {}
         waiting = dict(self._results)
         end = time.monotonic() + limit
+        quiet: float | None = None  # once a run has failed: how long a process may not write
+        grew: dict[str, tuple[int, float]] = {}  # its log's size, and when it was last seen
         while waiting:
-            ready = wait(list(waiting.values()), timeout=max(0.0, end - time.monotonic()))
+            now = time.monotonic()
+            if quiet is not None:
+                for name in list(waiting):
+                    size = _size(self._logs.get(name))
+                    if name not in grew or size != grew[name][0]:
+                        grew[name] = (size, now)
+                    elif now - grew[name][1] > quiet:  # no record for that long: stalled
+                        del waiting[name]
+                if not waiting:
+                    break
+            step = end - now if quiet is None else min(end - now, 0.25)
+            ready = wait(list(waiting.values()), timeout=max(0.0, step))
             if not ready:
-                break
+                if time.monotonic() >= end:
+                    break
+                continue
             for name, conn in list(waiting.items()):
                 if conn not in ready:
                     continue
@@ -467,9 +495,9 @@ class Launch:
                 del waiting[name]
                 said = out[name]
                 if "died" in said or said.get("crash"):
-                    end = min(end, time.monotonic() + timeout + _FEW_SECONDS)
+                    quiet = min(quiet or math.inf, timeout + _FEW_SECONDS)
                 elif any(o.get("world_failure") for o in said.get("units", {}).values()):
-                    end = min(end, time.monotonic() + _FEW_SECONDS)
+                    quiet = min(quiet or math.inf, _FEW_SECONDS)
         return out
 
     def late_results(self, names: list[str], timeout: float) -> dict[str, dict[str, Any]]:

@@ -285,6 +285,7 @@ def test_a_killed_unit_of_a_paced_crowd_loses_little_and_the_survivors_report(pr
     summary = json.loads(out)
     assert summary["error"].startswith(f"unit {victim} died (killed by SIGKILL)"), summary
     assert err.strip().splitlines()[0] == f"launch: {summary['error']}"
-    assert sorted(summary["units"]) == sorted(u for u in sc.units if u != victim)
+    survivors = sorted(u for u in sc.units if u != victim)
+    assert sorted(summary["units"]) == survivors, (summary["error"], err)
     assert "/tx/pulse" in own_records(log, victim)  # its own records were not lost
     assert verify_code(tmp_path / "run.mcap") == 3
