@@ -28,7 +28,7 @@ drawn from its own seeded generator over weighted alternatives, ``random``).
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any, TypeVar, cast
@@ -152,11 +152,11 @@ def choose(
 
 
 _T = TypeVar("_T")
-_MEMO: dict[tuple[str, tuple[tuple[str, ...], bool, bytes]], Any] = {}
+_MEMO: dict[tuple[Hashable, tuple[tuple[str, ...], bool, bytes]], Any] = {}
 _MEMO_SIZE = 16
 
 
-def _memo(kind: str, table: Mapping[Pair, Any], build: Callable[[], _T]) -> _T:
+def _memo(kind: Hashable, table: Mapping[Pair, Any], build: Callable[[], _T]) -> _T:
     """``build()``, the same object for every table equal to ``table`` (a ``PairTable``;
     another mapping is built afresh): the units of a group mostly hold equal tables, and a
     report built from one of n² entries for each of n units was n³ work (issue 23). What is
@@ -304,8 +304,20 @@ class Mind:
         """Phase 4: forward task for every subject, then this unit's own choice."""
         if self.df is None:
             return
-        matrix = InfluenceMatrix.from_mapping(self.influences, self.units, self.universe)
-        self.results = forward(self.df, self.universe, matrix)
+        df = self.df
+
+        def results() -> dict[str, SubjectResult]:
+            matrix = InfluenceMatrix.from_mapping(self.influences, self.units, self.universe)
+            return forward(df, self.universe, matrix)
+
+        # the forward task is a function of the relations and influences decoded: units that
+        # decoded alike share one result (read, never changed)
+        sent = self.sent
+        if isinstance(sent, PairTable):
+            kind = ("forward", sent.snapshot(), self.universe.actions)
+            self.results = _memo(kind, self.influences, results)
+        else:
+            self.results = results()
         self.choice = choose(self.policy, self.results[self.me], self.universe, self.rng)
 
     def decide_round(self, rnd: int) -> None:

@@ -99,3 +99,36 @@ def test_minds_with_equal_tables_share_one_copy_of_what_they_derive_from_them():
         for i, p in enumerate(pairs):
             m.hear_influence(1, p, i % 2)
     assert a.influence_table() is b.influence_table()
+
+
+def test_minds_that_decoded_alike_share_the_forward_task_and_still_choose_their_own():
+    """The forward task is a function of the relations and influences a unit decoded: two
+    minds that decoded the same share one result; a changed influence gives its own."""
+    from rgtbus.mind import mind_of
+
+    sc = load_scenario(ROOT / "scenarios" / "gate.toml")
+    minds = [mind_of(sc, u) for u in sc.units[:2]]
+    pairs = [(s, r) for s in sc.units for r in sc.units if s != r]
+    for m in minds:
+        for i, p in enumerate(pairs):
+            m.sent[p] = i % 2 == 0
+        m.build_group()
+        for i, p in enumerate(pairs):
+            m.hear_influence(1, p, i % 2)
+    a, b = minds
+    assert a.results is not None and a.results is b.results
+    assert a.choice is not None and b.choice is not None  # each its own choice, from it
+    other = mind_of(sc, sc.units[2])
+    for i, p in enumerate(pairs):
+        other.sent[p] = i % 2 == 0
+    other.build_group()
+    for i, p in enumerate(pairs):
+        other.hear_influence(1, p, (i + 1) % 2)
+    assert other.results is not None and other.results is not a.results
+    apart = mind_of(sc, sc.units[3])  # other relations, the same influences: its own group
+    for i, p in enumerate(pairs):
+        apart.sent[p] = i % 3 == 0
+    apart.build_group()
+    for i, p in enumerate(pairs):
+        apart.hear_influence(1, p, i % 2)
+    assert apart.polynomial != a.polynomial and apart.results is not a.results
