@@ -247,3 +247,21 @@ def test_router_units_and_merge_by_hand_is_a_finished_run(tmp_path, capsys, proc
     # one unit's log alone is not the whole run, and says so
     assert main(["info", logs[0]]) == 0
     assert f"no log of units {', '.join(units[1:])} in this one" in capsys.readouterr().out
+
+
+def test_cat_of_one_unit_shows_the_spike_records_it_shares_as_its_own(gate_log, capsys):
+    """The units of a process that heard the same spikes share one /rx/spike record: cat
+    --unit shows each as that unit's own (``unit``, no ``units``), every spike of it once."""
+    from rgtbus.telemetry.records import each_unit_spikes
+
+    capsys.readouterr()
+    shared = [(t, m) for topic, t, m in _messages(gate_log) if topic == "/rx/spike"]
+    assert any("units" in m for _, m in shared)
+    want = [(t, one) for t, m in shared for one in each_unit_spikes(m) if one["unit"] == "c"]
+    assert main(["cat", str(gate_log), "--topic", "/rx/spike", "--unit", "c"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert (
+        sorted((x["log_time"], json.dumps(x["message"], sort_keys=True)) for x in lines)
+        == (sorted((t, json.dumps(m, sort_keys=True)) for t, m in want))
+        and want
+    )
