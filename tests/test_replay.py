@@ -630,3 +630,38 @@ def test_a_damaged_decodes_record_is_named_in_one_line(tmp_path, capsys):
         code, _, err = cli(capsys, "replay", path, *extra)
         assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
         assert "/rx/decodes of" in err and "column 'code' is" in err, err
+
+
+@pytest.mark.parametrize(
+    "units, also, says",
+    [
+        ("ab", {}, r"\$\.units: expected array, got string"),
+        ([], {}, r"\$\.units: 0 items, at least 2 needed"),
+        ([1, 2], {}, r"\$\.units\[0\]: expected string, got integer"),
+        (None, {"unit": "a"}, r"\$: holds 2 of unit or units, not exactly 1"),
+    ],
+)
+@pytest.mark.parametrize("extra", [[], ["--verify"], ["--json"]])
+def test_a_tampered_shared_spike_record_is_named_not_read(
+    tmp_path, capsys, units, also, says, extra
+):
+    """A shared /rx/spike record whose ``units`` is no list of unit names (or that names a
+    ``unit`` too) is refused in one line naming the message and what breaks its schema, exit
+    2: never read as the letters of a string or as nobody's spikes."""
+
+    def edit(msgs):
+        done = False
+        for tp, t, m in msgs:
+            if tp == "/rx/spike" and "units" in m and not done:
+                done = True
+                m.update(also)
+                if units is not None:
+                    m["units"] = units
+            yield tp, t, m
+
+    log = write(tmp_path, rewrite(log_bytes("gate"), edit))
+    code, _, err = cli(capsys, "replay", log, "--quiet", *extra)
+    assert code == 2 and err.count("\n") == 1, err
+    assert re.search("message on /rx/spike at t = [0-9.]+ s breaks rgtbus.Spikes: " + says, err), (
+        err
+    )

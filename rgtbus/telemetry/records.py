@@ -254,7 +254,11 @@ def spike_units(record: Mapping[str, Any]) -> list[str]:
     units = record.get("units")
     if units is None:
         return [record["unit"]]
-    return list(units)
+    ok = isinstance(units, list) and len(units) >= 2 and "unit" not in record
+    if not ok or not all(isinstance(u, str) for u in units) or len(set(units)) < len(units):
+        # a record written by hand or tampered with: readers name it by its schema
+        raise TypeError(f"/rx/spike units {units!r}: not two or more unit names alone")
+    return units
 
 
 def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:

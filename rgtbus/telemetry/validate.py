@@ -175,6 +175,10 @@ def _lines(e: ValidationError, root: str) -> list[str]:
         from jsonschema import Draft202012Validator
 
         n = sum(Draft202012Validator(sub).is_valid(value) for sub in want)
+        fields = [sub["required"] for sub in want if set(sub) == {"required"}]
+        if isinstance(value, dict) and len(fields) == len(want):  # exactly one of some fields
+            names = " or ".join("+".join(f) for f in fields)
+            return [f"{path}: holds {n} of {names}, not exactly 1"]
         return [f"{path}: {value!r} matches {n} of the oneOf alternatives, not exactly 1"]
     if kind == "minimum":
         return [f"{path}: {value!r} below minimum {want}"]
