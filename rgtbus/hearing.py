@@ -132,7 +132,9 @@ class SharedSpikes:
     def settle(self, member: int, kept: bool) -> list[str] | None:
         """Member ``member`` kept the block, or left it; once every member has settled, the
         names of those that kept it (member order), else None."""
-        if member not in self.members or member in self._kept:
+        if member not in self.members:
+            raise RgtbusError(f"unit {member} settles a block of units {self.members}")
+        if member in self._kept:
             raise RgtbusError(f"unit {member} settles a block of units {self.members} again")
         self._kept[member] = kept
         if len(self._kept) < len(self.members):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import signal
 import socket
@@ -494,10 +493,13 @@ class Launch:
                     out[name] = {"died": proc.exitcode}
                 del waiting[name]
                 said = out[name]
+                grace = None
                 if "died" in said or said.get("crash"):
-                    quiet = min(quiet or math.inf, timeout + _FEW_SECONDS)
+                    grace = timeout + _FEW_SECONDS
                 elif any(o.get("world_failure") for o in said.get("units", {}).values()):
-                    quiet = min(quiet or math.inf, _FEW_SECONDS)
+                    grace = _FEW_SECONDS
+                if grace is not None:
+                    quiet = grace if quiet is None else min(quiet, grace)
         return out
 
     def late_results(self, names: list[str], timeout: float) -> dict[str, dict[str, Any]]:
