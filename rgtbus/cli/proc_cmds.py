@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.interrupts import interrupted_by
 from rgtbus.cli.run_cmd import add_key_argument, read_key
 from rgtbus.errors import RgtbusError
 
@@ -220,29 +221,29 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
     log_path = Path(args.log) if args.log else default_log_path(f"{sc.name}-{label}")
     stream, recorder = open_log(log_path)
     # SIGTERM (a launcher giving up) ends the run like Ctrl-C: the log is still finished.
-    signal.signal(signal.SIGTERM, _interrupt)
-    try:
-        outs = run_units(
-            sc,
-            names,
-            recorder,
-            zenoh_options=zenoh_options(args),
-            run_id=args.run_id,
-            timeout=args.timeout,
-            join_timeout=args.join_timeout,
-            traces=args.traces,
-            engine=args.engine,
-            realtime=args.realtime,
-            key=key,
-        )
-    except KeyboardInterrupt:
-        if not recorder.failed:
-            for name in names:
-                recorder.log("error", f"{name}: interrupted", 0, name=name)
-        print(f"rgtbus unit: {label}: interrupted", file=sys.stderr)
-        return 130
-    finally:
-        close_log(stream, recorder)
+    with interrupted_by(signal.SIGTERM, signal.SIGINT):
+        try:
+            outs = run_units(
+                sc,
+                names,
+                recorder,
+                zenoh_options=zenoh_options(args),
+                run_id=args.run_id,
+                timeout=args.timeout,
+                join_timeout=args.join_timeout,
+                traces=args.traces,
+                engine=args.engine,
+                realtime=args.realtime,
+                key=key,
+            )
+        except KeyboardInterrupt:
+            if not recorder.failed:
+                for name in names:
+                    recorder.log("error", f"{name}: interrupted", 0, name=name)
+            print(f"rgtbus unit: {label}: interrupted", file=sys.stderr)
+            return 130
+        finally:
+            close_log(stream, recorder)
     for out in outs.values():
         out["log"] = str(log_path)
     if args.json:  # one unit: its object, as ever; several: one object per unit, by name
@@ -289,10 +290,6 @@ def unit_names(text: str, sc: Any) -> list[str]:
     return names
 
 
-def _interrupt(*_: object) -> None:
-    raise KeyboardInterrupt
-
-
 def free_ports(n: int) -> list[int]:
     """n distinct free TCP ports on loopback (held open together, so no two are the same)."""
     socks = []
@@ -335,37 +332,37 @@ def _unit_child(
     from rgtbus.units.process import run_units
 
     _die_with_parent()
-    signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the launcher's to handle
     out: dict[str, Any]
-    try:
-        for ev in after:  # bounded: a peer that never listens is named by the join
-            ev.wait(10.0)
-        stream, recorder = open_log(log)
+    with interrupted_by(signal.SIGTERM):  # a launcher stopping its units
         try:
-            outs = run_units(
-                sc,
-                names,
-                recorder,
-                zenoh_options=net,
-                join_timeout=30.0,
-                on_open=listening.set,
-                **opts,
-            )
-            for o in outs.values():
-                o["log"] = str(log)
-            out = {"units": outs}
-        except KeyboardInterrupt:
-            if not recorder.failed:
-                for name in names:
-                    recorder.log("error", f"{name}: interrupted", 0, name=name)
-            out = {"crash": "interrupted"}
-        finally:
-            close_log(stream, recorder)
-    except RgtbusError as exc:
-        out = {"crash": str(exc)}
-    except BaseException as exc:  # a bug: say what, not a traceback on the launcher's terminal
-        out = {"crash": f"{type(exc).__name__}: {exc}"}
+            for ev in after:  # bounded: a peer that never listens is named by the join
+                ev.wait(10.0)
+            stream, recorder = open_log(log)
+            try:
+                outs = run_units(
+                    sc,
+                    names,
+                    recorder,
+                    zenoh_options=net,
+                    join_timeout=30.0,
+                    on_open=listening.set,
+                    **opts,
+                )
+                for o in outs.values():
+                    o["log"] = str(log)
+                out = {"units": outs}
+            except KeyboardInterrupt:
+                if not recorder.failed:
+                    for name in names:
+                        recorder.log("error", f"{name}: interrupted", 0, name=name)
+                out = {"crash": "interrupted"}
+            finally:
+                close_log(stream, recorder)
+        except RgtbusError as exc:
+            out = {"crash": str(exc)}
+        except BaseException as exc:  # a bug: say what, not a traceback on the launcher's terminal
+            out = {"crash": f"{type(exc).__name__}: {exc}"}
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # done: being stopped now loses nothing
     conn.send(out)
     conn.close()
@@ -653,56 +650,55 @@ def run_launch(args: argparse.Namespace) -> int:
     results: dict[str, dict[str, Any]] = {}  # by process
     interrupted: str | None = None
     procs = list(groups)
-    old_term = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends a launch like Ctrl-C
-    try:
+    with interrupted_by(signal.SIGTERM, signal.SIGINT):  # SIGTERM ends a launch like Ctrl-C
         try:
-            ports = free_ports(len(procs) + 1)
-            if args.router:
-                router_ep = f"tcp/127.0.0.1:{ports[-1]}"
-                launch.start_router(router_ep, timeout=10.0)
-            for i, name in enumerate(procs):
-                if net_given:  # the user's zenoh options, the same for every process
-                    net = dict(zenoh_options(args))
-                    after: list[str] = []
-                elif args.router:
-                    net = {"mode": "client", "connect": [router_ep]}
-                    after = []
-                else:  # a full mesh: each listens on its port and connects to those before it
-                    net = {
-                        "listen": [f"tcp/127.0.0.1:{ports[i]}"],
-                        "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
-                    }
-                    after = procs[:i]
-                launch.start_process(
-                    name,
-                    groups[name],
-                    sc,
-                    logs[name],
-                    net,
-                    after,
-                    run_id=run_id,
-                    timeout=args.timeout,
-                    engine=args.engine,
-                    realtime=args.realtime,
-                    key=key,
-                    traces=args.traces,
-                )
-            # A run ends by itself within its simulated length (paced: at the realtime factor)
-            # plus the join; after a failure the others end within their --timeout.
-            paced = sc.timing.max_seconds / args.realtime if args.realtime else 0.0
-            limit = paced + 60 + sc.timing.max_seconds / 10 + 2 * args.timeout
-            results = launch.collect(limit, timeout=args.timeout)
-        except KeyboardInterrupt:
-            interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
-        running = [p for p in procs if p not in results and p in launch.procs]
-        launch.stop(running)
-        late = launch.late_results(running, timeout=10.0)
-        # a process asked to stop reports what its units knew (their share of the summary);
-        # one that could not say even that is named as stalled
-        results.update({p: out for p, out in late.items() if "units" in out})
-    finally:
-        launch.reap()
-        signal.signal(signal.SIGTERM, old_term)
+            try:
+                ports = free_ports(len(procs) + 1)
+                if args.router:
+                    router_ep = f"tcp/127.0.0.1:{ports[-1]}"
+                    launch.start_router(router_ep, timeout=10.0)
+                for i, name in enumerate(procs):
+                    if net_given:  # the user's zenoh options, the same for every process
+                        net = dict(zenoh_options(args))
+                        after: list[str] = []
+                    elif args.router:
+                        net = {"mode": "client", "connect": [router_ep]}
+                        after = []
+                    else:  # a full mesh: each listens on its port and connects to those before it
+                        net = {
+                            "listen": [f"tcp/127.0.0.1:{ports[i]}"],
+                            "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
+                        }
+                        after = procs[:i]
+                    launch.start_process(
+                        name,
+                        groups[name],
+                        sc,
+                        logs[name],
+                        net,
+                        after,
+                        run_id=run_id,
+                        timeout=args.timeout,
+                        engine=args.engine,
+                        realtime=args.realtime,
+                        key=key,
+                        traces=args.traces,
+                    )
+                # A run ends by itself within its simulated length (paced: at the realtime factor)
+                # plus the join; after a failure the others end within their --timeout.
+                paced = sc.timing.max_seconds / args.realtime if args.realtime else 0.0
+                limit = paced + 60 + sc.timing.max_seconds / 10 + 2 * args.timeout
+                results = launch.collect(limit, timeout=args.timeout)
+            except KeyboardInterrupt:
+                interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
+            running = [p for p in procs if p not in results and p in launch.procs]
+            launch.stop(running)
+            late = launch.late_results(running, timeout=10.0)
+            # a process asked to stop reports what its units knew (their share of the summary);
+            # one that could not say even that is named as stalled
+            results.update({p: out for p, out in late.items() if "units" in out})
+        finally:
+            launch.reap()
     by_unit: dict[str, dict[str, Any]] = {}
     for p, said in results.items():
         for u in groups[p]:

@@ -10,6 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
+from rgtbus.cli.interrupts import interrupted_by
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -88,28 +90,22 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("logs") / "sweeps" / sweep.name
     # SIGTERM (a scheduler or a supervisor stopping the sweep) stops it like Ctrl-C
     main_thread = threading.current_thread() is threading.main_thread()
-    term = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None
-    sigint = signal.getsignal(signal.SIGINT)
-    try:
-        rows = execute_sweep(
-            sweep,
-            out,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            resume=args.resume,
-            logs=args.logs,
-            progress=not args.quiet and sys.stderr.isatty(),
-        )
-    except KeyboardInterrupt:
-        if main_thread:  # a second Ctrl-C does not cut the note short
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-        print(_interrupted(args, sweep.runs, out), file=sys.stderr, flush=True)
-        return 130
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, term)
-            if sigint is not None:
-                signal.signal(signal.SIGINT, sigint)
+    with interrupted_by(signal.SIGTERM, signal.SIGINT):
+        try:
+            rows = execute_sweep(
+                sweep,
+                out,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                resume=args.resume,
+                logs=args.logs,
+                progress=not args.quiet and sys.stderr.isatty(),
+            )
+        except KeyboardInterrupt:
+            if main_thread:  # a second Ctrl-C does not cut the note short
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            print(_interrupted(args, sweep.runs, out), file=sys.stderr, flush=True)
+            return 130
     failed = sum(1 for r in rows if r.get("failed"))
     if args.json:
         for r in rows:
@@ -120,10 +116,6 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
             f"{out / 'results.parquet'}, {out / 'results.csv'}, {out / 'decisions.parquet'}"
         )
     return 0
-
-
-def _interrupt(*_: object) -> None:
-    raise KeyboardInterrupt
 
 
 def _interrupted(args: argparse.Namespace, runs: int, out: Path) -> str:

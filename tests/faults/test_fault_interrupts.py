@@ -1,0 +1,71 @@
+"""A stop by signal is never lost: one whose KeyboardInterrupt is raised inside a weakref
+callback (where Python cannot propagate it) is raised again after it (``interrupted_by``).
+CI once saw a unit process lose its SIGTERM so, inside the import system's module-lock callback,
+and run on until its launcher named it stalled."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+import weakref
+
+import pytest
+
+from rgtbus.cli.interrupts import interrupted_by
+
+
+class _Thing:
+    pass
+
+
+def _stop_inside_a_callback(sig: signal.Signals) -> str:
+    """Raise ``sig`` inside a weakref callback, then wait (bounded) for the KeyboardInterrupt
+    outside it. Where it was caught: "after the callback", or "never"."""
+
+    def callback(_ref: object) -> None:
+        signal.raise_signal(sig)  # the handler runs here, inside the callback
+
+    try:
+        thing = _Thing()
+        ref = weakref.ref(thing, callback)
+        del thing  # the callback runs now
+        assert ref() is None
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            time.sleep(0.001)
+        return "never"
+    except KeyboardInterrupt:
+        return "after the callback"
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_raised_inside_a_callback_is_raised_again_after_it(sig, capsys):
+    with interrupted_by(sig):
+        caught = _stop_inside_a_callback(sig)
+    assert caught == "after the callback"
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
+def test_handlers_and_the_hook_are_put_back():
+    term, hook = signal.getsignal(signal.SIGTERM), sys.unraisablehook
+    with interrupted_by(signal.SIGTERM):
+        assert signal.getsignal(signal.SIGTERM) is not term
+        assert sys.unraisablehook is not hook
+    assert signal.getsignal(signal.SIGTERM) is term
+    assert sys.unraisablehook is hook
+
+
+def test_other_lost_errors_still_reach_the_hook_before(monkeypatch):
+    seen: list[BaseException] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
+
+    def callback(_ref: object) -> None:
+        raise ValueError("a bug in a callback")
+
+    with interrupted_by(signal.SIGTERM):
+        thing = _Thing()
+        ref = weakref.ref(thing, callback)
+        del thing
+        assert ref() is None
+    assert [str(e) for e in seen] == ["a bug in a callback"]
