@@ -145,6 +145,8 @@ def _completes(table: PairTable | None, had: int, slots: np.ndarray, full: int) 
 
 _ID, _RELATION, _INFLUENCE = 0, 1, 2  # the kinds of a listen, as a column
 _KINDS = ("id", "relation", "influence")
+# the /rx/decodes columns held as arrays: turn, margin, times, accepted (records.DECODE_COLUMNS)
+_NUMERIC_DECODE_COLUMNS = frozenset((0, 6, 7, 8))
 
 
 @dataclass(frozen=True, eq=False)
@@ -579,7 +581,7 @@ class AutonomousUnit:
                     reads.name_array[word],
                     margin,
                     reads.t_ready[a:b],
-                    [True] * (b - a),
+                    np.ones(b - a, dtype=bool),
                 )
             )
         mind = self.mind
@@ -975,14 +977,18 @@ class AutonomousUnit:
         parts, self._decode_parts = self._decode_parts, []
         if not parts:
             return
-        cols: list[list[Any]] = [
-            [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
+        # numbers as arrays (the encoder writes them whole), names as lists
+        cols: list[Any] = [
+            (np.concatenate([np.asarray(p[j]) for p in parts]) if len(parts) > 1
+             else np.asarray(parts[0][j]))
+            if j in _NUMERIC_DECODE_COLUMNS
+            else [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
             if len(parts) > 1
             else (parts[0][j] if type(parts[0][j]) is list else parts[0][j].tolist())
             for j in range(9)
-        ]
+        ]  # fmt: skip
         record = records.decodes_of_columns(self.name, cols)
-        self.recorder.write("/rx/decodes", record, ns(cols[7][-1]))
+        self.recorder.write("/rx/decodes", record, ns(record["t"]))
 
     def _write(self, topic: str, record: Any, t_ns: int) -> None:
         """A record of this unit's own, after the decodes that came before it."""

@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 # a column of integers: a numpy array as a writer builds it (the encoder takes it whole), a
 # list as a reader gets it back
 IntColumn: TypeAlias = "Sequence[int] | np.ndarray"
+FloatColumn: TypeAlias = "Sequence[float] | np.ndarray"
+BoolColumn: TypeAlias = "Sequence[bool] | np.ndarray"
 
 Alternative = list[str]
 
@@ -71,15 +73,15 @@ class DecodeRecord(TypedDict):
 class DecodesRecord(TypedDict):
     unit: str
     t: float  # the last decode's time: the record's log time
-    turn: list[int]  # each decode's, in the order the unit made them
+    turn: IntColumn  # each decode's, in the order the unit made them
     sender: list[str]
     addressee: list[str]
     channel: list[str]
     kind: list[str]
     code: list[str]
-    margin: list[float]
-    times: list[float]
-    accepted: list[bool]
+    margin: FloatColumn
+    times: FloatColumn
+    accepted: BoolColumn
 
 
 # the columns of a /rx/decodes record, in the order ``decodes`` takes a row's fields
@@ -336,22 +338,24 @@ def decodes(unit: str, rows: Sequence[DecodeFields]) -> DecodesRecord:
     return decodes_of_columns(unit, [list(c) for c in zip(*rows, strict=True)])
 
 
-def decodes_of_columns(unit: str, cols: Sequence[list[Any]]) -> DecodesRecord:
+def decodes_of_columns(unit: str, cols: Sequence[Any]) -> DecodesRecord:
     """``decodes`` from its nine columns, in the order of a row (a unit that takes a batch of
-    decodes as arrays gives them so). The lists are the record's own from then on (a large
-    run logs 4n²(n−1) decodes: they are not copied)."""
-    if not cols or not cols[7]:
+    decodes as arrays gives them so: turn, margin, times and accepted may be numpy arrays,
+    which the encoder writes whole, with no Python object per decode). The columns are the
+    record's own from then on (a large run logs 4n²(n−1) decodes: they are not copied)."""
+    if not len(cols) or not len(cols[7]):
         raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
+    margin = cols[6]
     return {
         "unit": unit,
-        "t": cols[7][-1],
+        "t": float(cols[7][-1]),
         "turn": cols[0],
         "sender": cols[1],
         "addressee": cols[2],
         "channel": cols[3],
         "kind": cols[4],
         "code": cols[5],
-        "margin": [float(m) for m in cols[6]],
+        "margin": margin if hasattr(margin, "dtype") else [float(m) for m in margin],
         "times": cols[7],
         "accepted": cols[8],
     }
@@ -362,6 +366,8 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     builds it (what a log of one record a decode holds). Columns of unequal length:
     RgtbusError naming the unit and the column."""
     unit = cast(str, record.get("unit"))
+    # columns a writer holds as arrays (a record not yet written) read as a log gives them
+    record = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in record.items()}
     times = record.get("times")
     n = len(times) if isinstance(times, list) else -1
     for name in ("times", *DECODE_COLUMNS):  # the times first: the others are held to them
