@@ -482,3 +482,29 @@ def test_a_watcher_bounds_its_topics():
     traces = {g[0] for g in sink.got if g[0].startswith("/trace/")}
     assert len(traces) == 5 and "/trace/b" not in traces
     assert w.drops["topic"] == 16, w.drops
+
+
+def test_a_unit_process_s_telemetry_says_whether_a_watcher_subscribes():
+    """``TelemetryFeed.watched``: False while nobody subscribes to the unit's telemetry key
+    (its units may batch their decodes), True once a watcher does, False again once it has
+    gone (as zenoh's routing learns it: every wait bounded)."""
+    from rgtbus.bus import open_bus
+    from rgtbus.bus.watch import Watcher
+    from rgtbus.cli.proc_cmds import free_ports
+
+    eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(2)]  # the watcher's, the bus's
+
+    def until(want: bool, feed) -> None:
+        deadline = time.monotonic() + 30
+        while feed.watched() is not want:
+            assert time.monotonic() < deadline, f"watched() never became {want}"
+            time.sleep(0.02)
+
+    with open_bus("zenoh", "wt", ("a", "b"), 200.0, local=["a"], listen=eps[1:]) as bus:
+        feed = bus.telemetry_feed("a")
+        assert feed.watched() is False
+        with Watcher(_Sink(), run_id="wt", connect=eps[1:]):
+            until(True, feed)
+        until(False, feed)
+        feed.closed = True
+        assert feed.watched() is False

@@ -484,9 +484,32 @@ def test_a_unit_batches_its_decodes_only_when_no_live_view_waits_for_its_records
     rec = MemoryRecorder()
     unit = AutonomousUnit("a", sc, rec)
     assert unit.batching()
-    rec.live = object()  # type: ignore[attr-defined]
+    rec.live = object()  # type: ignore[attr-defined]  # a sink that cannot say: watched
     assert not unit.batching()
     assert not AutonomousUnit("a", sc, MemoryRecorder(), traces=True).batching()
+    sink = _Sink(watched=False)  # a unit process's telemetry that nobody subscribes to
+    rec.live = sink  # type: ignore[attr-defined]
+    assert unit.batching()
+    sink.is_watched = True
+    assert not unit.batching()
+
+
+class _Sink:
+    """A live sink whose ``watched`` says what the test sets (from the ``flip``-th ask on:
+    watched), counting what it is offered."""
+
+    def __init__(self, *, watched: bool, flip: int | None = None) -> None:
+        self.is_watched, self.flip, self.asked = watched, flip, 0
+        self.got: list[tuple[str, int]] = []
+
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        self.got.append((topic, t_ns))
+
+    def watched(self) -> bool:
+        self.asked += 1
+        if self.flip is not None and self.asked >= self.flip:
+            self.is_watched = True
+        return self.is_watched
 
 
 def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
@@ -507,6 +530,32 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
         rows = decodes_per_row(rec.messages)
         logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows))
     assert logs[0] == logs[1]
+
+
+def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on():
+    """A unit process's telemetry nobody watches lets its units batch; once a watcher
+    subscribes (``watched`` turns True), each unit's decodes leave one sample a record from
+    its next wake on. The log is the same as ever, decodes one a row."""
+    from rgtbus.telemetry.verify import decodes_per_row
+
+    sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
+    logs, spans_of = [], []
+    unwatched = _Sink(watched=False)
+    for live in (None, unwatched, "flip"):
+        if live == "flip":  # a watcher comes a quarter of the way through the units' asks
+            live = _Sink(watched=False, flip=unwatched.asked // 4)
+        rec = MemoryRecorder()
+        rec.live = live  # type: ignore[attr-defined]
+        run_group(sc, "memory", rec)
+        spans = [(t, len(set(m["times"]))) for tp, t, m in rec.messages if tp == "/rx/decodes"]
+        spans_of.append(spans)
+        rows = decodes_per_row(rec.messages)
+        logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows))
+    assert logs[0] == logs[1] == logs[2]
+    flipped = spans_of[2]
+    assert max(n for _, n in spans_of[1]) > 1  # nobody watching: batches
+    late = [n for _, n in flipped[len(flipped) // 2 :]]
+    assert max(n for _, n in flipped) > 1 and set(late) == {1}  # watched: one sample a record
 
 
 @pytest.mark.parametrize("name", ["steering", "coalition10", "gate"])

@@ -300,9 +300,17 @@ class AutonomousUnit:
         ``BATCH_SECONDS`` behind the run's clock, and the blocks of spikes the ears hand on
         meanwhile wait for the wake too (``spikes``). Not with traces, nor when a live view
         must get every record as the clock reaches it: a live sink on its recorder (``run
-        --live``, or the telemetry a unit process publishes for ``rgtbus watch``, attached
-        once its bus is open). Asked when the run begins, not when the unit is made."""
-        return not self.traces and getattr(self.recorder, "live", None) is None
+        --live``; the telemetry a unit process publishes while ``rgtbus watch`` subscribes
+        to it: ``LiveSink.watched``). Asked at every wake, with no block held: a watcher that
+        comes mid-run gets this unit's records on time from its next wake on, one that leaves
+        lets it batch again (a unit process that batched nothing woke 20x as often)."""
+        if self.traces:
+            return False
+        live = getattr(self.recorder, "live", None)
+        if live is None:
+            return True
+        watched = getattr(live, "watched", None)
+        return watched is not None and not watched()
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
@@ -343,6 +351,7 @@ class AutonomousUnit:
             return
         if self._held:  # not done before the samples of this wake: the blocks are its
             self._release_spikes(None)
+        self._batches = self.batching()  # none held now: it may change (a watcher came)
         t = self._timers[0]
         aw = self._asked = self.awaited()
         if aw is None and self._batches:

@@ -199,6 +199,16 @@ class TelemetryFeed:
             frame = sign_telemetry(frame, self._nonce, self.seq, self._sign)
         self.publisher.put(frame)
 
+    def watched(self) -> bool:
+        """Whether a subscriber (``rgtbus watch``) matches this feed's key now, as zenoh's
+        routing knows it; True if zenoh cannot say."""
+        if self.closed:
+            return False
+        try:
+            return bool(self.publisher.matching_status.matching)
+        except Exception:  # zenoh's ZError (a session closing): look as if watched
+            return True
+
 
 HELLO_QUEUE = 256  # hellos heard, not yet read (more: dropped_overflow; members repeat theirs)
 _REPLIES_PER_ROUND = 2  # immediate join replies per member and 50 ms round (the rest: next round)

@@ -213,6 +213,11 @@ class LiveView:
 
     # -- messages -------------------------------------------------------------------------------
 
+    def watched(self) -> bool:
+        """Always: a Foxglove client may connect at any moment and must get each message as
+        the server's clock reaches it (issue 23)."""
+        return True
+
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
         """Offer one message: unpaced and cheap (a few clients), handed to the server at once;
         else queued for the view's thread. Never waits for the server or a client."""

@@ -52,6 +52,12 @@ class LiveSink(Protocol):
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None: ...
 
+    def watched(self) -> bool:
+        """Whether someone may be looking now, so each message should leave as the run's
+        clock reaches it (a unit then takes no batch of decodes: ``AutonomousUnit.batching``).
+        Asked at every wake of every unit: cheap, and True when in doubt."""
+        ...
+
 
 def _default(obj: Any) -> Any:
     # numpy arrays and scalars without importing numpy here
