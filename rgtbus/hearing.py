@@ -721,6 +721,8 @@ class Ears:
         block are equal share one ``SharedSpikes``, whichever walks they came from."""
         if not pieces or not members.size:
             return
+        if self._hand_as_one(pieces, members, heard):
+            return
         U = len(self.listeners)
         B = self._spike_block
         k = np.concatenate([p.k for p in pieces])
@@ -781,25 +783,65 @@ class Ears:
                 )
             end = min((b + 1) * B, heard)
             for key in sorted(groups, key=lambda key: min(groups[key])):
-                units = sorted(groups[key])
                 samples, channel = arrays[key]
-                # the channels that fired and each spike's index among them
-                present = np.zeros(int(channel.max()) + 1, dtype=bool)
-                present[channel] = True
-                fired = np.flatnonzero(present)
-                index = (np.cumsum(present, dtype=np.int32) - 1)[channel]
-                if len(units) == 1:
-                    log = self.listeners[units[0]].spike_log
-                    assert log is not None
-                    log.spikes(samples, index, fired, end)
-                    continue
-                share = SharedSpikes(
-                    samples, index, fired, end, units, [self.listeners[u].name for u in units]
-                )
-                for u in units:
-                    log = self.listeners[u].spike_log
-                    assert log is not None
-                    log.shared_spikes(share)
+                self._hand_block(sorted(groups[key]), samples, channel, end)
+
+    def _hand_as_one(self, pieces: list[_SpikePiece], members: np.ndarray, heard: int) -> bool:
+        """``_hand_blocks`` where every member took one and the same walk in each piece (a
+        noise-free medium through equal gains: the usual case), so all have the same spikes
+        in every block: one group a block, with no grouping to do. False (nothing handed)
+        otherwise."""
+        parts = []
+        for p in pieces:
+            wo = p.walker_of
+            if wo is None:
+                if members.size != 1:
+                    return False
+                walker = int(members[0])
+            else:
+                walkers = wo[members]
+                walker = int(walkers[0])
+                if walker < 0 or not (walkers == walker).all():
+                    return False
+            mine = p.w == walker
+            parts.append((p.k, p.c) if mine.all() else (p.k[mine], p.c[mine]))
+        k = np.concatenate([a for a, _ in parts]) if len(parts) > 1 else parts[0][0]
+        c = np.concatenate([b for _, b in parts]) if len(parts) > 1 else parts[0][1]
+        if not k.size:
+            return True
+        B = self._spike_block
+        units = sorted(members.tolist())
+        blocks = k // B
+        cuts = [*np.flatnonzero(blocks[1:] != blocks[:-1]) + 1, k.size]
+        a = 0
+        for z in cuts:
+            z = int(z)
+            self._hand_block(units, k[a:z], c[a:z], min((int(blocks[a]) + 1) * B, heard))
+            a = z
+        return True
+
+    def _hand_block(
+        self, units: list[int], samples: np.ndarray, channel: np.ndarray, end: int
+    ) -> None:
+        """One block's spikes (sample order, then channel) that ``units`` heard alike, heard
+        up to ``end``: a unit's own ``spikes``, or one ``SharedSpikes`` for two or more."""
+        # the channels that fired and each spike's index among them
+        present = np.zeros(int(channel.max()) + 1, dtype=bool)
+        present[channel] = True
+        fired = np.flatnonzero(present)
+        index = (np.cumsum(present, dtype=np.int32) - 1)[channel]
+        if len(units) == 1:
+            log = self.listeners[units[0]].spike_log
+            assert log is not None
+            log.spikes(samples, index, fired, end)
+            return
+        share = SharedSpikes(
+            samples, index, fired, end, units, [self.listeners[u].name for u in units]
+        )
+        for u in units:
+            log = self.listeners[u].spike_log
+            assert log is not None
+            log.shared_spikes(share)
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""

@@ -312,6 +312,8 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
         pos=400,
     )
     ears._hand_blocks = lambda *a: Ears._hand_blocks(ears, *a)
+    ears._hand_as_one = lambda *a: Ears._hand_as_one(ears, *a)
+    ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
     ears._close_pending = lambda: None
     Ears._hand_spikes(ears, 200)  # the blocks before sample 200
     Ears._hand_spikes(ears, None, only=2)  # unit 2 stops: the rest of its spikes
@@ -339,6 +341,66 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
     assert any(g[0] == (1, 3) and g[1] >= 5 for g in got)
     for _, b, _, end in got:
         assert end == min((b + 1) * block, 400)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
+    """Where every member took one and the same walk in each piece (``_hand_as_one``), the
+    blocks handed are exactly those the general grouping hands (which it skips): the same
+    groups, spikes, ends and order; the others' spikes in a piece are not theirs."""
+    import types
+
+    import numpy as np
+
+    from rgtbus.hearing import Ears, _SpikePiece
+
+    rng = np.random.default_rng(seed)
+    units, channels, block = 4, 6, 40
+    n_pieces = int(rng.integers(1, 4))
+    bounds = np.sort(rng.choice(np.arange(1, 300), n_pieces - 1, replace=False)).tolist()
+    pieces = []
+    for lo, hi in zip([0, *bounds], [*bounds, 300], strict=True):
+        walkers = [int(rng.integers(0, units)), int(rng.integers(0, units))]
+        drawn = rng.integers((lo, 0, 0), (hi, 2, channels), (int(rng.integers(0, 120)), 3))
+        rows = sorted({(int(k), walkers[int(w)], int(c)) for k, w, c in drawn})
+        wo = np.full(units, walkers[0])  # every unit took the first walker's walk
+        pieces.append(
+            _SpikePiece(*(np.array([r[j] for r in rows], dtype=np.int64) for j in range(3)), wo)
+        )
+
+    def handed(fast: bool, members: np.ndarray, heard: int) -> list:
+        got: list = []
+
+        def sink(u):
+            def spikes(samples, index, fired, end):
+                got.append(((u,), samples.tolist(), fired[index].tolist(), end))
+
+            def shared_spikes(share):
+                if u == share.members[0]:
+                    got.append((
+                        tuple(share.members), share.samples.tolist(),
+                        share.fired[share.index].tolist(), share.end,
+                    ))  # fmt: skip
+
+            return types.SimpleNamespace(spikes=spikes, shared_spikes=shared_spikes)
+
+        ears = types.SimpleNamespace(
+            _spike_block=block,
+            listeners=[
+                types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)
+            ],
+        )
+        ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
+        ears._hand_as_one = (lambda *a: Ears._hand_as_one(ears, *a)) if fast else (lambda *a: False)
+        Ears._hand_blocks(ears, [p for p in pieces if len(p.k)], members, heard)
+        return got
+
+    for members in (np.arange(units), np.array([2])):
+        fast = handed(True, members, 290)
+        assert fast == handed(False, members, 290)
+    assert any(len(g[0]) == units for g in handed(True, np.arange(units), 290)) or not any(
+        len(p.k) for p in pieces
+    )
 
 
 def _one_decode_at_a_time(self, queue, reads, a, b):
