@@ -986,16 +986,18 @@ class AutonomousUnit:
         parts, self._decode_parts = self._decode_parts, []
         if not parts:
             return
-        # numbers as arrays (the encoder writes them whole), names as lists
-        cols: list[Any] = [
-            (np.concatenate([np.asarray(p[j]) for p in parts]) if len(parts) > 1
-             else np.asarray(parts[0][j]))
-            if j in _NUMERIC_DECODE_COLUMNS
-            else [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
-            if len(parts) > 1
-            else (parts[0][j] if type(parts[0][j]) is list else parts[0][j].tolist())
-            for j in range(9)
-        ]  # fmt: skip
+        if len(parts) == 1:  # the usual case: one batch as arrays, or single decodes as lists
+            cols: list[Any] = [
+                c if type(c) is list or j in _NUMERIC_DECODE_COLUMNS else c.tolist()
+                for j, c in enumerate(parts[0])
+            ]
+        else:  # numbers as arrays (the encoder writes them whole), names as lists
+            cols = [
+                np.concatenate([np.asarray(p[j]) for p in parts])
+                if j in _NUMERIC_DECODE_COLUMNS
+                else [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
+                for j in range(9)
+            ]
         record = records.decodes_of_columns(self.name, cols)
         self.recorder.write("/rx/decodes", record, ns(record["t"]))
 
