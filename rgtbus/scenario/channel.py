@@ -1,4 +1,5 @@
-"""``[channel]``: Gaussian ``noise`` on every sample heard, and per-pair ``gain`` (the model:
+"""``[channel]``: Gaussian ``noise`` on every sample heard, per-pair ``gain``, and the units'
+``positions`` with the ``path_loss`` of the distances between them (the model:
 ``rgtbus.signal.channel``)."""
 
 from __future__ import annotations
@@ -6,10 +7,12 @@ from __future__ import annotations
 from typing import Any
 
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
-from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of
-from rgtbus.signal.channel import Channel
+from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
+from rgtbus.signal.channel import FREE_SPACE, Channel, link_gains
 
-CHANNEL_KEYS = {"noise", "gain"}
+CHANNEL_KEYS = {"noise", "gain", "positions", "path_loss", "reference_distance"}
+MAX_METRES = 1e6  # a coordinate or reference distance (1,000 km: no robot group is wider)
+MAX_EXPONENT = 10.0  # path-loss exponents met in practice are 1.6 to 6
 
 
 def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channel:
@@ -34,4 +37,76 @@ def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channe
                 f"gain must be a finite number > 0 (at most {MAX_LEVEL:g}), got {g!r}",
             )
         gains[pair_of(ctx, units, key, "channel.gain")] = float(g)
-    return Channel(float(noise), gains)
+    positions = _positions(ctx, ch, units)
+    exponent = _path_loss(ctx, ch, positions)
+    reference = ch.get("reference_distance", 1.0)
+    if "reference_distance" in ch and not positions:
+        raise ctx.error("channel", "reference_distance", "needs [channel.positions]")
+    if not is_finite(reference) or not 0 < reference <= MAX_METRES:
+        raise ctx.error(
+            "channel",
+            "reference_distance",
+            f"must be a distance in metres > 0 (at most {MAX_METRES:g}), got {reference!r}",
+        )
+    reference = float(reference)
+    return Channel(
+        float(noise),
+        link_gains(units, gains, positions, exponent, reference),
+        positions,
+        exponent,
+        reference,
+    )
+
+
+def _positions(
+    ctx: Ctx, ch: dict[str, Any], units: tuple[str, ...]
+) -> dict[str, tuple[float, float, float]]:
+    """``[channel.positions]``: every unit's ``[x, y]`` or ``[x, y, z]`` in metres (z = 0 if
+    not given), or none at all."""
+    table = ch.get("positions", {})
+    if not isinstance(table, dict):
+        raise ctx.error("channel", "positions", "must be a table {a = [x, y], ...} in metres")
+    out: dict[str, tuple[float, float, float]] = {}
+    for key, xyz in table.items():
+        unit = unit_of(ctx, units, key, "channel.positions", key)
+        if (
+            not isinstance(xyz, list)
+            or len(xyz) not in (2, 3)
+            or not all(is_finite(v) and abs(v) <= MAX_METRES for v in xyz)
+        ):
+            raise ctx.error(
+                "channel.positions",
+                key,
+                f"must be [x, y] or [x, y, z] in metres, each finite and at most {MAX_METRES:g} "
+                f"from 0, got {xyz!r}",
+            )
+        x, y, *z = (float(v) for v in xyz)
+        out[unit] = (x, y, z[0] if z else 0.0)
+    if out:
+        missing = [u for u in units if u not in out]
+        if missing:
+            raise ctx.error(
+                "channel",
+                "positions",
+                f"every unit needs a position, or none: {', '.join(missing)} "
+                f"{'has' if len(missing) == 1 else 'have'} none",
+            )
+    return out
+
+
+def _path_loss(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float:
+    """``path_loss``: ``"free-space"`` (2) or an exponent in [0, 10]; 0 without it."""
+    if "path_loss" not in ch:
+        return 0.0
+    value = ch["path_loss"]
+    if not positions:
+        raise ctx.error("channel", "path_loss", "needs [channel.positions]")
+    if value == "free-space":
+        return FREE_SPACE
+    if not is_finite(value) or not 0 <= value <= MAX_EXPONENT:
+        raise ctx.error(
+            "channel",
+            "path_loss",
+            f'must be "free-space" or an exponent in [0, {MAX_EXPONENT:g}], got {value!r}',
+        )
+    return float(value)

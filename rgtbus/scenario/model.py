@@ -69,7 +69,7 @@ class Scenario:
     mode: str
     timing: Timing
     noise: float
-    gains: dict[tuple[str, str], float]
+    gains: dict[tuple[str, str], float]  # every link's, path loss included (Channel.gains)
     relation_policy: str
     alliance_p: float
     fixed_relations: dict[tuple[str, str], bool]
@@ -88,6 +88,10 @@ class Scenario:
     influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
     influence_rounds: int = 1  # [protocol] influence_rounds: influence phases (the paper: 1)
     goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
+    # [channel] positions (metres, x y z), path_loss and reference_distance (Channel)
+    positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    path_loss: float = 0.0
+    reference_distance: float = 1.0
 
     def goals_of(self, unit: str) -> dict[str, Goal]:
         """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""
@@ -96,7 +100,9 @@ class Scenario:
     @property
     def channel(self) -> Channel:
         """What each receiver hears from each sender (``rgtbus.signal.channel``)."""
-        return Channel(self.noise, self.gains)
+        return Channel(
+            self.noise, self.gains, self.positions, self.path_loss, self.reference_distance
+        )
 
     def pairs(self) -> list[tuple[str, str]]:
         """Every ordered pair of distinct units, sender-major in unit order."""
