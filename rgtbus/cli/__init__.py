@@ -68,6 +68,7 @@ COMMANDS: dict[str, str] = {
     "run": "run_cmd",
     "scenarios": "scenarios_cmd",
     "resonate": "signal_cmds",
+    "ser": "signal_cmds",
     "figures": "signal_cmds",
     "plan": "plan_cmd",
     "replay": "replay_cmds",

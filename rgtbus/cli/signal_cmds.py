@@ -1,4 +1,5 @@
-"""``rgtbus resonate`` and ``rgtbus figures``: the resonate-and-fire receiver from the shell.
+"""``rgtbus resonate``, ``rgtbus ser`` and ``rgtbus figures``: the resonate-and-fire receiver
+from the shell.
 
 Plotting lives here (an adapter: it writes files); matplotlib is imported lazily with Agg.
 """
@@ -81,6 +82,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", metavar="PNG", help="also write the y trajectories to this PNG")
     add_quiet_argument(p)
     p.set_defaults(func=cmd_resonate)
+
+    e = subparsers.add_parser(
+        "ser",
+        help="the decoder's symbol error rate against noise, beside the best possible receiver's",
+        description="Monte-Carlo symbol error rate of the resonator bank's decoder for one "
+        "family of a codebook (its words sent on one channel under white noise), beside the "
+        "maximum-likelihood bounds at the same noise (docs/model.md, 'How far from the limit').",
+    )
+    e.add_argument(
+        "--family",
+        choices=("alternative", "relation"),
+        default="alternative",
+        help="the words decoded: the alternatives (default) or alliance/conflict",
+    )
+    e.add_argument(
+        "--scenario",
+        metavar="NAME_OR_FILE",
+        help="take the codebook, first unit's channel, mode and sample time from this scenario "
+        "(default: the paper's codebook on 3pi/2)",
+    )
+    e.add_argument(
+        "--sigma",
+        default="0.05,0.1,0.15,0.2",
+        metavar="S1,S2,...",
+        help="noise levels (default 0.05,0.1,0.15,0.2)",
+    )
+    e.add_argument("--trials", type=int, default=2000, help="trials per level (default 2000)")
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--json", action="store_true", help="print one JSON object per level")
+    e.set_defaults(func=cmd_ser)
 
     f = subparsers.add_parser(
         "figures",
@@ -220,6 +251,62 @@ def cmd_resonate(args: argparse.Namespace) -> int:
         headers = ["omega", "rad/s", "peak y", "spikes (s)"]
         for line in table_lines(cells, headers, align=("right",) * 3 + ("left",), indent=""):
             print(line)
+    return 0
+
+
+# -- ser ------------------------------------------------------------------------------------
+
+
+def _sigmas(text: str) -> list[float]:
+    out = []
+    for part in text.split(","):
+        try:
+            v = float(part)
+        except ValueError:
+            raise RgtbusError(f"--sigma {text!r}: {part.strip()!r} is not a number") from None
+        if not (math.isfinite(v) and v >= 0):
+            raise RgtbusError(f"--sigma {text!r}: {part.strip()!r} is not a noise level >= 0")
+        out.append(v)
+    return out
+
+
+def cmd_ser(args: argparse.Namespace) -> int:
+    from rgtbus.signal.evaluate import ser_against_bound
+
+    if args.trials < 1:
+        raise RgtbusError(f"--trials {args.trials}: must be at least 1")
+    sigmas = _sigmas(args.sigma)
+    if args.scenario:
+        from rgtbus.scenario import load_scenario
+
+        sc = load_scenario(args.scenario)
+        cb, omega = sc.codebook, sc.frequencies[sc.units[0]]
+        mode, tau, where = sc.mode, sc.timing.tau, f"scenario {sc.name}"
+    else:
+        cb, omega, mode, tau, where = paper_codebook(), PAPER_OMEGAS[0], "paper", PAPER_TAU, "paper"
+    words = cb.alternatives if args.family == "alternative" else cb.relations
+    rows = ser_against_bound(
+        words, omega, sigmas, trials=args.trials, seed=args.seed, mode=mode, tau=tau
+    )
+    if args.json:
+        for r in rows:
+            print(json.dumps(r))
+        return 0
+    print(f"{args.family} words of the {where} codebook ({len(words)}), on {omega:.4f} rad/s")
+    cells = [
+        [
+            f"{r['sigma']:g}",
+            f"{r['errors']}/{r['trials']}",
+            f"{r['ser']:.4g}",
+            f"{r['ml_lower']:.3g}",
+            f"{r['ml_union']:.3g}",
+            "-" if r["vs_bound"] is None else f"{r['vs_bound']:.2f}x",
+        ]
+        for r in rows
+    ]
+    headers = ["sigma", "errors", "decoder SER", "ML >=", "ML <=", "SER / ML <="]
+    for line in table_lines(cells, headers, align=("right",) * 6, indent=""):
+        print(line)
     return 0
 
 
