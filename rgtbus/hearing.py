@@ -42,7 +42,7 @@ import numpy as np
 import simpy
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.channel import heard_by
+from rgtbus.signal.channel import BurstStates, heard_by
 from rgtbus.signal.decoder import (
     Decision,
     ReadoutHistory,
@@ -176,8 +176,14 @@ class Listener:
     watch: int | None = None  # the channel whose spike could change this unit's plans
     watch_from: int = 0  # ... from this sample on (earlier spikes there change nothing)
     heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
+    bursts: BurstStates | None = None  # when its noise comes in bursts (σ_b, not ``noise``)
     _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _noise_at: int = 0  # sample of _noise[0]
+
+    @property
+    def noisy(self) -> bool:
+        """Whether this receiver hears any noise (white, or in bursts)."""
+        return self.noise > 0 or self.bursts is not None
 
     def noise_for(self, lo: int, hi: int) -> np.ndarray:
         """This unit's noise for samples [lo, hi), drawn in order from its own generator (the
@@ -187,7 +193,10 @@ class Listener:
             raise RgtbusError(f"{self.name}: noise for sample {lo} was already used")
         if hi > have:
             assert self.rng is not None, f"{self.name}: noise {self.noise} with no generator"
-            more = self.rng.normal(0.0, self.noise, hi - have)
+            if self.bursts is None:
+                more = self.rng.normal(0.0, self.noise, hi - have)
+            else:  # the same draws, each times its sample's σ (normal(0, σ) is σ·z)
+                more = self.rng.standard_normal(hi - have) * self.bursts.sigma(have, hi, self.noise)
             self._noise = np.concatenate([self._noise[lo - self._noise_at :], more])
             self._noise_at = lo
         out = self._noise[lo - self._noise_at : hi - self._noise_at]
@@ -447,7 +456,7 @@ class Ears:
             rows[:cut], who[:cut], val[:cut], lst.gains[None, :], self._unit_gain[i]
         )
         heard = heard[:, 0]
-        if lst.noise > 0:
+        if lst.noisy:
             dense = lst.noise_for(lo, until).copy()
             dense[at - lo] = heard + dense[at - lo]
             at, heard = np.arange(lo, until, dtype=np.int64), dense
@@ -569,7 +578,7 @@ class Ears:
             if not lst.active:
                 done.append(n)
                 continue
-            if lst.noise > 0:
+            if lst.noisy:
                 noisy.append(n)
             if lst.watch is not None and lst.watch_from <= lo:
                 watched.append(n * C + lst.watch)

@@ -162,3 +162,92 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
         assert {k: v for k, v in summaries["event"].items() if k not in skip} == {
             k: v for k, v in other.items() if k not in skip
         }
+
+
+# -- noise in bursts (Gilbert–Elliott) ---------------------------------------------------------
+
+
+def _states(seed: int = 4):
+    from rgtbus.signal.channel import Burst, BurstStates
+
+    return BurstStates(Burst(0.3, every=2.0, length=0.5), 0.01, np.random.default_rng(seed))
+
+
+def test_bursts_are_the_same_however_the_samples_are_asked_for():
+    whole = _states().in_burst(0, 20_000)
+    rng = np.random.default_rng(9)
+    cuts = np.sort(rng.choice(np.arange(1, 20_000), 40, replace=False)).tolist()
+    states, pieces = _states(), []
+    for lo, hi in zip([0, *cuts], [*cuts, 20_000], strict=True):
+        pieces.append(states.in_burst(lo, hi))
+    assert np.array_equal(np.concatenate(pieces), whole)
+    again = _states()  # asking again from a later sample, the earlier ones dropped
+    again.in_burst(0, 5000)
+    assert np.array_equal(again.in_burst(5000, 20_000), whole[5000:])
+
+
+def test_bursts_come_as_often_and_last_as_long_as_asked():
+    bursting = _states().in_burst(0, 2_000_000)  # 20,000 s of 10 ms samples
+    assert not bursting[0]  # calm at the start
+    assert bursting.mean() == pytest.approx(0.5 / 2.5, rel=0.05)  # length / (every + length)
+    starts = np.flatnonzero(np.diff(bursting.astype(int)) == 1)
+    assert len(starts) / 20_000 == pytest.approx(1 / 2.5, rel=0.05)  # one each 2.5 s
+
+
+def test_a_receiver_s_noise_in_bursts_is_its_calm_noise_scaled_where_it_bursts():
+    from rgtbus.hearing import Listener
+    from rgtbus.signal.channel import noise_rng
+
+    def listener(bursts):
+        return Listener("a", np.ones(2), 0.01, noise_rng(7, 0), keep=10, bursts=bursts)
+
+    calm = listener(None).noise_for(0, 30_000)
+    burst = listener(_states()).noise_for(0, 30_000)
+    where = _states().in_burst(0, 30_000)
+    assert where.any() and not where.all()
+    assert np.array_equal(burst[~where], calm[~where])  # the same draws
+    assert np.allclose(burst[where], calm[where] * 30)  # σ_b = 0.3 instead of 0.01
+    noiseless = Listener("a", np.ones(2), 0.0, noise_rng(7, 0), keep=10, bursts=_states())
+    assert noiseless.noisy and not listener(None).bursts
+    assert set(np.flatnonzero(noiseless.noise_for(0, 30_000))) == set(np.flatnonzero(where))
+
+
+@pytest.mark.parametrize(
+    "lines, says",
+    [
+        ("burst = 3\n", "channel.burst: must be a table"),
+        ("[channel.burst]\nnoise = 0.1\nevery = 2\n", "channel.burst: needs 'length'"),
+        ("[channel.burst]\nnoise = 0\nevery = 2\nlength = 1\n", "channel.burst.noise"),
+        ("[channel.burst]\nnoise = nan\nevery = 2\nlength = 1\n", "channel.burst.noise"),
+        ("[channel.burst]\nnoise = 0.1\nevery = 0\nlength = 1\n", "channel.burst.every"),
+        ("[channel.burst]\nnoise = 0.1\nevery = 2\nlength = -1\n", "channel.burst.length"),
+        ('[channel.burst]\nnoise = 0.1\nevery = 2\nlength = "1"\n', "channel.burst.length"),
+        ("[channel.burst]\nnoise = 0.1\nevery = 2\nlength = 1\nsigma = 1\n",
+         "channel.burst.sigma: unknown key"),
+    ],
+)  # fmt: skip
+def test_bad_bursts_are_one_line_naming_file_line_and_key(lines, says):
+    test_bad_geometry_is_one_line_naming_file_line_and_key(lines, says)
+
+
+@pytest.mark.parametrize("burst, length, fails", [(0.002, 0.2, False), (0.2, 0.5, True)])
+def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(burst, length, fails):
+    """Short, faint bursts on a calm channel leave the gate open; strong ones end the run
+    (a misread or a missed spike). Either way both engines make the same run and its log,
+    which carries the scenario, replays and verifies (the bursts drawn again from the seed)."""
+    from rgtbus.units.rerun import verify_log
+
+    from rgtbus.telemetry.read import load_replay
+
+    sc = gate_with(f"[channel.burst]\nnoise = {burst}\nevery = 3.0\nlength = {length}\n")
+    assert sc.channel.noisy and sc.channel.noise == 0.0
+    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
+    summaries = []
+    for engine in ("event", "dense"):
+        summary, data = _logged_run(sc, engine)
+        summaries.append({k: v for k, v in summary.items() if k not in skip})
+        rp = load_replay(io.BytesIO(data))
+        assert rp.scenario.channel.burst == sc.channel.burst
+        assert verify_log(rp).ok
+    assert summaries[0] == summaries[1]
+    assert (summaries[0]["error"] is not None) is fails

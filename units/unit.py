@@ -40,7 +40,7 @@ from rgtbus.protocol import (
     code_samples,
 )
 from rgtbus.scenario import Scenario
-from rgtbus.signal.channel import noise_rng
+from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
 from rgtbus.signal.decoder import Readout, WordSet, decode_among_columns, nearest_columns
 from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
@@ -279,7 +279,12 @@ class AutonomousUnit:
             gains=sc.channel.gain_row(self.units, self.name),
             noise=sc.channel.noise,
             # numpy.random costs 8 ms to import: a noise-free run never draws
-            rng=noise_rng(sc.seed, self.units.index(self.name)) if sc.channel.noise > 0 else None,
+            rng=noise_rng(sc.seed, self.units.index(self.name)) if sc.channel.noisy else None,
+            bursts=None
+            if sc.channel.burst is None
+            else BurstStates(
+                sc.channel.burst, self.tau, burst_rng(sc.seed, self.units.index(self.name))
+            ),
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
             spike_log=self if self.recorder.enabled else None,  # only a log needs every spike

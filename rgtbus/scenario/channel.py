@@ -1,6 +1,6 @@
-"""``[channel]``: Gaussian ``noise`` on every sample heard, per-pair ``gain``, and the units'
-``positions`` with the ``path_loss`` of the distances between them (the model:
-``rgtbus.signal.channel``)."""
+"""``[channel]``: Gaussian ``noise`` on every sample heard, per-pair ``gain``, the units'
+``positions`` with the ``path_loss`` of the distances between them, and noise in bursts
+(``[channel.burst]``) (the model: ``rgtbus.signal.channel``)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,11 @@ from typing import Any
 
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
-from rgtbus.signal.channel import FREE_SPACE, Channel, link_gains
+from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, link_gains
 
-CHANNEL_KEYS = {"noise", "gain", "positions", "path_loss", "reference_distance"}
+CHANNEL_KEYS = {"noise", "gain", "positions", "path_loss", "reference_distance", "burst"}
+BURST_KEYS = {"noise", "every", "length"}
+MAX_SECONDS = 1e6  # a burst's mean length or spacing
 MAX_METRES = 1e6  # a coordinate or reference distance (1,000 km: no robot group is wider)
 MAX_EXPONENT = 10.0  # path-loss exponents met in practice are 1.6 to 6
 
@@ -55,7 +57,39 @@ def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channe
         positions,
         exponent,
         reference,
+        _burst(ctx, ch),
     )
+
+
+def _burst(ctx: Ctx, ch: dict[str, Any]) -> Burst | None:
+    """``[channel.burst]``: ``noise`` σ_b > 0 within a burst, and the mean ``every`` (calm
+    seconds between bursts) and ``length`` (seconds of a burst), all three; or none."""
+    if "burst" not in ch:
+        return None
+    table = ch["burst"]
+    if not isinstance(table, dict):
+        raise ctx.error(
+            "channel", "burst", "must be a table {noise = 0.2, every = 10, length = 0.1}"
+        )
+    check_keys(ctx, table, BURST_KEYS, "channel.burst")
+    missing = sorted(BURST_KEYS - set(table))
+    if missing:
+        raise ctx.error("channel.burst", None, f"needs {missing[0]!r} (noise, every and length)")
+    noise, every, length = table["noise"], table["every"], table["length"]
+    if not is_finite(noise) or not 0 < noise <= MAX_LEVEL:
+        raise ctx.error(
+            "channel.burst",
+            "noise",
+            f"must be a standard deviation > 0 and finite (at most {MAX_LEVEL:g}), got {noise!r}",
+        )
+    for key, value in (("every", every), ("length", length)):
+        if not is_finite(value) or not 0 < value <= MAX_SECONDS:
+            raise ctx.error(
+                "channel.burst",
+                key,
+                f"must be mean seconds > 0 (at most {MAX_SECONDS:g}), got {value!r}",
+            )
+    return Burst(float(noise), float(every), float(length))
 
 
 def _positions(

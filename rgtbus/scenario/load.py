@@ -170,6 +170,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         positions=dict(channel.positions),
         path_loss=channel.path_loss,
         reference_distance=channel.reference_distance,
+        burst=channel.burst,
         relation_policy=relations.policy,
         alliance_p=relations.p,
         fixed_relations=relations.fixed,

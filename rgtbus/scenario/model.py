@@ -7,7 +7,7 @@ from typing import Any
 
 from rgtbus.pairs import ordered_pairs
 from rgtbus.rgt import Universe
-from rgtbus.signal.channel import Channel
+from rgtbus.signal.channel import Burst, Channel
 from rgtbus.signal.codebook import Codebook
 
 
@@ -92,6 +92,7 @@ class Scenario:
     positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     path_loss: float = 0.0
     reference_distance: float = 1.0
+    burst: Burst | None = None  # [channel.burst]: noise in bursts (Gilbert–Elliott)
 
     def goals_of(self, unit: str) -> dict[str, Goal]:
         """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""
@@ -101,7 +102,12 @@ class Scenario:
     def channel(self) -> Channel:
         """What each receiver hears from each sender (``rgtbus.signal.channel``)."""
         return Channel(
-            self.noise, self.gains, self.positions, self.path_loss, self.reference_distance
+            self.noise,
+            self.gains,
+            self.positions,
+            self.path_loss,
+            self.reference_distance,
+            self.burst,
         )
 
     def pairs(self) -> list[tuple[str, str]]:

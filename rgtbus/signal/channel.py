@@ -11,6 +11,11 @@ distance to the ``n``-th power, ``[channel] path_loss``, beyond the ``reference_
 an amplitude gain of (d0/d)^(n/2); free space is n = 2; no positions, or n = 0: no loss); ``σ``
 the white noise of ``[channel] noise``; ``n_r`` unit r's own standard normal draws, from its
 own seeded generator (``noise_rng``), taken in sample order however a run is cut into steps.
+With ``[channel.burst]`` the noise comes in bursts too (a Gilbert–Elliott channel): each
+receiver is calm (σ) or in a burst (σ_b) at every sample, a two-state Markov chain of its own
+(``BurstStates``, its own generator ``burst_rng``) that enters a burst with probability
+τ / ``every`` a sample and leaves it with τ / ``length``, so bursts last ``length`` seconds
+and come ``every`` seconds apart on average.
 
 A new channel effect (path loss, delay, drift, bursts) goes here, with its scenario keys in
 ``rgtbus/scenario/channel.py``; the ears (``rgtbus.hearing``) apply what this module says.
@@ -32,6 +37,58 @@ FREE_SPACE = 2.0  # the path-loss exponent of free space
 
 
 @dataclass(frozen=True)
+class Burst:
+    """Impulsive noise: bursts of white noise ``noise`` σ_b lasting ``length`` seconds on
+    average, ``every`` seconds apart on average (from one's end to the next one's start)."""
+
+    noise: float
+    every: float
+    length: float
+
+    def probabilities(self, tau: float) -> tuple[float, float]:
+        """(enter, leave): the chance a sample of ``tau`` seconds starts or ends a burst."""
+        return min(1.0, tau / self.every), min(1.0, tau / self.length)
+
+
+class BurstStates:
+    """One receiver's Gilbert–Elliott chain: calm from sample 0, then alternately in a burst
+    and calm for geometric numbers of samples (P(enter) and P(leave) a sample:
+    ``Burst.probabilities``), drawn from its own generator one stay at a time as far as asked,
+    so the same samples are in bursts however a run asks for them."""
+
+    def __init__(self, burst: Burst, tau: float, rng: np.random.Generator) -> None:
+        self.burst = burst
+        self.rng = rng
+        self._p = burst.probabilities(tau)
+        self._changes: list[int] = []  # samples where the state flips, ascending
+        self._drawn_to = 0  # the last change drawn (or 0)
+        self._flips_before = 0  # changes dropped as passed: their parity is the state's
+
+    def in_burst(self, lo: int, hi: int) -> np.ndarray:
+        """Whether each sample of [lo, hi) is in a burst (lo never before an earlier call's)."""
+        while self._drawn_to < hi:  # draw stays until one ends at or beyond hi
+            bursting = (self._flips_before + len(self._changes)) % 2 == 1
+            stay = int(self.rng.geometric(self._p[1] if bursting else self._p[0]))
+            self._drawn_to += stay
+            self._changes.append(self._drawn_to)
+        passed = 0
+        while passed < len(self._changes) and self._changes[passed] <= lo:
+            passed += 1
+        if passed:  # changes at or before lo no longer matter but for the parity
+            self._flips_before += passed
+            del self._changes[:passed]
+        k = np.arange(lo, hi, dtype=np.int64)
+        flips = self._flips_before + np.searchsorted(
+            np.asarray(self._changes, dtype=np.int64), k, side="right"
+        )
+        return np.asarray(flips % 2 == 1)
+
+    def sigma(self, lo: int, hi: int, calm: float) -> np.ndarray:
+        """Each sample's noise σ in [lo, hi): ``calm``, or the burst's within a burst."""
+        return np.where(self.in_burst(lo, hi), self.burst.noise, calm)
+
+
+@dataclass(frozen=True)
 class Channel:
     """A run's channel: ``noise`` σ and the link ``gains`` ``{(sender, receiver): g}`` each
     receiver applies (path loss included: ``link_gains``); the ``positions`` (metres, x y z)
@@ -42,6 +99,12 @@ class Channel:
     positions: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
     path_loss: float = 0.0
     reference_distance: float = 1.0
+    burst: Burst | None = None  # bursts of noise on top of ``noise`` (None: none)
+
+    @property
+    def noisy(self) -> bool:
+        """Whether a receiver hears any noise (white, or in bursts)."""
+        return self.noise > 0 or self.burst is not None
 
     def distance(self, a: str, b: str) -> float:
         """The distance between units ``a`` and ``b`` in metres (0 without positions)."""
@@ -93,6 +156,12 @@ def link_gains(
 def noise_rng(seed: int, unit_index: int) -> np.random.Generator:
     """Unit ``unit_index``'s own noise generator in a run of ``seed``."""
     return np.random.default_rng([seed, unit_index, 1])
+
+
+def burst_rng(seed: int, unit_index: int) -> np.random.Generator:
+    """Unit ``unit_index``'s own generator of burst states (``BurstStates``): apart from its
+    noise's, so bursts change no draw of the calm noise."""
+    return np.random.default_rng([seed, unit_index, 2])
 
 
 def heard_by(
