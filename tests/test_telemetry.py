@@ -811,3 +811,39 @@ def test_encode_json_refuses_exactly_the_values_strict_json_refuses(value):
             encode_json(message)
         return
     assert json.loads(encode_json(message)) == want
+
+
+@pytest.mark.parametrize(
+    "message, t_ns",
+    [
+        ({"level": 2, "message": float("nan")}, 5),  # NaN: orjson writes null
+        ({"level": 2, "message": [1, float("inf")]}, 5),
+        ({"level": 2, "message": object()}, 5),  # not JSON at all
+        ({"level": 2, "message": 2**70}, 5),  # beyond 64 bits
+        (["not", "a", "dict"], 5),
+        (SAMPLES["/log"], -1),
+        (SAMPLES["/log"], 2**64),
+        (SAMPLES["/log"], 1.5),
+        (SAMPLES["/log"], True),
+    ],
+)
+def test_a_bad_record_on_an_open_topic_is_refused_as_on_a_new_one(message, t_ns, tmp_path):
+    """The recorder's inline way for topics already written (a run's millions of records)
+    refuses what the checked way refuses, with the same words; and writes on after it."""
+    from rgtbus.telemetry import McapRecorder, scan_log
+
+    said = []
+    for opened in (False, True):
+        path = tmp_path / f"bad{opened}.mcap"
+        with open(path, "wb") as f:
+            rec = McapRecorder(f)
+            if opened:
+                rec.write("/log", SAMPLES["/log"], 1)
+            with pytest.raises(RgtbusError) as e:
+                rec.write("/log", message, t_ns)  # type: ignore[arg-type]
+            said.append(str(e.value))
+            rec.write("/log", SAMPLES["/log"], 7)
+            rec.close()
+        assert rec.counts["/log"] == 1 + opened
+        assert len(scan_log(path).messages) == 1 + opened
+    assert said[0] == said[1]
