@@ -380,3 +380,43 @@ def test_launch_of_twenty_units_concurrent_equals_the_single_process_run(tmp_pat
     assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
     messages, _ = read_log(tmp_path / "run.mcap")
     assert content(messages) == content(ref_messages)
+
+
+def test_a_launch_over_a_channel_with_distance_and_bursts_equals_the_single_process_run(
+    tmp_path,
+):
+    """Positions with free-space loss and noise in bursts (issue 24): units in two processes
+    over zenoh make the run one process makes, and the merged log verifies (each process
+    draws its units' bursts from their own seeds)."""
+    gate = (ROOT / "scenarios" / "gate.toml").read_text()
+    channel = "[channel]\nnoise = 0.0\n"
+    assert channel in gate
+    text = gate.replace(
+        channel,
+        channel + 'path_loss = "free-space"\nreference_distance = 4.0\n'
+        "positions = { a = [0, 0], b = [2.9, 0], c = [0, 2.9], d = [2.9, 2.9, 0.1] }\n"
+        "[channel.burst]\nnoise = 0.002\nevery = 3.0\nlength = 0.2\n",
+        1,
+    )
+    path = tmp_path / "placed.toml"
+    path.write_text(text)
+    sc = load_scenario(path)
+    assert sc.channel.noisy and min(sc.gains.values()) < 1.0
+    rec = MemoryRecorder()
+    ref = run_group(sc, "memory", rec).summary
+    assert ref["error"] is None
+    logs = tmp_path / "logs"
+    argv = [*EXE, "launch", str(path), "--log-dir", str(logs), "--procs", "2", "--json"]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, _ = read_log(logs / "run.mcap")
+    assert content(messages) == content(rec.read()[0])
+    verify = subprocess.run(
+        [*EXE, "replay", str(logs / "run.mcap"), "--verify", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert verify.returncode == 0, verify.stderr
