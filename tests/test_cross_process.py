@@ -76,6 +76,17 @@ def launch_equals_single(argv: list[str], name: str, tmp_path: Path) -> dict:
     return metadata
 
 
+def assert_verifies(log: Path) -> None:
+    """``rgtbus replay LOG --verify`` (a fresh process) finds the log's run again."""
+    verify = subprocess.run(
+        [*EXE, "replay", str(log), "--verify", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert verify.returncode == 0, verify.stderr
+
+
 @pytest.mark.parametrize(
     ("name", "router"),
     [
@@ -121,13 +132,7 @@ def test_launch_with_several_units_a_process_equals_the_single_process_run(
     # the processes that ran several units say which (and every unit is in one of them)
     hosted = [v["units"] for k, v in metadata.items() if k.startswith("run") and "units" in v]
     assert len(hosted) == shared
-    verify = subprocess.run(
-        [*EXE, "replay", str(tmp_path / "run.mcap"), "--verify", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert verify.returncode == 0, verify.stderr
+    assert_verifies(tmp_path / "run.mcap")
 
 
 def test_launch_with_the_users_zenoh_options_goes_through_their_router(procs, tmp_path):
@@ -413,10 +418,4 @@ def test_a_launch_over_a_channel_with_distance_and_bursts_equals_the_single_proc
     assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
     messages, _ = read_log(logs / "run.mcap")
     assert content(messages) == content(rec.read()[0])
-    verify = subprocess.run(
-        [*EXE, "replay", str(logs / "run.mcap"), "--verify", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert verify.returncode == 0, verify.stderr
+    assert_verifies(logs / "run.mcap")

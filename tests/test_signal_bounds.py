@@ -77,8 +77,9 @@ def test_rgtbus_ser_prints_the_table_and_json(capsys):
 @pytest.mark.parametrize(
     "argv, says",
     [
-        (["--sigma", "0.1,x"], "--sigma '0.1,x': 'x' is not a number"),
-        (["--sigma", "nan"], "is not a noise level"),
+        (["--sigma", "0.1,x"], "--sigma: 'x' is not a number"),
+        (["--sigma", "nan"], "--sigma: 'nan' is not finite"),
+        (["--sigma", "0.1,-0.2"], "--sigma: -0.2 is not a noise level >= 0"),
         (["--trials", "0"], "--trials 0: must be at least 1"),
         (["--scenario", "no-such-scenario"], "no-such-scenario"),
     ],

@@ -135,18 +135,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 # -- resonate ------------------------------------------------------------------------------
 
 
-def _parse_pulses(text: str) -> tuple[float, ...]:
+def _numbers(text: str, flag: str) -> tuple[float, ...]:
+    """``1,2.5,-3``: the finite numbers of option ``flag``, or one line naming the bad one."""
     out = []
     for tok in str(text).split(","):
         tok = tok.strip()
         try:
             v = float(tok)
         except ValueError:
-            raise RgtbusError(f"--pulses: {tok!r} is not a number") from None
+            raise RgtbusError(f"{flag}: {tok!r} is not a number") from None
         if not math.isfinite(v):
-            raise RgtbusError(f"--pulses: {tok!r} is not finite")
+            raise RgtbusError(f"{flag}: {tok!r} is not finite")
         out.append(v)
     return tuple(out)
+
+
+def _parse_pulses(text: str) -> tuple[float, ...]:
+    return _numbers(text, "--pulses")
 
 
 def run_resonate(
@@ -258,16 +263,11 @@ def cmd_resonate(args: argparse.Namespace) -> int:
 
 
 def _sigmas(text: str) -> list[float]:
-    out = []
-    for part in text.split(","):
-        try:
-            v = float(part)
-        except ValueError:
-            raise RgtbusError(f"--sigma {text!r}: {part.strip()!r} is not a number") from None
-        if not (math.isfinite(v) and v >= 0):
-            raise RgtbusError(f"--sigma {text!r}: {part.strip()!r} is not a noise level >= 0")
-        out.append(v)
-    return out
+    sigmas = list(_numbers(text, "--sigma"))
+    for v in sigmas:
+        if v < 0:
+            raise RgtbusError(f"--sigma: {v:g} is not a noise level >= 0")
+    return sigmas
 
 
 def cmd_ser(args: argparse.Namespace) -> int:
