@@ -533,6 +533,7 @@ def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
         anchor="schedule",
         kind=sc.schedule,
         influence_rounds=sc.influence_rounds,
+        repair_rounds=sc.repairs_per_phase,
     )
     return plan, plan.begin(relations, influences).listens
 

@@ -115,16 +115,20 @@ def code_samples(start: float, omega: float, pulses: int, tau: float) -> tuple[i
 
 @dataclass(frozen=True, slots=True)
 class Send:
-    """Put ``code`` on ``channel``'s frequency, pulses at ``samples``."""
+    """Put ``code`` on ``channel``'s frequency, pulses at ``samples``. A repair block's sends
+    (``block`` 1..K) are a ``request`` (the ID-code on the turn's sender's channel, sent by a
+    unit unsure of the turn's payload; ``addressee`` is that sender) and a ``repeat`` (the
+    turn's payload again)."""
 
     turn: int
-    kind: str  # "id" | "payload"
+    kind: str  # "id" | "payload" | "request" | "repeat"
     channel: str
     code: str
     start: float
     samples: tuple[int, ...]
     sender: str
     addressee: str
+    block: int = 0  # the repair block (1..K) of a request or a repeat
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,9 +189,12 @@ class Actions:
     quench: list[int] = field(default_factory=list)
     deadline: int | None = None
     queue: ListenQueue | None = None  # ``listens`` in the order they fall due, when shared
+    repairs: list[RepairBlock] = field(default_factory=list)  # repair blocks now known
 
     def __bool__(self) -> bool:
-        return bool(self.sends or self.listens or self.quench or self.deadline is not None)
+        return bool(
+            self.sends or self.listens or self.quench or self.deadline is not None or self.repairs
+        )
 
 
 NEVER = 2**63 - 1  # "no such sample": a promise of silence for the rest of the run
@@ -229,6 +236,7 @@ class Plan:
         kind: str = "serial",
         start: float = 0.001,
         influence_rounds: int = 1,
+        repair_rounds: int = 0,
     ) -> None:
         if kind not in SCHEDULES:
             raise RgtbusError(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
@@ -237,6 +245,7 @@ class Plan:
         self.kind, self.start = kind, start
         self.omegas = dict(omegas)
         self.influence_rounds = influence_rounds
+        self.repair_rounds = repair_rounds  # repair blocks after each phase (0: none)
         self.rounds = (
             tuple(tuple(r) for r in rounds(units, influence_rounds)) if kind == "concurrent" else ()
         )
@@ -314,7 +323,23 @@ class Plan:
             ),
         )
         next_start = payload_start + (self.pulses - 1) * self.periods[t.addressee] + self.guard
-        return Reaction(payload_start, payload, listens, next_start, round(next_start / tau))
+        repairs: tuple[RepairBlock, ...] = ()
+        if self.repair_rounds and self._ends_phase(turn):
+            phase_turns = [u for u in self.schedule if (u.phase, u.round) == (t.phase, t.round)]
+            phase = phases(self.influence_rounds).index((t.phase, t.round))
+            # one code at a time: the phase's last payload pulse is this turn's
+            repairs = repair_blocks(self, phase_turns, phase, ready, payload[-1] * tau)
+            next_start = repairs[-1].end + self.guard
+        return Reaction(
+            payload_start, payload, listens, next_start, round(next_start / tau), repairs
+        )
+
+    def _ends_phase(self, turn: int) -> bool:
+        """Whether turn ``turn`` is its phase's last (serial: the next is of another phase)."""
+        if turn + 1 == len(self.schedule):
+            return True
+        t, nxt = self.schedule[turn], self.schedule[turn + 1]
+        return (nxt.phase, nxt.round) != (t.phase, t.round)
 
 
 @dataclass(frozen=True, slots=True)
@@ -334,6 +359,104 @@ class RoundTiming:
     quench: int  # the round's first sample: resonators to rest before it
     placed: tuple[Placed, ...]
     end: float  # the last payload pulse
+    repairs: tuple[RepairBlock, ...] = ()  # after a phase's last round (``repair_blocks``)
+
+
+@dataclass(frozen=True, slots=True)
+class RepairSlot:
+    """One payload of a phase in a repair block: where a unit unsure of it asks for it again
+    (the ID-code on the sender's channel, ``request``) and where its sender repeats it, if
+    it heard the request (the same code on the addressee's channel, ``repeat``)."""
+
+    turn: int
+    sender: str
+    addressee: str
+    request_start: float
+    request: tuple[int, ...]
+    repeat_start: float
+    repeat: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class RepairBlock:
+    """Repair block ``number`` (1..K) after phase ``phase`` (an index into ``phases``): a slot
+    for every payload of the phase, at fixed samples, whether or not anybody asks (so every
+    unit agrees on the timing whatever it heard; docs/protocol.md, "Repair").
+
+    A unit chooses its requests from what it decoded before ``request_choice``, a sender its
+    repeats from the samples before ``repeat_choice`` (each one reaction delay before the
+    first pulse it may send), and a requester reads the copies after ``ready``."""
+
+    phase: int
+    number: int
+    request_choice: int
+    repeat_choice: int
+    ready: int
+    slots: tuple[RepairSlot, ...]
+    start: float  # the first request pulse's time
+    end: float  # the last repeat pulse's time
+    phase_end: float  # the phase's last payload pulse's time (the blocks add ``end`` - it)
+
+    @property
+    def first_request(self) -> int:
+        return min(s.request[0] for s in self.slots)
+
+    @property
+    def first_repeat(self) -> int:
+        return min(s.repeat[0] for s in self.slots)
+
+
+def repair_blocks(
+    plan: Plan, phase_turns: Sequence[Turn], phase: int, ready: int, phase_end: float
+) -> tuple[RepairBlock, ...]:
+    """The ``plan.repair_rounds`` repair blocks after a phase whose last payload pulse is at
+    ``phase_end`` and whose last decode is ready at sample ``ready``. Each block: the
+    requests, placed from ``reaction_delay + guard`` after the last sample anything of the
+    block depends on, one ID-code a payload on its sender's channel; then, as far after the
+    last request, the repeats, each payload on its addressee's channel. Codes are moved later
+    by whole samples until no two pulses share a sample (as a concurrent round's), so a
+    request and a repeat are each read alone. Pure: every unit lays out the same blocks."""
+    tau, pulses, delay, guard = plan.tau, plan.pulses, plan.reaction_delay, plan.guard
+    hints: dict[tuple[float, float], int] = {}
+    out: list[RepairBlock] = []
+    last = ready
+    for number in range(1, plan.repair_rounds + 1):
+        q = (last + 1) * tau + guard + delay
+        used = _Occupied(round(q / tau) - 1)
+        hints.clear()
+        requests = [
+            _place(used, hints, q, plan.omegas[t.sender], pulses, tau,
+                   f"repair block {number}: the request for {t.sender} -> {t.addressee}")
+            for t in phase_turns
+        ]  # fmt: skip
+        asked = max(r[-1] for _, r in requests)
+        r0 = (asked + 1) * tau + guard + delay
+        used = _Occupied(round(r0 / tau) - 1)
+        hints.clear()
+        repeats = [
+            _place(used, hints, r0, plan.omegas[t.addressee], pulses, tau,
+                   f"repair block {number}: the repeat of {t.sender} -> {t.addressee}")
+            for t in phase_turns
+        ]  # fmt: skip
+        slots = tuple(
+            RepairSlot(t.index, t.sender, t.addressee, qs, qk, rs, rk)
+            for t, (qs, qk), (rs, rk) in zip(phase_turns, requests, repeats, strict=True)
+        )
+        last = max(r[-1] for _, r in repeats)
+        out.append(
+            RepairBlock(
+                phase,
+                number,
+                choice_sample(q, delay, tau),
+                choice_sample(r0, delay, tau),
+                last,
+                slots,
+                min(qs for qs, _ in requests),
+                last * tau,
+                phase_end,
+            )
+        )
+    return tuple(out)
 
 
 class _Occupied:
@@ -367,6 +490,41 @@ class _Occupied:
 _SHIFTS = np.arange(64)  # a block of shifts screened at once (``place_rounds``)
 
 
+def _place(
+    used: _Occupied,
+    hints: dict[tuple[float, float], int],
+    start: float,
+    omega: float,
+    pulses: int,
+    tau: float,
+    what: str,
+) -> tuple[float, tuple[int, ...]]:
+    """The first start, ``start`` moved later by whole samples, at which a code on ω has
+    none of its pulses on a sample ``used`` already holds; taken. Moving a code by j samples
+    moves its pulses by about j: shifts are screened 64 at a time on the occupancy array,
+    and a screened one is confirmed with the exact instants (a rounding tie can move one
+    pulse a sample further). A block only takes samples, so a shift refused to a code stays
+    refused to the next with the same start and ω (``hints``): the search goes on from there."""
+    first_samples = code_samples(start, omega, pulses, tau)
+    base = np.asarray(first_samples, dtype=np.int64)[:, None] - used.origin
+    first = hints.get((start, omega), 0)
+    for lo in range(first, MAX_STAGGER + 1, 64):
+        hi = min(lo + 64, MAX_STAGGER + 1)
+        occupied = used.reach(first_samples[-1] + hi - 1)
+        free = ~occupied[base + _SHIFTS[: hi - lo] + lo].any(axis=0)
+        for j in (np.flatnonzero(free) + lo).tolist():
+            s = start + j * tau
+            samples = code_samples(s, omega, pulses, tau)
+            if len(set(samples)) == len(samples) and used.free(samples):
+                used.take(samples)
+                hints[(start, omega)] = j + 1
+                return s, samples
+    raise RgtbusError(
+        f"{what} finds no free samples within {MAX_STAGGER} samples of its place (too many "
+        "codes for the sample rate)"
+    )
+
+
 def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
     """Every round of a concurrent schedule, timed (docs/protocol.md, "Concurrent schedule").
 
@@ -382,35 +540,15 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
     out: list[RoundTiming] = []
     t0 = plan.start
 
+    hints: dict[tuple[float, float], int] = {}  # (start, ω) -> the first shift not refused
+
     def place(
         used: _Occupied, start: float, omega: float, what: str
     ) -> tuple[float, tuple[int, ...]]:
-        # Moving a code by j samples moves its pulses by about j: shifts are screened 64 at a
-        # time on the occupancy array, and a screened one is confirmed with the exact instants
-        # (a rounding tie can move one pulse a sample further). A round only takes samples,
-        # so a shift refused to a code stays refused to the next with the same start and ω
-        # (a sender's IDs, an addressee's payloads): the search goes on from there.
-        first_samples = code_samples(start, omega, pulses, tau)
-        base = np.asarray(first_samples, dtype=np.int64)[:, None] - used.origin
-        first = hints.get((start, omega), 0)
-        for lo in range(first, MAX_STAGGER + 1, 64):
-            hi = min(lo + 64, MAX_STAGGER + 1)
-            occupied = used.reach(first_samples[-1] + hi - 1)
-            free = ~occupied[base + _SHIFTS[: hi - lo] + lo].any(axis=0)
-            for j in (np.flatnonzero(free) + lo).tolist():
-                s = start + j * tau
-                samples = code_samples(s, omega, pulses, tau)
-                if len(set(samples)) == len(samples) and used.free(samples):
-                    used.take(samples)
-                    hints[(start, omega)] = j + 1
-                    return s, samples
-        raise RgtbusError(
-            f"concurrent schedule: {what} finds no free samples within {MAX_STAGGER} "
-            "samples of its place (too many codes for the sample rate)"
-        )
+        return _place(used, hints, start, omega, pulses, tau, f"concurrent schedule: {what}")
 
-    hints: dict[tuple[float, float], int] = {}  # (start, ω) -> the first shift not refused
-    for turns_of_round in plan.rounds:
+    per_phase = max(1, len(plan.units) - 1)  # rounds a phase
+    for i, turns_of_round in enumerate(plan.rounds):
         used = _Occupied(round(t0 / tau) - 1)
         hints.clear()  # a round's samples of its own
         ids = [
@@ -426,9 +564,14 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
                 f"the code of {t.sender} to {t.addressee}",
             )
             placed.append(Placed(t, id_start, id_samples, p_start, p_samples))
-        end = max(p.payload_samples[-1] for p in placed) * tau
-        out.append(RoundTiming(t0, round(t0 / tau), tuple(placed), end))
-        t0 = end + plan.guard
+        last = max(p.payload_samples[-1] for p in placed)
+        end = last * tau
+        repairs: tuple[RepairBlock, ...] = ()
+        if plan.repair_rounds and (i + 1) % per_phase == 0:  # the phase's last round
+            phase_turns = [t for r in plan.rounds[i + 1 - per_phase : i + 1] for t in r]
+            repairs = repair_blocks(plan, phase_turns, i // per_phase, last + plan.search, end)
+        out.append(RoundTiming(t0, round(t0 / tau), tuple(placed), end, repairs))
+        t0 = (repairs[-1].end if repairs else end) + plan.guard
     return tuple(out)
 
 
@@ -439,6 +582,7 @@ class Reaction:
     listens: tuple[Listen, Listen]
     next_start: float
     next_quench: int  # the next turn's start as a sample: resonators to rest before it
+    repairs: tuple[RepairBlock, ...] = ()  # after the phase this turn ends (``repair_blocks``)
 
 
 # One Plan for every unit of a run: the constructor, cached on its (hashable) arguments.
@@ -461,6 +605,7 @@ class ProtocolState:
     anchor: str = "spike"  # what a reaction counts from: the ID spike, or the ID's last pulse
     kind: str = "serial"  # the schedule: one code at a time, or rounds of n at once
     influence_rounds: int = 1  # influence phases after the relationship phase (the paper: 1)
+    repair_rounds: int = 0  # repair blocks after each phase ([protocol] repair "arq"); 0: none
     schedule: tuple[Turn, ...] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
@@ -474,6 +619,11 @@ class ProtocolState:
                 "the concurrent schedule is timed by the schedule (anchor schedule): every "
                 "round is known before the run"
             )
+        if self.repair_rounds and self.anchor != "schedule":
+            raise RgtbusError(
+                "repair needs turns timed by the schedule (anchor schedule): a repair block "
+                "sits at samples every unit must know whatever it heard"
+            )
         self.plan = plan_of(
             tuple(self.units),
             tuple((u, float(self.omegas[u])) for u in self.units),
@@ -485,6 +635,7 @@ class ProtocolState:
             self.kind,
             self.start,
             self.influence_rounds,
+            self.repair_rounds,
         )
         self.schedule = self.plan.schedule
         self._periods = self.plan.periods
@@ -542,6 +693,7 @@ class ProtocolState:
             acts.sends += more.sends
             listens += more.listens
             acts.quench += more.quench
+            acts.repairs += more.repairs
         acts.listens = listens
         acts.deadline = self._deadline()
         return acts
@@ -554,6 +706,7 @@ class ProtocolState:
             if i:
                 acts.quench.append(rnd.quench)
                 self.turn_starts.append(rnd.start)
+            acts.repairs.extend(rnd.repairs)
             for p in rnd.placed:
                 t = p.turn
                 if t.sender == self.me:
@@ -630,7 +783,7 @@ class ProtocolState:
             self.turn_starts.append(self.turn_start)
             quench.append(r.next_quench)
         sends.extend(self._id_actions())
-        return Actions(sends, list(r.listens), quench)
+        return Actions(sends, list(r.listens), quench, repairs=list(r.repairs))
 
     def _deadline(self) -> int | None:
         """The current turn's ID deadline when the chain depends on its spike."""

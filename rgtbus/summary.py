@@ -65,6 +65,7 @@ SUMMARY_JSON_KEYS = (
     "engine",
     "log",
     "decode_errors",
+    "repair",
     "error",
 )
 
@@ -356,12 +357,31 @@ def summarise(
         },
         "outcome": outcome,
         "decode_errors": decode_errors,
+        "repair": repair_summary(sc, reports),
         "sim_seconds": round(result.sim_seconds, 6),
         "wall_seconds": round(result.wall_seconds, 3),
         "engine": engine,
         "steps": result.steps,
         "bus": result.bus_stats,
         "error": error,
+    }
+
+
+REPAIR_COUNTS = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")
+
+
+def repair_summary(sc: Scenario, reports: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
+    """What the repair cost and did (``[protocol] repair = "arq"``; None without): its blocks
+    after each phase, the simulated seconds they add, and the units' counts summed (requests
+    and repeats sent, copies read and missing, payloads resolved and still unsure)."""
+    if sc.repair == "none":
+        return None
+    counts = [r["repair"] for r in reports if r.get("repair") is not None]
+    return {
+        "mode": sc.repair,
+        "blocks_per_phase": sc.repair_rounds,
+        "seconds": max((c["seconds"] for c in counts), default=0.0),
+        **{k: sum(int(c[k]) for c in counts) for k in REPAIR_COUNTS},
     }
 
 

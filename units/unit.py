@@ -35,13 +35,20 @@ from rgtbus.protocol import (
     Listen,
     ListenQueue,
     ProtocolState,
+    RepairBlock,
     Send,
     choice_sample,
     code_samples,
 )
 from rgtbus.scenario import Scenario
 from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
-from rgtbus.signal.decoder import Readout, WordSet, decode_among_columns, nearest_columns
+from rgtbus.signal.decoder import (
+    Readout,
+    WordSet,
+    decode_among_columns,
+    nearest,
+    nearest_columns,
+)
 from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
@@ -115,6 +122,38 @@ class DecodeColumns:
         return [list(row) for row in self]
 
 
+# a repair block's steps, each a timer: choose the requests, choose the repeats, read the copies
+_REPAIR_STEPS = ("request", "repeat", "copies")
+_LATE_TIMERS = frozenset(("choose", *_REPAIR_STEPS))  # after the decodes due at their boundary
+SILENCE = "(silence)"  # the word of nothing sent (a copy that did not come)
+
+
+@dataclass
+class _Unsure:
+    """A payload a unit is not sure of (``[protocol] repair``): the sum of what it read at the
+    payload's instants and at each copy's (their mean is decoded: white noise falls as
+    1/√copies), how many reads, and its best reading so far."""
+
+    listen: Listen
+    channel: int  # the expected addressee's channel (index)
+    family: str  # "relation" | "alternative"
+    total: np.ndarray
+    reads: int
+    best: str
+
+
+def _send_text(send: Send) -> str:
+    """The log line of a send going on air."""
+    if send.kind == "request":
+        return (
+            f"{send.sender}: asks {send.addressee} for turn {send.turn} again (repair block "
+            f"{send.block}) on {send.channel}'s frequency"
+        )
+    what = "ID" if send.kind == "id" else send.code
+    again = f" again (repair block {send.block})" if send.kind == "repeat" else ""
+    return f"{send.sender} -> {send.addressee}: {what}{again} on {send.channel}'s frequency"
+
+
 class _Timer(NamedTuple):
     """A unit's timer. A plain tuple, so the heap orders timers in C: by boundary, then rank,
     then seq (unique, so the fields after it are never compared)."""
@@ -123,7 +162,7 @@ class _Timer(NamedTuple):
     rank: int  # at one boundary: decodes and checks (0) before choices (1)
     seq: int
     at: int  # the sample it belongs to (its time)
-    kind: str  # "listen" | "deadline" | "limit" | "choose"
+    kind: str  # "listen" | "deadline" | "limit" | "choose" | "request" | "repeat" | "copies"
     listen: Listen | None = None
     # a listen from a shared queue: (queue, its first seq, its place in the queue); when it
     # is taken the next of the queue goes on the heap (one entry per queue, not per listen)
@@ -230,6 +269,7 @@ class AutonomousUnit:
             anchor=sc.timing.anchor,
             kind=sc.schedule,
             influence_rounds=sc.influence_rounds,
+            repair_rounds=sc.repairs_per_phase,
         )
         self.mind = mind_of(sc, self.name)
         self.goals = sc.goals_of(self.name)
@@ -267,6 +307,27 @@ class AutonomousUnit:
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
+        # [protocol] repair = "arq" (docs/protocol.md, "Repair")
+        self._arq = sc.repairs_per_phase
+        self._unsure: dict[int, _Unsure] = {}  # turn -> what it read of a payload unsure
+        self._requested: set[int] = set()  # turns it asked for in the current block
+        self._repair_of: dict[int, RepairBlock] = {}  # a repair timer's seq -> its block
+        self._repair_first: list[tuple[int, int]] = []  # (first sample it may send, seq)
+        self._repair_left = 0  # repair timers not yet run: it is not finished before
+        self._payload_code: dict[int, str] = {}  # turn -> the payload code it sent
+        self.repair_counts: records.RepairCounts = {
+            "requests": 0, "repeats": 0, "copies": 0, "missing": 0, "resolved": 0,
+            "unresolved": 0, "seconds": 0.0,
+        }  # fmt: skip
+        if self._arq:
+            zeros = (0.0,) * self.cb.pulses
+            self._unsure_below = {
+                f: sc.repair_margin * self.cb.family_min_distance(f) for f in self._families
+            }
+            self._request_words = WordSet.of({"request": self.cb.id_word, SILENCE: zeros})
+            self._copy_words = {
+                f: WordSet.of({**self.cb.family(f), SILENCE: zeros}) for f in self._families
+            }
 
     # -- the world's interface ---------------------------------------------------------------
 
@@ -331,7 +392,8 @@ class AutonomousUnit:
         before ``horizon``."""
         if self.done:
             return NEVER
-        return min(self.protocol.send_bound(horizon), self._pending_first)
+        first = self._repair_first[0][0] if self._repair_first else NEVER
+        return min(self.protocol.send_bound(horizon), self._pending_first, first)
 
     def awaited(self) -> tuple[int, int, int] | None:
         """The spike this unit's next plans wait for: (channel index, earliest sample, latest
@@ -543,6 +605,8 @@ class AutonomousUnit:
         on), else ``e``; 0 when the mind's tables are not this run's arrays."""
         mind = self.mind
         sent = mind.sent
+        if self._arq:  # a decode may be unsure (held for repair): each is taken on its own
+            return 0
         if not isinstance(sent, PairTable) or sent.units != self.units or not reads.unique:
             return 0
         full = len(self.units) * (len(self.units) - 1)
@@ -694,6 +758,8 @@ class AutonomousUnit:
                 self._fail(err, t.at)
         elif t.kind == "choose":
             self._choose(t.seq, t.at)
+        elif t.kind in _REPAIR_STEPS:
+            self._repair_step(t)
         elif t.kind == "limit":
             self._fail(
                 f"{self.name}: not finished after {self.scenario.timing.max_seconds:g} s of "
@@ -715,6 +781,7 @@ class AutonomousUnit:
             # what the protocol planned still goes out; an unchosen code is the policy's
             for seq in sorted(self._pending):
                 self._choose(seq, at, why="it failed before its choice")
+            self._repair_first = []  # a unit that failed asks for nothing and repeats nothing
 
     def _add(
         self,
@@ -723,7 +790,7 @@ class AutonomousUnit:
         kind: str,
         listen: Listen | None = None,
     ) -> _Timer:
-        timer = _Timer(boundary, int(kind == "choose"), self._seq, at, kind, listen)
+        timer = _Timer(boundary, int(kind in _LATE_TIMERS), self._seq, at, kind, listen)
         self._seq += 1
         heapq.heappush(self._timers, timer)
         if kind != "listen":
@@ -762,11 +829,13 @@ class AutonomousUnit:
                 heapq.heapify(self._timers)
             d = acts.deadline
             self._deadline = self._add(d + 1, d, "deadline")
+        for block in acts.repairs:
+            self._plan_repair(block)
 
     # -- transmitting ------------------------------------------------------------------------
 
     def word(self, send: Send) -> tuple[float, ...]:
-        if send.kind == "id":
+        if send.kind in ("id", "request"):
             return self.cb.id_word
         if send.code in self.cb.relations:
             return self.cb.relations[send.code]
@@ -826,7 +895,10 @@ class AutonomousUnit:
     def _emit(self, send: Send) -> None:
         word = self.word(send)  # the codebook's own tuple: shared, not a list a send
         self._outbox.extend((k, float(m)) for k, m in zip(send.samples, word, strict=True))
-        self.sent.append(send)
+        if not send.block:  # a repair's sends are counted (``repair_counts``), not listed
+            self.sent.append(send)
+            if send.kind == "payload":
+                self._payload_code[send.turn] = send.code
         assert self.env is not None
         if self.recorder.enabled:  # its transmitter logs the pulses at their times
             at = min(send.start, send.samples[0] * self.tau)
@@ -856,16 +928,10 @@ class AutonomousUnit:
                     self._air_until = AWAKE
             heapq.heappop(air)
             if j < 0:
-                what = "ID" if send.kind == "id" else send.code
-                self.recorder.log(
-                    "info",
-                    f"{send.sender} -> {send.addressee}: {what} on {send.channel}'s frequency",
-                    ns(send.start),
-                    name=self.name,
-                )
+                self.recorder.log("info", _send_text(send), ns(send.start), name=self.name)
                 # what every pulse of the send names: built once a send, not once a pulse
                 message = records.message_ref(
-                    send.turn, send.kind, send.code, send.sender, send.addressee
+                    send.turn, send.kind, send.code, send.sender, send.addressee, send.block
                 )
                 ref = (message, self.scenario.frequencies[send.channel])
             else:
@@ -878,6 +944,134 @@ class AutonomousUnit:
             if j + 1 < len(send.samples):
                 heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word, ref))
         self._transmitter = None
+
+    # -- repair ([protocol] repair = "arq"; docs/protocol.md, "Repair") ------------------------
+
+    def _plan_repair(self, block: RepairBlock) -> None:
+        """A repair block's three steps as timers, each after the decodes due at its sample;
+        until a step that may send has run, nothing of this unit goes out after its first
+        pulse unplanned (the promise)."""
+        for step, boundary in zip(
+            _REPAIR_STEPS, (block.request_choice, block.repeat_choice, block.ready + 1), strict=True
+        ):
+            timer = self._add(boundary, boundary - 1, step)
+            self._repair_of[timer.seq] = block
+            self._repair_left += 1
+            if step != "copies":
+                first = block.first_request if step == "request" else block.first_repeat
+                heapq.heappush(self._repair_first, (first, timer.seq))
+        if block.number == self._arq:  # what the phase's blocks add to the run
+            seconds = self.repair_counts["seconds"] + block.end - block.phase_end
+            self.repair_counts["seconds"] = round(seconds, 9)
+
+    def _repair_step(self, t: _Timer) -> None:
+        block = self._repair_of.pop(t.seq)
+        self._repair_left -= 1
+        self._repair_first = [e for e in self._repair_first if e[1] != t.seq]
+        heapq.heapify(self._repair_first)
+        if self.failure is not None:
+            return
+        if t.kind == "request":
+            self._request(block)
+        elif t.kind == "repeat":
+            self._repeat(block)
+        else:
+            self._read_copies(block, t.at)
+        if not self._repair_left and self.mind.all_rounds_decided:
+            self.finished = True
+
+    def _hold(self, listen: Listen, code: str, accepted: bool, margin: float) -> bool:
+        """Hold a payload this unit is not sure of: it asks for it again in the next repair
+        block. Unsure is: found off its addressee's channel, read with a margin below
+        ``repair_margin`` of its family's smallest word distance, or read otherwise at the
+        instants the schedule gives it (the timing search found a better fit a sample or two
+        off: other codes' pulses, on a noisy medium). Returns whether it was held."""
+        family = "relation" if listen.kind == "relation" else "alternative"
+        assert self.ears is not None
+        ch = self._index[listen.expected_addressee]
+        samples = code_samples(listen.start, self.omegas[ch], self.cb.pulses, self.tau)
+        exact = self.ears.read_code(self.index, samples, ch, self._families[family])
+        below = self._unsure_below[family]
+        if accepted and margin >= below and exact.name == code and exact.margin >= below:
+            return False
+        self._unsure[listen.turn] = _Unsure(
+            listen, ch, family, np.array(exact.values), 1, exact.name
+        )
+        return True
+
+    def _request(self, block: RepairBlock) -> None:
+        """Ask for every payload of the block's phase it is still unsure of: the ID-code on
+        the payload's sender's channel, in the payload's request slot."""
+        self._requested = set()
+        for slot in block.slots:
+            if slot.turn in self._unsure:
+                self._requested.add(slot.turn)
+                self.repair_counts["requests"] += 1
+                self._emit(
+                    Send(slot.turn, "request", slot.sender, "id", slot.request_start,
+                         slot.request, self.name, slot.sender, block.number)
+                )  # fmt: skip
+
+    def _repeat(self, block: RepairBlock) -> None:
+        """Repeat each payload of its own it hears asked for (the request slot reads nearer
+        the ID-code than silence on its channel; any number of requesters add up there)."""
+        assert self.ears is not None
+        me = self.index
+        for slot in block.slots:
+            if slot.sender != self.name:
+                continue
+            asked = self.ears.read_code(me, slot.request, self._index[self.name],
+                                        self._request_words)  # fmt: skip
+            code = self._payload_code.get(slot.turn)
+            if asked.name == SILENCE or code is None:
+                continue
+            self.repair_counts["repeats"] += 1
+            self._emit(
+                Send(slot.turn, "repeat", slot.addressee, code, slot.repeat_start, slot.repeat,
+                     self.name, slot.addressee, block.number)
+            )  # fmt: skip
+
+    def _read_copies(self, block: RepairBlock, at: int) -> None:
+        """Read the copies it asked for: a copy adds to what it read before, and the mean is
+        decoded; sure now, it learns the payload. After the phase's last block, what is
+        still unsure is learned as it reads best."""
+        assert self.ears is not None
+        t = at * self.tau
+        for slot in block.slots:
+            held = self._unsure.get(slot.turn)
+            if held is None or slot.turn not in self._requested:
+                continue
+            copy = self.ears.read_code(self.index, slot.repeat, held.channel,
+                                       self._copy_words[held.family])  # fmt: skip
+            if copy.name == SILENCE:  # its request was not heard (or not answered)
+                self.repair_counts["missing"] += 1
+                continue
+            self.repair_counts["copies"] += 1
+            held.total = held.total + np.array(copy.values)
+            held.reads += 1
+            best = nearest(held.total / held.reads, self._families[held.family])
+            held.best = best.name
+            listen = held.listen
+            addressee = self.units[held.channel]
+            self._record(listen, addressee, best.name, best.margin, t, True, channel=addressee)
+            if best.margin >= self._unsure_below[held.family]:
+                del self._unsure[slot.turn]
+                self.repair_counts["resolved"] += 1
+                self._learn(listen, best.name, t)
+        if block.number < self._arq:
+            return
+        for slot in block.slots:
+            held = self._unsure.pop(slot.turn, None)
+            if held is not None:
+                self.repair_counts["unresolved"] += 1
+                self.recorder.log(
+                    "warning",
+                    f"{self.name}: turn {slot.turn}: still unsure after {self._arq} repair "
+                    f"blocks, taken as {held.best!r}",
+                    ns(t),
+                    name=self.name,
+                )
+                self._learn(held.listen, held.best, t)
 
     # -- traces --------------------------------------------------------------------------------
 
@@ -941,11 +1135,14 @@ class AutonomousUnit:
                 channel=listen.sender,
             )
             if not accepted:
-                self._fail(
+                text = (
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
-                    f"decoded as {code!r}",
-                    listen.ready_sample,
+                    f"decoded as {code!r}"
                 )
+                if self._arq:  # the schedule says when the payload comes: the repair reads it
+                    self.recorder.log("warning", text, ns(t_ready), name=self.name)
+                else:
+                    self._fail(text, listen.ready_sample)
             return
         addressee = self.units[ch]
         accepted = addressee == listen.expected_addressee
@@ -958,6 +1155,8 @@ class AutonomousUnit:
                 ns(t_ready),
                 name=self.name,
             )
+        if self._arq and self._hold(listen, code, accepted, margin):
+            return
         self._learn(listen, code, t_ready)
 
     def _record(
@@ -1035,7 +1234,7 @@ class AutonomousUnit:
                 if self.recorder.enabled:
                     self._log_influences(t, done)
                 self._log_decisions(t, done)
-            if mind.all_rounds_decided:
+            if mind.all_rounds_decided and not self._repair_left:
                 self.finished = True
 
     def _log_relations(self, t: float) -> None:
@@ -1082,7 +1281,7 @@ class AutonomousUnit:
         """What this unit knows at the end of its run (``/unit/report``): everything its share
         of the run summary needs but its decodes (those are ``/rx/decodes``)."""
         mind = self.mind
-        return {
+        out: records.UnitReportRecord = {
             "unit": self.name,
             "installed": mind.installed(),
             "polynomial": mind.polynomial,
@@ -1098,6 +1297,9 @@ class AutonomousUnit:
             "done_at": self.done_at if self.done else None,
             "mind_error": mind.error,
         }
+        if self._arq:
+            out["repair"] = dict(self.repair_counts)  # type: ignore[typeddict-item]
+        return out
 
     def report(self) -> dict:
         """This unit's share of the run summary (``rgtbus.summary.summarise``): its report

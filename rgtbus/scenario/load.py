@@ -137,7 +137,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     units, universe = group.units, group.universe
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     protocol = protocol_of(ctx, data)
-    timing = timing_of(ctx, data, protocol.schedule)
+    timing = timing_of(ctx, data, protocol.schedule, protocol.repair)
     # How big the run would be, before anything is built (the codebook's search: codebook_of).
     check_size(ctx, data, len(units), protocol.influence_rounds, timing)
     mode = mode_of(ctx, data)
@@ -185,5 +185,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         influence_value=influences.value,
         influence_weights=influences.weights,
         influence_rounds=protocol.influence_rounds,
+        repair=protocol.repair,
+        repair_rounds=protocol.repair_rounds,
+        repair_margin=protocol.repair_margin,
         goals=goals,
     )

@@ -93,6 +93,17 @@ class Scenario:
     path_loss: float = 0.0
     reference_distance: float = 1.0
     burst: Burst | None = None  # [channel.burst]: noise in bursts (Gilbert–Elliott)
+    # [protocol] repair: "none" (the paper) or "arq" (docs/protocol.md, "Repair"); its blocks
+    # after each phase and the margin (a fraction of a family's smallest word distance) below
+    # which a decode is unsure
+    repair: str = "none"
+    repair_rounds: int = 3
+    repair_margin: float = 0.65
+
+    @property
+    def repairs_per_phase(self) -> int:
+        """Repair blocks after each phase (0: no repair)."""
+        return self.repair_rounds if self.repair == "arq" else 0
 
     def goals_of(self, unit: str) -> dict[str, Goal]:
         """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""

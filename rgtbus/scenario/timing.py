@@ -27,19 +27,29 @@ _GUARD_WHY = (
 )
 
 
-def timing_of(ctx: Ctx, data: dict[str, Any], schedule: str) -> Timing:
-    """The timing; the concurrent schedule times its own rounds (its default anchor)."""
+def timing_of(ctx: Ctx, data: dict[str, Any], schedule: str, repair: str = "none") -> Timing:
+    """The timing; the concurrent schedule times its own rounds, and a repair needs turns timed
+    by the schedule (each makes anchor ``schedule`` the default)."""
     t = sub_table(ctx, data, "timing")
     check_keys(ctx, t, TIMING_KEYS, "timing")
-    anchor = _anchor_of(ctx, t, schedule)
+    anchor = _anchor_of(ctx, t, schedule, repair)
     timing = Timing(**_values_of(ctx, t), anchor=anchor)
     _check_window(ctx, t, timing)
     _check_gaps(ctx, t, timing)
     return timing
 
 
-def _anchor_of(ctx: Ctx, t: dict[str, Any], schedule: str) -> str:
-    anchor = t.get("anchor", "schedule" if schedule == "concurrent" else "spike")
+def _anchor_of(ctx: Ctx, t: dict[str, Any], schedule: str, repair: str = "none") -> str:
+    by_schedule = schedule == "concurrent" or repair != "none"
+    anchor = t.get("anchor", "schedule" if by_schedule else "spike")
+    if repair != "none" and anchor != "schedule":
+        raise ctx.error(
+            "timing",
+            "anchor",
+            f"{anchor!r} with [protocol] repair = {repair!r}: a repair block sits at samples "
+            'every unit must know whatever it heard, use anchor = "schedule" (the default '
+            "with it)",
+        )
     if schedule == "concurrent" and anchor != "schedule":
         raise ctx.error(
             "timing",

@@ -138,7 +138,7 @@ def _fields(message: Any) -> dict[str, Any]:
 
 def _value(sc: Scenario | None, kind: str, code: str | None) -> Any:
     """A decoded or sent code as a plain value: an alternative as its sorted action names."""
-    if sc is None or code is None or kind not in ("influence", "payload"):
+    if sc is None or code is None or kind not in ("influence", "payload", "repeat"):
         return code
     if code in ("alliance", "conflict", "id"):
         return code

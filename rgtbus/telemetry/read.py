@@ -286,21 +286,26 @@ class Replay:
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
-        groups: dict[tuple[str, int], list[dict]] = {}
+        groups: dict[tuple[str, int, int], list[dict]] = {}
         for _, p in self.by_topic["/tx/pulse"]:
-            groups.setdefault((p["unit"], p["message"]["id"]), []).append(p)
+            m = p["message"]
+            groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
         out = []
         n = len(self.units)
-        for (_, mid), pulses in groups.items():
+        for (_, mid, _), pulses in groups.items():
             msg = pulses[0]["message"]
             turn = mid // 2
             phase = _phase_of(turn, n)
             if msg["kind"] == "id":
                 meaning = "ID"
+            elif msg["kind"] == "request":
+                meaning = f"request (repair block {msg['block']})"
             elif phase == "relations":
                 meaning = msg["code"]
             else:
                 meaning = f"influence {msg['code']}"
+            if msg["kind"] == "repeat":
+                meaning += f" again (repair block {msg['block']})"
             out.append(
                 Transmission(
                     turn=turn,

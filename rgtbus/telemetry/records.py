@@ -11,7 +11,7 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, TypeAlias, TypedDict, cast
+from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
 from rgtbus.summary import DecisionRow
@@ -28,12 +28,13 @@ BoolColumn: TypeAlias = "Sequence[bool] | np.ndarray"
 Alternative = list[str]
 
 
-class MessageRef(TypedDict):
-    id: int  # turn * 2 (+1 for the payload)
-    kind: str  # "id" | "payload"
-    code: str
-    sender: str
-    addressee: str
+class MessageRef(TypedDict, total=False):
+    id: Required[int]  # turn * 2 (+1 for the payload, a request's or a repeat's)
+    kind: Required[str]  # "id" | "payload" | "request" | "repeat"
+    code: Required[str]
+    sender: Required[str]
+    addressee: Required[str]
+    block: int  # a request's or a repeat's repair block (1..K); absent otherwise
 
 
 class PulseRecord(TypedDict):
@@ -94,15 +95,15 @@ class RelationsRecord(TypedDict):
     unit: str
     t: float
     sent: dict[str, str]
-    installed: dict[str, str]
-    polynomial: str | None
-    p4: list[str] | None
+    installed: Required[dict[str, str]]
+    polynomial: Required[str | None]
+    p4: Required[list[str] | None]
 
 
 class InfluencesRecord(TypedDict):
     unit: str
     t: float
-    influences: dict[str, Alternative]
+    influences: Required[dict[str, Alternative]]
     round: int
 
 
@@ -138,21 +139,34 @@ class GoalRecord(TypedDict):
     reason: str
 
 
-class UnitReportRecord(TypedDict):
-    unit: str
-    installed: dict[str, str]
-    polynomial: str | None
-    p4: list[str] | None
-    sent_relations: dict[str, str]
-    influences: dict[str, Alternative]
-    result: dict[str, Any]
-    decisions: list[DecisionRow]
-    sends: list[list[Any]]
-    sent_influences: list[dict[str, str]]
-    failure: str | None
-    failed_at: int | None
-    done_at: int | None
-    mind_error: str | None
+class RepairCounts(TypedDict):
+    """What a unit's repair did (``/unit/report`` ``repair``; docs/protocol.md, "Repair")."""
+
+    requests: int  # requests it sent
+    repeats: int  # repeats it sent, as a sender that heard a request
+    copies: int  # copies it read of payloads it was unsure of
+    missing: int  # copies it asked for and heard nothing of (its request was not heard)
+    resolved: int  # payloads it was unsure of and then sure of
+    unresolved: int  # payloads still unsure after the last block: taken as they read best
+    seconds: float  # simulated time the repair blocks add to the run
+
+
+class UnitReportRecord(TypedDict, total=False):
+    unit: Required[str]
+    installed: Required[dict[str, str]]
+    polynomial: Required[str | None]
+    p4: Required[list[str] | None]
+    sent_relations: Required[dict[str, str]]
+    influences: Required[dict[str, Alternative]]
+    result: Required[dict[str, Any]]
+    decisions: Required[list[DecisionRow]]
+    sends: Required[list[list[Any]]]
+    sent_influences: Required[list[dict[str, str]]]
+    failure: Required[str | None]
+    failed_at: Required[int | None]
+    done_at: Required[int | None]
+    mind_error: Required[str | None]
+    repair: RepairCounts  # with [protocol] repair = "arq" only
 
 
 class RunRecord(TypedDict):
@@ -195,15 +209,21 @@ RECORD_TYPES: dict[str, type] = {
 }
 
 
-def message_ref(turn: int, kind: str, code: str, sender: str, addressee: str) -> MessageRef:
-    """Which message a pulse belongs to (``id``: two per turn, the ID-code first)."""
-    return {
-        "id": turn * 2 + (kind == "payload"),
+def message_ref(
+    turn: int, kind: str, code: str, sender: str, addressee: str, block: int = 0
+) -> MessageRef:
+    """Which message a pulse belongs to (``id``: two per turn, the ID-code first; a repair
+    block's request and repeat carry the turn's payload id and their ``block``)."""
+    ref: MessageRef = {
+        "id": turn * 2 + (kind != "id"),
         "kind": kind,
         "code": code,
         "sender": sender,
         "addressee": addressee,
     }
+    if block:
+        ref["block"] = block
+    return ref
 
 
 def pulse(

@@ -72,6 +72,11 @@ def _summary_types() -> dict[str, pa.DataType]:
     decode_error = pa.struct(
         [("unit", text), ("turn", i64), ("kind", text), ("decoded", text), ("sent", text)]
     )
+    counts = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")
+    repair = pa.struct(
+        [("mode", text), ("blocks_per_phase", i64), ("seconds", f64)]
+        + [(k, i64) for k in counts]
+    )
     return {
         "scenario": text,
         "polynomial": text,
@@ -89,6 +94,7 @@ def _summary_types() -> dict[str, pa.DataType]:
         "sim_seconds": f64,
         "wall_seconds": f64,
         "decode_errors": pa.list_(decode_error),
+        "repair": repair,  # null without a repair
         "error": text,
     }
 

@@ -1,0 +1,197 @@
+"""The repair ([protocol] repair = "arq"; docs/protocol.md, "Repair"): the blocks' layout, the
+scenario keys, and runs on noisy channels that end as the noise-free run ends, the same on both
+engines, with logs that replay and verify."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import pytest
+
+from rgtbus.errors import RgtbusError
+from rgtbus.protocol import ProtocolState, phases
+from rgtbus.scenario import parse_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+GROUP = (ROOT / "scenarios" / "random_group.toml").read_text()
+SKIP = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
+
+
+def group(n: int = 4, schedule: str = "concurrent", repair: str = "arq", noise: float = 0.06,
+          extra: str = "", name: str = "repair.toml"):  # fmt: skip
+    units = ", ".join(f'"r{i}"' for i in range(n))  # other names than the base's
+    text = GROUP.replace('units = ["u1", "u2", "u3"]', f"units = [{units}]").replace(
+        'schedule = "concurrent"', f'schedule = "{schedule}"\nrepair = "{repair}"\n{extra}'
+    )
+    text = text.replace("[relations]", f"[channel]\nnoise = {noise}\n\n[relations]")
+    return parse_scenario(text, name)
+
+
+def _state(me: str, schedule: str, rounds: int = 2, influence_rounds: int = 1):
+    units = ("a", "b", "c")
+    omegas = {"a": 3 * math.pi / 2, "b": 4 * math.pi / 3, "c": 5 * math.pi / 3}
+    return ProtocolState(
+        me, units, omegas, 0.005, anchor="schedule", kind=schedule, repair_rounds=rounds,
+        influence_rounds=influence_rounds,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("schedule", ["serial", "concurrent"])
+def test_repair_blocks_follow_each_phase_and_hold_a_slot_for_each_of_its_payloads(schedule):
+    """K blocks after every phase, each with a request and a repeat slot for every payload of
+    the phase; no two pulses of a block share a sample; every choice comes after what it
+    depends on (the phase's decodes, the requests); the next phase starts after the blocks."""
+    ps = _state("a", schedule, rounds=2, influence_rounds=2)
+    acts = ps.begin({"b": "alliance", "c": "conflict"}, {"b": "0", "c": "1"})
+    blocks = acts.repairs
+    assert [(b.phase, b.number) for b in blocks] == [(p, k) for p in range(3) for k in (1, 2)]
+    sends = sorted(acts.sends, key=lambda s: s.samples[0])
+    for b in blocks:
+        phase, rnd = phases(2)[b.phase]
+        turns = [t.index for t in ps.schedule if (t.phase, t.round) == (phase, rnd)]
+        assert [s.turn for s in b.slots] == turns  # a slot for every payload of the phase
+        pulses = [k for s in b.slots for k in (*s.request, *s.repeat)]
+        assert len(pulses) == len(set(pulses))
+        last_decode = max(li.ready_sample for li in acts.listens if li.turn in turns)
+        assert b.request_choice > last_decode
+        assert b.repeat_choice > max(s.request[-1] for s in b.slots)
+        assert b.request_choice < b.first_request and b.repeat_choice < b.first_repeat
+        assert b.ready == max(s.repeat[-1] for s in b.slots)
+        later = [s for s in sends if s.samples[0] > b.ready]
+        nxt = [t.index for t in ps.schedule if (t.phase, t.round) != (phase, rnd)]
+        # the phase's own codes all come before its blocks; the next phase's after them
+        assert all(s.turn not in turns for s in later)
+        if b.number == 2 and b.phase < 2:
+            assert {s.turn for s in later} >= {t for t in nxt if t > turns[-1]} & {
+                s.turn for s in sends
+            }
+
+
+def test_without_repair_the_protocol_plans_no_block():
+    ps = _state("a", "concurrent", rounds=0)
+    assert ps.begin({"b": "alliance", "c": "alliance"}, {"b": "0", "c": "1"}).repairs == []
+    assert group(repair="none").repairs_per_phase == 0
+    assert group(extra="repair_rounds = 5").repairs_per_phase == 5
+
+
+def test_repair_needs_turns_timed_by_the_schedule():
+    with pytest.raises(RgtbusError, match="anchor schedule"):
+        ProtocolState("a", ("a", "b"), {"a": 3.0, "b": 4.0}, 0.005, anchor="spike",
+                      repair_rounds=1)  # fmt: skip
+    # serial turns default to the schedule's timing with a repair, and refuse the spike's
+    assert group(schedule="serial").timing.anchor == "schedule"
+
+
+@pytest.mark.parametrize(
+    "extra, says",
+    [
+        ('repair = "fec"', "protocol.repair: unknown repair 'fec'"),
+        ("repair_rounds = 0", "protocol.repair_rounds: must be an integer 1..20"),
+        ("repair_rounds = 21", "protocol.repair_rounds: must be an integer 1..20"),
+        ("repair_rounds = true", "protocol.repair_rounds"),
+        ("repair_margin = -0.1", "protocol.repair_margin: must be a number 0..2"),
+        ('repair_margin = "wide"', "protocol.repair_margin"),
+        ("repair_margin = nan", "protocol.repair_margin"),
+    ],
+)
+def test_bad_repair_keys_are_one_line_naming_file_line_and_key(extra, says):
+    text = GROUP.replace('schedule = "concurrent"', f'schedule = "concurrent"\n{extra}')
+    with pytest.raises(RgtbusError) as e:
+        parse_scenario(text, "bad.toml")
+    msg = str(e.value)
+    assert says in msg and msg.startswith("bad.toml:") and "\n" not in msg, msg
+
+
+def test_a_repair_with_the_spike_s_timing_is_refused_naming_the_anchor():
+    text = GROUP.replace('schedule = "concurrent"', 'schedule = "serial"\nrepair = "arq"')
+    text = text.replace("[relations]", '[timing]\nanchor = "spike"\n\n[relations]')
+    with pytest.raises(RgtbusError) as e:
+        parse_scenario(text, "bad.toml")
+    assert "timing.anchor" in str(e.value) and "repair" in str(e.value)
+
+
+def _logged(sc, engine: str = "event"):
+    from rgtbus.units.group import run_group
+
+    from rgtbus.telemetry import McapRecorder
+
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    out = run_group(sc, "memory", rec, engine=engine)
+    rec.close()
+    return out.summary, buf.getvalue()
+
+
+def test_on_a_clean_channel_a_repair_asks_for_nothing_and_decides_as_without():
+    """Nothing is unsure on a perfect medium: no request, no repeat; the blocks only add
+    their time, and every unit decides as it does without them."""
+    import rgtbus
+
+    for schedule in ("serial", "concurrent"):
+        with_ = rgtbus.run(group(3, schedule, "arq", 0.0), seed=2).summary
+        without = rgtbus.run(group(3, schedule, "none", 0.0), seed=2).summary
+        assert with_["units"] == without["units"] and with_["error"] is None
+        assert without["repair"] is None
+        r = with_["repair"]
+        assert r["mode"] == "arq" and r["blocks_per_phase"] == 3
+        assert all(r[k] == 0 for k in ("requests", "repeats", "copies", "unresolved"))
+        # what the blocks add after each phase's last payload is what the run is longer by
+        # (the last phase's decisions come up to a guard before the end of its last pulse)
+        longer = with_["sim_seconds"] - without["sim_seconds"]
+        assert r["seconds"] > 0 and abs(longer - r["seconds"]) <= 0.5
+
+
+@pytest.mark.parametrize("schedule", ["serial", "concurrent"])
+def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it(schedule):
+    """σ = 0.06: without repair a misread ID ends the run; with it, unsure payloads are asked
+    for and repeated, and every unit decides what the noise-free run decides. Both engines
+    make the same run, and its log (requests and repeats in it) replays and verifies."""
+    from rgtbus.units.rerun import verify_log
+
+    import rgtbus
+    from rgtbus.telemetry.read import load_replay
+
+    seed = 3
+    assert rgtbus.run(group(4, schedule, "none"), seed=seed).summary["error"] is not None
+    sc = group(4, schedule, "arq").with_seed(seed)
+    results = []
+    for engine in ("event", "dense"):
+        summary, data = _logged(sc, engine)
+        results.append({k: v for k, v in summary.items() if k not in SKIP})
+        rp = load_replay(io.BytesIO(data))
+        assert verify_log(rp).ok
+    assert results[0] == results[1]
+    s = results[0]
+    assert s["error"] is None and s["wrong_decisions"] == [] and s["agree"]
+    r = s["repair"]
+    assert r["requests"] > 0 and r["repeats"] > 0 and r["copies"] == r["requests"]
+    kinds = {t.kind for t in rp.transmissions}
+    assert {"request", "repeat"} <= kinds
+    # every repeat carries the code its sender sent in the turn it repeats
+    sent = {(t.turn, t.sender): t.code for t in rp.transmissions if t.kind == "payload"}
+    repeats = [t for t in rp.transmissions if t.kind == "repeat"]
+    assert repeats and all(sent[(t.turn, t.sender)] == t.code for t in repeats)
+
+
+def test_goal_driven_rounds_repair_too_and_equal_across_engines():
+    """The tug of war (two goal-driven units, three influence rounds, serial) at σ = 0.06: a
+    block after every phase; the run ends as the noise-free one, the same on both engines."""
+    import rgtbus
+
+    text = (ROOT / "scenarios" / "tug_of_war.toml").read_text()
+    text = text.replace("[protocol]\n", '[protocol]\nrepair = "arq"\n', 1)
+    noisy = parse_scenario(text.replace("noise = 0.0", "noise = 0.06", 1), "tug.toml")
+    clean = parse_scenario(text, "tug.toml")
+    assert noisy.timing.anchor == "schedule" and noisy.goals
+    runs = [
+        {k: v for k, v in rgtbus.run(noisy, seed=1, engine=e).summary.items() if k not in SKIP}
+        for e in ("event", "dense")
+    ]
+    assert runs[0] == runs[1]
+    s = runs[0]
+    assert s["error"] is None and s["repair"]["requests"] > 0
+    c = rgtbus.run(clean, seed=1).summary
+    assert s["units"] == c["units"] and s["goals"] == c["goals"]
+    assert s["rounds"]["influences"] == c["rounds"]["influences"]
