@@ -59,6 +59,7 @@ RESULT_KEYS = (
     "decode_errors",
     "goals",
     "rounds",
+    "repair",
     "error",
 )
 
@@ -418,4 +419,21 @@ def test_a_launch_over_a_channel_with_distance_and_bursts_equals_the_single_proc
     assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
     messages, _ = read_log(logs / "run.mcap")
     assert content(messages) == content(rec.read()[0])
+    assert_verifies(logs / "run.mcap")
+
+
+def test_a_launch_that_repairs_equals_the_single_process_run(tmp_path):
+    """The gate at σ = 0.1 with repair (issue 24): requests heard and repeats sent across two
+    processes over zenoh make the run one process makes, and the merged log verifies."""
+    logs = tmp_path / "logs"
+    path = ROOT / "scenarios" / "gate_repair.toml"
+    argv = [*EXE, "launch", str(path), "--log-dir", str(logs), "--procs", "2", "--json"]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    cross = json.loads(proc.stdout)
+    ref, ref_messages = single("gate_repair")
+    assert ref["repair"]["requests"] > 0 and ref["outcome"] == "gate: open"
+    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, _ = read_log(logs / "run.mcap")
+    assert content(messages) == content(ref_messages)
     assert_verifies(logs / "run.mcap")
