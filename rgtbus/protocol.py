@@ -31,7 +31,7 @@ from __future__ import annotations
 import bisect
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +41,9 @@ from rgtbus.signal.waveform import pulse_samples
 
 PHASES = ("relations", "influences")
 ANCHORS = ("spike", "schedule")
+# How a spike-anchored unit attends to an ID (docs/protocol.md, "Attention"): the ID decode
+# with a timing search confirms it and times the reaction, or the paper's threshold crossing
+ATTENTIONS = ("confirmed", "threshold")
 SCHEDULES = ("serial", "concurrent")
 # Samples a code may be moved to miss every pulse already placed in its round: codes on nearby
 # channels start on nearly the same samples, so the i-th is moved about i samples (200 units of
@@ -606,6 +609,12 @@ class ProtocolState:
     kind: str = "serial"  # the schedule: one code at a time, or rounds of n at once
     influence_rounds: int = 1  # influence phases after the relationship phase (the paper: 1)
     repair_rounds: int = 0  # repair blocks after each phase ([protocol] repair "arq"); 0: none
+    attention: str = "confirmed"  # spike anchor: "confirmed" by the ID decode, or "threshold"
+    # the sample of a clean channel's attention spike to an ID: (sender, the ID's samples) ->
+    # sample or None (no spike); without it, the ID's last pulse (``expected_reaction``)
+    expect_spike: Callable[[str, tuple[int, ...]], int | None] | None = field(
+        default=None, compare=False, repr=False
+    )
     schedule: tuple[Turn, ...] = field(init=False)
     turn: int = field(init=False, default=0)
     turn_start: float = field(init=False)
@@ -614,6 +623,10 @@ class ProtocolState:
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
             raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
+        if self.attention not in ATTENTIONS:
+            raise RgtbusError(
+                f"unknown attention {self.attention!r} (attentions: {', '.join(ATTENTIONS)})"
+            )
         if self.kind == "concurrent" and self.anchor != "schedule":
             raise RgtbusError(
                 "the concurrent schedule is timed by the schedule (anchor schedule): every "
@@ -649,6 +662,8 @@ class ProtocolState:
         self._bound_key: tuple[int, int] | None = None
         self._bound = NEVER
         self._awaited: tuple[str, int, int] | None = None  # None: not known for this turn yet
+        self._expected_key: tuple[int, float] | None = None
+        self._expected = 0
 
     # -- helpers
 
@@ -677,6 +692,25 @@ class ProtocolState:
         t = self.current()
         assert t is not None
         return self.id_samples()[-1] + math.ceil(self.period(t.sender) / self.tau)
+
+    def expected_reaction(self) -> int:
+        """Where the current turn's reaction counts from on a clean channel: the later of its
+        attention spike (``expect_spike``, when it comes) and the ID's last pulse. A confirmed
+        attention reacts at it, moved by the ID decode's timing search (``on_attention``)."""
+        t = self.current()
+        assert t is not None
+        key = (t.index, self.turn_start)
+        if self._expected_key != key:  # asked at every promise: once a turn
+            ids = self.id_samples()
+            k = None if self.expect_spike is None else self.expect_spike(t.sender, ids)
+            self._expected_key = key
+            self._expected = ids[-1] if k is None else max(k, ids[-1])
+        return self._expected
+
+    @property
+    def confirmed(self) -> bool:
+        """Turns timed by confirmed attention (the spike anchor's default)."""
+        return self.anchor == "spike" and self.attention == "confirmed"
 
     # -- events
 
@@ -741,12 +775,21 @@ class ProtocolState:
             )
         ]
 
+    def on_attention(self, shift: int) -> Actions:
+        """Confirmed attention to the current turn's ID: its decode with a timing search read
+        the ID-code, ``shift`` samples from where the schedule puts it. The reaction counts
+        from the expected reaction moved by that shift (0 on a clean channel: the reaction
+        the attention spike gives there, so the run and its log are the paper's)."""
+        acts = self._react(self.expected_reaction() + shift)
+        acts.deadline = self._deadline()
+        return acts
+
     def on_spike(self, channel: str, sample: int) -> Actions:
         """A spike on ``channel``'s resonator at ``sample``: the ID spike of the current turn
         (once its first pulse is on the medium) moves the schedule on. Any other spike asks
         for nothing (the shared, empty ``NOTHING``)."""
         t = self.current()
-        if self.anchor != "spike" or t is None or channel != t.sender:
+        if self.anchor != "spike" or self.confirmed or t is None or channel != t.sender:
             return NOTHING
         if sample < self.id_samples()[0]:
             return NOTHING
@@ -786,16 +829,20 @@ class ProtocolState:
         return Actions(sends, list(r.listens), quench, repairs=list(r.repairs))
 
     def _deadline(self) -> int | None:
-        """The current turn's ID deadline when the chain depends on its spike."""
+        """The current turn's ID deadline when the chain depends on its spike; with confirmed
+        attention the sample after which its ID is decoded and reacted to (``on_attention``):
+        the expected reaction plus the timing search."""
         if self.anchor != "spike" or self.finished:
             return None
+        if self.confirmed:
+            return self.expected_reaction() + self.search
         return self.id_deadline()
 
     def awaited(self) -> tuple[str, int, int] | None:
         """The spike the chain waits for: (channel, earliest sample, latest sample), or None
         when nothing this unit hears can plan a send any more (every reaction known, or the
         run's end). Past the latest sample (the ID's deadline) the chain is broken."""
-        if self.anchor != "spike" or self.turn >= len(self.schedule):
+        if self.anchor != "spike" or self.confirmed or self.turn >= len(self.schedule):
             return None
         if self._awaited is None:  # asked at every wake and spike: the same until the chain moves
             t = self.schedule[self.turn]
@@ -811,7 +858,8 @@ class ProtocolState:
         that one; a later turn starts no earlier than the previous reaction plus the delay,
         the payload and the guard. Every step is monotone in k, so chaining from the earliest
         possible spike gives the earliest send: the promise behind the conservative
-        synchronisation of the event engine (docs/engine.md)."""
+        synchronisation of the event engine (docs/engine.md). With confirmed attention no
+        spike is awaited: the reaction comes within the timing search of the expected one."""
         if self.anchor != "spike" or self.finished:
             return NEVER
         j = bisect.bisect_left(self._own_turns, self.turn)
@@ -819,7 +867,10 @@ class ProtocolState:
             return NEVER
         mine = self._own_turns[j]
         i = self.turn
-        k = max(h, self.id_samples()[0])
+        if self.confirmed:  # it reacts within the timing search of the expected reaction
+            k = max(self.id_samples()[0], self.expected_reaction() - self.search)
+        else:
+            k = max(h, self.id_samples()[0])
         if self._bound_key == (i, k):  # asked every round: the same until the chain moves
             return self._bound
         self._bound_key = (i, k)
@@ -839,7 +890,7 @@ class ProtocolState:
     def check_deadline(self, received_upto: int) -> str | None:
         """An error text when the current ID's spike is overdue (the chain cannot go on)."""
         t = self.current()
-        if t is None or self.anchor != "spike":
+        if t is None or self.anchor != "spike" or self.confirmed:
             return None
         if received_upto > self.id_deadline():
             msg = (

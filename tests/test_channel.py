@@ -126,10 +126,12 @@ def _logged_run(sc, engine: str = "event"):
     [
         # a square of 2.9 m: the diagonals (4.1 m) lose 2.5 % under free space from 4 m
         ("a = [0, 0], b = [2.9, 0], c = [0, 2.9], d = [2.9, 2.9, 0.1]", True),
-        # 6 m apart: pulses at two thirds of their strength miss the attention spike (the
-        # receiver's fixed threshold: issue 24 asks for attention that survives this), and
-        # the run ends in one line naming it
-        ("a = [0, 0], b = [6, 0], c = [0, 6], d = [6, 6]", False),
+        # 6 m apart: pulses at two thirds (the diagonals a half) of their strength never fire
+        # the attention spike; confirmed attention finds each ID against silence at its
+        # link's gain and the gate opens; the paper's threshold attention ends the run in one
+        # line naming the missed spike
+        ("a = [0, 0], b = [6, 0], c = [0, 6], d = [6, 6]", True),
+        ("a = [0, 0], b = [6, 0], c = [0, 6], d = [6, 6]", "threshold"),
     ],
 )
 def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(positions, opens):
@@ -143,10 +145,18 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
     placed = gate_with(
         f'path_loss = "free-space"\nreference_distance = 4.0\npositions = {{ {positions} }}\n'
     )
+    threshold = opens == "threshold"
+    if threshold:
+        text = placed.text.replace("[timing]", '[timing]\nattention = "threshold"', 1)
+        placed, opens = parse_scenario(text, "geo.toml"), False
     assert min(placed.gains.values()) < 1.0  # the links do lose
     table = "".join(f'"{s}>{r}" = {g!r}\n' for (s, r), g in placed.gains.items())
     listed = parse_scenario(
-        GATE.replace(CHANNEL, CHANNEL + "[channel.gain]\n" + table, 1), "listed.toml"
+        placed.text.replace(CHANNEL, CHANNEL + "[channel.gain]\n" + table, 1)
+        .replace('path_loss = "free-space"', "")
+        .replace("reference_distance = 4.0", "")
+        .replace(f"positions = {{ {positions} }}", ""),
+        "listed.toml",
     )
     summaries = {}
     for engine in ("event", "dense"):
@@ -158,6 +168,8 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
     same, _ = _logged_run(listed)
     skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
     assert (summaries["event"]["error"] is None) is opens
+    if threshold:
+        assert "no ID spike" in summaries["event"]["error"]
     for other in (summaries["dense"], same):
         assert {k: v for k, v in summaries["event"].items() if k not in skip} == {
             k: v for k, v in other.items() if k not in skip
@@ -230,16 +242,27 @@ def test_bad_bursts_are_one_line_naming_file_line_and_key(lines, says):
     test_bad_geometry_is_one_line_naming_file_line_and_key(lines, says)
 
 
-@pytest.mark.parametrize("burst, length, fails", [(0.002, 0.2, False), (0.2, 0.5, True)])
-def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(burst, length, fails):
+@pytest.mark.parametrize(
+    "burst, length, attention, fails",
+    [
+        (0.002, 0.2, "confirmed", False),
+        (0.2, 0.5, "threshold", True),  # the paper's attention: a missed spike ends the run
+        (0.2, 0.5, "confirmed", False),  # misreads, and the gate opens all the same
+    ],
+)
+def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
+    burst, length, attention, fails
+):
     """Short, faint bursts on a calm channel leave the gate open; strong ones end the run
-    (a misread or a missed spike). Either way both engines make the same run and its log,
-    which carries the scenario, replays and verifies (the bursts drawn again from the seed)."""
+    with the paper's threshold attention (a misread or a missed spike), and make misreads
+    with the confirmed one. Either way both engines make the same run and its log, which
+    carries the scenario, replays and verifies (the bursts drawn again from the seed)."""
     from rgtbus.units.rerun import verify_log
 
     from rgtbus.telemetry.read import load_replay
 
     sc = gate_with(f"[channel.burst]\nnoise = {burst}\nevery = 3.0\nlength = {length}\n")
+    sc = parse_scenario(sc.text.replace("[timing]", f'[timing]\nattention = "{attention}"'), "b")
     assert sc.channel.noisy and sc.channel.noise == 0.0
     skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
     summaries = []
@@ -251,3 +274,4 @@ def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(burst, lengt
         assert verify_log(rp).ok
     assert summaries[0] == summaries[1]
     assert (summaries[0]["error"] is not None) is fails
+    assert bool(summaries[0]["decode_errors"]) is (burst > 0.1)

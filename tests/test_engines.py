@@ -72,7 +72,10 @@ def test_every_scenario_is_the_same_on_both_engines(name):
 
 
 def random_group(seed: int, *, noise: float = 0.0, gains: bool = False, anchor: str = "spike"):
-    """A few units with other names, random relationships and influences, a seed of its own."""
+    """A few units with other names, random relationships and influences, a seed of its own.
+    ``anchor`` "threshold": the spike anchor with the paper's threshold attention."""
+    attention = "threshold" if anchor == "threshold" else "confirmed"
+    anchor = "spike" if anchor == "threshold" else anchor
     rng = random.Random(seed)
     n = rng.choice([3, 4])
     names = rng.sample(["ann", "bob", "cy", "dee", "eve", "fox", "gus"], n)
@@ -84,6 +87,7 @@ def random_group(seed: int, *, noise: float = 0.0, gains: bool = False, anchor: 
         'frequencies = "auto"',
         "[timing]",
         f'anchor = "{anchor}"',
+        f'attention = "{attention}"',
         "[channel]",
         f"noise = {noise}",
     ]
@@ -106,18 +110,29 @@ def random_group(seed: int, *, noise: float = 0.0, gains: bool = False, anchor: 
 @pytest.mark.parametrize(
     "seed, noise, gains, anchor",
     [
-        (1, 0.0, False, "spike"),
-        (2, 0.0, True, "spike"),
-        (3, 0.002, False, "spike"),
-        (4, 0.002, True, "spike"),
+        (1, 0.0, False, "threshold"),
+        (2, 0.0, True, "threshold"),
+        (3, 0.002, False, "threshold"),
+        (4, 0.002, True, "threshold"),
         (5, 0.03, True, "schedule"),
-        (6, 0.02, False, "spike"),  # attention spikes break at once: every unit fails
-        (11, 0.004, True, "spike"),  # one unit fails in turn 10, the others go on
-        (12, 0.006, True, "spike"),  # IDs misread: decode errors, a unit fails in turn 3
+        (6, 0.02, False, "threshold"),  # attention spikes break at once: every unit fails
+        (11, 0.004, True, "threshold"),  # one unit fails in turn 10, the others go on
+        (12, 0.006, True, "threshold"),  # IDs misread: decode errors, a unit fails in turn 3
+        # confirmed attention (the spike anchor's default): where the threshold's fail, clean
+        (6, 0.02, False, "spike"),
+        (13, 0.04, True, "spike"),
+        (14, 0.0, True, "spike"),
+        (15, 0.1, False, "spike"),  # IDs misread among all words, yet found against silence
+        (16, 0.3, False, "spike"),  # an ID is not found: the unit fails
     ],
 )
 def test_random_groups_are_the_same_on_both_engines(seed, noise, gains, anchor):
     s = assert_same_run(random_group(seed, noise=noise, gains=gains, anchor=anchor))
+    if anchor == "spike":  # confirmed attention: clean where the ID reads as the ID-code
+        assert (s["error"] is None) is (noise < 0.3), s["error"]
+        if s["error"]:
+            assert "no ID heard" in s["error"]
+        return
     if seed in (6, 11, 12):  # failing units are covered, not only clean runs
         assert s["error"]
     if seed == 11:

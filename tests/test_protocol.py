@@ -34,7 +34,11 @@ def test_code_samples_one_period_apart():
 
 
 def machine(me: str) -> ProtocolState:
-    p = ProtocolState(me, ("a", "b", "c"), W, TAU, start=0.001, reaction_delay=0.5, guard=0.5)
+    """The paper's machine: turns timed by the attention spike's threshold crossing."""
+    p = ProtocolState(
+        me, ("a", "b", "c"), W, TAU, start=0.001, reaction_delay=0.5, guard=0.5,
+        attention="threshold",
+    )  # fmt: skip
     return p
 
 
@@ -143,13 +147,47 @@ def test_schedule_anchor_plans_the_whole_run_from_the_start():
     assert len(listens) == 2 * 12
     # The reaction counts from the ID's last pulse: on a clean channel the spike is there.
     first_payload = next(s for s in sends if s.kind == "payload")
-    spike_p = ProtocolState("b", ("a", "b", "c"), W, TAU)
+    spike_p = ProtocolState("b", ("a", "b", "c"), W, TAU, attention="threshold")
     spike_p.begin({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
     for _ in range(first_payload.turn + 1):
         ids = spike_p.id_samples()
         out = spike_p.on_spike(spike_p.current().sender, ids[-1]).sends
     assert next(s for s in out if s.kind == "payload") == first_payload
     assert not p.on_spike("a", 10**6) and p.check_deadline(10**9) is None
+
+
+def test_confirmed_attention_reacts_at_the_expected_spike_moved_by_the_ids_shift():
+    """Confirmed attention awaits no spike: after the expected reaction plus the timing search
+    the unit decodes the ID and reacts at the expected reaction moved by the decode's shift;
+    with a shift of 0 that is the reaction the threshold machine makes to a spike there."""
+    late = {"a": 2}  # a's ID fires its resonator 2 samples after its last pulse (say)
+
+    def expect(sender, ids):
+        return ids[-1] + late.get(sender, 0) if sender != "c" else None  # c's never fires
+
+    conf = ProtocolState("b", ("a", "b", "c"), W, TAU, expect_spike=expect)
+    paper = ProtocolState("b", ("a", "b", "c"), W, TAU, attention="threshold")
+    codes = ({"a": "alliance", "c": "conflict"}, {"a": "1", "c": "0"})
+    acts = conf.begin(*codes)
+    paper.begin(*codes)
+    assert conf.awaited() is None and paper.awaited() is not None
+    assert not conf.on_spike("a", conf.id_samples()[-1])  # spikes are for attention alone
+    ids = conf.id_samples()
+    assert conf.expected_reaction() == ids[-1] + 2 and acts.deadline == ids[-1] + 2 + conf.search
+    assert conf.send_bound(0) <= paper.send_bound(ids[-1])  # a promise it keeps
+    for shift in (0,):
+        got = conf.on_attention(shift)
+        want = paper.on_spike("a", ids[-1] + 2)
+        assert got.sends == want.sends and list(got.listens) == list(want.listens)
+        assert got.quench == want.quench
+    while conf.current().sender != "c":
+        conf.on_attention(0)
+    # no spike expected: the reaction counts from the ID's last pulse, moved by the shift
+    ids = conf.id_samples()
+    assert conf.expected_reaction() == ids[-1]
+    moved = conf.on_attention(1)
+    payload = next(li for li in moved.listens if li.kind != "id")
+    assert payload.start == pytest.approx((ids[-1] + 1) * TAU + 0.5)
 
 
 def test_unknown_anchor_is_refused():

@@ -154,7 +154,9 @@ def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it
     from rgtbus.telemetry.read import load_replay
 
     seed = 3
-    assert rgtbus.run(group(4, schedule, "none"), seed=seed).summary["error"] is not None
+    timed = '[timing]\nanchor = "schedule"\n'  # without repair: timed by the schedule too
+    plain = parse_scenario(group(4, schedule, "none").text + "\n" + timed, "none.toml")
+    assert rgtbus.run(plain, seed=seed).summary["error"] is not None
     sc = group(4, schedule, "arq").with_seed(seed)
     results = []
     for engine in ("event", "dense"):

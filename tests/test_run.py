@@ -253,6 +253,8 @@ def test_bad_scenario_exits_2(tmp_path, capsys):
 
 def test_failed_run_still_leaves_a_readable_log(tmp_path, capsys):
     text = (ROOT / "scenarios/gate.toml").read_text().replace("noise = 0.0", "noise = 0.05")
+    # the paper's threshold attention: its spikes come early, late or not at all at this noise
+    text = text.replace("[timing]", '[timing]\nattention = "threshold"', 1)
     path = tmp_path / "noisy.toml"
     path.write_text(text)
     log = tmp_path / "noisy.mcap"
@@ -479,7 +481,9 @@ def test_a_unit_batches_its_decodes_only_when_no_live_view_waits_for_its_records
     the run begins whether it may batch."""
     from rgtbus.telemetry import NullRecorder
 
-    sc = load_scenario(ROOT / "scenarios" / "gate.toml")
+    # turns timed by confirmed attention log each decode as the threshold's do: no batches
+    assert not AutonomousUnit("a", load_scenario("gate"), NullRecorder()).batching()
+    sc = load_scenario(ROOT / "scenarios" / "gate_noisy.toml")  # timed by the schedule
     assert AutonomousUnit("a", sc, NullRecorder()).batching()
     rec = MemoryRecorder()
     unit = AutonomousUnit("a", sc, rec)

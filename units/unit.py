@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import math
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -49,6 +50,7 @@ from rgtbus.signal.decoder import (
     nearest,
     nearest_columns,
 )
+from rgtbus.signal.resonator import clean_first_spike
 from rgtbus.summary import decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns
@@ -248,6 +250,8 @@ class AutonomousUnit:
         self.cb = sc.codebook
         self._id_words = WordSet.of(self.cb.distinct_words())
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
+        self._gains = sc.channel.gain_row(sc.units, self.name)  # what it hears of each sender
+        self._attention_words: dict[int, tuple[WordSet, WordSet]] = {}  # by channel (_attend)
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
@@ -270,6 +274,8 @@ class AutonomousUnit:
             kind=sc.schedule,
             influence_rounds=sc.influence_rounds,
             repair_rounds=sc.repairs_per_phase,
+            attention=sc.timing.attention,
+            expect_spike=self._expected_spike,
         )
         self.mind = mind_of(sc, self.name)
         self.goals = sc.goals_of(self.name)
@@ -349,7 +355,8 @@ class AutonomousUnit:
             keep=round(KEEP_SECONDS / self.tau),
             trace=self._trace if self.traces else None,
             spike_log=self if self.recorder.enabled else None,  # only a log needs every spike
-            awaits=self.protocol.anchor == "spike",  # else its plans never wait for a spike
+            # else its plans never wait for a spike
+            awaits=self.protocol.anchor == "spike" and not self.protocol.confirmed,
         )
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
@@ -370,7 +377,7 @@ class AutonomousUnit:
         to it: ``LiveSink.watched``). Asked at every wake, with no block held: a watcher that
         comes mid-run gets this unit's records on time from its next wake on, one that leaves
         lets it batch again (a unit process that batched nothing woke 20x as often)."""
-        if self.traces:
+        if self.traces or self.protocol.confirmed:
             return False
         live = getattr(self.recorder, "live", None)
         if live is None:
@@ -753,9 +760,12 @@ class AutonomousUnit:
             self._decode(t.listen)
         elif t.kind == "deadline":
             self._deadline = None
-            err = self.protocol.check_deadline(t.at + 1)
-            if err:
-                self._fail(err, t.at)
+            if self.protocol.confirmed:
+                self._attend(t.at)
+            else:
+                err = self.protocol.check_deadline(t.at + 1)
+                if err:
+                    self._fail(err, t.at)
         elif t.kind == "choose":
             self._choose(t.seq, t.at)
         elif t.kind in _REPAIR_STEPS:
@@ -1107,6 +1117,53 @@ class AutonomousUnit:
         )  # fmt: skip
         self._act(listen, dec.name, dec.margin, ch)
 
+    def _expected_spike(self, sender: str, ids: tuple[int, ...]) -> int | None:
+        """Where its attention spike to ``sender``'s ID (pulses at ``ids``) comes on a clean
+        channel: its resonator on the sender's frequency, at rest from the turn's start, hears
+        the ID through its link's gain, and nothing else (serial: one code at a time), up to
+        the ID's deadline (``ProtocolState.id_deadline``)."""
+        ch = self._index[sender]
+        omega = self.omegas[ch]
+        within = ids[-1] - ids[0] + math.ceil(2 * math.pi / omega / self.tau) + 1
+        offsets = tuple(k - ids[0] for k in ids)
+        k = clean_first_spike(omega, self.scenario.mode, self.tau, self.cb.id_word, offsets,
+                              float(self._gains[ch]), within)  # fmt: skip
+        return None if k is None else ids[0] + k
+
+    def _attend(self, at: int) -> None:
+        """Confirmed attention (the spike anchor's default; docs/protocol.md, "Attention"):
+        the current turn's ID is timed on its sender's channel by a timing search around the
+        schedule's instants (the shift whose reads fit the ID-code best, as its link's gain
+        delivers it), then found there if its reads are nearer that ID-code than silence (in
+        its slot nothing else is on that channel: whether the ID came, not which word it is);
+        found, the shift times the reaction; not found, the chain cannot go on and the unit
+        fails.
+        The ID's decode among every word is still logged (``_act``), an error not fatal."""
+        assert self.ears is not None
+        turn = self.protocol.current()
+        assert turn is not None
+        ch = self._index[turn.sender]
+        words = self._attention_words.get(ch)
+        if words is None:  # the ID as its link delivers it alone (to time it), and against
+            # silence (to find it): the threshold between them adapted to the link's gain
+            heard = tuple(float(self._gains[ch]) * m for m in self.cb.id_word)
+            zeros = (0.0,) * self.cb.pulses
+            words = self._attention_words[ch] = (
+                WordSet.of({"id": heard}),
+                WordSet.of({"id": heard, SILENCE: zeros}),
+            )
+        dec, _ = self.ears.decode_among(
+            self.index, (ch,), self.protocol.turn_start, words[0], self.protocol.search
+        )
+        if nearest(dec.values, words[1]).name != "id":
+            self._fail(
+                f"{self.name}: no ID heard on {turn.sender}'s channel for turn {turn.index} "
+                f"({turn.sender} -> {turn.addressee}, {turn.phase}) by t = {at * self.tau:.3f} s",
+                at,
+            )
+            return
+        self._apply(self.protocol.on_attention(dec.shift))
+
     def _words_of(self, listen: Listen) -> WordSet:
         """The words a payload listen reads (an ID reads ``_id_words``)."""
         return self._families["relation" if listen.kind == "relation" else "alternative"]
@@ -1139,7 +1196,9 @@ class AutonomousUnit:
                     f"{self.name}: turn {listen.turn}: the ID of {listen.sender} "
                     f"decoded as {code!r}"
                 )
-                if self._arq:  # the schedule says when the payload comes: the repair reads it
+                # the schedule (a repair) or the attention (confirmed) says when the payload
+                # comes: a misread ID is a decode error, not the chain's end
+                if self._arq or self.protocol.confirmed:
                     self.recorder.log("warning", text, ns(t_ready), name=self.name)
                 else:
                     self._fail(text, listen.ready_sample)

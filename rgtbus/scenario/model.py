@@ -20,6 +20,9 @@ class Timing:
     guard: float = 0.5  # silence between one transmission's end and the next ID
     max_seconds: float = 3600.0  # a run that has not finished by then fails
     anchor: str = "spike"  # reactions count from the ID spike (paper) or the ID's last pulse
+    # the spike anchor's attention: "confirmed" by the ID decode with a timing search, or the
+    # paper's "threshold" crossing alone (docs/protocol.md, "Attention")
+    attention: str = "confirmed"
 
     @property
     def tau(self) -> float:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rgtbus.protocol import ANCHORS
+from rgtbus.protocol import ANCHORS, ATTENTIONS
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.limits import MAX_SECONDS
 from rgtbus.scenario.model import Timing
@@ -19,6 +19,7 @@ TIMING_KEYS = {
     "guard",
     "max_seconds",
     "anchor",
+    "attention",
 }
 # Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
 # run fails only after simulating its whole length.
@@ -33,7 +34,12 @@ def timing_of(ctx: Ctx, data: dict[str, Any], schedule: str, repair: str = "none
     t = sub_table(ctx, data, "timing")
     check_keys(ctx, t, TIMING_KEYS, "timing")
     anchor = _anchor_of(ctx, t, schedule, repair)
-    timing = Timing(**_values_of(ctx, t), anchor=anchor)
+    attention = t.get("attention", "confirmed")
+    if not isinstance(attention, str) or attention not in ATTENTIONS:
+        raise ctx.error(
+            "timing", "attention", f"unknown attention {attention!r} ({', '.join(ATTENTIONS)})"
+        )
+    timing = Timing(**_values_of(ctx, t), anchor=anchor, attention=attention)
     _check_window(ctx, t, timing)
     _check_gaps(ctx, t, timing)
     return timing
@@ -65,7 +71,7 @@ def _anchor_of(ctx: Ctx, t: dict[str, Any], schedule: str, repair: str = "none")
 def _values_of(ctx: Ctx, t: dict[str, Any]) -> dict[str, float]:
     values: dict[str, float] = {}
     for key, v in t.items():  # in file order: the first bad line is the one reported
-        if key != "anchor":
+        if key not in ("anchor", "attention"):
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ctx.error("timing", key, f"must be a finite number, got {v!r}")
             # log times are 64-bit nanoseconds (the window is bounded by reaction_delay)

@@ -734,3 +734,26 @@ class ResonatorBank:
             bad = int(np.flatnonzero(~np.isfinite(u).all(axis=1))[0])
             raise RgtbusError(f"sample {self.state.n + bad} is not finite")
         return u
+
+
+@functools.lru_cache(maxsize=4096)  # every turn of a sender asks the same (its ID, its gain)
+def clean_first_spike(
+    omega: float,
+    mode: str,
+    tau: float,
+    word: tuple[float, ...],
+    offsets: tuple[int, ...],
+    gain: float,
+    within: int,
+) -> int | None:
+    """The sample, counted from the first pulse, at which a resonator on ω at rest first spikes
+    when it hears ``gain·word[m]`` at sample ``offsets[m]`` (the first at 0) and nothing else,
+    looking ``within`` samples; None if it does not. On a clean channel this is when a unit's
+    attention spike to an ID comes (its resonators quenched at the turn's start, the ID alone
+    on the medium): the instant the robust attention times a reaction from
+    (docs/protocol.md, "Attention"). Pure: the update is time-invariant."""
+    u = np.zeros(max(within, offsets[-1] + 1))
+    for k, m in zip(offsets, word, strict=True):
+        u[k] += gain * m
+    spikes = ResonatorBank([omega], mode=mode, tau=tau).feed(u).spikes
+    return int(spikes[0, 0]) if len(spikes) else None

@@ -74,8 +74,7 @@ def _summary_types() -> dict[str, pa.DataType]:
     )
     counts = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")
     repair = pa.struct(
-        [("mode", text), ("blocks_per_phase", i64), ("seconds", f64)]
-        + [(k, i64) for k in counts]
+        [("mode", text), ("blocks_per_phase", i64), ("seconds", f64)] + [(k, i64) for k in counts]
     )
     return {
         "scenario": text,
