@@ -44,8 +44,17 @@ def _messages(text: str, engine: str) -> tuple[dict, list]:
     )
 
 
-@pytest.mark.parametrize("name", ["gate", "example2", "tug_of_war"])
-@pytest.mark.parametrize("engine", ["event", "dense"])
+@pytest.mark.parametrize(
+    "name, engine",
+    [
+        ("gate", "event"),
+        ("gate", "dense"),
+        ("tug_of_war", "event"),
+        pytest.param("example2", "event", marks=pytest.mark.slow),
+        pytest.param("example2", "dense", marks=pytest.mark.slow),
+        pytest.param("tug_of_war", "dense", marks=pytest.mark.slow),
+    ],
+)
 def test_on_a_clean_channel_confirmed_attention_logs_what_the_paper_s_threshold_logs(name, engine):
     """Every spike, decode, pulse, table and decision: the same message at the same time
     (the reaction is where the clean attention spike is, ``clean_first_spike``)."""

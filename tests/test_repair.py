@@ -69,6 +69,47 @@ def test_repair_blocks_follow_each_phase_and_hold_a_slot_for_each_of_its_payload
             }
 
 
+def test_the_book_holds_what_is_unsure_asks_for_it_and_decodes_the_mean_of_its_reads():
+    """``RepairBook``: a read far from every word is held and asked for; a silent copy adds
+    nothing; copies add up and the mean is decoded (noise falls as 1/√reads), and once sure
+    the payload leaves the book; after the last block the rest leaves as it reads best."""
+    import numpy as np
+
+    from rgtbus.repair import SILENCE, RepairBook
+    from rgtbus.signal.codebook import paper_codebook
+    from rgtbus.signal.decoder import Decision, nearest
+
+    cb = paper_codebook(["alpha", "beta"])
+    book = RepairBook(cb, 0.65, blocks=2)
+    ps = _state("a", "concurrent", rounds=2)
+    acts = ps.begin({"b": "alliance", "c": "alliance"}, {"b": "0", "c": "1"})
+    first, second = acts.repairs[2], acts.repairs[3]  # the influence phase's blocks
+    listen = next(li for li in acts.listens if li.kind == "influence" and li.turn == 6)
+    words = cb.family("alternative")
+    sent = np.array(words["{alpha}"])
+    first_read = np.array([0.42, 0.17, 0.6])  # nearest {alpha}, by a small margin
+    exact = nearest(first_read, book.families["alternative"])
+    assert exact.name == "{alpha}" and exact.margin < book.below["alternative"]
+    assert not book.sure("alternative", exact.name, True, exact.margin, exact)
+    book.hold(listen, 2, exact)
+    assert [s.turn for s in book.requests(first)] == [6] and book.counts["requests"] == 1
+    ((slot, held),) = book.awaited(first)
+    silent = Decision(SILENCE, 0.0, 1.0, 1.0, (0.0, 0.0, 0.0))
+    assert book.copy(slot, held, silent) is None and book.counts["missing"] == 1
+    noisy_copy = np.array([0.65, 0.28, 0.27])  # alone it reads as "0": the mean does not
+    assert nearest(noisy_copy, book.families["alternative"]).name == "0"
+    best = book.copy(slot, held, Decision("0", 0.0, 1.0, 1.0, tuple(noisy_copy)))
+    assert best is not None and best.name == "{alpha}" and held.reads == 2
+    assert 6 in book.held  # the mean is not sure yet (margin below the bound)
+    book.requests(second)
+    best = book.copy(slot, held, Decision("{alpha}", 0.0, 1.0, 1.0, tuple(sent)))
+    assert best is not None and best.name == "{alpha}" and best.margin >= book.below["alternative"]
+    assert 6 not in book.held and book.counts["resolved"] == 1
+    book.hold(listen, 2, exact)  # unsure again, and never answered
+    assert [h.best for h in book.last(second)] == [exact.name] and not book.held
+    assert book.counts["unresolved"] == 1 and book.last(first) == []
+
+
 def test_without_repair_the_protocol_plans_no_block():
     ps = _state("a", "concurrent", rounds=0)
     assert ps.begin({"b": "alliance", "c": "alliance"}, {"b": "0", "c": "1"}).repairs == []
@@ -177,6 +218,7 @@ def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it
     assert repeats and all(sent[(t.turn, t.sender)] == t.code for t in repeats)
 
 
+@pytest.mark.slow
 def test_goal_driven_rounds_repair_too_and_equal_across_engines():
     """The tug of war (two goal-driven units, three influence rounds, serial) at σ = 0.06: a
     block after every phase; the run ends as the noise-free one, the same on both engines."""

@@ -41,6 +41,7 @@ from rgtbus.protocol import (
     choice_sample,
     code_samples,
 )
+from rgtbus.repair import SILENCE, RepairBook, family_of
 from rgtbus.scenario import Scenario
 from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
 from rgtbus.signal.decoder import (
@@ -127,21 +128,6 @@ class DecodeColumns:
 # a repair block's steps, each a timer: choose the requests, choose the repeats, read the copies
 _REPAIR_STEPS = ("request", "repeat", "copies")
 _LATE_TIMERS = frozenset(("choose", *_REPAIR_STEPS))  # after the decodes due at their boundary
-SILENCE = "(silence)"  # the word of nothing sent (a copy that did not come)
-
-
-@dataclass
-class _Unsure:
-    """A payload a unit is not sure of (``[protocol] repair``): the sum of what it read at the
-    payload's instants and at each copy's (their mean is decoded: white noise falls as
-    1/√copies), how many reads, and its best reading so far."""
-
-    listen: Listen
-    channel: int  # the expected addressee's channel (index)
-    family: str  # "relation" | "alternative"
-    total: np.ndarray
-    reads: int
-    best: str
 
 
 def _send_text(send: Send) -> str:
@@ -313,27 +299,13 @@ class AutonomousUnit:
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
-        # [protocol] repair = "arq" (docs/protocol.md, "Repair")
+        # [protocol] repair = "arq" (docs/protocol.md, "Repair"): its book of what it holds
         self._arq = sc.repairs_per_phase
-        self._unsure: dict[int, _Unsure] = {}  # turn -> what it read of a payload unsure
-        self._requested: set[int] = set()  # turns it asked for in the current block
+        self.repair = RepairBook(self.cb, sc.repair_margin, self._arq) if self._arq else None
         self._repair_of: dict[int, RepairBlock] = {}  # a repair timer's seq -> its block
         self._repair_first: list[tuple[int, int]] = []  # (first sample it may send, seq)
         self._repair_left = 0  # repair timers not yet run: it is not finished before
         self._payload_code: dict[int, str] = {}  # turn -> the payload code it sent
-        self.repair_counts: records.RepairCounts = {
-            "requests": 0, "repeats": 0, "copies": 0, "missing": 0, "resolved": 0,
-            "unresolved": 0, "seconds": 0.0,
-        }  # fmt: skip
-        if self._arq:
-            zeros = (0.0,) * self.cb.pulses
-            self._unsure_below = {
-                f: sc.repair_margin * self.cb.family_min_distance(f) for f in self._families
-            }
-            self._request_words = WordSet.of({"request": self.cb.id_word, SILENCE: zeros})
-            self._copy_words = {
-                f: WordSet.of({**self.cb.family(f), SILENCE: zeros}) for f in self._families
-            }
 
     # -- the world's interface ---------------------------------------------------------------
 
@@ -905,7 +877,7 @@ class AutonomousUnit:
     def _emit(self, send: Send) -> None:
         word = self.word(send)  # the codebook's own tuple: shared, not a list a send
         self._outbox.extend((k, float(m)) for k, m in zip(send.samples, word, strict=True))
-        if not send.block:  # a repair's sends are counted (``repair_counts``), not listed
+        if not send.block:  # a repair's sends are counted (``RepairBook``), not listed
             self.sent.append(send)
             if send.kind == "payload":
                 self._payload_code[send.turn] = send.code
@@ -970,11 +942,12 @@ class AutonomousUnit:
             if step != "copies":
                 first = block.first_request if step == "request" else block.first_repeat
                 heapq.heappush(self._repair_first, (first, timer.seq))
-        if block.number == self._arq:  # what the phase's blocks add to the run
-            seconds = self.repair_counts["seconds"] + block.end - block.phase_end
-            self.repair_counts["seconds"] = round(seconds, 9)
+        assert self.repair is not None
+        self.repair.add_seconds(block)
 
     def _repair_step(self, t: _Timer) -> None:
+        """One step of a repair block (``_REPAIR_STEPS``); the last of the run's finishes a
+        unit that has decided."""
         block = self._repair_of.pop(t.seq)
         self._repair_left -= 1
         self._repair_first = [e for e in self._repair_first if e[1] != t.seq]
@@ -991,97 +964,75 @@ class AutonomousUnit:
             self.finished = True
 
     def _hold(self, listen: Listen, code: str, accepted: bool, margin: float) -> bool:
-        """Hold a payload this unit is not sure of: it asks for it again in the next repair
-        block. Unsure is: found off its addressee's channel, read with a margin below
-        ``repair_margin`` of its family's smallest word distance, or read otherwise at the
-        instants the schedule gives it (the timing search found a better fit a sample or two
-        off: other codes' pulses, on a noisy medium). Returns whether it was held."""
-        family = "relation" if listen.kind == "relation" else "alternative"
-        assert self.ears is not None
+        """Hold a payload this unit is not sure of (``RepairBook.sure``: found off its
+        addressee's channel, a small margin, or read otherwise at the instants the schedule
+        gives it, where the timing search found a better fit a sample or two off: other
+        codes' pulses, on a noisy medium): it asks for it again in the next repair block.
+        Returns whether it was held."""
+        assert self.ears is not None and self.repair is not None
+        family = family_of(listen)
         ch = self._index[listen.expected_addressee]
         samples = code_samples(listen.start, self.omegas[ch], self.cb.pulses, self.tau)
-        exact = self.ears.read_code(self.index, samples, ch, self._families[family])
-        below = self._unsure_below[family]
-        if accepted and margin >= below and exact.name == code and exact.margin >= below:
+        exact = self.ears.read_code(self.index, samples, ch, self.repair.families[family])
+        if self.repair.sure(family, code, accepted, margin, exact):
             return False
-        self._unsure[listen.turn] = _Unsure(
-            listen, ch, family, np.array(exact.values), 1, exact.name
-        )
+        self.repair.hold(listen, ch, exact)
         return True
 
     def _request(self, block: RepairBlock) -> None:
         """Ask for every payload of the block's phase it is still unsure of: the ID-code on
         the payload's sender's channel, in the payload's request slot."""
-        self._requested = set()
-        for slot in block.slots:
-            if slot.turn in self._unsure:
-                self._requested.add(slot.turn)
-                self.repair_counts["requests"] += 1
-                self._emit(
-                    Send(slot.turn, "request", slot.sender, "id", slot.request_start,
-                         slot.request, self.name, slot.sender, block.number)
-                )  # fmt: skip
+        assert self.repair is not None
+        for slot in self.repair.requests(block):
+            self._emit(
+                Send(slot.turn, "request", slot.sender, "id", slot.request_start,
+                     slot.request, self.name, slot.sender, block.number)
+            )  # fmt: skip
 
     def _repeat(self, block: RepairBlock) -> None:
         """Repeat each payload of its own it hears asked for (the request slot reads nearer
         the ID-code than silence on its channel; any number of requesters add up there)."""
-        assert self.ears is not None
-        me = self.index
+        assert self.ears is not None and self.repair is not None
+        book, me = self.repair, self._index[self.name]
         for slot in block.slots:
-            if slot.sender != self.name:
-                continue
-            asked = self.ears.read_code(me, slot.request, self._index[self.name],
-                                        self._request_words)  # fmt: skip
             code = self._payload_code.get(slot.turn)
-            if asked.name == SILENCE or code is None:
+            if slot.sender != self.name or code is None:
                 continue
-            self.repair_counts["repeats"] += 1
+            if not book.asked_for(self.ears.read_code(self.index, slot.request, me,
+                                                      book.request_words)):  # fmt: skip
+                continue
+            book.counts["repeats"] += 1
             self._emit(
                 Send(slot.turn, "repeat", slot.addressee, code, slot.repeat_start, slot.repeat,
                      self.name, slot.addressee, block.number)
             )  # fmt: skip
 
     def _read_copies(self, block: RepairBlock, at: int) -> None:
-        """Read the copies it asked for: a copy adds to what it read before, and the mean is
-        decoded; sure now, it learns the payload. After the phase's last block, what is
+        """Read the copies it asked for (``RepairBook.copy``): each combined read is a decode
+        of its turn; sure now, it learns the payload. After the phase's last block, what is
         still unsure is learned as it reads best."""
-        assert self.ears is not None
-        t = at * self.tau
-        for slot in block.slots:
-            held = self._unsure.get(slot.turn)
-            if held is None or slot.turn not in self._requested:
+        assert self.ears is not None and self.repair is not None
+        book, t = self.repair, at * self.tau
+        for slot, held in book.awaited(block):
+            read = self.ears.read_code(self.index, slot.repeat, held.channel,
+                                       book.copy_words[held.family])  # fmt: skip
+            best = book.copy(slot, held, read)
+            if best is None:  # its request was not heard (or not answered)
                 continue
-            copy = self.ears.read_code(self.index, slot.repeat, held.channel,
-                                       self._copy_words[held.family])  # fmt: skip
-            if copy.name == SILENCE:  # its request was not heard (or not answered)
-                self.repair_counts["missing"] += 1
-                continue
-            self.repair_counts["copies"] += 1
-            held.total = held.total + np.array(copy.values)
-            held.reads += 1
-            best = nearest(held.total / held.reads, self._families[held.family])
-            held.best = best.name
-            listen = held.listen
             addressee = self.units[held.channel]
-            self._record(listen, addressee, best.name, best.margin, t, True, channel=addressee)
-            if best.margin >= self._unsure_below[held.family]:
-                del self._unsure[slot.turn]
-                self.repair_counts["resolved"] += 1
-                self._learn(listen, best.name, t)
-        if block.number < self._arq:
-            return
-        for slot in block.slots:
-            held = self._unsure.pop(slot.turn, None)
-            if held is not None:
-                self.repair_counts["unresolved"] += 1
-                self.recorder.log(
-                    "warning",
-                    f"{self.name}: turn {slot.turn}: still unsure after {self._arq} repair "
-                    f"blocks, taken as {held.best!r}",
-                    ns(t),
-                    name=self.name,
-                )
-                self._learn(held.listen, held.best, t)
+            self._record(held.listen, addressee, best.name, best.margin, t, True,
+                         channel=addressee)  # fmt: skip
+            if slot.turn not in book.held:
+                self._learn(held.listen, best.name, t)
+        for held in book.last(block):
+            self.recorder.log(
+                "warning",
+                f"{self.name}: turn {held.listen.turn}: still unsure after {self._arq} repair "
+                f"blocks, taken as {held.best!r}",
+                ns(t),
+                name=self.name,
+            )
+            self._learn(held.listen, held.best, t)
 
     # -- traces --------------------------------------------------------------------------------
 
@@ -1356,8 +1307,8 @@ class AutonomousUnit:
             "done_at": self.done_at if self.done else None,
             "mind_error": mind.error,
         }
-        if self._arq:
-            out["repair"] = dict(self.repair_counts)  # type: ignore[typeddict-item]
+        if self.repair is not None:
+            out["repair"] = self.repair.report()  # type: ignore[typeddict-item]
         return out
 
     def report(self) -> dict:
