@@ -36,13 +36,14 @@ from __future__ import annotations
 import heapq
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol, TypeVar, cast
+from typing import Any, NamedTuple, Protocol, TypeVar, cast
 
 import numpy as np
 import simpy
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.channel import BurstStates, heard_by
+from rgtbus.protocol import NEVER
+from rgtbus.signal.channel import BurstStates, heard_by, render
 from rgtbus.signal.decoder import (
     Decision,
     ReadoutHistory,
@@ -177,6 +178,9 @@ class Listener:
     watch_from: int = 0  # ... from this sample on (earlier spikes there change nothing)
     heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
     bursts: BurstStates | None = None  # when its noise comes in bursts (σ_b, not ``noise``)
+    # where each sender's sample j lands in its own samples, a + b·j (rows a, b; None: on j):
+    # delays and clocks (``Channel.arrivals``)
+    arrival: np.ndarray | None = None
     _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _noise_at: int = 0  # sample of _noise[0]
 
@@ -231,9 +235,23 @@ class Ears:
         self.bank = bank
         self.dense = dense
         self.window = window
+        # pulses that land off their samples (delays, clocks): each (pulse, listener) is
+        # rendered on the listener's own samples, and reads take two samples
+        self._timed = any(lst.arrival is not None for lst in self.listeners)
+        if self._timed:
+            a_b = [
+                lst.arrival if lst.arrival is not None else np.array([[0.0] * len(senders),
+                                                                      [1.0] * len(senders)])
+                for lst in self.listeners
+            ]  # fmt: skip
+            self._arrival = np.stack(a_b)  # listeners × 2 × senders
         self.readout = ReadoutHistory(
-            bank.n_channels, max(lst.keep for lst in self.listeners), len(self.listeners)
+            bank.n_channels,
+            max(lst.keep for lst in self.listeners),
+            len(self.listeners),
+            window=2 if self._timed else 1,
         )
+        self._rcv = np.zeros(0, dtype=np.int64)  # timed: each entry's listener
         self.horizon = 0  # every sender's pulses before this sample are known
         # the known medium: every pulse in sample order (each sender's in its own order)
         self._rows = np.zeros(0, dtype=np.int64)
@@ -289,6 +307,8 @@ class Ears:
             raise RgtbusError(f"horizon {horizon} goes back from {self.horizon}")
         parts = [(n, pulses[u]) for n, u in enumerate(self.senders) if u in pulses]
         parts = [(n, p) for n, p in parts if p[0].size]
+        if self._timed:
+            parts, horizon = self._landed(parts, horizon)
         if parts:
             rows = np.concatenate([p[0] for _, p in parts])
             if rows.min() < self.horizon:
@@ -300,9 +320,28 @@ class Ears:
             self._rows = np.concatenate([self._rows[keep], rows[order]])
             self._who = np.concatenate([self._who[keep], who[order]])
             self._val = np.concatenate([self._val[keep], val[order]])
+            if self._timed:
+                rcv = np.concatenate([p[2] for _, p in parts])  # type: ignore[misc]
+                self._rcv = np.concatenate([self._rcv[keep], rcv[order]])
             self._cur = 0
         self.horizon = horizon
         _fire(self._more)
+
+    def _landed(
+        self, parts: list[tuple[int, Pulses]], horizon: int
+    ) -> tuple[list[tuple[int, Any]], int]:
+        """Timed: each sender's pulses as every listener gets them (``render``), with the
+        listener of each share; and the horizon on the listeners' samples: the earliest
+        sample a pulse not yet known (sent at or after ``horizon``) could land on."""
+        A = self._arrival  # listeners × 2 × senders
+        out: list[tuple[int, Any]] = []
+        for n, (rows, vals) in parts:
+            for lst in range(A.shape[0]):
+                r, v = render(rows, vals, float(A[lst, 0, n]), float(A[lst, 1, n]))
+                out.append((n, (r, v, np.full(r.size, lst, dtype=np.int64))))
+        if horizon < NEVER:
+            horizon = int(np.floor((A[:, 0, :] + A[:, 1, :] * horizon).min()))
+        return out, max(horizon, self.horizon)
 
     # -- a unit's side --------------------------------------------------------------------------
 
@@ -441,6 +480,8 @@ class Ears:
         lo = self.pos
         if until <= lo or not lst.active:
             return None
+        if self._timed:  # a timed channel needs confirmed attention: no spike is awaited
+            raise RgtbusError(f"{lst.name}: a look-ahead for a spike on a timed channel")
         parts = [
             (n, p)
             for n, u in enumerate(self.senders)
@@ -854,6 +895,12 @@ class Ears:
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""
+        if self._timed:  # each share is one listener's: added in the order the shares come
+            rows, where = np.unique(self._rows[part], return_inverse=True)
+            rcv, who = self._rcv[part], self._who[part]
+            heard = np.zeros((rows.size, len(self.listeners)))
+            np.add.at(heard, (where, rcv), self._val[part] * self._gains[rcv, who])
+            return rows, heard
         return heard_by(
             self._rows[part], self._who[part], self._val[part], self._gains, self._unit_gains
         )

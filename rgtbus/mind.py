@@ -530,6 +530,7 @@ def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
         start=sc.timing.start,
         reaction_delay=sc.timing.reaction_delay,
         guard=sc.timing.guard,
+        search=sc.timing.search,
         anchor="schedule",
         kind=sc.schedule,
         influence_rounds=sc.influence_rounds,

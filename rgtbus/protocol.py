@@ -240,6 +240,7 @@ class Plan:
         start: float = 0.001,
         influence_rounds: int = 1,
         repair_rounds: int = 0,
+        read_margin: int = 0,
     ) -> None:
         if kind not in SCHEDULES:
             raise RgtbusError(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
@@ -249,6 +250,8 @@ class Plan:
         self.omegas = dict(omegas)
         self.influence_rounds = influence_rounds
         self.repair_rounds = repair_rounds  # repair blocks after each phase (0: none)
+        # samples a read reaches past its last instant (a timed channel's two-sample reads)
+        self.read_margin = read_margin
         self.rounds = (
             tuple(tuple(r) for r in rounds(units, influence_rounds)) if kind == "concurrent" else ()
         )
@@ -316,10 +319,16 @@ class Plan:
         payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, tau)
         kind = "relation" if t.phase == "relations" else "influence"
         longest = self.longest[t.sender] * (self.pulses - 1)
-        ready = round((payload_start + longest) / tau) + self.search
+        ready = round((payload_start + longest) / tau) + self.search + self.read_margin
         listens = (
             Listen(
-                t.index, "id", t.sender, t.addressee, (t.sender,), turn_start, max(ids[-1], sample)
+                t.index,
+                "id",
+                t.sender,
+                t.addressee,
+                (t.sender,),
+                turn_start,
+                max(ids[-1], sample) + self.read_margin,
             ),
             Listen(
                 t.index, kind, t.sender, t.addressee, self.others[t.sender], payload_start, ready
@@ -610,6 +619,7 @@ class ProtocolState:
     influence_rounds: int = 1  # influence phases after the relationship phase (the paper: 1)
     repair_rounds: int = 0  # repair blocks after each phase ([protocol] repair "arq"); 0: none
     attention: str = "confirmed"  # spike anchor: "confirmed" by the ID decode, or "threshold"
+    read_margin: int = 0  # samples a read reaches past its instant (1: a timed channel)
     # the sample of a clean channel's attention spike to an ID: (sender, the ID's samples) ->
     # sample or None (no spike); without it, the ID's last pulse (``expected_reaction``)
     expect_spike: Callable[[str, tuple[int, ...]], int | None] | None = field(
@@ -649,6 +659,7 @@ class ProtocolState:
             self.start,
             self.influence_rounds,
             self.repair_rounds,
+            self.read_margin,
         )
         self.schedule = self.plan.schedule
         self._periods = self.plan.periods
@@ -835,7 +846,7 @@ class ProtocolState:
         if self.anchor != "spike" or self.finished:
             return None
         if self.confirmed:
-            return self.expected_reaction() + self.search
+            return self.expected_reaction() + self.search + self.read_margin
         return self.id_deadline()
 
     def awaited(self) -> tuple[str, int, int] | None:

@@ -174,7 +174,10 @@ class World:
             if self.progress is not None:
                 self.progress(env.now, self.steps)
             if h < NEVER:
-                yield env.timeout(max(0.0, (h - 0.5) * self.tau - env.now))
+                # the ears hear no further than their own horizon (pulses that land later on
+                # a listener's samples than they were sent: delays, clocks)
+                heard = min([h, *(e.horizon for e in self._ears)])
+                yield env.timeout(max(0.0, (heard - 0.5) * self.tau - env.now))
             else:  # every member promised silence: run until the local units are done
                 yield env.all_of([e.quiet for e in self._ears])
         end = self.end_sample()

@@ -275,3 +275,138 @@ def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
     assert summaries[0] == summaries[1]
     assert (summaries[0]["error"] is not None) is fails
     assert bool(summaries[0]["decode_errors"]) is (burst > 0.1)
+
+
+# -- delays and clocks ---------------------------------------------------------------------------
+
+
+def test_a_pulse_off_its_sample_is_split_between_two_and_keeps_its_size_and_centre():
+    from rgtbus.signal.channel import render
+
+    samples, values = np.array([10, 20, 21]), np.array([0.4, -0.2, 0.7])
+    same = render(samples, values, 0.0, 1.0)
+    assert same[0] is samples and same[1] is values  # on its samples: untouched
+    for a, b in [(2.25, 1.0), (-1.6, 1.00003), (0.5, 0.99995), (3.0, 1.0)]:
+        rows, vals = render(samples, values, a, b)
+        assert (np.diff(rows) >= 0).all() and vals.sum() == pytest.approx(values.sum())
+        for j, m in zip(samples, values, strict=True):  # each pulse alone: size and centre
+            r, v = render(np.array([j]), np.array([m]), a, b)
+            x = a + b * j
+            assert v.sum() == pytest.approx(m) and (r * v).sum() / m == pytest.approx(x)
+            assert r[0] == np.floor(x) and len(r) <= 2
+        if a == 3.0:
+            assert list(rows) == [13, 23, 24] and np.allclose(vals, values)  # whole samples
+
+
+def test_arrivals_follow_distance_speed_offset_and_drift():
+    from rgtbus.signal.channel import Channel, Clock
+
+    ch = Channel(
+        positions={"a": (0.0, 0.0, 0.0), "b": (3.43, 0.0, 0.0)},
+        speed=343.0,
+        clocks={"a": Clock(0.002, 0.0), "b": Clock(0.0, 100.0)},
+    )
+    tau = 0.005
+    assert ch.timed and ch.delay("a", "b") == pytest.approx(0.01)
+    at_b = ch.arrivals(["a", "b"], "b", tau)
+    # a's sample j is sent at 0.002 + j·τ, lands 10 ms later; b samples at k·τ·(1 + 1e-4)
+    for j in (0, 1000, 20000):
+        true = 0.002 + j * tau + 0.01
+        assert at_b[0, 0] + at_b[1, 0] * j == pytest.approx(true / (tau * (1 + 1e-4)))
+    assert at_b[0, 1] == 0.0 and at_b[1, 1] == 1.0  # b hears itself on its own samples
+    assert not Channel().timed and not Channel(clocks={"a": Clock()}).timed
+
+
+def test_a_two_sample_read_gets_a_pulse_split_between_the_samples_whole():
+    from rgtbus.signal.decoder import ReadoutHistory
+
+    h = ReadoutHistory(1, 100, 1, window=2)
+    rows = np.array([10, 11, 30])
+    h.store(0, 40, rows, np.array([0.3, 0.1, 0.4]).reshape(3, 1, 1))
+    assert h.values([10, 30, 20], 0).tolist() == pytest.approx([0.4, 0.4, 0.0])
+    assert np.allclose(h.gather(np.array([[10, 29]]), np.array([0]))[0], [[0.4, 0.4]])
+    with pytest.raises(RgtbusError, match="outside"):
+        h.values([39], 0)  # its second sample is not heard yet
+    with pytest.raises(RgtbusError, match="window"):
+        ReadoutHistory(1, 100, 1, window=3)
+
+
+ROBOTS = (ROOT / "scenarios" / "robots_on_a_plane.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    "old, new, says",
+    [
+        ("speed = 343.0", "speed = -1", "channel.speed: must be m/s > 0"),
+        ("speed = 343.0", 'speed = "fast"', "channel.speed: must be m/s > 0"),
+        ("offset = { a = 0.0012,", "offset = { a = 2.0,",
+         "channel.clock.offset.a: must be seconds"),
+        ("drift = { a = 20,", "drift = { a = 5000,", "channel.clock.drift.a: must be ppm"),
+        ("drift = { a = 20,", "drift = { zed = 20,", "zed"),
+        ("[channel.clock]", "[channel.clock]\nskew = 1", "channel.clock.skew: unknown key"),
+        # the clocks come apart by 0.27 s within the default hour: beyond half the lookahead
+        ("drift = { a = 20,", "drift = { a = 40,", "channel.clock.drift: the clocks come"),
+        ("search = 6 ", "search = 6\nanchor = \"schedule\" ", "delays and clocks need turns"),
+        ("search = 6 ", 'search = 6\nattention = "threshold" ', "delays and clocks need turns"),
+        ("search = 6 ", "search = 65 ", "timing.search: must be an integer 0..64"),
+        ("[channel.clock]", '[protocol]\nschedule = "concurrent"\n[channel.clock]',
+         "channel.speed: delays and clocks need the serial schedule"),
+    ],
+)  # fmt: skip
+def test_bad_delays_and_clocks_are_one_line_naming_file_line_and_key(old, new, says):
+    assert old in ROBOTS
+    with pytest.raises(RgtbusError) as e:
+        parse_scenario(ROBOTS.replace(old, new, 1), "robots.toml")
+    msg = str(e.value)
+    assert says in msg and msg.startswith("robots.toml:") and "\n" not in msg, msg
+
+
+def test_speed_needs_positions():
+    with pytest.raises(RgtbusError, match=r"channel\.speed: needs \[channel\.positions\]"):
+        gate_with("speed = 343\n")
+
+
+def test_robots_on_a_plane_are_the_same_on_both_engines_replay_and_verify():
+    """Distances, sound delays (fractional), drifting clocks, noise and bursts: both engines
+    make the same run, the gate opens, and the log (which carries all of it) verifies."""
+    from rgtbus.units.rerun import verify_log
+
+    from rgtbus.telemetry.read import load_replay
+
+    sc = parse_scenario(ROBOTS, "robots.toml")
+    assert sc.channel.timed and sc.channel.noisy and sc.channel.burst is not None
+    delays = [sc.channel.delay(s, r) / sc.timing.tau for s, r in sc.pairs()]
+    assert max(delays) > 2 and any(d % 1 > 0.2 for d in delays)  # off the samples, far
+    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}
+    summaries = []
+    for engine in ("event", "dense"):
+        summary, data = _logged_run(sc, engine)
+        summaries.append({k: v for k, v in summary.items() if k not in skip})
+        rp = load_replay(io.BytesIO(data))
+        assert rp.scenario.channel == sc.channel and rp.has_gains()
+        assert verify_log(rp).ok
+    assert summaries[0] == summaries[1]
+    assert summaries[0]["error"] is None and summaries[0]["outcome"] == "gate: open"
+
+
+def test_the_timing_search_is_what_follows_the_delays():
+    """Without a search wide enough for the delays the robots lose an ID; with it, not."""
+    import rgtbus
+
+    narrow = parse_scenario(ROBOTS.replace("search = 6", "search = 1", 1), "robots.toml")
+    s = rgtbus.run(narrow, seed=1).summary
+    assert s["error"] is not None and "no ID heard" in s["error"]
+    assert rgtbus.run(parse_scenario(ROBOTS, "robots.toml"), seed=1).summary["error"] is None
+
+
+def test_robots_on_a_plane_over_zenoh_equal_the_memory_run():
+    """The same run over the zenoh bus (one process, loopback) as over the memory bus."""
+    import rgtbus
+
+    sc = parse_scenario(ROBOTS, "robots.toml")
+    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}
+    runs = [
+        {k: v for k, v in rgtbus.run(sc, seed=2, bus=bus).summary.items() if k not in skip}
+        for bus in ("memory", "zenoh")
+    ]
+    assert runs[0] == runs[1] and runs[0]["error"] is None

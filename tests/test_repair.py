@@ -184,7 +184,7 @@ def test_on_a_clean_channel_a_repair_asks_for_nothing_and_decides_as_without():
         assert r["seconds"] > 0 and abs(longer - r["seconds"]) <= 0.5
 
 
-@pytest.mark.parametrize("schedule", ["serial", "concurrent"])
+@pytest.mark.parametrize("schedule", ["serial", pytest.param("concurrent", marks=pytest.mark.slow)])
 def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it(schedule):
     """σ = 0.06: without repair a misread ID ends the run; with it, unsure payloads are asked
     for and repeated, and every unit decides what the noise-free run decides. Both engines

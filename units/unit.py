@@ -237,6 +237,7 @@ class AutonomousUnit:
         self._id_words = WordSet.of(self.cb.distinct_words())
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._gains = sc.channel.gain_row(sc.units, self.name)  # what it hears of each sender
+        self._timed = sc.channel.timed  # pulses land off their samples (delays, clocks)
         self._attention_words: dict[int, tuple[WordSet, WordSet]] = {}  # by channel (_attend)
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
@@ -256,11 +257,13 @@ class AutonomousUnit:
             start=sc.timing.start,
             reaction_delay=sc.timing.reaction_delay,
             guard=sc.timing.guard,
+            search=sc.timing.search,
             anchor=sc.timing.anchor,
             kind=sc.schedule,
             influence_rounds=sc.influence_rounds,
             repair_rounds=sc.repairs_per_phase,
             attention=sc.timing.attention,
+            read_margin=1 if sc.channel.timed else 0,
             expect_spike=self._expected_spike,
         )
         self.mind = mind_of(sc, self.name)
@@ -325,6 +328,9 @@ class AutonomousUnit:
                 sc.channel.burst, self.tau, burst_rng(sc.seed, self.units.index(self.name))
             ),
             keep=round(KEEP_SECONDS / self.tau),
+            arrival=sc.channel.arrivals(self.units, self.name, self.tau)
+            if sc.channel.timed
+            else None,
             trace=self._trace if self.traces else None,
             spike_log=self if self.recorder.enabled else None,  # only a log needs every spike
             # else its plans never wait for a spike
@@ -1058,8 +1064,13 @@ class AutonomousUnit:
             # An ID counts only if it reads as the ID-code on the sender's own frequency
             # (a↔c crosstalk makes resonators fire for other codes).
             ch = self._index[listen.sender]
-            samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
-            dec = self.ears.read_code(self.index, samples, ch, self._id_words)
+            if self._timed:  # it lands where its link puts it: timed by the search
+                dec, _ = self.ears.decode_among(
+                    self.index, (ch,), listen.start, self._id_words, self.protocol.search
+                )
+            else:
+                samples = code_samples(listen.start, self.omegas[ch], pulses, self.tau)
+                dec = self.ears.read_code(self.index, samples, ch, self._id_words)
             self._act(listen, dec.name, dec.margin, ch)
             return
         dec, ch = self.ears.decode_among(

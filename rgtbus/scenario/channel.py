@@ -1,6 +1,7 @@
 """``[channel]``: Gaussian ``noise`` on every sample heard, per-pair ``gain``, the units'
-``positions`` with the ``path_loss`` of the distances between them, and noise in bursts
-(``[channel.burst]``) (the model: ``rgtbus.signal.channel``)."""
+``positions`` with the ``path_loss`` of the distances between them and the ``speed`` pulses
+travel at, noise in bursts (``[channel.burst]``) and each unit's clock (``[channel.clock]``
+``offset`` and ``drift``) (the model: ``rgtbus.signal.channel``)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,16 @@ from typing import Any
 
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
-from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, link_gains
+from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, Clock, link_gains
 
-CHANNEL_KEYS = {"noise", "gain", "positions", "path_loss", "reference_distance", "burst"}
+CHANNEL_KEYS = {
+    "noise", "gain", "positions", "path_loss", "reference_distance", "burst", "speed", "clock",
+}  # fmt: skip
 BURST_KEYS = {"noise", "every", "length"}
+CLOCK_KEYS = {"offset", "drift"}
+MAX_OFFSET = 1.0  # seconds a unit's clock may be off the run's
+MAX_PPM = 1000.0  # a unit's clock drift (quartz: tens of ppm)
+MAX_SPEED = 1e9  # m/s (light: 3e8)
 MAX_SECONDS = 1e6  # a burst's mean length or spacing
 MAX_METRES = 1e6  # a coordinate or reference distance (1,000 km: no robot group is wider)
 MAX_EXPONENT = 10.0  # path-loss exponents met in practice are 1.6 to 6
@@ -58,7 +65,57 @@ def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channe
         exponent,
         reference,
         _burst(ctx, ch),
+        _speed(ctx, ch, positions),
+        _clocks(ctx, ch, units),
     )
+
+
+def _speed(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float | None:
+    """``speed``: how fast pulses travel, m/s (343 for sound in air); none: instantly."""
+    if "speed" not in ch:
+        return None
+    value = ch["speed"]
+    if not positions:
+        raise ctx.error(
+            "channel", "speed", "needs [channel.positions] (delays come from distances)"
+        )
+    if not is_finite(value) or not 0 < value <= MAX_SPEED:
+        raise ctx.error(
+            "channel", "speed", f"must be m/s > 0 (at most {MAX_SPEED:g}), got {value!r}"
+        )
+    return float(value)
+
+
+def _clocks(ctx: Ctx, ch: dict[str, Any], units: tuple[str, ...]) -> dict[str, Clock]:
+    """``[channel.clock]``: ``offset`` (seconds) and ``drift`` (ppm) tables by unit; a unit
+    not named runs on the run's clock."""
+    if "clock" not in ch:
+        return {}
+    table = ch["clock"]
+    if not isinstance(table, dict):
+        raise ctx.error(
+            "channel", "clock", "must be a table {offset = {a = 0.001}, drift = {a = 20}}"
+        )
+    check_keys(ctx, table, CLOCK_KEYS, "channel.clock")
+    values: dict[str, dict[str, float]] = {"offset": {}, "drift": {}}
+    for key, bound, what in (("offset", MAX_OFFSET, "seconds"), ("drift", MAX_PPM, "ppm")):
+        sub = table.get(key, {})
+        if not isinstance(sub, dict):
+            raise ctx.error("channel.clock", key, f"must be a table {{a = ...}} of {what}")
+        for name, v in sub.items():
+            unit = unit_of(ctx, units, name, f"channel.clock.{key}", name)
+            if not is_finite(v) or abs(v) > bound:
+                raise ctx.error(
+                    f"channel.clock.{key}",
+                    name,
+                    f"must be {what}, finite and at most {bound:g} from 0, got {v!r}",
+                )
+            values[key][unit] = float(v)
+    return {
+        u: Clock(values["offset"].get(u, 0.0), values["drift"].get(u, 0.0))
+        for u in units
+        if u in values["offset"] or u in values["drift"]
+    }
 
 
 def _burst(ctx: Ctx, ch: dict[str, Any]) -> Burst | None:
@@ -144,3 +201,41 @@ def _path_loss(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float
             f'must be "free-space" or an exponent in [0, {MAX_EXPONENT:g}], got {value!r}',
         )
     return float(value)
+
+
+def check_timed_channel(ctx: Ctx, channel: Channel, protocol: Any, timing: Any) -> None:
+    """A channel whose pulses land off their samples (a speed, clocks) needs turns that follow
+    what each unit hears: the serial schedule timed by confirmed attention (each unit times
+    every ID it hears by its timing search; docs/protocol.md, "Attention"), without a repair
+    (its blocks sit at samples fixed before the run). And clocks may drift apart by at most
+    half the reaction delay over the run (the lookahead that keeps every promise ahead of
+    what the units hear)."""
+    if not channel.timed:
+        return
+    key = "speed" if channel.speed is not None else "clock"
+    if protocol.schedule != "serial" or protocol.repair != "none":
+        raise ctx.error(
+            "channel",
+            key,
+            "delays and clocks need the serial schedule without a repair (turns timed by what "
+            'each unit hears: docs/protocol.md, "Attention")',
+        )
+    if timing.anchor != "spike" or timing.attention != "confirmed":
+        raise ctx.error(
+            "channel",
+            key,
+            'delays and clocks need turns timed by confirmed attention (timing.anchor = "spike", '
+            'timing.attention = "confirmed")',
+        )
+    clocks = list(channel.clocks.values()) or [Clock()]
+    offsets = [c.offset for c in clocks] + [0.0]
+    drifts = [c.drift for c in clocks] + [0.0]
+    apart = max(offsets) - min(offsets) + (max(drifts) - min(drifts)) * 1e-6 * timing.max_seconds
+    if apart > timing.reaction_delay / 2:
+        raise ctx.error(
+            "channel.clock",
+            "drift" if max(drifts) != min(drifts) else "offset",
+            f"the clocks come {apart:.3g} s apart within timing.max_seconds "
+            f"({timing.max_seconds:g} s): more than half the reaction delay "
+            f"({timing.reaction_delay:g} s), the lookahead",
+        )

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
-from rgtbus.scenario.channel import channel_of
+from rgtbus.scenario.channel import channel_of, check_timed_channel
 from rgtbus.scenario.codebook_section import codebook_of, default_codebook, mode_of
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.decisions import decisions_of
@@ -145,6 +145,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
     freq = frequencies_of(ctx, data, units, universe, mode, codebook, timing.tau, protocol.schedule)
     channel = channel_of(ctx, data, units)
+    check_timed_channel(ctx, channel, protocol, timing)
     relations = relations_of(ctx, data, units)
     influences = influences_of(ctx, data, units, universe)
     decisions = decisions_of(ctx, data, units, universe)
@@ -171,6 +172,8 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         path_loss=channel.path_loss,
         reference_distance=channel.reference_distance,
         burst=channel.burst,
+        speed=channel.speed,
+        clocks=dict(channel.clocks),
         relation_policy=relations.policy,
         alliance_p=relations.p,
         fixed_relations=relations.fixed,

@@ -7,7 +7,7 @@ from typing import Any
 
 from rgtbus.pairs import ordered_pairs
 from rgtbus.rgt import Universe
-from rgtbus.signal.channel import Burst, Channel
+from rgtbus.signal.channel import Burst, Channel, Clock
 from rgtbus.signal.codebook import Codebook
 
 
@@ -23,6 +23,8 @@ class Timing:
     # the spike anchor's attention: "confirmed" by the ID decode with a timing search, or the
     # paper's "threshold" crossing alone (docs/protocol.md, "Attention")
     attention: str = "confirmed"
+    # samples of timing search either way of where a code is expected (decodes, attention)
+    search: int = 2
 
     @property
     def tau(self) -> float:
@@ -96,6 +98,8 @@ class Scenario:
     path_loss: float = 0.0
     reference_distance: float = 1.0
     burst: Burst | None = None  # [channel.burst]: noise in bursts (Gilbert–Elliott)
+    speed: float | None = None  # [channel] speed: m/s pulses travel (None: instantly)
+    clocks: dict[str, Clock] = field(default_factory=dict)  # [channel.clock] by unit
     # [protocol] repair: "none" (the paper) or "arq" (docs/protocol.md, "Repair"); its blocks
     # after each phase and the margin (a fraction of a family's smallest word distance) below
     # which a decode is unsure
@@ -122,6 +126,8 @@ class Scenario:
             self.path_loss,
             self.reference_distance,
             self.burst,
+            self.speed,
+            self.clocks,
         )
 
     def pairs(self) -> list[tuple[str, str]]:

@@ -10,6 +10,7 @@ from rgtbus.protocol import ANCHORS, ATTENTIONS
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.limits import MAX_SECONDS
 from rgtbus.scenario.model import Timing
+from rgtbus.scenario.values import is_int
 
 TIMING_KEYS = {
     "sample_rate",
@@ -20,7 +21,9 @@ TIMING_KEYS = {
     "max_seconds",
     "anchor",
     "attention",
+    "search",
 }
+MAX_SEARCH = 64  # samples of timing search either way
 # Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
 # run fails only after simulating its whole length.
 _GUARD_WHY = (
@@ -39,7 +42,12 @@ def timing_of(ctx: Ctx, data: dict[str, Any], schedule: str, repair: str = "none
         raise ctx.error(
             "timing", "attention", f"unknown attention {attention!r} ({', '.join(ATTENTIONS)})"
         )
-    timing = Timing(**_values_of(ctx, t), anchor=anchor, attention=attention)
+    search = t.get("search", 2)
+    if not is_int(search) or not 0 <= search <= MAX_SEARCH:
+        raise ctx.error(
+            "timing", "search", f"must be an integer 0..{MAX_SEARCH} (samples), got {search!r}"
+        )
+    timing = Timing(**_values_of(ctx, t), anchor=anchor, attention=attention, search=search)
     _check_window(ctx, t, timing)
     _check_gaps(ctx, t, timing)
     return timing
@@ -71,7 +79,7 @@ def _anchor_of(ctx: Ctx, t: dict[str, Any], schedule: str, repair: str = "none")
 def _values_of(ctx: Ctx, t: dict[str, Any]) -> dict[str, float]:
     values: dict[str, float] = {}
     for key, v in t.items():  # in file order: the first bad line is the one reported
-        if key not in ("anchor", "attention"):
+        if key not in ("anchor", "attention", "search"):
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ctx.error("timing", key, f"must be a finite number, got {v!r}")
             # log times are 64-bit nanoseconds (the window is bounded by reaction_delay)

@@ -17,6 +17,20 @@ receiver is calm (σ) or in a burst (σ_b) at every sample, a two-state Markov c
 τ / ``every`` a sample and leaves it with τ / ``length``, so bursts last ``length`` seconds
 and come ``every`` seconds apart on average.
 
+Propagation and clocks (``[channel] speed``, ``[channel.clock] offset`` and ``drift``): every
+unit samples on its own clock, its sample k taken at true time ``o_u + k·τ·(1 + ε_u)`` (offset
+o_u seconds, drift ε_u = ppm·10⁻⁶), and a pulse takes ``d(s, r) / speed`` seconds from s to r.
+So a pulse s sends at its sample j reaches r at r's fractional sample
+
+    x = a + b·j,  a = (o_s + d(s, r)/speed − o_r) / (τ·(1 + ε_r)),  b = (1 + ε_s)/(1 + ε_r)
+
+(``arrivals``), and is rendered there as a first-order fractional delay (``render``): (1 − f)
+of it on sample ⌊x⌋ and f on the next, f = x − ⌊x⌋; the two add up to the pulse and their
+centre is x. A receiver then reads a code's value at an instant k as the sum of samples k and
+k + 1 (``ReadoutHistory`` with a window of 2): exact wherever the pulse lands in [k, k + 2),
+at √2 the noise. Without speed and clocks, a = 0 and b = 1: every pulse lands on its sample,
+reads take one sample, and nothing changes.
+
 A new channel effect (path loss, delay, drift, bursts) goes here, with its scenario keys in
 ``rgtbus/scenario/channel.py``; the ears (``rgtbus.hearing``) apply what this module says.
 """
@@ -89,10 +103,27 @@ class BurstStates:
 
 
 @dataclass(frozen=True)
+class Clock:
+    """A unit's sampling clock: its sample k is taken at true time ``offset + k·τ·(1 +
+    drift·10⁻⁶)`` (offset in seconds, drift in parts per million)."""
+
+    offset: float = 0.0
+    drift: float = 0.0
+
+    @property
+    def rate(self) -> float:
+        return 1.0 + self.drift * 1e-6
+
+
+PERFECT = Clock()
+
+
+@dataclass(frozen=True)
 class Channel:
     """A run's channel: ``noise`` σ and the link ``gains`` ``{(sender, receiver): g}`` each
     receiver applies (path loss included: ``link_gains``); the ``positions`` (metres, x y z)
-    and path-loss ``path_loss`` exponent and ``reference_distance`` they came from, if any."""
+    and path-loss ``path_loss`` exponent and ``reference_distance`` they came from, if any;
+    the ``speed`` of propagation (m/s; None: instant) and each unit's ``clocks``."""
 
     noise: float = 0.0
     gains: Mapping[Pair, float] = field(default_factory=dict)
@@ -100,6 +131,29 @@ class Channel:
     path_loss: float = 0.0
     reference_distance: float = 1.0
     burst: Burst | None = None  # bursts of noise on top of ``noise`` (None: none)
+    speed: float | None = None
+    clocks: Mapping[str, Clock] = field(default_factory=dict)
+
+    @property
+    def timed(self) -> bool:
+        """Whether pulses land off their samples (a propagation speed, or a clock that is not
+        the run's): reads then take two samples (module docstring)."""
+        return self.speed is not None or any(c != PERFECT for c in self.clocks.values())
+
+    def delay(self, s: str, r: str) -> float:
+        """Seconds a pulse takes from s to r (0 without a speed)."""
+        return 0.0 if self.speed is None else self.distance(s, r) / self.speed
+
+    def arrivals(self, units: Sequence[str], receiver: str, tau: float) -> np.ndarray:
+        """``(a, b)`` for every sender s, in member order: s's sample j reaches ``receiver``
+        at its fractional sample ``a + b·j`` (module docstring). Shape (2, senders)."""
+        r = self.clocks.get(receiver, PERFECT)
+        out = np.zeros((2, len(units)))
+        for n, u in enumerate(units):
+            s = self.clocks.get(u, PERFECT)
+            out[0, n] = (s.offset + self.delay(u, receiver) - r.offset) / (tau * r.rate)
+            out[1, n] = s.rate / r.rate
+        return out
 
     @property
     def noisy(self) -> bool:
@@ -162,6 +216,25 @@ def burst_rng(seed: int, unit_index: int) -> np.random.Generator:
     """Unit ``unit_index``'s own generator of burst states (``BurstStates``): apart from its
     noise's, so bursts change no draw of the calm noise."""
     return np.random.default_rng([seed, unit_index, 2])
+
+
+def render(
+    samples: np.ndarray, values: np.ndarray, a: float, b: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pulses a sender put at its ``samples`` as one receiver gets them, at fractional samples
+    ``x = a + b·j``: (1 − f)·value on ⌊x⌋ and f·value on ⌊x⌋ + 1 (f = x − ⌊x⌋; a share of 0 is
+    left out). Returns (rows, values), rows ascending (stable: a sample's pulses in order)."""
+    if a == 0.0 and b == 1.0:  # on its samples: nothing to spread
+        return samples, values
+    x = a + b * samples.astype(np.float64)
+    k = np.floor(x)
+    f = x - k
+    rows = np.concatenate([k, k + 1]).astype(np.int64)
+    vals = np.concatenate([values * (1.0 - f), values * f])
+    keep = np.concatenate([f < 1.0, f > 0.0])
+    rows, vals = rows[keep], vals[keep]
+    order = np.argsort(rows, kind="stable")
+    return rows[order], vals[order]
 
 
 def heard_by(

@@ -54,16 +54,23 @@ class ReadoutHistory:
     is nearly all silence, so the history costs what was heard, not what was waited through.
     """
 
-    def __init__(self, channels: int, capacity: int = 6000, receivers: int = 1) -> None:
+    def __init__(
+        self, channels: int, capacity: int = 6000, receivers: int = 1, window: int = 1
+    ) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
             raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
         if not isinstance(channels, int) or channels < 1:
             raise RgtbusError(f"readout channels {channels!r} must be a positive integer")
         if not isinstance(receivers, int) or receivers < 1:
             raise RgtbusError(f"readout receivers {receivers!r} must be a positive integer")
+        if window not in (1, 2):
+            raise RgtbusError(f"readout window {window!r} must be 1 or 2 samples")
         self.channels = channels
         self.capacity = capacity
         self.receivers = receivers
+        # samples a read adds up from its instant on: 2 where pulses land off their samples
+        # (delays, clocks: ``rgtbus.signal.channel``), so a pulse split over two is read whole
+        self.window = window
         # Samples that carried input (ascending) and their readout, kept in buffers that grow
         # by doubling: [lo, hi) is the history. Appending costs what is appended (amortised),
         # not a copy of the whole history (many codes at once make a long history).
@@ -149,9 +156,14 @@ class ReadoutHistory:
     ) -> np.ndarray:
         """d at ``indices`` (``span``: their smallest and largest, when the caller knows)."""
         idx = np.asarray(indices, dtype=np.int64)
+        if self.window > 1:
+            span = None if span is None else (span[0], span[1] + self.window - 1)
         self._check(idx, span)
         pos, hit = self._find(idx)
         got = np.where(hit, self._vals[pos, receiver, 0], 0.0)
+        for w in range(1, self.window):
+            pos, hit = self._find(idx + w)
+            got = got + np.where(hit, self._vals[pos, receiver, 0], 0.0)
         if isinstance(channels, slice):  # the channels make a trailing axis
             width = len(range(self.channels)[channels])
             return np.repeat(got[..., None], width, axis=-1)
@@ -167,9 +179,14 @@ class ReadoutHistory:
         """d at ``indices`` (M, N), row m on channel ``channels[m]``, for every receiver at
         once: (receivers, M, N)."""
         idx = np.ascontiguousarray(indices, dtype=np.int64)
+        if self.window > 1:
+            span = None if span is None else (span[0], span[1] + self.window - 1)
         self._check(idx, span)
         chans = np.zeros(np.asarray(channels).shape, dtype=np.int64)  # every channel reads d
-        return read_rows(self._rows, self._vals, idx, chans)
+        got: np.ndarray = read_rows(self._rows, self._vals, idx, chans)
+        for w in range(1, self.window):
+            got = got + read_rows(self._rows, self._vals, idx + w, chans)
+        return got
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
@@ -180,7 +197,9 @@ class ReadoutHistory:
 
     def _check(self, idx: np.ndarray, span: tuple[int, int] | None) -> None:
         if idx.size:
-            lo, hi = span if span is not None else (int(idx.min()), int(idx.max()))
+            lo, hi = (
+                span if span is not None else (int(idx.min()), int(idx.max()) + self.window - 1)
+            )
             if lo < max(0, self._end - self.capacity) or hi >= self._end:
                 raise RgtbusError(
                     f"readout: samples {lo}..{hi} are outside "

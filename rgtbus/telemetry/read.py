@@ -599,8 +599,10 @@ class Replay:
         return out
 
     def has_gains(self) -> bool:
-        sc = self.require_scenario()
-        return not sc.channel.unit_gains
+        """Whether units hear the senders differently (link gains, or delays and clocks):
+        a re-run then needs each sender's own pulses, not the summed medium."""
+        ch = self.require_scenario().channel
+        return not ch.unit_gains or ch.timed
 
     def units_until_ns(self) -> int | None:
         """The log time before which every unit's messages are complete in a log cut short
