@@ -74,6 +74,18 @@ def test_rgtbus_ser_prints_the_table_and_json(capsys):
     assert [r["sigma"] for r in rows] == [0.3, 0.4] and all(r["trials"] == 200 for r in rows)
 
 
+def test_rgtbus_ser_plots_the_decoder_beside_the_bounds(tmp_path, capsys):
+    from rgtbus.cli import main
+
+    png = tmp_path / "fig" / "ser.png"
+    assert main(["ser", "--sigma", "0.1,0.15", "--trials", "200", "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    assert main(["ser", "--sigma", "0.1", "--trials", "50", "--plot", str(blocked / "x.png")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "argv, says",
     [
