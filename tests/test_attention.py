@@ -48,8 +48,8 @@ def _messages(text: str, engine: str) -> tuple[dict, list]:
     "name, engine",
     [
         ("gate", "event"),
-        ("gate", "dense"),
         ("tug_of_war", "event"),
+        pytest.param("gate", "dense", marks=pytest.mark.slow),
         pytest.param("example2", "event", marks=pytest.mark.slow),
         pytest.param("example2", "dense", marks=pytest.mark.slow),
         pytest.param("tug_of_war", "dense", marks=pytest.mark.slow),

@@ -440,6 +440,7 @@ def test_a_launch_that_repairs_equals_the_single_process_run(tmp_path):
     assert_verifies(logs / "run.mcap")
 
 
+@pytest.mark.slow
 def test_robots_on_a_plane_launched_in_two_processes_equal_the_single_process_run(tmp_path):
     """Sound delays, drifting clocks and bursts (issue 24): each process renders what its
     units hear from every sender; the run equals one process's and its merged log verifies."""
