@@ -224,6 +224,7 @@ def start_mesh(procs, scenario: str, tmp_path: Path, *extra: str, units=None):
     return ports, started
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_a_stalled_unit_stops_the_others_with_a_clear_message(procs, tmp_path):
     scenario = str(ROOT / "scenarios" / "gate.toml")
     # Paced (162 s simulated in ~8 s), so the stall lands while the run is under way.

@@ -221,6 +221,7 @@ def test_opposing_goals_the_one_that_can_wins_and_the_rounds_reach_a_fixed_point
     assert b_preds[0] == {} and b_preds[1] == {"c": [], "d": ["open"]}
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_goal_runs_agree_on_every_bus_engine_and_in_the_replay(tmp_path):
     sc = load_scenario(SCENARIOS / "tug_of_war.toml")
     ref, ref_messages = _run(sc)

@@ -278,6 +278,7 @@ async def _stuck_client(url: str):
             return ws
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_clients_that_never_read_cost_a_bounded_backlog_and_never_hold_the_run():
     """Three clients subscribe and never read. 60 MB of messages each (far over what the
     sockets hold) go to the server without put() ever waiting for them, the process grows by

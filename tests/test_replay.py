@@ -363,6 +363,7 @@ def _png_size(path: Path) -> tuple[int, int]:
     return struct.unpack(">II", head[16:24])
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_plot_writes_png_with_the_expected_panels(tmp_path, capsys):
     path = write(tmp_path, log_bytes(traces=True))
     png = tmp_path / "a.png"

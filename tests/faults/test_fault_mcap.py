@@ -278,6 +278,7 @@ def test_not_mcap_at_all_is_still_not_mcap():
             scan_log(io.BytesIO(data))
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_no_flipped_byte_reads_as_clean_or_as_truncation():
     # CRCs cover every byte of an rgtbus log: chunks, the data section (header, metadata,
     # indexes), the summary and footer; the magic is checked. (All 23k positions pass; this

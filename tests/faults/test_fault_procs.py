@@ -229,6 +229,7 @@ def test_a_keyed_launch_refuses_forged_frames_and_equals_the_single_run(procs, t
         assert any("not authenticated" in m.get("message", "") for t, _, m in messages)
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_a_unit_without_the_key_cannot_join_and_says_so_in_its_log(procs, tmp_path):
     key_file = tmp_path / "key"
     key_file.write_bytes(KEY)

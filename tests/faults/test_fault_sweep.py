@@ -524,6 +524,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_the_connect_timeout
     assert time.monotonic() - t0 < 60
 
 
+@pytest.mark.slow  # a few seconds: CI's slow pass (the fast suite stays near 3 min)
 def test_a_dask_scheduler_lost_mid_sweep_is_one_line_and_keeps_the_rows(tmp_path, sweeps):
     pytest.importorskip("distributed")
     port = _closed_port()
