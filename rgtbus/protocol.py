@@ -429,27 +429,30 @@ def repair_blocks(
     by whole samples until no two pulses share a sample (as a concurrent round's), so a
     request and a repeat are each read alone. Pure: every unit lays out the same blocks."""
     tau, pulses, delay, guard = plan.tau, plan.pulses, plan.reaction_delay, plan.guard
-    hints: dict[tuple[float, float], int] = {}
+
+    def after(sample: int) -> float:
+        """A part's start: a guard and a reaction delay after the sample it depends on."""
+        return (sample + 1) * tau + guard + delay
+
+    def place_all(start: float, what: str) -> list[tuple[float, tuple[int, ...]]]:
+        """A code for every payload of the phase from ``start``, each on its sender's channel
+        (requests) or its addressee's (repeats), none sharing a sample with another."""
+        used = _Occupied(round(start / tau) - 1)
+        hints: dict[tuple[float, float], int] = {}
+        return [
+            _place(used, hints, start,
+                   plan.omegas[t.sender if what == "request" else t.addressee], pulses, tau,
+                   f"repair block {number}: the {what} of {t.sender} -> {t.addressee}")
+            for t in phase_turns
+        ]  # fmt: skip
+
     out: list[RepairBlock] = []
     last = ready
     for number in range(1, plan.repair_rounds + 1):
-        q = (last + 1) * tau + guard + delay
-        used = _Occupied(round(q / tau) - 1)
-        hints.clear()
-        requests = [
-            _place(used, hints, q, plan.omegas[t.sender], pulses, tau,
-                   f"repair block {number}: the request for {t.sender} -> {t.addressee}")
-            for t in phase_turns
-        ]  # fmt: skip
-        asked = max(r[-1] for _, r in requests)
-        r0 = (asked + 1) * tau + guard + delay
-        used = _Occupied(round(r0 / tau) - 1)
-        hints.clear()
-        repeats = [
-            _place(used, hints, r0, plan.omegas[t.addressee], pulses, tau,
-                   f"repair block {number}: the repeat of {t.sender} -> {t.addressee}")
-            for t in phase_turns
-        ]  # fmt: skip
+        q = after(last)
+        requests = place_all(q, "request")
+        r0 = after(max(r[-1] for _, r in requests))
+        repeats = place_all(r0, "repeat")
         slots = tuple(
             RepairSlot(t.index, t.sender, t.addressee, qs, qk, rs, rk)
             for t, (qs, qk), (rs, rk) in zip(phase_turns, requests, repeats, strict=True)
