@@ -347,11 +347,11 @@ ROBOTS = (ROOT / "scenarios" / "robots_on_a_plane.toml").read_text()
         ("[channel.clock]", "[channel.clock]\nskew = 1", "channel.clock.skew: unknown key"),
         # the clocks come apart by 0.27 s within the default hour: beyond half the lookahead
         ("drift = { a = 20,", "drift = { a = 40,", "channel.clock.drift: the clocks come"),
-        ("search = 6 ", "search = 6\nanchor = \"schedule\" ", "delays and clocks need turns"),
-        ("search = 6 ", 'search = 6\nattention = "threshold" ', "delays and clocks need turns"),
+        ("search = 6 ", "search = 6\nanchor = \"schedule\" ", "channel.speed: delays and clocks"),
+        ("search = 6 ", 'search = 6\nattention = "threshold" ', "need turns that follow"),
         ("search = 6 ", "search = 65 ", "timing.search: must be an integer 0..64"),
         ("[channel.clock]", '[protocol]\nschedule = "concurrent"\n[channel.clock]',
-         "channel.speed: delays and clocks need the serial schedule"),
+         "channel.speed: delays and clocks need turns that follow what each unit hears"),
     ],
 )  # fmt: skip
 def test_bad_delays_and_clocks_are_one_line_naming_file_line_and_key(old, new, says):

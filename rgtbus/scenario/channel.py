@@ -8,6 +8,8 @@ from __future__ import annotations
 from typing import Any
 
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
+from rgtbus.scenario.model import Timing
+from rgtbus.scenario.schedule import Protocol
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
 from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, Clock, link_gains
 
@@ -203,7 +205,7 @@ def _path_loss(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float
     return float(value)
 
 
-def check_timed_channel(ctx: Ctx, channel: Channel, protocol: Any, timing: Any) -> None:
+def check_timed_channel(ctx: Ctx, channel: Channel, protocol: Protocol, timing: Timing) -> None:
     """A channel whose pulses land off their samples (a speed, clocks) needs turns that follow
     what each unit hears: the serial schedule timed by confirmed attention (each unit times
     every ID it hears by its timing search; docs/protocol.md, "Attention"), without a repair
@@ -212,20 +214,14 @@ def check_timed_channel(ctx: Ctx, channel: Channel, protocol: Any, timing: Any) 
     what the units hear)."""
     if not channel.timed:
         return
-    key = "speed" if channel.speed is not None else "clock"
-    if protocol.schedule != "serial" or protocol.repair != "none":
+    follows = protocol.schedule == "serial" and protocol.repair == "none"
+    if not follows or timing.anchor != "spike" or timing.attention != "confirmed":
         raise ctx.error(
             "channel",
-            key,
-            "delays and clocks need the serial schedule without a repair (turns timed by what "
-            'each unit hears: docs/protocol.md, "Attention")',
-        )
-    if timing.anchor != "spike" or timing.attention != "confirmed":
-        raise ctx.error(
-            "channel",
-            key,
-            'delays and clocks need turns timed by confirmed attention (timing.anchor = "spike", '
-            'timing.attention = "confirmed")',
+            "speed" if channel.speed is not None else "clock",
+            "delays and clocks need turns that follow what each unit hears: the serial "
+            'schedule without a repair, timed by confirmed attention (timing.anchor = "spike", '
+            'timing.attention = "confirmed"; docs/protocol.md, "Attention")',
         )
     clocks = list(channel.clocks.values()) or [Clock()]
     offsets = [c.offset for c in clocks] + [0.0]
