@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import signal
 import subprocess
@@ -42,6 +43,25 @@ def procs():
             if p.poll() is None:
                 p.kill()
             p.communicate(timeout=30)
+
+
+def _logged_run(sc, engine: str = "event") -> tuple[dict, bytes]:
+    from rgtbus.units.group import run_group
+
+    from rgtbus.telemetry import McapRecorder
+
+    buf = io.BytesIO()
+    rec = McapRecorder(buf)
+    out = run_group(sc, "memory", rec, engine=engine)
+    rec.close()
+    return out.summary, buf.getvalue()
+
+
+@pytest.fixture
+def logged_run():
+    """``logged_run(scenario, engine="event")``: run it on the memory bus with its full log;
+    (the run's summary, the MCAP bytes)."""
+    return _logged_run
 
 
 @pytest.fixture(params=["memory", "zenoh"])

@@ -27,19 +27,14 @@ def _text(name: str, attention: str | None = None, noise: float | None = None) -
     return text
 
 
-def _messages(text: str, engine: str) -> tuple[dict, list]:
-    from rgtbus.units.group import run_group
+def _messages(run, text: str, engine: str) -> tuple[dict, list]:
+    """The run's summary and its log's messages (``run``: the ``logged_run`` fixture): the
+    same messages at the same times, simultaneous ones in any order; /run holds wall time."""
+    from rgtbus.telemetry import read_log
 
-    from rgtbus.telemetry import McapRecorder, read_log
-
-    buf = io.BytesIO()
-    rec = McapRecorder(buf)
-    out = run_group(parse_scenario(text, "s.toml"), "memory", rec, engine=engine)
-    rec.close()
-    messages, _ = read_log(io.BytesIO(buf.getvalue()))
-    # the same messages at the same times (simultaneous ones in any order); /run holds the
-    # wall time
-    return out.summary, sorted(
+    summary, data = run(parse_scenario(text, "s.toml"), engine)
+    messages, _ = read_log(io.BytesIO(data))
+    return summary, sorted(
         (ns, topic, json.dumps(m, sort_keys=True)) for topic, ns, m in messages if topic != "/run"
     )
 
@@ -55,11 +50,13 @@ def _messages(text: str, engine: str) -> tuple[dict, list]:
         pytest.param("tug_of_war", "dense", marks=pytest.mark.slow),
     ],
 )
-def test_on_a_clean_channel_confirmed_attention_logs_what_the_paper_s_threshold_logs(name, engine):
+def test_on_a_clean_channel_confirmed_attention_logs_what_the_paper_s_threshold_logs(
+    name, engine, logged_run
+):
     """Every spike, decode, pulse, table and decision: the same message at the same time
     (the reaction is where the clean attention spike is, ``clean_first_spike``)."""
-    confirmed, a = _messages(_text(name), engine)
-    _, b = _messages(_text(name, "threshold"), engine)
+    confirmed, a = _messages(logged_run, _text(name), engine)
+    _, b = _messages(logged_run, _text(name, "threshold"), engine)
     assert confirmed["error"] is None and a == b
     assert parse_scenario(_text(name), "s.toml").timing.attention == "confirmed"
 

@@ -109,18 +109,6 @@ def test_bad_geometry_is_one_line_naming_file_line_and_key(lines, says):
     assert says in msg and msg.startswith("geo.toml:") and "\n" not in msg, msg
 
 
-def _logged_run(sc, engine: str = "event"):
-    from rgtbus.units.group import run_group
-
-    from rgtbus.telemetry import McapRecorder
-
-    buf = io.BytesIO()
-    rec = McapRecorder(buf)
-    out = run_group(sc, "memory", rec, engine=engine)
-    rec.close()
-    return out.summary, buf.getvalue()
-
-
 @pytest.mark.parametrize(
     "positions, opens",
     [
@@ -134,7 +122,9 @@ def _logged_run(sc, engine: str = "event"):
         ("a = [0, 0], b = [6, 0], c = [0, 6], d = [6, 6]", "threshold"),
     ],
 )
-def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(positions, opens):
+def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
+    positions, opens, logged_run
+):
     """Units a few metres apart under free-space loss: the run equals the one whose
     [channel.gain] lists the same gains, on either engine, and its log (which carries the
     scenario, positions and all) replays and verifies, whether the gate opens or not."""
@@ -160,12 +150,12 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
     )
     summaries = {}
     for engine in ("event", "dense"):
-        summary, data = _logged_run(placed, engine)
+        summary, data = logged_run(placed, engine)
         summaries[engine] = summary
         rp = load_replay(io.BytesIO(data))
         assert rp.scenario.gains == placed.gains and rp.scenario.positions == placed.positions
         assert verify_log(rp).ok
-    same, _ = _logged_run(listed)
+    same, _ = logged_run(listed)
     skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
     assert (summaries["event"]["error"] is None) is opens
     if threshold:
@@ -252,7 +242,7 @@ def test_bad_bursts_are_one_line_naming_file_line_and_key(lines, says):
     ],
 )
 def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
-    burst, length, attention, fails
+    burst, length, attention, fails, logged_run
 ):
     """Short, faint bursts on a calm channel leave the gate open; strong ones end the run
     with the paper's threshold attention (a misread or a missed spike), and make misreads
@@ -268,7 +258,7 @@ def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
     skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
     summaries = []
     for engine in ("event", "dense"):
-        summary, data = _logged_run(sc, engine)
+        summary, data = logged_run(sc, engine)
         summaries.append({k: v for k, v in summary.items() if k not in skip})
         rp = load_replay(io.BytesIO(data))
         assert rp.scenario.channel.burst == sc.channel.burst
@@ -367,7 +357,7 @@ def test_speed_needs_positions():
         gate_with("speed = 343\n")
 
 
-def test_robots_on_a_plane_are_the_same_on_both_engines_replay_and_verify():
+def test_robots_on_a_plane_are_the_same_on_both_engines_replay_and_verify(logged_run):
     """Distances, sound delays (fractional), drifting clocks, noise and bursts: both engines
     make the same run, the gate opens, and the log (which carries all of it) verifies."""
     from rgtbus.units.rerun import verify_log
@@ -381,7 +371,7 @@ def test_robots_on_a_plane_are_the_same_on_both_engines_replay_and_verify():
     skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}
     summaries = []
     for engine in ("event", "dense"):
-        summary, data = _logged_run(sc, engine)
+        summary, data = logged_run(sc, engine)
         summaries.append({k: v for k, v in summary.items() if k not in skip})
         rp = load_replay(io.BytesIO(data))
         assert rp.scenario.channel == sc.channel and rp.has_gains()

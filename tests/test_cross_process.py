@@ -423,37 +423,33 @@ def test_a_launch_over_a_channel_with_distance_and_bursts_equals_the_single_proc
     assert_verifies(logs / "run.mcap")
 
 
-@pytest.mark.slow
-def test_a_launch_that_repairs_equals_the_single_process_run(tmp_path):
-    """The gate at σ = 0.1 with repair (issue 24): requests heard and repeats sent across two
-    processes over zenoh make the run one process makes, and the merged log verifies."""
+def launch_in_two_equals_single(name: str, tmp_path: Path) -> dict:
+    """``launch --procs 2`` of shipped scenario ``name``: its summary and merged log content
+    equal the single-process run's, and the merged log verifies. Returns that summary."""
     logs = tmp_path / "logs"
-    path = ROOT / "scenarios" / "gate_repair.toml"
+    path = ROOT / "scenarios" / f"{name}.toml"
     argv = [*EXE, "launch", str(path), "--log-dir", str(logs), "--procs", "2", "--json"]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stderr
     cross = json.loads(proc.stdout)
-    ref, ref_messages = single("gate_repair")
-    assert ref["repair"]["requests"] > 0 and ref["outcome"] == "gate: open"
+    ref, ref_messages = single(name)
     assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
     messages, _ = read_log(logs / "run.mcap")
     assert content(messages) == content(ref_messages)
     assert_verifies(logs / "run.mcap")
+    return ref
+
+
+@pytest.mark.slow
+def test_a_launch_that_repairs_equals_the_single_process_run(tmp_path):
+    """The gate at σ = 0.1 with repair (issue 24): requests heard and repeats sent across two
+    processes over zenoh make the run one process makes, and the merged log verifies."""
+    ref = launch_in_two_equals_single("gate_repair", tmp_path)
+    assert ref["repair"]["requests"] > 0 and ref["outcome"] == "gate: open"
 
 
 @pytest.mark.slow
 def test_robots_on_a_plane_launched_in_two_processes_equal_the_single_process_run(tmp_path):
     """Sound delays, drifting clocks and bursts (issue 24): each process renders what its
     units hear from every sender; the run equals one process's and its merged log verifies."""
-    logs = tmp_path / "logs"
-    path = ROOT / "scenarios" / "robots_on_a_plane.toml"
-    argv = [*EXE, "launch", str(path), "--log-dir", str(logs), "--procs", "2", "--json"]
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=180)
-    assert proc.returncode == 0, proc.stderr
-    cross = json.loads(proc.stdout)
-    ref, ref_messages = single("robots_on_a_plane")
-    assert ref["outcome"] == "gate: open"
-    assert {k: cross[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
-    messages, _ = read_log(logs / "run.mcap")
-    assert content(messages) == content(ref_messages)
-    assert_verifies(logs / "run.mcap")
+    assert launch_in_two_equals_single("robots_on_a_plane", tmp_path)["outcome"] == "gate: open"

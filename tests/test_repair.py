@@ -153,18 +153,6 @@ def test_a_repair_with_the_spike_s_timing_is_refused_naming_the_anchor():
     assert "timing.anchor" in str(e.value) and "repair" in str(e.value)
 
 
-def _logged(sc, engine: str = "event"):
-    from rgtbus.units.group import run_group
-
-    from rgtbus.telemetry import McapRecorder
-
-    buf = io.BytesIO()
-    rec = McapRecorder(buf)
-    out = run_group(sc, "memory", rec, engine=engine)
-    rec.close()
-    return out.summary, buf.getvalue()
-
-
 def test_on_a_clean_channel_a_repair_asks_for_nothing_and_decides_as_without():
     """Nothing is unsure on a perfect medium: no request, no repeat; the blocks only add
     their time, and every unit decides as it does without them."""
@@ -185,7 +173,9 @@ def test_on_a_clean_channel_a_repair_asks_for_nothing_and_decides_as_without():
 
 
 @pytest.mark.parametrize("schedule", ["serial", pytest.param("concurrent", marks=pytest.mark.slow)])
-def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it(schedule):
+def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it(
+    schedule, logged_run
+):
     """σ = 0.06: without repair a misread ID ends the run; with it, unsure payloads are asked
     for and repeated, and every unit decides what the noise-free run decides. Both engines
     make the same run, and its log (requests and repeats in it) replays and verifies."""
@@ -201,7 +191,7 @@ def test_a_noisy_run_that_dies_without_repair_ends_as_the_noise_free_run_with_it
     sc = group(4, schedule, "arq").with_seed(seed)
     results = []
     for engine in ("event", "dense"):
-        summary, data = _logged(sc, engine)
+        summary, data = logged_run(sc, engine)
         results.append({k: v for k, v in summary.items() if k not in SKIP})
         rp = load_replay(io.BytesIO(data))
         assert verify_log(rp).ok
