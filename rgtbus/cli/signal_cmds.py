@@ -569,6 +569,19 @@ def figure_receiving(path: Path) -> str:
 SIGMAS = (0.0, 0.02, 0.05, 0.1, 0.2)
 
 
+def _ser_axes(fig: Any, ax: Any, floor: float, title: str) -> None:
+    """An error rate against noise: log scale down to ``floor`` (half an error in the trials,
+    where a rate of 0 is drawn), a dotted line there, labels, legend."""
+    ax.set_yscale("log")
+    ax.set_ylim(floor * 0.8, 1)
+    ax.axhline(floor, color="k", lw=0.5, ls=":")
+    ax.set_xlabel("noise σ (per sample)")
+    ax.set_ylabel("symbol error rate")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+
+
 def figure_ser(path: Path, trials: int, seed: int) -> str:
     from rgtbus.signal.evaluate import symbol_error_rate
 
@@ -591,14 +604,9 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
             for s in SIGMAS
         ]
         ax.plot(SIGMAS, [max(s, floor) for s in sers], marker="o", label=label)
-    ax.set_yscale("log")
-    ax.set_ylim(floor * 0.8, 1)
-    ax.axhline(floor, color="k", lw=0.5, ls=":")
-    ax.set_xlabel("noise σ (per sample)")
-    ax.set_ylabel("symbol error rate")
-    ax.set_title(f"Decoder symbol error rate, code on ω_a = 3π/2, {trials} trials a point")
-    ax.legend(fontsize=8)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    _ser_axes(
+        fig, ax, floor, f"Decoder symbol error rate, code on ω_a = 3π/2, {trials} trials a point"
+    )
     caption = (
         "Increment readout + nearest codeword through the paper-mode bank; the "
         "interferer starts with the code (first pulses collide). Points on the dotted "
@@ -621,14 +629,7 @@ def figure_ser_bound(path: Path, rows: list[dict[str, Any]], what: str) -> str:
         color="tab:gray", alpha=0.3, label="maximum likelihood: between its bounds",
     )  # fmt: skip
     ax.plot(sig, [max(r["ser"], floor) for r in rows], marker="o", label="the bank's decoder")
-    ax.set_yscale("log")
-    ax.set_ylim(floor * 0.8, 1)
-    ax.axhline(floor, color="k", lw=0.5, ls=":")
-    ax.set_xlabel("noise σ (per sample)")
-    ax.set_ylabel("symbol error rate")
-    ax.set_title(f"Decoder against the limit: {what}, {trials} trials a point")
-    ax.legend(fontsize=8)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    _ser_axes(fig, ax, floor, f"Decoder against the limit: {what}, {trials} trials a point")
     worst = max((r["vs_bound"] for r in rows if r["vs_bound"] is not None), default=None)
     caption = (
         "Shaded: the nearest-neighbour and union bounds on the best receiver's error rate. "
