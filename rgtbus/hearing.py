@@ -237,14 +237,12 @@ class Ears:
         self.window = window
         # pulses that land off their samples (delays, clocks): each (pulse, listener) is
         # rendered on the listener's own samples, and reads take two samples
-        self._timed = any(lst.arrival is not None for lst in self.listeners)
+        arrivals = [lst.arrival for lst in self.listeners if lst.arrival is not None]
+        self._timed = bool(arrivals)
         if self._timed:
-            a_b = [
-                lst.arrival if lst.arrival is not None else np.array([[0.0] * len(senders),
-                                                                      [1.0] * len(senders)])
-                for lst in self.listeners
-            ]  # fmt: skip
-            self._arrival = np.stack(a_b)  # listeners × 2 × senders
+            if len(arrivals) != len(self.listeners):  # one channel: every link or none
+                raise RgtbusError("some listeners hear delays and clocks and others do not")
+            self._arrival = np.stack(arrivals)  # listeners × 2 × senders
         self.readout = ReadoutHistory(
             bank.n_channels,
             max(lst.keep for lst in self.listeners),

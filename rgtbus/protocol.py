@@ -623,9 +623,10 @@ class ProtocolState:
     repair_rounds: int = 0  # repair blocks after each phase ([protocol] repair "arq"); 0: none
     attention: str = "confirmed"  # spike anchor: "confirmed" by the ID decode, or "threshold"
     read_margin: int = 0  # samples a read reaches past its instant (1: a timed channel)
-    # the sample of a clean channel's attention spike to an ID: (sender, the ID's samples) ->
-    # sample or None (no spike); without it, the ID's last pulse (``expected_reaction``)
-    expect_spike: Callable[[str, tuple[int, ...]], int | None] | None = field(
+    # the sample of a clean channel's attention spike to an ID: (sender, the ID's samples,
+    # its deadline) -> sample or None (none by the deadline); without it, the ID's last pulse
+    # (``expected_reaction``)
+    expect_spike: Callable[[str, tuple[int, ...], int], int | None] | None = field(
         default=None, compare=False, repr=False
     )
     schedule: tuple[Turn, ...] = field(init=False)
@@ -716,7 +717,11 @@ class ProtocolState:
         key = (t.index, self.turn_start)
         if self._expected_key != key:  # asked at every promise: once a turn
             ids = self.id_samples()
-            k = None if self.expect_spike is None else self.expect_spike(t.sender, ids)
+            k = (
+                None
+                if self.expect_spike is None
+                else self.expect_spike(t.sender, ids, self.id_deadline())
+            )
             self._expected_key = key
             self._expected = ids[-1] if k is None else max(k, ids[-1])
         return self._expected

@@ -162,7 +162,8 @@ def test_confirmed_attention_reacts_at_the_expected_spike_moved_by_the_ids_shift
     with a shift of 0 that is the reaction the threshold machine makes to a spike there."""
     late = {"a": 2}  # a's ID fires its resonator 2 samples after its last pulse (say)
 
-    def expect(sender, ids):
+    def expect(sender, ids, deadline):
+        assert deadline > ids[-1]
         return ids[-1] + late.get(sender, 0) if sender != "c" else None  # c's never fires
 
     conf = ProtocolState("b", ("a", "b", "c"), W, TAU, expect_spike=expect)

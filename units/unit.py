@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
-import math
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -1079,14 +1078,14 @@ class AutonomousUnit:
         )  # fmt: skip
         self._act(listen, dec.name, dec.margin, ch)
 
-    def _expected_spike(self, sender: str, ids: tuple[int, ...]) -> int | None:
+    def _expected_spike(self, sender: str, ids: tuple[int, ...], deadline: int) -> int | None:
         """Where its attention spike to ``sender``'s ID (pulses at ``ids``) comes on a clean
         channel: its resonator on the sender's frequency, at rest from the turn's start, hears
         the ID through its link's gain, and nothing else (serial: one code at a time), up to
-        the ID's deadline (``ProtocolState.id_deadline``)."""
+        the ID's ``deadline`` (``ProtocolState.id_deadline``)."""
         ch = self._index[sender]
         omega = self.omegas[ch]
-        within = ids[-1] - ids[0] + math.ceil(2 * math.pi / omega / self.tau) + 1
+        within = deadline - ids[0] + 1
         offsets = tuple(k - ids[0] for k in ids)
         k = clean_first_spike(omega, self.scenario.mode, self.tau, self.cb.id_word, offsets,
                               float(self._gains[ch]), within)  # fmt: skip
