@@ -184,8 +184,10 @@ class Actions:
     """What a protocol event asks of its unit: transmit ``sends``, decode ``listens`` when their
     samples are in, set the resonators back to rest before each sample of ``quench`` (a turn's
     start: the paper's b = −0.1 rings for ~10 s, longer than any guard, and leftovers of the
-    last turn could cancel or fake the next ID), and, when ``deadline`` is set, check after
-    that sample that the current turn's ID spike came (``check_deadline``)."""
+    last turn could cancel or fake the next ID), when ``deadline`` is set, after that sample
+    check that the current turn's ID spike came (threshold attention: ``check_deadline``) or
+    attend to its ID (confirmed attention: ``on_attention``), and lay out the ``repairs``
+    blocks."""
 
     sends: list[Send] = field(default_factory=list)
     listens: Sequence[Listen] = field(default_factory=list)
