@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
+from unittest import mock
 
 import pytest
 
@@ -15,6 +18,17 @@ from rgtbus.bus import open_bus
 
 EXE = [sys.executable, "-m", "rgtbus"]
 RATE = 200.0
+
+
+@contextlib.contextmanager
+def small_chunk_logs(size: int = 1024) -> Iterator[None]:
+    """Logs written meanwhile in chunks of ``size`` bytes: a short run's log then has many
+    chunks to cut and flip, as a long run's has (the default 256 KB makes one of a gate's)."""
+    from rgtbus.telemetry import recorder
+
+    small = functools.partial(recorder.McapRecorder, chunk_size=size)
+    with mock.patch.object(recorder, "McapRecorder", small):
+        yield
 
 
 @pytest.fixture

@@ -18,9 +18,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def gate_log(tmp_path_factory) -> Path:
+    """The gate's log, in small chunks (to be cut short)."""
+    from conftest import small_chunk_logs
+
     log = tmp_path_factory.mktemp("logs") / "gate.mcap"
     gate = str(ROOT / "scenarios" / "gate.toml")
-    code = main(["run", gate, "--bus", "memory", "--log", str(log), "--quiet", "--seed", "11"])
+    with small_chunk_logs():
+        code = main(["run", gate, "--bus", "memory", "--log", str(log), "--quiet", "--seed", "11"])
     assert code == 0
     return log
 

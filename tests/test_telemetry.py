@@ -747,7 +747,8 @@ def test_records_told_late_do_not_finish_a_chunk(tmp_path):
     path = tmp_path / "late.mcap"
     second = 1_000_000_000
     with open(path, "wb") as f:
-        rec = McapRecorder(f, flush_wall=3600)  # no flush by the clock in this test
+        # no flush by the clock in this test; a chunk a simulated second
+        rec = McapRecorder(f, flush_wall=3600, flush_seconds=1.0)
         rec.write("/log", SAMPLES["/log"], 5 * second)  # the present
         for k in range(50):  # told late: earlier than the present
             rec.write("/log", SAMPLES["/log"], k * second // 100)
@@ -767,7 +768,8 @@ def test_a_message_written_ahead_does_not_hold_the_others_back(tmp_path):
     path = tmp_path / "ahead.mcap"
     second = 1_000_000_000
     with open(path, "wb") as f:
-        rec = McapRecorder(f, flush_wall=3600)  # no flush by the clock in this test
+        # no flush by the clock in this test; a chunk a simulated second
+        rec = McapRecorder(f, flush_wall=3600, flush_seconds=1.0)
         rec.write("/medium", SAMPLES["/medium"], 50 * second)  # far ahead
         rec.write("/log", SAMPLES["/log"], 0)  # the records of now
         rec.write("/log", SAMPLES["/log"], 2 * second)  # two seconds on: due

@@ -34,10 +34,13 @@ FLIPS = 40
 
 @cache
 def gate_log_bytes() -> bytes:
-    """A small logged run: the gate on the memory bus (~125 KB, ~190 chunks)."""
+    """A small logged run: the gate on the memory bus, in chunks of 1 KB (~110 of them, as a
+    long run's log has: many chunks to cut and flip; the default size would make one)."""
     import tempfile
 
-    with tempfile.TemporaryDirectory() as d:
+    from conftest import small_chunk_logs
+
+    with tempfile.TemporaryDirectory() as d, small_chunk_logs():
         log = Path(d) / "gate.mcap"
         assert main(["run", GATE, "--bus", "memory", "--log", str(log), "--quiet"]) == 0
         return log.read_bytes()

@@ -309,16 +309,24 @@ def test_a_log_whose_first_record_is_no_header_is_corrupt():
 
 
 def test_a_log_is_written_as_the_run_goes():
-    """A process killed outright loses at most ~1 s of log time or 4096 messages: what the
-    recorder was given before that is on the stream, readable, without close()."""
-    buf = io.BytesIO()
-    rec = McapRecorder(buf)
-    for k in range(40):  # one message every 0.1 s of log time
-        rec.write("/log", log_message("info", f"line {k}", k * 100_000_000, "a"), k * 100_000_000)
-    got = read_log(io.BytesIO(buf.getvalue()))  # never closed: read as truncated
-    assert got.truncated and len(got.messages) >= 40 - 11
+    """A process killed outright loses at most 4096 messages, or ``flush_seconds`` of log time
+    when asked (wall time: ``test_a_log_is_flushed_by_wall_time_too``): what the recorder was
+    given before that is on the stream, readable, without close(). By default simulated time
+    finishes no chunk (a long run would flush a chunk a second)."""
+    for flush_seconds, least in ((1.0, 40 - 11), (None, 0)):
+        buf = io.BytesIO()
+        rec = McapRecorder(buf, flush_seconds=flush_seconds, flush_wall=3600)
+        for k in range(40):  # one message every 0.1 s of log time
+            t = k * 100_000_000
+            rec.write("/log", log_message("info", f"line {k}", t, "a"), t)
+        got = read_log(io.BytesIO(buf.getvalue()))  # never closed: read as truncated
+        assert got.truncated
+        if flush_seconds is None:
+            assert got.messages == []  # all in the chunk in progress
+        else:
+            assert len(got.messages) >= least
     buf2 = io.BytesIO()
-    rec2 = McapRecorder(buf2)
+    rec2 = McapRecorder(buf2, flush_wall=3600)
     for k in range(5000):  # all at one instant: the message count bounds what is held back
         rec2.write("/log", log_message("info", f"line {k}", 0, "a"), 0)
     assert len(read_log(io.BytesIO(buf2.getvalue())).messages) >= 5000 - 4096
