@@ -271,14 +271,20 @@ def test_a_unit_that_batches_logs_what_it_logs_waking_for_each_decode(seed, nois
     assert logs[0] == logs[1]
 
 
-def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
+@pytest.mark.parametrize("small", [False, True])
+def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time(small, monkeypatch):
     """The hand-over alone: random spikes (sample, walker, channel) of two advances, the first
     walked by two receivers for all (one stood still), the second by each on its own, come
     out a block at a time, in the order (block, first unit): each unit exactly its walker's
     spikes in each advance, through the channels that fired and each spike's index among
     them; units whose spikes in a block are equal (however they walked) as one shared block.
-    A unit that stops gets the rest of its own and no more."""
+    A unit that stops gets the rest of its own and no more. The same with the grouping in
+    arrays and in plain Python (``small``: a hand-over of a few spikes)."""
     import types
+
+    import rgtbus.hearing
+
+    monkeypatch.setattr(rgtbus.hearing, "SMALL_HAND_OVER", 10**9 if small else 0)
 
     import numpy as np
 
@@ -305,7 +311,10 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
                     spikes_of(share.samples, share.index, share.fired), share.end,
                 ))  # fmt: skip
 
-        return types.SimpleNamespace(spikes=spikes, shared_spikes=shared_spikes)
+        # each settles what it is handed (as a unit that takes batches does)
+        return types.SimpleNamespace(
+            spikes=spikes, shared_spikes=shared_spikes, keeps_now=lambda: False
+        )
 
     def rows(lo, hi, walkers):
         drawn = rng.integers((lo, 0, 0), (hi, len(walkers), channels), (400, 3))
@@ -327,6 +336,7 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time():
         pos=400,
     )
     ears._hand_blocks = lambda *a: Ears._hand_blocks(ears, *a)
+    ears._hand_blocks_small = lambda *a: Ears._hand_blocks_small(ears, *a)
     ears._hand_as_one = lambda *a: Ears._hand_as_one(ears, *a)
     ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
     ears._close_pending = lambda: None
@@ -367,6 +377,7 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
 
     import numpy as np
 
+    import rgtbus.hearing
     from rgtbus.hearing import Ears, _SpikePiece
 
     rng = np.random.default_rng(seed)
@@ -383,6 +394,8 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
             _SpikePiece(*(np.array([r[j] for r in rows], dtype=np.int64) for j in range(3)), wo)
         )
 
+    keeps = False
+
     def handed(fast: bool, members: np.ndarray, heard: int) -> list:
         got: list = []
 
@@ -397,7 +410,18 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
                         share.fired[share.index].tolist(), share.end,
                     ))  # fmt: skip
 
-            return types.SimpleNamespace(spikes=spikes, shared_spikes=shared_spikes)
+            def shared_kept(names, samples, index, fired, end):
+                got.append((
+                    tuple(int(n[1:]) for n in names), samples.tolist(),
+                    fired[index].tolist(), end,
+                ))  # fmt: skip
+
+            return types.SimpleNamespace(
+                spikes=spikes,
+                shared_spikes=shared_spikes,
+                shared_kept=shared_kept,
+                keeps_now=lambda: keeps,
+            )
 
         ears = types.SimpleNamespace(
             _spike_block=block,
@@ -406,6 +430,7 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
             ],
         )
         ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
+        ears._hand_blocks_small = lambda *a: Ears._hand_blocks_small(ears, *a)
         ears._hand_as_one = (lambda *a: Ears._hand_as_one(ears, *a)) if fast else (lambda *a: False)
         Ears._hand_blocks(ears, [p for p in pieces if len(p.k)], members, heard)
         return got
@@ -413,6 +438,15 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
     for members in (np.arange(units), np.array([2])):
         fast = handed(True, members, 290)
         assert fast == handed(False, members, 290)
+        small = rgtbus.hearing.SMALL_HAND_OVER
+        rgtbus.hearing.SMALL_HAND_OVER = 10**9  # the general grouping in plain Python
+        try:
+            assert handed(False, members, 290) == fast
+        finally:
+            rgtbus.hearing.SMALL_HAND_OVER = small
+        keeps = True  # units that keep each block at once: the same records, none settled
+        assert handed(True, members, 290) == fast == handed(False, members, 290)
+        keeps = False
     assert any(len(g[0]) == units for g in handed(True, np.arange(units), 290)) or not any(
         len(p.k) for p in pieces
     )

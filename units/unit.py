@@ -686,6 +686,17 @@ class AutonomousUnit:
         else:
             self._settle_spikes(block, None)
 
+    def keeps_now(self) -> bool:
+        """Whether a block handed now is kept at once (``SpikeLog.keeps_now``): this unit
+        takes no batch (or is done), so ``shared_spikes`` would settle it as kept."""
+        return not self._batches or self.done
+
+    def shared_kept(
+        self, names: list[str], samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int
+    ) -> None:
+        """A block that ``names`` heard alike and all keep (``SpikeLog.shared_kept``)."""
+        self._log_spikes(names, samples, index, fired, end)
+
     def _release_spikes(self, stop: int | None) -> None:
         """Log the blocks held for this wake: all of them, or (``stop``: done before that
         sample) their spikes before ``stop``, the last block ending there."""
