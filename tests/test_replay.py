@@ -50,7 +50,7 @@ def _run(name: str, traces: bool = False, text: str | None = None) -> tuple[byte
         else load_scenario(ROOT / "scenarios" / f"{name}.toml")
     )
     buf = io.BytesIO()
-    rec = McapRecorder(buf, chunk_size=16 * 1024)
+    rec = McapRecorder(buf, chunk_size=4 * 1024)  # many chunks, to cut short
     out = run_group(sc, "memory", rec, traces=traces)
     rec.close()
     return buf.getvalue(), json.dumps(out.summary)
@@ -236,6 +236,33 @@ def test_medium_sample_mismatch_points_at_the_sample():
     med = [m for m in report.mismatches if m.topic == "/medium"]
     assert len(med) == 1 and re.fullmatch(r"window \d+ samples\[\d+\]", med[0].field)
     assert med[0].logged == pytest.approx(med[0].recomputed + 0.001)
+
+
+def test_a_log_cut_inside_a_units_decisions_verifies_as_far_as_it_goes():
+    """Cut between two decisions a unit wrote at one time: the one cut off is no mismatch
+    (it is at the log's bound), the log is incomplete, and what is there agrees."""
+    from mcap.reader import make_reader
+
+    sc = load_scenario(ROOT / "scenarios" / "example2.toml")
+    buf = io.BytesIO()
+    rec = McapRecorder(buf, chunk_size=64)  # a message a chunk: a cut anywhere
+    run_group(sc, "memory", rec)
+    rec.close()
+    data = buf.getvalue()
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    assert summary is not None
+    ends = []  # (end of the chunk, its message's topic and unit), in file order
+    for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        cut = data[: index.chunk_start_offset + index.chunk_length]
+        (topic, t, m), *_ = read_log(io.BytesIO(cut)).messages[-1:] or [(None, 0, {})]
+        ends.append((len(cut), topic, m.get("unit"), t))
+    at = next(
+        size
+        for (size, topic, unit, t), (_, topic2, unit2, t2) in zip(ends, ends[1:], strict=False)
+        if topic == topic2 == "/unit/decision" and unit == unit2 and t == t2
+    )
+    report = verify_log(io.BytesIO(data[:at]))
+    assert report.truncated and not report.ok and report.mismatches == []
 
 
 def test_truncated_log_verified_as_far_as_it_goes(tmp_path, capsys):

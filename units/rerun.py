@@ -32,7 +32,7 @@ from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message
 from rgtbus.telemetry.read import Mismatch, Replay, load_replay
 from rgtbus.telemetry.verify import VerifyReport, verify
-from rgtbus.timebase import seconds
+from rgtbus.timebase import ns, seconds
 
 
 class CaptureRecorder:
@@ -134,6 +134,9 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     influence tables give its decisions (phase 4), by a fresh copy of the unit's own mind."""
     sc = replay.require_scenario()
     out: list[Mismatch] = []
+    # a log cut short may end inside a unit's decisions of one time: those at or after its
+    # bound may be missing (what is there must still agree)
+    cut_ns = (replay.units_until_ns() or 0) if replay.truncated else None
     logged_decisions: defaultdict[tuple[str, int], dict[str, Mapping[str, Any]]] = defaultdict(dict)
     for d in replay.decisions:
         logged_decisions[(d["unit"], d.get("round", 1))][d["subject"]] = d
@@ -171,7 +174,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
             continue
         # every round in order: a seeded-random policy draws once a round
         for infl in tables.get(name, []):
-            out.extend(_check_round(unit, infl, logged_decisions))
+            out.extend(_check_round(unit, infl, logged_decisions, cut_ns))
     return out
 
 
@@ -179,8 +182,10 @@ def _check_round(
     unit: AutonomousUnit,
     infl: dict,
     logged_decisions: Mapping[tuple[str, int], Mapping[str, Mapping[str, Any]]],
+    cut_ns: int | None = None,
 ) -> list[Mismatch]:
-    """One round's decisions of ``unit`` re-derived from its logged influence table."""
+    """One round's decisions of ``unit`` re-derived from its logged influence table
+    (``cut_ns``: the bound of a log cut short, at or after which a decision may be missing)."""
     name, mind, u = unit.name, unit.mind, unit.scenario.universe
     rnd = infl.get("round", 1)
     try:
@@ -202,6 +207,8 @@ def _check_round(
         if m.get("subject") is None:  # a "no decision" log line
             continue
         logged = logged_decisions.get((name, rnd), {}).get(m["subject"])
+        if logged is None and cut_ns is not None and ns(m["t"]) >= cut_ns:
+            continue  # written after where the log was cut
         if logged is None:
             out.append(
                 Mismatch(
