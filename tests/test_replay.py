@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import re
 import struct
@@ -258,7 +259,7 @@ def test_a_log_cut_inside_a_units_decisions_verifies_as_far_as_it_goes():
         ends.append((len(cut), topic, m.get("unit"), t))
     at = next(
         size
-        for (size, topic, unit, t), (_, topic2, unit2, t2) in zip(ends, ends[1:], strict=False)
+        for (size, topic, unit, t), (_, topic2, unit2, t2) in itertools.pairwise(ends)
         if topic == topic2 == "/unit/decision" and unit == unit2 and t == t2
     )
     report = verify_log(io.BytesIO(data[:at]))

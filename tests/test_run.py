@@ -405,6 +405,34 @@ def test_no_log_refuses_what_needs_a_log(tmp_path, capsys, extra):
     assert f"--no-log with {extra[0]}" in err and "\n" not in err
 
 
+@pytest.mark.parametrize("name", ["example2", "overview"])
+def test_decode_records_hold_a_block_of_time_each(name):
+    """A unit's decodes go to the log one ``/rx/decodes`` record a block of
+    ``DECODE_BLOCK_SECONDS`` (cut only where the unit writes another record of its own),
+    whatever its wakes: every record's decodes lie in one block, at the last one's time; a
+    unit's records leave in time order; and every decode is there once."""
+    from rgtbus.units.unit import DECODE_BLOCK_SECONDS
+
+    sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    rec = MemoryRecorder()
+    out = run_group(sc, "memory", rec)
+    span = round(DECODE_BLOCK_SECONDS / sc.timing.tau)
+    blocks = [m for topic, _, m in rec.messages if topic == "/rx/decodes"]
+    for m in blocks:
+        samples = [round(t / sc.timing.tau) for t in m["times"]]
+        assert len({k // span for k in samples}) == 1 and m["t"] == m["times"][-1]
+    assert any(len(m["times"]) > 1 for m in blocks)  # held across wakes
+    for unit in out.units:  # its own records, as written (the pulses are its transmitter's)
+        own = [
+            t
+            for topic, t, m in rec.messages
+            if m.get("unit") == unit.name and topic not in ("/tx/pulse", "/rx/spike")
+        ]
+        assert own == sorted(own)
+        got = [m for m in blocks if m["unit"] == unit.name]
+        assert sum(len(m["times"]) for m in got) == len(unit.decoded)
+
+
 def test_spike_records_are_columns_one_entry_a_spike():
     """A unit's spikes of a block are one record of columns (each spike's sample, and its
     channel as an index into the block's names), at the block's end as its log time: no

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import itertools
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -62,6 +63,9 @@ SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spik
 KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
 AWAKE = -1.0  # the transmitter is not asleep: it reads the next send before it sleeps
 BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
+# a unit's decodes of each span of this much time go to the log as one /rx/decodes record (no
+# live view), whatever its wakes: a serial 10-unit run made a record of one decode a wake
+DECODE_BLOCK_SECONDS = 10.0
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -294,10 +298,15 @@ class AutonomousUnit:
         self._air_seq = 0
         self._air_until = AWAKE  # when the transmitter sleeps until (AWAKE: it will look)
         self._transmitter: simpy.Process | None = None
-        # this wake's decodes for the log (/rx/decodes): batches as parts of the nine columns
-        # (arrays, made lists once, at the flush), single decodes as rows until the next part
+        # the decodes held for the log (/rx/decodes, ``_flush_decodes``): batches as parts of
+        # the nine columns (arrays, made lists once, at the flush), single decodes as rows
+        # until the next part; the decode block of the first held (-1: none held); whether
+        # they wait for their block's end (no live view watches)
         self._decode_parts: list[Sequence[Any]] = []
         self._decode_rows: list[tuple[Any, ...]] = []
+        self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / self.tau))
+        self._held_block = -1
+        self._holds = True
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0
@@ -356,11 +365,16 @@ class AutonomousUnit:
         lets it batch again (a unit process that batched nothing woke 20x as often)."""
         if self.traces or self.protocol.confirmed:
             return False
+        return not self.watched()
+
+    def watched(self) -> bool:
+        """Whether a live view may be looking (``LiveSink.watched``), so this unit's records
+        should leave as the run's clock reaches them."""
         live = getattr(self.recorder, "live", None)
         if live is None:
-            return True
+            return False
         watched = getattr(live, "watched", None)
-        return watched is not None and not watched()
+        return watched is None or watched()
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
@@ -403,6 +417,7 @@ class AutonomousUnit:
         if self._held:  # not done before the samples of this wake: the blocks are its
             self._release_spikes(None)
         self._batches = self.batching()  # none held now: it may change (a watcher came)
+        self._holds = not self.watched()
         t = self._timers[0]
         aw = self._asked = self.awaited()
         if aw is None and self._batches:
@@ -454,7 +469,10 @@ class AutonomousUnit:
                 self._on_timer(t)
             else:
                 self._take_queue(t, pos)
-        self._flush_decodes()
+        if not self._holds:
+            self._flush_decodes()
+        elif 0 <= self._held_block < pos // self._decode_block:  # past a block of decodes
+            self._flush_decodes(before=pos)
         self._ask()
 
     def _take_queue(self, t: _Timer, pos: int) -> None:
@@ -633,6 +651,8 @@ class AutonomousUnit:
         if self.recorder.enabled:
             units = reads.unit_names
             self._rows_to_part()
+            if self._held_block < 0:
+                self._held_block = self._block_of(reads.t_ready[a])
             self._decode_parts.append(
                 (
                     reads.turn[a:b],
@@ -1202,10 +1222,16 @@ class AutonomousUnit:
         channel: str,
     ) -> None:
         self.decoded.append(listen.turn, listen.kind, addressee, code)
-        if self.recorder.enabled:  # logged as one record a wake (_flush_decodes)
+        if self.recorder.enabled:  # logged a block of time a record (_flush_decodes)
             row = (listen.turn, listen.sender, addressee, channel, listen.kind, code, margin,
                    t, accepted)  # fmt: skip
+            if self._held_block < 0:
+                self._held_block = self._block_of(t)
             self._decode_rows.append(row)
+
+    def _block_of(self, t: float) -> int:
+        """The decode block (``DECODE_BLOCK_SECONDS``) of a decode at time ``t``."""
+        return round(t / self.tau) // self._decode_block
 
     def _rows_to_part(self) -> None:
         """The single decodes logged since the last batch, as a part of columns."""
@@ -1213,12 +1239,18 @@ class AutonomousUnit:
             self._decode_parts.append([list(c) for c in zip(*self._decode_rows, strict=True)])
             self._decode_rows = []
 
-    def _flush_decodes(self) -> None:
-        """Log the decodes of this wake so far as one ``/rx/decodes`` record at the last
-        one's time: at the end of each wake, and before any other record of this unit, so
-        its records stay in time order (a log cut short is complete before its last one)."""
+    def _flush_decodes(self, before: int | None = None) -> None:
+        """Log the decodes held, one ``/rx/decodes`` record a decode block of
+        ``DECODE_BLOCK_SECONDS`` (each at its last decode's time): before any other record of
+        this unit, so its records stay in time order (a log cut short is complete before its
+        last one), and at the end of a wake in a later block than the first held one
+        (``before``: only the decodes of blocks before the one of that sample; the others
+        stay held). Which decodes a record holds depends on the blocks and the unit's other
+        records alone, not on its wakes, so every engine, bus and attention writes the same
+        records. With a live view watching, at the end of every wake (``_holds``)."""
         self._rows_to_part()
         parts, self._decode_parts = self._decode_parts, []
+        self._held_block = -1
         if not parts:
             return
         if len(parts) == 1:  # the usual case: one batch as arrays, or single decodes as lists
@@ -1233,8 +1265,24 @@ class AutonomousUnit:
                 else [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
                 for j in range(9)
             ]
-        record = records.decodes_of_columns(self.name, cols)
-        self.recorder.write("/rx/decodes", record, ns(record["t"]))
+        times = cols[7]
+        if len(times) == 1:  # the usual case of a serial run
+            blocks = [self._block_of(times[0])]
+            cuts = [0, 1]
+        else:
+            blocks = (np.rint(np.asarray(times) / self.tau).astype(np.int64)).tolist()
+            blocks = [k // self._decode_block for k in blocks]
+            cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1])]
+            cuts.append(len(blocks))
+        now = NEVER if before is None else before // self._decode_block
+        for a, b in itertools.pairwise(cuts):
+            if blocks[a] >= now:  # the block still going on: held, as one part
+                self._decode_parts = [[c[a:] for c in cols]]
+                self._held_block = blocks[a]
+                return
+            part = cols if b - a == len(blocks) else [c[a:b] for c in cols]
+            record = records.decodes_of_columns(self.name, part)
+            self.recorder.write("/rx/decodes", record, ns(record["t"]))
 
     def _write(self, topic: str, record: Any, t_ns: int) -> None:
         """A record of this unit's own, after the decodes that came before it."""
