@@ -298,6 +298,7 @@ class AutonomousUnit:
         self._air_seq = 0
         self._air_until = AWAKE  # when the transmitter sleeps until (AWAKE: it will look)
         self._transmitter: simpy.Process | None = None
+        self._on_time = True  # pulses logged by the transmitter (``begin``)
         # the decodes held for the log (/rx/decodes, ``_flush_decodes``): batches as parts of
         # the nine columns (arrays, made lists once, at the flush), single decodes as rows
         # until the next part; the decode block of the first held (-1: none held); whether
@@ -347,6 +348,13 @@ class AutonomousUnit:
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
         self.env, self.ears, self.index = env, ears, index
+        # its pulses go to the log as the run's clock reaches each (a transmitter: a SimPy
+        # process) only where someone may look on while it runs: a live view, a paced run;
+        # else as they are planned, each at its own log time (as the medium is): the same
+        # records, and the transmitter's wakes were a quarter of a 50-unit run's log cost
+        self._on_time = getattr(self.recorder, "live", None) is not None or isinstance(
+            env, simpy.rt.RealtimeEnvironment
+        )
         self._batches = self.batching()
         self.readout = ears.readout_of(index)
         self._add(self.limit, self.limit - 1, "limit")
@@ -918,7 +926,9 @@ class AutonomousUnit:
             if send.kind == "payload":
                 self._payload_code[send.turn] = send.code
         assert self.env is not None
-        if self.recorder.enabled:  # its transmitter logs the pulses at their times
+        if self.recorder.enabled and not self._on_time:
+            self._log_send(send, word)
+        elif self.recorder.enabled:  # its transmitter logs the pulses at their times
             at = min(send.start, send.samples[0] * self.tau)
             heapq.heappush(self._air, (at, self._air_seq, -1, send, word, None))
             self._air_seq += 1
@@ -926,6 +936,22 @@ class AutonomousUnit:
                 self._transmitter = self.env.process(self._on_air())
             elif at < self._air_until:  # it sleeps until later: wake it for this one
                 self._transmitter.interrupt()
+
+    def _log_send(self, send: Send, word: tuple[float, ...]) -> None:
+        """A send's log line and its pulses, written now, each at its own log time."""
+        tau = self.tau
+        self.recorder.log("info", _send_text(send), ns(send.start), name=self.name)
+        message = records.message_ref(
+            send.turn, send.kind, send.code, send.sender, send.addressee, send.block
+        )
+        omega = self.scenario.frequencies[send.channel]
+        write, name, channel = self.recorder.write, self.name, send.channel
+        for k, m in zip(send.samples, word, strict=True):
+            write(
+                "/tx/pulse",
+                records.pulse(name, channel, omega, float(m), tau, k, message),
+                ns(k * tau),
+            )
 
     def _on_air(self):
         """This unit's transmitter: one SimPy process (not one a send: a 100-unit group
@@ -1258,22 +1284,20 @@ class AutonomousUnit:
                 c if type(c) is list or j in _NUMERIC_DECODE_COLUMNS else c.tolist()
                 for j, c in enumerate(parts[0])
             ]
-        else:  # numbers as arrays (the encoder writes them whole), names as lists
-            cols = [
-                np.concatenate([np.asarray(p[j]) for p in parts])
-                if j in _NUMERIC_DECODE_COLUMNS
-                else [v for p in parts for v in (p[j] if type(p[j]) is list else p[j].tolist())]
-                for j in range(9)
-            ]
+        else:  # numbers of a batch as arrays (the encoder writes them whole), else lists
+            cols = []
+            for j in range(9):
+                col = [p[j] for p in parts]
+                if j in _NUMERIC_DECODE_COLUMNS and any(type(c) is not list for c in col):
+                    cols.append(np.concatenate([np.asarray(c) for c in col]))
+                else:  # a serial run's single decodes, held over a few wakes: plain lists
+                    cols.append([v for c in col for v in (c if type(c) is list else c.tolist())])
         times = cols[7]
-        if len(times) == 1:  # the usual case of a serial run
-            blocks = [self._block_of(times[0])]
-            cuts = [0, 1]
+        if type(times) is list:
+            blocks = [self._block_of(t) for t in times]
         else:
-            blocks = (np.rint(np.asarray(times) / self.tau).astype(np.int64)).tolist()
-            blocks = [k // self._decode_block for k in blocks]
-            cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1])]
-            cuts.append(len(blocks))
+            blocks = (np.rint(times / self.tau).astype(np.int64) // self._decode_block).tolist()
+        cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1]), len(blocks)]
         now = NEVER if before is None else before // self._decode_block
         for a, b in itertools.pairwise(cuts):
             if blocks[a] >= now:  # the block still going on: held, as one part

@@ -193,9 +193,9 @@ def spike_rows(
 
 
 _NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
-# logged by a unit's transmitter (a process of its own) as the clock reaches each pulse, not
-# in step with the unit's other records: what a unit logged before its last record or spike
-# block holds every pulse before that time as well
+# logged as each send is planned (or, with a live view or a paced run, by a unit's transmitter
+# as the clock reaches each pulse), not in step with the unit's other records: what a unit
+# logged before its last record or spike block holds every pulse before that time as well
 _ON_TIME = frozenset({"/tx/pulse"})
 
 
