@@ -120,6 +120,41 @@ def test_a_decodes_record_reads_back_as_the_records_of_one_decode_each():
     assert list(records.decode_rows(back)) == [records.decode("b", *row) for row in rows]
 
 
+def test_a_decodes_record_of_indexes_reads_back_as_names():
+    """A batch's record holds sender, addressee and channel as indexes into its unit names,
+    kind into its kinds and code into its codes (integer arrays): it validates, and reads
+    back as the record of names would; a bad index or table is one line naming it."""
+    import numpy as np
+    import pytest
+
+    from rgtbus.errors import RgtbusError
+
+    rows = [
+        (1, "a", "b", "a", "id", "id", 0.5, 1.25, True),
+        (2, "a", "c", "c", "relation", "conflict", 0.25, 2.5, True),
+    ]
+    tables = (("a", "b", "c"), ("id", "relation", "influence"), ("conflict", "id"))
+    cols = [
+        np.array([1, 2]), np.array([0, 0]), np.array([1, 2]), np.array([0, 2]),
+        np.array([0, 1]), np.array([1, 0]), np.array([0.5, 0.25]), np.array([1.25, 2.5]),
+        np.array([True, True]),
+    ]  # fmt: skip
+    rec = MemoryRecorder(validate=True)
+    rec.write("/rx/decodes", records.decodes_of_columns("b", cols, tables), 2_500_000_000)
+    ((_, _, back),) = rec.messages
+    assert back["names"] == ["a", "b", "c"] and back["sender"] == [0, 0]
+    assert list(records.decode_rows(back)) == [records.decode("b", *row) for row in rows]
+    for change, says in (
+        ({"code": [1, 2]}, "code 2 is no index into its 2 codes"),
+        ({"sender": [0, -1]}, "sender -1 is no index into its 3 names"),
+        ({"kind": [0, True]}, "kind True is no index into its 3 kinds"),
+        ({"kinds": "id"}, "'kinds' is not a list of names"),
+        ({"names": None}, "'names' is not a list of names"),
+    ):
+        with pytest.raises(RgtbusError, match="/rx/decodes of 'b' at t = 2.5: " + says):
+            list(records.decode_rows({**back, **change}))
+
+
 def test_a_damaged_decodes_record_is_named():
     import pytest
 

@@ -19,7 +19,7 @@ import itertools
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 import simpy
@@ -66,6 +66,16 @@ BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no 
 # a unit's decodes of each span of this much time go to the log as one /rx/decodes record (no
 # live view), whatever its wakes: a serial 10-unit run made a record of one decode a wake
 DECODE_BLOCK_SECONDS = 10.0
+
+
+def _named_column(col: Any, tables: records.DecodeTables, j: int) -> list[Any]:
+    """Column ``j`` of a part of decodes held as indexes (``_take_batch``), as names (a part
+    joined with single decodes); any other column as a list."""
+    table = {1: 0, 2: 0, 3: 0, 4: 1, 5: 2}.get(j)
+    if table is None:
+        return col if type(col) is list else cast(list[Any], col.tolist())
+    names = tables[table]
+    return [names[i] for i in col.tolist()]
 
 
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
@@ -175,8 +185,6 @@ def _completes(table: PairTable | None, had: int, slots: np.ndarray, full: int) 
 
 _ID, _RELATION, _INFLUENCE = 0, 1, 2  # the kinds of a listen, as a column
 _KINDS = ("id", "relation", "influence")
-# the /rx/decodes columns held as arrays: turn, margin, times, accepted (records.DECODE_COLUMNS)
-_NUMERIC_DECODE_COLUMNS = frozenset((0, 6, 7, 8))
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,10 +211,7 @@ class _QueueReads:
     unique: bool  # no pair of one table twice (a batch sets each slot once)
     what: np.ndarray  # (kind · units + addressee) · len(names): + the word, a decoded row
     channel: np.ndarray  # unit index of the channel it is carried on (an ID: its sender's)
-    unit_names: np.ndarray  # the units' names (objects), to name columns of indexes
-    kind_names: np.ndarray  # each position's kind, by name (objects)
     names: tuple[str, ...]  # every word name a decode can read
-    name_array: np.ndarray  # the same, as objects
     alliance: np.ndarray  # per name: 1 if "alliance"
     value: np.ndarray  # per name: its alternative (-1: not one)
     id_word: int  # the name index of "id"
@@ -304,6 +309,7 @@ class AutonomousUnit:
         # until the next part; the decode block of the first held (-1: none held); whether
         # they wait for their block's end (no live view watches)
         self._decode_parts: list[Sequence[Any]] = []
+        self._decode_tables: list[records.DecodeTables | None] = []  # a part's (None: names)
         self._decode_rows: list[tuple[Any, ...]] = []
         self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / self.tau))
         self._held_block = -1
@@ -559,10 +565,7 @@ class AutonomousUnit:
             unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
             what=(kind * n + expected) * len(names),
             channel=np.where(kind == _ID, sender, expected),
-            unit_names=np.array(self.units, dtype=object),
-            kind_names=np.array(_KINDS, dtype=object)[kind],
             names=tuple(names),
-            name_array=np.array(names, dtype=object),
             alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
             value=np.array(value, dtype=np.int64),
             id_word=names.index("id") if "id" in names else -1,
@@ -656,24 +659,24 @@ class AutonomousUnit:
                 self._what_of[c] = self.decoded.index(key)
             what = self._what_of[code]
         self.decoded.extend_index(reads.turn[a:b], what)
-        if self.recorder.enabled:
-            units = reads.unit_names
+        if self.recorder.enabled:  # names as indexes into the batch's tables
             self._rows_to_part()
             if self._held_block < 0:
                 self._held_block = self._block_of(reads.t_ready[a])
             self._decode_parts.append(
                 (
                     reads.turn[a:b],
-                    units[reads.sender[a:b]],
-                    units[reads.expected[a:b]],
-                    units[reads.channel[a:b]],
-                    reads.kind_names[a:b],
-                    reads.name_array[word],
+                    reads.sender[a:b],
+                    reads.expected[a:b],
+                    reads.channel[a:b],
+                    reads.kind[a:b],
+                    word,
                     margin,
                     reads.t_ready[a:b],
                     np.ones(b - a, dtype=bool),
                 )
             )
+            self._decode_tables.append((self.units, _KINDS, names))
         mind = self.mind
         if reads.n_rel[b] > reads.n_rel[a]:
             rel = reads.is_rel[a:b]
@@ -1260,9 +1263,10 @@ class AutonomousUnit:
         return round(t / self.tau) // self._decode_block
 
     def _rows_to_part(self) -> None:
-        """The single decodes logged since the last batch, as a part of columns."""
+        """The single decodes logged since the last batch, as a part of columns (of names)."""
         if self._decode_rows:
             self._decode_parts.append([list(c) for c in zip(*self._decode_rows, strict=True)])
+            self._decode_tables.append(None)
             self._decode_rows = []
 
     def _flush_decodes(self, before: int | None = None) -> None:
@@ -1276,22 +1280,26 @@ class AutonomousUnit:
         records. With a live view watching, at the end of every wake (``_holds``)."""
         self._rows_to_part()
         parts, self._decode_parts = self._decode_parts, []
+        tables, self._decode_tables = self._decode_tables, []
         self._held_block = -1
         if not parts:
             return
-        if len(parts) == 1:  # the usual case: one batch as arrays, or single decodes as lists
-            cols: list[Any] = [
-                c if type(c) is list or j in _NUMERIC_DECODE_COLUMNS else c.tolist()
-                for j, c in enumerate(parts[0])
-            ]
-        else:  # numbers of a batch as arrays (the encoder writes them whole), else lists
+        table = tables[0]
+        if table is not None and all(t == table for t in tables):  # batches: as arrays
+            cols: list[Any] = (
+                list(parts[0])
+                if len(parts) == 1
+                else [np.concatenate([p[j] for p in parts]) for j in range(9)]
+            )
+        else:  # single decodes (a serial run's, held over a few wakes): plain lists
             cols = []
             for j in range(9):
-                col = [p[j] for p in parts]
-                if j in _NUMERIC_DECODE_COLUMNS and any(type(c) is not list for c in col):
-                    cols.append(np.concatenate([np.asarray(c) for c in col]))
-                else:  # a serial run's single decodes, held over a few wakes: plain lists
-                    cols.append([v for c in col for v in (c if type(c) is list else c.tolist())])
+                col = [
+                    _named_column(p[j], t, j) if t is not None else list(p[j])
+                    for p, t in zip(parts, tables, strict=True)
+                ]
+                cols.append([v for c in col for v in c])
+            table = None
         times = cols[7]
         if type(times) is list:
             blocks = [self._block_of(t) for t in times]
@@ -1302,10 +1310,11 @@ class AutonomousUnit:
         for a, b in itertools.pairwise(cuts):
             if blocks[a] >= now:  # the block still going on: held, as one part
                 self._decode_parts = [[c[a:] for c in cols]]
+                self._decode_tables = [table]
                 self._held_block = blocks[a]
                 return
             part = cols if b - a == len(blocks) else [c[a:b] for c in cols]
-            record = records.decodes_of_columns(self.name, part)
+            record = records.decodes_of_columns(self.name, part, table)
             self.recorder.write("/rx/decodes", record, ns(record["t"]))
 
     def _write(self, topic: str, record: Any, t_ns: int) -> None:

@@ -71,18 +71,26 @@ class DecodeRecord(TypedDict):
     accepted: bool
 
 
-class DecodesRecord(TypedDict):
-    unit: str
-    t: float  # the last decode's time: the record's log time
-    turn: IntColumn  # each decode's, in the order the unit made them
-    sender: list[str]
-    addressee: list[str]
-    channel: list[str]
-    kind: list[str]
-    code: list[str]
-    margin: FloatColumn
-    times: FloatColumn
-    accepted: BoolColumn
+class DecodesRecord(TypedDict, total=False):
+    unit: Required[str]
+    t: Required[float]  # the last decode's time: the record's log time
+    turn: Required[IntColumn]  # each decode's, in the order the unit made them
+    # names, or (with ``names``, ``kinds`` and ``codes``) indexes into those tables
+    sender: Required[list[str] | IntColumn]
+    addressee: Required[list[str] | IntColumn]
+    channel: Required[list[str] | IntColumn]
+    kind: Required[list[str] | IntColumn]
+    code: Required[list[str] | IntColumn]
+    margin: Required[FloatColumn]
+    times: Required[FloatColumn]
+    accepted: Required[BoolColumn]
+    names: list[str]  # the units sender, addressee and channel index
+    kinds: list[str]  # the kinds kind indexes
+    codes: list[str]  # the code names code indexes
+
+
+# a record's tables of names, when its name columns hold indexes: (units, kinds, codes)
+DecodeTables = tuple[Sequence[str], Sequence[str], Sequence[str]]
 
 
 # the columns of a /rx/decodes record, in the order ``decodes`` takes a row's fields
@@ -358,15 +366,20 @@ def decodes(unit: str, rows: Sequence[DecodeFields]) -> DecodesRecord:
     return decodes_of_columns(unit, [list(c) for c in zip(*rows, strict=True)])
 
 
-def decodes_of_columns(unit: str, cols: Sequence[Any]) -> DecodesRecord:
+def decodes_of_columns(
+    unit: str, cols: Sequence[Any], tables: DecodeTables | None = None
+) -> DecodesRecord:
     """``decodes`` from its nine columns, in the order of a row (a unit that takes a batch of
     decodes as arrays gives them so: turn, margin, times and accepted may be numpy arrays,
-    which the encoder writes whole, with no Python object per decode). The columns are the
-    record's own from then on (a large run logs 4n²(n−1) decodes: they are not copied)."""
+    which the encoder writes whole, with no Python object per decode). ``tables``: sender,
+    addressee and channel are indexes into its units, kind into its kinds and code into its
+    codes (integer arrays: a 50-unit run decodes 490,000 codes, five names each, and the
+    names cost more to make, write and compress than the rest of the record). The columns
+    are the record's own from then on (they are not copied)."""
     if not len(cols) or not len(cols[7]):
         raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
     margin = cols[6]
-    return {
+    record: DecodesRecord = {
         "unit": unit,
         "t": float(cols[7][-1]),
         "turn": cols[0],
@@ -379,6 +392,39 @@ def decodes_of_columns(unit: str, cols: Sequence[Any]) -> DecodesRecord:
         "times": cols[7],
         "accepted": cols[8],
     }
+    if tables is not None:
+        record["names"], record["kinds"], record["codes"] = (list(t) for t in tables)
+    return record
+
+
+_TABLE_OF = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
+             "code": "codes"}  # fmt: skip
+
+
+def _named(unit: str, record: dict[str, Any]) -> None:
+    """A record's columns of indexes (``decodes_of_columns`` with tables) as names, in place;
+    a table that is not a list of names, or an index out of it: RgtbusError naming both."""
+    for column, table_name in _TABLE_OF.items():
+        table, col = record.get(table_name), record.get(column)
+        if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
+            raise RgtbusError(
+                f"/rx/decodes of {unit!r} at t = {record.get('t')}: {table_name!r} is not a "
+                "list of names"
+            )
+        if not isinstance(col, list):
+            continue  # said below, with the other columns
+        try:
+            record[column] = [table[i] if type(i) is int and i >= 0 else _no(i) for i in col]
+        except (IndexError, TypeError):
+            bad = next(i for i in col if not (type(i) is int and 0 <= i < len(table)))
+            raise RgtbusError(
+                f"/rx/decodes of {unit!r} at t = {record.get('t')}: {column} {bad!r} is no "
+                f"index into its {len(table)} {table_name}"
+            ) from None
+
+
+def _no(i: object) -> str:
+    raise TypeError(i)
 
 
 def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
@@ -388,6 +434,8 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     unit = cast(str, record.get("unit"))
     # columns a writer holds as arrays (a record not yet written) read as a log gives them
     record = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in record.items()}
+    if any(t in record for t in ("names", "kinds", "codes")):
+        _named(unit, record)
     times = record.get("times")
     n = len(times) if isinstance(times, list) else -1
     for name in ("times", *DECODE_COLUMNS):  # the times first: the others are held to them
