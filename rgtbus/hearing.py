@@ -984,7 +984,7 @@ class Ears:
 
 
 SMALL_HAND_OVER = 4096  # spikes of a hand-over grouped in plain Python (_hand_blocks_small)
-WALK_LANE_SAMPLES = 1 << 20  # a logged run's advance: about this many lane-samples at most
+WALK_LANE_SAMPLES = 1 << 22  # a logged run's advance: about this many lane-samples at most
 QUEUE_CHUNK = 256  # positions of a shared queue read (for every receiver) and kept together
 QueueRead = Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
