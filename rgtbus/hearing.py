@@ -128,7 +128,7 @@ class SharedSpikes:
     it (it was done before: its own record holds its spikes up to there). The last to settle
     learns which members kept it, and writes their record."""
 
-    __slots__ = ("_kept", "end", "fired", "index", "members", "names", "samples")
+    __slots__ = ("_kept", "_member_set", "end", "fired", "index", "members", "names", "samples")
 
     def __init__(
         self,
@@ -141,12 +141,13 @@ class SharedSpikes:
     ) -> None:
         self.samples, self.index, self.fired, self.end = samples, index, fired, end
         self.members, self.names = list(members), list(names)
+        self._member_set = frozenset(self.members)  # fifty members settle each block
         self._kept: dict[int, bool] = {}
 
     def settle(self, member: int, kept: bool) -> list[str] | None:
         """Member ``member`` kept the block, or left it; once every member has settled, the
         names of those that kept it (member order), else None."""
-        if member not in self.members:
+        if member not in self._member_set:
             raise RgtbusError(f"unit {member} settles a block of units {self.members}")
         if member in self._kept:
             raise RgtbusError(f"unit {member} settles a block of units {self.members} again")

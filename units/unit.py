@@ -732,6 +732,13 @@ class AutonomousUnit:
         """Log the blocks held for this wake: all of them, or (``stop``: done before that
         sample) their spikes before ``stop``, the last block ending there."""
         held, self._held = self._held, []
+        if stop is None:  # kept, each (a batching unit settles every block of its wake)
+            me = self.index
+            for block in held:
+                units = block.settle(me, True)
+                if units:
+                    self._log_spikes(units, block.samples, block.index, block.fired, block.end)
+            return
         for block in held:
             self._settle_spikes(block, stop)
 
@@ -1303,9 +1310,12 @@ class AutonomousUnit:
         times = cols[7]
         if type(times) is list:
             blocks = [self._block_of(t) for t in times]
-        else:
-            blocks = (np.rint(times / self.tau).astype(np.int64) // self._decode_block).tolist()
-        cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1]), len(blocks)]
+            cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1])]
+        else:  # a batch's: in time order, so a block's decodes are one run
+            of = np.rint(times / self.tau).astype(np.int64) // self._decode_block
+            cuts = [0, *(np.flatnonzero(of[1:] != of[:-1]) + 1).tolist()]
+            blocks = of.tolist()
+        cuts.append(len(blocks))
         now = NEVER if before is None else before // self._decode_block
         for a, b in itertools.pairwise(cuts):
             if blocks[a] >= now:  # the block still going on: held, as one part
