@@ -208,3 +208,25 @@ def test_timing_candidates_equal_the_literal_rule(omega, start, pulses, tau, sea
     assert candidate_instants(omega, start, pulses, tau, search) == reference_timings(
         omega, start, pulses, tau, search
     )
+
+
+_READ = st.floats(-1.0, 1.0, allow_nan=False, width=32)
+
+
+@given(
+    st.lists(st.tuples(_READ, _READ), min_size=1, max_size=6),
+    st.sampled_from([0.0, 0.5, 0.25, 1.0]),
+)
+@settings(max_examples=300, deadline=None)
+def test_nearer_than_silence_is_nearest_between_a_word_and_silence(pairs, half):
+    """The one-word test confirmed attention makes of an ID is ``nearest``'s answer between
+    that word and silence, to the last bit, ties (silence's) included."""
+    from rgtbus.repair import SILENCE
+    from rgtbus.signal.decoder import WordSet, nearer_than_silence, nearest
+
+    word = [w for _, w in pairs]
+    values = [v for v, _ in pairs]
+    if half:  # exactly half way, or on the word: ties and sure answers
+        values = [w * half for w in word]
+    words = WordSet.of({"id": word, SILENCE: [0.0] * len(word)})
+    assert nearer_than_silence(values, word) == (nearest(values, words).name == "id")

@@ -41,14 +41,14 @@ from rgtbus.protocol import (
     choice_sample,
     code_samples,
 )
-from rgtbus.repair import SILENCE, RepairBook, family_of
+from rgtbus.repair import RepairBook, family_of
 from rgtbus.scenario import Scenario
 from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
 from rgtbus.signal.decoder import (
     Readout,
     WordSet,
     decode_among_columns,
-    nearest,
+    nearer_than_silence,
     nearest_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
@@ -246,7 +246,8 @@ class AutonomousUnit:
         self._families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
         self._gains = sc.channel.gain_row(sc.units, self.name)  # what it hears of each sender
         self._timed = sc.channel.timed  # pulses land off their samples (delays, clocks)
-        self._attention_words: dict[int, tuple[WordSet, WordSet]] = {}  # by channel (_attend)
+        # by channel (_attend): the ID as its link delivers it, alone and as a word set
+        self._attention_words: dict[int, tuple[WordSet, tuple[float, ...]]] = {}
         self._index = {u: i for i, u in enumerate(self.units)}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         # spikes go to the log in blocks of this many samples (a fixed span of time, not the
@@ -1175,15 +1176,11 @@ class AutonomousUnit:
         if words is None:  # the ID as its link delivers it alone (to time it), and against
             # silence (to find it): the threshold between them adapted to the link's gain
             heard = tuple(float(self._gains[ch]) * m for m in self.cb.id_word)
-            zeros = (0.0,) * self.cb.pulses
-            words = self._attention_words[ch] = (
-                WordSet.of({"id": heard}),
-                WordSet.of({"id": heard, SILENCE: zeros}),
-            )
+            words = self._attention_words[ch] = (WordSet.of({"id": heard}), heard)
         dec, _ = self.ears.decode_among(
             self.index, (ch,), self.protocol.turn_start, words[0], self.protocol.search
         )
-        if nearest(dec.values, words[1]).name != "id":
+        if not nearer_than_silence(dec.values, words[1]):
             self._fail(
                 f"{self.name}: no ID heard on {turn.sender}'s channel for turn {turn.index} "
                 f"({turn.sender} -> {turn.addressee}, {turn.phase}) by t = {at * self.tau:.3f} s",

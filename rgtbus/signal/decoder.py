@@ -548,6 +548,23 @@ def nearest(values: Sequence[float] | np.ndarray, words: Words) -> Decision:
     return Decision(names[w], best, margin, conf, tuple(float(x) for x in v[0]))
 
 
+def nearer_than_silence(values: Sequence[float], word: Sequence[float]) -> bool:
+    """Whether ``values`` lie strictly nearer ``word`` than the all-zero word (silence):
+
+        sqrt(Σ_k (v_k − w_k)²) < sqrt(Σ_k v_k²)
+
+    summed in the order ``nearest`` sums them, so the answer is ``nearest``'s between the two
+    words, a tie going to silence (its name "(silence)" sorts before any code's). A few
+    floats, no arrays: confirmed attention asks it of every ID (``AutonomousUnit._attend``),
+    where ``nearest``'s set-up cost more than the sums."""
+    to_word = to_zero = 0.0
+    for v, w in zip(values, word, strict=True):
+        d = float(v) - float(w)
+        to_word = to_word + d * d
+        to_zero = to_zero + float(v) * float(v)
+    return math.sqrt(to_word) < math.sqrt(to_zero)
+
+
 @lru_cache(maxsize=256)
 def _alphabetical(names: tuple[str, ...]) -> np.ndarray:
     rank = np.empty(len(names), dtype=np.int64)
