@@ -71,10 +71,10 @@ DECODE_BLOCK_SECONDS = 10.0
 def _named_column(col: Any, tables: records.DecodeTables, j: int) -> list[Any]:
     """Column ``j`` of a part of decodes held as indexes (``_take_batch``), as names (a part
     joined with single decodes); any other column as a list."""
-    table = {1: 0, 2: 0, 3: 0, 4: 1, 5: 2}.get(j)
+    table = records.NAMED_COLUMNS.get(records.DECODE_COLUMNS[j])
     if table is None:
         return col if type(col) is list else cast(list[Any], col.tolist())
-    names = tables[table]
+    names = tables[records.DECODE_TABLES.index(table)]
     return [names[i] for i in col.tolist()]
 
 

@@ -393,38 +393,33 @@ def decodes_of_columns(
         "accepted": cols[8],
     }
     if tables is not None:
-        record["names"], record["kinds"], record["codes"] = (list(t) for t in tables)
+        for key, table in zip(DECODE_TABLES, tables, strict=True):
+            record[key] = list(table)  # type: ignore[literal-required]
     return record
 
 
-_TABLE_OF = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
-             "code": "codes"}  # fmt: skip
+# the columns of names that a record with tables holds as indexes: the table each indexes
+NAMED_COLUMNS = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
+                 "code": "codes"}  # fmt: skip
+DECODE_TABLES = ("names", "kinds", "codes")  # the order of ``DecodeTables``
 
 
 def _named(unit: str, record: dict[str, Any]) -> None:
     """A record's columns of indexes (``decodes_of_columns`` with tables) as names, in place;
     a table that is not a list of names, or an index out of it: RgtbusError naming both."""
-    for column, table_name in _TABLE_OF.items():
+    where = f"/rx/decodes of {unit!r} at t = {record.get('t')}"
+    for column, table_name in NAMED_COLUMNS.items():
         table, col = record.get(table_name), record.get(column)
         if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
-            raise RgtbusError(
-                f"/rx/decodes of {unit!r} at t = {record.get('t')}: {table_name!r} is not a "
-                "list of names"
-            )
+            raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
         if not isinstance(col, list):
             continue  # said below, with the other columns
-        try:
-            record[column] = [table[i] if type(i) is int and i >= 0 else _no(i) for i in col]
-        except (IndexError, TypeError):
-            bad = next(i for i in col if not (type(i) is int and 0 <= i < len(table)))
+        bad = [i for i in col if not (type(i) is int and 0 <= i < len(table))]
+        if bad:
             raise RgtbusError(
-                f"/rx/decodes of {unit!r} at t = {record.get('t')}: {column} {bad!r} is no "
-                f"index into its {len(table)} {table_name}"
-            ) from None
-
-
-def _no(i: object) -> str:
-    raise TypeError(i)
+                f"{where}: {column} {bad[0]!r} is no index into its {len(table)} {table_name}"
+            )
+        record[column] = [table[i] for i in col]
 
 
 def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
@@ -434,7 +429,7 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     unit = cast(str, record.get("unit"))
     # columns a writer holds as arrays (a record not yet written) read as a log gives them
     record = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in record.items()}
-    if any(t in record for t in ("names", "kinds", "codes")):
+    if any(t in record for t in DECODE_TABLES):
         _named(unit, record)
     times = record.get("times")
     n = len(times) if isinstance(times, list) else -1
