@@ -733,13 +733,6 @@ class AutonomousUnit:
         """Log the blocks held for this wake: all of them, or (``stop``: done before that
         sample) their spikes before ``stop``, the last block ending there."""
         held, self._held = self._held, []
-        if stop is None:  # kept, each (a batching unit settles every block of its wake)
-            me = self.index
-            for block in held:
-                units = block.settle(me, True)
-                if units:
-                    self._log_spikes(units, block.samples, block.index, block.fired, block.end)
-            return
         for block in held:
             self._settle_spikes(block, stop)
 
@@ -950,19 +943,29 @@ class AutonomousUnit:
 
     def _log_send(self, send: Send, word: tuple[float, ...]) -> None:
         """A send's log line and its pulses, written now, each at its own log time."""
-        tau = self.tau
+        ref = self._log_send_line(send)
+        for j in range(len(send.samples)):
+            self._log_pulse(send, word, j, ref)
+
+    def _log_send_line(self, send: Send) -> tuple[records.MessageRef, float]:
+        """A send's log line; what each of its pulses names (built once a send)."""
         self.recorder.log("info", _send_text(send), ns(send.start), name=self.name)
         message = records.message_ref(
             send.turn, send.kind, send.code, send.sender, send.addressee, send.block
         )
-        omega = self.scenario.frequencies[send.channel]
-        write, name, channel = self.recorder.write, self.name, send.channel
-        for k, m in zip(send.samples, word, strict=True):
-            write(
-                "/tx/pulse",
-                records.pulse(name, channel, omega, float(m), tau, k, message),
-                ns(k * tau),
-            )
+        return message, self.scenario.frequencies[send.channel]
+
+    def _log_pulse(
+        self,
+        send: Send,
+        word: tuple[float, ...],
+        j: int,
+        ref: tuple[records.MessageRef, float],
+    ) -> None:
+        """Pulse ``j`` of a send, at its sample's time."""
+        k = send.samples[j]
+        record = records.pulse(self.name, send.channel, ref[1], float(word[j]), self.tau, k, ref[0])
+        self.recorder.write("/tx/pulse", record, ns(k * self.tau))
 
     def _on_air(self):
         """This unit's transmitter: one SimPy process (not one a send: a 100-unit group
@@ -983,19 +986,10 @@ class AutonomousUnit:
                     self._air_until = AWAKE
             heapq.heappop(air)
             if j < 0:
-                self.recorder.log("info", _send_text(send), ns(send.start), name=self.name)
-                # what every pulse of the send names: built once a send, not once a pulse
-                message = records.message_ref(
-                    send.turn, send.kind, send.code, send.sender, send.addressee, send.block
-                )
-                ref = (message, self.scenario.frequencies[send.channel])
+                ref = self._log_send_line(send)
             else:
                 assert ref is not None
-                k = send.samples[j]
-                record = records.pulse(
-                    self.name, send.channel, ref[1], float(word[j]), tau, k, ref[0]
-                )
-                self.recorder.write("/tx/pulse", record, ns(k * tau))
+                self._log_pulse(send, word, j, ref)
             if j + 1 < len(send.samples):
                 heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word, ref))
         self._transmitter = None
