@@ -37,6 +37,16 @@ EXE = [sys.executable, "-m", "rgtbus"]
 KEY = b"k" * 32
 
 
+def logged(path: Path) -> int:
+    """How many messages the unit's log (written as it goes) holds on disk so far."""
+    if not path.exists():
+        return 0
+    try:
+        return len(read_log(path)[0])
+    except RgtbusError:
+        return 0
+
+
 def has_pulse(path: Path) -> bool:
     """The run is under way: the unit's log (written as it goes) holds a pulse."""
     if not path.exists():
@@ -92,7 +102,8 @@ def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     la = launch(procs, tmp_path)
     pids = unit_pids(la, tmp_path, list("abcd"))
     wait_until(lambda: has_pulse(tmp_path / "a.mcap"), "under way", alive=[la])
-    time.sleep(1.0)  # b has run a while: its flushed log must hold it
+    # b has run a while and flushed what it wrote: no sleep that hopes it has
+    wait_until(lambda: logged(tmp_path / "b.mcap") > 10, "b's log written", alive=[la])
     os.kill(pids["b"], signal.SIGKILL)
     t0 = time.monotonic()
     _out, err = la.communicate(timeout=60)
