@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 import rgtbus.units.process
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rgtbus.units.group import run_group
 
 from rgtbus.cli import main
@@ -274,6 +276,50 @@ def test_wide_matrix_is_cut_into_blocks_that_fit():
     assert len(blocks) > 1 and all(len(b.splitlines()) == 13 for b in blocks)
     shown = [h for b in blocks for h in b.splitlines()[0].split()]
     assert shown == names  # every column once, in order
+
+
+_CELLS = st.text(alphabet=st.sampled_from(list("ab -*=()\n")), max_size=7)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(_CELLS, min_size=1, max_size=5), min_size=1, max_size=4), st.booleans())
+def test_plain_width_is_the_rendered_width_without_rendering(rows, with_headers):
+    """What ``plain_width`` says is never wider than the table ``table_lines`` renders (so a
+    table it finds too wide is), and is its width exactly for cells of one line each."""
+    from rgtbus.cli.tables import plain_width, table_lines
+
+    ncols = max(len(r) for r in rows)
+    headers = [f"h{i}" for i in range(ncols)] if with_headers else []
+    rows = [r + [""] * (ncols - len(r)) for r in rows] if with_headers else rows
+    rendered = max((len(line) for line in table_lines(rows, headers)), default=0)
+    assert plain_width(rows, headers) <= rendered
+    if not any("\n" in c for r in rows for c in r):
+        assert plain_width(rows, headers) == rendered
+
+
+def test_a_table_that_cannot_fit_is_not_rendered(monkeypatch):
+    """50 units: their relationship table (1,225 pairs) is one line a pair without being laid
+    out first (it was, twice, only to be found too wide: a second of a run's summary), and the
+    matrix is cut into blocks without laying out each trial block."""
+    import rgtbus.cli.tables as tables
+
+    rendered: list[int] = []
+    real = tables.table_lines
+    monkeypatch.setattr(
+        tables,
+        "table_lines",
+        lambda rows, headers=(), **kw: rendered.append(len(rows)) or real(rows, headers, **kw),
+    )
+    units = [f"u{i:03d}" for i in range(50)]
+    pairs = [f"{a}-{b}" for i, a in enumerate(units) for b in units[i + 1 :]]
+    held = {u: dict.fromkeys(pairs, "alliance") for u in units}
+    lines = tables.relations_lines(units, held, missing="no report", width=80)
+    assert "  u000-u001  alliance" in lines and len(lines) == 1 + len(pairs)
+    assert rendered == [len(pairs)]  # only the one-line-a-pair table
+    rendered.clear()
+    rows = [[a, *("{alpha,beta}" for _ in units)] for a in units]
+    blocks = "\n".join(tables.wrapped_table_lines(rows, ["", *units], width=80)).split("\n\n")
+    assert len(rendered) == len(blocks) > 1  # each block laid out once, nothing more
 
 
 def test_plan_says_what_a_margin_not_met_means(capsys):

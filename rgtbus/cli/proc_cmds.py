@@ -788,7 +788,7 @@ def _finish_launch(
     summary["log"] = str(merged)
     if args.json:
         print(json.dumps(summary_json(summary)))
-    else:
+    elif not args.quiet:  # held and thrown away
         print_summary(sc, summary)
     for msg in failures:
         print(f"launch: {msg}", file=sys.stderr)

@@ -225,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
             out_json["checks"] = [{"what": w, "ok": ok, "detail": d} for w, ok, d in checks]
         print(json.dumps(out_json))
     else:
-        print_summary(scenario, summary)
+        if not args.quiet:  # held and thrown away: a group of 50 took a second to lay out
+            print_summary(scenario, summary)
         if args.check:
             print_checks(checks, summary["error"], quiet=args.quiet)
     if summary["error"]:

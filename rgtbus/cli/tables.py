@@ -50,6 +50,48 @@ def table_lines(
     return [(indent + line).rstrip() for line in text.splitlines()]
 
 
+def plain_width(
+    rows: Sequence[Sequence[Any]], headers: Sequence[str] = (), *, indent: str = INDENT
+) -> int:
+    """The width of the widest line ``table_lines`` gives for ``rows`` under ``headers``
+    (left-aligned), without rendering it: each column as wide as its widest cell, two spaces
+    between columns, trailing blanks cut. Never more than the rendered width (equal for cells
+    of one line each, left-aligned), so a table it finds too wide is too wide: a group of 50
+    units has 1,225 pairs, and rendering its relationship tables only to find they do not fit
+    cost a second."""
+    body = [list(headers), *rows] if headers else [list(r) for r in rows]
+    if not body or not _widths_are_lengths():
+        return 0
+    # a cell of several lines is as wide as its widest line (tabulate strips each cell)
+    texts = [[[line.strip() for line in str(c).splitlines()] or [""] for c in r] for r in body]
+    ncols = max(len(r) for r in texts)
+    widths = [0] * ncols
+    for r in texts:
+        for c, cell in enumerate(r):
+            widths[c] = max(widths[c], *map(len, cell))
+    starts, at = [], len(indent)
+    for w in widths:
+        starts.append(at)
+        at += w + 2
+    widest = len(indent.rstrip())
+    for r in texts:
+        for c in range(len(r) - 1, -1, -1):
+            cut = max(map(len, r[c]))
+            if cut:
+                widest = max(widest, starts[c] + cut)
+                break
+    return widest
+
+
+def _widths_are_lengths() -> bool:
+    """Whether tabulate pads cells by their length (not by their display width: it does
+    that when the ``wcwidth`` package is installed, and then ``plain_width`` measures
+    nothing)."""
+    import tabulate
+
+    return not tabulate.WIDE_CHARS_MODE
+
+
 def fitted_table_lines(
     rows: Sequence[Sequence[Any]], *, width: int | None = None, indent: str = INDENT
 ) -> list[str]:
@@ -57,9 +99,10 @@ def fitted_table_lines(
     default); else each row on its line as it comes, its cells three spaces apart (a column
     of long canonical forms would push the rest of every line off the screen)."""
     width = terminal_width() if width is None else width
-    lines = table_lines(rows, indent=indent)
-    if max((len(line) for line in lines), default=0) <= width:
-        return lines
+    if plain_width(rows, indent=indent) <= width:
+        lines = table_lines(rows, indent=indent)
+        if max((len(line) for line in lines), default=0) <= width:
+            return lines
     return [indent + "   ".join(str(c) for c in row if c != "") for row in rows]
 
 
@@ -75,10 +118,11 @@ def wrapped_table_lines(
     default), the first column (the row names) repeated in every block; blocks are separated
     by an empty line. A table that fits is one block."""
     width = terminal_width() if width is None else width
-    whole = table_lines(rows, headers, align=align, indent=indent)
     ncols = len(headers)
-    if ncols <= 2 or max((len(line) for line in whole), default=0) <= width:
-        return whole
+    if ncols <= 2 or plain_width(rows, headers, indent=indent) <= width:
+        whole = table_lines(rows, headers, align=align, indent=indent)
+        if ncols <= 2 or max((len(line) for line in whole), default=0) <= width:
+            return whole
 
     def block(cols: list[int]) -> list[str]:
         return table_lines(
@@ -88,11 +132,23 @@ def wrapped_table_lines(
             indent=indent,
         )
 
+    # left-aligned cells of one line each: plain_width is the rendered width, no trial renders
+    exact = (
+        (align is None or all(a == "left" for a in align))
+        and _widths_are_lengths()
+        and all(len(str(cell).splitlines()) <= 1 for r in rows for cell in r)
+    )
+
+    def too_wide(cols: list[int]) -> bool:
+        sub = [[r[c] for c in cols] for r in rows]
+        if plain_width(sub, [headers[c] for c in cols], indent=indent) > width:
+            return True
+        return not exact and max(len(line) for line in block(cols)) > width
+
     out: list[str] = []
     cols = [0]
     for c in range(1, ncols):
-        trial = block([*cols, c])
-        if len(cols) > 1 and max(len(line) for line in trial) > width:
+        if len(cols) > 1 and too_wide([*cols, c]):
             out += [*([""] if out else []), *block(cols)]
             cols = [0, c]
         else:
@@ -126,13 +182,16 @@ def relations_lines(
     def fits(lines: list[str]) -> bool:
         return max((len(line) for line in lines), default=0) <= width
 
-    def table(extra_cells: bool) -> list[str]:
+    def table(extra_cells: bool) -> list[str] | None:
+        """The table (None: it cannot fit ``width``)."""
         headers = ["", *pairs, *(extra_headers if extra_cells else ())]
         rows = [
             [u, *(t.get(p, "?") for p in pairs), *(extra.get(u, ()) if extra_cells else ())]
             for u in units
             if (t := tables.get(u)) is not None
         ]
+        if pairs and plain_width(rows, headers) > width:
+            return None
         lines = table_lines(rows, headers)
         # a unit without a table is a row of its own, not cut to the columns
         by_unit = dict(zip([r[0] for r in rows], lines[1:], strict=True))
@@ -154,10 +213,10 @@ def relations_lines(
     if all(tables.get(u) is None for u in units):
         return [f"{INDENT}{u}: {why(u)}" for u in units]
     whole = table(extra_cells=True)
-    if fits(whole) or not pairs:
+    if whole is not None and (fits(whole) or not pairs):
         return whole
     narrow = table(extra_cells=False)
-    if fits(narrow):
+    if narrow is not None and fits(narrow):
         return narrow + extra_lines()
     out = []
     holders = [u for u in units if tables.get(u) is not None]
