@@ -5,6 +5,7 @@ import math
 import random
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rgtbus.units.group import check_expectations, run_group
@@ -14,6 +15,7 @@ from rgtbus.cli import main
 from rgtbus.mind import choose_relations
 from rgtbus.scenario import Timing, load_scenario, parse_scenario
 from rgtbus.telemetry import McapRecorder, MemoryRecorder, read_log, records
+from rgtbus.telemetry.recorder import encode_json
 
 ROOT = Path(__file__).parent.parent
 PAPER = ["overview", "example1", "example2", "gate"]
@@ -411,7 +413,8 @@ def test_decode_records_hold_a_block_of_time_each(name):
     ``DECODE_BLOCK_SECONDS`` (cut only where the unit writes another record of its own),
     whatever its wakes: every record's decodes lie in one block, at the last one's time; a
     unit's records leave in time order; and every decode is there once, as the unit made it
-    (coalition10: batches of indexes joined with single decodes of names in one block)."""
+    (coalition10: batches of indexes joined with single decodes in one block, written as
+    indexes)."""
     from rgtbus.units.unit import DECODE_BLOCK_SECONDS
 
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
@@ -437,6 +440,34 @@ def test_decode_records_hold_a_block_of_time_each(name):
             for r in records.decode_rows(m)
         ]
         assert got == list(unit.decoded)
+    if name == "coalition10":  # its blocks that mix batches and single decodes: indexes
+        assert all("names" in m for m in blocks if len(m["times"]) > 1)
+
+
+def test_single_decodes_join_a_batch_as_its_indexes():
+    """A unit's single decodes (names) held in a block with its batches (indexes) are written
+    as indexes into the batches' tables, every column as it was (margins and times to the
+    last bit); a name in none of the tables keeps the part in names."""
+    from rgtbus.units.unit import _indexed_part
+
+    tables = (["a", "b", "c"], ["id", "relation", "influence"], ["id", "alliance", "conflict"])
+    rows = [
+        (3, "a", "b", "b", "relation", "conflict", 0.1 + 0.2, 1.005, True),
+        (4, "c", "a", "b", "id", "id", 1 / 3, 2.0000000001, False),
+    ]
+    part = [list(c) for c in zip(*rows, strict=True)]
+    indexed = _indexed_part(part, tables)
+    assert indexed is not None
+
+    def read(*args: Any) -> list[Any]:  # as a reader of the log gets it
+        record = json.loads(encode_json(records.decodes_of_columns("x", *args)))
+        return list(records.decode_rows(record))
+
+    got = read(indexed, tables)
+    assert got == read(part) and len(got) == 2
+    assert [r["margin"] for r in got] == [0.1 + 0.2, 1 / 3]
+    unknown = [list(c) for c in zip(*[(5, "z", "a", "a", "id", "id", 0.5, 3.0, True)], strict=True)]
+    assert _indexed_part(unknown, tables) is None
 
 
 def test_spike_records_are_columns_one_entry_a_spike():

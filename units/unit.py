@@ -78,6 +78,26 @@ def _named_column(col: Any, tables: records.DecodeTables, j: int) -> list[Any]:
     return [names[i] for i in col.tolist()]
 
 
+def _indexed_part(part: Sequence[Any], tables: records.DecodeTables) -> list[Any] | None:
+    """A part of single decodes (columns of names, ``_rows_to_part``) as the arrays of a batch
+    with ``tables`` (its names as indexes into them), or None when a name is in none of them:
+    a block of 50 units' batches that held one decode of its own was otherwise written (and
+    copied at every wake until its block ended) as names."""
+    out: list[Any] = []
+    for j, col in enumerate(part):
+        table = records.NAMED_COLUMNS.get(records.DECODE_COLUMNS[j])
+        if table is None:
+            out.append(np.asarray(col, dtype=bool if j == 8 else None))
+            continue
+        names = tables[records.DECODE_TABLES.index(table)]
+        index = {name: i for i, name in enumerate(names)}
+        try:
+            out.append(np.array([index[v] for v in col], dtype=np.int64))
+        except (KeyError, TypeError):  # unhashable or unknown: stays named
+            return None
+    return out
+
+
 DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
 
 
@@ -1282,7 +1302,15 @@ class AutonomousUnit:
         self._held_block = -1
         if not parts:
             return
-        table = tables[0]
+        table = next((t for t in tables if t is not None), None)
+        if table is not None and all(t is None or t == table for t in tables):
+            # batches, and single decodes among them, as indexes into the batches' tables
+            indexed = [
+                p if t is not None else _indexed_part(p, table)
+                for p, t in zip(parts, tables, strict=True)
+            ]
+            if all(p is not None for p in indexed):
+                parts, tables = cast(list[Any], indexed), [table] * len(parts)
         if table is not None and all(t == table for t in tables):  # batches: as arrays
             cols: list[Any] = (
                 list(parts[0])
