@@ -110,6 +110,12 @@ def encode_json(message: Any) -> bytes:
     cannot hold, ValueError for NaN or infinity."""
     data = orjson.dumps(message, default=_default, option=_ORJSON)
     if b"null" in data:  # a None, or a NaN or infinity written as null: find out which
+        # each None writes one null, as does each NaN (and a text may hold the word): as many
+        # nulls as the record's own None fields leave no null for a NaN (a unit's report)
+        if type(message) is dict and data.count(b"null") == sum(
+            v is None for v in message.values()
+        ):
+            return data
         bad = _not_finite(message)
         if bad is not None:
             raise ValueError(f"Out of range float values are not JSON compliant: {bad!r}")
@@ -346,6 +352,7 @@ class McapRecorder(_Encoding):
         except (OSError, RuntimeError) as e:
             raise self._broken(e) from None
         self._flush_ns = _U64_MAX if flush_seconds is None else ns(flush_seconds)
+        self._by_time = flush_seconds is not None  # a chunk finished by simulated time too
         self._flush_messages = int(flush_messages)
         self._unflushed = 0
         # the present at which the chunk in progress is due (flush_ns after its first record)
@@ -411,20 +418,19 @@ class McapRecorder(_Encoding):
         with self._lock:
             log(data, t)
             self._unflushed += 1
-            if topic in self._ahead_topics:
-                # written ahead of the present by design: its time says nothing of how far
-                # the run has come, so it neither sets nor meets the due time (the medium
-                # used to finish a chunk every few dozen messages: ~2,800 flushes at n = 20)
-                due = self._unflushed >= self._flush_messages
-            else:
+            due = self._unflushed >= self._flush_messages
+            if self._by_time and topic not in self._ahead_topics:
                 # due once the present (the latest record's time) is one span past where it
                 # was at the chunk's first record: records told late (a unit's spikes, logged
-                # when it wakes) do not finish a chunk every few dozen messages
+                # when it wakes) do not finish a chunk every few dozen messages; a topic
+                # written ahead of the present by design says nothing of how far the run has
+                # come, so it neither sets nor meets the due time (the medium used to finish
+                # a chunk every few dozen messages: ~2,800 flushes at n = 20)
                 if t > self._present:
                     self._present = t
                 if self._flush_due == _U64_MAX:
                     self._flush_due = min(self._present + self._flush_ns, _U64_MAX)
-                due = self._unflushed >= self._flush_messages or self._present >= self._flush_due
+                due = due or self._present >= self._flush_due
         if self.live is not None:
             self.live.put(topic, schema, data, t)
         if self._sink.error is not None:
