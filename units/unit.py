@@ -65,7 +65,7 @@ AWAKE = -1.0  # the transmitter is not asleep: it reads the next send before it 
 BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
 # a unit's decodes of each span of this much time go to the log as one /rx/decodes record (no
 # live view), whatever its wakes: a serial 10-unit run made a record of one decode a wake
-DECODE_BLOCK_SECONDS = 10.0
+DECODE_BLOCK_SECONDS = 60.0
 
 
 def _named_column(col: Any, tables: records.DecodeTables, j: int) -> list[Any]:
