@@ -83,16 +83,16 @@ def _indexed_part(part: Sequence[Any], tables: records.DecodeTables) -> list[Any
     with ``tables`` (its names as indexes into them), or None when a name is in none of them:
     a block of 50 units' batches that held one decode of its own was otherwise written (and
     copied at every wake until its block ended) as names."""
+    index = [{name: i for i, name in enumerate(names)} for names in tables]
     out: list[Any] = []
-    for j, col in enumerate(part):
-        table = records.NAMED_COLUMNS.get(records.DECODE_COLUMNS[j])
-        if table is None:
-            out.append(np.asarray(col, dtype=bool if j == 8 else None))
+    for column, col in zip(records.DECODE_COLUMNS, part, strict=True):
+        table = records.NAMED_COLUMNS.get(column)
+        if table is None:  # numbers: as a batch holds them
+            out.append(np.asarray(col, dtype=bool if column == "accepted" else None))
             continue
-        names = tables[records.DECODE_TABLES.index(table)]
-        index = {name: i for i, name in enumerate(names)}
+        of = index[records.DECODE_TABLES.index(table)]
         try:
-            out.append(np.array([index[v] for v in col], dtype=np.int64))
+            out.append(np.array([of[v] for v in col], dtype=np.int64))
         except (KeyError, TypeError):  # unhashable or unknown: stays named
             return None
     return out
