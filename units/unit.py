@@ -1303,19 +1303,20 @@ class AutonomousUnit:
         if not parts:
             return
         table = next((t for t in tables if t is not None), None)
+        indexed: list[Any] = []
         if table is not None and all(t is None or t == table for t in tables):
             # batches, and single decodes among them, as indexes into the batches' tables
-            indexed = [
-                p if t is not None else _indexed_part(p, table)
-                for p, t in zip(parts, tables, strict=True)
-            ]
-            if all(p is not None for p in indexed):
-                parts, tables = cast(list[Any], indexed), [table] * len(parts)
-        if table is not None and all(t == table for t in tables):  # batches: as arrays
+            for p, t in zip(parts, tables, strict=True):
+                q = p if t is not None else _indexed_part(p, table)
+                if q is None:  # a name in none of the tables: the block stays in names
+                    indexed = []
+                    break
+                indexed.append(q)
+        if indexed:  # as arrays
             cols: list[Any] = (
-                list(parts[0])
-                if len(parts) == 1
-                else [np.concatenate([p[j] for p in parts]) for j in range(9)]
+                list(indexed[0])
+                if len(indexed) == 1
+                else [np.concatenate([p[j] for p in indexed]) for j in range(9)]
             )
         else:  # single decodes (a serial run's, held over a few wakes): plain lists
             cols = []
