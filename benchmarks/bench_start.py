@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # The child: say when the world starts its first sample, then run the command as rgtbus does.
 PROBE = """
 import os, sys, time
-import rgtbus.sim as sim
+import rgtbus.engine.sim as sim
 _run = sim.World.run
 def run(self, *a, **k):
     os.write(int(os.environ["PROBE_FD"]), repr(time.monotonic()).encode())

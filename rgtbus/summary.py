@@ -267,7 +267,7 @@ class RunEnd:
 
 
 class WorldEnd(Protocol):
-    """How a world ended, as ``rgtbus.sim.WorldResult`` says it (``failure``: the world's own
+    """How a world ended, as ``rgtbus.engine.sim.WorldResult`` says it (``failure``: the world's own
     root cause, e.g. a member gone)."""
 
     steps: int

@@ -197,7 +197,7 @@ def test_bursts_come_as_often_and_last_as_long_as_asked():
 
 
 def test_a_receiver_s_noise_in_bursts_is_its_calm_noise_scaled_where_it_bursts():
-    from rgtbus.hearing import Listener
+    from rgtbus.engine.hearing import Listener
     from rgtbus.signal.channel import noise_rng
 
     def listener(bursts):

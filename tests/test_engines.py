@@ -282,13 +282,13 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time(small, monkeypatch
     arrays and in plain Python (``small``: a hand-over of a few spikes)."""
     import types
 
-    import rgtbus.hearing
+    import rgtbus.engine.hearing
 
-    monkeypatch.setattr(rgtbus.hearing, "SMALL_HAND_OVER", 10**9 if small else 0)
+    monkeypatch.setattr(rgtbus.engine.hearing, "SMALL_HAND_OVER", 10**9 if small else 0)
 
     import numpy as np
 
-    from rgtbus.hearing import Ears, SharedSpikes, _SpikePiece
+    from rgtbus.engine.hearing import Ears, SharedSpikes, _SpikePiece
 
     rng = np.random.default_rng(3)
     units, channels, block = 5, 7, 50
@@ -377,8 +377,8 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
 
     import numpy as np
 
-    import rgtbus.hearing
-    from rgtbus.hearing import Ears, _SpikePiece
+    import rgtbus.engine.hearing
+    from rgtbus.engine.hearing import Ears, _SpikePiece
 
     rng = np.random.default_rng(seed)
     units, channels, block = 4, 6, 40
@@ -438,12 +438,12 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
     for members in (np.arange(units), np.array([2])):
         fast = handed(True, members, 290)
         assert fast == handed(False, members, 290)
-        small = rgtbus.hearing.SMALL_HAND_OVER
-        rgtbus.hearing.SMALL_HAND_OVER = 10**9  # the general grouping in plain Python
+        small = rgtbus.engine.hearing.SMALL_HAND_OVER
+        rgtbus.engine.hearing.SMALL_HAND_OVER = 10**9  # the general grouping in plain Python
         try:
             assert handed(False, members, 290) == fast
         finally:
-            rgtbus.hearing.SMALL_HAND_OVER = small
+            rgtbus.engine.hearing.SMALL_HAND_OVER = small
         keeps = True  # units that keep each block at once: the same records, none settled
         assert handed(True, members, 290) == fast == handed(False, members, 290)
         keeps = False
@@ -499,7 +499,7 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     """The ears read each position of a shared queue once, for every receiver, whichever
     unit gets there first, and drop a chunk once every listening unit has passed it: the
     run is the same with chunks of 8 positions."""
-    from rgtbus import hearing
+    from rgtbus.engine import hearing
 
     sc = random_group(7, noise=0.01, gains=True, anchor="schedule")
     text = sc.text + '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 3\n'

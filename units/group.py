@@ -18,8 +18,8 @@ from rgtbus.units.unit import AutonomousUnit
 from rgtbus import __version__
 from rgtbus.bus import open_bus
 from rgtbus.bus.base import Bus
+from rgtbus.engine.sim import Receivers, World
 from rgtbus.scenario import Scenario
-from rgtbus.sim import Receivers, World
 from rgtbus.summary import summarise
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns

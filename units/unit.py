@@ -1,8 +1,8 @@
 """The autonomous unit: transmitter + receiver + protocol + RGT reasoning + decision policy.
 
-One unit lives in the SimPy world (``rgtbus.sim.World``) at its own samples: the ears' process
-wakes it (a plain call, at the exact simulated time) at its resonators' spike it awaits and at
-its own timers; it runs the pure protocol machine on what it heard,
+One unit lives in the SimPy world (``rgtbus.engine.sim.World``) at its own samples: the ears'
+process wakes it (a plain call, at the exact simulated time) at its resonators' spike it awaits
+and at its own timers; it runs the pure protocol machine on what it heard,
 decodes at the samples the protocol names, reasons on what it decoded, and transmits what the
 protocol plans (each transmission a SimPy process that waits for its time). It shares no Python
 object with the other units: its knowledge comes only from the medium. Once it has decided, or
@@ -26,7 +26,7 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
-from rgtbus.hearing import Ears, Heard, Listener, SharedSpikes
+from rgtbus.engine.hearing import Ears, Heard, Listener, SharedSpikes
 from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import (

@@ -745,7 +745,7 @@ def _finish_launch(
     """Write ``launch.mcap`` (metadata, the run's summary, every failure) and merge it with
     every process log that has anything in it into ``run.mcap``; print the summary."""
     from rgtbus.cli.run_cmd import print_summary
-    from rgtbus.sim import WorldResult
+    from rgtbus.engine.sim import WorldResult
     from rgtbus.summary import summarise, summary_json
     from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.telemetry.merge import merge_logs

@@ -32,7 +32,7 @@ at √2 the noise. Without speed and clocks, a = 0 and b = 1: every pulse lands 
 reads take one sample, and nothing changes.
 
 A new channel effect (path loss, delay, drift, bursts) goes here, with its scenario keys in
-``rgtbus/scenario/channel.py``; the ears (``rgtbus.hearing``) apply what this module says.
+``rgtbus/scenario/channel.py``; the ears (``rgtbus.engine.hearing``) apply what this module says.
 """
 
 from __future__ import annotations

@@ -14,10 +14,31 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
-from rgtbus.summary import DecisionRow
 
 if TYPE_CHECKING:
     import numpy as np
+
+    from rgtbus.summary import DecisionRow
+
+# The topics: each named here once; every writer, reader and tool uses these names.
+MEDIUM = "/medium"
+TX_PULSE = "/tx/pulse"
+RX_SPIKE = "/rx/spike"
+RX_DECODE = "/rx/decode"  # one decode a record: logs written before /rx/decodes
+RX_DECODES = "/rx/decodes"
+UNIT_RELATIONS = "/unit/relations"
+UNIT_INFLUENCES = "/unit/influences"
+UNIT_DECISION = "/unit/decision"
+UNIT_GOAL = "/unit/goal"
+UNIT_REPORT = "/unit/report"
+LOG = "/log"
+RUN = "/run"
+TRACE_PREFIX = "/trace/"  # a family: one topic a traced unit
+
+
+def trace_topic(unit: str) -> str:
+    """The topic of ``unit``'s resonator traces."""
+    return f"{TRACE_PREFIX}{unit}"
 
 # a column of integers: a numpy array as a writer builds it (the encoder takes it whole), a
 # list as a reader gets it back
@@ -203,17 +224,17 @@ class TraceRecord(TypedDict):
 
 # topic -> its record type (``/trace/<unit>`` is a family: ``TraceRecord``)
 RECORD_TYPES: dict[str, type] = {
-    "/medium": MediumRecord,
-    "/tx/pulse": PulseRecord,
-    "/rx/spike": SpikeRecord,
-    "/rx/decode": DecodeRecord,
-    "/rx/decodes": DecodesRecord,
-    "/unit/relations": RelationsRecord,
-    "/unit/influences": InfluencesRecord,
-    "/unit/decision": DecisionRecord,
-    "/unit/goal": GoalRecord,
-    "/unit/report": UnitReportRecord,
-    "/run": RunRecord,
+    MEDIUM: MediumRecord,
+    TX_PULSE: PulseRecord,
+    RX_SPIKE: SpikeRecord,
+    RX_DECODE: DecodeRecord,
+    RX_DECODES: DecodesRecord,
+    UNIT_RELATIONS: RelationsRecord,
+    UNIT_INFLUENCES: InfluencesRecord,
+    UNIT_DECISION: DecisionRecord,
+    UNIT_GOAL: GoalRecord,
+    UNIT_REPORT: UnitReportRecord,
+    RUN: RunRecord,
 }
 
 

@@ -12,45 +12,46 @@ from importlib import resources
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import records as r
 
 # topic -> (schema name, what it carries)
 TOPICS: dict[str, tuple[str, str]] = {
-    "/medium": (
+    r.MEDIUM: (
         "rgtbus.MediumWindow",
         "every window of the shared medium that carries a pulse (silent ones are not logged)",
     ),
-    "/tx/pulse": ("rgtbus.Pulse", "every transmitted pulse"),
-    "/rx/spike": (
+    r.TX_PULSE: ("rgtbus.Pulse", "every transmitted pulse"),
+    r.RX_SPIKE: (
         "rgtbus.Spikes",
         "every resonator spike, per receiving unit and second: each spike's sample and channel",
     ),
-    "/rx/decode": (
+    r.RX_DECODE: (
         "rgtbus.Decode",
         "every decoded code, one record each (logs before /rx/decodes)",
     ),
-    "/rx/decodes": (
+    r.RX_DECODES: (
         "rgtbus.Decodes",
         "every decoded code, per receiving unit and wake: one column a field",
     ),
-    "/unit/relations": ("rgtbus.Relations", "relationship table as a unit holds it"),
-    "/unit/influences": (
+    r.UNIT_RELATIONS: ("rgtbus.Relations", "relationship table as a unit holds it"),
+    r.UNIT_INFLUENCES: (
         "rgtbus.Influences",
         "influence table as a unit holds it, per influence round",
     ),
-    "/unit/decision": (
+    r.UNIT_DECISION: (
         "rgtbus.Decision",
         "forward task and choice, per unit, subject and influence round",
     ),
-    "/unit/goal": (
+    r.UNIT_GOAL: (
         "rgtbus.Goal",
         "a goal-driven unit's influence on a target, chosen by the inverse task",
     ),
-    "/unit/report": (
+    r.UNIT_REPORT: (
         "rgtbus.UnitReport",
         "what a unit knows at the end of its run: its share of the run summary",
     ),
-    "/log": ("foxglove.Log", "text log lines (Foxglove's Log panel)"),
-    "/run": ("rgtbus.RunSummary", "how the run ended, written last"),
+    r.LOG: ("foxglove.Log", "text log lines (Foxglove's Log panel)"),
+    r.RUN: ("rgtbus.RunSummary", "how the run ended, written last"),
 }
 
 # Topic families with a unit name in them: (display form, regex, schema, what it carries).

@@ -31,8 +31,8 @@ import simpy.rt
 
 from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
+from rgtbus.engine.hearing import Ears, Listener
 from rgtbus.errors import RgtbusError
-from rgtbus.hearing import Ears, Listener
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
