@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rgtbus import checks
 from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
@@ -102,15 +103,11 @@ def run(
 
     sc = load_scenario(scenario)
     if seed is not None:
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise RgtbusError(f"seed {seed!r}: must be a non-negative integer")
         sc = sc.with_seed(seed)
-    if bus not in BUSES:
-        raise RgtbusError(f"bus {bus!r}: must be one of {', '.join(BUSES)}")
-    if engine not in ENGINES:
-        raise RgtbusError(f"engine {engine!r}: must be one of {', '.join(ENGINES)}")
-    if realtime is not None and not realtime > 0:
-        raise RgtbusError(f"realtime {realtime!r}: must be a positive factor")
+    checks.choice(bus, BUSES, "bus")
+    checks.choice(engine, ENGINES, "engine")
+    if realtime is not None:
+        checks.realtime(realtime)
     options: dict[str, Any] = {
         "traces": traces, "engine": engine, "key": key, "realtime": realtime,
         "progress": progress,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from rgtbus import checks
 from rgtbus.pairs import ordered_pairs
 from rgtbus.rgt import Universe
 from rgtbus.signal.channel import Burst, Channel, Clock
@@ -134,5 +135,7 @@ class Scenario:
         """Every ordered pair of distinct units, sender-major in unit order."""
         return ordered_pairs(self.units)
 
-    def with_seed(self, seed: int) -> Scenario:
-        return replace(self, seed=seed)
+    def with_seed(self, seed: int, name: str = "seed") -> Scenario:
+        """This scenario under another seed (``name``: where the seed came from, for the error
+        a bad one raises)."""
+        return replace(self, seed=checks.seed(seed, name))
