@@ -23,6 +23,9 @@ alliance with probability p, the "positive pole", from its own seeded draws; or 
 seeded random decomposable group, ``cograph``, which every unit draws alike from the scenario's
 seed) and its influence on each peer (listed per pair; else one value for all, ``uniform``; or
 drawn from its own seeded generator over weighted alternatives, ``random``).
+
+What a run should give on a perfect medium is ``rgtbus.truth``'s to say, and judging a run is
+``rgtbus.summary``'s: a mind only reasons on what its unit decoded.
 """
 
 from __future__ import annotations
@@ -35,7 +38,6 @@ from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from rgtbus.errors import NotDecomposable, RgtbusError
 from rgtbus.pairs import PairTable, ordered_pairs, pair_key, relation_key
-from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
@@ -457,31 +459,6 @@ def steering_reason(choice: SteeringChoice | str, goal: Goal, universe: Universe
     return f"{what}: {v} meets it for the most completions ({choice.reached} of {choice.of})"
 
 
-def round_dynamics(trajectory: Sequence[Mapping[Any, Any]]) -> dict[str, Any]:
-    """What the influences did over the rounds: ``{"state", "since", "length"}``.
-
-    The first round equal to an earlier one: equal to the one before, a **fixed point**
-    (``since``: the first round of it); to one ``L`` rounds before, a **cycle** of ``length``
-    L entered at ``since``; none, **neither**. Each round's influences are a function of the
-    round before (every goal-driven choice is), so a repeat repeats for ever. One round
-    tells nothing: ``None``."""
-    if len(trajectory) < 2:
-        return {"state": None, "since": None, "length": None}
-    seen: dict[str, int] = {}
-    for r, infl in enumerate(trajectory, 1):
-        key = repr(sorted(infl.items()))  # values may be lists (alternatives as action names)
-        if key in seen:
-            first = seen[key]
-            length = r - first
-            return {
-                "state": "fixed point" if length == 1 else "cycle",
-                "since": first,
-                "length": length,
-            }
-        seen[key] = r
-    return {"state": "neither", "since": None, "length": None}
-
-
 def decision_fields(
     result: SubjectResult | None, choice: int | None, universe: Universe
 ) -> dict[str, Any]:
@@ -513,206 +490,3 @@ def result_fields(mind: Mind) -> dict[str, Any]:
         "B": fields["B"],
         "decided": r is not None,
     }
-
-
-def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
-    """The run's schedule and every decode as a perfect medium times them (anchored on the
-    schedule: on a clean channel an ID fires its resonator at its last pulse, where the
-    schedule puts it)."""
-    me = sc.units[0]
-    relations, influences = intents(sc, me)
-    plan = ProtocolState(
-        me,
-        sc.units,
-        dict(sc.frequencies),
-        sc.timing.tau,
-        pulses=sc.codebook.pulses,
-        start=sc.timing.start,
-        reaction_delay=sc.timing.reaction_delay,
-        guard=sc.timing.guard,
-        search=sc.timing.search,
-        anchor="schedule",
-        kind=sc.schedule,
-        influence_rounds=sc.influence_rounds,
-        repair_rounds=sc.repairs_per_phase,
-    )
-    return plan, plan.begin(relations, influences).listens
-
-
-def clean_rounds(sc: Scenario) -> tuple[Mind, list[dict[Pair, int]]]:
-    """What every unit would send in every influence round on a perfect medium: the policy's
-    influences, and a goal-driven unit's choices made exactly as the unit makes them (each
-    with the influences decoded before its choice sample, in the schedule's order of
-    decodes and choices). Returns the group (a mind that knows every relationship) and the
-    trajectory: the influences of each round."""
-    relations, policy = intended(sc)
-    known = group_of(sc, relations)
-    k = sc.influence_rounds
-    if not sc.goals:
-        return known, [dict(policy) for _ in range(k)]
-    plan, listens = clean_timeline(sc)
-    tau, delay = sc.timing.tau, sc.timing.reaction_delay
-    goals = {(g.unit, g.target): g for g in sc.goals}
-    # (boundary, rank, turn): a decode is done once its ready sample is heard (rank 0); a
-    # choice once every sample before its choice sample is heard, after the decodes then due
-    events: list[tuple[int, int, int, str]] = []
-    for listen in listens:
-        if listen.kind == "id":
-            continue
-        events.append((listen.ready_sample + 1, 0, listen.turn, listen.kind))
-        t = plan.schedule[listen.turn]
-        if listen.kind == "influence" and (t.sender, t.addressee) in goals:
-            events.append((choice_sample(listen.start, delay, tau), 1, listen.turn, "choice"))
-    events.sort()
-    sent: dict[int, int] = {}
-    minds = {u: mind_of(sc, u) for u in {g.unit for g in sc.goals}}
-    relation_turns = len(sc.units) * (len(sc.units) - 1)
-    relations_heard = 0
-    for _, _, index, kind in events:
-        t = plan.schedule[index]
-        pair = (t.sender, t.addressee)
-        if kind == "relation":
-            relations_heard += 1
-            if relations_heard == relation_turns:  # every goal-driven unit knows the group
-                for m in minds.values():
-                    m.df, m.p4, m.error = known.df, known.p4, known.error
-        elif kind == "choice":
-            got = minds[t.sender].steer(goals[pair], t.round)
-            value = None if isinstance(got, str) else got.value
-            sent[index] = policy[pair] if value is None else value
-        else:
-            value = sent.get(index, policy[pair])
-            for m in minds.values():
-                m.heard_in(t.round)[pair] = value
-    trajectory: list[dict[Pair, int]] = [{} for _ in range(k)]
-    for t in plan.schedule:
-        if t.phase == PHASES[1]:
-            trajectory[t.round - 1][(t.sender, t.addressee)] = sent.get(
-                t.index, policy[(t.sender, t.addressee)]
-            )
-    return known, trajectory
-
-
-def noise_free(sc: Scenario) -> dict[str, dict[str, Any]]:
-    """Every unit's decision (``result_fields``) had it read every code exactly as sent: the
-    forward task, round after round, on the group the units intended and the influences they
-    would send (``clean_rounds``). A group with no polynomial gives no decisions (``decided``
-    false for all)."""
-    rounds = noise_free_rounds(sc)
-    return rounds[-1]
-
-
-def noise_free_rounds(sc: Scenario) -> list[dict[str, dict[str, Any]]]:
-    """``noise_free`` after each influence round: ``[{unit: result_fields}, ...]`` (round 1
-    first; at least one entry)."""
-    known, trajectory = clean_rounds(sc)
-    # The forward task is the same for every unit that knows everything: solve it once a
-    # distinct round.
-    solved: dict[tuple[Any, ...], dict[str, SubjectResult] | None] = {}
-    per_round = []
-    for infl in trajectory:
-        key = tuple(sorted(infl.items()))
-        if key not in solved:
-            known.influences = infl
-            known.results = None
-            known.decide()
-            solved[key] = known.results
-        per_round.append(solved[key])
-    out: list[dict[str, dict[str, Any]]] = [{} for _ in per_round] or [{}]
-    for me in sc.units:
-        mind = mind_of(sc, me)
-        mind.df, mind.polynomial, mind.p4 = known.df, known.polynomial, known.p4
-        if not per_round:
-            out[0][me] = result_fields(mind)
-        for i, results in enumerate(per_round):  # a unit decides every round (a random
-            mind.results = results  # policy draws each)
-            if results is not None:
-                mind.choice = choose(mind.policy, results[me], mind.universe, mind.rng)
-            out[i][me] = result_fields(mind)
-    return out
-
-
-def goal_outcomes(
-    sc: Scenario,
-    units: Mapping[str, Mapping[str, Any]],
-    last_round: Mapping[Pair, int] | None,
-) -> list[dict[str, Any]]:
-    """Each goal of the scenario, judged: ``reached`` (the target decided so; ``None`` when it
-    did not decide), ``reachable`` (some influence of the unit's own meets it given what the
-    others sent the target in the last round: the inverse task with everything known;
-    ``None`` without that round or a group), ``share`` (the share of the others' joint
-    influences for which it could: ``steerable_share``). On the group the units intended."""
-    if not sc.goals:
-        return []
-    u = sc.universe
-    known = intended_group(sc)
-    out: list[dict[str, Any]] = []
-    from rgtbus.rgt.control import meets, steer, steerable_share
-
-    for g in sc.goals:
-        r = units.get(g.target, {})
-        reached = None
-        if r.get("decided"):
-            a, b = r.get("A"), r.get("B")
-            if isinstance(a, list) and isinstance(b, list):
-                reached = meets(u.from_list(a), u.from_list(b), g.lo, g.hi, g.mode)
-        reachable = share = None
-        if known.df is not None:
-            share = float(steerable_share(known.df, u, g.unit, g.target, g.lo, g.hi, g.mode))
-            if last_round is not None:
-                heard = {s: v for (s, t), v in last_round.items() if t == g.target and s != g.unit}
-                if len(heard) == len(sc.units) - 2:
-                    got = steer(known.df, u, g.unit, g.target, g.lo, g.hi, g.mode, heard)
-                    reachable = got.value is not None
-        out.append(
-            {
-                "unit": g.unit,
-                "target": g.target,
-                "want": [u.to_list(g.lo), u.to_list(g.hi)],
-                "mode": g.mode,
-                "reached": reached,
-                "reachable": reachable,
-                "share": share,
-            }
-        )
-    return out
-
-
-def intended(sc: Scenario) -> tuple[dict[Pair, bool], dict[Pair, int]]:
-    """Every relationship (alliance?) and policy influence the units intend, by pair."""
-    relations: dict[Pair, bool] = {}
-    influences: dict[Pair, int] = {}
-    for s in sc.units:
-        rel, infl = intents(sc, s)
-        for r, code in rel.items():
-            relations[(s, r)] = code == "alliance"
-        for r, text in infl.items():
-            influences[(s, r)] = sc.universe.parse_alternative(text)
-    return relations, influences
-
-
-def group_of(sc: Scenario, relations: Mapping[Pair, bool]) -> Mind:
-    """A mind that knows every relationship in ``relations`` (phase 2 done on them)."""
-    known = mind_of(sc, sc.units[0])
-    known.sent = dict(relations)
-    known.build_group()
-    return known
-
-
-def intended_group(sc: Scenario) -> Mind:
-    """A mind that knows every relationship the units intend."""
-    return group_of(sc, intended(sc)[0])
-
-
-def wrong_decisions(
-    decided: Mapping[str, Mapping[str, object]], truth: Mapping[str, Mapping[str, object]]
-) -> list[str]:
-    """The units that decided otherwise than a perfect medium would have them decide: another
-    interval, frustration or choice (a unit that decided where no decision exists counts)."""
-    keys = ("interval", "frustrated", "choice")
-    return [
-        u
-        for u, r in decided.items()
-        if r.get("decided")
-        and (not truth.get(u, {}).get("decided") or any(r.get(k) != truth[u].get(k) for k in keys))
-    ]

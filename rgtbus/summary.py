@@ -13,14 +13,14 @@ Fields beyond the tables and decisions:
 * ``frustrated``: the units whose own forward task has no solution (empty interval).
 * ``wrong_decisions``: the units that decided otherwise than they would have on a perfect
   medium (the forward task on the relations and influences the units intended:
-  ``rgtbus.mind.noise_free``): a misread code that changed a decision.
-* ``goals``: each goal of ``[goals.UNIT]``, judged (``rgtbus.mind.goal_outcomes``): reached
+  ``rgtbus.truth``): a misread code that changed a decision.
+* ``goals``: each goal of ``[goals.UNIT]``, judged (``judge_goals``): reached
   by the target's decision, reachable by the unit's own influence given what the others sent,
   and the share of the others' influences for which it would be.
 * ``rounds``: the influence rounds: ``count``; ``influences``, what was sent in each round
   (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for fewer than two
   whole rounds: a run that stopped early is judged on the rounds every pair was sent in),
-  ``since`` and ``length`` (``rgtbus.mind.round_dynamics``).
+  ``since`` and ``length`` (``round_dynamics``).
 * ``error``: why the run did not finish (the root cause), else ``None``.
 """
 
@@ -32,16 +32,11 @@ from typing import Any, Protocol, TypedDict, cast
 
 import numpy as np
 
-from rgtbus.mind import (
-    decision_fields,
-    goal_outcomes,
-    noise_free_rounds,
-    round_dynamics,
-    wrong_decisions,
-)
+from rgtbus.mind import decision_fields
 from rgtbus.pairs import pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
+from rgtbus.truth import Truth
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -328,7 +323,8 @@ def summarise(
         if rounds and whole == len(rounds)
         else None
     )
-    clean = noise_free_rounds(sc) if units_out else [{}]
+    truth = Truth(sc)
+    clean = truth.rounds if units_out else [{}]
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
     return {
@@ -347,7 +343,7 @@ def summarise(
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
         "decisions": judged_decisions(sc, reports, clean) if units_out else [],
-        "goals": goal_outcomes(sc, units_out, last_round),  # type: ignore[arg-type]
+        "goals": judge_goals(sc, units_out, truth.goal_prospects(last_round)),
         "rounds": {
             "count": sc.influence_rounds,
             **round_dynamics(rounds[:whole]),
@@ -365,6 +361,113 @@ def summarise(
         "bus": result.bus_stats,
         "error": error,
     }
+
+
+def wrong_decisions(
+    decided: Mapping[str, Mapping[str, object]], truth: Mapping[str, Mapping[str, object]]
+) -> list[str]:
+    """The units that decided otherwise than a perfect medium would have them decide: another
+    interval, frustration or choice (a unit that decided where no decision exists counts)."""
+    keys = ("interval", "frustrated", "choice")
+    return [
+        u
+        for u, r in decided.items()
+        if r.get("decided")
+        and (not truth.get(u, {}).get("decided") or any(r.get(k) != truth[u].get(k) for k in keys))
+    ]
+
+
+def round_dynamics(trajectory: Sequence[Mapping[Any, Any]]) -> dict[str, Any]:
+    """What the influences did over the rounds: ``{"state", "since", "length"}``.
+
+    The first round equal to an earlier one: equal to the one before, a **fixed point**
+    (``since``: the first round of it); to one ``L`` rounds before, a **cycle** of ``length``
+    L entered at ``since``; none, **neither**. Each round's influences are a function of the
+    round before (every goal-driven choice is), so a repeat repeats for ever. One round
+    tells nothing: ``None``."""
+    if len(trajectory) < 2:
+        return {"state": None, "since": None, "length": None}
+    seen: dict[str, int] = {}
+    for r, infl in enumerate(trajectory, 1):
+        key = repr(sorted(infl.items()))  # values may be lists (alternatives as action names)
+        if key in seen:
+            first = seen[key]
+            length = r - first
+            return {
+                "state": "fixed point" if length == 1 else "cycle",
+                "since": first,
+                "length": length,
+            }
+        seen[key] = r
+    return {"state": "neither", "since": None, "length": None}
+
+
+def judge_goals(
+    sc: Scenario,
+    units: Mapping[str, Mapping[str, Any]],
+    prospects: Sequence[Mapping[str, Any]],
+) -> list[dict[str, Any]]:
+    """Each goal of the scenario, judged: ``reached`` (the target decided so; ``None`` when it
+    did not decide), with its ``reachable`` and ``share`` on the intended group
+    (``Truth.goal_prospects``, one entry a goal, in order)."""
+    from rgtbus.rgt.control import meets  # a run without goals never loads it
+
+    u = sc.universe
+    out: list[dict[str, Any]] = []
+    for g, prospect in zip(sc.goals, prospects, strict=True):
+        r = units.get(g.target, {})
+        reached = None
+        if r.get("decided"):
+            a, b = r.get("A"), r.get("B")
+            if isinstance(a, list) and isinstance(b, list):
+                reached = meets(u.from_list(a), u.from_list(b), g.lo, g.hi, g.mode)
+        out.append(
+            {
+                "unit": g.unit,
+                "target": g.target,
+                "want": [u.to_list(g.lo), u.to_list(g.hi)],
+                "mode": g.mode,
+                "reached": reached,
+                "reachable": prospect["reachable"],
+                "share": prospect["share"],
+            }
+        )
+    return out
+
+
+def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
+    """Compare the run with the scenario's ``[expect]`` table."""
+    u = scenario.universe
+    exp = scenario.expect
+    out: list[tuple[str, bool, str]] = []
+
+    def check(what: str, got: Any, want: Any) -> None:
+        out.append((what, got == want, f"got {got!r}, expected {want!r}"))
+
+    if "polynomial" in exp:
+        check("polynomial", s["polynomial"], exp["polynomial"])
+    if "agree" in exp:
+        check("agree", s["agree"], exp["agree"])
+    if "outcome" in exp:
+        check("outcome", s["outcome"], exp["outcome"])
+    for pair, rel in exp.get("relations", {}).items():
+        check(f"relation {pair}", s["relations"].get(pair), rel)
+    for name, text in exp.get("intervals", {}).items():
+        lo, hi = u.parse_interval(text)
+        check(f"interval of {name}", s["units"][name]["interval"], [u.to_list(lo), u.to_list(hi)])
+    for name, text in exp.get("choices", {}).items():
+        check(f"choice of {name}", s["units"][name]["choice"], u.to_list(u.parse_alternative(text)))
+    for name, flag in exp.get("frustrated", {}).items():
+        check(f"frustration of {name}", s["units"][name]["frustrated"], flag)
+    for pair, alt in exp.get("influences", {}).items():
+        check(f"influence {pair}", s["influences"].get(pair), alt)
+    for name, flag in exp.get("goals", {}).items():
+        mine = [g["reached"] for g in s.get("goals") or [] if g["unit"] == name]
+        check(f"goals of {name} reached", bool(mine) and all(x is True for x in mine), flag)
+    if "dynamics" in exp:
+        check("influence dynamics", (s.get("rounds") or {}).get("state"), exp["dynamics"])
+    check("no decode errors", len(s["decode_errors"]), 0)
+    return out
 
 
 REPAIR_COUNTS = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")

@@ -9,15 +9,16 @@ import re
 from pathlib import Path
 
 import pytest
-from rgtbus.units.group import check_expectations, run_group
+from rgtbus.units.group import run_group
 
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
-from rgtbus.mind import clean_rounds, intended_group, round_dynamics
 from rgtbus.protocol import rounds, turns
 from rgtbus.rgt import solve_brute_force
 from rgtbus.scenario import load_scenario, parse_scenario
+from rgtbus.summary import check_expectations, round_dynamics
 from rgtbus.telemetry import MemoryRecorder
+from rgtbus.truth import clean_rounds, intended_group
 
 ROOT = Path(__file__).parent.parent
 SCENARIOS = ROOT / "scenarios"

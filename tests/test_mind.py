@@ -8,9 +8,11 @@ from pathlib import Path
 import pytest
 from rgtbus.units.group import run_group
 
-from rgtbus.mind import intents, noise_free, wrong_decisions
+from rgtbus.mind import intents
 from rgtbus.scenario import load_scenario, parse_scenario
+from rgtbus.summary import wrong_decisions
 from rgtbus.telemetry import NullRecorder
+from rgtbus.truth import noise_free
 
 ROOT = Path(__file__).resolve().parent.parent
 

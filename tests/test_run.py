@@ -8,12 +8,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rgtbus.units.group import check_expectations, run_group
+from rgtbus.units.group import run_group
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.cli import main
 from rgtbus.mind import choose_relations
 from rgtbus.scenario import Timing, load_scenario, parse_scenario
+from rgtbus.summary import check_expectations
 from rgtbus.telemetry import McapRecorder, MemoryRecorder, read_log, records
 from rgtbus.telemetry.recorder import encode_json
 

@@ -137,38 +137,3 @@ def run_group(
     summary = summarise(sc, reports, result, engine=engine)
     write_run_summary(recorder, summary)
     return RunOutput(summary, members)
-
-
-def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
-    """Compare the run with the scenario's ``[expect]`` table."""
-    u = scenario.universe
-    exp = scenario.expect
-    out: list[tuple[str, bool, str]] = []
-
-    def check(what: str, got: Any, want: Any) -> None:
-        out.append((what, got == want, f"got {got!r}, expected {want!r}"))
-
-    if "polynomial" in exp:
-        check("polynomial", s["polynomial"], exp["polynomial"])
-    if "agree" in exp:
-        check("agree", s["agree"], exp["agree"])
-    if "outcome" in exp:
-        check("outcome", s["outcome"], exp["outcome"])
-    for pair, rel in exp.get("relations", {}).items():
-        check(f"relation {pair}", s["relations"].get(pair), rel)
-    for name, text in exp.get("intervals", {}).items():
-        lo, hi = u.parse_interval(text)
-        check(f"interval of {name}", s["units"][name]["interval"], [u.to_list(lo), u.to_list(hi)])
-    for name, text in exp.get("choices", {}).items():
-        check(f"choice of {name}", s["units"][name]["choice"], u.to_list(u.parse_alternative(text)))
-    for name, flag in exp.get("frustrated", {}).items():
-        check(f"frustration of {name}", s["units"][name]["frustrated"], flag)
-    for pair, alt in exp.get("influences", {}).items():
-        check(f"influence {pair}", s["influences"].get(pair), alt)
-    for name, flag in exp.get("goals", {}).items():
-        mine = [g["reached"] for g in s.get("goals") or [] if g["unit"] == name]
-        check(f"goals of {name} reached", bool(mine) and all(x is True for x in mine), flag)
-    if "dynamics" in exp:
-        check("influence dynamics", (s.get("rounds") or {}).get("state"), exp["dynamics"])
-    check("no decode errors", len(s["decode_errors"]), 0)
-    return out

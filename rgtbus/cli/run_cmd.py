@@ -181,8 +181,7 @@ def run(args: argparse.Namespace) -> int:
     """``rgtbus run``: ``rgtbus.run`` with a log (and a live view), then the summary."""
     from rgtbus.api import run as run_scenario
     from rgtbus.scenario import load_scenario
-    from rgtbus.summary import summary_json
-    from rgtbus.units.group import check_expectations
+    from rgtbus.summary import check_expectations, summary_json
 
     scenario = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:
