@@ -282,13 +282,13 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time(small, monkeypatch
     arrays and in plain Python (``small``: a hand-over of a few spikes)."""
     import types
 
-    import rgtbus.engine.hearing
+    import rgtbus.engine.spike_log
 
-    monkeypatch.setattr(rgtbus.engine.hearing, "SMALL_HAND_OVER", 10**9 if small else 0)
+    monkeypatch.setattr(rgtbus.engine.spike_log, "SMALL_HAND_OVER", 10**9 if small else 0)
 
     import numpy as np
 
-    from rgtbus.engine.hearing import Ears, SharedSpikes, _SpikePiece
+    from rgtbus.engine.spike_log import SharedSpikes, SpikeKeeper, SpikePiece
 
     rng = np.random.default_rng(3)
     units, channels, block = 5, 7, 50
@@ -313,7 +313,7 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time(small, monkeypatch
 
         # each settles what it is handed (as a unit that takes batches does)
         return types.SimpleNamespace(
-            spikes=spikes, shared_spikes=shared_spikes, keeps_now=lambda: False
+            spikes=spikes, shared_spikes=shared_spikes, keeps_now=lambda: False, block=block
         )
 
     def rows(lo, hi, walkers):
@@ -324,26 +324,17 @@ def test_the_ears_hand_each_unit_its_spikes_a_block_at_a_time(small, monkeypatch
     first, second = rows(0, 210, [0, 2]), rows(210, 420, list(range(units)))
     # unit 3 walked on its own and heard what unit 1 heard: one block of theirs all the same
     second = sorted([r for r in second if r[1] != 3] + [(k, 3, c) for k, w, c in second if w == 1])
-    ears = types.SimpleNamespace(
-        _spike_pieces=[
-            _SpikePiece(*(np.array([r[j] for r in part]) for j in range(3)), walker_of=wo)
-            for part, wo in ((first, np.array(first_walker)), (second, None))
-        ],
-        _spike_block=block,
-        _log_mask=np.ones(units, dtype=bool),
-        _spikes_ended=np.zeros(units, dtype=bool),
-        listeners=[types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)],
-        pos=400,
+    kept = SpikeKeeper(
+        [types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)]
     )
-    ears._hand_blocks = lambda *a: Ears._hand_blocks(ears, *a)
-    ears._hand_blocks_small = lambda *a: Ears._hand_blocks_small(ears, *a)
-    ears._hand_as_one = lambda *a: Ears._hand_as_one(ears, *a)
-    ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
-    ears._close_pending = lambda: None
-    Ears._hand_spikes(ears, 200)  # the blocks before sample 200
-    Ears._hand_spikes(ears, None, only=2)  # unit 2 stops: the rest of its spikes
-    Ears._hand_spikes(ears, None, only=2)  # and its end: nothing more
-    Ears._hand_spikes(ears, None)  # the run ends
+    kept.pieces = [
+        SpikePiece(*(np.array([r[j] for r in part]) for j in range(3)), walker_of=wo)
+        for part, wo in ((first, np.array(first_walker)), (second, None))
+    ]
+    kept.hand(200, 400)  # the blocks before sample 200
+    kept.hand(None, 400, only=2)  # unit 2 stops: the rest of its spikes
+    kept.hand(None, 400, only=2)  # and its end: nothing more
+    kept.hand(None, 400)  # the run ends
 
     def mine(u, b):
         return [(k, c) for k, w, c in first if w == first_walker[u] and k // block == b] + [
@@ -377,8 +368,8 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
 
     import numpy as np
 
-    import rgtbus.engine.hearing
-    from rgtbus.engine.hearing import Ears, _SpikePiece
+    import rgtbus.engine.spike_log
+    from rgtbus.engine.spike_log import SpikeKeeper, SpikePiece
 
     rng = np.random.default_rng(seed)
     units, channels, block = 4, 6, 40
@@ -391,7 +382,7 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
         rows = sorted({(int(k), walkers[int(w)], int(c)) for k, w, c in drawn})
         wo = np.full(units, walkers[0])  # every unit took the first walker's walk
         pieces.append(
-            _SpikePiece(*(np.array([r[j] for r in rows], dtype=np.int64) for j in range(3)), wo)
+            SpikePiece(*(np.array([r[j] for r in rows], dtype=np.int64) for j in range(3)), wo)
         )
 
     keeps = False
@@ -421,29 +412,26 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
                 shared_spikes=shared_spikes,
                 shared_kept=shared_kept,
                 keeps_now=lambda: keeps,
+                block=block,
             )
 
-        ears = types.SimpleNamespace(
-            _spike_block=block,
-            listeners=[
-                types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)
-            ],
+        kept = SpikeKeeper(
+            [types.SimpleNamespace(spike_log=sink(u), name=f"u{u}") for u in range(units)]
         )
-        ears._hand_block = lambda *a: Ears._hand_block(ears, *a)
-        ears._hand_blocks_small = lambda *a: Ears._hand_blocks_small(ears, *a)
-        ears._hand_as_one = (lambda *a: Ears._hand_as_one(ears, *a)) if fast else (lambda *a: False)
-        Ears._hand_blocks(ears, [p for p in pieces if len(p.k)], members, heard)
+        if not fast:
+            kept._hand_as_one = lambda *a: False  # type: ignore[method-assign]
+        kept._hand_blocks([p for p in pieces if len(p.k)], members, heard)
         return got
 
     for members in (np.arange(units), np.array([2])):
         fast = handed(True, members, 290)
         assert fast == handed(False, members, 290)
-        small = rgtbus.engine.hearing.SMALL_HAND_OVER
-        rgtbus.engine.hearing.SMALL_HAND_OVER = 10**9  # the general grouping in plain Python
+        small = rgtbus.engine.spike_log.SMALL_HAND_OVER
+        rgtbus.engine.spike_log.SMALL_HAND_OVER = 10**9  # the general grouping in plain Python
         try:
             assert handed(False, members, 290) == fast
         finally:
-            rgtbus.engine.hearing.SMALL_HAND_OVER = small
+            rgtbus.engine.spike_log.SMALL_HAND_OVER = small
         keeps = True  # units that keep each block at once: the same records, none settled
         assert handed(True, members, 290) == fast == handed(False, members, 290)
         keeps = False
@@ -499,23 +487,23 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     """The ears read each position of a shared queue once, for every receiver, whichever
     unit gets there first, and drop a chunk once every listening unit has passed it: the
     run is the same with chunks of 8 positions."""
-    from rgtbus.engine import hearing
+    from rgtbus.engine import queues
 
     sc = random_group(7, noise=0.01, gains=True, anchor="schedule")
     text = sc.text + '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 3\n'
     sc = parse_scenario(text, "<chunks>")
     whole = run_group(sc, "memory", MemoryRecorder()).summary
-    monkeypatch.setattr(hearing, "QUEUE_CHUNK", 8)
+    monkeypatch.setattr(queues, "QUEUE_CHUNK", 8)
     reads: list[int] = []
     held: list[int] = []
-    rows = hearing._QueueDecodes.rows
+    rows = queues.QueueDecodes.rows
 
     def counted(self, c, lo, hi, read, i):
         got = rows(self, c, lo, hi, lambda q: (reads.append(q), read(q))[1], i)
         held.append(len(self.chunks))
         return got
 
-    monkeypatch.setattr(hearing._QueueDecodes, "rows", counted)
+    monkeypatch.setattr(queues.QueueDecodes, "rows", counted)
     summary = run_group(sc, "memory", MemoryRecorder()).summary
     assert {k: v for k, v in summary.items() if k != "wall_seconds"} == {
         k: v for k, v in whole.items() if k != "wall_seconds"

@@ -26,7 +26,9 @@ import simpy
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.payload import NEVER
-from rgtbus.engine.hearing import Ears, Heard, Listener, SharedSpikes
+from rgtbus.engine.hearing import Ears
+from rgtbus.engine.listener import Heard, Listener
+from rgtbus.engine.spike_log import SharedSpikes
 from rgtbus.mind import decision_fields, intents, mind_of, result_fields, steering_reason
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import (
@@ -517,7 +519,7 @@ class AutonomousUnit:
         (``_take_decodes``)."""
         assert t.queued is not None and self.ears is not None
         queue, first_seq, i = t.queued
-        reads = self.ears.shared(queue, lambda: self._queue_reads(queue))
+        reads = self.ears.queues.shared(queue, lambda: self._queue_reads(queue))
         end = self._queue_due(reads, first_seq, i, pos)
         while i < end and not self.done:
             i = self._take_decodes(queue, reads, i, end)
@@ -616,7 +618,7 @@ class AutonomousUnit:
         completed: ``_first_event``), that one as a decode of its own (``_act``). Returns the
         next position to take."""
         assert self.ears is not None
-        word, chan, margin = self.ears.queue_decodes(self.index, queue, a, b, reads.read)
+        word, chan, margin = self.ears.queues.decodes(self.index, queue, a, b, reads.read)
         # accepted: an ID read as "id", a payload found on its addressee's channel
         refused = np.flatnonzero(
             (word != reads.id_word) & reads.is_id[a:b]

@@ -13,9 +13,9 @@ A unit asks ``listen(i, boundary, at, wake, watch, watch_from)``: "advance me up
 (the one spike its protocol can react to). The ears' SimPy process calls ``wake`` at that
 spike's time, or when the boundary is reached at time ``at`` (its timer's own sample), with a
 ``Heard``: every spike of the unit's resonators since it last woke, in order, each with its
-sample. A wake is a plain call, not a SimPy event per unit: a large run wakes its units millions
-of times (once per decode), and an event, a generator resume and a heap entry each time were
-most of its cost (issue 23). The simulated time of a wake is exact all the same. The ears
+sample. A wake is a plain call, not a SimPy event per unit: a large run wakes its units once per
+decode, and an event, a generator resume and a heap entry each time would cost more than the
+wake's own work. The simulated time of a wake is exact all the same. The ears
 advance only when every listening unit has asked, never past the smallest
 boundary asked for nor past the horizon of the known medium (``hear``), and stop at the first
 watched spike of any unit: what a unit reacts to happens in time order, each at its exact
@@ -23,7 +23,8 @@ sample. A unit's quench times (``quench_at``: its resonators back to rest before
 are the ears' to keep: they need no wake-up.
 
 The ears walk the resonators only when a spike matters: a unit whose plans can wait for one
-(``Listener.awaits``), a log of spikes (``SpikeLog``, handed a block at a time) or traces. A
+(``Listener.awaits``), a log of spikes (``SpikeKeeper``, handed a block at a time) or traces
+(``TraceWindows``). A
 decode reads the increment readout, which is the input each unit heard
 (``input_readout``), so a run with none of the three needs no walk at all.
 
@@ -34,16 +35,19 @@ every unit, silent or not.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any, NamedTuple, Protocol, TypeVar, cast
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import simpy
 
+from rgtbus.engine.listener import HEARD_NOTHING, Heard, Listener, Wake
+from rgtbus.engine.queues import SharedQueues
+from rgtbus.engine.spike_log import SpikeKeeper
+from rgtbus.engine.traces import TraceWindows
 from rgtbus.errors import RgtbusError
 from rgtbus.protocol import NEVER
-from rgtbus.signal.channel import BurstStates, heard_by, render
+from rgtbus.signal.channel import heard_by, render
 from rgtbus.signal.decoder import (
     Decision,
     ReadoutHistory,
@@ -61,170 +65,6 @@ from rgtbus.signal.resonator import (
     input_readout,
     resonate,
 )
-
-TraceSink = Callable[[int, np.ndarray, np.ndarray], None]  # (first sample, x (n, C), y (n, C))
-
-
-_T = TypeVar("_T")
-
-
-class Heard(NamedTuple):
-    """What woke a unit: ``spikes`` of its resonators since it last woke, in order, as
-    (sample, channel indexes); ``reached``: its boundary (else: its watched spike, the last).
-    A plain tuple: made at every wake, millions of times in a large run."""
-
-    spikes: tuple[tuple[int, tuple[int, ...]], ...]
-    reached: bool
-
-
-_HEARD_NOTHING = Heard((), True)  # a unit woken at its boundary that heard no spike
-Wake = Callable[[Heard], None]  # a unit's handler: what it heard, then it asks again or stops
-
-
-class SpikeLog(Protocol):
-    """Where a unit's spikes go for its log, a block of ``block`` samples at a time. The ears
-    keep the spikes of the units they log in arrays (no call per spike: a large run's
-    receivers fire millions of times, issue 23) and hand each unit a block's spikes once they
-    have heard the whole block, or as far as they heard when the unit stops (or up to the
-    sample it names then) or the run ends: a unit wakes only for the spike it awaits, and
-    records written at its wake could trail the run's clock by seconds."""
-
-    block: int
-
-    def spikes(self, samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int) -> None:
-        """The spikes of one block: at ``samples[i]`` (ascending) the resonator of channel
-        ``fired[index[i]]`` fired (a sample's channels ascending; ``fired``: the channels
-        that fired in the block, ascending); heard up to sample ``end`` (the block's end, or
-        less for the last block of a unit that stopped)."""
-        ...
-
-    def shared_spikes(self, block: SharedSpikes) -> None:
-        """The spikes of one block that this unit and others heard alike (``SharedSpikes``):
-        the unit settles it (``SharedSpikes.settle``) once it knows whether it listened
-        through the block's end."""
-        ...
-
-    def keeps_now(self) -> bool:
-        """Whether this unit would keep a block handed now at once (it holds none for a
-        later wake, which may find it was done before the block's end)."""
-        ...
-
-    def shared_kept(
-        self, names: list[str], samples: np.ndarray, index: np.ndarray, fired: np.ndarray, end: int
-    ) -> None:
-        """The record of one block that the units ``names`` (this one among them) heard alike
-        and every one keeps at once (``keeps_now``): written as handed, with nothing to settle
-        (a serial 10-unit run hands ~750 blocks of ~2 spikes each to all ten units)."""
-        ...
-
-
-class SharedSpikes:
-    """One block's spikes that several logged units of one process heard alike, bit for bit
-    (a noise-free medium through equal link gains: they walk as one, ``resonate``'s share),
-    for a single ``/rx/spike`` record of them all instead of one copy a unit (fields as
-    ``SpikeLog.spikes``; ``members`` the units' indices among the listeners, ``names`` theirs).
-
-    Each member settles it once: it kept the block (it listened through its end) or it left
-    it (it was done before: its own record holds its spikes up to there). The last to settle
-    learns which members kept it, and writes their record."""
-
-    __slots__ = ("_kept", "_member_set", "end", "fired", "index", "members", "names", "samples")
-
-    def __init__(
-        self,
-        samples: np.ndarray,
-        index: np.ndarray,
-        fired: np.ndarray,
-        end: int,
-        members: Sequence[int],
-        names: Sequence[str],
-    ) -> None:
-        self.samples, self.index, self.fired, self.end = samples, index, fired, end
-        self.members, self.names = list(members), list(names)
-        self._member_set = frozenset(self.members)  # fifty members settle each block
-        self._kept: dict[int, bool] = {}
-
-    def settle(self, member: int, kept: bool) -> list[str] | None:
-        """Member ``member`` kept the block, or left it; once every member has settled, the
-        names of those that kept it (member order), else None."""
-        if member not in self._member_set:
-            raise RgtbusError(f"unit {member} settles a block of units {self.members}")
-        if member in self._kept:
-            raise RgtbusError(f"unit {member} settles a block of units {self.members} again")
-        self._kept[member] = kept
-        if len(self._kept) < len(self.members):
-            return None
-        return [n for m, n in zip(self.members, self.names, strict=True) if self._kept[m]]
-
-
-class _SpikePiece(NamedTuple):
-    """The kept spikes of one advance: ``k`` sample, ``w`` walker (the receiver that walked),
-    ``c`` channel, in the walk's order (sample, walker, channel); ``walker_of`` each
-    receiver's walker (-1: it stood still), None when every receiver walked on its own."""
-
-    k: np.ndarray
-    w: np.ndarray
-    c: np.ndarray
-    walker_of: np.ndarray | None
-
-    def cut(self, a: int, b: int) -> _SpikePiece:
-        return _SpikePiece(self.k[a:b], self.w[a:b], self.c[a:b], self.walker_of)
-
-
-@dataclass
-class Listener:
-    """One unit's share of the ears."""
-
-    name: str
-    gains: np.ndarray  # gain of each sender's signal at this unit, in member order
-    noise: float  # σ of the white noise this unit's receiver adds to every sample
-    rng: np.random.Generator | None  # its noise's generator (None: a receiver with no noise)
-    keep: int  # samples of readout history the unit decodes from
-    trace: TraceSink | None = None
-    spike_log: SpikeLog | None = None  # where its every spike goes as it is heard (a log)
-    # whether its plans can wait for a spike (an ID spike, under anchor "spike"): when no
-    # unit's can and none logs or traces its spikes, the event engine's ears never walk the
-    # resonators (the readout a decode needs is the input itself)
-    awaits: bool = True
-    active: bool = True
-    request: tuple[int, int, Wake] | None = None  # (boundary, at, what to call)
-    watch: int | None = None  # the channel whose spike could change this unit's plans
-    watch_from: int = 0  # ... from this sample on (earlier spikes there change nothing)
-    heard: list[tuple[int, tuple[int, ...]]] = field(default_factory=list)  # not yet told
-    bursts: BurstStates | None = None  # when its noise comes in bursts (σ_b, not ``noise``)
-    # where each sender's sample j lands in its own samples, a + b·j (rows a, b; None: on j):
-    # delays and clocks (``Channel.arrivals``)
-    arrival: np.ndarray | None = None
-    _noise: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    _noise_at: int = 0  # sample of _noise[0]
-
-    @property
-    def noisy(self) -> bool:
-        """Whether this receiver hears any noise (white, or in bursts)."""
-        return self.noise > 0 or self.bursts is not None
-
-    def noise_for(self, lo: int, hi: int) -> np.ndarray:
-        """This unit's noise for samples [lo, hi), drawn in order from its own generator (the
-        same numbers however the stretch is cut)."""
-        have = self._noise_at + self._noise.size
-        if lo < self._noise_at:
-            raise RgtbusError(f"{self.name}: noise for sample {lo} was already used")
-        if hi > have:
-            assert self.rng is not None, f"{self.name}: noise {self.noise} with no generator"
-            if self.bursts is None:
-                more = self.rng.normal(0.0, self.noise, hi - have)
-            else:  # the same draws, each times its sample's σ (normal(0, σ) is σ·z)
-                more = self.rng.standard_normal(hi - have) * self.bursts.sigma(have, hi, self.noise)
-            self._noise = np.concatenate([self._noise[lo - self._noise_at :], more])
-            self._noise_at = lo
-        out = self._noise[lo - self._noise_at : hi - self._noise_at]
-        return out
-
-    def used_noise(self, upto: int) -> None:
-        if upto > self._noise_at:
-            cut = min(upto - self._noise_at, self._noise.size)
-            self._noise = self._noise[cut:]
-            self._noise_at += cut
 
 
 class Ears:
@@ -278,19 +118,7 @@ class Ears:
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
-        self._logged = [lst for lst in self.listeners if lst.spike_log is not None]
-        blocks = {lst.spike_log.block for lst in self.listeners if lst.spike_log is not None}
-        if len(blocks) > 1:
-            raise RgtbusError(f"the units log spikes in blocks of different sizes: {blocks}")
-        self._spike_block = blocks.pop() if blocks else 1
-        # the spikes of logged units not yet handed to their logs, an advance a piece
-        self._spike_pieces: list[_SpikePiece] = []
-        self._pending: list[np.ndarray] = []  # advances' spikes not yet made a piece
-        self._pending_of: np.ndarray | None = None  # their walkers (None: each its own)
-        self._spikes_due = self._spike_block  # the next block boundary to hand blocks over at
-        # which units' spikes are kept for a log: logged and still listening (``stop``)
-        self._log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
-        self._spikes_ended = np.zeros(len(self.listeners), dtype=bool)  # its last handed
+        self.kept = SpikeKeeper(self.listeners)  # the spikes of logged units, for their logs
         self._lane_models: dict[int, BankModel] = {}  # one resonator picked out, per channel
         self._traced = any(lst.trace is not None for lst in self.listeners)
         # the dense engine is the reference: it walks every resonator every sample, always
@@ -298,16 +126,13 @@ class Ears:
             lst.awaits or lst.spike_log is not None or lst.trace is not None
             for lst in self.listeners
         )
-        self._trace_buf: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        self.traces = TraceWindows(self.listeners, window)
         self.steps = 0  # bank advances so far
         # decodes asked at the present end of the readout: every unit of the process decodes
         # the same code at about the same time, so the first ask reads all of them
         self._decodes: dict[tuple, list] = {}
         self._decodes_end = -1
-        # the decodes of shared listen queues, for every receiver, a chunk at a time
-        self._queues: dict[int, _QueueDecodes] = {}
-        self._shared: dict[int, tuple[object, object]] = {}
-        self._listening = np.ones(len(self.listeners), dtype=bool)
+        self.queues = SharedQueues(len(self.listeners))  # what every unit reads alike
         self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
         self.process = env.process(self._run())
 
@@ -409,36 +234,6 @@ class Ears:
             got = self._decodes[key] = nearest_each(self.readout, samples, channel, words)
         return got[i]
 
-    def shared(self, key: object, build: Callable[[], _T]) -> _T:
-        """What every unit of these ears works out alike from ``key`` (a listen queue, say),
-        built once by the first that asks (``key`` is kept alive: it is found by id)."""
-        got = self._shared.get(id(key))
-        if got is None:
-            got = self._shared[id(key)] = (key, build())
-        return cast(_T, got[1])
-
-    def queue_decodes(
-        self, i: int, queue: object, lo: int, hi: int, read: QueueRead
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Unit ``i``'s decodes of positions [lo, hi) of a listen queue shared by the units of
-        these ears (all heard): each one's word, channel index and margin, as columns.
-        ``read(q)`` decodes position q for every receiver at once; each position is read
-        once, by whichever unit gets there first, and kept until every listening unit has
-        taken it (a chunk of ``QUEUE_CHUNK`` positions at a time)."""
-        cache = self._queues.get(id(queue))
-        if cache is None:
-            cache = self._queues[id(queue)] = _QueueDecodes(queue, len(self.listeners))
-        parts = [
-            cache.rows(c, lo, hi, read, i)
-            for c in range(lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK + 1)
-        ]
-        cache.cursor[i] = hi
-        cache.forget(int(cache.cursor[self._listening].min(initial=hi)))
-        if len(parts) == 1:
-            return parts[0]
-        word, chan, margin = zip(*parts, strict=True)
-        return np.concatenate(word), np.concatenate(chan), np.concatenate(margin)
-
     def _decoded(self, key: tuple) -> list | None:
         if self._decodes_end != self.readout.end:  # the readout moved on: start afresh
             self._decodes.clear()
@@ -468,11 +263,11 @@ class Ears:
             self._asking -= 1
         lst.active = False
         lst.request = None
-        self._listening[i] = False
-        self._log_mask[i] = False
+        self.queues.stop(i)
+        self.kept.stop(i)
         self.end_spikes(i, at)
         if lst.trace is not None:
-            self._flush_trace(i)
+            self.traces.flush(i)
         _fire(self._poke)
 
     def peek(
@@ -563,11 +358,11 @@ class Ears:
                     target = min(target, lst.watch_from)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
-            if self._logged and self._walks:  # what the walk and the hand-over hold stays
+            if self.kept.logging and self._walks:  # what the walk and the hand-over hold stays
                 # small in a large run (a block or so of every lane's spikes), while a small
                 # one still advances a long wait at once
-                blocks = WALK_LANE_SAMPLES // (self.bank.model.lanes * self._spike_block)
-                target = min(target, self._spikes_due + blocks * self._spike_block)
+                blocks = WALK_LANE_SAMPLES // (self.bank.model.lanes * self.kept.block)
+                target = min(target, self.kept.due + blocks * self.kept.block)
             if self.pos < target:
                 k = self._advance(target)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time
@@ -614,7 +409,7 @@ class Ears:
             heard, lst.heard = tuple(lst.heard), []
             wake(Heard(heard, reached))
         else:
-            wake(_HEARD_NOTHING if reached else Heard((), False))
+            wake(HEARD_NOTHING if reached else Heard((), False))
 
     def _advance(self, target: int) -> int | None:
         """Every unit's lanes from here towards ``target``, up to the first spike on a watched
@@ -682,7 +477,7 @@ class Ears:
         if self._traced and res.z is not None and res.y is not None:
             for n, lst in enumerate(self.listeners):
                 if lst.active and lst.trace is not None:
-                    self._add_trace(n, lo, res.z[:, n].real, res.y[:, n])
+                    self.traces.add(n, lo, res.z[:, n].real, res.y[:, n])
         # sorted by sample, receiver, channel: the walkers' alone when receivers walked as
         # one (``walker_of``: each receiver's walker), every receiver's otherwise
         sp, walker_of = res.spikes, res.walker_of
@@ -692,249 +487,15 @@ class Ears:
                     lst = self.listeners[n]
                     if lst.active and ch == lst.watch and k >= lst.watch_from:
                         lst.heard.append((k, (ch,)))
-        if self._logged:  # kept for the logs, handed over a block at a time
-            if len(sp):
-                if walker_of is None:
-                    serves = self._log_mask
-                else:  # a walk is kept while a logged unit took it
-                    serves = np.zeros(len(self.listeners), dtype=bool)
-                    serves[walker_of[self._log_mask & (walker_of >= 0)]] = True
-                keep = sp if serves.all() else sp[serves[sp[:, 1]]]
-                if len(keep):  # as columns, walker and channel in 4 bytes: 16 bytes a spike
-                    self._keep_spikes(keep, walker_of)
-            if end >= self._spikes_due:
-                upto = end // self._spike_block * self._spike_block
-                self._hand_spikes(upto)
-                self._spikes_due = upto + self._spike_block
+        if self.kept.logging:  # kept for the logs, handed over a block at a time
+            self.kept.keep(sp, walker_of)
+            self.kept.heard_to(end)
         return end - 1 if res.stopped else None
-
-    def _keep_spikes(self, keep: np.ndarray, walker_of: np.ndarray | None) -> None:
-        """Keep one advance's spikes (sample, walker, channel) for the logs. Advances that
-        walked alike (the same walker for each receiver) make one piece: a serial run
-        advances a few samples at a time, and a piece each made the hand-over's work grow
-        with the advances, not the spikes."""
-        same = self._pending_of is walker_of or (
-            self._pending_of is not None
-            and walker_of is not None
-            and np.array_equal(self._pending_of, walker_of)
-        )
-        if self._pending and not same:
-            self._close_pending()
-        self._pending.append(keep)
-        self._pending_of = walker_of
-
-    def _close_pending(self) -> None:
-        """The spikes kept since the walkers last changed, as one piece."""
-        if not self._pending:
-            return
-        rows = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
-        self._pending = []
-        self._spike_pieces.append(
-            _SpikePiece(
-                rows[:, 0].copy(),
-                rows[:, 1].astype(np.int32),
-                rows[:, 2].astype(np.int32),
-                self._pending_of,
-            )
-        )
 
     def end_spikes(self, i: int, at: int | None = None) -> None:
         """Hand unit ``i`` every spike kept for its log (it stopped, or the run ended): its
         last block as far as the ears heard, or up to sample ``at`` (the rest is dropped)."""
-        self._hand_spikes(at, only=i)
-
-    def _hand_spikes(self, upto: int | None, only: int | None = None) -> None:
-        """Each logged unit's kept spikes before sample ``upto`` (None: all), a block at a
-        time, in the order (block, unit): which records a log holds, and their order, depend
-        only on the blocks, not on how the ears advanced. Units that heard the same spikes in
-        a block get them as one ``SharedSpikes``. ``only``: unit ``only``'s last spikes, its
-        last block ending at ``upto`` (or as far as the ears heard); its spikes at or after
-        ``upto`` are dropped, and it gets no more."""
-        self._close_pending()
-        if not self._spike_pieces:
-            return
-        heard = self.pos
-        if only is None:  # a block boundary: the spikes before it, slices (no copy)
-            mine, rest = [], []
-            for p in self._spike_pieces:
-                cut = len(p.k) if upto is None else int(p.k.searchsorted(upto))
-                mine.append(p.cut(0, cut))
-                if cut < len(p.k):
-                    rest.append(p.cut(cut, len(p.k)))
-            self._spike_pieces = rest
-            members = np.flatnonzero(self._log_mask)
-        else:  # the others still need the walks it took: read, not taken
-            if self._spikes_ended[only]:  # handed its last already
-                return
-            self._spikes_ended[only] = True
-            if upto is not None:
-                heard = min(heard, upto)
-            mine = [
-                p if upto is None else p.cut(0, int(p.k.searchsorted(upto)))
-                for p in self._spike_pieces
-            ]
-            members = np.array([only])
-            self._log_mask[only] = False
-        self._hand_blocks([p for p in mine if len(p.k)], members, heard)
-
-    def _hand_blocks(self, pieces: list[_SpikePiece], members: np.ndarray, heard: int) -> None:
-        """Hand the ``members`` their spikes in ``pieces`` (in time order), a block at a time:
-        a unit's spikes in a block are its walker's in each piece. Units whose spikes in a
-        block are equal share one ``SharedSpikes``, whichever walks they came from."""
-        if not pieces or not members.size:
-            return
-        if self._hand_as_one(pieces, members, heard):
-            return
-        if sum(len(p.k) for p in pieces) <= SMALL_HAND_OVER:
-            self._hand_blocks_small(pieces, members, heard)
-            return
-        U = len(self.listeners)
-        B = self._spike_block
-        k = np.concatenate([p.k for p in pieces])
-        w = np.concatenate([p.w for p in pieces])
-        c = np.concatenate([p.c for p in pieces])
-        piece = np.repeat(np.arange(len(pieces)), [len(p.k) for p in pieces])
-        block = k // B
-        # segments: one piece within one block (in time order); sorted by (segment, walker),
-        # stable, each walker's spikes of a segment are one run, in (sample, channel) order
-        new = np.concatenate(([True], (block[1:] != block[:-1]) | (piece[1:] != piece[:-1])))
-        seg = np.cumsum(new) - 1
-        n_seg = int(seg[-1]) + 1
-        if n_seg * U < 2**15:  # numpy's stable sort of a 16-bit key is a radix sort
-            order = np.argsort((seg * U + w).astype(np.int16), kind="stable")
-        else:
-            order = np.lexsort((w, seg))
-        k, w, c, seg = k[order], w[order], c[order], seg[order]
-        starts = np.flatnonzero(np.concatenate(([True], (seg[1:] != seg[:-1]) | (w[1:] != w[:-1]))))
-        ends = np.append(starts[1:], len(k))
-        run = np.full((n_seg, U), -1, dtype=np.int64)  # (segment, walker) -> its run
-        run[seg[starts], w[starts]] = np.arange(starts.size)
-        seg_first = np.flatnonzero(new)  # in the unsorted order: each segment's block, piece
-        seg_block, seg_piece = block[seg_first], piece[seg_first]
-        # each segment's walker of every member (a piece where every receiver walked alone:
-        # the member itself)
-        src = np.empty((n_seg, members.size), dtype=np.int64)
-        for p in np.unique(seg_piece).tolist():
-            wo = pieces[p].walker_of
-            src[seg_piece == p] = members if wo is None else wo[members]
-        runs_of = np.where(src >= 0, run[np.arange(n_seg)[:, None], np.maximum(src, 0)], -1)
-        blocks, first = np.unique(seg_block, return_index=True)
-        bounds = [*first.tolist(), n_seg]
-        starts_l, ends_l = starts.tolist(), ends.tolist()
-        for b, s0, s1 in zip(blocks.tolist(), bounds, bounds[1:], strict=False):
-            # a member's runs in this block, one per segment: equal rows, equal spikes
-            if s1 - s0 == 1:  # one piece in this block (the usual case): a run a member
-                sigs, inverse = np.unique(runs_of[s0], return_inverse=True)
-                sigs = sigs[:, None]
-            else:
-                sigs, inverse = np.unique(runs_of[s0:s1].T, axis=0, return_inverse=True)
-            groups: dict[tuple, list[int]] = {}  # equal spikes, from whichever walks
-            arrays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-            for g, sig in enumerate(sigs.tolist()):
-                cuts = [(starts_l[r], ends_l[r]) for r in sig if r >= 0]
-                if not cuts:
-                    continue
-                samples = np.concatenate([k[x:y] for x, y in cuts])
-                channel = np.concatenate([c[x:y] for x, y in cuts])
-                key: tuple[int, ...] = (len(samples), int(samples.sum()), int(channel.sum()))
-                while key in arrays and not (
-                    np.array_equal(arrays[key][0], samples)
-                    and np.array_equal(arrays[key][1], channel)
-                ):
-                    key = (*key, g)  # the same sums, other spikes: a group of its own
-                arrays.setdefault(key, (samples, channel))
-                groups.setdefault(key, []).extend(
-                    members[np.flatnonzero(inverse.reshape(-1) == g)].tolist()
-                )
-            end = min((b + 1) * B, heard)
-            for key in sorted(groups, key=lambda key: min(groups[key])):
-                samples, channel = arrays[key]
-                self._hand_block(sorted(groups[key]), samples, channel, end)
-
-    def _hand_blocks_small(
-        self, pieces: list[_SpikePiece], members: np.ndarray, heard: int
-    ) -> None:
-        """``_hand_blocks`` for a few spikes (a serial run hands a block or two of a few
-        spikes at a time, from receivers that each walked alone since their own quench):
-        the same blocks, groups and order, grouped in plain Python, where the arrays' fixed
-        cost per call was ~1 ms a hand-over."""
-        B = self._spike_block
-        mine: dict[int, dict[int, list[tuple[int, int]]]] = {}  # block -> member -> spikes
-        for p in pieces:
-            walks: dict[int, dict[int, list[tuple[int, int]]]] = {}  # walker -> block -> spikes
-            for k, w, c in zip(p.k.tolist(), p.w.tolist(), p.c.tolist(), strict=True):
-                walks.setdefault(w, {}).setdefault(k // B, []).append((k, c))
-            of = None if p.walker_of is None else p.walker_of.tolist()
-            for m in members.tolist():
-                for b, spikes in walks.get(m if of is None else of[m], {}).items():
-                    mine.setdefault(b, {}).setdefault(m, []).extend(spikes)
-        for b in sorted(mine):
-            groups: dict[tuple[tuple[int, int], ...], list[int]] = {}
-            for m, spikes in mine[b].items():
-                groups.setdefault(tuple(spikes), []).append(m)
-            end = min((b + 1) * B, heard)
-            for heard_alike, units in sorted(groups.items(), key=lambda g: min(g[1])):
-                samples = np.array([k for k, _ in heard_alike], dtype=np.int64)
-                channel = np.array([c for _, c in heard_alike], dtype=np.int32)
-                self._hand_block(sorted(units), samples, channel, end)
-
-    def _hand_as_one(self, pieces: list[_SpikePiece], members: np.ndarray, heard: int) -> bool:
-        """``_hand_blocks`` where every member took one and the same walk in each piece (a
-        noise-free medium through equal gains: the usual case), so all have the same spikes
-        in every block: one group a block, with no grouping to do. False (nothing handed)
-        otherwise."""
-        parts = []
-        for p in pieces:
-            wo = p.walker_of
-            if wo is None:
-                if members.size != 1:
-                    return False
-                walker = int(members[0])
-            else:
-                walkers = wo[members]
-                walker = int(walkers[0])
-                if walker < 0 or not (walkers == walker).all():
-                    return False
-            mine = p.w == walker
-            parts.append((p.k, p.c) if mine.all() else (p.k[mine], p.c[mine]))
-        k = np.concatenate([a for a, _ in parts]) if len(parts) > 1 else parts[0][0]
-        c = np.concatenate([b for _, b in parts]) if len(parts) > 1 else parts[0][1]
-        if not k.size:
-            return True
-        B = self._spike_block
-        units = sorted(members.tolist())
-        blocks = k // B
-        cuts = [*np.flatnonzero(blocks[1:] != blocks[:-1]) + 1, k.size]
-        a = 0
-        for z in cuts:
-            z = int(z)
-            self._hand_block(units, k[a:z], c[a:z], min((int(blocks[a]) + 1) * B, heard))
-            a = z
-        return True
-
-    def _hand_block(
-        self, units: list[int], samples: np.ndarray, channel: np.ndarray, end: int
-    ) -> None:
-        """One block's spikes (sample order, then channel) that ``units`` heard alike, heard
-        up to ``end``: a unit's own ``spikes``, or one ``SharedSpikes`` for two or more."""
-        # the channels that fired and each spike's index among them
-        present = np.zeros(int(channel.max()) + 1, dtype=bool)
-        present[channel] = True
-        fired = np.flatnonzero(present)
-        index = (np.cumsum(present, dtype=np.int32) - 1)[channel]
-        if len(units) == 1:
-            log = self.listeners[units[0]].spike_log
-            assert log is not None
-            log.spikes(samples, index, fired, end)
-            return
-        names = [self.listeners[u].name for u in units]
-        logs = [cast(SpikeLog, self.listeners[u].spike_log) for u in units]
-        if all(log.keeps_now() for log in logs):  # as the last of them to settle would write
-            logs[-1].shared_kept(names, samples, index, fired, end)
-            return
-        share = SharedSpikes(samples, index, fired, end, units, names)
-        for log in logs:
-            log.shared_spikes(share)
+        self.kept.end(i, self.pos, at)
 
     def _medium_rows(self, part: slice) -> tuple[np.ndarray, np.ndarray]:
         """Samples of these pulses, and what each unit hears there."""
@@ -948,85 +509,8 @@ class Ears:
             self._rows[part], self._who[part], self._val[part], self._gains, self._unit_gains
         )
 
-    # -- traces ---------------------------------------------------------------------------------
 
-    def _add_trace(self, n: int, lo: int, x: np.ndarray, y: np.ndarray) -> None:
-        buf = self._trace_buf.setdefault(n, [])
-        buf.append((lo, x, y))
-        first = buf[0][0]
-        end = lo + x.shape[0]
-        w0 = first // self.window
-        while (w0 + 1) * self.window <= end:
-            self._emit_trace(n, (w0 + 1) * self.window)
-            buf = self._trace_buf.get(n, [])
-            if not buf:
-                return
-            w0 = buf[0][0] // self.window
-
-    def _emit_trace(self, n: int, upto: int) -> None:
-        """Hand unit n the trace rows before ``upto`` (a window boundary, or where it stopped)."""
-        buf = self._trace_buf.get(n, [])
-        if not buf:
-            return
-        first = buf[0][0]
-        xs = np.concatenate([b[1] for b in buf])
-        ys = np.concatenate([b[2] for b in buf])
-        k = upto - first
-        sink = self.listeners[n].trace
-        assert sink is not None
-        sink(first, xs[:k], ys[:k])
-        rest = [(upto, xs[k:], ys[k:])] if xs.shape[0] > k else []
-        self._trace_buf[n] = rest
-
-    def _flush_trace(self, n: int) -> None:
-        buf = self._trace_buf.get(n, [])
-        if buf:
-            self._emit_trace(n, buf[-1][0] + buf[-1][1].shape[0])
-
-
-SMALL_HAND_OVER = 4096  # spikes of a hand-over grouped in plain Python (_hand_blocks_small)
 WALK_LANE_SAMPLES = 1 << 22  # a logged run's advance: about this many lane-samples at most
-QUEUE_CHUNK = 256  # positions of a shared queue read (for every receiver) and kept together
-QueueRead = Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
-
-
-class _QueueDecodes:
-    """A shared listen queue's decodes for every receiver of the ears: chunks of
-    ``QUEUE_CHUNK`` positions, each (positions × receivers) arrays of word, channel and
-    margin, filled in order as units reach them and dropped once every listening unit has
-    passed them (a run of n units decodes 4n²(n−1) codes: no object each)."""
-
-    def __init__(self, queue: object, receivers: int) -> None:
-        self.queue = queue  # kept alive: the ears find it by id
-        self.receivers = receivers
-        self.cursor = np.zeros(receivers, dtype=np.int64)  # each unit's next position
-        self.chunks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]] = {}
-
-    def rows(
-        self, c: int, lo: int, hi: int, read: QueueRead, i: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        chunk = self.chunks.get(c)
-        if chunk is None:
-            R = self.receivers
-            chunk = self.chunks[c] = (
-                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
-                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
-                np.empty((QUEUE_CHUNK, R)),
-                [0],  # positions filled
-            )
-        word, chan, margin, filled = chunk
-        base = c * QUEUE_CHUNK
-        a, b = max(lo, base) - base, min(hi, base + QUEUE_CHUNK) - base
-        while filled[0] < b:  # in order: every position before is heard too
-            k = filled[0]
-            word[k], chan[k], margin[k] = read(base + k)
-            filled[0] = k + 1
-        return word[a:b, i], chan[a:b, i], margin[a:b, i]
-
-    def forget(self, low: int) -> None:
-        """Drop the chunks every listening unit has passed (``low``: the least cursor)."""
-        for c in [c for c in self.chunks if (c + 1) * QUEUE_CHUNK <= low]:
-            del self.chunks[c]
 
 
 def _fire(ev: simpy.Event) -> None:

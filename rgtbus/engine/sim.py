@@ -31,7 +31,8 @@ import simpy.rt
 
 from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
-from rgtbus.engine.hearing import Ears, Listener
+from rgtbus.engine.hearing import Ears
+from rgtbus.engine.listener import Listener
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
