@@ -410,6 +410,8 @@ def judge_goals(
     """Each goal of the scenario, judged: ``reached`` (the target decided so; ``None`` when it
     did not decide), with its ``reachable`` and ``share`` on the intended group
     (``Truth.goal_prospects``, one entry a goal, in order)."""
+    if not sc.goals:
+        return []
     from rgtbus.rgt.control import meets  # a run without goals never loads it
 
     u = sc.universe

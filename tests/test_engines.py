@@ -442,10 +442,10 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
 
 def _one_decode_at_a_time(self, queue, reads, a, b):
     """The reference for a unit's batch of queued decodes: each on its own, read from the
-    unit's own readout (``_decode``: the ears' per-decode path, no column of the queue)."""
+    unit's own readout (``decode``: the ears' per-decode path, no column of the queue)."""
     listen = queue.listens[int(reads.seq[a])]
-    self._decode(listen)
-    self._settle(int(reads.bounds[a]) - 1)
+    self.decode(listen)
+    self.settle(int(reads.bounds[a]) - 1)
     return a + 1
 
 
@@ -460,7 +460,7 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
     for every unit, recorded and learned from as arrays, one at a time only where a code is
     refused or a table completes): its log and summary equal those of each decode taken on
     its own, on noisy groups (refused codes, wrong channels), rounds, goals."""
-    from rgtbus.units.unit import AutonomousUnit
+    from rgtbus.units.listening import Listening
 
     from rgtbus.telemetry.verify import decodes_per_row
 
@@ -472,7 +472,7 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
     got = []
     for reference in (False, True):
         if reference:
-            monkeypatch.setattr(AutonomousUnit, "_take_decodes", _one_decode_at_a_time)
+            monkeypatch.setattr(Listening, "_take_decodes", _one_decode_at_a_time)
         rec = MemoryRecorder()
         out = run_group(sc, "memory", rec)
         rows = decodes_per_row(rec.messages)

@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 from rgtbus.units.group import run_group
+from rgtbus.units.listening import Listening
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.cli import main
@@ -275,8 +276,8 @@ def test_crash_mid_run_still_closes_the_log(tmp_path, monkeypatch):
             raise RuntimeError("decoder on fire")
         return original(self, listen)
 
-    original = AutonomousUnit._decode
-    monkeypatch.setattr(AutonomousUnit, "_decode", boom)
+    original = Listening.decode
+    monkeypatch.setattr(Listening, "decode", boom)
     sc = load_scenario(ROOT / "scenarios" / "gate.toml")
     log = tmp_path / "crash.mcap"
     with open(log, "wb") as f:
@@ -416,7 +417,7 @@ def test_decode_records_hold_a_block_of_time_each(name):
     unit's records leave in time order; and every decode is there once, as the unit made it
     (coalition10: batches of indexes joined with single decodes in one block, written as
     indexes)."""
-    from rgtbus.units.unit import DECODE_BLOCK_SECONDS
+    from rgtbus.telemetry.unit_log import DECODE_BLOCK_SECONDS
 
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
     rec = MemoryRecorder()
@@ -449,14 +450,14 @@ def test_single_decodes_join_a_batch_as_its_indexes():
     """A unit's single decodes (names) held in a block with its batches (indexes) are written
     as indexes into the batches' tables, every column as it was (margins and times to the
     last bit); a name in none of the tables keeps the part in names."""
-    from rgtbus.units.unit import _indexed_part
+    from rgtbus.telemetry.unit_log import DecodePart, _indexed_part
 
     tables = (["a", "b", "c"], ["id", "relation", "influence"], ["id", "alliance", "conflict"])
     rows = [
         (3, "a", "b", "b", "relation", "conflict", 0.1 + 0.2, 1.005, True),
         (4, "c", "a", "b", "id", "id", 1 / 3, 2.0000000001, False),
     ]
-    part = [list(c) for c in zip(*rows, strict=True)]
+    part = DecodePart(*(list(c) for c in zip(*rows, strict=True)))
     indexed = _indexed_part(part, tables)
     assert indexed is not None
 
@@ -467,7 +468,7 @@ def test_single_decodes_join_a_batch_as_its_indexes():
     got = read(indexed, tables)
     assert got == read(part) and len(got) == 2
     assert [r["margin"] for r in got] == [0.1 + 0.2, 1 / 3]
-    unknown = [list(c) for c in zip(*[(5, "z", "a", "a", "id", "id", 0.5, 3.0, True)], strict=True)]
+    unknown = DecodePart(*([v] for v in (5, "z", "a", "a", "id", "id", 0.5, 3.0, True)))
     assert _indexed_part(unknown, tables) is None
 
 
@@ -490,7 +491,7 @@ def test_spike_records_are_columns_one_entry_a_spike():
 def test_wrong_decodes_judge_columns_as_rows():
     """The summary judges a unit's decodes held as columns (a live run) in one vectorised
     step, and rows (read from a log) one by one: the same errors, in decode order."""
-    from rgtbus.units.unit import DecodeColumns
+    from rgtbus.units.listening import DecodeColumns
 
     from rgtbus.summary import SentTruth, wrong_decodes
 
@@ -654,7 +655,7 @@ def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name, watch
         want = sorted(
             (k, send.kind, send.sender, send.addressee, float(m))
             for send in unit.sent
-            for k, m in zip(send.samples, unit.word(send), strict=True)
+            for k, m in zip(send.samples, unit.transmitter.word(send), strict=True)
         )
         pulses = [
             (t, m) for tp, t, m in rec.messages if tp == "/tx/pulse" and m["unit"] == unit.name

@@ -20,12 +20,13 @@ from dataclasses import dataclass
 from typing import IO, Any
 
 from rgtbus.units.group import scenario_world
-from rgtbus.units.unit import AutonomousUnit
+from rgtbus.units.unit import AutonomousUnit, decision_records
 
 from rgtbus.bus.base import Pulses
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
 from rgtbus.errors import RgtbusError
+from rgtbus.mind import Mind, mind_of
 from rgtbus.pairs import parse_pair_key
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
@@ -147,8 +148,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
         rel = replay.relations.get(name)
         if rel is None:
             continue
-        unit = AutonomousUnit(name, sc, CaptureRecorder())  # a fresh mind, same policy and rng
-        mind = unit.mind
+        mind = mind_of(sc, name)  # a fresh mind: the unit's policy and generator
         try:
             mind.sent = {parse_pair_key(k): v == "alliance" for k, v in rel["sent"].items()}
         except (AttributeError, ValueError):
@@ -174,19 +174,22 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
             continue
         # every round in order: a seeded-random policy draws once a round
         for infl in tables.get(name, []):
-            out.extend(_check_round(unit, infl, logged_decisions, cut_ns))
+            out.extend(_check_round(sc, name, mind, infl, logged_decisions, cut_ns))
     return out
 
 
 def _check_round(
-    unit: AutonomousUnit,
+    sc: Scenario,
+    name: str,
+    mind: Mind,
     infl: dict,
     logged_decisions: Mapping[tuple[str, int], Mapping[str, Mapping[str, Any]]],
     cut_ns: int | None = None,
 ) -> list[Mismatch]:
-    """One round's decisions of ``unit`` re-derived from its logged influence table
-    (``cut_ns``: the bound of a log cut short, at or after which a decision may be missing)."""
-    name, mind, u = unit.name, unit.mind, unit.scenario.universe
+    """One round's decisions of unit ``name`` re-derived by its ``mind`` from its logged
+    influence table (``cut_ns``: the bound of a log cut short, at or after which a decision
+    may be missing)."""
+    u = sc.universe
     rnd = infl.get("round", 1)
     try:
         mind.influences = {parse_pair_key(k): u.from_list(v) for k, v in infl["influences"].items()}
@@ -199,13 +202,9 @@ def _check_round(
     if not mind.influences_complete():
         return []
     mind.decide_round(rnd)
-    cap = CaptureRecorder()
-    unit.recorder = cap
-    unit._log_decisions(infl["t"], rnd)
     out = []
-    for _, _, m in cap.messages:
-        if m.get("subject") is None:  # a "no decision" log line
-            continue
+    for record in decision_records(name, mind, u, infl["t"], rnd):
+        m: dict[str, Any] = dict(record)
         logged = logged_decisions.get((name, rnd), {}).get(m["subject"])
         if logged is None and cut_ns is not None and ns(m["t"]) >= cut_ns:
             continue  # written after where the log was cut

@@ -51,7 +51,6 @@ from rgtbus.signal.channel import heard_by, render
 from rgtbus.signal.decoder import (
     Decision,
     ReadoutHistory,
-    ReceiverReadout,
     WordSet,
     decode_among_each,
     nearest_each,
@@ -207,10 +206,6 @@ class Ears:
         lst.watch_from = watch_from
         if not self._asking:
             _fire(self._poke)
-
-    def readout_of(self, i: int) -> ReceiverReadout:
-        """Unit ``i``'s own readout (its resonators' view of the medium)."""
-        return self.readout.of(i)
 
     def decode_among(
         self, i: int, channels: tuple[int, ...], start: float, words: WordSet, search: int

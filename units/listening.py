@@ -1,0 +1,487 @@
+"""A unit's listening: what it decoded (``DecodeColumns``), how it reads a code off its own
+readout, and how it takes a shared listen queue's decodes a batch at a time as columns.
+
+A listen names a code's instants; the unit decodes it on its own resonators' readout (the
+ears' ``read_code`` at the schedule's instants, or ``decode_among`` with a timing search over
+the channels it may be on) and hands the result to the unit (``act``), which records, checks
+and learns. Under the concurrent schedule every unit of a process decodes the same queue of
+codes: the ears read each position once for all of them (``SharedQueues``), and a unit takes a
+batch of its decodes as arrays (recorded, logged and learned from with no Python call per
+decode) up to the first that needs more than that (a code refused, a table completed), which
+it takes on its own. The same decodes either way (tested).
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from rgtbus.units.timers import Timer, Timers
+
+from rgtbus.pairs import PairTable
+from rgtbus.protocol import Listen, ListenQueue, ProtocolState, code_samples
+from rgtbus.scenario import Scenario
+from rgtbus.signal.decoder import (
+    Decision,
+    WordSet,
+    decode_among_columns,
+    nearer_than_silence,
+    nearest_columns,
+)
+from rgtbus.signal.resonator import clean_first_spike
+from rgtbus.telemetry.unit_log import DecodePart, UnitLog
+
+if TYPE_CHECKING:
+    from rgtbus.engine.hearing import Ears
+    from rgtbus.mind import Mind
+
+DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what the summary needs
+Act = Callable[[Listen, str, float, int], None]  # what a decode read: code, margin, channel
+
+_ID, _RELATION, _INFLUENCE = 0, 1, 2  # the kinds of a listen, as a column
+KINDS = ("id", "relation", "influence")
+
+
+class DecodeColumns:
+    """A unit's decodes as columns: the turn of each (4 bytes) and which (kind, addressee,
+    code) it read (4 bytes, an index into the few distinct ones), not a Python object per
+    decode. Iterates as ``DecodedRow`` tuples, in order; ``tolist()`` for JSON."""
+
+    __slots__ = ("_rows", "_seen", "_turns", "_what")
+
+    def __init__(self) -> None:
+        self._turns = array("i")
+        self._what = array("I")
+        self._rows: list[tuple[str, str, str]] = []
+        self._seen: dict[tuple[str, str, str], int] = {}
+
+    def append(self, turn: int, kind: str, addressee: str, code: str) -> None:
+        """One decode."""
+        self._turns.append(turn)
+        self._what.append(self.index((kind, addressee, code)))
+
+    def index(self, key: tuple[str, str, str]) -> int:
+        """The index of a (kind, addressee, code) among the distinct ones (made on first use)."""
+        i = self._seen.get(key)
+        if i is None:
+            i = self._seen[key] = len(self._rows)
+            self._rows.append(key)
+        return i
+
+    def extend_index(self, turns: np.ndarray, what: np.ndarray) -> None:
+        """A batch of decodes at once: their turns, and each one's ``index``."""
+        self._turns.frombytes(np.asarray(turns, dtype=np.intc).tobytes())
+        self._what.frombytes(np.asarray(what, dtype=np.uintc).tobytes())
+
+    def __len__(self) -> int:
+        return len(self._turns)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
+        """(each decode's turn, the index of its (kind, addressee, code) in the third),
+        as arrays over the columns' own memory (``rgtbus.summary.wrong_decodes``)."""
+        return (
+            np.frombuffer(self._turns, dtype=np.intc),
+            np.frombuffer(self._what, dtype=np.uintc),
+            self._rows,
+        )
+
+    def __iter__(self) -> Iterator[DecodedRow]:
+        rows = self._rows
+        for turn, i in zip(self._turns, self._what, strict=True):
+            yield (turn, *rows[i])
+
+    def tolist(self) -> list[list[Any]]:
+        """Every decode as a list (turn, kind, addressee, code)."""
+        return [list(row) for row in self]
+
+
+@dataclass(frozen=True, eq=False)
+class QueueReads:
+    """A shared listen queue as columns over its positions (the i-th to fall due), worked out
+    once for every unit of a process (``SharedQueues.shared``): what a unit needs to take a
+    batch of its decodes as arrays, and ``read``, which decodes one position for every
+    receiver at once (``SharedQueues.decodes``)."""
+
+    bounds: np.ndarray  # boundary (ready sample + 1)
+    seq: np.ndarray  # the listen's index in the queue (its seq after the queue's first)
+    kind: np.ndarray  # _ID, _RELATION, _INFLUENCE
+    turn: np.ndarray
+    sender: np.ndarray  # unit index
+    expected: np.ndarray  # unit index of the expected addressee
+    slot: np.ndarray  # the (sender, expected) pair's slot in a PairTable of the units
+    rnd: np.ndarray  # the turn's influence round
+    t_ready: np.ndarray  # the decode's time, s
+    is_id: np.ndarray  # bool: an ID
+    is_rel: np.ndarray  # bool: a relation code
+    is_inf: np.ndarray  # bool: an influence
+    n_rel: np.ndarray  # relation codes before each position (one more entry than positions)
+    n_inf: np.ndarray  # influences before each position (likewise)
+    unique: bool  # no pair of one table twice (a batch sets each slot once)
+    what: np.ndarray  # (kind · units + addressee) · len(names): + the word, a decoded row
+    channel: np.ndarray  # unit index of the channel it is carried on (an ID: its sender's)
+    names: tuple[str, ...]  # every word name a decode can read
+    alliance: np.ndarray  # per name: 1 if "alliance"
+    value: np.ndarray  # per name: its alternative (-1: not one)
+    id_word: int  # the name index of "id"
+    read: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _completes(table: PairTable | None, had: int, slots: np.ndarray, full: int) -> int:
+    """Which of ``slots``, set in order into ``table`` (holding ``had`` entries; None: none
+    yet), first makes it hold ``full``, or every one when it holds them already (each then
+    completes it again); ``len(slots)`` if none."""
+    if had >= full:
+        return 0
+    new = np.ones(slots.size, dtype=bool) if table is None else table.absent(slots)
+    first = np.zeros(slots.size, dtype=bool)
+    first[np.unique(slots, return_index=True)[1]] = True  # a slot counts once
+    hit = np.flatnonzero(had + np.cumsum(new & first) >= full)
+    return int(hit[0]) if hit.size else slots.size
+
+
+class ExpectedSpike:
+    """Where unit ``name``'s attention spike to a sender's ID comes on a clean channel
+    (``ProtocolState.expect_spike``): its resonator on the sender's frequency, at rest from the
+    turn's start, hears the ID's pulses ``ids`` through its link's gain and nothing else
+    (serial: one code at a time), up to the ID's ``deadline``."""
+
+    def __init__(self, scenario: Scenario, name: str) -> None:
+        self.scenario = scenario
+        self._index = {u: i for i, u in enumerate(scenario.units)}
+        self._gains = scenario.channel.gain_row(scenario.units, name)
+
+    def __call__(self, sender: str, ids: tuple[int, ...], deadline: int) -> int | None:
+        sc = self.scenario
+        ch = self._index[sender]
+        within = deadline - ids[0] + 1
+        offsets = tuple(k - ids[0] for k in ids)
+        gain = float(self._gains[ch])
+        k = clean_first_spike(
+            sc.frequencies[sender], sc.mode, sc.timing.tau, sc.codebook.id_word, offsets, gain,
+            within,
+        )  # fmt: skip
+        return None if k is None else ids[0] + k
+
+
+class Listening:
+    """How unit ``name`` reads codes off its readout (see the module docstring). Parts it is
+    given: the unit's ``mind`` (a batch learns into its tables), ``decoded`` and ``log`` (a
+    batch is recorded there), and two callbacks into the unit: ``act(listen, code, margin,
+    channel)``, what a decode taken on its own read, and ``settle(sample)``, the unit is done
+    if it has decided or failed by then. ``repairs``: the unit may hold a payload for repair
+    (then every decode is taken on its own)."""
+
+    def __init__(
+        self,
+        name: str,
+        scenario: Scenario,
+        protocol: ProtocolState,
+        mind: Mind,
+        decoded: DecodeColumns,
+        log: UnitLog,
+        *,
+        act: Act,
+        settle: Callable[[int], None],
+        repairs: bool,
+    ) -> None:
+        sc = scenario
+        self.name = name
+        self.scenario = sc
+        self.units = sc.units
+        self.tau = sc.timing.tau
+        self.cb = sc.codebook
+        self.protocol = protocol
+        self.mind = mind
+        self.decoded = decoded
+        self.log = log
+        self.act = act
+        self.settle = settle
+        self.repairs = repairs
+        self.omegas = [sc.frequencies[u] for u in self.units]
+        self.id_words = WordSet.of(self.cb.distinct_words())
+        self.families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
+        self.index_of = {u: i for i, u in enumerate(self.units)}
+        self._gains = sc.channel.gain_row(sc.units, name)  # what it hears of each sender
+        self._timed = sc.channel.timed  # pulses land off their samples (delays, clocks)
+        # by channel (``attend``): the ID as its link delivers it, alone and as a word set
+        self._attention_words: dict[int, tuple[WordSet, tuple[float, ...]]] = {}
+        self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
+        # a decoded row's index in ``decoded``, by its integer code (``_take_batch``)
+        self._what_of = np.zeros(0, dtype=np.int64)
+        self.ears: Ears | None = None
+        self.member = 0  # its index among the ears' listeners
+
+    def begin(self, ears: Ears, member: int) -> None:
+        """The ears it hears through, and its index among their listeners."""
+        self.ears, self.member = ears, member
+
+    # -- a decode on its own ---------------------------------------------------------------------
+
+    def decode(self, listen: Listen) -> None:
+        """Decode ``listen`` on this unit's own readout, and act on it."""
+        assert self.ears is not None
+        if listen.kind == "id":
+            # An ID counts only if it reads as the ID-code on the sender's own frequency
+            # (a↔c crosstalk makes resonators fire for other codes).
+            ch = self.index_of[listen.sender]
+            if self._timed:  # it lands where its link puts it: timed by the search
+                dec, _ = self.ears.decode_among(
+                    self.member, (ch,), listen.start, self.id_words, self.protocol.search
+                )
+            else:
+                dec = self.read(code_samples(listen.start, self.omegas[ch], self.cb.pulses,
+                                             self.tau), ch, self.id_words)  # fmt: skip
+            self.act(listen, dec.name, dec.margin, ch)
+            return
+        dec, ch = self.ears.decode_among(
+            self.member, self.channels_of(listen), listen.start, self.words_of(listen),
+            self.protocol.search,
+        )  # fmt: skip
+        self.act(listen, dec.name, dec.margin, ch)
+
+    def read(self, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
+        """The nearest of ``words`` to its readout at ``samples`` on ``channel``."""
+        assert self.ears is not None
+        return self.ears.read_code(self.member, samples, channel, words)
+
+    def attend(self, sender: str) -> int | None:
+        """Confirmed attention (docs/protocol.md, "Attention"): the current turn's ID timed on
+        ``sender``'s channel by a timing search around the schedule's instants (the shift whose
+        reads fit the ID-code best, as its link's gain delivers it), then found there if its
+        reads are nearer that ID-code than silence (in its slot nothing else is on that
+        channel: whether the ID came, not which word it is). Returns the shift, or None when
+        no ID came."""
+        assert self.ears is not None
+        ch = self.index_of[sender]
+        words = self._attention_words.get(ch)
+        if words is None:  # the ID as its link delivers it alone (to time it), and against
+            # silence (to find it): the threshold between them adapted to the link's gain
+            heard = tuple(float(self._gains[ch]) * m for m in self.cb.id_word)
+            words = self._attention_words[ch] = (WordSet.of({"id": heard}), heard)
+        dec, _ = self.ears.decode_among(
+            self.member, (ch,), self.protocol.turn_start, words[0], self.protocol.search
+        )
+        return dec.shift if nearer_than_silence(dec.values, words[1]) else None
+
+    def words_of(self, listen: Listen) -> WordSet:
+        """The words a payload listen reads (an ID reads ``id_words``)."""
+        return self.families["relation" if listen.kind == "relation" else "alternative"]
+
+    def channels_of(self, listen: Listen) -> tuple[int, ...]:
+        """The channel indexes a payload listen may find its code on."""
+        channels = self._channel_sets.get(listen.channels)
+        if channels is None:
+            channels = tuple(self.index_of[r] for r in listen.channels)
+            self._channel_sets[listen.channels] = channels
+        return channels
+
+    # -- a shared queue, a batch at a time -----------------------------------------------------
+
+    def take_queue(self, t: Timer, pos: int, timers: Timers, done: Callable[[], bool]) -> None:
+        """A listen of a shared queue, and the queue's next ones while they fall due before
+        ``pos`` ahead of every other timer: in the order the heap would give them (boundary,
+        then seq), without a heap entry each, and a batch at a time as columns. Stops when
+        the unit is ``done``."""
+        assert t.queued is not None and self.ears is not None
+        queue, first_seq, i = t.queued
+        reads = self.ears.queues.shared(queue, lambda: self._queue_reads(queue))
+        end = self._queue_due(reads, first_seq, i, pos, timers)
+        while i < end and not done():
+            i = self._take_decodes(queue, reads, i, end)
+        timers.queue_next(queue, first_seq, i)
+
+    def _queue_reads(self, queue: ListenQueue) -> QueueReads:
+        """``QueueReads`` of ``queue`` for the units of this unit's ears (each would build the
+        same: the first to ask does; ``read`` decodes for all of them)."""
+        ears = self.ears
+        assert ears is not None
+        index, tau, cb = self.index_of, self.tau, self.cb
+        listens = [queue.listens[i] for i in queue.order]
+        names: list[str] = []
+        maps = {}
+        for key, words in (("id", self.id_words), *self.families.items()):
+            ix = []
+            for name in words.names:
+                if name not in names:
+                    names.append(name)
+                ix.append(names.index(name))
+            maps[key] = np.array(ix, dtype=np.int64)
+        universe = self.scenario.universe
+        alternatives = set(self.families["alternative"].names)
+        value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
+        n = len(self.units)
+        sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
+        expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
+        schedule = self.protocol.schedule
+        search = self.protocol.search
+        omegas = ears.bank.omegas
+
+        def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            listen = listens[q]
+            if listen.kind == "id":
+                ch = index[listen.sender]
+                samples = code_samples(listen.start, self.omegas[ch], cb.pulses, tau)
+                w, m = nearest_columns(ears.readout, samples, ch, self.id_words)
+                return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
+            family = "relation" if listen.kind == "relation" else "alternative"
+            pairs = tuple((c, float(omegas[c])) for c in self.channels_of(listen))
+            w, c, m = decode_among_columns(
+                ears.readout, pairs, listen.start, self.families[family], tau=tau, search=search
+            )
+            return maps[family][w], c, m
+
+        kind = np.array([KINDS.index(li.kind) for li in listens], dtype=np.int64)
+        rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
+        slot = sender * n + expected
+        payload = kind != _ID
+        tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
+        return QueueReads(
+            bounds=np.array(queue.boundaries, dtype=np.int64),
+            seq=np.array(queue.order, dtype=np.int64),
+            kind=kind,
+            turn=np.array([li.turn for li in listens], dtype=np.int64),
+            sender=sender,
+            expected=expected,
+            slot=slot,
+            rnd=rnd,
+            t_ready=np.array([li.ready_sample * tau for li in listens]),
+            is_id=kind == _ID,
+            is_rel=kind == _RELATION,
+            is_inf=kind == _INFLUENCE,
+            n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
+            n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
+            unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
+            what=(kind * n + expected) * len(names),
+            channel=np.where(kind == _ID, sender, expected),
+            names=tuple(names),
+            alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
+            value=np.array(value, dtype=np.int64),
+            id_word=names.index("id") if "id" in names else -1,
+            read=read,
+        )
+
+    def _queue_due(
+        self, reads: QueueReads, first_seq: int, i: int, pos: int, timers: Timers
+    ) -> int:
+        """The end of the run of queue positions from ``i`` (due) that fall due before
+        ``pos`` ahead of every other timer (the heap's order: boundary, rank, seq)."""
+        bounds = reads.bounds
+        end = max(i + 1, int(bounds.searchsorted(pos, side="right")))
+        if timers:
+            top = timers.first
+            q = max(i + 1, int(bounds.searchsorted(top.boundary, side="left")))
+            while (
+                q < end
+                and bounds[q] == top.boundary
+                and (0, first_seq + int(reads.seq[q])) < (top.rank, top.seq)
+            ):
+                q += 1
+            end = min(end, q)
+        return end
+
+    def _take_decodes(self, queue: ListenQueue, reads: QueueReads, a: int, b: int) -> int:
+        """Decode queue positions from ``a`` on (before ``b``) and act on them: as arrays up
+        to the first that needs more than recording and learning (a code refused, a table
+        completed: ``_first_event``), that one as a decode of its own. Returns the next
+        position to take."""
+        assert self.ears is not None
+        word, chan, margin = self.ears.queues.decodes(self.member, queue, a, b, reads.read)
+        # accepted: an ID read as "id", a payload found on its addressee's channel
+        refused = np.flatnonzero(
+            (word != reads.id_word) & reads.is_id[a:b]
+            | (chan != reads.expected[a:b]) & ~reads.is_id[a:b]
+        )
+        e = self._first_event(reads, a, int(refused[0]) if refused.size else b - a)
+        if e:
+            self._take_batch(reads, a, a + e, word[:e], margin[:e])
+        q = a + e
+        if q < b:
+            listen = queue.listens[int(reads.seq[q])]
+            self.act(listen, reads.names[int(word[e])], float(margin[e]), int(chan[e]))
+            self.settle(int(reads.bounds[q]) - 1)
+            return q + 1
+        return b
+
+    def _first_event(self, reads: QueueReads, a: int, e: int) -> int:
+        """The first of positions [a, a + e) (relative to a) whose decode completes a table
+        of the mind (the relations, or the next round's influences, which the unit then acts
+        on), else ``e``; 0 when the mind's tables are not this run's arrays."""
+        mind = self.mind
+        sent = mind.sent
+        if self.repairs:  # a decode may be unsure (held for repair): each is taken on its own
+            return 0
+        if not isinstance(sent, PairTable) or sent.units != self.units or not reads.unique:
+            return 0
+        full = len(self.units) * (len(self.units) - 1)
+        had = len(sent)
+        if had + int(reads.n_rel[a + e] - reads.n_rel[a]) >= full:  # it may complete here
+            rel = np.flatnonzero(reads.is_rel[a : a + e])
+            k = _completes(sent, had, reads.slot[a + rel], full)
+            e = min(e, int(rel[k]) if k < rel.size else e)
+        if mind.decided_rounds < mind.rounds:
+            nxt = mind.decided_rounds + 1
+            table = mind.heard.get(nxt)
+            if table is not None and not isinstance(table, PairTable):
+                return 0
+            had = 0 if table is None else len(table)
+            if had + int(reads.n_inf[a + e] - reads.n_inf[a]) >= full:
+                inf = np.flatnonzero(reads.is_inf[a : a + e] & (reads.rnd[a : a + e] == nxt))
+                k = _completes(table, had, reads.slot[a + inf], full)
+                e = min(e, int(inf[k]) if k < inf.size else e)
+        return e
+
+    def _take_batch(
+        self, reads: QueueReads, a: int, b: int, word: np.ndarray, margin: np.ndarray
+    ) -> None:
+        """Positions [a, b), each accepted and completing no table: recorded (and logged)
+        and learned from as arrays, as ``act`` would one by one."""
+        names = reads.names
+        n_units = len(self.units)
+        # (kind, addressee, code) as one integer, and as the unit's index of it
+        code = reads.what[a:b] + word
+        if self._what_of.size != len(KINDS) * n_units * len(names):
+            self._what_of = np.full(len(KINDS) * n_units * len(names), -1)
+        what = self._what_of[code]
+        if (what < 0).any():
+            for c in np.unique(code[what < 0]).tolist():
+                k, w = divmod(c, len(names))
+                kind, addressee = divmod(k, n_units)
+                key = (KINDS[kind], self.units[addressee], names[w])
+                self._what_of[c] = self.decoded.index(key)
+            what = self._what_of[code]
+        self.decoded.extend_index(reads.turn[a:b], what)
+        if self.log.enabled:  # names as indexes into the batch's tables
+            part = DecodePart(
+                turn=reads.turn[a:b],
+                sender=reads.sender[a:b],
+                addressee=reads.expected[a:b],
+                channel=reads.channel[a:b],
+                kind=reads.kind[a:b],
+                code=word,
+                margin=margin,
+                times=reads.t_ready[a:b],
+                accepted=np.ones(b - a, dtype=bool),
+            )
+            self.log.decode_batch(part, (self.units, KINDS, names))
+        self._learn_batch(reads, a, b, word)
+
+    def _learn_batch(self, reads: QueueReads, a: int, b: int, word: np.ndarray) -> None:
+        """What positions [a, b) read, set into the mind's tables at once."""
+        mind = self.mind
+        if reads.n_rel[b] > reads.n_rel[a]:
+            rel = reads.is_rel[a:b]
+            sent = mind.sent
+            assert isinstance(sent, PairTable)
+            sent.set_slots(reads.slot[a:b][rel], reads.alliance[word[rel]], unique=True)
+        if reads.n_inf[b] > reads.n_inf[a]:
+            inf = reads.is_inf[a:b]
+            rnd = reads.rnd[a:b]
+            first, last = int(reads.rnd[a + int(np.argmax(inf))]), int(rnd[inf].max())
+            for r in range(first, last + 1):
+                mine = inf & (rnd == r) if first != last else inf
+                table = mind.heard_in(r)
+                assert isinstance(table, PairTable)
+                table.set_slots(reads.slot[a:b][mine], reads.value[word[mine]], unique=True)
