@@ -36,7 +36,7 @@ typecheck: $(STAMP)
 	@ln -s $(CURDIR)/rgtbus/* build/typecheck/rgtbus/ && ln -s $(CURDIR)/units build/typecheck/rgtbus/units
 	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p rgtbus
 	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml \
-		--strict --follow-imports=silent -p rgtbus.rgt -p rgtbus.signal -m rgtbus.protocol -m rgtbus.repair \
+		--strict --follow-imports=silent -p rgtbus.rgt -p rgtbus.signal -p rgtbus.protocol -m rgtbus.repair \
 		-m rgtbus.errors -m rgtbus.pairs -m rgtbus.timebase -p rgtbus.scenario
 
 bench: $(STAMP)

@@ -323,8 +323,8 @@ def summarise(
         if rounds and whole == len(rounds)
         else None
     )
-    truth = Truth(sc)
-    clean = truth.rounds if units_out else [{}]
+    should = Truth(sc)  # what a perfect medium would have given
+    clean = should.rounds if units_out else [{}]
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
     return {
@@ -343,7 +343,7 @@ def summarise(
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
         "decisions": judged_decisions(sc, reports, clean) if units_out else [],
-        "goals": judge_goals(sc, units_out, truth.goal_prospects(last_round)),
+        "goals": judge_goals(sc, units_out, should.goal_prospects(last_round)),
         "rounds": {
             "count": sc.influence_rounds,
             **round_dynamics(rounds[:whole]),

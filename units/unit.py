@@ -485,8 +485,8 @@ class AutonomousUnit:
         rnd = self.protocol.schedule[listen.turn].round
         for done in mind.hear_influence(rnd, key, value):  # rounds now complete, decided
             if self.log.enabled:
-                record = records.influences(self.name, t, mind.influence_table(), done)
-                self.log.write_in_order(records.UNIT_INFLUENCES, record, t)
+                table = records.influences(self.name, t, mind.influence_table(), done)
+                self.log.write_in_order(records.UNIT_INFLUENCES, table, t)
             self._log_decisions(t, done)
         if mind.all_rounds_decided and (self.arq is None or not self.arq.left):
             self.finished = True
