@@ -9,6 +9,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import (
+    add_engine_argument,
+    add_key_argument,
+    add_realtime_argument,
+    add_seed_argument,
+    read_key,
+)
 from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import goal_text
@@ -16,11 +23,13 @@ from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
 
 if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
     from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry.live import LiveView
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``run``."""
     p = subparsers.add_parser(
         "run",
         help="run a scenario: units socialising over the medium, logged to MCAP",
@@ -43,18 +52,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="no log at all (speed runs; the summary is the same, nothing is written)",
     )
-    p.add_argument("--seed", type=int, help="override the scenario's seed")
-    p.add_argument(
-        "--realtime",
-        type=float,
-        metavar="FACTOR",
-        help="pace the run: FACTOR simulated seconds per wall second",
-    )
+    add_seed_argument(p)
+    add_realtime_argument(p)
     p.add_argument("--traces", action="store_true", help="log resonator y/x traces too")
-    p.add_argument(
-        "--engine",
-        choices=("event", "dense"),
-        default="event",
+    add_engine_argument(
+        p,
         help="event: jump from event to event (the default); dense: the time-stepped "
         "reference, every window (same results)",
     )
@@ -122,22 +124,6 @@ def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
     return out
 
 
-def add_key_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--key-file",
-        metavar="FILE",
-        help="a shared secret (>= 16 bytes, e.g. head -c 32 /dev/urandom | base64 > FILE): every "
-        "frame and hello is signed with it and anything unsigned is dropped; without it anyone "
-        "who reaches the zenoh endpoints can join the run (docs/security.md)",
-    )
-
-
-def read_key(args: argparse.Namespace) -> bytes | None:
-    from rgtbus.bus.auth import load_key
-
-    return None if args.key_file is None else load_key(args.key_file)
-
-
 def default_log_path(name: str) -> Path:
     from datetime import datetime  # 4 ms to import: only for a log named by the time
 
@@ -185,10 +171,6 @@ def run(args: argparse.Namespace) -> int:
     from rgtbus.units.group import check_expectations
 
     scenario = load_scenario(args.scenario)
-    if args.seed is not None and args.seed < 0:
-        raise RgtbusError(f"--seed {args.seed}: must be a non-negative integer")
-    if args.realtime is not None and not args.realtime > 0:
-        raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
     if args.no_log and (args.live is not None or args.traces):
         what = "--live" if args.live is not None else "--traces"

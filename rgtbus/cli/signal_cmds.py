@@ -13,11 +13,12 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
@@ -25,10 +26,20 @@ from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
+
 PI = math.pi
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``resonate``, ``ser`` and ``figures``."""
+    _add_resonate(subparsers)
+    _add_ser(subparsers)
+    _add_figures(subparsers)
+
+
+def _add_resonate(subparsers: SubParsers) -> None:
     p = subparsers.add_parser(
         "resonate",
         help="feed one code to a bank of resonators; report peak y and spikes",
@@ -77,12 +88,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="SIGMA",
         help="white Gaussian noise on every sample (default 0)",
     )
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    add_seed_argument(p, help="noise seed (default 0)", default=0)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--plot", metavar="PNG", help="also write the y trajectories to this PNG")
     add_quiet_argument(p)
     p.set_defaults(func=cmd_resonate)
 
+
+def _add_ser(subparsers: SubParsers) -> None:
     e = subparsers.add_parser(
         "ser",
         help="the decoder's symbol error rate against noise, beside the best possible receiver's",
@@ -109,7 +122,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="noise levels (default 0.05,0.1,0.15,0.2)",
     )
     e.add_argument("--trials", type=int, default=2000, help="trials per level (default 2000)")
-    e.add_argument("--seed", type=int, default=0)
+    add_seed_argument(e, help=None, default=0)
     e.add_argument("--json", action="store_true", help="print one JSON object per level")
     e.add_argument(
         "--plot",
@@ -118,6 +131,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     e.set_defaults(func=cmd_ser)
 
+
+def _add_figures(subparsers: SubParsers) -> None:
     f = subparsers.add_parser(
         "figures",
         help="regenerate the paper's resonator figures and the decoder's error rate",
@@ -132,7 +147,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=1000,
         help="Monte-Carlo trials per point of the error-rate figure (default 1000)",
     )
-    f.add_argument("--seed", type=int, default=0)
+    add_seed_argument(f, help=None, default=0)
     add_quiet_argument(f)
     f.set_defaults(func=cmd_figures)
 
