@@ -12,13 +12,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
+
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
 EXIT_TRUNCATED = 3  # as rgtbus replay's (rgtbus.telemetry.verify.EXIT_TRUNCATED)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``info``, ``cat`` and ``scenario``."""
     p = subparsers.add_parser(
         "info",
         help="a log at a glance: duration, messages per topic, scenario, seed, outcome",

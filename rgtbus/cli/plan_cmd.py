@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
 # What a margin the plan does not keep means, and why the schedule can do without it.
 NOT_KEPT = {
@@ -25,7 +29,8 @@ NOT_KEPT = {
 }
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``plan``."""
     p = subparsers.add_parser(
         "plan",
         help="the frequency plan for N units: mode, band, pulses, codebook, margins",

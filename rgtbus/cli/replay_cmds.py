@@ -19,10 +19,12 @@ from rgtbus.cli.tables import (
 from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
     from rgtbus.telemetry.read import DecodeRow, Replay
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``replay`` and ``merge``."""
     p = subparsers.add_parser(
         "replay",
         help="read a run's MCAP log: timeline, verification, plots, CSV tables",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import fitted_table_lines, wrapped_table_lines
@@ -26,8 +26,12 @@ from rgtbus.rgt import (
 )
 from rgtbus.rgt.expr import Expr, needs_star
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``solve`` and ``control``."""
     solve = subparsers.add_parser(
         "solve",
         help="forward task: canonical forms, intervals and frustration for every subject",

@@ -9,11 +9,16 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rgtbus.cli.interrupts import interrupted_by
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``sweep`` and ``sweep-plot``."""
     p = subparsers.add_parser(
         "sweep",
         help="run a scenario over seeds and a grid of keys; a table of results",
