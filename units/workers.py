@@ -73,7 +73,7 @@ class _NoMainSpawnContext(multiprocessing.context.SpawnContext):
     import the caller's ``__main__``; pools may start workers at any ``submit``: each start
     hides it."""
 
-    Process = _NoMainSpawnProcess  # type: ignore[assignment]
+    Process = _NoMainSpawnProcess
 
 
 # -- the local pool: one run at a time per worker, a dead worker costs only its run -----------

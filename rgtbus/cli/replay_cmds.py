@@ -119,7 +119,7 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
     return EXIT_TRUNCATED if rp.truncated else 0
 
 
-def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) -> str:
+def _write_csv(rp: Replay, out: Path, span: tuple[float | None, float | None] | None) -> str:
     from rgtbus.telemetry.export import csv_tables, write_csv
 
     tables = csv_tables(rp, span)
@@ -133,7 +133,7 @@ def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) ->
     return f"wrote {', '.join(tables)} to {out}"
 
 
-def _plot(rp, args: argparse.Namespace) -> str:
+def _plot(rp: Replay, args: argparse.Namespace) -> str:
     from rgtbus.telemetry.plots import activity_figure, save_png
     from rgtbus.units.rerun import traces_for
 
@@ -189,7 +189,7 @@ def merge(args: argparse.Namespace) -> int:
 # -- the timeline ---------------------------------------------------------------------------
 
 
-def _alt(rp, v: Any) -> str:
+def _alt(rp: Replay, v: Any) -> str:
     if v is None:
         return "none"
     u = rp.scenario.universe if rp.scenario else None

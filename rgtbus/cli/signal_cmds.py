@@ -27,6 +27,10 @@ from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants
 
 if TYPE_CHECKING:
+    from types import ModuleType
+
+    from matplotlib.figure import Figure
+
     from rgtbus.cli import SubParsers
 
 PI = math.pi
@@ -251,7 +255,7 @@ def cmd_resonate(args: argparse.Namespace) -> int:
             word,
             args.on,
             args.start,
-            res,
+            res.y,
             tau,
             args.mode,
             noise=args.noise,
@@ -335,7 +339,8 @@ def cmd_ser(args: argparse.Namespace) -> int:
 # -- plotting (lazy matplotlib) ---------------------------------------------------------------
 
 
-def _pyplot():
+def _pyplot() -> ModuleType:
+    """``matplotlib.pyplot``, drawing to files only (Agg)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -344,7 +349,7 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path, caption: str) -> None:
+def _save(fig: Figure, path: Path, caption: str) -> None:
     fig.text(0.5, 0.01, caption, ha="center", va="bottom", fontsize=8.5, wrap=True)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -365,10 +370,22 @@ def _word_text(word: Sequence[float]) -> str:
 
 
 def _plot_resonate(
-    path: Path, omegas, texts, word, on, start, res, tau, mode, *, noise: float, seed: int
+    path: Path,
+    omegas: Sequence[float],
+    texts: Sequence[str],
+    word: Sequence[float],
+    on: int,
+    start: float,
+    y: np.ndarray,
+    tau: float,
+    mode: str,
+    *,
+    noise: float,
+    seed: int,
 ) -> None:
+    """The y trajectories ``y`` (samples × 1 × resonators) of ``rgtbus resonate --plot``."""
     plt = _pyplot()
-    n = res.y.shape[0]
+    n = y.shape[0]
     t = np.arange(n) * tau
     names = [pi_text(x) for x in texts]
     fig, axes = plt.subplots(
@@ -376,7 +393,7 @@ def _plot_resonate(
     )
     inst = pulse_instants(omegas[on], start, len(word), tau) * tau
     for c, ax in enumerate(axes[:, 0]):
-        ax.plot(t, res.y[:, 0, c], lw=1, color="C0" if c == on else "C7")
+        ax.plot(t, y[:, 0, c], lw=1, color="C0" if c == on else "C7")
         ax.axhline(1.0, color="k", lw=0.6, ls=":")
         for x in inst:
             ax.axvline(x, color="g", lw=0.8, alpha=0.7)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
@@ -52,7 +53,7 @@ def run_watch(args: argparse.Namespace) -> int:
 
     host, port = parse_address(args.live)
     key = read_key(args)
-    say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    say = _teller(quiet=args.quiet)
     with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say) as live:
         live.advertise(_topics())
         with Watcher(live, run_id=args.run, key=key, **zenoh_options(args)) as watcher:
@@ -83,6 +84,16 @@ def run_watch(args: argparse.Namespace) -> int:
                 + (f"; {watcher.dropped} frames dropped ({drops})" if watcher.dropped else "")
             )
     return 0
+
+
+def _teller(quiet: bool) -> Callable[[str], None]:
+    """What the watcher says: a line on stderr as it happens; nothing with ``--quiet``."""
+
+    def say(line: str) -> None:
+        if not quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    return say
 
 
 def _topics() -> list[tuple[str, str]]:
