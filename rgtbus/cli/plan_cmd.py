@@ -76,6 +76,7 @@ def run_plan(args: argparse.Namespace) -> int:
     from rgtbus.protocol import plan_of
     from rgtbus.scenario import limits
     from rgtbus.signal.plan import MAX_PLAN_PULSES, crosstalk_size, make_plan
+    from rgtbus.timebase import sample_of
 
     if not args.n >= 1:
         raise RgtbusError(f"N = {args.n}: must be a positive number of units")
@@ -100,7 +101,9 @@ def run_plan(args: argparse.Namespace) -> int:
             "concurrent", 0.001,
         ).timing()  # fmt: skip
         lengths = [r.end + 0.5 - r.start for r in timing]
-        stagger = max(max(round((p.id_start - r.start) / tau), 0) for r in timing for p in r.placed)
+        stagger = max(
+            max(sample_of(p.id_start - r.start, tau), 0) for r in timing for p in r.placed
+        )
         out["rounds"] = len(timing)
         out["round_seconds"] = [round(min(lengths), 3), round(max(lengths), 3)]
         out["simulated_seconds"] = round(timing[-1].end, 3)

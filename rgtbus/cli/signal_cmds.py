@@ -25,6 +25,7 @@ from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants
+from rgtbus.timebase import sample_of, time_of
 
 if TYPE_CHECKING:
     from types import ModuleType
@@ -209,12 +210,12 @@ def run_resonate(
         duration = start + len(word) * 2 * PI / min(omegas) + 0.5
     if not (math.isfinite(duration) and duration > 0):
         raise RgtbusError(f"--duration {duration!r}: must be positive")
-    n = round(duration / tau) + 1
+    n = sample_of(duration, tau) + 1
     last = pulse_instants(omegas[on], start, len(word), tau)[-1]
     if last >= n:
         raise RgtbusError(
             f"--duration {duration:g}: the code's last pulse comes at "
-            f"{last * tau:g} s, after the end"
+            f"{time_of(last, tau):g} s, after the end"
         )
     u = hear([Transmission(omegas[on], start, tuple(word))], n, sigma=noise, seed=seed, tau=tau)
     bank = ResonatorBank(omegas, mode=mode, tau=tau)
@@ -421,7 +422,7 @@ def _plot_resonate(
 def _trace(
     omegas: Sequence[float], word: Sequence[float], on: int, seconds: float, start: float = 0.001
 ) -> tuple[np.ndarray, np.ndarray]:
-    n = round(seconds / PAPER_TAU) + 1
+    n = sample_of(seconds, PAPER_TAU) + 1
     u = hear([Transmission(omegas[on], start, tuple(word))], n)[:, 0]
     res = ResonatorBank(omegas).feed(u, record=True)
     assert res.y is not None  # fed with record=True
@@ -502,8 +503,8 @@ def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
     # 4 s (800 samples) hold the ID's three pulses and its spike (2.67 s)
     first = ResonatorBank(oms).feed(hear([Transmission(oms[0], 0.001, word)], 800)[:, 0])
     k_spike = int(first.spikes[first.spikes[:, 2] == 0, 0][0])
-    t_send = (k_spike + round(delay / PAPER_TAU)) * PAPER_TAU
-    n = round((t_send + 4.0) / PAPER_TAU)
+    t_send = time_of(k_spike + sample_of(delay, PAPER_TAU), PAPER_TAU)
+    n = sample_of(t_send + 4.0, PAPER_TAU)
     u = hear([Transmission(oms[0], 0.001, word), Transmission(oms[2], t_send, word)], n)[:, 0]
     bank = ResonatorBank(oms)
     k_send = int(pulse_instants(oms[2], t_send, 1)[0])
@@ -516,7 +517,7 @@ def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
     spikes: dict[str, list[float]] = {"a": [], "b": [], "c": []}
     for part in parts:
         for k, _, c in part.spikes:
-            spikes["abc"[int(c)]].append(round(int(k) * PAPER_TAU, 6))
+            spikes["abc"[int(c)]].append(round(time_of(int(k), PAPER_TAU), 6))
     return Receiving(np.arange(n) * PAPER_TAU, y, spikes, t_send, quench)
 
 
