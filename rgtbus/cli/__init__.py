@@ -29,6 +29,7 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse that reports usage errors in one line and exits 2."""
 
     def error(self, message: str) -> NoReturn:
+        """The usage error ``message`` on one line of stderr; exit code 2."""
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 

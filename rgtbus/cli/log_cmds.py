@@ -78,6 +78,7 @@ def _ended(note: str) -> int:
 
 
 def info(args: argparse.Namespace) -> int:
+    """``rgtbus info LOG``: what the log holds, as text or ``--json``."""
     from rgtbus.telemetry.logtools import info_text, log_info
     from rgtbus.telemetry.scan import check_log
 
@@ -88,6 +89,7 @@ def info(args: argparse.Namespace) -> int:
 
 
 def cat(args: argparse.Namespace) -> int:
+    """``rgtbus cat LOG``: its messages as JSON lines, filtered by topic, unit and time."""
     from rgtbus.telemetry.logtools import cat_messages
     from rgtbus.telemetry.scan import check_log
 
@@ -101,6 +103,7 @@ def cat(args: argparse.Namespace) -> int:
 
 
 def scenario(args: argparse.Namespace) -> int:
+    """``rgtbus scenario LOG``: the scenario TOML the run was made with, its seed the run's."""
     from rgtbus.telemetry.logtools import stored_scenario
     from rgtbus.telemetry.scan import check_log
 

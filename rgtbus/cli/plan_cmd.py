@@ -73,6 +73,7 @@ def _check_size(args: argparse.Namespace) -> None:
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    """``rgtbus plan N``: the plan, its rules and margins (and, concurrent, its rounds)."""
     from rgtbus.protocol import plan_of
     from rgtbus.scenario import limits
     from rgtbus.signal.plan import MAX_PLAN_PULSES, crosstalk_size, make_plan

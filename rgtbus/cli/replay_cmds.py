@@ -72,6 +72,7 @@ def register(subparsers: SubParsers) -> None:
 
 
 def replay(args: argparse.Namespace) -> int:
+    """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
     from rgtbus.telemetry.read import explained, load_replay
 
     if args.plot is None and args.unit:
@@ -155,6 +156,8 @@ def _plot(rp: Replay, args: argparse.Namespace) -> str:
 
 
 def merge(args: argparse.Namespace) -> int:
+    """``rgtbus merge LOG... -o OUT``: run logs merged into one, written whole or not at all
+    (through ``OUT.part``)."""
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.scan import require_run_log, scan_log
 

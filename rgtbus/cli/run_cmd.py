@@ -76,6 +76,7 @@ LIVE_ADDRESS = "127.0.0.1:8765"  # Foxglove's own default for a WebSocket connec
 
 
 def add_live_arguments(p: argparse.ArgumentParser) -> None:
+    """``--live [HOST:PORT]`` and ``--live-wait SECONDS`` (``open_live`` reads them)."""
     p.add_argument(
         "--live",
         nargs="?",
@@ -125,7 +126,8 @@ def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
 
 
 def default_log_path(name: str) -> Path:
-    from datetime import datetime  # 4 ms to import: only for a log named by the time
+    """``logs/<name>-<date>-<time>.mcap``: the log of a run not given ``--log``."""
+    from datetime import datetime  # imported here: only a log named by the time needs it
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     return Path("logs") / f"{name}-{stamp}.mcap"
@@ -138,7 +140,7 @@ class Progress:
 
     def __init__(self, show: bool) -> None:
         self.bar: Any = None
-        if not show:  # no tqdm import for a run that shows nothing (start-up, issue 23)
+        if not show:  # no tqdm import for a run that shows nothing (start-up time)
             return
         from tqdm import tqdm
 
@@ -153,12 +155,14 @@ class Progress:
         self.bar.set_postfix_str("step 0", refresh=False)
 
     def __call__(self, sim_now: float, step: int) -> None:
+        """The run is at ``sim_now`` simulated seconds, step ``step``."""
         if self.bar is None:
             return
         self.bar.set_postfix_str(f"step {step}", refresh=False)
         self.bar.update(sim_now - self.bar.n)  # tqdm draws it when mininterval has passed
 
     def done(self) -> None:
+        """The run is over: the counter's last line stays."""
         if self.bar is not None:
             self.bar.close()
 
@@ -207,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
             out_json["checks"] = [{"what": w, "ok": ok, "detail": d} for w, ok, d in checks]
         print(json.dumps(out_json))
     else:
-        if not args.quiet:  # held and thrown away: a group of 50 took a second to lay out
+        if not args.quiet:  # held and thrown away: a large group's summary is slow to lay out
             print_summary(scenario, summary)
         if args.check:
             print_checks(checks, summary["error"], quiet=args.quiet)
@@ -283,6 +287,8 @@ def goal_line(universe: Universe, g: dict[str, Any]) -> str:
 
 
 def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
+    """The run's summary ``s`` as ``rgtbus run`` (and ``launch``) print it: relations,
+    polynomial, influences, decisions, rounds, goals, outcome, decode errors, time, log."""
     u = scenario.universe
     units = scenario.units
     print(

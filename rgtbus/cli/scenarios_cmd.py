@@ -27,6 +27,7 @@ def register(subparsers: SubParsers) -> None:
 
 
 def list_scenarios(args: argparse.Namespace) -> int:
+    """``rgtbus scenarios``: the shipped scenarios, a table or ``--json``."""
     from rgtbus.scenario import shipped_dir, shipped_scenarios
 
     if shipped_dir() is None:

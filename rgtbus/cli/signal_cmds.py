@@ -223,6 +223,7 @@ def run_resonate(
 
 
 def cmd_resonate(args: argparse.Namespace) -> int:
+    """``rgtbus resonate``: each resonator's peak y and spike times (and ``--plot``)."""
     texts = args.omega or list(PAPER_OMEGA_TEXT[:3])
     omegas = [parse_omega(t, where="--omega") for t in texts]
     word = _parse_pulses(args.pulses)
@@ -296,6 +297,8 @@ def _sigmas(text: str) -> list[float]:
 
 
 def cmd_ser(args: argparse.Namespace) -> int:
+    """``rgtbus ser``: the decoder's symbol error rate at each noise level beside the
+    maximum-likelihood bounds (and ``--plot``)."""
     from rgtbus.signal.evaluate import ser_against_bound
 
     if args.trials < 1:
@@ -616,6 +619,8 @@ def _ser_axes(fig: Any, ax: Any, floor: float, title: str) -> None:
 
 
 def figure_ser(path: Path, trials: int, seed: int) -> str:
+    """The decoder's symbol error rate against noise for the paper's codebook (alone, with an
+    interferer, alliance/conflict words), as a PNG at ``path``; its caption."""
     from rgtbus.signal.evaluate import symbol_error_rate
 
     plt = _pyplot()
@@ -683,6 +688,7 @@ PAIRS = (((0, 1), "ab"), ((0, 2), "ac"))
 
 
 def cmd_figures(args: argparse.Namespace) -> int:
+    """``rgtbus figures OUTDIR``: every figure written, each with its caption on stdout."""
     out = Path(args.outdir)
     if out.exists() and not out.is_dir():
         raise RgtbusError(f"OUTDIR {str(out)!r} exists and is not a directory")
