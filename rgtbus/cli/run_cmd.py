@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -115,7 +116,7 @@ def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Liv
     return live
 
 
-def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
+def live_topics(units: Iterable[str], traces: bool) -> list[tuple[str, str]]:
     """Every (topic, schema) a run logs: advertised before it starts."""
     from rgtbus.telemetry import topics
 

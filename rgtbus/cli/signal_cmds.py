@@ -30,6 +30,7 @@ from rgtbus.timebase import sample_of, time_of
 if TYPE_CHECKING:
     from types import ModuleType
 
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
     from rgtbus.cli import SubParsers
@@ -605,7 +606,7 @@ def figure_receiving(path: Path) -> str:
 SIGMAS = (0.0, 0.02, 0.05, 0.1, 0.2)
 
 
-def _ser_axes(fig: Any, ax: Any, floor: float, title: str) -> None:
+def _ser_axes(fig: Figure, ax: Axes, floor: float, title: str) -> None:
     """An error rate against noise: log scale down to ``floor`` (half an error in the trials,
     where a rate of 0 is drawn), a dotted line there, labels, legend."""
     ax.set_yscale("log")
