@@ -1,4 +1,4 @@
-"""The command line imports only what the command it runs needs (start-up, issue 23)."""
+"""The command line imports only what the command it runs needs (start-up time)."""
 
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ def test_a_run_imports_no_other_command():
 
 
 def test_a_run_of_the_gate_loads_nothing_it_does_not_use():
-    """What only some runs need is imported when first used (start-up, issue 23): a
+    """What only some runs need is imported when first used (start-up time): a
     noise-free open run without goals never steers, validates, tags or draws noise."""
     code = (
         "import sys; from rgtbus.cli import main; "

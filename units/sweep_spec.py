@@ -30,9 +30,6 @@ MAX_RUNS = 1_000_000
 # the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
 # types and decisions.parquet; 1 (no key) held nested columns as JSON text
 TABLES_VERSION = 2
-# summary fields that are no column of the results: the run's own (its grid cell says them),
-# and the decisions (decisions.parquet)
-
 ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
 
@@ -52,6 +49,9 @@ class Task:
 
 @dataclass(frozen=True)
 class Sweep:
+    """A sweep as read or built: its file's text, the base scenario's, the seeds, the grid and
+    the cases; ``tasks()`` are its runs, ``digest`` names it across a resume."""
+
     path: str
     text: str
     name: str
@@ -70,16 +70,20 @@ class Sweep:
 
     @property
     def keys(self) -> list[str]:
+        """The grid's keys, ``case`` first when there are cases."""
         return [k for k, _ in self.axes]
 
     def case(self, name: str) -> tuple[tuple[str, Any], ...]:
+        """The keys case ``name`` sets."""
         return dict(self.cases)[name]
 
     def cells(self) -> list[tuple[tuple[str, Any], ...]]:
+        """Every grid cell (one value of each key), in order: the last key varies fastest."""
         values = [vs for _, vs in self.axes]
         return [tuple(zip(self.keys, combo, strict=True)) for combo in itertools.product(*values)]
 
     def tasks(self) -> list[Task]:
+        """Every run: each cell with each seed, numbered in that order."""
         out: list[Task] = []
         for cell in self.cells():
             for seed in self.seeds:
@@ -88,10 +92,12 @@ class Sweep:
 
     @property
     def runs(self) -> int:
+        """How many runs: cells times seeds."""
         return math.prod(len(vs) for _, vs in self.axes) * len(self.seeds)
 
     @property
     def digest(self) -> str:
+        """What a resume checks: a hash of the sweep file's and base scenario's texts."""
         return hashlib.sha256((self.text + "\0" + self.scenario_text).encode()).hexdigest()[:16]
 
 
@@ -422,5 +428,6 @@ def _expand(sweep: Sweep, key: str, value: Any) -> tuple[tuple[str, Any], ...]:
 
 
 def engine_of(sweep: Sweep, cell: tuple[tuple[str, Any], ...]) -> str:
+    """The engine a cell runs on (a grid or case key ``engine``; event by default)."""
     settings = dict(kv for key, value in cell for kv in _expand(sweep, key, value))
     return str(settings.get("engine", "event"))

@@ -73,7 +73,7 @@ class _NoMainSpawnContext(multiprocessing.context.SpawnContext):
     import the caller's ``__main__``; pools may start workers at any ``submit``: each start
     hides it."""
 
-    Process = _NoMainSpawnProcess  # type: ignore[assignment]
+    Process = _NoMainSpawnProcess
 
 
 # -- the local pool: one run at a time per worker, a dead worker costs only its run -----------
@@ -231,6 +231,8 @@ class SweepPool(Executor):
 
     def _spawn(self) -> _Worker:
         ours, theirs = multiprocessing.Pipe()
+        # every concrete context has Process; the stub of BaseContext (the type of a context
+        # handed in) does not
         proc = self._context.Process(  # type: ignore[attr-defined]
             target=_worker_main, args=(theirs, os.getpid()), daemon=True
         )
@@ -243,6 +245,8 @@ class SweepPool(Executor):
     # -- Executor --------------------------------------------------------------------------
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        """Queue ``fn(*args, **kwargs)`` for the next free worker; ``BrokenExecutor`` once no
+        worker can start."""
         with self._lock:
             if self._broken:
                 raise BrokenExecutor(self._broken)
@@ -254,6 +258,8 @@ class SweepPool(Executor):
         return fut
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """Take no more submissions; the workers end once what is queued has run (what has
+        not started is cancelled with ``cancel_futures``). ``wait``: return when they have."""
         with self._lock:
             self._shutdown = True
             if cancel_futures:
@@ -439,6 +445,7 @@ class Pool:
     fallback: str | None = None  # why the runs went to this process instead of a pool
 
     def record(self) -> dict[str, Any]:
+        """What sweep.json says of the pool: kind, scheduler, workers, start method, fallback."""
         out: dict[str, Any] = {
             "executor": self.kind,
             "scheduler": self.scheduler,

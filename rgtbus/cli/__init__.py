@@ -15,16 +15,27 @@ import contextlib
 import os
 import sys
 from collections.abc import Iterator, Sequence
+from typing import TYPE_CHECKING, NoReturn
 
 from rgtbus import __version__
+from rgtbus.cli.arguments import check_arguments
 from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from typing import TypeAlias
 
 
 class OneLineParser(argparse.ArgumentParser):
     """argparse that reports usage errors in one line and exits 2."""
 
-    def error(self, message: str) -> None:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
+        """The usage error ``message`` on one line of stderr; exit code 2."""
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+if TYPE_CHECKING:
+    # What ``build_parser`` hands each command module's ``register``.
+    SubParsers: TypeAlias = argparse._SubParsersAction[OneLineParser]
 
 
 def add_quiet_argument(p: argparse.ArgumentParser) -> None:
@@ -108,11 +119,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``rgtbus ARGV...``: parse, check the run options (``arguments.check_arguments``), run
+    the command; its exit code (2 and one line on stderr for an ``RgtbusError``)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     hold = getattr(args, "quiet_holds_stdout", False) and args.quiet
     try:
+        check_arguments(args)
         with _held_stdout(hold and not getattr(args, "json", False)):
             code = int(args.func(args) or 0)
             sys.stdout.flush()  # a reader that has gone: BrokenPipeError here, not at exit

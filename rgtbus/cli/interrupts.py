@@ -17,21 +17,27 @@ import contextlib
 import signal
 import sys
 import threading
-from collections.abc import Iterator
-from typing import Any, NoReturn
+from collections.abc import Callable, Iterator
+from types import FrameType
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    # what sys.unraisablehook is: it is handed what could not be raised (the type exists for
+    # the type checker only)
+    UnraisableHook = Callable[[sys.UnraisableHookArgs], object]
 
 _last_signal: int | None = None  # the signal whose KeyboardInterrupt is under way
 _AGAIN_SECONDS = 0.01  # a lost stop is raised again this much later (time to leave the hook)
 
 
-def _raise_interrupt(signum: int, _frame: Any) -> NoReturn:
+def _raise_interrupt(signum: int, _frame: FrameType | None) -> NoReturn:
     global _last_signal
     _last_signal = signum
     raise KeyboardInterrupt
 
 
-def _hook_unraisable(default: Any) -> Any:
-    def hook(unraisable: Any) -> None:
+def _hook_unraisable(default: UnraisableHook) -> UnraisableHook:
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
         try:
             sig = _last_signal
             ours = sig is not None and signal.getsignal(sig) is _raise_interrupt

@@ -12,13 +12,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
+
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
 EXIT_TRUNCATED = 3  # as rgtbus replay's (rgtbus.telemetry.verify.EXIT_TRUNCATED)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``info``, ``cat`` and ``scenario``."""
     p = subparsers.add_parser(
         "info",
         help="a log at a glance: duration, messages per topic, scenario, seed, outcome",
@@ -73,6 +78,7 @@ def _ended(note: str) -> int:
 
 
 def info(args: argparse.Namespace) -> int:
+    """``rgtbus info LOG``: what the log holds, as text or ``--json``."""
     from rgtbus.telemetry.logtools import info_text, log_info
     from rgtbus.telemetry.scan import check_log
 
@@ -83,6 +89,7 @@ def info(args: argparse.Namespace) -> int:
 
 
 def cat(args: argparse.Namespace) -> int:
+    """``rgtbus cat LOG``: its messages as JSON lines, filtered by topic, unit and time."""
     from rgtbus.telemetry.logtools import cat_messages
     from rgtbus.telemetry.scan import check_log
 
@@ -96,6 +103,7 @@ def cat(args: argparse.Namespace) -> int:
 
 
 def scenario(args: argparse.Namespace) -> int:
+    """``rgtbus scenario LOG``: the scenario TOML the run was made with, its seed the run's."""
     from rgtbus.telemetry.logtools import stored_scenario
     from rgtbus.telemetry.scan import check_log
 

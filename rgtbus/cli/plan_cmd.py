@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
+
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
 # What a margin the plan does not keep means, and why the schedule can do without it.
 NOT_KEPT = {
@@ -25,7 +29,8 @@ NOT_KEPT = {
 }
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``plan``."""
     p = subparsers.add_parser(
         "plan",
         help="the frequency plan for N units: mode, band, pulses, codebook, margins",
@@ -68,9 +73,11 @@ def _check_size(args: argparse.Namespace) -> None:
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    """``rgtbus plan N``: the plan, its rules and margins (and, concurrent, its rounds)."""
     from rgtbus.protocol import plan_of
     from rgtbus.scenario import limits
     from rgtbus.signal.plan import MAX_PLAN_PULSES, crosstalk_size, make_plan
+    from rgtbus.timebase import sample_of
 
     if not args.n >= 1:
         raise RgtbusError(f"N = {args.n}: must be a positive number of units")
@@ -95,7 +102,9 @@ def run_plan(args: argparse.Namespace) -> int:
             "concurrent", 0.001,
         ).timing()  # fmt: skip
         lengths = [r.end + 0.5 - r.start for r in timing]
-        stagger = max(max(round((p.id_start - r.start) / tau), 0) for r in timing for p in r.placed)
+        stagger = max(
+            max(sample_of(p.id_start - r.start, tau), 0) for r in timing for p in r.placed
+        )
         out["rounds"] = len(timing)
         out["round_seconds"] = [round(min(lengths), 3), round(max(lengths), 3)]
         out["simulated_seconds"] = round(timing[-1].end, 3)

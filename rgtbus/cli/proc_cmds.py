@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import add_key_argument, read_key
 from rgtbus.cli.interrupts import interrupted_by
-from rgtbus.cli.run_cmd import add_key_argument, read_key
 from rgtbus.errors import RgtbusError
 
 

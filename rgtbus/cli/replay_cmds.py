@@ -19,10 +19,15 @@ from rgtbus.cli.tables import (
 from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
     from rgtbus.telemetry.read import DecodeRow, Replay
 
+# simulated seconds (from, to) the timeline, CSV tables and plot are cut to; None: open
+Span = tuple[float | None, float | None]
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``replay`` and ``merge``."""
     p = subparsers.add_parser(
         "replay",
         help="read a run's MCAP log: timeline, verification, plots, CSV tables",
@@ -67,6 +72,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def replay(args: argparse.Namespace) -> int:
+    """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
     from rgtbus.telemetry.read import explained, load_replay
 
     if args.plot is None and args.unit:
@@ -117,7 +123,7 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
     return EXIT_TRUNCATED if rp.truncated else 0
 
 
-def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) -> str:
+def _write_csv(rp: Replay, out: Path, span: Span | None) -> str:
     from rgtbus.telemetry.export import csv_tables, write_csv
 
     tables = csv_tables(rp, span)
@@ -131,7 +137,7 @@ def _write_csv(rp, out: Path, span: tuple[float | None, float | None] | None) ->
     return f"wrote {', '.join(tables)} to {out}"
 
 
-def _plot(rp, args: argparse.Namespace) -> str:
+def _plot(rp: Replay, args: argparse.Namespace) -> str:
     from rgtbus.telemetry.plots import activity_figure, save_png
     from rgtbus.units.rerun import traces_for
 
@@ -150,6 +156,8 @@ def _plot(rp, args: argparse.Namespace) -> str:
 
 
 def merge(args: argparse.Namespace) -> int:
+    """``rgtbus merge LOG... -o OUT``: run logs merged into one, written whole or not at all
+    (through ``OUT.part``)."""
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.scan import require_run_log, scan_log
 
@@ -187,20 +195,37 @@ def merge(args: argparse.Namespace) -> int:
 # -- the timeline ---------------------------------------------------------------------------
 
 
-def _alt(rp, v: Any) -> str:
+def _alt(rp: Replay, v: Any) -> str:
     if v is None:
         return "none"
     u = rp.scenario.universe if rp.scenario else None
     return u.format(u.from_list(v)) if u else "{" + ",".join(v) + "}"
 
 
-def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = None) -> None:
+def print_timeline(rp: Replay, span: Span | None = None) -> None:
     """What happened, in order; with ``span`` (from, to) only what happens in it."""
-    from rgtbus.telemetry.read import in_span
-
     info = rp.info()
     s = rp.summary()
     units = list(rp.units)
+    _print_head(rp, info, s, units, span)
+    _print_transmissions(rp, span)
+    print("spikes per unit (rows) and channel (columns):")
+    counts = rp.spike_counts(span)
+    spike_rows = [[u, *(str(counts.get(u, {}).get(c, 0)) for c in units)] for u in units]
+    align = ["left", *(["right"] * len(units))]
+    for line in wrapped_table_lines(spike_rows, ["", *units], align=align):
+        print(line)
+    _print_relations(rp, s, units, span)
+    _print_decisions(rp, span)
+    if s["outcome"] is not None:
+        print(f"outcome: {s['outcome']}")
+    _print_ending(rp, s, units)
+
+
+def _print_head(
+    rp: Replay, info: dict[str, Any], s: dict[str, Any], units: list[str], span: Span | None
+) -> None:
+    """The log (``info``: its metadata), its run and what part of it is shown."""
     print(
         f"log {rp.label}: scenario {info['scenario']} ({info['path']}), seed {info['seed']}, "
         f"rgtbus {info['version']}, bus {info['bus']}, run {info['run_id']}"
@@ -215,6 +240,13 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         lo = "start" if span[0] is None else f"{span[0]:g} s"
         hi = "end" if span[1] is None else f"{span[1]:g} s"
         print(f"showing {lo} to {hi} (--from/--to)")
+
+
+def _print_transmissions(rp: Replay, span: Span | None) -> None:
+    """Every transmission in ``span`` with its decodes (one row each), then the decodes'
+    count, mismatches and smallest margin."""
+    from rgtbus.telemetry.read import in_span
+
     txs = [tx for tx in rp.transmissions if in_span(tx.start, span, until=tx.end)]
     decodes = [d for d in rp.decodes if in_span(d.t, span)]
     by_tx: dict[tuple[int | None, str], list[DecodeRow]] = {}
@@ -252,12 +284,13 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         f"decodes: {len(decodes)}, {len(bad)} not what was sent"
         + (f"; smallest margin {min(margins):.3f}" if margins else "")
     )
-    print("spikes per unit (rows) and channel (columns):")
-    counts = rp.spike_counts(span)
-    spike_rows = [[u, *(str(counts.get(u, {}).get(c, 0)) for c in units)] for u in units]
-    align = ["left", *(["right"] * len(units))]
-    for line in wrapped_table_lines(spike_rows, ["", *units], align=align):
-        print(line)
+
+
+def _print_relations(rp: Replay, s: dict[str, Any], units: list[str], span: Span | None) -> None:
+    """The relationship table each unit holds (if it was installed in ``span``), whether they
+    agree, and the influences the first unit holds."""
+    from rgtbus.telemetry.read import in_span
+
     print("relationship tables (as each unit holds them):")
     held: dict[str, dict[str, str] | None] = {}
     extra: dict[str, list[str]] = {}
@@ -287,6 +320,12 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         ]
         for line in wrapped_table_lines(grid, ["", *units]):
             print(line)
+
+
+def _print_decisions(rp: Replay, span: Span | None) -> None:
+    """Each unit's own decisions in ``span``: interval and choice, or frustrated."""
+    from rgtbus.telemetry.read import in_span
+
     print("decisions (each unit's own; predictions of the others in --json):")
     own = [d for d in rp.decisions if d["unit"] == d["subject"] and in_span(d["t"], span)]
     if not own:
@@ -302,8 +341,10 @@ def print_timeline(rp: Replay, span: tuple[float | None, float | None] | None = 
         rows.append([f"t={dec['t']:.3f}s", dec["canonical"], verdict, choice])
     for line in fitted_table_lines(rows):
         print(line)
-    if s["outcome"] is not None:
-        print(f"outcome: {s['outcome']}")
+
+
+def _print_ending(rp: Replay, s: dict[str, Any], units: list[str]) -> None:
+    """How the run ended, where the log does not hold it whole, or its error."""
     if rp.run is None and not rp.unit_processes:
         print("no /run record: the run did not finish writing its log")
     elif rp.run is None and rp.cut_inputs:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import fitted_table_lines, wrapped_table_lines
@@ -26,8 +26,12 @@ from rgtbus.rgt import (
 )
 from rgtbus.rgt.expr import Expr, needs_star
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``solve`` and ``control``."""
     solve = subparsers.add_parser(
         "solve",
         help="forward task: canonical forms, intervals and frustration for every subject",
@@ -122,6 +126,8 @@ def _split_names(text: str, what: str) -> list[str]:
 
 
 def load_group(args: argparse.Namespace) -> tuple[Expr, DecisionFunction, Universe]:
+    """The group the options give (POLY, or ``--subjects`` with ``--alliance``): its
+    polynomial, decision function and universe of actions."""
     universe = Universe.parse(args.actions)
     if args.poly is not None and (args.alliance is not None or args.subjects is not None):
         raise RgtbusError("give either POLY or --alliance/--subjects, not both")
@@ -148,6 +154,8 @@ def _alt_json(universe: Universe, mask: int) -> list[str]:
 
 
 def run_solve(args: argparse.Namespace) -> int:
+    """``rgtbus solve``: canonical forms, and with the influences every subject's interval,
+    choices or frustration."""
     poly, df, universe = load_group(args)
     star = needs_star(df.order)
     forms = canonical_forms(df)
@@ -228,6 +236,8 @@ def _matrix_text(df: DecisionFunction, universe: Universe, matrix: InfluenceMatr
 
 
 def run_control(args: argparse.Namespace) -> int:
+    """``rgtbus control``: the joint influences that make the subject choose the target
+    (counted; listed up to ``--limit``)."""
     poly, df, universe = load_group(args)
     star = needs_star(df.order)
     subject = args.subject

@@ -5,10 +5,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import (
+    add_engine_argument,
+    add_key_argument,
+    add_realtime_argument,
+    add_seed_argument,
+    read_key,
+)
 from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import goal_text
@@ -16,11 +24,13 @@ from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
 
 if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
     from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry.live import LiveView
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``run``."""
     p = subparsers.add_parser(
         "run",
         help="run a scenario: units socialising over the medium, logged to MCAP",
@@ -43,18 +53,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="no log at all (speed runs; the summary is the same, nothing is written)",
     )
-    p.add_argument("--seed", type=int, help="override the scenario's seed")
-    p.add_argument(
-        "--realtime",
-        type=float,
-        metavar="FACTOR",
-        help="pace the run: FACTOR simulated seconds per wall second",
-    )
+    add_seed_argument(p)
+    add_realtime_argument(p)
     p.add_argument("--traces", action="store_true", help="log resonator y/x traces too")
-    p.add_argument(
-        "--engine",
-        choices=("event", "dense"),
-        default="event",
+    add_engine_argument(
+        p,
         help="event: jump from event to event (the default); dense: the time-stepped "
         "reference, every window (same results)",
     )
@@ -74,6 +77,7 @@ LIVE_ADDRESS = "127.0.0.1:8765"  # Foxglove's own default for a WebSocket connec
 
 
 def add_live_arguments(p: argparse.ArgumentParser) -> None:
+    """``--live [HOST:PORT]`` and ``--live-wait SECONDS`` (``open_live`` reads them)."""
     p.add_argument(
         "--live",
         nargs="?",
@@ -112,7 +116,7 @@ def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Liv
     return live
 
 
-def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
+def live_topics(units: Iterable[str], traces: bool) -> list[tuple[str, str]]:
     """Every (topic, schema) a run logs: advertised before it starts."""
     from rgtbus.telemetry import topics
 
@@ -122,24 +126,9 @@ def live_topics(units: Any, traces: bool) -> list[tuple[str, str]]:
     return out
 
 
-def add_key_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--key-file",
-        metavar="FILE",
-        help="a shared secret (>= 16 bytes, e.g. head -c 32 /dev/urandom | base64 > FILE): every "
-        "frame and hello is signed with it and anything unsigned is dropped; without it anyone "
-        "who reaches the zenoh endpoints can join the run (docs/security.md)",
-    )
-
-
-def read_key(args: argparse.Namespace) -> bytes | None:
-    from rgtbus.bus.auth import load_key
-
-    return None if args.key_file is None else load_key(args.key_file)
-
-
 def default_log_path(name: str) -> Path:
-    from datetime import datetime  # 4 ms to import: only for a log named by the time
+    """``logs/<name>-<date>-<time>.mcap``: the log of a run not given ``--log``."""
+    from datetime import datetime  # imported here: only a log named by the time needs it
 
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     return Path("logs") / f"{name}-{stamp}.mcap"
@@ -152,7 +141,7 @@ class Progress:
 
     def __init__(self, show: bool) -> None:
         self.bar: Any = None
-        if not show:  # no tqdm import for a run that shows nothing (start-up, issue 23)
+        if not show:  # no tqdm import for a run that shows nothing (start-up time)
             return
         from tqdm import tqdm
 
@@ -167,12 +156,14 @@ class Progress:
         self.bar.set_postfix_str("step 0", refresh=False)
 
     def __call__(self, sim_now: float, step: int) -> None:
+        """The run is at ``sim_now`` simulated seconds, step ``step``."""
         if self.bar is None:
             return
         self.bar.set_postfix_str(f"step {step}", refresh=False)
         self.bar.update(sim_now - self.bar.n)  # tqdm draws it when mininterval has passed
 
     def done(self) -> None:
+        """The run is over: the counter's last line stays."""
         if self.bar is not None:
             self.bar.close()
 
@@ -184,10 +175,6 @@ def run(args: argparse.Namespace) -> int:
     from rgtbus.summary import check_expectations, summary_json
 
     scenario = load_scenario(args.scenario)
-    if args.seed is not None and args.seed < 0:
-        raise RgtbusError(f"--seed {args.seed}: must be a non-negative integer")
-    if args.realtime is not None and not args.realtime > 0:
-        raise RgtbusError(f"--realtime {args.realtime}: must be a positive factor")
     key = read_key(args)
     if args.no_log and (args.live is not None or args.traces):
         what = "--live" if args.live is not None else "--traces"
@@ -224,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
             out_json["checks"] = [{"what": w, "ok": ok, "detail": d} for w, ok, d in checks]
         print(json.dumps(out_json))
     else:
-        if not args.quiet:  # held and thrown away: a group of 50 took a second to lay out
+        if not args.quiet:  # held and thrown away: a large group's summary is slow to lay out
             print_summary(scenario, summary)
         if args.check:
             print_checks(checks, summary["error"], quiet=args.quiet)
@@ -300,6 +287,8 @@ def goal_line(universe: Universe, g: dict[str, Any]) -> str:
 
 
 def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
+    """The run's summary ``s`` as ``rgtbus run`` (and ``launch``) print it: relations,
+    polynomial, influences, decisions, rounds, goals, outcome, decode errors, time, log."""
     u = scenario.universe
     units = scenario.units
     print(

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
 
 from rgtbus.errors import RgtbusError
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``scenarios``."""
     p = subparsers.add_parser(
         "scenarios",
         help="list the shipped scenarios (rgtbus run NAME runs one)",
@@ -22,6 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def list_scenarios(args: argparse.Namespace) -> int:
+    """``rgtbus scenarios``: the shipped scenarios, a table or ``--json``."""
     from rgtbus.scenario import shipped_dir, shipped_scenarios
 
     if shipped_dir() is None:

@@ -13,22 +13,39 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants
+from rgtbus.timebase import sample_of, time_of
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from rgtbus.cli import SubParsers
 
 PI = math.pi
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``resonate``, ``ser`` and ``figures``."""
+    _add_resonate(subparsers)
+    _add_ser(subparsers)
+    _add_figures(subparsers)
+
+
+def _add_resonate(subparsers: SubParsers) -> None:
     p = subparsers.add_parser(
         "resonate",
         help="feed one code to a bank of resonators; report peak y and spikes",
@@ -77,12 +94,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="SIGMA",
         help="white Gaussian noise on every sample (default 0)",
     )
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    add_seed_argument(p, help="noise seed (default 0)", default=0)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--plot", metavar="PNG", help="also write the y trajectories to this PNG")
     add_quiet_argument(p)
     p.set_defaults(func=cmd_resonate)
 
+
+def _add_ser(subparsers: SubParsers) -> None:
     e = subparsers.add_parser(
         "ser",
         help="the decoder's symbol error rate against noise, beside the best possible receiver's",
@@ -109,7 +128,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="noise levels (default 0.05,0.1,0.15,0.2)",
     )
     e.add_argument("--trials", type=int, default=2000, help="trials per level (default 2000)")
-    e.add_argument("--seed", type=int, default=0)
+    add_seed_argument(e, help=None, default=0)
     e.add_argument("--json", action="store_true", help="print one JSON object per level")
     e.add_argument(
         "--plot",
@@ -118,6 +137,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     e.set_defaults(func=cmd_ser)
 
+
+def _add_figures(subparsers: SubParsers) -> None:
     f = subparsers.add_parser(
         "figures",
         help="regenerate the paper's resonator figures and the decoder's error rate",
@@ -132,7 +153,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=1000,
         help="Monte-Carlo trials per point of the error-rate figure (default 1000)",
     )
-    f.add_argument("--seed", type=int, default=0)
+    add_seed_argument(f, help=None, default=0)
     add_quiet_argument(f)
     f.set_defaults(func=cmd_figures)
 
@@ -190,12 +211,12 @@ def run_resonate(
         duration = start + len(word) * 2 * PI / min(omegas) + 0.5
     if not (math.isfinite(duration) and duration > 0):
         raise RgtbusError(f"--duration {duration!r}: must be positive")
-    n = round(duration / tau) + 1
+    n = sample_of(duration, tau) + 1
     last = pulse_instants(omegas[on], start, len(word), tau)[-1]
     if last >= n:
         raise RgtbusError(
             f"--duration {duration:g}: the code's last pulse comes at "
-            f"{last * tau:g} s, after the end"
+            f"{time_of(last, tau):g} s, after the end"
         )
     u = hear([Transmission(omegas[on], start, tuple(word))], n, sigma=noise, seed=seed, tau=tau)
     bank = ResonatorBank(omegas, mode=mode, tau=tau)
@@ -203,6 +224,7 @@ def run_resonate(
 
 
 def cmd_resonate(args: argparse.Namespace) -> int:
+    """``rgtbus resonate``: each resonator's peak y and spike times (and ``--plot``)."""
     texts = args.omega or list(PAPER_OMEGA_TEXT[:3])
     omegas = [parse_omega(t, where="--omega") for t in texts]
     word = _parse_pulses(args.pulses)
@@ -236,7 +258,7 @@ def cmd_resonate(args: argparse.Namespace) -> int:
             word,
             args.on,
             args.start,
-            res,
+            res.y,
             tau,
             args.mode,
             noise=args.noise,
@@ -276,6 +298,8 @@ def _sigmas(text: str) -> list[float]:
 
 
 def cmd_ser(args: argparse.Namespace) -> int:
+    """``rgtbus ser``: the decoder's symbol error rate at each noise level beside the
+    maximum-likelihood bounds (and ``--plot``)."""
     from rgtbus.signal.evaluate import ser_against_bound
 
     if args.trials < 1:
@@ -320,7 +344,8 @@ def cmd_ser(args: argparse.Namespace) -> int:
 # -- plotting (lazy matplotlib) ---------------------------------------------------------------
 
 
-def _pyplot():
+def _pyplot() -> ModuleType:
+    """``matplotlib.pyplot``, drawing to files only (Agg)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -329,7 +354,7 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path, caption: str) -> None:
+def _save(fig: Figure, path: Path, caption: str) -> None:
     fig.text(0.5, 0.01, caption, ha="center", va="bottom", fontsize=8.5, wrap=True)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -350,10 +375,22 @@ def _word_text(word: Sequence[float]) -> str:
 
 
 def _plot_resonate(
-    path: Path, omegas, texts, word, on, start, res, tau, mode, *, noise: float, seed: int
+    path: Path,
+    omegas: Sequence[float],
+    texts: Sequence[str],
+    word: Sequence[float],
+    on: int,
+    start: float,
+    y: np.ndarray,
+    tau: float,
+    mode: str,
+    *,
+    noise: float,
+    seed: int,
 ) -> None:
+    """The y trajectories ``y`` (samples × 1 × resonators) of ``rgtbus resonate --plot``."""
     plt = _pyplot()
-    n = res.y.shape[0]
+    n = y.shape[0]
     t = np.arange(n) * tau
     names = [pi_text(x) for x in texts]
     fig, axes = plt.subplots(
@@ -361,7 +398,7 @@ def _plot_resonate(
     )
     inst = pulse_instants(omegas[on], start, len(word), tau) * tau
     for c, ax in enumerate(axes[:, 0]):
-        ax.plot(t, res.y[:, 0, c], lw=1, color="C0" if c == on else "C7")
+        ax.plot(t, y[:, 0, c], lw=1, color="C0" if c == on else "C7")
         ax.axhline(1.0, color="k", lw=0.6, ls=":")
         for x in inst:
             ax.axvline(x, color="g", lw=0.8, alpha=0.7)
@@ -389,7 +426,7 @@ def _plot_resonate(
 def _trace(
     omegas: Sequence[float], word: Sequence[float], on: int, seconds: float, start: float = 0.001
 ) -> tuple[np.ndarray, np.ndarray]:
-    n = round(seconds / PAPER_TAU) + 1
+    n = sample_of(seconds, PAPER_TAU) + 1
     u = hear([Transmission(omegas[on], start, tuple(word))], n)[:, 0]
     res = ResonatorBank(omegas).feed(u, record=True)
     assert res.y is not None  # fed with record=True
@@ -470,8 +507,8 @@ def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
     # 4 s (800 samples) hold the ID's three pulses and its spike (2.67 s)
     first = ResonatorBank(oms).feed(hear([Transmission(oms[0], 0.001, word)], 800)[:, 0])
     k_spike = int(first.spikes[first.spikes[:, 2] == 0, 0][0])
-    t_send = (k_spike + round(delay / PAPER_TAU)) * PAPER_TAU
-    n = round((t_send + 4.0) / PAPER_TAU)
+    t_send = time_of(k_spike + sample_of(delay, PAPER_TAU), PAPER_TAU)
+    n = sample_of(t_send + 4.0, PAPER_TAU)
     u = hear([Transmission(oms[0], 0.001, word), Transmission(oms[2], t_send, word)], n)[:, 0]
     bank = ResonatorBank(oms)
     k_send = int(pulse_instants(oms[2], t_send, 1)[0])
@@ -484,7 +521,7 @@ def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
     spikes: dict[str, list[float]] = {"a": [], "b": [], "c": []}
     for part in parts:
         for k, _, c in part.spikes:
-            spikes["abc"[int(c)]].append(round(int(k) * PAPER_TAU, 6))
+            spikes["abc"[int(c)]].append(round(time_of(int(k), PAPER_TAU), 6))
     return Receiving(np.arange(n) * PAPER_TAU, y, spikes, t_send, quench)
 
 
@@ -569,7 +606,7 @@ def figure_receiving(path: Path) -> str:
 SIGMAS = (0.0, 0.02, 0.05, 0.1, 0.2)
 
 
-def _ser_axes(fig: Any, ax: Any, floor: float, title: str) -> None:
+def _ser_axes(fig: Figure, ax: Axes, floor: float, title: str) -> None:
     """An error rate against noise: log scale down to ``floor`` (half an error in the trials,
     where a rate of 0 is drawn), a dotted line there, labels, legend."""
     ax.set_yscale("log")
@@ -583,6 +620,8 @@ def _ser_axes(fig: Any, ax: Any, floor: float, title: str) -> None:
 
 
 def figure_ser(path: Path, trials: int, seed: int) -> str:
+    """The decoder's symbol error rate against noise for the paper's codebook (alone, with an
+    interferer, alliance/conflict words), as a PNG at ``path``; its caption."""
     from rgtbus.signal.evaluate import symbol_error_rate
 
     plt = _pyplot()
@@ -650,6 +689,7 @@ PAIRS = (((0, 1), "ab"), ((0, 2), "ac"))
 
 
 def cmd_figures(args: argparse.Namespace) -> int:
+    """``rgtbus figures OUTDIR``: every figure written, each with its caption on stdout."""
     out = Path(args.outdir)
     if out.exists() and not out.is_dir():
         raise RgtbusError(f"OUTDIR {str(out)!r} exists and is not a directory")

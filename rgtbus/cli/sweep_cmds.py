@@ -9,11 +9,16 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rgtbus.cli.interrupts import interrupted_by
 
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+
+def register(subparsers: SubParsers) -> None:
+    """Add ``sweep`` and ``sweep-plot``."""
     p = subparsers.add_parser(
         "sweep",
         help="run a scenario over seeds and a grid of keys; a table of results",
@@ -80,6 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_sweep_cmd(args: argparse.Namespace) -> int:
+    """``rgtbus sweep SWEEP``: ``execute_sweep`` on the file's ``Sweep``; a stop (Ctrl-C,
+    SIGTERM) says how many runs are kept and how to finish, exit 130."""
     from rgtbus.errors import RgtbusError
     from rgtbus.units.sweep import execute_sweep, load_sweep
 
@@ -138,6 +145,7 @@ def _interrupted(args: argparse.Namespace, runs: int, out: Path) -> str:
 
 
 def run_sweep_plot_cmd(args: argparse.Namespace) -> int:
+    """``rgtbus sweep-plot DIR``: a metric against a grid key, as a PNG."""
     from rgtbus.telemetry.sweep_plot import plot_sweep
 
     path = plot_sweep(

@@ -17,7 +17,7 @@ INDENT = "  "
 
 def terminal_width() -> int:
     """The terminal's columns (``COLUMNS`` when set; 80 in a pipe or a file)."""
-    import shutil  # 3 ms to import: not before a run starts
+    import shutil  # imported when asked: not before a run starts
 
     return shutil.get_terminal_size((80, 24)).columns
 
@@ -33,7 +33,7 @@ def table_lines(
     indented by ``indent`` and without trailing spaces. ``align``: per column ``"left"``,
     ``"right"`` or ``"center"`` (default left). Cells are shown as given (``"0"`` stays text).
     The headers are aligned as their columns are, and widen them only by their own length."""
-    from tabulate import tabulate  # 50 ms to import: only for a command that prints a table
+    from tabulate import tabulate  # slow to import: only for a command that prints a table
 
     body = [list(headers)] if headers else []
     body += [list(r) for r in rows]
@@ -56,9 +56,9 @@ def plain_width(
     """The width of the widest line ``table_lines`` gives for ``rows`` under ``headers``
     (left-aligned), without rendering it: each column as wide as its widest cell, two spaces
     between columns, trailing blanks cut. Never more than the rendered width (equal for cells
-    of one line each, left-aligned), so a table it finds too wide is too wide: a group of 50
-    units has 1,225 pairs, and rendering its relationship tables only to find they do not fit
-    cost a second."""
+    of one line each, left-aligned), so a table it finds too wide is too wide: the
+    relationship tables of a large group (50 units: 1,225 pairs) are not rendered only to
+    find they do not fit."""
     body = [list(headers), *rows] if headers else [list(r) for r in rows]
     if not body or not _widths_are_lengths():
         return 0

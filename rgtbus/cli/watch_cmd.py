@@ -5,14 +5,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
+from rgtbus.cli.arguments import add_key_argument, add_seconds_argument, read_key
 from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
-from rgtbus.cli.run_cmd import LIVE_ADDRESS, read_key
-from rgtbus.errors import RgtbusError
+from rgtbus.cli.run_cmd import LIVE_ADDRESS
+
+if TYPE_CHECKING:
+    from rgtbus.cli import SubParsers
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: SubParsers) -> None:
+    """Add ``watch``."""
     w = subparsers.add_parser(
         "watch",
         help="watch a cross-process run live in Foxglove, as an observer (never a member)",
@@ -29,31 +35,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="HOST:PORT",
         help=f"where to serve the live view (default {LIVE_ADDRESS}; port 0: any free port)",
     )
-    w.add_argument(
-        "--key-file",
-        metavar="FILE",
+    add_key_argument(
+        w,
         help="the run's shared secret (its --key-file): show only telemetry signed with it; "
         "without it, a keyed run's (signed) telemetry is not shown (docs/security.md)",
     )
-    w.add_argument(
-        "--idle-exit",
-        type=float,
-        metavar="S",
-        help="end once S seconds pass without telemetry, after some came",
+    add_seconds_argument(
+        w, "--idle-exit", help="end once S seconds pass without telemetry, after some came"
     )
     add_quiet_argument(w)
     w.set_defaults(func=run_watch)
 
 
 def run_watch(args: argparse.Namespace) -> int:
+    """``rgtbus watch``: serve the runs' telemetry live until Ctrl-C or ``--idle-exit``; then
+    say what was received and dropped."""
     from rgtbus.bus.watch import Watcher
     from rgtbus.telemetry.live import LiveView, parse_address
 
-    if args.idle_exit is not None and not args.idle_exit > 0:
-        raise RgtbusError(f"--idle-exit {args.idle_exit}: must be a positive number of seconds")
     host, port = parse_address(args.live)
     key = read_key(args)
-    say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    say = _teller(quiet=args.quiet)
     with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say) as live:
         live.advertise(_topics())
         with Watcher(live, run_id=args.run, key=key, **zenoh_options(args)) as watcher:
@@ -84,6 +86,16 @@ def run_watch(args: argparse.Namespace) -> int:
                 + (f"; {watcher.dropped} frames dropped ({drops})" if watcher.dropped else "")
             )
     return 0
+
+
+def _teller(quiet: bool) -> Callable[[str], None]:
+    """What the watcher says: a line on stderr as it happens; nothing with ``--quiet``."""
+
+    def say(line: str) -> None:
+        if not quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    return say
 
 
 def _topics() -> list[tuple[str, str]]:
