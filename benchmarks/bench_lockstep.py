@@ -60,7 +60,7 @@ def worker(name: str, run_id: str, members: list[str], ports: list[int], rounds:
 
 
 def rounds_per_second(n: int, rounds: int) -> float:
-    from rgtbus.cli.proc_cmds import free_ports
+    from rgtbus.units.launch import free_ports
 
     members = [f"p{i}" for i in range(n)]
     ports = free_ports(n)

@@ -23,10 +23,12 @@ if TYPE_CHECKING:
     from rgtbus.api import RunResult, load_scenario, open_log, run, sweep
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
+    from rgtbus.units.launch import launch
 
 _LAZY = {
     "load_scenario": "rgtbus.api",
     "run": "rgtbus.api",
+    "launch": "rgtbus.units.launch",
     "open_log": "rgtbus.api",
     "sweep": "rgtbus.api",
     "RunResult": "rgtbus.api",
@@ -40,6 +42,7 @@ __all__ = [
     "RunResult",
     "Scenario",
     "__version__",
+    "launch",
     "load_scenario",
     "open_log",
     "run",

@@ -3,6 +3,9 @@
 * ``load_scenario(path_or_text_or_name)`` -> ``Scenario``;
 * ``run(scenario, *, seed, bus, engine, log)`` -> ``RunResult`` (``.summary`` is what
   ``rgtbus run --json`` prints);
+* ``launch(scenario, *, procs, seed, log_dir, zenoh, key_file, realtime, timeout)`` ->
+  ``RunResult``: the units as OS processes over zenoh (``rgtbus.units.launch``), the same
+  summary but for wall time and paths;
 * ``open_log(path)`` -> ``Log`` (``.summary()``, ``.metadata``, DataFrames);
 * ``sweep(scenario, *, grid, seeds, ...)`` -> a DataFrame of the rows ``rgtbus sweep`` writes.
 
@@ -13,12 +16,12 @@ file:line: key), the same results.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rgtbus import checks
 from rgtbus.errors import RgtbusError
+from rgtbus.units.result import RunResult, result_of
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -29,38 +32,6 @@ if TYPE_CHECKING:
 
 BUSES = ("memory", "zenoh")
 ENGINES = ("event", "dense")
-
-
-@dataclass
-class RunResult:
-    """What ``rgtbus.run`` returns. ``summary``: the dict ``rgtbus run --json`` prints (its
-    keys are ``rgtbus.summary.SUMMARY_JSON_KEYS``); ``log``: the log written (``None``
-    without one); ``scenario``: the scenario as run (its seed set)."""
-
-    summary: dict[str, Any]
-    scenario: Scenario
-    log: Path | None = None
-    # the whole summary (``rgtbus.summary.summarise``): also steps, bus statistics, each
-    # unit's own relationship table
-    details: dict[str, Any] = field(default_factory=dict, repr=False)
-
-    @property
-    def ok(self) -> bool:
-        """The run finished without an error."""
-        return self.summary.get("error") is None
-
-    def open_log(self) -> Log:
-        """The run's log, read back (``RgtbusError`` if the run wrote none)."""
-        if self.log is None:
-            raise RgtbusError("this run wrote no log: run it with log=PATH")
-        return open_log(self.log)
-
-    def decisions(self) -> Any:
-        """The summary's decisions as a DataFrame (one row per unit and round), as
-        ``Log.decisions()`` gives them."""
-        from rgtbus.telemetry.frames import decisions_frame
-
-        return decisions_frame(self.summary)
 
 
 def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:
@@ -97,7 +68,6 @@ def run(
     goes; ``live``: a Foxglove live view offered every message (needs ``log``). A run that
     fails returns its summary with ``error`` set (and its log closed and readable); bad
     arguments raise ``RgtbusError``."""
-    from rgtbus.summary import summary_json
     from rgtbus.telemetry.recorder import NullRecorder
     from rgtbus.units.group import run_group
 
@@ -117,7 +87,7 @@ def run(
             live.close()
             raise RgtbusError("a live view needs a log (log=PATH): it serves what is logged")
         out = run_group(sc, bus, NullRecorder(), **options)
-        return RunResult(summary_json(out.summary), sc, None, out.summary)
+        return result_of(sc, out.summary, None)
     from rgtbus.telemetry.logfile import close_log
     from rgtbus.telemetry.logfile import open_log as open_file
 
@@ -143,7 +113,7 @@ def run(
             if live is not None:
                 live.close()
     out.summary["log"] = str(path)
-    return RunResult(summary_json(out.summary), sc, path, out.summary)
+    return result_of(sc, out.summary, path)
 
 
 def open_log(source: str | os.PathLike[str]) -> Log:

@@ -286,43 +286,13 @@ def summarise(
     agree = agreement(
         [r["installed"] for r in reports], [r["polynomial"] for r in reports], len(sc.units)
     )
-    # Ground truth for decode errors: what was actually sent, per (turn, kind).
-    truth = {}
-    for r in reports:
-        for turn, kind, addressee, code in r["sends"]:
-            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-    sent_truth = SentTruth(truth)
-    decode_errors = []
-    for r in reports:
-        decode_errors.extend(wrong_decodes(r["unit"], r["decodes"], sent_truth))
+    decode_errors = all_wrong_decodes(reports)
     units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome = outcome_of(sc, units_out) if len(units_out) == len(sc.units) else None
-    # The root cause: the world's own failure (a member gone or stalled), else the earliest
-    # unit failure (others may fail after it, for want of its transmissions), else a unit
-    # whose mind could not go on.
-    error = result.failure
-    if error is None:
-        failed = sorted(
-            ((r["failed_at"], order) for order, r in enumerate(reports) if r["failure"]),
-        )
-        if failed:
-            error = reports[failed[0][1]]["failure"]
-    if error is None:
-        errs = [r["mind_error"] for r in reports if r["mind_error"]]
-        error = errs[0] if errs else None
+    error = root_cause(result.failure, reports)
     rounds = sent_rounds(sc, reports)
     u = sc.universe
-    # the rounds every pair was sent in (a run that stopped early sends no more): the dynamics
-    # are what those did, and a goal is judged on the last round only when it is whole
-    pairs = len(sc.units) * (len(sc.units) - 1)
-    whole = 0
-    while whole < len(rounds) and len(rounds[whole]) == pairs:
-        whole += 1
-    last_round = (
-        {parse_pair_key(k): u.parse_alternative(v) for k, v in rounds[-1].items()}
-        if rounds and whole == len(rounds)
-        else None
-    )
+    whole, last_round = whole_rounds(sc, rounds)
     should = Truth(sc)  # what a perfect medium would have given
     clean = should.rounds if units_out else [{}]
     p4 = ref.get("p4")
@@ -361,6 +331,52 @@ def summarise(
         "bus": result.bus_stats,
         "error": error,
     }
+
+
+def all_wrong_decodes(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Every unit's decodes that differ from what was sent (the ground truth: every report's
+    sends, per (turn, kind)), unit by unit in report order."""
+    truth = {}
+    for r in reports:
+        for turn, kind, addressee, code in r["sends"]:
+            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+    sent_truth = SentTruth(truth)
+    out = []
+    for r in reports:
+        out.extend(wrong_decodes(r["unit"], r["decodes"], sent_truth))
+    return out
+
+
+def root_cause(world_failure: str | None, reports: Sequence[Mapping[str, Any]]) -> str | None:
+    """Why a run did not finish: the world's own failure (a member gone or stalled), else the
+    earliest unit failure (others may fail after it, for want of its transmissions), else a
+    unit whose mind could not go on; None when it finished."""
+    if world_failure is not None:
+        return world_failure
+    failed = sorted((r["failed_at"], order) for order, r in enumerate(reports) if r["failure"])
+    if failed:
+        return cast(str, reports[failed[0][1]]["failure"])
+    errs = [r["mind_error"] for r in reports if r["mind_error"]]
+    return errs[0] if errs else None
+
+
+def whole_rounds(
+    sc: Scenario, rounds: Sequence[Mapping[str, str]]
+) -> tuple[int, dict[tuple[str, str], int] | None]:
+    """How many influence rounds every pair was sent in (a run that stopped early sends no
+    more: the dynamics are what those did), and the last round's influences by pair when
+    every round is whole (a goal is judged on it only then)."""
+    pairs = len(sc.units) * (len(sc.units) - 1)
+    whole = 0
+    while whole < len(rounds) and len(rounds[whole]) == pairs:
+        whole += 1
+    u = sc.universe
+    last_round = (
+        {parse_pair_key(k): u.parse_alternative(v) for k, v in rounds[-1].items()}
+        if rounds and whole == len(rounds)
+        else None
+    )
+    return whole, last_round
 
 
 def wrong_decisions(

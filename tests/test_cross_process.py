@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 import zenoh
 from rgtbus.units.group import run_group
+from rgtbus.units.launch import free_ports
 
 from rgtbus.bus.payload import Frame, encode
 from rgtbus.bus.zenoh import make_config
-from rgtbus.cli.proc_cmds import free_ports
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log
@@ -150,7 +150,7 @@ def test_launch_with_the_users_zenoh_options_goes_through_their_router(procs, tm
 
 
 def test_process_groups_are_even_and_in_order():
-    from rgtbus.cli.proc_cmds import process_groups
+    from rgtbus.units.launch import process_groups
 
     units = ["a", "b", "c", "d", "e", "f", "g"]
     assert process_groups(units, None) == {u: [u] for u in units}
@@ -357,7 +357,7 @@ def test_unit_refuses_bad_input(tmp_path):
     scenario = str(ROOT / "scenarios" / "gate.toml")
     for argv, needle in [
         (["unit", "z", scenario], "unknown unit 'z'"),
-        (["unit", "a", scenario, "--timeout", "0"], "--timeout must be positive"),
+        (["unit", "a", scenario, "--timeout", "0"], "--timeout 0.0: must be positive seconds"),
         (["unit", "a", scenario, "--mode", "router"], "invalid choice"),
         (
             [
@@ -453,3 +453,68 @@ def test_robots_on_a_plane_launched_in_two_processes_equal_the_single_process_ru
     """Sound delays, drifting clocks and bursts (issue 24): each process renders what its
     units hear from every sender; the run equals one process's and its merged log verifies."""
     assert launch_in_two_equals_single("robots_on_a_plane", tmp_path)["outcome"] == "gate: open"
+
+
+HIDDEN = """
+name = "hidden_five"
+seed = 4
+units = ["omega", "b_2", "Cc", "d9", "echo"]
+actions = ["go", "wait"]
+frequencies = "auto"
+
+[channel]
+noise = 0.02
+
+[relations]
+policy = "random"
+p = 0.7
+
+[influences]
+policy = "random"
+
+[decision]
+policy = "seeded-random"
+"""
+
+
+@pytest.mark.parametrize("schedule", ["serial", "concurrent"])
+def test_the_library_launch_gives_the_summary_of_run(tmp_path, schedule):
+    """``rgtbus.launch`` of a scenario no test ships, over two processes, returns the summary
+    ``rgtbus.run`` gives of it, key by key but for wall time and the log's path; its merged log
+    gives the same summary back, and it names no failure. The reference runs over zenoh in
+    this process first: the launch's processes must not inherit its zenoh runtime."""
+    import rgtbus
+
+    sc = rgtbus.load_scenario(HIDDEN + f'[protocol]\nschedule = "{schedule}"\n')
+    ran = rgtbus.run(sc, seed=9, bus="zenoh")
+    launched = rgtbus.launch(sc, procs=2, seed=9, log_dir=tmp_path, timeout=30.0)
+    assert launched.failures == [] and not launched.interrupted and launched.ok
+    assert launched.log == tmp_path / "run.mcap" and launched.summary["log"] == str(launched.log)
+    assert {p.name for p in tmp_path.glob("*.mcap")} == {
+        "proc-0.mcap", "proc-1.mcap", "launch.mcap", "run.mcap",
+    }  # fmt: skip
+
+    def same(summary):
+        return {k: v for k, v in summary.items() if k not in ("wall_seconds", "log")}
+
+    assert same(launched.summary) == same(ran.summary)
+    assert ran.summary["decisions"] and ran.summary["error"] is None
+    assert same(rgtbus.open_log(launched.log).summary()) == same(ran.summary)
+
+
+def test_the_library_launch_refuses_bad_arguments_in_one_line(tmp_path):
+    import rgtbus
+
+    for kwargs, needle in [
+        ({"procs": 9}, "--procs 9: must be 1 to 4"),
+        ({"seed": -1}, "seed -1: must be a non-negative integer"),
+        ({"timeout": 0}, "timeout 0: must be positive seconds"),
+        ({"realtime": float("nan")}, "realtime nan: must be a positive factor"),
+        ({"engine": "warp"}, "engine 'warp': must be one of event, dense"),
+        ({"zenoh": {"endpoints": []}}, "zenoh option 'endpoints': unknown"),
+        ({"procs": 2, "zenoh": {"listen": ["tcp/127.0.0.1:0"]}}, "each would listen"),
+    ]:
+        with pytest.raises(RgtbusError) as err:
+            rgtbus.launch("gate", log_dir=tmp_path, **kwargs)
+        assert needle in str(err.value) and "\n" not in str(err.value), kwargs
+    assert not list(tmp_path.iterdir())  # refused before anything was started or written

@@ -137,7 +137,7 @@ def test_live_cli_errors_are_one_line(tmp_path, capsys):
 def test_watch_serves_a_cross_process_run_as_an_observer(procs, tmp_path):
     """Three `rgtbus unit` processes and a watcher they connect to: a WebSocket client of the
     watcher gets every message the units log (their MCAP files), and the run is the same."""
-    from rgtbus.cli.proc_cmds import free_ports
+    from rgtbus.units.launch import free_ports
 
     scenario = str(ROOT / "scenarios" / "example2.toml")
     units = ["a", "b", "c"]
@@ -213,7 +213,7 @@ def test_a_watcher_drops_what_is_not_telemetry():
         def put(self, *a) -> None:
             self.got.append(a)
 
-    from rgtbus.cli.proc_cmds import free_ports
+    from rgtbus.units.launch import free_ports
 
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     sink = Sink()
@@ -373,13 +373,13 @@ def test_a_keyed_runs_telemetry_is_signed_and_a_watcher_with_the_key_shows_only_
     (counting each reason) unsigned frames, frames signed with another key or for another
     unit, and replays; a keyless watcher shows none of the signed ones."""
     import zenoh
+    from rgtbus.units.launch import free_ports
 
     from rgtbus.bus import open_bus
     from rgtbus.bus.auth import tag
     from rgtbus.bus.payload import encode_telemetry, is_signed_telemetry, sign_telemetry
     from rgtbus.bus.watch import Watcher
     from rgtbus.bus.zenoh import make_config
-    from rgtbus.cli.proc_cmds import free_ports
 
     key, other = bytes(range(1, 33)), b"\xa5" * 32
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]  # the watchers', the bus's
@@ -446,12 +446,12 @@ def test_a_watcher_bounds_its_topics():
     """/trace/<unit> only from that unit's own key, and at most MAX_TRACES of them: forged
     topics never become channels (each cost the watch ~2 KB in the server)."""
     import zenoh
+    from rgtbus.units.launch import free_ports
 
     from rgtbus.bus import watch
     from rgtbus.bus.payload import encode_telemetry
     from rgtbus.bus.watch import Watcher
     from rgtbus.bus.zenoh import make_config
-    from rgtbus.cli.proc_cmds import free_ports
 
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     sink = _Sink()
@@ -489,9 +489,10 @@ def test_a_unit_process_s_telemetry_says_whether_a_watcher_subscribes():
     """``TelemetryFeed.watched``: False while nobody subscribes to the unit's telemetry key
     (its units may batch their decodes), True once a watcher does, False again once it has
     gone (as zenoh's routing learns it: every wait bounded)."""
+    from rgtbus.units.launch import free_ports
+
     from rgtbus.bus import open_bus
     from rgtbus.bus.watch import Watcher
-    from rgtbus.cli.proc_cmds import free_ports
 
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(2)]  # the watcher's, the bus's
 

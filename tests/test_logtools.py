@@ -225,7 +225,8 @@ def test_router_units_and_merge_by_hand_is_a_finished_run(tmp_path, capsys, proc
     """The README's run on several machines, on loopback: a router, a client unit process per
     unit, their logs merged by hand. Every unit finished, so neither ``info`` nor ``replay``
     says the run did not finish its log."""
-    from rgtbus.cli.proc_cmds import free_ports
+    from rgtbus.units.launch import free_ports
+
     from rgtbus.scenario import load_scenario
 
     units = load_scenario(EXAMPLE2).units

@@ -11,9 +11,9 @@ import rgtbus.units.process
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from rgtbus.units.group import run_group
+from rgtbus.units.launch import free_ports
 
 from rgtbus.cli import main
-from rgtbus.cli.proc_cmds import free_ports
 from rgtbus.cli.run_cmd import decision_text
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder

@@ -2,10 +2,11 @@
 
 The process holds its ``AutonomousUnit``s (one, or several: ``rgtbus launch --procs P``) and the
 run's zenoh bus with those units local. It joins the run (a barrier: every member up, on the
-same scenario and seed), then runs the same
-``World`` as a single-process run: it advances to the smallest promise of all members
-(conservative synchronisation, docs/engine.md), or window by window with ``engine="dense"``.
-The decisions and the log content equal the single-process run of the same scenario and seed.
+same scenario and seed), then runs the same ``World`` as a single-process run: it advances to
+the smallest promise of all members (conservative synchronisation, docs/engine.md), or window
+by window with ``engine="dense"``. The decisions and the log content equal the single-process
+run of the same scenario and seed. ``open_router`` opens the zenoh router that units on several
+machines can meet at.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import contextlib
 import hashlib
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from rgtbus.units.group import (
@@ -27,6 +29,7 @@ from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.bus import open_bus
 from rgtbus.bus.zenoh import ZenohBus
+from rgtbus.engine.sim import WorldResult
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.telemetry import McapRecorder, Recorder
@@ -51,10 +54,46 @@ def _write_end(recorder: Recorder, name: str, status: str, detail: str, sim: flo
         )
 
 
+def unit_names(text: str, sc: Scenario) -> list[str]:
+    """``a`` or ``a,b,c``: the units one process runs (each a unit of the scenario, once)."""
+    names = [n.strip() for n in text.split(",")]
+    for name in names:
+        if name not in sc.units:
+            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise RgtbusError(f"unit {dup!r} named twice in {text!r}")
+    return names
+
+
 def run_unit(sc: Scenario, name: str, recorder: Recorder, **options: Any) -> dict[str, Any]:
     """Run unit ``name`` of ``sc`` in this process (``run_units`` with one unit); returns its
     part of the run summary."""
     return run_units(sc, [name], recorder, **options)[name]
+
+
+def run_logged_units(
+    sc: Scenario, names: Sequence[str], log: Path, **options: Any
+) -> dict[str, dict[str, Any]]:
+    """``run_units`` with its own MCAP log at ``log``: opened here and always closed (a run
+    that fails still closes a readable log); an interrupt (SIGINT, or SIGTERM under
+    ``interrupted_by``) is written to the log, one line a unit, before it is raised again.
+    Each unit's output names its ``log``."""
+    from rgtbus.telemetry.logfile import close_log, open_log
+
+    stream, recorder = open_log(log)
+    try:
+        outs = run_units(sc, names, recorder, **options)
+    except KeyboardInterrupt:
+        if not recorder.failed:
+            for name in names:
+                recorder.log("error", f"{name}: interrupted", 0, name=name)
+        raise
+    finally:
+        close_log(stream, recorder)
+    for out in outs.values():
+        out["log"] = str(log)
+    return outs
 
 
 def run_units(
@@ -78,15 +117,7 @@ def run_units(
     unit's part of the run summary, by name. ``on_open``: called once the zenoh session is
     open (listening), before the join. ``key``: the run's shared secret (every frame and hello
     signed and checked). A failed join is written to the log before it is raised."""
-    names = list(names)
-    if not names:
-        raise RgtbusError("no unit to run")
-    for name in names:
-        if name not in sc.units:
-            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
-    if len(set(names)) != len(names):
-        raise RgtbusError(f"a unit named twice: {', '.join(names)}")
-    names = [u for u in sc.units if u in names]  # the scenario's order: one world, any layout
+    names = _checked_names(sc, names)
     first = names[0]
     run_id = run_id or default_run_id(sc)
     t0 = time.perf_counter()
@@ -96,45 +127,28 @@ def run_units(
     )
     units = [AutonomousUnit(name, sc, recorder, traces=traces) for name in names]
     opts = dict(zenoh_options or {})
-    rate = sc.timing.sample_rate
+    world_options = {"engine": engine, "timeout": timeout, "progress": progress,
+                     "realtime": realtime, "write_medium": sc.units[0] == first}  # fmt: skip
     sim_seconds = 0.0
     try:
-        with open_bus("zenoh", run_id, sc.units, rate, local=names, key=key, **opts) as bus:
+        with open_bus(
+            "zenoh", run_id, sc.units, sc.timing.sample_rate, local=names, key=key, **opts
+        ) as bus:
             if (
                 isinstance(bus, ZenohBus)
                 and isinstance(recorder, McapRecorder)
-                and recorder.live is None
+                and (recorder.live is None)
             ):
                 recorder.live = bus.telemetry_feed(first)  # what `rgtbus watch` serves
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()
-            try:
-                bus.join(names, scenario_digest(sc), timeout=join_timeout)
-            except RgtbusError as exc:
-                for note in bus.drop_notes():  # e.g. the hellos that did not authenticate
-                    recorder.log("warning", f"dropped: {note}", 0, name=first)
-                for name in names:
-                    recorder.log("error", f"{name}: join failed: {exc}", 0, name=name)
-                raise
-            world = scenario_world(
-                sc,
-                units,
-                bus,
-                recorder,
-                engine=engine,
-                timeout=timeout,
-                progress=progress,
-                realtime=realtime,
-                write_medium=sc.units[0] in names,  # one medium in the merged log
-            )
+            _join(bus, sc, names, recorder, join_timeout)
             # a member gone or stalled ends it with result.failure; so does a request to stop
-            result = world.run(interruptible=True)
+            result = scenario_world(sc, units, bus, recorder, **world_options).run(
+                interruptible=True
+            )
             sim_seconds = result.sim_seconds
-            for unit in units:
-                write_unit_report(recorder, unit, sim_seconds)  # while the watch feed is open
-            for note in bus.drop_notes():
-                recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds), name=first)
-            stats = dict(bus.stats())
+            stats = _reported(units, bus, recorder, result.sim_seconds)
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
         if result.failure:  # a unit's own failure is in its log already
@@ -151,17 +165,83 @@ def run_units(
         else:
             _write_end(recorder, unit.name, UNIT_DONE, unit.failure or "", sim_seconds)
     wall = round(time.perf_counter() - t0, 3)
+    return {unit.name: _output(unit, run_id, result, wall, stats) for unit in units}
+
+
+def _checked_names(sc: Scenario, names: Sequence[str]) -> list[str]:
+    """``names``, each a unit of ``sc`` and given once, in the scenario's order (one world,
+    whatever the layout of processes)."""
+    names = list(names)
+    if not names:
+        raise RgtbusError("no unit to run")
+    for name in names:
+        if name not in sc.units:
+            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+    if len(set(names)) != len(names):
+        raise RgtbusError(f"a unit named twice: {', '.join(names)}")
+    return [u for u in sc.units if u in names]
+
+
+def _join(
+    bus: Any, sc: Scenario, names: list[str], recorder: Recorder, join_timeout: float
+) -> None:
+    """The join: every member up, on this scenario and seed; a failure is logged, then
+    raised."""
+    try:
+        bus.join(names, scenario_digest(sc), timeout=join_timeout)
+    except RgtbusError as exc:
+        for note in bus.drop_notes():  # e.g. the hellos that did not authenticate
+            recorder.log("warning", f"dropped: {note}", 0, name=names[0])
+        for name in names:
+            recorder.log("error", f"{name}: join failed: {exc}", 0, name=name)
+        raise
+
+
+def _reported(
+    units: list[AutonomousUnit], bus: Any, recorder: Recorder, sim_seconds: float
+) -> dict[str, Any]:
+    """Each unit's report written (while the watch feed is open) and what the bus dropped;
+    returns the bus's statistics."""
+    for unit in units:
+        write_unit_report(recorder, unit, sim_seconds)
+    for note in bus.drop_notes():
+        recorder.log("warning", f"dropped: {note}", ns(sim_seconds), name=units[0].name)
+    return dict(bus.stats())
+
+
+def _output(
+    unit: AutonomousUnit, run_id: str, result: WorldResult, wall: float, stats: dict[str, Any]
+) -> dict[str, Any]:
+    """A unit's part of the run summary, as its process reports it."""
     return {
-        unit.name: {
-            "unit": unit.name,
-            "run_id": run_id,
-            "report": unit.report(),
-            "sim_seconds": round(result.sim_seconds, 6),
-            "steps": result.steps,
-            "world_failure": result.failure,
-            "wall_seconds": wall,
-            "error": result.failure or unit.failure,
-            "bus": stats,
-        }
-        for unit in units
+        "unit": unit.name,
+        "run_id": run_id,
+        "report": unit.report(),
+        "sim_seconds": round(result.sim_seconds, 6),
+        "steps": result.steps,
+        "world_failure": result.failure,
+        "wall_seconds": wall,
+        "error": result.failure or unit.failure,
+        "bus": stats,
     }
+
+
+def open_router(
+    listen: Sequence[str] | None,
+    config: str | None = None,
+    multicast: bool | None = None,
+) -> Any:
+    """A zenoh session in router mode on the ``listen`` endpoints (or as ``config`` says), for
+    units on several machines to meet at; the caller closes it. One line (``RgtbusError``)
+    when it cannot open."""
+    import zenoh
+
+    from rgtbus.bus.zenoh import make_config, zenoh_reason
+
+    cfg = make_config(mode="router", listen=listen, config=config, multicast=multicast)
+    try:
+        return zenoh.open(cfg)
+    except Exception as exc:
+        raise RgtbusError(
+            f"router: cannot open a zenoh router on {list(listen or [])}: {zenoh_reason(exc)}"
+        ) from None

@@ -124,3 +124,55 @@ def read_key(args: argparse.Namespace) -> bytes | None:
     from rgtbus.bus.auth import load_key
 
     return None if args.key_file is None else load_key(args.key_file)
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
+    """zenoh's options, in zenoh's own spelling: -m/--mode, -e/--connect, -l/--listen,
+    -c/--config, --multicast. No defaults here (None = not given): a --config file's own
+    values must survive what was not typed (``zenoh_options``)."""
+    p.add_argument(
+        "-m",
+        "--mode",
+        choices=("peer", "client"),
+        help="zenoh mode (default peer; client to go through a router)",
+    )
+    p.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    p.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)",
+    )
+    p.add_argument(
+        "-c",
+        "--config",
+        "--zenoh-config",
+        dest="zenoh_config",
+        metavar="FILE",
+        help="a zenoh JSON5 config file (the options above, where given, override it)",
+    )
+    p.add_argument(
+        "--multicast",
+        action="store_true",
+        default=None,
+        help="turn zenoh's multicast scouting on (off unless asked or set in --config)",
+    )
+
+
+def zenoh_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Only what the user typed (None: not given), so ``make_config`` keeps the rest of a
+    ``--config`` file; without a file, ``make_config`` supplies the defaults."""
+    return {
+        "mode": args.mode,
+        "connect": None if args.connect is None else list(args.connect),
+        "listen": None if args.listen is None else list(args.listen),
+        "multicast": args.multicast,
+        "config": args.zenoh_config,
+    }

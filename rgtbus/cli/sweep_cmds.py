@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rgtbus.cli.interrupts import interrupted_by
+from rgtbus.interrupts import interrupted_by
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers

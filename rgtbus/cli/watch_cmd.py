@@ -9,8 +9,13 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
-from rgtbus.cli.arguments import add_key_argument, add_seconds_argument, read_key
-from rgtbus.cli.proc_cmds import _zenoh_arguments, zenoh_options
+from rgtbus.cli.arguments import (
+    add_key_argument,
+    add_seconds_argument,
+    add_zenoh_arguments,
+    read_key,
+    zenoh_options,
+)
 from rgtbus.cli.run_cmd import LIVE_ADDRESS
 
 if TYPE_CHECKING:
@@ -27,7 +32,7 @@ def register(subparsers: SubParsers) -> None:
         "the MCAP log, as rgtbus run --live). The watcher only subscribes: the run neither "
         "waits for it nor notices it come or go. Ends with Ctrl-C, or --idle-exit.",
     )
-    _zenoh_arguments(w)
+    add_zenoh_arguments(w)
     w.add_argument("--run", default="*", metavar="RUN_ID", help="only this run (default: any)")
     w.add_argument(
         "--live",

@@ -14,7 +14,7 @@ import pytest
 
 from rgtbus.bus.zenoh import make_config, zenoh_reason
 from rgtbus.cli import build_parser, main
-from rgtbus.cli.proc_cmds import zenoh_options
+from rgtbus.cli.arguments import zenoh_options
 from rgtbus.errors import RgtbusError
 
 ROOT = Path(__file__).resolve().parent.parent.parent

@@ -19,6 +19,7 @@ from collections.abc import Callable
 import pytest
 import zenoh
 from rgtbus.units import group
+from rgtbus.units.launch import free_ports
 
 import rgtbus
 from rgtbus.bus import open_bus
@@ -26,7 +27,6 @@ from rgtbus.bus.auth import TAG_SIZE
 from rgtbus.bus.hello import Hello, encode_hello
 from rgtbus.bus.payload import HEADER_SIZE, MAGIC, TAGGED, VERSION
 from rgtbus.bus.zenoh import make_config
-from rgtbus.cli.proc_cmds import free_ports
 
 KEY = bytes(range(1, 33))
 HEADER = struct.Struct("<4sBBHQQQdII")

@@ -12,7 +12,7 @@ import weakref
 
 import pytest
 
-from rgtbus.cli.interrupts import interrupted_by
+from rgtbus.interrupts import interrupted_by
 
 
 class _Thing:
