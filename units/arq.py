@@ -21,6 +21,7 @@ from rgtbus.repair import RepairBook, family_of
 from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import Decision, WordSet
 from rgtbus.telemetry.unit_log import UnitLog
+from rgtbus.timebase import time_of
 
 Schedule = Callable[[int, int, str], int]  # (boundary, at, kind) -> the timer's seq
 Read = Callable[[tuple[int, ...], int, WordSet], Decision]  # samples, channel, words
@@ -157,7 +158,7 @@ class Arq:
         of its turn; sure now, it learns the payload. After the phase's last block, what is
         still unsure is learned as it reads best."""
         assert self.read is not None
-        book, t = self.book, at * self.tau
+        book, t = self.book, time_of(at, self.tau)
         for slot, held in book.awaited(block):
             read = self.read(slot.repeat, held.channel, book.copy_words[held.family])
             best = book.copy(slot, held, read)

@@ -75,7 +75,7 @@ def write_unit_report(recorder: Recorder, unit: AutonomousUnit, sim_seconds: flo
     from (with the unit's ``/rx/decodes`` records), exactly as the live summary is."""
     unit.end_log()  # what it keeps for the log, if the run stopped before it was done
     if recorder.enabled:
-        recorder.write("/unit/report", unit.report_record(), ns(sim_seconds))
+        recorder.write(records.UNIT_REPORT, unit.report_record(), ns(sim_seconds))
 
 
 _TABLES = ("installed", "sent_relations", "influences")
@@ -93,7 +93,7 @@ def shared_tables(report: dict[str, Any], first: dict[str, Any] | None) -> dict[
 
 
 def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
-    recorder.write("/run", records.run_record(summary), ns(summary["sim_seconds"]))
+    recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
 
 
 def run_group(

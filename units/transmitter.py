@@ -23,6 +23,7 @@ from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.pulses import Pulses
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import UnitLog
+from rgtbus.timebase import time_of
 
 AWAKE = -1.0  # the on-air process is not asleep: it reads the next send before it sleeps
 
@@ -102,7 +103,7 @@ class Transmitter:
             for j in range(len(send.samples)):
                 self._log_pulse(send, word, j, ref)
             return
-        at = min(send.start, send.samples[0] * self.tau)
+        at = min(send.start, time_of(send.samples[0], self.tau))
         heapq.heappush(self._air, (at, self._air_seq, -1, send, word, None))
         self._air_seq += 1
         if self._process is None:
@@ -130,7 +131,7 @@ class Transmitter:
         record = records.pulse(
             self.log.name, send.channel, ref[1], float(word[j]), self.tau, k, ref[0]
         )
-        self.log.write(records.TX_PULSE, record, k * self.tau)
+        self.log.write(records.TX_PULSE, record, time_of(k, self.tau))
 
     def _on_air(self) -> Generator[simpy.Event, Any, None]:
         """The on-air process: one SimPy process a unit (not one a send: a large group plans
@@ -155,5 +156,6 @@ class Transmitter:
                 assert ref is not None
                 self._log_pulse(send, word, j, ref)
             if j + 1 < len(send.samples):
-                heapq.heappush(air, (send.samples[j + 1] * tau, seq, j + 1, send, word, ref))
+                at = time_of(send.samples[j + 1], tau)
+                heapq.heappush(air, (at, seq, j + 1, send, word, ref))
         self._process = None

@@ -49,7 +49,7 @@ from rgtbus.signal.pulses import Pulses
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.unit_log import UnitLog
-from rgtbus.timebase import sample_of
+from rgtbus.timebase import sample_of, time_of
 
 if TYPE_CHECKING:
     from rgtbus.engine.hearing import Ears
@@ -320,7 +320,7 @@ class AutonomousUnit:
     def _fail(self, message: str, at: int) -> None:
         if self.failure is None:
             self.failure = message
-            self.log.log("error", message, at * self.tau)
+            self.log.log("error", message, time_of(at, self.tau))
             # what the protocol planned still goes out; an unchosen code is the policy's
             for seq in sorted(self._pending):
                 self._choose(seq, at, why="it failed before its choice")
@@ -360,9 +360,10 @@ class AutonomousUnit:
         assert turn is not None
         shift = self.listening.attend(turn.sender)
         if shift is None:
+            t = time_of(at, self.tau)
             self._fail(
                 f"{self.name}: no ID heard on {turn.sender}'s channel for turn {turn.index} "
-                f"({turn.sender} -> {turn.addressee}, {turn.phase}) by t = {at * self.tau:.3f} s",
+                f"({turn.sender} -> {turn.addressee}, {turn.phase}) by t = {t:.3f} s",
                 at,
             )
             return
@@ -397,7 +398,7 @@ class AutonomousUnit:
         value = None if isinstance(got, str) else got.value
         code = send.code if value is None else u.format(value)
         reason = steering_reason(got, goal, u)
-        t = at * self.tau
+        t = time_of(at, self.tau)
         if self.log.enabled:
             record = goal_record(self.name, self.mind, goal, send.turn, rnd, t, got, code, reason)
             self.log.write_in_order(records.UNIT_GOAL, record, t)
@@ -410,7 +411,7 @@ class AutonomousUnit:
     def _act(self, listen: Listen, code: str, margin: float, ch: int) -> None:
         """What ``listen`` decoded (``code`` at ``margin``, found on channel index ``ch``):
         recorded, checked, learned from."""
-        t_ready = listen.ready_sample * self.tau
+        t_ready = time_of(listen.ready_sample, self.tau)
         repairs = self.arq is not None
         if listen.kind == "id":
             accepted = code == "id"

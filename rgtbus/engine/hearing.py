@@ -64,6 +64,7 @@ from rgtbus.signal.resonator import (
     input_readout,
     resonate,
 )
+from rgtbus.timebase import time_of
 
 
 class Ears:
@@ -361,7 +362,7 @@ class Ears:
             if self.pos < target:
                 k = self._advance(target)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time
-                    yield env.timeout(max(0.0, k * self.tau - env.now))
+                    yield env.timeout(max(0.0, time_of(k, self.tau) - env.now))
                     yield env.timeout(0)  # after what is already due then (see _after_due)
                     for lst in self.listeners:
                         if lst.active and lst.heard and lst.heard[-1][0] == k:
@@ -377,8 +378,8 @@ class Ears:
             if due:
                 woke_at = None
                 for at, n in due:
-                    if at * self.tau > env.now:
-                        yield env.timeout(at * self.tau - env.now)
+                    if time_of(at, self.tau) > env.now:
+                        yield env.timeout(time_of(at, self.tau) - env.now)
                     if woke_at != at:  # one hop a sample, not a SimPy event per unit
                         woke_at = at
                         yield env.timeout(0)

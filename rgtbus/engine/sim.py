@@ -37,7 +37,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
-from rgtbus.timebase import ns
+from rgtbus.timebase import ns, time_of
 
 ENGINES = ("event", "dense")
 
@@ -323,9 +323,9 @@ class World:
             a, b = bounds[i], bounds[i + 1]
             samples = np.zeros(L)
             samples[rows[a:b] - w * L] = values[a:b]
-            t = w * L * self.tau
+            t = time_of(w * L, self.tau)
             record = records.medium_window(w, t, 1.0 / self.tau, samples.tolist())
-            self.recorder.write("/medium", record, ns(t))
+            self.recorder.write(records.MEDIUM, record, ns(t))
 
     def _sum_medium(self, pulses: dict[str, Pulses]) -> Pulses:
         """The medium from each member's pulses, members in order (``medium_sum``)."""
@@ -349,7 +349,7 @@ class World:
             self.failure = f"stopped (asked to, at t = {self.env.now:.3f} s)"
         return WorldResult(
             steps=self.steps,
-            sim_seconds=round((self.end_sample() + 1) * self.tau, 9),
+            sim_seconds=round(time_of(self.end_sample() + 1, self.tau), 9),
             wall_seconds=time.perf_counter() - t0,
             failure=self.failure,
             bus_stats=dict(self.bus.stats()),

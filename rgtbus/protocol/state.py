@@ -22,6 +22,7 @@ from rgtbus.protocol.turns import (
     Turn,
     code_samples,
 )
+from rgtbus.timebase import sample_of
 
 
 @functools.lru_cache(maxsize=512)  # every unit chains the same turns from the same spike
@@ -34,8 +35,8 @@ def _chain_steps(
     out = []
     for tail in tails:
         payload_start = k * tau + delay
-        k = round((payload_start + tail + guard) / tau)
-        out.append((round(payload_start / tau), k))
+        k = sample_of(payload_start + tail + guard, tau)
+        out.append((sample_of(payload_start, tau), k))
     return tuple(out)
 
 

@@ -25,6 +25,7 @@ from rgtbus.protocol.turns import (
     rounds,
     turns,
 )
+from rgtbus.timebase import sample_of
 
 # Samples a code may be moved to miss every pulse already placed in its round: codes on nearby
 # channels start on nearly the same samples, so the i-th is moved about i samples (200 units of
@@ -130,7 +131,7 @@ class Plan:
         payload = code_samples(payload_start, self.omegas[t.addressee], self.pulses, tau)
         kind = "relation" if t.phase == "relations" else "influence"
         longest = self.longest[t.sender] * (self.pulses - 1)
-        ready = round((payload_start + longest) / tau) + self.search + self.read_margin
+        ready = sample_of(payload_start + longest, tau) + self.search + self.read_margin
         listens = (
             Listen(
                 t.index,
@@ -154,7 +155,7 @@ class Plan:
             repairs = repair_blocks(self, phase_turns, phase, ready, payload[-1] * tau)
             next_start = repairs[-1].end + self.guard
         return Reaction(
-            payload_start, payload, listens, next_start, round(next_start / tau), repairs
+            payload_start, payload, listens, next_start, sample_of(next_start, tau), repairs
         )
 
     def _ends_phase(self, turn: int) -> bool:
@@ -214,7 +215,7 @@ def repair_blocks(
     def place_all(start: float, what: str) -> list[tuple[float, tuple[int, ...]]]:
         """A code for every payload of the phase from ``start``, each on its sender's channel
         (requests) or its addressee's (repeats), none sharing a sample with another."""
-        used = _Occupied(round(start / tau) - 1)
+        used = _Occupied(sample_of(start, tau) - 1)
         hints: dict[tuple[float, float], int] = {}
         return [
             _place(used, hints, start,
@@ -341,7 +342,7 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
 
     per_phase = max(1, len(plan.units) - 1)  # rounds a phase
     for i, turns_of_round in enumerate(plan.rounds):
-        used = _Occupied(round(t0 / tau) - 1)
+        used = _Occupied(sample_of(t0, tau) - 1)
         hints.clear()  # a round's samples of its own
         ids = [
             place(used, t0, plan.omegas[t.sender], f"the ID of {t.sender}") for t in turns_of_round
@@ -362,7 +363,7 @@ def place_rounds(plan: Plan) -> tuple[RoundTiming, ...]:
         if plan.repair_rounds and (i + 1) % per_phase == 0:  # the phase's last round
             phase_turns = [t for r in plan.rounds[i + 1 - per_phase : i + 1] for t in r]
             repairs = repair_blocks(plan, phase_turns, i // per_phase, last + plan.search, end)
-        out.append(RoundTiming(t0, round(t0 / tau), tuple(placed), end, repairs))
+        out.append(RoundTiming(t0, sample_of(t0, tau), tuple(placed), end, repairs))
         t0 = (repairs[-1].end if repairs else end) + plan.guard
     return tuple(out)
 

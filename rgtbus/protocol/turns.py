@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.waveform import pulse_samples
+from rgtbus.timebase import sample_of
 
 PHASES = ("relations", "influences")
 ANCHORS = ("spike", "schedule")
@@ -72,7 +73,7 @@ def choice_sample(payload_start: float, reaction_delay: float, tau: float) -> in
     """The sample from which a payload's code is chosen: one reaction delay before it starts
     (the moment its sender reacts to its turn's ID). What a unit decoded from samples before
     it is what it knows when it chooses (docs/goals.md); the same for every engine and bus."""
-    return round((payload_start - reaction_delay) / tau)
+    return sample_of(payload_start - reaction_delay, tau)
 
 
 @functools.lru_cache(maxsize=1024)  # every unit plans the same codes of every turn
