@@ -30,7 +30,7 @@ from rgtbus.mind import Mind, mind_of
 from rgtbus.pairs import parse_pair_key
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
-from rgtbus.telemetry import log_message
+from rgtbus.telemetry import log_message, records
 from rgtbus.telemetry.read import Mismatch, Replay, load_replay
 from rgtbus.telemetry.verify import VerifyReport, verify
 from rgtbus.timebase import ns, seconds
@@ -49,7 +49,7 @@ class CaptureRecorder:
         self.messages.append((topic, t_ns, dict(message)))
 
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
-        self.messages.append(("/log", t_ns, log_message(level, text, t_ns, name)))
+        self.messages.append((records.LOG, t_ns, log_message(level, text, t_ns, name)))
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         pass
@@ -120,7 +120,7 @@ def rerun_replay(
     end = NEVER
     if replay.truncated:
         until = replay.units_until_ns() or 0
-        w_last = max((m["window"] for _, m in replay.by_topic["/medium"]), default=-1)
+        w_last = max((m["window"] for _, m in replay.by_topic[records.MEDIUM]), default=-1)
         end = max(
             (w_last + 1) * sc.timing.window_samples, round(seconds(until) / sc.timing.tau) + 1
         )
@@ -142,7 +142,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     for d in replay.decisions:
         logged_decisions[(d["unit"], d.get("round", 1))][d["subject"]] = d
     tables: defaultdict[str, list[dict]] = defaultdict(list)  # a unit's tables, round by round
-    for _, m in replay.by_topic["/unit/influences"]:
+    for _, m in replay.by_topic[records.UNIT_INFLUENCES]:
         tables[str(m.get("unit"))].append(m)
     for name in sc.units:
         rel = replay.relations.get(name)
@@ -152,7 +152,8 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
         try:
             mind.sent = {parse_pair_key(k): v == "alliance" for k, v in rel["sent"].items()}
         except (AttributeError, ValueError):
-            out.append(Mismatch("/unit/relations", rel.get("t"), name, "sent", rel["sent"], None))
+            bad = Mismatch(records.UNIT_RELATIONS, rel.get("t"), name, "sent", rel["sent"], None)
+            out.append(bad)
             continue
         if not mind.relations_complete():
             continue
@@ -162,7 +163,7 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
             if rel.get(key) != value:
                 out.append(
                     Mismatch(
-                        "/unit/relations",
+                        records.UNIT_RELATIONS,
                         rel["t"],
                         name,
                         f"{key} (from its sent table)",
@@ -196,7 +197,7 @@ def _check_round(
     except (AttributeError, ValueError, RgtbusError):
         return [
             Mismatch(
-                "/unit/influences", infl.get("t"), name, "influences", infl["influences"], None
+                records.UNIT_INFLUENCES, infl.get("t"), name, "influences", infl["influences"], None
             )
         ]
     if not mind.influences_complete():
@@ -211,7 +212,7 @@ def _check_round(
         if logged is None:
             out.append(
                 Mismatch(
-                    "/unit/decision",
+                    records.UNIT_DECISION,
                     m["t"],
                     name,
                     f"subject {m['subject']} (from its tables)",
@@ -224,7 +225,7 @@ def _check_round(
             if logged.get(key) != value:
                 out.append(
                     Mismatch(
-                        "/unit/decision",
+                        records.UNIT_DECISION,
                         logged["t"],
                         name,
                         f"subject {m['subject']}: {key} (from its tables)",
@@ -250,7 +251,7 @@ def traces_for(replay: Replay, unit: str) -> dict[str, Any]:
     if logged is not None:
         return {**logged, "recomputed": False}
     out = rerun_replay(replay, traces=[unit], only=[unit])
-    topic = f"/trace/{unit}"
+    topic = records.trace_topic(unit)
     return {
         **replay.stack_traces([m for t, _, m in out.messages if t == topic]),
         "recomputed": True,
