@@ -20,10 +20,11 @@ from rgtbus.errors import RgtbusError
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from rgtbus.api import RunResult, load_scenario, open_log, run, sweep
+    from rgtbus.api import load_scenario, open_log, run, sweep
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
     from rgtbus.units.launch import launch
+    from rgtbus.units.result import RunResult
 
 _LAZY = {
     "load_scenario": "rgtbus.api",
@@ -31,7 +32,7 @@ _LAZY = {
     "launch": "rgtbus.units.launch",
     "open_log": "rgtbus.api",
     "sweep": "rgtbus.api",
-    "RunResult": "rgtbus.api",
+    "RunResult": "rgtbus.units.result",
     "Log": "rgtbus.telemetry.frames",
     "Scenario": "rgtbus.scenario",
 }

@@ -22,13 +22,13 @@ from typing import IO, Any
 from rgtbus.units.group import scenario_world
 from rgtbus.units.unit import AutonomousUnit, decision_records
 
-from rgtbus.bus.base import Pulses
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import Mind, mind_of
 from rgtbus.pairs import parse_pair_key
 from rgtbus.scenario import Scenario
+from rgtbus.signal.pulses import Pulses
 from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message, records
 from rgtbus.telemetry.read import Mismatch, Replay, load_replay
@@ -43,7 +43,7 @@ class CaptureRecorder:
     closed = False
 
     def __init__(self) -> None:
-        self.messages: list[tuple[str, int, dict]] = []
+        self.messages: list[tuple[str, int, dict[str, Any]]] = []
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         self.messages.append((topic, t_ns, dict(message)))
@@ -60,7 +60,8 @@ class CaptureRecorder:
 
 @dataclass
 class Rerun:
-    messages: list[tuple[str, int, dict]]  # what the re-run units recorded, in write order
+    # what the re-run units recorded, in write order
+    messages: list[tuple[str, int, dict[str, Any]]]
     summary: dict[str, Any]  # summarise() of the re-run units (the run's own summary fields)
     units: list[AutonomousUnit]
     complete: bool  # every re-run unit decided or failed within the logged medium
@@ -141,7 +142,8 @@ def check_reasoning(replay: Replay) -> list[Mismatch]:
     logged_decisions: defaultdict[tuple[str, int], dict[str, Mapping[str, Any]]] = defaultdict(dict)
     for d in replay.decisions:
         logged_decisions[(d["unit"], d.get("round", 1))][d["subject"]] = d
-    tables: defaultdict[str, list[dict]] = defaultdict(list)  # a unit's tables, round by round
+    # a unit's tables, round by round
+    tables: defaultdict[str, list[dict[str, Any]]] = defaultdict(list)
     for _, m in replay.by_topic[records.UNIT_INFLUENCES]:
         tables[str(m.get("unit"))].append(m)
     for name in sc.units:
@@ -183,7 +185,7 @@ def _check_round(
     sc: Scenario,
     name: str,
     mind: Mind,
-    infl: dict,
+    infl: dict[str, Any],
     logged_decisions: Mapping[tuple[str, int], Mapping[str, Mapping[str, Any]]],
     cut_ns: int | None = None,
 ) -> list[Mismatch]:

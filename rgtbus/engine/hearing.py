@@ -35,7 +35,7 @@ every unit, silent or not.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Mapping, Sequence
+from collections.abc import Generator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -65,6 +65,9 @@ from rgtbus.signal.resonator import (
     resonate,
 )
 from rgtbus.timebase import time_of
+
+_AmongKey = tuple[tuple[int, ...], float, WordSet, int]  # channels, start, words, search
+_ReadKey = tuple[tuple[int, ...], int, WordSet]  # samples, channel, words
 
 
 class Ears:
@@ -130,7 +133,10 @@ class Ears:
         self.steps = 0  # bank advances so far
         # decodes asked at the present end of the readout: every unit of the process decodes
         # the same code at about the same time, so the first ask reads all of them
-        self._decodes: dict[tuple, list] = {}
+        self._among: dict[
+            tuple[tuple[int, ...], float, WordSet, int], list[tuple[Decision, int]]
+        ] = {}
+        self._reads: dict[tuple[tuple[int, ...], int, WordSet], list[Decision]] = {}
         self._decodes_end = -1
         self.queues = SharedQueues(len(self.listeners))  # what every unit reads alike
         self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
@@ -213,28 +219,32 @@ class Ears:
     ) -> tuple[Decision, int]:
         """Unit ``i``'s ``decode_among`` over these channel indexes, on its own readout (see
         ``decode_among_each``)."""
+        self._forget_decodes()
         key = (channels, start, words, search)
-        got = self._decoded(key)
+        got = self._among.get(key)
         if got is None:
             pairs = tuple((c, float(self.bank.omegas[c])) for c in channels)
-            got = self._decodes[key] = decode_among_each(
+            got = self._among[key] = decode_among_each(
                 self.readout, pairs, start, words, tau=self.tau, search=search
             )
         return got[i]
 
     def read_code(self, i: int, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
         """Unit ``i``'s nearest word to its readout at ``samples`` on ``channel``."""
-        key = (samples, channel, words)  # never equal to a decode_among key (4 items)
-        got = self._decoded(key)
+        self._forget_decodes()
+        key = (samples, channel, words)
+        got = self._reads.get(key)
         if got is None:
-            got = self._decodes[key] = nearest_each(self.readout, samples, channel, words)
+            got = self._reads[key] = nearest_each(self.readout, samples, channel, words)
         return got[i]
 
-    def _decoded(self, key: tuple) -> list | None:
-        if self._decodes_end != self.readout.end:  # the readout moved on: start afresh
-            self._decodes.clear()
+    def _forget_decodes(self) -> None:
+        """The decodes kept for every unit are of the readout's present end: once it moves
+        on, they are asked no more."""
+        if self._decodes_end != self.readout.end:
+            self._among.clear()
+            self._reads.clear()
             self._decodes_end = self.readout.end
-        return self._decodes.get(key)
 
     def quench_at(self, i: int, sample: int) -> None:
         """Unit ``i``'s resonators back to rest before ``sample`` (the ears stop there)."""
@@ -330,7 +340,9 @@ class Ears:
 
     # -- the SimPy process ----------------------------------------------------------------------
 
-    def _run(self):
+    def _run(self) -> Generator[simpy.Event, Any, None]:
+        """The ears' SimPy process: advance while every listening unit has asked, wake each at
+        its spike or boundary, wait for the world when the known medium ends."""
         env = self.env
         while True:
             if self._asking:
@@ -371,7 +383,7 @@ class Ears:
                                 self._wake(lst, reached=False)
                 continue
             due = sorted(
-                (lst.request[1], n)  # type: ignore[index]
+                (lst.request[1], n)
                 for n, lst in enumerate(self.listeners)
                 if lst.active and lst.request is not None and lst.request[0] == self.pos
             )

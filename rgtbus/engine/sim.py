@@ -21,7 +21,7 @@ every transmission is out. The world knows members only through ``Member`` (no i
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -154,7 +154,9 @@ class World:
 
     # -- the SimPy process ------------------------------------------------------------------
 
-    def _coordinate(self):
+    def _coordinate(self) -> Generator[simpy.Event, Any, None]:
+        """The world's SimPy process: publish, wait for the horizon, let the ears hear and the
+        units act up to it, again, until every member is done; then what is on its way."""
         env = self.env
         self._build_ears()
         yield env.timeout(0)  # every unit begins (its first sends and requests)

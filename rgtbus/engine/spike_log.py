@@ -283,8 +283,8 @@ class SpikeKeeper:
                 sigs = sigs[:, None]
             else:
                 sigs, inverse = np.unique(runs_of[s0:s1].T, axis=0, return_inverse=True)
-            groups: dict[tuple, list[int]] = {}  # equal spikes, from whichever walks
-            arrays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+            groups: dict[tuple[int, ...], list[int]] = {}  # equal spikes, from whichever walks
+            arrays: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
             for g, sig in enumerate(sigs.tolist()):
                 cuts = [(starts_l[r], ends_l[r]) for r in sig if r >= 0]
                 if not cuts:
