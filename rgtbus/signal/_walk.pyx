@@ -112,31 +112,82 @@ the input.)
     return w_r, w_i, pend, end, n_sp, False
 
 
+cdef class WalkModel:
+    """What every walk of a bank uses and nothing changes: the epoch tables (P = A^m as
+    ``Pr``, ``Pi``; Q = A^-m as ``Qr``, ``nQi`` = −Im; A as ``Ar``, ``Ai``; epoch ``R``), the
+    lane layout (``lane_ch``, ``lane_rec``) and the spike rule (threshold ``thr``, the hot
+    bound ``thr2`` on |z|², reset value ``rv``, ``stable``: silence may be skipped). Built once
+    per bank model, so a walk does not take its arrays apart again."""
+
+    cdef const double[:, ::1] Pr
+    cdef const double[:, ::1] Pi
+    cdef const double[:, ::1] Qr
+    cdef const double[:, ::1] nQi
+    cdef const double[::1] Ar
+    cdef const double[::1] Ai
+    cdef long R
+    cdef const long[::1] lane_ch
+    cdef const long[::1] lane_rec
+    cdef double thr
+    cdef double thr2
+    cdef double rv
+    cdef bint stable
+
+    def __init__(
+        self, const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
+        const double[:, ::1] nQi, const double[::1] Ar, const double[::1] Ai, long R,
+        const long[::1] lane_ch, const long[::1] lane_rec, double thr, double thr2, double rv,
+        bint stable,
+    ):
+        self.Pr = Pr
+        self.Pi = Pi
+        self.Qr = Qr
+        self.nQi = nQi
+        self.Ar = Ar
+        self.Ai = Ai
+        self.R = R
+        self.lane_ch = lane_ch
+        self.lane_rec = lane_rec
+        self.thr = thr
+        self.thr2 = thr2
+        self.rv = rv
+        self.stable = stable
+
+
+_NO_XY = np.zeros((2, 0, 0))
+_NO_MASK = np.zeros((0, 0), dtype=np.uint8)
+
+
 def walk_lanes(
-    const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
-    const double[:, ::1] nQi, const double[::1] Ar, const double[::1] Ai, long R,
-    const long[::1] lane_ch, const long[::1] lane_rec, const long[::1] lanes,
-    double thr, double thr2, double rv, bint stable,
+    WalkModel model not None, const long[::1] lanes,
     double[::1] wr, double[::1] wi, unsigned char[::1] pend, long start, long end,
-    const long[::1] rows, const double[:, ::1] vals, bint stop_first,
-    bint record, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
-    long[::1] sp_k, long[::1] sp_l,
+    const long[::1] rows, const double[:, ::1] vals, bint stop_first, long[:, ::1] spikes,
+    double[:, :, ::1] trajectory=None, unsigned char[:, ::1] spiked=None,
 ):
-    """``walk`` each of ``lanes``. With ``stop_first``: only find the first spike (returns one
-    past it and 1, or ``end`` and 0; later lanes look no further; the state is left alone).
-    Otherwise every lane walks to ``end`` and its state is updated in place. Returns (stop,
-    spikes, overflow).
+    """``walk`` each of ``lanes`` of ``model`` from ``start`` to ``end`` over the input
+    (``rows``, ``vals``), from the lanes' state (``wr``, ``wi``, ``pend``). With
+    ``stop_first``: only find the first spike (returns one past it and 1, or ``end`` and 0;
+    later lanes look no further; the state is left alone). Otherwise every lane walks to
+    ``end`` and its state is updated in place. Spikes go to ``spikes`` (2, room): their
+    samples, then their lanes. With a ``trajectory`` (2, samples, lanes): every sample's x and
+    y there, and the spike mask to ``spiked``. Returns (stop, spikes, overflow).
     """
     cdef long n_sp = 0, first = end, n_new = 0, at, lane, c, found = 0
     cdef Py_ssize_t idx
     cdef double w_r, w_i
     cdef bint p, over = False
+    cdef bint record = trajectory is not None
+    cdef double[:, :, ::1] xy = trajectory if record else _NO_XY
+    cdef double[:, ::1] xs = xy[0], ys = xy[1]
+    cdef unsigned char[:, ::1] mask = spiked if record else _NO_MASK
+    cdef long[::1] sp_k = spikes[0], sp_l = spikes[1]
     with nogil:
         for idx in range(lanes.shape[0]):
             lane = lanes[idx]
-            c = lane_ch[lane]
+            c = model.lane_ch[lane]
             w_r, w_i, p, at, n_new, over = walk(
-                Pr, Pi, Qr, nQi, Ar[c], Ai[c], R, c, lane_rec[lane], thr, thr2, rv, stable,
+                model.Pr, model.Pi, model.Qr, model.nQi, model.Ar[c], model.Ai[c], model.R, c,
+                model.lane_rec[lane], model.thr, model.thr2, model.rv, model.stable,
                 wr[lane], wi[lane], pend[lane], start, first, rows, vals, stop_first,
                 record, lane, xs, ys, mask, sp_k, sp_l, lane, n_sp,
             )
