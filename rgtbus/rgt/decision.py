@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import parse_pair_key
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
 from rgtbus.rgt.expr import ONE, ZERO, Expr, Sum, format_expr, needs_star, readable, substitute
@@ -119,7 +120,7 @@ class InfluenceMatrix:
                     f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}"
                 )
             lhs, value = spec.split("=", 1)
-            src, dst = (p.strip() for p in lhs.split(">", 1))
+            src, dst = (p.strip() for p in parse_pair_key(lhs))
             if m.get(src, dst) is not None:
                 raise RgtbusError(f"influence {src}>{dst} is given twice")
             try:

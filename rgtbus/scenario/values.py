@@ -8,6 +8,7 @@ import re
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import Pair, parse_pair_key
 from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
 
@@ -34,12 +35,12 @@ def unit_of(ctx: Ctx, units: tuple[str, ...], value: str, section: str, key: str
     return value
 
 
-def pair_of(ctx: Ctx, units: tuple[str, ...], key: str, section: str) -> tuple[str, str]:
-    """A ``"SENDER>ADDRESSEE"`` key of two distinct units."""
-    parts = key.split(">")
-    if len(parts) != 2:
+def pair_of(ctx: Ctx, units: tuple[str, ...], key: str, section: str) -> Pair:
+    """A ``"SENDER>ADDRESSEE"`` key of two distinct units (``parse_pair_key``; spaces around
+    the names allowed): the one reading of a pair key in a scenario file."""
+    if key.count(">") != 1:
         raise ctx.error(section, key, 'write the pair as SENDER>ADDRESSEE, e.g. "a>b"')
-    s, r = (unit_of(ctx, units, x.strip(), section, key) for x in parts)
+    s, r = (unit_of(ctx, units, x.strip(), section, key) for x in parse_pair_key(key))
     if s == r:
         raise ctx.error(section, key, "a unit does not address itself")
     return s, r
