@@ -36,6 +36,7 @@ from rgtbus.signal._walk import read_rows, timings
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
+from rgtbus.timebase import time_of
 
 
 class ReadoutHistory:
@@ -622,7 +623,7 @@ def read_at(
 
 def start_from_spike(spike_sample: int, omega: float, pulses: int, tau: float = PAPER_TAU) -> float:
     """Start time implied by a spike at a code's last pulse (the ID-code fires there)."""
-    return spike_sample * tau - (pulses - 1) * 2 * math.pi / omega
+    return time_of(spike_sample, tau) - (pulses - 1) * 2 * math.pi / omega
 
 
 def accept_id(

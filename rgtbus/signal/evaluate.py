@@ -22,6 +22,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.signal.nearest import in_order, nearest_choice
 from rgtbus.signal.resonator import PAPER_TAU, ResonatorBank
 from rgtbus.signal.waveform import pulse_instants
+from rgtbus.timebase import sample_of
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ def noise_spike_rate(
     """Spikes per second per resonator on noise alone (false attention at noise σ)."""
     if not sigma >= 0:
         raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
-    n = round(seconds / tau)
+    n = sample_of(seconds, tau)
     u = np.random.default_rng(seed).normal(0.0, sigma, n) if sigma > 0 else np.zeros(n)
     res = ResonatorBank(omegas, mode=mode, tau=tau).feed(u)
     return len(res.spikes) / (seconds * len(omegas))
