@@ -206,6 +206,8 @@ class RelationGraph:
     def from_pairs(
         cls, subjects: Sequence[str], alliances: Iterable[tuple[str, str]]
     ) -> RelationGraph:
+        """The graph over ``subjects`` with these alliances; refused for a bad or repeated subject
+        name, an unknown subject or a subject allied with itself."""
         subs = tuple(subjects)
         if not subs:
             raise RgtbusError("a group needs at least one subject")
@@ -227,6 +229,7 @@ class RelationGraph:
         return cls(subs, frozenset(pairs))
 
     def allied(self, a: str, b: str) -> bool:
+        """Whether ``a`` and ``b`` are allied."""
         return _pair(a, b) in self.alliances
 
     def edges(self) -> dict[tuple[str, str], str]:
@@ -323,6 +326,7 @@ def polynomial_to_graph(poly: Expr, subjects: Sequence[str] | None = None) -> Re
 
 
 def polynomial_text(poly: Expr) -> str:
+    """A polynomial as text (``format_expr``)."""
     return format_expr(poly)
 
 

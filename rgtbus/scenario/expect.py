@@ -38,6 +38,8 @@ def expect_of(
     universe: Universe,
     outcome: Outcome | None,
 ) -> dict[str, Any]:
+    """``[expect]``: what a run is checked against, each key checked against the units, the universe
+    and the outcome."""
     for key in expect:
         if key not in EXPECT_KEYS:
             allowed = ", ".join(sorted(EXPECT_KEYS))

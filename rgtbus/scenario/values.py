@@ -14,12 +14,13 @@ from rgtbus.scenario.context import Ctx
 
 IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
-# Noise, gains and pulse magnitudes above this overflow the resonators' floats mid-run (1e200
-# did; 1e3 runs and fails cleanly); pulses are about 0.4, decoding fails from noise ~0.08.
+# Noise, gains and pulse magnitudes above this can overflow the resonators' floats mid-run;
+# it is far above any level a run still decodes at (pulses are about 0.4).
 MAX_LEVEL = 1000.0
 
 
 def is_int(v: Any) -> bool:
+    """An integer, not a bool (bool is an int in Python)."""
     return isinstance(v, int) and not isinstance(v, bool)
 
 

@@ -47,6 +47,8 @@ class Codebook:
 
     @property
     def families(self) -> dict[str, dict[str, Word]]:
+        """The three families by name (``id``, ``relation``, ``alternative``), each its words by
+        name."""
         return {
             "id": {"id": self.id_word},
             "relation": dict(self.relations),
@@ -54,6 +56,7 @@ class Codebook:
         }
 
     def family(self, name: str) -> dict[str, Word]:
+        """One family's words by name; refused for a name that is no family."""
         fams = self.families
         if name not in fams:
             raise RgtbusError(f"codebook family {name!r} is not one of {', '.join(fams)}")
@@ -73,10 +76,12 @@ class Codebook:
         return out
 
     def family_min_distance(self, name: str) -> float:
+        """The smallest Euclidean distance between two words of a family (inf with one word)."""
         words = list(self.family(name).values())
         return min((_dist(a, b) for a, b in itertools.combinations(words, 2)), default=math.inf)
 
     def to_dict(self) -> dict[str, Any]:
+        """The codebook as a TOML-like dict, as :meth:`from_dict` reads it."""
         return {
             "name": self.name,
             "pulses": self.pulses,

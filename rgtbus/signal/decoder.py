@@ -17,8 +17,12 @@
   instants within ± ``search`` samples and keep the best fit (smallest residual, then the
   smallest shift).
 - **ID acceptance**: an ID is accepted only if the code on the sender's own frequency decodes as
-  the ID-code among all distinct words, within ``accept_radius`` — the paper mode a↔c crosstalk
-  fires ω_a for some codes sent on ω_c; their values at ω_a's instants are far from the ID-code.
+  the ID-code among all distinct words, within ``accept_radius`` r (default d_min / 2)::
+
+      accept  ⇔  nearest(v, distinct words) = id  and  |v − w_id| ≤ r
+
+  — the paper mode a↔c crosstalk fires ω_a for some codes sent on ω_c; their values at ω_a's
+  instants are far from the ID-code.
 """
 
 from __future__ import annotations
@@ -74,8 +78,8 @@ class ReadoutHistory:
         # not a copy of the whole history (many codes at once make a long history).
         # One value per receiver and sample: every channel of a receiver reads the same d (the
         # sample it heard; docs/model.md), so keeping each channel's copy would only multiply
-        # the memory by the number of channels (gigabytes at 100 units). The first channel's
-        # value is kept; the channels' values agree to the readout's rounding (1e-12).
+        # the memory by the number of channels. The first channel's value is kept; the
+        # channels' values agree to the readout's rounding (1e-12).
         self._buf_rows = np.zeros(16, dtype=np.int64)
         self._buf_vals = np.zeros((16, receivers, 1))
         self._lo = self._hi = 0
@@ -108,10 +112,12 @@ class ReadoutHistory:
 
     @classmethod
     def for_bank(cls, bank: ResonatorBank, capacity: int = 6000) -> ReadoutHistory:
+        """A history of every receiver and channel of ``bank``."""
         return cls(bank.n_channels, capacity, bank.n_receivers)
 
     @property
     def end(self) -> int:
+        """The absolute sample one past the newest in the history."""
         return self._end
 
     def extend(self, result: FeedResult) -> None:
@@ -139,7 +145,7 @@ class ReadoutHistory:
             keep = rows >= end - self.capacity
             self._lo += old
             # the first channel before the rows: an advance's readout is a view broadcast
-            # over every channel (receivers × channels a row: 10⁴ at n = 100)
+            # over every channel (receivers × channels a row)
             self._append(rows[keep], np.asarray(values)[:, :, :1][keep])
         elif old:
             self._lo += old
@@ -205,6 +211,7 @@ class ReadoutHistory:
                 )
 
     def of(self, receiver: int) -> ReceiverReadout:
+        """One receiver's view of the history (what a unit decodes from)."""
         if not 0 <= receiver < self.receivers:
             raise RgtbusError(f"readout: receiver {receiver} not in the history ({self.receivers})")
         return ReceiverReadout(self, receiver)
@@ -219,6 +226,7 @@ class ReceiverReadout:
 
     @property
     def end(self) -> int:
+        """The absolute sample one past the newest in the history."""
         return self.history.end
 
     def values(
@@ -227,6 +235,7 @@ class ReceiverReadout:
         channels: np.ndarray | int,
         span: tuple[int, int] | None = None,
     ) -> np.ndarray:
+        """This receiver's d at ``indices`` (see ``ReadoutHistory.values``)."""
         return self.history.values(indices, channels, self.receiver, span)
 
 
@@ -473,8 +482,8 @@ class WordSet:
     @classmethod
     def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:
         """The set of these words; equal sets asked for while one is alive are one object,
-        so a cache keyed by it finds it by identity (``==`` on a set compares its bytes: half
-        a million times in a run of 50 units)."""
+        so a cache keyed by it finds it by identity (``==`` on a set compares its bytes, and
+        every decode asks)."""
         made = cls(*word_matrix(words, None, where))
         return _WORD_SETS.setdefault(made._key, made)  # type: ignore[attr-defined]
 

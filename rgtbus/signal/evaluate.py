@@ -27,12 +27,15 @@ from rgtbus.timebase import sample_of
 
 @dataclass(frozen=True)
 class SerResult:
+    """A Monte-Carlo symbol error rate: ``errors`` of ``trials`` at noise ``sigma``."""
+
     sigma: float
     trials: int
     errors: int
 
     @property
     def ser(self) -> float:
+        """The symbol error rate, errors over trials."""
         return self.errors / self.trials
 
 

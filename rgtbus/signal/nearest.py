@@ -31,7 +31,7 @@ import numpy as np
 from rgtbus.signal._walk import score
 
 # (row, word, distance, margin, separation) of one decode: the compiled twin's tuple as it is
-# (a named tuple would cost a third of the call on the decoders' hot path)
+# (built at every decode: a named tuple would add its own construction to the hot path)
 Score = tuple[int, int, float, float, float]
 
 _IN_ORDER = np.arange(4096, dtype=np.int64)

@@ -256,6 +256,7 @@ class FrequencyPlan:
     margins: tuple[Margin, ...] = field(default_factory=tuple)
 
     def to_json(self) -> dict[str, Any]:
+        """The plan as JSON-ready values, the band and every margin included."""
         return {
             "n": self.n,
             "schedule": self.schedule,
@@ -276,7 +277,7 @@ def crosstalk_peak(
     """(the highest y any resonator reaches on another channel's ID-code, the lowest its own
     channel's ID reaches), as fractions of the threshold: every channel's ID {0.4, ...} fed
     alone to a bank of every channel, one receiver per channel, ``CROSSTALK_BATCH`` receivers a
-    run (the recorded states of all n² resonators at once would take gigabytes at n = 300)."""
+    run (the recorded states of all n² resonators at once grow as n² × samples)."""
     from rgtbus.signal.resonator import ResonatorBank  # numpy-heavy: only when asked
     from rgtbus.signal.waveform import pulse_instants
 

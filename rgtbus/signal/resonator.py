@@ -107,6 +107,7 @@ class FeedResult:
 
     @property
     def x(self) -> np.ndarray | None:
+        """The recorded x = Re z (None without ``record``)."""
         return None if self.z is None else self.z.real
 
     def spike_times(
@@ -192,22 +193,26 @@ class BankModel:
 
     @functools.cached_property
     def lane_ch(self) -> np.ndarray:
+        """Each lane's channel."""
         if self.layout is not None:
             return self.layout[0]
         return np.tile(np.arange(self.channels), self.receivers)
 
     @functools.cached_property
     def lane_rec(self) -> np.ndarray:
+        """Each lane's receiver."""
         if self.layout is not None:
             return self.layout[1]
         return np.repeat(np.arange(self.receivers), self.channels)
 
     @functools.cached_property
     def lanes(self) -> int:
+        """How many lanes the model walks."""
         return int(self.lane_ch.size)
 
     @functools.cached_property
     def all_lanes(self) -> np.ndarray:
+        """Every lane index, ascending."""
         return np.arange(self.lanes, dtype=np.int64)
 
     @functools.cached_property
@@ -490,18 +495,22 @@ class ResonatorBank:
     # -- parameters ---------------------------------------------------------------------------
     @property
     def A(self) -> np.ndarray:
+        """The one-sample transition A of every channel."""
         return self.model.tables.A
 
     @property
     def threshold(self) -> float:
+        """The spike threshold on Im z."""
         return self.model.threshold
 
     @property
     def spike_value(self) -> float:
+        """The y recorded at a spike sample."""
         return self.model.spike_value
 
     @property
     def reset_value(self) -> float:
+        """The y a resonator restarts from after a spike."""
         return self.model.reset_value
 
     # -- state ----------------------------------------------------------------------------------

@@ -49,6 +49,7 @@ class Transmission:
     sender: int = 0
 
     def instants(self, tau: float = PAPER_TAU) -> np.ndarray:
+        """The sample indices of this code's pulses (``pulse_instants``)."""
         return pulse_instants(self.omega, self.start, len(self.word), tau)
 
 
