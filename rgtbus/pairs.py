@@ -75,10 +75,10 @@ class _PairValues(ValuesView[int]):
 class PairTable(MutableMapping[Pair, int]):
     """A mapping ``(sender, receiver) -> int`` over the ordered pairs of one group, held in an
     array of n² machine integers instead of a dict: each of n units holds the group's tables
-    as it hears them, n³ entries in all, and a dict's ~60 bytes an entry made them most of a
-    100-unit run's memory (8 bytes here). Iterates in the group's order (senders, then
-    receivers), not in the order the values came. ``boolean``: values read back as bools (the
-    relation codes: alliance or not). A unit name outside the group: KeyError."""
+    as it hears them, n³ entries in all: 8 bytes an entry here, a fraction of a dict's.
+    Iterates in the group's order (senders, then receivers), not in the order the values came.
+    ``boolean``: values read back as bools (the relation codes: alliance or not). A unit name
+    outside the group: KeyError."""
 
     __slots__ = ("_bool", "_count", "_n", "_slots", "_units", "_vals")
 
@@ -144,9 +144,11 @@ class PairTable(MutableMapping[Pair, int]):
                 yield pairs[i]
 
     def items(self) -> ItemsView[Pair, int]:
+        """The (pair, value) items, in the group's order."""
         return _PairItems(self)
 
     def values(self) -> ValuesView[int]:
+        """The values, in the group's order."""
         return _PairValues(self)
 
     @property

@@ -79,3 +79,33 @@ def test_error_names_the_line():
 def test_missing_file():
     with pytest.raises(RgtbusError, match=r"cannot read scenario 'nope\.toml'"):
         load_scenario("nope.toml")
+
+
+PAIR_SECTIONS = [
+    ('"d>a" = "1"', '"{key}" = "1"', "influences"),
+    ('"a>b" = "alliance"', '"{key}" = "alliance"', "relations.fixed"),
+    ("[outcome]", '[channel.gain]\n"{key}" = 0.9\n\n[outcome]', "channel.gain"),
+    ("[expect.intervals]", '[expect.influences]\n"{key}" = "1"\n\n[expect.intervals]', None),
+]
+BAD_PAIRS = [
+    ("a>b>c", 'write the pair as SENDER>ADDRESSEE, e.g. "a>b"'),
+    ("ab", 'write the pair as SENDER>ADDRESSEE, e.g. "a>b"'),
+    ("a>z", "unknown unit 'z' (units: a, b, c, d)"),
+    ("b>b", "a unit does not address itself"),
+]
+
+
+@pytest.mark.parametrize(("key", "says"), BAD_PAIRS, ids=[k for k, _ in BAD_PAIRS])
+@pytest.mark.parametrize(("old", "new", "section"), PAIR_SECTIONS, ids=lambda v: str(v)[:12])
+def test_every_pair_key_is_read_one_way(old, new, section, key, says):
+    """Every section keyed by "SENDER>ADDRESSEE" reads the key the same way and refuses a bad
+    one in the same words, naming file, line and key ([influences] takes a key without ">"
+    for a misspelt setting of its own)."""
+    section = section or "expect.influences"
+    if section == "influences" and ">" not in key:
+        says = 'unknown key (allowed: policy, value, weights, or a pair "a>b")'
+    text = mutate(old, new.format(key=key))
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if t.startswith(f'"{key}"'))
+    with pytest.raises(RgtbusError) as err:
+        parse_scenario(text, "scenarios/gate.toml")
+    assert str(err.value) == f"scenarios/gate.toml:{line}: {section}.{key}: {says}"

@@ -14,11 +14,11 @@ from rgtbus.signal.decoder import (
     accept_id,
     candidate_instants,
     decode_code,
-    decode_joint,
     nearest,
     start_from_spike,
 )
 from rgtbus.signal.evaluate import symbol_error_rate
+from rgtbus.signal.joint import decode_joint
 from rgtbus.signal.plan import PAPER_OMEGAS
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants, superpose
@@ -77,7 +77,7 @@ def test_joint_decoding_with_overlapping_interferer():
 
 
 def test_joint_decoding_coordinate_descent_path(monkeypatch):
-    import rgtbus.signal.decoder as dec
+    import rgtbus.signal.joint as dec
 
     monkeypatch.setattr(dec, "MAX_EXHAUSTIVE", 1)
     a, c = CB.alternatives["{alpha}"], CB.alternatives["1"]
@@ -230,3 +230,32 @@ def test_nearer_than_silence_is_nearest_between_a_word_and_silence(pairs, half):
         values = [w * half for w in word]
     words = WordSet.of({"id": word, SILENCE: [0.0] * len(word)})
     assert nearer_than_silence(values, word) == (nearest(values, words).name == "id")
+
+
+_GRID = st.sampled_from([-0.4, 0.0, 0.2, 0.3, 0.35, 0.4, 0.45, 0.5, 0.7])
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.data())
+def test_the_compiled_nearest_word_is_the_numpy_rule(data):
+    """``_walk.score`` (``nearest_word``) is the compiled twin of the nearest-codeword rule
+    ``nearest_words``: the same row, word, distance, margin and separation, to the last bit,
+    ties included (reads on a coarse grid, words repeated under other names, rows repeated)."""
+    from rgtbus.signal.nearest import nearest_word, nearest_words
+
+    n = data.draw(st.integers(1, 9), label="pulses")
+    word = st.lists(_GRID, min_size=n, max_size=n)
+    mat = np.array(data.draw(st.lists(word, min_size=1, max_size=6), label="words"))
+    rank = np.array(data.draw(st.permutations(range(len(mat))), label="rank"), dtype=np.int64)
+    read = st.one_of(
+        st.sampled_from(mat.tolist()),  # exactly on a word
+        word,  # on the grid: often half-way between words
+        st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=n, max_size=n),
+    )
+    rows = data.draw(st.integers(1, 4), label="rows")
+    decodes = data.draw(st.lists(st.lists(read, min_size=rows, max_size=rows), min_size=1))
+    reads = np.array(decodes, dtype=np.float64)
+    every = nearest_words(reads, mat, rank)
+    for d in range(len(reads)):
+        twin = nearest_word(np.ascontiguousarray(reads[d]), mat, rank)
+        assert twin == tuple(column[d].item() for column in every)

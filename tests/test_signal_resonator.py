@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal import resonator
+from rgtbus.signal import lanes
 from rgtbus.signal.reference import reference_trajectory, simulate_python
 from rgtbus.signal.resonator import (
     BankState,
@@ -361,7 +361,7 @@ def test_receivers_that_hear_alike_walk_once_with_the_same_results(views, seed, 
     banks = {share: ResonatorBank(om, n_receivers=U) for share in (True, False)}
     got = {}
     with pytest.MonkeyPatch.context() as mp:  # share however short the advance
-        mp.setattr(resonator, "SHARE_MIN_WORK", 0)
+        mp.setattr(lanes, "SHARE_MIN_WORK", 0)
         for share, b in banks.items():
             got[share] = _walk_in_pieces(b, u, n, walking, share)
     (sp, st_), (ref, ref_st) = got[True], got[False]

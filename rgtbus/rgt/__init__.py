@@ -35,8 +35,8 @@ from rgtbus.rgt.polynomial import (
     random_polynomial,
 )
 
-# The inverse task is imported when first used (a run without goals never steers, and a
-# command's start-up pays 6 ms for it and ``fractions`` otherwise: issue 23).
+# The inverse task is imported when first used: a run without goals never steers, and every
+# command's start-up would otherwise pay for importing it and ``fractions``.
 _CONTROL = (
     "STEER_RULES",
     "ControlResult",

@@ -49,10 +49,12 @@ class Universe:
 
     @property
     def k(self) -> int:
+        """The number of actions."""
         return len(self.actions)
 
     @property
     def full(self) -> int:
+        """The full set of actions as a mask (the alternative 1)."""
         return (1 << len(self.actions)) - 1
 
     def __len__(self) -> int:
@@ -63,6 +65,7 @@ class Universe:
         return iter(range(1 << len(self.actions)))
 
     def bit(self, action: str) -> int:
+        """The mask of one action; refused for an unknown name."""
         try:
             return 1 << self._index[action]
         except KeyError:
@@ -71,14 +74,17 @@ class Universe:
             ) from None
 
     def check(self, mask: int) -> int:
+        """``mask`` if it is an alternative of this algebra; refused otherwise."""
         if not (0 <= mask <= self.full):
             raise RgtbusError(f"alternative {mask} is outside the algebra of {self.k} actions")
         return mask
 
     def neg(self, mask: int) -> int:
+        """The complement not(mask)."""
         return mask ^ self.full
 
     def from_names(self, names: Iterable[str]) -> int:
+        """The mask of these action names (their union)."""
         mask = 0
         for name in names:
             mask |= self.bit(name)
@@ -127,6 +133,7 @@ class Universe:
         return sorted(a for j, a in enumerate(self.actions) if mask >> j & 1)
 
     def from_list(self, names: Sequence[str]) -> int:
+        """The mask of a JSON form (a list of action names)."""
         return self.from_names(names)
 
     def format(self, mask: int) -> str:

@@ -54,6 +54,9 @@ def meets(a: int, b: int, lo: int, hi: int, mode: str) -> bool:
 
 @dataclass(frozen=True)
 class ControlProblem:
+    """One inverse task: steer ``subject`` into [``lo``, ``hi``] by ``mode``, the influences in
+    ``fixed`` given in advance."""
+
     subject: str
     lo: int
     hi: int
@@ -113,6 +116,7 @@ class ControlResult:
 
     @property
     def count(self) -> int:
+        """How many joint influence tuples solve the task (the product of the per-action counts)."""
         return prod(t.bit_count() for t in self._tables)
 
     @property

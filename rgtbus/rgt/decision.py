@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import parse_pair_key
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
 from rgtbus.rgt.expr import ONE, ZERO, Expr, Sum, format_expr, needs_star, readable, substitute
@@ -28,6 +29,7 @@ class CanonicalForm:
     B: Expr
 
     def text(self, star: bool = False) -> str:
+        """The form as text, ``x = A·x + B·not(x)`` (``star``: products written with ``*``)."""
         x = self.subject
 
         def factor(e: Expr, var: str) -> str | None:
@@ -49,6 +51,8 @@ class CanonicalForm:
 
 
 def canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
+    """Subject's canonical form ``x = A·x + B·not(x)`` of F, with A = F(x=1) and B = F(x=0),
+    minimised (cached per F and subject)."""
     df.index(subject)
     return _canonical_form(df, subject)
 
@@ -62,6 +66,7 @@ def _canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
 
 
 def canonical_forms(df: DecisionFunction) -> dict[str, CanonicalForm]:
+    """Every subject's canonical form, in F's order."""
     return {s: canonical_form(df, s) for s in df.order}
 
 
@@ -79,6 +84,9 @@ class InfluenceMatrix:
         self._known = frozenset(self.subjects)  # a lookup, not a scan: n² influences a matrix
 
     def set(self, src: str, dst: str, value: int, origin: str = "") -> None:
+        """Set the influence of ``src`` on ``dst``; refused for an unknown subject, a subject on
+        itself or a value outside the algebra (``origin``: where the value came from, for the
+        message)."""
         where = f" in {origin}" if origin else ""
         for s in (src, dst):
             if s not in self._known:
@@ -90,9 +98,11 @@ class InfluenceMatrix:
         self._values[(src, dst)] = self.universe.check(value)
 
     def get(self, src: str, dst: str) -> int | None:
+        """The influence of ``src`` on ``dst``, or None if not set."""
         return self._values.get((src, dst))
 
     def items(self) -> Iterable[tuple[tuple[str, str], int]]:
+        """Every ((src, dst), value) set."""
         return self._values.items()
 
     def on(self, dst: str) -> dict[str, int]:
@@ -119,7 +129,7 @@ class InfluenceMatrix:
                     f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}"
                 )
             lhs, value = spec.split("=", 1)
-            src, dst = (p.strip() for p in lhs.split(">", 1))
+            src, dst = (p.strip() for p in parse_pair_key(lhs))
             if m.get(src, dst) is not None:
                 raise RgtbusError(f"influence {src}>{dst} is given twice")
             try:
@@ -133,6 +143,7 @@ class InfluenceMatrix:
     def from_mapping(
         cls, values: Mapping[tuple[str, str], int], subjects: Iterable[str], universe: Universe
     ) -> InfluenceMatrix:
+        """A matrix of ``values`` by (src, dst), each checked as ``set`` checks it."""
         m = cls(subjects, universe)
         known, put, check = m._known, m._values.__setitem__, universe.check
         for (src, dst), v in values.items():  # each unit decides on n² of them, every round
@@ -157,13 +168,16 @@ class SubjectResult:
 
     @property
     def frustrated(self) -> bool:
+        """Whether B ⊄ A: the equation has no solution."""
         return bool(self.B & ~self.A)
 
     @property
     def interval(self) -> tuple[int, int] | None:
+        """The solutions' interval (B, A), or None when frustrated."""
         return None if self.frustrated else (self.B, self.A)
 
     def choices(self, universe: Universe) -> list[int]:
+        """Every alternative x with B ⊆ x ⊆ A."""
         return universe.subsets_between(self.B, self.A)
 
 
@@ -202,6 +216,7 @@ def forward(
 
 
 def canonical_text(form: CanonicalForm, order: Iterable[str]) -> str:
+    """``form`` as text, products written with ``*`` where the names of ``order`` need it."""
     return form.text(needs_star(list(order)))
 
 

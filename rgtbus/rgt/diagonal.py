@@ -114,12 +114,15 @@ class DecisionFunction:
 
     @property
     def n(self) -> int:
+        """The number of subjects."""
         return len(self.order)
 
     def text(self) -> str:
+        """F as text (its display form)."""
         return format_expr(self.display, needs_star(self.order))
 
     def index(self, subject: str) -> int:
+        """A subject's position in F's order; refused for an unknown subject."""
         try:
             return self.order.index(subject)
         except ValueError:

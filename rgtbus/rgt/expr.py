@@ -27,16 +27,22 @@ class Expr:
 
 @dataclass(frozen=True, slots=True)
 class Var(Expr):
+    """A subject variable."""
+
     name: str
 
 
 @dataclass(frozen=True, slots=True)
 class Const(Expr):
+    """The constant 1 (True) or 0 (False)."""
+
     value: bool
 
 
 @dataclass(frozen=True, slots=True)
 class Not(Expr):
+    """Negation (complement in the algebra of alternatives)."""
+
     arg: Expr
 
 
@@ -59,6 +65,7 @@ ZERO = Const(False)
 
 
 def children(e: Expr) -> tuple[Expr, ...]:
+    """The operands of a sum or a product (a leaf or a negation: none)."""
     if isinstance(e, Sum):
         return e.terms
     if isinstance(e, Prod):

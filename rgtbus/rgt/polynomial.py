@@ -33,14 +33,33 @@ def parse_polynomial(text: str) -> Expr:
     and every product is written with ``*`` (or by juxtaposing parentheses). Each variable must
     appear exactly once, as in the polynomial of a relationship graph.
     """
-    src = text
-    if not src.strip():
+    if not text.strip():
         raise RgtbusError("empty polynomial")
-    star = "*" in src
-    tokens: list[tuple[str, str, int]] = []  # (kind, text, position)
+    parser = _PolynomialParser(_tokens(text), text)
+    expr = parser.sum()
+    if parser.pos != len(parser.tokens):
+        raise RgtbusError(f"unexpected {parser.where()} in polynomial {text!r}")
+    seen: set[str] = set()
+    for name in _all_var_occurrences(expr):
+        if name in seen:
+            raise RgtbusError(
+                f"variable {name!r} appears twice in polynomial {text!r}: each subject appears once"
+            )
+        seen.add(name)
+    return expr
+
+
+_Token = tuple[str, str, int]  # (kind: "name" or the character, its text, its position)
+
+
+def _tokens(text: str) -> list[_Token]:
+    """The tokens of a polynomial: names (letters, or identifiers where ``*`` is written),
+    ``+``, ``*`` and parentheses; refused at the first character that is none of them."""
+    star = "*" in text
+    tokens: list[_Token] = []
     i = 0
-    while i < len(src):
-        ch = src[i]
+    while i < len(text):
+        ch = text[i]
         if ch.isspace():
             i += 1
             continue
@@ -49,7 +68,7 @@ def parse_polynomial(text: str) -> Expr:
             i += 1
             continue
         if star:
-            m = _IDENT.match(src, i)
+            m = _IDENT.match(text, i)
             if m:
                 tokens.append(("name", m.group(), i))
                 i = m.end()
@@ -62,60 +81,60 @@ def parse_polynomial(text: str) -> Expr:
         if not star and (ch.isdigit() or ch == "_"):
             hint = " (multi-letter names need '*', e.g. robot1*robot2+robot3)"
         raise RgtbusError(f"bad token {ch!r} at position {i} in polynomial {text!r}{hint}")
+    return tokens
 
-    pos = 0
 
-    def peek() -> tuple[str, str, int] | None:
-        return tokens[pos] if pos < len(tokens) else None
+class _PolynomialParser:
+    """Recursive descent over a polynomial's tokens: sum := prod ('+' prod)*,
+    prod := factor ('*'? factor)*, factor := name | '(' sum ')'."""
 
-    def where() -> str:
-        t = peek()
+    def __init__(self, tokens: list[_Token], text: str) -> None:
+        self.tokens = tokens
+        self.text = text
+        self.pos = 0
+
+    def peek(self) -> _Token | None:
+        """The next token (None at the end)."""
+        return self.tokens[self.pos] if self.pos < len(self.tokens) else None
+
+    def where(self) -> str:
+        """The next token and its position, for an error."""
+        t = self.peek()
         return f"{t[1]!r} at position {t[2]}" if t else "end of input"
 
-    def parse_sum() -> Expr:
-        nonlocal pos
-        terms = [parse_prod()]
-        while (t := peek()) and t[0] == "+":
-            pos += 1
-            terms.append(parse_prod())
+    def sum(self) -> Expr:
+        """A sum of products (one product: itself), nested sums flattened."""
+        terms = [self.prod()]
+        while (t := self.peek()) and t[0] == "+":
+            self.pos += 1
+            terms.append(self.prod())
         return terms[0] if len(terms) == 1 else Sum(tuple(_flatten(terms, Sum)))
 
-    def parse_prod() -> Expr:
-        nonlocal pos
-        factors = [parse_factor()]
-        while (t := peek()) and t[0] in ("*", "name", "("):
+    def prod(self) -> Expr:
+        """A product of factors (one factor: itself), nested products flattened."""
+        factors = [self.factor()]
+        while (t := self.peek()) and t[0] in ("*", "name", "("):
             if t[0] == "*":
-                pos += 1
-            factors.append(parse_factor())
+                self.pos += 1
+            factors.append(self.factor())
         return factors[0] if len(factors) == 1 else Prod(tuple(_flatten(factors, Prod)))
 
-    def parse_factor() -> Expr:
-        nonlocal pos
-        t = peek()
+    def factor(self) -> Expr:
+        """A variable, or a parenthesised sum."""
+        t = self.peek()
         if t is None or t[0] in ("+", "*", ")"):
-            raise RgtbusError(f"expected a variable or '(' but found {where()} in {text!r}")
-        if t[0] == "name":
-            pos += 1
-            return Var(t[1])
-        pos += 1  # "("
-        inner = parse_sum()
-        close = peek()
-        if close is None or close[0] != ")":
-            raise RgtbusError(f"missing ')' for '(' at position {t[2]} in {text!r}")
-        pos += 1
-        return inner
-
-    expr = parse_sum()
-    if pos != len(tokens):
-        raise RgtbusError(f"unexpected {where()} in polynomial {text!r}")
-    seen: set[str] = set()
-    for name in _all_var_occurrences(expr):
-        if name in seen:
             raise RgtbusError(
-                f"variable {name!r} appears twice in polynomial {text!r}: each subject appears once"
+                f"expected a variable or '(' but found {self.where()} in {self.text!r}"
             )
-        seen.add(name)
-    return expr
+        self.pos += 1
+        if t[0] == "name":
+            return Var(t[1])
+        inner = self.sum()  # after "("
+        close = self.peek()
+        if close is None or close[0] != ")":
+            raise RgtbusError(f"missing ')' for '(' at position {t[2]} in {self.text!r}")
+        self.pos += 1
+        return inner
 
 
 def _all_var_occurrences(e: Expr) -> list[str]:
@@ -187,6 +206,8 @@ class RelationGraph:
     def from_pairs(
         cls, subjects: Sequence[str], alliances: Iterable[tuple[str, str]]
     ) -> RelationGraph:
+        """The graph over ``subjects`` with these alliances; refused for a bad or repeated subject
+        name, an unknown subject or a subject allied with itself."""
         subs = tuple(subjects)
         if not subs:
             raise RgtbusError("a group needs at least one subject")
@@ -208,6 +229,7 @@ class RelationGraph:
         return cls(subs, frozenset(pairs))
 
     def allied(self, a: str, b: str) -> bool:
+        """Whether ``a`` and ``b`` are allied."""
         return _pair(a, b) in self.alliances
 
     def edges(self) -> dict[tuple[str, str], str]:
@@ -304,6 +326,7 @@ def polynomial_to_graph(poly: Expr, subjects: Sequence[str] | None = None) -> Re
 
 
 def polynomial_text(poly: Expr) -> str:
+    """A polynomial as text (``format_expr``)."""
     return format_expr(poly)
 
 

@@ -27,6 +27,8 @@ MAX_EXPONENT = 10.0  # path-loss exponents met in practice are 1.6 to 6
 
 
 def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channel:
+    """``[channel]``: noise, bursts, link gains, positions and path loss, speed and clocks, each
+    checked."""
     ch = sub_table(ctx, data, "channel")
     check_keys(ctx, ch, CHANNEL_KEYS, "channel")
     noise = ch.get("noise", 0.0)

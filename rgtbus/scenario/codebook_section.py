@@ -24,6 +24,7 @@ MAX_PULSES = 64  # a code's length grows with N; far beyond any plan's need (the
 
 
 def mode_of(ctx: Ctx, data: dict[str, Any]) -> str:
+    """``mode``: the resonator mode, paper (default) or exact."""
     mode = data.get("mode", "paper")
     if not isinstance(mode, str) or mode not in MODES:
         raise ctx.error("", "mode", f"unknown resonator mode {mode!r} (modes: {', '.join(MODES)})")

@@ -17,6 +17,8 @@ class Ctx:
         self.lines = text.splitlines()
 
     def line_of(self, section: str, key: str | None) -> int | None:
+        """The line of ``key`` in ``section`` (the section's header line for no key), or None where
+        it is not found."""
         header = (
             re.compile(r"\s*\[+\s*" + re.escape(section) + r"\s*\]+\s*(#.*)?\Z")
             if section
@@ -48,6 +50,7 @@ class Ctx:
         return None
 
     def error(self, section: str, key: str | None, reason: str) -> RgtbusError:
+        """A one-line error ``file:line: section.key: reason`` to raise."""
         line = self.line_of(section, key)
         where = f"{self.path}:{line}" if line else self.path
         name = ".".join(p for p in (section, key) if p)

@@ -17,6 +17,8 @@ DECISION_POLICIES = ("max", "min", "seeded-random")
 def decisions_of(
     ctx: Ctx, data: dict[str, Any], units: tuple[str, ...], universe: Universe
 ) -> dict[str, str]:
+    """``[decision]``: each unit's decision policy (``policy`` for every unit, ``units`` by
+    unit)."""
     dec = sub_table(ctx, data, "decision")
     check_keys(ctx, dec, DECISION_KEYS, "decision")
     default_policy = dec.get("policy", "max")

@@ -14,7 +14,7 @@ from rgtbus.rgt import Universe, graph_to_polynomial, parse_polynomial, polynomi
 from rgtbus.rgt.expr import format_expr, needs_star
 from rgtbus.scenario.context import Ctx
 from rgtbus.scenario.model import Goal, Outcome
-from rgtbus.scenario.values import alternative_of, interval_of
+from rgtbus.scenario.values import alternative_of, interval_of, pair_of
 
 EXPECT_KEYS = {
     "polynomial",
@@ -38,6 +38,8 @@ def expect_of(
     universe: Universe,
     outcome: Outcome | None,
 ) -> dict[str, Any]:
+    """``[expect]``: what a run is checked against, each key checked against the units, the universe
+    and the outcome."""
     for key in expect:
         if key not in EXPECT_KEYS:
             allowed = ", ".join(sorted(EXPECT_KEYS))
@@ -184,13 +186,7 @@ def _influences(
     """``"a>b" = "1"``, stored as the list of actions a run logs."""
     sent: dict[str, list[str]] = {}
     for key, v in table.items():
-        parts = [x.strip() for x in key.split(">")]
-        if len(parts) != 2:
-            raise ctx.error("expect.influences", key, 'write the pair as SENDER>ADDRESSEE, "a>b"')
-        for x in parts:
-            _known_unit(ctx, units, x, "expect.influences", key)
-        if parts[0] == parts[1]:
-            raise ctx.error("expect.influences", key, "a unit does not address itself")
+        sender, addressee = pair_of(ctx, units, key, "expect.influences")
         value = alternative_of(ctx, universe, v, "expect.influences", key)
-        sent[pair_key(parts[0], parts[1])] = universe.to_list(value)
+        sent[pair_key(sender, addressee)] = universe.to_list(value)
     return sent

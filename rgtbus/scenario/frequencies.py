@@ -17,6 +17,8 @@ from rgtbus.signal.plan import auto_plan, check_plan, make_plan, parse_omega
 
 
 class Frequencies(NamedTuple):
+    """``[frequencies]`` as read: ω by unit, as written, and the mode and codebook they go with."""
+
     frequencies: dict[str, float]  # rad/s by unit
     text: dict[str, str]  # as written (or as planned, 6 digits)
     mode: str  # as given, or chosen by the plan
@@ -33,6 +35,8 @@ def frequencies_of(
     tau: float,
     schedule: str,
 ) -> Frequencies:
+    """``[frequencies]``: given by unit, or ``auto`` (planned, with the mode and codebook the plan
+    needs where the scenario names neither)."""
     freq = data.get("frequencies", "auto")
     if freq == "auto" and "mode" not in data and "codebook" not in data:
         mode, codebook = _planned(ctx, len(units), universe, codebook, tau, schedule)

@@ -30,6 +30,8 @@ def goals_of(
     decisions: dict[str, str],
     outcome: Outcome | None,
 ) -> tuple[Goal, ...]:
+    """``[goals.UNIT]``: what each unit steers its targets to, checked against the units, the
+    decisions and the outcome."""
     out: list[Goal] = []
     if goals and len(units) > EXACT_VARS:
         first = next(iter(goals))

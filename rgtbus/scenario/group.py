@@ -12,6 +12,8 @@ from rgtbus.scenario.values import IDENT
 
 
 class Group(NamedTuple):
+    """The scenario's name, seed, units and universe of actions."""
+
     name: str
     seed: int
     units: tuple[str, ...]
@@ -53,6 +55,7 @@ def _universe_of(ctx: Ctx, data: dict[str, Any]) -> Universe:
 
 
 def description_of(ctx: Ctx, data: dict[str, Any]) -> str:
+    """``description``: a string (empty when absent)."""
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ctx.error("", "description", "must be a string")

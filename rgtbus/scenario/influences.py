@@ -15,6 +15,8 @@ INFLUENCE_KEYS = {"policy", "value", "weights"}  # any other key of [influences]
 
 
 class Influences(NamedTuple):
+    """``[influences]`` as read: the policy, its value or weights, and the pairs listed."""
+
     policy: str
     value: int | None  # policy uniform
     weights: dict[int, float]  # policy random
@@ -24,6 +26,8 @@ class Influences(NamedTuple):
 def influences_of(
     ctx: Ctx, data: dict[str, Any], units: tuple[str, ...], universe: Universe
 ) -> Influences:
+    """``[influences]``: the policy and its value or weights, and the pairs listed (every pair under
+    policy fixed)."""
     inf = sub_table(ctx, data, "influences")
     for key in inf:  # a typo of a policy key would otherwise be blamed on another key
         if key not in INFLUENCE_KEYS and ">" not in key:

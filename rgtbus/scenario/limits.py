@@ -28,22 +28,21 @@ LARGE_FACTOR = 100  # RGTBUS_BUDGET=large: every budget this many times larger
 
 
 class Budget(NamedTuple):
+    """A limit on what a run may ask for: its ``name``, ``limit`` and ``what`` it counts."""
+
     name: str
     limit: float
     what: str  # what the estimate counts, for the message
 
 
-# Measured on a 2-core machine (issue 22): the largest shipped scenario, group50, is 490,000
-# decodes (~250 MB, a minute); 16 units × 1000 rounds (7.7 million) took 3.4 GB before failing;
-# 1e8 samples in one window crashed orjson. A generated codebook searches ~4e7 word pairs a
-# second. Every shipped scenario and sweep, and the benchmarks (100 concurrent units: 4
-# million decodes; 1e5 s at 200 samples/s), fit.
+# Each budget lies above what every shipped scenario, sweep and benchmark asks for and below
+# what exhausts a small machine's memory or the log writer first (docs/engine.md).
 SAMPLES = Budget("samples", 1e9, "samples (max_seconds × sample_rate)")
 WINDOW_SAMPLES = Budget("window", 1e5, "samples a bus window (window × sample_rate)")
 DECODES = Budget("decodes", 5e6, "decodes (2·n²·(n−1)·(1 + influence_rounds))")
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
-# n²·L resonator-samples (L: the longest ID plus a period, in samples); 5e7 is ~2 s, 400 MB.
+# n²·L resonator-samples (L: the longest ID plus a period, in samples).
 CROSSTALK = Budget("crosstalk", 5e7, "resonator-samples (n² × samples an ID)")
 
 # Hard limits (no budget lifts them): log times are unsigned 64-bit nanoseconds.
@@ -105,7 +104,7 @@ def codebook_candidates(pulses: int, low: float = 0.1, high: float = 0.7) -> int
 
 def codebook_search(actions: int, pulses: int) -> float:
     """The generated codebook's farthest-first search: 2^actions words, each against every
-    candidate word (measured: 8 actions at 8 pulses, 2.1e8, five seconds)."""
+    candidate word."""
     return float(2**actions) * codebook_candidates(pulses)
 
 

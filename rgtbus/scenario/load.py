@@ -47,7 +47,7 @@ TOP_KEYS = {
     "protocol",
     "goals",
 }
-# Far beyond any real scenario (six units are ~2 KB); stops a device or a huge file early.
+# Far beyond any real scenario; stops a device or a huge file early.
 MAX_SCENARIO_BYTES = 8 * 1024 * 1024
 TEXT = "<text>"  # the file name errors give for a scenario loaded from text
 

@@ -14,6 +14,8 @@ from rgtbus.signal.codebook import Codebook
 
 @dataclass(frozen=True)
 class Timing:
+    """``[timing]``: the sample rate and the schedule's times, in seconds."""
+
     sample_rate: float = 200.0  # samples per second (tau = 5 ms)
     window: float = 0.1  # seconds per bus window; at most the reaction delay (the lookahead)
     start: float = 0.001  # first transmission, seconds after onset (the paper's 1 ms)
@@ -29,10 +31,12 @@ class Timing:
 
     @property
     def tau(self) -> float:
+        """The sample period, 1 / sample_rate."""
         return 1.0 / self.sample_rate
 
     @property
     def window_samples(self) -> int:
+        """A bus window in samples, window × sample_rate rounded."""
         return round(self.window * self.sample_rate)
 
 
@@ -63,6 +67,9 @@ class Goal:
 
 @dataclass(frozen=True)
 class Scenario:
+    """A scenario as loaded: its group, channel, codebook, frequencies, timing, relations,
+    influences, decisions, goals, outcome and expectations."""
+
     name: str
     path: str
     text: str

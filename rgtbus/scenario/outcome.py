@@ -16,6 +16,7 @@ OUTCOME_KEYS = {"name", "all_of", "choose", "then", "else"}
 def outcome_of(
     ctx: Ctx, data: dict[str, Any], units: tuple[str, ...], universe: Universe
 ) -> Outcome | None:
+    """``[outcome]``: the joint outcome the units decide (None when absent)."""
     if "outcome" not in data:
         return None
     o = sub_table(ctx, data, "outcome")

@@ -16,6 +16,9 @@ RELATION_POLICIES = ("fixed", "random", "cograph")
 
 
 class Relations(NamedTuple):
+    """``[relations]`` as read: the policy, the alliance probability, and the fixed relations and
+    draw probabilities by pair."""
+
     policy: str
     p: float  # the alliance probability
     fixed: dict[tuple[str, str], bool]  # True: alliance
@@ -23,6 +26,8 @@ class Relations(NamedTuple):
 
 
 def relations_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Relations:
+    """``[relations]``: the policy, the alliance probability, and the fixed relations and draws by
+    pair."""
     rel = sub_table(ctx, data, "relations")
     check_keys(ctx, rel, RELATION_KEYS, "relations")
     policy = _policy_of(ctx, rel)

@@ -20,6 +20,8 @@ DEFAULT_REPAIR_MARGIN = 0.65
 
 
 class Protocol(NamedTuple):
+    """``[protocol]`` as read: the schedule, the influence rounds and the repair."""
+
     schedule: str
     influence_rounds: int
     repair: str = "none"
@@ -28,6 +30,7 @@ class Protocol(NamedTuple):
 
 
 def protocol_of(ctx: Ctx, data: dict[str, Any]) -> Protocol:
+    """``[protocol]``: schedule, influence rounds and repair, each checked."""
     proto = sub_table(ctx, data, "protocol")
     check_keys(ctx, proto, PROTOCOL_KEYS, "protocol")
     schedule = proto.get("schedule", "serial")

@@ -19,6 +19,8 @@ NAME = re.compile(r"(sweeps/)?[A-Za-z0-9_-]+(\.toml)?\Z")
 
 @dataclass(frozen=True)
 class ShippedScenario:
+    """A scenario shipped with the package, as ``rgtbus scenarios`` lists it."""
+
     name: str  # what to type: rgtbus run NAME
     path: Path
     units: int | None  # None: the file is not a readable scenario
@@ -26,6 +28,7 @@ class ShippedScenario:
     description: str  # its description, else its first comment line
 
     def to_json(self) -> dict[str, Any]:
+        """The entry as JSON-ready values."""
         return {
             "name": self.name,
             "path": str(self.path),

@@ -24,8 +24,8 @@ TIMING_KEYS = {
     "search",
 }
 MAX_SEARCH = 64  # samples of timing search either way
-# Measured: with a gap under one sample every shipped scenario misreads the next ID, and the
-# run fails only after simulating its whole length.
+# With a gap under one sample the next ID is misread, and the run would fail only after
+# simulating its whole length: refused at load instead.
 _GUARD_WHY = (
     ": the next ID's first pulse would fall on the previous code's last sample and be misread"
 )

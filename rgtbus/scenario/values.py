@@ -8,17 +8,19 @@ import re
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import Pair, parse_pair_key
 from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
 
 IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
-# Noise, gains and pulse magnitudes above this overflow the resonators' floats mid-run (1e200
-# did; 1e3 runs and fails cleanly); pulses are about 0.4, decoding fails from noise ~0.08.
+# Noise, gains and pulse magnitudes above this can overflow the resonators' floats mid-run;
+# it is far above any level a run still decodes at (pulses are about 0.4).
 MAX_LEVEL = 1000.0
 
 
 def is_int(v: Any) -> bool:
+    """An integer, not a bool (bool is an int in Python)."""
     return isinstance(v, int) and not isinstance(v, bool)
 
 
@@ -34,12 +36,12 @@ def unit_of(ctx: Ctx, units: tuple[str, ...], value: str, section: str, key: str
     return value
 
 
-def pair_of(ctx: Ctx, units: tuple[str, ...], key: str, section: str) -> tuple[str, str]:
-    """A ``"SENDER>ADDRESSEE"`` key of two distinct units."""
-    parts = key.split(">")
-    if len(parts) != 2:
+def pair_of(ctx: Ctx, units: tuple[str, ...], key: str, section: str) -> Pair:
+    """A ``"SENDER>ADDRESSEE"`` key of two distinct units (``parse_pair_key``; spaces around
+    the names allowed): the one reading of a pair key in a scenario file."""
+    if key.count(">") != 1:
         raise ctx.error(section, key, 'write the pair as SENDER>ADDRESSEE, e.g. "a>b"')
-    s, r = (unit_of(ctx, units, x.strip(), section, key) for x in parts)
+    s, r = (unit_of(ctx, units, x.strip(), section, key) for x in parse_pair_key(key))
     if s == r:
         raise ctx.error(section, key, "a unit does not address itself")
     return s, r

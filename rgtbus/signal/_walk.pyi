@@ -1,21 +1,27 @@
 # Types of the compiled kernels in _walk.pyx (the extension has no annotations mypy can read).
 import numpy as np
 
+class WalkModel:
+    def __init__(
+        self,
+        Pr: np.ndarray,
+        Pi: np.ndarray,
+        Qr: np.ndarray,
+        nQi: np.ndarray,
+        Ar: np.ndarray,
+        Ai: np.ndarray,
+        R: int,
+        lane_ch: np.ndarray,
+        lane_rec: np.ndarray,
+        thr: float,
+        thr2: float,
+        rv: float,
+        stable: bool,
+    ) -> None: ...
+
 def walk_lanes(
-    Pr: np.ndarray,
-    Pi: np.ndarray,
-    Qr: np.ndarray,
-    nQi: np.ndarray,
-    Ar: np.ndarray,
-    Ai: np.ndarray,
-    R: int,
-    lane_ch: np.ndarray,
-    lane_rec: np.ndarray,
+    model: WalkModel,
     lanes: np.ndarray,
-    thr: float,
-    thr2: float,
-    rv: float,
-    stable: bool,
     wr: np.ndarray,
     wi: np.ndarray,
     pend: np.ndarray,
@@ -24,12 +30,9 @@ def walk_lanes(
     rows: np.ndarray,
     vals: np.ndarray,
     stop_first: bool,
-    record: bool,
-    xs: np.ndarray,
-    ys: np.ndarray,
-    mask: np.ndarray,
-    sp_k: np.ndarray,
-    sp_l: np.ndarray,
+    spikes: np.ndarray,
+    trajectory: np.ndarray | None = None,
+    spiked: np.ndarray | None = None,
 ) -> tuple[int, int, bool]: ...
 def score(
     vals: np.ndarray, mat: np.ndarray, rank: np.ndarray

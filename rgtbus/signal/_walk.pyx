@@ -43,8 +43,8 @@ the input.)
     cdef Py_ssize_t cap = sp_k.shape[0]
     cdef Py_ssize_t j = 0
     cdef Py_ssize_t lo = 0, hi = E, mid
-    cdef long k = start, m, mp, nxt, b
-    cdef double pr, pi, zr, zi, xr, u, t_r, t_i
+    cdef long k = start, m, nxt
+    cdef double zr, zi, u
     cdef bint has_input
     while lo < hi:  # the first input row at or after start
         mid = (lo + hi) // 2
@@ -56,29 +56,17 @@ the input.)
     while k < end:
         m = k % R
         if pend:  # reset from the pre-spike state of k−1, in its own frame
-            mp = (k - 1) % R
-            zr = Pr[mp, ch] * w_r - Pi[mp, ch] * w_i
-            zi = Pr[mp, ch] * w_i + Pi[mp, ch] * w_r
-            xr = ar * zr - ai * zi
-            t_r = Qr[m, ch] * xr + nQi[m, ch] * rv
-            t_i = Qr[m, ch] * rv - nQi[m, ch] * xr
-            w_r, w_i = t_r, t_i
+            w_r, w_i = _reset(Pr, Pi, Qr, nQi, ar, ai, rv, R, ch, k, w_r, w_i)
             pend = False
         elif m == 0 and k > 0:
-            t_r = Pr[R, ch] * w_r - Pi[R, ch] * w_i
-            t_i = Pr[R, ch] * w_i + Pi[R, ch] * w_r
-            w_r, w_i = t_r, t_i
-        pr = Pr[m, ch]
-        pi = Pi[m, ch]
+            w_r, w_i = _times_p(Pr, Pi, R, ch, w_r, w_i)
         has_input = j < E and rows[j] == k
         if has_input:
             u = vals[j, rec]
             w_r = w_r + u * nQi[m, ch]
             w_i = w_i + u * Qr[m, ch]
-        zr = pr * w_r - pi * w_i
-        zi = pr * w_i + pi * w_r
-        if has_input:
             j += 1
+        zr, zi = _times_p(Pr, Pi, m, ch, w_r, w_i)
         if record:
             xs[k - start, col] = zr
             ys[k - start, col] = zi
@@ -101,42 +89,123 @@ the input.)
         nxt = rows[j] if j < E else end
         if nxt > end:
             nxt = end
-        b = ((k + R - 1) // R) * R  # the epoch starts crossed on the way to nxt
-        while b < nxt:
-            if b > 0:
-                t_r = Pr[R, ch] * w_r - Pi[R, ch] * w_i
-                t_i = Pr[R, ch] * w_i + Pi[R, ch] * w_r
-                w_r, w_i = t_r, t_i
-            b += R
+        w_r, w_i = _across_silence(Pr, Pi, R, ch, k, nxt, w_r, w_i)
         k = nxt
     return w_r, w_i, pend, end, n_sp, False
 
 
-def walk_lanes(
+cdef inline (double, double) _times_p(
+    const double[:, ::1] Pr, const double[:, ::1] Pi, long m, long ch, double w_r, double w_i,
+) noexcept nogil:
+    """P[m]·w on channel ``ch``: the state at m samples into the epoch, or (m = R) the frame
+    moved on to the next epoch."""
+    return Pr[m, ch] * w_r - Pi[m, ch] * w_i, Pr[m, ch] * w_i + Pi[m, ch] * w_r
+
+
+cdef inline (double, double) _reset(
     const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
-    const double[:, ::1] nQi, const double[::1] Ar, const double[::1] Ai, long R,
-    const long[::1] lane_ch, const long[::1] lane_rec, const long[::1] lanes,
-    double thr, double thr2, double rv, bint stable,
+    const double[:, ::1] nQi, double ar, double ai, double rv, long R, long ch, long k,
+    double w_r, double w_i,
+) noexcept nogil:
+    """w at sample k after a spike at k−1: Q[m]·(Re(A·z[k−1]) + i·rv), z[k−1] the pre-spike
+    state in its own frame (m = k mod R)."""
+    cdef long m = k % R
+    cdef double zr, zi, xr
+    zr, zi = _times_p(Pr, Pi, (k - 1) % R, ch, w_r, w_i)
+    xr = ar * zr - ai * zi
+    return Qr[m, ch] * xr + nQi[m, ch] * rv, Qr[m, ch] * rv - nQi[m, ch] * xr
+
+
+cdef inline (double, double) _across_silence(
+    const double[:, ::1] Pr, const double[:, ::1] Pi, long R, long ch, long k, long nxt,
+    double w_r, double w_i,
+) noexcept nogil:
+    """w carried through silence from sample k to ``nxt``: unchanged but for a re-anchoring
+    (w ← P[R]·w) at every epoch start crossed on the way (none at sample 0)."""
+    cdef long b = ((k + R - 1) // R) * R
+    while b < nxt:
+        if b > 0:
+            w_r, w_i = _times_p(Pr, Pi, R, ch, w_r, w_i)
+        b += R
+    return w_r, w_i
+
+
+cdef class WalkModel:
+    """What every walk of a bank uses and nothing changes: the epoch tables (P = A^m as
+    ``Pr``, ``Pi``; Q = A^-m as ``Qr``, ``nQi`` = −Im; A as ``Ar``, ``Ai``; epoch ``R``), the
+    lane layout (``lane_ch``, ``lane_rec``) and the spike rule (threshold ``thr``, the hot
+    bound ``thr2`` on |z|², reset value ``rv``, ``stable``: silence may be skipped). Built once
+    per bank model, so a walk does not take its arrays apart again."""
+
+    cdef const double[:, ::1] Pr
+    cdef const double[:, ::1] Pi
+    cdef const double[:, ::1] Qr
+    cdef const double[:, ::1] nQi
+    cdef const double[::1] Ar
+    cdef const double[::1] Ai
+    cdef long R
+    cdef const long[::1] lane_ch
+    cdef const long[::1] lane_rec
+    cdef double thr
+    cdef double thr2
+    cdef double rv
+    cdef bint stable
+
+    def __init__(
+        self, const double[:, ::1] Pr, const double[:, ::1] Pi, const double[:, ::1] Qr,
+        const double[:, ::1] nQi, const double[::1] Ar, const double[::1] Ai, long R,
+        const long[::1] lane_ch, const long[::1] lane_rec, double thr, double thr2, double rv,
+        bint stable,
+    ):
+        self.Pr = Pr
+        self.Pi = Pi
+        self.Qr = Qr
+        self.nQi = nQi
+        self.Ar = Ar
+        self.Ai = Ai
+        self.R = R
+        self.lane_ch = lane_ch
+        self.lane_rec = lane_rec
+        self.thr = thr
+        self.thr2 = thr2
+        self.rv = rv
+        self.stable = stable
+
+
+_NO_XY = np.zeros((2, 0, 0))
+_NO_MASK = np.zeros((0, 0), dtype=np.uint8)
+
+
+def walk_lanes(
+    WalkModel model not None, const long[::1] lanes,
     double[::1] wr, double[::1] wi, unsigned char[::1] pend, long start, long end,
-    const long[::1] rows, const double[:, ::1] vals, bint stop_first,
-    bint record, double[:, ::1] xs, double[:, ::1] ys, unsigned char[:, ::1] mask,
-    long[::1] sp_k, long[::1] sp_l,
+    const long[::1] rows, const double[:, ::1] vals, bint stop_first, long[:, ::1] spikes,
+    double[:, :, ::1] trajectory=None, unsigned char[:, ::1] spiked=None,
 ):
-    """``walk`` each of ``lanes``. With ``stop_first``: only find the first spike (returns one
-    past it and 1, or ``end`` and 0; later lanes look no further; the state is left alone).
-    Otherwise every lane walks to ``end`` and its state is updated in place. Returns (stop,
-    spikes, overflow).
+    """``walk`` each of ``lanes`` of ``model`` from ``start`` to ``end`` over the input
+    (``rows``, ``vals``), from the lanes' state (``wr``, ``wi``, ``pend``). With
+    ``stop_first``: only find the first spike (returns one past it and 1, or ``end`` and 0;
+    later lanes look no further; the state is left alone). Otherwise every lane walks to
+    ``end`` and its state is updated in place. Spikes go to ``spikes`` (2, room): their
+    samples, then their lanes. With a ``trajectory`` (2, samples, lanes): every sample's x and
+    y there, and the spike mask to ``spiked``. Returns (stop, spikes, overflow).
     """
     cdef long n_sp = 0, first = end, n_new = 0, at, lane, c, found = 0
     cdef Py_ssize_t idx
     cdef double w_r, w_i
     cdef bint p, over = False
+    cdef bint record = trajectory is not None
+    cdef double[:, :, ::1] xy = trajectory if record else _NO_XY
+    cdef double[:, ::1] xs = xy[0], ys = xy[1]
+    cdef unsigned char[:, ::1] mask = spiked if record else _NO_MASK
+    cdef long[::1] sp_k = spikes[0], sp_l = spikes[1]
     with nogil:
         for idx in range(lanes.shape[0]):
             lane = lanes[idx]
-            c = lane_ch[lane]
+            c = model.lane_ch[lane]
             w_r, w_i, p, at, n_new, over = walk(
-                Pr, Pi, Qr, nQi, Ar[c], Ai[c], R, c, lane_rec[lane], thr, thr2, rv, stable,
+                model.Pr, model.Pi, model.Qr, model.nQi, model.Ar[c], model.Ai[c], model.R, c,
+                model.lane_rec[lane], model.thr, model.thr2, model.rv, model.stable,
                 wr[lane], wi[lane], pend[lane], start, first, rows, vals, stop_first,
                 record, lane, xs, ys, mask, sp_k, sp_l, lane, n_sp,
             )
@@ -210,11 +279,9 @@ def timings(
     Instant j of a start t is rint((t + j·T)/τ) (half to even, as Python's round); it changes
     only where (t + j·T)/τ crosses h + ½, so the tuples are those of ``start`` and of the
     midpoints between consecutive crossings (and the window's ends)."""
-    cdef Py_ssize_t C = omegas.shape[0], c, j, q, a, b, n_cut, n_probe, n_keep, m = 0, k
+    cdef Py_ssize_t C = omegas.shape[0], c, j, q, a, n_probe, n_keep, m = 0
     cdef double t_lo = start - search * tau, t_hi = start + search * tau
-    cdef double period, jt, t, h, h1, tmp
-    cdef long s0 = <long> rint(start / tau), sh
-    cdef bint same
+    cdef long s0 = <long> rint(start / tau)
     # at most 2 + P·(2·search + 3) crossings a channel, one probe more
     cdef Py_ssize_t cap = 3 + pulses * (2 * search + 4)
     cuts_np = np.empty(cap, dtype=np.float64)
@@ -231,55 +298,11 @@ def timings(
     cdef long[:, ::1] inst = inst_np
     cdef long[::1] order = np.empty(cap, dtype=np.int64)
     for c in range(C):
-        period = 2 * 3.141592653589793 / omegas[c]
-        n_cut = 0
-        cuts[n_cut] = t_lo
-        cuts[n_cut + 1] = t_hi
-        n_cut = 2
-        for j in range(pulses):
-            jt = j * period
-            jts[j] = jt
-            h = floor((t_lo + jt) / tau - 0.5)
-            h1 = ceil((t_hi + jt) / tau - 0.5)
-            while h <= h1:
-                t = (h + 0.5) * tau - jt
-                if t_lo < t and t < t_hi:
-                    cuts[n_cut] = t
-                    n_cut += 1
-                h += 1.0
-        _sort(cuts, n_cut)
-        probes[0] = start
-        n_probe = 1
-        for a in range(n_cut - 1):
-            probes[n_probe] = (cuts[a] + cuts[a + 1]) / 2
-            n_probe += 1
-        _sort(probes, n_probe)
-        n_keep = 0
-        for q in range(n_probe):
-            t = probes[q]
-            if t < 0:
-                continue
-            for j in range(pulses):
-                cand[n_keep, j] = <long> rint((t + jts[j]) / tau)
-            if n_keep:  # instants grow with t: equal tuples are adjacent
-                same = True
-                for j in range(pulses):
-                    if cand[n_keep, j] != cand[n_keep - 1, j]:
-                        same = False
-                        break
-                if same:
-                    continue
-            n_keep += 1
-        # nearest shift first, then the earlier: a stable insertion sort on (|shift|, shift)
-        for q in range(n_keep):
-            sh = cand[q, 0] - s0
-            key[q] = (sh if sh >= 0 else -sh) * 2 + (1 if sh > 0 else 0)
-            order[q] = q
-        for a in range(1, n_keep):
-            b = a
-            while b > 0 and key[order[b - 1]] > key[order[b]]:
-                order[b - 1], order[b] = order[b], order[b - 1]
-                b -= 1
+        n_probe = _probes(
+            2 * 3.141592653589793 / omegas[c], start, pulses, tau, t_lo, t_hi, cuts, probes, jts
+        )
+        n_keep = _distinct_instants(n_probe, pulses, tau, probes, jts, cand)
+        _by_shift(n_keep, s0, cand, key, order)
         for a in range(n_keep):
             q = order[a]
             owner[m] = chans[c]
@@ -288,6 +311,83 @@ def timings(
                 inst[m, j] = cand[q, j]
             m += 1
     return owner_np[:m].copy(), shift_np[:m].copy(), inst_np[:m].copy()
+
+
+cdef Py_ssize_t _probes(
+    double period, double start, long pulses, double tau, double t_lo, double t_hi,
+    double[::1] cuts, double[::1] probes, double[::1] jts,
+) noexcept nogil:
+    """The starts to try on a channel of ``period``: ``start`` and the midpoints between the
+    consecutive crossings of h + ½ by (t + j·T)/τ within (t_lo, t_hi) and the window's ends,
+    ascending, into ``probes`` (``cuts``: room for the crossings; ``jts``: each pulse's j·T).
+    Returns how many."""
+    cdef Py_ssize_t j, a, n_cut = 2, n_probe = 1
+    cdef double jt, t, h, h1
+    cuts[0] = t_lo
+    cuts[1] = t_hi
+    for j in range(pulses):
+        jt = j * period
+        jts[j] = jt
+        h = floor((t_lo + jt) / tau - 0.5)
+        h1 = ceil((t_hi + jt) / tau - 0.5)
+        while h <= h1:
+            t = (h + 0.5) * tau - jt
+            if t_lo < t and t < t_hi:
+                cuts[n_cut] = t
+                n_cut += 1
+            h += 1.0
+    _sort(cuts, n_cut)
+    probes[0] = start
+    for a in range(n_cut - 1):
+        probes[n_probe] = (cuts[a] + cuts[a + 1]) / 2
+        n_probe += 1
+    _sort(probes, n_probe)
+    return n_probe
+
+
+cdef Py_ssize_t _distinct_instants(
+    Py_ssize_t n_probe, long pulses, double tau, double[::1] probes, double[::1] jts,
+    long[:, ::1] cand,
+) noexcept nogil:
+    """The distinct instant tuples of the ``probes`` at or after 0 (instant j of a start t is
+    rint((t + j·T)/τ)), in probe order, into ``cand``. Returns how many."""
+    cdef Py_ssize_t q, j, n_keep = 0
+    cdef double t
+    cdef bint same
+    for q in range(n_probe):
+        t = probes[q]
+        if t < 0:
+            continue
+        for j in range(pulses):
+            cand[n_keep, j] = <long> rint((t + jts[j]) / tau)
+        if n_keep:  # instants grow with t: equal tuples are adjacent
+            same = True
+            for j in range(pulses):
+                if cand[n_keep, j] != cand[n_keep - 1, j]:
+                    same = False
+                    break
+            if same:
+                continue
+        n_keep += 1
+    return n_keep
+
+
+cdef void _by_shift(
+    Py_ssize_t n_keep, long s0, long[:, ::1] cand, long[::1] key, long[::1] order,
+) noexcept nogil:
+    """``order`` of the first ``n_keep`` tuples of ``cand``: the nearest shift from ``s0``
+    first, then the earlier (a stable insertion sort on (|shift|, shift))."""
+    cdef Py_ssize_t q, a, b
+    cdef long sh
+    for q in range(n_keep):
+        sh = cand[q, 0] - s0
+        key[q] = (sh if sh >= 0 else -sh) * 2 + (1 if sh > 0 else 0)
+        order[q] = q
+    for a in range(1, n_keep):
+        b = a
+        while b > 0 and key[order[b - 1]] > key[order[b]]:
+            order[b - 1], order[b] = order[b], order[b - 1]
+            b -= 1
 
 
 cdef void _sort(double[::1] a, Py_ssize_t n) noexcept nogil:

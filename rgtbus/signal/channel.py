@@ -112,6 +112,7 @@ class Clock:
 
     @property
     def rate(self) -> float:
+        """The clock's rate against true time, 1 + drift·10⁻⁶."""
         return 1.0 + self.drift * 1e-6
 
 

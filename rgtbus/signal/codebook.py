@@ -47,6 +47,8 @@ class Codebook:
 
     @property
     def families(self) -> dict[str, dict[str, Word]]:
+        """The three families by name (``id``, ``relation``, ``alternative``), each its words by
+        name."""
         return {
             "id": {"id": self.id_word},
             "relation": dict(self.relations),
@@ -54,6 +56,7 @@ class Codebook:
         }
 
     def family(self, name: str) -> dict[str, Word]:
+        """One family's words by name; refused for a name that is no family."""
         fams = self.families
         if name not in fams:
             raise RgtbusError(f"codebook family {name!r} is not one of {', '.join(fams)}")
@@ -73,10 +76,12 @@ class Codebook:
         return out
 
     def family_min_distance(self, name: str) -> float:
+        """The smallest Euclidean distance between two words of a family (inf with one word)."""
         words = list(self.family(name).values())
         return min((_dist(a, b) for a, b in itertools.combinations(words, 2)), default=math.inf)
 
     def to_dict(self) -> dict[str, Any]:
+        """The codebook as a TOML-like dict, as :meth:`from_dict` reads it."""
         return {
             "name": self.name,
             "pulses": self.pulses,
@@ -277,61 +282,17 @@ def generate_codebook(
     k = len(acts)
     need = 1 << k
     total = 0.4 * pulses if total is None else float(total)
-    high = float(high)
-
-    def grid(step: float) -> tuple[int, int]:
-        return math.ceil(low / step - 1e-9), math.floor(high / step + 1e-9)
-
-    def enumeration(step: float) -> int:
-        lo_u, hi_u = grid(step)
-        count: int = max(0, hi_u - lo_u + 1) ** max(0, pulses - 1)
-        return count
-
-    if step is None:  # finest grid in 0.05 steps whose enumeration stays small
-        step = next((s * 0.05 for s in range(1, 100) if enumeration(s * 0.05) <= 1_000_000), None)
-        if step is None:
-            raise RgtbusError(f"codebook generator: no grid step keeps N = {pulses} pulses small")
-    if not step > 0:
-        raise RgtbusError(f"codebook generator: step = {step!r} must be positive")
-    # Counted before enumerating: the product itself could outlast any caller.
-    if enumeration(step) > 1_000_000:
-        raise RgtbusError(
-            f"codebook generator: about {enumeration(step):.3g} candidates at step {step:g} "
-            f"for N = {pulses} pulses; use a coarser step"
-        )
-    units = round(total / step)
-    lo_u, hi_u = grid(step)
-    # Every word on the grid with the given total: the first N − 1 magnitudes in
-    # lexicographic order (as itertools.product), the last one what the total leaves.
-    width = max(0, hi_u - lo_u + 1)
-    count = width ** (pulses - 1)  # at most a million (checked above)
-    head = np.empty((count, pulses - 1), dtype=np.int32)
-    rest = np.arange(count)
-    for j in range(pulses - 2, -1, -1):  # mixed radix: the last magnitude runs fastest
-        head[:, j] = rest % width + lo_u
-        rest //= width
-    last = units - head.sum(axis=1)
-    ok = (last >= lo_u) & (last <= hi_u)
-    cands = np.concatenate([head[ok], last[ok, None]], axis=1)
+    grid = _Grid(low, float(high), pulses)
+    step = grid.step_for(step)
     id_word = tuple([0.4] * pulses)
-    pts = cands.astype(float) * step
+    pts = grid.words(round(total / step), step).astype(float) * step
     pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance - 1e-9]
     if len(pts) < need:
         raise RgtbusError(
             f"codebook generator: only {len(pts)} candidate words for {need} "
             f"alternatives at N = {pulses} pulses; use more pulses"
         )
-    rng = np.random.default_rng(seed)
-    pts = pts[rng.permutation(len(pts))]
-    chosen = [0]
-    d = np.minimum(
-        np.linalg.norm(pts - pts[0], axis=1), np.linalg.norm(pts - np.array(id_word), axis=1)
-    )
-    while len(chosen) < need:
-        j = int(np.argmax(d))
-        chosen.append(j)
-        d = np.minimum(d, np.linalg.norm(pts - pts[j], axis=1))
-    words = [tuple(round(float(v), 10) for v in pts[j]) for j in chosen]
+    words = _farthest_first(pts, id_word, need, seed)
     got = min(_dist(a, b) for a, b in itertools.combinations(words, 2)) if need > 1 else math.inf
     if got < min_distance - 1e-9:
         raise RgtbusError(
@@ -350,3 +311,81 @@ def generate_codebook(
         name=f"generated-k{k}-N{pulses}-seed{seed}",
         actions=tuple(acts),
     )
+
+
+MAX_CANDIDATES = 1_000_000  # candidate words the generator enumerates at most
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The generator's grid: words of ``pulses`` magnitudes in [low, high], multiples of a
+    step."""
+
+    low: float
+    high: float
+    pulses: int
+
+    def bounds(self, step: float) -> tuple[int, int]:
+        """The least and the greatest magnitude on the grid, in steps."""
+        return math.ceil(self.low / step - 1e-9), math.floor(self.high / step + 1e-9)
+
+    def enumeration(self, step: float) -> int:
+        """How many words the grid enumerates: every magnitude but the last (the total's)."""
+        lo_u, hi_u = self.bounds(step)
+        count: int = max(0, hi_u - lo_u + 1) ** max(0, self.pulses - 1)
+        return count
+
+    def step_for(self, step: float | None) -> float:
+        """``step``, checked, or (None) the finest multiple of 0.05 whose enumeration stays
+        within ``MAX_CANDIDATES``."""
+        if step is None:
+            step = next(
+                (s * 0.05 for s in range(1, 100) if self.enumeration(s * 0.05) <= MAX_CANDIDATES),
+                None,
+            )
+            if step is None:
+                raise RgtbusError(
+                    f"codebook generator: no grid step keeps N = {self.pulses} pulses small"
+                )
+        if not step > 0:
+            raise RgtbusError(f"codebook generator: step = {step!r} must be positive")
+        # Counted before enumerating: the product itself could outlast any caller.
+        if self.enumeration(step) > MAX_CANDIDATES:
+            raise RgtbusError(
+                f"codebook generator: about {self.enumeration(step):.3g} candidates at step "
+                f"{step:g} for N = {self.pulses} pulses; use a coarser step"
+            )
+        return step
+
+    def words(self, units: int, step: float) -> np.ndarray:
+        """Every word on the grid whose magnitudes add up to ``units`` steps, in steps: the
+        first N − 1 magnitudes in lexicographic order (as itertools.product), the last one
+        what the total leaves."""
+        lo_u, hi_u = self.bounds(step)
+        width = max(0, hi_u - lo_u + 1)
+        count = width ** (self.pulses - 1)  # at most MAX_CANDIDATES (step_for)
+        head = np.empty((count, self.pulses - 1), dtype=np.int32)
+        rest = np.arange(count)
+        for j in range(self.pulses - 2, -1, -1):  # mixed radix: the last magnitude runs fastest
+            head[:, j] = rest % width + lo_u
+            rest //= width
+        last = units - head.sum(axis=1)
+        ok = (last >= lo_u) & (last <= hi_u)
+        words: np.ndarray = np.concatenate([head[ok], last[ok, None]], axis=1)
+        return words
+
+
+def _farthest_first(pts: np.ndarray, id_word: Word, need: int, seed: int) -> list[Word]:
+    """``need`` of the candidate words ``pts``, shuffled by ``seed``, picked greedily: the
+    first, then each time the candidate farthest from those chosen and from the ID-code."""
+    rng = np.random.default_rng(seed)
+    pts = pts[rng.permutation(len(pts))]
+    chosen = [0]
+    d = np.minimum(
+        np.linalg.norm(pts - pts[0], axis=1), np.linalg.norm(pts - np.array(id_word), axis=1)
+    )
+    while len(chosen) < need:
+        j = int(np.argmax(d))
+        chosen.append(j)
+        d = np.minimum(d, np.linalg.norm(pts - pts[j], axis=1))
+    return [tuple(round(float(v), 10) for v in pts[j]) for j in chosen]

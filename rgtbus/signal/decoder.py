@@ -7,24 +7,26 @@
   (``resonate``, readout=True) at the samples that carry input, rounded to 12 decimals; every
   other sample reads 0.  Any channel of a receiver gives the same d (they all hear the same
   sample); ``ReadoutHistory`` keeps the last seconds of it for decoding.
-- **Nearest codeword**: with white Gaussian noise on the medium the values at a code's pulse
-  instants are ``word + noise``, so the maximum-likelihood word is the nearest (Euclidean); the
-  margin is how much farther the runner-up is.
-- **Joint decoding**: transmitters whose pulses share samples add up there; stack every
-  transmitter's pulses into ``d_U = M·c`` over the union U of instants, estimate c by least
-  squares and pick the word combination with the smallest residual (exhaustive when small,
-  coordinate descent otherwise).
+- **Nearest codeword** (``rgtbus.signal.nearest``, the one rule every decode here uses): with
+  white Gaussian noise on the medium the values at a code's pulse instants are
+  ``word + noise``, so the maximum-likelihood word is the nearest (Euclidean); the margin is
+  how much farther the runner-up is.
+- **Joint decoding** (``rgtbus.signal.joint``): transmitters whose pulses share samples are
+  decoded together.
 - **Timing search**: when the start is known only from a spike, try every distinct set of pulse
   instants within ± ``search`` samples and keep the best fit (smallest residual, then the
   smallest shift).
 - **ID acceptance**: an ID is accepted only if the code on the sender's own frequency decodes as
-  the ID-code among all distinct words, within ``accept_radius`` — the paper mode a↔c crosstalk
-  fires ω_a for some codes sent on ω_c; their values at ω_a's instants are far from the ID-code.
+  the ID-code among all distinct words, within ``accept_radius`` r (default d_min / 2)::
+
+      accept  ⇔  nearest(v, distinct words) = id  and  |v − w_id| ≤ r
+
+  — the paper mode a↔c crosstalk fires ω_a for some codes sent on ω_c; their values at ω_a's
+  instants are far from the ID-code.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 import weakref
 from collections.abc import Mapping, Sequence
@@ -34,11 +36,11 @@ from functools import lru_cache
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal._walk import read_rows, score, timings
+from rgtbus.signal._walk import read_rows, timings
 from rgtbus.signal.codebook import Codebook
+from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
-
-MAX_EXHAUSTIVE = 4096
+from rgtbus.timebase import time_of
 
 
 class ReadoutHistory:
@@ -76,8 +78,8 @@ class ReadoutHistory:
         # not a copy of the whole history (many codes at once make a long history).
         # One value per receiver and sample: every channel of a receiver reads the same d (the
         # sample it heard; docs/model.md), so keeping each channel's copy would only multiply
-        # the memory by the number of channels (gigabytes at 100 units). The first channel's
-        # value is kept; the channels' values agree to the readout's rounding (1e-12).
+        # the memory by the number of channels. The first channel's value is kept; the
+        # channels' values agree to the readout's rounding (1e-12).
         self._buf_rows = np.zeros(16, dtype=np.int64)
         self._buf_vals = np.zeros((16, receivers, 1))
         self._lo = self._hi = 0
@@ -110,10 +112,12 @@ class ReadoutHistory:
 
     @classmethod
     def for_bank(cls, bank: ResonatorBank, capacity: int = 6000) -> ReadoutHistory:
+        """A history of every receiver and channel of ``bank``."""
         return cls(bank.n_channels, capacity, bank.n_receivers)
 
     @property
     def end(self) -> int:
+        """The absolute sample one past the newest in the history."""
         return self._end
 
     def extend(self, result: FeedResult) -> None:
@@ -141,7 +145,7 @@ class ReadoutHistory:
             keep = rows >= end - self.capacity
             self._lo += old
             # the first channel before the rows: an advance's readout is a view broadcast
-            # over every channel (receivers × channels a row: 10⁴ at n = 100)
+            # over every channel (receivers × channels a row)
             self._append(rows[keep], np.asarray(values)[:, :, :1][keep])
         elif old:
             self._lo += old
@@ -207,6 +211,7 @@ class ReadoutHistory:
                 )
 
     def of(self, receiver: int) -> ReceiverReadout:
+        """One receiver's view of the history (what a unit decodes from)."""
         if not 0 <= receiver < self.receivers:
             raise RgtbusError(f"readout: receiver {receiver} not in the history ({self.receivers})")
         return ReceiverReadout(self, receiver)
@@ -221,6 +226,7 @@ class ReceiverReadout:
 
     @property
     def end(self) -> int:
+        """The absolute sample one past the newest in the history."""
         return self.history.end
 
     def values(
@@ -229,6 +235,7 @@ class ReceiverReadout:
         channels: np.ndarray | int,
         span: tuple[int, int] | None = None,
     ) -> np.ndarray:
+        """This receiver's d at ``indices`` (see ``ReadoutHistory.values``)."""
         return self.history.values(indices, channels, self.receiver, span)
 
 
@@ -291,20 +298,19 @@ def decode_among_each(
     receiver's own readout)."""
     names, mat = word_matrix(words, None, "decode")
     chans, shifts, inst, every = _heard_candidates(history, channels, start, mat, tau, search)
-    order = _ORDER[: mat.shape[0]]
+    order = in_order(mat.shape[0])
     out: list[tuple[Decision, int]] = []
     seen: dict[bytes, tuple[Decision, int]] = {}
     for vals in every:
         key = vals.tobytes()
         got = seen.get(key)
         if got is None:
-            m, w, best, margin, sep = score(vals, mat, order)
-            conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
+            m, w, best, margin, sep = nearest_word(vals, mat, order)
             decision = Decision(
                 names[w],
                 best,
                 margin,
-                conf,
+                confidence(margin, sep),
                 tuple(vals[m].tolist()),
                 tuple(inst[m].tolist()),
                 int(shifts[m]),
@@ -363,13 +369,13 @@ def decode_among_columns(
     of decodes reads them as arrays; every distinct set of values is scored once, as there)."""
     _, mat = word_matrix(words, None, "decode")
     chans, _, _, every = _heard_candidates(history, channels, start, mat, tau, search)
-    order = _ORDER[: mat.shape[0]]
+    order = in_order(mat.shape[0])
     firsts, which = _distinct(every)
     word = np.empty(firsts.size, dtype=np.int64)
     chan = np.empty(firsts.size, dtype=np.int64)
     margin = np.empty(firsts.size)
     for k, r in enumerate(firsts.tolist()):
-        m, word[k], _, margin[k], _ = score(every[r], mat, order)
+        m, word[k], _, margin[k], _ = nearest_word(every[r], mat, order)
         chan[k] = chans[m]
     return word[which], chan[which], margin[which]
 
@@ -382,16 +388,14 @@ def nearest_columns(
     idx = np.asarray(samples, dtype=np.int64).reshape(1, -1)
     every = history.gather(idx, np.array([channel]))[:, 0]  # (R, N)
     names, mat = word_matrix(words, every.shape[1], "nearest")
-    rank = _alphabetical(names)
+    rank = alphabetical(names)
     firsts, which = _distinct(every)
     word = np.empty(firsts.size, dtype=np.int64)
     margin = np.empty(firsts.size)
     for k, r in enumerate(firsts.tolist()):
-        _, word[k], _, margin[k], _ = score(np.ascontiguousarray(every[r : r + 1]), mat, rank)
+        reads = np.ascontiguousarray(every[r : r + 1])
+        _, word[k], _, margin[k], _ = nearest_word(reads, mat, rank)
     return word[which], margin[which]
-
-
-_ORDER = np.arange(4096, dtype=np.int64)
 
 
 @lru_cache(maxsize=64)  # every unit of a run decodes the same codes, at about the same time
@@ -440,13 +444,6 @@ def _timings(
     )
 
 
-def _distances(values: np.ndarray, mat: np.ndarray) -> np.ndarray:
-    """Euclidean distance of each row of ``values`` (M, N) to each word of ``mat`` (W, N)."""
-    diff = values[:, None, :] - mat[None, :, :]
-    distances: np.ndarray = np.sqrt((diff * diff).sum(axis=2))
-    return distances
-
-
 @dataclass(frozen=True)
 class Decision:
     """A decoded code: ``name`` of the nearest word, its Euclidean ``distance`` to the read
@@ -485,8 +482,8 @@ class WordSet:
     @classmethod
     def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:
         """The set of these words; equal sets asked for while one is alive are one object,
-        so a cache keyed by it finds it by identity (``==`` on a set compares its bytes: half
-        a million times in a run of 50 units)."""
+        so a cache keyed by it finds it by identity (``==`` on a set compares its bytes, and
+        every decode asks)."""
         made = cls(*word_matrix(words, None, where))
         return _WORD_SETS.setdefault(made._key, made)  # type: ignore[attr-defined]
 
@@ -536,16 +533,16 @@ def _words(
 
 
 def nearest(values: Sequence[float] | np.ndarray, words: Words) -> Decision:
-    """Maximum-likelihood (nearest Euclidean) word for the values read at a code's instants.
+    """Maximum-likelihood (nearest Euclidean) word for the values read at a code's instants
+    (the rule of ``rgtbus.signal.nearest``).
 
     Words equal to the best (e.g. ``id`` and ``alliance``) are not counted as runners-up; ties
     go to the first name in alphabetical order.
     """
     v = np.ascontiguousarray(values, dtype=float).reshape(1, -1)
     names, mat = word_matrix(words, v.shape[1], "nearest")
-    _, w, best, margin, sep = score(v, mat, _alphabetical(names))
-    conf = margin / sep if sep > 0 else (1.0 if math.isinf(margin) else 0.0)
-    return Decision(names[w], best, margin, conf, tuple(float(x) for x in v[0]))
+    _, w, best, margin, sep = nearest_word(v, mat, alphabetical(names))
+    return Decision(names[w], best, margin, confidence(margin, sep), tuple(float(x) for x in v[0]))
 
 
 def nearer_than_silence(values: Sequence[float], word: Sequence[float]) -> bool:
@@ -563,13 +560,6 @@ def nearer_than_silence(values: Sequence[float], word: Sequence[float]) -> bool:
         to_word = to_word + d * d
         to_zero = to_zero + float(v) * float(v)
     return math.sqrt(to_word) < math.sqrt(to_zero)
-
-
-@lru_cache(maxsize=256)
-def _alphabetical(names: tuple[str, ...]) -> np.ndarray:
-    rank = np.empty(len(names), dtype=np.int64)
-    rank[np.argsort(np.array(names, dtype=object), kind="stable")] = np.arange(len(names))
-    return rank
 
 
 def candidate_instants(
@@ -606,7 +596,7 @@ def decode_code(
     best: Decision | None = None
     for shift, inst in candidate_instants(omega, start, pulses, tau, search):
         try:
-            vals = _read(readout, inst, offset, channel)
+            vals = read_at(readout, inst, offset, channel)
         except RgtbusError:
             if search:
                 continue
@@ -623,9 +613,11 @@ def decode_code(
     return best
 
 
-def _read(
+def read_at(
     readout: Readout | np.ndarray, inst: Sequence[int] | np.ndarray, offset: int, channel: int = 0
 ) -> np.ndarray:
+    """The readout at the samples ``inst``: of a :class:`ReadoutHistory` on ``channel``, or of
+    a 1-D array of d whose element 0 is absolute sample ``offset`` (refused outside it)."""
     if isinstance(readout, ReadoutHistory):
         return readout.values(inst, channel)
     arr = np.asarray(readout)
@@ -640,7 +632,7 @@ def _read(
 
 def start_from_spike(spike_sample: int, omega: float, pulses: int, tau: float = PAPER_TAU) -> float:
     """Start time implied by a spike at a code's last pulse (the ID-code fires there)."""
-    return spike_sample * tau - (pulses - 1) * 2 * math.pi / omega
+    return time_of(spike_sample, tau) - (pulses - 1) * 2 * math.pi / omega
 
 
 def accept_id(
@@ -671,105 +663,3 @@ def accept_id(
     )
     radius = codebook.min_distance / 2 if accept_radius is None else accept_radius
     return dec.name == "id" and dec.distance <= radius, dec
-
-
-def decode_joint(
-    readout: Readout | np.ndarray,
-    transmissions: Sequence[tuple[Sequence[int], Mapping[str, Sequence[float]]]],
-    *,
-    offset: int = 0,
-    channel: int = 0,
-) -> list[Decision]:
-    """Decode overlapping transmissions together.
-
-    ``transmissions``: (pulse instants, candidate words) per transmitter.  Over the union U of
-    instants the readout is ``d_U = M·c`` (M sums the pulses landing on each sample): the
-    per-transmitter values reported are the least-squares estimate of c (minimum norm when
-    pulses coincide), and the names the word combination with the smallest residual
-    ``‖d_U − M·c‖`` — exhaustive up to ``MAX_EXHAUSTIVE`` combinations, else coordinate descent.
-    ``distance`` is that residual, ``margin`` the residual increase of the best combination that
-    changes this transmitter's word.
-    """
-    if not transmissions:
-        raise RgtbusError("decode_joint: no transmissions")
-    insts = [np.asarray(i, dtype=np.int64) for i, _ in transmissions]
-    wsets = [
-        _words(w, len(i), f"decode_joint transmission {j}")
-        for j, ((_, w), i) in enumerate(zip(transmissions, insts, strict=True))
-    ]
-    union = np.unique(np.concatenate(insts))
-    d = _read(readout, union, offset, channel)
-    cols = []
-    for inst in insts:
-        for k in inst:
-            col = np.zeros(union.size)
-            col[union.searchsorted(k)] += 1.0
-            cols.append(col)
-    M = np.stack(cols, axis=1)
-    c_hat = np.linalg.lstsq(M, d, rcond=None)[0]
-    bounds = np.cumsum([0] + [len(i) for i in insts])
-    names = [list(w) for w in wsets]
-    mats = [np.stack([wsets[j][n] for n in names[j]]) for j in range(len(insts))]
-    # Contribution of each candidate word of transmitter j to d_U.
-    contrib = [m @ M[:, bounds[j] : bounds[j + 1]].T for j, m in enumerate(mats)]
-    sizes = [len(n) for n in names]
-
-    def resid(choice: Sequence[int]) -> float:
-        return float(np.linalg.norm(d - sum(contrib[j][c] for j, c in enumerate(choice))))
-
-    if math.prod(sizes) <= MAX_EXHAUSTIVE:
-        combos = list(itertools.product(*[range(s) for s in sizes]))
-        total = np.stack([sum(contrib[j][c] for j, c in enumerate(ch)) for ch in combos])
-        res = np.linalg.norm(d[None, :] - total, axis=1)
-        b = int(np.argmin(res))
-        best = combos[b]
-        margins = []
-        for j in range(len(insts)):
-            other = [
-                r
-                for r, ch in zip(res, combos, strict=True)
-                if not np.array_equal(mats[j][ch[j]], mats[j][best[j]])
-            ]
-            margins.append(float(min(other) - res[b]) if other else math.inf)
-        best_res = float(res[b])
-    else:
-        choice = [
-            int(np.argmin(np.linalg.norm(mats[j] - c_hat[bounds[j] : bounds[j + 1]], axis=1)))
-            for j in range(len(insts))
-        ]
-        for _ in range(20):
-            changed = False
-            for j in range(len(insts)):
-                rest = d - sum(contrib[i][c] for i, c in enumerate(choice) if i != j)
-                cj = int(np.argmin(np.linalg.norm(rest[None, :] - contrib[j], axis=1)))
-                if cj != choice[j]:
-                    choice[j], changed = cj, True
-            if not changed:
-                break
-        best = tuple(choice)
-        best_res = resid(best)
-        margins = []
-        for j in range(len(insts)):
-            alts = [
-                resid([*best[:j], c, *best[j + 1 :]])
-                for c in range(sizes[j])
-                if not np.array_equal(mats[j][c], mats[j][best[j]])
-            ]
-            margins.append(min(alts) - best_res if alts else math.inf)
-    out = []
-    for j in range(len(insts)):
-        w = mats[j][best[j]]
-        others = [m for m in mats[j] if not np.array_equal(m, w)]
-        sep = min((float(np.linalg.norm(m - w)) for m in others), default=0.0)
-        conf = margins[j] / sep if sep > 0 and math.isfinite(margins[j]) else 1.0
-        out.append(
-            Decision(
-                names[j][best[j]],
-                best_res,
-                margins[j],
-                conf,
-                tuple(float(x) for x in c_hat[bounds[j] : bounds[j + 1]]),
-                tuple(int(k) for k in insts[j]),
-            )
-        )
-    return out

@@ -19,18 +19,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.nearest import in_order, nearest_choice
 from rgtbus.signal.resonator import PAPER_TAU, ResonatorBank
 from rgtbus.signal.waveform import pulse_instants
+from rgtbus.timebase import sample_of
 
 
 @dataclass(frozen=True)
 class SerResult:
+    """A Monte-Carlo symbol error rate: ``errors`` of ``trials`` at noise ``sigma``."""
+
     sigma: float
     trials: int
     errors: int
 
     @property
     def ser(self) -> float:
+        """The symbol error rate, errors over trials."""
         return self.errors / self.trials
 
 
@@ -87,9 +92,7 @@ def symbol_error_rate(
         d = np.zeros((n, m))  # the increment readout on the code's channel (0 where silent)
         d[res.readout_rows] = res.readout[:, :, 0]
         if interferer is None or not joint:
-            v = d[inst].T  # (m, N)
-            dist = np.linalg.norm(v[:, None, :] - W[None, :, :], axis=2)
-            got = dist.argmin(axis=1)
+            got = _nearest_each(d[inst].T, W)
         else:
             got = _joint_batch(d, inst, W, inst_i, IW)
         errors += int(np.sum(~np.all(W[got] == W[pick], axis=1)))
@@ -108,10 +111,14 @@ def _joint_batch(
     for c, (a, b) in enumerate(combos):
         np.add.at(pred[c], pos_t, W[a])
         np.add.at(pred[c], pos_i, IW[b])
-    du = d[union].T  # (m, |U|)
-    res = np.linalg.norm(du[:, None, :] - pred[None, :, :], axis=2)
-    best = res.argmin(axis=1)
+    best = _nearest_each(d[union].T, pred)
     return np.array([combos[b][0] for b in best])
+
+
+def _nearest_each(reads: np.ndarray, words: np.ndarray) -> np.ndarray:
+    """The word of ``words`` (W, N) each trial's ``reads`` (trials, N) decode as: the
+    nearest-codeword rule (``rgtbus.signal.nearest``), ties to the first word."""
+    return nearest_choice(reads[:, None, :], words, in_order(len(words))).word
 
 
 def noise_spike_rate(
@@ -126,7 +133,7 @@ def noise_spike_rate(
     """Spikes per second per resonator on noise alone (false attention at noise σ)."""
     if not sigma >= 0:
         raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
-    n = round(seconds / tau)
+    n = sample_of(seconds, tau)
     u = np.random.default_rng(seed).normal(0.0, sigma, n) if sigma > 0 else np.zeros(n)
     res = ResonatorBank(omegas, mode=mode, tau=tau).feed(u)
     return len(res.spikes) / (seconds * len(omegas))
@@ -192,7 +199,7 @@ def ml_ser_monte_carlo(
     rng = np.random.default_rng(seed)
     pick = rng.integers(len(W), size=trials)
     r = W[pick] + rng.normal(0.0, sigma, (trials, W.shape[1]))
-    got = np.linalg.norm(r[:, None, :] - W[None, :, :], axis=2).argmin(axis=1)
+    got = _nearest_each(r, W)
     return SerResult(float(sigma), trials, int(np.sum(~np.all(W[got] == W[pick], axis=1))))
 
 

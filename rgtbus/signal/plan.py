@@ -256,6 +256,7 @@ class FrequencyPlan:
     margins: tuple[Margin, ...] = field(default_factory=tuple)
 
     def to_json(self) -> dict[str, Any]:
+        """The plan as JSON-ready values, the band and every margin included."""
         return {
             "n": self.n,
             "schedule": self.schedule,
@@ -276,7 +277,7 @@ def crosstalk_peak(
     """(the highest y any resonator reaches on another channel's ID-code, the lowest its own
     channel's ID reaches), as fractions of the threshold: every channel's ID {0.4, ...} fed
     alone to a bank of every channel, one receiver per channel, ``CROSSTALK_BATCH`` receivers a
-    run (the recorded states of all n² resonators at once would take gigabytes at n = 300)."""
+    run (the recorded states of all n² resonators at once grow as n² × samples)."""
     from rgtbus.signal.resonator import ResonatorBank  # numpy-heavy: only when asked
     from rgtbus.signal.waveform import pulse_instants
 
@@ -323,29 +324,67 @@ def make_plan(
         raise RgtbusError(f"number of units {n!r} must be a positive integer")
     check_tau(tau)
     if pulses is None:
-        fit = 3 if schedule == "concurrent" else pulses_for(n)
-        if fit is None:
-            raise RgtbusError(
-                f"no plan for {n} units (serial): no code of up to {MAX_PLAN_PULSES} pulses "
-                "fits them in one octave; use the concurrent schedule"
-            )
-        pulses = fit
-    modes = [mode] if mode is not None else ["paper", "exact"]
-    errors = []
-    for m in modes:
-        try:
-            omegas = auto_plan(n, pulses=pulses, mode=m, tau=tau, b=b, schedule=schedule)
-            break
-        except RgtbusError as e:
-            errors.append(str(e))
-    else:
-        raise RgtbusError(f"no plan for {n} units ({schedule}): " + "; ".join(errors))
+        pulses = _fewest_pulses(n, schedule)
+    chosen, omegas = _first_mode_that_fits(n, schedule, pulses, mode, tau, b)
     s = sorted(omegas)
     attention = schedule == "serial"
+    margins = _rule_margins(s, pulses, tau, b, attention)
+    if chosen == "paper":
+        lim = euler_limit(tau, b)
+        margins.append(
+            Margin("euler", s[-1], lim, s[-1] < lim, True,
+                   f"top {s[-1]:.4g} rad/s, Euler's stable band ends at {lim:.4g} rad/s")
+        )  # fmt: skip
+    if crosstalk:
+        margins.extend(_attention_margins(s, pulses, chosen, tau, b, attention))
+    return FrequencyPlan(
+        n=n,
+        schedule=schedule,
+        mode=chosen,
+        pulses=pulses,
+        tau=tau,
+        b=b,
+        omegas=tuple(omegas),
+        codebook="paper" if pulses == 3 else "generated",
+        margins=tuple(margins),
+    )
+
+
+def _fewest_pulses(n: int, schedule: str) -> int:
+    """The pulses a code of n units' plan needs: the paper's 3 on the concurrent schedule;
+    on the serial, the fewest whose 0.3/N spacing fits them in one octave."""
+    fit = 3 if schedule == "concurrent" else pulses_for(n)
+    if fit is None:
+        raise RgtbusError(
+            f"no plan for {n} units (serial): no code of up to {MAX_PLAN_PULSES} pulses "
+            "fits them in one octave; use the concurrent schedule"
+        )
+    return fit
+
+
+def _first_mode_that_fits(
+    n: int, schedule: str, pulses: int, mode: str | None, tau: float, b: float
+) -> tuple[str, list[float]]:
+    """The mode (``mode``, or paper, else exact) whose :func:`auto_plan` holds n units, and
+    its frequencies; refused with every mode's reason."""
+    errors = []
+    for m in [mode] if mode is not None else ["paper", "exact"]:
+        try:
+            return m, auto_plan(n, pulses=pulses, mode=m, tau=tau, b=b, schedule=schedule)
+        except RgtbusError as e:
+            errors.append(str(e))
+    raise RgtbusError(f"no plan for {n} units ({schedule}): " + "; ".join(errors))
+
+
+def _rule_margins(
+    s: list[float], pulses: int, tau: float, b: float, attention: bool
+) -> list[Margin]:
+    """The margins of the sorted frequencies ``s`` to the rules spacing, octave, decay
+    (binding when the schedule is timed by ``attention``) and nyquist."""
     need = SPACING_FACTOR / pulses
     spacing = min(((hi - lo) / lo for lo, hi in itertools.pairwise(s)), default=math.inf)
     length = message_length(s[0], pulses)
-    margins = [
+    return [
         Margin(
             "spacing", spacing, need, spacing >= need * (1 - 1e-9), attention,
             f"neighbours {100 * spacing:.2f} % apart (rule: at least 0.3/N = {100 * need:.2f} %)",
@@ -364,33 +403,19 @@ def make_plan(
             f"(rule: at least {MIN_SAMPLES_PER_PERIOD})",
         ),
     ]  # fmt: skip
-    chosen = modes[len(errors)]
-    if chosen == "paper":
-        lim = euler_limit(tau, b)
-        margins.append(
-            Margin("euler", s[-1], lim, s[-1] < lim, True,
-                   f"top {s[-1]:.4g} rad/s, Euler's stable band ends at {lim:.4g} rad/s")
-        )  # fmt: skip
-    if crosstalk:
-        cross, own = crosstalk_peak(s, pulses, chosen, tau, b)
-        margins.append(
-            Margin("attention", own, 1.0, own >= 1.0, attention,
-                   f"its own ID drives every resonator to at least {own:.2f} of its threshold "
-                   "(at 1 it spikes; the serial schedule is timed by that spike)")
-        )  # fmt: skip
-        margins.append(
-            Margin("crosstalk", cross, 1.0, cross < 1.0, False,
-                   f"another channel's ID drives a resonator to at most {cross:.2f} of its "
-                   "threshold (at 1 it spikes: logged, never acted on)")
-        )  # fmt: skip
-    return FrequencyPlan(
-        n=n,
-        schedule=schedule,
-        mode=chosen,
-        pulses=pulses,
-        tau=tau,
-        b=b,
-        omegas=tuple(omegas),
-        codebook="paper" if pulses == 3 else "generated",
-        margins=tuple(margins),
-    )
+
+
+def _attention_margins(
+    s: list[float], pulses: int, mode: str, tau: float, b: float, attention: bool
+) -> list[Margin]:
+    """How far every resonator's own ID and other channels' IDs drive it, against the
+    threshold (``crosstalk_peak``)."""
+    cross, own = crosstalk_peak(s, pulses, mode, tau, b)
+    return [
+        Margin("attention", own, 1.0, own >= 1.0, attention,
+               f"its own ID drives every resonator to at least {own:.2f} of its threshold "
+               "(at 1 it spikes; the serial schedule is timed by that spike)"),
+        Margin("crosstalk", cross, 1.0, cross < 1.0, False,
+               f"another channel's ID drives a resonator to at most {cross:.2f} of its "
+               "threshold (at 1 it spikes: logged, never acted on)"),
+    ]  # fmt: skip

@@ -80,8 +80,9 @@ MEDIUM_CELLS = 1 << 20  # (sample, sender) cells summed at a time: 8 MB, whateve
 def medium_sum(parts: Sequence[Pulses]) -> Pulses:
     """What the medium carries: the non-silent samples (ascending) and their values, from
     each member's pulses in member order (see the module's equation). The samples are summed
-    ``MEDIUM_CELLS`` (sample, sender) cells at a time, each exactly as a whole: a 100-unit run
-    logs its medium of ~10⁵ samples × 100 senders, which as one matrix took 190 MB."""
+    ``MEDIUM_CELLS`` (sample, sender) cells at a time, each exactly as a whole: the memory is
+    bounded whatever the run, where a long run's medium as one samples × senders matrix is
+    not."""
     if not parts:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
     samples = np.concatenate([np.asarray(p[0], dtype=np.int64) for p in parts])

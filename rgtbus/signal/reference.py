@@ -25,6 +25,7 @@ from rgtbus.signal.resonator import (
     PAPER_THRESHOLD,
     transition,
 )
+from rgtbus.timebase import sample_of
 
 
 def reference_trajectory(
@@ -109,13 +110,13 @@ def reference_timings(
                 cuts.append(t)
     cuts.sort()
     probes = sorted([start, *((a + b) / 2 for a, b in itertools.pairwise(cuts))])
-    s0 = round(start / tau)
+    s0 = sample_of(start, tau)
     out: list[tuple[int, tuple[int, ...]]] = []
     prev: tuple[int, ...] | None = None
     for t in probes:
         if t < 0:
             continue
-        inst = tuple(round((t + jt) / tau) for jt in jts)
+        inst = tuple(sample_of(t + jt, tau) for jt in jts)
         if inst != prev:
             out.append((inst[0] - s0, inst))
             prev = inst

@@ -41,7 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal._walk import walk_lanes
+from rgtbus.signal._walk import WalkModel
+from rgtbus.signal.lanes import Trajectory, spike_table, walk, walk_every_lane, walking_lanes
 
 PAPER_TAU = 0.005
 PAPER_B = -0.1
@@ -106,6 +107,7 @@ class FeedResult:
 
     @property
     def x(self) -> np.ndarray | None:
+        """The recorded x = Re z (None without ``record``)."""
         return None if self.z is None else self.z.real
 
     def spike_times(
@@ -191,22 +193,26 @@ class BankModel:
 
     @functools.cached_property
     def lane_ch(self) -> np.ndarray:
+        """Each lane's channel."""
         if self.layout is not None:
             return self.layout[0]
         return np.tile(np.arange(self.channels), self.receivers)
 
     @functools.cached_property
     def lane_rec(self) -> np.ndarray:
+        """Each lane's receiver."""
         if self.layout is not None:
             return self.layout[1]
         return np.repeat(np.arange(self.receivers), self.channels)
 
     @functools.cached_property
     def lanes(self) -> int:
+        """How many lanes the model walks."""
         return int(self.lane_ch.size)
 
     @functools.cached_property
     def all_lanes(self) -> np.ndarray:
+        """Every lane index, ascending."""
         return np.arange(self.lanes, dtype=np.int64)
 
     @functools.cached_property
@@ -231,7 +237,28 @@ class BankModel:
 
     @property
     def skip(self) -> bool:
+        """Whether a walk may jump over silence (strict decay, a threshold to stay below)."""
         return self.tables.stable and self.threshold > 0
+
+    @functools.cached_property
+    def walker(self) -> WalkModel:
+        """The compiled walk's view of this model (tables, lane layout, spike rule)."""
+        T = self.tables
+        return WalkModel(
+            Pr=T.Pr,
+            Pi=T.Pi,
+            Qr=T.Qr,
+            nQi=T.nQi,
+            Ar=T.Ar,
+            Ai=T.Ai,
+            R=T.R,
+            lane_ch=self.lane_ch,
+            lane_rec=self.lane_rec,
+            thr=self.threshold,
+            thr2=(self.threshold * (1.0 - _HOT_MARGIN)) ** 2,  # |z|² of a hot resonator
+            rv=self.reset_value,
+            stable=self.skip,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -317,8 +344,8 @@ def resonate(
     noise-free medium through equal link gains), walk once and the others take the walk's
     state and spikes (the same values: the walk of a lane depends on nothing else); False
     walks every lane, the reference it is tested against; an advance of fewer than
-    ``SHARE_MIN_WORK`` lane-samples walks every lane too. A bank that records walks every lane.
-    ``expand`` False: an advance that shared walks returns the walkers' spikes alone and who
+    ``lanes.SHARE_MIN_WORK`` lane-samples walks every lane too. A bank that records walks every
+    lane. ``expand`` False: an advance that shared walks returns the walkers' spikes alone and who
     took whose walk (``FeedResult.walker_of``), not a copy of them for every receiver.
     """
     start = state.n
@@ -326,14 +353,8 @@ def resonate(
         raise RgtbusError(f"advance to sample {end}: the bank is already at {start}")
     if (record or readout) and M.layout is not None:
         raise RgtbusError("only a whole bank records its trajectories and readout")
-    T = M.tables
-    L, U, C = M.lanes, M.receivers, M.channels
     rows = np.ascontiguousarray(rows, dtype=np.int64)
-    vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, U)
-    wr, wi, pend = state.wr.copy(), state.wi.copy(), state.pend.copy()
-    common = (T.Pr, T.Pi, T.Qr, T.nQi, T.Ar, T.Ai, T.R, M.lane_ch, M.lane_rec)
-    flags = pend.view(np.uint8)  # the compiled walk sees booleans as bytes
-    rule = (M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip)
+    vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, M.receivers)
     stopped = False
     if stop:  # the first spike among the stop lanes decides where every lane stops
         first = first_spike(M, state, end, rows, vals, stop_lanes)
@@ -342,145 +363,38 @@ def resonate(
             cut = int(rows.searchsorted(end))
             rows, vals = rows[:cut], vals[:cut]
     n = end - start
-    cap = max(64, 4 * L)
-    all_lanes = M.all_lanes
-    views = None
-    if M.layout is None and not record:
-        live = np.arange(U) if receivers is None else np.flatnonzero(receivers)
-        # sharing costs a comparison of the views and a copy of the spikes: worth it on
-        # long advances of many lanes, not on the short ones a serial run stops at
-        share = share and n * live.size * C >= SHARE_MIN_WORK
-        views = _shared_views(M, state, vals, live) if share else None
-        if views is not None:
-            all_lanes = views.lanes
-        elif receivers is not None:
-            all_lanes = (live[:, None] * C + np.arange(C)).ravel()
-    while True:
-        sp_k = np.empty(cap, dtype=np.int64)
-        sp_l = np.empty(cap, dtype=np.int64)
-        xs = np.empty((n, L)) if record else _NO_2D
-        ys = np.empty((n, L)) if record else _NO_2D
-        mask = np.zeros((n, L), dtype=np.uint8) if record else _NO_MASK
-        _, n_sp, over = walk_lanes(
-            *common, all_lanes, *rule, wr, wi, flags, start, end, rows, vals, False,
-            record, xs, ys, mask, sp_k, sp_l,
-        )  # fmt: skip
-        if not over:
-            break
-        cap *= 4  # more spikes than room: walk again with more
-        wr, wi, pend = state.wr.copy(), state.wi.copy(), state.pend.copy()
-        flags = pend.view(np.uint8)
+    lanes, views = walking_lanes(M, state, vals, n, receivers, share, record)
+    wr, wi, pend, spikes, n_sp, trajectory = walk_every_lane(
+        M, state, end, rows, vals, lanes, record
+    )
     if views is not None:  # every receiver of a view takes its walker's lanes
         for w in (wr, wi, pend):
-            grid = w.reshape(U, C)
+            grid = w.reshape(M.receivers, M.channels)
             grid[views.live] = grid[views.walker_of]
-    new = BankState(wr, wi, pend, end)
-    arr = np.empty((n_sp, 3), dtype=np.int64)
     walker_of = None
     if views is not None and not expand:
-        walker_of = np.full(U, -1, dtype=np.int64)
+        walker_of = np.full(M.receivers, -1, dtype=np.int64)
         walker_of[views.live] = views.walker_of
-    if n_sp and views is not None and expand:
-        arr = views.spikes(sp_k[:n_sp], sp_l[:n_sp], start, n, M)
-    elif n_sp:
-        if n < 2**15:
-            # the lanes walk in ascending order (all_lanes), so a stable sort by sample keeps
-            # lane order within one: on a 16-bit key numpy's stable sort is a radix sort,
-            # a quarter of a lexsort's time (a logged run sorts every spike it logs)
-            order = np.argsort((sp_k[:n_sp] - start).astype(np.int16), kind="stable")
-        else:
-            order = np.lexsort((sp_l[:n_sp], sp_k[:n_sp]))
-        lanes = sp_l[:n_sp][order]
-        arr[:, 0] = sp_k[:n_sp][order]
-        arr[:, 1] = M.lane_rec[lanes]
-        arr[:, 2] = M.lane_ch[lanes]
-    result = FeedResult(start=start, n=n, spikes=arr, stopped=stopped, walker_of=walker_of)
-    if record:
-        shape = (n, U, C)
-        result.z = xs.reshape(shape) + 1j * ys.reshape(shape)
-        spiked = mask.view(np.bool_).reshape(shape)
-        result.y = np.where(spiked, M.spike_value, ys.reshape(shape))
-        result.spiked = spiked
+    table = spike_table(M, spikes, n_sp, start, n, views if expand else None)
+    result = FeedResult(start=start, n=n, spikes=table, stopped=stopped, walker_of=walker_of)
+    if trajectory is not None:
+        _record(M, result, trajectory, n)
     if readout:  # every channel of a receiver reads the sample it heard
         at, d = input_readout(rows, vals)
         result.readout_rows = at
-        result.readout = np.broadcast_to(d[:, :, None], (at.size, U, C))
-    return new, result
+        result.readout = np.broadcast_to(d[:, :, None], (at.size, M.receivers, M.channels))
+    return BankState(wr, wi, pend, end), result
 
 
-SHARE_MIN_WORK = 1 << 16  # lanes × samples of an advance from which receivers share views
-
-
-@dataclass(frozen=True)
-class _Views:
-    """Receivers that walk as one (``resonate``'s ``share``): ``live`` the receivers that
-    walk, ``walker_of`` the receiver whose walk each takes (itself for a walker), ``lanes``
-    the walkers' lanes (ascending)."""
-
-    live: np.ndarray
-    walker_of: np.ndarray
-    lanes: np.ndarray
-
-    def spikes(
-        self, sp_k: np.ndarray, sp_l: np.ndarray, start: int, n: int, M: BankModel
-    ) -> np.ndarray:
-        """The walkers' spikes (sample, lane; lanes in ascending order within a sample, as
-        they walk) as every live receiver's: (sample, receiver, channel), sorted by sample,
-        receiver, channel."""
-        C = M.channels
-        if n < 2**15:  # by sample, stable (radix): the walkers' lane order is kept within
-            order = np.argsort((sp_k - start).astype(np.int16), kind="stable")
-        else:
-            order = np.lexsort((sp_l, sp_k))
-        k, lane = sp_k[order], sp_l[order]
-        walker = lane // C
-        # segments: the spikes of one walker at one sample (contiguous in this order)
-        new = np.flatnonzero((k[1:] != k[:-1]) | (walker[1:] != walker[:-1])) + 1
-        seg_start = np.concatenate(([0], new))
-        seg_len = np.diff(np.concatenate((seg_start, [k.size])))
-        seg_k = k[seg_start]
-        runs, seg_run = np.unique(seg_k, return_inverse=True)
-        # each live receiver, at each sample with spikes, takes its walker's segment there
-        live, walker_of = self.live, self.walker_of
-        walkers, col = np.unique(walker_of, return_inverse=True)
-        table = np.full((runs.size, walkers.size), -1, dtype=np.int64)
-        table[seg_run, np.searchsorted(walkers, walker[seg_start])] = np.arange(seg_start.size)
-        take = table[:, col]  # (run, live receiver) -> segment, or -1
-        counts = np.where(take >= 0, seg_len[take], 0).ravel()
-        total = int(counts.sum())
-        first = np.repeat(np.where(take >= 0, seg_start[take], 0).ravel(), counts)
-        offset = np.repeat(np.cumsum(counts) - counts, counts)
-        src = first + (np.arange(total) - offset)
-        out = np.empty((total, 3), dtype=np.int64)
-        out[:, 0] = k[src]
-        out[:, 1] = np.repeat(np.tile(live, runs.size), counts)
-        out[:, 2] = lane[src] % C
-        return out
-
-
-def _shared_views(
-    M: BankModel, state: BankState, vals: np.ndarray, live: np.ndarray
-) -> _Views | None:
-    """Which of the ``live`` receivers start from the same lane states and hear the same input
-    (bit for bit), so that one walk serves them all; None when no two do."""
-    U, C = M.receivers, M.channels
-    if live.size < 2:
-        return None
-    inputs = np.ascontiguousarray(vals[:, live].T).view(np.int64)
-    wr = state.wr.reshape(U, C)[live].view(np.int64)
-    wi = state.wi.reshape(U, C)[live].view(np.int64)
-    pend = state.pend.reshape(U, C)[live].astype(np.int64)
-    key = np.concatenate([inputs, wr, wi, pend], axis=1)
-    if (key == key[0]).all():  # the usual case when any is: one view for all
-        walker_of = np.full(live.size, live[0])
-    else:
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        if first.size * 2 > live.size:  # little to share: walking each is cheaper
-            return None
-        walker_of = live[first][inverse.reshape(-1)]
-    walkers = np.unique(walker_of)
-    lanes = (walkers[:, None] * C + np.arange(C)).ravel()
-    return _Views(live, walker_of, lanes)
+def _record(M: BankModel, result: FeedResult, trajectory: Trajectory, n: int) -> None:
+    """A recording advance's trajectory into its result: z, the recorded y (``spike_value``
+    at spike samples) and the spike mask, each (n, receivers, channels)."""
+    shape = (n, M.receivers, M.channels)
+    x, y = trajectory.xy[0].reshape(shape), trajectory.xy[1].reshape(shape)
+    result.z = x + 1j * y
+    spiked = trajectory.spiked.view(np.bool_).reshape(shape)
+    result.y = np.where(spiked, M.spike_value, y)
+    result.spiked = spiked
 
 
 def first_spike(
@@ -495,20 +409,21 @@ def first_spike(
     lane) spikes over this input (as ``resonate``), or None. Pure, and only those lanes walk."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, M.receivers)
-    T = M.tables
     watch = M.all_lanes if lanes is None else np.flatnonzero(lanes)
-    buf = np.empty(max(1, watch.size), dtype=np.int64)
-    first, found, _ = walk_lanes(
-        T.Pr, T.Pi, T.Qr, T.nQi, T.Ar, T.Ai, T.R, M.lane_ch, M.lane_rec, watch,
-        M.threshold, (M.threshold * (1.0 - _HOT_MARGIN)) ** 2, M.reset_value, M.skip,
-        state.wr, state.wi, state.pend.view(np.uint8), state.n, end,  # read, never written
-        rows, vals, True, False, _NO_2D, _NO_2D, _NO_MASK, buf, buf.copy(),
-    )  # fmt: skip
+    first, found, _ = walk(
+        M,
+        lanes=watch,
+        wr=state.wr,  # read, never written: only the first spike is looked for
+        wi=state.wi,
+        pend=state.pend,
+        start=state.n,
+        end=end,
+        rows=rows,
+        vals=vals,
+        spikes=np.empty((2, max(1, watch.size)), dtype=np.int64),
+        stop_first=True,
+    )
     return int(first) - 1 if found else None
-
-
-_NO_2D = np.zeros((0, 0))
-_NO_MASK = np.zeros((0, 0), dtype=np.uint8)
 
 
 def _validate_float(value: float, name: str) -> float:
@@ -580,18 +495,22 @@ class ResonatorBank:
     # -- parameters ---------------------------------------------------------------------------
     @property
     def A(self) -> np.ndarray:
+        """The one-sample transition A of every channel."""
         return self.model.tables.A
 
     @property
     def threshold(self) -> float:
+        """The spike threshold on Im z."""
         return self.model.threshold
 
     @property
     def spike_value(self) -> float:
+        """The y recorded at a spike sample."""
         return self.model.spike_value
 
     @property
     def reset_value(self) -> float:
+        """The y a resonator restarts from after a spike."""
         return self.model.reset_value
 
     # -- state ----------------------------------------------------------------------------------

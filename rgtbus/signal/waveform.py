@@ -17,13 +17,14 @@ import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.resonator import PAPER_TAU
+from rgtbus.timebase import sample_of, time_of
 
 
 def pulse_samples(omega: float, start: float, pulses: int, tau: float) -> tuple[int, ...]:
     """The rule: pulse j of a code starting at ``start`` on ω is at sample
     ``round((start + j·2π/ω)/τ)`` (round half to even). Unchecked; see ``pulse_instants``."""
     period = 2 * math.pi / omega
-    return tuple(round((start + j * period) / tau) for j in range(pulses))
+    return tuple(sample_of(start + j * period, tau) for j in range(pulses))
 
 
 def pulse_instants(omega: float, start: float, pulses: int, tau: float = PAPER_TAU) -> np.ndarray:
@@ -48,6 +49,7 @@ class Transmission:
     sender: int = 0
 
     def instants(self, tau: float = PAPER_TAU) -> np.ndarray:
+        """The sample indices of this code's pulses (``pulse_instants``)."""
         return pulse_instants(self.omega, self.start, len(self.word), tau)
 
 
@@ -81,7 +83,7 @@ def superpose(
         if idx[-1] >= n_samples:
             raise RgtbusError(
                 f"transmission {j}: its last pulse at sample {int(idx[-1])} "
-                f"(t = {idx[-1] * tau:g} s) is past the end ({n_samples} samples)"
+                f"(t = {time_of(int(idx[-1]), tau):g} s) is past the end ({n_samples} samples)"
             )
         np.add.at(out, idx, word)
     return out
