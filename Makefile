@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean bytecode
+.PHONY: demo test lint typecheck imports tree bench clean bytecode
 
 $(STAMP): pyproject.toml setup.py MANIFEST.in rgtbus/signal/_walk.pyx
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -18,6 +18,7 @@ demo: $(STAMP) bytecode
 test: $(STAMP) bytecode
 	$(VENV)/bin/ruff check .
 	$(MAKE) --no-print-directory typecheck
+	$(MAKE) --no-print-directory imports
 	$(PY) -m pytest -q
 
 # Byte-compile the tree (only what changed): a shell that sets PYTHONDONTWRITEBYTECODE would
@@ -28,16 +29,25 @@ bytecode: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
-# mypy sees the package as it installs (units/ is rgtbus.units): a tree of links, made anew.
+# The type checker and the import contracts read the package as it installs (units/ is
+# rgtbus.units): a tree of links to the sources, made anew.
+tree: $(STAMP)
+	@rm -rf build/tree && mkdir -p build/tree
+	@cp -rs $(CURDIR)/rgtbus build/tree/rgtbus && cp -rs $(CURDIR)/units build/tree/rgtbus/units
+	@find build/tree -name __pycache__ -prune -exec rm -rf {} +
+
 # The pure core (RGT, signal, protocol, scenario files) is held to --strict; what it imports
 # from outside the core (the package's __init__, numpy) is followed silently.
-typecheck: $(STAMP)
-	@rm -rf build/typecheck && mkdir -p build/typecheck/rgtbus
-	@ln -s $(CURDIR)/rgtbus/* build/typecheck/rgtbus/ && ln -s $(CURDIR)/units build/typecheck/rgtbus/units
-	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p rgtbus
-	cd build/typecheck && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml \
+typecheck: tree
+	cd build/tree && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p rgtbus
+	cd build/tree && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml \
 		--strict --follow-imports=silent -p rgtbus.rgt -p rgtbus.signal -p rgtbus.protocol -m rgtbus.repair \
 		-m rgtbus.errors -m rgtbus.pairs -m rgtbus.timebase -p rgtbus.scenario
+
+# The layering and the parts' independence, as contracts ([tool.importlinter] in pyproject.toml).
+imports: tree
+	cd build/tree && PYTHONPATH=. $(CURDIR)/$(VENV)/bin/lint-imports --no-logo --no-cache \
+		$(CURDIR)/pyproject.toml
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
