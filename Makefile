@@ -22,7 +22,7 @@ test: $(STAMP) bytecode
 	$(PY) -m pytest -q
 
 # Byte-compile the tree (only what changed): a shell that sets PYTHONDONTWRITEBYTECODE would
-# otherwise compile every module at every start, ~0.3 s of a command's start-up (issue 23).
+# otherwise compile every module at every start of a command (docs/engine.md, "Measured").
 bytecode: $(STAMP)
 	@$(PY) -m compileall -q -j 0 rgtbus units scenarios benchmarks > /dev/null
 

@@ -161,7 +161,7 @@ _MEMO_SIZE = 16
 def _memo(kind: Hashable, table: Mapping[Pair, Any], build: Callable[[], _T]) -> _T:
     """``build()``, the same object for every table equal to ``table`` (a ``PairTable``;
     another mapping is built afresh): the units of a group mostly hold equal tables, and a
-    report built from one of n² entries for each of n units was n³ work (issue 23). What is
+    report built from one of n² entries for each of n units would be n³ work. What is
     returned is shared: read, never changed."""
     if not isinstance(table, PairTable):
         return build()

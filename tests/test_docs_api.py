@@ -30,6 +30,6 @@ def test_every_public_name_has_an_example():
     import rgtbus
 
     text = "\n".join(blocks())
-    for name in ("load_scenario", "run", "open_log", "sweep"):
+    for name in ("load_scenario", "run", "launch", "open_log", "sweep"):
         assert f"rgtbus.{name}(" in text, name
         assert name in rgtbus.__all__

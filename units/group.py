@@ -84,7 +84,7 @@ _TABLES = ("installed", "sent_relations", "influences")
 def shared_tables(report: dict[str, Any], first: dict[str, Any] | None) -> dict[str, Any]:
     """``report`` with each of its tables that equals ``first``'s replaced by that very
     object: units that agree keep one copy of the group's tables, not one each (n units'
-    tables hold n³ entries: ~60 MB at n = 100). Reports are read, never changed."""
+    tables hold n³ entries). Reports are read, never changed."""
     if first is not None:
         for key in _TABLES:
             if report[key] is not first[key] and report[key] == first[key]:

@@ -135,7 +135,7 @@ class AutonomousUnit:
             name=self.name,
             gains=sc.channel.gain_row(self.units, self.name),
             noise=sc.channel.noise,
-            # numpy.random costs 8 ms to import: a noise-free run never draws
+            # a noise-free run never draws: it need not load numpy.random
             rng=noise_rng(sc.seed, me) if sc.channel.noisy else None,
             bursts=None
             if sc.channel.burst is None

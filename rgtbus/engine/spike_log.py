@@ -26,7 +26,7 @@ SMALL_HAND_OVER = 4096  # spikes of a hand-over grouped in plain Python (``_hand
 class SpikeLog(Protocol):
     """Where a unit's spikes go for its log, a block of ``block`` samples at a time. The ears
     keep the spikes of the units they log in arrays (no call per spike: a large run's
-    receivers fire millions of times, issue 23) and hand each unit a block's spikes once they
+    receivers fire for every code of every turn) and hand each unit a block's spikes once they
     have heard the whole block, or as far as they heard when the unit stops (or up to the
     sample it names then) or the run ends: a unit wakes only for the spike it awaits, and
     records written at its wake could trail the run's clock by seconds."""
@@ -309,8 +309,8 @@ class SpikeKeeper:
     def _hand_blocks_small(self, pieces: list[SpikePiece], members: np.ndarray, heard: int) -> None:
         """``_hand_blocks`` for a few spikes (a serial run hands a block or two of a few
         spikes at a time, from receivers that each walked alone since their own quench):
-        the same blocks, groups and order, grouped in plain Python, where the arrays' fixed
-        cost per call was ~1 ms a hand-over."""
+        the same blocks, groups and order, grouped in plain Python: for a few spikes the
+        arrays' fixed cost per call outweighs their work (docs/engine.md, "Measured")."""
         B = self.block
         mine: dict[int, dict[int, list[tuple[int, int]]]] = {}  # block -> member -> spikes
         for p in pieces:

@@ -129,7 +129,7 @@ class ListenQueue:
     the i-th due, at ``boundaries[i]`` (its ready sample + 1); listens due at one boundary keep
     their planning order. One queue is shared by every unit that plans the same listens (the
     concurrent schedule: every unit decodes every code), so a unit holds a cursor into it, not
-    an object per (unit, code) (issue 23)."""
+    an object per (unit, code)."""
 
     listens: tuple[Listen, ...]
     boundaries: tuple[int, ...]

@@ -67,7 +67,7 @@ def expect_of(
     return out
 
 
-# Influence rounds a dynamics needs before it can be seen (rgtbus.mind.round_dynamics): one
+# Influence rounds a dynamics needs before it can be seen (rgtbus.summary.round_dynamics): one
 # round tells nothing; a fixed point, or neither, shows from the second; a cycle (a round equal
 # to one at least two before) from the third.
 DYNAMICS_ROUNDS = {"fixed point": 2, "neither": 2, "cycle": 3}
