@@ -290,14 +290,13 @@ def summarise(
     units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome = outcome_of(sc, units_out) if len(units_out) == len(sc.units) else None
     error = root_cause(result.failure, reports)
-    rounds = sent_rounds(sc, reports)
-    u = sc.universe
-    whole, last_round = whole_rounds(sc, rounds)
-    should = Truth(sc)  # what a perfect medium would have given
-    clean = should.rounds if units_out else [{}]
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
-    return {
+    rounds, whole, last_round = influence_rounds(sc, reports)
+    should = Truth(sc)  # what a perfect medium would have given
+    clean = should.rounds if units_out else [{}]
+    u = sc.universe
+    summary = {
         "scenario": sc.name,
         "seed": sc.seed,
         "schedule": sc.schedule,
@@ -313,7 +312,7 @@ def summarise(
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
         "decisions": judged_decisions(sc, reports, clean) if units_out else [],
-        "goals": judge_goals(sc, units_out, should.goal_prospects(last_round)),
+        "goals": [],
         "rounds": {
             "count": sc.influence_rounds,
             **round_dynamics(rounds[:whole]),
@@ -331,6 +330,8 @@ def summarise(
         "bus": result.bus_stats,
         "error": error,
     }
+    summary["goals"] = judge_goals(sc, units_out, should.goal_prospects(last_round))
+    return summary
 
 
 def all_wrong_decodes(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -360,12 +361,14 @@ def root_cause(world_failure: str | None, reports: Sequence[Mapping[str, Any]]) 
     return errs[0] if errs else None
 
 
-def whole_rounds(
-    sc: Scenario, rounds: Sequence[Mapping[str, str]]
-) -> tuple[int, dict[tuple[str, str], int] | None]:
-    """How many influence rounds every pair was sent in (a run that stopped early sends no
-    more: the dynamics are what those did), and the last round's influences by pair when
-    every round is whole (a goal is judged on it only then)."""
+def influence_rounds(
+    sc: Scenario, reports: Iterable[Mapping[str, Any]]
+) -> tuple[list[dict[str, str]], int, dict[tuple[str, str], int] | None]:
+    """What the units sent in each influence round (``sent_rounds``); how many rounds every
+    pair was sent in (a run that stopped early sends no more: the dynamics are what those
+    did); and the last round's influences by pair when every round is whole (a goal is
+    judged on it only then)."""
+    rounds = sent_rounds(sc, reports)
     pairs = len(sc.units) * (len(sc.units) - 1)
     whole = 0
     while whole < len(rounds) and len(rounds[whole]) == pairs:
@@ -376,7 +379,7 @@ def whole_rounds(
         if rounds and whole == len(rounds)
         else None
     )
-    return whole, last_round
+    return rounds, whole, last_round
 
 
 def wrong_decisions(

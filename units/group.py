@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import platform
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,8 +17,7 @@ from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus import __version__
 from rgtbus.bus import open_bus
-from rgtbus.bus.base import Bus
-from rgtbus.engine.sim import Receivers, World
+from rgtbus.engine.sim import World
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
 from rgtbus.telemetry import Recorder, records
@@ -59,25 +58,6 @@ def write_metadata(
     recorder.metadata("codebook", {k: json.dumps(v) for k, v in sc.codebook.to_dict().items()})
 
 
-def scenario_world(
-    sc: Scenario, members: list[AutonomousUnit], bus: Bus, recorder: Recorder, **options: Any
-) -> World:
-    """The SimPy world of a scenario: its channels, resonator mode and sample rate; its window
-    (the medium's log blocks, and the dense engine's step)."""
-    receivers = Receivers(tuple(sc.frequencies[u] for u in sc.units), sc.mode, sc.timing.tau)
-    return World(
-        members, bus, recorder, receivers, window_samples=sc.timing.window_samples, **options
-    )
-
-
-def write_unit_report(recorder: Recorder, unit: AutonomousUnit, sim_seconds: float) -> None:
-    """The unit's ``/unit/report`` at the end of the run: what the log's summary is computed
-    from (with the unit's ``/rx/decodes`` records), exactly as the live summary is."""
-    unit.end_log()  # what it keeps for the log, if the run stopped before it was done
-    if recorder.enabled:
-        recorder.write(records.UNIT_REPORT, unit.report_record(), ns(sim_seconds))
-
-
 _TABLES = ("installed", "sent_relations", "influences")
 
 
@@ -90,10 +70,6 @@ def shared_tables(report: dict[str, Any], first: dict[str, Any] | None) -> dict[
             if report[key] is not first[key] and report[key] == first[key]:
                 report[key] = first[key]
     return report
-
-
-def write_run_summary(recorder: Recorder, summary: dict[str, Any]) -> None:
-    recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
 
 
 def run_group(
@@ -116,24 +92,22 @@ def run_group(
     write_metadata(recorder, sc, bus_kind, run_id, engine=engine, auth=auth_name(key))
     members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
     with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate, key=key) as bus:
-        world = scenario_world(
-            sc,
-            members,
-            bus,
-            recorder,
-            engine=engine,
-            timeout=timeout,
-            progress=progress,
-            realtime=realtime,
-        )
-        result = world.run()
+        result = World.for_scenario(
+            sc, members, bus, recorder,
+            engine=engine, timeout=timeout, progress=progress, realtime=realtime,
+        ).run()  # fmt: skip
         for note in bus.drop_notes():  # what reached the bus and was refused, say why
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
     for m in members:
-        write_unit_report(recorder, m, result.sim_seconds)
+        m.write_report(result.sim_seconds)
+    summary = summarise(sc, shared_reports(members), result, engine=engine)
+    recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
+    return RunOutput(summary, members)
+
+
+def shared_reports(members: Sequence[AutonomousUnit]) -> list[dict[str, Any]]:
+    """Every member's ``report()``, the tables they agree on held once (``shared_tables``)."""
     reports: list[dict[str, Any]] = []
     for m in members:
         reports.append(shared_tables(m.report(), reports[0] if reports else None))
-    summary = summarise(sc, reports, result, engine=engine)
-    write_run_summary(recorder, summary)
-    return RunOutput(summary, members)
+    return reports

@@ -590,8 +590,9 @@ def _merged(
     """Write ``launch.mcap`` (metadata, every failure, the run's summary) and merge it with
     every process log that has anything in it into ``run.mcap``. Returns the logs it had to
     leave out, as failures."""
-    from rgtbus.units.group import auth_name, write_metadata, write_run_summary
+    from rgtbus.units.group import auth_name, write_metadata
 
+    from rgtbus.telemetry import records
     from rgtbus.telemetry.logfile import close_log, open_log
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.scan import scan_log
@@ -602,7 +603,7 @@ def _merged(
         write_metadata(rec, sc, "zenoh", run_id, process="launch", auth=auth_name(key))
         for msg in failures:
             rec.log("error", msg, ns(summary["sim_seconds"]), name="launch")
-        write_run_summary(rec, summary)
+        rec.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
     finally:
         close_log(f, rec)
     left_out: list[str] = []

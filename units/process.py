@@ -21,15 +21,13 @@ from typing import Any
 from rgtbus.units.group import (
     auth_name,
     default_run_id,
-    scenario_world,
     write_metadata,
-    write_unit_report,
 )
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.bus import open_bus
 from rgtbus.bus.zenoh import ZenohBus
-from rgtbus.engine.sim import WorldResult
+from rgtbus.engine.sim import World, WorldResult
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.telemetry import McapRecorder, Recorder
@@ -144,9 +142,8 @@ def run_units(
                 on_open()
             _join(bus, sc, names, recorder, join_timeout)
             # a member gone or stalled ends it with result.failure; so does a request to stop
-            result = scenario_world(sc, units, bus, recorder, **world_options).run(
-                interruptible=True
-            )
+            world = World.for_scenario(sc, units, bus, recorder, **world_options)
+            result = world.run(interruptible=True)
             sim_seconds = result.sim_seconds
             stats = _reported(units, bus, recorder, result.sim_seconds)
         if bus.close_problem:
@@ -203,7 +200,7 @@ def _reported(
     """Each unit's report written (while the watch feed is open) and what the bus dropped;
     returns the bus's statistics."""
     for unit in units:
-        write_unit_report(recorder, unit, sim_seconds)
+        unit.write_report(sim_seconds)
     for note in bus.drop_notes():
         recorder.log("warning", f"dropped: {note}", ns(sim_seconds), name=units[0].name)
     return dict(bus.stats())

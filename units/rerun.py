@@ -19,11 +19,11 @@ from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import IO, Any
 
-from rgtbus.units.group import scenario_world
 from rgtbus.units.unit import AutonomousUnit, decision_records
 
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
+from rgtbus.engine.sim import World
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import Mind, mind_of
 from rgtbus.pairs import parse_pair_key
@@ -91,7 +91,7 @@ def rerun(
     names = [u for u in sc.units if only is None or u in only]
     members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
     bus = LogBus("replay", sc.units, medium, local=names, end=end)
-    world = scenario_world(
+    world = World.for_scenario(
         sc,
         members,
         bus,

@@ -49,7 +49,7 @@ from rgtbus.signal.pulses import Pulses
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.unit_log import UnitLog
-from rgtbus.timebase import sample_of, time_of
+from rgtbus.timebase import ns, sample_of, time_of
 
 if TYPE_CHECKING:
     from rgtbus.engine.hearing import Ears
@@ -221,6 +221,14 @@ class AutonomousUnit:
         self.log.end()
         if self.ears is not None:
             self.ears.end_spikes(self.index)
+
+    def write_report(self, sim_seconds: float) -> None:
+        """The run is over at ``sim_seconds``: what it keeps for its log is written, then its
+        ``/unit/report``, what the log's summary is computed from (with its ``/rx/decodes``
+        records), exactly as the live summary is."""
+        self.end_log()
+        if self.recorder.enabled:
+            self.recorder.write(records.UNIT_REPORT, self.report_record(), ns(sim_seconds))
 
     # -- living: receive -> protocol -> decode -> reason -> send ------------------------------
 

@@ -34,6 +34,7 @@ from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import Listener
 from rgtbus.errors import RgtbusError
+from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
@@ -126,6 +127,22 @@ class World:
         self._ears: list[Ears] = []
         self._where: dict[str, tuple[Ears, int]] = {}
         self._ahead: dict[str, Pulses] = {}  # local members' published pulses not yet heard
+
+    @classmethod
+    def for_scenario(
+        cls,
+        sc: Scenario,
+        members: Sequence[Member],
+        bus: Bus,
+        recorder: Recorder,
+        **options: Any,
+    ) -> World:
+        """The world of a scenario's ``members``: its channels, resonator mode and sample
+        rate; its window (the medium's log blocks, and the dense engine's step)."""
+        receivers = Receivers(tuple(sc.frequencies[u] for u in sc.units), sc.mode, sc.timing.tau)
+        return cls(
+            members, bus, recorder, receivers, window_samples=sc.timing.window_samples, **options
+        )
 
     # -- set-up ---------------------------------------------------------------------------------
 
