@@ -34,13 +34,26 @@ from rgtbus.summary import (
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LogContents
 from rgtbus.telemetry.records import (
+    LOG,
+    MEDIUM,
+    RUN,
+    RX_DECODE,
+    RX_DECODES,
+    RX_SPIKE,
+    TX_PULSE,
+    UNIT_DECISION,
+    UNIT_INFLUENCES,
+    UNIT_RELATIONS,
+    UNIT_REPORT,
     DecisionRecord,
     InfluencesRecord,
     RelationsRecord,
     RunRecord,
     decode_rows,
+    is_trace_topic,
     spike_samples,
     spike_units,
+    trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.timebase import NS_PER_SECOND, ns
@@ -192,11 +205,11 @@ def spike_rows(
     return rows
 
 
-_NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
+_NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
 # logged as each send is planned (or, with a live view or a paced run, by a unit's transmitter
 # as the clock reaches each pulse), not in step with the unit's other records: what a unit
 # logged before its last record or spike block holds every pulse before that time as well
-_ON_TIME = frozenset({"/tx/pulse"})
+_ON_TIME = frozenset({TX_PULSE})
 
 
 class Replay:
@@ -225,21 +238,21 @@ class Replay:
             self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
         # the records as their writers built them (rgtbus.telemetry.records)
         self.run: RunRecord | None = (
-            cast(RunRecord, self.by_topic["/run"][-1][1]) if self.by_topic["/run"] else None
+            cast(RunRecord, self.by_topic[RUN][-1][1]) if self.by_topic[RUN] else None
         )
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
         self.frequencies = _frequencies(self.metadata)
         tau = self.scenario.timing.tau if self.scenario is not None else None
-        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies, tau)
+        self.spikes = spike_rows((m for _, m in self.by_topic[RX_SPIKE]), self.frequencies, tau)
         self.relations: dict[str, RelationsRecord] = {
-            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic["/unit/relations"]
+            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
         }
         self.influences: dict[str, InfluencesRecord] = {
-            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic["/unit/influences"]
+            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]
         }
         self.decisions: list[DecisionRecord] = [
-            cast(DecisionRecord, m) for _, m in self.by_topic["/unit/decision"]
+            cast(DecisionRecord, m) for _, m in self.by_topic[UNIT_DECISION]
         ]
 
     # -- construction ------------------------------------------------------------------------
@@ -247,10 +260,10 @@ class Replay:
     def _decodes_as_rows(self) -> None:
         """Every decode as one ``/rx/decode`` message at its own time, however the log holds
         it (one a decode, or columns a wake in ``/rx/decodes``): what every reader reads."""
-        blocks = self.by_topic.get("/rx/decodes")
+        blocks = self.by_topic.get(RX_DECODES)
         if not blocks:
             return
-        rows = self.by_topic["/rx/decode"]
+        rows = self.by_topic[RX_DECODE]
         for _, m in blocks:
             for row in decode_rows(m):
                 rows.append((ns(row["t"]), cast(dict, row)))
@@ -280,14 +293,14 @@ class Replay:
         if self.scenario is not None:
             return self.scenario.units
         seen: dict[str, None] = {}
-        for topic in ("/tx/pulse", "/rx/spike", "/rx/decode", "/unit/relations"):
+        for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, UNIT_RELATIONS):
             for _, m in self.by_topic[topic]:
                 seen.setdefault(m["unit"], None)
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
         groups: dict[tuple[str, int, int], list[dict]] = {}
-        for _, p in self.by_topic["/tx/pulse"]:
+        for _, p in self.by_topic[TX_PULSE]:
             m = p["message"]
             groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
         out = []
@@ -330,7 +343,7 @@ class Replay:
         for sent in self.transmissions:
             starts[(sent.sender, sent.kind)].append(sent)
         rows = []
-        for _, d in self.by_topic["/rx/decode"]:
+        for _, d in self.by_topic[RX_DECODE]:
             cls = "id" if d["kind"] == "id" else "payload"
             tx: Transmission | None = None
             for cand in starts[(d["sender"], cls)]:
@@ -369,14 +382,14 @@ class Replay:
         if self.scenario is not None:
             t = self.scenario.timing
             return t.window_samples / t.sample_rate
-        med = self.by_topic["/medium"]
+        med = self.by_topic[MEDIUM]
         if med:
             return len(med[0][1]["samples"]) / med[0][1]["sample_rate"]
         return None
 
     @property
     def windows(self) -> int:
-        return len(self.by_topic["/medium"])
+        return len(self.by_topic[MEDIUM])
 
     @property
     def sim_seconds(self) -> float:
@@ -407,9 +420,9 @@ class Replay:
         a report (its process died) is left out, as the live run leaves it out. Logs from
         before ``/unit/report`` get reports rebuilt from their tables and decisions."""
         decodes: dict[str, list[list[Any]]] = defaultdict(list)
-        for _, d in self.by_topic["/rx/decode"]:
+        for _, d in self.by_topic[RX_DECODE]:
             decodes[d["unit"]].append([d.get("turn"), d["kind"], d["addressee"], d["code"]])
-        reports = {m["unit"]: m for _, m in self.by_topic["/unit/report"]}
+        reports = {m["unit"]: m for _, m in self.by_topic[UNIT_REPORT]}
         if not reports:
             reports = {u: self._legacy_report(u) for u in self.units}
         return [{**reports[u], "decodes": decodes[u]} for u in self.units if u in reports]
@@ -541,22 +554,22 @@ class Replay:
         ws = L / sc.timing.sample_rate
         out: dict[int, np.ndarray] = {}
         bad: list[Mismatch] = []
-        for t_ns, m in self.by_topic["/medium"]:
+        for t_ns, m in self.by_topic[MEDIUM]:
             w = m["window"]
             if w in out:
-                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w}", "twice", "once"))
+                bad.append(Mismatch(MEDIUM, t_ns / NS, None, f"window {w}", "twice", "once"))
                 continue
             if len(m["samples"]) != L:
                 bad.append(
-                    Mismatch("/medium", t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
+                    Mismatch(MEDIUM, t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
                 )
                 continue
             if not math.isclose(m["t"], w * ws, abs_tol=1e-9) or t_ns != round(w * ws * NS):
-                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w} t", m["t"], w * ws))
+                bad.append(Mismatch(MEDIUM, t_ns / NS, None, f"window {w} t", m["t"], w * ws))
             if m["sample_rate"] != sc.timing.sample_rate:
                 bad.append(
                     Mismatch(
-                        "/medium",
+                        MEDIUM,
                         t_ns / NS,
                         None,
                         f"window {w} sample_rate",
@@ -587,7 +600,7 @@ class Replay:
         them: the floats add up as the unit added them)."""
         rows: dict[str, list[int]] = {u: [] for u in self.units}
         vals: dict[str, list[float]] = {u: [] for u in self.units}
-        for _, p in self.by_topic["/tx/pulse"]:
+        for _, p in self.by_topic[TX_PULSE]:
             if p["unit"] in rows:
                 rows[p["unit"]].append(int(p["sample"]))
                 vals[p["unit"]].append(float(p["magnitude"]))
@@ -615,9 +628,9 @@ class Replay:
             # what is logged ahead of time (the medium, traces) or once the run is over (the
             # run's and units' reports, and log lines, which a stopped unit writes at its end)
             # says nothing of how far its records are complete
-            if topic in _NOT_PROGRESS or topic in _ON_TIME or _is_trace(topic):
+            if topic in _NOT_PROGRESS or topic in _ON_TIME or is_trace_topic(topic):
                 continue
-            stream = "spikes" if topic == "/rx/spike" else "records"
+            stream = "spikes" if topic == RX_SPIKE else "records"
             for t, m in msgs:
                 if "units" in m and stream == "spikes":  # one record for several units
                     whos = [str(u) for u in m["units"]]
@@ -640,10 +653,10 @@ class Replay:
         )
 
     def traced_units(self) -> list[str]:
-        return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]
+        return [u for u in self.units if self.by_topic.get(trace_topic(u))]
 
     def trace_arrays(self, unit: str) -> dict[str, Any] | None:
-        msgs = [m for _, m in self.by_topic.get(f"/trace/{unit}", [])]
+        msgs = [m for _, m in self.by_topic.get(trace_topic(unit), [])]
         return self.stack_traces(msgs) if msgs else None
 
     def stack_traces(self, msgs: Sequence[dict | bytes]) -> dict[str, Any]:
@@ -677,10 +690,6 @@ def in_span(
     return (lo is None or end >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
 
 
-def _is_trace(topic: str) -> bool:
-    return topic.startswith("/trace/")
-
-
 def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     """Read and organise a log (path or binary stream). Unreadable, not MCAP, corrupt, only a
     header, or not written by an rgtbus run: RgtbusError. A truncated log reads up to its cut.
@@ -689,7 +698,7 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     verification compares them byte for byte, plots decode one unit's."""
     raw = scan_log(source)
     require_run_log(raw)
-    contents = decode_log(raw, keep_raw=_is_trace)
+    contents = decode_log(raw, keep_raw=is_trace_topic)
     with explained(contents, raw.label):
         return Replay(contents, raw.label)
 

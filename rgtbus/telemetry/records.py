@@ -40,6 +40,12 @@ def trace_topic(unit: str) -> str:
     """The topic of ``unit``'s resonator traces."""
     return f"{TRACE_PREFIX}{unit}"
 
+
+def is_trace_topic(topic: str) -> bool:
+    """Whether ``topic`` is one of the ``/trace/<unit>`` family."""
+    return topic.startswith(TRACE_PREFIX)
+
+
 # a column of integers: a numpy array as a writer builds it (the encoder takes it whole), a
 # list as a reader gets it back
 IntColumn: TypeAlias = "Sequence[int] | np.ndarray"
@@ -308,7 +314,7 @@ def spike_units(record: Mapping[str, Any]) -> list[str]:
     ok = isinstance(units, list) and len(units) >= 2 and "unit" not in record
     if not ok or not all(isinstance(u, str) for u in units) or len(set(units)) < len(units):
         # a record written by hand or tampered with: readers name it by its schema
-        raise TypeError(f"/rx/spike units {units!r}: not two or more unit names alone")
+        raise TypeError(f"{RX_SPIKE} units {units!r}: not two or more unit names alone")
     return units
 
 
@@ -323,7 +329,7 @@ def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def _spikes_of(record: Mapping[str, Any]) -> str:
-    return f"/rx/spike of {record.get('unit', record.get('units'))!r}"
+    return f"{RX_SPIKE} of {record.get('unit', record.get('units'))!r}"
 
 
 def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
@@ -398,7 +404,7 @@ def decodes_of_columns(
     names cost more to make, write and compress than the rest of the record). The columns
     are the record's own from then on (they are not copied)."""
     if not len(cols) or not len(cols[7]):
-        raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
+        raise RgtbusError(f"{RX_DECODES} of {unit!r}: no decode to log")
     margin = cols[6]
     record: DecodesRecord = {
         "unit": unit,
@@ -428,7 +434,7 @@ DECODE_TABLES = ("names", "kinds", "codes")  # the order of ``DecodeTables``
 def _named(unit: str, record: dict[str, Any]) -> None:
     """A record's columns of indexes (``decodes_of_columns`` with tables) as names, in place;
     a table that is not a list of names, or an index out of it: RgtbusError naming both."""
-    where = f"/rx/decodes of {unit!r} at t = {record.get('t')}"
+    where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
     for column, table_name in NAMED_COLUMNS.items():
         table, col = record.get(table_name), record.get(column)
         if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
@@ -467,7 +473,7 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
         )
         want = "a list" if n < 0 else f"{n} entries like times"
         raise RgtbusError(
-            f"/rx/decodes of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
+            f"{RX_DECODES} of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
             f"not {want}"
         )
     for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(

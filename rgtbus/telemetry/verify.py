@@ -18,11 +18,26 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
-from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
-from rgtbus.telemetry.recorder import (
-    encode_json,
+from rgtbus.telemetry.read import NS, Mismatch, Replay
+from rgtbus.telemetry.recorder import encode_json
+from rgtbus.telemetry.records import (
+    LOG,
+    MEDIUM,
+    RUN,
+    RX_DECODE,
+    RX_DECODES,
+    RX_SPIKE,
+    TX_PULSE,
+    UNIT_DECISION,
+    UNIT_GOAL,
+    UNIT_INFLUENCES,
+    UNIT_RELATIONS,
+    decode_rows,
+    each_unit_spikes,
+    is_trace_topic,
+    spike_samples,
+    spike_units,
 )
-from rgtbus.telemetry.records import decode_rows, each_unit_spikes, spike_samples, spike_units
 from rgtbus.timebase import ns
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -91,32 +106,32 @@ def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
 
 # topic -> key of a message (messages with equal keys are paired in order)
 _KEYS: dict[str, Callable[[int, dict], tuple]] = {
-    "/tx/pulse": lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
-    "/rx/spike": lambda t, m: (m.get("unit"), m.get("sample")),
-    "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
-    "/unit/relations": lambda t, m: (m.get("unit"),),
-    "/unit/influences": lambda t, m: (m.get("unit"), m.get("round", 1)),
-    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
-    "/unit/goal": lambda t, m: (m.get("unit"), m.get("turn")),
-    "/log": lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+    TX_PULSE: lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
+    RX_SPIKE: lambda t, m: (m.get("unit"), m.get("sample")),
+    RX_DECODE: lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
+    UNIT_RELATIONS: lambda t, m: (m.get("unit"),),
+    UNIT_INFLUENCES: lambda t, m: (m.get("unit"), m.get("round", 1)),
+    UNIT_DECISION: lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
+    UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
+    LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
 }
 
 
 def _key_text(topic: str, key: tuple) -> str:
     """The paired messages' key in words (part of a mismatch's field)."""
-    if topic == "/tx/pulse":
+    if topic == TX_PULSE:
         return f"pulse on {key[2]} at sample {key[1]}"
-    if topic == "/rx/spike":
+    if topic == RX_SPIKE:
         return f"spikes at sample {key[1]}"
-    if topic == "/rx/decode":
+    if topic == RX_DECODE:
         return f"{key[1]} from {key[2]}"
-    if topic == "/unit/decision":
+    if topic == UNIT_DECISION:
         return f"subject {key[1]}" if key[2] == 1 else f"subject {key[1]}, round {key[2]}"
-    if topic == "/unit/goal":
+    if topic == UNIT_GOAL:
         return f"goal choice of turn {key[1]}"
-    if topic == "/log":
+    if topic == LOG:
         return f"line {key[3]!r}"
-    if _is_trace(topic):
+    if is_trace_topic(topic):
         return f"trace at {key[0] / NS:.3f} s"
     return "table"
 
@@ -128,7 +143,7 @@ def spikes_per_sample(
     the columnar record held them): spikes are compared sample by sample, so a log of either
     form verifies, and a mismatch names its sample."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/spike" or not isinstance(m, dict) or "samples" not in m:
+        if topic != RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
             yield topic, t_ns, m
             continue
         units = spike_units(m)  # a record the units of a process share: each unit's own
@@ -145,7 +160,7 @@ def spikes_per_unit(
     (``each_unit_spikes``): how logs compare whose units were split into processes, or
     engines, that share records differently."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/spike" or not isinstance(m, dict):
+        if topic != RX_SPIKE or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
         for one in each_unit_spikes(m):
@@ -159,11 +174,11 @@ def decodes_per_row(
     at its own time (as logs before the columnar record held them): decodes are compared one
     by one, however a run grouped them into records, and a mismatch names its decode."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/decodes" or not isinstance(m, dict):
+        if topic != RX_DECODES or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
         for row in decode_rows(m):
-            yield "/rx/decode", ns(row["t"]), cast(dict, row)
+            yield RX_DECODE, ns(row["t"]), cast(dict, row)
 
 
 def diff_messages(
@@ -193,11 +208,11 @@ def diff_messages(
                 continue
             trace = traced.get(topic)
             if trace is None:
-                trace = traced[topic] = _is_trace(topic)
+                trace = traced[topic] = is_trace_topic(topic)
             if trace:  # logged traces may be undecoded bytes: key by time
                 out[topic][(t,)].append((t, m))
             elif topic in _KEYS:
-                if topic == "/log" and m.get("name") not in unitset:
+                if topic == LOG and m.get("name") not in unitset:
                     continue  # not a unit's line
                 out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
         return out
@@ -219,7 +234,12 @@ def diff_messages(
                 y = ys[i] if i < len(ys) else None
                 checked[topic] += 1
                 # Byte for byte as the recorder encodes; decode only to explain a difference.
-                if _is_trace(topic) and x is not None and y is not None and _same_trace(x[1], y[1]):
+                if (
+                    is_trace_topic(topic)
+                    and x is not None
+                    and y is not None
+                    and _same_trace(x[1], y[1])
+                ):
                     continue
                 t_ns, m = x if x is not None else y  # type: ignore[misc]
                 if isinstance(m, bytes | bytearray):
@@ -230,12 +250,12 @@ def diff_messages(
                     mismatches.append(Mismatch(topic, t_ns / NS, unit, what, "(missing)", _json(m)))
                     continue
                 if y is None:
-                    if topic != "/log":  # other writers (CLI, process wrappers) add lines
+                    if topic != LOG:  # other writers (CLI, process wrappers) add lines
                         mismatches.append(
                             Mismatch(topic, t_ns / NS, unit, what, m, "(not produced)")
                         )
                     continue
-                if _is_trace(topic):
+                if is_trace_topic(topic):
                     diffs = _trace_diff(m, y[1])
                 else:
                     # the re-run's message as the recorder would log it; the same JSON is the
@@ -247,9 +267,7 @@ def diff_messages(
                         diffs.append(("log_time", x[0], y[0]))
                 for path, lv, rv in diffs:
                     field_name = (
-                        path
-                        if topic in ("/unit/relations", "/unit/influences")
-                        else (f"{what}: {path}")
+                        path if topic in (UNIT_RELATIONS, UNIT_INFLUENCES) else (f"{what}: {path}")
                     )
                     mismatches.append(Mismatch(topic, t_ns / NS, unit, field_name, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
@@ -334,12 +352,12 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     )
     mismatches += diffs
     mismatches += list(checks)
-    checked["/medium"] = replay.windows
+    checked[MEDIUM] = replay.windows
     if not replay.truncated:
         if not rerun.complete:
             mismatches.append(
                 Mismatch(
-                    "/medium",
+                    MEDIUM,
                     replay.sim_seconds,
                     None,
                     "the run's length",
@@ -351,9 +369,9 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         if run is None and set(replay.unit_processes) >= set(sc.units):
             pass  # a merge of every unit's own log (no launcher wrote a /run): all ended done
         elif run is None:
-            mismatches.append(Mismatch("/run", None, None, "record", "(missing)", "present"))
+            mismatches.append(Mismatch(RUN, None, None, "record", "(missing)", "present"))
         else:
-            checked["/run"] += 1
+            checked[RUN] += 1
             s = rerun.summary
             want_run = {
                 "scenario": s["scenario"],
@@ -364,7 +382,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
                 "error": s["error"],
             }
             for path, lv, rv in _field_diffs(run, want_run):
-                mismatches.append(Mismatch("/run", run.get("sim_seconds"), None, path, lv, rv))
+                mismatches.append(Mismatch(RUN, run.get("sim_seconds"), None, path, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))  # stable
     return VerifyReport(
         label=replay.label,
@@ -405,14 +423,12 @@ def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
         exp = want.get(w, np.zeros(L))
         if logged is None:
             if w * L <= end:  # a run logs its medium up to its end
-                bad.append(
-                    Mismatch("/medium", w * L * tau, None, f"window {w}", "missing", "present")
-                )
+                bad.append(Mismatch(MEDIUM, w * L * tau, None, f"window {w}", "missing", "present"))
             continue
         for k in np.flatnonzero(logged != exp):
             bad.append(
                 Mismatch(
-                    "/medium",
+                    MEDIUM,
                     (w * L + int(k)) * tau,
                     None,
                     f"window {w} samples[{int(k)}]",
