@@ -28,6 +28,7 @@ from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
+from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic
 from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
 
 NS = 1_000_000_000
@@ -54,8 +55,8 @@ def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
         if ch.schema_id in summary.schemas
     }
     run = None
-    if any(ch.topic == "/run" for ch in channels.values()):
-        for _, _, m in reader.iter_messages(topics=["/run"]):
+    if any(ch.topic == RUN for ch in channels.values()):
+        for _, _, m in reader.iter_messages(topics=[RUN]):
             run = _run_record(label, m.data)
     compression = sorted({c.compression or "none" for c in summary.chunk_indexes})
     return _info(
@@ -87,7 +88,7 @@ def _scanned_info(log: CheckedLog, raw: RawLog) -> dict[str, Any]:
     times = [t for _, t, *_ in raw.messages]
     run = None
     for cid, _, _, _, data in raw.messages:
-        if topics[cid] == "/run":
+        if topics[cid] == RUN:
             run = _run_record(label, data)
     metadata: dict[str, dict[str, str]] = {}
     for name, values in raw.metadata:
@@ -295,9 +296,9 @@ def _size(n: int) -> str:
 def _unit_of(topic: str, message: dict[str, Any]) -> str | None:
     """The unit a message is about: the receiving, sending or reasoning unit; a trace's unit;
     a log line's name. The medium and the run summary belong to no unit."""
-    if topic.startswith("/trace/"):
-        return topic[len("/trace/") :]
-    if topic == "/log":
+    if is_trace_topic(topic):
+        return topic[len(TRACE_PREFIX) :]
+    if topic == LOG:
         return message.get("name")
     unit = message.get("unit")
     return unit if isinstance(unit, str) else None

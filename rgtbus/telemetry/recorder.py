@@ -24,9 +24,9 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
+from rgtbus.telemetry.records import LOG, MEDIUM
 from rgtbus.timebase import ns
 
-LOG_TOPIC = "/log"
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
 _COMPRESSION = {
     "zstd": MCAPCompression.Zstd,
@@ -201,7 +201,7 @@ class _Encoding:
         file: str = "",
         line: int = 0,
     ) -> None:
-        self.write(LOG_TOPIC, log_message(level, text, t_ns, name, file, line), t_ns)
+        self.write(LOG, log_message(level, text, t_ns, name, file, line), t_ns)
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         raise NotImplementedError
@@ -316,7 +316,7 @@ class McapRecorder(_Encoding):
         flush_messages: int = 4096,
         flush_wall: float = 0.5,
         live: LiveSink | None = None,
-        ahead_topics: Collection[str] = ("/medium",),
+        ahead_topics: Collection[str] = (MEDIUM,),
     ) -> None:
         super().__init__(validate)
         self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
@@ -486,7 +486,7 @@ class MemoryRecorder(_Encoding):
         _, data, t = self._encode(topic, message, t_ns)
         decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
-        if topic == LOG_TOPIC:
+        if topic == LOG:
             self.logs.append(decoded)
 
     def metadata(self, name: str, values: dict[str, str]) -> None:

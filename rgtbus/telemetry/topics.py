@@ -58,8 +58,8 @@ TOPICS: dict[str, tuple[str, str]] = {
 _UNIT = r"[A-Za-z0-9_][A-Za-z0-9_.\-]*"
 TOPIC_PATTERNS: tuple[tuple[str, re.Pattern[str], str, str], ...] = (
     (
-        "/trace/<unit>",
-        re.compile(rf"^/trace/{_UNIT}$"),
+        r.trace_topic("<unit>"),
+        re.compile(rf"^{re.escape(r.TRACE_PREFIX)}{_UNIT}$"),
         "rgtbus.ResonatorTrace",
         "resonator states per window (optional, `--traces`)",
     ),
