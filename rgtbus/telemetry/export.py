@@ -8,6 +8,7 @@ import math
 from typing import IO, Any
 
 from rgtbus.telemetry.read import Replay, in_span
+from rgtbus.timebase import sample_of, time_of
 
 
 def sample_time(t: float, tau: float | None) -> float:
@@ -15,7 +16,7 @@ def sample_time(t: float, tau: float | None) -> float:
     if not tau:
         return round(t, 9)
     digits = min(9, max(0, math.ceil(-math.log10(tau)) + 1))
-    return round(round(t / tau) * tau, digits)
+    return round(time_of(sample_of(t, tau), tau), digits)
 
 
 def csv_tables(

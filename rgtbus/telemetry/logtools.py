@@ -30,8 +30,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic
 from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
-
-NS = 1_000_000_000
+from rgtbus.timebase import ns, seconds
 
 
 def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
@@ -145,9 +144,9 @@ def _info(
         "log": label,
         "bytes": size,
         "library": library,
-        "start": None if start is None else start / NS,
-        "end": None if end is None else end / NS,
-        "duration": None if start is None or end is None else (end - start) / NS,
+        "start": None if start is None else seconds(start),
+        "end": None if end is None else seconds(end),
+        "duration": None if start is None or end is None else seconds(end - start),
         "messages": sum(counts.values()),
         "topics": {t: {"count": n, "schema": schemas.get(t)} for t, n in counts.items()},
         "compression": compression,
@@ -330,8 +329,8 @@ def cat_messages(
         raise RgtbusError(f"--unit {unit!r}: not a unit of this log ({', '.join(info['units'])})")
     if info["start"] is not None:
         check_time_range(t_from, t_to, info["start"], info["end"])
-    start = None if t_from is None else round(t_from * NS)
-    end = None if t_to is None else round(t_to * NS)  # inclusive, like start
+    start = None if t_from is None else ns(t_from)
+    end = None if t_to is None else ns(t_to)  # inclusive, like start
     wanted = set(topics) if topics else None
     if log.raw is not None:
         yield from _cat_scanned(log.raw, wanted, unit, start, end)
@@ -382,7 +381,7 @@ def _record(topic: str, log_time: int, data: bytes, unit: str | None) -> dict[st
             return None
         # a record units share (/rx/spike): shown as that unit's own
         message = {"unit": unit, **{k: v for k, v in message.items() if k != "units"}}
-    return {"topic": topic, "t": log_time / NS, "log_time": log_time, "message": message}
+    return {"topic": topic, "t": seconds(log_time), "log_time": log_time, "message": message}
 
 
 def check_time_range(

@@ -56,9 +56,10 @@ from rgtbus.telemetry.records import (
     trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
-from rgtbus.timebase import NS_PER_SECOND, ns
+from rgtbus.timebase import ns, seconds, time_of
 
-NS = NS_PER_SECOND  # log_time units per second (rgtbus.timebase)
+# Two logged times of one instant agree to within this (a log time is whole nanoseconds).
+_NANOSECOND = seconds(1)
 
 
 @dataclass
@@ -188,7 +189,7 @@ def spike_rows(
             units, k0, t0 = spike_units(m), m["sample"], m["t"]
             step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
             for k, chans in spike_samples(m):
-                t = k * step if k != k0 else t0
+                t = time_of(k, step) if k != k0 else t0
                 for unit in units:  # a shared record: each unit heard the same spikes
                     for ch in chans:
                         om = frequencies.get(ch)
@@ -348,7 +349,7 @@ class Replay:
             tx: Transmission | None = None
             for cand in starts[(d["sender"], cls)]:
                 if ("turn" in d and cand.turn == d["turn"]) or (
-                    "turn" not in d and cand.start <= d["t"] + 1e-9  # logs from before turns
+                    "turn" not in d and cand.start <= d["t"] + _NANOSECOND  # logs from before turns
                 ):
                     tx = cand
             if tx is None:
@@ -396,7 +397,7 @@ class Replay:
         """The run's simulated length: from its ``/run`` record, else as far as the log goes."""
         if self.run is not None:
             return float(self.run["sim_seconds"])
-        return round(max((m[1] for m in self.contents.messages), default=0) / NS, 6)
+        return round(seconds(max((m[1] for m in self.contents.messages), default=0)), 6)
 
     def agree(self) -> bool:
         held = [self.relations.get(u) for u in self.units]
@@ -557,20 +558,22 @@ class Replay:
         for t_ns, m in self.by_topic[MEDIUM]:
             w = m["window"]
             if w in out:
-                bad.append(Mismatch(MEDIUM, t_ns / NS, None, f"window {w}", "twice", "once"))
+                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w}", "twice", "once"))
                 continue
             if len(m["samples"]) != L:
                 bad.append(
-                    Mismatch(MEDIUM, t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
+                    Mismatch(
+                        MEDIUM, seconds(t_ns), None, f"window {w} length", len(m["samples"]), L
+                    )
                 )
                 continue
-            if not math.isclose(m["t"], w * ws, abs_tol=1e-9) or t_ns != round(w * ws * NS):
-                bad.append(Mismatch(MEDIUM, t_ns / NS, None, f"window {w} t", m["t"], w * ws))
+            if not math.isclose(m["t"], w * ws, abs_tol=_NANOSECOND) or t_ns != ns(w * ws):
+                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w} t", m["t"], w * ws))
             if m["sample_rate"] != sc.timing.sample_rate:
                 bad.append(
                     Mismatch(
                         MEDIUM,
-                        t_ns / NS,
+                        seconds(t_ns),
                         None,
                         f"window {w} sample_rate",
                         m["sample_rate"],
@@ -687,7 +690,7 @@ def in_span(
         return True
     lo, hi = span
     end = t if until is None else until
-    return (lo is None or end >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
+    return (lo is None or end >= lo - _NANOSECOND) and (hi is None or t <= hi + _NANOSECOND)
 
 
 def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
@@ -717,7 +720,7 @@ def schema_error(contents: LogContents) -> str | None:
             message = orjson.loads(message)
         errs = validate.errors(message, topics.load_schema(schema))
         if errs:
-            return f"message on {topic} at t = {t_ns / NS:.3f} s breaks {schema}: {errs[0]}"
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
     return None
 
 

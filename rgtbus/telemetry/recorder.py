@@ -25,7 +25,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.records import LOG, MEDIUM
-from rgtbus.timebase import ns
+from rgtbus.timebase import NS_PER_SECOND, ns
 
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
 _COMPRESSION = {
@@ -93,7 +93,7 @@ def log_message(
     """A foxglove.Log message."""
     t = _check_t_ns(t_ns)
     return {
-        "timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000},
+        "timestamp": {"sec": t // NS_PER_SECOND, "nsec": t % NS_PER_SECOND},
         "level": level_number(level),
         "message": str(text),
         "name": str(name),

@@ -14,6 +14,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
+from rgtbus.timebase import time_of
 
 if TYPE_CHECKING:
     import numpy as np
@@ -270,7 +271,7 @@ def pulse(
         "channel": channel,
         "omega": omega,
         "magnitude": magnitude,
-        "t": sample * tau,
+        "t": time_of(sample, tau),
         "sample": sample,
         "message": message,
     }
@@ -300,7 +301,13 @@ def spikes(
     else:
         record = {"units": list(unit)}
     record.update(
-        {"t": first * tau, "sample": first, "samples": samples, "channel": channel, "names": names}
+        {
+            "t": time_of(first, tau),
+            "sample": first,
+            "samples": samples,
+            "channel": channel,
+            "names": names,
+        }
     )
     return record
 

@@ -18,7 +18,7 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
-from rgtbus.telemetry.read import NS, Mismatch, Replay
+from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import encode_json
 from rgtbus.telemetry.records import (
     LOG,
@@ -38,7 +38,7 @@ from rgtbus.telemetry.records import (
     spike_samples,
     spike_units,
 )
-from rgtbus.timebase import ns
+from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
 EXIT_VERIFIED = 0
@@ -132,7 +132,7 @@ def _key_text(topic: str, key: tuple) -> str:
     if topic == LOG:
         return f"line {key[3]!r}"
     if is_trace_topic(topic):
-        return f"trace at {key[0] / NS:.3f} s"
+        return f"trace at {seconds(key[0]):.3f} s"
     return "table"
 
 
@@ -148,7 +148,7 @@ def spikes_per_sample(
             continue
         units = spike_units(m)  # a record the units of a process share: each unit's own
         for k, chans in spike_samples(m):
-            t = k * tau
+            t = time_of(k, tau)
             for unit in units:
                 yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
 
@@ -247,12 +247,14 @@ def diff_messages(
                 unit = m.get("unit", m.get("name"))
                 what = _key_text(topic, key)
                 if x is None:
-                    mismatches.append(Mismatch(topic, t_ns / NS, unit, what, "(missing)", _json(m)))
+                    mismatches.append(
+                        Mismatch(topic, seconds(t_ns), unit, what, "(missing)", _json(m))
+                    )
                     continue
                 if y is None:
                     if topic != LOG:  # other writers (CLI, process wrappers) add lines
                         mismatches.append(
-                            Mismatch(topic, t_ns / NS, unit, what, m, "(not produced)")
+                            Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")
                         )
                     continue
                 if is_trace_topic(topic):
@@ -269,7 +271,7 @@ def diff_messages(
                     field_name = (
                         path if topic in (UNIT_RELATIONS, UNIT_INFLUENCES) else (f"{what}: {path}")
                     )
-                    mismatches.append(Mismatch(topic, t_ns / NS, unit, field_name, lv, rv))
+                    mismatches.append(Mismatch(topic, seconds(t_ns), unit, field_name, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
 
@@ -345,7 +347,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     if replay.truncated:
         # what every unit logged before its bound is complete (Replay.units_until_ns)
         until_ns = replay.units_until_ns() or 0
-        until = until_ns / NS
+        until = seconds(until_ns)
     mismatches += check_medium(replay, until_ns)
     diffs, checked = diff_messages(
         replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
@@ -415,21 +417,23 @@ def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
             want.setdefault(k // L, np.zeros(L))[k % L] = v
     end = replay.sim_seconds / tau if replay.run is not None else math.inf
     if until_ns is not None:
-        end = min(end, until_ns / NS / tau - L)
+        end = min(end, seconds(until_ns) / tau - L)
     for w in sorted(set(windows) | set(want)):
-        if until_ns is not None and (w + 1) * L * tau * NS > until_ns:
+        if until_ns is not None and time_of((w + 1) * L, tau) * NS_PER_SECOND > until_ns:
             continue
         logged = windows.get(w)
         exp = want.get(w, np.zeros(L))
         if logged is None:
             if w * L <= end:  # a run logs its medium up to its end
-                bad.append(Mismatch(MEDIUM, w * L * tau, None, f"window {w}", "missing", "present"))
+                bad.append(
+                    Mismatch(MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present")
+                )
             continue
         for k in np.flatnonzero(logged != exp):
             bad.append(
                 Mismatch(
                     MEDIUM,
-                    (w * L + int(k)) * tau,
+                    time_of(w * L + int(k), tau),
                     None,
                     f"window {w} samples[{int(k)}]",
                     float(logged[k]),
