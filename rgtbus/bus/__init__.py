@@ -9,10 +9,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, Pulses, QueueBus, tx_key
+from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, QueueBus
+from rgtbus.bus.keys import tx_key
 from rgtbus.bus.memory import MemoryBus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.pulses import Pulses
 
 KINDS = ("zenoh", "memory")
 

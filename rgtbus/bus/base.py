@@ -44,7 +44,8 @@ from rgtbus.bus.payload import (
     max_frame_pulses,
 )
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
+from rgtbus.signal.pulses import Pulses as Pulses  # re-exported: units/ take it from here
+from rgtbus.signal.pulses import merge_pulses, split_pulses
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")

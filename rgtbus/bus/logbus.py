@@ -13,9 +13,10 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from rgtbus.bus.base import MemberStatus, Pulses, merge_pulses, split_pulses
+from rgtbus.bus.base import MemberStatus
 from rgtbus.bus.payload import FINAL, NEVER
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
 
 
 class LogEnded(RgtbusError):

@@ -160,7 +160,7 @@ class Watcher:
     def close(self, timeout: float = 5.0) -> str | None:
         """Undeclare and close; what went wrong closing, or None."""
         try:
-            self._sub.undeclare()
+            self._sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it bare
         except Exception as e:  # zenoh's ZError
             return zenoh_reason(e)
         return close_session(self.session, timeout)

@@ -63,8 +63,8 @@ def merge_logs(
     writer = Writer(stream, compression=_COMPRESSION[compression], enable_data_crcs=True)
     writer.start(profile="", library=f"rgtbus {__version__} merge")
 
-    schema_ids: dict[tuple, int] = {}
-    channel_ids: dict[tuple, int] = {}
+    schema_ids: dict[tuple[str, str, bytes], int] = {}
+    channel_ids: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
     topic_of: dict[int, str] = {}
     entries: list[tuple[int, int, int, int, int, bytes]] = []
     for k, log in enumerate(logs):
@@ -132,5 +132,5 @@ def merge_logs(
     res.metadata = list(kept)
     res.channels = len(channel_ids)
     res.schemas = len(schema_ids)
-    writer.finish()
+    writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer leaves it bare
     return res

@@ -28,8 +28,10 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.logtools import check_time_range
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry.read import Replay
 
 WIDTH_IN = 14.0
@@ -221,7 +223,7 @@ _OTHER_SPIKE: dict[str, Any] = {"marker": "v", "mfc": "none", "mec": "0.5", "mew
 
 
 def _labels(
-    ax, replay: Replay, ch: str, lo: float, hi: float, px_per_s: float, color: dict[str, str]
+    ax: Axes, replay: Replay, ch: str, lo: float, hi: float, px_per_s: float, color: dict[str, str]
 ) -> int:
     """Transmission labels on a channel, greedily in staggered rows; returns how many did not
     fit."""
@@ -260,7 +262,9 @@ def _labels(
     return hidden
 
 
-def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[str, str]) -> None:
+def _timeline(
+    ax: Axes, replay: Replay, lo: float, hi: float, end: float, color: dict[str, str]
+) -> None:
     units = list(replay.units)
     row = {u: len(units) - 1 - i for i, u in enumerate(units)}
     # phases of the protocol as bands
@@ -326,7 +330,7 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
     ax.set_xlabel("t (s), whole run", fontsize=FONT)
 
 
-def _alt(value: Any, universe) -> str:
+def _alt(value: Any, universe: Universe | None) -> str:
     if value is None:
         return "none"
     if universe is None:

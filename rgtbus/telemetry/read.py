@@ -175,8 +175,8 @@ def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
 
 
 def spike_rows(
-    records: Iterable[dict], frequencies: dict[str, float], tau: float | None = None
-) -> list[dict]:
+    records: Iterable[dict[str, Any]], frequencies: dict[str, float], tau: float | None = None
+) -> list[dict[str, Any]]:
     """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
     records: a unit's spikes of one block as columns (``spike_samples``); ω comes
     from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
@@ -222,7 +222,7 @@ class Replay:
         self.metadata: dict[str, dict[str, str]] = contents.metadata
         self.truncated: bool = contents.truncated
         self.note: str = contents.note
-        self.by_topic: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+        self.by_topic: dict[str, list[tuple[int, dict[str, Any]]]] = defaultdict(list)
         for topic, t, msg in contents.messages:
             self.by_topic[topic].append((t, msg))
         self._decodes_as_rows()
@@ -267,7 +267,7 @@ class Replay:
         rows = self.by_topic[RX_DECODE]
         for _, m in blocks:
             for row in decode_rows(m):
-                rows.append((ns(row["t"]), cast(dict, row)))
+                rows.append((ns(row["t"]), cast(dict[str, Any], row)))
         rows.sort(key=lambda r: r[0])  # stable: a unit's decodes of one time keep their order
 
     def _load_scenario(self) -> None:
@@ -300,7 +300,7 @@ class Replay:
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
-        groups: dict[tuple[str, int, int], list[dict]] = {}
+        groups: dict[tuple[str, int, int], list[dict[str, Any]]] = {}
         for _, p in self.by_topic[TX_PULSE]:
             m = p["message"]
             groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
@@ -385,7 +385,8 @@ class Replay:
             return t.window_samples / t.sample_rate
         med = self.by_topic[MEDIUM]
         if med:
-            return len(med[0][1]["samples"]) / med[0][1]["sample_rate"]
+            rate: float = med[0][1]["sample_rate"]
+            return len(med[0][1]["samples"]) / rate
         return None
 
     @property
@@ -662,7 +663,7 @@ class Replay:
         msgs = [m for _, m in self.by_topic.get(trace_topic(unit), [])]
         return self.stack_traces(msgs) if msgs else None
 
-    def stack_traces(self, msgs: Sequence[dict | bytes]) -> dict[str, Any]:
+    def stack_traces(self, msgs: Sequence[dict[str, Any] | bytes]) -> dict[str, Any]:
         """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``: one message
         a sample, or (logs of rgtbus before the per-sample layout) one a window."""
         if not msgs:

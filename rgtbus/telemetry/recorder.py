@@ -36,6 +36,9 @@ _COMPRESSION = {
 _U64_MAX = 2**64 - 1
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
+# one message as read back: (topic, log time in ns, the message)
+LogMessage = tuple[str, int, dict[str, Any]]
+
 
 @runtime_checkable
 class Recorder(Protocol):
@@ -478,7 +481,7 @@ class MemoryRecorder(_Encoding):
 
     def __init__(self, *, validate: bool = True) -> None:
         super().__init__(validate)
-        self.messages: list[tuple[str, int, dict]] = []
+        self.messages: list[LogMessage] = []
         self.metadata_records: dict[str, dict[str, str]] = {}
         self.logs: list[dict[str, Any]] = []
 
@@ -530,7 +533,7 @@ class NullRecorder:
         self.close()
 
 
-class LogContents(tuple):
+class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     """``(messages, metadata)`` — unpacks as a pair — plus how the read ended.
 
     messages: ``[(topic, log_time_ns, message), ...]`` in log-time order (file order on ties);
@@ -539,14 +542,14 @@ class LogContents(tuple):
     ``end_ns``: log time of the last message read (None when there was none).
     """
 
-    messages: list[tuple[str, int, dict]]
+    messages: list[LogMessage]
     metadata: dict[str, dict[str, str]]
     truncated: bool
     note: str
 
     def __new__(
         cls,
-        messages: list[tuple[str, int, dict]],
+        messages: list[LogMessage],
         metadata: dict[str, dict[str, str]],
         truncated: bool = False,
         note: str = "",

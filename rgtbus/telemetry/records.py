@@ -322,7 +322,8 @@ def spike_units(record: Mapping[str, Any]) -> list[str]:
     if not ok or not all(isinstance(u, str) for u in units) or len(set(units)) < len(units):
         # a record written by hand or tampered with: readers name it by its schema
         raise TypeError(f"{RX_SPIKE} units {units!r}: not two or more unit names alone")
-    return units
+    names: list[str] = units
+    return names
 
 
 def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:

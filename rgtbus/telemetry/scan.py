@@ -348,7 +348,7 @@ def verified_by_crcs(stream: IO[bytes]) -> bool:
             return False
         # the data section from the opening magic to DataEnd's CRC field; the summary section
         # (from DataEnd's end) through the footer's last field before its own CRC
-        return (
+        return bool(
             _crc_of(stream, 0, data_end_at) == data_crc
             and _crc_of(stream, data_end_at + _DATA_END_BYTES, footer_at + _FOOTER_BYTES - 4)
             == summary_crc

@@ -111,7 +111,8 @@ def schema_bytes(name: str) -> bytes:
 
 @cache
 def load_schema(name: str) -> dict[str, Any]:
-    return json.loads(schema_bytes(name))
+    schema: dict[str, Any] = json.loads(schema_bytes(name))
+    return schema
 
 
 # -- docs -----------------------------------------------------------------------------------
