@@ -19,7 +19,7 @@ import orjson
 
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry.read import Mismatch, Replay
-from rgtbus.telemetry.recorder import encode_json
+from rgtbus.telemetry.recorder import LogMessage, encode_json
 from rgtbus.telemetry.records import (
     LOG,
     MEDIUM,
@@ -69,7 +69,7 @@ def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str
     return [(path or "(message)", logged, recomputed)]
 
 
-def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
+def _same_trace(logged: bytes | dict[str, Any], recomputed: dict[str, Any]) -> bool:
     """Equal as the recorder would write them: JSON floats round-trip exactly, so comparing the
     numbers equals comparing the bytes, at half the cost of encoding the re-run's traces."""
     m = orjson.loads(logged) if isinstance(logged, bytes | bytearray) else logged
@@ -84,7 +84,7 @@ def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
     return True
 
 
-def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
+def _trace_diff(logged: dict[str, Any], recomputed: dict[str, Any]) -> list[tuple[str, Any, Any]]:
     out: list[tuple[str, Any, Any]] = []
     for key in ("y", "x"):
         a = np.asarray(logged.get(key), dtype=float)
@@ -104,8 +104,11 @@ def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
     return out + _field_diffs(rest, _json(rest_r))
 
 
+# what pairs a logged message with its recomputed twin: plain scalars
+MessageKey = tuple[Any, ...]
+
 # topic -> key of a message (messages with equal keys are paired in order)
-_KEYS: dict[str, Callable[[int, dict], tuple]] = {
+_KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
     TX_PULSE: lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
     RX_SPIKE: lambda t, m: (m.get("unit"), m.get("sample")),
     RX_DECODE: lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
@@ -117,7 +120,7 @@ _KEYS: dict[str, Callable[[int, dict], tuple]] = {
 }
 
 
-def _key_text(topic: str, key: tuple) -> str:
+def _key_text(topic: str, key: MessageKey) -> str:
     """The paired messages' key in words (part of a mismatch's field)."""
     if topic == TX_PULSE:
         return f"pulse on {key[2]} at sample {key[1]}"
@@ -136,9 +139,7 @@ def _key_text(topic: str, key: tuple) -> str:
     return "table"
 
 
-def spikes_per_sample(
-    messages: Iterable[tuple[str, int, dict]], tau: float
-) -> Iterator[tuple[str, int, dict]]:
+def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[LogMessage]:
     """The messages with every ``/rx/spike`` block as one message per sample (as logs before
     the columnar record held them): spikes are compared sample by sample, so a log of either
     form verifies, and a mismatch names its sample."""
@@ -154,8 +155,8 @@ def spikes_per_sample(
 
 
 def spikes_per_unit(
-    messages: Iterable[tuple[str, int, dict]],
-) -> Iterator[tuple[str, int, dict]]:
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
     """The messages with every ``/rx/spike`` record that units shared as one record a unit
     (``each_unit_spikes``): how logs compare whose units were split into processes, or
     engines, that share records differently."""
@@ -168,8 +169,8 @@ def spikes_per_unit(
 
 
 def decodes_per_row(
-    messages: Iterable[tuple[str, int, dict]],
-) -> Iterator[tuple[str, int, dict]]:
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
     """The messages with every ``/rx/decodes`` record as one ``/rx/decode`` message a decode
     at its own time (as logs before the columnar record held them): decodes are compared one
     by one, however a run grouped them into records, and a mismatch names its decode."""
@@ -178,12 +179,81 @@ def decodes_per_row(
             yield topic, t_ns, m
             continue
         for row in decode_rows(m):
-            yield RX_DECODE, ns(row["t"]), cast(dict, row)
+            yield RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
+
+
+# (log time, message) of one topic and key, in the order logged
+Paired = dict[str, dict[MessageKey, list[tuple[int, Any]]]]
+
+
+def _keyed(
+    messages: Iterable[LogMessage],
+    units: frozenset[str],
+    until_ns: int | None,
+    traced: dict[str, bool],
+) -> Paired:
+    """The messages by topic and key (``_KEYS``; a trace's by its time), those before
+    ``until_ns`` only; a ``/log`` line only if a unit wrote it. ``traced`` remembers which
+    topics are traces (asked once a topic, not once a message)."""
+    out: Paired = defaultdict(lambda: defaultdict(list))
+    for topic, t, m in messages:
+        if until_ns is not None and t >= until_ns:
+            continue
+        trace = traced.get(topic)
+        if trace is None:
+            trace = traced[topic] = is_trace_topic(topic)
+        if trace:  # logged traces may be undecoded bytes: key by time
+            out[topic][(t,)].append((t, m))
+        elif topic in _KEYS:
+            if topic == LOG and m.get("name") not in units:
+                continue  # not a unit's line
+            out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
+    return out
+
+
+def _pair_mismatches(
+    topic: str,
+    key: MessageKey,
+    logged: tuple[int, Any] | None,
+    recomputed: tuple[int, Any] | None,
+) -> list[Mismatch]:
+    """How the logged and the recomputed message of one topic and key differ (either may be
+    missing); a trace is compared as the recorder would write it, decoded only to explain."""
+    x, y = logged, recomputed
+    trace = is_trace_topic(topic)
+    if trace and x is not None and y is not None and _same_trace(x[1], y[1]):
+        return []
+    t_ns, m = x if x is not None else y  # type: ignore[misc]  # never both missing
+    if isinstance(m, bytes | bytearray):
+        m = orjson.loads(m)
+    unit = m.get("unit", m.get("name"))
+    what = _key_text(topic, key)
+    if x is None:
+        return [Mismatch(topic, seconds(t_ns), unit, what, "(missing)", _json(m))]
+    if y is None:
+        if topic == LOG:  # other writers (CLI, process wrappers) add lines
+            return []
+        return [Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")]
+    if trace:
+        diffs = _trace_diff(m, y[1])
+    else:
+        # the re-run's message as the recorder would log it; the same JSON is the same
+        # message (== alone would take true for 1)
+        mine = encode_json(y[1])
+        same = encode_json(x[1]) == mine
+        diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
+        if x[0] != y[0]:
+            diffs.append(("log_time", x[0], y[0]))
+    whole_table = topic in (UNIT_RELATIONS, UNIT_INFLUENCES)  # the key says nothing more
+    return [
+        Mismatch(topic, seconds(t_ns), unit, path if whole_table else f"{what}: {path}", lv, rv)
+        for path, lv, rv in diffs
+    ]
 
 
 def diff_messages(
-    logged: Iterable[tuple[str, int, dict]],
-    recomputed: Iterable[tuple[str, int, dict]],
+    logged: Iterable[LogMessage],
+    recomputed: Iterable[LogMessage],
     units: Sequence[str],
     *,
     until_ns: int | None = None,
@@ -197,32 +267,14 @@ def diff_messages(
     ``tau``: spikes are compared one sample at a time (``spikes_per_sample``).
     Returns the mismatches and how many messages of each topic were compared.
     """
-    unitset = set(units)
-
-    traced: dict[str, bool] = {}
-
-    def keyed(msgs: Iterable[tuple[str, int, dict]]) -> dict[str, dict[tuple, list]]:
-        out: dict[str, dict[tuple, list]] = defaultdict(lambda: defaultdict(list))
-        for topic, t, m in msgs:
-            if until_ns is not None and t >= until_ns:
-                continue
-            trace = traced.get(topic)
-            if trace is None:
-                trace = traced[topic] = is_trace_topic(topic)
-            if trace:  # logged traces may be undecoded bytes: key by time
-                out[topic][(t,)].append((t, m))
-            elif topic in _KEYS:
-                if topic == LOG and m.get("name") not in unitset:
-                    continue  # not a unit's line
-                out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
-        return out
-
     logged, recomputed = decodes_per_row(logged), decodes_per_row(recomputed)
     if tau is not None:
         logged = spikes_per_sample(logged, tau)
         recomputed = spikes_per_sample(recomputed, tau)
-    a = keyed(logged)
-    b = keyed(recomputed)
+    traced: dict[str, bool] = {}
+    unitset = frozenset(units)
+    a = _keyed(logged, unitset, until_ns, traced)
+    b = _keyed(recomputed, unitset, until_ns, traced)
     mismatches: list[Mismatch] = []
     checked: Counter[str] = Counter()
     for topic in sorted(set(a) | set(b)):
@@ -230,48 +282,10 @@ def diff_messages(
         for key in [*la, *(k for k in lb if k not in la)]:
             xs, ys = la.get(key, []), lb.get(key, [])
             for i in range(max(len(xs), len(ys))):
+                checked[topic] += 1
                 x = xs[i] if i < len(xs) else None
                 y = ys[i] if i < len(ys) else None
-                checked[topic] += 1
-                # Byte for byte as the recorder encodes; decode only to explain a difference.
-                if (
-                    is_trace_topic(topic)
-                    and x is not None
-                    and y is not None
-                    and _same_trace(x[1], y[1])
-                ):
-                    continue
-                t_ns, m = x if x is not None else y  # type: ignore[misc]
-                if isinstance(m, bytes | bytearray):
-                    m = orjson.loads(m)
-                unit = m.get("unit", m.get("name"))
-                what = _key_text(topic, key)
-                if x is None:
-                    mismatches.append(
-                        Mismatch(topic, seconds(t_ns), unit, what, "(missing)", _json(m))
-                    )
-                    continue
-                if y is None:
-                    if topic != LOG:  # other writers (CLI, process wrappers) add lines
-                        mismatches.append(
-                            Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")
-                        )
-                    continue
-                if is_trace_topic(topic):
-                    diffs = _trace_diff(m, y[1])
-                else:
-                    # the re-run's message as the recorder would log it; the same JSON is the
-                    # same message (== alone would take true for 1)
-                    mine = encode_json(y[1])
-                    same = encode_json(x[1]) == mine
-                    diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
-                    if x[0] != y[0]:
-                        diffs.append(("log_time", x[0], y[0]))
-                for path, lv, rv in diffs:
-                    field_name = (
-                        path if topic in (UNIT_RELATIONS, UNIT_INFLUENCES) else (f"{what}: {path}")
-                    )
-                    mismatches.append(Mismatch(topic, seconds(t_ns), unit, field_name, lv, rv))
+                mismatches += _pair_mismatches(topic, key, x, y)
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
 
