@@ -275,17 +275,13 @@ class _Barrier:
         """Our hello at once, for news in ``h``: once per (unit, nonce, fresh), a few a
         round; else counted, and the next round's hello says it."""
         k = (h.unit, h.nonce, is_fresh)
-        if k in self.replied or self.budget <= 0:
-            self.bus._drop(
-                "hellos_unanswered",
-                f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
-                "not answered at once (replayed?)",
-            )
-            return
-        if len(self.replied) < _ANSWERED_MAX:
-            self.replied.add(k)
-        self.budget -= 1
-        self.say()
+        why = (
+            f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
+            "not answered at once (replayed?)"
+        )
+        if self.bus._may_answer(self.replied, k, lambda: self.budget > 0, why):
+            self.budget -= 1
+            self.say()
 
     def hear(self, h: Hello) -> bool:
         """One member's hello (not ours); whether the barrier opens with it. RgtbusError for a
@@ -564,20 +560,31 @@ class ZenohBus(QueueBus):
                 continue  # a member's last barrier hello, not a late joiner
             # A late joiner (or a replay of an old hello): answered once per (unit, nonce), at
             # a bounded rate; a joiner repeats its hello until answered.
+            why = (
+                f"hello from {h.unit!r} after the start (nonce {h.nonce.hex()[:8]}), heard "
+                "again or too fast: not answered (replayed?)"
+            )
             pair = (h.unit, h.nonce)
-            if pair in self._late_answered or not self._late_rate.take():
-                self._drop(
-                    "hellos_unanswered",
-                    f"hello from {h.unit!r} after the start (nonce {h.nonce.hex()[:8]}), heard "
-                    "again or too fast: not answered (replayed?)",
-                )
+            if not self._may_answer(self._late_answered, pair, self._late_rate.take, why):
                 continue
-            if len(self._late_answered) < _ANSWERED_MAX:
-                self._late_answered.add(pair)
             with self._gate_lock:
                 self._notes.append(f"hello from {h.unit!r} after the start: refused")
             echo = {**self._nonces, h.unit: h.nonce}  # answered to it: fresh for it
             self._say_hello(unit, digest, echo, ready=True, started=True)
+
+    def _may_answer(
+        self, answered: set[Any], news: object, allowed: Callable[[], bool], why: str
+    ) -> bool:
+        """Whether a hello that brings ``news`` is answered now: not when that was answered
+        already (a replay) or ``allowed()`` says no (asked only then: it may spend a token);
+        such a hello is counted as ``hellos_unanswered``, ``why`` its note. At most
+        ``_ANSWERED_MAX`` answers are remembered."""
+        if news in answered or not allowed():
+            self._drop("hellos_unanswered", why)
+            return False
+        if len(answered) < _ANSWERED_MAX:
+            answered.add(news)
+        return True
 
     def _hello_gate(self, key: str, payload: Any) -> None:
         """The hello subscriber's callback (a zenoh thread, never blocks): a member's key, at
