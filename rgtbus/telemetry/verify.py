@@ -18,26 +18,9 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
+from rgtbus.telemetry import records as r
 from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import LogMessage, encode_json
-from rgtbus.telemetry.records import (
-    LOG,
-    MEDIUM,
-    RUN,
-    RX_DECODE,
-    RX_DECODES,
-    RX_SPIKE,
-    TX_PULSE,
-    UNIT_DECISION,
-    UNIT_GOAL,
-    UNIT_INFLUENCES,
-    UNIT_RELATIONS,
-    decode_rows,
-    each_unit_spikes,
-    is_trace_topic,
-    spike_samples,
-    spike_units,
-)
 from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -109,32 +92,32 @@ MessageKey = tuple[Any, ...]
 
 # topic -> key of a message (messages with equal keys are paired in order)
 _KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
-    TX_PULSE: lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
-    RX_SPIKE: lambda t, m: (m.get("unit"), m.get("sample")),
-    RX_DECODE: lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
-    UNIT_RELATIONS: lambda t, m: (m.get("unit"),),
-    UNIT_INFLUENCES: lambda t, m: (m.get("unit"), m.get("round", 1)),
-    UNIT_DECISION: lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
-    UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
-    LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+    r.TX_PULSE: lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
+    r.RX_SPIKE: lambda t, m: (m.get("unit"), m.get("sample")),
+    r.RX_DECODE: lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
+    r.UNIT_RELATIONS: lambda t, m: (m.get("unit"),),
+    r.UNIT_INFLUENCES: lambda t, m: (m.get("unit"), m.get("round", 1)),
+    r.UNIT_DECISION: lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
+    r.UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
+    r.LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
 }
 
 
 def _key_text(topic: str, key: MessageKey) -> str:
     """The paired messages' key in words (part of a mismatch's field)."""
-    if topic == TX_PULSE:
+    if topic == r.TX_PULSE:
         return f"pulse on {key[2]} at sample {key[1]}"
-    if topic == RX_SPIKE:
+    if topic == r.RX_SPIKE:
         return f"spikes at sample {key[1]}"
-    if topic == RX_DECODE:
+    if topic == r.RX_DECODE:
         return f"{key[1]} from {key[2]}"
-    if topic == UNIT_DECISION:
+    if topic == r.UNIT_DECISION:
         return f"subject {key[1]}" if key[2] == 1 else f"subject {key[1]}, round {key[2]}"
-    if topic == UNIT_GOAL:
+    if topic == r.UNIT_GOAL:
         return f"goal choice of turn {key[1]}"
-    if topic == LOG:
+    if topic == r.LOG:
         return f"line {key[3]!r}"
-    if is_trace_topic(topic):
+    if r.is_trace_topic(topic):
         return f"trace at {seconds(key[0]):.3f} s"
     return "table"
 
@@ -144,11 +127,11 @@ def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[Lo
     the columnar record held them): spikes are compared sample by sample, so a log of either
     form verifies, and a mismatch names its sample."""
     for topic, t_ns, m in messages:
-        if topic != RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
+        if topic != r.RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
             yield topic, t_ns, m
             continue
-        units = spike_units(m)  # a record the units of a process share: each unit's own
-        for k, chans in spike_samples(m):
+        units = r.spike_units(m)  # a record the units of a process share: each unit's own
+        for k, chans in r.spike_samples(m):
             t = time_of(k, tau)
             for unit in units:
                 yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
@@ -161,10 +144,10 @@ def spikes_per_unit(
     (``each_unit_spikes``): how logs compare whose units were split into processes, or
     engines, that share records differently."""
     for topic, t_ns, m in messages:
-        if topic != RX_SPIKE or not isinstance(m, dict):
+        if topic != r.RX_SPIKE or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for one in each_unit_spikes(m):
+        for one in r.each_unit_spikes(m):
             yield topic, t_ns, one
 
 
@@ -175,11 +158,11 @@ def decodes_per_row(
     at its own time (as logs before the columnar record held them): decodes are compared one
     by one, however a run grouped them into records, and a mismatch names its decode."""
     for topic, t_ns, m in messages:
-        if topic != RX_DECODES or not isinstance(m, dict):
+        if topic != r.RX_DECODES or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for row in decode_rows(m):
-            yield RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
+        for row in r.decode_rows(m):
+            yield r.RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
 
 
 # (log time, message) of one topic and key, in the order logged
@@ -201,11 +184,11 @@ def _keyed(
             continue
         trace = traced.get(topic)
         if trace is None:
-            trace = traced[topic] = is_trace_topic(topic)
+            trace = traced[topic] = r.is_trace_topic(topic)
         if trace:  # logged traces may be undecoded bytes: key by time
             out[topic][(t,)].append((t, m))
         elif topic in _KEYS:
-            if topic == LOG and m.get("name") not in units:
+            if topic == r.LOG and m.get("name") not in units:
                 continue  # not a unit's line
             out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
     return out
@@ -220,7 +203,7 @@ def _pair_mismatches(
     """How the logged and the recomputed message of one topic and key differ (either may be
     missing); a trace is compared as the recorder would write it, decoded only to explain."""
     x, y = logged, recomputed
-    trace = is_trace_topic(topic)
+    trace = r.is_trace_topic(topic)
     if trace and x is not None and y is not None and _same_trace(x[1], y[1]):
         return []
     t_ns, m = x if x is not None else y  # type: ignore[misc]  # never both missing
@@ -231,7 +214,7 @@ def _pair_mismatches(
     if x is None:
         return [Mismatch(topic, seconds(t_ns), unit, what, "(missing)", _json(m))]
     if y is None:
-        if topic == LOG:  # other writers (CLI, process wrappers) add lines
+        if topic == r.LOG:  # other writers (CLI, process wrappers) add lines
             return []
         return [Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")]
     if trace:
@@ -244,7 +227,7 @@ def _pair_mismatches(
         diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
         if x[0] != y[0]:
             diffs.append(("log_time", x[0], y[0]))
-    whole_table = topic in (UNIT_RELATIONS, UNIT_INFLUENCES)  # the key says nothing more
+    whole_table = topic in (r.UNIT_RELATIONS, r.UNIT_INFLUENCES)  # the key says nothing more
     return [
         Mismatch(topic, seconds(t_ns), unit, path if whole_table else f"{what}: {path}", lv, rv)
         for path, lv, rv in diffs
@@ -368,12 +351,12 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     )
     mismatches += diffs
     mismatches += list(checks)
-    checked[MEDIUM] = replay.windows
+    checked[r.MEDIUM] = replay.windows
     if not replay.truncated:
         if not rerun.complete:
             mismatches.append(
                 Mismatch(
-                    MEDIUM,
+                    r.MEDIUM,
                     replay.sim_seconds,
                     None,
                     "the run's length",
@@ -385,9 +368,9 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         if run is None and set(replay.unit_processes) >= set(sc.units):
             pass  # a merge of every unit's own log (no launcher wrote a /run): all ended done
         elif run is None:
-            mismatches.append(Mismatch(RUN, None, None, "record", "(missing)", "present"))
+            mismatches.append(Mismatch(r.RUN, None, None, "record", "(missing)", "present"))
         else:
-            checked[RUN] += 1
+            checked[r.RUN] += 1
             s = rerun.summary
             want_run = {
                 "scenario": s["scenario"],
@@ -398,7 +381,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
                 "error": s["error"],
             }
             for path, lv, rv in _field_diffs(run, want_run):
-                mismatches.append(Mismatch(RUN, run.get("sim_seconds"), None, path, lv, rv))
+                mismatches.append(Mismatch(r.RUN, run.get("sim_seconds"), None, path, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))  # stable
     return VerifyReport(
         label=replay.label,
@@ -440,13 +423,15 @@ def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
         if logged is None:
             if w * L <= end:  # a run logs its medium up to its end
                 bad.append(
-                    Mismatch(MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present")
+                    Mismatch(
+                        r.MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present"
+                    )
                 )
             continue
         for k in np.flatnonzero(logged != exp):
             bad.append(
                 Mismatch(
-                    MEDIUM,
+                    r.MEDIUM,
                     time_of(w * L + int(k), tau),
                     None,
                     f"window {w} samples[{int(k)}]",
