@@ -273,7 +273,10 @@ class Payload(Protocol):
     before it is copied out)."""
 
     def __len__(self) -> int: ...
-    def to_bytes(self) -> bytes: ...
+
+    def to_bytes(self) -> bytes:
+        """The payload's bytes, copied out."""
+        ...
 
 
 class _Bytes:

@@ -34,6 +34,8 @@ _NEVER = 2**63 - 1
 
 @dataclass(frozen=True)
 class Hello:
+    """One hello, every field checked (see the module docstring)."""
+
     unit: str
     digest: str
     nonce: bytes
@@ -48,6 +50,7 @@ def _canonical(obj: Mapping[str, Any]) -> bytes:
 
 
 def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
+    """The hello's wire form, tagged with ``key`` on a keyed run."""
     obj: dict[str, Any] = {
         "unit": h.unit,
         "digest": h.digest,

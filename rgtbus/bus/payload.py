@@ -71,6 +71,7 @@ class Frame:
 
     @property
     def done(self) -> bool:
+        """Whether the member is done (FINAL or FAILED)."""
         return bool(self.flags & (FINAL | FAILED))
 
 
@@ -276,6 +277,7 @@ def sign_telemetry(frame: bytes, nonce: bytes, seq: int, sign: Callable[[bytes],
 
 
 def is_signed_telemetry(payload: bytes) -> bool:
+    """Whether ``payload`` starts as a signed telemetry frame (``sign_telemetry``) does."""
     return payload[:4] == _SIGNED_TELEMETRY_MAGIC
 
 

@@ -170,6 +170,7 @@ def close_session(session: zenoh.Session, timeout: float) -> str | None:
 
 
 def telemetry_key(run_id: str, unit: str) -> str:
+    """The key on which ``unit``'s process publishes its log messages."""
     return keys.key(keys.TELEMETRY, run_id, unit)
 
 
@@ -191,6 +192,7 @@ class TelemetryFeed:
         self._nonce = nonce
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        """Publish one log message (signed on a keyed run); nothing once closed."""
         if self.closed:
             return
         frame = encode_telemetry(topic, schema, data, t_ns)
@@ -321,6 +323,10 @@ class _Barrier:
 
 
 class ZenohBus(QueueBus):
+    """The bus over zenoh (see the module docstring): a session of its own, or one given
+    (``session``: then left open for its owner), or options for one (``mode``, ``connect``,
+    ``listen``, ``multicast``, ``config``); ``local`` the members this process publishes for."""
+
     kind = "zenoh"
     OPTIONS = frozenset(
         {
@@ -440,6 +446,7 @@ class ZenohBus(QueueBus):
     # -- joining a cross-process run --------------------------------------------------------
 
     def hello_key(self, unit: str) -> str:
+        """The key of ``unit``'s hellos in this run."""
         return keys.key(keys.HELLO, self.run_id, unit)
 
     def join(self, units: str | Sequence[str], digest: str, timeout: float = 10.0) -> None:
@@ -540,6 +547,7 @@ class ZenohBus(QueueBus):
         return None
 
     def wait(self, beyond: int, timeout: float = 5.0) -> int:
+        """As ``QueueBus.wait``, answering late hellos first once the run has started."""
         if self._joined is not None:
             self._answer_late_hellos()
         return super().wait(beyond, timeout)

@@ -44,6 +44,7 @@ class Log:
 
     @property
     def units(self) -> tuple[str, ...]:
+        """The run's units, in scenario order."""
         return self.replay.units
 
     @property

@@ -177,10 +177,12 @@ class LiveView:
 
     @property
     def port(self) -> int:
+        """The port the server listens on (the one it was given, or the free one it took for 0)."""
         return int(self.server.port)
 
     @property
     def url(self) -> str:
+        """The server's WebSocket address, ``ws://HOST:PORT`` (an IPv6 host in brackets)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port}"
 

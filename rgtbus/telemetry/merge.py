@@ -33,6 +33,9 @@ _COMPRESSION = {
 
 @dataclass
 class MergeResult:
+    """What ``merge_logs`` wrote: message, channel and schema counts, the metadata records and the
+    names it gave the ones it renamed, and the inputs that were cut short."""
+
     messages: int = 0
     duplicates: int = 0  # identical messages dropped
     channels: int = 0

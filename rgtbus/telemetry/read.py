@@ -80,11 +80,15 @@ class Transmission:
 
     @property
     def label(self) -> str:
+        """``sender → addressee: meaning``, as a plot labels the code."""
         return f"{self.sender} → {self.addressee}: {self.meaning}"
 
 
 @dataclass
 class DecodeRow:
+    """One decode as the log holds it, matched with the transmission it read (``turn``, ``sent``)
+    and whether it read what was sent (``matches``)."""
+
     unit: str
     t: float
     sender: str
@@ -111,6 +115,8 @@ class Mismatch:
     recomputed: Any
 
     def text(self) -> str:
+        """The disagreement in one line: topic, time, unit, field, both values (long values cut
+        short)."""
         when = "" if self.t is None else f" t={self.t:.3f}s"
         who = "" if self.unit is None else f" unit={self.unit}"
         return (
@@ -286,6 +292,7 @@ class Replay:
         self.scenario = sc
 
     def require_scenario(self) -> Scenario:
+        """The log's scenario, or RgtbusError saying why it cannot be re-run."""
         if self.scenario is None:
             raise RgtbusError(f"{self.label}: cannot re-run: {self.scenario_error}")
         return self.scenario
@@ -380,6 +387,8 @@ class Replay:
 
     @property
     def window_seconds(self) -> float | None:
+        """The length of a medium window in seconds (from the scenario, else from a logged window);
+        None when the log says nothing of it."""
         if self.scenario is not None:
             t = self.scenario.timing
             return t.window_samples / t.sample_rate
@@ -391,6 +400,7 @@ class Replay:
 
     @property
     def windows(self) -> int:
+        """How many windows of the medium are logged (the ones that carry a pulse)."""
         return len(self.by_topic[MEDIUM])
 
     @property
@@ -401,6 +411,7 @@ class Replay:
         return round(seconds(max((m[1] for m in self.contents.messages), default=0)), 6)
 
     def agree(self) -> bool:
+        """Whether every unit ended with the same relationship table and polynomial."""
         held = [self.relations.get(u) for u in self.units]
         tables = [{} if r is None else r["installed"] for r in held]
         polys = [None if r is None else r["polynomial"] for r in held]
@@ -495,6 +506,7 @@ class Replay:
     def spike_counts(
         self, span: tuple[float | None, float | None] | None = None
     ) -> dict[str, dict[str, int]]:
+        """Spikes per unit and channel (within ``span``, from and to in seconds, when given)."""
         counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
         for s in self.spikes:
             if in_span(s["t"], span):
@@ -657,9 +669,12 @@ class Replay:
         )
 
     def traced_units(self) -> list[str]:
+        """The units whose resonator traces the log holds."""
         return [u for u in self.units if self.by_topic.get(trace_topic(u))]
 
     def trace_arrays(self, unit: str) -> dict[str, Any] | None:
+        """``unit``'s logged traces stacked as arrays (``stack_traces``); None when none were
+        logged."""
         msgs = [m for _, m in self.by_topic.get(trace_topic(unit), [])]
         return self.stack_traces(msgs) if msgs else None
 

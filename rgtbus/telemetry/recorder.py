@@ -42,18 +42,34 @@ LogMessage = tuple[str, int, dict[str, Any]]
 
 @runtime_checkable
 class Recorder(Protocol):
+    """Where a run writes its log: messages by topic at a log time, text lines, metadata records.
+    ``enabled`` False: nothing is kept, so callers may skip building messages."""
+
     enabled: bool
 
-    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None: ...
-    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None: ...
-    def metadata(self, name: str, values: dict[str, str]) -> None: ...
-    def close(self) -> None: ...
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """``message`` on ``topic`` at log time ``t_ns`` (integer nanoseconds)."""
+        ...
+
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None:
+        """A text line (``/log``) of ``level`` from ``name`` at ``t_ns``."""
+        ...
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record ``name`` of string values."""
+        ...
+
+    def close(self) -> None:
+        """Finish the log; nothing is written after."""
+        ...
 
 
 class LiveSink(Protocol):
     """Where a recorder also offers each encoded message (a live view)."""
 
-    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None: ...
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        """One encoded message (``data``, JSON under ``schema``) on ``topic`` at ``t_ns``."""
+        ...
 
     def watched(self) -> bool:
         """Whether someone may be looking now, so each message should leave as the run's
@@ -411,6 +427,9 @@ class McapRecorder(_Encoding):
         return channel
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Encode ``message`` on ``topic`` at ``t_ns`` and hand it to the writer (and the live
+        sink); the chunk is finished when due. RgtbusError for a message its topic's schema or
+        JSON cannot take, and once the stream has failed."""
         schema, data, t = self._encode(topic, message, t_ns)
         if self.failed:
             raise RgtbusError(self.failed)
@@ -454,6 +473,7 @@ class McapRecorder(_Encoding):
             self._writer.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Write a metadata record ``name`` of string values."""
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
@@ -461,6 +481,8 @@ class McapRecorder(_Encoding):
             self._writer.write_metadata(name, values)
 
     def close(self) -> None:
+        """Stop the flusher and finish the file (summary and footer); again does nothing. Nothing
+        is written once the stream has failed."""
         if self._closed:
             return
         self._stop_flusher.set()
@@ -486,6 +508,7 @@ class MemoryRecorder(_Encoding):
         self.logs: list[dict[str, Any]] = []
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Keep ``message`` as the file would hold it (JSON round-tripped, validated)."""
         _, data, t = self._encode(topic, message, t_ns)
         decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
@@ -493,6 +516,7 @@ class MemoryRecorder(_Encoding):
             self.logs.append(decoded)
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Keep a metadata record (one with no values is skipped, as in the file)."""
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
@@ -505,6 +529,7 @@ class MemoryRecorder(_Encoding):
         return LogContents(msgs, {k: dict(v) for k, v in self.metadata_records.items()})
 
     def close(self) -> None:
+        """Refuse further writes."""
         self._closed = True
 
 
@@ -515,15 +540,19 @@ class NullRecorder:
     closed = False
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Nothing."""
         pass
 
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
+        """Nothing."""
         pass
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Nothing."""
         pass
 
     def close(self) -> None:
+        """Say it is closed; nothing else."""
         self.closed = True
 
     def __enter__(self) -> Self:
@@ -563,4 +592,5 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
 
     @property
     def end_ns(self) -> int | None:
+        """The log time of the last message read; None when there was none."""
         return max((m[1] for m in self.messages), default=None)

@@ -57,6 +57,8 @@ Alternative = list[str]
 
 
 class MessageRef(TypedDict, total=False):
+    """Which message a pulse belongs to (``message_ref``)."""
+
     id: Required[int]  # turn * 2 (+1 for the payload, a request's or a repeat's)
     kind: Required[str]  # "id" | "payload" | "request" | "repeat"
     code: Required[str]
@@ -66,6 +68,8 @@ class MessageRef(TypedDict, total=False):
 
 
 class PulseRecord(TypedDict):
+    """``/tx/pulse``: one transmitted pulse."""
+
     unit: str
     channel: str
     omega: float
@@ -76,6 +80,9 @@ class PulseRecord(TypedDict):
 
 
 class SpikeRecord(TypedDict, total=False):
+    """``/rx/spike``: a block of resonator spikes of one unit (or of units that heard the same), as
+    columns (``spikes``)."""
+
     unit: str  # the one unit whose spikes these are, or
     units: list[str]  # the units (two or more) that heard these same spikes
     t: float
@@ -86,6 +93,9 @@ class SpikeRecord(TypedDict, total=False):
 
 
 class DecodeRecord(TypedDict):
+    """``/rx/decode``: one decoded code (logs before ``/rx/decodes``; ``decode_rows`` reads a
+    ``/rx/decodes`` record as these)."""
+
     unit: str
     turn: int
     sender: str
@@ -100,6 +110,8 @@ class DecodeRecord(TypedDict):
 
 
 class DecodesRecord(TypedDict, total=False):
+    """``/rx/decodes``: a unit's decodes of one wake, as columns (``decodes``)."""
+
     unit: Required[str]
     t: Required[float]  # the last decode's time: the record's log time
     turn: Required[IntColumn]  # each decode's, in the order the unit made them
@@ -128,6 +140,9 @@ DECODE_COLUMNS = (
 
 
 class RelationsRecord(TypedDict):
+    """``/unit/relations``: a unit's relationship table, what it sent, and the polynomial it
+    derives."""
+
     unit: str
     t: float
     sent: dict[str, str]
@@ -137,6 +152,8 @@ class RelationsRecord(TypedDict):
 
 
 class InfluencesRecord(TypedDict):
+    """``/unit/influences``: the influence table a unit holds, per influence round."""
+
     unit: str
     t: float
     influences: Required[dict[str, Alternative]]
@@ -144,6 +161,8 @@ class InfluencesRecord(TypedDict):
 
 
 class DecisionRecord(TypedDict):
+    """``/unit/decision``: a unit's forward task on one subject and its choice, per round."""
+
     unit: str
     subject: str
     t: float
@@ -157,6 +176,8 @@ class DecisionRecord(TypedDict):
 
 
 class GoalRecord(TypedDict):
+    """``/unit/goal``: a goal-driven unit's influence on a target, chosen by the inverse task."""
+
     unit: str
     t: float
     round: int
@@ -188,6 +209,8 @@ class RepairCounts(TypedDict):
 
 
 class UnitReportRecord(TypedDict, total=False):
+    """``/unit/report``: what a unit knows at the end of its run, its share of the run summary."""
+
     unit: Required[str]
     installed: Required[dict[str, str]]
     polynomial: Required[str | None]
@@ -206,6 +229,8 @@ class UnitReportRecord(TypedDict, total=False):
 
 
 class RunRecord(TypedDict):
+    """``/run``: how the run ended, written last."""
+
     scenario: str
     seed: int
     outcome: Any
@@ -215,6 +240,8 @@ class RunRecord(TypedDict):
 
 
 class MediumRecord(TypedDict):
+    """``/medium``: one window of the shared medium that carries a pulse."""
+
     window: int
     t: float
     sample_rate: float
@@ -222,6 +249,8 @@ class MediumRecord(TypedDict):
 
 
 class TraceRecord(TypedDict):
+    """``/trace/<unit>``: a unit's resonator states at one sample."""
+
     unit: str
     sample: int
     t: float
@@ -266,6 +295,8 @@ def pulse(
     unit: str, channel: str, omega: float, magnitude: float, tau: float, sample: int,
     message: MessageRef,
 ) -> PulseRecord:  # fmt: skip
+    """A ``/tx/pulse`` record: ``unit`` sends ``magnitude`` on ``channel`` (its ω) at ``sample``
+    (its time on a clock of period ``tau``), part of ``message``."""
     return {
         "unit": unit,
         "channel": channel,
@@ -375,6 +406,8 @@ def decode(
     unit: str, turn: int, sender: str, addressee: str, channel: str, kind: str, code: str,
     margin: float, t: float, accepted: bool,
 ) -> DecodeRecord:  # fmt: skip
+    """A ``/rx/decode`` record: what ``unit`` read at ``t`` of a code of ``sender`` to
+    ``addressee`` on ``channel``, its margin and whether it took it."""
     return {
         "unit": unit,
         "turn": turn,
@@ -494,6 +527,8 @@ def relations(
     unit: str, t: float, sent: dict[str, str], installed: dict[str, str],
     polynomial: str | None, p4: Sequence[str] | None,
 ) -> RelationsRecord:  # fmt: skip
+    """A ``/unit/relations`` record: the relations ``unit`` sent and the table it installed, with
+    its polynomial (and P4, when there is one)."""
     return {
         "unit": unit,
         "t": t,
@@ -505,6 +540,8 @@ def relations(
 
 
 def influences(unit: str, t: float, table: dict[str, Alternative], rnd: int) -> InfluencesRecord:
+    """An ``/unit/influences`` record: the influence table ``unit`` holds at ``t`` in round
+    ``rnd``."""
     return {"unit": unit, "t": t, "influences": table, "round": rnd}
 
 
@@ -532,6 +569,8 @@ def goal(
     solutions: int | None, reached: int | None, of: int | None, value: Alternative | None,
     sent: Alternative, reason: str,
 ) -> GoalRecord:  # fmt: skip
+    """A ``/unit/goal`` record: the influence on ``target`` a goal-driven unit chose at ``t`` (the
+    inverse task's rule, solutions and how many it reached) and why."""
     return {
         "unit": unit,
         "t": t,
@@ -565,8 +604,10 @@ def run_record(summary: Mapping[str, Any]) -> RunRecord:
 
 
 def medium_window(window: int, t: float, sample_rate: float, samples: list[float]) -> MediumRecord:
+    """A ``/medium`` record: window ``window`` of the medium from ``t``, its samples."""
     return {"window": window, "t": t, "sample_rate": sample_rate, "samples": samples}
 
 
 def trace(unit: str, sample: int, t: float, y: list[float], x: list[float]) -> TraceRecord:
+    """A ``/trace/<unit>`` record: ``unit``'s resonator states ``y`` and ``x`` at ``sample``."""
     return {"unit": unit, "sample": sample, "t": t, "y": y, "x": x}

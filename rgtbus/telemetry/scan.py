@@ -53,10 +53,12 @@ class RawLog:
 
     @property
     def truncated(self) -> bool:
+        """Whether the file ends early (``note`` says where)."""
         return bool(self.note)
 
     @property
     def corrupt(self) -> bool:
+        """Whether the file is damaged (``corruption`` says what and where)."""
         return bool(self.corruption)
 
     @property
@@ -406,10 +408,12 @@ class CheckedLog:
 
     @property
     def truncated(self) -> bool:
+        """Whether the file ends early (a killed run)."""
         return self.raw is not None and self.raw.truncated
 
     @property
     def note(self) -> str:
+        """Where the file was cut and how far it was read; empty for a whole file."""
         return self.raw.note if self.raw is not None else ""
 
 

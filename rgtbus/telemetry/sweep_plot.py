@@ -34,6 +34,8 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float, float]:
 
 
 def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, float]:
+    """Mean of ``values`` and its interval (lo, hi), mean ± z·s/sqrt(n); one value: the value three
+    times."""
     n = len(values)
     m = math.fsum(values) / n
     if n < 2:

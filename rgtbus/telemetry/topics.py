@@ -75,6 +75,7 @@ UNIT_ENDED_EARLY = "ended early"
 
 
 def unit_end_record(unit: str) -> str:
+    """The name of the metadata record saying how ``unit``'s process ended."""
     return f"{UNIT_END_PREFIX}{unit}"
 
 
@@ -111,6 +112,7 @@ def schema_bytes(name: str) -> bytes:
 
 @cache
 def load_schema(name: str) -> dict[str, Any]:
+    """The schema ``name``, parsed (once)."""
     schema: dict[str, Any] = json.loads(schema_bytes(name))
     return schema
 

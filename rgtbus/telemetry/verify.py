@@ -275,6 +275,9 @@ def diff_messages(
 
 @dataclass
 class VerifyReport:
+    """What ``verify`` found: the mismatches, how many messages of each topic were compared, and
+    whether the log was cut short (then compared up to ``until``)."""
+
     label: str
     mismatches: list[Mismatch]
     checked: dict[str, int]
@@ -285,15 +288,19 @@ class VerifyReport:
 
     @property
     def ok(self) -> bool:
+        """Verified: no mismatch, and a whole log."""
         return not self.mismatches and not self.truncated
 
     @property
     def exit_code(self) -> int:
+        """``rgtbus replay --verify``'s exit status: EXIT_MISMATCH, EXIT_TRUNCATED or
+        EXIT_VERIFIED."""
         if self.mismatches:
             return EXIT_MISMATCH
         return EXIT_TRUNCATED if self.truncated else EXIT_VERIFIED
 
     def verdict(self) -> str:
+        """The outcome in one line."""
         n = sum(self.checked.values())
         if self.mismatches:
             return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
@@ -305,6 +312,7 @@ class VerifyReport:
         return f"verified: {n} messages agree with the re-run"
 
     def to_json(self) -> dict[str, Any]:
+        """``rgtbus replay --verify --json``: one object."""
         return {
             "log": self.label,
             "ok": self.ok,
