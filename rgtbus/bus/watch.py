@@ -36,7 +36,7 @@ from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LiveSink
 from rgtbus.telemetry.records import is_trace_topic, trace_topic
 
-MAX_FRAME = 4 << 20  # bytes: no logged message comes near it (a unit's report: ~1 KB)
+MAX_FRAME = 4 << 20  # bytes: no logged message comes near it
 MAX_TRACES = 1024  # /trace/<unit> topics served (one per unit: far more than a run has)
 MAX_RUNS = 64  # run ids remembered (for the summary line)
 MAX_STREAMS = 4096  # (run, unit) senders whose sequence numbers are followed

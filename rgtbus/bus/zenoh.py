@@ -135,8 +135,8 @@ def make_config(
             "connect/retry",
             json.dumps({"period_init_ms": 50, "period_max_ms": 500, "period_increase_factor": 1.5}),
         )
-        # Nor let open() wait to reach the peers it learns about: measured, it then sometimes
-        # took 0.5 s; the run's join barrier waits for every member anyway.
+        # Nor let open() wait to reach the peers it learns about, which can hold a start-up
+        # back; the run's join barrier waits for every member anyway.
         cfg.insert_json5("open/return_conditions/connect_scouted", "false")
     return cfg
 
@@ -148,7 +148,7 @@ _SLOW_CLOSE = "zenoh session did not close within"
 def close_session(session: zenoh.Session, timeout: float) -> str | None:
     """Close ``session``, waiting at most ``timeout`` seconds; what went wrong, or None.
 
-    zenoh's close says goodbye on every link and can block for ~10 s when a peer no longer
+    zenoh's close says goodbye on every link and can block for seconds when a peer no longer
     reads (a process stopped with SIGSTOP fills its socket; docs/zenoh-notes.md): a unit that
     has finished must not wait for that. The close goes on in a daemon thread, which never
     holds up the interpreter's exit."""

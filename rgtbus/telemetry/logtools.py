@@ -4,8 +4,8 @@ Every reader opens the log with ``check_log`` (rgtbus.telemetry.scan), which che
 whole first: a damaged log is refused in one line (``RgtbusError``), never read as if it were
 whole. ``log_info`` reads a finished log from its summary section (statistics, schemas,
 channels, chunk indexes, metadata index) and the ``/run`` record through the chunk index, once
-its data-section and summary CRCs have vouched for every byte (a CRC-32 pass over the file: about
-35 ms on a 68 MB log, no decompression). A log without a summary or CRCs, or cut short (the run
+its data-section and summary CRCs have vouched for every byte (a CRC-32 pass over the file, no
+decompression). A log without a summary or CRCs, or cut short (the run
 was killed), is scanned record by record instead, every chunk's CRC checked, and says so.
 
 ``cat_messages`` yields messages as JSON-ready dicts, filtered by topic, unit and time (the
@@ -239,7 +239,7 @@ def info_text(info: dict[str, Any]) -> str:
     )
     lines.append(f"outcome:     {_outcome_text(info)}")
     lines.append(f"messages:    {info['messages']}")
-    from tabulate import tabulate  # 50 ms to import: only for the text
+    from tabulate import tabulate  # slow to import: only for the text
 
     rows = [[topic, str(v["count"]), v["schema"] or ""] for topic, v in info["topics"].items()]
     table = tabulate(

@@ -147,8 +147,7 @@ _CONTAINERS = (dict, list, tuple)
 def _not_finite(value: Any) -> float | None:
     """A NaN or infinity in ``value`` (which orjson writes as null, as it writes None), or
     None. Only the parts whose JSON holds a null are looked into: a unit's report of n² pairs
-    with a None at its top is a few orjson passes, not a walk of every entry (the standard
-    encoder took 12x orjson's time on those, issue 23)."""
+    with a None at its top is a few orjson passes, not a walk of every entry."""
     kind = type(value)
     if kind is float:
         return None if math.isfinite(value) else value
@@ -304,8 +303,8 @@ class McapRecorder(_Encoding):
     """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
     support ``write``, ``seek`` and ``tell``). ``close`` finishes the file (summary, footer).
 
-    The writer is foxglove-sdk's (Rust; a message costs ~3 µs against ~10 µs in mcap-py's,
-    which matters for runs of millions of records). Every recorder has its own
+    The writer is foxglove-sdk's (Rust; a message costs a fraction of what it costs in
+    mcap-py's, which matters for runs of millions of records). Every recorder has its own
     ``foxglove.Context``; its channels carry each topic with its JSON Schema, so a live sink
     on the same context (``context``) sees exactly what the file gets.
 
@@ -321,8 +320,9 @@ class McapRecorder(_Encoding):
     seconds past where it was at the chunk's first record (records told late, like a unit's
     spikes, change nothing; a topic written ahead of the present by design, ``ahead_topics``,
     the medium, neither holds the others back nor finishes a chunk by its time). Off, because
-    what a killed process keeps is a matter of wall time, which ``flush_wall`` bounds: a chunk
-    a simulated second cost a 1,700 s run 700 flushes, a sixth of its log's cost (issue 23)."""
+    what a killed process keeps is a matter of wall time, which ``flush_wall`` bounds, and a
+    long run that finishes a chunk every simulated second spends much of its log's cost on
+    flushes."""
 
     def __init__(
         self,
@@ -421,7 +421,7 @@ class McapRecorder(_Encoding):
         channel = topic_channel(self.context, topic, schema)
         self._channels[topic] = channel
         # the channel's own log takes bytes straight to the Rust writer; foxglove's Python
-        # wrapper around it re-checks the message type on every call (~2 µs of ~7)
+        # wrapper around it re-checks the message type on every call, a good part of the cost
         base = getattr(channel, "base", None)
         self._logs[topic] = base.log if base is not None else channel.log
         return channel
@@ -446,8 +446,8 @@ class McapRecorder(_Encoding):
                 # was at the chunk's first record: records told late (a unit's spikes, logged
                 # when it wakes) do not finish a chunk every few dozen messages; a topic
                 # written ahead of the present by design says nothing of how far the run has
-                # come, so it neither sets nor meets the due time (the medium used to finish
-                # a chunk every few dozen messages: ~2,800 flushes at n = 20)
+                # come, so it neither sets nor meets the due time (else it would finish a chunk
+                # every few dozen messages)
                 if t > self._present:
                     self._present = t
                 if self._flush_due == _U64_MAX:

@@ -1,7 +1,7 @@
 """Reading an MCAP log back, checked: ``scan_log`` (its records, undecoded, with every chunk's
 CRC checked and a cut or corrupt file told apart), ``read_log`` (decoded messages and metadata),
 ``check_log`` (the summary section's CRCs first, for the log tools). Apart from the recorder, so
-a run that only writes its log never loads the reader (start-up, issue 23).
+a run that only writes its log never loads the reader (start-up).
 """
 
 from __future__ import annotations
@@ -352,9 +352,9 @@ def _crc_of(stream: IO[bytes], start: int, end: int) -> int | None:
 def verified_by_crcs(stream: IO[bytes]) -> bool:
     """Whether ``stream`` is a finished MCAP file whose data-section CRC and summary CRC were
     both written and both hold: together they cover every byte but the closing magic (checked
-    too), so the whole file is vouched for without decompressing anything (zlib's CRC-32 runs
-    at about 2 GB/s). False when it cannot tell (cut short, a CRC not written, not seekable)
-    or a CRC does not hold: ``scan_log`` then says which and where."""
+    too), so the whole file is vouched for without decompressing anything. False when it
+    cannot tell (cut short, a CRC not written, not seekable) or a CRC does not hold:
+    ``scan_log`` then says which and where."""
     magic = len(MCAP_MAGIC)
     try:
         size = stream.seek(0, os.SEEK_END)
