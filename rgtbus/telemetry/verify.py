@@ -179,6 +179,7 @@ def _keyed(
     ``until_ns`` only; a ``/log`` line only if a unit wrote it. ``traced`` remembers which
     topics are traces (asked once a topic, not once a message)."""
     out: Paired = defaultdict(lambda: defaultdict(list))
+    keys, log = _KEYS, r.LOG
     for topic, t, m in messages:
         if until_ns is not None and t >= until_ns:
             continue
@@ -187,11 +188,38 @@ def _keyed(
             trace = traced[topic] = r.is_trace_topic(topic)
         if trace:  # logged traces may be undecoded bytes: key by time
             out[topic][(t,)].append((t, m))
-        elif topic in _KEYS:
-            if topic == r.LOG and m.get("name") not in units:
+        elif topic in keys:
+            if topic == log and m.get("name") not in units:
                 continue  # not a unit's line
-            out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
+            out[topic][keys[topic](t, m)].append((t, m))  # keys are plain scalars
     return out
+
+
+def _topic_mismatches(
+    topic: str,
+    logged: dict[MessageKey, list[tuple[int, Any]]],
+    recomputed: dict[MessageKey, list[tuple[int, Any]]],
+) -> tuple[list[Mismatch], int]:
+    """The mismatches of one topic's messages, paired by key (in order within a key), and how
+    many pairs were compared. Equal as the recorder encodes them, and at the same log time, is
+    the same; only a pair that differs is decoded and explained."""
+    trace = r.is_trace_topic(topic)
+    out: list[Mismatch] = []
+    compared = 0
+    for key in [*logged, *(k for k in recomputed if k not in logged)]:
+        xs, ys = logged.get(key, []), recomputed.get(key, [])
+        for i in range(max(len(xs), len(ys))):
+            compared += 1
+            x = xs[i] if i < len(xs) else None
+            y = ys[i] if i < len(ys) else None
+            if x is not None and y is not None:
+                if trace:
+                    if _same_trace(x[1], y[1]):
+                        continue
+                elif x[0] == y[0] and encode_json(x[1]) == encode_json(y[1]):
+                    continue  # the same JSON is the same message (== alone takes true for 1)
+            out += _pair_mismatches(topic, key, x, y, trace)
+    return out, compared
 
 
 def _pair_mismatches(
@@ -199,13 +227,11 @@ def _pair_mismatches(
     key: MessageKey,
     logged: tuple[int, Any] | None,
     recomputed: tuple[int, Any] | None,
+    trace: bool,
 ) -> list[Mismatch]:
     """How the logged and the recomputed message of one topic and key differ (either may be
-    missing); a trace is compared as the recorder would write it, decoded only to explain."""
+    missing; a trace decoded only now, to explain)."""
     x, y = logged, recomputed
-    trace = r.is_trace_topic(topic)
-    if trace and x is not None and y is not None and _same_trace(x[1], y[1]):
-        return []
     t_ns, m = x if x is not None else y  # type: ignore[misc]  # never both missing
     if isinstance(m, bytes | bytearray):
         m = orjson.loads(m)
@@ -220,11 +246,9 @@ def _pair_mismatches(
     if trace:
         diffs = _trace_diff(m, y[1])
     else:
-        # the re-run's message as the recorder would log it; the same JSON is the same
-        # message (== alone would take true for 1)
+        # the re-run's message as the recorder would log it
         mine = encode_json(y[1])
-        same = encode_json(x[1]) == mine
-        diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
+        diffs = [] if encode_json(x[1]) == mine else _field_diffs(x[1], orjson.loads(mine))
         if x[0] != y[0]:
             diffs.append(("log_time", x[0], y[0]))
     whole_table = topic in (r.UNIT_RELATIONS, r.UNIT_INFLUENCES)  # the key says nothing more
@@ -261,14 +285,8 @@ def diff_messages(
     mismatches: list[Mismatch] = []
     checked: Counter[str] = Counter()
     for topic in sorted(set(a) | set(b)):
-        la, lb = a.get(topic, {}), b.get(topic, {})
-        for key in [*la, *(k for k in lb if k not in la)]:
-            xs, ys = la.get(key, []), lb.get(key, [])
-            for i in range(max(len(xs), len(ys))):
-                checked[topic] += 1
-                x = xs[i] if i < len(xs) else None
-                y = ys[i] if i < len(ys) else None
-                mismatches += _pair_mismatches(topic, key, x, y)
+        found, checked[topic] = _topic_mismatches(topic, a.get(topic, {}), b.get(topic, {}))
+        mismatches += found
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
 
