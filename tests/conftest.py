@@ -110,10 +110,11 @@ def any_kind(request):
 
 @pytest.fixture
 def open_any(any_kind):
-    """``open(run_id, members, *, local=None, medium={}, end=NEVER)``: a bus of ``any_kind``,
-    closed at the end. The log bus is given ``medium`` and ``end`` (what its log holds); a
-    live bus hears it as each local member publishes its part of ``medium`` with a promise of
-    ``end`` (the horizon once every member has)."""
+    """``open(run_id, members, *, local=None, medium=None, end=NEVER)``: a bus of ``any_kind``
+    serving ``medium`` (``{member: (samples, magnitudes)}``), closed at the end. The log bus is
+    given ``medium`` and ``end`` (what its log holds); on a live bus, when ``medium`` is given
+    (even empty), each local member publishes its part of it with a promise of ``end`` (the
+    horizon, once every member has)."""
     from rgtbus.bus.logbus import LogBus
     from rgtbus.bus.payload import NEVER
 
