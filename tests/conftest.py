@@ -12,6 +12,7 @@ import sys
 from collections.abc import Iterator
 from unittest import mock
 
+import numpy as np
 import pytest
 
 from rgtbus.bus import open_bus
@@ -80,7 +81,7 @@ def logged_run():
 
 @pytest.fixture(params=["memory", "zenoh"])
 def kind(request):
-    """Every bus suite runs on the memory bus and on the zenoh bus."""
+    """Every suite of a live transport runs on the memory bus and on the zenoh bus."""
     return request.param
 
 
@@ -96,6 +97,45 @@ def make_bus(kind):
 
     try:
         yield make
+    finally:
+        for bus in opened:
+            bus.close()
+
+
+@pytest.fixture(params=["memory", "zenoh", "log"])
+def any_kind(request):
+    """The bus contract holds on every bus: the live ones and the log-replay twin."""
+    return request.param
+
+
+@pytest.fixture
+def open_any(any_kind):
+    """``open(run_id, members, *, local=None, medium=None, end=NEVER)``: a bus of ``any_kind``
+    serving ``medium`` (``{member: (samples, magnitudes)}``), closed at the end. The log bus is
+    given ``medium`` and ``end`` (what its log holds); on a live bus, when ``medium`` is given
+    (even empty), each local member publishes its part of it with a promise of ``end`` (the
+    horizon, once every member has)."""
+    from rgtbus.bus.logbus import LogBus
+    from rgtbus.bus.payload import NEVER
+
+    opened = []
+
+    def open_(run_id, members, *, local=None, medium=None, end=NEVER):
+        pulses = {u: (np.asarray(k, dtype=np.int64), np.asarray(v, dtype=float))
+                  for u, (k, v) in (medium or {}).items()}  # fmt: skip
+        if any_kind == "log":
+            bus = LogBus(run_id, members, pulses, local=local, end=end)
+        else:
+            bus = open_bus(any_kind, run_id, members, RATE, local=local)
+        opened.append(bus)
+        if any_kind != "log" and medium is not None:
+            for u in bus.local:
+                k, v = pulses.get(u, ((), ()))
+                bus.publish(u, k, v, promise=end)
+        return bus
+
+    try:
+        yield open_
     finally:
         for bus in opened:
             bus.close()

@@ -1,11 +1,15 @@
-"""One suite for the buses (memory, zenoh, and the log-replay twin), plus the frame codec and
-the zenoh-only paths.
+"""The buses' tests. One suite of the bus contract runs on every bus (memory, zenoh and the
+log-replay twin, ``LogBus``): the same medium served, the same assertions. Then what only a live
+transport does (memory and zenoh: frames published one by one, promises, foreign, malformed,
+late and replayed frames, the gate's bounds, keys, queues), what only the log bus does, the
+zenoh-only paths and the frame codec.
 
 Every wait has a short timeout and every bus is closed by its fixture, even on failure.
 """
 
 from __future__ import annotations
 
+import inspect
 import socket
 import struct
 import time
@@ -59,7 +63,192 @@ def wait_for(pred, timeout=2.0):
         time.sleep(0.005)
 
 
-# -- shared suite: the live buses --------------------------------------------------------------
+# -- the bus contract: every bus, the log-replay twin included -------------------------------------
+
+# One medium for every bus: a live bus's members publish it with a promise of END, the log bus
+# is given it. Pulses past END are on their way (known, not yet taken); magnitudes whose bits
+# are easy to mangle, and one sample twice (its magnitudes in the order sent).
+MEDIUM = {
+    "a": ([3, 40, 40, 90], [0.25, -0.0, 5e-324, 1.5]),
+    "b": ([7, 41], [-1e-17, 2.0]),
+    "c": ([], []),
+}
+END = 41
+DIGEST = "0" * 64  # a scenario digest, as a hello carries it
+
+
+def _pulses(unit):
+    k, v = MEDIUM[unit]
+    return np.asarray(k, dtype=np.int64), np.asarray(v, dtype=float)
+
+
+def test_every_bus_keeps_the_bus_protocol(open_any):
+    bus = open_any("r1", ("a", "b", "c"), local=["a", "b"])
+    assert isinstance(bus, Bus)
+    assert (bus.run_id, bus.members, bus.local) == ("r1", ("a", "b", "c"), ("a", "b"))
+    assert bus.close_problem is None and not bus.closed
+    # the world calls these by the protocol's names (publish's promise, wait's timeout, ...)
+    for name in ("publish", "wait", "take", "known", "status", "join", "stats", "drop_notes"):
+        want = inspect.signature(getattr(Bus, name)).parameters.values()
+        got = inspect.signature(getattr(type(bus), name)).parameters.values()
+        assert [(p.name, p.kind) for p in got] == [(p.name, p.kind) for p in want], name
+
+
+def test_the_medium_is_served_bit_identical_up_to_the_horizon(open_any):
+    bus = open_any("r1", ("a", "b", "c"), medium=MEDIUM, end=END)
+    assert bus.wait(0, timeout=2.0) == END  # the horizon: every member promised END
+    assert {u: s.promise for u, s in bus.status().items()} == dict.fromkeys("abc", END)
+    ahead = bus.known(100)  # on its way, past the horizon too; nothing is handed out
+    for u in "abc":
+        k, v = _pulses(u)
+        assert np.array_equal(ahead[u][0], k) and same_bits(ahead[u][1], v)
+    got = bus.take(END)
+    assert list(got) == ["a", "b", "c"]
+    for u in "abc":
+        k, v = _pulses(u)
+        now = k < END
+        assert np.array_equal(got[u][0], k[now]) and same_bits(got[u][1], v[now])
+    assert all(p[0].size == 0 for p in bus.take(END).values())  # handed out once
+    later = bus.known(100)
+    assert later["a"][0].tolist() == [90] and later["b"][0].tolist() == [41]
+    assert same_bits(later["a"][1], np.array([1.5]))
+    assert bus.drop_notes() == []
+
+
+def test_take_is_bounded_by_the_horizon(open_any):
+    bus = open_any("r1", ("a",), medium={"a": ([3], [0.5])}, end=10)
+    assert bus.wait(0, timeout=2.0) == 10
+    with pytest.raises(RgtbusError, match="take up to sample 11: only samples before 10 are final"):
+        bus.take(11)
+    assert bus.take(10)["a"][0].tolist() == [3]
+
+
+def test_waiting_past_every_promise_fails_naming_the_sample(open_any):
+    """A live member silent past its promise, a log cut short: RgtbusError, in one line."""
+    bus = open_any("r1", ("a", "b"), medium={}, end=END)
+    assert bus.wait(END - 1, timeout=2.0) == END
+    t0 = time.monotonic()
+    with pytest.raises(RgtbusError, match=f"sample {END}") as err:
+        bus.wait(END, timeout=SHORT)
+    assert time.monotonic() - t0 < 3.0 and "\n" not in str(err.value)
+
+
+def test_flags_and_done_at_reach_the_status(open_any):
+    bus = open_any("r1", ("a", "b", "c"), medium={}, end=END)
+    assert bus.wait(0, timeout=2.0) == END
+    published = bus.stats()["published"]
+    bus.publish("a", [], [], promise=END, flags=FINAL, done_at=12)
+    bus.publish("b", [], [], promise=END, flags=FAILED, done_at=30)
+    assert bus.stats()["published"] == published + 2
+    wait_for(lambda: bus.status()["a"].flags and bus.status()["b"].flags)  # live: in flight
+    st_ = bus.status()
+    assert (st_["a"].flags, st_["a"].done_at) == (FINAL, 12)
+    assert (st_["b"].flags, st_["b"].done_at) == (FAILED, 30)
+    assert (st_["c"].flags, st_["c"].done_at) == (0, 0)
+
+
+def test_only_a_local_member_publishes(open_any):
+    bus = open_any("r1", ("a", "b", "c"), local=["b"])
+    assert bus.local == ("b",)
+    stranger = r"unit 'zz' is not a member of run 'r1' \(members: a, b, c\)"
+    with pytest.raises(RgtbusError, match=stranger):
+        bus.publish("zz", [], [], promise=1)
+    with pytest.raises(RgtbusError, match=r"unit 'a' is not published from this bus \(local: b\)"):
+        bus.publish("a", [], [], promise=1)
+    bus.publish("b", [], [], promise=1)
+    with pytest.raises(RgtbusError, match="unit 'zz' is not a member of run 'r2'"):
+        open_any("r2", ("a", "b"), local=["zz"])
+
+
+def test_join_as_every_member_but_never_as_a_stranger(open_any):
+    bus = open_any("r1", ("a", "b"))
+    with pytest.raises(RgtbusError, match="unit 'zz' is not a member"):
+        bus.join(["a", "zz"], DIGEST, timeout=1.0)
+    bus.join(["a", "b"], DIGEST, timeout=2.0)  # every member in this process: nobody to wait for
+
+
+def test_close_is_idempotent_and_final(open_any, any_kind):
+    bus = open_any("r1", ("a", "b"), medium={}, end=END)
+    bus.close()
+    bus.close()
+    assert bus.closed
+    refused = {
+        "publish": lambda: bus.publish("a", [], [], promise=END),
+        "wait": lambda: bus.wait(0, timeout=0.1),
+        "take": lambda: bus.take(0),
+    }
+    for what, call in refused.items():
+        with pytest.raises(RgtbusError, match=f"{what} on closed {any_kind} bus of run 'r1'"):
+            call()
+    assert set(bus.status()) == {"a", "b"} and set(bus.known(END)) == {"a", "b"}  # still said
+
+
+def test_the_context_manager_closes(open_any):
+    with open_any("ctx", ("a",)) as bus:
+        assert not bus.closed
+    assert bus.closed
+    with pytest.raises(RuntimeError, match="in the block"), open_any("ctx2", ("a",)) as failed:
+        raise RuntimeError("in the block")  # the block's own error is the one reported
+    assert failed.closed
+
+
+@pytest.mark.parametrize(
+    ("run_id", "members", "msg"),
+    [
+        ("a/b", ["a"], "bad run id 'a/b'"),
+        ("r", ["a*"], r"bad unit name 'a\*'"),
+        ("r", [], "run 'r' has no members"),
+        ("r", ["a", "a"], r"duplicate member\(s\) a in run 'r'"),
+        ("r", "ab", "members must be a sequence of unit names, got the string 'ab'"),
+    ],
+)
+def test_bad_bus_parameters(open_any, run_id, members, msg):
+    with pytest.raises(RgtbusError, match=msg):
+        open_any(run_id, members)
+
+
+@pytest.fixture(scope="module")
+def gate_runs(tmp_path_factory):
+    """The gate over the memory bus (logged to a file) and over zenoh."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from rgtbus.units.group import run_group
+
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry import McapRecorder, MemoryRecorder
+
+    sc = load_scenario(Path(__file__).parent.parent / "scenarios" / "gate.toml")
+    out = {}
+    path = tmp_path_factory.mktemp("gate") / "memory.mcap"
+    with open(path, "wb") as f:
+        rec = McapRecorder(f)
+        mem = run_group(sc, "memory", rec)
+        rec.close()
+    for kind in ("memory", "zenoh"):
+        rec = MemoryRecorder()
+        res = run_group(sc, kind, rec)
+        out[kind] = SimpleNamespace(summary=res.summary, messages=rec.read()[0], path=path)
+    assert mem.summary["outcome"] == out["memory"].summary["outcome"]
+    return out
+
+
+def test_a_run_is_identical_over_every_bus(gate_runs):
+    """Memory, zenoh, and a re-run of the memory run's log over the log bus: the same
+    decisions, tables and unit messages."""
+    from rgtbus.units.rerun import rerun_replay
+
+    from rgtbus.telemetry.read import load_replay
+
+    mem, zen = gate_runs["memory"], gate_runs["zenoh"]
+    replayed = rerun_replay(load_replay(mem.path))
+    for other in (zen.summary, replayed.summary):
+        for key in ("polynomial", "relations", "influences", "units", "outcome", "sim_seconds"):
+            assert other[key] == mem.summary[key], key
+    assert zen.messages == mem.messages
+
+
+# -- live transports only (memory and zenoh): frames, promises, what arrives -----------------------
 
 
 @pytest.mark.parametrize("n", [3, 10])
@@ -104,17 +293,6 @@ def test_one_samples_magnitudes_keep_their_order(make_bus):
     assert k.tolist() == [10, 10, 10] and v.tolist() == [0.1, 0.7, 1e-17]
 
 
-def test_known_shows_what_is_on_its_way_without_taking_it(make_bus):
-    bus = make_bus(("a", "b"))
-    bus.publish("a", [50, 400], [0.4, 0.5], promise=10)
-    bus.publish("b", [], [], promise=30)
-    assert bus.wait(0, timeout=2.0) == 10
-    ahead = bus.known(500)
-    assert ahead["a"][0].tolist() == [50, 400] and ahead["b"][0].size == 0
-    assert bus.take(10)["a"][0].size == 0  # nothing before the horizon
-    assert bus.known(100)["a"][0].tolist() == [50]
-
-
 def test_wait_timeout_names_the_silent_members(make_bus):
     bus = make_bus()
     bus.publish("a", [], [], promise=100)
@@ -142,18 +320,8 @@ def test_once_everyone_promised_silence_wait_is_for_the_done_flags(make_bus):
     assert (st_["b"].flags, st_["b"].done_at) == (FAILED, 90)
 
 
-def test_take_is_bounded_by_the_horizon(make_bus):
-    bus = make_bus(("a",))
-    bus.publish("a", [], [], promise=10)
-    bus.wait(0, timeout=2.0)
-    with pytest.raises(RgtbusError, match="only samples before 10 are final"):
-        bus.take(11)
-
-
 def test_publish_refuses_bad_input(make_bus):
     bus = make_bus()
-    with pytest.raises(RgtbusError, match="not a member"):
-        bus.publish("zz", [], [], promise=1)
     bus.publish("a", [5], [0.4], promise=10)
     with pytest.raises(RgtbusError, match="before its earlier promise"):
         bus.publish("a", [9], [0.4], promise=20)
@@ -167,34 +335,13 @@ def test_publish_refuses_bad_input(make_bus):
         bus.publish("b", [4, 3], [0.1, 0.1], promise=5)
     with pytest.raises(RgtbusError, match="4 sample indexes for 3 values"):
         bus.publish("b", [1, 2, 3, 4], [0.1, 0.1, 0.1], promise=5)
-    bus.close()
-    with pytest.raises(RgtbusError, match="publish on closed"):
-        bus.publish("a", [], [], promise=30)
 
 
-def test_local_units_only(make_bus):
-    bus = make_bus(local=["b"])
-    assert bus.local == ("b",)
-    with pytest.raises(RgtbusError, match="not published from this bus"):
-        bus.publish("a", [], [], promise=1)
-    bus.publish("b", [], [], promise=1)
-
-
-def test_close_is_idempotent_and_final(make_bus):
+def test_put_raw_on_a_closed_bus(make_bus):
     bus = make_bus()
     bus.close()
-    bus.close()
-    assert bus.closed
-    with pytest.raises(RgtbusError, match="wait on closed"):
-        bus.wait(0, timeout=0.1)
     with pytest.raises(RgtbusError, match="put_raw on closed"):
         bus.put_raw("rgtbus/r1/tx/a", b"x")
-
-
-def test_context_manager_closes(kind):
-    with open_bus(kind, "ctx", ["a"], RATE) as bus:
-        pass
-    assert bus.closed
 
 
 def _frame(seq, promise, samples=(), values=(), flags=0, done_at=0, rate=RATE):
@@ -237,7 +384,7 @@ def test_foreign_malformed_replayed_and_late_frames_are_dropped_and_counted(make
     assert bus.take(10)["a"][0].tolist() == [3]
 
 
-# -- the gate: what a bus receives is bounded (issue 22) -----------------------------------------
+# -- the gate: what a bus receives is bounded ------------------------------------------------------
 
 KEY = bytes(range(1, 33))
 
@@ -339,19 +486,9 @@ def test_count_foreign_off_never_sees_other_runs(make_bus):
     assert bus.stats()["dropped_foreign"] == 0
 
 
-def test_bad_bus_parameters(kind):
-    with pytest.raises(RgtbusError, match="bad run id"):
-        open_bus(kind, "a/b", ["a"], RATE)
-    with pytest.raises(RgtbusError, match="bad unit name"):
-        open_bus(kind, "r", ["a*"], RATE)
-    with pytest.raises(RgtbusError, match="no members"):
-        open_bus(kind, "r", [], RATE)
-    with pytest.raises(RgtbusError, match="duplicate member"):
-        open_bus(kind, "r", ["a", "a"], RATE)
+def test_bad_live_bus_parameters(kind):
     with pytest.raises(RgtbusError, match="sample rate"):
         open_bus(kind, "r", ["a"], float("nan"))
-    with pytest.raises(RgtbusError, match="got the string"):
-        open_bus(kind, "r", "ab", RATE)
     with pytest.raises(RgtbusError, match="unknown option"):
         open_bus(kind, "r", ["a"], RATE, window=20)
 
@@ -361,76 +498,32 @@ def test_unknown_bus_kind():
         open_bus("carrier-pigeon", "r", ["a"], RATE)
 
 
-def test_memory_bus_is_a_bus():
+def test_memory_bus_says_what_it_is():
     with MemoryBus("m", ["a"], RATE) as bus:
-        assert isinstance(bus, Bus) and "MemoryBus run='m'" in repr(bus)
+        assert "MemoryBus run='m'" in repr(bus) and "open" in repr(bus)
+    assert "closed" in repr(bus)
 
 
-# -- shared suite: every bus, the log-replay twin included -------------------------------------
+# -- the log bus only: members not re-run, and the end of the log ----------------------------------
 
 
-@pytest.fixture(scope="module")
-def gate_runs(tmp_path_factory):
-    """The gate over the memory bus (logged to a file) and over zenoh."""
-    from pathlib import Path
-    from types import SimpleNamespace
-
-    from rgtbus.units.group import run_group
-
-    from rgtbus.scenario import load_scenario
-    from rgtbus.telemetry import McapRecorder, MemoryRecorder
-
-    sc = load_scenario(Path(__file__).parent.parent / "scenarios" / "gate.toml")
-    out = {}
-    path = tmp_path_factory.mktemp("gate") / "memory.mcap"
-    with open(path, "wb") as f:
-        rec = McapRecorder(f)
-        mem = run_group(sc, "memory", rec)
-        rec.close()
-    for kind in ("memory", "zenoh"):
-        rec = MemoryRecorder()
-        res = run_group(sc, kind, rec)
-        out[kind] = SimpleNamespace(summary=res.summary, messages=rec.read()[0], path=path)
-    assert mem.summary["outcome"] == out["memory"].summary["outcome"]
-    return out
-
-
-def test_a_run_is_identical_over_every_bus(gate_runs):
-    """Memory, zenoh, and a re-run of the memory run's log over the log bus: the same
-    decisions, tables and unit messages."""
-    from rgtbus.units.rerun import rerun_replay
-
-    from rgtbus.telemetry.read import load_replay
-
-    mem, zen = gate_runs["memory"], gate_runs["zenoh"]
-    replayed = rerun_replay(load_replay(mem.path))
-    for other in (zen.summary, replayed.summary):
-        for key in ("polynomial", "relations", "influences", "units", "outcome", "sim_seconds"):
-            assert other[key] == mem.summary[key], key
-    assert zen.messages == mem.messages
-
-
-def test_log_bus_serves_the_logged_medium_and_ends():
+def test_log_bus_members_not_re_run_are_done_and_a_cut_log_ends():
     k = np.array([3, 40, 41], dtype=np.int64)
     v = np.array([0.4, 0.5, 0.6])
     bus = LogBus("replay", ["a", "b", "c"], {"a": (k, v)}, local=["a", "b"], end=41)
-    assert isinstance(bus, Bus)
     assert bus.wait(0) == 41
-    assert bus.known(41)["a"][0].tolist() == [3, 40]
-    got = bus.take(40)
-    assert got["a"][0].tolist() == [3] and got["b"][0].size == 0 and set(got) == {"a", "b", "c"}
-    bus.publish("a", [], [], promise=NEVER, flags=FINAL, done_at=12)
     st_ = bus.status()
-    assert (st_["a"].flags, st_["a"].done_at) == (FINAL, 12)
     assert st_["c"].flags == FINAL  # c is not re-run: done
-    assert st_["b"].flags == 0
+    assert st_["a"].flags == st_["b"].flags == 0
+    bus.publish("a", [7], [9.0], promise=NEVER, flags=FINAL, done_at=12)  # the log's medium stays
+    assert bus.status()["a"].promise == 41 and bus.known(41)["a"][0].tolist() == [3, 40]
     with pytest.raises(LogEnded, match="the log ends at sample 41"):
         bus.wait(41)
     whole = LogBus("replay", ["a"], {"a": (k, v)})
     assert whole.wait(NEVER) == NEVER  # a complete log never ends a run early
 
 
-# -- zenoh only ----------------------------------------------------------------------------
+# -- zenoh only ------------------------------------------------------------------------------------
 
 
 zenoh = pytest.importorskip("zenoh")
@@ -530,7 +623,7 @@ def test_zenoh_bus_left_open_does_not_hang_the_interpreter_at_exit():
     assert out.returncode == 0 and out.stdout == "ok\n", out.stderr
 
 
-# -- frame codec -------------------------------------------------------------------------------
+# -- frame codec -----------------------------------------------------------------------------------
 
 
 @settings(max_examples=60, deadline=None)

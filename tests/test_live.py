@@ -243,7 +243,7 @@ def test_a_watcher_drops_what_is_not_telemetry():
     assert {g[0] for g in sink.got} == {"/log", "/run"} and w.runs == {"r1"}
 
 
-# -- bounded whatever the clients and the network do (issue 22) ----------------------------------
+# -- bounded whatever the clients and the network do -----------------------------------------------
 
 
 def _rss_mb() -> float:
@@ -327,7 +327,7 @@ def test_clients_that_never_read_cost_a_bounded_backlog_and_never_hold_the_run()
             loop.call_soon_threadsafe(ws.transport.abort)
         loop.call_soon_threadsafe(loop.stop)
         runner.join(timeout=30)
-    assert put_time < 2, put_time  # 300 messages: put only queues (~1 ms)
+    assert put_time < 2, put_time  # 300 messages: put only queues
     assert grew < 100, grew  # 3 x 256 messages in the server, at most 2 MiB queued here
     assert took < bound + 5, took
     assert live.sent == 60_000 and live.dropped == 0
@@ -444,7 +444,7 @@ def test_a_keyed_runs_telemetry_is_signed_and_a_watcher_with_the_key_shows_only_
 
 def test_a_watcher_bounds_its_topics():
     """/trace/<unit> only from that unit's own key, and at most MAX_TRACES of them: forged
-    topics never become channels (each cost the watch ~2 KB in the server)."""
+    topics never become channels (each would cost the watch memory in the server)."""
     import zenoh
     from rgtbus.units.launch import free_ports
 

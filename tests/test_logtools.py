@@ -163,7 +163,7 @@ def test_with_seed_text_sets_only_the_top_level_seed(text):
     assert data.get("channel", {}) == tomllib.loads(text).get("channel", {})
 
 
-# -- a cross-process run merged by hand (issue 21, item 6) -----------------------------------------
+# -- a cross-process run merged by hand ------------------------------------------------------------
 
 EXAMPLE2 = ROOT / "scenarios" / "example2.toml"
 

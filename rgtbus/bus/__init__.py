@@ -7,12 +7,23 @@ logged run back (the replay twin).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, Pulses, QueueBus, tx_key
+from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, QueueBus
+from rgtbus.bus.keys import tx_key
 from rgtbus.bus.memory import MemoryBus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.pulses import Pulses
+
+if TYPE_CHECKING:
+    from rgtbus.bus.logbus import LogBus
+    from rgtbus.bus.zenoh import ZenohBus
+
+    def _every_bus_is_a_bus(memory: MemoryBus, zenoh: ZenohBus, log: LogBus) -> list[Bus]:
+        """Never called: mypy holds each bus to the ``Bus`` protocol here."""
+        return [memory, zenoh, log]
+
 
 KINDS = ("zenoh", "memory")
 

@@ -36,7 +36,7 @@ def _field(b: bytes) -> bytes:
 
 def tag(key: bytes, kind: str, run_id: str, unit: str, nonce: bytes, body: bytes) -> bytes:
     """The HMAC-SHA256 tag of ``body`` sent by ``unit`` (its process's ``nonce``) in a run."""
-    import hmac  # with hashlib, 5 ms to import: an open run (no key) never tags
+    import hmac  # loaded when first needed (with hashlib): an open run (no key) never tags
     from hashlib import sha256
 
     msg = b"".join(_field(x) for x in (kind.encode(), run_id.encode(), unit.encode(), nonce, body))

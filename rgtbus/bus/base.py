@@ -44,7 +44,8 @@ from rgtbus.bus.payload import (
     max_frame_pulses,
 )
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
+from rgtbus.signal.pulses import Pulses as Pulses  # re-exported: units/ take it from here
+from rgtbus.signal.pulses import merge_pulses, split_pulses
 
 # One key-expression chunk: no wildcards, separators or zenoh's reserved characters.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
@@ -70,10 +71,13 @@ class MemberStatus:
 
 @runtime_checkable
 class Bus(Protocol):
-    """Everything the world uses of a bus (memory, zenoh and the log-replay twin)."""
+    """Everything the world (``rgtbus.engine.sim``, ``units/``) uses of a bus: memory, zenoh
+    and the log-replay twin (``LogBus``) each keep it (``rgtbus.bus`` has mypy check so)."""
 
     run_id: str
     members: tuple[str, ...]
+    local: tuple[str, ...]  # the members this bus publishes for
+    close_problem: str | None  # a transport slow to close, once closed (a warning)
 
     def publish(
         self,
@@ -84,30 +88,166 @@ class Bus(Protocol):
         promise: int,
         flags: int = 0,
         done_at: int = 0,
-    ) -> None: ...
-    def wait(self, beyond: int, timeout: float = 5.0) -> int: ...
-    def take(self, until: int) -> dict[str, Pulses]: ...
-    def known(self, until: int) -> dict[str, Pulses]: ...
-    def status(self) -> dict[str, MemberStatus]: ...
-    def join(self, units: str | Sequence[str], digest: str, timeout: float = 10.0) -> None: ...
-    def stats(self) -> dict[str, int]: ...
-    def drop_notes(self) -> list[str]: ...
-    def close(self) -> None: ...
-    def __enter__(self) -> Self: ...
+    ) -> None:
+        """One frame of local member ``unit``: its new pulses and its promise of silence
+        before sample ``promise``; ``flags`` FINAL or FAILED once it is done (``done_at``:
+        the last sample it listened to)."""
+        ...
+
+    def wait(self, beyond: int, timeout: float = 5.0) -> int:
+        """Block until every member promised past sample ``beyond``; the horizon (the
+        smallest promise). RgtbusError when no such promise comes."""
+        ...
+
+    def take(self, until: int) -> dict[str, Pulses]:
+        """Every member's pulses before sample ``until`` (at most the horizon), handed out
+        once."""
+        ...
+
+    def known(self, until: int) -> dict[str, Pulses]:
+        """Every member's pulses before ``until`` not yet taken, past the horizon too
+        (nothing is handed out)."""
+        ...
+
+    def status(self) -> dict[str, MemberStatus]:
+        """Every member's promise, flags and done_at as known so far."""
+        ...
+
+    def join(self, units: str | Sequence[str], digest: str, timeout: float = 10.0) -> None:
+        """Barrier before the run, as ``units`` (this process's) on the scenario ``digest``."""
+        ...
+
+    def stats(self) -> dict[str, int]:
+        """Counters so far (``published``: frames this bus sent)."""
+        ...
+
+    def drop_notes(self) -> list[str]:
+        """Why recent frames were dropped, one line each; clears them."""
+        ...
+
+    @property
+    def closed(self) -> bool:
+        """Whether ``close`` was called."""
+        ...
+
+    def close(self) -> None:
+        """Release the transport; again does nothing."""
+        ...
+
+    def __enter__(self) -> Self:
+        """The bus itself, closed when the block ends."""
+        ...
+
     def __exit__(
         self,
         exc_type: type[BaseException] | None,
         exc: BaseException | None,
         tb: TracebackType | None,
-    ) -> None: ...
+    ) -> None:
+        """Close (the error that ended the block stays the one reported)."""
+        ...
 
 
 def check_name(kind: str, name: object) -> str:
+    """``name`` if it can stand in a zenoh key (one chunk, no wildcard or separator);
+    RgtbusError naming ``kind`` otherwise."""
     if not isinstance(name, str) or not _NAME.match(name):
         raise RgtbusError(
             f"bad {kind} {name!r}: use letters, digits, '_', '.', '-' (no '/', '*', '$', '?', '#')"
         )
     return name
+
+
+class BusBase:
+    """What every bus shares (the live ones and the log twin): its run (id and members),
+    being open until ``close`` (once: again does nothing), as a context manager too, and the
+    checks of what it is asked. Subclasses release their transport in ``_close_transport``."""
+
+    kind = "abstract"
+    run_id: str
+    members: tuple[str, ...]
+    local: tuple[str, ...]  # the members this bus publishes for
+    _member_set: frozenset[str]
+    _closed = False
+
+    def _take_run(self, run_id: str, members: Sequence[str]) -> None:
+        """The run's id and members, checked: names a key can hold, one member at least,
+        none twice; RgtbusError naming what is wrong."""
+        self.run_id = check_name("run id", run_id)
+        if isinstance(members, str):
+            raise RgtbusError(
+                f"members must be a sequence of unit names, got the string {members!r}"
+            )
+        self.members = tuple(check_name("unit name", m) for m in members)
+        if not self.members:
+            raise RgtbusError(f"run {run_id!r} has no members")
+        dup = sorted({m for m in self.members if self.members.count(m) > 1})
+        if dup:
+            raise RgtbusError(f"duplicate member(s) {', '.join(dup)} in run {run_id!r}")
+        self._member_set = frozenset(self.members)
+
+    def _local_members(self, local: Sequence[str] | None) -> tuple[str, ...]:
+        """The members this bus publishes for (all when None), each checked."""
+        units = self.members if local is None else tuple(local)
+        for u in units:
+            self._check_member(u)
+        return units
+
+    @property
+    def closed(self) -> bool:
+        """Whether ``close`` was called."""
+        return self._closed
+
+    def close(self) -> None:
+        """Close the bus (its transport); again does nothing."""
+        if self._closed:
+            return
+        self._closed = True
+        self._close_transport()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc is None:
+            self.close()
+            return
+        try:  # the error that ended the block is the one to report, not a slow close's
+            self.close()
+        except Exception as close_error:
+            exc.add_note(f"and then, closing the bus: {close_error}")
+
+    def _check_open(self, what: str) -> None:
+        if self._closed:
+            raise RgtbusError(f"{what} on closed {self.kind} bus of run {self.run_id!r}")
+
+    def _check_member(self, unit: object) -> None:
+        if unit not in self._member_set:
+            raise RgtbusError(
+                f"unit {unit!r} is not a member of run {self.run_id!r} "
+                f"(members: {', '.join(self.members)})"
+            )
+
+    def _check_local(self, unit: str) -> None:
+        """RgtbusError unless ``unit`` is a member this bus publishes for."""
+        self._check_member(unit)
+        if unit not in self.local:
+            raise RgtbusError(
+                f"unit {unit!r} is not published from this bus (local: {', '.join(self.local)})"
+            )
+
+    def _check_take(self, until: int, horizon: int) -> None:
+        """RgtbusError for a take up to ``until`` past the ``horizon`` (what is final)."""
+        if until > horizon:
+            raise RgtbusError(f"take up to sample {until}: only samples before {horizon} are final")
+
+    def _close_transport(self) -> None:
+        raise NotImplementedError
 
 
 STAT_KEYS = (
@@ -133,7 +273,10 @@ class Payload(Protocol):
     before it is copied out)."""
 
     def __len__(self) -> int: ...
-    def to_bytes(self) -> bytes: ...
+
+    def to_bytes(self) -> bytes:
+        """The payload's bytes, copied out."""
+        ...
 
 
 class _Bytes:
@@ -156,7 +299,7 @@ _NO_PULSES[0].flags.writeable = False
 _NO_PULSES[1].flags.writeable = False
 
 
-class QueueBus:
+class QueueBus(BusBase):
     """Shared core: publish validation + encode, and a receive queue drained by ``wait``.
 
     Subclasses provide ``_send(key, data)`` and ``_close_transport()``; whatever delivers
@@ -168,7 +311,6 @@ class QueueBus:
     when it joined; rgtbus.bus.auth); anything else is dropped as ``dropped_unauthenticated``.
     """
 
-    kind = "abstract"
     OPTIONS: frozenset[str] = frozenset()  # keyword options open_bus may pass
 
     def __init__(
@@ -180,26 +322,12 @@ class QueueBus:
         local: Sequence[str] | None = None,
         key: bytes | None = None,
     ) -> None:
-        self.run_id = check_name("run id", run_id)
-        if isinstance(members, str):
-            raise RgtbusError(
-                f"members must be a sequence of unit names, got the string {members!r}"
-            )
-        self.members = tuple(check_name("unit name", m) for m in members)
-        if not self.members:
-            raise RgtbusError(f"run {run_id!r} has no members")
-        dup = sorted({m for m in self.members if self.members.count(m) > 1})
-        if dup:
-            raise RgtbusError(f"duplicate member(s) {', '.join(dup)} in run {run_id!r}")
+        self._take_run(run_id, members)
         rate = float(sample_rate)
         if not (math.isfinite(rate) and rate > 0):
             raise RgtbusError(f"sample rate must be finite and > 0, got {sample_rate!r}")
         self.sample_rate = rate
-        self._member_set = frozenset(self.members)
-        local_units = self.members if local is None else tuple(local)
-        for u in local_units:
-            self._check_member(u)
-        self.local = local_units
+        self.local = self._local_members(local)
         self._prefix = tx_prefix(self.run_id)
         self._keys = {u: tx_key(self.run_id, u) for u in self.members}
         # (key, data, unit, seq, tag checked): what passed the gate (_deliver), for _accept
@@ -240,11 +368,7 @@ class QueueBus:
     ) -> None:
         """Send one frame of ``unit`` (a local member): its new pulses and its promise."""
         self._check_open("publish")
-        self._check_member(unit)
-        if unit not in self.local:
-            raise RgtbusError(
-                f"unit {unit!r} is not published from this bus (local: {', '.join(self.local)})"
-            )
+        self._check_local(unit)
         mine = self._sent[unit]
         s = np.asarray(samples, dtype=np.int64).reshape(-1)
         if s.size and s[0] < mine.promise:
@@ -317,10 +441,7 @@ class QueueBus:
     def take(self, until: int) -> dict[str, Pulses]:
         """Every member's pulses before sample ``until`` (at most the horizon), handed out once."""
         self._check_open("take")
-        if until > self.horizon():
-            raise RgtbusError(
-                f"take up to sample {until}: only samples before {self.horizon()} are final"
-            )
+        self._check_take(until, self.horizon())
         out = {}
         for u, m in self._members.items():
             if not m.pending:
@@ -388,33 +509,6 @@ class QueueBus:
         self._check_open("put_raw")
         self._send(key, bytes(data))
 
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self._close_transport()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        if exc is None:
-            self.close()
-            return
-        try:  # the error that ended the block is the one to report, not a slow close's
-            self.close()
-        except Exception as close_error:
-            exc.add_note(f"and then, closing the bus: {close_error}")
-
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"<{type(self).__name__} run={self.run_id!r} members={self.members} {state}>"
@@ -424,21 +518,7 @@ class QueueBus:
     def _send(self, key: str, data: bytes) -> None:
         raise NotImplementedError
 
-    def _close_transport(self) -> None:
-        raise NotImplementedError
-
     # -- internals --------------------------------------------------------------------------
-
-    def _check_open(self, what: str) -> None:
-        if self._closed:
-            raise RgtbusError(f"{what} on closed {self.kind} bus of run {self.run_id!r}")
-
-    def _check_member(self, unit: object) -> None:
-        if unit not in self._member_set:
-            raise RgtbusError(
-                f"unit {unit!r} is not a member of run {self.run_id!r} "
-                f"(members: {', '.join(self.members)})"
-            )
 
     def _drain(self) -> None:
         get = self._inbox.get_nowait

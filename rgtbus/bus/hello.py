@@ -21,6 +21,7 @@ import json
 import re
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from rgtbus.bus.auth import NONCE_SIZE, TAG_SIZE, AuthError, check_tag, tag
 from rgtbus.errors import RgtbusError
@@ -33,6 +34,8 @@ _NEVER = 2**63 - 1
 
 @dataclass(frozen=True)
 class Hello:
+    """One hello, every field checked (see the module docstring)."""
+
     unit: str
     digest: str
     nonce: bytes
@@ -42,12 +45,13 @@ class Hello:
     ready: bool = False
 
 
-def _canonical(obj: dict) -> bytes:
+def _canonical(obj: Mapping[str, Any]) -> bytes:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
 
 
 def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
-    obj: dict = {
+    """The hello's wire form, tagged with ``key`` on a keyed run."""
+    obj: dict[str, Any] = {
         "unit": h.unit,
         "digest": h.digest,
         "nonce": h.nonce.hex(),
@@ -68,7 +72,7 @@ def check_digest(digest: object) -> str:
     return digest
 
 
-def _hex(obj: Mapping, name: str, size: int) -> bytes:
+def _hex(obj: Mapping[str, Any], name: str, size: int) -> bytes:
     v = obj.get(name)
     if not isinstance(v, str) or len(v) != 2 * size or not _HEX.fullmatch(v):
         raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits")

@@ -30,10 +30,12 @@ def prefix(kind: str, run_id: str) -> str:
 
 
 def tx_key(run_id: str, unit: str) -> str:
+    """The key of ``unit``'s frames in run ``run_id``."""
     return key(TX, run_id, unit)
 
 
 def tx_prefix(run_id: str) -> str:
+    """What every frame key of run ``run_id`` starts with."""
     return prefix(TX, run_id)
 
 

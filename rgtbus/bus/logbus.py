@@ -1,10 +1,12 @@
 """The log bus: a finished run's medium served back (the replay twin of the live buses).
 
-``World`` runs re-built units over it exactly as over a live bus. The medium comes from the log,
-all of it known from the start (every member promises silence past the log's end); what the
-re-run members publish is not needed (the log already holds the medium) but their FINAL/FAILED
-flags are kept, so the run ends as it did. Members of the run that are not re-run count as
-finished. Waiting past the end of a log that was cut short raises ``LogEnded``.
+``World`` runs re-built units over it exactly as over a live bus: it keeps the same ``Bus``
+contract (members, local members, the horizon, flags, closing; the same errors for the same
+misuse). The medium comes from the log, all of it known from the start (every member promises
+silence past the log's end); what the re-run members publish is not needed (the log already
+holds the medium) but their FINAL/FAILED flags are kept, so the run ends as it did. Members of
+the run that are not re-run count as finished. Waiting past the end of a log that was cut
+short raises ``LogEnded``.
 """
 
 from __future__ import annotations
@@ -13,17 +15,22 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from rgtbus.bus.base import MemberStatus, Pulses, merge_pulses, split_pulses
+from rgtbus.bus.base import BusBase, MemberStatus
 from rgtbus.bus.payload import FINAL, NEVER
 from rgtbus.errors import RgtbusError
+from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
 
 
 class LogEnded(RgtbusError):
     """The log holds no more of the medium (a truncated log)."""
 
 
-class LogBus:
+class LogBus(BusBase):
+    """A logged medium served as a bus (see the module docstring). Nothing goes anywhere:
+    closing it releases nothing."""
+
     kind = "log"
+    close_problem: str | None = None  # nothing to close that could be slow
 
     def __init__(
         self,
@@ -37,9 +44,8 @@ class LogBus:
         """``medium``: per member, its logged pulses (or the whole medium under one member's
         name: what every unit heard, bit for bit); ``end``: the first sample the log does not
         cover (a truncated log), else the run's medium is complete."""
-        self.run_id = run_id
-        self.members = tuple(members)
-        self.local = tuple(self.members if local is None else local)
+        self._take_run(run_id, members)
+        self.local = self._local_members(local)
         self.end = end
         self._pending = {
             u: merge_pulses([medium[u]]) if u in medium else _none() for u in self.members
@@ -60,44 +66,52 @@ class LogBus:
         flags: int = 0,
         done_at: int = 0,
     ) -> None:
+        """Keep a local member's flags and done_at (its pulses and promise are the log's)."""
+        self._check_open("publish")
+        self._check_local(unit)
         st = self._status[unit]
         st.flags, st.done_at = flags, done_at
         self._published += 1
 
     def wait(self, beyond: int, timeout: float = 0.0) -> int:
+        """The horizon, the log's end, at once; ``LogEnded`` past the end of a log cut short."""
+        self._check_open("wait")
         if beyond >= self.end and self.end < NEVER:
             raise LogEnded(f"the log ends at sample {self.end}")
         return self.end
 
     def take(self, until: int) -> dict[str, Pulses]:
+        """Every member's logged pulses before ``until`` (at most the log's end), once."""
+        self._check_open("take")
+        self._check_take(until, self.end)
         out = {}
         for u in self.members:
             out[u], self._pending[u] = split_pulses(self._pending[u], until)
         return out
 
     def known(self, until: int) -> dict[str, Pulses]:
+        """Every member's logged pulses before ``until`` not yet taken."""
         return {u: split_pulses(self._pending[u], until)[0] for u in self.members}
 
     def status(self) -> dict[str, MemberStatus]:
+        """Every member's promise (the log's end), flags and done_at."""
         return self._status
 
     def join(self, units: str | Sequence[str], digest: str, timeout: float = 0.0) -> None:
-        pass
+        """Every member is at hand: only checks that ``units`` are members."""
+        for unit in [units] if isinstance(units, str) else units:
+            self._check_member(unit)
 
     def stats(self) -> dict[str, int]:
+        """How many frames were published."""
         return {"published": self._published}
 
     def drop_notes(self) -> list[str]:
+        """Nothing is ever dropped: no notes."""
         return []
 
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> LogBus:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _close_transport(self) -> None:
+        pass  # nothing to release
 
 
 def _none() -> Pulses:

@@ -14,6 +14,9 @@ from rgtbus.bus.keys import matches_subscription
 
 
 class MemoryBus(QueueBus):
+    """Every member in this process, the frames through the codec and the gate as over zenoh (see
+    the module docstring); ``count_foreign`` False hears only this run's keys."""
+
     kind = "memory"
     OPTIONS = frozenset({"local", "count_foreign", "key"})
 

@@ -50,8 +50,8 @@ NEVER = 2**63 - 1  # a promise of silence for the rest of the run
 MAX_MAGNITUDE = 1e6  # far above any code; keeps a resonator's sums finite whatever a peer sends
 MAX_PULSES = 2**24  # one frame; a run's whole schedule of one unit is far below this
 # What a live bus receives (and lets its own units send) in one frame: the pulses a unit plans
-# at once (its codes to every other member; measured at most 12 per member, 588 on group50),
-# with a wide margin. Larger frames are dropped before any other work (``dropped_oversize``).
+# at once (its codes to every other member), with a wide margin. Larger frames are dropped
+# before any other work (``dropped_oversize``).
 FRAME_PULSES_MIN = 4096
 FRAME_PULSES_PER_MEMBER = 256
 _EMPTY_I = np.zeros(0, dtype=np.int64)
@@ -71,6 +71,7 @@ class Frame:
 
     @property
     def done(self) -> bool:
+        """Whether the member is done (FINAL or FAILED)."""
         return bool(self.flags & (FINAL | FAILED))
 
 
@@ -276,6 +277,7 @@ def sign_telemetry(frame: bytes, nonce: bytes, seq: int, sign: Callable[[bytes],
 
 
 def is_signed_telemetry(payload: bytes) -> bool:
+    """Whether ``payload`` starts as a signed telemetry frame (``sign_telemetry``) does."""
     return payload[:4] == _SIGNED_TELEMETRY_MAGIC
 
 

@@ -34,13 +34,14 @@ from rgtbus.bus.zenoh import close_session, make_config, zenoh_reason
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LiveSink
+from rgtbus.telemetry.records import is_trace_topic, trace_topic
 
-MAX_FRAME = 4 << 20  # bytes: no logged message comes near it (a unit's report: ~1 KB)
+MAX_FRAME = 4 << 20  # bytes: no logged message comes near it
 MAX_TRACES = 1024  # /trace/<unit> topics served (one per unit: far more than a run has)
 MAX_RUNS = 64  # run ids remembered (for the summary line)
 MAX_STREAMS = 4096  # (run, unit) senders whose sequence numbers are followed
 DROPS = ("malformed", "oversize", "unauthenticated", "signed", "duplicate", "topic")
-_TRACE_SCHEMA = topics.schema_for("/trace/x")
+_TRACE_SCHEMA = topics.schema_for(trace_topic("x"))
 
 
 class Watcher:
@@ -127,9 +128,9 @@ class Watcher:
         if topic in topics.TOPICS:
             ok = topics.TOPICS[topic][0] == schema
         else:  # only the publishing unit's own trace, and a bounded number of them
-            ok = topic == f"/trace/{unit}" and schema == _TRACE_SCHEMA
+            ok = topic == trace_topic(unit) and schema == _TRACE_SCHEMA
         with self._lock:
-            if ok and topic.startswith("/trace/") and topic not in self._traces:
+            if ok and is_trace_topic(topic) and topic not in self._traces:
                 ok = len(self._traces) < MAX_TRACES
                 if ok:
                     self._traces.add(topic)
@@ -159,7 +160,7 @@ class Watcher:
     def close(self, timeout: float = 5.0) -> str | None:
         """Undeclare and close; what went wrong closing, or None."""
         try:
-            self._sub.undeclare()
+            self._sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it bare
         except Exception as e:  # zenoh's ZError
             return zenoh_reason(e)
         return close_session(self.session, timeout)

@@ -135,8 +135,8 @@ def make_config(
             "connect/retry",
             json.dumps({"period_init_ms": 50, "period_max_ms": 500, "period_increase_factor": 1.5}),
         )
-        # Nor let open() wait to reach the peers it learns about: measured, it then sometimes
-        # took 0.5 s; the run's join barrier waits for every member anyway.
+        # Nor let open() wait to reach the peers it learns about, which can hold a start-up
+        # back; the run's join barrier waits for every member anyway.
         cfg.insert_json5("open/return_conditions/connect_scouted", "false")
     return cfg
 
@@ -148,7 +148,7 @@ _SLOW_CLOSE = "zenoh session did not close within"
 def close_session(session: zenoh.Session, timeout: float) -> str | None:
     """Close ``session``, waiting at most ``timeout`` seconds; what went wrong, or None.
 
-    zenoh's close says goodbye on every link and can block for ~10 s when a peer no longer
+    zenoh's close says goodbye on every link and can block for seconds when a peer no longer
     reads (a process stopped with SIGSTOP fills its socket; docs/zenoh-notes.md): a unit that
     has finished must not wait for that. The close goes on in a daemon thread, which never
     holds up the interpreter's exit."""
@@ -157,7 +157,7 @@ def close_session(session: zenoh.Session, timeout: float) -> str | None:
 
     def close() -> None:
         try:
-            session.close()
+            session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it bare
         except Exception as e:  # zenoh's ZError: one readable line
             outcome.append(zenoh_reason(e))
         finally:
@@ -170,6 +170,7 @@ def close_session(session: zenoh.Session, timeout: float) -> str | None:
 
 
 def telemetry_key(run_id: str, unit: str) -> str:
+    """The key on which ``unit``'s process publishes its log messages."""
     return keys.key(keys.TELEMETRY, run_id, unit)
 
 
@@ -191,6 +192,7 @@ class TelemetryFeed:
         self._nonce = nonce
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        """Publish one log message (signed on a keyed run); nothing once closed."""
         if self.closed:
             return
         frame = encode_telemetry(topic, schema, data, t_ns)
@@ -241,7 +243,90 @@ class _Rate:
         return True
 
 
+class _Barrier:
+    """One join's state (``ZenohBus.join``): the latest nonce heard of each member (``echo``),
+    the members whose hello echoed ours (``fresh``) and said they are ready, and the hellos
+    answered at once this round and ever."""
+
+    def __init__(self, bus: ZenohBus, mine: list[str], digest: str) -> None:
+        self.bus, self.mine, self.digest = bus, mine, digest
+        self.local = set(mine)
+        self.others = set(bus.members) - self.local
+        self.echo: dict[str, bytes] = dict.fromkeys(mine, bus.nonce)  # each member's latest
+        self.fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
+        self.ready: set[str] = set()
+        self.replied: set[tuple[str, bytes, bool]] = set()  # (unit, nonce, fresh) answered
+        self.budget = 0  # answers at once left this round
+
+    def done(self) -> bool:
+        """Every other member is fresh and ready: the barrier opens."""
+        return self.fresh.keys() >= self.others and self.ready >= self.others
+
+    def missing(self) -> list[str]:
+        """Who holds the barrier: members not yet fresh, else those not yet ready."""
+        return sorted(self.others - self.fresh.keys()) or sorted(self.others - self.ready)
+
+    def say(self, *, ready: bool | None = None) -> None:
+        """Each of our units' hello (ready: once every other member is fresh)."""
+        if ready is None:
+            ready = self.fresh.keys() >= self.others
+        for u in self.mine:
+            self.bus._say_hello(u, self.digest, self.echo, ready=ready)
+
+    def answer(self, h: Hello, is_fresh: bool) -> None:
+        """Our hello at once, for news in ``h``: once per (unit, nonce, fresh), a few a
+        round; else counted, and the next round's hello says it."""
+        k = (h.unit, h.nonce, is_fresh)
+        why = (
+            f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
+            "not answered at once (replayed?)"
+        )
+        if self.bus._may_answer(self.replied, k, lambda: self.budget > 0, why):
+            self.budget -= 1
+            self.say()
+
+    def hear(self, h: Hello) -> bool:
+        """One member's hello (not ours); whether the barrier opens with it. RgtbusError for a
+        member on another scenario, a run already started, or two processes as one unit."""
+        run_id = self.bus.run_id
+        if h.digest != self.digest:
+            raise RgtbusError(
+                f"unit {h.unit!r} of run {run_id!r} runs another scenario or "
+                f"seed (digest {h.digest[:12]}, ours {self.digest[:12]})"
+            )
+        if any(h.heard.get(u) != self.bus.nonce for u in self.mine):  # not (yet) an answer
+            news = self.echo.get(h.unit) != h.nonce
+            self.echo[h.unit] = h.nonce
+            if news:  # say so at once: it waits for our echo of its nonce
+                self.answer(h, False)
+            return False
+        if h.started:
+            raise RgtbusError(
+                f"run {run_id!r} already started (unit {h.unit!r} is at sample "
+                f"{h.sample}): {self.mine[0]!r} joined too late"
+            )
+        known = self.fresh.get(h.unit)
+        if known is not None and known != h.nonce:
+            raise RgtbusError(f"two processes say they are unit {h.unit!r} of run {run_id!r}")
+        news = known is None or self.echo.get(h.unit) != h.nonce
+        self.fresh[h.unit] = self.echo[h.unit] = h.nonce
+        # Its frames are checked with this nonce from now on (at the gate): it sends its first
+        # only after our ready, which says we heard it fresh.
+        self.bus._nonces[h.unit] = h.nonce
+        if h.ready:
+            self.ready.add(h.unit)
+        if self.done():
+            return True
+        if news:
+            self.answer(h, True)
+        return False
+
+
 class ZenohBus(QueueBus):
+    """The bus over zenoh (see the module docstring): a session of its own, or one given
+    (``session``: then left open for its owner), or options for one (``mode``, ``connect``,
+    ``listen``, ``multicast``, ``config``); ``local`` the members this process publishes for."""
+
     kind = "zenoh"
     OPTIONS = frozenset(
         {
@@ -361,6 +446,7 @@ class ZenohBus(QueueBus):
     # -- joining a cross-process run --------------------------------------------------------
 
     def hello_key(self, unit: str) -> str:
+        """The key of ``unit``'s hellos in this run."""
         return keys.key(keys.HELLO, self.run_id, unit)
 
     def join(self, units: str | Sequence[str], digest: str, timeout: float = 10.0) -> None:
@@ -389,11 +475,30 @@ class ZenohBus(QueueBus):
             self._check_member(u)
         if len(set(mine)) != len(mine):
             raise RgtbusError(f"join: a unit named twice in {mine}")
-        unit = mine[0]  # the process's voice for what it says once (tokens, late answers)
         check_digest(digest)
-        members = set(self.members)
-        local = set(mine)
-        others = members - local
+        self._declare_presence(mine[0])  # the process's voice for what it says once
+        barrier = _Barrier(self, mine, digest)
+        deadline = time.monotonic() + timeout
+        while True:
+            barrier.budget = _REPLIES_PER_ROUND * len(self.members)
+            barrier.say()
+            self._hear_round(barrier, time.monotonic() + 0.05)
+            if barrier.done():
+                barrier.say(ready=True)
+                # What is queued now was said before the start (a link keeps its order).
+                while not self._hellos.empty():
+                    self._hellos.get_nowait()
+                self._nonces.update(barrier.fresh)
+                self._joined = (tuple(mine), digest)
+                return
+            if time.monotonic() > deadline:
+                raise RgtbusError(
+                    f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
+                    f"{', '.join(barrier.missing())}"
+                )
+
+    def _declare_presence(self, unit: str) -> None:
+        """The hello subscriber, and the liveliness token ``rgtbus/<run>/alive/<unit>``."""
         hello_gate = self._hello_gate
         self._hello_sub = self.session.declare_subscriber(
             keys.every_unit(keys.HELLO, self.run_id),
@@ -405,94 +510,20 @@ class ZenohBus(QueueBus):
             )
         except Exception as e:  # liveliness is for presence only; the barrier does the work
             self._notes.append(f"liveliness token not declared: {e}")
-        echo: dict[str, bytes] = dict.fromkeys(mine, self.nonce)  # each member's latest nonce
-        fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
-        ready: set[str] = set()
-        deadline = time.monotonic() + timeout
 
-        def done() -> bool:
-            return fresh.keys() >= others and ready >= others
-
-        replied: set[tuple[str, bytes, bool]] = set()  # (unit, nonce, fresh) answered at once
-        budget = [0]
-
-        def answer(h: Hello, is_fresh: bool) -> None:
-            """Our hello at once, for news in ``h``: once per (unit, nonce, fresh), a few a
-            round; else counted, and the next round's hello says it."""
-            k = (h.unit, h.nonce, is_fresh)
-            if k in replied or budget[0] <= 0:
-                self._drop(
-                    "hellos_unanswered",
-                    f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
-                    "not answered at once (replayed?)",
-                )
-                return
-            if len(replied) < _ANSWERED_MAX:
-                replied.add(k)
-            budget[0] -= 1
-            for u in mine:
-                self._say_hello(u, digest, echo, ready=fresh.keys() >= others)
-
-        while True:
-            budget[0] = _REPLIES_PER_ROUND * len(self.members)
-            for u in mine:
-                self._say_hello(u, digest, echo, ready=fresh.keys() >= others)
-            until = time.monotonic() + 0.05
-            while (left := until - time.monotonic()) > 0:
-                try:
-                    raw = self._hellos.get(timeout=left)
-                except queue.Empty:
-                    break
-                h = self._read_hello(raw)
-                if h is None or h.unit in local:
-                    continue
-                if h.digest != digest:
-                    raise RgtbusError(
-                        f"unit {h.unit!r} of run {self.run_id!r} runs another scenario or "
-                        f"seed (digest {h.digest[:12]}, ours {digest[:12]})"
-                    )
-                if any(h.heard.get(u) != self.nonce for u in mine):  # not (yet) an answer
-                    news = echo.get(h.unit) != h.nonce
-                    echo[h.unit] = h.nonce
-                    if news:  # say so at once: it waits for our echo of its nonce
-                        answer(h, False)
-                    continue
-                if h.started:
-                    raise RgtbusError(
-                        f"run {self.run_id!r} already started (unit {h.unit!r} is at sample "
-                        f"{h.sample}): {unit!r} joined too late"
-                    )
-                known = fresh.get(h.unit)
-                if known is not None and known != h.nonce:
-                    raise RgtbusError(
-                        f"two processes say they are unit {h.unit!r} of run {self.run_id!r}"
-                    )
-                news = known is None or echo.get(h.unit) != h.nonce
-                fresh[h.unit] = echo[h.unit] = h.nonce
-                # Its frames are checked with this nonce from now on (at the gate): it sends
-                # its first only after our ready, which says we heard it fresh.
-                self._nonces[h.unit] = h.nonce
-                if h.ready:
-                    ready.add(h.unit)
-                if done():
-                    break
-                if news:
-                    answer(h, True)
-            if done():
-                for u in mine:
-                    self._say_hello(u, digest, echo, ready=True)
-                # What is queued now was said before the start (a link keeps its order).
-                while not self._hellos.empty():
-                    self._hellos.get_nowait()
-                self._nonces.update(fresh)
-                self._joined = (tuple(mine), digest)
-                return
-            if time.monotonic() > deadline:
-                missing = sorted(others - fresh.keys()) or sorted(others - ready)
-                raise RgtbusError(
-                    f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
-                    f"{', '.join(missing)}"
-                )
+    def _hear_round(self, barrier: _Barrier, until: float) -> None:
+        """The hellos heard until ``until`` (monotonic), each to the barrier, which may open
+        before then."""
+        while (left := until - time.monotonic()) > 0:
+            try:
+                raw = self._hellos.get(timeout=left)
+            except queue.Empty:
+                break
+            h = self._read_hello(raw)
+            if h is None or h.unit in barrier.local:
+                continue
+            if barrier.hear(h):
+                break
 
     def _say_hello(
         self,
@@ -516,6 +547,7 @@ class ZenohBus(QueueBus):
         return None
 
     def wait(self, beyond: int, timeout: float = 5.0) -> int:
+        """As ``QueueBus.wait``, answering late hellos first once the run has started."""
         if self._joined is not None:
             self._answer_late_hellos()
         return super().wait(beyond, timeout)
@@ -536,20 +568,31 @@ class ZenohBus(QueueBus):
                 continue  # a member's last barrier hello, not a late joiner
             # A late joiner (or a replay of an old hello): answered once per (unit, nonce), at
             # a bounded rate; a joiner repeats its hello until answered.
+            why = (
+                f"hello from {h.unit!r} after the start (nonce {h.nonce.hex()[:8]}), heard "
+                "again or too fast: not answered (replayed?)"
+            )
             pair = (h.unit, h.nonce)
-            if pair in self._late_answered or not self._late_rate.take():
-                self._drop(
-                    "hellos_unanswered",
-                    f"hello from {h.unit!r} after the start (nonce {h.nonce.hex()[:8]}), heard "
-                    "again or too fast: not answered (replayed?)",
-                )
+            if not self._may_answer(self._late_answered, pair, self._late_rate.take, why):
                 continue
-            if len(self._late_answered) < _ANSWERED_MAX:
-                self._late_answered.add(pair)
             with self._gate_lock:
                 self._notes.append(f"hello from {h.unit!r} after the start: refused")
             echo = {**self._nonces, h.unit: h.nonce}  # answered to it: fresh for it
             self._say_hello(unit, digest, echo, ready=True, started=True)
+
+    def _may_answer(
+        self, answered: set[Any], news: object, allowed: Callable[[], bool], why: str
+    ) -> bool:
+        """Whether a hello that brings ``news`` is answered now: not when that was answered
+        already (a replay) or ``allowed()`` says no (asked only then: it may spend a token);
+        such a hello is counted as ``hellos_unanswered``, ``why`` its note. At most
+        ``_ANSWERED_MAX`` answers are remembered."""
+        if news in answered or not allowed():
+            self._drop("hellos_unanswered", why)
+            return False
+        if len(answered) < _ANSWERED_MAX:
+            answered.add(news)
+        return True
 
     def _hello_gate(self, key: str, payload: Any) -> None:
         """The hello subscriber's callback (a zenoh thread, never blocks): a member's key, at

@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING, Any
 
 from rgtbus.telemetry.recorder import (
     LOG_LEVELS,
-    LOG_TOPIC,
     LogContents,
     McapRecorder,
     MemoryRecorder,
@@ -39,7 +38,6 @@ def __getattr__(name: str) -> Any:
 
 __all__ = [
     "LOG_LEVELS",
-    "LOG_TOPIC",
     "TOPICS",
     "TOPIC_PATTERNS",
     "LogContents",

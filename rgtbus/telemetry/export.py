@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Callable
 from typing import IO, Any
 
 from rgtbus.telemetry.read import Replay, in_span
+from rgtbus.timebase import sample_of, time_of
 
 
 def sample_time(t: float, tau: float | None) -> float:
@@ -15,41 +17,43 @@ def sample_time(t: float, tau: float | None) -> float:
     if not tau:
         return round(t, 9)
     digits = min(9, max(0, math.ceil(-math.log10(tau)) + 1))
-    return round(round(t / tau) * tau, digits)
+    return round(time_of(sample_of(t, tau), tau), digits)
 
 
-def csv_tables(
-    replay: Replay, span: tuple[float | None, float | None] | None = None
-) -> dict[str, tuple[list[str], list[list[Any]]]]:
+Table = tuple[list[str], list[list[Any]]]  # (header, rows)
+Span = tuple[float | None, float | None] | None  # (from, to); None: the whole run
+
+RUN_COLUMNS = ["run_id", "scenario", "seed"]  # every table's first columns
+
+
+def csv_tables(replay: Replay, span: Span = None) -> dict[str, Table]:
     """``{file name: (header, rows)}``: transmissions, decodes, decisions, spikes. Every row
     starts with the run's id, scenario and seed (tables of many runs concatenate); times are
     on the sample grid; ``span`` (from, to) keeps what happens in it (a transmission: any of
     its pulses)."""
     tau = replay.scenario.timing.tau if replay.scenario is not None else None
     info = replay.info()
-    run_cols = ["run_id", "scenario", "seed"]
-    run_vals = [info["run_id"], info["scenario"], info["seed"]]
+    run = [info["run_id"], info["scenario"], info["seed"]]
 
     def ts(t: float) -> float:
         return sample_time(t, tau)
 
-    tx_head = [
-        *run_cols,
-        "turn",
-        "phase",
-        "kind",
-        "sender",
-        "addressee",
-        "channel",
-        "code",
-        "meaning",
-        "start",
-        "end",
-        "pulses",
-    ]
-    tx_rows = [
+    return {
+        "transmissions.csv": _transmissions(replay, span, run, ts),
+        "decodes.csv": _decodes(replay, span, run, ts),
+        "decisions.csv": _decisions(replay, span, run, ts),
+        "spikes.csv": _spikes(replay, span, run, ts),
+    }
+
+
+def _transmissions(
+    replay: Replay, span: Span, run: list[Any], ts: Callable[[float], float]
+) -> Table:
+    head = [*RUN_COLUMNS, "turn", "phase", "kind", "sender", "addressee", "channel", "code",
+            "meaning", "start", "end", "pulses"]  # fmt: skip
+    rows = [
         [
-            *run_vals,
+            *run,
             x.turn,
             x.phase,
             x.kind,
@@ -65,24 +69,15 @@ def csv_tables(
         for x in replay.transmissions
         if in_span(x.start, span, until=x.end)
     ]
-    dec_head = [
-        *run_cols,
-        "t",
-        "unit",
-        "sender",
-        "addressee",
-        "channel",
-        "kind",
-        "code",
-        "margin",
-        "accepted",
-        "turn",
-        "sent",
-        "matches",
-    ]
-    dec_rows = [
+    return head, rows
+
+
+def _decodes(replay: Replay, span: Span, run: list[Any], ts: Callable[[float], float]) -> Table:
+    head = [*RUN_COLUMNS, "t", "unit", "sender", "addressee", "channel", "kind", "code", "margin",
+            "accepted", "turn", "sent", "matches"]  # fmt: skip
+    rows = [
         [
-            *run_vals,
+            *run,
             ts(d.t),
             d.unit,
             d.sender,
@@ -99,7 +94,10 @@ def csv_tables(
         for d in replay.decodes
         if in_span(d.t, span)
     ]
+    return head, rows
 
+
+def _decisions(replay: Replay, span: Span, run: list[Any], ts: Callable[[float], float]) -> Table:
     u = replay.scenario.universe if replay.scenario is not None else None
 
     def alt(v: Any) -> str:  # the text form (1, 0, {alpha}); empty when there is none
@@ -107,22 +105,11 @@ def csv_tables(
             return ""
         return u.format(u.from_list(v)) if u is not None else "{" + ",".join(v) + "}"
 
-    dn_head = [
-        *run_cols,
-        "t",
-        "unit",
-        "subject",
-        "A",
-        "B",
-        "low",
-        "high",
-        "frustrated",
-        "choice",
-        "canonical",
-    ]
-    dn_rows = [
+    head = [*RUN_COLUMNS, "t", "unit", "subject", "A", "B", "low", "high", "frustrated",
+            "choice", "canonical"]  # fmt: skip
+    rows = [
         [
-            *run_vals,
+            *run,
             ts(d["t"]),
             d["unit"],
             d["subject"],
@@ -137,18 +124,17 @@ def csv_tables(
         for d in replay.decisions
         if in_span(d["t"], span)
     ]
-    sp_head = [*run_cols, "t", "unit", "channel", "omega", "sample"]
-    sp_rows = [
-        [*run_vals, ts(s["t"]), s["unit"], s["channel"], s["omega"], s["sample"]]
+    return head, rows
+
+
+def _spikes(replay: Replay, span: Span, run: list[Any], ts: Callable[[float], float]) -> Table:
+    head = [*RUN_COLUMNS, "t", "unit", "channel", "omega", "sample"]
+    rows = [
+        [*run, ts(s["t"]), s["unit"], s["channel"], s["omega"], s["sample"]]
         for s in replay.spikes
         if in_span(s["t"], span)
     ]
-    return {
-        "transmissions.csv": (tx_head, tx_rows),
-        "decodes.csv": (dec_head, dec_rows),
-        "decisions.csv": (dn_head, dn_rows),
-        "spikes.csv": (sp_head, sp_rows),
-    }
+    return head, rows
 
 
 def write_csv(header: list[str], rows: list[list[Any]], stream: IO[str]) -> None:

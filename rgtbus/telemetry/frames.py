@@ -14,7 +14,8 @@ from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any
 
 from rgtbus.summary import summary_json
-from rgtbus.telemetry.read import NS, Replay, load_replay
+from rgtbus.telemetry.read import Replay, load_replay
+from rgtbus.timebase import seconds
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -43,6 +44,7 @@ class Log:
 
     @property
     def units(self) -> tuple[str, ...]:
+        """The run's units, in scenario order."""
         return self.replay.units
 
     @property
@@ -120,7 +122,7 @@ class Log:
         import pandas as pd
 
         msgs = self.replay.by_topic.get(topic, [])
-        rows = [{"log_time": t, "log_seconds": t / NS, **_fields(m)} for t, m in msgs]
+        rows = [{"log_time": t, "log_seconds": seconds(t), **_fields(m)} for t, m in msgs]
         return pd.DataFrame(rows)
 
 

@@ -14,18 +14,18 @@ message is not sent when written but when due: at wall time
 (``origin``: ``begin()``, just before the run starts) a thread releases every message whose
 log time t has come, and broadcasts the time. Unpaced, a message goes out when written.
 
-Bounded, whatever the clients do. Handing a message to the server costs ~0.5 µs per client
-(each gets a copy, under the GIL). While that is cheap (``_DIRECT``, measured as it goes),
-``put`` hands an unpaced message over itself; when it is not (many clients), ``put`` only
+Bounded, whatever the clients do. Handing a message to the server costs in proportion to its
+clients (each gets a copy, under the GIL). While that is cheap (``_DIRECT``, measured as it
+goes), ``put`` hands an unpaced message over itself; when it is not (many clients), ``put`` only
 queues, and the view's thread hands messages over in batches, resting in proportion to its work
 (``_SHARE``: 10% of the time at most; the server's own threads still write to every client's
-socket, measured: 120 clients cost a traced gate run ~1.3x). What is queued and not
-yet handed over is capped (``queue_bytes``: beyond it the oldest messages are dropped, counted
-in ``dropped``); the server keeps at most ``backlog`` messages per client (the SDK drops a slow
-client's oldest first), so a client that never reads costs at most its backlog; at most
-``max_channels`` topics are served (more: counted in ``refused``). ``close`` gives the server
-``STOP_TIMEOUT`` seconds to stop: a client that no longer reads holds the SDK's last close frame
-forever, and is left behind (said on stderr) rather than waited for.
+socket). What is queued and not yet handed over is capped (``queue_bytes``: beyond it the
+oldest messages are dropped, counted in ``dropped``); the server keeps at most ``backlog``
+messages per client (the SDK drops a slow client's oldest first), so a client that never reads
+costs at most its backlog; at most ``max_channels`` topics are served (more: counted in
+``refused``). ``close`` gives the server ``STOP_TIMEOUT`` seconds to stop: a client that no
+longer reads holds the SDK's last close frame forever, and is left behind (said on stderr)
+rather than waited for.
 
 What the server speaks: foxglove-sdk 0.30's WebSocket server, subprotocol ``foxglove.sdk.v1``
 (Foxglove desktop and app.foxglove.dev: "Open connection", "Foxglove WebSocket",
@@ -52,7 +52,7 @@ from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
 _TICK = 0.05  # s of wall time between time broadcasts while paced and idle
-BACKLOG = 4096  # messages per client in the server (~1 MB of a traced gate's; oldest dropped)
+BACKLOG = 4096  # messages per client in the server (the oldest dropped)
 QUEUE_BYTES = 32 << 20  # put, not yet handed to the server (beyond: the oldest dropped)
 MAX_CHANNELS = 1024  # topics served (a run's own: ~12, plus one /trace/<unit> per unit)
 STOP_TIMEOUT = 2.0  # s that close() waits for the server to stop
@@ -177,10 +177,12 @@ class LiveView:
 
     @property
     def port(self) -> int:
+        """The port the server listens on (the one it was given, or the free one it took for 0)."""
         return int(self.server.port)
 
     @property
     def url(self) -> str:
+        """The server's WebSocket address, ``ws://HOST:PORT`` (an IPv6 host in brackets)."""
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port}"
 
@@ -215,7 +217,7 @@ class LiveView:
 
     def watched(self) -> bool:
         """Always: a Foxglove client may connect at any moment and must get each message as
-        the server's clock reaches it (issue 23)."""
+        the server's clock reaches it."""
         return True
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
@@ -223,8 +225,8 @@ class LiveView:
         else queued for the view's thread. Never waits for the server or a client."""
         if self.realtime is None and self._direct(topic, schema, data, t_ns):
             return
-        # A copy: the recorder's JSON (orjson's bytes) keeps ~4 KB of allocation behind each
-        # ~200-byte message (measured, orjson 3.13), which the queue's budget would not see.
+        # A copy: the recorder's JSON (orjson's bytes) keeps far more allocation behind a
+        # message than its length, which the queue's budget would not see.
         item = (t_ns, next(self._order), topic, schema, bytes(memoryview(data)))
         with self._wake:
             if self._closing:

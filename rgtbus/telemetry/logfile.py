@@ -49,7 +49,7 @@ def _open_locked(path: Path) -> BinaryIO:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
                 if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
-                    pass  # a file system without locks: written unguarded, as before
+                    pass  # a file system without locks: written unguarded
                 elif exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                     raise
                 else:

@@ -4,8 +4,8 @@ Every reader opens the log with ``check_log`` (rgtbus.telemetry.scan), which che
 whole first: a damaged log is refused in one line (``RgtbusError``), never read as if it were
 whole. ``log_info`` reads a finished log from its summary section (statistics, schemas,
 channels, chunk indexes, metadata index) and the ``/run`` record through the chunk index, once
-its data-section and summary CRCs have vouched for every byte (a CRC-32 pass over the file: about
-35 ms on a 68 MB log, no decompression). A log without a summary or CRCs, or cut short (the run
+its data-section and summary CRCs have vouched for every byte (a CRC-32 pass over the file, no
+decompression). A log without a summary or CRCs, or cut short (the run
 was killed), is scanned record by record instead, every chunk's CRC checked, and says so.
 
 ``cat_messages`` yields messages as JSON-ready dicts, filtered by topic, unit and time (the
@@ -28,9 +28,9 @@ from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
+from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic
 from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
-
-NS = 1_000_000_000
+from rgtbus.timebase import ns, seconds
 
 
 def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
@@ -54,8 +54,8 @@ def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
         if ch.schema_id in summary.schemas
     }
     run = None
-    if any(ch.topic == "/run" for ch in channels.values()):
-        for _, _, m in reader.iter_messages(topics=["/run"]):
+    if any(ch.topic == RUN for ch in channels.values()):
+        for _, _, m in reader.iter_messages(topics=[RUN]):
             run = _run_record(label, m.data)
     compression = sorted({c.compression or "none" for c in summary.chunk_indexes})
     return _info(
@@ -87,7 +87,7 @@ def _scanned_info(log: CheckedLog, raw: RawLog) -> dict[str, Any]:
     times = [t for _, t, *_ in raw.messages]
     run = None
     for cid, _, _, _, data in raw.messages:
-        if topics[cid] == "/run":
+        if topics[cid] == RUN:
             run = _run_record(label, data)
     metadata: dict[str, dict[str, str]] = {}
     for name, values in raw.metadata:
@@ -144,9 +144,9 @@ def _info(
         "log": label,
         "bytes": size,
         "library": library,
-        "start": None if start is None else start / NS,
-        "end": None if end is None else end / NS,
-        "duration": None if start is None or end is None else (end - start) / NS,
+        "start": None if start is None else seconds(start),
+        "end": None if end is None else seconds(end),
+        "duration": None if start is None or end is None else seconds(end - start),
         "messages": sum(counts.values()),
         "topics": {t: {"count": n, "schema": schemas.get(t)} for t, n in counts.items()},
         "compression": compression,
@@ -239,7 +239,7 @@ def info_text(info: dict[str, Any]) -> str:
     )
     lines.append(f"outcome:     {_outcome_text(info)}")
     lines.append(f"messages:    {info['messages']}")
-    from tabulate import tabulate  # 50 ms to import: only for the text
+    from tabulate import tabulate  # slow to import: only for the text
 
     rows = [[topic, str(v["count"]), v["schema"] or ""] for topic, v in info["topics"].items()]
     table = tabulate(
@@ -295,9 +295,9 @@ def _size(n: int) -> str:
 def _unit_of(topic: str, message: dict[str, Any]) -> str | None:
     """The unit a message is about: the receiving, sending or reasoning unit; a trace's unit;
     a log line's name. The medium and the run summary belong to no unit."""
-    if topic.startswith("/trace/"):
-        return topic[len("/trace/") :]
-    if topic == "/log":
+    if is_trace_topic(topic):
+        return topic[len(TRACE_PREFIX) :]
+    if topic == LOG:
         return message.get("name")
     unit = message.get("unit")
     return unit if isinstance(unit, str) else None
@@ -329,8 +329,8 @@ def cat_messages(
         raise RgtbusError(f"--unit {unit!r}: not a unit of this log ({', '.join(info['units'])})")
     if info["start"] is not None:
         check_time_range(t_from, t_to, info["start"], info["end"])
-    start = None if t_from is None else round(t_from * NS)
-    end = None if t_to is None else round(t_to * NS)  # inclusive, like start
+    start = None if t_from is None else ns(t_from)
+    end = None if t_to is None else ns(t_to)  # inclusive, like start
     wanted = set(topics) if topics else None
     if log.raw is not None:
         yield from _cat_scanned(log.raw, wanted, unit, start, end)
@@ -381,7 +381,7 @@ def _record(topic: str, log_time: int, data: bytes, unit: str | None) -> dict[st
             return None
         # a record units share (/rx/spike): shown as that unit's own
         message = {"unit": unit, **{k: v for k, v in message.items() if k != "units"}}
-    return {"topic": topic, "t": log_time / NS, "log_time": log_time, "message": message}
+    return {"topic": topic, "t": seconds(log_time), "log_time": log_time, "message": message}
 
 
 def check_time_range(

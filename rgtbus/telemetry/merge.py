@@ -33,6 +33,9 @@ _COMPRESSION = {
 
 @dataclass
 class MergeResult:
+    """What ``merge_logs`` wrote: message, channel and schema counts, the metadata records and the
+    names it gave the ones it renamed, and the inputs that were cut short."""
+
     messages: int = 0
     duplicates: int = 0  # identical messages dropped
     channels: int = 0
@@ -40,6 +43,10 @@ class MergeResult:
     metadata: list[str] = field(default_factory=list)  # record names written
     renamed: dict[str, str] = field(default_factory=dict)  # "input K: NAME" -> new name
     notes: list[str] = field(default_factory=list)  # truncated inputs
+
+
+# one message to write: (log time, input, order in its input, channel id, publish time, data)
+_Entry = tuple[int, int, int, int, int, bytes]
 
 
 def merge_logs(
@@ -62,11 +69,23 @@ def merge_logs(
     res = MergeResult()
     writer = Writer(stream, compression=_COMPRESSION[compression], enable_data_crcs=True)
     writer.start(profile="", library=f"rgtbus {__version__} merge")
+    entries = _register(writer, logs, res)
+    _write_messages(writer, entries, dedupe, res)
+    kept = _merged_metadata(logs, res)
+    for name, values in kept.items():
+        writer.add_metadata(name, values)
+    res.metadata = list(kept)
+    writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer leaves it bare
+    return res
 
-    schema_ids: dict[tuple, int] = {}
-    channel_ids: dict[tuple, int] = {}
-    topic_of: dict[int, str] = {}
-    entries: list[tuple[int, int, int, int, int, bytes]] = []
+
+def _register(writer: Writer, logs: Sequence[RawLog], res: MergeResult) -> list[_Entry]:
+    """Every input's schemas and channels registered once each (identical ones shared), and
+    every message as an entry on its merged channel, in log-time order (ties: input order,
+    then file order)."""
+    schema_ids: dict[tuple[str, str, bytes], int] = {}
+    channel_ids: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
+    entries: list[_Entry] = []
     for k, log in enumerate(logs):
         if log.note:
             res.notes.append(log.note)
@@ -86,12 +105,18 @@ def merge_logs(
                 channel_ids[channel_key] = writer.register_channel(
                     c.topic, c.message_encoding, sid, dict(c.metadata)
                 )
-                topic_of[channel_ids[channel_key]] = c.topic
             local_channel[cid] = channel_ids[channel_key]
         for order, (cid, log_time, publish_time, _, data) in enumerate(log.messages):
             entries.append((log_time, k, order, local_channel[cid], publish_time, data))
     entries.sort(key=lambda e: (e[0], e[1], e[2]))
+    res.channels = len(channel_ids)
+    res.schemas = len(schema_ids)
+    return entries
 
+
+def _write_messages(writer: Writer, entries: list[_Entry], dedupe: bool, res: MergeResult) -> None:
+    """The entries, renumbered per channel; one of two identical messages (same channel, log
+    time and bytes) dropped when ``dedupe``."""
     seen: set[tuple[int, int, bytes]] = set()
     sequence: Counter[int] = Counter()
     for log_time, _, _, cid, publish_time, data in entries:
@@ -105,6 +130,10 @@ def merge_logs(
         writer.add_message(cid, log_time, data, publish_time, sequence[cid])
         res.messages += 1
 
+
+def _merged_metadata(logs: Sequence[RawLog], res: MergeResult) -> dict[str, dict[str, str]]:
+    """Every input's metadata records, each once (a name taken by a different record renamed
+    ``NAME.K``), and the ``merge`` record listing the inputs."""
     kept: dict[str, dict[str, str]] = {}
     for k, log in enumerate(logs, start=1):
         for name, values in log.metadata:
@@ -127,10 +156,4 @@ def merge_logs(
         "truncated": json.dumps(res.notes),
         "duplicates_dropped": str(res.duplicates),
     }
-    for name, values in kept.items():
-        writer.add_metadata(name, values)
-    res.metadata = list(kept)
-    res.channels = len(channel_ids)
-    res.schemas = len(schema_ids)
-    writer.finish()
-    return res
+    return kept

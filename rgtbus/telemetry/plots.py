@@ -28,8 +28,10 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.logtools import check_time_range
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from rgtbus.rgt.algebra import Universe
     from rgtbus.telemetry.read import Replay
 
 WIDTH_IN = 14.0
@@ -122,7 +124,6 @@ def activity_figure(
     lo, hi = check_time_range(t_from, t_to, 0.0, end)
     channels = list(trace["channels"]) or units
     color = {u: _COLORS[i % len(_COLORS)] for i, u in enumerate(units)}
-    omegas = replay.info()["frequencies"]
 
     w, h = figure_size(len(channels), len(units))
     fig = Figure(figsize=(w, h), dpi=DPI, layout="constrained")
@@ -138,50 +139,10 @@ def activity_figure(
         f"seed {replay.info()['seed']} ({source}); {lo:g}–{hi:g} s",
         fontsize=SUPTITLE_FONT,
     )
-    attention = attention_spikes(replay, unit)
-
-    t = np.asarray(trace["t"])
-    y = np.asarray(trace["y"])
-    view = (t >= lo) & (t <= hi)
-    px_per_s = (WIDTH_IN * DPI * 0.86) / (hi - lo)  # axes width ≈ 86 % of the figure
+    panels = _Panels(replay, unit, trace, lo, hi, color)
     hidden_total = 0
     for ci, (ax, ch) in enumerate(zip(chan_axes, channels, strict=True)):
-        if y.size:
-            ax.plot(t[view], y[view, ci], color="0.25", lw=0.6, label="resonator y")
-        ax.axhline(1.0, color="0.6", lw=0.6, ls="--")
-        ax.axhline(0.0, color="0.85", lw=0.5)
-        # pulses on this channel, coloured by sender
-        for tx in replay.transmissions:
-            if tx.channel != ch or tx.end < lo or tx.start > hi:
-                continue
-            ts = [p[0] for p in tx.pulses]
-            ms = [p[1] for p in tx.pulses]
-            ax.vlines(ts, 0, ms, color=color[tx.sender], lw=1.6)
-        spikes = [
-            s["t"]
-            for s in replay.spikes
-            if s["unit"] == unit and s["channel"] == ch and lo <= s["t"] <= hi
-        ]
-        other = [x for x in spikes if (ch, x) not in attention]
-        accepted = [x for x in spikes if (ch, x) in attention]
-        if other:  # drawn first: an attention spike on the same sample stays on top
-            ax.plot(other, [_Y_SPIKE] * len(other), ls="", **_OTHER_SPIKE)
-        if accepted:
-            ax.plot(accepted, [_Y_SPIKE] * len(accepted), ls="", **_ATTENTION_SPIKE)
-        hidden_total += _labels(ax, replay, ch, lo, hi, px_per_s, color)
-        om = omegas.get(ch)
-        ax.set_title(
-            f"channel {ch}" + (f" (ω = {om:.3f} rad/s)" if om else ""),
-            loc="left",
-            fontsize=TITLE_FONT,
-        )
-        ax.set_ylim(-1.7, 3.3)
-        ax.set_yticks([-1, 0, 1])
-        ax.set_ylabel("y", fontsize=FONT)
-        ax.tick_params(labelsize=FONT)
-        ax.set_xlim(lo, hi)
-        if ci < len(channels) - 1:
-            ax.tick_params(labelbottom=False)
+        hidden_total += panels.draw(ax, ci, ch, last=ci == len(channels) - 1)
     chan_axes[-1].set_xlabel("t (s)", fontsize=FONT)
     if hidden_total:
         chan_axes[0].text(
@@ -195,6 +156,78 @@ def activity_figure(
             color="0.4",
         )
     _timeline(axes[-1], replay, lo, hi, end, color)
+    _legend(fig, units, color)
+    return fig
+
+
+class _Panels:
+    """What every channel's panel of one unit's figure draws from: its trace in the range
+    shown, the log's pulses and the unit's spikes (attention spikes told apart)."""
+
+    def __init__(
+        self,
+        replay: Replay,
+        unit: str,
+        trace: dict[str, Any],
+        lo: float,
+        hi: float,
+        color: dict[str, str],
+    ) -> None:
+        self.replay, self.unit, self.lo, self.hi, self.color = replay, unit, lo, hi, color
+        self.omegas = replay.info()["frequencies"]
+        self.attention = attention_spikes(replay, unit)
+        self.t = np.asarray(trace["t"])
+        self.y = np.asarray(trace["y"])
+        self.view = (self.t >= lo) & (self.t <= hi)
+        self.px_per_s = (WIDTH_IN * DPI * 0.86) / (hi - lo)  # axes width ≈ 86 % of the figure
+
+    def draw(self, ax: Axes, ci: int, ch: str, *, last: bool) -> int:
+        """Channel ``ch`` (column ``ci`` of the trace) on ``ax``; how many labels did not fit."""
+        replay, lo, hi = self.replay, self.lo, self.hi
+        if self.y.size:
+            ax.plot(
+                self.t[self.view], self.y[self.view, ci], color="0.25", lw=0.6, label="resonator y"
+            )
+        ax.axhline(1.0, color="0.6", lw=0.6, ls="--")
+        ax.axhline(0.0, color="0.85", lw=0.5)
+        # pulses on this channel, coloured by sender
+        for tx in replay.transmissions:
+            if tx.channel != ch or tx.end < lo or tx.start > hi:
+                continue
+            ts = [p[0] for p in tx.pulses]
+            ms = [p[1] for p in tx.pulses]
+            ax.vlines(ts, 0, ms, color=self.color[tx.sender], lw=1.6)
+        spikes = [
+            s["t"]
+            for s in replay.spikes
+            if s["unit"] == self.unit and s["channel"] == ch and lo <= s["t"] <= hi
+        ]
+        other = [x for x in spikes if (ch, x) not in self.attention]
+        accepted = [x for x in spikes if (ch, x) in self.attention]
+        if other:  # drawn first: an attention spike on the same sample stays on top
+            ax.plot(other, [_Y_SPIKE] * len(other), ls="", **_OTHER_SPIKE)
+        if accepted:
+            ax.plot(accepted, [_Y_SPIKE] * len(accepted), ls="", **_ATTENTION_SPIKE)
+        hidden = _labels(ax, replay, ch, lo, hi, self.px_per_s, self.color)
+        om = self.omegas.get(ch)
+        ax.set_title(
+            f"channel {ch}" + (f" (ω = {om:.3f} rad/s)" if om else ""),
+            loc="left",
+            fontsize=TITLE_FONT,
+        )
+        ax.set_ylim(-1.7, 3.3)
+        ax.set_yticks([-1, 0, 1])
+        ax.set_ylabel("y", fontsize=FONT)
+        ax.tick_params(labelsize=FONT)
+        ax.set_xlim(lo, hi)
+        if not last:
+            ax.tick_params(labelbottom=False)
+        return hidden
+
+
+def _legend(fig: Figure, units: list[str], color: dict[str, str]) -> None:
+    """The figure's legend below its panels: the trace, the threshold, both kinds of spike and
+    each unit's pulses."""
     from matplotlib.lines import Line2D
 
     handles = [
@@ -213,7 +246,6 @@ def activity_figure(
         fontsize=FONT,
         frameon=False,
     )
-    return fig
 
 
 _ATTENTION_SPIKE: dict[str, Any] = {"marker": "v", "color": "#d62728", "ms": 8}
@@ -221,7 +253,7 @@ _OTHER_SPIKE: dict[str, Any] = {"marker": "v", "mfc": "none", "mec": "0.5", "mew
 
 
 def _labels(
-    ax, replay: Replay, ch: str, lo: float, hi: float, px_per_s: float, color: dict[str, str]
+    ax: Axes, replay: Replay, ch: str, lo: float, hi: float, px_per_s: float, color: dict[str, str]
 ) -> int:
     """Transmission labels on a channel, greedily in staggered rows; returns how many did not
     fit."""
@@ -260,7 +292,9 @@ def _labels(
     return hidden
 
 
-def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[str, str]) -> None:
+def _timeline(
+    ax: Axes, replay: Replay, lo: float, hi: float, end: float, color: dict[str, str]
+) -> None:
     units = list(replay.units)
     row = {u: len(units) - 1 - i for i, u in enumerate(units)}
     # phases of the protocol as bands
@@ -326,7 +360,7 @@ def _timeline(ax, replay: Replay, lo: float, hi: float, end: float, color: dict[
     ax.set_xlabel("t (s), whole run", fontsize=FONT)
 
 
-def _alt(value: Any, universe) -> str:
+def _alt(value: Any, universe: Universe | None) -> str:
     if value is None:
         return "none"
     if universe is None:

@@ -34,18 +34,32 @@ from rgtbus.summary import (
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LogContents
 from rgtbus.telemetry.records import (
+    LOG,
+    MEDIUM,
+    RUN,
+    RX_DECODE,
+    RX_DECODES,
+    RX_SPIKE,
+    TX_PULSE,
+    UNIT_DECISION,
+    UNIT_INFLUENCES,
+    UNIT_RELATIONS,
+    UNIT_REPORT,
     DecisionRecord,
     InfluencesRecord,
     RelationsRecord,
     RunRecord,
     decode_rows,
+    is_trace_topic,
     spike_samples,
     spike_units,
+    trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
-from rgtbus.timebase import NS_PER_SECOND, ns
+from rgtbus.timebase import ns, seconds, time_of
 
-NS = NS_PER_SECOND  # log_time units per second (rgtbus.timebase)
+# Two logged times of one instant agree to within this (a log time is whole nanoseconds).
+_NANOSECOND = seconds(1)
 
 
 @dataclass
@@ -66,11 +80,15 @@ class Transmission:
 
     @property
     def label(self) -> str:
+        """``sender → addressee: meaning``, as a plot labels the code."""
         return f"{self.sender} → {self.addressee}: {self.meaning}"
 
 
 @dataclass
 class DecodeRow:
+    """One decode as the log holds it, matched with the transmission it read (``turn``, ``sent``)
+    and whether it read what was sent (``matches``)."""
+
     unit: str
     t: float
     sender: str
@@ -97,6 +115,8 @@ class Mismatch:
     recomputed: Any
 
     def text(self) -> str:
+        """The disagreement in one line: topic, time, unit, field, both values (long values cut
+        short)."""
         when = "" if self.t is None else f" t={self.t:.3f}s"
         who = "" if self.unit is None else f" unit={self.unit}"
         return (
@@ -161,8 +181,8 @@ def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
 
 
 def spike_rows(
-    records: Iterable[dict], frequencies: dict[str, float], tau: float | None = None
-) -> list[dict]:
+    records: Iterable[dict[str, Any]], frequencies: dict[str, float], tau: float | None = None
+) -> list[dict[str, Any]]:
     """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
     records: a unit's spikes of one block as columns (``spike_samples``); ω comes
     from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
@@ -175,7 +195,7 @@ def spike_rows(
             units, k0, t0 = spike_units(m), m["sample"], m["t"]
             step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
             for k, chans in spike_samples(m):
-                t = k * step if k != k0 else t0
+                t = time_of(k, step) if k != k0 else t0
                 for unit in units:  # a shared record: each unit heard the same spikes
                     for ch in chans:
                         om = frequencies.get(ch)
@@ -192,11 +212,11 @@ def spike_rows(
     return rows
 
 
-_NOT_PROGRESS = frozenset({"/medium", "/run", "/unit/report", "/log"})
+_NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
 # logged as each send is planned (or, with a live view or a paced run, by a unit's transmitter
 # as the clock reaches each pulse), not in step with the unit's other records: what a unit
 # logged before its last record or spike block holds every pulse before that time as well
-_ON_TIME = frozenset({"/tx/pulse"})
+_ON_TIME = frozenset({TX_PULSE})
 
 
 class Replay:
@@ -208,7 +228,7 @@ class Replay:
         self.metadata: dict[str, dict[str, str]] = contents.metadata
         self.truncated: bool = contents.truncated
         self.note: str = contents.note
-        self.by_topic: dict[str, list[tuple[int, dict]]] = defaultdict(list)
+        self.by_topic: dict[str, list[tuple[int, dict[str, Any]]]] = defaultdict(list)
         for topic, t, msg in contents.messages:
             self.by_topic[topic].append((t, msg))
         self._decodes_as_rows()
@@ -225,21 +245,21 @@ class Replay:
             self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
         # the records as their writers built them (rgtbus.telemetry.records)
         self.run: RunRecord | None = (
-            cast(RunRecord, self.by_topic["/run"][-1][1]) if self.by_topic["/run"] else None
+            cast(RunRecord, self.by_topic[RUN][-1][1]) if self.by_topic[RUN] else None
         )
         self.transmissions = self._transmissions()
         self.decodes = self._decodes()
         self.frequencies = _frequencies(self.metadata)
         tau = self.scenario.timing.tau if self.scenario is not None else None
-        self.spikes = spike_rows((m for _, m in self.by_topic["/rx/spike"]), self.frequencies, tau)
+        self.spikes = spike_rows((m for _, m in self.by_topic[RX_SPIKE]), self.frequencies, tau)
         self.relations: dict[str, RelationsRecord] = {
-            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic["/unit/relations"]
+            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
         }
         self.influences: dict[str, InfluencesRecord] = {
-            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic["/unit/influences"]
+            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]
         }
         self.decisions: list[DecisionRecord] = [
-            cast(DecisionRecord, m) for _, m in self.by_topic["/unit/decision"]
+            cast(DecisionRecord, m) for _, m in self.by_topic[UNIT_DECISION]
         ]
 
     # -- construction ------------------------------------------------------------------------
@@ -247,13 +267,13 @@ class Replay:
     def _decodes_as_rows(self) -> None:
         """Every decode as one ``/rx/decode`` message at its own time, however the log holds
         it (one a decode, or columns a wake in ``/rx/decodes``): what every reader reads."""
-        blocks = self.by_topic.get("/rx/decodes")
+        blocks = self.by_topic.get(RX_DECODES)
         if not blocks:
             return
-        rows = self.by_topic["/rx/decode"]
+        rows = self.by_topic[RX_DECODE]
         for _, m in blocks:
             for row in decode_rows(m):
-                rows.append((ns(row["t"]), cast(dict, row)))
+                rows.append((ns(row["t"]), cast(dict[str, Any], row)))
         rows.sort(key=lambda r: r[0])  # stable: a unit's decodes of one time keep their order
 
     def _load_scenario(self) -> None:
@@ -272,6 +292,7 @@ class Replay:
         self.scenario = sc
 
     def require_scenario(self) -> Scenario:
+        """The log's scenario, or RgtbusError saying why it cannot be re-run."""
         if self.scenario is None:
             raise RgtbusError(f"{self.label}: cannot re-run: {self.scenario_error}")
         return self.scenario
@@ -280,14 +301,14 @@ class Replay:
         if self.scenario is not None:
             return self.scenario.units
         seen: dict[str, None] = {}
-        for topic in ("/tx/pulse", "/rx/spike", "/rx/decode", "/unit/relations"):
+        for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, UNIT_RELATIONS):
             for _, m in self.by_topic[topic]:
                 seen.setdefault(m["unit"], None)
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
-        groups: dict[tuple[str, int, int], list[dict]] = {}
-        for _, p in self.by_topic["/tx/pulse"]:
+        groups: dict[tuple[str, int, int], list[dict[str, Any]]] = {}
+        for _, p in self.by_topic[TX_PULSE]:
             m = p["message"]
             groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
         out = []
@@ -330,12 +351,12 @@ class Replay:
         for sent in self.transmissions:
             starts[(sent.sender, sent.kind)].append(sent)
         rows = []
-        for _, d in self.by_topic["/rx/decode"]:
+        for _, d in self.by_topic[RX_DECODE]:
             cls = "id" if d["kind"] == "id" else "payload"
             tx: Transmission | None = None
             for cand in starts[(d["sender"], cls)]:
                 if ("turn" in d and cand.turn == d["turn"]) or (
-                    "turn" not in d and cand.start <= d["t"] + 1e-9  # logs from before turns
+                    "turn" not in d and cand.start <= d["t"] + _NANOSECOND  # logs from before turns
                 ):
                     tx = cand
             if tx is None:
@@ -366,26 +387,31 @@ class Replay:
 
     @property
     def window_seconds(self) -> float | None:
+        """The length of a medium window in seconds (from the scenario, else from a logged window);
+        None when the log says nothing of it."""
         if self.scenario is not None:
             t = self.scenario.timing
             return t.window_samples / t.sample_rate
-        med = self.by_topic["/medium"]
+        med = self.by_topic[MEDIUM]
         if med:
-            return len(med[0][1]["samples"]) / med[0][1]["sample_rate"]
+            rate: float = med[0][1]["sample_rate"]
+            return len(med[0][1]["samples"]) / rate
         return None
 
     @property
     def windows(self) -> int:
-        return len(self.by_topic["/medium"])
+        """How many windows of the medium are logged (the ones that carry a pulse)."""
+        return len(self.by_topic[MEDIUM])
 
     @property
     def sim_seconds(self) -> float:
         """The run's simulated length: from its ``/run`` record, else as far as the log goes."""
         if self.run is not None:
             return float(self.run["sim_seconds"])
-        return round(max((m[1] for m in self.contents.messages), default=0) / NS, 6)
+        return round(seconds(max((m[1] for m in self.contents.messages), default=0)), 6)
 
     def agree(self) -> bool:
+        """Whether every unit ended with the same relationship table and polynomial."""
         held = [self.relations.get(u) for u in self.units]
         tables = [{} if r is None else r["installed"] for r in held]
         polys = [None if r is None else r["polynomial"] for r in held]
@@ -407,9 +433,9 @@ class Replay:
         a report (its process died) is left out, as the live run leaves it out. Logs from
         before ``/unit/report`` get reports rebuilt from their tables and decisions."""
         decodes: dict[str, list[list[Any]]] = defaultdict(list)
-        for _, d in self.by_topic["/rx/decode"]:
+        for _, d in self.by_topic[RX_DECODE]:
             decodes[d["unit"]].append([d.get("turn"), d["kind"], d["addressee"], d["code"]])
-        reports = {m["unit"]: m for _, m in self.by_topic["/unit/report"]}
+        reports = {m["unit"]: m for _, m in self.by_topic[UNIT_REPORT]}
         if not reports:
             reports = {u: self._legacy_report(u) for u in self.units}
         return [{**reports[u], "decodes": decodes[u]} for u in self.units if u in reports]
@@ -480,6 +506,7 @@ class Replay:
     def spike_counts(
         self, span: tuple[float | None, float | None] | None = None
     ) -> dict[str, dict[str, int]]:
+        """Spikes per unit and channel (within ``span``, from and to in seconds, when given)."""
         counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
         for s in self.spikes:
             if in_span(s["t"], span):
@@ -541,23 +568,25 @@ class Replay:
         ws = L / sc.timing.sample_rate
         out: dict[int, np.ndarray] = {}
         bad: list[Mismatch] = []
-        for t_ns, m in self.by_topic["/medium"]:
+        for t_ns, m in self.by_topic[MEDIUM]:
             w = m["window"]
             if w in out:
-                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w}", "twice", "once"))
+                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w}", "twice", "once"))
                 continue
             if len(m["samples"]) != L:
                 bad.append(
-                    Mismatch("/medium", t_ns / NS, None, f"window {w} length", len(m["samples"]), L)
+                    Mismatch(
+                        MEDIUM, seconds(t_ns), None, f"window {w} length", len(m["samples"]), L
+                    )
                 )
                 continue
-            if not math.isclose(m["t"], w * ws, abs_tol=1e-9) or t_ns != round(w * ws * NS):
-                bad.append(Mismatch("/medium", t_ns / NS, None, f"window {w} t", m["t"], w * ws))
+            if not math.isclose(m["t"], w * ws, abs_tol=_NANOSECOND) or t_ns != ns(w * ws):
+                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w} t", m["t"], w * ws))
             if m["sample_rate"] != sc.timing.sample_rate:
                 bad.append(
                     Mismatch(
-                        "/medium",
-                        t_ns / NS,
+                        MEDIUM,
+                        seconds(t_ns),
                         None,
                         f"window {w} sample_rate",
                         m["sample_rate"],
@@ -587,7 +616,7 @@ class Replay:
         them: the floats add up as the unit added them)."""
         rows: dict[str, list[int]] = {u: [] for u in self.units}
         vals: dict[str, list[float]] = {u: [] for u in self.units}
-        for _, p in self.by_topic["/tx/pulse"]:
+        for _, p in self.by_topic[TX_PULSE]:
             if p["unit"] in rows:
                 rows[p["unit"]].append(int(p["sample"]))
                 vals[p["unit"]].append(float(p["magnitude"]))
@@ -615,9 +644,9 @@ class Replay:
             # what is logged ahead of time (the medium, traces) or once the run is over (the
             # run's and units' reports, and log lines, which a stopped unit writes at its end)
             # says nothing of how far its records are complete
-            if topic in _NOT_PROGRESS or topic in _ON_TIME or _is_trace(topic):
+            if topic in _NOT_PROGRESS or topic in _ON_TIME or is_trace_topic(topic):
                 continue
-            stream = "spikes" if topic == "/rx/spike" else "records"
+            stream = "spikes" if topic == RX_SPIKE else "records"
             for t, m in msgs:
                 if "units" in m and stream == "spikes":  # one record for several units
                     whos = [str(u) for u in m["units"]]
@@ -640,13 +669,16 @@ class Replay:
         )
 
     def traced_units(self) -> list[str]:
-        return [u for u in self.units if self.by_topic.get(f"/trace/{u}")]
+        """The units whose resonator traces the log holds."""
+        return [u for u in self.units if self.by_topic.get(trace_topic(u))]
 
     def trace_arrays(self, unit: str) -> dict[str, Any] | None:
-        msgs = [m for _, m in self.by_topic.get(f"/trace/{unit}", [])]
+        """``unit``'s logged traces stacked as arrays (``stack_traces``); None when none were
+        logged."""
+        msgs = [m for _, m in self.by_topic.get(trace_topic(unit), [])]
         return self.stack_traces(msgs) if msgs else None
 
-    def stack_traces(self, msgs: Sequence[dict | bytes]) -> dict[str, Any]:
+    def stack_traces(self, msgs: Sequence[dict[str, Any] | bytes]) -> dict[str, Any]:
         """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``: one message
         a sample, or (logs of rgtbus before the per-sample layout) one a window."""
         if not msgs:
@@ -674,11 +706,7 @@ def in_span(
         return True
     lo, hi = span
     end = t if until is None else until
-    return (lo is None or end >= lo - 1e-9) and (hi is None or t <= hi + 1e-9)
-
-
-def _is_trace(topic: str) -> bool:
-    return topic.startswith("/trace/")
+    return (lo is None or end >= lo - _NANOSECOND) and (hi is None or t <= hi + _NANOSECOND)
 
 
 def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
@@ -689,7 +717,7 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     verification compares them byte for byte, plots decode one unit's."""
     raw = scan_log(source)
     require_run_log(raw)
-    contents = decode_log(raw, keep_raw=_is_trace)
+    contents = decode_log(raw, keep_raw=is_trace_topic)
     with explained(contents, raw.label):
         return Replay(contents, raw.label)
 
@@ -708,7 +736,7 @@ def schema_error(contents: LogContents) -> str | None:
             message = orjson.loads(message)
         errs = validate.errors(message, topics.load_schema(schema))
         if errs:
-            return f"message on {topic} at t = {t_ns / NS:.3f} s breaks {schema}: {errs[0]}"
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
     return None
 
 

@@ -24,9 +24,9 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
-from rgtbus.timebase import ns
+from rgtbus.telemetry.records import LOG, MEDIUM
+from rgtbus.timebase import NS_PER_SECOND, ns
 
-LOG_TOPIC = "/log"
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
 _COMPRESSION = {
     "zstd": MCAPCompression.Zstd,
@@ -36,21 +36,40 @@ _COMPRESSION = {
 _U64_MAX = 2**64 - 1
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
+# one message as read back: (topic, log time in ns, the message)
+LogMessage = tuple[str, int, dict[str, Any]]
+
 
 @runtime_checkable
 class Recorder(Protocol):
+    """Where a run writes its log: messages by topic at a log time, text lines, metadata records.
+    ``enabled`` False: nothing is kept, so callers may skip building messages."""
+
     enabled: bool
 
-    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None: ...
-    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None: ...
-    def metadata(self, name: str, values: dict[str, str]) -> None: ...
-    def close(self) -> None: ...
+    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """``message`` on ``topic`` at log time ``t_ns`` (integer nanoseconds)."""
+        ...
+
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None:
+        """A text line (``/log``) of ``level`` from ``name`` at ``t_ns``."""
+        ...
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record ``name`` of string values."""
+        ...
+
+    def close(self) -> None:
+        """Finish the log; nothing is written after."""
+        ...
 
 
 class LiveSink(Protocol):
     """Where a recorder also offers each encoded message (a live view)."""
 
-    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None: ...
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        """One encoded message (``data``, JSON under ``schema``) on ``topic`` at ``t_ns``."""
+        ...
 
     def watched(self) -> bool:
         """Whether someone may be looking now, so each message should leave as the run's
@@ -93,7 +112,7 @@ def log_message(
     """A foxglove.Log message."""
     t = _check_t_ns(t_ns)
     return {
-        "timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000},
+        "timestamp": {"sec": t // NS_PER_SECOND, "nsec": t % NS_PER_SECOND},
         "level": level_number(level),
         "message": str(text),
         "name": str(name),
@@ -128,8 +147,7 @@ _CONTAINERS = (dict, list, tuple)
 def _not_finite(value: Any) -> float | None:
     """A NaN or infinity in ``value`` (which orjson writes as null, as it writes None), or
     None. Only the parts whose JSON holds a null are looked into: a unit's report of n² pairs
-    with a None at its top is a few orjson passes, not a walk of every entry (the standard
-    encoder took 12x orjson's time on those, issue 23)."""
+    with a None at its top is a few orjson passes, not a walk of every entry."""
     kind = type(value)
     if kind is float:
         return None if math.isfinite(value) else value
@@ -201,7 +219,7 @@ class _Encoding:
         file: str = "",
         line: int = 0,
     ) -> None:
-        self.write(LOG_TOPIC, log_message(level, text, t_ns, name, file, line), t_ns)
+        self.write(LOG, log_message(level, text, t_ns, name, file, line), t_ns)
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         raise NotImplementedError
@@ -285,8 +303,8 @@ class McapRecorder(_Encoding):
     """Writes an MCAP file to ``stream`` (opened by the caller, never closed here; it must
     support ``write``, ``seek`` and ``tell``). ``close`` finishes the file (summary, footer).
 
-    The writer is foxglove-sdk's (Rust; a message costs ~3 µs against ~10 µs in mcap-py's,
-    which matters for runs of millions of records). Every recorder has its own
+    The writer is foxglove-sdk's (Rust; a message costs a fraction of what it costs in
+    mcap-py's, which matters for runs of millions of records). Every recorder has its own
     ``foxglove.Context``; its channels carry each topic with its JSON Schema, so a live sink
     on the same context (``context``) sees exactly what the file gets.
 
@@ -302,8 +320,9 @@ class McapRecorder(_Encoding):
     seconds past where it was at the chunk's first record (records told late, like a unit's
     spikes, change nothing; a topic written ahead of the present by design, ``ahead_topics``,
     the medium, neither holds the others back nor finishes a chunk by its time). Off, because
-    what a killed process keeps is a matter of wall time, which ``flush_wall`` bounds: a chunk
-    a simulated second cost a 1,700 s run 700 flushes, a sixth of its log's cost (issue 23)."""
+    what a killed process keeps is a matter of wall time, which ``flush_wall`` bounds, and a
+    long run that finishes a chunk every simulated second spends much of its log's cost on
+    flushes."""
 
     def __init__(
         self,
@@ -316,7 +335,7 @@ class McapRecorder(_Encoding):
         flush_messages: int = 4096,
         flush_wall: float = 0.5,
         live: LiveSink | None = None,
-        ahead_topics: Collection[str] = ("/medium",),
+        ahead_topics: Collection[str] = (MEDIUM,),
     ) -> None:
         super().__init__(validate)
         self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
@@ -402,12 +421,15 @@ class McapRecorder(_Encoding):
         channel = topic_channel(self.context, topic, schema)
         self._channels[topic] = channel
         # the channel's own log takes bytes straight to the Rust writer; foxglove's Python
-        # wrapper around it re-checks the message type on every call (~2 µs of ~7)
+        # wrapper around it re-checks the message type on every call, a good part of the cost
         base = getattr(channel, "base", None)
         self._logs[topic] = base.log if base is not None else channel.log
         return channel
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Encode ``message`` on ``topic`` at ``t_ns`` and hand it to the writer (and the live
+        sink); the chunk is finished when due. RgtbusError for a message its topic's schema or
+        JSON cannot take, and once the stream has failed."""
         schema, data, t = self._encode(topic, message, t_ns)
         if self.failed:
             raise RgtbusError(self.failed)
@@ -424,8 +446,8 @@ class McapRecorder(_Encoding):
                 # was at the chunk's first record: records told late (a unit's spikes, logged
                 # when it wakes) do not finish a chunk every few dozen messages; a topic
                 # written ahead of the present by design says nothing of how far the run has
-                # come, so it neither sets nor meets the due time (the medium used to finish
-                # a chunk every few dozen messages: ~2,800 flushes at n = 20)
+                # come, so it neither sets nor meets the due time (else it would finish a chunk
+                # every few dozen messages)
                 if t > self._present:
                     self._present = t
                 if self._flush_due == _U64_MAX:
@@ -451,6 +473,7 @@ class McapRecorder(_Encoding):
             self._writer.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Write a metadata record ``name`` of string values."""
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
@@ -458,6 +481,8 @@ class McapRecorder(_Encoding):
             self._writer.write_metadata(name, values)
 
     def close(self) -> None:
+        """Stop the flusher and finish the file (summary and footer); again does nothing. Nothing
+        is written once the stream has failed."""
         if self._closed:
             return
         self._stop_flusher.set()
@@ -478,18 +503,20 @@ class MemoryRecorder(_Encoding):
 
     def __init__(self, *, validate: bool = True) -> None:
         super().__init__(validate)
-        self.messages: list[tuple[str, int, dict]] = []
+        self.messages: list[LogMessage] = []
         self.metadata_records: dict[str, dict[str, str]] = {}
         self.logs: list[dict[str, Any]] = []
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Keep ``message`` as the file would hold it (JSON round-tripped, validated)."""
         _, data, t = self._encode(topic, message, t_ns)
         decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
-        if topic == LOG_TOPIC:
+        if topic == LOG:
             self.logs.append(decoded)
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Keep a metadata record (one with no values is skipped, as in the file)."""
         if self._closed:
             raise RgtbusError(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
@@ -502,6 +529,7 @@ class MemoryRecorder(_Encoding):
         return LogContents(msgs, {k: dict(v) for k, v in self.metadata_records.items()})
 
     def close(self) -> None:
+        """Refuse further writes."""
         self._closed = True
 
 
@@ -512,15 +540,19 @@ class NullRecorder:
     closed = False
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Nothing."""
         pass
 
     def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus", **_: Any) -> None:
+        """Nothing."""
         pass
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Nothing."""
         pass
 
     def close(self) -> None:
+        """Say it is closed; nothing else."""
         self.closed = True
 
     def __enter__(self) -> Self:
@@ -530,7 +562,7 @@ class NullRecorder:
         self.close()
 
 
-class LogContents(tuple):
+class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     """``(messages, metadata)`` — unpacks as a pair — plus how the read ended.
 
     messages: ``[(topic, log_time_ns, message), ...]`` in log-time order (file order on ties);
@@ -539,14 +571,14 @@ class LogContents(tuple):
     ``end_ns``: log time of the last message read (None when there was none).
     """
 
-    messages: list[tuple[str, int, dict]]
+    messages: list[LogMessage]
     metadata: dict[str, dict[str, str]]
     truncated: bool
     note: str
 
     def __new__(
         cls,
-        messages: list[tuple[str, int, dict]],
+        messages: list[LogMessage],
         metadata: dict[str, dict[str, str]],
         truncated: bool = False,
         note: str = "",
@@ -560,4 +592,5 @@ class LogContents(tuple):
 
     @property
     def end_ns(self) -> int | None:
+        """The log time of the last message read; None when there was none."""
         return max((m[1] for m in self.messages), default=None)

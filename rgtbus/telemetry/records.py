@@ -14,6 +14,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
+from rgtbus.timebase import time_of
 
 if TYPE_CHECKING:
     import numpy as np
@@ -40,6 +41,12 @@ def trace_topic(unit: str) -> str:
     """The topic of ``unit``'s resonator traces."""
     return f"{TRACE_PREFIX}{unit}"
 
+
+def is_trace_topic(topic: str) -> bool:
+    """Whether ``topic`` is one of the ``/trace/<unit>`` family."""
+    return topic.startswith(TRACE_PREFIX)
+
+
 # a column of integers: a numpy array as a writer builds it (the encoder takes it whole), a
 # list as a reader gets it back
 IntColumn: TypeAlias = "Sequence[int] | np.ndarray"
@@ -50,6 +57,8 @@ Alternative = list[str]
 
 
 class MessageRef(TypedDict, total=False):
+    """Which message a pulse belongs to (``message_ref``)."""
+
     id: Required[int]  # turn * 2 (+1 for the payload, a request's or a repeat's)
     kind: Required[str]  # "id" | "payload" | "request" | "repeat"
     code: Required[str]
@@ -59,6 +68,8 @@ class MessageRef(TypedDict, total=False):
 
 
 class PulseRecord(TypedDict):
+    """``/tx/pulse``: one transmitted pulse."""
+
     unit: str
     channel: str
     omega: float
@@ -69,6 +80,9 @@ class PulseRecord(TypedDict):
 
 
 class SpikeRecord(TypedDict, total=False):
+    """``/rx/spike``: a block of resonator spikes of one unit (or of units that heard the same), as
+    columns (``spikes``)."""
+
     unit: str  # the one unit whose spikes these are, or
     units: list[str]  # the units (two or more) that heard these same spikes
     t: float
@@ -79,6 +93,9 @@ class SpikeRecord(TypedDict, total=False):
 
 
 class DecodeRecord(TypedDict):
+    """``/rx/decode``: one decoded code (logs before ``/rx/decodes``; ``decode_rows`` reads a
+    ``/rx/decodes`` record as these)."""
+
     unit: str
     turn: int
     sender: str
@@ -93,6 +110,8 @@ class DecodeRecord(TypedDict):
 
 
 class DecodesRecord(TypedDict, total=False):
+    """``/rx/decodes``: a unit's decodes of one wake, as columns (``decodes``)."""
+
     unit: Required[str]
     t: Required[float]  # the last decode's time: the record's log time
     turn: Required[IntColumn]  # each decode's, in the order the unit made them
@@ -121,6 +140,9 @@ DECODE_COLUMNS = (
 
 
 class RelationsRecord(TypedDict):
+    """``/unit/relations``: a unit's relationship table, what it sent, and the polynomial it
+    derives."""
+
     unit: str
     t: float
     sent: dict[str, str]
@@ -130,6 +152,8 @@ class RelationsRecord(TypedDict):
 
 
 class InfluencesRecord(TypedDict):
+    """``/unit/influences``: the influence table a unit holds, per influence round."""
+
     unit: str
     t: float
     influences: Required[dict[str, Alternative]]
@@ -137,6 +161,8 @@ class InfluencesRecord(TypedDict):
 
 
 class DecisionRecord(TypedDict):
+    """``/unit/decision``: a unit's forward task on one subject and its choice, per round."""
+
     unit: str
     subject: str
     t: float
@@ -150,6 +176,8 @@ class DecisionRecord(TypedDict):
 
 
 class GoalRecord(TypedDict):
+    """``/unit/goal``: a goal-driven unit's influence on a target, chosen by the inverse task."""
+
     unit: str
     t: float
     round: int
@@ -181,6 +209,8 @@ class RepairCounts(TypedDict):
 
 
 class UnitReportRecord(TypedDict, total=False):
+    """``/unit/report``: what a unit knows at the end of its run, its share of the run summary."""
+
     unit: Required[str]
     installed: Required[dict[str, str]]
     polynomial: Required[str | None]
@@ -199,6 +229,8 @@ class UnitReportRecord(TypedDict, total=False):
 
 
 class RunRecord(TypedDict):
+    """``/run``: how the run ended, written last."""
+
     scenario: str
     seed: int
     outcome: Any
@@ -208,6 +240,8 @@ class RunRecord(TypedDict):
 
 
 class MediumRecord(TypedDict):
+    """``/medium``: one window of the shared medium that carries a pulse."""
+
     window: int
     t: float
     sample_rate: float
@@ -215,6 +249,8 @@ class MediumRecord(TypedDict):
 
 
 class TraceRecord(TypedDict):
+    """``/trace/<unit>``: a unit's resonator states at one sample."""
+
     unit: str
     sample: int
     t: float
@@ -259,12 +295,14 @@ def pulse(
     unit: str, channel: str, omega: float, magnitude: float, tau: float, sample: int,
     message: MessageRef,
 ) -> PulseRecord:  # fmt: skip
+    """A ``/tx/pulse`` record: ``unit`` sends ``magnitude`` on ``channel`` (its ω) at ``sample``
+    (its time on a clock of period ``tau``), part of ``message``."""
     return {
         "unit": unit,
         "channel": channel,
         "omega": omega,
         "magnitude": magnitude,
-        "t": sample * tau,
+        "t": time_of(sample, tau),
         "sample": sample,
         "message": message,
     }
@@ -294,7 +332,13 @@ def spikes(
     else:
         record = {"units": list(unit)}
     record.update(
-        {"t": first * tau, "sample": first, "samples": samples, "channel": channel, "names": names}
+        {
+            "t": time_of(first, tau),
+            "sample": first,
+            "samples": samples,
+            "channel": channel,
+            "names": names,
+        }
     )
     return record
 
@@ -308,8 +352,9 @@ def spike_units(record: Mapping[str, Any]) -> list[str]:
     ok = isinstance(units, list) and len(units) >= 2 and "unit" not in record
     if not ok or not all(isinstance(u, str) for u in units) or len(set(units)) < len(units):
         # a record written by hand or tampered with: readers name it by its schema
-        raise TypeError(f"/rx/spike units {units!r}: not two or more unit names alone")
-    return units
+        raise TypeError(f"{RX_SPIKE} units {units!r}: not two or more unit names alone")
+    names: list[str] = units
+    return names
 
 
 def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -323,7 +368,7 @@ def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def _spikes_of(record: Mapping[str, Any]) -> str:
-    return f"/rx/spike of {record.get('unit', record.get('units'))!r}"
+    return f"{RX_SPIKE} of {record.get('unit', record.get('units'))!r}"
 
 
 def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
@@ -361,6 +406,8 @@ def decode(
     unit: str, turn: int, sender: str, addressee: str, channel: str, kind: str, code: str,
     margin: float, t: float, accepted: bool,
 ) -> DecodeRecord:  # fmt: skip
+    """A ``/rx/decode`` record: what ``unit`` read at ``t`` of a code of ``sender`` to
+    ``addressee`` on ``channel``, its margin and whether it took it."""
     return {
         "unit": unit,
         "turn": turn,
@@ -398,7 +445,7 @@ def decodes_of_columns(
     names cost more to make, write and compress than the rest of the record). The columns
     are the record's own from then on (they are not copied)."""
     if not len(cols) or not len(cols[7]):
-        raise RgtbusError(f"/rx/decodes of {unit!r}: no decode to log")
+        raise RgtbusError(f"{RX_DECODES} of {unit!r}: no decode to log")
     margin = cols[6]
     record: DecodesRecord = {
         "unit": unit,
@@ -428,7 +475,7 @@ DECODE_TABLES = ("names", "kinds", "codes")  # the order of ``DecodeTables``
 def _named(unit: str, record: dict[str, Any]) -> None:
     """A record's columns of indexes (``decodes_of_columns`` with tables) as names, in place;
     a table that is not a list of names, or an index out of it: RgtbusError naming both."""
-    where = f"/rx/decodes of {unit!r} at t = {record.get('t')}"
+    where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
     for column, table_name in NAMED_COLUMNS.items():
         table, col = record.get(table_name), record.get(column)
         if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
@@ -467,7 +514,7 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
         )
         want = "a list" if n < 0 else f"{n} entries like times"
         raise RgtbusError(
-            f"/rx/decodes of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
+            f"{RX_DECODES} of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
             f"not {want}"
         )
     for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
@@ -480,6 +527,8 @@ def relations(
     unit: str, t: float, sent: dict[str, str], installed: dict[str, str],
     polynomial: str | None, p4: Sequence[str] | None,
 ) -> RelationsRecord:  # fmt: skip
+    """A ``/unit/relations`` record: the relations ``unit`` sent and the table it installed, with
+    its polynomial (and P4, when there is one)."""
     return {
         "unit": unit,
         "t": t,
@@ -491,6 +540,8 @@ def relations(
 
 
 def influences(unit: str, t: float, table: dict[str, Alternative], rnd: int) -> InfluencesRecord:
+    """An ``/unit/influences`` record: the influence table ``unit`` holds at ``t`` in round
+    ``rnd``."""
     return {"unit": unit, "t": t, "influences": table, "round": rnd}
 
 
@@ -518,6 +569,8 @@ def goal(
     solutions: int | None, reached: int | None, of: int | None, value: Alternative | None,
     sent: Alternative, reason: str,
 ) -> GoalRecord:  # fmt: skip
+    """A ``/unit/goal`` record: the influence on ``target`` a goal-driven unit chose at ``t`` (the
+    inverse task's rule, solutions and how many it reached) and why."""
     return {
         "unit": unit,
         "t": t,
@@ -551,8 +604,10 @@ def run_record(summary: Mapping[str, Any]) -> RunRecord:
 
 
 def medium_window(window: int, t: float, sample_rate: float, samples: list[float]) -> MediumRecord:
+    """A ``/medium`` record: window ``window`` of the medium from ``t``, its samples."""
     return {"window": window, "t": t, "sample_rate": sample_rate, "samples": samples}
 
 
 def trace(unit: str, sample: int, t: float, y: list[float], x: list[float]) -> TraceRecord:
+    """A ``/trace/<unit>`` record: ``unit``'s resonator states ``y`` and ``x`` at ``sample``."""
     return {"unit": unit, "sample": sample, "t": t, "y": y, "x": x}

@@ -1,7 +1,7 @@
 """Reading an MCAP log back, checked: ``scan_log`` (its records, undecoded, with every chunk's
 CRC checked and a cut or corrupt file told apart), ``read_log`` (decoded messages and metadata),
 ``check_log`` (the summary section's CRCs first, for the log tools). Apart from the recorder, so
-a run that only writes its log never loads the reader (start-up, issue 23).
+a run that only writes its log never loads the reader (start-up).
 """
 
 from __future__ import annotations
@@ -53,10 +53,12 @@ class RawLog:
 
     @property
     def truncated(self) -> bool:
+        """Whether the file ends early (``note`` says where)."""
         return bool(self.note)
 
     @property
     def corrupt(self) -> bool:
+        """Whether the file is damaged (``corruption`` says what and where)."""
         return bool(self.corruption)
 
     @property
@@ -162,84 +164,26 @@ def _seconds(t_ns: int) -> str:
     return f"{seconds(t_ns):.3f}"
 
 
+@dataclass
+class _Progress:
+    """How far a scan got: what its exception handlers need to tell a cut from damage."""
+
+    started: bool = False  # a Header read
+    finished: bool = False  # the data section's end (DataEnd) reached
+    start: int = len(MCAP_MAGIC)  # byte offset of the record being read
+
+
 def _scan(stream: IO[bytes], label: str) -> RawLog:
     raw = RawLog(label)
     src = _Tracked(stream)
-    # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
-    # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
-    reader = StreamReader(
-        cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30
-    )
-    started = finished = False  # a Header read; the data section's end (DataEnd) reached
-    start = len(MCAP_MAGIC)  # byte offset of the record being read
-
-    def take(rec: Any) -> None:
-        if isinstance(rec, Message):
-            if rec.channel_id not in raw.channels:
-                raise _Corrupt(
-                    f"record at byte {start}: message on unknown channel {rec.channel_id}"
-                )
-            raw.messages.append(
-                (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
-            )
-        elif isinstance(rec, Channel):
-            raw.channels[rec.id] = rec
-        elif isinstance(rec, Schema):
-            raw.schemas[rec.id] = rec
-
+    at = _Progress()
     try:
-        for rec in reader.records:
-            if src.short:  # the record's declared length ran past the end: not taken
-                raise mcap.exceptions.EndOfFile()
-            if not started and not isinstance(rec, Header):
-                raise _Corrupt(f"record at byte {start}: the first record is not a Header")
-            if isinstance(rec, Header):
-                started = True
-                raw.library = rec.library
-            elif isinstance(rec, Chunk):
-                where = (
-                    f"chunk at byte {start} (log time {_seconds(rec.message_start_time)}"
-                    f"–{_seconds(rec.message_end_time)} s)"
-                )
-                try:
-                    inner = breakup_chunk(rec, validate_crc=True)
-                except CRCValidationError as e:
-                    raise _Corrupt(
-                        f"{where}: CRC mismatch (stored {e.expected:#010x}, "
-                        f"computed {e.actual:#010x})"
-                    ) from None
-                except Exception as e:  # a complete chunk that does not decompress or parse
-                    raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
-                for r in inner:
-                    take(r)
-            elif isinstance(rec, Metadata) and not finished:
-                raw.metadata.append((rec.name, dict(rec.metadata)))
-            elif isinstance(rec, DataEnd):
-                finished = True
-                src.capture = bytearray()  # the summary, then the footer
-            elif isinstance(rec, Footer):
-                finished = True
-                covered = bytes(src.capture or b"")[:-4]  # all but the CRC field itself
-                if rec.summary_crc != 0 and zlib.crc32(covered) != rec.summary_crc:
-                    raise _Corrupt(
-                        f"summary section (from byte {rec.summary_start}): CRC mismatch "
-                        f"(stored {rec.summary_crc:#010x}, computed {zlib.crc32(covered):#010x})"
-                    )
-                src.capture = None
-            elif not finished:
-                take(rec)  # unchunked records; the summary's copies are not needed
-            start = src.pos
-        extra = len(src.read(1))
-        while extra and (more := len(stream.read(1 << 20))):
-            extra += more
-        if extra:
-            raise _Corrupt(
-                f"{extra} bytes of trailing garbage after the footer (the log itself is complete)"
-            )
+        _read_records(raw, src, at)
+        _refuse_trailing_bytes(src, stream)
     except _Corrupt as e:
         raw.corruption = f"{label}: corrupt log: {e}"
     except mcap.exceptions.InvalidMagic:
-        if not started:
+        if not at.started:
             raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
         raw.corruption = f"{label}: corrupt log: bad magic after the footer"
     except CRCValidationError as e:  # the data section's CRC, checked at DataEnd
@@ -248,37 +192,125 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
             f"computed {e.actual:#010x})"
         )
     except Exception as e:  # EndOfFile, short struct reads, a damaged record
-        if not started:
-            if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
-                raise RgtbusError(
-                    f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
-                ) from None
-            raise RgtbusError(
-                f"{label}: not an MCAP file (empty or cut before its header)"
-            ) from None
-        if _chunk_in_progress(stream, start) and not _ends_with_magic(stream):
-            raw.note = (
-                f"{label}: log truncated after {len(raw.messages)} messages (cut in a chunk "
-                "the writer had not finished)"
-            )
-        elif src.short and not _ends_with_magic(stream):
-            n = len(raw.messages)
-            where = "in its summary (all messages present)" if finished else f"after {n} messages"
-            cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
-            why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
-            raw.note = f"{label}: log truncated {where} ({why})"
-        elif src.short:
-            raw.corruption = (
-                f"{label}: corrupt log: record at byte {start} runs past the end of a file "
-                "that ends with MCAP's closing magic (a damaged record length)"
-            )
-        else:
-            raw.corruption = (
-                f"{label}: corrupt log: record at byte {start}: {type(e).__name__}: {e}"
-            )
+        _stopped(e, raw, src, stream, at)
     if raw.note and raw.messages:  # how far it read, in the run's own time
         raw.note += f"; last log time read {seconds(max(m[1] for m in raw.messages)):.6f} s"
     return raw
+
+
+def _read_records(raw: RawLog, src: _Tracked, at: _Progress) -> None:
+    """Every record of the file into ``raw``, ``at`` following along; raises where it stops
+    short (``_Corrupt`` for damage it locates itself)."""
+    # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
+    # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
+    reader = StreamReader(
+        cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30
+    )
+    for rec in reader.records:
+        if src.short:  # the record's declared length ran past the end: not taken
+            raise mcap.exceptions.EndOfFile()
+        if not at.started and not isinstance(rec, Header):
+            raise _Corrupt(f"record at byte {at.start}: the first record is not a Header")
+        if isinstance(rec, Header):
+            at.started = True
+            raw.library = rec.library
+        elif isinstance(rec, Chunk):
+            for r in _chunk_records(rec, at.start):
+                _take(raw, r, at.start)
+        elif isinstance(rec, Metadata) and not at.finished:
+            raw.metadata.append((rec.name, dict(rec.metadata)))
+        elif isinstance(rec, DataEnd):
+            at.finished = True
+            src.capture = bytearray()  # the summary, then the footer
+        elif isinstance(rec, Footer):
+            at.finished = True
+            _check_summary_crc(rec, src)
+        elif not at.finished:
+            _take(raw, rec, at.start)  # unchunked records; the summary's copies are not needed
+        at.start = src.pos
+
+
+def _take(raw: RawLog, rec: Any, start: int) -> None:
+    """A schema, channel or message record into ``raw`` (others are not needed)."""
+    if isinstance(rec, Message):
+        if rec.channel_id not in raw.channels:
+            raise _Corrupt(f"record at byte {start}: message on unknown channel {rec.channel_id}")
+        raw.messages.append(
+            (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
+        )
+    elif isinstance(rec, Channel):
+        raw.channels[rec.id] = rec
+    elif isinstance(rec, Schema):
+        raw.schemas[rec.id] = rec
+
+
+def _chunk_records(chunk: Chunk, start: int) -> list[Any]:
+    """The records of a chunk, its CRC checked; ``_Corrupt`` naming the chunk otherwise."""
+    where = (
+        f"chunk at byte {start} (log time {_seconds(chunk.message_start_time)}"
+        f"–{_seconds(chunk.message_end_time)} s)"
+    )
+    try:
+        records: list[Any] = breakup_chunk(chunk, validate_crc=True)
+    except CRCValidationError as e:
+        raise _Corrupt(
+            f"{where}: CRC mismatch (stored {e.expected:#010x}, computed {e.actual:#010x})"
+        ) from None
+    except Exception as e:  # a complete chunk that does not decompress or parse
+        raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
+    return records
+
+
+def _check_summary_crc(footer: Footer, src: _Tracked) -> None:
+    """The footer's summary CRC over what was read since DataEnd (0: not written)."""
+    covered = bytes(src.capture or b"")[:-4]  # all but the CRC field itself
+    if footer.summary_crc != 0 and zlib.crc32(covered) != footer.summary_crc:
+        raise _Corrupt(
+            f"summary section (from byte {footer.summary_start}): CRC mismatch "
+            f"(stored {footer.summary_crc:#010x}, computed {zlib.crc32(covered):#010x})"
+        )
+    src.capture = None
+
+
+def _refuse_trailing_bytes(src: _Tracked, stream: IO[bytes]) -> None:
+    """``_Corrupt`` when bytes follow the footer's closing magic."""
+    extra = len(src.read(1))
+    while extra and (more := len(stream.read(1 << 20))):
+        extra += more
+    if extra:
+        raise _Corrupt(
+            f"{extra} bytes of trailing garbage after the footer (the log itself is complete)"
+        )
+
+
+def _stopped(e: Exception, raw: RawLog, src: _Tracked, stream: IO[bytes], at: _Progress) -> None:
+    """A scan that stopped on ``e`` mid-record: a file cut short (``raw.note``), damage
+    (``raw.corruption``), or no MCAP file at all (RgtbusError)."""
+    label = raw.label
+    if not at.started:
+        if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
+            raise RgtbusError(
+                f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
+            ) from None
+        raise RgtbusError(f"{label}: not an MCAP file (empty or cut before its header)") from None
+    if _chunk_in_progress(stream, at.start) and not _ends_with_magic(stream):
+        raw.note = (
+            f"{label}: log truncated after {len(raw.messages)} messages (cut in a chunk "
+            "the writer had not finished)"
+        )
+    elif src.short and not _ends_with_magic(stream):
+        n = len(raw.messages)
+        where = "in its summary (all messages present)" if at.finished else f"after {n} messages"
+        cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
+        why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
+        raw.note = f"{label}: log truncated {where} ({why})"
+    elif src.short:
+        raw.corruption = (
+            f"{label}: corrupt log: record at byte {at.start} runs past the end of a file "
+            "that ends with MCAP's closing magic (a damaged record length)"
+        )
+    else:
+        raw.corruption = f"{label}: corrupt log: record at byte {at.start}: {type(e).__name__}: {e}"
 
 
 def require_run_log(raw: RawLog) -> None:
@@ -320,9 +352,9 @@ def _crc_of(stream: IO[bytes], start: int, end: int) -> int | None:
 def verified_by_crcs(stream: IO[bytes]) -> bool:
     """Whether ``stream`` is a finished MCAP file whose data-section CRC and summary CRC were
     both written and both hold: together they cover every byte but the closing magic (checked
-    too), so the whole file is vouched for without decompressing anything (zlib's CRC-32 runs
-    at about 2 GB/s). False when it cannot tell (cut short, a CRC not written, not seekable)
-    or a CRC does not hold: ``scan_log`` then says which and where."""
+    too), so the whole file is vouched for without decompressing anything. False when it
+    cannot tell (cut short, a CRC not written, not seekable) or a CRC does not hold:
+    ``scan_log`` then says which and where."""
     magic = len(MCAP_MAGIC)
     try:
         size = stream.seek(0, os.SEEK_END)
@@ -348,7 +380,7 @@ def verified_by_crcs(stream: IO[bytes]) -> bool:
             return False
         # the data section from the opening magic to DataEnd's CRC field; the summary section
         # (from DataEnd's end) through the footer's last field before its own CRC
-        return (
+        return bool(
             _crc_of(stream, 0, data_end_at) == data_crc
             and _crc_of(stream, data_end_at + _DATA_END_BYTES, footer_at + _FOOTER_BYTES - 4)
             == summary_crc
@@ -376,10 +408,12 @@ class CheckedLog:
 
     @property
     def truncated(self) -> bool:
+        """Whether the file ends early (a killed run)."""
         return self.raw is not None and self.raw.truncated
 
     @property
     def note(self) -> str:
+        """Where the file was cut and how far it was read; empty for a whole file."""
         return self.raw.note if self.raw is not None else ""
 
 

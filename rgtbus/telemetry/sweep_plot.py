@@ -34,6 +34,8 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float, float]:
 
 
 def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, float]:
+    """Mean of ``values`` and its interval (lo, hi), mean ± z·s/sqrt(n); one value: the value three
+    times."""
     n = len(values)
     m = math.fsum(values) / n
     if n < 2:
@@ -55,7 +57,9 @@ def read_results(out_dir: Path) -> list[dict[str, Any]]:
     return table_rows(pq.read_table(path))
 
 
-def _metric(rows: list[dict[str, Any]], y: str) -> tuple[Callable[[dict], Any], bool, str]:
+def _metric(
+    rows: list[dict[str, Any]], y: str
+) -> tuple[Callable[[dict[str, Any]], Any], bool, str]:
     """(value of a row or None, whether it is a share, label)."""
     columns = list(rows[0]) if rows else []
     col, eq, want = y.partition("=")
@@ -108,7 +112,7 @@ def _key(rows: list[dict[str, Any]], key: str, flag: str) -> None:
         raise RgtbusError(f"{flag} {key!r}: not a column of the results")
 
 
-def _sort_key(v: Any) -> tuple:
+def _sort_key(v: Any) -> tuple[int, float, str]:
     return (0, float(v), "") if isinstance(v, int | float) else (1, 0.0, str(v))
 
 
@@ -190,7 +194,7 @@ def _panel(
     y: str,
     by: str | None,
     exact: str | None,
-    value: Callable[[dict], Any],
+    value: Callable[[dict[str, Any]], Any],
     share: bool,
     label: str,
 ) -> tuple[set[int], int]:

@@ -322,7 +322,7 @@ def table_rows(table: pa.Table) -> list[dict[str, Any]]:
     import pyarrow as pa
 
     nested = {f.name: f.type for f in table.schema if pa.types.is_nested(f.type)}
-    rows = table.to_pylist()
+    rows: list[dict[str, Any]] = table.to_pylist()
     for r in rows:
         for name, typ in nested.items():
             r[name] = jsonable(r[name], typ)

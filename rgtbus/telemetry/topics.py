@@ -58,8 +58,8 @@ TOPICS: dict[str, tuple[str, str]] = {
 _UNIT = r"[A-Za-z0-9_][A-Za-z0-9_.\-]*"
 TOPIC_PATTERNS: tuple[tuple[str, re.Pattern[str], str, str], ...] = (
     (
-        "/trace/<unit>",
-        re.compile(rf"^/trace/{_UNIT}$"),
+        r.trace_topic("<unit>"),
+        re.compile(rf"^{re.escape(r.TRACE_PREFIX)}{_UNIT}$"),
         "rgtbus.ResonatorTrace",
         "resonator states per window (optional, `--traces`)",
     ),
@@ -75,6 +75,7 @@ UNIT_ENDED_EARLY = "ended early"
 
 
 def unit_end_record(unit: str) -> str:
+    """The name of the metadata record saying how ``unit``'s process ended."""
     return f"{UNIT_END_PREFIX}{unit}"
 
 
@@ -111,7 +112,9 @@ def schema_bytes(name: str) -> bytes:
 
 @cache
 def load_schema(name: str) -> dict[str, Any]:
-    return json.loads(schema_bytes(name))
+    """The schema ``name``, parsed (once)."""
+    schema: dict[str, Any] = json.loads(schema_bytes(name))
+    return schema
 
 
 # -- docs -----------------------------------------------------------------------------------

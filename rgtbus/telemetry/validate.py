@@ -2,9 +2,9 @@
 
 ``errors(value, schema)`` lists every way a message breaks its schema, one line each, in the
 project's words (``$.samples[1]: expected number, got string``). Validation is on a hot path
-(``MemoryRecorder``, and ``McapRecorder(validate=True)``, check every message a run writes;
-a 20-unit run writes 125,000), so a message is first checked by a ``fastjsonschema`` validator
-compiled once per schema (a few µs); only a message that breaks its schema is then taken apart
+(``MemoryRecorder``, and ``McapRecorder(validate=True)``, check every message a run writes,
+and a large run writes many), so a message is first checked by a ``fastjsonschema`` validator
+compiled once per schema (fast); only a message that breaks its schema is then taken apart
 by ``jsonschema``, which names every error. ``check_schema`` refuses a schema that is not valid
 JSON Schema (draft 2020-12), or that uses a keyword outside the subset our schema files keep to
 (the one ``topics_markdown`` renders into docs/topics.md; ``format``, for one, would only be an
@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 from rgtbus.errors import RgtbusError
 
-# fastjsonschema (6 ms to import) is loaded when the first message is validated (a run that
-# validates nothing never needs it), jsonschema (0.1 s) when a message breaks its schema
+# fastjsonschema is loaded when the first message is validated (a run that validates nothing
+# never needs it), jsonschema (slower to import) only when a message breaks its schema
 if TYPE_CHECKING:
     from jsonschema import ValidationError
 

@@ -18,12 +18,10 @@ import numpy as np
 import orjson
 
 from rgtbus.signal.pulses import medium_sum
-from rgtbus.telemetry.read import NS, Mismatch, Replay, _is_trace
-from rgtbus.telemetry.recorder import (
-    encode_json,
-)
-from rgtbus.telemetry.records import decode_rows, each_unit_spikes, spike_samples, spike_units
-from rgtbus.timebase import ns
+from rgtbus.telemetry import records as r
+from rgtbus.telemetry.read import Mismatch, Replay
+from rgtbus.telemetry.recorder import LogMessage, encode_json
+from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
 EXIT_VERIFIED = 0
@@ -54,7 +52,7 @@ def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str
     return [(path or "(message)", logged, recomputed)]
 
 
-def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
+def _same_trace(logged: bytes | dict[str, Any], recomputed: dict[str, Any]) -> bool:
     """Equal as the recorder would write them: JSON floats round-trip exactly, so comparing the
     numbers equals comparing the bytes, at half the cost of encoding the re-run's traces."""
     m = orjson.loads(logged) if isinstance(logged, bytes | bytearray) else logged
@@ -69,7 +67,7 @@ def _same_trace(logged: bytes | dict, recomputed: dict) -> bool:
     return True
 
 
-def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
+def _trace_diff(logged: dict[str, Any], recomputed: dict[str, Any]) -> list[tuple[str, Any, Any]]:
     out: list[tuple[str, Any, Any]] = []
     for key in ("y", "x"):
         a = np.asarray(logged.get(key), dtype=float)
@@ -89,86 +87,180 @@ def _trace_diff(logged: dict, recomputed: dict) -> list[tuple[str, Any, Any]]:
     return out + _field_diffs(rest, _json(rest_r))
 
 
+# what pairs a logged message with its recomputed twin: plain scalars
+MessageKey = tuple[Any, ...]
+
 # topic -> key of a message (messages with equal keys are paired in order)
-_KEYS: dict[str, Callable[[int, dict], tuple]] = {
-    "/tx/pulse": lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
-    "/rx/spike": lambda t, m: (m.get("unit"), m.get("sample")),
-    "/rx/decode": lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
-    "/unit/relations": lambda t, m: (m.get("unit"),),
-    "/unit/influences": lambda t, m: (m.get("unit"), m.get("round", 1)),
-    "/unit/decision": lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
-    "/unit/goal": lambda t, m: (m.get("unit"), m.get("turn")),
-    "/log": lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+_KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
+    r.TX_PULSE: lambda t, m: (m.get("unit"), m.get("sample"), m.get("channel")),
+    r.RX_SPIKE: lambda t, m: (m.get("unit"), m.get("sample")),
+    r.RX_DECODE: lambda t, m: (m.get("unit"), m.get("kind"), m.get("sender"), t),
+    r.UNIT_RELATIONS: lambda t, m: (m.get("unit"),),
+    r.UNIT_INFLUENCES: lambda t, m: (m.get("unit"), m.get("round", 1)),
+    r.UNIT_DECISION: lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
+    r.UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
+    r.LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
 }
 
 
-def _key_text(topic: str, key: tuple) -> str:
+def _key_text(topic: str, key: MessageKey) -> str:
     """The paired messages' key in words (part of a mismatch's field)."""
-    if topic == "/tx/pulse":
+    if topic == r.TX_PULSE:
         return f"pulse on {key[2]} at sample {key[1]}"
-    if topic == "/rx/spike":
+    if topic == r.RX_SPIKE:
         return f"spikes at sample {key[1]}"
-    if topic == "/rx/decode":
+    if topic == r.RX_DECODE:
         return f"{key[1]} from {key[2]}"
-    if topic == "/unit/decision":
+    if topic == r.UNIT_DECISION:
         return f"subject {key[1]}" if key[2] == 1 else f"subject {key[1]}, round {key[2]}"
-    if topic == "/unit/goal":
+    if topic == r.UNIT_GOAL:
         return f"goal choice of turn {key[1]}"
-    if topic == "/log":
+    if topic == r.LOG:
         return f"line {key[3]!r}"
-    if _is_trace(topic):
-        return f"trace at {key[0] / NS:.3f} s"
+    if r.is_trace_topic(topic):
+        return f"trace at {seconds(key[0]):.3f} s"
     return "table"
 
 
-def spikes_per_sample(
-    messages: Iterable[tuple[str, int, dict]], tau: float
-) -> Iterator[tuple[str, int, dict]]:
+def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[LogMessage]:
     """The messages with every ``/rx/spike`` block as one message per sample (as logs before
     the columnar record held them): spikes are compared sample by sample, so a log of either
     form verifies, and a mismatch names its sample."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/spike" or not isinstance(m, dict) or "samples" not in m:
+        if topic != r.RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
             yield topic, t_ns, m
             continue
-        units = spike_units(m)  # a record the units of a process share: each unit's own
-        for k, chans in spike_samples(m):
-            t = k * tau
+        units = r.spike_units(m)  # a record the units of a process share: each unit's own
+        for k, chans in r.spike_samples(m):
+            t = time_of(k, tau)
             for unit in units:
                 yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
 
 
 def spikes_per_unit(
-    messages: Iterable[tuple[str, int, dict]],
-) -> Iterator[tuple[str, int, dict]]:
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
     """The messages with every ``/rx/spike`` record that units shared as one record a unit
     (``each_unit_spikes``): how logs compare whose units were split into processes, or
     engines, that share records differently."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/spike" or not isinstance(m, dict):
+        if topic != r.RX_SPIKE or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for one in each_unit_spikes(m):
+        for one in r.each_unit_spikes(m):
             yield topic, t_ns, one
 
 
 def decodes_per_row(
-    messages: Iterable[tuple[str, int, dict]],
-) -> Iterator[tuple[str, int, dict]]:
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
     """The messages with every ``/rx/decodes`` record as one ``/rx/decode`` message a decode
     at its own time (as logs before the columnar record held them): decodes are compared one
     by one, however a run grouped them into records, and a mismatch names its decode."""
     for topic, t_ns, m in messages:
-        if topic != "/rx/decodes" or not isinstance(m, dict):
+        if topic != r.RX_DECODES or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for row in decode_rows(m):
-            yield "/rx/decode", ns(row["t"]), cast(dict, row)
+        for row in r.decode_rows(m):
+            yield r.RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
+
+
+# (log time, message) of one topic and key, in the order logged
+Paired = dict[str, dict[MessageKey, list[tuple[int, Any]]]]
+
+
+def _keyed(
+    messages: Iterable[LogMessage],
+    units: frozenset[str],
+    until_ns: int | None,
+    traced: dict[str, bool],
+) -> Paired:
+    """The messages by topic and key (``_KEYS``; a trace's by its time), those before
+    ``until_ns`` only; a ``/log`` line only if a unit wrote it. ``traced`` remembers which
+    topics are traces (asked once a topic, not once a message)."""
+    out: Paired = defaultdict(lambda: defaultdict(list))
+    keys, log = _KEYS, r.LOG
+    for topic, t, m in messages:
+        if until_ns is not None and t >= until_ns:
+            continue
+        trace = traced.get(topic)
+        if trace is None:
+            trace = traced[topic] = r.is_trace_topic(topic)
+        if trace:  # logged traces may be undecoded bytes: key by time
+            out[topic][(t,)].append((t, m))
+        elif topic in keys:
+            if topic == log and m.get("name") not in units:
+                continue  # not a unit's line
+            out[topic][keys[topic](t, m)].append((t, m))  # keys are plain scalars
+    return out
+
+
+def _topic_mismatches(
+    topic: str,
+    logged: dict[MessageKey, list[tuple[int, Any]]],
+    recomputed: dict[MessageKey, list[tuple[int, Any]]],
+) -> tuple[list[Mismatch], int]:
+    """The mismatches of one topic's messages, paired by key (in order within a key), and how
+    many pairs were compared. Equal as the recorder encodes them, and at the same log time, is
+    the same; only a pair that differs is decoded and explained."""
+    trace = r.is_trace_topic(topic)
+    out: list[Mismatch] = []
+    compared = 0
+    for key in [*logged, *(k for k in recomputed if k not in logged)]:
+        xs, ys = logged.get(key, []), recomputed.get(key, [])
+        for i in range(max(len(xs), len(ys))):
+            compared += 1
+            x = xs[i] if i < len(xs) else None
+            y = ys[i] if i < len(ys) else None
+            if x is not None and y is not None:
+                if trace:
+                    if _same_trace(x[1], y[1]):
+                        continue
+                elif x[0] == y[0] and encode_json(x[1]) == encode_json(y[1]):
+                    continue  # the same JSON is the same message (== alone takes true for 1)
+            out += _pair_mismatches(topic, key, x, y, trace)
+    return out, compared
+
+
+def _pair_mismatches(
+    topic: str,
+    key: MessageKey,
+    logged: tuple[int, Any] | None,
+    recomputed: tuple[int, Any] | None,
+    trace: bool,
+) -> list[Mismatch]:
+    """How the logged and the recomputed message of one topic and key differ (either may be
+    missing; a trace decoded only now, to explain)."""
+    x, y = logged, recomputed
+    t_ns, m = x if x is not None else y  # type: ignore[misc]  # never both missing
+    if isinstance(m, bytes | bytearray):
+        m = orjson.loads(m)
+    unit = m.get("unit", m.get("name"))
+    what = _key_text(topic, key)
+    if x is None:
+        return [Mismatch(topic, seconds(t_ns), unit, what, "(missing)", _json(m))]
+    if y is None:
+        if topic == r.LOG:  # other writers (CLI, process wrappers) add lines
+            return []
+        return [Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")]
+    if trace:
+        diffs = _trace_diff(m, y[1])
+    else:
+        # the re-run's message as the recorder would log it
+        mine = encode_json(y[1])
+        diffs = [] if encode_json(x[1]) == mine else _field_diffs(x[1], orjson.loads(mine))
+        if x[0] != y[0]:
+            diffs.append(("log_time", x[0], y[0]))
+    whole_table = topic in (r.UNIT_RELATIONS, r.UNIT_INFLUENCES)  # the key says nothing more
+    return [
+        Mismatch(topic, seconds(t_ns), unit, path if whole_table else f"{what}: {path}", lv, rv)
+        for path, lv, rv in diffs
+    ]
 
 
 def diff_messages(
-    logged: Iterable[tuple[str, int, dict]],
-    recomputed: Iterable[tuple[str, int, dict]],
+    logged: Iterable[LogMessage],
+    recomputed: Iterable[LogMessage],
     units: Sequence[str],
     *,
     until_ns: int | None = None,
@@ -182,82 +274,28 @@ def diff_messages(
     ``tau``: spikes are compared one sample at a time (``spikes_per_sample``).
     Returns the mismatches and how many messages of each topic were compared.
     """
-    unitset = set(units)
-
-    traced: dict[str, bool] = {}
-
-    def keyed(msgs: Iterable[tuple[str, int, dict]]) -> dict[str, dict[tuple, list]]:
-        out: dict[str, dict[tuple, list]] = defaultdict(lambda: defaultdict(list))
-        for topic, t, m in msgs:
-            if until_ns is not None and t >= until_ns:
-                continue
-            trace = traced.get(topic)
-            if trace is None:
-                trace = traced[topic] = _is_trace(topic)
-            if trace:  # logged traces may be undecoded bytes: key by time
-                out[topic][(t,)].append((t, m))
-            elif topic in _KEYS:
-                if topic == "/log" and m.get("name") not in unitset:
-                    continue  # not a unit's line
-                out[topic][_KEYS[topic](t, m)].append((t, m))  # keys are plain scalars
-        return out
-
     logged, recomputed = decodes_per_row(logged), decodes_per_row(recomputed)
     if tau is not None:
         logged = spikes_per_sample(logged, tau)
         recomputed = spikes_per_sample(recomputed, tau)
-    a = keyed(logged)
-    b = keyed(recomputed)
+    traced: dict[str, bool] = {}
+    unitset = frozenset(units)
+    a = _keyed(logged, unitset, until_ns, traced)
+    b = _keyed(recomputed, unitset, until_ns, traced)
     mismatches: list[Mismatch] = []
     checked: Counter[str] = Counter()
     for topic in sorted(set(a) | set(b)):
-        la, lb = a.get(topic, {}), b.get(topic, {})
-        for key in [*la, *(k for k in lb if k not in la)]:
-            xs, ys = la.get(key, []), lb.get(key, [])
-            for i in range(max(len(xs), len(ys))):
-                x = xs[i] if i < len(xs) else None
-                y = ys[i] if i < len(ys) else None
-                checked[topic] += 1
-                # Byte for byte as the recorder encodes; decode only to explain a difference.
-                if _is_trace(topic) and x is not None and y is not None and _same_trace(x[1], y[1]):
-                    continue
-                t_ns, m = x if x is not None else y  # type: ignore[misc]
-                if isinstance(m, bytes | bytearray):
-                    m = orjson.loads(m)
-                unit = m.get("unit", m.get("name"))
-                what = _key_text(topic, key)
-                if x is None:
-                    mismatches.append(Mismatch(topic, t_ns / NS, unit, what, "(missing)", _json(m)))
-                    continue
-                if y is None:
-                    if topic != "/log":  # other writers (CLI, process wrappers) add lines
-                        mismatches.append(
-                            Mismatch(topic, t_ns / NS, unit, what, m, "(not produced)")
-                        )
-                    continue
-                if _is_trace(topic):
-                    diffs = _trace_diff(m, y[1])
-                else:
-                    # the re-run's message as the recorder would log it; the same JSON is the
-                    # same message (== alone would take true for 1)
-                    mine = encode_json(y[1])
-                    same = encode_json(x[1]) == mine
-                    diffs = [] if same else _field_diffs(x[1], orjson.loads(mine))
-                    if x[0] != y[0]:
-                        diffs.append(("log_time", x[0], y[0]))
-                for path, lv, rv in diffs:
-                    field_name = (
-                        path
-                        if topic in ("/unit/relations", "/unit/influences")
-                        else (f"{what}: {path}")
-                    )
-                    mismatches.append(Mismatch(topic, t_ns / NS, unit, field_name, lv, rv))
+        found, checked[topic] = _topic_mismatches(topic, a.get(topic, {}), b.get(topic, {}))
+        mismatches += found
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
 
 
 @dataclass
 class VerifyReport:
+    """What ``verify`` found: the mismatches, how many messages of each topic were compared, and
+    whether the log was cut short (then compared up to ``until``)."""
+
     label: str
     mismatches: list[Mismatch]
     checked: dict[str, int]
@@ -268,15 +306,19 @@ class VerifyReport:
 
     @property
     def ok(self) -> bool:
+        """Verified: no mismatch, and a whole log."""
         return not self.mismatches and not self.truncated
 
     @property
     def exit_code(self) -> int:
+        """``rgtbus replay --verify``'s exit status: EXIT_MISMATCH, EXIT_TRUNCATED or
+        EXIT_VERIFIED."""
         if self.mismatches:
             return EXIT_MISMATCH
         return EXIT_TRUNCATED if self.truncated else EXIT_VERIFIED
 
     def verdict(self) -> str:
+        """The outcome in one line."""
         n = sum(self.checked.values())
         if self.mismatches:
             return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
@@ -288,6 +330,7 @@ class VerifyReport:
         return f"verified: {n} messages agree with the re-run"
 
     def to_json(self) -> dict[str, Any]:
+        """``rgtbus replay --verify --json``: one object."""
         return {
             "log": self.label,
             "ok": self.ok,
@@ -327,19 +370,19 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
     if replay.truncated:
         # what every unit logged before its bound is complete (Replay.units_until_ns)
         until_ns = replay.units_until_ns() or 0
-        until = until_ns / NS
+        until = seconds(until_ns)
     mismatches += check_medium(replay, until_ns)
     diffs, checked = diff_messages(
         replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
     )
     mismatches += diffs
     mismatches += list(checks)
-    checked["/medium"] = replay.windows
+    checked[r.MEDIUM] = replay.windows
     if not replay.truncated:
         if not rerun.complete:
             mismatches.append(
                 Mismatch(
-                    "/medium",
+                    r.MEDIUM,
                     replay.sim_seconds,
                     None,
                     "the run's length",
@@ -351,9 +394,9 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         if run is None and set(replay.unit_processes) >= set(sc.units):
             pass  # a merge of every unit's own log (no launcher wrote a /run): all ended done
         elif run is None:
-            mismatches.append(Mismatch("/run", None, None, "record", "(missing)", "present"))
+            mismatches.append(Mismatch(r.RUN, None, None, "record", "(missing)", "present"))
         else:
-            checked["/run"] += 1
+            checked[r.RUN] += 1
             s = rerun.summary
             want_run = {
                 "scenario": s["scenario"],
@@ -364,7 +407,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
                 "error": s["error"],
             }
             for path, lv, rv in _field_diffs(run, want_run):
-                mismatches.append(Mismatch("/run", run.get("sim_seconds"), None, path, lv, rv))
+                mismatches.append(Mismatch(r.RUN, run.get("sim_seconds"), None, path, lv, rv))
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))  # stable
     return VerifyReport(
         label=replay.label,
@@ -397,23 +440,25 @@ def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
             want.setdefault(k // L, np.zeros(L))[k % L] = v
     end = replay.sim_seconds / tau if replay.run is not None else math.inf
     if until_ns is not None:
-        end = min(end, until_ns / NS / tau - L)
+        end = min(end, seconds(until_ns) / tau - L)
     for w in sorted(set(windows) | set(want)):
-        if until_ns is not None and (w + 1) * L * tau * NS > until_ns:
+        if until_ns is not None and time_of((w + 1) * L, tau) * NS_PER_SECOND > until_ns:
             continue
         logged = windows.get(w)
         exp = want.get(w, np.zeros(L))
         if logged is None:
             if w * L <= end:  # a run logs its medium up to its end
                 bad.append(
-                    Mismatch("/medium", w * L * tau, None, f"window {w}", "missing", "present")
+                    Mismatch(
+                        r.MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present"
+                    )
                 )
             continue
         for k in np.flatnonzero(logged != exp):
             bad.append(
                 Mismatch(
-                    "/medium",
-                    (w * L + int(k)) * tau,
+                    r.MEDIUM,
+                    time_of(w * L + int(k), tau),
                     None,
                     f"window {w} samples[{int(k)}]",
                     float(logged[k]),

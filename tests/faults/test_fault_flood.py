@@ -1,4 +1,4 @@
-"""Floods: a peer without the key cannot stall, slow or bloat a keyed run (issue 22).
+"""Floods: a peer without the key cannot stall, slow or bloat a keyed run.
 
 A keyless peer floods the run's frame keys with large and small wrongly tagged frames from a
 background thread (bounded in count and time, loopback only); the run must decide exactly as
@@ -30,13 +30,13 @@ from rgtbus.bus.zenoh import make_config
 
 KEY = bytes(range(1, 33))
 HEADER = struct.Struct("<4sBBHQQQdII")
-BIG = 256 * 1024  # the issue's flood: 256 KB frames, far over the run's frame bound
+BIG = 256 * 1024  # frames far over the run's frame bound
 SMALL = 4 * 1024  # under the bound: each costs the run one HMAC, then is dropped
-MAX_BIG = 2000  # the flood's bounds (a regression queues at most ~600 MB, briefly)
+MAX_BIG = 2000  # the flood's bounds (what a gate that let it through would queue, briefly)
 MAX_SMALL = 20000
 FLOOD_SECONDS = 8.0
 RSS_BOUND_MB = 200  # the flooded run's growth, all four units in this process
-PACE = 80  # the flooded run is paced (162 simulated s in ~2 s): it sleeps, the flood goes on
+PACE = 80  # the flooded run is paced: it sleeps, the flood goes on
 
 
 def junk(size: int, seq: int = 1) -> bytes:
@@ -159,8 +159,8 @@ def test_a_keyed_gate_run_flooded_by_a_keyless_peer_decides_as_the_clean_run(kin
     and 4 KB wrongly tagged frames (a zenoh peer in its own process, or ``put_raw`` from a
     thread on the memory bus) from before the run starts to its end. The run decides as the
     clean run, every junk frame is counted and none accepted, and this process grows by less
-    than RSS_BOUND_MB (before the gate: the queue held every junk frame while the paced run
-    slept, ~600 MB here, 5.8 GB in the issue's longer flood)."""
+    than RSS_BOUND_MB (a queue without the gate would hold every junk frame while the paced
+    run sleeps)."""
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     real_open = group.open_bus
     state: dict = {}

@@ -1,11 +1,9 @@
-"""Every reader checks a log's integrity (issue 22, item 3), and a log has one writer.
+"""Every reader checks a log's integrity, and a log has one writer.
 
-``rgtbus cat``, ``info``, ``scenario`` and ``rgtbus.open_log`` on a log with a flipped byte:
-before, ``cat`` exited 0 on 31 of 40 flips (8 printing altered content: unit "c" shown as
-"i"), ``info`` was silent on 39 of 40, and a file holding only MCAP's magic was an ``OSError``
-traceback. Now each outcome is exit 0 with unchanged output, 2 (corrupt: one line) or 3
-(truncated: one line saying how far it read), never a traceback. Two runs given the same log
-path both exited 0 and left a corrupt file; now the second is refused before it writes."""
+``rgtbus cat``, ``info``, ``scenario`` and ``rgtbus.open_log`` on a log with a flipped byte (or
+a file holding only MCAP's magic): each outcome is exit 0 with unchanged output, 2 (corrupt:
+one line) or 3 (truncated: one line saying how far it read), never a traceback nor altered
+content. Of two runs given the same log path, the second is refused before it writes."""
 
 from __future__ import annotations
 

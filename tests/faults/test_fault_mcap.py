@@ -1,4 +1,4 @@
-"""Damaged, foreign and empty MCAP logs (issue #10, item 2): corruption is reported as
+"""Damaged, foreign and empty MCAP logs: corruption is reported as
 corruption (never as truncation), and ``replay``/``merge`` refuse it with exit 2 naming the
 file; a log that merely ends early still reads up to its cut, and ``replay`` exits 3."""
 
