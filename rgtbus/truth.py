@@ -167,9 +167,7 @@ def _decodes_and_choices(sc: Scenario) -> tuple[ProtocolState, list[_Event]]:
     return plan, events
 
 
-def sent_in_rounds(
-    sc: Scenario, known: Mind, policy: Mapping[Pair, int]
-) -> list[dict[Pair, int]]:
+def sent_in_rounds(sc: Scenario, known: Mind, policy: Mapping[Pair, int]) -> list[dict[Pair, int]]:
     """What every unit would send in every influence round on a perfect medium: the policy's
     influences, and a goal-driven unit's choices made exactly as the unit makes them (each
     with the influences decoded before its choice sample). ``known``: the intended group."""
