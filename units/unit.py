@@ -520,15 +520,6 @@ class AutonomousUnit:
 
     # -- what this unit knows, as plain data (one process's share of a run summary) ----------
 
-    def sent_influences(self) -> list[dict[str, str]]:
-        """The influences this unit sent, per influence round: ``[{addressee: code}, ...]``."""
-        out: list[dict[str, str]] = [{} for _ in range(self.scenario.influence_rounds)]
-        for send in self.sent:
-            turn = self.protocol.schedule[send.turn]
-            if send.kind == "payload" and turn.phase == PHASES[1]:
-                out[turn.round - 1][send.addressee] = send.code
-        return out
-
     def report_record(self) -> records.UnitReportRecord:
         """What this unit knows at the end of its run (``/unit/report``): everything its share
         of the run summary needs but its decodes (those are ``/rx/decodes``)."""
@@ -543,7 +534,7 @@ class AutonomousUnit:
             "result": result_fields(mind),
             "decisions": list(self.decisions),
             "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
-            "sent_influences": self.sent_influences(),
+            "sent_influences": influences_sent(self.sent, self.protocol, self.scenario),
             "failure": self.failure,
             "failed_at": self.done_at if self.failure else None,
             "done_at": self.done_at if self.done else None,
@@ -611,3 +602,16 @@ def goal_record(
         sent=u.to_list(u.parse_alternative(code)),
         reason=reason,
     )  # fmt: skip
+
+
+def influences_sent(
+    sent: list[Send], protocol: ProtocolState, scenario: Scenario
+) -> list[dict[str, str]]:
+    """The influences among ``sent`` (a unit's sends), per influence round:
+    ``[{addressee: code}, ...]``."""
+    out: list[dict[str, str]] = [{} for _ in range(scenario.influence_rounds)]
+    for send in sent:
+        turn = protocol.schedule[send.turn]
+        if send.kind == "payload" and turn.phase == PHASES[1]:
+            out[turn.round - 1][send.addressee] = send.code
+    return out
