@@ -188,3 +188,26 @@ def test_the_face_is_lazy_and_typed():
     assert out.stdout.split() == ["False", "False"], out.stderr
     assert (ROOT / "rgtbus" / "py.typed").exists()
     assert set(rgtbus.__all__) >= {"load_scenario", "run", "open_log", "sweep", "RgtbusError"}
+
+
+def test_every_public_name_of_the_face_says_what_it_is():
+    """Every name ``import rgtbus`` offers, and every public method and property of its
+    classes, has a docstring: ``help()`` in a notebook is the reference."""
+    import inspect
+
+    import rgtbus
+
+    missing = []
+    for name in rgtbus.__all__:
+        if name == "__version__":
+            continue
+        obj = getattr(rgtbus, name)
+        if not (inspect.getdoc(obj) or "").strip():
+            missing.append(name)
+        if inspect.isclass(obj) and not issubclass(obj, Exception):
+            for attr, member in vars(obj).items():
+                if attr.startswith("_") or not (callable(member) or isinstance(member, property)):
+                    continue
+                if not (inspect.getdoc(member) or "").strip():
+                    missing.append(f"{name}.{attr}")
+    assert not missing, missing
