@@ -118,11 +118,12 @@ def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Liv
 
 def live_topics(units: Iterable[str], traces: bool) -> list[tuple[str, str]]:
     """Every (topic, schema) a run logs: advertised before it starts."""
-    from rgtbus.telemetry import topics
+    from rgtbus.telemetry import records, topics
 
     out = [(t, schema) for t, (schema, _) in topics.TOPICS.items()]
     if traces:
-        out += [(f"/trace/{u}", topics.schema_for(f"/trace/{u}")) for u in units]
+        traced = [records.trace_topic(u) for u in units]
+        out += [(topic, topics.schema_for(topic)) for topic in traced]
     return out
 
 
