@@ -3,7 +3,8 @@ integer nanoseconds at the MCAP boundary (``log_time``), converted here and nowh
 
 * ``sample_of(t, tau)``: the sample at (or nearest to) ``t`` seconds, ``round(t / tau)``
   (halves to even, as ``numpy.rint``); ``samples_of`` the same over an array;
-* ``time_of(k, tau)``: the time of sample ``k``, ``k * tau``;
+* ``time_of(k, tau)``: the time of sample ``k``, ``k * tau``; ``times_of`` the same over an
+  array;
 * ``ns(t)`` / ``seconds(t_ns)``: seconds to integer nanoseconds and back.
 """
 
@@ -41,4 +42,9 @@ def samples_of(t: np.ndarray, tau: float) -> np.ndarray:
 
 def time_of(k: int, tau: float) -> float:
     """The time in seconds of sample ``k`` on a clock of period ``tau``: ``k * tau``."""
+    return k * tau
+
+
+def times_of(k: np.ndarray, tau: float) -> np.ndarray:
+    """``time_of`` of every sample index in ``k``, as float64."""
     return k * tau

@@ -25,7 +25,7 @@ from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
 from rgtbus.signal.waveform import Transmission, hear, pulse_instants
-from rgtbus.timebase import sample_of, time_of
+from rgtbus.timebase import sample_of, time_of, times_of
 
 if TYPE_CHECKING:
     from types import ModuleType
@@ -242,7 +242,7 @@ def cmd_resonate(args: argparse.Namespace) -> int:
     assert res.y is not None  # run_resonate feeds with record=True
     rows: list[dict[str, Any]] = []
     for c, w in enumerate(omegas):
-        times = res.spikes[res.spikes[:, 2] == c, 0] * tau
+        times = times_of(res.spikes[res.spikes[:, 2] == c, 0], tau)
         rows.append(
             {
                 "omega": float(w),
@@ -391,12 +391,12 @@ def _plot_resonate(
     """The y trajectories ``y`` (samples × 1 × resonators) of ``rgtbus resonate --plot``."""
     plt = _pyplot()
     n = y.shape[0]
-    t = np.arange(n) * tau
+    t = times_of(np.arange(n), tau)
     names = [pi_text(x) for x in texts]
     fig, axes = plt.subplots(
         len(omegas), 1, figsize=(8, 1.9 * len(omegas) + 1.3), sharex=True, squeeze=False
     )
-    inst = pulse_instants(omegas[on], start, len(word), tau) * tau
+    inst = times_of(pulse_instants(omegas[on], start, len(word), tau), tau)
     for c, ax in enumerate(axes[:, 0]):
         ax.plot(t, y[:, 0, c], lw=1, color="C0" if c == on else "C7")
         ax.axhline(1.0, color="k", lw=0.6, ls=":")
@@ -430,7 +430,7 @@ def _trace(
     u = hear([Transmission(omegas[on], start, tuple(word))], n)[:, 0]
     res = ResonatorBank(omegas).feed(u, record=True)
     assert res.y is not None  # fed with record=True
-    return np.arange(n) * PAPER_TAU, res.y[:, 0, :]
+    return times_of(np.arange(n), PAPER_TAU), res.y[:, 0, :]
 
 
 def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title: str) -> str:
@@ -463,7 +463,7 @@ def figure_pair(path: Path, pair: tuple[int, int], word: Sequence[float], title:
             label=f"input on ω = {names[other]} (unmatched)",
         )
         for j, c in ((row, colors[row]), (other, colors[other])):
-            for x in pulse_instants(oms[j], 0.001, len(word)) * PAPER_TAU:
+            for x in times_of(pulse_instants(oms[j], 0.001, len(word)), PAPER_TAU):
                 ax.axvline(x, color=c, lw=0.8, alpha=0.6)
         ax.axhline(1.0, color="k", lw=0.6, ls=":")
         ax.set_ylabel("y")
@@ -522,7 +522,7 @@ def receiving_run(*, quench: bool, delay: float = RECEIVING_DELAY) -> Receiving:
     for part in parts:
         for k, _, c in part.spikes:
             spikes["abc"[int(c)]].append(round(time_of(int(k), PAPER_TAU), 6))
-    return Receiving(np.arange(n) * PAPER_TAU, y, spikes, t_send, quench)
+    return Receiving(times_of(np.arange(n), PAPER_TAU), y, spikes, t_send, quench)
 
 
 def _spike_text(run: Receiving) -> str:
@@ -564,9 +564,9 @@ def figure_receiving(path: Path) -> str:
             ax = axes[row, col]
             ax.plot(run.t, run.y[:, c], lw=1)
             ax.axhline(1.0, color="k", lw=0.6, ls=":")
-            for x in pulse_instants(oms[0], 0.001, 3) * PAPER_TAU:
+            for x in times_of(pulse_instants(oms[0], 0.001, 3), PAPER_TAU):
                 ax.axvline(x, color="tab:green", lw=0.8, alpha=0.6)
-            for x in pulse_instants(oms[2], run.t_send, 3) * PAPER_TAU:
+            for x in times_of(pulse_instants(oms[2], run.t_send, 3), PAPER_TAU):
                 ax.axvline(x, color="tab:red", lw=0.8, alpha=0.6)
             if run.quench:
                 ax.axvline(run.t_send, color="0.3", lw=1.0, ls="--")

@@ -43,6 +43,7 @@ import numpy as np
 from rgtbus.errors import RgtbusError
 from rgtbus.signal._walk import WalkModel
 from rgtbus.signal.lanes import Trajectory, spike_table, walk, walk_every_lane, walking_lanes
+from rgtbus.timebase import times_of
 
 PAPER_TAU = 0.005
 PAPER_B = -0.1
@@ -116,11 +117,11 @@ class FeedResult:
         """Spike times in seconds (sample index × τ) of one receiver, one channel or all."""
         sel = self.spikes[self.spikes[:, 1] == receiver]
         if channel is not None:
-            times: np.ndarray = sel[sel[:, 2] == channel, 0] * tau
+            times: np.ndarray = times_of(sel[sel[:, 2] == channel, 0], tau)
             return times
         n_ch = 0 if self.z is None else self.z.shape[2]
         n_ch = max(n_ch, int(self.spikes[:, 2].max()) + 1 if len(self.spikes) else 0)
-        return [sel[sel[:, 2] == c, 0] * tau for c in range(n_ch)]
+        return [times_of(sel[sel[:, 2] == c, 0], tau) for c in range(n_ch)]
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,7 +15,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from rgtbus.summary import summary_json
 from rgtbus.telemetry.read import Replay, load_replay
-from rgtbus.timebase import seconds
+from rgtbus.timebase import seconds, times_of
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -114,7 +114,7 @@ class Log:
 
         samples, values = self.replay.medium_pulses()
         tau = self.replay.require_scenario().timing.tau
-        return pd.DataFrame({"sample": samples, "t": samples * tau, "value": values})
+        return pd.DataFrame({"sample": samples, "t": times_of(samples, tau), "value": values})
 
     def messages(self, topic: str) -> pd.DataFrame:
         """Every message of ``topic`` (e.g. ``"/unit/goal"``, ``"/log"``), one row each:
