@@ -30,8 +30,6 @@ if TYPE_CHECKING:
     from rgtbus.telemetry.frames import Log
     from rgtbus.telemetry.live import LiveView
 
-BUSES = ("memory", "zenoh")
-ENGINES = ("event", "dense")
 
 
 def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:
@@ -74,8 +72,8 @@ def run(
     sc = load_scenario(scenario)
     if seed is not None:
         sc = sc.with_seed(seed)
-    checks.choice(bus, BUSES, "bus")
-    checks.choice(engine, ENGINES, "engine")
+    checks.choice(bus, checks.BUSES, "bus")
+    checks.choice(engine, checks.ENGINES, "engine")
     if realtime is not None:
         checks.realtime(realtime)
     options: dict[str, Any] = {

@@ -40,7 +40,6 @@ from rgtbus.scenario import Scenario, load_scenario
 from rgtbus.summary import summarise, summary_json
 
 ZENOH_OPTIONS = ("mode", "connect", "listen", "multicast", "config")
-ENGINES = ("event", "dense")
 _FEW_SECONDS = 5.0  # for the other units to report once one has said a member went silent
 _JOIN_SECONDS = 30.0  # every process of a launch joins within this
 _STOP_SECONDS = 10.0  # what processes asked to stop still say, within this in all
@@ -474,7 +473,7 @@ def launch(
     if seed is not None:
         sc = sc.with_seed(seed)
     checks.seconds(timeout, "timeout")
-    checks.choice(engine, ENGINES, "engine")
+    checks.choice(engine, checks.ENGINES, "engine")
     if realtime is not None:
         checks.realtime(realtime)
     key = None if key_file is None else load_key(key_file)

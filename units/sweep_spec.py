@@ -20,12 +20,12 @@ from typing import Any
 
 import tomli_w
 
+from rgtbus.checks import ENGINES
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
 from rgtbus.scenario.limits import key_depth_error, nesting_error, read_regular
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
-ENGINES = ("event", "dense")
 MAX_RUNS = 1_000_000
 # the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
 # types and decisions.parquet; 1 (no key) held nested columns as JSON text

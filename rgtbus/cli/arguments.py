@@ -14,7 +14,6 @@ from collections.abc import Callable
 from typing import Any
 
 from rgtbus import checks
-from rgtbus.api import ENGINES
 
 # A rule of rgtbus.checks: (value, flag) -> the value, or RgtbusError naming the flag
 Rule = Callable[[Any, str], Any]
@@ -66,9 +65,9 @@ def add_realtime_argument(p: argparse.ArgumentParser) -> None:
 
 
 def add_engine_argument(p: argparse.ArgumentParser, help: str) -> None:
-    """``--engine``: one of the library's engines (``rgtbus.api.ENGINES``), event by
+    """``--engine``: one of the library's engines (``rgtbus.checks.ENGINES``), event by
     default."""
-    p.add_argument("--engine", choices=ENGINES, default="event", help=help)
+    p.add_argument("--engine", choices=checks.ENGINES, default="event", help=help)
 
 
 def add_seconds_argument(

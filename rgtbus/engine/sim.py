@@ -31,6 +31,7 @@ import simpy.rt
 
 from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
+from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import Listener
 from rgtbus.errors import RgtbusError
@@ -39,8 +40,6 @@ from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
 from rgtbus.timebase import ns, time_of
-
-ENGINES = ("event", "dense")
 
 
 class Member(Protocol):
