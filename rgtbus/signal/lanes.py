@@ -5,14 +5,47 @@ the spikes found as a table. Arrays only: one call a walk, whatever the lanes.""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from rgtbus.signal._walk import walk_lanes
+from rgtbus.signal._walk import WalkModel, walk_lanes
 
-if TYPE_CHECKING:
-    from rgtbus.signal.resonator import BankModel, BankState
+
+class BankModel(Protocol):
+    """What a walk reads of a bank (``rgtbus.signal.resonator.BankModel``): its lane layout
+    and its compiled view."""
+
+    @property
+    def receivers(self) -> int: ...
+    @property
+    def channels(self) -> int: ...
+    @property
+    def layout(self) -> tuple[np.ndarray, np.ndarray] | None: ...
+    @property
+    def lane_ch(self) -> np.ndarray: ...
+    @property
+    def lane_rec(self) -> np.ndarray: ...
+    @property
+    def lanes(self) -> int: ...
+    @property
+    def all_lanes(self) -> np.ndarray: ...
+    @property
+    def walker(self) -> WalkModel: ...
+
+
+class BankState(Protocol):
+    """What a walk reads of a bank's state (``rgtbus.signal.resonator.BankState``): each lane's
+    rotating-frame state, its pending resets, and the next sample."""
+
+    @property
+    def wr(self) -> np.ndarray: ...
+    @property
+    def wi(self) -> np.ndarray: ...
+    @property
+    def pend(self) -> np.ndarray: ...
+    @property
+    def n(self) -> int: ...
 
 
 def walk(
