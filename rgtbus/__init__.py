@@ -15,9 +15,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
-
-__version__ = "0.1.0"
 
 if TYPE_CHECKING:
     from rgtbus.api import load_scenario, open_log, run, sweep

@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rgtbus import checks
+import rgtbus.checks as checks
 from rgtbus.errors import RgtbusError
 from rgtbus.units.result import RunResult, result_of
 

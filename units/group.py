@@ -15,7 +15,7 @@ from typing import Any
 
 from rgtbus.units.unit import AutonomousUnit
 
-from rgtbus import __version__
+from rgtbus._version import __version__
 from rgtbus.bus import open_bus
 from rgtbus.engine.sim import World
 from rgtbus.scenario import Scenario

@@ -33,7 +33,7 @@ from typing import Any
 from rgtbus.units.group import default_run_id
 from rgtbus.units.result import RunResult
 
-from rgtbus import checks
+import rgtbus.checks as checks
 from rgtbus.errors import RgtbusError
 from rgtbus.interrupts import interrupted_by
 from rgtbus.scenario import Scenario, load_scenario

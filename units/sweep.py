@@ -71,7 +71,7 @@ from rgtbus.units.workers import (
     pool_of,
 )
 
-from rgtbus import __version__
+from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summary_json

@@ -17,7 +17,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, NoReturn
 
-from rgtbus import __version__
+from rgtbus._version import __version__
 from rgtbus.cli.arguments import check_arguments
 from rgtbus.errors import RgtbusError
 

@@ -13,7 +13,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from rgtbus import checks
+import rgtbus.checks as checks
 
 # A rule of rgtbus.checks: (value, flag) -> the value, or RgtbusError naming the flag
 Rule = Callable[[Any, str], Any]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from rgtbus import checks
+import rgtbus.checks as checks
 from rgtbus.pairs import ordered_pairs
 from rgtbus.rgt import Universe
 from rgtbus.signal.channel import Burst, Channel, Clock

@@ -20,7 +20,7 @@ from typing import BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
-from rgtbus import __version__
+from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.scan import RawLog
 
