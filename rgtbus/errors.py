@@ -16,3 +16,12 @@ class NotDecomposable(RgtbusError):
     def __init__(self, message: str, p4: tuple[str, str, str, str]) -> None:
         super().__init__(message)
         self.p4 = p4
+
+
+class MembersSilent(RgtbusError):
+    """No news from ``silent`` (members of a cross-process run) within the timeout: each is
+    stalled or gone, or this process is cut off from them."""
+
+    def __init__(self, message: str, silent: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.silent = silent

@@ -41,7 +41,6 @@ from rgtbus.summary import summarise, summary_json
 
 ZENOH_OPTIONS = ("mode", "connect", "listen", "multicast", "config")
 _FEW_SECONDS = 5.0  # for the other units to report once one has said a member went silent
-_JOIN_SECONDS = 30.0  # every process of a launch joins within this
 _STOP_SECONDS = 10.0  # what processes asked to stop still say, within this in all
 # loaded once by the fork server, so that each unit process starts in milliseconds
 _PRELOAD = ["numpy.random", "rgtbus.bus.zenoh", "rgtbus.units.process"]
@@ -115,16 +114,25 @@ def _unit_child(
 
     _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the launcher's to handle
-    out: dict[str, Any]
+    sent = False
+
+    def report(outs: dict[str, dict[str, Any]]) -> None:
+        """The units' parts, told at once: closing the session may then wait for a dead peer."""
+        nonlocal sent
+        for o in outs.values():
+            o["log"] = str(log)
+        conn.send({"units": outs})
+        sent = True
+
+    out: dict[str, Any] = {}
     with interrupted_by(signal.SIGTERM):  # a launcher stopping its units
         try:
             for ev in after:  # bounded: a peer that never listens is named by the join
                 ev.wait(10.0)
-            outs = run_logged_units(
-                sc, names, log, zenoh_options=net, join_timeout=_JOIN_SECONDS,
-                on_open=listening.set, **opts,
+            run_logged_units(
+                sc, names, log, zenoh_options=net, join_timeout=join_seconds(len(sc.units)),
+                on_open=listening.set, on_result=report, **opts,
             )  # fmt: skip
-            out = {"units": outs}
         except KeyboardInterrupt:
             out = {"crash": "interrupted"}
         except RgtbusError as exc:
@@ -132,7 +140,8 @@ def _unit_child(
         except BaseException as exc:  # a bug: say what, not a traceback on the launcher's terminal
             out = {"crash": f"{type(exc).__name__}: {exc}"}
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # done: being stopped now loses nothing
-    conn.send(out)
+    if not sent:
+        conn.send(out)
     conn.close()
 
 
@@ -153,12 +162,20 @@ def _router_child(conn: Connection, endpoint: str) -> None:
         session.close()
 
 
-def _size(path: Path | None) -> int:
-    """A log's size so far (-1: none yet): a unit that still writes is still running."""
+def _is_stopped(pid: int | None) -> bool:
+    """Whether process ``pid`` is stopped (SIGSTOP, a debugger: state T or t in
+    ``/proc/<pid>/stat``); False where that cannot be read."""
     try:
-        return -1 if path is None else os.stat(path).st_size
-    except OSError:
-        return -1
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (OSError, TypeError):
+        return False
+    return stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] in ("T", "t")
+
+
+def join_seconds(members: int) -> float:
+    """How long the processes of a launch have to join: 20 s, and a second more a member
+    (every process hears every other's hellos: the work grows with the members)."""
+    return 20.0 + 1.0 * members
 
 
 class LaunchProcesses:
@@ -218,60 +235,34 @@ class LaunchProcesses:
         reader.recv()
 
     def collect(self, limit: float, timeout: float) -> dict[str, dict[str, Any]]:
-        """Every process's result as it comes, at most ``limit`` seconds in all. Once one has
-        died or crashed, the others notice within their ``timeout`` (no news): a process gets
-        that and a few seconds more since its log last grew (a paced one may still be running
-        up to where the dead one had promised, seconds of wall time); once one reports that a
-        member went silent, the rest get a few seconds since theirs did. A process that is
-        still quiet then is stalled (absent from the result). A process that dies without a
-        result gets ``{"died": exit code}``."""
+        """Every process's result as it comes, at most ``limit`` seconds in all. A process that
+        runs ends by itself: within its own ``timeout`` of hearing nothing from the others (a
+        paced one may run on for seconds up to where a dead peer had promised). One that
+        stays stopped (SIGSTOP, state T) for ``timeout`` and a few seconds more is stalled:
+        the others have given up on it (absent from the result: the launcher stops it and
+        asks it what it knew). A process that dies without a result gets ``{"died": exit
+        code}``."""
         from multiprocessing.connection import wait
 
         out: dict[str, dict[str, Any]] = {}
         waiting = dict(self._results)
         end = time.monotonic() + limit
-        quiet: float | None = None  # once a run has failed: how long a process may not write
-        grew: dict[str, tuple[int, float]] = {}  # its log's size, and when it was last seen
+        stopped_since: dict[str, float] = {}
         while waiting:
             now = time.monotonic()
-            if quiet is not None:
-                self._drop_stalled(waiting, grew, now, quiet)
-                if not waiting:
-                    break
-            step = end - now if quiet is None else min(end - now, 0.25)
-            ready = wait(list(waiting.values()), timeout=max(0.0, step))
-            if not ready:
-                if time.monotonic() >= end:
-                    break
-                continue
+            for name in list(waiting):
+                if not _is_stopped(self.procs[name].pid):
+                    stopped_since.pop(name, None)
+                elif now - stopped_since.setdefault(name, now) > timeout + _FEW_SECONDS:
+                    del waiting[name]  # stalled
+            ready = wait(list(waiting.values()), timeout=max(0.0, min(end - now, 0.25)))
             for name, conn in list(waiting.items()):
-                if conn not in ready:
-                    continue
-                said = out[name] = self._result_of(name, conn)
-                del waiting[name]
-                grace = None
-                if "died" in said or said.get("crash"):
-                    grace = timeout + _FEW_SECONDS
-                elif any(o.get("world_failure") for o in said.get("units", {}).values()):
-                    grace = _FEW_SECONDS
-                if grace is not None:
-                    quiet = grace if quiet is None else min(quiet, grace)
+                if conn in ready:
+                    out[name] = self._result_of(name, conn)
+                    del waiting[name]
+            if time.monotonic() >= end:
+                break
         return out
-
-    def _drop_stalled(
-        self,
-        waiting: dict[str, Connection],
-        grew: dict[str, tuple[int, float]],
-        now: float,
-        quiet: float,
-    ) -> None:
-        """Stop waiting for each process whose log has not grown for ``quiet`` seconds."""
-        for name in list(waiting):
-            size = _size(self._logs.get(name))
-            if name not in grew or size != grew[name][0]:
-                grew[name] = (size, now)
-            elif now - grew[name][1] > quiet:  # no record for that long: stalled
-                del waiting[name]
 
     def _result_of(self, name: str, conn: Connection) -> dict[str, Any]:
         """What process ``name`` sent; ``{"died": exit code}`` when it ended without a word."""
@@ -353,6 +344,35 @@ def _where(log: Path, window: float) -> str:
     return f"in window {int(t / window)} (its log ends at t = {t:.3f} s)"
 
 
+def recovered(unit: str, log: Path) -> dict[str, Any] | None:
+    """Unit ``unit``'s part of the run summary from its log, when its process could not say
+    it (killed after it wrote its report, stopped, cut off from the launcher): its
+    ``/unit/report`` and decodes, its error from the report or its ``end.<unit>`` record.
+    None when the log holds no report of it."""
+    from rgtbus.telemetry import records
+    from rgtbus.telemetry.read import load_replay
+    from rgtbus.telemetry.topics import UNIT_ENDED_EARLY, unit_end_record
+
+    try:
+        replay = load_replay(log)
+    except (RgtbusError, OSError):
+        return None
+    if not any(m.get("unit") == unit for _, m in replay.by_topic[records.UNIT_REPORT]):
+        return None  # (a log with no report at all would read as an old log's tables)
+    report = next(r for r in replay.unit_reports() if r["unit"] == unit)
+    end = replay.metadata.get(unit_end_record(unit), {})
+    world = end.get("detail") if end.get("status") == UNIT_ENDED_EARLY else None
+    try:
+        sim = float(end.get("sim_seconds", replay.sim_seconds))
+    except ValueError:
+        sim = replay.sim_seconds
+    return {
+        "unit": unit, "report": report, "sim_seconds": round(sim, 6), "steps": 0,
+        "world_failure": world, "error": world or report.get("failure"), "late": None,
+        "bus": {}, "log": str(log), "from_log": True,
+    }  # fmt: skip
+
+
 def unit_failures(
     units: list[str],
     results: dict[str, dict[str, Any]],
@@ -361,9 +381,10 @@ def unit_failures(
     stopped: Collection[str] = (),
 ) -> tuple[list[str], dict[str, dict[str, Any]]]:
     """The failures of a launch, root causes first (a unit that died or crashed; then one that
-    stalled; then the units that failed for want of them), and the outputs of every unit that
-    reported (its share of the summary), those the launcher had to stop (``stopped``)
-    included: a healthy unit stopped after another died keeps what it knew."""
+    stalled, or that says it was the late one; then the units that failed for want of them),
+    and the parts of the summary of every unit that reported, those the launcher had to stop
+    (``stopped``) included, and of every unit whose log holds its report though its process
+    said nothing: a healthy unit keeps what it knew."""
     died: list[str] = []
     stalled: list[str] = []
     knock_on: list[str] = []
@@ -371,15 +392,24 @@ def unit_failures(
     for name in units:
         out = results.get(name)
         log = logs[name]
+        if out is None or "report" not in out:
+            kept = recovered(name, log)
+            if kept is not None:
+                outputs[name] = kept
         if out is None:
-            stalled.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
+            if name not in outputs:
+                stalled.append(f"unit {name} stalled {_where(log, window)}: no result, stopped")
+            elif outputs[name]["error"]:
+                knock_on.append(f"unit {name}: {outputs[name]['error']} (from its log)")
         elif "died" in out:
             died.append(f"unit {name} died ({_signal_name(out['died'])}) {_where(log, window)}")
         elif "crash" in out:
             died.append(f"unit {name}: {out['crash']}")
         else:
             outputs[name] = out
-            if name in stopped:
+            if out.get("late"):
+                stalled.append(str(out["late"]))  # it names itself
+            elif name in stopped:
                 stalled.append(f"unit {name} stalled {_where(log, window)}: stopped")
             elif out["error"]:
                 knock_on.append(f"unit {name}: {out['error']}")

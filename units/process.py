@@ -12,7 +12,9 @@ machines can meet at.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -33,6 +35,58 @@ from rgtbus.scenario import Scenario
 from rgtbus.telemetry import McapRecorder, Recorder
 from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
 from rgtbus.timebase import ns
+
+
+class PauseWatch:
+    """The longest time this process did not run while the watch was on: a thread ticks a few
+    times a second; a process stopped (SIGSTOP, a suspended machine) or starved of CPU sees a
+    gap between two ticks as long as it was away."""
+
+    TICK = 0.2  # seconds between ticks
+
+    def __init__(self) -> None:
+        self.longest = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._tick, name="rgtbus-pause-watch", daemon=True)
+
+    def __enter__(self) -> PauseWatch:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+
+    def _tick(self) -> None:
+        last = time.monotonic()
+        while not self._stop.wait(self.TICK):
+            now = time.monotonic()
+            self.longest = max(self.longest, now - last - self.TICK)
+            last = now
+
+
+def lateness(
+    names: Sequence[str], sc: Scenario, silent: Sequence[str], paused: float, timeout: float
+) -> str | None:
+    """Why the units ``names`` of this process, not the members they heard nothing from,
+    are the late ones when a run gave up on ``silent``: this process did not run for at
+    least half the timeout (``paused`` s: stopped, or starved), or it heard nothing from any
+    other member (it is cut off, or it came back after the others had gone on without it).
+    None when the silent members are the cause."""
+    if not silent:
+        return None
+    label = f"unit{'s' if len(names) > 1 else ''} {', '.join(names)}"
+    if paused >= timeout / 2:
+        return (
+            f"{label}: its process did not run for {paused:.1f} s (stopped, or starved of CPU), "
+            f"half the {timeout:g} s timeout or more: the others gave up on it; it is the late one"
+        )
+    others = [u for u in sc.units if u not in names]
+    if len(others) > 1 and set(silent) >= set(others):
+        return (
+            f"{label}: no news from any other member for {timeout:g} s: its process is cut off "
+            "from the run (its link?) or came back after the others had gone on without it"
+        )
+    return None
 
 
 def scenario_digest(sc: Scenario) -> str:
@@ -108,13 +162,18 @@ def run_units(
     engine: str = "event",
     realtime: float | None = None,
     on_open: Callable[[], None] | None = None,
+    on_result: Callable[[dict[str, dict[str, Any]]], None] | None = None,
     key: bytes | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run the units ``names`` of ``sc`` in this process, one world and one zenoh session for
     all of them (their ears advanced together, one frame per unit and step); returns each
     unit's part of the run summary, by name. ``on_open``: called once the zenoh session is
-    open (listening), before the join. ``key``: the run's shared secret (every frame and hello
-    signed and checked). A failed join is written to the log before it is raised."""
+    open (listening), before the join; ``on_result``: called with the parts as soon as the
+    run is over and the units' reports are on disk, before the session closes (closing can
+    wait seconds for a peer that died). ``key``: the run's shared secret (every frame and
+    hello signed and checked). A failed join is written to the log before it is raised. When
+    the run gives up on silent members, the units of this process say whether they are the
+    late ones themselves (``lateness``: their part's ``late``)."""
     names = _checked_names(sc, names)
     first = names[0]
     run_id = run_id or default_run_id(sc)
@@ -141,15 +200,15 @@ def run_units(
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()
             _join(bus, sc, names, recorder, join_timeout)
-            # a member gone or stalled ends it with result.failure; so does a request to stop
-            world = World.for_scenario(sc, units, bus, recorder, **world_options)
-            result = world.run(interruptible=True)
+            result, outs = _run_world(sc, units, bus, recorder, world_options, run_id, t0)
             sim_seconds = result.sim_seconds
-            stats = _reported(units, bus, recorder, result.sim_seconds)
+            if on_result is not None:
+                flush = getattr(recorder, "flush", None)
+                if flush is not None:  # the reports on disk before anyone is told
+                    flush()
+                on_result(outs)
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
-        if result.failure:  # a unit's own failure is in its log already
-            recorder.log("error", result.failure, ns(result.sim_seconds), name=first)
     except BaseException as exc:
         for name in names:
             _write_end(
@@ -161,8 +220,7 @@ def run_units(
             _write_end(recorder, unit.name, UNIT_ENDED_EARLY, result.failure, sim_seconds)
         else:
             _write_end(recorder, unit.name, UNIT_DONE, unit.failure or "", sim_seconds)
-    wall = round(time.perf_counter() - t0, 3)
-    return {unit.name: _output(unit, run_id, result, wall, stats) for unit in units}
+    return outs
 
 
 def _checked_names(sc: Scenario, names: Sequence[str]) -> list[str]:
@@ -194,6 +252,33 @@ def _join(
         raise
 
 
+def _run_world(
+    sc: Scenario,
+    units: list[AutonomousUnit],
+    bus: Any,
+    recorder: Recorder,
+    options: dict[str, Any],
+    run_id: str,
+    t0: float,
+) -> tuple[WorldResult, dict[str, dict[str, Any]]]:
+    """The world of these units over the bus, to its end (a member gone or stalled ends it
+    with ``failure``; so does a request to stop; when it gave up on silent members, this
+    process may be the late one: ``lateness``), their reports written; how it ended, and each
+    unit's part of the summary."""
+    names = [u.name for u in units]
+    world = World.for_scenario(sc, units, bus, recorder, **options)
+    with PauseWatch() as paused:
+        result = world.run(interruptible=True)
+    late = lateness(names, sc, result.silent, paused.longest, options["timeout"])
+    if late is not None:
+        result = dataclasses.replace(result, failure=late)
+    stats = _reported(units, bus, recorder, result.sim_seconds)
+    if result.failure:  # a unit's own failure is in its log already
+        recorder.log("error", result.failure, ns(result.sim_seconds), name=names[0])
+    wall = round(time.perf_counter() - t0, 3)
+    return result, {u.name: _output(u, run_id, result, wall, stats, late) for u in units}
+
+
 def _reported(
     units: list[AutonomousUnit], bus: Any, recorder: Recorder, sim_seconds: float
 ) -> dict[str, Any]:
@@ -207,9 +292,15 @@ def _reported(
 
 
 def _output(
-    unit: AutonomousUnit, run_id: str, result: WorldResult, wall: float, stats: dict[str, Any]
+    unit: AutonomousUnit,
+    run_id: str,
+    result: WorldResult,
+    wall: float,
+    stats: dict[str, Any],
+    late: str | None,
 ) -> dict[str, Any]:
-    """A unit's part of the run summary, as its process reports it."""
+    """A unit's part of the run summary, as its process reports it (``late``: why its process
+    is the late one, when the run gave up on others for want of it)."""
     return {
         "unit": unit.name,
         "run_id": run_id,
@@ -219,6 +310,7 @@ def _output(
         "world_failure": result.failure,
         "wall_seconds": wall,
         "error": result.failure or unit.failure,
+        "late": late,
         "bus": stats,
     }
 

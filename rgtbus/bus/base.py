@@ -43,7 +43,7 @@ from rgtbus.bus.payload import (
     frame_size,
     max_frame_pulses,
 )
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import MembersSilent, RgtbusError
 from rgtbus.signal.pulses import Pulses as Pulses  # re-exported: units/ take it from here
 from rgtbus.signal.pulses import merge_pulses, split_pulses
 
@@ -416,9 +416,10 @@ class QueueBus(BusBase):
                     else f"promised nothing past sample {beyond} "
                     f"(t = {beyond / self.sample_rate:.3f} s)"
                 )
-                raise RgtbusError(
+                raise MembersSilent(
                     f"no news for {timeout:g} s in run {self.run_id!r}: "
-                    f"{', '.join(late)} {what}: stalled or gone"
+                    f"{', '.join(late)} {what}: stalled or gone",
+                    tuple(late),
                 )
             try:
                 item = self._inbox.get(timeout=remaining)

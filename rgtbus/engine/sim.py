@@ -34,7 +34,7 @@ from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import Listener
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
@@ -77,6 +77,7 @@ class WorldResult:
     failure: str | None  # the world's own: a member gone or stalled, the log ended
     bus_stats: dict[str, Any] = field(default_factory=dict)
     end_sample: int = 0  # the last sample of the run
+    silent: tuple[str, ...] = ()  # the members it gave up on (no news within the timeout)
 
 
 class World:
@@ -356,10 +357,13 @@ class World:
         unit process asked to stop: SIGTERM, SIGINT) ends the run as a failure that says so,
         so what the units know so far is still reported (else it propagates)."""
         t0 = time.perf_counter()
+        silent: tuple[str, ...] = ()
         done = self.env.process(self._coordinate())
         try:
             self.env.run(until=done)
-        except RgtbusError as exc:  # a member gone or stalled, or a log that ends early
+        except MembersSilent as exc:  # a member gone or stalled, or this process cut off
+            self.failure, silent = str(exc), exc.silent
+        except RgtbusError as exc:  # a log that ends early
             self.failure = str(exc)
         except KeyboardInterrupt:
             if not interruptible:
@@ -372,6 +376,7 @@ class World:
             failure=self.failure,
             bus_stats=dict(self.bus.stats()),
             end_sample=self.end_sample(),
+            silent=silent,
         )
 
 

@@ -301,3 +301,58 @@ def test_a_killed_unit_of_a_paced_crowd_loses_little_and_the_survivors_report(pr
     assert sorted(summary["units"]) == survivors, (summary["error"], err)
     assert "/tx/pulse" in own_records(log, victim)  # its own records were not lost
     assert verify_code(tmp_path / "run.mcap") == 3
+
+
+@pytest.mark.slow  # a stop of a few seconds, and the others' timeout
+def test_a_unit_stopped_and_resumed_names_itself_the_late_one(procs, tmp_path):
+    """SIGSTOP of unit b for longer than the others' timeout, then SIGCONT: the others give up
+    on b, and b, resumed, names itself as the late one (its process did not run), not the
+    others; the launcher names b first and keeps every unit's result."""
+    la = launch(procs, tmp_path, "--json")
+    pids = unit_pids(la, tmp_path, list("abcd"))
+    wait_until(lambda: has_pulse(tmp_path / "a.mcap"), "under way", alive=[la])
+    os.kill(pids["b"], signal.SIGSTOP)
+    time.sleep(3 + 2)  # --timeout 3: the others have given up by then
+    os.kill(pids["b"], signal.SIGCONT)
+    out, err = la.communicate(timeout=90)
+    assert la.returncode == 1, err
+    summary = json.loads(out)
+    assert summary["error"].startswith("unit b: its process did not run for "), summary["error"]
+    assert "the late one" in summary["error"]
+    assert sorted(summary["units"]) == ["a", "b", "c", "d"]
+    lines = err.strip().splitlines()
+    assert lines[0] == f"launch: {summary['error']}"
+    others = [ln for ln in lines[1:] if ln.startswith(("launch: unit a", "launch: unit c"))]
+    assert others and all("b promised nothing past sample" in ln for ln in others), err
+
+
+@pytest.mark.slow  # three paced launches
+@pytest.mark.parametrize("after", [1, 3, 5])
+def test_every_healthy_unit_is_kept_whenever_one_is_killed(procs, tmp_path, after):
+    """kill -9 of one unit of a paced concurrent launch at different moments: the launcher
+    names it (and only it) as the cause, and every other unit's result is in the summary."""
+    text = (ROOT / "scenarios" / "crowd10.toml").read_text()
+    sc = load_scenario(ROOT / "scenarios" / "crowd10.toml")
+    victim = sc.units[3]
+    path = tmp_path / "crowd.toml"
+    path.write_text(text)
+    logs = tmp_path / "logs"
+    la = procs("launch", str(path), "--log-dir", str(logs), "--realtime", "25", "--timeout", "3",
+               "--json")  # fmt: skip
+    pids = unit_pids(la, logs, list(sc.units))
+    wait_until(lambda: has_pulse(logs / f"{victim}.mcap"), "under way", alive=[la])
+    time.sleep(after)
+    if la.poll() is not None:
+        pytest.skip("the run ended before the kill: nothing to test at this moment")
+    os.kill(pids[victim], signal.SIGKILL)
+    out, err = la.communicate(timeout=180)
+    summary = json.loads(out)
+    if la.returncode == 0:  # it had already finished: every result is there anyway
+        assert sorted(summary["units"]) == sorted(sc.units)
+        return
+    assert summary["error"].startswith(f"unit {victim} died (killed by SIGKILL)"), summary
+    assert sorted(summary["units"]) == sorted(u for u in sc.units if u != victim), err
+    lines = err.strip().splitlines()
+    assert lines[0] == f"launch: {summary['error']}", err
+    assert all(f": {victim} did not say it was done" in ln or f": {victim} promised" in ln
+               for ln in lines[1:]), err  # fmt: skip
