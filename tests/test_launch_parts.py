@@ -10,8 +10,8 @@ import sys
 import time
 
 from rgtbus.units.group import run_group
-from rgtbus.units.launch import _is_stopped, join_seconds, recovered
-from rgtbus.units.process import PauseWatch, lateness
+from rgtbus.units.launch import _is_stopped, recovered
+from rgtbus.units.process import PauseWatch, join_seconds, lateness
 
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import McapRecorder

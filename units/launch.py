@@ -130,7 +130,7 @@ def _unit_child(
             for ev in after:  # bounded: a peer that never listens is named by the join
                 ev.wait(10.0)
             run_logged_units(
-                sc, names, log, zenoh_options=net, join_timeout=join_seconds(len(sc.units)),
+                sc, names, log, zenoh_options=net,
                 on_open=listening.set, on_result=report, **opts,
             )  # fmt: skip
         except KeyboardInterrupt:
@@ -172,10 +172,6 @@ def _is_stopped(pid: int | None) -> bool:
     return stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] in ("T", "t")
 
 
-def join_seconds(members: int) -> float:
-    """How long the processes of a launch have to join: 20 s, and a second more a member
-    (every process hears every other's hellos: the work grows with the members)."""
-    return 20.0 + 1.0 * members
 
 
 class LaunchProcesses:

@@ -89,6 +89,13 @@ def lateness(
     return None
 
 
+def join_seconds(members: int) -> float:
+    """How long the processes of a run have to join, by default: 20 s, and a second more a
+    member (every process hears every other's hellos, each as long as the roster, and says
+    its own less often in a larger run: ``hello_period``)."""
+    return 20.0 + 1.0 * members
+
+
 def scenario_digest(sc: Scenario) -> str:
     """What every process of one run must share: the scenario text and the seed."""
     return hashlib.sha256(f"{sc.text}\0seed={sc.seed}".encode()).hexdigest()
@@ -156,7 +163,7 @@ def run_units(
     zenoh_options: dict[str, Any] | None = None,
     run_id: str | None = None,
     timeout: float = 10.0,
-    join_timeout: float = 20.0,
+    join_timeout: float | None = None,
     traces: bool = False,
     progress: Callable[[float, int], None] | None = None,
     engine: str = "event",
@@ -168,7 +175,8 @@ def run_units(
     """Run the units ``names`` of ``sc`` in this process, one world and one zenoh session for
     all of them (their ears advanced together, one frame per unit and step); returns each
     unit's part of the run summary, by name. ``on_open``: called once the zenoh session is
-    open (listening), before the join; ``on_result``: called with the parts as soon as the
+    open (listening), before the join (``join_timeout``: how long it may take; by default
+    ``join_seconds``); ``on_result``: called with the parts as soon as the
     run is over and the units' reports are on disk, before the session closes (closing can
     wait seconds for a peer that died). ``key``: the run's shared secret (every frame and
     hello signed and checked). A failed join is written to the log before it is raised. When
@@ -199,7 +207,8 @@ def run_units(
                 recorder.live = bus.telemetry_feed(first)  # what `rgtbus watch` serves
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()
-            _join(bus, sc, names, recorder, join_timeout)
+            allowance = join_seconds(len(sc.units)) if join_timeout is None else join_timeout
+            _join(bus, sc, names, recorder, allowance)
             result, outs = _run_world(sc, units, bus, recorder, world_options, run_id, t0)
             sim_seconds = result.sim_seconds
             if on_result is not None:

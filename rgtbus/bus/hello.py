@@ -4,11 +4,14 @@ Wire form: one UTF-8 JSON object, at most ``MAX_HELLO`` bytes::
 
     {"unit": "b", "digest": <64 hex: scenario text + seed>, "nonce": <32 hex>,
      "heard": {"a": <32 hex: a's nonce as b heard it>, ...}, "ready": false,
-     "started": false, "sample": 0, "tag": <64 hex, only on a run with a key>}
+     "started": false, "sample": 0, "process": "<host>:<pid>",
+     "tag": <64 hex, only on a run with a key>}
 
 ``heard`` echoes the nonce of every member the sender has heard: a hello that echoes *our*
 nonce was said after ours, so it cannot be a recording of an earlier run (docs/security.md).
 ``ready``: the sender has such an answer from every member (the barrier can open).
+``process``: where the sender runs, as it says it (printable, at most ``MAX_PROCESS`` characters):
+what names two processes that claim one unit (it proves nothing: the nonce tells them apart).
 ``tag`` is HMAC-SHA256 (rgtbus.bus.auth) over the object without it, in its canonical form
 (sorted keys, no spaces). ``read_hello`` checks every field (type, range, length, membership)
 and raises RgtbusError (AuthError for a missing or bad tag) on anything else: nothing a peer
@@ -28,7 +31,10 @@ from rgtbus.errors import RgtbusError
 
 MAX_HELLO = 64 * 1024
 _HEX = re.compile(r"[0-9a-f]*")  # used with fullmatch: "$" would let a trailing newline in
-_FIELDS = frozenset({"unit", "digest", "nonce", "heard", "ready", "started", "sample"})
+_FIELDS = frozenset(
+    {"unit", "digest", "nonce", "heard", "ready", "started", "sample", "process"}
+)
+MAX_PROCESS = 128
 _NEVER = 2**63 - 1
 
 
@@ -43,6 +49,7 @@ class Hello:
     started: bool = False
     sample: int = 0
     ready: bool = False
+    process: str = ""
 
 
 def _canonical(obj: Mapping[str, Any]) -> bytes:
@@ -59,6 +66,7 @@ def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
         "ready": h.ready,
         "started": h.started,
         "sample": h.sample,
+        "process": h.process,
     }
     if key is not None:
         obj["tag"] = tag(key, "hello", run_id, h.unit, h.nonce, _canonical(obj)).hex()
@@ -113,6 +121,9 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
         raise RgtbusError("hello started and ready must be true or false")
     if isinstance(sample, bool) or not isinstance(sample, int) or not 0 <= sample <= _NEVER:
         raise RgtbusError("hello sample must be an integer 0..2**63-1")
+    process = obj["process"]
+    if not isinstance(process, str) or len(process) > MAX_PROCESS or not process.isprintable():
+        raise RgtbusError(f"hello process must be printable text of at most {MAX_PROCESS}")
     if key is not None:
         if (
             not isinstance(got_tag, str)
@@ -123,4 +134,4 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
         check_tag(key, "hello", run_id, unit, nonce, _canonical(obj), bytes.fromhex(got_tag))
     elif got_tag is not None:
         raise AuthError(f"hello of {unit!r} authenticated with a key this run does not have")
-    return Hello(unit, digest, nonce, heard, started, sample, ready)
+    return Hello(unit, digest, nonce, heard, started, sample, ready, process)

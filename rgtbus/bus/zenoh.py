@@ -17,6 +17,7 @@ import json
 import os
 import queue
 import re
+import socket
 import threading
 import time
 import weakref
@@ -28,7 +29,14 @@ import zenoh
 from rgtbus.bus import keys
 from rgtbus.bus.auth import AuthError, tag
 from rgtbus.bus.base import QueueBus
-from rgtbus.bus.hello import MAX_HELLO, Hello, check_digest, encode_hello, read_hello
+from rgtbus.bus.hello import (
+    MAX_HELLO,
+    MAX_PROCESS,
+    Hello,
+    check_digest,
+    encode_hello,
+    read_hello,
+)
 from rgtbus.bus.payload import encode_telemetry, sign_telemetry
 from rgtbus.errors import RgtbusError
 
@@ -213,7 +221,6 @@ class TelemetryFeed:
 
 
 HELLO_QUEUE = 256  # hellos heard, not yet read (more: dropped_overflow; members repeat theirs)
-_REPLIES_PER_ROUND = 2  # immediate join replies per member and 50 ms round (the rest: next round)
 _LATE_ANSWERS_PER_S = 20.0  # answers to hellos heard after the start ("too late")
 _ANSWERED_MAX = 4096  # (unit, nonce) pairs remembered as answered
 
@@ -243,20 +250,28 @@ class _Rate:
         return True
 
 
+def hello_period(members: int) -> float:
+    """How often a joining process says its hello unprompted: 50 ms, and longer in a large
+    run (every hello reaches every process, and each is O(members) long): 10 ms a member."""
+    return max(0.05, 0.01 * members)
+
+
 class _Barrier:
     """One join's state (``ZenohBus.join``): the latest nonce heard of each member (``echo``),
-    the members whose hello echoed ours (``fresh``) and said they are ready, and the hellos
-    answered at once this round and ever."""
+    the members whose hello echoed ours (``fresh``) and said they are ready, whether a hello
+    brought news since we last spoke (``news``: we answer at the next round, once for all of
+    it), and who claims each unit (``claims``: nonce -> (process, when last heard))."""
 
-    def __init__(self, bus: ZenohBus, mine: list[str], digest: str) -> None:
-        self.bus, self.mine, self.digest = bus, mine, digest
+    def __init__(self, bus: ZenohBus, mine: list[str], digest: str, period: float) -> None:
+        self.bus, self.mine, self.digest, self.period = bus, mine, digest, period
         self.local = set(mine)
         self.others = set(bus.members) - self.local
         self.echo: dict[str, bytes] = dict.fromkeys(mine, bus.nonce)  # each member's latest
         self.fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
         self.ready: set[str] = set()
-        self.replied: set[tuple[str, bytes, bool]] = set()  # (unit, nonce, fresh) answered
-        self.budget = 0  # answers at once left this round
+        self.news = False
+        self.claims: dict[str, dict[bytes, tuple[str, float]]] = {}
+        self.conflict: str | None = None  # two live processes claim one unit
 
     def done(self) -> bool:
         """Every other member is fresh and ready: the barrier opens."""
@@ -272,43 +287,52 @@ class _Barrier:
             ready = self.fresh.keys() >= self.others
         for u in self.mine:
             self.bus._say_hello(u, self.digest, self.echo, ready=ready)
+        self.news = False
 
-    def answer(self, h: Hello, is_fresh: bool) -> None:
-        """Our hello at once, for news in ``h``: once per (unit, nonce, fresh), a few a
-        round; else counted, and the next round's hello says it."""
-        k = (h.unit, h.nonce, is_fresh)
-        why = (
-            f"hello: {h.unit!r} (nonce {h.nonce.hex()[:8]}) heard again or too fast: "
-            "not answered at once (replayed?)"
-        )
-        if self.bus._may_answer(self.replied, k, lambda: self.budget > 0, why):
-            self.budget -= 1
-            self.say()
+    def claim(self, h: Hello, heard_at: float) -> None:
+        """``h``'s process claims ``h.unit``: ``conflict`` set when another process claims it
+        too and still says so (its last hello within three periods: a claimant that died, or
+        was replaced, falls silent), naming the unit and both claimants. Our own units' claims
+        are ours. ``heard_at``: when it arrived (monotonic)."""
+        now = time.monotonic()
+        claims = self.claims.setdefault(h.unit, {})
+        if h.unit in self.local:
+            claims[self.bus.nonce] = (self.bus.process, now)
+        claims[h.nonce] = (h.process, max(heard_at, claims.get(h.nonce, ("", heard_at))[1]))
+        for nonce in [n for n, (_, at) in claims.items() if now - at > 3 * self.period]:
+            if nonce != self.bus.nonce:
+                del claims[nonce]
+        if len(claims) > 1:
+            who = " and ".join(
+                f"{proc or '(unnamed)'} (nonce {nonce.hex()[:8]})"
+                for nonce, (proc, _) in sorted(claims.items(), key=lambda c: c[1][1])
+            )
+            self.conflict = self.conflict or (
+                f"two processes claim unit {h.unit!r} of run {self.bus.run_id!r}: {who}: "
+                "the join stops for both"
+            )
 
-    def hear(self, h: Hello) -> bool:
-        """One member's hello (not ours); whether the barrier opens with it. RgtbusError for a
-        member on another scenario, a run already started, or two processes as one unit."""
+    def hear(self, h: Hello, heard_at: float) -> bool:
+        """One member's hello (not ours, arrived at ``heard_at``); whether the barrier opens
+        with it. RgtbusError for a member on another scenario, or a run already started."""
         run_id = self.bus.run_id
         if h.digest != self.digest:
             raise RgtbusError(
                 f"unit {h.unit!r} of run {run_id!r} runs another scenario or "
                 f"seed (digest {h.digest[:12]}, ours {self.digest[:12]})"
             )
+        self.claim(h, heard_at)
         if any(h.heard.get(u) != self.bus.nonce for u in self.mine):  # not (yet) an answer
-            news = self.echo.get(h.unit) != h.nonce
-            self.echo[h.unit] = h.nonce
-            if news:  # say so at once: it waits for our echo of its nonce
-                self.answer(h, False)
+            if self.echo.get(h.unit) != h.nonce:  # it waits for our echo of its nonce
+                self.echo[h.unit] = h.nonce
+                self.news = True
             return False
         if h.started:
             raise RgtbusError(
                 f"run {run_id!r} already started (unit {h.unit!r} is at sample "
                 f"{h.sample}): {self.mine[0]!r} joined too late"
             )
-        known = self.fresh.get(h.unit)
-        if known is not None and known != h.nonce:
-            raise RgtbusError(f"two processes say they are unit {h.unit!r} of run {run_id!r}")
-        news = known is None or self.echo.get(h.unit) != h.nonce
+        news = self.fresh.get(h.unit) != h.nonce or self.echo.get(h.unit) != h.nonce
         self.fresh[h.unit] = self.echo[h.unit] = h.nonce
         # Its frames are checked with this nonce from now on (at the gate): it sends its first
         # only after our ready, which says we heard it fresh.
@@ -317,8 +341,7 @@ class _Barrier:
             self.ready.add(h.unit)
         if self.done():
             return True
-        if news:
-            self.answer(h, True)
+        self.news = self.news or news
         return False
 
 
@@ -364,7 +387,10 @@ class ZenohBus(QueueBus):
         self._subscriber: Any = None
         self._hello_sub: Any = None
         self._token: Any = None
-        self._hellos: queue.Queue[bytes] = queue.Queue(maxsize=HELLO_QUEUE)
+        # hellos heard, not yet read: (what was said, when it arrived)
+        self._hellos: queue.Queue[tuple[bytes, float]] = queue.Queue(maxsize=HELLO_QUEUE)
+        self._last_hello: dict[str, bytes] = {}  # each member's last hello heard, as said
+        self.process = f"{socket.gethostname()}:{os.getpid()}"[:MAX_PROCESS]  # who says it
         self._hello_prefix = keys.prefix(keys.HELLO, self.run_id)
         self.max_hello = max_hello(self.members)
         # (this process's units, digest) once the run has started
@@ -454,19 +480,20 @@ class ZenohBus(QueueBus):
         ``units``: the units this process runs (one, or several: each says its hello, all with
         the process's nonce, and counts the others of its process as heard).
 
-        Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and repeats a
-        hello (rgtbus.bus.hello: its unit, scenario digest, nonce, and the nonces of the members
-        it has heard) until every member's hello echoes our nonce (it is fresh, not a recording)
-        and says it is ready (it has such a hello from everyone). Data and subscriber
-        declarations share a link in order, so a hello from a peer proves its tx subscriber is
-        declared: nobody's first frame can be lost. Refused: a member on another scenario or
-        seed (digest differs), two processes claiming one unit, or a run that already started
-        (a late joiner). Running members answer late hellos from ``wait``. On a keyed run only
-        hellos with a valid tag count; the nonces heard are what later frames are checked with,
-        from the moment a member's hello proves fresh (it starts sending only once we said we
-        are ready, after that). A hello is answered at once only the first time its (unit,
-        nonce) brings news, and at most a few times a round; the rest wait for the next round
-        and are counted (``hellos_unanswered``): replayed hellos buy no flood of answers.
+        Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and says a hello
+        (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and the nonces of
+        the members it has heard) every ``hello_period`` (longer in a larger run), and once a
+        round more when a hello brought news (one answer for all of it), until every member's
+        hello echoes our nonce (it is fresh, not a recording) and says it is ready (it has such
+        a hello from everyone). A hello said again unchanged is not read again. Data and
+        subscriber declarations share a link in order, so a hello from a peer proves its tx
+        subscriber is declared: nobody's first frame can be lost. Refused: a member on another
+        scenario or seed (digest differs), a run that already started (a late joiner), and two
+        live processes claiming one unit: every process that hears both stops its join,
+        naming the unit and both claimants (``_Barrier.claim``). Running members answer late
+        hellos from ``wait``. On a keyed run only hellos with a valid tag count; the nonces
+        heard are what later frames are checked with, from the moment a member's hello proves
+        fresh (it starts sending only once we said we are ready, after that).
         """
         mine = [units] if isinstance(units, str) else list(units)
         if not mine:
@@ -477,12 +504,22 @@ class ZenohBus(QueueBus):
             raise RgtbusError(f"join: a unit named twice in {mine}")
         check_digest(digest)
         self._declare_presence(mine[0])  # the process's voice for what it says once
-        barrier = _Barrier(self, mine, digest)
+        period = hello_period(len(self.members))
+        barrier = _Barrier(self, mine, digest, period)
         deadline = time.monotonic() + timeout
+        said = -period
+        stop_at: float | None = None  # a conflict: said on a while, for all to hear it too
         while True:
-            barrier.budget = _REPLIES_PER_ROUND * len(self.members)
-            barrier.say()
-            self._hear_round(barrier, time.monotonic() + 0.05)
+            now = time.monotonic()
+            if barrier.news or now - said >= period:
+                barrier.say()
+                said = now
+            self._hear_round(barrier, now + period / 4)
+            if barrier.conflict is not None:
+                stop_at = stop_at or time.monotonic() + 4 * period
+                if time.monotonic() >= stop_at:
+                    raise RgtbusError(barrier.conflict)
+                continue
             if barrier.done():
                 barrier.say(ready=True)
                 # What is queued now was said before the start (a link keeps its order).
@@ -516,13 +553,17 @@ class ZenohBus(QueueBus):
         before then."""
         while (left := until - time.monotonic()) > 0:
             try:
-                raw = self._hellos.get(timeout=left)
+                raw, heard_at = self._hellos.get(timeout=left)
             except queue.Empty:
                 break
             h = self._read_hello(raw)
-            if h is None or h.unit in barrier.local:
+            if h is None:
                 continue
-            if barrier.hear(h):
+            if h.unit in barrier.local:
+                if h.nonce != self.nonce:  # another process says it is one of our units
+                    barrier.claim(h, heard_at)
+                continue
+            if barrier.hear(h, heard_at):
                 break
 
     def _say_hello(
@@ -534,7 +575,9 @@ class ZenohBus(QueueBus):
         ready: bool,
         started: bool = False,
     ) -> None:
-        h = Hello(unit, digest, self.nonce, dict(echo), started, self._taken, ready)
+        h = Hello(
+            unit, digest, self.nonce, dict(echo), started, self._taken, ready, self.process
+        )
         self.session.put(self.hello_key(unit), encode_hello(h, self.run_id, self._key))
 
     def _read_hello(self, raw: bytes) -> Hello | None:
@@ -558,7 +601,7 @@ class ZenohBus(QueueBus):
         unit = mine[0]
         while True:
             try:
-                raw = self._hellos.get_nowait()
+                raw, _ = self._hellos.get_nowait()
             except queue.Empty:
                 return
             h = self._read_hello(raw)
@@ -612,7 +655,10 @@ class ZenohBus(QueueBus):
                 )
                 return
             raw = payload if isinstance(payload, bytes) else payload.to_bytes()
-            self._hellos.put_nowait(raw)
+            if self._last_hello.get(who) == raw:  # said again, unchanged: nothing new to read
+                return
+            self._last_hello[who] = raw
+            self._hellos.put_nowait((raw, time.monotonic()))
         except queue.Full:
             self._gate_drop("dropped_overflow", key, "hello queue full", False)
         except Exception as e:  # a callback must not raise (docs/zenoh-notes.md)

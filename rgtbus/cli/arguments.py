@@ -97,8 +97,7 @@ def add_join_timeout_argument(p: argparse.ArgumentParser) -> None:
     add_seconds_argument(
         p,
         "--join-timeout",
-        "give up when not every unit has joined within S seconds (default 30)",
-        default=30.0,
+        "give up when not every unit has joined within S seconds (default 20 and 1 a unit)",
     )
 
 

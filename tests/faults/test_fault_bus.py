@@ -894,3 +894,65 @@ def test_check_key():
     for kind_ in ("memory", "zenoh"):
         with pytest.raises(RgtbusError, match="at least 16 bytes"):
             open_bus(kind_, RUN, ("a",), RATE, key=b"short")
+
+
+def _join_hearing(bus, unit: str, hellos: list[Hello], timeout: float = 10.0) -> str:
+    """``bus`` joins as ``unit`` while ``hellos`` (from other processes, unsigned) arrive at
+    its hello gate, again and again as a process repeats its hello; what the join ended
+    with: "joined" or its error."""
+    import threading
+
+    out: list[str] = []
+
+    def join() -> None:
+        try:
+            bus.join(unit, "0" * 64, timeout=timeout)
+            out.append("joined")
+        except RgtbusError as e:
+            out.append(str(e))
+
+    t = threading.Thread(target=join)
+    t.start()
+    while t.is_alive():
+        for h in hellos:
+            bus._hello_gate(bus.hello_key(h.unit), encode_hello(h, RUN, None))
+        time.sleep(0.02)
+    t.join()
+    return out[0]
+
+
+def test_two_processes_claiming_a_member_stop_the_join_naming_both():
+    """Member b said by two live processes (two nonces, each repeating its hello): the join
+    stops with one line naming b and both claimants, whichever it heard first."""
+    other = bytes([7]) * 16
+    with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["a"]) as bus:
+        claims = [
+            Hello("b", "0" * 64, NONCE, {"a": bus.nonce}, process="host-1:11"),
+            Hello("b", "0" * 64, other, {"a": bus.nonce}, process="host-2:22"),
+        ]
+        said = _join_hearing(bus, "a", claims)
+    assert said.startswith(f"two processes claim unit 'b' of run '{RUN}': "), said
+    assert "host-1:11 (nonce " + NONCE.hex()[:8] in said and "host-2:22 (nonce 07070707" in said
+    assert said.endswith("the join stops for both") and "\n" not in said
+
+
+def test_a_process_hearing_another_claim_its_own_unit_stops_naming_both():
+    """A unit's own process hears another process say it is that unit: it stops too."""
+    with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["b"]) as bus:
+        rival = Hello("b", "0" * 64, NONCE, process="elsewhere:7")
+        said = _join_hearing(bus, "b", [rival])
+    assert said.startswith(f"two processes claim unit 'b' of run '{RUN}': "), said
+    assert bus.process in said and "elsewhere:7" in said
+
+
+def test_a_claimant_that_fell_silent_is_no_conflict():
+    """A process that said it is b, then fell silent (died, restarted): once three periods
+    have passed without it, a new claimant of b is no conflict; the join goes on (and times
+    out here, b never answering a's nonce)."""
+    with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["a"]) as bus:
+        gone = Hello("b", "0" * 64, bytes([9]) * 16, process="old:1")
+        bus._hello_gate(bus.hello_key("b"), encode_hello(gone, RUN, None))
+        time.sleep(0.5)  # more than three periods of 50 ms: it fell silent before the join
+        new = Hello("b", "0" * 64, NONCE, process="new:2")
+        said = _join_hearing(bus, "a", [new], timeout=1.0)
+    assert said.startswith("joining run") and "timed out" in said, said

@@ -290,15 +290,16 @@ def test_replayed_hellos_are_answered_once_at_a_bounded_rate_and_counted():
 
 def test_the_hello_gate_bounds_what_it_queues():
     """The hello callback: a non-member's key, an oversize hello and a full queue are dropped
-    and counted, never queued."""
+    and counted, never queued; a hello said again unchanged is not queued again."""
     from rgtbus.bus.zenoh import HELLO_QUEUE
 
     with open_bus("zenoh", "rg", ("a", "b"), 200.0, local=["a"], key=KEY) as a:
         gate = a._hello_gate
         gate("rgtbus/rg/hello/zz", b"{}")
         gate(a.hello_key("b"), b"x" * (a.max_hello + 1))
-        for _ in range(HELLO_QUEUE + 50):
-            gate(a.hello_key("b"), b"{}")
+        for i in range(HELLO_QUEUE + 50):
+            gate(a.hello_key("b"), b"{}%d" % i)
+            gate(a.hello_key("b"), b"{}%d" % i)  # the same again: nothing new to read
         st = a.stats()
         assert st["dropped_foreign"] == 1 and st["dropped_oversize"] == 1, st
         assert st["dropped_overflow"] == 50 and a._hellos.qsize() == HELLO_QUEUE, st

@@ -356,3 +356,37 @@ def test_every_healthy_unit_is_kept_whenever_one_is_killed(procs, tmp_path, afte
     assert lines[0] == f"launch: {summary['error']}", err
     assert all(f": {victim} did not say it was done" in ln or f": {victim} promised" in ln
                for ln in lines[1:]), err  # fmt: skip
+
+
+@pytest.mark.slow  # five unit processes and a router, twice
+@pytest.mark.parametrize("gap", [0.1, 1.0])
+def test_a_second_process_claiming_a_unit_never_takes_its_place(procs, tmp_path, gap):
+    """Units a, c, d and b of a keyed run through a router, and ``gap`` seconds after b a
+    second process that says it is b (it has the run key): the real b is never refused in
+    favour of it. Either both claimants (and everyone who heard both) stop the join with one
+    line naming b and both, or the real b runs and the later one is refused as too late."""
+    key = tmp_path / "key"
+    key.write_bytes(os.urandom(32))
+    ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    router = procs("router", "-l", ep)
+    assert router.stdout.readline().startswith("router listening")
+    common = ["--mode", "client", "-e", ep, "--key-file", str(key), "--run-id", "claims",
+              "--realtime", "40", "--timeout", "5", "--join-timeout", "20"]  # fmt: skip
+
+    def unit(name: str, log: str) -> subprocess.Popen:
+        return procs("unit", name, GATE, "--log", str(tmp_path / log), *common)
+
+    ps = {u: unit(u, f"{u}.mcap") for u in "acd"}
+    ps["b"] = unit("b", "b.mcap")
+    time.sleep(gap)
+    ps["b2"] = unit("b", "b2.mcap")
+    said = {n: (p.wait(timeout=120), p.communicate(timeout=30)[1]) for n, p in ps.items()}
+    conflict = "two processes claim unit 'b' of run 'claims': "
+    late = "'b' joined too late"
+    (b_code, b_err), (b2_code, b2_err) = said["b"], said["b2"]
+    assert late not in b_err, said  # the real b is never the one refused as late
+    if conflict in b_err:
+        assert b_code == 2 and conflict in b2_err, said
+    else:
+        assert b_code == 0 and b2_code == 2 and (late in b2_err or conflict in b2_err), said
+        assert all(said[u][0] == 0 for u in "acd"), said
