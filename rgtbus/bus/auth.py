@@ -9,7 +9,7 @@ different field lists give the same message) and ``nonce`` is the 16 random byte
 process drew when it opened its bus. A frame's body holds its sequence number, so a frame
 replayed within a run is a duplicate and one replayed from an earlier run (same run id, same
 key) fails its tag: that process's nonce is not the one its hello announced this time. Hellos
-prove they are fresh by echoing the nonce of the unit that hears them.
+prove they are fresh by holding the hearer's nonce in their view (rgtbus.bus.hello).
 
 Pure: no transport, no I/O but ``load_key``.
 """

@@ -1,17 +1,24 @@
 """The hello of the join barrier: who a process is, on which scenario, and whom it has heard.
 
-Wire form: one UTF-8 JSON object, at most ``MAX_HELLO`` bytes::
+Wire form: one UTF-8 JSON object, at most ``MAX_HELLO`` bytes, the same size however many
+members the run has::
 
     {"unit": "b", "digest": <64 hex: scenario text + seed>, "nonce": <32 hex>,
-     "heard": {"a": <32 hex: a's nonce as b heard it>, ...}, "ready": false,
+     "view": <64 hex, or "": the run's view as b has it>, "ready": false,
      "started": false, "sample": 0, "process": "<host>:<pid>",
+     "to": <32 hex, or "": the nonce of the late joiner this answers>,
      "tag": <64 hex, only on a run with a key>}
 
-``heard`` echoes the nonce of every member the sender has heard: a hello that echoes *our*
-nonce was said after ours, so it cannot be a recording of an earlier run (docs/security.md).
-``ready``: the sender has such an answer from every member (the barrier can open).
-``process``: where the sender runs, as it says it (printable, at most ``MAX_PROCESS`` characters):
-what names two processes that claim one unit (it proves nothing: the nonce tells them apart).
+``view`` is ``view_digest`` of the nonce of every member as the sender has heard it (its own
+among them), or empty while it has not heard every member. A hello whose view is *ours*
+holds our nonce, so it was said after ours: it cannot be a recording of an earlier run
+(docs/security.md); its sender has heard everyone we heard, as we heard them. ``ready``: the
+sender has such a hello from every member (the barrier can open). ``started``: the sender's
+run has started (at ``sample``); such an answer to a late joiner names the joiner's nonce in
+``to``, which proves it fresh to that joiner. ``process``: where the sender runs, as it says it
+(printable, at most ``MAX_PROCESS`` characters): what names two processes that claim one unit
+(it proves nothing: the nonce tells them apart).
+
 ``tag`` is HMAC-SHA256 (rgtbus.bus.auth) over the object without it, in its canonical form
 (sorted keys, no spaces). ``read_hello`` checks every field (type, range, length, membership)
 and raises RgtbusError (AuthError for a missing or bad tag) on anything else: nothing a peer
@@ -20,21 +27,23 @@ says reaches the barrier unchecked. Pure: no transport.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from rgtbus.bus.auth import NONCE_SIZE, TAG_SIZE, AuthError, check_tag, tag
 from rgtbus.errors import RgtbusError
 
-MAX_HELLO = 64 * 1024
+MAX_HELLO = 4 * 1024
+MAX_PROCESS = 128
+VIEW_SIZE = 32
 _HEX = re.compile(r"[0-9a-f]*")  # used with fullmatch: "$" would let a trailing newline in
 _FIELDS = frozenset(
-    {"unit", "digest", "nonce", "heard", "ready", "started", "sample", "process"}
+    {"unit", "digest", "nonce", "view", "ready", "started", "sample", "process", "to"}
 )
-MAX_PROCESS = 128
 _NEVER = 2**63 - 1
 
 
@@ -45,11 +54,21 @@ class Hello:
     unit: str
     digest: str
     nonce: bytes
-    heard: dict[str, bytes] = field(default_factory=dict)
+    view: bytes = b""
     started: bool = False
     sample: int = 0
     ready: bool = False
     process: str = ""
+    to: bytes = b""
+
+
+def view_digest(run_id: str, digest: str, nonces: Mapping[str, bytes]) -> bytes:
+    """The view of a run: SHA-256 over its id, its scenario digest and every member's nonce
+    (by member name), in one canonical order."""
+    h = hashlib.sha256(f"rgtbus-view\0{run_id}\0{digest}".encode())
+    for unit in sorted(nonces):
+        h.update(b"\0" + unit.encode() + b"\0" + nonces[unit])
+    return h.digest()
 
 
 def _canonical(obj: Mapping[str, Any]) -> bytes:
@@ -62,11 +81,12 @@ def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
         "unit": h.unit,
         "digest": h.digest,
         "nonce": h.nonce.hex(),
-        "heard": {u: n.hex() for u, n in sorted(h.heard.items())},
+        "view": h.view.hex(),
         "ready": h.ready,
         "started": h.started,
         "sample": h.sample,
         "process": h.process,
+        "to": h.to.hex(),
     }
     if key is not None:
         obj["tag"] = tag(key, "hello", run_id, h.unit, h.nonce, _canonical(obj)).hex()
@@ -80,15 +100,19 @@ def check_digest(digest: object) -> str:
     return digest
 
 
-def _hex(obj: Mapping[str, Any], name: str, size: int) -> bytes:
+def _hex(obj: Mapping[str, Any], name: str, size: int, *, empty: bool = False) -> bytes:
+    """Field ``name``: ``size`` bytes as lowercase hex (or "" where ``empty`` allows it)."""
     v = obj.get(name)
+    if empty and v == "":
+        return b""
     if not isinstance(v, str) or len(v) != 2 * size or not _HEX.fullmatch(v):
-        raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits")
+        also = ' or ""' if empty else ""
+        raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits{also}")
     return bytes.fromhex(v)
 
 
-def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | None) -> Hello:
-    """The hello in ``raw``, every field checked; RgtbusError (one line) if anything is off."""
+def _parsed(raw: bytes) -> dict[str, Any]:
+    """The hello's JSON object, its size and form checked."""
     if not isinstance(raw, bytes | bytearray):
         raise RgtbusError(f"hello must be bytes, got {type(raw).__name__}")
     if len(raw) > MAX_HELLO:
@@ -99,6 +123,12 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
         raise RgtbusError(f"hello is not JSON: {type(e).__name__}") from None
     if not isinstance(obj, dict):
         raise RgtbusError(f"hello must be a JSON object, got {type(obj).__name__}")
+    return obj
+
+
+def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | None) -> Hello:
+    """The hello in ``raw``, every field checked; RgtbusError (one line) if anything is off."""
+    obj = _parsed(raw)
     got_tag = obj.pop("tag", None)
     if set(obj) != _FIELDS:
         extra, missing = sorted(set(obj) - _FIELDS), sorted(_FIELDS - set(obj))
@@ -108,14 +138,8 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
         raise RgtbusError(f"hello from {str(unit)[:40]!r}, not a member")
     digest = check_digest(obj["digest"])
     nonce = _hex(obj, "nonce", NONCE_SIZE)
-    heard_obj = obj["heard"]
-    if not isinstance(heard_obj, dict):
-        raise RgtbusError("hello heard must be an object of member: nonce")
-    heard = {}
-    for u in heard_obj:
-        if u not in members:
-            raise RgtbusError(f"hello heard {str(u)[:40]!r}, not a member")
-        heard[u] = _hex(heard_obj, u, NONCE_SIZE)
+    view = _hex(obj, "view", VIEW_SIZE, empty=True)
+    to = _hex(obj, "to", NONCE_SIZE, empty=True)
     started, sample, ready = obj["started"], obj["sample"], obj["ready"]
     if not isinstance(started, bool) or not isinstance(ready, bool):
         raise RgtbusError("hello started and ready must be true or false")
@@ -134,4 +158,4 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
         check_tag(key, "hello", run_id, unit, nonce, _canonical(obj), bytes.fromhex(got_tag))
     elif got_tag is not None:
         raise AuthError(f"hello of {unit!r} authenticated with a key this run does not have")
-    return Hello(unit, digest, nonce, heard, started, sample, ready, process)
+    return Hello(unit, digest, nonce, view, started, sample, ready, process, to)

@@ -36,6 +36,7 @@ from rgtbus.bus.hello import (
     check_digest,
     encode_hello,
     read_hello,
+    view_digest,
 )
 from rgtbus.bus.payload import encode_telemetry, sign_telemetry
 from rgtbus.errors import RgtbusError
@@ -226,10 +227,10 @@ _ANSWERED_MAX = 4096  # (unit, nonce) pairs remembered as answered
 
 
 def max_hello(members: Sequence[str]) -> int:
-    """The largest hello a member of this run can say: fixed fields and a tag (~300 bytes) and
-    one ``"unit":"<32 hex>"`` per member heard, with room to spare; larger ones are dropped
+    """The largest hello a member of this run can say: fixed fields, its unit's name, where
+    its process runs and a tag (well under 1 KB whatever the roster); larger ones are dropped
     unread (``dropped_oversize``)."""
-    return min(MAX_HELLO, 1024 + sum(len(u) + 64 for u in members))
+    return min(MAX_HELLO, 1024 + max((len(u) for u in members), default=0))
 
 
 class _Rate:
@@ -257,8 +258,8 @@ def hello_period(members: int) -> float:
 
 
 class _Barrier:
-    """One join's state (``ZenohBus.join``): the latest nonce heard of each member (``echo``),
-    the members whose hello echoed ours (``fresh``) and said they are ready, whether a hello
+    """One join's state (``ZenohBus.join``): the latest nonce heard of each member
+    (``nonces``, ours among them), each member's latest view and readiness, whether a hello
     brought news since we last spoke (``news``: we answer at the next round, once for all of
     it), and who claims each unit (``claims``: nonce -> (process, when last heard))."""
 
@@ -266,27 +267,46 @@ class _Barrier:
         self.bus, self.mine, self.digest, self.period = bus, mine, digest, period
         self.local = set(mine)
         self.others = set(bus.members) - self.local
-        self.echo: dict[str, bytes] = dict.fromkeys(mine, bus.nonce)  # each member's latest
-        self.fresh: dict[str, bytes] = {}  # members whose hello echoed our nonce
-        self.ready: set[str] = set()
+        self.nonces: dict[str, bytes] = dict.fromkeys(mine, bus.nonce)
+        self.views: dict[str, bytes] = {}  # each other member's latest view
+        self.readies: dict[str, bool] = {}  # ... and whether it said it was ready
         self.news = False
         self.claims: dict[str, dict[bytes, tuple[str, float]]] = {}
         self.conflict: str | None = None  # two live processes claim one unit
 
+    def view(self) -> bytes:
+        """Our view of the run (``view_digest``), or b"" while a member is unheard."""
+        if len(self.nonces) < len(self.bus.members):
+            return b""
+        return view_digest(self.bus.run_id, self.digest, self.nonces)
+
+    def fresh(self) -> set[str]:
+        """The other members whose latest hello holds our view: said after our nonce, and
+        having heard everyone as we did."""
+        ours = self.view()
+        return {u for u, v in self.views.items() if ours and v == ours}
+
     def done(self) -> bool:
         """Every other member is fresh and ready: the barrier opens."""
-        return self.fresh.keys() >= self.others and self.ready >= self.others
+        fresh = self.fresh()
+        return fresh >= self.others and all(self.readies.get(u) for u in self.others)
 
     def missing(self) -> list[str]:
-        """Who holds the barrier: members not yet fresh, else those not yet ready."""
-        return sorted(self.others - self.fresh.keys()) or sorted(self.others - self.ready)
+        """Who holds the barrier: members unheard, else those not fresh, else not ready."""
+        unheard = sorted(self.others - self.nonces.keys())
+        if unheard:
+            return unheard
+        return sorted(self.others - self.fresh()) or sorted(
+            u for u in self.others if not self.readies.get(u)
+        )
 
     def say(self, *, ready: bool | None = None) -> None:
         """Each of our units' hello (ready: once every other member is fresh)."""
         if ready is None:
-            ready = self.fresh.keys() >= self.others
+            ready = self.fresh() >= self.others
+        view = self.view()
         for u in self.mine:
-            self.bus._say_hello(u, self.digest, self.echo, ready=ready)
+            self.bus._say_hello(u, self.digest, view, ready=ready)
         self.news = False
 
     def claim(self, h: Hello, heard_at: float) -> None:
@@ -322,27 +342,25 @@ class _Barrier:
                 f"seed (digest {h.digest[:12]}, ours {self.digest[:12]})"
             )
         self.claim(h, heard_at)
-        if any(h.heard.get(u) != self.bus.nonce for u in self.mine):  # not (yet) an answer
-            if self.echo.get(h.unit) != h.nonce:  # it waits for our echo of its nonce
-                self.echo[h.unit] = h.nonce
-                self.news = True
-            return False
         if h.started:
-            raise RgtbusError(
-                f"run {run_id!r} already started (unit {h.unit!r} is at sample "
-                f"{h.sample}): {self.mine[0]!r} joined too late"
-            )
-        news = self.fresh.get(h.unit) != h.nonce or self.echo.get(h.unit) != h.nonce
-        self.fresh[h.unit] = self.echo[h.unit] = h.nonce
-        # Its frames are checked with this nonce from now on (at the gate): it sends its first
-        # only after our ready, which says we heard it fresh.
-        self.bus._nonces[h.unit] = h.nonce
-        if h.ready:
-            self.ready.add(h.unit)
-        if self.done():
-            return True
-        self.news = self.news or news
-        return False
+            if h.to == self.bus.nonce:  # an answer to us: the run started without us
+                raise RgtbusError(
+                    f"run {run_id!r} already started (unit {h.unit!r} is at sample "
+                    f"{h.sample}): {self.mine[0]!r} joined too late"
+                )
+            return False  # an answer to someone else
+        was_fresh = h.unit in self.fresh() and self.readies.get(h.unit) == h.ready
+        if self.nonces.get(h.unit) != h.nonce:  # our view changes: say so
+            self.nonces[h.unit] = h.nonce
+            self.news = True
+        self.views[h.unit], self.readies[h.unit] = h.view, h.ready
+        if h.unit in self.fresh():
+            # Its frames are checked with this nonce from now on (at the gate): it sends its
+            # first only after our ready, which says we heard it fresh.
+            self.bus._nonces[h.unit] = h.nonce
+            if not was_fresh:
+                self.news = True
+        return self.done()
 
 
 class ZenohBus(QueueBus):
@@ -481,12 +499,13 @@ class ZenohBus(QueueBus):
         the process's nonce, and counts the others of its process as heard).
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and says a hello
-        (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and the nonces of
-        the members it has heard) every ``hello_period`` (longer in a larger run), and once a
-        round more when a hello brought news (one answer for all of it), until every member's
-        hello echoes our nonce (it is fresh, not a recording) and says it is ready (it has such
-        a hello from everyone). A hello said again unchanged is not read again. Data and
-        subscriber declarations share a link in order, so a hello from a peer proves its tx
+        (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and its view: a
+        digest of every member's nonce as it heard them, once it heard all) every
+        ``hello_period`` (longer in a larger run), and once a round more when a hello brought
+        news (one answer for all of it), until every member's hello holds our view (it was
+        said after our nonce, so it is fresh, not a recording) and says it is ready (it has
+        such a hello from everyone). A hello is the same size whatever the roster; one said
+        again unchanged is not read again. Data and subscriber declarations share a link in order, so a hello from a peer proves its tx
         subscriber is declared: nobody's first frame can be lost. Refused: a member on another
         scenario or seed (digest differs), a run that already started (a late joiner), and two
         live processes claiming one unit: every process that hears both stops its join,
@@ -525,7 +544,7 @@ class ZenohBus(QueueBus):
                 # What is queued now was said before the start (a link keeps its order).
                 while not self._hellos.empty():
                     self._hellos.get_nowait()
-                self._nonces.update(barrier.fresh)
+                self._nonces.update({u: barrier.nonces[u] for u in barrier.others})
                 self._joined = (tuple(mine), digest)
                 return
             if time.monotonic() > deadline:
@@ -570,13 +589,14 @@ class ZenohBus(QueueBus):
         self,
         unit: str,
         digest: str,
-        echo: dict[str, bytes],
+        view: bytes,
         *,
         ready: bool,
         started: bool = False,
+        to: bytes = b"",
     ) -> None:
         h = Hello(
-            unit, digest, self.nonce, dict(echo), started, self._taken, ready, self.process
+            unit, digest, self.nonce, view, started, self._taken, ready, self.process, to
         )
         self.session.put(self.hello_key(unit), encode_hello(h, self.run_id, self._key))
 
@@ -620,8 +640,8 @@ class ZenohBus(QueueBus):
                 continue
             with self._gate_lock:
                 self._notes.append(f"hello from {h.unit!r} after the start: refused")
-            echo = {**self._nonces, h.unit: h.nonce}  # answered to it: fresh for it
-            self._say_hello(unit, digest, echo, ready=True, started=True)
+            view = view_digest(self.run_id, digest, self._nonces)
+            self._say_hello(unit, digest, view, ready=True, started=True, to=h.nonce)
 
     def _may_answer(
         self, answered: set[Any], news: object, allowed: Callable[[], bool], why: str

@@ -396,6 +396,7 @@ def test_anything_on_the_wire_is_accepted_or_dropped_and_counted_once(bus_kind, 
 # -- 3. hellos, fuzzed ---------------------------------------------------------------------------
 
 MEMBERS = frozenset({"a", "b", "c"})
+VIEW = bytes(range(32))
 HEX = "0123456789abcdef"
 NAMES = st.from_regex(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,7}", fullmatch=True)
 # Hex-like strings of about the right lengths, to get past the first checks.
@@ -424,7 +425,10 @@ JSON = st.recursive(
     ),
     max_leaves=12,
 )
-FIELDS = ["unit", "digest", "nonce", "heard", "ready", "started", "sample", "tag", "extra", ""]
+FIELDS = [
+    "unit", "digest", "nonce", "view", "ready", "started", "sample", "process", "to", "tag",
+    "extra", "",
+]  # fmt: skip
 
 
 @st.composite
@@ -435,10 +439,12 @@ def hellos(draw, members=None):
         unit=draw(one),
         digest=draw(st.text(HEX, min_size=64, max_size=64)),
         nonce=draw(st.binary(min_size=16, max_size=16)),
-        heard=draw(st.dictionaries(one, st.binary(min_size=16, max_size=16))),
+        view=draw(st.just(b"") | st.binary(min_size=32, max_size=32)),
         started=draw(st.booleans()),
         sample=draw(st.integers(0, NEVER)),
         ready=draw(st.booleans()),
+        process=draw(st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=40)),
+        to=draw(st.just(b"") | st.binary(min_size=16, max_size=16)),
     )
 
 
@@ -446,9 +452,8 @@ EDITS = st.lists(
     st.one_of(
         st.tuples(st.just("set"), st.sampled_from(FIELDS), JSON),
         st.tuples(st.just("del"), st.sampled_from(FIELDS)),
-        st.tuples(st.just("heard"), st.sampled_from([*sorted(MEMBERS), "zz", ""]), JSON),
-        st.tuples(st.just("heard"), st.sampled_from(sorted(MEMBERS)), HEXISH),
-        st.tuples(st.just("set"), st.just("heard"), st.just([[1]])),
+        st.tuples(st.just("set"), st.sampled_from(["view", "to", "nonce"]), HEXISH),
+        st.tuples(st.just("set"), st.just("process"), st.text(max_size=200)),
     ),
     min_size=1,
     max_size=4,
@@ -461,10 +466,6 @@ def edit(obj: dict, edits) -> dict:
             obj[e[1]] = e[2]
         elif e[0] == "del":
             obj.pop(e[1], None)
-        elif isinstance(obj.get("heard"), dict):
-            obj["heard"][e[1]] = e[2]
-        else:
-            obj["heard"] = {e[1]: e[2]}
     return obj
 
 
@@ -478,8 +479,9 @@ def read(raw, key=None, members=MEMBERS):
     assert isinstance(h, Hello) and h.unit in members
     assert re.fullmatch(r"[0-9a-f]{64}", h.digest), h.digest
     assert isinstance(h.nonce, bytes) and len(h.nonce) == 16
-    assert set(h.heard) <= set(members)
-    assert all(isinstance(n, bytes) and len(n) == 16 for n in h.heard.values())
+    assert isinstance(h.view, bytes) and len(h.view) in (0, 32)
+    assert isinstance(h.to, bytes) and len(h.to) in (0, 16)
+    assert isinstance(h.process, str) and len(h.process) <= 128 and h.process.isprintable()
     assert isinstance(h.started, bool) and isinstance(h.ready, bool)
     assert type(h.sample) is int and 0 <= h.sample <= NEVER
     return h
@@ -515,7 +517,7 @@ HOSTILE = {
     "BOM": b"\xef\xbb\xbf{}",
     "lone surrogate": b'{"unit": "\\ud800"}',
     "NaN": b"NaN",
-    "heard list": b'{"heard": [[1]]}',
+    "view list": b'{"view": [[1]]}',
     "null": b"null",
 }
 
@@ -533,7 +535,7 @@ def test_read_hello_refuses_non_bytes_and_deep_fields_of_a_valid_hello():
         with pytest.raises(RgtbusError, match="must be bytes"):
             read_hello(raw, RUN, MEMBERS, None)
     base = json.loads(encode_hello(Hello("a", "0" * 64, NONCE), RUN, None))
-    for name in ("unit", "heard", "sample", "nonce", "digest"):
+    for name in ("unit", "view", "sample", "nonce", "digest", "process", "to"):
         for depth in (1, 50, 400):  # parses fine, but no field may be a nested list
             obj = dict(base, **{name: json.loads("[" * depth + "]" * depth)})
             with pytest.raises(RgtbusError):
@@ -553,11 +555,18 @@ BAD_FIELDS = [
     ("nonce", "AB" * 16),
     ("nonce", "0" * 30 + " 0"),
     ("nonce", None),
-    ("heard", {"zz": "0" * 32}),
-    ("heard", {"b": "0" * 30}),
-    ("heard", {"b": None}),
-    ("heard", [["b", "0" * 32]]),
-    ("heard", None),
+    ("view", "0" * 62),
+    ("view", "0" * 32),
+    ("view", "AB" * 32),
+    ("view", None),
+    ("view", {"b": "0" * 64}),
+    ("to", "0" * 30),
+    ("to", "0" * 64),
+    ("to", None),
+    ("process", 7),
+    ("process", None),
+    ("process", "x" * 129),
+    ("process", "line\nbreak"),
     ("ready", 1),
     ("ready", "true"),
     ("started", None),
@@ -582,7 +591,7 @@ BAD_FIELDS = [
 def test_read_hello_refuses_each_bad_field(name, value, key):
     # One field off at a time, every other field right (and, keyed, a tag over the bad field
     # itself: the field check must refuse it, not only the tag).
-    obj = json.loads(encode_hello(Hello("a", "0" * 64, NONCE, {"b": NONCE}), RUN, None))
+    obj = json.loads(encode_hello(Hello("a", "0" * 64, NONCE, VIEW, to=NONCE), RUN, None))
     obj[name] = value
     if key is not None and name != "tag":
         body = {k: v for k, v in obj.items() if k != "tag"}
@@ -595,15 +604,19 @@ def test_read_hello_refuses_each_bad_field(name, value, key):
 
 def test_read_hello_edges_that_are_fine():
     obj = json.loads(encode_hello(Hello("a", "0" * 64, NONCE), RUN, None))
-    for name, value in (("sample", NEVER), ("sample", 0), ("heard", {}), ("unit", "c")):
+    for name, value in (("sample", NEVER), ("sample", 0), ("unit", "c"), ("process", "")):
         h = read_hello(json.dumps(dict(obj, **{name: value})).encode(), RUN, MEMBERS, None)
         assert getattr(h, name) == value
+    for name in ("view", "to"):  # empty: no view yet, an answer to nobody
+        h = read_hello(json.dumps(dict(obj, **{name: ""})).encode(), RUN, MEMBERS, None)
+        assert getattr(h, name) == b""
 
 
 def test_hello_size_limit_is_exact():
-    assert MAX_HELLO == 64 * 1024  # the documented wire limit
-    raw = encode_hello(Hello("a", "0" * 64, NONCE), RUN, KEY)
-    padded = raw + b" " * (64 * 1024 - len(raw))  # JSON whitespace: still the same hello
+    assert MAX_HELLO == 4 * 1024  # the documented wire limit
+    raw = encode_hello(Hello("a", "0" * 64, NONCE, VIEW, process="x" * 128), RUN, KEY)
+    assert len(raw) < 1024  # the largest a member says, whatever the roster
+    padded = raw + b" " * (4 * 1024 - len(raw))  # JSON whitespace: still the same hello
     assert read_hello(padded, RUN, MEMBERS, KEY).unit == "a"
     with pytest.raises(RgtbusError, match="at most"):
         read_hello(padded + b" ", RUN, MEMBERS, KEY)
@@ -619,7 +632,7 @@ def test_hello_round_trip(data, keyed):
 
 
 def test_hello_authentication():
-    h = Hello("a", "1" * 64, NONCE, {"b": bytes(16)}, sample=7)
+    h = Hello("a", "1" * 64, NONCE, VIEW, sample=7, process="h:1")
     signed = encode_hello(h, RUN, KEY)
     assert read_hello(signed, RUN, MEMBERS, KEY) == h
     with pytest.raises(AuthError, match="bad authentication tag"):
@@ -631,7 +644,8 @@ def test_hello_authentication():
     with pytest.raises(AuthError, match="no tag"):
         read_hello(encode_hello(h, RUN, None), RUN, MEMBERS, KEY)  # unsigned, on a keyed run
     # Any signed field changed after signing: the tag no longer fits.
-    for name, value in (("sample", 8), ("ready", True), ("unit", "b"), ("heard", {})):
+    for name, value in (("sample", 8), ("ready", True), ("unit", "b"), ("view", ""),
+                        ("process", "h:2"), ("to", "0" * 32)):  # fmt: skip
         obj = json.loads(signed)
         obj[name] = value
         with pytest.raises(AuthError, match="bad authentication tag"):
@@ -647,21 +661,17 @@ def test_hello_authentication():
 
 @pytest.mark.parametrize(
     "field",
-    ["nonce", "heard", "tag", "digest"],
+    ["nonce", "view", "to", "tag", "digest"],
 )
 def test_hex_field_with_a_trailing_newline_is_refused(field):
     # A fuzzer's find: "^...$" matched before a trailing newline, and bytes.fromhex then raised
     # a bare ValueError out of read_hello (fullmatch now).
-    # Keyed: the nonce and heard fields are read before the tag is checked, so no key is needed
-    # to get there. The digest on an open run (on a keyed one the tag catches it).
+    # Keyed: the hex fields are read before the tag is checked, so no key is needed to get
+    # there. The digest on an open run (on a keyed one the tag catches it).
     key = None if field == "digest" else KEY
-    obj = json.loads(encode_hello(Hello("a", "0" * 64, NONCE, {"b": NONCE}), RUN, key))
-    size = 64 if field in ("tag", "digest") else 32
-    bad = "0" * (size - 1) + "\n"
-    if field == "heard":
-        obj["heard"]["b"] = bad
-    else:
-        obj[field] = bad
+    obj = json.loads(encode_hello(Hello("a", "0" * 64, NONCE, VIEW, to=NONCE), RUN, key))
+    size = 64 if field in ("tag", "digest", "view") else 32
+    obj[field] = "0" * (size - 1) + "\n"
     with pytest.raises(RgtbusError):
         read_hello(json.dumps(obj).encode(), RUN, MEMBERS, key)
 
@@ -676,7 +686,7 @@ def zbus():
 
 
 def test_zenoh_read_hello_drops_and_counts(zbus):
-    good = Hello("b", "0" * 64, NONCE, {"a": zbus.nonce})
+    good = Hello("b", "0" * 64, NONCE, VIEW)
     base = json.loads(encode_hello(good, RUN, KEY))
     malformed = [
         b"",
@@ -686,7 +696,7 @@ def test_zenoh_read_hello_drops_and_counts(zbus):
         b" " * (MAX_HELLO + 1),
         b"\xff" * 100,
         json.dumps({k: v for k, v in base.items() if k != "sample"}).encode(),
-        json.dumps(dict(base, heard=[[1]])).encode(),
+        json.dumps(dict(base, view="zz")).encode(),
         json.dumps(dict(base, unit="zz")).encode(),
         json.dumps(dict(base, sample=-1)).encode(),
     ]
@@ -927,8 +937,8 @@ def test_two_processes_claiming_a_member_stop_the_join_naming_both():
     other = bytes([7]) * 16
     with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["a"]) as bus:
         claims = [
-            Hello("b", "0" * 64, NONCE, {"a": bus.nonce}, process="host-1:11"),
-            Hello("b", "0" * 64, other, {"a": bus.nonce}, process="host-2:22"),
+            Hello("b", "0" * 64, NONCE, VIEW, process="host-1:11"),
+            Hello("b", "0" * 64, other, VIEW, process="host-2:22"),
         ]
         said = _join_hearing(bus, "a", claims)
     assert said.startswith(f"two processes claim unit 'b' of run '{RUN}': "), said

@@ -24,7 +24,7 @@ from rgtbus.units.launch import free_ports
 import rgtbus
 from rgtbus.bus import open_bus
 from rgtbus.bus.auth import TAG_SIZE
-from rgtbus.bus.hello import Hello, encode_hello
+from rgtbus.bus.hello import MAX_PROCESS, Hello, encode_hello
 from rgtbus.bus.payload import HEADER_SIZE, MAGIC, TAGGED, VERSION
 from rgtbus.bus.zenoh import make_config
 
@@ -304,6 +304,7 @@ def test_the_hello_gate_bounds_what_it_queues():
         assert st["dropped_foreign"] == 1 and st["dropped_oversize"] == 1, st
         assert st["dropped_overflow"] == 50 and a._hellos.qsize() == HELLO_QUEUE, st
         assert st["received"] == 0  # hellos are not frames
-        # a legit hello is far below the bound: every member heard, signed
-        h = Hello("a", "ab" * 32, bytes(16), {"a": bytes(16), "b": bytes(16)}, True, 2**63 - 1)
-        assert len(encode_hello(h, "rg", KEY)) * 2 < a.max_hello
+        # a legit hello is far below the bound, whatever the size of the run, signed
+        h = Hello("a", "ab" * 32, bytes(16), bytes(32), started=True, sample=2**63 - 1, ready=True,
+                  process="h" * MAX_PROCESS, to=bytes(16))
+        assert len(encode_hello(h, "rg", KEY)) + 256 < a.max_hello
