@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     from rgtbus.telemetry.live import LiveView
 
 
-
 def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:
     """A scenario from a file path, TOML text, or the name of a shipped scenario (``"gate"``;
     ``rgtbus scenarios`` lists them). Bad input: ``RgtbusError`` naming file:line: key."""

@@ -172,8 +172,6 @@ def _is_stopped(pid: int | None) -> bool:
     return stat[stat.rfind(")") + 2 : stat.rfind(")") + 3] in ("T", "t")
 
 
-
-
 class LaunchProcesses:
     """The processes of a launch, forked from the launcher (see the module docstring)."""
 

@@ -499,20 +499,20 @@ class ZenohBus(QueueBus):
         the process's nonce, and counts the others of its process as heard).
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and says a hello
-        (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and its view: a
-        digest of every member's nonce as it heard them, once it heard all) every
-        ``hello_period`` (longer in a larger run), and once a round more when a hello brought
-        news (one answer for all of it), until every member's hello holds our view (it was
-        said after our nonce, so it is fresh, not a recording) and says it is ready (it has
-        such a hello from everyone). A hello is the same size whatever the roster; one said
-        again unchanged is not read again. Data and subscriber declarations share a link in order, so a hello from a peer proves its tx
+        (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and its view: a digest
+        of every member's nonce as it heard them, once it heard all) every ``hello_period`` (longer
+        in a larger run), and once a round more when a hello brought news (one answer for all of
+        it), until every member's hello holds our view (it was said after our nonce, so it is fresh,
+        not a recording) and says it is ready (it has such a hello from everyone). A hello is the
+        same size whatever the roster; one said again unchanged is not read again. Data and
+        subscriber declarations share a link in order, so a hello from a peer proves its tx
         subscriber is declared: nobody's first frame can be lost. Refused: a member on another
-        scenario or seed (digest differs), a run that already started (a late joiner), and two
-        live processes claiming one unit: every process that hears both stops its join,
-        naming the unit and both claimants (``_Barrier.claim``). Running members answer late
-        hellos from ``wait``. On a keyed run only hellos with a valid tag count; the nonces
-        heard are what later frames are checked with, from the moment a member's hello proves
-        fresh (it starts sending only once we said we are ready, after that).
+        scenario or seed (digest differs), a run that already started (a late joiner), and two live
+        processes claiming one unit: every process that hears both stops its join, naming the unit
+        and both claimants (``_Barrier.claim``). Running members answer late hellos from ``wait``.
+        On a keyed run only hellos with a valid tag count; the nonces heard are what later frames
+        are checked with, from the moment a member's hello proves fresh (it starts sending only once
+        we said we are ready, after that).
         """
         mine = [units] if isinstance(units, str) else list(units)
         if not mine:
@@ -595,9 +595,7 @@ class ZenohBus(QueueBus):
         started: bool = False,
         to: bytes = b"",
     ) -> None:
-        h = Hello(
-            unit, digest, self.nonce, view, started, self._taken, ready, self.process, to
-        )
+        h = Hello(unit, digest, self.nonce, view, started, self._taken, ready, self.process, to)
         self.session.put(self.hello_key(unit), encode_hello(h, self.run_id, self._key))
 
     def _read_hello(self, raw: bytes) -> Hello | None:

@@ -305,6 +305,15 @@ def test_the_hello_gate_bounds_what_it_queues():
         assert st["dropped_overflow"] == 50 and a._hellos.qsize() == HELLO_QUEUE, st
         assert st["received"] == 0  # hellos are not frames
         # a legit hello is far below the bound, whatever the size of the run, signed
-        h = Hello("a", "ab" * 32, bytes(16), bytes(32), started=True, sample=2**63 - 1, ready=True,
-                  process="h" * MAX_PROCESS, to=bytes(16))
+        h = Hello(
+            "a",
+            "ab" * 32,
+            bytes(16),
+            bytes(32),
+            started=True,
+            sample=2**63 - 1,
+            ready=True,
+            process="h" * MAX_PROCESS,
+            to=bytes(16),
+        )
         assert len(encode_hello(h, "rg", KEY)) + 256 < a.max_hello
