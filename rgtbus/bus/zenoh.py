@@ -105,6 +105,9 @@ def make_config(
         connect = () if connect is None else connect
         listen = () if listen is None else listen
         multicast = False if multicast is None else multicast
+        # Frames are small and few: zenoh's shared-memory pools (16 MB mapped a process)
+        # buy nothing here and cost every unit process their pages.
+        cfg.insert_json5("transport/shared_memory/enabled", "false")
     elif isinstance(config, zenoh.Config):
         cfg = config
     else:
