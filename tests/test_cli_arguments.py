@@ -54,7 +54,7 @@ def test_the_checked_values_are_what_the_rules_give():
     add_join_timeout_argument(p)
     args = p.parse_args(["--seed", "7", "--realtime", "2"])
     check_arguments(args)
-    assert (args.seed, args.realtime, args.timeout, args.join_timeout) == (7, 2.0, 10.0, 30.0)
+    assert (args.seed, args.realtime, args.timeout, args.join_timeout) == (7, 2.0, 10.0, None)
     args = p.parse_args([])
     check_arguments(args)  # an option not given (None) is not checked
     assert (args.seed, args.realtime) == (None, None)

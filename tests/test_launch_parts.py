@@ -4,13 +4,14 @@ a unit whose process said nothing, whether a process is stopped."""
 from __future__ import annotations
 
 import io
+import os
 import signal
 import subprocess
 import sys
 import time
 
 from rgtbus.units.group import run_group
-from rgtbus.units.launch import _is_stopped, recovered
+from rgtbus.units.launch import LaunchProcesses, _is_stopped, default_timeout, recovered
 from rgtbus.units.process import PauseWatch, join_seconds, lateness
 
 from rgtbus.scenario import load_scenario
@@ -75,3 +76,47 @@ def test_a_units_part_is_recovered_from_its_log_only_when_it_holds_its_report(tm
 
 def test_the_join_allowance_grows_with_the_members():
     assert join_seconds(4) < join_seconds(100) and join_seconds(100) >= 100
+
+
+def _beating_child(conn, steps, then):
+    """A stand-in for a unit process: beats ``steps`` (0.05 s apart), then says ``then``
+    (None: says nothing more, and lives on)."""
+    for s in steps:
+        conn.send({"beat": s})
+        time.sleep(0.05)
+    if then is not None:
+        conn.send(then)
+    time.sleep(60)
+
+
+def _start(processes, name, steps, then):
+    reader, writer = processes._mp.Pipe(duplex=False)
+    proc = processes._mp.Process(target=_beating_child, args=(writer, steps, then), daemon=True)
+    proc.start()
+    writer.close()
+    processes.procs[name] = proc
+    processes._results[name] = reader
+
+
+def test_the_launcher_waits_while_a_world_moves_and_calls_stalled_one_that_stopped_moving():
+    """No wall-clock limit on a run: a process whose world moves (its beats) is waited for as
+    long as it moves; one whose world stopped moving for ``stall_after`` is stalled (absent
+    from the results); a beat is never taken for a result."""
+    processes = LaunchProcesses(fork=True)
+    try:
+        _start(processes, "moving", list(range(40)), {"units": {"a": {"report": 1}}})  # ~2 s
+        _start(processes, "stuck", [1, 2, 2, 2, 2], None)  # stops moving at once
+        t0 = time.monotonic()
+        out = processes.collect(first=30.0, stall_after=1.5, timeout=10.0)
+        took = time.monotonic() - t0
+    finally:
+        processes.reap()
+    assert out == {"moving": {"units": {"a": {"report": 1}}}}, out
+    assert 1.5 <= took < 25, took  # the stuck one: 1.5 s after its last move, not `first`
+
+
+def test_a_launch_waits_longer_when_its_processes_outnumber_the_cores():
+    cores = len(os.sched_getaffinity(0))
+    assert default_timeout(1) == 10.0
+    assert default_timeout(cores) == 10.0
+    assert default_timeout(10 * cores) == 100.0

@@ -34,6 +34,7 @@ from rgtbus.units.group import default_run_id
 from rgtbus.units.result import RunResult
 
 import rgtbus.checks as checks
+from rgtbus.bus.hello import join_seconds
 from rgtbus.errors import RgtbusError
 from rgtbus.interrupts import interrupted_by
 from rgtbus.scenario import Scenario, load_scenario
@@ -42,6 +43,8 @@ from rgtbus.summary import summarise, summary_json
 ZENOH_OPTIONS = ("mode", "connect", "listen", "multicast", "config")
 _FEW_SECONDS = 5.0  # for the other units to report once one has said a member went silent
 _STOP_SECONDS = 10.0  # what processes asked to stop still say, within this in all
+_BEAT = 2.0  # s: how often a unit process tells the launcher how far its world is
+ROUTER_ABOVE = 16  # processes: more than this meet through a router by default, not a mesh
 # loaded once by the fork server, so that each unit process starts in milliseconds
 _PRELOAD = ["numpy.random", "rgtbus.bus.zenoh", "rgtbus.units.process"]
 
@@ -70,6 +73,15 @@ def process_groups(units: Sequence[str], procs: int | None) -> dict[str, list[st
         out[f"proc-{i}"] = list(units[at : at + n])
         at += n
     return out
+
+
+def default_timeout(processes: int) -> float:
+    """How long the units of a launch wait for news before they give up, by default: 10 s,
+    stretched by how far ``processes`` outnumber this machine's cores (a unit process starved
+    of CPU, one of a hundred on two cores, can take a minute over a second's work: 10 s x
+    processes / cores)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return 10.0 * max(1.0, processes / (cores or 1))
 
 
 def free_ports(n: int) -> list[int]:
@@ -115,6 +127,14 @@ def _unit_child(
     _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the launcher's to handle
     sent = False
+    beat_at = 0.0
+
+    def beat(_now: float, steps: int) -> None:
+        """Tell the launcher how far the world is (at most every ``_BEAT`` s)."""
+        nonlocal beat_at
+        if time.monotonic() - beat_at >= _BEAT:
+            beat_at = time.monotonic()
+            conn.send({"beat": steps})
 
     def report(outs: dict[str, dict[str, Any]]) -> None:
         """The units' parts, told at once: closing the session may then wait for a dead peer."""
@@ -130,7 +150,7 @@ def _unit_child(
             for ev in after:  # bounded: a peer that never listens is named by the join
                 ev.wait(10.0)
             run_logged_units(
-                sc, names, log, zenoh_options=net,
+                sc, names, log, zenoh_options=net, progress=beat,
                 on_open=listening.set, on_result=report, **opts,
             )  # fmt: skip
         except KeyboardInterrupt:
@@ -145,15 +165,16 @@ def _unit_child(
     conn.close()
 
 
-def _router_child(conn: Connection, endpoint: str) -> None:
-    """A zenoh router on ``endpoint`` in its own process, until SIGINT or SIGTERM."""
+def _router_child(conn: Connection, endpoint: str, patience: float) -> None:
+    """A zenoh router on ``endpoint`` in its own process, until SIGINT or SIGTERM; it waits
+    ``patience`` s on a client that does not read."""
     from rgtbus.units.process import open_router
 
     _die_with_parent()
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    session = open_router([endpoint], multicast=False)
+    session = open_router([endpoint], multicast=False, send_patience=patience)
     try:
         conn.send("listening")
         while not stop.wait(0.5):
@@ -217,10 +238,13 @@ class LaunchProcesses:
         self._results[name] = reader
         self._logs[name] = log
 
-    def start_router(self, endpoint: str, timeout: float) -> None:
-        """Fork a zenoh router on ``endpoint``; wait until it listens."""
+    def start_router(self, endpoint: str, timeout: float, patience: float) -> None:
+        """Fork a zenoh router on ``endpoint`` (waiting ``patience`` s on a client that does
+        not read); wait until it listens."""
         reader, writer = self._mp.Pipe(duplex=False)
-        proc = self._mp.Process(target=_router_child, args=(writer, endpoint), name="router")
+        proc = self._mp.Process(
+            target=_router_child, args=(writer, endpoint, patience), name="router"
+        )
         proc.start()
         writer.close()
         self.procs["router"] = proc
@@ -228,34 +252,48 @@ class LaunchProcesses:
             raise RgtbusError(f"router did not start within {timeout:g} s")
         reader.recv()
 
-    def collect(self, limit: float, timeout: float) -> dict[str, dict[str, Any]]:
-        """Every process's result as it comes, at most ``limit`` seconds in all. A process that
-        runs ends by itself: within its own ``timeout`` of hearing nothing from the others (a
-        paced one may run on for seconds up to where a dead peer had promised). One that
-        stays stopped (SIGSTOP, state T) for ``timeout`` and a few seconds more is stalled:
-        the others have given up on it (absent from the result: the launcher stops it and
-        asks it what it knew). A process that dies without a result gets ``{"died": exit
-        code}``."""
+    def collect(
+        self, first: float, stall_after: float, timeout: float, paced: bool = False
+    ) -> dict[str, dict[str, Any]]:
+        """Every process's result as it comes. A process that runs ends by itself: within its own
+        ``timeout`` of hearing nothing from the others (a paced one may run on for seconds up to
+        where a dead peer had promised), so it is stalled when its world has not moved for
+        ``stall_after`` s (its beats: how far its world is), or ``first`` s before its first move
+        (the join, the start); a paced run's process (``paced``) may also wait between moves until
+        ``first`` s have passed (``first`` then holds the paced length). One that stays stopped
+        (SIGSTOP, state T) for ``timeout`` and a few seconds more is stalled at once: the others
+        have given up on it. A stalled process is absent from the result (the launcher stops it and
+        asks it what it knew). A process that dies without a result gets ``{"died": exit code}``."""
         from multiprocessing.connection import wait
 
         out: dict[str, dict[str, Any]] = {}
         waiting = dict(self._results)
-        end = time.monotonic() + limit
+        start = time.monotonic()
+        deadline = {name: start + first for name in waiting}
+        steps: dict[str, int] = {}
         stopped_since: dict[str, float] = {}
         while waiting:
             now = time.monotonic()
             for name in list(waiting):
                 if not _is_stopped(self.procs[name].pid):
                     stopped_since.pop(name, None)
+                    if now > deadline[name]:
+                        del waiting[name]  # its world stopped moving: stalled
                 elif now - stopped_since.setdefault(name, now) > timeout + _FEW_SECONDS:
                     del waiting[name]  # stalled
-            ready = wait(list(waiting.values()), timeout=max(0.0, min(end - now, 0.25)))
+            ready = wait(list(waiting.values()), timeout=0.25)
             for name, conn in list(waiting.items()):
-                if conn in ready:
-                    out[name] = self._result_of(name, conn)
-                    del waiting[name]
-            if time.monotonic() >= end:
-                break
+                if conn not in ready:
+                    continue
+                said = self._result_of(name, conn)
+                if "beat" in said:  # the world moved on (or not): not a result
+                    if said["beat"] != steps.get(name):
+                        steps[name] = said["beat"]
+                        moved = time.monotonic()
+                        deadline[name] = max(moved + stall_after, start + first if paced else 0)
+                    continue
+                out[name] = said
+                del waiting[name]
         return out
 
     def _result_of(self, name: str, conn: Connection) -> dict[str, Any]:
@@ -469,10 +507,10 @@ def launch(
     zenoh: Mapping[str, Any] | None = None,
     key_file: str | os.PathLike[str] | None = None,
     realtime: float | None = None,
-    timeout: float = 10.0,
+    timeout: float | None = None,
     engine: str = "event",
     traces: bool = False,
-    router: bool = False,
+    router: bool | None = None,
 ) -> RunResult:
     """Run every unit of ``scenario`` as OS processes over zenoh (see the module docstring)
     and return the run's ``RunResult``: its summary (that of ``rgtbus.run`` but for wall time
@@ -487,8 +525,11 @@ def launch(
     ``connect``, ``listen``, ``multicast``, ``config``; default a mesh on loopback);
     ``key_file``: the run's shared secret (every frame signed and checked);
     ``realtime``: pace the run; ``timeout``: give up when no member has news for that many
-    seconds; ``engine``, ``traces``: as for ``rgtbus.run``; ``router``: connect the units
-    through a zenoh router process instead of a mesh. Bad arguments raise ``RgtbusError``."""
+    seconds (default ``default_timeout``: longer when the processes outnumber the cores);
+    ``engine``, ``traces``: as for ``rgtbus.run``; ``router``: connect the units through a
+    zenoh router process (True) or a full mesh (False); by default a mesh up to
+    ``ROUTER_ABOVE`` processes, a router above (a mesh of n processes opens n(n-1)/2 links).
+    Bad arguments raise ``RgtbusError``."""
     from rgtbus.bus.auth import load_key
 
     t0 = time.perf_counter()
@@ -496,13 +537,16 @@ def launch(
     sc = load_scenario(scenario) if not isinstance(scenario, Scenario) else scenario
     if seed is not None:
         sc = sc.with_seed(seed)
-    checks.seconds(timeout, "timeout")
     checks.choice(engine, checks.ENGINES, "engine")
     if realtime is not None:
         checks.realtime(realtime)
     key = None if key_file is None else load_key(key_file)
     groups = process_groups(sc.units, procs)
+    timeout = default_timeout(len(groups)) if timeout is None else timeout
+    checks.seconds(timeout, "timeout")
     net_given = zenoh_given(zenoh)
+    if router is None:
+        router = not net_given and len(groups) > ROUTER_ABOVE
     if net_given.get("listen") and len(groups) > 1:
         raise RgtbusError(
             f"-l/--listen with {len(groups)} processes: each would listen on the same "
@@ -554,17 +598,19 @@ def _run_processes(
             try:
                 ports = free_ports(len(procs) + 1)
                 router_ep = f"tcp/127.0.0.1:{ports[-1]}" if router else None
+                timeout = opts["timeout"]
                 if router_ep is not None:
-                    processes.start_router(router_ep, timeout=10.0)
+                    processes.start_router(router_ep, timeout=10.0, patience=timeout)
                 for name, (net, after) in _networks(procs, net_given, router_ep, ports).items():
                     processes.start_process(name, groups[name], sc, logs[name], net, after,
                                             **opts)  # fmt: skip
-                # A run ends by itself within its simulated length (paced: at the realtime
-                # factor) plus the join; after a failure the others end within their timeout.
-                realtime, timeout = opts["realtime"], opts["timeout"]
-                paced = sc.timing.max_seconds / realtime if realtime else 0.0
-                limit = paced + 60 + sc.timing.max_seconds / 10 + 2 * timeout
-                results = processes.collect(limit, timeout=timeout)
+                # A process moves its world on within its timeout, or gives up and says so
+                # (then the others end within theirs): stalled only past both and some more.
+                # Before its first move: the join, and a paced run's whole length.
+                stall_after = 2 * timeout + 30.0
+                paced = sc.timing.max_seconds / opts["realtime"] if opts["realtime"] else 0.0
+                first = join_seconds(len(sc.units)) + paced + stall_after
+                results = processes.collect(first, stall_after, timeout, paced=bool(paced))
             except KeyboardInterrupt:
                 interrupted = "launch interrupted (SIGINT or SIGTERM): units stopped"
             running = [p for p in procs if p not in results and p in processes.procs]

@@ -28,6 +28,7 @@ from rgtbus.units.group import (
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.bus import open_bus
+from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.engine.sim import World, WorldResult
 from rgtbus.errors import RgtbusError
@@ -87,13 +88,6 @@ def lateness(
             "from the run (its link?) or came back after the others had gone on without it"
         )
     return None
-
-
-def join_seconds(members: int) -> float:
-    """How long the processes of a run have to join, by default: 20 s, and a second more a
-    member (every process hears every other's hellos, each as long as the roster, and says
-    its own less often in a larger run: ``hello_period``)."""
-    return 20.0 + 1.0 * members
 
 
 def scenario_digest(sc: Scenario) -> str:
@@ -192,6 +186,8 @@ def run_units(
     )
     units = [AutonomousUnit(name, sc, recorder, traces=traces) for name in names]
     opts = dict(zenoh_options or {})
+    # a peer starved of CPU keeps its links as long as the run would wait for it
+    opts.setdefault("send_patience", timeout)
     world_options = {"engine": engine, "timeout": timeout, "progress": progress,
                      "realtime": realtime, "write_medium": sc.units[0] == first}  # fmt: skip
     sim_seconds = 0.0
@@ -324,19 +320,31 @@ def _output(
     }
 
 
+ROUTER_PATIENCE = 60.0  # s: a router waits this long on a client that does not read
+
+
 def open_router(
     listen: Sequence[str] | None,
     config: str | None = None,
     multicast: bool | None = None,
+    send_patience: float = ROUTER_PATIENCE,
 ) -> Any:
     """A zenoh session in router mode on the ``listen`` endpoints (or as ``config`` says), for
-    units on several machines to meet at; the caller closes it. One line (``RgtbusError``)
-    when it cannot open."""
+    units on several machines to meet at; the caller closes it. ``send_patience``: how long
+    it waits on a client that does not read before it closes that client's link (a client
+    starved of CPU, on a loaded host: its frames are never dropped, so a closed link would
+    stall the run). One line (``RgtbusError``) when it cannot open."""
     import zenoh
 
     from rgtbus.bus.zenoh import make_config, zenoh_reason
 
-    cfg = make_config(mode="router", listen=listen, config=config, multicast=multicast)
+    cfg = make_config(
+        mode="router",
+        listen=listen,
+        config=config,
+        multicast=multicast,
+        send_patience=send_patience,
+    )
     try:
         return zenoh.open(cfg)
     except Exception as exc:

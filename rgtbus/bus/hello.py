@@ -159,3 +159,11 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
     elif got_tag is not None:
         raise AuthError(f"hello of {unit!r} authenticated with a key this run does not have")
     return Hello(unit, digest, nonce, view, started, sample, ready, process, to)
+
+
+def join_seconds(members: int) -> float:
+    """How long the processes of a run have to join, by default: 20 s, and a second more a
+    member (every process hears every other's hellos and says its own less often in a larger
+    run, ``hello_period``; a hundred processes starting at once on a few cores take their
+    time)."""
+    return 20.0 + 1.0 * members

@@ -94,10 +94,16 @@ def make_config(
     listen: Sequence[str] | None = None,
     multicast: bool | None = None,
     config: zenoh.Config | str | os.PathLike[str] | None = None,
+    send_patience: float | None = None,
 ) -> zenoh.Config:
     """A zenoh Config: the given file/Config (or zenoh's defaults), then the explicit options.
 
-    Without a config, unset options mean: peer mode, no endpoints, multicast scouting off.
+    Without a config, unset options mean: peer mode, no endpoints, multicast scouting off,
+    no shared-memory pools, 16 batches of queue for data a link. ``send_patience``: how many
+    seconds a send may wait on a peer that does not read (its queue full) before zenoh closes
+    the link (zenoh's own: 5 s); a run's frames are sent without ever being dropped, so a
+    closed link loses frames and stalls the run: give a starved peer as long as the run's
+    timeout.
     """
     if config is None:
         cfg = zenoh.Config()
@@ -108,6 +114,9 @@ def make_config(
         # Frames are small and few: zenoh's shared-memory pools (16 MB mapped a process)
         # buy nothing here and cost every unit process their pages.
         cfg.insert_json5("transport/shared_memory/enabled", "false")
+        # A burst (every member's first frames at once) should not block a sender: room for
+        # 16 batches a link rather than zenoh's 2.
+        cfg.insert_json5("transport/link/tx/queue/size/data", "16")
     elif isinstance(config, zenoh.Config):
         cfg = config
     else:
@@ -139,6 +148,13 @@ def make_config(
             raise RgtbusError(f"zenoh {name} endpoint {bad!r}: {reason}") from None
     if multicast is not None:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    if send_patience is not None:
+        if not send_patience > 0 or send_patience == float("inf"):
+            raise RgtbusError(f"zenoh send patience must be seconds > 0, got {send_patience!r}")
+        cfg.insert_json5(
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            str(int(send_patience * 1e6)),
+        )
     if config is None and connect and mode == "peer":
         # Peers of one run start together and connect to each other before all listen:
         # retry an endpoint that is not up yet soon (zenoh's default backoff starts at 1 s
@@ -369,7 +385,8 @@ class _Barrier:
 class ZenohBus(QueueBus):
     """The bus over zenoh (see the module docstring): a session of its own, or one given
     (``session``: then left open for its owner), or options for one (``mode``, ``connect``,
-    ``listen``, ``multicast``, ``config``); ``local`` the members this process publishes for."""
+    ``listen``, ``multicast``, ``config``, ``send_patience``: see ``make_config``); ``local``
+    the members this process publishes for."""
 
     kind = "zenoh"
     OPTIONS = frozenset(
@@ -383,6 +400,7 @@ class ZenohBus(QueueBus):
             "config",
             "session",
             "key",
+            "send_patience",
         }
     )
 
@@ -401,6 +419,7 @@ class ZenohBus(QueueBus):
         config: zenoh.Config | str | os.PathLike[str] | None = None,
         session: zenoh.Session | None = None,
         key: bytes | None = None,
+        send_patience: float | None = None,
     ) -> None:
         super().__init__(run_id, members, sample_rate, local=local, key=key)
         self._publishers: dict[str, Any] = {}
@@ -421,7 +440,12 @@ class ZenohBus(QueueBus):
         self._owns_session = session is None
         if session is None:
             cfg = make_config(
-                mode=mode, connect=connect, listen=listen, multicast=multicast, config=config
+                mode=mode,
+                connect=connect,
+                listen=listen,
+                multicast=multicast,
+                config=config,
+                send_patience=send_patience,
             )
             try:
                 session = zenoh.open(cfg)

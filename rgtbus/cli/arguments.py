@@ -82,14 +82,13 @@ def add_seconds_argument(
     )
 
 
-def add_timeout_argument(p: argparse.ArgumentParser) -> None:
+def add_timeout_argument(
+    p: argparse.ArgumentParser,
+    help: str = "give up when no member has news for S seconds (default 10)",
+    default: float | None = 10.0,
+) -> None:
     """``--timeout S`` of a cross-process run: how long no member may have news."""
-    add_seconds_argument(
-        p,
-        "--timeout",
-        "give up when no member has news for S seconds (default 10)",
-        default=10.0,
-    )
+    add_seconds_argument(p, "--timeout", help, default=default)
 
 
 def add_join_timeout_argument(p: argparse.ArgumentParser) -> None:

@@ -95,10 +95,17 @@ def _add_launch(subparsers: SubParsers) -> None:
     )
     la.add_argument(
         "--router",
-        action="store_true",
-        help="connect the units through a zenoh router process instead of a mesh",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="connect the units through a zenoh router process (--no-router: a full mesh; "
+        "default: a mesh up to 16 processes, a router above)",
     )
-    add_timeout_argument(la)
+    add_timeout_argument(
+        la,
+        "give up when no member has news for S seconds (default 10, stretched when the "
+        "processes outnumber the cores: 10 x processes / cores)",
+        default=None,
+    )
     add_seed_argument(la)
     add_engine_argument(la, help="as for rgtbus run")
     add_realtime_argument(la)
