@@ -51,6 +51,7 @@ from rgtbus.signal.pulses import merge_pulses, split_pulses
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
 _MAX_NOTES = 100
 _NOTES_PER_REASON = 20  # notes kept per drop counter between two drop_notes(); the rest counted
+_LEFT_GRACE = 1.0  # s: a member that left may still have frames on their way
 # Bytes queued per member, not yet drained by wait(): frames that passed the gate. A member in
 # lockstep has a few frames in flight; on a keyed run only its own (tag checked, each sequence
 # number once) get here, so the cap is a safety net; on an open run it is what bounds a flood.
@@ -353,6 +354,8 @@ class QueueBus(BusBase):
         self._nonces: dict[str, bytes] = dict.fromkeys(self.local, self.nonce)
         self._closed = False
         self.close_problem: str | None = None  # a transport slow to close, once closed
+        # Members the transport saw leave (their session ended), and when: under _gate_lock.
+        self._gone: dict[str, float] = {}
 
     # -- public API -------------------------------------------------------------------------
 
@@ -407,6 +410,14 @@ class QueueBus(BusBase):
         self._drain()
         self._stats["waits"] += 1
         while not self._past(beyond):
+            left = self._left_holding(beyond)
+            if left:
+                raise MembersSilent(
+                    f"{', '.join(left)} left run {self.run_id!r} before "
+                    f"{'it was' if len(left) == 1 else 'they were'} done: "
+                    "its zenoh session ended (its process killed, or its link lost)",
+                    tuple(left),
+                )
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 late = [u for u in self.members if not self._past(beyond, u)]
@@ -422,12 +433,35 @@ class QueueBus(BusBase):
                     tuple(late),
                 )
             try:
-                item = self._inbox.get(timeout=remaining)
+                item = self._inbox.get(timeout=min(remaining, _LEFT_GRACE))
             except queue.Empty:
                 continue
             self._accept(*item)
             self._drain()
         return self.horizon()
+
+    def _member_gone(self, unit: str) -> None:
+        """The transport saw member ``unit``'s session end (any thread; never blocks)."""
+        if unit in self._members and unit not in self.local:
+            with self._gate_lock:
+                self._gone.setdefault(unit, time.monotonic())
+
+    def _forget_gone(self) -> None:
+        """Every member is here (the join proved it): who left before does not count."""
+        with self._gate_lock:
+            self._gone.clear()
+
+    def _left_holding(self, beyond: int) -> list[str]:
+        """The members that left (``_LEFT_GRACE`` s ago or more: their last frames had time
+        to arrive) while still holding the horizon at or before ``beyond``."""
+        with self._gate_lock:
+            if not self._gone:
+                return []
+            gone = dict(self._gone)
+        cut = time.monotonic() - _LEFT_GRACE
+        return [
+            u for u in self.members if gone.get(u, cut + 1) <= cut and not self._past(beyond, u)
+        ]
 
     def _past(self, beyond: int, unit: str | None = None) -> bool:
         members = [self._members[unit]] if unit else self._members.values()

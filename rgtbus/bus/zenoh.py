@@ -426,7 +426,8 @@ class ZenohBus(QueueBus):
         self._telemetry: list[TelemetryFeed] = []
         self._subscriber: Any = None
         self._hello_sub: Any = None
-        self._token: Any = None
+        self._tokens: list[Any] = []  # one liveliness token a local unit
+        self._alive_sub: Any = None
         # hellos heard, not yet read: (what was said, when it arrived)
         self._hellos: queue.Queue[tuple[bytes, float]] = queue.Queue(maxsize=HELLO_QUEUE)
         self._last_hello: dict[str, bytes] = {}  # each member's last hello heard, as said
@@ -573,6 +574,7 @@ class ZenohBus(QueueBus):
                     self._hellos.get_nowait()
                 self._nonces.update({u: barrier.nonces[u] for u in barrier.others})
                 self._joined = (tuple(mine), digest)
+                self._forget_gone()  # a claimant that left before the start is no member
                 return
             if time.monotonic() > deadline:
                 raise RgtbusError(
@@ -582,17 +584,29 @@ class ZenohBus(QueueBus):
 
     def _declare_presence(self, unit: str) -> None:
         """The hello subscriber, and the liveliness token ``rgtbus/<run>/alive/<unit>``."""
-        hello_gate = self._hello_gate
-        self._hello_sub = self.session.declare_subscriber(
-            keys.every_unit(keys.HELLO, self.run_id),
-            lambda s: hello_gate(str(s.key_expr), s.payload),
-        )
-        try:
-            self._token = self.session.liveliness().declare_token(
-                keys.key(keys.ALIVE, self.run_id, unit)
+        if self._hello_sub is None:
+            hello_gate = self._hello_gate
+            self._hello_sub = self.session.declare_subscriber(
+                keys.every_unit(keys.HELLO, self.run_id),
+                lambda s: hello_gate(str(s.key_expr), s.payload),
             )
-        except Exception as e:  # liveliness is for presence only; the barrier does the work
-            self._notes.append(f"liveliness token not declared: {e}")
+        try:
+            liveliness = self.session.liveliness()
+            self._tokens.append(liveliness.declare_token(keys.key(keys.ALIVE, self.run_id, unit)))
+            if self._alive_sub is None:
+                alive_prefix, gone = keys.prefix(keys.ALIVE, self.run_id), self._member_gone
+                delete = zenoh.SampleKind.DELETE
+
+                def on_token(s: zenoh.Sample) -> None:  # on zenoh's thread: never blocks
+                    key = str(s.key_expr)
+                    if s.kind == delete and key.startswith(alive_prefix):
+                        gone(key[len(alive_prefix) :])
+
+                self._alive_sub = liveliness.declare_subscriber(
+                    keys.every_unit(keys.ALIVE, self.run_id), on_token
+                )
+        except Exception as e:  # presence is a shortcut: the run's timeout still holds
+            self._notes.append(f"liveliness not declared: {e}")
 
     def _hear_round(self, barrier: _Barrier, until: float) -> None:
         """The hellos heard until ``until`` (monotonic), each to the barrier, which may open
@@ -733,10 +747,12 @@ class ZenohBus(QueueBus):
             self._subscriber,
             *self._publishers.values(),
             *(f.publisher for f in self._telemetry),
-            self._token,
+            self._alive_sub,
+            *self._tokens,
         ]
         self._telemetry = []
-        self._hello_sub = self._token = None
+        self._tokens = []
+        self._hello_sub = self._alive_sub = None
         self._subscriber = None
         self._publishers = {}
         for ent in entities:
