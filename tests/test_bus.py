@@ -530,7 +530,8 @@ zenoh = pytest.importorskip("zenoh")
 
 
 def test_zenoh_two_runs_sharing_a_session_count_each_other_as_foreign():
-    from rgtbus.bus.zenoh import ZenohBus, make_config
+    from rgtbus.bus.config import make_config
+    from rgtbus.bus.zenoh import ZenohBus
 
     session = zenoh.open(make_config())
     try:
@@ -555,7 +556,8 @@ def test_zenoh_two_runs_sharing_a_session_count_each_other_as_foreign():
 
 
 def test_zenoh_options_refused_with_a_session():
-    from rgtbus.bus.zenoh import ZenohBus, make_config
+    from rgtbus.bus.config import make_config
+    from rgtbus.bus.zenoh import ZenohBus
 
     session = zenoh.open(make_config())
     try:
