@@ -139,6 +139,21 @@ def test_tls_refuses_plain_endpoints_naming_where_they_came_from(ids, tmp_path):
     )
     # the options given override the file's endpoints, and those are TLS
     make_config(config=path, listen=["tls/0.0.0.0:7447"], tls=tls_run(ids, "a"))
+    # a file that sets no endpoints leaves zenoh's defaults for its mode: a client's are none,
+    # a peer's listen on tcp
+    client = tmp_path / "client.json5"
+    client.write_text('{ mode: "client", connect: { endpoints: ["tls/10.0.0.1:7447"] } }')
+    cfg = make_config(config=client, tls=tls_run(ids, "a"))
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tls/10.0.0.1:7447"]
+    peer = tmp_path / "peer.json5"
+    peer.write_text('{ mode: "peer" }')
+    with pytest.raises(RgtbusError) as err:
+        make_config(config=peer, tls=tls_run(ids, "a"))
+    assert str(err.value).startswith(
+        f"zenoh listen endpoint 'tcp/[::]:0' (in zenoh config '{peer}', or zenoh's default for a "
+        "peer): with --tls"
+    )
+    make_config(config=peer, listen=["tls/0.0.0.0:7448"], tls=tls_run(ids, "a"))
 
 
 def _config(*argv: str) -> zenoh.Config:

@@ -178,13 +178,14 @@ def _insert(cfg: zenoh.Config, key: str, value: object, what: str) -> None:
         raise RgtbusError(f"{what}: {zenoh_reason(e)}") from None
 
 
-def _endpoints(cfg: zenoh.Config, name: str) -> list[str]:
-    """The ``connect`` or ``listen`` endpoints of ``cfg`` (every mode's, where a file gives
-    them by mode)."""
+def _endpoints(cfg: zenoh.Config, name: str) -> tuple[list[str], str | None]:
+    """The ``connect`` or ``listen`` endpoints ``cfg`` uses in its mode, and that mode when
+    they are given by mode (as zenoh's defaults are)."""
     raw = json.loads(cfg.get_json(f"{name}/endpoints"))
     if isinstance(raw, dict):
-        return [str(e) for eps in raw.values() for e in (eps or [])]
-    return [str(e) for e in (raw or [])]
+        mode = json.loads(cfg.get_json("mode")) or "peer"  # zenoh's default mode
+        return [str(e) for e in raw.get(mode) or []], mode
+    return [str(e) for e in raw or []], None
 
 
 def make_config(
@@ -254,13 +255,17 @@ def make_config(
 def _add_tls(cfg: zenoh.Config, tls: TlsRun, where: str | None) -> None:
     """``tls``'s settings and access control into ``cfg``; every endpoint must be TLS."""
     for name in ("connect", "listen"):
-        for ep in _endpoints(cfg, name):
+        endpoints, by_mode = _endpoints(cfg, name)
+        for ep in endpoints:
             if not ep.startswith("tls/"):
-                origin = f" (in {where})" if where else ""
+                whence = [f"in {where}"] if where else []
+                if by_mode:
+                    whence.append(f"zenoh's default for a {by_mode}")
+                origin = f" ({', or '.join(whence)})" if whence else ""
                 raise RgtbusError(
                     f"zenoh {name} endpoint {ep!r}{origin}: with --tls every endpoint must be "
                     "tls/HOST:PORT"
                 )
     for key, value in tls_settings(tls.files).items():
-        _insert(cfg, f"{TLS}/{key}", value, f"--tls {tls.files.cert.parent}: {key}")
+        _insert(cfg, f"{TLS}/{key}", value, f"TLS setting {key}")
     _insert(cfg, ACL, access_control(tls.units, tls.run_id), "access control")
