@@ -8,6 +8,7 @@ Every spawned process is reaped by the ``procs`` fixture; every wait is bounded.
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import threading
 import time
@@ -253,18 +254,32 @@ def test_a_unit_without_a_certificate_of_the_run_ca_cannot_join(procs, ids, othe
         assert missing == ("a, b, c" if u == "d" else "d"), (u, last)
 
 
+def host_files(ids: Path, host: Path, *files: str) -> Path:
+    """What docs/hosts.md copies to one host: the run's CA certificate and the host's own pair,
+    in the layout of ``rgtbus certs``, nothing else."""
+    for name in ("run/ca.crt", *files):
+        (host / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ids / name, host / name)
+    return host
+
+
 @pytest.mark.slow
-def test_units_over_tls_started_by_hand_equal_the_single_run(procs, ids, tmp_path):
-    """``rgtbus unit`` processes, each with its own certificate, on a TLS mesh."""
-    ports = free_ports(4)
+def test_units_on_their_hosts_files_through_a_router_equal_the_single_run(procs, ids, tmp_path):
+    """docs/hosts.md's star, on loopback: a router and a ``rgtbus unit`` process a unit, each
+    with only the CA's certificate and its own pair."""
+    port = free_ports(1)[0]
+    router_ids = host_files(ids, tmp_path / "R", "run/router.crt", "run/router.key")
+    router = procs(
+        "router", "-l", f"tls/127.0.0.1:{port}", "--tls", str(router_ids), "--scenario", GATE,
+        "--run-id", RUN,
+    )  # fmt: skip
+    assert router.stdout.readline().startswith("router listening")  # bounded by its start
     started = {}
-    for i, u in enumerate(UNITS):
-        net = ["-l", f"tls/127.0.0.1:{ports[i]}"]
-        for j in range(i):
-            net += ["-e", f"tls/127.0.0.1:{ports[j]}"]
+    for u in UNITS:
+        own = host_files(ids, tmp_path / u, f"{u}.crt", f"{u}.key")
         started[u] = procs(
-            "unit", u, GATE, *net, "--tls", str(ids), "--log", str(tmp_path / f"{u}.mcap"),
-            "--run-id", RUN, "--json",
+            "unit", u, GATE, "-m", "client", "-e", f"tls/127.0.0.1:{port}", "--tls", str(own),
+            "--log", str(tmp_path / f"{u}.mcap"), "--run-id", RUN, "--json",
         )  # fmt: skip
     ref, _ = single("gate")
     for u, p in started.items():
