@@ -104,7 +104,8 @@ def add_join_timeout_argument(p: argparse.ArgumentParser) -> None:
 KEY_FILE_HELP = (
     "a shared secret (>= 16 bytes, e.g. head -c 32 /dev/urandom | base64 > FILE): every "
     "frame and hello is signed with it and anything unsigned is dropped; without it anyone "
-    "who reaches the zenoh endpoints can join the run (docs/security.md)"
+    "who reaches the zenoh endpoints can join the run. For loopback runs: across machines use "
+    "--tls (docs/security.md)"
 )
 
 

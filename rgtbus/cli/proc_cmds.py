@@ -130,7 +130,7 @@ def _add_router(subparsers: SubParsers) -> None:
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (tls/... with --tls; repeatable)",
     )
     r.add_argument(
         "-c",
