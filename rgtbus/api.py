@@ -3,7 +3,7 @@
 * ``load_scenario(path_or_text_or_name)`` -> ``Scenario``;
 * ``run(scenario, *, seed, bus, engine, log)`` -> ``RunResult`` (``.summary`` is what
   ``rgtbus run --json`` prints);
-* ``launch(scenario, *, procs, seed, log_dir, zenoh, key_file, realtime, timeout)`` ->
+* ``launch(scenario, *, procs, seed, log_dir, zenoh, key_file, realtime, timeout, tls)`` ->
   ``RunResult``: the units as OS processes over zenoh (``rgtbus.units.launch``), the same
   summary but for wall time and paths;
 * ``open_log(path)`` -> ``Log`` (``.summary()``, ``.metadata``, DataFrames);

@@ -21,6 +21,13 @@ EXE = [sys.executable, "-m", "rgtbus"]
 RATE = 200.0
 
 
+@pytest.fixture(autouse=True)
+def _no_zenoh_config_from_the_shell(monkeypatch):
+    """A ``ZENOH_CONFIG`` set in the shell that runs the tests would be every zenoh session's
+    base (rgtbus.bus.config), here and in the processes the tests start: not in a test."""
+    monkeypatch.delenv("ZENOH_CONFIG", raising=False)
+
+
 @contextlib.contextmanager
 def small_chunk_logs(size: int = 1024) -> Iterator[None]:
     """Logs written meanwhile in chunks of ``size`` bytes: a short run's log then has many

@@ -12,6 +12,7 @@ from __future__ import annotations
 import inspect
 import socket
 import struct
+import threading
 import time
 
 import numpy as np
@@ -530,7 +531,8 @@ zenoh = pytest.importorskip("zenoh")
 
 
 def test_zenoh_two_runs_sharing_a_session_count_each_other_as_foreign():
-    from rgtbus.bus.zenoh import ZenohBus, make_config
+    from rgtbus.bus.config import make_config
+    from rgtbus.bus.zenoh import ZenohBus
 
     session = zenoh.open(make_config())
     try:
@@ -555,7 +557,8 @@ def test_zenoh_two_runs_sharing_a_session_count_each_other_as_foreign():
 
 
 def test_zenoh_options_refused_with_a_session():
-    from rgtbus.bus.zenoh import ZenohBus, make_config
+    from rgtbus.bus.config import make_config
+    from rgtbus.bus.zenoh import ZenohBus
 
     session = zenoh.open(make_config())
     try:
@@ -607,6 +610,32 @@ def test_zenoh_two_sessions_over_loopback():
                 got = bus.take(h)
                 assert got["a"][1].tolist() == [step + 0.5]
                 assert got["b"][1].tolist() == [-step - 0.5]
+
+
+def test_zenoh_a_member_whose_session_ends_is_named_at_once():
+    """b's session ends (its process killed, its link lost) while a waits on it: a's wait ends
+    within a few seconds naming b as the one that left, not at a's timeout."""
+    from rgtbus.errors import MembersSilent
+
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    with open_bus("zenoh", "gone", ["a", "b"], RATE, listen=[ep], local=["a"]) as bus_a:
+        bus_b = open_bus("zenoh", "gone", ["a", "b"], RATE, connect=[ep], local=["b"])
+        try:
+            joined = threading.Thread(
+                target=bus_b.join, args=("b", "0" * 64), kwargs={"timeout": 30}
+            )
+            joined.start()
+            bus_a.join("a", "0" * 64, timeout=30)
+            joined.join(30)
+            bus_a.publish("a", [], [], promise=100)
+            bus_b.publish("b", [], [], promise=10)
+            assert bus_a.wait(0, timeout=30) == 10
+        finally:
+            bus_b.close()
+        t0 = time.monotonic()
+        with pytest.raises(MembersSilent, match=r"^b left run 'gone' before it was done") as e:
+            bus_a.wait(10, timeout=60)
+        assert e.value.silent == ("b",) and time.monotonic() - t0 < 30
 
 
 def test_zenoh_bus_left_open_does_not_hang_the_interpreter_at_exit():

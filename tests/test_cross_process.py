@@ -21,8 +21,8 @@ import zenoh
 from rgtbus.units.group import run_group
 from rgtbus.units.launch import free_ports
 
+from rgtbus.bus.config import make_config
 from rgtbus.bus.payload import Frame, encode
-from rgtbus.bus.zenoh import make_config
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log

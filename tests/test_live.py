@@ -202,9 +202,9 @@ def test_a_watcher_drops_what_is_not_telemetry():
     never reach the live view."""
     import zenoh
 
+    from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry
     from rgtbus.bus.watch import Watcher
-    from rgtbus.bus.zenoh import make_config
 
     class Sink:
         def __init__(self) -> None:
@@ -377,9 +377,9 @@ def test_a_keyed_runs_telemetry_is_signed_and_a_watcher_with_the_key_shows_only_
 
     from rgtbus.bus import open_bus
     from rgtbus.bus.auth import tag
+    from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry, is_signed_telemetry, sign_telemetry
     from rgtbus.bus.watch import Watcher
-    from rgtbus.bus.zenoh import make_config
 
     key, other = bytes(range(1, 33)), b"\xa5" * 32
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]  # the watchers', the bus's
@@ -449,9 +449,9 @@ def test_a_watcher_bounds_its_topics():
     from rgtbus.units.launch import free_ports
 
     from rgtbus.bus import watch
+    from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry
     from rgtbus.bus.watch import Watcher
-    from rgtbus.bus.zenoh import make_config
 
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     sink = _Sink()

@@ -4,11 +4,12 @@
 the scenario's order), each running its units over zenoh (``rgtbus.units.process``): on
 loopback by default, a full mesh on free ports (each process listens on its own and connects to
 those before it), or through a router process (``router=True``), or over the zenoh options
-given (the same for every process). It collects what each process reports, names the failures
-(root causes first: a unit that died or crashed, then one that stalled, then those that failed
-for want of them) and always ends with a merged ``run.mcap`` whose ``/run`` record names the
-first failure. Its summary equals the one-process run's (``rgtbus.run``) but for wall time and
-paths.
+given (the same for every process); with ``tls`` every process proves itself with its own
+certificate (rgtbus.bus.certs) on ``tls/`` endpoints. It collects what each process reports,
+names the failures (root causes first: a unit that died or crashed, then one that stalled, then
+those that failed for want of them) and always ends with a merged ``run.mcap`` whose ``/run``
+record names the first failure. Its summary equals the one-process run's (``rgtbus.run``) but
+for wall time and paths.
 
 The launcher forks once it has loaded everything (a unit starts in milliseconds); every process
 it starts is reaped (asked to stop, then killed); a unit process asks Linux to stop it when the
@@ -165,18 +166,22 @@ def _unit_child(
     conn.close()
 
 
-def _router_child(conn: Connection, endpoint: str, patience: float) -> None:
-    """A zenoh router on ``endpoint`` in its own process, until SIGINT or SIGTERM; it waits
-    ``patience`` s on a client that does not read."""
+def _router_child(conn: Connection, endpoint: str, patience: float, **tls: Any) -> None:
+    """A zenoh router on ``endpoint`` in its own process (waiting ``patience`` s on a client
+    that does not read; ``tls``: ``open_router``'s TLS options), until SIGINT or SIGTERM."""
     from rgtbus.units.process import open_router
 
     _die_with_parent()
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    session = open_router([endpoint], multicast=False, send_patience=patience)
     try:
-        conn.send("listening")
+        session = open_router([endpoint], multicast=False, **tls)
+    except RgtbusError as exc:
+        conn.send(str(exc))
+        return
+    try:
+        conn.send(None)  # listening
         while not stop.wait(0.5):
             pass
     finally:
@@ -238,19 +243,24 @@ class LaunchProcesses:
         self._results[name] = reader
         self._logs[name] = log
 
-    def start_router(self, endpoint: str, timeout: float, patience: float) -> None:
+    def start_router(self, endpoint: str, timeout: float, patience: float, **tls: Any) -> None:
         """Fork a zenoh router on ``endpoint`` (waiting ``patience`` s on a client that does
-        not read); wait until it listens."""
+        not read; ``tls``: ``open_router``'s TLS options); wait until it listens."""
         reader, writer = self._mp.Pipe(duplex=False)
         proc = self._mp.Process(
-            target=_router_child, args=(writer, endpoint, patience), name="router"
+            target=_router_child, args=(writer, endpoint, patience), kwargs=tls, name="router"
         )
         proc.start()
         writer.close()
         self.procs["router"] = proc
         if not reader.poll(timeout):
             raise RgtbusError(f"router did not start within {timeout:g} s")
-        reader.recv()
+        try:
+            problem = reader.recv()
+        except EOFError:
+            problem = f"router process ended ({_signal_name(proc.exitcode)})"
+        if problem is not None:
+            raise RgtbusError(problem)
 
     def collect(
         self, first: float, stall_after: float, timeout: float, paced: bool = False
@@ -478,11 +488,22 @@ def _log_dir(sc: Scenario, log_dir: str | os.PathLike[str] | None, procs: Sequen
     return where
 
 
+def loopback(port: int, tls: bool) -> str:
+    """The zenoh endpoint of ``port`` on loopback: ``tls/127.0.0.1:<port>`` over TLS, else
+    ``tcp/...``."""
+    return f"{'tls' if tls else 'tcp'}/127.0.0.1:{port}"
+
+
 def _networks(
-    procs: list[str], net_given: dict[str, Any], router_ep: str | None, ports: list[int]
+    procs: list[str],
+    net_given: dict[str, Any],
+    router_ep: str | None,
+    ports: list[int],
+    tls: bool = False,
 ) -> dict[str, tuple[dict[str, Any], list[str]]]:
     """Each process's zenoh options, and the processes it waits for to listen first: the
-    options given (the same for every process); a client of the router; or a full mesh."""
+    options given (the same for every process); a client of the router; or a full mesh (its
+    endpoints TLS ones with ``tls``)."""
     out: dict[str, tuple[dict[str, Any], list[str]]] = {}
     for i, name in enumerate(procs):
         if net_given:
@@ -491,8 +512,8 @@ def _networks(
             out[name] = ({"mode": "client", "connect": [router_ep]}, [])
         else:  # each listens on its port and connects to those before it
             net = {
-                "listen": [f"tcp/127.0.0.1:{ports[i]}"],
-                "connect": [f"tcp/127.0.0.1:{p}" for p in ports[:i]],
+                "listen": [loopback(ports[i], tls)],
+                "connect": [loopback(p, tls) for p in ports[:i]],
             }
             out[name] = (net, procs[:i])
     return out
@@ -511,6 +532,7 @@ def launch(
     engine: str = "event",
     traces: bool = False,
     router: bool | None = None,
+    tls: str | os.PathLike[str] | None = None,
 ) -> RunResult:
     """Run every unit of ``scenario`` as OS processes over zenoh (see the module docstring)
     and return the run's ``RunResult``: its summary (that of ``rgtbus.run`` but for wall time
@@ -528,9 +550,13 @@ def launch(
     seconds (default ``default_timeout``: longer when the processes outnumber the cores);
     ``engine``, ``traces``: as for ``rgtbus.run``; ``router``: connect the units through a
     zenoh router process (True) or a full mesh (False); by default a mesh up to
-    ``ROUTER_ABOVE`` processes, a router above (a mesh of n processes opens n(n-1)/2 links).
-    Bad arguments raise ``RgtbusError``."""
+    ``ROUTER_ABOVE`` processes, a router above (a mesh of n processes opens n(n-1)/2 links);
+    ``tls``: the run's directory of TLS identities (``rgtbus certs``): every process proves
+    itself with its own certificate (one unit a process), the mesh or router on ``tls/``
+    endpoints, under the run's access control. Bad arguments, and every bad TLS file, raise
+    ``RgtbusError`` before a process starts."""
     from rgtbus.bus.auth import load_key
+    from rgtbus.bus.certs import ROUTER, check_tls, process_tls
 
     t0 = time.perf_counter()
     fork = _may_fork()  # asked before anything here loads zenoh
@@ -552,12 +578,17 @@ def launch(
             f"-l/--listen with {len(groups)} processes: each would listen on the same "
             "endpoint (give --procs 1, or -e/--connect to a router, or no endpoint at all)"
         )
+    if tls is not None:
+        for units in groups.values():
+            process_tls(tls, units)
+        if router:
+            check_tls(tls, ROUTER)
     where = _log_dir(sc, log_dir, list(groups))
     # one process per unit: its log is <unit>.mcap; several units a process: proc-<i>.mcap
     logs = {p: where / f"{p}.mcap" for p in groups}
     run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
     opts = {"run_id": run_id, "timeout": timeout, "engine": engine, "realtime": realtime,
-            "key": key, "traces": traces}  # fmt: skip
+            "key": key, "traces": traces, "tls": tls}  # fmt: skip
     results, stopped, interrupted = _run_processes(fork, sc, groups, logs, net_given, router, opts)
     by_unit: dict[str, dict[str, Any]] = {}
     for p, said in results.items():
@@ -597,11 +628,16 @@ def _run_processes(
         try:
             try:
                 ports = free_ports(len(procs) + 1)
-                router_ep = f"tcp/127.0.0.1:{ports[-1]}" if router else None
+                tls = opts["tls"]
                 timeout = opts["timeout"]
+                router_ep = loopback(ports[-1], tls is not None) if router else None
                 if router_ep is not None:
-                    processes.start_router(router_ep, timeout=10.0, patience=timeout)
-                for name, (net, after) in _networks(procs, net_given, router_ep, ports).items():
+                    over_tls = {"tls": tls, "roster": sc.units, "run_id": opts["run_id"]}
+                    processes.start_router(
+                        router_ep, 10.0, patience=timeout, **(over_tls if tls else {})
+                    )
+                nets = _networks(procs, net_given, router_ep, ports, tls is not None)
+                for name, (net, after) in nets.items():
                     processes.start_process(name, groups[name], sc, logs[name], net, after,
                                             **opts)  # fmt: skip
                 # A process moves its world on within its timeout, or gives up and says so

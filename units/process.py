@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -131,8 +132,13 @@ def run_logged_units(
     """``run_units`` with its own MCAP log at ``log``: opened here and always closed (a run
     that fails still closes a readable log); an interrupt (SIGINT, or SIGTERM under
     ``interrupted_by``) is written to the log, one line a unit, before it is raised again.
-    Each unit's output names its ``log``."""
+    Each unit's output names its ``log``. A bad TLS identity (``tls``) is refused before the
+    log is opened."""
+    from rgtbus.bus.certs import process_tls
     from rgtbus.telemetry.logfile import close_log, open_log
+
+    if options.get("tls") is not None:
+        process_tls(options["tls"], names)
 
     stream, recorder = open_log(log)
     try:
@@ -165,6 +171,7 @@ def run_units(
     on_open: Callable[[], None] | None = None,
     on_result: Callable[[dict[str, dict[str, Any]]], None] | None = None,
     key: bytes | None = None,
+    tls: str | os.PathLike[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run the units ``names`` of ``sc`` in this process, one world and one zenoh session for
     all of them (their ears advanced together, one frame per unit and step); returns each
@@ -173,9 +180,11 @@ def run_units(
     ``join_seconds``); ``on_result``: called with the parts as soon as the
     run is over and the units' reports are on disk, before the session closes (closing can
     wait seconds for a peer that died). ``key``: the run's shared secret (every frame and
-    hello signed and checked). A failed join is written to the log before it is raised. When
-    the run gives up on silent members, the units of this process say whether they are the
-    late ones themselves (``lateness``: their part's ``late``)."""
+    hello signed and checked); ``tls``: the run's directory of TLS identities (the process
+    proves itself with its one unit's certificate: rgtbus.bus.certs). A failed join is written
+    to the log before it is raised. When the run gives up on silent members, the units of this
+    process say whether they are the late ones themselves (``lateness``: their part's
+    ``late``)."""
     names = _checked_names(sc, names)
     first = names[0]
     run_id = run_id or default_run_id(sc)
@@ -193,7 +202,14 @@ def run_units(
     sim_seconds = 0.0
     try:
         with open_bus(
-            "zenoh", run_id, sc.units, sc.timing.sample_rate, local=names, key=key, **opts
+            "zenoh",
+            run_id,
+            sc.units,
+            sc.timing.sample_rate,
+            local=names,
+            key=key,
+            tls=tls,
+            **opts,
         ) as bus:
             if (
                 isinstance(bus, ZenohBus)
@@ -328,21 +344,38 @@ def open_router(
     config: str | None = None,
     multicast: bool | None = None,
     send_patience: float = ROUTER_PATIENCE,
+    *,
+    tls: str | os.PathLike[str] | None = None,
+    roster: Sequence[str] = (),
+    run_id: str | None = None,
 ) -> Any:
     """A zenoh session in router mode on the ``listen`` endpoints (or as ``config`` says), for
     units on several machines to meet at; the caller closes it. ``send_patience``: how long
     it waits on a client that does not read before it closes that client's link (a client
     starved of CPU, on a loaded host: its frames are never dropped, so a closed link would
-    stall the run). One line (``RgtbusError``) when it cannot open."""
+    stall the run). Over TLS (``tls``: the run's directory of identities) it proves itself
+    with the router's certificate and holds each client to the access control of the run's
+    ``roster`` (of run ``run_id``; None: any run). One line (``RgtbusError``) when it cannot
+    open."""
     import zenoh
 
-    from rgtbus.bus.zenoh import make_config, zenoh_reason
+    from rgtbus.bus.base import check_name
+    from rgtbus.bus.certs import ROUTER, check_tls
+    from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 
+    tls_run = None
+    if tls is not None:
+        if not roster:
+            raise RgtbusError("--tls: a router needs the run's roster (give --scenario)")
+        if run_id is not None:
+            check_name("run id", run_id)
+        tls_run = TlsRun(check_tls(tls, ROUTER), tuple(roster), run_id)
     cfg = make_config(
         mode="router",
         listen=listen,
         config=config,
         multicast=multicast,
+        tls=tls_run,
         send_patience=send_patience,
     )
     try:

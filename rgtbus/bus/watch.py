@@ -21,16 +21,20 @@ only queues it).
 
 from __future__ import annotations
 
+import os
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import zenoh
 
 from rgtbus.bus import keys
 from rgtbus.bus.auth import AuthError, check_key, check_tag
+from rgtbus.bus.certs import WATCH, check_tls
+from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.payload import decode_telemetry, is_signed_telemetry, open_signed_telemetry
-from rgtbus.bus.zenoh import close_session, make_config, zenoh_reason
+from rgtbus.bus.zenoh import close_session
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LiveSink
@@ -45,7 +49,9 @@ _TRACE_SCHEMA = topics.schema_for(trace_topic("x"))
 
 
 class Watcher:
-    """Subscribes to the telemetry of run ``run_id`` (every run: ``*``) and passes it on."""
+    """Subscribes to the telemetry of run ``run_id`` (every run: ``*``) and passes it on. Over
+    TLS (``tls``: the run's directory of identities) it proves itself with the watcher's
+    certificate, under the access control of the run's ``roster``."""
 
     def __init__(
         self,
@@ -53,6 +59,8 @@ class Watcher:
         *,
         run_id: str = "*",
         key: bytes | None = None,
+        tls: str | os.PathLike[str] | None = None,
+        roster: Sequence[str] = (),
         **zenoh_options: Any,
     ) -> None:
         if not run_id or any(c in run_id for c in "/?#$") or (run_id != "*" and "*" in run_id):
@@ -67,7 +75,13 @@ class Watcher:
         self._lock = threading.Lock()  # zenoh may call back from several threads
         self._streams: dict[tuple[str, str], tuple[bytes, int]] = {}  # -> (nonce, last seq)
         self._traces: set[str] = set()
-        config = make_config(**zenoh_options)  # its own errors are one line already
+        tls_run = None
+        if tls is not None:
+            if not roster:
+                raise RgtbusError("--tls: a watcher needs the run's roster (give --scenario)")
+            run = None if run_id == "*" else run_id
+            tls_run = TlsRun(check_tls(tls, WATCH), tuple(roster), run)
+        config = make_config(**zenoh_options, tls=tls_run)  # its own errors are one line already
         try:
             self.session = zenoh.open(config)
         except Exception as e:

@@ -2,7 +2,8 @@
 
 Default: one in-process session, peer mode, no listen/connect endpoints, multicast scouting off;
 a session's own puts reach its own subscriber, so a single process hears itself. For
-cross-process runs pass ``connect``/``listen``/``mode`` (or a zenoh config file or a session).
+cross-process runs pass ``connect``/``listen``/``mode`` (or a zenoh config file or a session),
+and ``tls`` for identities under the run's CA (every config: rgtbus.bus.config).
 
 The subscriber callbacks run on zenoh threads and never block: the frame callback is the bus's
 gate (``QueueBus._deliver``: size, header and, on a keyed run, tag checks, then a bounded queue),
@@ -13,10 +14,8 @@ happen in ``wait`` (and ``join``) on the caller's thread. Hellos are answered at
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import queue
-import re
 import socket
 import threading
 import time
@@ -29,6 +28,8 @@ import zenoh
 from rgtbus.bus import keys
 from rgtbus.bus.auth import AuthError, tag
 from rgtbus.bus.base import QueueBus
+from rgtbus.bus.certs import process_tls
+from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.hello import (
     MAX_HELLO,
     MAX_PROCESS,
@@ -40,8 +41,6 @@ from rgtbus.bus.hello import (
 )
 from rgtbus.bus.payload import encode_telemetry, sign_telemetry
 from rgtbus.errors import RgtbusError
-
-_MODES = ("peer", "client", "router")
 
 # A declared callback subscriber leaves a non-daemon zenoh thread behind, and the interpreter
 # waits for it before atexit handlers run: a bus left open hangs the process at exit
@@ -70,103 +69,6 @@ def _ensure_exit_hook() -> None:
             except RuntimeError:  # already shutting down
                 return
         _exit_hook_registered = True
-
-
-_RUST_AT = re.compile(r"\s+at /\S+\.rs:\d+\.?")
-_JSON5_MSG = re.compile(r'msg: "(.*?)", location')
-
-
-def zenoh_reason(exc: BaseException) -> str:
-    """A zenoh error in one readable line: the JSON5 parser's own message if wrapped in one,
-    without the Rust source paths zenoh appends."""
-    text = str(exc)
-    m = _JSON5_MSG.search(text)
-    if m:
-        text = m.group(1)
-    text = " ".join(_RUST_AT.sub("", text).split())
-    return text or type(exc).__name__
-
-
-def make_config(
-    *,
-    mode: str | None = None,
-    connect: Sequence[str] | None = None,
-    listen: Sequence[str] | None = None,
-    multicast: bool | None = None,
-    config: zenoh.Config | str | os.PathLike[str] | None = None,
-    send_patience: float | None = None,
-) -> zenoh.Config:
-    """A zenoh Config: the given file/Config (or zenoh's defaults), then the explicit options.
-
-    Without a config, unset options mean: peer mode, no endpoints, multicast scouting off,
-    no shared-memory pools, 16 batches of queue for data a link. ``send_patience``: how many
-    seconds a send may wait on a peer that does not read (its queue full) before zenoh closes
-    the link (zenoh's own: 5 s); a run's frames are sent without ever being dropped, so a
-    closed link loses frames and stalls the run: give a starved peer as long as the run's
-    timeout.
-    """
-    if config is None:
-        cfg = zenoh.Config()
-        mode = "peer" if mode is None else mode
-        connect = () if connect is None else connect
-        listen = () if listen is None else listen
-        multicast = False if multicast is None else multicast
-        # Frames are small and few: zenoh's shared-memory pools (16 MB mapped a process)
-        # buy nothing here and cost every unit process their pages.
-        cfg.insert_json5("transport/shared_memory/enabled", "false")
-        # A burst (every member's first frames at once) should not block a sender: room for
-        # 16 batches a link rather than zenoh's 2.
-        cfg.insert_json5("transport/link/tx/queue/size/data", "16")
-    elif isinstance(config, zenoh.Config):
-        cfg = config
-    else:
-        try:
-            cfg = zenoh.Config.from_file(os.fspath(config))
-        except Exception as e:  # zenoh raises ZError; keep one line
-            raise RgtbusError(f"zenoh config {os.fspath(config)!r}: {zenoh_reason(e)}") from None
-    if mode is not None:
-        if mode not in _MODES:
-            raise RgtbusError(f"zenoh mode {mode!r} unknown (use {', '.join(_MODES)})")
-        cfg.insert_json5("mode", json.dumps(mode))
-    for name, eps in (("connect", connect), ("listen", listen)):
-        if eps is None:
-            continue
-        if isinstance(eps, str):
-            raise RgtbusError(f"zenoh {name} endpoints must be a list, got the string {eps!r}")
-        try:
-            cfg.insert_json5(f"{name}/endpoints", json.dumps([str(e) for e in eps]))
-        except Exception as e:
-            # Name the endpoint at fault, not the whole list.
-            bad: object = list(eps)
-            reason = zenoh_reason(e)
-            for ep in eps:
-                try:
-                    zenoh.Config().insert_json5(f"{name}/endpoints", json.dumps([str(ep)]))
-                except Exception as one:
-                    bad, reason = str(ep), zenoh_reason(one)
-                    break
-            raise RgtbusError(f"zenoh {name} endpoint {bad!r}: {reason}") from None
-    if multicast is not None:
-        cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
-    if send_patience is not None:
-        if not send_patience > 0 or send_patience == float("inf"):
-            raise RgtbusError(f"zenoh send patience must be seconds > 0, got {send_patience!r}")
-        cfg.insert_json5(
-            "transport/link/tx/queue/congestion_control/block/wait_before_close",
-            str(int(send_patience * 1e6)),
-        )
-    if config is None and connect and mode == "peer":
-        # Peers of one run start together and connect to each other before all listen:
-        # retry an endpoint that is not up yet soon (zenoh's default backoff starts at 1 s
-        # and would dominate a short run's start-up).
-        cfg.insert_json5(
-            "connect/retry",
-            json.dumps({"period_init_ms": 50, "period_max_ms": 500, "period_increase_factor": 1.5}),
-        )
-        # Nor let open() wait to reach the peers it learns about, which can hold a start-up
-        # back; the run's join barrier waits for every member anyway.
-        cfg.insert_json5("open/return_conditions/connect_scouted", "false")
-    return cfg
 
 
 CLOSE_TIMEOUT = 2.0  # seconds; a close that waits longer is waiting for a peer that is gone
@@ -385,8 +287,10 @@ class _Barrier:
 class ZenohBus(QueueBus):
     """The bus over zenoh (see the module docstring): a session of its own, or one given
     (``session``: then left open for its owner), or options for one (``mode``, ``connect``,
-    ``listen``, ``multicast``, ``config``, ``send_patience``: see ``make_config``); ``local``
-    the members this process publishes for."""
+    ``listen``, ``multicast``, ``config``, ``send_patience``: see rgtbus.bus.config's
+    ``make_config``; and ``tls``: the run's directory of TLS identities, rgtbus.bus.certs, whose
+    certificate of this process's one local unit it proves itself with); ``local`` the members
+    this process publishes for."""
 
     kind = "zenoh"
     OPTIONS = frozenset(
@@ -401,6 +305,7 @@ class ZenohBus(QueueBus):
             "session",
             "key",
             "send_patience",
+            "tls",
         }
     )
 
@@ -420,6 +325,7 @@ class ZenohBus(QueueBus):
         session: zenoh.Session | None = None,
         key: bytes | None = None,
         send_patience: float | None = None,
+        tls: str | os.PathLike[str] | None = None,
     ) -> None:
         super().__init__(run_id, members, sample_rate, local=local, key=key)
         self._publishers: dict[str, Any] = {}
@@ -440,6 +346,9 @@ class ZenohBus(QueueBus):
         self._late_rate = _Rate(_LATE_ANSWERS_PER_S, _LATE_ANSWERS_PER_S)
         self._owns_session = session is None
         if session is None:
+            tls_run = None
+            if tls is not None:
+                tls_run = TlsRun(process_tls(tls, self.local), self.members, self.run_id)
             cfg = make_config(
                 mode=mode,
                 connect=connect,
@@ -447,13 +356,19 @@ class ZenohBus(QueueBus):
                 multicast=multicast,
                 config=config,
                 send_patience=send_patience,
+                tls=tls_run,
             )
             try:
                 session = zenoh.open(cfg)
             except Exception as e:
                 given = [
                     f"{k} {v if isinstance(v, str) else list(v)}"
-                    for k, v in (("mode", mode), ("connect", connect), ("listen", listen))
+                    for k, v in (
+                        ("mode", mode),
+                        ("connect", connect),
+                        ("listen", listen),
+                        ("tls", None if tls is None else [os.fspath(tls)]),
+                    )
                     if v is not None
                 ]
                 if config is not None:
@@ -467,7 +382,7 @@ class ZenohBus(QueueBus):
                     f"cannot open zenoh session ({', '.join(given) or 'mode peer'}): "
                     f"{zenoh_reason(e)}"
                 ) from None
-        elif any(v is not None for v in (mode, connect, listen, multicast, config)):
+        elif any(v is not None for v in (mode, connect, listen, multicast, config, tls)):
             raise RgtbusError("zenoh bus: pass either a session or session options, not both")
         self.session = session
         try:

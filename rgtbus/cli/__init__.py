@@ -90,6 +90,7 @@ COMMANDS: dict[str, str] = {
     "unit": "proc_cmds",
     "launch": "proc_cmds",
     "router": "proc_cmds",
+    "certs": "certs_cmd",
     "watch": "watch_cmd",
     "sweep": "sweep_cmds",
     "sweep-plot": "sweep_cmds",

@@ -1,6 +1,6 @@
 """The options of a run, declared once for every command that takes them: ``--seed``,
 ``--realtime``, ``--engine``, the ``--timeout`` and ``--join-timeout`` of a cross-process run,
-``--key-file``.
+``--key-file``, zenoh's options and ``--tls``.
 
 Each option with a rule is checked by ``rgtbus.checks`` (the library's own rules) once the
 command line is parsed: ``rgtbus.cli.main`` calls ``check_arguments`` before the command runs,
@@ -103,7 +103,8 @@ def add_join_timeout_argument(p: argparse.ArgumentParser) -> None:
 KEY_FILE_HELP = (
     "a shared secret (>= 16 bytes, e.g. head -c 32 /dev/urandom | base64 > FILE): every "
     "frame and hello is signed with it and anything unsigned is dropped; without it anyone "
-    "who reaches the zenoh endpoints can join the run (docs/security.md)"
+    "who reaches the zenoh endpoints can join the run. For loopback runs: across machines use "
+    "--tls (docs/security.md)"
 )
 
 
@@ -138,14 +139,16 @@ def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (tls/... with --tls; "
+        "repeatable)",
     )
     p.add_argument(
         "-l",
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)",
+        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7448 (tls/... with --tls; "
+        "repeatable)",
     )
     p.add_argument(
         "-c",
@@ -153,7 +156,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
         "--zenoh-config",
         dest="zenoh_config",
         metavar="FILE",
-        help="a zenoh JSON5 config file (the options above, where given, override it)",
+        help="a zenoh JSON5 config file (the options above, where given, override it; "
+        "default: the file $ZENOH_CONFIG names, if set)",
     )
     p.add_argument(
         "--multicast",
@@ -161,6 +165,18 @@ def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="turn zenoh's multicast scouting on (off unless asked or set in --config)",
     )
+
+
+TLS_HELP = (
+    "the run's directory of TLS identities (rgtbus certs SCENARIO --out DIR): this process "
+    "proves who it is with its own certificate there, over mutual TLS on tls/ endpoints, under "
+    "an access control made from the roster (docs/hosts.md)"
+)
+
+
+def add_tls_argument(p: argparse.ArgumentParser, help: str = TLS_HELP) -> None:
+    """``--tls DIR``: the run's directory of TLS identities (rgtbus.bus.certs)."""
+    p.add_argument("--tls", metavar="DIR", help=help)
 
 
 def zenoh_options(args: argparse.Namespace) -> dict[str, Any]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -19,6 +20,7 @@ from rgtbus.cli.arguments import (
     add_realtime_argument,
     add_seed_argument,
     add_timeout_argument,
+    add_tls_argument,
     add_zenoh_arguments,
     read_key,
     zenoh_options,
@@ -65,6 +67,7 @@ def _add_unit(subparsers: SubParsers) -> None:
         "reference)",
     )
     add_key_argument(u)
+    add_tls_argument(u)
     u.add_argument("--json", action="store_true", help="print one JSON object")
     add_quiet_argument(u)
     u.set_defaults(func=run_unit_cmd)
@@ -110,6 +113,12 @@ def _add_launch(subparsers: SubParsers) -> None:
     add_engine_argument(la, help="as for rgtbus run")
     add_realtime_argument(la)
     add_key_argument(la)
+    add_tls_argument(
+        la,
+        help="the run's directory of TLS identities (rgtbus certs SCENARIO --out DIR): each "
+        "unit's process proves itself with its own certificate (one unit a process), the mesh "
+        "or --router on tls/ endpoints, under the run's access control (docs/hosts.md)",
+    )
     la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
     add_quiet_argument(la)
     la.set_defaults(func=run_launch)
@@ -128,10 +137,29 @@ def _add_router(subparsers: SubParsers) -> None:
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (tls/... with --tls; repeatable)",
     )
     r.add_argument(
-        "-c", "--config", dest="zenoh_config", metavar="FILE", help="a zenoh JSON5 config file"
+        "-c",
+        "--config",
+        dest="zenoh_config",
+        metavar="FILE",
+        help="a zenoh JSON5 config file (default: the file $ZENOH_CONFIG names, if set)",
+    )
+    add_tls_argument(
+        r,
+        help="the run's directory of TLS identities (rgtbus certs): the router proves itself "
+        "with DIR/run/router.crt and holds every unit to its own keys (needs --scenario)",
+    )
+    r.add_argument(
+        "--scenario",
+        metavar="SCENARIO",
+        help="with --tls: the run's scenario, whose roster the access control is made from",
+    )
+    r.add_argument(
+        "--run-id",
+        metavar="RUN_ID",
+        help="with --tls: only this run's keys (default: any run of the roster)",
     )
     add_quiet_argument(r)
     r.set_defaults(func=run_router)
@@ -160,7 +188,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
             outs = run_logged_units(
                 sc, names, log_path, zenoh_options=zenoh_options(args), run_id=args.run_id,
                 timeout=args.timeout, join_timeout=args.join_timeout, traces=args.traces,
-                engine=args.engine, realtime=args.realtime, key=key,
+                engine=args.engine, realtime=args.realtime, key=key, tls=args.tls,
             )  # fmt: skip
         except KeyboardInterrupt:
             print(f"rgtbus unit: {label}: interrupted", file=sys.stderr)
@@ -215,6 +243,7 @@ def run_launch(args: argparse.Namespace) -> int:
         args.scenario, procs=args.procs, seed=args.seed, log_dir=args.log_dir,
         zenoh=zenoh_options(args), key_file=args.key_file, realtime=args.realtime,
         timeout=args.timeout, engine=args.engine, traces=args.traces, router=args.router,
+        tls=args.tls,
     )  # fmt: skip
     if args.json:
         print(json.dumps(summary_json(result.details)))
@@ -229,12 +258,20 @@ def run_launch(args: argparse.Namespace) -> int:
 
 def run_router(args: argparse.Namespace) -> int:
     """``rgtbus router``: a zenoh router until SIGINT or SIGTERM."""
+    from rgtbus.bus.config import ENV
     from rgtbus.units.process import open_router
 
-    if not args.listen and not args.zenoh_config:
-        raise RgtbusError("router: give at least one --listen ENDPOINT (or a --config)")
+    if not args.listen and not args.zenoh_config and not os.environ.get(ENV):
+        raise RgtbusError(f"router: give at least one --listen ENDPOINT (or a --config, or {ENV})")
+    roster: tuple[str, ...] = ()
+    if args.tls is None and (args.scenario or args.run_id):
+        raise RgtbusError("router: --scenario and --run-id are for --tls (its access control)")
+    if args.tls is not None:
+        if args.scenario is None:
+            raise RgtbusError("router: --tls needs --scenario (the roster of the access control)")
+        roster = _load(args.scenario, None).units
     session = open_router(
-        args.listen or None, args.zenoh_config, None if args.zenoh_config else False
+        args.listen or None, args.zenoh_config, tls=args.tls, roster=roster, run_id=args.run_id
     )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -12,6 +12,7 @@ from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import (
     add_key_argument,
     add_seconds_argument,
+    add_tls_argument,
     add_zenoh_arguments,
     read_key,
     zenoh_options,
@@ -45,6 +46,16 @@ def register(subparsers: SubParsers) -> None:
         help="the run's shared secret (its --key-file): show only telemetry signed with it; "
         "without it, a keyed run's (signed) telemetry is not shown (docs/security.md)",
     )
+    add_tls_argument(
+        w,
+        help="the run's directory of TLS identities (rgtbus certs): the watcher proves itself "
+        "with DIR/run/watch.crt, on tls/ endpoints (needs --scenario)",
+    )
+    w.add_argument(
+        "--scenario",
+        metavar="SCENARIO",
+        help="with --tls: the run's scenario, whose roster the access control is made from",
+    )
     add_seconds_argument(
         w, "--idle-exit", help="end once S seconds pass without telemetry, after some came"
     )
@@ -60,10 +71,13 @@ def run_watch(args: argparse.Namespace) -> int:
 
     host, port = parse_address(args.live)
     key = read_key(args)
+    roster = _roster(args)
     say = _teller(quiet=args.quiet)
     with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say) as live:
         live.advertise(_topics())
-        with Watcher(live, run_id=args.run, key=key, **zenoh_options(args)) as watcher:
+        with Watcher(
+            live, run_id=args.run, key=key, tls=args.tls, roster=roster, **zenoh_options(args)
+        ) as watcher:
             say(f"watch: serving {live.url} (listening for the telemetry of run {args.run})")
             subscribed = 0
             hinted = False
@@ -91,6 +105,24 @@ def run_watch(args: argparse.Namespace) -> int:
                 + (f"; {watcher.dropped} frames dropped ({drops})" if watcher.dropped else "")
             )
     return 0
+
+
+def _roster(args: argparse.Namespace) -> tuple[str, ...]:
+    """The roster of ``--scenario``, for ``--tls`` (its files checked here, before the live
+    view opens); () without ``--tls``."""
+    from rgtbus.errors import RgtbusError
+
+    if args.tls is None:
+        if args.scenario is not None:
+            raise RgtbusError("watch: --scenario is for --tls (its access control)")
+        return ()
+    if args.scenario is None:
+        raise RgtbusError("watch: --tls needs --scenario (the roster of the access control)")
+    from rgtbus.bus.certs import WATCH, check_tls
+    from rgtbus.scenario import load_scenario
+
+    check_tls(args.tls, WATCH)
+    return load_scenario(args.scenario).units
 
 
 def _teller(quiet: bool) -> Callable[[str], None]:

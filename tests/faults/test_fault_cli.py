@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from rgtbus.bus.zenoh import make_config, zenoh_reason
+from rgtbus.bus.config import make_config, zenoh_reason
 from rgtbus.cli import build_parser, main
 from rgtbus.cli.arguments import zenoh_options
 from rgtbus.errors import RgtbusError

@@ -24,9 +24,9 @@ from rgtbus.units.launch import free_ports
 import rgtbus
 from rgtbus.bus import open_bus
 from rgtbus.bus.auth import TAG_SIZE
+from rgtbus.bus.config import make_config
 from rgtbus.bus.hello import MAX_PROCESS, Hello, encode_hello
 from rgtbus.bus.payload import HEADER_SIZE, MAGIC, TAGGED, VERSION
-from rgtbus.bus.zenoh import make_config
 
 KEY = bytes(range(1, 33))
 HEADER = struct.Struct("<4sBBHQQQdII")
@@ -51,7 +51,7 @@ def junk(size: int, seq: int = 1) -> bytes:
 FLOODER = """
 import os, struct, sys, time
 import zenoh
-from rgtbus.bus.zenoh import make_config
+from rgtbus.bus.config import make_config
 ep, run, members = sys.argv[1], sys.argv[2], sys.argv[3].split(",")
 big_n, small_n, seconds = int(sys.argv[4]), int(sys.argv[5]), float(sys.argv[6])
 big_size, small_size = int(sys.argv[7]), int(sys.argv[8])

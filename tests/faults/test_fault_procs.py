@@ -24,9 +24,9 @@ from rgtbus.units.group import run_group
 from rgtbus.units.launch import free_ports
 
 from rgtbus.bus.auth import tag
+from rgtbus.bus.config import make_config
 from rgtbus.bus.hello import Hello, encode_hello
 from rgtbus.bus.payload import FINAL, NEVER, Frame, encode
-from rgtbus.bus.zenoh import make_config
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log, scan_log
