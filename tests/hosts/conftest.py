@@ -1,0 +1,74 @@
+"""The permission probe (once a session) and the wall-time table of tests/hosts."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import pytest
+
+from hosts import netns
+
+# check -> the clean check its wall time is compared with (same tls)
+BASELINE = {"tbf": "gate", "relay": "gate", "link-flap": "gate-paced"}
+WALLS: list[dict] = []  # {"check", "tls", "wall_s", "link_kb"}, one a finished run
+OUT = netns.ROOT / "logs" / "hosts-walls.json"
+
+
+@pytest.fixture(scope="session")
+def hosts_permitted() -> None:
+    """Skip, in one line, where this process may not make network namespaces."""
+    why = netns.probe()
+    if why is not None:
+        pytest.skip(f"network namespaces not permitted here: {why}")
+
+
+@pytest.fixture
+def record_wall():
+    """``record(check, tls, run)``: a run's wall time (and the bytes over its links), for the
+    table at the end."""
+
+    def record(check: str, tls: bool, run, **more) -> None:
+        kb = round(run.link_bytes / 1000, 1)
+        row = {"check": check, "tls": tls, "wall_s": round(run.wall, 2), "link_kb": kb}
+        WALLS.append({**row, **more})
+
+    return record
+
+
+def table() -> list[dict]:
+    rows = []
+    for row in WALLS:
+        base = BASELINE.get(row["check"])
+        ref = next(
+            (r["wall_s"] for r in WALLS if r["check"] == base and r["tls"] == row["tls"]), None
+        )
+        ratio = round(row["wall_s"] / ref, 2) if ref else None
+        rows.append({**row, "baseline": base, "vs_clean": ratio})
+    return rows
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    if not WALLS:
+        return
+    rows = table()
+    tr = terminalreporter
+    tr.section("tests/hosts: wall time of each run (units' start to their end)")
+    tr.write_line(f"{'check':<12} {'tls':<5} {'wall s':>7}  {'vs clean':<18} {'link kB':>8}")
+    for r in rows:
+        vs = "-" if r["vs_clean"] is None else f"{r['vs_clean']:.2f}x {r['baseline']}"
+        cells = f"{r['check']:<12} {r['tls']!s:<5} {r['wall_s']:>7.2f}  {vs:<18}"
+        tr.write_line(f"{cells} {r['link_kb']:>8}")
+    record = {
+        "when": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "cpus": os.cpu_count(),
+        "loadavg": os.getloadavg(),
+        "rows": rows,
+    }
+    try:
+        OUT.parent.mkdir(exist_ok=True)
+        OUT.write_text(json.dumps(record, indent=1) + "\n")
+        tr.write_line(f"written to {OUT}")
+    except OSError as exc:
+        tr.write_line(f"not written to {OUT}: {exc}")
