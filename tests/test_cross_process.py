@@ -20,6 +20,7 @@ import pytest
 import zenoh
 from rgtbus.units.group import run_group
 from rgtbus.units.launch import free_ports
+from same_run import RESULT_KEYS, assert_verifies, content, single
 
 from rgtbus.bus.config import make_config
 from rgtbus.bus.payload import Frame, encode
@@ -29,39 +30,6 @@ from rgtbus.telemetry import MemoryRecorder, read_log
 
 ROOT = Path(__file__).parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]
-
-
-def single(name: str):
-    sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
-    rec = MemoryRecorder()
-    return run_group(sc, "memory", rec).summary, rec.read()[0]
-
-
-def content(messages):
-    """Log content, order-free among simultaneous messages, decodes one a row: how a unit's
-    wakes group its decodes into records depends on whether a live view waits for them (a
-    unit process feeds ``rgtbus watch``), what it decoded does not; spikes one record a unit
-    (the units of one process share their records)."""
-    from rgtbus.telemetry.verify import decodes_per_row, spikes_per_unit
-
-    rows = spikes_per_unit(decodes_per_row(messages))
-    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in rows)
-
-
-RESULT_KEYS = (
-    "polynomial",
-    "relations",
-    "agree",
-    "influences",
-    "units",
-    "outcome",
-    "sim_seconds",
-    "decode_errors",
-    "goals",
-    "rounds",
-    "repair",
-    "error",
-)
 
 
 def launch_equals_single(argv: list[str], name: str, tmp_path: Path) -> dict:
@@ -75,17 +43,6 @@ def launch_equals_single(argv: list[str], name: str, tmp_path: Path) -> dict:
     messages, metadata = read_log(tmp_path / "run.mcap")
     assert content(messages) == content(ref_messages)
     return metadata
-
-
-def assert_verifies(log: Path) -> None:
-    """``rgtbus replay LOG --verify`` (a fresh process) finds the log's run again."""
-    verify = subprocess.run(
-        [*EXE, "replay", str(log), "--verify", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert verify.returncode == 0, verify.stderr
 
 
 @pytest.mark.parametrize(
