@@ -65,6 +65,11 @@ SUMMARY_JSON_KEYS = (
 )
 
 
+# How a run was carried out, not what it gave: a log does not keep them (``RunEnd``), and two
+# runs of one scenario may differ in them (rounds follow when frames happen to arrive).
+HOW_IT_RAN = ("steps", "bus", "sync")
+
+
 def summary_json(summary: Mapping[str, Any]) -> dict[str, Any]:
     """The fields ``--json`` prints (a summary without some, e.g. from an old log: ``None``)."""
     return {k: summary.get(k) for k in SUMMARY_JSON_KEYS}
@@ -259,6 +264,7 @@ class RunEnd:
     wall_seconds: float = 0.0
     failure: str | None = None
     bus_stats: Any = None
+    sync: Any = None
 
 
 class WorldEnd(Protocol):
@@ -270,6 +276,7 @@ class WorldEnd(Protocol):
     wall_seconds: float
     failure: str | None
     bus_stats: Any
+    sync: Any
 
 
 def summarise(
@@ -328,6 +335,7 @@ def summarise(
         "engine": engine,
         "steps": result.steps,
         "bus": result.bus_stats,
+        "sync": result.sync,
         "error": error,
     }
     summary["goals"] = judge_goals(sc, units_out, should.goal_prospects(last_round))

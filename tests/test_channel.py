@@ -156,7 +156,7 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
         assert rp.scenario.gains == placed.gains and rp.scenario.positions == placed.positions
         assert verify_log(rp).ok
     same, _ = logged_run(listed)
-    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
+    skip = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}  # not results
     assert (summaries["event"]["error"] is None) is opens
     if threshold:
         assert "no ID spike" in summaries["event"]["error"]
@@ -255,7 +255,7 @@ def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
     sc = gate_with(f"[channel.burst]\nnoise = {burst}\nevery = 3.0\nlength = {length}\n")
     sc = parse_scenario(sc.text.replace("[timing]", f'[timing]\nattention = "{attention}"'), "b")
     assert sc.channel.noisy and sc.channel.noise == 0.0
-    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
+    skip = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}  # not results
     summaries = []
     for engine in ("event", "dense"):
         summary, data = logged_run(sc, engine)
@@ -368,7 +368,7 @@ def test_robots_on_a_plane_are_the_same_on_both_engines_replay_and_verify(logged
     assert sc.channel.timed and sc.channel.noisy and sc.channel.burst is not None
     delays = [sc.channel.delay(s, r) / sc.timing.tau for s, r in sc.pairs()]
     assert max(delays) > 2 and any(d % 1 > 0.2 for d in delays)  # off the samples, far
-    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}
+    skip = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}
     summaries = []
     for engine in ("event", "dense"):
         summary, data = logged_run(sc, engine)
@@ -395,7 +395,7 @@ def test_robots_on_a_plane_over_zenoh_equal_the_memory_run():
     import rgtbus
 
     sc = parse_scenario(ROBOTS, "robots.toml")
-    skip = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}
+    skip = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}
     runs = [
         {k: v for k, v in rgtbus.run(sc, seed=2, bus=bus).summary.items() if k not in skip}
         for bus in ("memory", "zenoh")

@@ -475,3 +475,24 @@ def test_the_library_launch_refuses_bad_arguments_in_one_line(tmp_path):
             rgtbus.launch("gate", log_dir=tmp_path, **kwargs)
         assert needle in str(err.value) and "\n" not in str(err.value), kwargs
     assert not list(tmp_path.iterdir())  # refused before anything was started or written
+
+
+@pytest.mark.slow  # four unit processes
+def test_the_lookahead_of_propagation_changes_rounds_not_results(tmp_path):
+    """robots_in_a_field: sound takes 23 to 63 ms between the robots, every clock is the run's.
+    Each process hands its ears every sender's pulses up to that sender's promise, so they run
+    past the horizon by the shortest delay (``ahead_rounds``); the run, one process per unit,
+    is the single-process run, and its merged log verifies."""
+    import rgtbus
+
+    result = rgtbus.launch(ROOT / "scenarios" / "robots_in_a_field.toml", log_dir=tmp_path)
+    assert result.ok, result.failures
+    ref, ref_messages = single("robots_in_a_field")
+    assert {k: result.summary[k] for k in RESULT_KEYS} == {k: ref[k] for k in RESULT_KEYS}
+    messages, _ = read_log(tmp_path / "run.mcap")
+    assert content(messages) == content(ref_messages)
+    assert_verifies(tmp_path / "run.mcap")
+    sync = result.details["sync"]
+    assert sorted(sync) == ["a", "b", "c", "d"]
+    assert all(s["members"] == 1 and s["rounds"] > 0 for s in sync.values()), sync
+    assert any(s["ahead_rounds"] > 0 for s in sync.values()), sync

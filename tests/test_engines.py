@@ -28,7 +28,7 @@ SCENARIOS = sorted(
 # ten units over the dense engine take ~10 s each, six units 4 s; the robots are held to both
 # engines (and verified) in tests/test_channel.py: CI's slow pass
 SLOW_SCENARIOS = ("coalition10", "crowd10", "group6", "robots_on_a_plane")
-NOT_RESULTS = ("wall_seconds", "engine", "steps", "bus")
+NOT_RESULTS = ("wall_seconds", "engine", "steps", "bus", "sync")
 
 
 def run(sc: Scenario, engine: str):
@@ -510,3 +510,16 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     }
     assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
     assert max(held) <= 3  # a few chunks at a time, never the whole queue
+
+
+def test_a_run_says_what_keeping_its_clock_cost():
+    """``details["sync"]``: the rounds of the horizon (the steps), the frames published (those
+    with no pulse: null messages), the seconds blocked in the bus's wait, and the rounds the
+    ears ran past the horizon (none in one process: the binding member is always local)."""
+    import rgtbus
+
+    result = rgtbus.run(ROOT / "scenarios" / "gate.toml")
+    sync = result.details["sync"]
+    assert sync["members"] == 4 and sync["rounds"] == result.details["steps"] > 0
+    assert sync["frames"] >= sync["null_frames"] >= 0 and sync["frames"] >= 4
+    assert sync["wait_seconds"] >= 0 and sync["ahead_rounds"] == 0

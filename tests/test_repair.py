@@ -16,7 +16,7 @@ from rgtbus.scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 GROUP = (ROOT / "scenarios" / "random_group.toml").read_text()
-SKIP = {"wall_seconds", "engine", "steps", "bus", "log", "scenario"}  # not results
+SKIP = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}  # not results
 
 
 def group(n: int = 4, schedule: str = "concurrent", repair: str = "arq", noise: float = 0.06,

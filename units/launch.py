@@ -679,6 +679,7 @@ def _summarised(
         wall_seconds=wall_seconds,
         failure=failures[0] if failures else None,
         bus_stats={u: o["bus"] for u, o in outputs.items()},
+        sync={u: o.get("sync", {}) for u, o in outputs.items()},
     )
     return summarise(sc, reports, ended, engine=engine)
 

@@ -333,6 +333,7 @@ def _output(
         "error": result.failure or unit.failure,
         "late": late,
         "bus": stats,
+        "sync": result.sync,  # the cost of the clock to this unit's process (SyncCost)
     }
 
 

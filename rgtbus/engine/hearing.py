@@ -144,14 +144,26 @@ class Ears:
 
     # -- the world's side ---------------------------------------------------------------------
 
-    def hear(self, horizon: int, pulses: Mapping[str, Pulses]) -> None:
-        """The medium is now known up to ``horizon`` (exclusive): these are the new pulses."""
-        if horizon < self.horizon:
+    @property
+    def timed(self) -> bool:
+        """Whether pulses land off their samples (delays, clocks): see ``hear``'s ``cuts``."""
+        return self._timed
+
+    def hear(
+        self, horizon: int, pulses: Mapping[str, Pulses], cuts: Mapping[str, int] | None = None
+    ) -> None:
+        """The medium is now known up to ``horizon`` (exclusive): these are the new pulses.
+        Timed, ``cuts`` may say, sender by sender, how far its pulses are known (at least
+        ``horizon``: its promise): a sender's unknown pulses then land no earlier than its cut
+        mapped onto each listener's samples, and with propagation delays the ears' horizon
+        passes ``horizon`` by the shortest delay from the binding sender (the lookahead a
+        channel's speed gives, docs/engine.md)."""
+        if horizon < self.horizon and not self._timed:  # timed: on the listeners' samples
             raise RgtbusError(f"horizon {horizon} goes back from {self.horizon}")
         parts = [(n, pulses[u]) for n, u in enumerate(self.senders) if u in pulses]
         parts = [(n, p) for n, p in parts if p[0].size]
         if self._timed:
-            parts, horizon = self._landed(parts, horizon)
+            parts, horizon = self._landed(parts, horizon, cuts)
         if parts:
             rows = np.concatenate([p[0] for _, p in parts])
             if rows.min() < self.horizon:
@@ -166,16 +178,22 @@ class Ears:
             if self._timed:
                 rcv = np.concatenate([p[2] for _, p in parts])  # type: ignore[misc]
                 self._rcv = np.concatenate([self._rcv[keep], rcv[order]])
+                # a near sender's new pulses may land before a far one's known ones: in
+                # sample order, each sample's shares in the order they came
+                merged = np.argsort(self._rows, kind="stable")
+                self._rows, self._who = self._rows[merged], self._who[merged]
+                self._val, self._rcv = self._val[merged], self._rcv[merged]
             self._cur = 0
         self.horizon = horizon
         _fire(self._more)
 
     def _landed(
-        self, parts: list[tuple[int, Pulses]], horizon: int
+        self, parts: list[tuple[int, Pulses]], horizon: int, cuts: Mapping[str, int] | None
     ) -> tuple[list[tuple[int, Any]], int]:
         """Timed: each sender's pulses as every listener gets them (``render``), with the
         listener of each share; and the horizon on the listeners' samples: the earliest
-        sample a pulse not yet known (sent at or after ``horizon``) could land on."""
+        sample a pulse not yet known (sent at or after its sender's cut, else ``horizon``)
+        could land on: min over listener l and sender s of ⌊a_ls + b_ls · cut_s⌋."""
         A = self._arrival  # listeners × 2 × senders
         out: list[tuple[int, Any]] = []
         for n, (rows, vals) in parts:
@@ -183,7 +201,12 @@ class Ears:
                 r, v = render(rows, vals, float(A[lst, 0, n]), float(A[lst, 1, n]))
                 out.append((n, (r, v, np.full(r.size, lst, dtype=np.int64))))
         if horizon < NEVER:
-            horizon = int(np.floor((A[:, 0, :] + A[:, 1, :] * horizon).min()))
+            cut = np.full(len(self.senders), float(horizon))
+            if cuts:
+                for n, u in enumerate(self.senders):
+                    cut[n] = max(horizon, min(cuts.get(u, horizon), NEVER - 1))
+            at = A[:, 0, :] + A[:, 1, :] * cut[None, :]
+            horizon = int(min(np.floor(at.min()), NEVER))
         return out, max(horizon, self.horizon)
 
     # -- a unit's side --------------------------------------------------------------------------

@@ -78,6 +78,33 @@ class WorldResult:
     bus_stats: dict[str, Any] = field(default_factory=dict)
     end_sample: int = 0  # the last sample of the run
     silent: tuple[str, ...] = ()  # the members it gave up on (no news within the timeout)
+    sync: dict[str, Any] = field(default_factory=dict)  # SyncCost.as_dict()
+
+
+@dataclass
+class SyncCost:
+    """What keeping the members' clocks together cost a world (docs/engine.md, "The cost of
+    the clock"): rounds of the horizon, frames its members published (``null_frames``: a
+    promise and no pulse), wall seconds blocked in ``bus.wait`` (waiting for other processes,
+    their work included), and the rounds in which propagation delays let the ears run past
+    the horizon (``ahead_rounds``)."""
+
+    members: int = 0
+    rounds: int = 0
+    frames: int = 0
+    null_frames: int = 0
+    wait_seconds: float = 0.0
+    ahead_rounds: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "members": self.members,
+            "rounds": self.rounds,
+            "frames": self.frames,
+            "null_frames": self.null_frames,
+            "wait_seconds": round(self.wait_seconds, 4),
+            "ahead_rounds": self.ahead_rounds,
+        }
 
 
 class World:
@@ -127,6 +154,13 @@ class World:
         self._ears: list[Ears] = []
         self._where: dict[str, tuple[Ears, int]] = {}
         self._ahead: dict[str, Pulses] = {}  # local members' published pulses not yet heard
+        self._heard = 0  # the world ran every event before this sample
+        self.sync = SyncCost(members=len(self.members))
+        # Timed channels with delays only (no clock of its own): each sender's pulses are
+        # handed to the ears up to its promise (``_fed``: how far), so the ears run ahead of
+        # the horizon by the shortest propagation delay from the binding sender.
+        self._ahead_of_horizon = False  # set with the ears (``_build_ears``)
+        self._fed: dict[str, int] = {}
 
     @classmethod
     def for_scenario(
@@ -152,14 +186,17 @@ class World:
         # The event engine shares one bank among its local units; the reference gives each
         # unit its own, fed every window.
         groups = [[m] for m in self.members] if dense else [self.members]
+        arrivals: list[np.ndarray | None] = []
         for group in groups:
             if not group:
                 continue
             bank = ResonatorBank(r.omegas, mode=r.mode, tau=r.tau, n_receivers=len(group))
+            listeners = [m.listener() for m in group]
+            arrivals.extend(lst.arrival for lst in listeners)
             ears = Ears(
                 self.env,
                 self.bus.members,
-                [m.listener() for m in group],
+                listeners,
                 bank,
                 dense=dense,
                 window=self.window,
@@ -168,6 +205,7 @@ class World:
             for i, m in enumerate(group):
                 m.begin(self.env, ears, i)
                 self._where[m.name] = (ears, i)
+        self._ahead_of_horizon = not dense and _delays_only(arrivals)
 
     # -- the SimPy process ------------------------------------------------------------------
 
@@ -182,21 +220,32 @@ class World:
             if self._finished():
                 break
             beyond = self.horizon + self.window - 1 if self.engine == "dense" else self.horizon
+            waited = time.perf_counter()
             h = self.bus.wait(beyond, timeout=self.timeout)
+            self.sync.wait_seconds += time.perf_counter() - waited
             if self.engine == "dense":
                 h = min(h, self.horizon + self.window)
             pulses = self.bus.take(h)
+            cuts = None
+            if self._ahead_of_horizon and h < NEVER:
+                pulses, cuts = self._up_to_promises(h, pulses)
             self.horizon = h
             self.steps += 1
             for ears in self._ears:
-                ears.hear(h, pulses)
+                ears.hear(h, pulses, cuts)
             self._log_medium(pulses, final_before=h)
             if self.progress is not None:
                 self.progress(env.now, self.steps)
             if h < NEVER:
                 # the ears hear no further than their own horizon (pulses that land later on
-                # a listener's samples than they were sent: delays, clocks)
+                # a listener's samples than they were sent: delays, clocks); with each
+                # sender's pulses known up to its promise, past h by the shortest delay
                 heard = min([h, *(e.horizon for e in self._ears)])
+                if cuts is not None and self._ears:
+                    heard = min(e.horizon for e in self._ears)
+                    if heard > h:
+                        self.sync.ahead_rounds += 1
+                self._heard = max(h, heard)
                 yield env.timeout(max(0.0, (heard - 0.5) * self.tau - env.now))
             else:  # every member promised silence: run until the local units are done
                 yield env.all_of([e.quiet for e in self._ears])
@@ -204,6 +253,24 @@ class World:
         self._log_medium({}, final_before=NEVER)
         # what is still on its way (transmissions of units that are done) goes out
         yield env.timeout(max(0.0, (end + 0.5) * self.tau - env.now))
+
+    def _up_to_promises(
+        self, h: int, taken: dict[str, Pulses]
+    ) -> tuple[dict[str, Pulses], dict[str, int]]:
+        """Each member's pulses up to its own promise (its cut: every pulse before it has
+        arrived, frames keep their order), not only up to the horizon ``h``: what was taken,
+        and what the bus holds past ``h`` below the cut; less what earlier rounds handed the
+        ears already (``_fed``). Returns those pulses and the cuts."""
+        cuts = {u: max(h, s.promise) for u, s in self.bus.status().items()}
+        pending = self.bus.known(NEVER)  # not yet taken: all at or after h
+        out: dict[str, Pulses] = {}
+        for u, cut in cuts.items():
+            fed = self._fed.get(u, 0)
+            parts = [p for p in (taken.get(u, _NONE), split_pulses(pending.get(u, _NONE), cut)[0])
+                     if p[0].size]  # fmt: skip
+            out[u] = split_pulses(merge_pulses(parts), fed)[1] if parts else _NONE
+            self._fed[u] = max(fed, cut)
+        return out, cuts
 
     def _publish(self) -> None:
         """Every local member's frame: its new pulses and its promise (event engine), or its
@@ -236,6 +303,8 @@ class World:
                 or (promise != self._sent_promise[m.name] and m.name in binding)
             )
             if changed:
+                self.sync.frames += 1
+                self.sync.null_frames += not now[0].size
                 self.bus.publish(
                     m.name,
                     now[0],
@@ -259,7 +328,8 @@ class World:
         for u, p in list(self._ahead.items()):  # what is before the horizon has been heard
             if p[0].size and p[0][0] < h:
                 self._ahead[u] = split_pulses(p, h)[1]
-        plain = {m.name: m.promise(h) for m in self.members}
+        # every event before the heard horizon ran: no spike before it is still to come
+        plain = {m.name: m.promise(max(h, self._heard)) for m in self.members}
         remote = [s.promise for u, s in self.bus.status().items() if u not in plain]
         out = dict(plain)
         least = _two_least([*plain.values(), *remote])
@@ -377,6 +447,7 @@ class World:
             bus_stats=dict(self.bus.stats()),
             end_sample=self.end_sample(),
             silent=silent,
+            sync={**self.sync.as_dict(), "rounds": self.steps},
         )
 
 
@@ -400,3 +471,13 @@ def as_jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def _delays_only(arrivals: Sequence[np.ndarray | None]) -> bool:
+    """Whether every local listener hears every sender late by a fixed delay and on the same
+    clock (``Listener.arrival``: a ≥ 0, b = 1): the lookahead of propagation applies."""
+    if not arrivals:
+        return False
+    return all(
+        a is not None and bool(np.all(a[1] == 1.0) and np.all(a[0] >= 0.0)) for a in arrivals
+    )

@@ -25,6 +25,7 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
 from rgtbus.summary import (
+    HOW_IT_RAN,
     RunEnd,
     agreement,
     decode_error,
@@ -497,7 +498,7 @@ class Replay:
             end = RunEnd(sim_seconds=self.sim_seconds, failure=run.get("error"))
             engine = self.metadata.get("run", {}).get("engine", "event")
             out = summarise(sc, self.unit_reports(), end, engine=engine)
-            for key in ("steps", "bus"):
+            for key in HOW_IT_RAN:
                 out.pop(key, None)
         out["wall_seconds"] = None
         out["log"] = self.label
