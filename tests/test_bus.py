@@ -758,3 +758,15 @@ def test_sample_rows_is_unique_with_inverse(samples, ordered):
     rows, at = sample_rows(a)
     want_rows, want_at = np.unique(a, return_inverse=True)
     assert np.array_equal(rows, want_rows) and np.array_equal(at, want_at.reshape(-1))
+
+
+def test_the_first_hellos_come_soon_then_every_period():
+    """A hello said before a peer's subscription reaches the session is lost (the first ones
+    of a run are): the next unprompted ones come 50, 100, 200 ms ... apart, then every period."""
+    from rgtbus.bus.zenoh import hello_gap, hello_period
+
+    period = hello_period(100)
+    assert period == pytest.approx(1.0) and hello_period(2) == pytest.approx(0.05)
+    gaps = [hello_gap(period, k) for k in range(7)]
+    assert gaps == pytest.approx([0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 1.0])
+    assert hello_gap(period, 10**6) == pytest.approx(period)  # no overflow however long

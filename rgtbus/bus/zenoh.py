@@ -172,10 +172,20 @@ class _Rate:
         return True
 
 
+_FIRST_HELLO_GAP = 0.05  # s: the first unprompted hellos, each gap twice the last
+
+
 def hello_period(members: int) -> float:
-    """How often a joining process says its hello unprompted: 50 ms, and longer in a large
-    run (every hello reaches every process, and each is O(members) long): 10 ms a member."""
-    return max(0.05, 0.01 * members)
+    """How often a joining process says its hello unprompted once it has said a few: 50 ms,
+    and longer in a large run (every member's hello reaches every process): 10 ms a member."""
+    return max(_FIRST_HELLO_GAP, 0.01 * members)
+
+
+def hello_gap(period: float, said: int) -> float:
+    """The wait before unprompted hello number ``said`` + 1: 50 ms, 100 ms, 200 ms ... up to
+    ``period``. A hello said before a peer's subscription has reached this session is lost,
+    and the first ones of a run are; the next comes soon, not a whole period later."""
+    return min(period, _FIRST_HELLO_GAP * 2.0 ** min(said, 30))
 
 
 class _Barrier:
@@ -443,8 +453,9 @@ class ZenohBus(QueueBus):
 
         Each process declares a liveliness token ``rgtbus/<run>/alive/<unit>`` and says a hello
         (rgtbus.bus.hello: its unit, scenario digest, nonce, where it runs, and its view: a digest
-        of every member's nonce as it heard them, once it heard all) every ``hello_period`` (longer
-        in a larger run), and once a round more when a hello brought news (one answer for all of
+        of every member's nonce as it heard them, once it heard all) 50, 100, 200 ms ... apart and
+        then every ``hello_period`` (longer in a larger run; ``hello_gap``), and once a round
+        more when a hello brought news (one answer for all of
         it), until every member's hello holds our view (it was said after our nonce, so it is fresh,
         not a recording) and says it is ready (it has such a hello from everyone). A hello is the
         same size whatever the roster; one said again unchanged is not read again. Data and
@@ -469,14 +480,16 @@ class ZenohBus(QueueBus):
         period = hello_period(len(self.members))
         barrier = _Barrier(self, mine, digest, period)
         deadline = time.monotonic() + timeout
-        said = -period
+        said, unprompted = -period, 0
         stop_at: float | None = None  # a conflict: said on a while, for all to hear it too
         while True:
             now = time.monotonic()
-            if barrier.news or now - said >= period:
+            gap = hello_gap(period, unprompted)
+            if barrier.news or now - said >= gap:
+                unprompted += not barrier.news
                 barrier.say()
                 said = now
-            self._hear_round(barrier, now + period / 4)
+            self._hear_round(barrier, now + gap / 4)
             if barrier.conflict is not None:
                 stop_at = stop_at or time.monotonic() + 4 * period
                 if time.monotonic() >= stop_at:
