@@ -487,8 +487,8 @@ def test_a_watcher_bounds_its_topics():
 
 def test_a_unit_process_s_telemetry_says_whether_a_watcher_subscribes():
     """``TelemetryFeed.watched``: False while nobody subscribes to the unit's telemetry key
-    (its units may batch their decodes), True once a watcher does, False again once it has
-    gone (as zenoh's routing learns it: every wait bounded)."""
+    (its units may batch their decodes, and the feed puts nothing), True once a watcher does,
+    False again once it has gone (as zenoh's routing learns it: every wait bounded)."""
     from rgtbus.units.launch import free_ports
 
     from rgtbus.bus import open_bus
@@ -502,11 +502,27 @@ def test_a_unit_process_s_telemetry_says_whether_a_watcher_subscribes():
             assert time.monotonic() < deadline, f"watched() never became {want}"
             time.sleep(0.02)
 
+    class Counting:  # the feed's publisher, counting what it is asked to put
+        def __init__(self, publisher) -> None:
+            self.publisher, self.puts = publisher, 0
+
+        def put(self, frame: bytes) -> None:
+            self.puts += 1
+            self.publisher.put(frame)
+
     with open_bus("zenoh", "wt", ("a", "b"), 200.0, local=["a"], listen=eps[1:]) as bus:
         feed = bus.telemetry_feed("a")
+        counting = feed.publisher = Counting(feed.publisher)
         assert feed.watched() is False
+        feed.put("/log", "rgtbus.Log", b"{}", 1)
+        assert counting.puts == 0  # nobody watches: nothing encoded, signed or put
         with Watcher(_Sink(), run_id="wt", connect=eps[1:]):
             until(True, feed)
+            feed.put("/log", "rgtbus.Log", b"{}", 2)
+            assert counting.puts == 1
         until(False, feed)
+        feed.put("/log", "rgtbus.Log", b"{}", 3)
+        assert counting.puts == 1
+        feed.publisher = counting.publisher  # the bus undeclares its own
         feed.closed = True
         assert feed.watched() is False

@@ -154,10 +154,9 @@ class AutonomousUnit:
         """The run begins: its world, its ears and its index among their listeners."""
         self.env, self.ears, self.index = env, ears, index
         # its pulses go to the log as the run's clock reaches each only where someone may
-        # look on while it runs (a live view, a paced run); else as they are planned
-        on_time = getattr(self.recorder, "live", None) is not None or isinstance(
-            env, simpy.rt.RealtimeEnvironment
-        )
+        # look on while it runs (a paced run, a live view watched as it begins); else as they
+        # are planned (a unit process's feed that nobody watches costs a SimPy event a pulse)
+        on_time = self.watched() or isinstance(env, simpy.rt.RealtimeEnvironment)
         self.transmitter.begin(env, on_time)
         self.listening.begin(ears, index)
         self.log.member = index

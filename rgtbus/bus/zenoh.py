@@ -107,7 +107,9 @@ def telemetry_key(run_id: str, unit: str) -> str:
 class TelemetryFeed:
     """A unit process's log messages on zenoh (``encode_telemetry`` frames); a live sink. On a
     keyed run each frame is signed (``sign_telemetry``: the process's nonce, a sequence number,
-    an HMAC tag), so ``rgtbus watch --key-file`` shows only what the run's processes said."""
+    an HMAC tag), so ``rgtbus watch --key-file`` shows only what the run's processes said.
+    Nothing is encoded, signed or put while no subscriber matches its key: zenoh's matching
+    listener says when one comes or goes (a run nobody watches pays nothing a record)."""
 
     def __init__(
         self,
@@ -120,10 +122,21 @@ class TelemetryFeed:
         self.seq = 0
         self._sign = sign
         self._nonce = nonce
+        self._matching = True  # until zenoh says otherwise: as if watched
+        self.listener: Any = None
+        try:
+            self.listener = publisher.declare_matching_listener(self._on_matching)
+            self._matching = bool(publisher.matching_status.matching)
+        except Exception:  # zenoh cannot say: every message goes out, as if watched
+            self._matching = True
+
+    def _on_matching(self, status: Any) -> None:  # zenoh's thread: a flag, never blocks
+        self._matching = bool(status.matching)
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
-        """Publish one log message (signed on a keyed run); nothing once closed."""
-        if self.closed:
+        """Publish one log message (signed on a keyed run); nothing once closed, nor while
+        nobody watches (a watcher reads the log for what came before it)."""
+        if self.closed or not self._matching:
             return
         frame = encode_telemetry(topic, schema, data, t_ns)
         if self._sign is not None:
@@ -134,12 +147,7 @@ class TelemetryFeed:
     def watched(self) -> bool:
         """Whether a subscriber (``rgtbus watch``) matches this feed's key now, as zenoh's
         routing knows it; True if zenoh cannot say."""
-        if self.closed:
-            return False
-        try:
-            return bool(self.publisher.matching_status.matching)
-        except Exception:  # zenoh's ZError (a session closing): look as if watched
-            return True
+        return not self.closed and self._matching
 
 
 HELLO_QUEUE = 256  # hellos heard, not yet read (more: dropped_overflow; members repeat theirs)
@@ -674,6 +682,7 @@ class ZenohBus(QueueBus):
             self._hello_sub,
             self._subscriber,
             *self._publishers.values(),
+            *(f.listener for f in self._telemetry),
             *(f.publisher for f in self._telemetry),
             self._alive_sub,
             *self._tokens,
