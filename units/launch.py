@@ -620,6 +620,10 @@ def _run_processes(
     SIGINT or SIGTERM (as ``KeyboardInterrupt``) stops the units. Returns what each process
     said, the units the launcher had to stop, and why it was interrupted (None if not)."""
     processes = LaunchProcesses(fork)
+    if fork:  # forks start with the plan laid out once here (a fork server's do not)
+        from rgtbus.units.unit import lay_out_plan
+
+        lay_out_plan(sc)
     results: dict[str, dict[str, Any]] = {}
     interrupted: str | None = None
     procs = list(groups)

@@ -59,6 +59,30 @@ KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reactio
 BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
 
 
+def protocol_of(sc: Scenario, name: str) -> ProtocolState:
+    """Unit ``name``'s protocol state in scenario ``sc`` (its schedule's plan is shared by
+    every unit of a process: ``plan_of``)."""
+    return ProtocolState(
+        name, sc.units, dict(sc.frequencies), sc.timing.tau,
+        pulses=sc.codebook.pulses, start=sc.timing.start,
+        reaction_delay=sc.timing.reaction_delay, guard=sc.timing.guard,
+        search=sc.timing.search, anchor=sc.timing.anchor, kind=sc.schedule,
+        influence_rounds=sc.influence_rounds, repair_rounds=sc.repairs_per_phase,
+        attention=sc.timing.attention, read_margin=1 if sc.channel.timed else 0,
+        expect_spike=ExpectedSpike(sc, name),
+    )  # fmt: skip
+
+
+def lay_out_plan(sc: Scenario) -> None:
+    """Work out ``sc``'s plan (the concurrent schedule's rounds and decodes, the same for
+    every unit) in this process, so processes forked from it start with it: a launch does
+    this once, not once a unit process (a third of a second for 50 units)."""
+    plan = protocol_of(sc, sc.units[0]).plan
+    if plan.kind == "concurrent":
+        plan.timing()
+        plan.concurrent_listens()
+
+
 class AutonomousUnit:
     """Unit ``name`` of ``scenario``, writing to ``recorder`` (``traces``: its resonators'
     states too). See the module docstring."""
@@ -82,15 +106,7 @@ class AutonomousUnit:
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
         self._asked: tuple[int, int, int] | None = None  # what the last ask awaited
-        self.protocol = ProtocolState(
-            name, self.units, dict(sc.frequencies), self.tau,
-            pulses=sc.codebook.pulses, start=sc.timing.start,
-            reaction_delay=sc.timing.reaction_delay, guard=sc.timing.guard,
-            search=sc.timing.search, anchor=sc.timing.anchor, kind=sc.schedule,
-            influence_rounds=sc.influence_rounds, repair_rounds=sc.repairs_per_phase,
-            attention=sc.timing.attention, read_margin=1 if sc.channel.timed else 0,
-            expect_spike=ExpectedSpike(sc, name),
-        )  # fmt: skip
+        self.protocol = protocol_of(sc, name)
         self.mind = mind_of(sc, name)
         self.goals = sc.goals_of(name)
         # goal-driven influence sends: timed by the protocol, their code chosen at their
