@@ -46,6 +46,7 @@ from rgtbus.rgt import Universe
 from rgtbus.scenario import Goal, Scenario
 from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
 from rgtbus.signal.pulses import Pulses
+from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.unit_log import UnitLog
@@ -74,13 +75,16 @@ def protocol_of(sc: Scenario, name: str) -> ProtocolState:
 
 
 def lay_out_plan(sc: Scenario) -> None:
-    """Work out ``sc``'s plan (the concurrent schedule's rounds and decodes, the same for
-    every unit) in this process, so processes forked from it start with it: a launch does
-    this once, not once a unit process (a third of a second for 50 units)."""
+    """Work out in this process what every unit of ``sc`` shares, so processes forked from it
+    start with it: its plan (the concurrent schedule's rounds and decodes: a third of a
+    second for 50 units) and its resonators' tables. A launch does this once, not once a unit
+    process."""
     plan = protocol_of(sc, sc.units[0]).plan
     if plan.kind == "concurrent":
         plan.timing()
         plan.concurrent_listens()
+    omegas = tuple(sc.frequencies[u] for u in sc.units)
+    ResonatorBank(omegas, mode=sc.mode, tau=sc.timing.tau)  # its tables: an LRU cache
 
 
 class AutonomousUnit:
