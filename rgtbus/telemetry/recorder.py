@@ -16,11 +16,14 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Collection, Iterator, Mapping
-from typing import Any, BinaryIO, Protocol, Self, cast, runtime_checkable
+from typing import Any, BinaryIO, Protocol, Self, runtime_checkable
 
 import foxglove
 import orjson
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from mcap.data_stream import RecordBuilder
+from mcap.records import DataEnd, Footer
+from mcap.records import Metadata as McapMetadata
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
@@ -35,6 +38,25 @@ _COMPRESSION = {
 }
 _U64_MAX = 2**64 - 1
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+# The metadata record that ends a log its writer has not finished (a run still going, or one
+# killed): written, with a DataEnd and a footer, after the last finished chunk at every flush,
+# and overwritten by the next one; the real summary and footer replace it at close.
+UNFINISHED = "rgtbus.unfinished"
+
+
+@functools.cache
+def unfinished_trailer() -> bytes:
+    """What ends a log between two flushes: the ``UNFINISHED`` record, a DataEnd without a
+    CRC and a footer without a summary, then the magic. Every MCAP reader reads the file up
+    to it as a whole file; rgtbus reads it as cut there (``scan_log``)."""
+    out = RecordBuilder()
+    why = "its writer had not finished: a run still going, or one stopped before its end"
+    McapMetadata(name=UNFINISHED, metadata={"why": why}).write(out)
+    DataEnd(data_section_crc=0).write(out)
+    Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(out)
+    return bytes(out.end()) + MCAP_MAGIC  # type: ignore[no-untyped-call]  # mcap leaves it bare
+
 
 # one message as read back: (topic, log time in ns, the message)
 LogMessage = tuple[str, int, dict[str, Any]]
@@ -239,13 +261,30 @@ class _Encoding:
 
 
 class _WatchedStream:
-    """The caller's stream as foxglove's writer sees it. The Rust writer reports a failed
-    write only as "I/O error" (and, inside ``Channel.log``, not at all): this keeps the first
-    ``OSError`` so the recorder can name it (a full disk, a closed pipe)."""
+    """The caller's stream as foxglove's writer sees it, so that the file is always a valid
+    MCAP prefix (docs/foxglove.md, "A log cut short").
+
+    The writer streams a chunk as it fills it: its header first, with placeholder lengths it
+    seeks back to patch once the chunk is finished. A process killed in between would leave a
+    chunk whose length says 2⁶⁴ − 1, and the standard readers stop there, reading nothing
+    after the last good record. So what the writer writes since the last ``commit`` is held
+    here in memory (seeks and patches within it included) and reaches the stream only at
+    ``commit``, which the recorder calls once the writer has finished its chunk: the file
+    grows by whole records only. A seek before the held bytes (none is expected) writes
+    through to the stream.
+
+    The Rust writer reports a failed write only as "I/O error" (and, inside ``Channel.log``,
+    not at all): this keeps the first ``OSError`` so the recorder can name it (a full disk, a
+    closed pipe)."""
 
     def __init__(self, stream: BinaryIO) -> None:
         self.stream = stream
         self.error: OSError | None = None
+        self._seekable = _seekable(stream)
+        self._base = self._watch(stream.tell) if self._seekable else 0  # where held starts
+        self._trailing = 0  # bytes of trailer on the stream after _base
+        self._held = bytearray()  # the bytes from _base on, not yet on the stream
+        self._pos = self._base  # the writer's position
 
     def _watch(self, call: Callable[[], Any]) -> Any:
         try:
@@ -256,18 +295,63 @@ class _WatchedStream:
             raise
 
     def write(self, data: bytes | bytearray) -> int:
-        return cast(int, self._watch(lambda: self.stream.write(data)))
+        n = len(data)
+        at = self._pos - self._base
+        if at < 0:  # before what is held: straight to the stream, where it was asked for
+            head = data[: min(n, -at)]
+            self._watch(lambda: self.stream.seek(self._pos))
+            self._watch(lambda: self.stream.write(head))
+            self._watch(lambda: self.stream.seek(self._base + self._trailing))
+            data, at = data[len(head) :], 0
+            self._pos += len(head)
+        end = at + len(data)
+        if end > len(self._held):
+            self._held.extend(b"\0" * (end - len(self._held)))
+        self._held[at:end] = data
+        self._pos += len(data)
+        return n
 
     def seek(self, offset: int, whence: int = 0) -> int:
-        return cast(int, self._watch(lambda: self.stream.seek(offset, whence)))
+        if whence == 0:
+            self._pos = offset
+        elif whence == 1:
+            self._pos += offset
+        else:
+            self._pos = self._base + len(self._held) + offset
+        return self._pos
 
     def tell(self) -> int:
-        return cast(int, self._watch(self.stream.tell))
+        return self._pos
 
-    def flush(self) -> None:
+    def commit(self, trailer: bytes = b"") -> None:
+        """Hand what is held to the stream (the writer has finished its chunk), followed by
+        ``trailer`` (which the next commit overwrites: a seekable stream only), and flush it.
+        One write: a process killed now leaves the last trailer or this one whole."""
+        held, self._held = bytes(self._held), bytearray()
+        seekable = self._seekable
+        if not held and not (trailer and seekable) and not self._trailing:
+            return
+        if seekable and self._trailing:
+            self._watch(lambda: self.stream.seek(self._base))
+        tail = trailer if seekable else b""
+        self._watch(lambda: self.stream.write(held + tail))
+        self._base += len(held)
+        if seekable and self._trailing > len(tail):  # the last trailer was longer: cut it
+            self._watch(lambda: self.stream.truncate(self._base + len(tail)))
+        self._trailing = len(tail)
         flush = getattr(self.stream, "flush", None)
         if flush is not None:
             self._watch(flush)
+
+    def flush(self) -> None:
+        """The writer's own flushes hand nothing on: a chunk may be half written."""
+
+
+def _seekable(stream: BinaryIO) -> bool:
+    try:
+        return bool(stream.seekable())
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 @functools.cache
@@ -367,7 +451,10 @@ class McapRecorder(_Encoding):
             self._writer = foxglove.open_mcap(
                 self._sink, context=self.context, writer_options=options
             )
-            self._writer.flush()  # a target that takes no bytes fails here, before any run
+            self._writer.flush()
+            # a valid (empty, unfinished) MCAP file from the start; a target that takes no
+            # bytes fails here, before any run
+            self._sink.commit(unfinished_trailer())
         except (OSError, RuntimeError) as e:
             raise self._broken(e) from None
         self._flush_ns = _U64_MAX if flush_seconds is None else ns(flush_seconds)
@@ -470,7 +557,8 @@ class McapRecorder(_Encoding):
             self._unflushed = 0
             self._flush_due = _U64_MAX  # set by the next chunk's first record of the present
             self._flushed_at = time.monotonic()
-            self._writer.flush()
+            self._writer.flush()  # the chunk in progress finished, its lengths patched
+            self._sink.commit(unfinished_trailer())  # only now does the file grow
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         """Write a metadata record ``name`` of string values."""
@@ -494,7 +582,7 @@ class McapRecorder(_Encoding):
             return  # the file is lost either way; its error is already on its way
         with self._io():
             self._writer.close()
-            self._sink.flush()
+            self._sink.commit()
 
 
 class MemoryRecorder(_Encoding):

@@ -20,7 +20,7 @@ from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metad
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import MCAP_MAGIC, LogContents
+from rgtbus.telemetry.recorder import MCAP_MAGIC, UNFINISHED, LogContents
 from rgtbus.timebase import seconds
 
 
@@ -217,6 +217,14 @@ def _read_records(raw: RawLog, src: _Tracked, at: _Progress) -> None:
         elif isinstance(rec, Chunk):
             for r in _chunk_records(rec, at.start):
                 _take(raw, r, at.start)
+        elif isinstance(rec, Metadata) and rec.name == UNFINISHED:
+            # rgtbus's writer had not finished (still writing, or killed): the log is whole
+            # up to here and cut here, as every reader sees it (recorder.unfinished_trailer)
+            raw.note = (
+                f"{raw.label}: log truncated after {len(raw.messages)} messages (its writer had "
+                "not finished: a run still going, or one stopped before its end)"
+            )
+            at.finished = True
         elif isinstance(rec, Metadata) and not at.finished:
             raw.metadata.append((rec.name, dict(rec.metadata)))
         elif isinstance(rec, DataEnd):
