@@ -95,17 +95,24 @@ def run(
         if live is not None:
             live.close()
         raise
+    interrupted = False
     try:
         if live is not None:
             live.begin()
         out = run_group(sc, bus, recorder, **options)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM where the caller maps it (rgtbus run)
+        interrupted = True
+        if not recorder.failed:
+            recorder.log("fatal", "run interrupted: its log is cut here", 0)
+        raise
     except BaseException as exc:
         if not recorder.failed:  # a log that cannot be written cannot take the line either
             recorder.log("fatal", f"run failed: {exc}", 0)
         raise
     finally:
         try:
-            close_log(stream, recorder)
+            # an interrupted run's log ends as a cut one: replay --verify checks it that far
+            close_log(stream, recorder, finished=not interrupted)
         finally:
             if live is not None:
                 live.close()

@@ -30,6 +30,11 @@ _last_signal: int | None = None  # the signal whose KeyboardInterrupt is under w
 _AGAIN_SECONDS = 0.01  # a lost stop is raised again this much later (time to leave the hook)
 
 
+def last_signal() -> int | None:
+    """The signal of the latest stop ``interrupted_by`` raised (None: none yet)."""
+    return _last_signal
+
+
 def _raise_interrupt(signum: int, _frame: FrameType | None) -> NoReturn:
     global _last_signal
     _last_signal = signum

@@ -117,3 +117,37 @@ def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
                             text=True, timeout=120)  # fmt: skip
     assert verify.returncode == 3, verify.stdout + verify.stderr
     assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_cut(tmp_path, sig):
+    """``rgtbus run`` on SIGINT or SIGTERM: stops, one line (no traceback), exit 128 + the
+    signal; its log ends cut where the run was, and ``replay --verify`` exits 3 with what it
+    holds agreeing (never a mismatch for a log that is only cut)."""
+    log = tmp_path / "stopped.mcap"
+    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
+            "--log", str(log), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (log.exists() and len(standard_read(log.read_bytes())) > 100):
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            assert time.monotonic() < deadline, "the log never grew past 100 messages"
+            time.sleep(0.2)
+        os.kill(proc.pid, sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    if proc.returncode == 0:
+        pytest.skip("the run ended before the signal")
+    assert proc.returncode == 128 + sig, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"interrupted by {signal.Signals(sig).name}" in lines[0], err
+    assert "Traceback" not in err
+    assert len(standard_read(log.read_bytes())) > 100  # a whole file to every reader
+    verify = subprocess.run([*EXE, "replay", str(log), "--verify"], capture_output=True,
+                            text=True, timeout=120)  # fmt: skip
+    assert verify.returncode == 3, verify.stdout + verify.stderr
+    assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from collections.abc import Iterable
 from pathlib import Path
@@ -19,6 +20,7 @@ from rgtbus.cli.arguments import (
 )
 from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table_lines
 from rgtbus.errors import RgtbusError
+from rgtbus.interrupts import interrupted_by, last_signal
 from rgtbus.mind import goal_text
 from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
@@ -186,18 +188,27 @@ def run(args: argparse.Namespace) -> int:
     live = open_live(args, live_topics(scenario.units, args.traces))
     progress = Progress(not (args.quiet or args.json) and sys.stderr.isatty())
     try:
-        result = run_scenario(
-            scenario,
-            seed=args.seed,
-            bus=args.bus,
-            engine=args.engine,
-            log=log_path,
-            traces=args.traces,
-            key=key,
-            realtime=args.realtime,
-            progress=progress,
-            live=live,
-        )
+        with interrupted_by(signal.SIGINT, signal.SIGTERM):  # SIGTERM ends it like Ctrl-C
+            result = run_scenario(
+                scenario,
+                seed=args.seed,
+                bus=args.bus,
+                engine=args.engine,
+                log=log_path,
+                traces=args.traces,
+                key=key,
+                realtime=args.realtime,
+                progress=progress,
+                live=live,
+            )
+    except KeyboardInterrupt:
+        progress.done()
+        signum = last_signal() or signal.SIGINT
+        name = signal.Signals(signum).name
+        where = f"its log is cut there: {log_path} (replay --verify checks it that far)"
+        print(f"rgtbus run: interrupted by {name}; " + (where if log_path else "no log"),
+              file=sys.stderr)  # fmt: skip
+        return 128 + int(signum)
     finally:
         progress.done()
     summary = result.details

@@ -92,10 +92,11 @@ def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRe
         raise
 
 
-def close_log(stream: BinaryIO, recorder: McapRecorder) -> None:
-    """Finish the log and close its file; a write that fails here is one line too."""
+def close_log(stream: BinaryIO, recorder: McapRecorder, *, finished: bool = True) -> None:
+    """Finish the log and close its file; a write that fails here is one line too.
+    ``finished=False``: the run was interrupted, the log ends cut (``McapRecorder.close``)."""
     try:
-        recorder.close()
+        recorder.close(finished=finished)
     finally:
         if recorder.failed:
             with contextlib.suppress(OSError):  # the recorder's error says it already

@@ -568,13 +568,21 @@ class McapRecorder(_Encoding):
         with self._lock, self._io():
             self._writer.write_metadata(name, values)
 
-    def close(self) -> None:
+    def close(self, finished: bool = True) -> None:
         """Stop the flusher and finish the file (summary and footer); again does nothing. Nothing
-        is written once the stream has failed."""
+        is written once the stream has failed. ``finished=False`` (a run interrupted): what was
+        logged goes out and the file ends as a cut log does (its ``UNFINISHED`` trailer: a
+        whole file to every reader, truncated to rgtbus), not as a whole run's."""
         if self._closed:
             return
         self._stop_flusher.set()
         self._flusher.join()
+        if not finished:
+            self.flush()
+            self._closed = True
+            for channel in self._channels.values():
+                channel.close()
+            return
         self._closed = True
         for channel in self._channels.values():
             channel.close()
