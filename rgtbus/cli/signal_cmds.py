@@ -21,6 +21,7 @@ from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
+from rgtbus.scenario.limits import check_trials
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
@@ -302,9 +303,8 @@ def cmd_ser(args: argparse.Namespace) -> int:
     maximum-likelihood bounds (and ``--plot``)."""
     from rgtbus.signal.evaluate import ser_against_bound
 
-    if args.trials < 1:
-        raise RgtbusError(f"--trials {args.trials}: must be at least 1")
     sigmas = _sigmas(args.sigma)
+    check_trials(args.trials, len(sigmas))  # bounded work: the budget, before any decode
     if args.scenario:
         from rgtbus.scenario import load_scenario
 
@@ -604,6 +604,7 @@ def figure_receiving(path: Path) -> str:
 
 
 SIGMAS = (0.0, 0.02, 0.05, 0.1, 0.2)
+SER_CURVES = 4  # figure_ser's curves
 
 
 def _ser_axes(fig: Figure, ax: Axes, floor: float, title: str) -> None:
@@ -635,6 +636,7 @@ def figure_ser(path: Path, trials: int, seed: int) -> str:
         ),
         "alliance/conflict, alone": dict(words=cb.relations),
     }
+    assert len(curves) == SER_CURVES  # the budget counted them (cmd_figures)
     fig, ax = plt.subplots(figsize=(7.5, 5))
     floor = 0.5 / trials
     for j, (label, kw) in enumerate(curves.items()):
@@ -693,8 +695,7 @@ def cmd_figures(args: argparse.Namespace) -> int:
     out = Path(args.outdir)
     if out.exists() and not out.is_dir():
         raise RgtbusError(f"OUTDIR {str(out)!r} exists and is not a directory")
-    if args.trials < 1:
-        raise RgtbusError(f"--trials {args.trials}: must be positive")
+    check_trials(args.trials, len(SIGMAS) * SER_CURVES)  # decoder-ser.png's points
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

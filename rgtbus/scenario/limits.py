@@ -44,6 +44,9 @@ CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × 
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).
 CROSSTALK = Budget("crosstalk", 5e7, "resonator-samples (n² × samples an ID)")
+# rgtbus ser and figures: Monte-Carlo decodes (about 25,000 a second on a small machine; the
+# defaults ask for 8,000 and 20,000)
+TRIALS = Budget("trials", 2e6, "Monte-Carlo decodes (trials × noise levels × curves)")
 
 # Hard limits (no budget lifts them): log times are unsigned 64-bit nanoseconds.
 MAX_SECONDS = 1e9  # any timing value, s (31 years)
@@ -228,3 +231,13 @@ def check_size(ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: A
         if rounds > 1 and over_budget(DECODES, decodes(n, 1)) is None:
             raise ctx.error("protocol", "influence_rounds", f"{rounds} rounds of {n} units: {why}")
         raise ctx.error("", "units", f"{n} units, {rounds} influence round(s): {why}")
+
+
+def check_trials(trials: int, points: int, flag: str = "--trials") -> None:
+    """``trials`` Monte-Carlo decodes at each of ``points`` (noise levels × curves) within the
+    ``TRIALS`` budget; else one line naming ``flag`` (RgtbusError)."""
+    if trials < 1:
+        raise RgtbusError(f"{flag} {trials}: must be at least 1")
+    why = over_budget(TRIALS, float(trials) * max(1, points))
+    if why is not None:
+        raise RgtbusError(f"{flag} {trials}: {why}")
