@@ -151,3 +151,118 @@ def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_c
                             text=True, timeout=120)  # fmt: skip
     assert verify.returncode == 3, verify.stdout + verify.stderr
     assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
+
+
+def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path):
+    """One writer, always: ``merge -o`` onto the log of a run still going is refused in one
+    line (exit 2), and so is a merge with it as an input; the run goes on and its log is its
+    own. A finished log merges."""
+    done = tmp_path / "done.mcap"
+    first = subprocess.run([*EXE, "run", str(ROOT / "scenarios" / "gate.toml"), "--log",
+                            str(done), "--quiet"], capture_output=True, timeout=120)  # fmt: skip
+    assert first.returncode == 0, first.stderr
+    live = tmp_path / "live.mcap"
+    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
+            "--log", str(live), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (live.exists() and len(standard_read(live.read_bytes())) > 10):
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            assert time.monotonic() < deadline, "the run's log never grew"
+            time.sleep(0.2)
+        if proc.poll() is not None:
+            pytest.skip("the run ended before the merges")
+        for inputs, out, what in (([done], live, "-o"), ([done, live], tmp_path / "m.mcap",
+                                                          "input")):  # fmt: skip
+            merge = subprocess.run([*EXE, "merge", *map(str, inputs), "-o", str(out)],
+                                   capture_output=True, text=True, timeout=120)  # fmt: skip
+            if proc.poll() is not None:
+                pytest.skip("the run ended during the merges")
+            assert merge.returncode == 2, merge.stdout + merge.stderr
+            lines = merge.stderr.strip().splitlines()
+            assert len(lines) == 1 and f"{what} '{live}': a run is writing it" in lines[0], lines
+        assert not (tmp_path / "m.mcap").exists()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+    assert proc.returncode == 0, err
+    assert not scan_log(live).truncated  # its own log, whole
+    merged = subprocess.run([*EXE, "merge", str(live), "-o", str(tmp_path / "m.mcap"), "-q"],
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert merged.returncode == 0, merged.stderr
+
+
+def _gate_log(tmp_path: Path) -> bytes:
+    path = tmp_path / "gate.mcap"
+    done = subprocess.run([*EXE, "run", str(ROOT / "scenarios" / "gate.toml"), "--log",
+                           str(path), "--quiet"], capture_output=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return path.read_bytes()
+
+
+def _recover(src: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*EXE, "recover", str(src), "-o", str(out)], capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+
+
+def test_recover_makes_a_complete_file_of_a_cut_or_damaged_log(tmp_path):
+    """``rgtbus recover``: a log cut anywhere, or damaged, becomes a complete MCAP file (summary,
+    statistics, chunk indexes, CRCs) holding every message read before the cut or damage;
+    it says how many and where the input ended; rgtbus still reads the run as cut there."""
+    whole = _gate_log(tmp_path)
+    n_whole = len(standard_read(whole))
+    cases = {
+        "whole": whole,
+        "cut-early": whole[: len(whole) // 8],
+        "cut-late": whole[: len(whole) * 7 // 8],
+        "damaged": whole[: len(whole) // 3]
+        + bytes([whole[len(whole) // 3] ^ 0xFF])
+        + whole[len(whole) // 3 + 1 :],
+    }
+    for name, data in cases.items():
+        src, out = tmp_path / f"{name}.mcap", tmp_path / f"{name}-recovered.mcap"
+        src.write_bytes(data)
+        done = _recover(src, out)
+        if name == "cut-early" and done.returncode == 2:  # cut inside the header: no log
+            assert "not an MCAP file" in done.stderr, done.stderr
+            continue
+        assert done.returncode == 0, done.stderr
+        kept = int(done.stdout.split()[1])
+        assert ("it was whole" in done.stdout) == (name == "whole"), done.stdout
+        with open(out, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None
+            assert summary.statistics.message_count == kept
+            assert verified_by_crcs(f)
+        assert len(standard_read(out.read_bytes())) == kept <= n_whole
+        if name == "whole":
+            assert kept == n_whole
+        else:
+            verify = subprocess.run([*EXE, "replay", str(out), "--verify"], capture_output=True,
+                                    text=True, timeout=120)  # fmt: skip
+            assert verify.returncode == 3 and "MISMATCH" not in verify.stdout, verify.stdout
+
+
+def test_recover_refuses_what_is_no_log_in_one_line(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    done = _recover(junk, tmp_path / "out.mcap")
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "not an MCAP file" in done.stderr and not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("argv", [["ser", "--trials", "1000000000"],
+                                  ["figures", "OUT", "--trials", "1000000"]])  # fmt: skip
+def test_monte_carlo_commands_take_the_budget_before_any_work(tmp_path, argv):
+    """Bounded work everywhere: a trial count beyond the budget is one line, exit 2, at once
+    (``rgtbus ser --trials 1000000000`` ran for minutes before)."""
+    argv = [str(tmp_path / "figs") if a == "OUT" else a for a in argv]
+    t0 = time.monotonic()
+    done = subprocess.run([*EXE, *argv], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "beyond the budget" in done.stderr, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 60
+    assert not (tmp_path / "figs").exists()

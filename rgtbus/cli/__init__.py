@@ -84,6 +84,7 @@ COMMANDS: dict[str, str] = {
     "plan": "plan_cmd",
     "replay": "replay_cmds",
     "merge": "replay_cmds",
+    "recover": "replay_cmds",
     "info": "log_cmds",
     "cat": "log_cmds",
     "scenario": "log_cmds",

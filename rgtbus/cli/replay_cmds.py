@@ -70,6 +70,20 @@ def register(subparsers: SubParsers) -> None:
     add_quiet_argument(m)
     m.set_defaults(func=merge)
 
+    r = subparsers.add_parser(
+        "recover",
+        help="a complete MCAP file from a cut or damaged log",
+        description="Read LOG as far as it goes (to its cut, or to its first damaged record: "
+        "every chunk CRC-checked) and write everything read as a complete MCAP file: summary, "
+        "statistics, indexes and CRCs, for every MCAP reader. rgtbus still reads the result "
+        "as cut where LOG ended.",
+    )
+    r.add_argument("log", metavar="LOG", help="the cut or damaged MCAP log")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="recovered log")
+    r.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    add_quiet_argument(r)
+    r.set_defaults(func=recover)
+
 
 def replay(args: argparse.Namespace) -> int:
     """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
@@ -158,6 +172,7 @@ def _plot(rp: Replay, args: argparse.Namespace) -> str:
 def merge(args: argparse.Namespace) -> int:
     """``rgtbus merge LOG... -o OUT``: run logs merged into one, written whole or not at all
     (through ``OUT.part``)."""
+    from rgtbus.telemetry.logfile import refuse_if_being_written
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.scan import require_run_log, scan_log
 
@@ -165,6 +180,10 @@ def merge(args: argparse.Namespace) -> int:
     for src in args.inputs:
         if os.path.exists(src) and out.exists() and os.path.samefile(src, out):
             raise RgtbusError(f"-o {args.output!r}: is also an input")
+    # one writer, always: not over a log a run is writing, nor from one (half a run)
+    refuse_if_being_written(out, "-o")
+    for src in args.inputs:
+        refuse_if_being_written(src, "input")
     logs = [scan_log(src) for src in args.inputs]
     for log in logs:
         try:
@@ -175,6 +194,7 @@ def merge(args: argparse.Namespace) -> int:
     try:
         with open(tmp, "wb") as f:
             res = merge_logs(logs, f, compression=args.compression, dedupe=not args.keep_duplicates)
+        refuse_if_being_written(out, "-o")  # a run that began meanwhile keeps its log
         os.replace(tmp, out)
     except OSError as e:
         raise RgtbusError(f"-o {args.output!r}: {e.strerror}") from None
@@ -189,6 +209,36 @@ def merge(args: argparse.Namespace) -> int:
         f"({res.duplicates} duplicates dropped), {res.channels} channels, {res.schemas} schemas, "
         f"metadata {', '.join(res.metadata)}" + (f" (renamed: {renamed})" if renamed else "")
     )
+    return 0
+
+
+def recover(args: argparse.Namespace) -> int:
+    """``rgtbus recover LOG -o OUT``: ``recover_log``, written whole or not at all (through
+    ``OUT.part``); one line saying what it kept and where LOG ended."""
+    from rgtbus.telemetry.logfile import refuse_if_being_written
+    from rgtbus.telemetry.merge import recover_log
+    from rgtbus.telemetry.scan import scan_log
+
+    out = Path(args.output)
+    if os.path.exists(args.log) and out.exists() and os.path.samefile(args.log, out):
+        raise RgtbusError(f"-o {args.output!r}: is the log to recover (write it elsewhere)")
+    refuse_if_being_written(out, "-o")
+    refuse_if_being_written(args.log, "input")
+    log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
+    tmp = out.with_name(out.name + ".part")
+    try:
+        with open(tmp, "wb") as f:
+            res = recover_log(log, f, compression=args.compression)
+        refuse_if_being_written(out, "-o")
+        os.replace(tmp, out)
+    except OSError as e:
+        raise RgtbusError(f"-o {args.output!r}: {e.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    if not args.quiet:
+        how = f"it ended early: {res.ended}" if res.ended else "it was whole"
+        print(f"recovered {res.messages} messages of {args.log} into {out}; {how}")
     return 0
 
 

@@ -67,6 +67,31 @@ def _open_locked(path: Path) -> BinaryIO:
         raise
 
 
+def refuse_if_being_written(path: str | os.PathLike[str], what: str) -> None:
+    """One line (RgtbusError) when a run is writing ``path`` now: it holds the lock every log
+    writer takes (``_open_locked``). ``what`` names the file in the line (``-o``, an input).
+    A path that does not exist, or is no regular file, is nobody's log."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return  # nothing there (or unreadable: opening it for what it is used for says so)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise RgtbusError(
+                    f"{what} {str(path)!r}: a run is writing it{_lock_holder(fd)}; wait for "
+                    "its end (or stop it)"
+                ) from None
+            return  # a file system without locks: nothing to tell
+        fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
+
+
 def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRecorder]:
     """The log file and its recorder, or one line (RgtbusError) if it cannot be written: a
     directory, no permission, a target that takes no bytes (``/proc/version``, a full disk),

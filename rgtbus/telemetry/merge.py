@@ -55,8 +55,11 @@ def merge_logs(
     *,
     compression: str = "zstd",
     dedupe: bool = True,
+    salvage: bool = False,
 ) -> MergeResult:
-    """Write the merge of ``logs`` (from ``scan_log``) as one MCAP file to ``stream``."""
+    """Write the merge of ``logs`` (from ``scan_log``) as one MCAP file to ``stream``.
+    ``salvage`` (``recover_log``): a damaged input gives what was read before its damage
+    (every chunk of it CRC-checked), its damage noted like a cut, instead of a refusal."""
     if not logs:
         raise RgtbusError("merge: no input logs")
     if compression not in _COMPRESSION:
@@ -64,12 +67,14 @@ def merge_logs(
             f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
         )
     for log in logs:
-        if log.corrupt:  # never copy a damaged chunk into a log that looks whole
+        if log.corrupt and not salvage:  # never copy a damaged chunk into a whole-looking log
             raise RgtbusError(f"{log.corruption}; not merged")
     res = MergeResult()
     writer = Writer(stream, compression=_COMPRESSION[compression], enable_data_crcs=True)
-    writer.start(profile="", library=f"rgtbus {__version__} merge")
+    writer.start(profile="", library=f"rgtbus {__version__} {'recover' if salvage else 'merge'}")
     entries = _register(writer, logs, res)
+    if salvage:  # read up to the damage, and no further: a cut as far as readers go
+        res.notes += [f"{log.corruption} (recovered up to there)" for log in logs if log.corrupt]
     _write_messages(writer, entries, dedupe, res)
     kept = _merged_metadata(logs, res)
     for name, values in kept.items():
@@ -157,3 +162,22 @@ def _merged_metadata(logs: Sequence[RawLog], res: MergeResult) -> dict[str, dict
         "duplicates_dropped": str(res.duplicates),
     }
     return kept
+
+
+@dataclass
+class RecoverResult:
+    """What ``recover_log`` wrote: the messages kept, and where and why the input ended
+    (``ended``: empty for a whole input)."""
+
+    messages: int
+    ended: str
+
+
+def recover_log(log: RawLog, stream: BinaryIO, *, compression: str = "zstd") -> RecoverResult:
+    """``rgtbus recover``: from ``log`` (``scan_log`` of a cut or damaged file) a complete MCAP
+    file on ``stream`` (summary, statistics, indexes, CRCs) with every message read before
+    the cut or the damage, every reader's to open. Its ``merge`` record says where the input
+    ended, so rgtbus still reads it as cut there (``replay --verify`` exits 3), not as a
+    whole run."""
+    res = merge_logs([log], stream, compression=compression, dedupe=False, salvage=True)
+    return RecoverResult(res.messages, "; ".join(res.notes))
