@@ -382,10 +382,10 @@ def _print_decisions(rp: Replay, span: Span | None) -> None:
         print("  (none)")
     rows = []
     for dec in own:
-        if dec["frustrated"]:
+        if dec["frustrated"] or not dec["interval"]:  # no interval: no decision to show
             verdict, choice = "frustrated: no decision", ""
         else:
-            lo, hi = (_alt(rp, x) for x in dec["interval"] or ())
+            lo, hi = (_alt(rp, x) for x in dec["interval"])
             verdict = f"{dec['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {dec['unit']} ⊇ {lo}"
             choice = f"choice {_alt(rp, dec['choice'])}"
         rows.append([f"t={dec['t']:.3f}s", dec["canonical"], verdict, choice])

@@ -8,13 +8,14 @@ action names), never text to parse. See docs/api.md.
 
 from __future__ import annotations
 
+import functools
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, TypeVar, cast
 
 from rgtbus.summary import summary_json
-from rgtbus.telemetry.read import Replay, load_replay
+from rgtbus.telemetry.read import Replay, explained, load_replay
 from rgtbus.timebase import seconds, times_of
 
 if TYPE_CHECKING:
@@ -23,6 +24,21 @@ if TYPE_CHECKING:
     from rgtbus.scenario import Scenario
 
 DECISION_COLUMNS = ["round", "unit", "low", "high", "choice", "frustrated", "t", "wrong"]
+
+
+_Method = TypeVar("_Method", bound=Callable[..., Any])
+
+
+def _explained(method: _Method) -> _Method:
+    """A ``Log`` method that reads a message breaking its schema, or a number out of range,
+    raises RgtbusError naming it (``read.explained``), never a KeyError from deep inside."""
+
+    @functools.wraps(method)
+    def wrapper(self: Log, *args: Any, **kwargs: Any) -> Any:
+        with explained(self.replay.contents, self.replay.label):
+            return method(self, *args, **kwargs)
+
+    return cast(_Method, wrapper)
 
 
 class Log:
@@ -57,6 +73,7 @@ class Log:
         """Every topic that holds a message."""
         return sorted(t for t, msgs in self.replay.by_topic.items() if msgs)
 
+    @_explained
     def summary(self) -> dict[str, Any]:
         """The run's summary: the keys and values ``rgtbus run --json`` printed (a log does
         not time its writer: ``wall_seconds`` is ``None``; ``log`` is this log)."""
@@ -64,12 +81,14 @@ class Log:
             self._summary = summary_json(self.replay.summary())
         return dict(self._summary)
 
+    @_explained
     def decisions(self) -> pd.DataFrame:
         """One row per unit and influence round: ``round, unit, low, high, choice,
         frustrated, t, wrong`` (``low``/``high`` the interval's ends, ``None`` when
         frustrated; ``wrong``: not what a perfect medium gives)."""
         return decisions_frame(self.summary())
 
+    @_explained
     def decodes(self) -> pd.DataFrame:
         """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
         margin, accepted, sent, matches`` (``value``: the code as a plain value, a list of
@@ -84,6 +103,7 @@ class Log:
                 "margin", "accepted", "sent", "matches"]  # fmt: skip
         return pd.DataFrame(rows, columns=cols)
 
+    @_explained
     def spikes(self) -> pd.DataFrame:
         """One row per unit, sample and channel that fired: ``unit, sample, t, channel,
         omega``."""
@@ -91,6 +111,7 @@ class Log:
 
         return pd.DataFrame(self.replay.spikes, columns=["unit", "sample", "t", "channel", "omega"])
 
+    @_explained
     def transmissions(self) -> pd.DataFrame:
         """One row per code on the medium: ``turn, kind, phase, sender, addressee, channel,
         code, value, meaning, start, end, pulses`` (``pulses``: how many)."""
@@ -107,6 +128,7 @@ class Log:
                 "meaning", "start", "end", "pulses"]  # fmt: skip
         return pd.DataFrame(rows, columns=cols)
 
+    @_explained
     def medium(self) -> pd.DataFrame:
         """The shared medium's non-silent samples: ``sample, t, value`` (what every unit
         heard before its own noise)."""
@@ -116,6 +138,7 @@ class Log:
         tau = self.replay.require_scenario().timing.tau
         return pd.DataFrame({"sample": samples, "t": times_of(samples, tau), "value": values})
 
+    @_explained
     def messages(self, topic: str) -> pd.DataFrame:
         """Every message of ``topic`` (e.g. ``"/unit/goal"``, ``"/log"``), one row each:
         ``log_time`` (integer ns), ``log_seconds``, then the message's fields."""

@@ -335,8 +335,9 @@ def _timeline(
             text = f"{dec['unit']}: frustrated"
         else:
             text = f"{dec['unit']} chooses {_alt(dec['choice'], universe)}"
-            lo_a, hi_a = (_alt(v, universe) for v in dec["interval"] or ())
-            text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
+            if dec["interval"]:
+                lo_a, hi_a = (_alt(v, universe) for v in dec["interval"])
+                text += f"  (in [{lo_a}, {hi_a}])" if lo_a != hi_a else ""
         ax.plot([dec["t"]], [row[dec["unit"]]], "D", color=color[dec["unit"]], ms=8)
         ax.annotate(
             text,

@@ -571,6 +571,9 @@ class Replay:
         bad: list[Mismatch] = []
         for t_ns, m in self.by_topic[MEDIUM]:
             w = m["window"]
+            if not (isinstance(w, int) and 0 <= w < _INT64 // L):  # no sample index is there
+                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, "window", w, "a window index"))
+                continue
             if w in out:
                 bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w}", "twice", "once"))
                 continue
@@ -741,17 +744,55 @@ def schema_error(contents: LogContents) -> str | None:
     return None
 
 
+_INT64 = 2**63
+
+
+def _beyond_int64(value: Any, path: str = "$") -> str | None:
+    """The first number in ``value`` no 64-bit integer holds (as a sample index, a count or a
+    log time must be), as ``$.path: N``; None when there is none."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):  # JSON's 1e30 is an integer to a schema, a float here
+        inside = -_INT64 <= value < _INT64
+        return None if inside else f"{path}: {value:g} is beyond a 64-bit integer"
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if (why := _beyond_int64(v, f"{path}.{k}")) is not None:
+                return why
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            if (why := _beyond_int64(v, f"{path}[{i}]")) is not None:
+                return why
+    return None
+
+
+def range_error(contents: LogContents) -> str | None:
+    """The first message holding a number out of every reader's range, in one line (None:
+    none). Run only once reading has failed, as ``schema_error``."""
+    for topic, t_ns, message in contents.messages:
+        if isinstance(message, bytes | bytearray | memoryview):
+            try:
+                message = orjson.loads(message)
+            except ValueError:
+                return f"message on {topic} at t = {seconds(t_ns):.3f} s is not JSON"
+        why = _beyond_int64(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s: {why}"
+    return None
+
+
 @contextlib.contextmanager
 def explained(contents: LogContents, label: str) -> Iterator[None]:
-    """Reading a log whose messages break their schemas (written by hand or tampered with,
-    with valid CRCs) fails as RgtbusError naming the first such message, not with a KeyError
-    from deep inside; any other failure is a bug and goes on as it is."""
+    """Reading a log whose messages break their schemas or hold numbers beyond any reader's
+    range (written by hand or tampered with, with valid CRCs) fails as RgtbusError naming
+    the first such message, not with a KeyError or an OverflowError from deep inside; any
+    other failure is a bug and goes on as it is."""
     try:
         yield
-    except (KeyError, TypeError, IndexError, AttributeError, ValueError) as exc:
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError, OverflowError) as exc:
         if isinstance(exc, RgtbusError):
             raise
-        why = schema_error(contents)
+        why = schema_error(contents) or range_error(contents)
         if why is None:
             raise
         raise RgtbusError(f"{label}: {why}") from None

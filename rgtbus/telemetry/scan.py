@@ -252,12 +252,23 @@ def _take(raw: RawLog, rec: Any, start: int) -> None:
         raw.schemas[rec.id] = rec
 
 
+# The most a chunk may claim to hold once decompressed: rgtbus writes chunks of 256 KiB, mcap's
+# writers 1 MiB by default. A chunk claiming more is refused before anything is allocated
+# (a compression bomb: 56 KB of file claiming gigabytes).
+MAX_CHUNK_BYTES = 64 << 20
+
+
 def _chunk_records(chunk: Chunk, start: int) -> list[Any]:
     """The records of a chunk, its CRC checked; ``_Corrupt`` naming the chunk otherwise."""
     where = (
         f"chunk at byte {start} (log time {_seconds(chunk.message_start_time)}"
         f"–{_seconds(chunk.message_end_time)} s)"
     )
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        raise _Corrupt(
+            f"{where}: claims {chunk.uncompressed_size} bytes once decompressed, beyond the "
+            f"{MAX_CHUNK_BYTES >> 20} MiB any chunk may hold (not decompressed)"
+        )
     try:
         records: list[Any] = breakup_chunk(chunk, validate_crc=True)
     except CRCValidationError as e:
@@ -437,6 +448,8 @@ def _by_summary(stream: IO[bytes], label: str, size: int) -> CheckedLog | None:
         summary = reader.get_summary()
         if summary is None or summary.statistics is None:
             return None
+        if any(ci.uncompressed_size > MAX_CHUNK_BYTES for ci in summary.chunk_indexes):
+            return None  # scanned instead, where such a chunk is refused before it is read
         library = reader.get_header().library
         metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
     except Exception:  # a layout mcap's reader does not take: scan it instead
