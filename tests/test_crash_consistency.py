@@ -7,6 +7,7 @@ it as truncated there.
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import signal
@@ -18,6 +19,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
+from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.recorder import UNFINISHED, McapRecorder
 from rgtbus.telemetry.scan import scan_log, verified_by_crcs
 
@@ -266,3 +268,54 @@ def test_monte_carlo_commands_take_the_budget_before_any_work(tmp_path, argv):
     assert done.returncode == 2 and "beyond the budget" in done.stderr, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and time.monotonic() - t0 < 60
     assert not (tmp_path / "figs").exists()
+
+
+class _SmallDisk(io.RawIOBase):
+    """A file on a disk that holds ``limit`` bytes: a write past it takes what fits, the next
+    one fails with ENOSPC, as a file on a full disk does."""
+
+    def __init__(self, limit: int) -> None:
+        self.data, self.pos, self.limit = bytearray(), 0, limit
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        self.pos = offset if whence == 0 else len(self.data) + offset if whence == 2 else self.pos
+        return self.pos
+
+    def tell(self) -> int:
+        return self.pos
+
+    def truncate(self, size: int | None = None) -> int:
+        del self.data[self.pos if size is None else size :]
+        return len(self.data)
+
+    def write(self, b) -> int:  # type: ignore[override]
+        room = self.limit - self.pos
+        if room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        chunk = bytes(b[:room])
+        self.data[self.pos : self.pos + len(chunk)] = chunk
+        self.pos += len(chunk)
+        return len(chunk)
+
+
+def test_a_full_disk_leaves_a_whole_file_as_far_as_the_last_flush_that_went_through():
+    disk = _SmallDisk(60_000)
+    rec = McapRecorder(disk, flush_wall=3600.0, compression="none")  # type: ignore[arg-type]
+    flushed = 0
+    with pytest.raises(RgtbusError, match="No space left on device"):
+        for k in range(100_000):
+            rec.log("info", f"message {k} " + "x" * 200, k)
+            if k % 20 == 19:
+                rec.flush()
+                flushed = k + 1
+    rec.close()  # nothing more is written once the stream has failed
+    data = bytes(disk.data)
+    assert len(standard_read(data)) == flushed > 0  # whole to every reader, no error
+    cut = scan_log(io.BytesIO(data))
+    assert cut.truncated and not cut.corrupt and len(cut.messages) == flushed

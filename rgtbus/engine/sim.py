@@ -102,7 +102,7 @@ class SyncCost:
             "rounds": self.rounds,
             "frames": self.frames,
             "null_frames": self.null_frames,
-            "wait_seconds": round(self.wait_seconds, 4),
+            "wait_seconds": round(self.wait_seconds, 3),
             "ahead_rounds": self.ahead_rounds,
         }
 

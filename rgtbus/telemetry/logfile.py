@@ -59,8 +59,10 @@ def _open_locked(path: Path) -> BinaryIO:
                     ) from None
             if os.fstat(fd).st_size:  # only now: the other run's file was never touched
                 os.ftruncate(fd, 0)
-        stream = os.fdopen(fd, "wb")
-        stream.raw.name = str(path)  # type: ignore[attr-defined]  # errors name the path
+        # unbuffered: the recorder hands over whole flushes, and after a failed write (a
+        # full disk) no buffered bytes of it may reach the file later
+        stream = os.fdopen(fd, "wb", buffering=0)
+        stream.name = str(path)  # errors name the path
         return stream
     except BaseException:
         os.close(fd)

@@ -7,6 +7,7 @@ Time is simulated: ``log_time = publish_time = t_ns`` (integer nanoseconds from 
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import json
 import logging
@@ -283,6 +284,7 @@ class _WatchedStream:
         self._seekable = _seekable(stream)
         self._base = self._watch(stream.tell) if self._seekable else 0  # where held starts
         self._trailing = 0  # bytes of trailer on the stream after _base
+        self._last_trailer = b""  # those bytes
         self._held = bytearray()  # the bytes from _base on, not yet on the stream
         self._pos = self._base  # the writer's position
 
@@ -326,7 +328,10 @@ class _WatchedStream:
     def commit(self, trailer: bytes = b"") -> None:
         """Hand what is held to the stream (the writer has finished its chunk), followed by
         ``trailer`` (which the next commit overwrites: a seekable stream only), and flush it.
-        One write: a process killed now leaves the last trailer or this one whole."""
+        One write: a process killed now leaves the last trailer or this one whole. A write
+        that fails part way (a full disk) puts the last trailer back where it was, cutting
+        what was written after it: the file stays whole to every reader, as far as the last
+        flush that went through."""
         held, self._held = bytes(self._held), bytearray()
         seekable = self._seekable
         if not held and not (trailer and seekable) and not self._trailing:
@@ -334,14 +339,50 @@ class _WatchedStream:
         if seekable and self._trailing:
             self._watch(lambda: self.stream.seek(self._base))
         tail = trailer if seekable else b""
-        self._watch(lambda: self.stream.write(held + tail))
+        try:
+            self._write_all(held + tail)
+        except OSError:
+            self._put_back_trailer()
+            raise
         self._base += len(held)
         if seekable and self._trailing > len(tail):  # the last trailer was longer: cut it
             self._watch(lambda: self.stream.truncate(self._base + len(tail)))
-        self._trailing = len(tail)
+        self._trailing, self._last_trailer = len(tail), tail
         flush = getattr(self.stream, "flush", None)
         if flush is not None:
             self._watch(flush)
+
+    def _write_all(self, data: bytes) -> None:
+        """``data`` to the stream, however many writes an unbuffered file takes."""
+        view = memoryview(data)
+        while view:
+            try:
+                n = self.stream.write(view)
+                if not n:  # a stream that takes nothing and says no error
+                    raise OSError(errno.EIO, "the stream took no bytes")
+            except OSError as e:
+                if self.error is None:
+                    self.error = e
+                raise
+            view = view[n:]
+
+    def _put_back_trailer(self) -> None:
+        """After a failed write: the file cut back to the last flush and its trailer written
+        again where it was (best effort: the space it needs was just given back)."""
+        if not (self._seekable and self._trailing):
+            return
+        with contextlib.suppress(OSError, ValueError):
+            self.stream.seek(self._base)
+            self.stream.truncate(self._base)
+            view = memoryview(self._last_trailer)
+            while view:
+                n = self.stream.write(view)
+                if not n:
+                    return
+                view = view[n:]
+            flush = getattr(self.stream, "flush", None)
+            if flush is not None:
+                flush()
 
     def flush(self) -> None:
         """The writer's own flushes hand nothing on: a chunk may be half written."""

@@ -6,8 +6,8 @@ with mcap's own writer, and every reader run on it in this process: ``info``, ``
 ``scenario``, ``merge``, ``replay`` (text and ``--json``), ``replay --verify`` and
 ``rgtbus.open_log`` with its tables. Each answers with its result (exit 0, 3 for a cut log,
 1 when ``--verify`` finds the tampered message disagrees with a re-run) or one line naming the
-message (exit 2; the API raises ``RgtbusError``); none raises anything else. A chunk that claims more than any chunk may hold is refused before it is
-decompressed.
+message (exit 2; the API raises ``RgtbusError``); none raises anything else. A chunk that
+claims more than any chunk may hold is refused before it is decompressed.
 """
 
 from __future__ import annotations
