@@ -770,3 +770,32 @@ def test_the_first_hellos_come_soon_then_every_period():
     gaps = [hello_gap(period, k) for k in range(7)]
     assert gaps == pytest.approx([0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 1.0])
     assert hello_gap(period, 10**6) == pytest.approx(period)  # no overflow however long
+
+
+@pytest.mark.parametrize("repeated", [True, False], ids=["repeating", "silent"])
+def test_a_claimant_saying_its_hello_again_unread_keeps_its_claim(repeated):
+    """The gate reads a hello said again unchanged no more, but notes when it came: the claim
+    of a unit's first claimant stays alive while it repeats itself, so a second claimant
+    heard later than three hello periods after the first one was read is still a conflict.
+    A claimant that fell silent (died, or was replaced) no longer counts."""
+    from types import SimpleNamespace
+
+    from rgtbus.bus.hello import Hello
+    from rgtbus.bus.zenoh import _Barrier
+
+    digest = "0" * 64
+    bus = SimpleNamespace(members=("a", "b"), nonce=b"A" * 16, process="host:1", run_id="r",
+                          _repeated_at={})  # fmt: skip
+    barrier = _Barrier(bus, ["a"], digest, 0.05)  # type: ignore[arg-type]
+    first = Hello("b", digest, b"1" * 16, process="host:2")
+    barrier.claim(first, time.monotonic())
+    barrier.nonces["b"] = first.nonce  # read: the latest claimant on b's key
+    time.sleep(0.2)  # more than three periods since it was read
+    if repeated:
+        bus._repeated_at["b"] = time.monotonic()  # said again, unchanged: not read
+    barrier.claim(Hello("b", digest, b"2" * 16, process="host:3"), time.monotonic())
+    if repeated:
+        assert barrier.conflict is not None
+        assert "host:2" in barrier.conflict and "host:3" in barrier.conflict
+    else:
+        assert barrier.conflict is None

@@ -257,6 +257,12 @@ class _Barrier:
         claims = self.claims.setdefault(h.unit, {})
         if h.unit in self.local:
             claims[self.bus.nonce] = (self.bus.process, now)
+        # the claimant read last on this unit's key repeats itself unread (the gate drops a
+        # hello said again unchanged): its repeats keep its claim alive
+        latest = self.nonces.get(h.unit)
+        if latest in claims and latest != h.nonce:
+            proc, at = claims[latest]
+            claims[latest] = (proc, max(at, self.bus._repeated_at.get(h.unit, at)))
         claims[h.nonce] = (h.process, max(heard_at, claims.get(h.nonce, ("", heard_at))[1]))
         for nonce in [n for n, (_, at) in claims.items() if now - at > 3 * self.period]:
             if nonce != self.bus.nonce:
@@ -355,6 +361,7 @@ class ZenohBus(QueueBus):
         # hellos heard, not yet read: (what was said, when it arrived)
         self._hellos: queue.Queue[tuple[bytes, float]] = queue.Queue(maxsize=HELLO_QUEUE)
         self._last_hello: dict[str, bytes] = {}  # each member's last hello heard, as said
+        self._repeated_at: dict[str, float] = {}  # when each member last said it again unchanged
         self.process = f"{socket.gethostname()}:{os.getpid()}"[:MAX_PROCESS]  # who says it
         self._hello_prefix = keys.prefix(keys.HELLO, self.run_id)
         self.max_hello = max_hello(self.members)
@@ -650,7 +657,8 @@ class ZenohBus(QueueBus):
                 )
                 return
             raw = payload if isinstance(payload, bytes) else payload.to_bytes()
-            if self._last_hello.get(who) == raw:  # said again, unchanged: nothing new to read
+            if self._last_hello.get(who) == raw:  # said again, unchanged: nothing new to read,
+                self._repeated_at[who] = time.monotonic()  # but its claimant is still there
                 return
             self._last_hello[who] = raw
             self._hellos.put_nowait((raw, time.monotonic()))
