@@ -7,6 +7,7 @@ it as truncated there.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import io
 import os
@@ -14,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -90,35 +92,47 @@ def test_a_log_written_to_a_stream_that_cannot_seek_is_whole():
     assert standard_read(bytes(pipe.data)) == list(range(30))
 
 
+@contextlib.contextmanager
+def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
+    """A paced crowd10 ``rgtbus run`` logging to ``log``, handed over once its log holds more
+    than ``grown`` messages to the standard readers (bounded wait); killed if still running."""
+    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
+            "--log", str(log), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (log.exists() and len(standard_read(log.read_bytes())) > grown):
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            assert time.monotonic() < deadline, f"the log never grew past {grown} messages"
+            time.sleep(0.2)
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+
+
+def assert_verifies_as_cut(log: Path) -> None:
+    """``replay --verify``: exit 3, what the log holds agreeing (never a mismatch)."""
+    verify = subprocess.run([*EXE, "replay", str(log), "--verify"], capture_output=True,
+                            text=True, timeout=120)  # fmt: skip
+    assert verify.returncode == 3, verify.stdout + verify.stderr
+    assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
+
+
 def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
     """kill -9 of a paced ``rgtbus run`` once its log has grown: Python's mcap readers read it
     without an error up to its last flush (at most about a second before the kill), and
     ``replay --verify`` says it is truncated (exit 3) with what it holds agreeing."""
     log = tmp_path / "killed.mcap"
-    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
-            "--log", str(log), "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 60
-        while not (log.exists() and len(standard_read(log.read_bytes())) > 100):
-            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-            assert time.monotonic() < deadline, "the log never grew past 100 messages"
-            time.sleep(0.2)
+    with paced_run(log, 100) as proc:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
     if proc.returncode != -signal.SIGKILL:
         pytest.skip("the run ended before the kill: nothing cut")
-    times = standard_read(log.read_bytes())
-    assert len(times) > 100
+    assert len(standard_read(log.read_bytes())) > 100
     assert scan_log(log).truncated
-    verify = subprocess.run([*EXE, "replay", str(log), "--verify"], capture_output=True,
-                            text=True, timeout=120)  # fmt: skip
-    assert verify.returncode == 3, verify.stdout + verify.stderr
-    assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
+    assert_verifies_as_cut(log)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -127,21 +141,9 @@ def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_c
     signal; its log ends cut where the run was, and ``replay --verify`` exits 3 with what it
     holds agreeing (never a mismatch for a log that is only cut)."""
     log = tmp_path / "stopped.mcap"
-    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
-            "--log", str(log), "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while not (log.exists() and len(standard_read(log.read_bytes())) > 100):
-            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-            assert time.monotonic() < deadline, "the log never grew past 100 messages"
-            time.sleep(0.2)
+    with paced_run(log, 100) as proc:
         os.kill(proc.pid, sig)
         _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
     if proc.returncode == 0:
         pytest.skip("the run ended before the signal")
     assert proc.returncode == 128 + sig, err
@@ -149,10 +151,7 @@ def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_c
     assert len(lines) == 1 and f"interrupted by {signal.Signals(sig).name}" in lines[0], err
     assert "Traceback" not in err
     assert len(standard_read(log.read_bytes())) > 100  # a whole file to every reader
-    verify = subprocess.run([*EXE, "replay", str(log), "--verify"], capture_output=True,
-                            text=True, timeout=120)  # fmt: skip
-    assert verify.returncode == 3, verify.stdout + verify.stderr
-    assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
+    assert_verifies_as_cut(log)
 
 
 def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path):
@@ -164,15 +163,7 @@ def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path)
                             str(done), "--quiet"], capture_output=True, timeout=120)  # fmt: skip
     assert first.returncode == 0, first.stderr
     live = tmp_path / "live.mcap"
-    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
-            "--log", str(live), "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while not (live.exists() and len(standard_read(live.read_bytes())) > 10):
-            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-            assert time.monotonic() < deadline, "the run's log never grew"
-            time.sleep(0.2)
+    with paced_run(live, 10) as proc:
         if proc.poll() is not None:
             pytest.skip("the run ended before the merges")
         for inputs, out, what in (([done], live, "-o"), ([done, live], tmp_path / "m.mcap",
@@ -186,10 +177,6 @@ def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path)
             assert len(lines) == 1 and f"{what} '{live}': a run is writing it" in lines[0], lines
         assert not (tmp_path / "m.mcap").exists()
         _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
     assert proc.returncode == 0, err
     assert not scan_log(live).truncated  # its own log, whole
     merged = subprocess.run([*EXE, "merge", str(live), "-o", str(tmp_path / "m.mcap"), "-q"],
@@ -244,9 +231,7 @@ def test_recover_makes_a_complete_file_of_a_cut_or_damaged_log(tmp_path):
         if name == "whole":
             assert kept == n_whole
         else:
-            verify = subprocess.run([*EXE, "replay", str(out), "--verify"], capture_output=True,
-                                    text=True, timeout=120)  # fmt: skip
-            assert verify.returncode == 3 and "MISMATCH" not in verify.stdout, verify.stdout
+            assert_verifies_as_cut(out)
 
 
 def test_recover_refuses_what_is_no_log_in_one_line(tmp_path):

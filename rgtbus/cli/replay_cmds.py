@@ -6,8 +6,9 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO, TypeVar
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import (
@@ -169,10 +170,40 @@ def _plot(rp: Replay, args: argparse.Namespace) -> str:
     return f"wrote {args.plot} (unit {unit}, {src} resonator trace)"
 
 
+_T = TypeVar("_T")
+
+
+def _one_writer(out: Path, inputs: Sequence[str]) -> None:
+    """One writer, always: no log written over, nor read from, while a run writes it."""
+    from rgtbus.telemetry.logfile import refuse_if_being_written
+
+    refuse_if_being_written(out, "-o")
+    for src in inputs:
+        refuse_if_being_written(src, "input")
+
+
+def _written_whole(out: Path, write: Callable[[BinaryIO], _T]) -> _T:
+    """``write(stream)`` to ``out`` whole or not at all (through ``OUT.part``); a run that
+    began writing ``out`` meanwhile keeps its log. What ``write`` returned."""
+    from rgtbus.telemetry.logfile import refuse_if_being_written
+
+    tmp = out.with_name(out.name + ".part")
+    try:
+        with open(tmp, "wb") as f:
+            result = write(f)
+        refuse_if_being_written(out, "-o")
+        os.replace(tmp, out)
+    except OSError as e:
+        raise RgtbusError(f"-o {str(out)!r}: {e.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return result
+
+
 def merge(args: argparse.Namespace) -> int:
     """``rgtbus merge LOG... -o OUT``: run logs merged into one, written whole or not at all
     (through ``OUT.part``)."""
-    from rgtbus.telemetry.logfile import refuse_if_being_written
     from rgtbus.telemetry.merge import merge_logs
     from rgtbus.telemetry.scan import require_run_log, scan_log
 
@@ -180,27 +211,19 @@ def merge(args: argparse.Namespace) -> int:
     for src in args.inputs:
         if os.path.exists(src) and out.exists() and os.path.samefile(src, out):
             raise RgtbusError(f"-o {args.output!r}: is also an input")
-    # one writer, always: not over a log a run is writing, nor from one (half a run)
-    refuse_if_being_written(out, "-o")
-    for src in args.inputs:
-        refuse_if_being_written(src, "input")
+    _one_writer(out, args.inputs)
     logs = [scan_log(src) for src in args.inputs]
     for log in logs:
         try:
             require_run_log(log)  # corrupt, header-only or foreign: exit 2 naming the file
         except RgtbusError as e:
             raise RgtbusError(f"{e}; not merged") from None
-    tmp = out.with_name(out.name + ".part")
-    try:
-        with open(tmp, "wb") as f:
-            res = merge_logs(logs, f, compression=args.compression, dedupe=not args.keep_duplicates)
-        refuse_if_being_written(out, "-o")  # a run that began meanwhile keeps its log
-        os.replace(tmp, out)
-    except OSError as e:
-        raise RgtbusError(f"-o {args.output!r}: {e.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    res = _written_whole(
+        out,
+        lambda f: merge_logs(
+            logs, f, compression=args.compression, dedupe=not args.keep_duplicates
+        ),
+    )
     for note in res.notes:
         print(f"warning: {note}; merged as far as it goes", file=sys.stderr)
     renamed = "; ".join(f"{k} -> {v}" for k, v in res.renamed.items())
@@ -215,27 +238,15 @@ def merge(args: argparse.Namespace) -> int:
 def recover(args: argparse.Namespace) -> int:
     """``rgtbus recover LOG -o OUT``: ``recover_log``, written whole or not at all (through
     ``OUT.part``); one line saying what it kept and where LOG ended."""
-    from rgtbus.telemetry.logfile import refuse_if_being_written
     from rgtbus.telemetry.merge import recover_log
     from rgtbus.telemetry.scan import scan_log
 
     out = Path(args.output)
     if os.path.exists(args.log) and out.exists() and os.path.samefile(args.log, out):
         raise RgtbusError(f"-o {args.output!r}: is the log to recover (write it elsewhere)")
-    refuse_if_being_written(out, "-o")
-    refuse_if_being_written(args.log, "input")
+    _one_writer(out, [args.log])
     log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
-    tmp = out.with_name(out.name + ".part")
-    try:
-        with open(tmp, "wb") as f:
-            res = recover_log(log, f, compression=args.compression)
-        refuse_if_being_written(out, "-o")
-        os.replace(tmp, out)
-    except OSError as e:
-        raise RgtbusError(f"-o {args.output!r}: {e.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    res = _written_whole(out, lambda f: recover_log(log, f, compression=args.compression))
     if not args.quiet:
         how = f"it ended early: {res.ended}" if res.ended else "it was whole"
         print(f"recovered {res.messages} messages of {args.log} into {out}; {how}")
