@@ -211,3 +211,29 @@ def test_every_public_name_of_the_face_says_what_it_is():
                 if not (inspect.getdoc(member) or "").strip():
                     missing.append(f"{name}.{attr}")
     assert not missing, missing
+
+
+def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(tmp_path):
+    """A traced log's traces stay in the file until asked for, every other topic stays JSON
+    until asked for; each table is the same as from a stream (read whole, nothing deferred)."""
+    path = tmp_path / "t.mcap"
+    rgtbus.run(ROOT / "scenarios/example2.toml", log=path, traces=True)
+    log = rgtbus.open_log(path)
+    with open(path, "rb") as f:
+        whole = rgtbus.open_log(f)
+    held = log.replay.by_topic
+    assert not [t for t in held if t.startswith("/trace/")]  # left in the file
+    assert held._raw >= {"/rx/spike", "/medium", "/log"}  # not decoded yet
+    assert log.topics == whole.topics and "/trace/a" in log.topics
+    for topic in log.topics:
+        pd.testing.assert_frame_equal(log.messages(topic), whole.messages(topic), obj=topic)
+    trace = log.messages("/trace/a")
+    assert len(trace) and isinstance(trace["y"].iloc[0], list)
+    assert "/trace/a" not in held  # read for the frame, not kept
+    for table in ("decisions", "decodes", "spikes", "transmissions", "medium"):
+        pd.testing.assert_frame_equal(getattr(log, table)(), getattr(whole, table)(), obj=table)
+    assert log.summary() == {**whole.summary(), "log": str(path)}
+    # the file replaced by another after it was opened: its traces are not read as garbage
+    rgtbus.run(ROOT / "scenarios/gate.toml", log=path, traces=True)
+    with pytest.raises(rgtbus.RgtbusError, match="changed since it was opened"):
+        log.messages("/trace/a")

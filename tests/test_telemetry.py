@@ -563,7 +563,10 @@ def test_docs_topics_md_is_generated():
 
 
 def test_spike_rows_read_blocks_records_of_one_sample_and_logs_of_one_spike_alike():
-    from rgtbus.telemetry.read import spike_rows
+    from rgtbus.telemetry.read import spike_table
+
+    def spike_rows(records, frequencies, tau=None):
+        return list(spike_table(records, frequencies, tau).rows())
 
     columns = {  # one entry a spike (this version)
         "unit": "b",

@@ -95,7 +95,7 @@ def replay(args: argparse.Namespace) -> int:
     if (args.t_from is not None or args.t_to is not None) and (args.verify or args.json):
         raise RgtbusError("--from and --to go with the timeline, --csv and --plot")
     rp = load_replay(args.log)
-    with explained(rp.contents, rp.label):  # a message that breaks its schema: named, exit 2
+    with explained(rp.messages, rp.label):  # a message that breaks its schema: named, exit 2
         return _replay(rp, args)
 
 
@@ -292,8 +292,7 @@ def _print_head(
         f"rgtbus {info['version']}, bus {info['bus']}, run {info['run_id']}"
     )
     print(
-        f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated; "
-        f"{len(rp.contents.messages)} messages"
+        f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated; {rp.message_count()} messages"
     )
     if rp.truncated:
         print(f"NOTE: {rp.note}")

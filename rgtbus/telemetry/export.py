@@ -131,8 +131,7 @@ def _spikes(replay: Replay, span: Span, run: list[Any], ts: Callable[[float], fl
     head = [*RUN_COLUMNS, "t", "unit", "channel", "omega", "sample"]
     rows = [
         [*run, ts(s["t"]), s["unit"], s["channel"], s["omega"], s["sample"]]
-        for s in replay.spikes
-        if in_span(s["t"], span)
+        for s in replay.spikes.rows(replay.spikes.within(span))
     ]
     return head, rows
 

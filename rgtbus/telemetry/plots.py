@@ -79,12 +79,7 @@ def attention_spikes(replay: Replay, unit: str) -> set[tuple[str, float]]:
     refused) is not in the set."""
     anchor = replay.scenario.timing.anchor if replay.scenario is not None else "spike"
     ids = {(tx.turn, tx.sender): tx for tx in replay.transmissions if tx.kind == "id"}
-    times: dict[str, list[float]] = {}
-    for s in replay.spikes:
-        if s["unit"] == unit:
-            times.setdefault(s["channel"], []).append(s["t"])
-    for ts in times.values():
-        ts.sort()
+    times = {ch: sorted(ts.tolist()) for ch, ts in replay.spikes.of_unit(unit).items()}
     out: set[tuple[str, float]] = set()
     for d in replay.decodes:
         if d.unit != unit or d.kind != "id" or not d.accepted or d.turn is None:
@@ -176,6 +171,7 @@ class _Panels:
         self.replay, self.unit, self.lo, self.hi, self.color = replay, unit, lo, hi, color
         self.omegas = replay.info()["frequencies"]
         self.attention = attention_spikes(replay, unit)
+        self.spike_times = {ch: ts.tolist() for ch, ts in replay.spikes.of_unit(unit).items()}
         self.t = np.asarray(trace["t"])
         self.y = np.asarray(trace["y"])
         self.view = (self.t >= lo) & (self.t <= hi)
@@ -197,11 +193,7 @@ class _Panels:
             ts = [p[0] for p in tx.pulses]
             ms = [p[1] for p in tx.pulses]
             ax.vlines(ts, 0, ms, color=self.color[tx.sender], lw=1.6)
-        spikes = [
-            s["t"]
-            for s in replay.spikes
-            if s["unit"] == self.unit and s["channel"] == ch and lo <= s["t"] <= hi
-        ]
+        spikes = [t for t in self.spike_times.get(ch, ()) if lo <= t <= hi]
         other = [x for x in spikes if (ch, x) not in self.attention]
         accepted = [x for x in spikes if (ch, x) in self.attention]
         if other:  # drawn first: an attention spike on the same sample stays on top

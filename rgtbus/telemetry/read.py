@@ -10,12 +10,14 @@ found while reading or verifying is a ``Mismatch``.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
+import functools
 import json
 import math
 import os
-from collections import Counter, defaultdict
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import IO, Any, cast
 
@@ -33,7 +35,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics
-from rgtbus.telemetry.recorder import LogContents
+from rgtbus.telemetry.recorder import LogContents, LogMessage
 from rgtbus.telemetry.records import (
     LOG,
     MEDIUM,
@@ -56,7 +58,7 @@ from rgtbus.telemetry.records import (
     spike_units,
     trace_topic,
 )
-from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
+from rgtbus.telemetry.scan import Deferred, decode_log, require_run_log, scan_log
 from rgtbus.timebase import ns, seconds, time_of
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
@@ -181,36 +183,215 @@ def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
     return out
 
 
-def spike_rows(
-    records: Iterable[dict[str, Any]], frequencies: dict[str, float], tau: float | None = None
-) -> list[dict[str, Any]]:
-    """One row per resonator spike ({unit, channel, omega, t, sample}) from ``/rx/spike``
-    records: a unit's spikes of one block as columns (``spike_samples``); ω comes
-    from the log's frequencies. Older logs hold one record a sample (``channels`` a list of
-    names) or one spike a record (with its ω); both still read. ``tau``: the sample period
-    (else each spike's time is worked out from the record's first). Rows are in sample order
-    (stable: as logged within a sample)."""
-    rows: list[dict[str, Any]] = []
-    for m in records:
-        if "samples" in m:
-            units, k0, t0 = spike_units(m), m["sample"], m["t"]
-            step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
-            for k, chans in spike_samples(m):
-                t = time_of(k, step) if k != k0 else t0
-                for unit in units:  # a shared record: each unit heard the same spikes
-                    for ch in chans:
-                        om = frequencies.get(ch)
-                        rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
-            continue
-        if "channels" not in m:
-            rows.append(m)
-            continue
+@dataclass(frozen=True)
+class SpikeTable:
+    """Every resonator spike of a log as columns, one entry a spike (a large run's receivers
+    fire tens of millions of times: no object a spike). ``unit`` and ``channel`` index
+    ``units`` and ``channels``; ``omega`` is NaN where the log names no frequency. In sample
+    order (stable: as logged within a sample)."""
+
+    units: list[str]
+    channels: list[str]
+    unit: np.ndarray  # int32
+    channel: np.ndarray  # int32
+    sample: np.ndarray  # int64
+    t: np.ndarray  # float64, seconds
+    omega: np.ndarray  # float64
+
+    def __len__(self) -> int:
+        return len(self.sample)
+
+    def __iter__(self) -> Iterator[dict[str, Any]]:
+        """The spikes one dict each (``rows``)."""
+        return self.rows()
+
+    def within(self, span: tuple[float | None, float | None] | None) -> np.ndarray:
+        """A mask of the spikes within ``span`` (from, to in seconds; None: unbounded), to a
+        nanosecond (as ``in_span``)."""
+        keep = np.ones(len(self), dtype=bool)
+        if span is not None:
+            lo, hi = span
+            if lo is not None:
+                keep &= self.t >= lo - _NANOSECOND
+            if hi is not None:
+                keep &= self.t <= hi + _NANOSECOND
+        return keep
+
+    def of_unit(self, unit: str) -> dict[str, np.ndarray]:
+        """``unit``'s spike times (seconds, in order) on each channel that fired."""
+        if unit not in self.units:
+            return {}
+        mine = self.unit == self.units.index(unit)
+        ch, t = self.channel[mine], self.t[mine]
+        return {self.channels[c]: t[ch == c] for c in np.unique(ch).tolist()}
+
+    def rows(self, keep: np.ndarray | None = None) -> Iterator[dict[str, Any]]:
+        """The spikes (those ``keep`` marks) one dict each: ``{unit, channel, omega, t,
+        sample}`` (``omega`` None where unknown)."""
+        idx = np.arange(len(self)) if keep is None else np.flatnonzero(keep)
+        units, channels = self.units, self.channels
+        for i in idx.tolist():
+            om = float(self.omega[i])
+            yield {
+                "unit": units[int(self.unit[i])],
+                "channel": channels[int(self.channel[i])],
+                "omega": None if math.isnan(om) else om,
+                "t": float(self.t[i]),
+                "sample": int(self.sample[i]),
+            }
+
+
+_SpikeRow = tuple[str, str, float | None, float, int]  # unit, channel, omega, t, sample
+
+
+class _SpikeColumns:
+    """``spike_table``'s columns, allocated once at their full length and filled a record at a
+    time (no part a record kept and joined after: a large run fires tens of millions of
+    times, and the parts' memory would stay with the process)."""
+
+    def __init__(self, units: Sequence[str], frequencies: dict[str, float], n: int) -> None:
+        self.units: dict[str, int] = {u: i for i, u in enumerate(units)}
+        self.channels: dict[str, int] = {}
+        self.frequencies = frequencies
+        self.unit = np.empty(n, dtype=np.int32)
+        self.channel = np.empty(n, dtype=np.int32)
+        self.sample = np.empty(n, dtype=np.int64)
+        self.t = np.empty(n)
+        self.omega = np.empty(n)
+        self.at = 0
+
+    def unit_index(self, name: str) -> int:
+        return self.units.setdefault(name, len(self.units))
+
+    def channel_index(self, name: str) -> int:
+        return self.channels.setdefault(name, len(self.channels))
+
+    def omega_of(self, names: Iterable[str]) -> np.ndarray:
+        return np.array([self.frequencies.get(n, math.nan) for n in names], dtype=float)
+
+    def add(self, unit: np.ndarray, channel: np.ndarray, sample: np.ndarray, t: np.ndarray,
+            omega: np.ndarray) -> None:  # fmt: skip
+        at, k = self.at, len(sample)
+        self.unit[at : at + k] = unit
+        self.channel[at : at + k] = channel
+        self.sample[at : at + k] = sample
+        self.t[at : at + k] = t
+        self.omega[at : at + k] = omega
+        self.at += k
+
+    def block(self, m: Mapping[str, Any], tau: float | None) -> None:
+        """A block of spikes as columns (``records.spikes``): each of its units heard them
+        all; rows of a sample go unit by unit, channels in the order logged."""
+        units = [self.unit_index(u) for u in spike_units(m)]
+        names = [str(n) for n in m["names"]]
+        samples = np.asarray(m["samples"], dtype=np.int64)
+        channel = np.asarray(m["channel"], dtype=np.int64)
+        if samples.ndim != 1 or channel.shape != samples.shape:
+            raise RgtbusError(
+                f"{RX_SPIKE} at sample {m.get('sample')}: {samples.size} samples but "
+                f"{channel.size} channels"
+            )
+        outside = (channel < 0) | (channel >= len(names))
+        if outside.any():
+            i = int(np.argmax(outside))
+            raise RgtbusError(
+                f"{RX_SPIKE} at sample {int(samples[i])}: channel {int(channel[i])} is not one "
+                f"of its {len(names)} names"
+            )
+        k0, t0 = int(m["sample"]), float(m["t"])
+        step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
+        times = samples * step
+        times[samples == k0] = t0
+        glob = np.array([self.channel_index(n) for n in names], dtype=np.int32)
+        omega = self.omega_of(names)
+        p, n_units = samples.size, len(units)
+        # order: sample group, then unit, then the spike's place in the block
+        group = np.concatenate(([0], np.cumsum(samples[1:] != samples[:-1]))) if p else samples
+        spike = np.tile(np.arange(p), n_units)
+        who = np.repeat(np.arange(n_units), p)
+        order = np.lexsort((spike, who, group[spike]))
+        spike, who = spike[order], who[order]
+        self.add(np.asarray(units, dtype=np.int32)[who], glob[channel[spike]], samples[spike],
+                 times[spike], omega[channel[spike]])  # fmt: skip
+
+    def rows(self, rows: list[_SpikeRow]) -> None:
+        """Spikes one row each (logs before the columnar block)."""
+        if not rows:
+            return
+        unit, channel, omega, t, sample = zip(*rows, strict=True)
+        self.add(
+            np.array([self.unit_index(u) for u in unit], dtype=np.int32),
+            np.array([self.channel_index(c) for c in channel], dtype=np.int32),
+            np.array(sample, dtype=np.int64),
+            np.array(t, dtype=float),
+            np.array([math.nan if o is None else o for o in omega], dtype=float),
+        )
+
+    def table(self) -> SpikeTable:
+        cols: list[np.ndarray] = [self.unit, self.channel, self.sample, self.t, self.omega]
+        for name in ("unit", "channel", "sample", "t", "omega"):  # let go of them here
+            setattr(self, name, np.empty(0))
+        sample = cols[2]
+        if sample.size > 1 and not (sample[1:] >= sample[:-1]).all():
+            order = np.argsort(sample, kind="stable")  # in time order, however they were written
+            for i, c in enumerate(cols):  # a column at a time: one copy held, not five
+                cols[i] = c[order]
+                del c
+        unit, channel, sample, t, omega = cols
+        return SpikeTable(list(self.units), list(self.channels), unit, channel, sample, t, omega)
+
+
+def _old_spike_rows(
+    m: Mapping[str, Any], frequencies: dict[str, float], tau: float | None
+) -> list[_SpikeRow]:
+    """A ``/rx/spike`` record of a log from before the columnar block, one row a spike: a
+    block of per-sample lists of names, one record a sample, or one spike with its ω."""
+    rows: list[_SpikeRow] = []
+    if "samples" in m:
+        names, k0, t0 = spike_units(m), m["sample"], m["t"]
+        step = tau if tau is not None else (t0 / k0 if k0 else 0.0)
+        for k, chans in spike_samples(m):
+            t = time_of(k, step) if k != k0 else t0
+            for unit in names:  # a shared record: each unit heard the same spikes
+                rows += [(unit, ch, frequencies.get(ch), t, k) for ch in chans]
+    elif "channels" not in m:
+        rows.append((m["unit"], m["channel"], m.get("omega"), m["t"], m["sample"]))
+    else:
         unit, t, k = m["unit"], m["t"], m["sample"]
-        for ch in m["channels"]:
-            om = frequencies.get(ch)
-            rows.append({"unit": unit, "channel": ch, "omega": om, "t": t, "sample": k})
-    rows.sort(key=lambda r: r["sample"])  # in time order, however they were written
+        rows += [(unit, ch, frequencies.get(ch), t, k) for ch in m["channels"]]
     return rows
+
+
+def spike_table(
+    records: Iterable[dict[str, Any]],
+    frequencies: dict[str, float],
+    tau: float | None = None,
+    units: Sequence[str] = (),
+) -> SpikeTable:
+    """Every resonator spike of ``/rx/spike`` records as columns (``SpikeTable``): a unit's
+    spikes of one block as columns (``records.spikes``); ω comes from the log's frequencies.
+    Older logs hold a block as per-sample lists of names, or one record a sample (``channels``
+    a list of names), or one spike a record (with its ω); all still read. ``tau``: the sample
+    period (else each spike's time is worked out from the record's first). ``units``: the
+    run's units, in order (units the records name beyond them follow)."""
+    # first how many rows there are (the columns are allocated once), then the rows
+    parts: list[Mapping[str, Any] | list[_SpikeRow]] = []
+    n = 0
+    for m in records:
+        if "samples" in m and "names" in m:
+            parts.append(m)
+            n += len(m["samples"]) * len(spike_units(m))
+        else:
+            rows = _old_spike_rows(m, frequencies, tau)
+            parts.append(rows)
+            n += len(rows)
+    cols = _SpikeColumns(units, frequencies, n)
+    for part in parts:
+        if isinstance(part, list):
+            cols.rows(part)
+        else:
+            cols.block(part, tau)
+    return cols.table()
 
 
 _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
@@ -220,19 +401,71 @@ _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
 _ON_TIME = frozenset({TX_PULSE})
 
 
+class Topics(Mapping[str, list[tuple[int, Any]]]):
+    """A log's messages by topic, ``(log_time, message)`` in log-time order: a topic held as
+    its undecoded JSON is decoded the first time it is asked for (a large run's decodes and
+    spikes are tens of megabytes of JSON, and many times that as Python objects); a topic
+    that holds none is an empty list."""
+
+    def __init__(self, messages: Iterable[LogMessage], label: str) -> None:
+        self._held: dict[str, list[tuple[int, Any]]] = {}
+        self._raw: set[str] = set()  # topics still held (at least partly) as JSON bytes
+        self.label = label
+        for topic, t, m in messages:
+            self._held.setdefault(topic, []).append((t, m))
+            if isinstance(m, bytes):
+                self._raw.add(topic)
+
+    def __getitem__(self, topic: str) -> list[tuple[int, Any]]:
+        held = self._held.get(topic)
+        if held is None:
+            return []
+        if topic in self._raw:
+            self._raw.discard(topic)
+            held[:] = [(t, self._decoded(topic, t, m)) for t, m in held]
+        return held
+
+    def _decoded(self, topic: str, t: int, m: Any) -> Any:
+        if not isinstance(m, bytes):
+            return m
+        try:
+            return orjson.loads(m)
+        except ValueError as e:
+            raise RgtbusError(
+                f"{self.label}: message on {topic} at t = {seconds(t):.3f} s is not JSON: {e}"
+            ) from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._held)
+
+    def __len__(self) -> int:
+        return len(self._held)
+
+    def __contains__(self, topic: object) -> bool:
+        return topic in self._held
+
+    def count(self, topic: str) -> int:
+        """How many messages ``topic`` holds (nothing decoded)."""
+        return len(self._held.get(topic, ()))
+
+    def messages(self) -> Iterator[LogMessage]:
+        """Every message as ``(topic, log_time, message)``, as held (decoded or JSON bytes)."""
+        for topic, msgs in self._held.items():
+            for t, m in msgs:
+                yield topic, t, m
+
+
 class Replay:
     """A log organised for reading. Build with ``load_replay``."""
 
     def __init__(self, contents: LogContents, label: str = "<log>") -> None:
-        self.contents = contents
         self.label = label
         self.metadata: dict[str, dict[str, str]] = contents.metadata
         self.truncated: bool = contents.truncated
         self.note: str = contents.note
-        self.by_topic: dict[str, list[tuple[int, dict[str, Any]]]] = defaultdict(list)
-        for topic, t, msg in contents.messages:
-            self.by_topic[topic].append((t, msg))
-        self._decodes_as_rows()
+        self.deferred: Deferred | None = contents.deferred
+        self.end_ns: int | None = contents.end_ns
+        self.by_topic = Topics(contents.messages, label)
         self.scenario: Scenario | None = None
         self.scenario_error: str | None = None
         self._load_scenario()
@@ -249,10 +482,7 @@ class Replay:
             cast(RunRecord, self.by_topic[RUN][-1][1]) if self.by_topic[RUN] else None
         )
         self.transmissions = self._transmissions()
-        self.decodes = self._decodes()
         self.frequencies = _frequencies(self.metadata)
-        tau = self.scenario.timing.tau if self.scenario is not None else None
-        self.spikes = spike_rows((m for _, m in self.by_topic[RX_SPIKE]), self.frequencies, tau)
         self.relations: dict[str, RelationsRecord] = {
             m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
         }
@@ -265,17 +495,75 @@ class Replay:
 
     # -- construction ------------------------------------------------------------------------
 
-    def _decodes_as_rows(self) -> None:
+    def _each_decode(self) -> Iterator[tuple[int, dict[str, Any]]]:
         """Every decode as one ``/rx/decode`` message at its own time, however the log holds
-        it (one a decode, or columns a wake in ``/rx/decodes``): what every reader reads."""
-        blocks = self.by_topic.get(RX_DECODES)
-        if not blocks:
-            return
-        rows = self.by_topic[RX_DECODE]
-        for _, m in blocks:
+        it (one a decode, or columns a wake in ``/rx/decodes``), in file order: not yet
+        sorted by time (``decode_records``), and never all held at once."""
+        yield from self.by_topic.get(RX_DECODE, [])
+        for _, m in self.by_topic.get(RX_DECODES, []):
             for row in decode_rows(m):
-                rows.append((ns(row["t"]), cast(dict[str, Any], row)))
-        rows.sort(key=lambda r: r[0])  # stable: a unit's decodes of one time keep their order
+                yield ns(row["t"]), cast(dict[str, Any], row)
+
+    @functools.cached_property
+    def decode_records(self) -> list[tuple[int, dict[str, Any]]]:
+        """Every decode as one ``/rx/decode`` message, in log-time order: what every reader
+        reads (built when first asked for: a large run decodes millions of times)."""
+        # stable: a unit's decodes of one time keep their order
+        return sorted(self._each_decode(), key=lambda r: r[0])
+
+    @functools.cached_property
+    def decodes(self) -> list[DecodeRow]:
+        """Every decode, matched with the transmission it read."""
+        return self._decodes()
+
+    @functools.cached_property
+    def spikes(self) -> SpikeTable:
+        """Every resonator spike, as columns (``SpikeTable``)."""
+        tau = self.scenario.timing.tau if self.scenario is not None else None
+        records = (m for _, m in self.by_topic[RX_SPIKE])
+        return spike_table(records, self.frequencies, tau, self.units)
+
+    def topic_messages(self, topic: str) -> list[tuple[int, Any]]:
+        """``topic``'s messages as ``(log_time, message)`` in log-time order: decoded, or
+        undecoded JSON bytes for a topic left in the file until asked for (traces), read
+        from the file now."""
+        if topic == RX_DECODE:
+            return self.decode_records
+        held = self.by_topic.get(topic)
+        if held:
+            return held
+        deferred = self.deferred
+        if deferred is not None and topic in deferred.held():
+            return cast(list[tuple[int, Any]], deferred.read(topic))
+        return []
+
+    def topic_counts(self) -> dict[str, int]:
+        """How many messages each topic holds (topics with none left out)."""
+        out = {t: self.by_topic.count(t) for t in self.by_topic if self.by_topic.count(t)}
+        if self.deferred is not None:
+            out.update(self.deferred.held())
+        return out
+
+    def message_count(self) -> int:
+        """How many messages the log holds (those left in the file too)."""
+        return sum(self.topic_counts().values())
+
+    def messages(self) -> Iterator[LogMessage]:
+        """Every message read when the log was opened, as held (decoded, or JSON bytes not yet
+        asked for): what ``explained`` looks through once reading has failed."""
+        return self.by_topic.messages()
+
+    def every_message(self) -> Iterator[tuple[str, int, Any]]:
+        """Every message of the log as ``(topic, log_time, message)``, decoded (traces
+        excepted: JSON bytes), topic by topic in log-time order: those read when the log was
+        opened, then those left in the file until now."""
+        for topic in self.by_topic:
+            for t, m in self.by_topic[topic]:
+                yield topic, t, m
+        if self.deferred is not None:
+            for topic in self.deferred.held():
+                for t, m in self.deferred.read(topic):
+                    yield topic, t, m
 
     def _load_scenario(self) -> None:
         meta = self.metadata.get("scenario")
@@ -303,7 +591,7 @@ class Replay:
             return self.scenario.units
         seen: dict[str, None] = {}
         for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, UNIT_RELATIONS):
-            for _, m in self.by_topic[topic]:
+            for _, m in self._each_decode() if topic == RX_DECODE else self.by_topic[topic]:
                 seen.setdefault(m["unit"], None)
         return tuple(seen)
 
@@ -349,17 +637,21 @@ class Replay:
     def _decodes(self) -> list[DecodeRow]:
         # A decode reads the latest code of its class its sender started before it.
         starts: dict[tuple[str, str], list[Transmission]] = defaultdict(list)
-        for sent in self.transmissions:
+        of_turn: dict[tuple[str, str, int], Transmission] = {}
+        for sent in self.transmissions:  # in start order: the latest of a turn wins
             starts[(sent.sender, sent.kind)].append(sent)
+            of_turn[(sent.sender, sent.kind, sent.turn)] = sent
+        begun = {key: [tx.start for tx in txs] for key, txs in starts.items()}
         rows = []
-        for _, d in self.by_topic[RX_DECODE]:
+        for _, d in self.decode_records:
             cls = "id" if d["kind"] == "id" else "payload"
             tx: Transmission | None = None
-            for cand in starts[(d["sender"], cls)]:
-                if ("turn" in d and cand.turn == d["turn"]) or (
-                    "turn" not in d and cand.start <= d["t"] + _NANOSECOND  # logs from before turns
-                ):
-                    tx = cand
+            if "turn" in d:
+                tx = of_turn.get((d["sender"], cls, d["turn"]))
+            else:  # logs from before turns: the latest started by the decode
+                key = (d["sender"], cls)
+                i = bisect.bisect_right(begun.get(key, []), d["t"] + _NANOSECOND)
+                tx = starts[key][i - 1] if i else None
             if tx is None:
                 matches = None
             elif cls == "id":
@@ -409,7 +701,7 @@ class Replay:
         """The run's simulated length: from its ``/run`` record, else as far as the log goes."""
         if self.run is not None:
             return float(self.run["sim_seconds"])
-        return round(seconds(max((m[1] for m in self.contents.messages), default=0)), 6)
+        return round(seconds(self.end_ns or 0), 6)
 
     def agree(self) -> bool:
         """Whether every unit ended with the same relationship table and polynomial."""
@@ -433,13 +725,18 @@ class Replay:
         ``/rx/decode`` records: what the live run's summary is computed from. A unit without
         a report (its process died) is left out, as the live run leaves it out. Logs from
         before ``/unit/report`` get reports rebuilt from their tables and decisions."""
-        decodes: dict[str, list[list[Any]]] = defaultdict(list)
-        for _, d in self.by_topic[RX_DECODE]:
-            decodes[d["unit"]].append([d.get("turn"), d["kind"], d["addressee"], d["code"]])
+        # each unit's decodes in time order (stable: as logged within one time), without
+        # holding every decode of the run as a record
+        timed: dict[str, list[tuple[int, list[Any]]]] = defaultdict(list)
+        for t, d in self._each_decode():
+            timed[d["unit"]].append((t, [d.get("turn"), d["kind"], d["addressee"], d["code"]]))
+        decodes = {
+            u: [row for _, row in sorted(rows, key=lambda r: r[0])] for u, rows in timed.items()
+        }
         reports = {m["unit"]: m for _, m in self.by_topic[UNIT_REPORT]}
         if not reports:
             reports = {u: self._legacy_report(u) for u in self.units}
-        return [{**reports[u], "decodes": decodes[u]} for u in self.units if u in reports]
+        return [{**reports[u], "decodes": decodes.get(u, [])} for u in self.units if u in reports]
 
     def _legacy_report(self, unit: str) -> dict[str, Any]:
         rel: Mapping[str, Any] = self.relations.get(unit) or {}
@@ -508,11 +805,15 @@ class Replay:
         self, span: tuple[float | None, float | None] | None = None
     ) -> dict[str, dict[str, int]]:
         """Spikes per unit and channel (within ``span``, from and to in seconds, when given)."""
-        counts: dict[str, Counter[str]] = {u: Counter() for u in self.units}
-        for s in self.spikes:
-            if in_span(s["t"], span):
-                counts.setdefault(s["unit"], Counter())[s["channel"]] += 1
-        return {u: dict(c) for u, c in counts.items()}
+        counts: dict[str, dict[str, int]] = {u: {} for u in self.units}
+        table = self.spikes
+        keep = table.within(span)
+        pairs = table.unit[keep].astype(np.int64) * len(table.channels) + table.channel[keep]
+        found, n = np.unique(pairs, return_counts=True)
+        for pair, k in zip(found.tolist(), n.tolist(), strict=True):
+            unit, channel = divmod(pair, len(table.channels))
+            counts.setdefault(table.units[unit], {})[table.channels[channel]] = k
+        return counts
 
     def info(self) -> dict[str, Any]:
         """The run's metadata: scenario, seed, version, bus, run id, frequencies."""
@@ -542,7 +843,7 @@ class Replay:
                 | {"pulses": [{"t": t, "magnitude": m} for t, m in tx.pulses]}
                 for tx in self.transmissions
             ],
-            "spikes": self.spikes,
+            "spikes": list(self.spikes.rows()),
             "spike_counts": self.spike_counts(),
             "decodes": [asdict(d) for d in self.decodes],
             "tables": {
@@ -644,11 +945,13 @@ class Replay:
         time order; spikes as the ears hear them; pulses, the medium and traces ahead); None
         when nothing was logged."""
         last: dict[str, int] = {}
-        for topic, msgs in self.by_topic.items():
-            # what is logged ahead of time (the medium, traces) or once the run is over (the
-            # run's and units' reports, and log lines, which a stopped unit writes at its end)
-            # says nothing of how far its records are complete
-            if topic in _NOT_PROGRESS or topic in _ON_TIME or is_trace_topic(topic):
+        # what is logged ahead of time (the medium, traces) or once the run is over (the run's
+        # and units' reports, and log lines, which a stopped unit writes at its end) says
+        # nothing of how far its records are complete
+        skip = _NOT_PROGRESS | _ON_TIME
+        every = [(t, self.by_topic[t]) for t in self.by_topic if t not in skip]
+        for topic, msgs in [*every, (RX_DECODE, self._each_decode())]:
+            if is_trace_topic(topic):
                 continue
             stream = "spikes" if topic == RX_SPIKE else "records"
             for t, m in msgs:
@@ -674,12 +977,13 @@ class Replay:
 
     def traced_units(self) -> list[str]:
         """The units whose resonator traces the log holds."""
-        return [u for u in self.units if self.by_topic.get(trace_topic(u))]
+        held = self.topic_counts()
+        return [u for u in self.units if held.get(trace_topic(u))]
 
     def trace_arrays(self, unit: str) -> dict[str, Any] | None:
         """``unit``'s logged traces stacked as arrays (``stack_traces``); None when none were
         logged."""
-        msgs = [m for _, m in self.by_topic.get(trace_topic(unit), [])]
+        msgs = [m for _, m in self.topic_messages(trace_topic(unit))]
         return self.stack_traces(msgs) if msgs else None
 
     def stack_traces(self, msgs: Sequence[dict[str, Any] | bytes]) -> dict[str, Any]:
@@ -717,27 +1021,33 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     """Read and organise a log (path or binary stream). Unreadable, not MCAP, corrupt, only a
     header, or not written by an rgtbus run: RgtbusError. A truncated log reads up to its cut.
 
-    Resonator traces (the bulk of a traced log) stay undecoded until something needs them:
-    verification compares them byte for byte, plots decode one unit's."""
-    raw = scan_log(source)
+    Resonator traces (the bulk of a traced log) stay in the file until something asks for
+    them (``Replay.topic_messages``): verification compares them byte for byte, plots decode
+    one unit's."""
+    raw = scan_log(source, defer=is_trace_topic)
     require_run_log(raw)
-    contents = decode_log(raw, keep_raw=is_trace_topic)
-    with explained(contents, raw.label):
-        return Replay(contents, raw.label)
+    label = raw.label
+    contents = decode_log(raw, keep_raw=lambda topic: True)  # decoded topic by topic (Topics)
+    del raw
+    with explained(lambda: contents.messages, label):
+        return Replay(contents, label)
 
 
-def schema_error(contents: LogContents) -> str | None:
+def schema_error(messages: Iterable[LogMessage]) -> str | None:
     """The first message that breaks its topic's schema, in one line (None: all keep them).
     Run only once reading has failed: a log's messages are not validated on the way in."""
     from rgtbus.telemetry import validate
 
-    for topic, t_ns, message in contents.messages:
+    for topic, t_ns, message in messages:
         try:
             schema = topics.schema_for(topic)
         except RgtbusError:
             continue  # a topic of someone else's: not ours to read
         if isinstance(message, bytes | bytearray | memoryview):
-            message = orjson.loads(message)
+            try:
+                message = orjson.loads(message)
+            except ValueError:
+                return f"message on {topic} at t = {seconds(t_ns):.3f} s is not JSON"
         errs = validate.errors(message, topics.load_schema(schema))
         if errs:
             return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
@@ -766,10 +1076,10 @@ def _beyond_int64(value: Any, path: str = "$") -> str | None:
     return None
 
 
-def range_error(contents: LogContents) -> str | None:
+def range_error(messages: Iterable[LogMessage]) -> str | None:
     """The first message holding a number out of every reader's range, in one line (None:
     none). Run only once reading has failed, as ``schema_error``."""
-    for topic, t_ns, message in contents.messages:
+    for topic, t_ns, message in messages:
         if isinstance(message, bytes | bytearray | memoryview):
             try:
                 message = orjson.loads(message)
@@ -782,7 +1092,7 @@ def range_error(contents: LogContents) -> str | None:
 
 
 @contextlib.contextmanager
-def explained(contents: LogContents, label: str) -> Iterator[None]:
+def explained(messages: Callable[[], Iterable[LogMessage]], label: str) -> Iterator[None]:
     """Reading a log whose messages break their schemas or hold numbers beyond any reader's
     range (written by hand or tampered with, with valid CRCs) fails as RgtbusError naming
     the first such message, not with a KeyError or an OverflowError from deep inside; any
@@ -792,7 +1102,7 @@ def explained(contents: LogContents, label: str) -> Iterator[None]:
     except (KeyError, TypeError, IndexError, AttributeError, ValueError, OverflowError) as exc:
         if isinstance(exc, RgtbusError):
             raise
-        why = schema_error(contents) or range_error(contents)
+        why = schema_error(messages()) or range_error(messages())
         if why is None:
             raise
         raise RgtbusError(f"{label}: {why}") from None

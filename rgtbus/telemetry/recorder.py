@@ -17,7 +17,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Collection, Iterator, Mapping
-from typing import Any, BinaryIO, Protocol, Self, runtime_checkable
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, Self, runtime_checkable
 
 import foxglove
 import orjson
@@ -30,6 +30,9 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.records import LOG, MEDIUM
 from rgtbus.timebase import NS_PER_SECOND, ns
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.scan import Deferred
 
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
 _COMPRESSION = {
@@ -706,12 +709,14 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     metadata: ``{name: {key: value}}`` (a repeated name: the last record wins).
     ``truncated``: the file ended before its footer; ``note``: one line saying where and why;
     ``end_ns``: log time of the last message read (None when there was none).
+    ``deferred``: the topics whose messages were left in the file (``scan.Deferred``), or None.
     """
 
     messages: list[LogMessage]
     metadata: dict[str, dict[str, str]]
     truncated: bool
     note: str
+    deferred: Deferred | None = None
 
     def __new__(
         cls,
@@ -730,4 +735,6 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     @property
     def end_ns(self) -> int | None:
         """The log time of the last message read; None when there was none."""
-        return max((m[1] for m in self.messages), default=None)
+        last = max((m[1] for m in self.messages), default=None)
+        later = self.deferred.last_ns if self.deferred is not None else None
+        return last if later is None else later if last is None else max(last, later)

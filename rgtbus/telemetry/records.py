@@ -322,7 +322,7 @@ def spikes(
     the block (units of one process on a noise-free medium hear alike), one record for all
     (``units``); a list of one is that unit's own record. ``spike_units`` reads either.
     Logs before it held the block as ``samples`` and per-sample lists of names, and before
-    that one record a sample; ``spike_rows`` reads them all."""
+    that one record a sample; ``read.spike_table`` reads them all."""
     first = int(samples[0])
     record: SpikeRecord
     if isinstance(unit, str) or len(unit) == 1:

@@ -7,6 +7,7 @@ a run that only writes its log never loads the reader (start-up).
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import struct
 import zlib
@@ -50,6 +51,8 @@ class RawLog:
     note: str = ""
     corruption: str = ""  # one line: what is damaged and where (read up to there)
     library: str | None = None  # the writer named in the Header (None: no header read)
+    # topics whose messages are left in the file, found again by ``Deferred`` when asked for
+    deferred: Deferred | None = None
 
     @property
     def truncated(self) -> bool:
@@ -66,11 +69,115 @@ class RawLog:
         """Nothing but a Header: no schema, channel, message or metadata record."""
         return not (self.schemas or self.channels or self.messages or self.metadata)
 
+    @property
+    def count(self) -> int:
+        """How many messages were read (those left in the file for later too)."""
+        return len(self.messages) + (self.deferred.count if self.deferred else 0)
 
-def scan_log(source: str | os.PathLike[str] | IO[bytes]) -> RawLog:
+    @property
+    def last_ns(self) -> int | None:
+        """The log time of the last message read (those left in the file too)."""
+        times = [m[1] for m in self.messages]
+        if self.deferred is not None and self.deferred.last_ns is not None:
+            times.append(self.deferred.last_ns)
+        return max(times, default=None)
+
+
+@dataclass
+class Deferred:
+    """Where a scanned file's messages of some topics are, to be read when asked for
+    (``read``) rather than held from the start: a traced log's traces are most of it.
+    ``records``: for each such channel, the byte offsets of the chunks (or unchunked message
+    records) holding its messages, each CRC-checked when the file was scanned and again when
+    it is read."""
+
+    path: str
+    wants: Callable[[str], bool]  # whether a topic's messages are left in the file
+    topics: dict[int, str] = field(default_factory=dict)  # channel id -> topic
+    records: dict[int, list[int]] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=dict)
+    last_ns: int | None = None
+    crcs: dict[int, int] = field(default_factory=dict)  # a chunk's offset -> its CRC, as scanned
+
+    @property
+    def count(self) -> int:
+        """How many messages were left in the file."""
+        return sum(self.counts.values())
+
+    def held(self) -> dict[str, int]:
+        """How many messages each deferred topic holds (topics with none left out)."""
+        out: dict[str, int] = {}
+        for cid, n in self.counts.items():
+            if n:
+                out[self.topics[cid]] = out.get(self.topics[cid], 0) + n
+        return out
+
+    def note(self, channel_id: int, log_time: int, offset: int) -> None:
+        """A message of a deferred channel seen in the record at ``offset``."""
+        where = self.records.setdefault(channel_id, [])
+        if not where or where[-1] != offset:
+            where.append(offset)
+        self.counts[channel_id] = self.counts.get(channel_id, 0) + 1
+        if self.last_ns is None or log_time > self.last_ns:
+            self.last_ns = log_time
+
+    def read(self, topic: str) -> list[tuple[int, bytes]]:
+        """``topic``'s messages as ``(log_time, undecoded data)``, in log-time order (file
+        order on ties). A file that changed since it was scanned: RgtbusError."""
+        cids = {cid for cid, t in self.topics.items() if t == topic}
+        offsets = sorted({o for cid in cids for o in self.records.get(cid, [])})
+        out: list[tuple[int, bytes]] = []
+        try:
+            with open(self.path, "rb") as f:
+                size = os.fstat(f.fileno()).st_size
+                for offset in offsets:
+                    for rec in _records_at(f, offset, size, self.crcs.get(offset)):
+                        if isinstance(rec, Message) and rec.channel_id in cids:
+                            out.append((rec.log_time, bytes(rec.data)))
+        except _Corrupt as e:
+            raise RgtbusError(f"{self.path}: changed since it was opened: {e}") from None
+        except OSError as e:
+            raise RgtbusError(f"cannot read log {self.path!r}: {e.strerror}") from None
+        out.sort(key=lambda m: m[0])
+        return out
+
+
+def _records_at(f: IO[bytes], offset: int, size: int, crc: int | None) -> list[Any]:
+    """The records of the one record (a chunk, or an unchunked message) at ``offset``, its
+    CRC checked (a chunk's the one ``crc`` the scan found there); ``_Corrupt`` when no such
+    record is there."""
+    f.seek(offset)
+    head = f.read(9)
+    if len(head) < 9:
+        raise _Corrupt(f"no record at byte {offset}")
+    _, length = struct.unpack("<BQ", head)
+    if length > min(size - offset - 9, MAX_CHUNK_BYTES):
+        raise _Corrupt(f"the record at byte {offset} runs past the end of the file")
+    body = head + f.read(length)
+    reader = StreamReader(io.BytesIO(body), skip_magic=True, emit_chunks=True)
+    try:
+        rec = next(iter(reader.records))
+    except Exception as e:
+        raise _Corrupt(f"the record at byte {offset} does not parse ({type(e).__name__})") from None
+    if not isinstance(rec, Chunk):
+        return [rec]
+    if crc is not None and rec.uncompressed_crc != crc:
+        raise _Corrupt(f"the chunk at byte {offset} is not the one read then (another CRC)")
+    return _chunk_records(rec, offset)
+
+
+def scan_log(
+    source: str | os.PathLike[str] | IO[bytes], *, defer: Callable[[str], bool] | None = None
+) -> RawLog:
     """Every record of an MCAP file (path or binary stream), read sequentially so a truncated
-    file yields all complete records before the cut. Not an MCAP file: RgtbusError."""
-    return _from_source(source, _scan)
+    file yields all complete records before the cut. Not an MCAP file: RgtbusError.
+
+    ``defer``: topics whose messages are checked but left in the file (``raw.deferred``
+    reads them when asked for); only for a path (a stream is read once)."""
+    if defer is None or not isinstance(source, str | os.PathLike):
+        return _from_source(source, _scan)
+    path = os.fspath(source)
+    return _from_source(source, lambda f, label: _scan(f, label, Deferred(path, defer)))
 
 
 T = TypeVar("T")
@@ -173,8 +280,8 @@ class _Progress:
     start: int = len(MCAP_MAGIC)  # byte offset of the record being read
 
 
-def _scan(stream: IO[bytes], label: str) -> RawLog:
-    raw = RawLog(label)
+def _scan(stream: IO[bytes], label: str, deferred: Deferred | None = None) -> RawLog:
+    raw = RawLog(label, deferred=deferred)
     src = _Tracked(stream)
     at = _Progress()
     try:
@@ -193,8 +300,9 @@ def _scan(stream: IO[bytes], label: str) -> RawLog:
         )
     except Exception as e:  # EndOfFile, short struct reads, a damaged record
         _stopped(e, raw, src, stream, at)
-    if raw.note and raw.messages:  # how far it read, in the run's own time
-        raw.note += f"; last log time read {seconds(max(m[1] for m in raw.messages)):.6f} s"
+    last = raw.last_ns
+    if raw.note and last is not None:  # how far it read, in the run's own time
+        raw.note += f"; last log time read {seconds(last):.6f} s"
     return raw
 
 
@@ -215,13 +323,15 @@ def _read_records(raw: RawLog, src: _Tracked, at: _Progress) -> None:
             at.started = True
             raw.library = rec.library
         elif isinstance(rec, Chunk):
+            if raw.deferred is not None:
+                raw.deferred.crcs[at.start] = rec.uncompressed_crc
             for r in _chunk_records(rec, at.start):
                 _take(raw, r, at.start)
         elif isinstance(rec, Metadata) and rec.name == UNFINISHED:
             # rgtbus's writer had not finished (still writing, or killed): the log is whole
             # up to here and cut here, as every reader sees it (recorder.unfinished_trailer)
             raw.note = (
-                f"{raw.label}: log truncated after {len(raw.messages)} messages (its writer had "
+                f"{raw.label}: log truncated after {raw.count} messages (its writer had "
                 "not finished: a run still going, or one stopped before its end)"
             )
             at.finished = True
@@ -243,11 +353,19 @@ def _take(raw: RawLog, rec: Any, start: int) -> None:
     if isinstance(rec, Message):
         if rec.channel_id not in raw.channels:
             raise _Corrupt(f"record at byte {start}: message on unknown channel {rec.channel_id}")
+        if raw.deferred is not None and rec.channel_id in raw.deferred.topics:
+            raw.deferred.note(rec.channel_id, rec.log_time, start)
+            return
         raw.messages.append(
             (rec.channel_id, rec.log_time, rec.publish_time, rec.sequence, rec.data)
         )
     elif isinstance(rec, Channel):
         raw.channels[rec.id] = rec
+        if raw.deferred is not None:
+            if raw.deferred.wants(rec.topic):
+                raw.deferred.topics[rec.id] = rec.topic
+            else:  # a channel id reused for a topic read now
+                raw.deferred.topics.pop(rec.id, None)
     elif isinstance(rec, Schema):
         raw.schemas[rec.id] = rec
 
@@ -314,11 +432,11 @@ def _stopped(e: Exception, raw: RawLog, src: _Tracked, stream: IO[bytes], at: _P
         raise RgtbusError(f"{label}: not an MCAP file (empty or cut before its header)") from None
     if _chunk_in_progress(stream, at.start) and not _ends_with_magic(stream):
         raw.note = (
-            f"{label}: log truncated after {len(raw.messages)} messages (cut in a chunk "
+            f"{label}: log truncated after {raw.count} messages (cut in a chunk "
             "the writer had not finished)"
         )
     elif src.short and not _ends_with_magic(stream):
-        n = len(raw.messages)
+        n = raw.count
         where = "in its summary (all messages present)" if at.finished else f"after {n} messages"
         cut = isinstance(e, mcap.exceptions.EndOfFile | struct.error)
         why = "cut mid-record" if cut else f"{type(e).__name__}: {e}"
@@ -519,4 +637,6 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
     messages.sort(key=lambda m: m[1])
     metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
     note = raw.note  # says how far it read (the scan's last log time)
-    return LogContents(messages, metadata, bool(note), note)
+    contents = LogContents(messages, metadata, bool(note), note)
+    contents.deferred = raw.deferred
+    return contents

@@ -373,7 +373,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         until = seconds(until_ns)
     mismatches += check_medium(replay, until_ns)
     diffs, checked = diff_messages(
-        replay.contents.messages, rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
+        replay.every_message(), rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
     )
     mismatches += diffs
     mismatches += list(checks)
