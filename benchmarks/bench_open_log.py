@@ -1,0 +1,117 @@
+"""Reading a log in bounded memory: ``rgtbus.open_log`` against reading every message.
+
+    python -m benchmarks.bench_open_log [--big] [--repeat N]
+
+Each case's log is written once (memory bus, zstd MCAP). Every measurement runs in a fresh
+Python process (its peak RSS is ``ru_maxrss``, imports included), the baseline in the same
+run: ``read_log`` decodes every message into Python objects, as ``open_log`` first did before
+issue 35 (it then also expanded every spike and decode into a row object: 6.3 GB for the
+3.5 MB group50 log). Then ``open_log`` alone, ``open_log`` + ``summary()``, + one unit's traces as a
+DataFrame (``messages("/trace/<unit>")``), + ``spikes()``. Goal (issue 35): a log opens in
+under 2x its size; a topic's frame costs about its own size. ``--big``: the traced group20
+log of the issue (~330 MB; about 20 s to write).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+STEPS = {
+    "read_log": "from rgtbus.telemetry import read_log; read_log(path)",
+    "open_log": "log = rgtbus.open_log(path)",
+    "+summary": "log = rgtbus.open_log(path); log.summary()",
+    "+traces": "log = rgtbus.open_log(path); log.messages(trace)",
+    "+spikes": "log = rgtbus.open_log(path); log.spikes()",
+}
+
+_CHILD = """
+import json, resource, sys, time
+import rgtbus
+path, trace = sys.argv[1], sys.argv[2]
+t0 = time.perf_counter()
+{step}
+wall = time.perf_counter() - t0
+print(json.dumps({{"wall": wall, "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}}))
+"""
+
+
+def write_log(scenario: str, traces: bool, path: Path) -> None:
+    import rgtbus
+
+    result = rgtbus.run(ROOT / "scenarios" / scenario, bus="memory", log=path, traces=traces)
+    if result.summary["error"]:
+        raise SystemExit(f"{scenario} failed: {result.summary['error']}")
+
+
+def rgtbus_units(path: Path) -> tuple[str, ...]:
+    import rgtbus
+
+    return rgtbus.open_log(path).units
+
+
+def measure(step: str, path: Path, trace: str) -> tuple[float, float]:
+    """(wall seconds, peak RSS in MiB) of ``step`` in a fresh process."""
+    code = _CHILD.format(step=STEPS[step])
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(path), trace],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=ROOT,
+    )
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    return got["wall"], got["rss"] / 1024
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--big", action="store_true", help="also the traced group20 log (~330 MB)")
+    ap.add_argument("--repeat", type=int, default=3, help="median of N runs of each step")
+    args = ap.parse_args()
+    cases = [("group6 traced", "group6.toml", True), ("group50", "group50.toml", False)]
+    if args.big:
+        cases.append(("group20 traced", "group20.toml", True))
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = []
+        for label, scenario, traces in cases:
+            path = Path(tmp) / f"{label.replace(' ', '-')}.mcap"
+            write_log(scenario, traces, path)
+            size = path.stat().st_size / 2**20
+            trace = "/trace/" + rgtbus_units(path)[0] if traces else "/log"
+            got = {}
+            for step in STEPS:
+                runs = [measure(step, path, trace) for _ in range(args.repeat)]
+                got[step] = (
+                    statistics.median(w for w, _ in runs),
+                    statistics.median(r for _, r in runs),
+                )
+            rows.append((label, size, got))
+            print(f"{label}: done", file=sys.stderr)
+    print("Peak RSS (MiB, imports included) and wall (s), median of", args.repeat, "runs")
+    head = (
+        f"{'case':<16}{'file MiB':>9}" + "".join(f"{s:>18}" for s in STEPS) + f"{'open/read':>10}"
+    )
+    print(head)
+    print("-" * len(head))
+    for label, size, got in rows:
+        cells = "".join(f"{got[s][1]:>9.0f} /{got[s][0]:>6.2f}s" for s in STEPS)
+        ratio = got["open_log"][1] / got["read_log"][1]
+        print(f"{label:<16}{size:>9.1f}{cells}{ratio:>10.2f}")
+    print()
+    print(
+        "read_log: every message decoded (the baseline); "
+        "+traces: one unit's traces as a DataFrame (/log where untraced). Goal: open_log "
+        "under 2x the file size."
+    )
+
+
+if __name__ == "__main__":
+    main()
