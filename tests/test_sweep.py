@@ -530,7 +530,7 @@ def _as_old(out: Path) -> None:
     for line in (out / "rows.jsonl").read_text().splitlines():
         row = json.loads(line)
         row.pop("_decisions", None)
-        row.pop("_sha256", None)  # nor digests
+        row.pop("_hmac", None)  # nor seals
         for k in ("relations", "influences", "units", "goals", "rounds", "decode_errors", "p4"):
             if k in row:
                 row[k] = json.dumps(row[k])

@@ -319,23 +319,76 @@ def _rows_as_they_finish(
 
 ROWS = "rows.jsonl"
 LOCK = "sweep.lock"
-ROW_DIGEST = "_sha256"  # each line of rows.jsonl: SHA-256 of the rest of it and the sweep
+KEY = "sweep.key"  # the sweep's secret: beside its table, never in it (mode 0600)
+ROW_SEAL = "_hmac"  # each line of rows.jsonl: HMAC-SHA256 of the rest of it, keyed
+ROW_DIGEST = "_sha256"  # the unkeyed digest of an older rgtbus (read, then sealed anew)
+SEALS = (ROW_SEAL, ROW_DIGEST)
+
+
+def _canonical(row: Mapping[str, Any]) -> str:
+    """A row's canonical JSON (sorted keys, no spaces), its seal left out."""
+    plain = {k: v for k, v in row.items() if k not in SEALS}
+    return json.dumps(plain, sort_keys=True, separators=(",", ":"))
 
 
 def row_digest(row: Mapping[str, Any], sweep_digest: str) -> str:
-    """The digest a line of rows.jsonl carries: SHA-256 over the sweep's digest and the row's
-    canonical JSON (sorted keys, no spaces), the digest itself left out."""
-    body = json.dumps(
-        {k: v for k, v in row.items() if k != ROW_DIGEST}, sort_keys=True, separators=(",", ":")
-    )
-    return hashlib.sha256(f"{sweep_digest}\n{body}".encode()).hexdigest()
+    """The unkeyed digest an older rgtbus sealed a line of rows.jsonl with: SHA-256 over the
+    sweep's digest and the row's canonical JSON. Anyone can compute it: it finds a row edited
+    by mistake or copied from another sweep, not a row forged on purpose."""
+    return hashlib.sha256(f"{sweep_digest}\n{_canonical(row)}".encode()).hexdigest()
 
 
-def sealed_line(row: Mapping[str, Any], sweep_digest: str) -> str:
-    """A row as one line of rows.jsonl, with its digest."""
+def row_seal(row: Mapping[str, Any], sweep_digest: str, key: bytes) -> str:
+    """The seal a line of rows.jsonl carries: HMAC-SHA256, keyed by the sweep's secret
+    (``sweep_key``), over the sweep's digest and the row's canonical JSON. Without the key no
+    row can be sealed: a row forged, altered or copied from another sweep is refused."""
+    import hmac
+
+    message = f"{sweep_digest}\n{_canonical(row)}".encode()
+    return hmac.new(key, message, hashlib.sha256).hexdigest()
+
+
+def sweep_key(out_dir: Path, *, create: bool) -> bytes | None:
+    """The sweep's secret in ``out_dir/sweep.key`` (32 random bytes, hex, readable by its
+    owner alone); made when ``create`` and there is none; None when there is none."""
+    path = out_dir / KEY
+    try:
+        text = path.read_text(encoding="ascii").strip()
+    except FileNotFoundError:
+        if not create:
+            return None
+        key = os.urandom(32)
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(fd, "w", encoding="ascii") as f:
+                f.write(key.hex() + "\n")
+        except OSError as exc:
+            raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror}") from None
+        return key
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RgtbusError(f"cannot read {str(path)!r}: {one_line(exc)}") from None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        key = b""
+    if len(key) < 16:
+        raise RgtbusError(f"{str(path)!r}: not a sweep's key (hex, at least 16 bytes)")
+    return key
+
+
+def _same(a: str, b: str) -> bool:
+    """Two seals alike, compared in constant time."""
+    import hmac
+
+    return hmac.compare_digest(a.encode(), b.encode())
+
+
+def sealed_line(row: Mapping[str, Any], sweep_digest: str, key: bytes) -> str:
+    """A row as one line of rows.jsonl, with its seal (``row_seal``)."""
     plain = json.loads(json.dumps(row))  # what a reader gets back (keys as text, lists)
-    plain.pop(ROW_DIGEST, None)
-    plain[ROW_DIGEST] = row_digest(plain, sweep_digest)
+    for seal in SEALS:
+        plain.pop(seal, None)
+    plain[ROW_SEAL] = row_seal(plain, sweep_digest, key)
     return json.dumps(plain) + "\n"
 
 
@@ -345,15 +398,18 @@ def _short(raw: bytes, limit: int = 40) -> str:
 
 
 def read_rows(
-    out_dir: Path, sweep_digest: str, sealed: bool = True
+    out_dir: Path, sweep_digest: str, sealed: bool | str = True
 ) -> tuple[list[dict[str, Any]], bool]:
     """The rows a sweep has written to ``out_dir`` (each with its ``_key``), in file order, and
     whether rows.jsonl must be written anew (a last line cut by a kill, dropped with a note on
-    stderr; rows of an older rgtbus, without digests). Every other line must be a row of this
-    sweep whose digest matches, and no run may have two rows (but a run whose worker died,
-    run again): else one line naming rows.jsonl and the line. ``sealed``: the directory's rows
-    carry digests (rows without one are refused)."""
+    stderr; rows of an older rgtbus, unsealed or with unkeyed digests). Every other line must
+    be a row of this sweep whose seal matches under the sweep's key (``row_seal``), and no run
+    may have two rows (but a run whose worker died, run again): else one line naming
+    rows.jsonl and the line. ``sealed``: True, the directory's rows carry seals (rows without
+    one are refused); ``"sha256"``, they carry an older rgtbus's unkeyed digests (checked,
+    then sealed anew); False, an older rgtbus's rows without either."""
     path = out_dir / ROWS
+    secret = sweep_key(out_dir, create=False)
     try:
         data = path.read_bytes()
     except FileNotFoundError:
@@ -390,21 +446,39 @@ def read_rows(
             continue
         if not isinstance(row, dict):
             raise bad(n, f"not a row (a JSON object expected, got {_short(raw)})")
-        digest = row.pop(ROW_DIGEST, None)
-        if digest is None:
-            if sealed:
+        seal, digest = row.pop(ROW_SEAL, None), row.pop(ROW_DIGEST, None)
+        if seal is not None:
+            if secret is None:
+                raise bad(n, f"its seal cannot be checked: {out_dir / KEY} is missing")
+            if not isinstance(seal, str) or not _same(seal, row_seal(row, sweep_digest, secret)):
                 raise bad(
                     n,
-                    "a row without its digest (not written by rgtbus sweep): remove "
-                    "the line to run that run again",
+                    "a row altered, forged, or of another sweep (its seal does not match "
+                    "the sweep's key): remove the line to run that run again",
                 )
-            rewrite = True  # an older rgtbus's row: sealed when written anew
-        elif digest != row_digest(row, sweep_digest):
+        elif digest is not None and sealed == ROW_DIGEST.lstrip("_"):
+            if digest != row_digest(row, sweep_digest):  # an older rgtbus's, unkeyed
+                raise bad(
+                    n,
+                    "a row altered, or of another sweep (its digest does not match): "
+                    "remove the line to run that run again",
+                )
+            rewrite = True  # sealed with the key when written anew
+        elif digest is not None:
             raise bad(
                 n,
-                "a row altered, or of another sweep (its digest does not match): "
-                "remove the line to run that run again",
+                "a row with an unkeyed digest in a sweep whose rows are sealed with its key "
+                "(anyone can compute that digest: forged?): remove the line to run that run "
+                "again",
             )
+        elif sealed:
+            raise bad(
+                n,
+                "a row without its seal (not written by rgtbus sweep): remove the line to "
+                "run that run again",
+            )
+        else:
+            rewrite = True  # an older rgtbus's row: sealed when written anew
         key = row.get("_key")
         if isinstance(key, str):
             before = seen.get(key)
@@ -474,7 +548,7 @@ def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any
             "sweep, or choose another --out"
         )
     rows: list[dict[str, Any]] = []
-    sealed = False
+    sealed: bool | str = False
     if resume and stored.exists():
         try:
             before = json.loads(stored.read_text(encoding="utf-8"))
@@ -495,7 +569,8 @@ def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any
                 f"{str(out_dir)!r}: cannot resume: its tables are of a newer rgtbus (version "
                 f"{before.get('tables')}, this one writes {TABLES_VERSION})"
             )
-        sealed = before.get("rows") == "sha256"
+        seals: dict[str, bool | str] = {"hmac-sha256": True, "sha256": "sha256"}
+        sealed = seals.get(str(before.get("rows")), False)
     if resume:
         rows, rewrite = read_rows(out_dir, sweep.digest, sealed)
         try:  # rows of an older rgtbus (JSON text columns) are re-tabled, or refused here
@@ -509,7 +584,9 @@ def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any
             ) from None
         if rewrite:  # every row sealed, a cut last line gone: written whole, then moved in
             tmp = out_dir / f".{ROWS}.part"
-            _write_text(tmp, "".join(sealed_line(r, sweep.digest) for r in rows))
+            key = sweep_key(out_dir, create=True)
+            assert key is not None
+            _write_text(tmp, "".join(sealed_line(r, sweep.digest, key) for r in rows))
             os.replace(tmp, rows_path)
     _write_text(out_dir / "sweep.toml", sweep.text)
     _write_text(out_dir / "scenario.toml", sweep.scenario_text)
@@ -538,7 +615,7 @@ def versions(sweep: Sweep) -> dict[str, Any]:
         "digest": sweep.digest,
         "runs": sweep.runs,
         "tables": TABLES_VERSION,
-        "rows": "sha256",  # each line of rows.jsonl carries its digest (row_digest)
+        "rows": "hmac-sha256",  # each line of rows.jsonl carries its seal (row_seal)
         "rgtbus": __version__,
         "python": platform.python_version(),
         "libraries": libs,
@@ -554,9 +631,12 @@ class _Held:
         self._lock = _lock(out_dir)
         try:
             done_rows = prepare_out(sweep, out_dir, resume)
+            secret = sweep_key(out_dir, create=True)
         except BaseException:
             self._lock.close()
             raise
+        assert secret is not None
+        self.key = secret  # every row this sweep writes is sealed with it
         self.tasks = sweep.tasks()
         by_key = {t.key: t for t in self.tasks}
         self.have: dict[str, dict[str, Any]] = {}
@@ -613,7 +693,7 @@ def _run(
                 key = keys[row["run"]]
                 have[key] = row
                 failures += bool(row.get("failed"))
-                lines.append(sealed_line({**row, "_key": key}, sweep.digest))
+                lines.append(sealed_line({**row, "_key": key}, sweep.digest, held.key))
             try:
                 sink.write("".join(lines))
                 sink.flush()

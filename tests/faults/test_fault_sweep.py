@@ -374,8 +374,10 @@ def test_a_second_writer_is_refused_naming_the_directory_and_the_holder(tmp_path
         assert "(pid 4242)" in one_line(capsys.readouterr().err)
 
 
-def _tamper(rows: list[str], how: str) -> tuple[list[str], int]:
-    """rows.jsonl's lines made bad in one way, and the line that is then bad."""
+def _tamper(out: Path, how: str) -> tuple[list[str], int]:
+    """The rows.jsonl lines of sweep directory ``out`` made bad in one way, and the line that
+    is then bad."""
+    rows = lines(out)
     if how == "not an object":
         return [*rows[:3], "42", *rows[3:]], 4
     if how == "not JSON":
@@ -392,8 +394,20 @@ def _tamper(rows: list[str], how: str) -> tuple[list[str], int]:
         return [*rows, rows[1]], len(rows) + 1
     if how == "no digest":
         row = json.loads(rows[0])
-        del row["_sha256"]
+        del row["_hmac"]
         return [json.dumps(row), *rows[1:]], 1
+    if how in ("forged, unkeyed", "forged, another key"):  # resealed by one without the key
+        from rgtbus.units.sweep import row_digest, row_seal
+
+        row = json.loads(rows[3])
+        del row["_hmac"]
+        row["decomposable"] = not row["decomposable"]
+        digest = json.loads((out / "sweep.json").read_text())["digest"]
+        if how == "forged, unkeyed":  # the rule the docs give, with the sweep's own digest
+            row["_sha256"] = row_digest(row, digest)
+        else:
+            row["_hmac"] = row_seal(row, digest, b"not the sweep's key, 32 bytes...")
+        return [*rows[:3], json.dumps(row), *rows[4:]], 4
     raise AssertionError(how)
 
 
@@ -402,16 +416,18 @@ def _tamper(rows: list[str], how: str) -> tuple[list[str], int]:
     [
         ("not an object", "not a row (a JSON object expected, got '42')"),
         ("not JSON", "not a row (not JSON"),
-        ("altered", "its digest does not match"),
-        ("tampered duplicate", "its digest does not match"),
+        ("altered", "its seal does not match"),
+        ("tampered duplicate", "its seal does not match"),
         ("duplicate", "a second row of the run of line 2"),
-        ("no digest", "a row without its digest"),
+        ("no digest", "a row without its seal"),
+        ("forged, unkeyed", "a row with an unkeyed digest"),
+        ("forged, another key", "its seal does not match the sweep's key"),
     ],
 )
 def test_a_bad_line_in_rows_jsonl_is_refused_naming_the_file_and_line(tmp_path, capsys, how, says):
     path, out = write_sweep(tmp_path, 6), tmp_path / "out"
     assert main(["sweep", str(path), "--out", str(out), "--workers", "1", "--quiet"]) == 0
-    bad, line = _tamper(lines(out), how)
+    bad, line = _tamper(out, how)
     (out / "rows.jsonl").write_text("\n".join(bad) + "\n")
     capsys.readouterr()
     assert main(["sweep", str(path), "--out", str(out), "--resume", "--quiet"]) == 2
@@ -566,3 +582,36 @@ def test_a_dask_scheduler_lost_mid_sweep_is_one_line_and_keeps_the_rows(tmp_path
     assert f"lost the Dask scheduler '{address}'" in err and "--resume" in err, err
     assert len(lines(out)) >= before
     read_rows(out, load_sweep(path).digest)
+
+
+def test_rows_are_sealed_with_a_key_beside_the_table_and_an_older_sweep_is_sealed_anew(
+    tmp_path, capsys
+):
+    """The seal is keyed by DIR/sweep.key (its owner's alone): without it no row is checked;
+    a directory of an older rgtbus (unkeyed SHA-256 digests) is checked by that rule, then
+    sealed with a key of its own on resume."""
+    from rgtbus.units.sweep import row_digest
+
+    path, out = write_sweep(tmp_path, 6), tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    key = out / "sweep.key"
+    assert key.stat().st_mode & 0o777 == 0o600 and len(bytes.fromhex(key.read_text())) == 32
+    assert "sweep.key" not in (out / "rows.jsonl").read_text()
+    assert all("_hmac" in json.loads(r) for r in lines(out))
+    key.rename(tmp_path / "elsewhere")
+    capsys.readouterr()
+    assert main(["sweep", str(path), "--out", str(out), "--resume", "--quiet"]) == 2
+    assert "sweep.key is missing" in one_line(capsys.readouterr().err)
+    # as an older rgtbus left it: unkeyed digests, no key
+    info = json.loads((out / "sweep.json").read_text())
+    old = []
+    for r in lines(out)[:4]:
+        row = json.loads(r)
+        del row["_hmac"]
+        old.append(json.dumps({**row, "_sha256": row_digest(row, info["digest"])}))
+    (out / "rows.jsonl").write_text("\n".join(old) + "\n")
+    (out / "sweep.json").write_text(json.dumps({**info, "rows": "sha256"}))
+    assert main(["sweep", str(path), "--out", str(out), "--resume", "--quiet"]) == 0
+    assert key.exists() and len(lines(out)) == 6
+    assert all("_hmac" in json.loads(r) and "_sha256" not in r for r in lines(out))
+    assert json.loads((out / "sweep.json").read_text())["rows"] == "hmac-sha256"
