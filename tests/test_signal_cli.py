@@ -92,6 +92,9 @@ def test_resonate_plot(tmp_path, capsys):
         (["--noise", "-0.1"], "--noise"),
         (["--duration", "1"], "after the end"),
         (["--duration", "0"], "--duration"),
+        (["--duration", "1e6"], "beyond the budget of 2e+07"),  # 2e8 resonator-samples
+        (["--duration", "1e30"], "beyond 1e+09 s"),
+        (["--pulses=" + ",".join(["0.5"] * 2_000_000)], "beyond the budget"),
         (["--mode", "fast"], "invalid choice"),
         (["--plot", "/proc/nope/x.png"], "cannot write"),
     ],

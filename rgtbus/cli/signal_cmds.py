@@ -21,7 +21,7 @@ from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
-from rgtbus.scenario.limits import check_trials
+from rgtbus.scenario.limits import MAX_SECONDS, RECORDED, check_trials, over_budget
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank, euler_limit
@@ -212,7 +212,12 @@ def run_resonate(
         duration = start + len(word) * 2 * PI / min(omegas) + 0.5
     if not (math.isfinite(duration) and duration > 0):
         raise RgtbusError(f"--duration {duration!r}: must be positive")
+    if duration > MAX_SECONDS:
+        raise RgtbusError(f"--duration {duration:g}: beyond {MAX_SECONDS:g} s")
     n = sample_of(duration, tau) + 1
+    why = over_budget(RECORDED, float(n) * len(omegas))  # bounded work, before any sample
+    if why is not None:
+        raise RgtbusError(f"--duration {duration:g}: {why}")
     last = pulse_instants(omegas[on], start, len(word), tau)[-1]
     if last >= n:
         raise RgtbusError(

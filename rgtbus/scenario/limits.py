@@ -47,6 +47,9 @@ CROSSTALK = Budget("crosstalk", 5e7, "resonator-samples (n² × samples an ID)")
 # rgtbus ser and figures: Monte-Carlo decodes (about 25,000 a second on a small machine; the
 # defaults ask for 8,000 and 20,000)
 TRIALS = Budget("trials", 2e6, "Monte-Carlo decodes (trials × noise levels × curves)")
+# rgtbus resonate: every resonator's y and x recorded at every sample (16 bytes each; the
+# defaults ask for about 3,000)
+RECORDED = Budget("recorded", 2e7, "resonator-samples recorded (samples × resonators)")
 
 # Hard limits (no budget lifts them): log times are unsigned 64-bit nanoseconds.
 MAX_SECONDS = 1e9  # any timing value, s (31 years)
