@@ -19,6 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from cut_logs import assert_prefix_is_whole
 from mcap.reader import NonSeekingReader, make_reader
 
 from rgtbus.errors import RgtbusError
@@ -26,6 +27,7 @@ from rgtbus.telemetry.recorder import UNFINISHED, McapRecorder
 from rgtbus.telemetry.scan import scan_log, verified_by_crcs
 
 ROOT = Path(__file__).parent.parent
+CROWD10 = ROOT / "scenarios" / "crowd10.toml"
 EXE = [sys.executable, "-m", "rgtbus"]
 
 
@@ -96,7 +98,7 @@ def test_a_log_written_to_a_stream_that_cannot_seek_is_whole():
 def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
     """A paced crowd10 ``rgtbus run`` logging to ``log``, handed over once its log holds more
     than ``grown`` messages to the standard readers (bounded wait); killed if still running."""
-    argv = [*EXE, "run", str(ROOT / "scenarios" / "crowd10.toml"), "--realtime", "25",
+    argv = [*EXE, "run", str(CROWD10), "--realtime", "25",
             "--log", str(log), "--quiet"]  # fmt: skip
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
@@ -123,9 +125,10 @@ def assert_verifies_as_cut(log: Path) -> None:
 def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
     """kill -9 of a paced ``rgtbus run`` once its log has grown: Python's mcap readers read it
     without an error up to its last flush (at most about a second before the kill), and
-    ``replay --verify`` says it is truncated (exit 3) with what it holds agreeing."""
+    ``replay --verify`` says it is truncated (exit 3) with what it holds agreeing, up to a
+    time that is right (``assert_prefix_is_whole``)."""
     log = tmp_path / "killed.mcap"
-    with paced_run(log, 100) as proc:
+    with paced_run(log, 2000) as proc:  # about 90 s into the run: its units hold decodes
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
     if proc.returncode != -signal.SIGKILL:
@@ -133,6 +136,7 @@ def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
     assert len(standard_read(log.read_bytes())) > 100
     assert scan_log(log).truncated
     assert_verifies_as_cut(log)
+    assert_prefix_is_whole(log, CROWD10)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -152,6 +156,7 @@ def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_c
     assert "Traceback" not in err
     assert len(standard_read(log.read_bytes())) > 100  # a whole file to every reader
     assert_verifies_as_cut(log)
+    assert_prefix_is_whole(log, CROWD10)
 
 
 def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path):
@@ -304,3 +309,29 @@ def test_a_full_disk_leaves_a_whole_file_as_far_as_the_last_flush_that_went_thro
     assert len(standard_read(data)) == flushed > 0  # whole to every reader, no error
     cut = scan_log(io.BytesIO(data))
     assert cut.truncated and not cut.corrupt and len(cut.messages) == flushed
+
+
+@pytest.mark.slow  # four runs, each verified: CI's slow pass
+def test_a_run_whose_disk_fills_verifies_up_to_a_right_time(tmp_path):
+    """crowd10 logging to disks of four sizes that fill at different moments of the run: each
+    log is whole to every reader up to its last flush that went through, and the time it is
+    verified to is right (``assert_prefix_is_whole``); at least one fills mid-run (verified
+    past the start, not to the end)."""
+    from rgtbus.units.group import run_group
+
+    from rgtbus.scenario import load_scenario
+
+    sc = load_scenario(CROWD10)
+    reached = []
+    for limit in (120_000, 135_000, 150_000, 170_000):
+        disk = _SmallDisk(limit)
+        rec = McapRecorder(disk, flush_messages=500)  # type: ignore[arg-type]
+        with contextlib.suppress(RgtbusError):  # the disk filled: the run, or its close, says so
+            run_group(sc, "memory", rec)
+        with contextlib.suppress(RgtbusError):
+            rec.close()
+        log = tmp_path / f"full-{limit}.mcap"
+        log.write_bytes(bytes(disk.data))
+        assert standard_read(log.read_bytes())  # whole to every reader
+        reached.append(assert_prefix_is_whole(log, CROWD10))
+    assert any(0 < until < 200 for until in reached), reached

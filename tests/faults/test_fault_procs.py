@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from cut_logs import assert_prefix_is_whole
 from rgtbus.units.group import run_group
 from rgtbus.units.launch import free_ports
 
@@ -141,6 +142,7 @@ def test_a_stopped_unit_is_named_and_the_launch_ends(procs, tmp_path):
         pytest.fail("the stalled unit was left behind")
     assert read_log(tmp_path / "c.mcap")  # stopped with SIGTERM + SIGCONT: finished its log
     assert verify_code(tmp_path / "run.mcap") == 3
+    assert_prefix_is_whole(tmp_path / "run.mcap", Path(GATE))  # cut by --timeout: right
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
@@ -367,6 +369,9 @@ def test_every_healthy_unit_is_kept_whenever_one_is_killed(procs, tmp_path, afte
     # decodes verifies nothing past the start: its records are complete only that far)
     victim_end = max(t for _, t, _ in read_log(logs / f"{victim}.mcap")[0]) / 1e9
     assert 0 <= report["until"] <= victim_end, (report["until"], victim_end)
+    # and right: every unit's pulses, spikes and decodes before it are there, within a few
+    # seconds of the last spikes logged (not back at the start)
+    assert assert_prefix_is_whole(logs / "run.mcap", path) == report["until"]
 
 
 @pytest.mark.slow  # five unit processes and a router, twice
