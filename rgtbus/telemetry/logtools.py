@@ -28,7 +28,7 @@ from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
-from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic
+from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic, logged_seed
 from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
 from rgtbus.timebase import ns, seconds
 
@@ -138,7 +138,6 @@ def _info(
     sc = metadata.get("scenario", {})
     meta_run = metadata.get("run", {})
     units = _units_of(sc.get("text"), metadata.get("frequencies"))
-    seed = meta_run.get("seed")
     ends = unit_process_ends(metadata, units)
     return {
         "log": label,
@@ -153,7 +152,7 @@ def _info(
         "chunks": chunks,
         "scenario": sc.get("name"),
         "scenario_path": sc.get("path"),
-        "seed": None if seed is None else int(seed),
+        "seed": logged_seed(metadata, label),
         "version": meta_run.get("version"),
         "bus": meta_run.get("bus"),
         "engine": meta_run.get("engine"),
@@ -424,11 +423,11 @@ def stored_scenario(log: str | os.PathLike[str] | CheckedLog) -> str:
     text = metadata.get("scenario", {}).get("text")
     if text is None:
         raise RgtbusError(f"{label}: stores no scenario (not an rgtbus run log, or a unit's part)")
-    seed = metadata.get("run", {}).get("seed")
+    seed = logged_seed(metadata, label)
     if seed is None:
         return text
     try:
-        return with_seed_text(text, int(seed))
+        return with_seed_text(text, seed)
     except (ValueError, RecursionError):  # TOMLDecodeError is a ValueError
         raise RgtbusError(
             f"{label}: its stored scenario (run seed {seed!r}) is not a scenario's TOML"

@@ -54,6 +54,7 @@ from rgtbus.telemetry.records import (
     RunRecord,
     decode_rows,
     is_trace_topic,
+    logged_seed,
     spike_samples,
     spike_units,
     trace_topic,
@@ -401,13 +402,42 @@ _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
 _ON_TIME = frozenset({TX_PULSE})
 
 
+def checked_message(topic: str, t_ns: int, message: Any, label: str, check: bool = True) -> Any:
+    """A message as a reader may use it: decoded from its JSON (where still bytes) and, with
+    ``check``, checked against its topic's schema (a topic not rgtbus's is taken as it is).
+    Not JSON, or breaking the schema: RgtbusError naming the log, the topic, the log time and
+    what is wrong."""
+    from rgtbus.telemetry import validate
+
+    where = f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s"
+    if isinstance(message, bytes | bytearray | memoryview):
+        try:
+            message = orjson.loads(message)
+        except ValueError as e:
+            raise RgtbusError(f"{where} is not JSON: {e}") from None
+    if not check:
+        return message
+    try:
+        schema = topics.schema_for(topic)
+    except RgtbusError:
+        return message  # someone else's topic: not ours to read
+    errs = validate.errors(message, topics.load_schema(schema))
+    if errs:
+        raise RgtbusError(f"{where} breaks {schema}: {errs[0]}")
+    return message
+
+
 class Topics(Mapping[str, list[tuple[int, Any]]]):
     """A log's messages by topic, ``(log_time, message)`` in log-time order: a topic held as
-    its undecoded JSON is decoded the first time it is asked for (a large run's decodes and
-    spikes are tens of megabytes of JSON, and many times that as Python objects); a topic
-    that holds none is an empty list."""
+    its undecoded JSON is decoded, and each message checked against its schema, the first
+    time it is asked for (``checked_message``: a large run's decodes and spikes are tens of
+    megabytes of JSON, and many times that as Python objects); a topic that holds none is an
+    empty list."""
 
-    def __init__(self, messages: Iterable[LogMessage], label: str) -> None:
+    def __init__(
+        self, messages: Iterable[LogMessage], label: str, current: frozenset[str] = frozenset()
+    ) -> None:
+        self.current = current  # topics checked against their schema (LogContents.current)
         self._held: dict[str, list[tuple[int, Any]]] = {}
         self._raw: set[str] = set()  # topics still held (at least partly) as JSON bytes
         self.label = label
@@ -421,19 +451,10 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
         if held is None:
             return []
         if topic in self._raw:
+            check = topic in self.current
+            held[:] = [(t, checked_message(topic, t, m, self.label, check)) for t, m in held]
             self._raw.discard(topic)
-            held[:] = [(t, self._decoded(topic, t, m)) for t, m in held]
         return held
-
-    def _decoded(self, topic: str, t: int, m: Any) -> Any:
-        if not isinstance(m, bytes):
-            return m
-        try:
-            return orjson.loads(m)
-        except ValueError as e:
-            raise RgtbusError(
-                f"{self.label}: message on {topic} at t = {seconds(t):.3f} s is not JSON: {e}"
-            ) from None
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._held)
@@ -465,7 +486,7 @@ class Replay:
         self.note: str = contents.note
         self.deferred: Deferred | None = contents.deferred
         self.end_ns: int | None = contents.end_ns
-        self.by_topic = Topics(contents.messages, label)
+        self.by_topic = Topics(contents.messages, label, contents.current)
         self.scenario: Scenario | None = None
         self.scenario_error: str | None = None
         self._load_scenario()
@@ -524,9 +545,9 @@ class Replay:
         return spike_table(records, self.frequencies, tau, self.units)
 
     def topic_messages(self, topic: str) -> list[tuple[int, Any]]:
-        """``topic``'s messages as ``(log_time, message)`` in log-time order: decoded, or
-        undecoded JSON bytes for a topic left in the file until asked for (traces), read
-        from the file now."""
+        """``topic``'s messages as ``(log_time, message)`` in log-time order, decoded and
+        checked against their schema (``checked_message``); a topic left in the file until
+        asked for (traces) is read from the file now and not kept."""
         if topic == RX_DECODE:
             return self.decode_records
         held = self.by_topic.get(topic)
@@ -534,7 +555,9 @@ class Replay:
             return held
         deferred = self.deferred
         if deferred is not None and topic in deferred.held():
-            return cast(list[tuple[int, Any]], deferred.read(topic))
+            label, check = self.label, topic in self.by_topic.current
+            msgs = deferred.read(topic)
+            return [(t, checked_message(topic, t, m, label, check)) for t, m in msgs]
         return []
 
     def topic_counts(self) -> dict[str, int]:
@@ -572,9 +595,9 @@ class Replay:
             return
         try:
             sc = parse_scenario(meta["text"], meta.get("path", "<scenario>"))
-            seed = self.metadata.get("run", {}).get("seed")
+            seed = logged_seed(self.metadata, self.label)
             if seed is not None:
-                sc = sc.with_seed(int(seed))
+                sc = sc.with_seed(seed)
         except (RgtbusError, ValueError) as e:
             self.scenario_error = f"the log's scenario does not load: {e}"
             return
@@ -589,10 +612,15 @@ class Replay:
     def _units(self) -> tuple[str, ...]:
         if self.scenario is not None:
             return self.scenario.units
+        # no scenario to name them (a log damaged or written by hand): the units its records
+        # name, in the order first named
         seen: dict[str, None] = {}
-        for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, UNIT_RELATIONS):
-            for _, m in self._each_decode() if topic == RX_DECODE else self.by_topic[topic]:
-                seen.setdefault(m["unit"], None)
+        for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, RX_DECODES, UNIT_RELATIONS):
+            for _, m in self.by_topic[topic]:
+                names = spike_units(m) if topic == RX_SPIKE else [m.get("unit")]
+                for name in names:
+                    if isinstance(name, str):
+                        seen.setdefault(name, None)
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
@@ -822,7 +850,7 @@ class Replay:
         return {
             "scenario": sc.get("name"),
             "path": sc.get("path"),
-            "seed": None if run.get("seed") is None else int(run["seed"]),
+            "seed": logged_seed(self.metadata, self.label),
             "version": run.get("version"),
             "bus": run.get("bus"),
             "run_id": run.get("run_id"),

@@ -710,6 +710,7 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     ``truncated``: the file ended before its footer; ``note``: one line saying where and why;
     ``end_ns``: log time of the last message read (None when there was none).
     ``deferred``: the topics whose messages were left in the file (``scan.Deferred``), or None.
+    ``current``: the topics whose channel's schema is this rgtbus's own.
     """
 
     messages: list[LogMessage]
@@ -717,6 +718,9 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     truncated: bool
     note: str
     deferred: Deferred | None = None
+    # topics whose channel's schema is this rgtbus's own (``scan.current_topics``): their
+    # messages are checked against it before use; an older log's are read as they are
+    current: frozenset[str] = frozenset()
 
     def __new__(
         cls,

@@ -611,3 +611,15 @@ def medium_window(window: int, t: float, sample_rate: float, samples: list[float
 def trace(unit: str, sample: int, t: float, y: list[float], x: list[float]) -> TraceRecord:
     """A ``/trace/<unit>`` record: ``unit``'s resonator states ``y`` and ``x`` at ``sample``."""
     return {"unit": unit, "sample": sample, "t": t, "y": y, "x": x}
+
+
+def logged_seed(metadata: Mapping[str, Mapping[str, str]], label: str = "log") -> int | None:
+    """The seed a log's ``run`` metadata record names (None when it names none); a value
+    that is no integer (a log written by hand or tampered with): RgtbusError in one line."""
+    seed = metadata.get("run", {}).get("seed")
+    if seed is None:
+        return None
+    try:
+        return int(str(seed).strip(), 10)
+    except ValueError:
+        raise RgtbusError(f"{label}: metadata run: seed {seed!r} is not an integer") from None

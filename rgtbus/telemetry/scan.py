@@ -615,6 +615,28 @@ def _read(stream: IO[bytes], label: str) -> LogContents:
     return decode_log(_scan(stream, label))
 
 
+def current_topics(raw: RawLog) -> frozenset[str]:
+    """The topics whose channel's schema is this rgtbus's own, byte for byte (a log written
+    by this version): the ones a reader checks every message of against its schema before
+    use. An older log's schemas differ where its records did, and readers take its older
+    forms as they are."""
+    from rgtbus.telemetry import topics
+
+    out = set()
+    for channel in raw.channels.values():
+        schema = raw.schemas.get(channel.schema_id)
+        if schema is None:
+            continue
+        try:
+            name = topics.schema_for(channel.topic)
+            ours = topics.schema_bytes(name)
+        except RgtbusError:
+            continue
+        if schema.name == name and bytes(schema.data) == ours:
+            out.add(channel.topic)
+    return frozenset(out)
+
+
 def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> LogContents:
     """A scanned log as ``read_log`` returns it. Messages on topics for which ``keep_raw``
     is true stay undecoded JSON ``bytes`` (for readers that may never need them)."""
@@ -639,4 +661,5 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
     note = raw.note  # says how far it read (the scan's last log time)
     contents = LogContents(messages, metadata, bool(note), note)
     contents.deferred = raw.deferred
+    contents.current = current_topics(raw)
     return contents

@@ -322,9 +322,15 @@ class VerifyReport:
         n = sum(self.checked.values())
         if self.mismatches:
             return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
+        if self.truncated and not self.until:
+            return (
+                f"INCOMPLETE: the log was cut before any unit's spikes or decodes reached it, "
+                f"so nothing the units did is verified ({n} messages written ahead of them, "
+                "the medium and the pulses, agree)"
+            )
         if self.truncated:
             return (
-                f"INCOMPLETE: the {n} messages before t = {self.until or 0.0:.3f} s agree, but "
+                f"INCOMPLETE: the {n} messages before t = {self.until:.3f} s agree, but "
                 "the log is truncated, so the run is verified only that far"
             )
         return f"verified: {n} messages agree with the re-run"

@@ -13,6 +13,7 @@ claims more than any chunk may hold is refused before it is decompressed.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import json
 import random
@@ -63,31 +64,102 @@ def mutations(message: Any) -> Iterator[tuple[str, Any]]:
             yield f"{key} unknown", {**message, key: "zz_nobody"}
 
 
-def rewritten(src: bytes, topic: str, payload: Any) -> bytes:
-    """``src`` with the first message on ``topic`` replaced by ``payload``, written anew (its
-    CRCs valid)."""
+# A message as a log holds it: (topic, log time, publish time, data).
+Held = tuple[str, int, int, bytes]
+Edit = tuple[list[Held], list[tuple[str, dict[str, str]]]]
+
+
+def rebuilt(src: bytes, edit: Any) -> bytes:
+    """``src`` with its messages and metadata records changed by ``edit(messages, metadata)``
+    (each a list, changed in place or returned anew), written anew with mcap's own writer (its
+    CRCs valid). A message on a topic ``src`` has no channel for gets one (schema-less)."""
     reader = make_reader(io.BytesIO(src))
     summary = reader.get_summary()
     assert summary is not None
+    held: list[Held] = [(c.topic, m.log_time, m.publish_time, m.data)
+                        for _, c, m in reader.iter_messages(log_time_order=False)]  # fmt: skip
+    metadata = [(r.name, dict(r.metadata)) for r in reader.iter_metadata()]
+    held, metadata = edit(held, metadata) or (held, metadata)
     out = io.BytesIO()
     writer = Writer(out, compression=CompressionType.ZSTD)
     writer.start(profile="", library="hostile")
     schemas = {sid: writer.register_schema(s.name, s.encoding, s.data)
                for sid, s in summary.schemas.items()}  # fmt: skip
-    channels = {cid: writer.register_channel(c.topic, c.message_encoding,
-                                             schemas.get(c.schema_id, 0), c.metadata)
-                for cid, c in summary.channels.items()}  # fmt: skip
-    done = False
-    for _, channel, message in reader.iter_messages(log_time_order=False):
-        data = message.data
-        if channel.topic == topic and not done:
-            data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
-            done = True
-        writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
-    for record in reader.iter_metadata():
-        writer.add_metadata(record.name, record.metadata)
+    channels = {c.topic: writer.register_channel(c.topic, c.message_encoding,
+                                                 schemas.get(c.schema_id, 0), c.metadata)
+                for c in summary.channels.values()}  # fmt: skip
+    for topic, log_time, publish_time, data in held:
+        if topic not in channels:
+            channels[topic] = writer.register_channel(topic, "json", 0, {})
+        writer.add_message(channels[topic], log_time, data, publish_time)
+    for name, values in metadata:
+        writer.add_metadata(name, values)
     writer.finish()
     return out.getvalue()
+
+
+def rewritten(src: bytes, topic: str, payload: Any, index: int = 0) -> bytes:
+    """``src`` with the ``index``-th message on ``topic`` replaced by ``payload``."""
+
+    def edit(held: list[Held], metadata: Any) -> None:
+        at = [i for i, m in enumerate(held) if m[0] == topic][index]
+        data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
+        held[at] = (*held[at][:3], data)
+
+    return rebuilt(src, edit)
+
+
+def order_and_count_edits(src: bytes) -> Iterator[tuple[str, Any]]:
+    """(what, edit) for records out of order, twice, or on a topic of someone else's; and
+    metadata records damaged: each an ``edit`` for ``rebuilt``."""
+    topics = sorted({c.topic for _, c, _ in make_reader(io.BytesIO(src)).iter_messages()})
+
+    def first(held: list[Held], topic: str) -> int:
+        return next(i for i, m in enumerate(held) if m[0] == topic)
+
+    for topic in topics:
+        def late(held: list[Held], md: Any, topic: str = topic) -> None:  # after everything
+            i = first(held, topic)
+            end = max(m[1] for m in held)
+            held[i] = (topic, end + 10**9, end + 10**9, held[i][3])
+
+        def early(held: list[Held], md: Any, topic: str = topic) -> None:  # the last, at 0
+            i = max(i for i, m in enumerate(held) if m[0] == topic)
+            held[i] = (topic, 0, 0, held[i][3])
+
+        def twice(held: list[Held], md: Any, topic: str = topic) -> None:
+            held.insert(first(held, topic), held[first(held, topic)])
+
+        def swapped(held: list[Held], md: Any, topic: str = topic) -> None:  # contents swapped
+            at = [i for i, m in enumerate(held) if m[0] == topic][:2]
+            if len(at) == 2:
+                a, b = at
+                held[a], held[b] = (*held[a][:3], held[b][3]), (*held[b][:3], held[a][3])
+
+        def dropped(held: list[Held], md: Any, topic: str = topic) -> None:
+            del held[first(held, topic)]
+
+        for what, edit in (("after the end", late), ("at time 0", early), ("twice", twice),
+                           ("swapped", swapped), ("dropped", dropped)):  # fmt: skip
+            yield f"{topic} {what}", edit
+
+    def foreign(held: list[Held], md: Any) -> None:
+        held.append(("/zz/other", 10**9, 10**9, b'{"unit": 1}'))
+        held.append(("/zz/other", 2 * 10**9, 2 * 10**9, b"\x00\xff not json"))
+
+    yield "a topic of someone else's", foreign
+    names = [r.name for r in make_reader(io.BytesIO(src)).iter_metadata()]
+    for name in dict.fromkeys(names):
+        def gone(held: Any, md: list[tuple[str, dict[str, str]]], name: str = name) -> None:
+            md[:] = [r for r in md if r[0] != name]
+
+        yield f"metadata {name} gone", gone
+        for bad in ("", "x", "1e400", "-1", "[1, 2]", "{}", "\u0000"):
+            def damaged(held: Any, md: list[tuple[str, dict[str, str]]], name: str = name,
+                        bad: str = bad) -> None:  # fmt: skip
+                md[:] = [(n, {k: bad for k in v} if n == name else v) for n, v in md]
+
+            yield f"metadata {name} every value {bad!r}", damaged
 
 
 READERS = (["info"], ["cat"], ["scenario"], ["replay"], ["replay", "--json"],
@@ -130,43 +202,105 @@ def first_messages(src: bytes) -> dict[str, Any]:
     return out
 
 
-@pytest.mark.slow  # every topic's every mutation through eight readers: a few minutes
-def test_no_hostile_message_makes_a_reader_raise(gate_log, tmp_path):
-    wrong: dict[str, list[str]] = {}
-    for topic, message in first_messages(gate_log).items():
+def hostile_logs(src: bytes) -> Iterator[tuple[str, Any]]:
+    """(what, a function making the hostile log from ``src``): each topic's first message, and
+    one drawn later in the log, changed every way ``mutations`` knows; records out of order,
+    twice, dropped, or on a topic of someone else's; metadata records damaged or gone."""
+    rng = random.Random(35)
+    counts: dict[str, int] = {}
+    for _, channel, _ in make_reader(io.BytesIO(src)).iter_messages():
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    later = {t: rng.randrange(n) for t, n in counts.items()}
+    for topic, message in first_messages(src).items():
         for what, payload in mutations(message):
-            path = tmp_path / "hostile.mcap"
-            path.write_bytes(rewritten(gate_log, topic, payload))
-            for line in read_every_way(path, tmp_path):
-                wrong.setdefault(line, []).append(f"{topic}: {what}")
-    assert not wrong, {k: v[:3] for k, v in wrong.items()}
+            yield f"{topic}: {what}", functools.partial(rewritten, src, topic, payload)
+        nth = nth_message(src, topic, later[topic])
+        for what, payload in mutations(nth):
+            yield (f"{topic} #{later[topic]}: {what}",
+                   functools.partial(rewritten, src, topic, payload, later[topic]))  # fmt: skip
+    for what, edit in order_and_count_edits(src):
+        yield what, functools.partial(rebuilt, src, edit)
 
 
-def test_a_sample_of_hostile_messages_makes_no_reader_raise(gate_log, tmp_path):
-    """The fast suite's share of the generator: 24 mutations drawn with a fixed seed."""
-    cases = [(topic, what, payload) for topic, message in first_messages(gate_log).items()
-             for what, payload in mutations(message)]  # fmt: skip
+def nth_message(src: bytes, topic: str, n: int) -> Any:
+    got = [json.loads(m.data) for _, c, m in make_reader(io.BytesIO(src)).iter_messages(
+        log_time_order=False) if c.topic == topic]  # fmt: skip
+    return got[n]
+
+
+@pytest.mark.slow  # every topic's every mutation through eight readers: several minutes
+def test_no_hostile_log_makes_a_reader_raise(gate_log, tmp_path):
     wrong: dict[str, list[str]] = {}
-    for topic, what, payload in random.Random(35).sample(cases, 24):
+    for what, make in hostile_logs(gate_log):
         path = tmp_path / "hostile.mcap"
-        path.write_bytes(rewritten(gate_log, topic, payload))
+        path.write_bytes(make())
         for line in read_every_way(path, tmp_path):
-            wrong.setdefault(line, []).append(f"{topic}: {what}")
+            wrong.setdefault(line, []).append(what)
     assert not wrong, {k: v[:3] for k, v in wrong.items()}
 
 
-def test_a_chunk_claiming_gigabytes_is_refused_before_it_is_decompressed(gate_log, tmp_path):
-    """A chunk's uncompressed size patched to 1 GiB (a bomb): every reader refuses it in one
-    line naming the chunk, without allocating it."""
-    data = bytearray(gate_log)
+def test_a_sample_of_hostile_logs_makes_no_reader_raise(gate_log, tmp_path):
+    """The fast suite's share of the generator: 20 hostile logs drawn with a fixed seed."""
+    wrong: dict[str, list[str]] = {}
+    for what, make in random.Random(35).sample(list(hostile_logs(gate_log)), 20):
+        path = tmp_path / "hostile.mcap"
+        path.write_bytes(make())
+        for line in read_every_way(path, tmp_path):
+            wrong.setdefault(line, []).append(what)
+    assert not wrong, {k: v[:3] for k, v in wrong.items()}
+
+
+def bomb(src: bytes) -> bytes:
+    """``src`` with its first chunk claiming 1 GiB once decompressed (its CRCs as they were)."""
+    data = bytearray(src)
     at = 8  # after the magic: walk the records (opcode, u64 length, body) to the first chunk
     while data[at] != 0x06:
         at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
     # Chunk: opcode, length, message_start_time, message_end_time, uncompressed_size
     struct.pack_into("<Q", data, at + 9 + 16, 1 << 30)
+    return bytes(data)
+
+
+def test_a_chunk_claiming_gigabytes_is_refused_before_it_is_decompressed(gate_log, tmp_path):
+    """A chunk's uncompressed size patched to 1 GiB (a bomb): every reader refuses it in one
+    line naming the chunk, without allocating it."""
     assert MAX_CHUNK_BYTES < 1 << 30
     path = tmp_path / "bomb.mcap"
-    path.write_bytes(bytes(data))
+    path.write_bytes(bomb(gate_log))
     raw = scan_log(path)
     assert raw.corrupt and "claims 1073741824 bytes once decompressed" in raw.corruption
     assert read_every_way(path, tmp_path) == []
+
+
+_MEASURE = """
+import random, resource, sys
+from pathlib import Path
+sys.path[:0] = [{here!r}, {tests!r}]
+import test_fault_hostile as H
+src, out = Path(sys.argv[1]).read_bytes(), Path(sys.argv[2])
+wrong = []
+makers = [make for _, make in random.Random(7).sample(list(H.hostile_logs(src)), 40)]
+for make in [*makers, lambda: H.bomb(src)]:
+    (out / "hostile.mcap").write_bytes(make())
+    wrong += H.read_every_way(out / "hostile.mcap", out)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, len(wrong))
+"""
+
+
+@pytest.mark.slow  # a fresh process through 40 hostile logs
+def test_no_reader_takes_more_than_300_mb_on_hostile_logs(gate_log, tmp_path):
+    """Every reader on 40 hostile logs in one fresh process, and a chunk bomb: its peak RSS
+    (imports included) stays under 300 MB."""
+    import subprocess
+    import sys
+
+    src = tmp_path / "gate.mcap"
+    src.write_bytes(gate_log)
+    here = Path(__file__).parent
+    code = _MEASURE.format(here=str(here), tests=str(here.parent))
+    done = subprocess.run([sys.executable, "-c", code, str(src), str(tmp_path)],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    peak_mb, wrong = map(int, done.stdout.split())
+    assert wrong == 0 and peak_mb < 300, (peak_mb, wrong)
+    print(f"peak RSS {peak_mb} MB")  # for the record (pytest -s)
