@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from rgtbus.cli import main
+from rgtbus.telemetry import records
 from rgtbus.telemetry.logtools import with_seed_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,7 +93,7 @@ def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     assert len(times) >= 3
     lo, hi = times[0] + 1_000_000, times[-1] - 1_000_000  # ns
     args = ["cat", str(gate_log), "--topic", "/rx/decodes", "--unit", "b", "--from", str(lo / 1e9)]
-    assert main([*args, "--to", str(hi / 1e9)]) == 0
+    assert main([*args, "--to", str(hi / 1e9), "--blocks"]) == 0  # the records as stored
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     want = [
         (t, m)
@@ -102,6 +103,18 @@ def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     assert [(x["log_time"], x["message"]) for x in lines] == want
     assert 0 < len(want) == len(times) - 2
     assert all(x["topic"] == "/rx/decodes" and x["t"] == x["log_time"] / 1e9 for x in lines)
+    # by default one decode a line, at its own time, which --from/--to filter on
+    assert main([*args, "--to", str(hi / 1e9)]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    every = [dict(r) for topic, _, m in _messages(gate_log) if topic == "/rx/decodes"
+             for r in records.decode_rows(m)]  # fmt: skip
+    mine = [r for r in every if r["unit"] == "b" and lo <= round(r["t"] * 1e9) <= hi]
+    assert [x["message"] for x in lines] == sorted(mine, key=lambda r: r["t"]) != []
+    assert all(x["log_time"] == round(x["message"]["t"] * 1e9) for x in lines)
+    assert main(["cat", str(gate_log), "--topic", "/rx/decodes", "--from", "10", "--to", "40"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert lines and all(10 <= x["t"] <= 40 for x in lines)  # the README's example: decodes
+    assert len(lines) == sum(1 for r in every if 10 <= r["t"] <= 40)
     # several topics, every unit: log-time order
     assert main(["cat", str(gate_log), "--topic", "/unit/decision", "--topic", "/run"]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]

@@ -55,6 +55,12 @@ def register(subparsers: SubParsers) -> None:
     c.add_argument("--unit", metavar="NAME", help="only messages about this unit")
     c.add_argument("--from", dest="t_from", type=float, metavar="S", help="from S simulated s")
     c.add_argument("--to", dest="t_to", type=float, metavar="S", help="up to S simulated s")
+    c.add_argument(
+        "--blocks",
+        action="store_true",
+        help="/rx/decodes as stored (a unit's decodes of a block as columns, at the block's "
+        "last decode's time); by default one decode a line, at its own time",
+    )
     c.set_defaults(func=cat)
 
     s = subparsers.add_parser(
@@ -96,7 +102,12 @@ def cat(args: argparse.Namespace) -> int:
     out = sys.stdout
     with check_log(args.log) as log:
         for msg in cat_messages(
-            log, topics=args.topic, unit=args.unit, t_from=args.t_from, t_to=args.t_to
+            log,
+            topics=args.topic,
+            unit=args.unit,
+            t_from=args.t_from,
+            t_to=args.t_to,
+            blocks=args.blocks,
         ):
             out.write(json.dumps(msg) + "\n")
     return _ended(log.note)

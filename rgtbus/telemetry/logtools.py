@@ -15,6 +15,7 @@ with, its seed set to the run's, so ``rgtbus run`` repeats the run.
 
 from __future__ import annotations
 
+import heapq
 import json
 import math
 import os
@@ -28,8 +29,16 @@ from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics as topics_mod
-from rgtbus.telemetry.records import LOG, RUN, TRACE_PREFIX, is_trace_topic, logged_seed
-from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log
+from rgtbus.telemetry.records import (
+    LOG,
+    RUN,
+    RX_DECODES,
+    TRACE_PREFIX,
+    decode_rows,
+    is_trace_topic,
+    logged_seed,
+)
+from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log, current_topics
 from rgtbus.timebase import ns, seconds
 
 
@@ -309,15 +318,21 @@ def cat_messages(
     unit: str | None = None,
     t_from: float | None = None,
     t_to: float | None = None,
+    blocks: bool = False,
 ) -> Iterator[dict[str, Any]]:
     """Messages in log-time order as ``{"topic", "t", "log_time", "message"}`` (t in
     simulated seconds), on ``topics`` (all when empty), about ``unit``, with from <= t <= to,
     from a path or a log ``check_log`` opened (checked whole before the first message: a
     damaged log is refused, never printed in part). Unknown topics or units: RgtbusError
-    naming them and what the log has."""
+    naming them and what the log has.
+
+    A ``/rx/decodes`` record (a unit's decodes of a block, as columns) is given one decode a
+    message (``records.decode_rows``: what a ``/rx/decode`` holds), each at its own time and
+    filtered by it; ``blocks``: the records as stored instead."""
     if not isinstance(log, CheckedLog):
         with check_log(log) as checked:
-            yield from cat_messages(checked, topics=topics, unit=unit, t_from=t_from, t_to=t_to)
+            yield from cat_messages(checked, topics=topics, unit=unit, t_from=t_from,
+                                    t_to=t_to, blocks=blocks)  # fmt: skip
         return
     info = log_info(log)
     known = list(info["topics"])
@@ -330,17 +345,56 @@ def cat_messages(
         check_time_range(t_from, t_to, info["start"], info["end"])
     start = None if t_from is None else ns(t_from)
     end = None if t_to is None else ns(t_to)  # inclusive, like start
-    wanted = set(topics) if topics else None
-    if log.raw is not None:
-        yield from _cat_scanned(log.raw, wanted, unit, start, end)
+    wanted = set(topics or known)
+    rows = not blocks and RX_DECODES in wanted
+    plain = wanted - {RX_DECODES} if rows else wanted
+    stored = _cat_scanned if log.raw is not None else _cat_indexed
+    messages = stored(log, plain, unit, start, end)
+    if rows:  # a block's decodes reach back before its log time: every block is read
+        blocks_of = stored(log, {RX_DECODES}, unit, None, None)
+        check = RX_DECODES in current_topics(log)  # an older log's records are as written
+        decodes = _decode_rows(blocks_of, start, end, log.label, check)
+        messages = heapq.merge(messages, decodes, key=lambda m: m["log_time"])
+    yield from messages
+
+
+def _decode_rows(
+    blocks: Iterator[dict[str, Any]], start: int | None, end: int | None, label: str, check: bool
+) -> Iterator[dict[str, Any]]:
+    """The decodes of ``/rx/decodes`` records (as ``_record`` gives them) one a message, at
+    their own times, from ``start`` to ``end`` ns, in time order (stable: as logged); with
+    ``check``, each record checked against this version's schema first."""
+    out: list[tuple[int, dict[str, Any]]] = []
+    for block in blocks:
+        # its columns are read: a record that breaks its schema is named, not taken apart
+        message = topics_mod.checked_message(RX_DECODES, block["log_time"], block["message"],
+                                             label, check)  # fmt: skip
+        try:
+            rows = [(ns(row["t"]), row) for row in decode_rows(message)]
+        except (TypeError, ValueError, KeyError, OverflowError, AttributeError) as exc:
+            # an older log's record (not checked against this version's schema) that is no
+            # record of columns
+            raise RgtbusError(
+                f"{label}: message on {RX_DECODES} at t = {seconds(block['log_time']):.3f} s "
+                f"is no record of decodes ({type(exc).__name__}: {exc})"
+            ) from None
+        for t, row in rows:
+            if (start is None or t >= start) and (end is None or t <= end):
+                line = {"topic": RX_DECODES, "t": seconds(t), "log_time": t, "message": row}
+                out.append((t, line))
+    out.sort(key=lambda m: m[0])
+    return (line for _, line in out)
+
+
+def _cat_indexed(
+    log: CheckedLog, wanted: set[str], unit: str | None, start: int | None, end: int | None
+) -> Iterator[dict[str, Any]]:
+    if not wanted:
         return
     log.stream.seek(0)
     reader = make_reader(log.stream)  # its CRCs vouched for every byte: the index narrows
     for _, channel, m in reader.iter_messages(
-        topics=list(wanted) if wanted else None,
-        starting_at=start,
-        ending_at=end,
-        log_time_order=True,
+        topics=list(wanted), starting_at=start, ending_at=end, log_time_order=True
     ):
         msg = _record(channel.topic, m.log_time, m.data, unit)
         if msg is not None:
@@ -348,19 +402,17 @@ def cat_messages(
 
 
 def _cat_scanned(
-    raw: RawLog,
-    wanted: set[str] | None,
-    unit: str | None,
-    start: int | None,
-    end: int | None,
+    log: CheckedLog, wanted: set[str], unit: str | None, start: int | None, end: int | None
 ) -> Iterator[dict[str, Any]]:
+    raw = log.raw
+    assert raw is not None
     topics = {cid: ch.topic for cid, ch in raw.channels.items()}
     rows = sorted(
         ((t, i, cid, data) for i, (cid, t, _, _, data) in enumerate(raw.messages)),
         key=lambda r: (r[0], r[1]),
     )
     for t, _, cid, data in rows:
-        if (wanted and topics[cid] not in wanted) or (start is not None and t < start):
+        if topics[cid] not in wanted or (start is not None and t < start):
             continue
         if end is not None and t > end:
             continue

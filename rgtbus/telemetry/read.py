@@ -402,31 +402,6 @@ _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
 _ON_TIME = frozenset({TX_PULSE})
 
 
-def checked_message(topic: str, t_ns: int, message: Any, label: str, check: bool = True) -> Any:
-    """A message as a reader may use it: decoded from its JSON (where still bytes) and, with
-    ``check``, checked against its topic's schema (a topic not rgtbus's is taken as it is).
-    Not JSON, or breaking the schema: RgtbusError naming the log, the topic, the log time and
-    what is wrong."""
-    from rgtbus.telemetry import validate
-
-    where = f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s"
-    if isinstance(message, bytes | bytearray | memoryview):
-        try:
-            message = orjson.loads(message)
-        except ValueError as e:
-            raise RgtbusError(f"{where} is not JSON: {e}") from None
-    if not check:
-        return message
-    try:
-        schema = topics.schema_for(topic)
-    except RgtbusError:
-        return message  # someone else's topic: not ours to read
-    errs = validate.errors(message, topics.load_schema(schema))
-    if errs:
-        raise RgtbusError(f"{where} breaks {schema}: {errs[0]}")
-    return message
-
-
 class Topics(Mapping[str, list[tuple[int, Any]]]):
     """A log's messages by topic, ``(log_time, message)`` in log-time order: a topic held as
     its undecoded JSON is decoded, and each message checked against its schema, the first
@@ -452,7 +427,7 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
             return []
         if topic in self._raw:
             check = topic in self.current
-            held[:] = [(t, checked_message(topic, t, m, self.label, check)) for t, m in held]
+            held[:] = [(t, topics.checked_message(topic, t, m, self.label, check)) for t, m in held]
             self._raw.discard(topic)
         return held
 
@@ -557,7 +532,7 @@ class Replay:
         if deferred is not None and topic in deferred.held():
             label, check = self.label, topic in self.by_topic.current
             msgs = deferred.read(topic)
-            return [(t, checked_message(topic, t, m, label, check)) for t, m in msgs]
+            return [(t, topics.checked_message(topic, t, m, label, check)) for t, m in msgs]
         return []
 
     def topic_counts(self) -> dict[str, int]:

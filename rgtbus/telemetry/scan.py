@@ -615,16 +615,23 @@ def _read(stream: IO[bytes], label: str) -> LogContents:
     return decode_log(_scan(stream, label))
 
 
-def current_topics(raw: RawLog) -> frozenset[str]:
+def current_topics(log: RawLog | CheckedLog) -> frozenset[str]:
     """The topics whose channel's schema is this rgtbus's own, byte for byte (a log written
     by this version): the ones a reader checks every message of against its schema before
     use. An older log's schemas differ where its records did, and readers take its older
     forms as they are."""
     from rgtbus.telemetry import topics
 
+    if isinstance(log, CheckedLog):
+        if log.raw is None:
+            channels, schemas = log.summary.channels, log.summary.schemas
+        else:
+            channels, schemas = log.raw.channels, log.raw.schemas
+    else:
+        channels, schemas = log.channels, log.schemas
     out = set()
-    for channel in raw.channels.values():
-        schema = raw.schemas.get(channel.schema_id)
+    for channel in channels.values():
+        schema = schemas.get(channel.schema_id)
         if schema is None:
             continue
         try:

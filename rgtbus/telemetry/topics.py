@@ -11,8 +11,11 @@ from functools import cache
 from importlib import resources
 from typing import Any
 
+import orjson
+
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
+from rgtbus.timebase import seconds
 
 # topic -> (schema name, what it carries)
 TOPICS: dict[str, tuple[str, str]] = {
@@ -115,6 +118,31 @@ def load_schema(name: str) -> dict[str, Any]:
     """The schema ``name``, parsed (once)."""
     schema: dict[str, Any] = json.loads(schema_bytes(name))
     return schema
+
+
+def checked_message(topic: str, t_ns: int, message: Any, label: str, check: bool = True) -> Any:
+    """A message as a reader may use it: decoded from its JSON (where still bytes) and, with
+    ``check``, checked against its topic's schema (a topic not rgtbus's is taken as it is).
+    Not JSON, or breaking the schema: RgtbusError naming the log, the topic, the log time and
+    what is wrong."""
+    from rgtbus.telemetry import validate
+
+    where = f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s"
+    if isinstance(message, bytes | bytearray | memoryview):
+        try:
+            message = orjson.loads(message)
+        except ValueError as e:
+            raise RgtbusError(f"{where} is not JSON: {e}") from None
+    if not check:
+        return message
+    try:
+        schema = schema_for(topic)
+    except RgtbusError:
+        return message  # someone else's topic: not ours to read
+    errs = validate.errors(message, load_schema(schema))
+    if errs:
+        raise RgtbusError(f"{where} breaks {schema}: {errs[0]}")
+    return message
 
 
 # -- docs -----------------------------------------------------------------------------------
