@@ -38,6 +38,7 @@ def three_summaries(source, tmp_path, capsys, **kw):
 def assert_same(result, from_log, from_replay):
     ran = result.summary
     assert list(ran) == list(SUMMARY_JSON_KEYS)
+    assert list(from_replay) == list(SUMMARY_JSON_KEYS)  # one summary: no key more or less
     for key in SUMMARY_JSON_KEYS:
         if key in NOT_COMPARED:
             continue

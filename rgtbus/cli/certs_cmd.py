@@ -4,6 +4,7 @@ wrote)."""
 from __future__ import annotations
 
 import argparse
+import json
 from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
@@ -38,6 +39,7 @@ def register(subparsers: SubParsers) -> None:
     c.add_argument(
         "--force", action="store_true", help="replace the files of an earlier rgtbus certs in DIR"
     )
+    c.add_argument("--json", action="store_true", help="print one JSON object: the files written")
     add_quiet_argument(c)
     c.set_defaults(func=run_certs)
 
@@ -49,6 +51,12 @@ def run_certs(args: argparse.Namespace) -> int:
 
     sc = load_scenario(args.scenario)
     made = make_certs(sc.units, args.out, days=args.days, label=sc.name, force=args.force)
+    if args.json:
+        pairs = {who: {"crt": str(crt), "key": str(key)} for who, (crt, key) in made.pairs.items()}
+        out = {"directory": str(made.directory), "ca": str(made.ca), "ca_key": str(made.ca_key),
+               "days": args.days, "identities": pairs}  # fmt: skip
+        print(json.dumps(out))
+        return 0
     print(f"certs: the TLS identities of {sc.name} in {made.directory} (valid {args.days:g} days)")
     print(f"  {made.ca}  the run's CA ({made.ca_key}: keep it off the hosts)")
     for identity, (crt, key) in made.pairs.items():

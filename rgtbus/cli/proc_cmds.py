@@ -162,6 +162,11 @@ def _add_router(subparsers: SubParsers) -> None:
         help="with --tls: only this run's keys (default: any run of the roster)",
     )
     add_quiet_argument(r)
+    r.add_argument(
+        "--json",
+        action="store_true",
+        help="say it is listening as one JSON object (its endpoints), once it is",
+    )
     r.set_defaults(func=run_router)
 
 
@@ -276,7 +281,10 @@ def run_router(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    print(f"router listening on {', '.join(args.listen) or '(config)'}", flush=True)
+    if args.json:
+        print(json.dumps({"router": "listening", "listen": list(args.listen or [])}), flush=True)
+    else:
+        print(f"router listening on {', '.join(args.listen) or '(config)'}", flush=True)
     try:
         while not stop.wait(0.5):
             pass

@@ -7,6 +7,7 @@ import json
 import os
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO, TypeVar
 
@@ -68,6 +69,7 @@ def register(subparsers: SubParsers) -> None:
     m.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="merged log")
     m.add_argument("--keep-duplicates", action="store_true", help="keep byte-identical messages")
     m.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    m.add_argument("--json", action="store_true", help="print one JSON object")
     add_quiet_argument(m)
     m.set_defaults(func=merge)
 
@@ -82,6 +84,7 @@ def register(subparsers: SubParsers) -> None:
     r.add_argument("log", metavar="LOG", help="the cut or damaged MCAP log")
     r.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="recovered log")
     r.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    r.add_argument("--json", action="store_true", help="print one JSON object")
     add_quiet_argument(r)
     r.set_defaults(func=recover)
 
@@ -226,6 +229,9 @@ def merge(args: argparse.Namespace) -> int:
     )
     for note in res.notes:
         print(f"warning: {note}; merged as far as it goes", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"output": str(out), "inputs": list(args.inputs), **asdict(res)}))
+        return 0
     renamed = "; ".join(f"{k} -> {v}" for k, v in res.renamed.items())
     print(
         f"merged {len(logs)} logs into {out}: {res.messages} messages "
@@ -247,7 +253,9 @@ def recover(args: argparse.Namespace) -> int:
     _one_writer(out, [args.log])
     log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
     res = _written_whole(out, lambda f: recover_log(log, f, compression=args.compression))
-    if not args.quiet:
+    if args.json:
+        print(json.dumps({"output": str(out), "input": args.log, **asdict(res)}))
+    elif not args.quiet:
         how = f"it ended early: {res.ended}" if res.ended else "it was whole"
         print(f"recovered {res.messages} messages of {args.log} into {out}; {how}")
     return 0

@@ -155,6 +155,9 @@ def _add_figures(subparsers: SubParsers) -> None:
         help="Monte-Carlo trials per point of the error-rate figure (default 1000)",
     )
     add_seed_argument(f, help=None, default=0)
+    f.add_argument(
+        "--json", action="store_true", help="print a JSON list: each figure's path and caption"
+    )
     add_quiet_argument(f)
     f.set_defaults(func=cmd_figures)
 
@@ -717,6 +720,9 @@ def cmd_figures(args: argparse.Namespace) -> int:
     made.append((p, figure_receiving(p)))
     p = out / "decoder-ser.png"
     made.append((p, figure_ser(p, args.trials, args.seed)))
+    if args.json:
+        print(json.dumps([{"path": str(p), "caption": caption} for p, caption in made]))
+        return 0
     for p, caption in made:
         print(f"{p}: {caption}")
     return 0

@@ -81,6 +81,7 @@ def register(subparsers: SubParsers) -> None:
     )
     q.add_argument("-o", "--output", metavar="PNG", help="default DIR/<y>[+<y>...]-vs-<x>.png")
     q.add_argument("--title", help="figure title")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=run_sweep_plot_cmd)
 
 
@@ -158,5 +159,8 @@ def run_sweep_plot_cmd(args: argparse.Namespace) -> int:
         exact=args.exact,
         where=args.where,
     )
+    if args.json:
+        print(json.dumps({"output": str(path), "x": args.x, "y": list(args.y), "by": args.by}))
+        return 0
     print(f"wrote {path}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Callable
@@ -59,6 +60,11 @@ def register(subparsers: SubParsers) -> None:
     add_seconds_argument(
         w, "--idle-exit", help="end once S seconds pass without telemetry, after some came"
     )
+    w.add_argument(
+        "--json",
+        action="store_true",
+        help="at the end, one JSON object: messages received, runs, frames dropped and why",
+    )
     add_quiet_argument(w)
     w.set_defaults(func=run_watch)
 
@@ -99,6 +105,19 @@ def run_watch(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:
                 pass
             drops = ", ".join(f"{n} {why}" for why, n in watcher.drops.items() if n)
+            if args.json:
+                print(
+                    json.dumps(
+                        {
+                            "url": live.url,
+                            "received": watcher.received,
+                            "runs": sorted(watcher.runs),
+                            "dropped": watcher.dropped,
+                            "drops": {why: n for why, n in watcher.drops.items() if n},
+                        }
+                    ),
+                    flush=True,
+                )
             say(
                 f"watch: {watcher.received} messages from run(s) "
                 f"{', '.join(sorted(watcher.runs)) or '(none)'}"

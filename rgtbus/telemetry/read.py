@@ -835,7 +835,11 @@ class Replay:
         }
 
     def to_json(self) -> dict[str, Any]:
-        """``rgtbus replay --json``: one object."""
+        """``rgtbus replay --json``: one object. Its ``summary`` is what ``rgtbus run --json``
+        printed for the run, key by key (``summary_json``); the per-unit views of the
+        relations go beside it (``unit_relations``: each unit's installed table;
+        ``sent_relations``: what the first unit to report sent)."""
+        summary = self.summary()
         return {
             "log": self.label,
             "metadata": self.info(),
@@ -858,9 +862,11 @@ class Replay:
             },
             "agree": self.agree(),
             "decisions": self.decisions,
-            "outcome": self.summary()["outcome"],
+            "outcome": summary["outcome"],
             "run": self.run,
-            "summary": self.summary(),
+            "summary": summary_json(summary),
+            "unit_relations": summary.get("unit_relations"),
+            "sent_relations": summary.get("sent_relations"),
         }
 
     # -- inputs for a re-run -----------------------------------------------------------------
