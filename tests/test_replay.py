@@ -737,3 +737,22 @@ def test_a_tampered_shared_spike_record_is_named_not_read(
     assert re.search("message on /rx/spike at t = [0-9.]+ s breaks rgtbus.Spikes: " + says, err), (
         err
     )
+
+
+def test_every_tool_counts_a_logs_messages_alike(tmp_path, capsys):
+    """info, replay, open_log and replay --verify give one number of messages for a traced
+    log (the traces left in the file until asked for count too); verify says apart how many
+    records it compared (a decode and a sample's spikes each)."""
+    import rgtbus
+
+    log = tmp_path / "gate.mcap"
+    rgtbus.run("gate", log=log, traces=True)
+    capsys.readouterr()
+    assert cli(capsys, "info", log, "--json")[0] == 0
+    counted = json.loads(cli(capsys, "info", log, "--json")[1])["messages"]
+    code, out, _ = cli(capsys, "replay", log)
+    assert code == 0 and f"; {counted} messages" in out
+    assert sum(rgtbus.open_log(log).replay.topic_counts().values()) == counted
+    report = verify_log(log)
+    assert report.messages == counted and report.compared > counted
+    assert f"the log's {counted} messages; {report.compared} records compared" in report.verdict()

@@ -303,6 +303,13 @@ class VerifyReport:
     note: str
     medium_windows: int  # non-silent windows of the medium in the log
     until: float | None = None  # compared up to this time (a truncated log)
+    messages: int | None = None  # the log's messages, as `info` and `replay` count them
+
+    @property
+    def compared(self) -> int:
+        """How many records were compared: a decode, a sample's spikes of a unit, a pulse, a
+        table, a line, a medium window each (a log's record of columns holds many)."""
+        return sum(self.checked.values())
 
     @property
     def ok(self) -> bool:
@@ -318,22 +325,26 @@ class VerifyReport:
         return EXIT_TRUNCATED if self.truncated else EXIT_VERIFIED
 
     def verdict(self) -> str:
-        """The outcome in one line."""
-        n = sum(self.checked.values())
+        """The outcome in one line. Its counts say what they count: the log's messages (as
+        ``info`` and ``replay`` count them) and the records compared (each decode and each
+        sample's spikes on its own, where a message holds a block of them)."""
+        n = self.compared
+        held = "" if self.messages is None else f"the log's {self.messages} messages; "
+        counted = f"{held}{n} records compared: decodes and spikes one by one"
         if self.mismatches:
-            return f"MISMATCH: {len(self.mismatches)} disagreement(s) in {n} compared messages"
+            return f"MISMATCH: {len(self.mismatches)} disagreement(s) ({counted})"
         if self.truncated and not self.until:
             return (
-                f"INCOMPLETE: the log was cut before any unit's spikes or decodes reached it, "
-                f"so nothing the units did is verified ({n} messages written ahead of them, "
-                "the medium and the pulses, agree)"
+                "INCOMPLETE: the log was cut before any unit's spikes or decodes reached it, "
+                f"so nothing the units did is verified (what was written ahead of them, the "
+                f"medium and the pulses, agrees; {counted})"
             )
         if self.truncated:
             return (
-                f"INCOMPLETE: the {n} messages before t = {self.until:.3f} s agree, but "
-                "the log is truncated, so the run is verified only that far"
+                f"INCOMPLETE: every unit's messages before t = {self.until:.3f} s agree "
+                f"({counted}), but the log is truncated, so the run is verified only that far"
             )
-        return f"verified: {n} messages agree with the re-run"
+        return f"verified: every message agrees with the re-run ({counted})"
 
     def to_json(self) -> dict[str, Any]:
         """``rgtbus replay --verify --json``: one object."""
@@ -345,6 +356,8 @@ class VerifyReport:
             "truncated": self.truncated,
             "note": self.note,
             "until": self.until,
+            "messages": self.messages,
+            "compared": self.compared,
             "medium_windows": self.medium_windows,
             "checked": dict(self.checked),
             "mismatches": [asdict(m) for m in self.mismatches],
@@ -423,6 +436,7 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         note=replay.note,
         medium_windows=replay.windows,
         until=until,
+        messages=replay.message_count(),
     )
 
 
