@@ -145,13 +145,13 @@ def test_log_tables(tmp_path):
     assert sorted(set(d["round"])) == [1, 2, 3] and set(d["unit"]) == {"a", "b", "c", "d"}
     assert len(d) == 4 * 3
     last = d[d["round"] == 3].set_index("unit")
-    for u, v in result.summary["units"].items():  # plain values, as the summary has them
-        assert last.loc[u, "choice"] == v["choice"]
+    for u, v in result.summary["units"].items():  # plain values: the summary's, as tuples
+        assert last.loc[u, "choice"] == tuple(v["choice"])
     pd.testing.assert_frame_equal(d, result.decisions())
     dec = log.decodes()
     assert {"unit", "turn", "kind", "code", "value", "margin", "matches"} <= set(dec.columns)
     infl = dec[dec["kind"] == "influence"]
-    assert len(infl) and all(isinstance(v, list) for v in infl["value"])
+    assert len(infl) and all(isinstance(v, tuple) for v in infl["value"])
     spikes = log.spikes()
     assert len(spikes) and set(spikes.columns) == {"unit", "sample", "t", "channel", "omega"}
     assert spikes["channel"].map(type).eq(str).all()  # one row per channel that fired
@@ -238,3 +238,27 @@ def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(
     rgtbus.run(ROOT / "scenarios/gate.toml", log=path, traces=True)
     with pytest.raises(rgtbus.RgtbusError, match="changed since it was opened"):
         log.messages("/trace/a")
+
+
+def test_pandas_groups_sorts_dedupes_and_merges_on_every_column_of_every_frame(tmp_path):
+    """Every column of every DataFrame the library gives holds values pandas can use: an
+    alternative is a tuple of action names, not a list (unhashable)."""
+    result = rgtbus.run(ROOT / "scenarios" / "tug_of_war.toml", log=tmp_path / "t.mcap")
+    log = result.open_log()
+    frames = {
+        "run decisions": result.decisions(),
+        "decisions": log.decisions(),
+        "decodes": log.decodes(),
+        "spikes": log.spikes(),
+        "transmissions": log.transmissions(),
+        "medium": log.medium(),
+    }
+    for name, frame in frames.items():
+        assert len(frame), name
+        for column in frame.columns:
+            key = [column]
+            frame.groupby(key, dropna=False).size()
+            frame.sort_values(key)
+            frame.drop_duplicates(key)
+            frame[key].drop_duplicates().merge(frame, on=column, how="inner")
+    assert frames["decisions"]["choice"].map(type).eq(tuple).all()

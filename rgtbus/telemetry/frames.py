@@ -2,8 +2,9 @@
 
 Every table comes from the same reading of the log as ``rgtbus replay`` (``Replay``), and
 ``Log.summary()`` is the summary ``rgtbus run --json`` printed for the run, computed from the
-log alone by the one summary function. Alternatives are plain Python values (sorted lists of
-action names), never text to parse. See docs/api.md.
+log alone by the one summary function. Alternatives are plain Python values, never text to
+parse: in a summary (JSON) sorted lists of action names, in a DataFrame tuples of them (cells
+pandas can group, sort, deduplicate and merge on). See docs/api.md.
 """
 
 from __future__ import annotations
@@ -93,8 +94,8 @@ class Log:
     @_explained
     def decodes(self) -> pd.DataFrame:
         """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
-        margin, accepted, sent, matches`` (``value``: the code as a plain value, a list of
-        action names for an influence)."""
+        margin, accepted, sent, matches`` (``value``: the alternative an influence's code
+        names, a tuple of action names; None where the code names none)."""
         import pandas as pd
 
         decodes = self.replay.decodes
@@ -136,7 +137,8 @@ class Log:
     @_explained
     def transmissions(self) -> pd.DataFrame:
         """One row per code on the medium: ``turn, kind, phase, sender, addressee, channel,
-        code, value, meaning, start, end, pulses`` (``pulses``: how many)."""
+        code, value, meaning, start, end, pulses`` (``value``: the alternative an influence
+        names, a tuple of action names, None for other codes; ``pulses``: how many)."""
         import pandas as pd
 
         sc = self.scenario
@@ -176,7 +178,16 @@ def decisions_frame(summary: Mapping[str, Any]) -> pd.DataFrame:
     ``Log.decisions()`` and ``RunResult.decisions()`` both give."""
     import pandas as pd
 
-    return pd.DataFrame(summary.get("decisions") or [], columns=DECISION_COLUMNS)
+    rows = [{k: hashable(v) for k, v in row.items()} for row in summary.get("decisions") or []]
+    return pd.DataFrame(rows, columns=DECISION_COLUMNS)
+
+
+def hashable(value: Any) -> Any:
+    """A value as a DataFrame cell pandas can group, sort, deduplicate and merge on: a list
+    (an alternative's action names) as a tuple, nested lists too; anything else as it is."""
+    if isinstance(value, list):
+        return tuple(hashable(v) for v in value)
+    return value
 
 
 def message_frame(messages: Sequence[tuple[int, Any]]) -> pd.DataFrame:
@@ -208,16 +219,18 @@ def _fields(message: Any) -> dict[str, Any]:
     return message if isinstance(message, dict) else {"data": message}
 
 
-def _value(sc: Scenario | None, kind: str, code: str | None) -> Any:
-    """A decoded or sent code as a plain value: an alternative as its sorted action names."""
+def _value(sc: Scenario | None, kind: str, code: str | None) -> tuple[str, ...] | None:
+    """The alternative a decoded or sent code names, as the tuple of its sorted action names;
+    None for a code that names none (an ID, a relation, a request, a misread): ``code`` holds
+    its text. One type a column, so pandas can group and sort on it."""
     if sc is None or code is None or kind not in ("influence", "payload", "repeat"):
-        return code
+        return None
     if code in ("alliance", "conflict", "id"):
-        return code
+        return None
     try:
-        return sc.universe.to_list(sc.universe.parse_alternative(code))
-    except Exception:  # a misread that names no alternative stays as read
-        return code
+        return tuple(sc.universe.to_list(sc.universe.parse_alternative(code)))
+    except Exception:  # a misread that names no alternative
+        return None
 
 
 def open_log(source: str | os.PathLike[str] | IO[bytes]) -> Log:
