@@ -32,9 +32,12 @@ def write_sweep(tmp_path: Path, body: str = SWEEP) -> Path:
 
 
 def table(out: Path) -> list[dict]:
+    """A sweep's results, less what differs between two runs of one sweep (wall time) or
+    between two sweep files of the same runs (the sweep's id in its name)."""
     rows = table_rows(pq.read_table(out / "results.parquet"))
     for r in rows:
-        r.pop("wall_seconds")
+        for key in ("wall_seconds", "sweep", "run_id"):
+            r.pop(key)
     return rows
 
 
@@ -384,7 +387,7 @@ def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
     assert dict(df["relations"][0]).keys() == {"u1-u2", "u1-u3", "u2-u3"}
     info = json.loads((out / "sweep.json").read_text())
     assert info["executor"] == "in-process" and info["workers"] == 1
-    assert info["scheduler"] is None and info["tables"] == 2
+    assert info["scheduler"] is None and info["tables"] == 3
     # the directory holds a sweep file that re-runs it as is (scenario.toml beside it)
     again = load_sweep(out / "sweep.toml")
     assert again.digest != "" and again.seeds == (0, 1) and again.keys == ["n", "relations.p"]
@@ -392,6 +395,8 @@ def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
     results, decisions = read_sweep(out)
     assert len(decisions) == results["decided_count"].sum() > 0  # one round each
     assert list(decisions.columns) == [
+        "sweep",
+        "run_id",
         "run",
         "n",
         "relations.p",
@@ -584,3 +589,36 @@ def test_sweep_plot_reads_native_tables_and_names_nested_columns(tmp_path, capsy
     capsys.readouterr()
     assert main([*args, "--y", "units"]) == 2
     assert "holds lists or tables" in capsys.readouterr().err
+
+
+def test_shipped_sweeps_by_name_and_every_row_named_across_sweeps(tmp_path, capsys, monkeypatch):
+    """``rgtbus sweeps`` lists the shipped sweeps and a sweep is found by name wherever the
+    command runs; a sweep file may name a shipped scenario; every row carries its sweep's id
+    (name and content) and a run id no other sweep's row has."""
+    import pandas as pd
+
+    from rgtbus.scenario.shipped import shipped_sweeps
+
+    monkeypatch.chdir(tmp_path)  # no scenarios/ here: found as shipped
+    names = [s.name for s in shipped_sweeps()]
+    assert {"noise", "decomposable", "repair"} <= set(names)
+    assert main(["sweeps", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [s["name"] for s in listed] == names and all(s["description"] for s in listed)
+    assert load_sweep("decomposable").path.endswith("decomposable.toml")
+    tables = []
+    for n in (3, 4):  # two sweeps of one shipped scenario, named, not a path
+        path = tmp_path / f"by_name_{n}.toml"
+        path.write_text(f'name = "by_name"\nscenario = "random_group"\nseeds = "0..1"\n'
+                        f"[grid]\nn = [{n}]\n")  # fmt: skip
+        assert main(["sweep", str(path), "--out", str(tmp_path / f"out{n}"), "--workers", "1",
+                     "--quiet"]) == 0  # fmt: skip
+        tables.append(pd.read_parquet(tmp_path / f"out{n}" / "results.parquet"))
+    both = pd.concat(tables, ignore_index=True)
+    assert set(both["run"]) == {0, 1}  # a run's place in its own sweep: repeats
+    assert both["run_id"].is_unique and both["sweep"].nunique() == 2
+    assert all(s.startswith("by_name-") for s in both["sweep"])
+    named = zip(both["sweep"], both["run_id"], both["run"], strict=True)
+    assert all(r == f"{s}/{k}" for s, r, k in named)
+    decisions = pd.read_parquet(tmp_path / "out3" / "decisions.parquet")
+    assert set(decisions["run_id"]) <= set(tables[0]["run_id"]) and len(decisions)

@@ -708,7 +708,7 @@ def _run(
         _write_versions(sweep, out_dir, pool)
     rows = [have[t.key] for t in tasks]
     try:
-        return table_rows(write_tables(sweep.axes, rows, out_dir))
+        return table_rows(write_tables(sweep.axes, rows, out_dir, sweep.id))
     except OSError as exc:
         raise RgtbusError(
             f"cannot write the tables in {str(out_dir)!r} ({exc.strerror}): every row is in "

@@ -24,12 +24,13 @@ from rgtbus.checks import ENGINES
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
 from rgtbus.scenario.limits import key_depth_error, nesting_error, read_regular
+from rgtbus.scenario.shipped import find_shipped, find_sweep
 
 SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 MAX_RUNS = 1_000_000
 # the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
 # types and decisions.parquet; 1 (no key) held nested columns as JSON text
-TABLES_VERSION = 2
+TABLES_VERSION = 3  # 3: every row names its sweep and run (sweep, run_id)
 ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
 
@@ -96,6 +97,12 @@ class Sweep:
         return math.prod(len(vs) for _, vs in self.axes) * len(self.seeds)
 
     @property
+    def id(self) -> str:
+        """The sweep's id in its tables' rows: its name and the start of its digest (what it
+        runs), so two sweeps' rows never share one."""
+        return f"{self.name}-{self.digest[:8]}"
+
+    @property
     def digest(self) -> str:
         """What a resume checks: a hash of the sweep file's and base scenario's texts."""
         return hashlib.sha256((self.text + "\0" + self.scenario_text).encode()).hexdigest()[:16]
@@ -146,8 +153,12 @@ def parse_seeds(value: Any) -> tuple[int, ...]:
 
 def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     """Read and check a sweep file: every grid cell must make a valid scenario (errors name the
-    sweep file, its line and key)."""
+    sweep file, its line and key). ``path`` may name a shipped sweep (``rgtbus sweeps``:
+    ``noise``) where no such file is here; its ``scenario`` may name a shipped scenario
+    (``random_group``) where no such file is beside it."""
     p = Path(path)
+    if not p.exists() and (shipped := find_sweep(str(path))) is not None:
+        p = shipped
     where = str(p)
     data_bytes = _read_capped(p, "sweep")
     try:
@@ -179,6 +190,8 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     if not isinstance(scen, str) or not scen:
         raise err("scenario", "must name the base scenario file")
     scen_path = (p.parent / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
+    if not scen_path.exists() and (named := find_shipped(scen)) is not None:
+        scen_path = named  # a shipped scenario by name
     try:
         scen_text = _read_capped(scen_path, "scenario").decode("utf-8")
     except UnicodeDecodeError:

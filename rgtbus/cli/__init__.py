@@ -78,6 +78,7 @@ COMMANDS: dict[str, str] = {
     "control": "rgt_cmds",
     "run": "run_cmd",
     "scenarios": "scenarios_cmd",
+    "sweeps": "scenarios_cmd",
     "resonate": "signal_cmds",
     "ser": "signal_cmds",
     "figures": "signal_cmds",

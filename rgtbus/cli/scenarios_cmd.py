@@ -1,4 +1,5 @@
-"""``rgtbus scenarios``: the scenarios shipped with rgtbus, run by name (``rgtbus run gate``)."""
+"""``rgtbus scenarios`` and ``rgtbus sweeps``: the scenarios and sweeps shipped with rgtbus, run
+by name (``rgtbus run gate``, ``rgtbus sweep noise``)."""
 
 from __future__ import annotations
 
@@ -20,10 +21,19 @@ def register(subparsers: SubParsers) -> None:
         description="List the scenarios shipped with rgtbus: name, units, schedule and file. "
         "Every command that takes a scenario file also takes one of these names (rgtbus run "
         "gate) when no file of that name exists; the sweeps in scenarios/sweeps/ are not "
-        "scenarios and are not listed.",
+        "scenarios: rgtbus sweeps lists them.",
     )
     p.add_argument("--json", action="store_true", help="print a JSON list, one object a scenario")
     p.set_defaults(func=list_scenarios)
+    w = subparsers.add_parser(
+        "sweeps",
+        help="list the shipped sweeps (rgtbus sweep NAME runs one)",
+        description="List the sweeps shipped with rgtbus: name, its base scenario's units and "
+        "schedule, what it studies, and its file. rgtbus sweep takes one of these names when "
+        "no file of that name exists.",
+    )
+    w.add_argument("--json", action="store_true", help="print a JSON list, one object a sweep")
+    w.set_defaults(func=list_sweeps)
 
 
 def list_scenarios(args: argparse.Namespace) -> int:
@@ -43,6 +53,27 @@ def list_scenarios(args: argparse.Namespace) -> int:
         for s in found
     ]
     headers = ("NAME", "UNITS", "SCHEDULE", "PATH")
+    for line in table_lines(rows, headers, align=("left", "right", "left", "left"), indent=""):
+        print(line)
+    return 0
+
+
+def list_sweeps(args: argparse.Namespace) -> int:
+    """``rgtbus sweeps``: the shipped sweeps, a table or ``--json``."""
+    from rgtbus.scenario.shipped import shipped_sweeps
+
+    found = shipped_sweeps()
+    if not found:
+        raise RgtbusError("no shipped sweeps found (neither rgtbus/scenarios/sweeps/ nor "
+                          "scenarios/sweeps/)")  # fmt: skip
+    if args.json:
+        print(json.dumps([s.to_json() for s in found]))
+        return 0
+    from rgtbus.cli.tables import table_lines
+
+    rows = [(s.name, "?" if s.units is None else str(s.units), s.description[:60], str(s.path))
+            for s in found]  # fmt: skip
+    headers = ("NAME", "UNITS", "STUDIES", "PATH")
     for line in table_lines(rows, headers, align=("left", "right", "left", "left"), indent=""):
         print(line)
     return 0

@@ -2,8 +2,8 @@
 
 In a source checkout they are ``scenarios/`` next to the ``rgtbus/`` package directory;
 installed, the package data ``rgtbus/scenarios/`` (setup.py maps the repository's
-``scenarios/`` there). Sweep files (``scenarios/sweeps/``) are not scenarios: they are found as
-``sweeps/NAME`` but never listed."""
+``scenarios/`` there). Sweep files (``scenarios/sweeps/``) are not scenarios: ``rgtbus
+sweeps`` lists them (``shipped_sweeps``) and ``rgtbus sweep NAME`` runs one (``find_sweep``)."""
 
 from __future__ import annotations
 
@@ -59,6 +59,49 @@ def find_shipped(name: str) -> Path | None:
         return None
     path = where / f"{name.removesuffix('.toml')}.toml"
     return path if path.is_file() else None
+
+
+def find_sweep(name: str) -> Path | None:
+    """The shipped sweep file called ``name`` (``noise``, ``noise.toml``, ``sweeps/noise``)."""
+    if not is_name(name):
+        return None
+    return find_shipped(name if name.startswith("sweeps/") else f"sweeps/{name}")
+
+
+def shipped_sweeps() -> list[ShippedScenario]:
+    """Every shipped sweep file (``scenarios/sweeps/*.toml``), by name (``units`` and
+    ``schedule`` are the sweep's base scenario's when it names a shipped one)."""
+    where = shipped_dir()
+    if where is None or not (where / "sweeps").is_dir():
+        return []
+    out = []
+    for path in sorted((where / "sweeps").glob("*.toml")):
+        entry = _summary(path)
+        base = _base_of(path)
+        out.append(
+            ShippedScenario(
+                entry.name,
+                path,
+                base.units if base else None,
+                base.schedule if base else None,
+                entry.description,
+            )
+        )
+    return out
+
+
+def _base_of(sweep: Path) -> ShippedScenario | None:
+    """The shipped scenario a shipped sweep file runs, if its ``scenario`` names one."""
+    try:
+        scen = tomllib.loads(sweep.read_text(encoding="utf-8")).get("scenario")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    if not isinstance(scen, str):
+        return None
+    path = (sweep.parent / scen).resolve()
+    if not path.is_file():
+        path = find_shipped(scen) or path
+    return _summary(path) if path.is_file() else None
 
 
 def shipped_scenarios() -> list[ShippedScenario]:

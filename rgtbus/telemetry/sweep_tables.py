@@ -151,7 +151,11 @@ def results_schema(axes: Axes) -> pa.Schema:
     import pyarrow as pa
 
     keys = {k for k, _ in axes}
-    fields: list[tuple[str, pa.DataType]] = [("run", pa.int64())]
+    # which sweep and which run, across sweeps: two sweeps' tables concatenate with every row
+    # still named (``run`` is a run's place in its own sweep)
+    fields: list[tuple[str, pa.DataType]] = [
+        ("sweep", pa.string()), ("run_id", pa.string()), ("run", pa.int64())
+    ]  # fmt: skip
     fields += _grid_fields(axes)
     fields.append(("seed", pa.int64()))
     if "engine" not in keys:
@@ -176,6 +180,8 @@ def decisions_schema(axes: Axes) -> pa.Schema:
     alts = pa.list_(pa.string())
     return pa.schema(
         [
+            ("sweep", pa.string()),
+            ("run_id", pa.string()),
             ("run", pa.int64()),
             *_grid_fields(axes),
             ("seed", pa.int64()),
@@ -269,21 +275,30 @@ def _shaped(axes: Axes, schema: pa.Schema, row: Mapping[str, Any]) -> dict[str, 
     return out
 
 
-def results_table(axes: Axes, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
-    """The results table of ``rows`` (one a run, in order), typed by ``results_schema``."""
+def run_id(sweep_id: str, run: Any) -> str:
+    """A run's name across sweeps: its sweep's id and its place in it (``SWEEP/RUN``)."""
+    return f"{sweep_id}/{run}"
+
+
+def results_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
+    """The results table of ``rows`` (one a run, in order), typed by ``results_schema``;
+    ``sweep_id`` (``Sweep.id``) names the sweep in each row."""
     import pyarrow as pa
 
     schema = results_schema(axes)
-    return pa.Table.from_pylist([_shaped(axes, schema, r) for r in rows], schema=schema)
+    named = [{**r, "sweep": sweep_id, "run_id": run_id(sweep_id, r.get("run"))} for r in rows]
+    return pa.Table.from_pylist([_shaped(axes, schema, r) for r in named], schema=schema)
 
 
-def decisions_table(axes: Axes, rows: Sequence[Mapping[str, Any]]) -> pa.Table:
-    """Every decision of every run: one row per run, unit and influence round."""
+def decisions_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
+    """Every decision of every run: one row per run, unit and influence round (each named by
+    its sweep and run id, as in the results)."""
     import pyarrow as pa
 
     schema = decisions_schema(axes)
     keys = [k for k, _ in axes]
-    head = ["run", *keys, "seed"]
+    head = ["sweep", "run_id", "run", *keys, "seed"]
+    rows = [{**r, "sweep": sweep_id, "run_id": run_id(sweep_id, r.get("run"))} for r in rows]
     grid = {f.name: f.type for f in schema if f.name in keys}
     out = []
     for r in rows:
@@ -343,14 +358,16 @@ def _csv_table(table: pa.Table) -> pa.Table:
     return table
 
 
-def write_tables(axes: Axes, rows: Sequence[Mapping[str, Any]], out_dir: Path) -> pa.Table:
+def write_tables(
+    axes: Axes, rows: Sequence[Mapping[str, Any]], out_dir: Path, sweep_id: str = ""
+) -> pa.Table:
     """``results.parquet`` and ``results.csv`` (one row per run, the same columns in both) and
     ``decisions.parquet``; each written whole, then moved into place. Returns the results."""
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    results = results_table(axes, rows)
-    decisions = decisions_table(axes, rows)
+    results = results_table(axes, rows, sweep_id)
+    decisions = decisions_table(axes, rows, sweep_id)
     writes: list[tuple[str, Callable[[Path], None]]] = [
         ("results.parquet", lambda p: pq.write_table(results, p)),
         ("decisions.parquet", lambda p: pq.write_table(decisions, p)),
@@ -381,6 +398,7 @@ def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     if not path.is_file():
         raise RgtbusError(f"{str(d)!r}: no results.parquet (run the sweep first)")
     dec = d / "decisions.parquet"
-    columns = ["run", "seed", "unit", "round", "low", "high", "choice", "frustrated", "wrong", "t"]
+    columns = ["sweep", "run_id", "run", "seed", "unit", "round", "low", "high", "choice",
+               "frustrated", "wrong", "t"]  # fmt: skip
     decisions = pd.read_parquet(dec) if dec.is_file() else pd.DataFrame(columns=columns)
     return SweepTables(pd.read_parquet(path), decisions)
