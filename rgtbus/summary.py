@@ -21,6 +21,8 @@ Fields beyond the tables and decisions:
   (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for fewer than two
   whole rounds: a run that stopped early is judged on the rounds every pair was sent in),
   ``since`` and ``length`` (``round_dynamics``).
+* ``codebook``: the name of the codebook the run's codes came from (``paper``, or a generated
+  one: ``generated-k2-N5-seed0``: K actions, N pulses a code, the generator's seed).
 * ``error``: why the run did not finish (the root cause), else ``None``.
 """
 
@@ -42,6 +44,7 @@ SUMMARY_JSON_KEYS = (
     "scenario",
     "seed",
     "schedule",
+    "codebook",
     "polynomial",
     "decomposable",
     "p4",
@@ -307,6 +310,7 @@ def summarise(
         "scenario": sc.name,
         "seed": sc.seed,
         "schedule": sc.schedule,
+        "codebook": sc.codebook.name,  # the words the run's codes were drawn from
         "polynomial": ref["polynomial"],
         "decomposable": decomposable,
         "p4": None if p4 is None else list(p4),

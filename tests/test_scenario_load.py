@@ -12,6 +12,7 @@ from rgtbus.scenario import (
     ShippedScenario,
     find_shipped,
     load_scenario,
+    parse_scenario,
     shipped_dir,
     shipped_scenarios,
 )
@@ -154,3 +155,32 @@ def test_run_by_name_from_another_directory(tmp_path, monkeypatch, capsys):
     log = tmp_path / "g.mcap"
     assert main(["run", "gate", "--bus", "memory", "--log", str(log), "--check"]) == 0
     assert log.exists() and "gate" in capsys.readouterr().out
+
+
+def _group(n: int, codebook: str = "") -> str:
+    units = ", ".join(f'"u{i}"' for i in range(n))
+    return (f'name = "g{n}"\nunits = [{units}]\nactions = ["alpha", "beta"]\n{codebook}\n'
+            '[relations]\npolicy = "random"\n[influences]\npolicy = "random"\n')  # fmt: skip
+
+
+def test_the_codebook_a_run_uses_is_said_and_one_that_cannot_fit_is_refused(tmp_path, capsys):
+    """Unnamed, the plan lengthens the codebook to fit the units (12 units, two actions:
+    generated-k2-N5) and the summary and info say so; the paper's codebook named on 12 units is
+    refused naming the codebook and what fits, and what it names runs."""
+    import rgtbus
+
+    sc = parse_scenario(_group(12))
+    assert sc.codebook.name == "generated-k2-N5-seed0"
+    result = rgtbus.run(sc, log=tmp_path / "g12.mcap")
+    assert result.summary["codebook"] == "generated-k2-N5-seed0"
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "g12.mcap"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["codebook"] == "generated-k2-N5-seed0"
+    assert rgtbus.run("gate").summary["codebook"] == "paper"
+    with pytest.raises(RgtbusError) as refused:
+        parse_scenario(_group(12, 'codebook = "paper"'), "g12.toml")
+    said = str(refused.value)
+    assert said.startswith("g12.toml:4: codebook: 'paper' has 3 pulses a code"), said
+    assert "at most 8 units" in said and 'pulses = 5}' in said
+    fits = parse_scenario(_group(12, 'codebook = {kind = "generated", pulses = 5}'))
+    assert fits.codebook.pulses == 5

@@ -114,8 +114,8 @@ def run_plan(args: argparse.Namespace) -> int:
         return 0
     print(
         f"{plan.n} units, {plan.schedule} schedule: mode {plan.mode}, {plan.pulses} pulses a "
-        f"code ({plan.codebook} codebook), band {min(plan.omegas):.4g}–{max(plan.omegas):.4g} "
-        f"rad/s, tau {tau:g} s"
+        f"code ({_codebook_text(plan.codebook, plan.pulses)}), band "
+        f"{min(plan.omegas):.4g}–{max(plan.omegas):.4g} rad/s, tau {tau:g} s"
     )
     print("frequencies (rad/s): " + ", ".join(f"{w:.5g}" for w in plan.omegas))
     print("rules (the schedule needs them: a plan that breaks one is refused) and margins:")
@@ -134,3 +134,10 @@ def run_plan(args: argparse.Namespace) -> int:
             f"{out['simulated_seconds']:g} s of simulated time (relations and influences)"
         )
     return 0
+
+
+def _codebook_text(kind: str, pulses: int) -> str:
+    """The codebook a run of this plan uses, as the run names it (its summary, ``info``)."""
+    if kind == "paper":
+        return "the paper's codebook, 'paper', for 1 or 2 actions"
+    return f"a generated codebook: a run names it generated-kK-N{pulses}-seed0 for K actions"

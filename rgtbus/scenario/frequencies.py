@@ -13,7 +13,14 @@ from rgtbus.scenario.codebook_section import codebook_of
 from rgtbus.scenario.context import Ctx
 from rgtbus.scenario.values import unit_of
 from rgtbus.signal.codebook import Codebook
-from rgtbus.signal.plan import auto_plan, check_plan, make_plan, parse_omega
+from rgtbus.signal.plan import (
+    auto_plan,
+    check_plan,
+    make_plan,
+    max_units,
+    parse_omega,
+    pulses_for,
+)
 
 
 class Frequencies(NamedTuple):
@@ -40,6 +47,8 @@ def frequencies_of(
     freq = data.get("frequencies", "auto")
     if freq == "auto" and "mode" not in data and "codebook" not in data:
         mode, codebook = _planned(ctx, len(units), universe, codebook, tau, schedule)
+    if freq == "auto" and "codebook" in data:
+        _fits(ctx, len(units), codebook, schedule)
     if freq == "auto":
         frequencies, text = _auto(ctx, units, codebook.pulses, mode, tau, schedule)
     elif isinstance(freq, dict):
@@ -47,6 +56,28 @@ def frequencies_of(
     else:
         raise ctx.error("", "frequencies", 'must be a table {unit = "3pi/2", ...} or "auto"')
     return Frequencies(frequencies, text, mode, codebook)
+
+
+def _fits(ctx: Ctx, n: int, codebook: Codebook, schedule: str) -> None:
+    """A codebook the scenario names must fit its units: the serial schedule's plan spaces n
+    channels 0.3/N apart in one octave, so N pulses a code hold at most ``max_units(N)`` units;
+    refused naming the codebook and what fits (the default picks it: docs/scenarios.md)."""
+    if schedule == "concurrent" or n <= max_units(codebook.pulses):
+        return
+    more = pulses_for(n)
+    fits = (
+        f'codebook = {{kind = "generated", pulses = {more}}}, or no codebook (the plan then '
+        f"picks the fewest pulses that fit)"
+        if more
+        else "the concurrent schedule"
+    )
+    raise ctx.error(
+        "",
+        "codebook",
+        f"{codebook.name!r} has {codebook.pulses} pulses a code: one octave at 0.3/N spacing "
+        f"holds at most {max_units(codebook.pulses)} units on the serial schedule, not {n}; "
+        f"use {fits}",
+    )
 
 
 def _planned(

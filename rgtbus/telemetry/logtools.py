@@ -166,6 +166,7 @@ def _info(
         "bus": meta_run.get("bus"),
         "engine": meta_run.get("engine"),
         "run_id": meta_run.get("run_id"),
+        "codebook": _codebook_name(metadata),
         "units": units,
         "outcome": None if run is None else run.get("outcome"),
         "agree": None if run is None else run.get("agree"),
@@ -235,6 +236,7 @@ def info_text(info: dict[str, Any]) -> str:
         f"rgtbus:      {info['version']} (bus {info['bus']}, engine {info['engine'] or 'event'}, "
         f"run {info['run_id']})",
         f"units:       {', '.join(info['units'])} ({len(info['units'])})",
+        f"codebook:    {info.get('codebook') or '-'}",
     ]
     if info["duration"] is not None:
         lines.append(
@@ -255,6 +257,19 @@ def info_text(info: dict[str, Any]) -> str:
     )
     lines += [f"  {line}".rstrip() for line in table.splitlines()]
     return "\n".join(lines)
+
+
+def _codebook_name(metadata: dict[str, dict[str, str]]) -> str | None:
+    """The name of the codebook a run's codes came from (its ``codebook`` metadata record holds
+    each field as JSON); None when the log does not say."""
+    name = metadata.get("codebook", {}).get("name")
+    if name is None:
+        return None
+    try:
+        value = json.loads(name)
+    except ValueError:
+        return name
+    return value if isinstance(value, str) else name
 
 
 def _outcome_text(info: dict[str, Any]) -> str:
