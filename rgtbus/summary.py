@@ -496,7 +496,9 @@ def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str,
         check(f"influence {pair}", s["influences"].get(pair), alt)
     for name, flag in exp.get("goals", {}).items():
         mine = [g["reached"] for g in s.get("goals") or [] if g["unit"] == name]
-        check(f"goals of {name} reached", bool(mine) and all(x is True for x in mine), flag)
+        # labelled as the expectation reads: "goals of b not reached" where none should be
+        label = f"goals of {name} {'reached' if flag else 'not reached'}"
+        check(label, bool(mine) and all(x is True for x in mine), flag)
     if "dynamics" in exp:
         check("influence dynamics", (s.get("rounds") or {}).get("state"), exp["dynamics"])
     check("no decode errors", len(s["decode_errors"]), 0)

@@ -799,3 +799,19 @@ def test_a_claimant_saying_its_hello_again_unread_keeps_its_claim(repeated):
         assert "host:2" in barrier.conflict and "host:3" in barrier.conflict
     else:
         assert barrier.conflict is None
+
+
+def test_a_join_that_hears_nobody_says_how_units_reach_each_other():
+    """A unit whose join hears no other member at all (connected only to a watcher, or to
+    nothing) times out naming the missing members and how units reach each other."""
+    from rgtbus.bus import open_bus
+
+    bus = open_bus("zenoh", "alone", ("a", "b"), RATE, local=["a"])
+    try:
+        with pytest.raises(RgtbusError) as timed_out:
+            bus.join(["a"], DIGEST, timeout=1.0)
+    finally:
+        bus.close()
+    said = str(timed_out.value)
+    assert "timed out after 1 s: no answer from b; no other unit was heard at all" in said
+    assert "rgtbus router" in said and "a watcher (rgtbus watch) relays nothing" in said

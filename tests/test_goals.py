@@ -343,3 +343,23 @@ def test_the_rounds_trajectory_is_reproducible_from_the_seed():
     assert a["rounds"] == b["rounds"] and a["goals"] == b["goals"]
     assert _topic(ma, "/unit/goal") == _topic(mb, "/unit/goal")
     assert a["rounds"]["influences"] != c["rounds"]["influences"]  # the seed draws them
+
+
+def test_a_goal_expectation_is_labelled_as_it_reads():
+    """``[expect] goals = { d = false }`` reads "goals of d not reached", and its line says so
+    whether it holds or not (it printed "goals of d reached" for an expectation of false)."""
+    import rgtbus
+    from rgtbus.scenario import load_scenario
+    from rgtbus.summary import check_expectations
+
+    sc = load_scenario(ROOT / "scenarios" / "gate_goal.toml")
+    summary = rgtbus.run(sc).summary
+    lines = {what: (ok, why) for what, ok, why in check_expectations(sc, summary)}
+    assert lines["goals of d reached"][0]  # as shipped: reached, as expected
+    text = (ROOT / "scenarios" / "gate_goal.toml").read_text()
+    doubted = text.replace("goals = { d = true }", "goals = { d = false }")
+    from rgtbus.scenario import parse_scenario
+
+    sc2 = parse_scenario(doubted, "gate_goal.toml")
+    lines = {what: (ok, why) for what, ok, why in check_expectations(sc2, summary)}
+    assert lines["goals of d not reached"] == (False, "got True, expected False")

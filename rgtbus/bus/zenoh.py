@@ -520,9 +520,19 @@ class ZenohBus(QueueBus):
                 self._forget_gone()  # a claimant that left before the start is no member
                 return
             if time.monotonic() > deadline:
+                # nobody heard at all: the units are most likely not connected to each other
+                # (e.g. each connected only to a watcher, which relays nothing between units)
+                alone = not barrier.nonces.keys() & barrier.others
+                hint = (
+                    "; no other unit was heard at all: connect the units to a router (rgtbus "
+                    "router -l ENDPOINT, units -e ENDPOINT) or to each other; a watcher "
+                    "(rgtbus watch) relays nothing between units"
+                    if alone
+                    else ""
+                )
                 raise RgtbusError(
                     f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
-                    f"{', '.join(barrier.missing())}"
+                    f"{', '.join(barrier.missing())}{hint}"
                 )
 
     def _declare_presence(self, unit: str) -> None:
