@@ -184,3 +184,18 @@ def test_the_codebook_a_run_uses_is_said_and_one_that_cannot_fit_is_refused(tmp_
     assert "at most 8 units" in said and 'pulses = 5}' in said
     fits = parse_scenario(_group(12, 'codebook = {kind = "generated", pulses = 5}'))
     assert fits.codebook.pulses == 5
+
+
+@pytest.mark.parametrize("name", ["Ärger", "ロボット", "β2"])
+def test_a_name_outside_the_rule_is_refused_stating_the_rule(name):
+    """Names in three scripts: refused for a unit and for an action, the rule stated."""
+    units = f'units = ["a", "{name}"]\nactions = ["alpha"]\n'
+    with pytest.raises(RgtbusError) as refused:
+        parse_scenario(f'name = "n"\n{units}', "n.toml")
+    said = str(refused.value)
+    assert f"bad unit name {name!r}" in said and "ASCII letters A-Z a-z, digits 0-9 and _" in said
+    actions = f'units = ["a", "b"]\nactions = ["{name}"]\n'
+    with pytest.raises(RgtbusError) as refused:
+        parse_scenario(f'name = "n"\n{actions}', "n.toml")
+    said = str(refused.value)
+    assert f"bad action name {name!r}" in said and "ASCII letters A-Z a-z" in said

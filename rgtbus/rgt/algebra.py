@@ -33,7 +33,10 @@ class Universe:
         seen: dict[str, int] = {}
         for j, name in enumerate(actions):
             if not _NAME.match(name):
-                raise RgtbusError(f"bad action name {name!r}: use letters, digits and _")
+                raise RgtbusError(
+                    f"bad action name {name!r}: a name is ASCII letters A-Z a-z, digits 0-9 "
+                    "and _, not starting with a digit"
+                )
             if name in seen:
                 raise RgtbusError(f"action {name!r} is listed twice")
             seen[name] = j

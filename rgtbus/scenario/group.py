@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 from rgtbus.errors import RgtbusError
 from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
-from rgtbus.scenario.values import IDENT
+from rgtbus.scenario.values import IDENT, NAME_RULE
 
 
 class Group(NamedTuple):
@@ -24,7 +24,7 @@ def group_of(ctx: Ctx, data: dict[str, Any]) -> Group:
     """The scenario's name and seed, its units and the universe of its actions."""
     name = data.get("name")
     if not isinstance(name, str) or not IDENT.match(name):
-        raise ctx.error("", "name", f"need a scenario name (letters, digits, _), got {name!r}")
+        raise ctx.error("", "name", f"need a scenario name ({NAME_RULE}), got {name!r}")
     seed = data.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ctx.error("", "seed", f"must be a non-negative integer, got {seed!r}")
@@ -37,7 +37,7 @@ def _units_of(ctx: Ctx, data: dict[str, Any]) -> tuple[str, ...]:
         raise ctx.error("", "units", "need a list of at least two unit names")
     for u in units:
         if not isinstance(u, str) or not IDENT.match(u):
-            raise ctx.error("", "units", f"bad unit name {u!r}")
+            raise ctx.error("", "units", f"bad unit name {u!r}: a name is {NAME_RULE}")
     if len(set(units)) != len(units):
         dup = next(u for u in units if units.count(u) > 1)
         raise ctx.error("", "units", f"unit {dup!r} is listed twice")

@@ -13,6 +13,10 @@ from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
 
 IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+# The rule IDENT keeps, in words (every refusal of a name states it): a unit's name is part of
+# zenoh key expressions, MCAP topics (/trace/<unit>), file names and certificate names, which
+# are held to ASCII here so that every tool on every platform reads them alike.
+NAME_RULE = "ASCII letters A-Z a-z, digits 0-9 and _, not starting with a digit"
 
 # Noise, gains and pulse magnitudes above this can overflow the resonators' floats mid-run;
 # it is far above any level a run still decodes at (pulses are about 0.4).
