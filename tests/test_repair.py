@@ -229,3 +229,40 @@ def test_goal_driven_rounds_repair_too_and_equal_across_engines():
     c = rgtbus.run(clean, seed=1).summary
     assert s["units"] == c["units"] and s["goals"] == c["goals"]
     assert s["rounds"]["influences"] == c["rounds"]["influences"]
+
+
+def _checked(seed: int, text: str | None = None) -> tuple[dict, list]:
+    import rgtbus
+    from rgtbus.scenario import load_scenario, parse_scenario
+    from rgtbus.summary import check_expectations
+
+    sc = (load_scenario("gate_repair") if text is None else parse_scenario(text)).with_seed(seed)
+    s = rgtbus.run(sc).summary
+    return s, check_expectations(sc, s)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_check_judges_what_the_run_decided_misreads_set_right_are_no_error(seed):
+    """gate_repair's --check passes: its misreads (IDs, and payloads a repair's copy read
+    right) are listed, and none is left wrong in what the units took."""
+    s, lines = _checked(seed)
+    assert s["decode_errors"] and s["decode_errors_left"] == 0
+    assert all(ok for _, ok, _ in lines), [x for x in lines if not x[1]]
+    label = next(w for w, _, _ in lines if w.startswith("no decode error left wrong"))
+    assert f"({len(s['decode_errors'])} misread, set right)" in label
+
+
+def test_gate_repair_checks_in_every_seed_1_to_20():
+    for seed in range(1, 21):
+        _, lines = _checked(seed)
+        assert all(ok for _, ok, _ in lines), (seed, [x for x in lines if not x[1]])
+
+
+def test_a_misread_left_wrong_fails_the_check():
+    """Without its repair and on a noisier channel, misreads stay wrong: --check says so."""
+    text = (ROOT / "scenarios" / "gate_repair.toml").read_text()
+    text = text.replace("noise = 0.1", "noise = 0.13").replace('repair = "arq"', 'repair = "none"')
+    s, lines = _checked(3, text)
+    assert 0 < s["decode_errors_left"] < len(s["decode_errors"])
+    left = [x for x in lines if x[0].startswith("no decode error left wrong")]
+    assert left and not left[0][1] and left[0][2] == f"got {s['decode_errors_left']}, expected 0"

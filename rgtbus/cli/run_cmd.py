@@ -354,8 +354,10 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
     errors = s["decode_errors"]
+    left = s.get("decode_errors_left", len(errors))
     print(
         f"decode errors: {len(errors)}"
+        + (f", {left} left wrong (the others set right)" if left < len(errors) else "")
         + (
             "  ("
             + "; ".join(

@@ -93,6 +93,8 @@ def _summary_types() -> dict[str, pa.DataType]:
         "sim_seconds": f64,
         "wall_seconds": f64,
         "decode_errors": pa.list_(decode_error),
+        "decode_errors_left": i64,  # those not set right (summary.decode_errors_left)
+        "codebook": text,
         "repair": repair,  # null without a repair
         "error": text,
     }
