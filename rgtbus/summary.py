@@ -516,11 +516,21 @@ def judge_goals(
     return out
 
 
-def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool, str]]:
-    """Compare the run with the scenario's ``[expect]`` table."""
+def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str, bool | None, str]]:
+    """Compare the run with the scenario's ``[expect]`` table: ``(what, ok, detail)`` a check.
+    At a seed other than the scenario's own, the expectations it marks ``own_seed_only`` are
+    left out, each said (``ok`` None: not judged)."""
     u = scenario.universe
-    exp = scenario.expect
-    out: list[tuple[str, bool, str]] = []
+    exp = dict(scenario.expect)
+    out: list[tuple[str, bool | None, str]] = []
+    own = exp.get("own_seed")
+    if own is not None and s.get("seed") != own:
+        for key in exp.get("own_seed_only", []):
+            if key in exp:
+                del exp[key]
+                out.append((f"{key} (left out)", None,
+                            f"it holds for the scenario's own seed {own} only, not seed "
+                            f"{s.get('seed')}"))  # fmt: skip
 
     def check(what: str, got: Any, want: Any) -> None:
         out.append((what, got == want, f"got {got!r}, expected {want!r}"))

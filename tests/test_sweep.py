@@ -379,7 +379,15 @@ def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
 
     out = tmp_path / "lib"
     df = sweep(RANDOM, grid={"n": [3, 4], "relations.p": [0.61]}, seeds=2, workers=1, out=out)
-    pd.testing.assert_frame_equal(df, pd.read_parquet(out / "results.parquet"))
+    pd.testing.assert_frame_equal(df, read_sweep(out).results)
+    # what pd.read_parquet reads, in forms pandas can hash: lists as tuples, maps as dicts
+    raw = pd.read_parquet(out / "results.parquet")
+    assert list(df.columns) == list(raw.columns) and len(df) == len(raw)
+    for column in df.columns:  # pandas groups, sorts, dedupes and merges on every one
+        df.groupby([column], dropna=False).size()
+        df.sort_values([column])
+        df.drop_duplicates([column])
+        df[[column]].drop_duplicates().merge(df, on=column)
     assert list(zip(df["n"], df["seed"], strict=True)) == [(3, 0), (3, 1), (4, 0), (4, 1)]
     assert df["relations.p"].dtype == "float64" and df["n"].dtype == "int64"
     # native types: no json.loads

@@ -80,6 +80,7 @@ from rgtbus.telemetry.sweep_tables import (
     SweepTables,
     decisions_table,
     read_sweep,
+    read_table,
     results_table,
     table_rows,
     write_tables,
@@ -805,11 +806,12 @@ def sweep(
     Dask cluster at ``scheduler``. Workers never import the caller's ``__main__``, so this
     works from a plain script or notebook cell without an ``if __name__ == "__main__"`` guard.
 
-    Returns one row per run (in grid-then-seed order), as ``pd.read_parquet`` reads
-    ``results.parquet``: native types (``relations`` a map, ``units`` a list of structs, ...;
-    docs/sweeps.md). Equation-free: the table holds what the simulated units did (their
-    intervals, choices, decode errors) and judgements against the noise-free forward task; it
-    computes no RGT of its own. ``out=None`` keeps nothing on disk; a directory keeps what
+    Returns one row per run (in grid-then-seed order), ``results.parquet`` read so that pandas
+    can group, sort, deduplicate and merge on every column (``read_table``: ``relations`` a
+    ``Record`` dict, ``units`` a tuple of them, lists as tuples; docs/sweeps.md).
+    Equation-free: the table holds what the simulated units did (their intervals, choices,
+    decode errors) and judgements against the noise-free forward task; it computes no RGT of
+    its own. ``out=None`` keeps nothing on disk; a directory keeps what
     ``rgtbus sweep --out DIR`` writes there (``read_sweep(out)`` gives results and
     decisions, one row per run, unit and round); ``resume=True`` finishes one stopped
     halfway; ``logs=True`` an MCAP log per run (needs ``out``). A run that raises is a row with
@@ -822,7 +824,6 @@ def sweep(
     ...            seeds=20)                                              # doctest: +SKIP
     >>> df.groupby(["n", "relations.p"])["decomposable"].mean()           # doctest: +SKIP
     """
-    import pandas as pd
 
     sw = make_sweep(scenario_or_path, grid=grid, seeds=seeds, cases=cases, name=name)
     kw: dict[str, Any] = {
@@ -837,9 +838,9 @@ def sweep(
             raise RgtbusError("sweep: logs=True needs out= (a directory to keep them in)")
         with tempfile.TemporaryDirectory(prefix="rgtbus-sweep-") as tmp:
             execute_sweep(sw, tmp, **kw)
-            return pd.read_parquet(Path(tmp) / "results.parquet")
+            return read_table(Path(tmp) / "results.parquet")
     execute_sweep(sw, out, **kw)
-    return pd.read_parquet(Path(out) / "results.parquet")
+    return read_table(Path(out) / "results.parquet")
 
 
 def decisions(out: str | os.PathLike[str]) -> pd.DataFrame:

@@ -231,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"run failed: {summary['error']}", file=sys.stderr)
         return 1
-    if any(not ok for _, ok, _ in checks):
+    if any(ok is False for _, ok, _ in checks):
         return 1
     return 0
 
@@ -240,7 +240,7 @@ NOT_JUDGED = "not judged: the run failed"
 
 
 def judged_checks(
-    checks: list[tuple[str, bool, str]], error: str | None
+    checks: list[tuple[str, bool | None, str]], error: str | None
 ) -> list[tuple[str, bool | None, str]]:
     """The ``[expect]`` checks as ``run --check`` reports them: after a failed run none is
     judged (``ok`` None: what the failed run held is no result to pass or fail on; the run's
@@ -265,7 +265,8 @@ def print_checks(
         return
     print("checks:")
     for what, ok, detail in checks:
-        print(f"  {'ok  ' if ok else 'FAIL'} {what}{'' if ok else ': ' + detail}")
+        mark = "ok  " if ok else "skip" if ok is None else "FAIL"  # skip: left out, said why
+        print(f"  {mark} {what}{'' if ok else ': ' + detail}")
 
 
 def decision_cells(universe: Universe, name: str, v: dict[str, Any]) -> tuple[str, str]:

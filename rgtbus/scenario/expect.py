@@ -27,7 +27,12 @@ EXPECT_KEYS = {
     "influences",
     "goals",
     "dynamics",
+    "own_seed_only",
 }
+# [expect] own_seed_only = ["polynomial", ...]: expectations that hold for the scenario's own
+# seed only (its random relations or influences drawn otherwise at another): --check --seed N
+# leaves them out at another seed, saying so (``summary.check_expectations``)
+OWN_SEED = "own_seed"  # the seed they hold for, kept with them (the file's seed)
 DYNAMICS = ("fixed point", "cycle", "neither")
 
 
@@ -37,6 +42,7 @@ def expect_of(
     units: tuple[str, ...],
     universe: Universe,
     outcome: Outcome | None,
+    seed: int = 0,
 ) -> dict[str, Any]:
     """``[expect]``: what a run is checked against, each key checked against the units, the universe
     and the outcome."""
@@ -58,6 +64,16 @@ def expect_of(
     sent = _influences(ctx, _sub_table(ctx, expect, "influences", '"a>b" = "1"'), units, universe)
     if "influences" in expect:
         out["influences"] = sent
+    if "own_seed_only" in expect:
+        only = expect["own_seed_only"]
+        keys = EXPECT_KEYS - {"own_seed_only"}
+        if not isinstance(only, list) or not all(isinstance(k, str) and k in keys for k in only):
+            raise ctx.error(
+                "expect",
+                "own_seed_only",
+                f"must list keys of [expect] ({', '.join(sorted(keys))}), got {only!r}",
+            )
+        out[OWN_SEED] = seed
     if "dynamics" in expect and expect["dynamics"] not in DYNAMICS:
         raise ctx.error(
             "expect",

@@ -151,7 +151,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     decisions = decisions_of(ctx, data, units, universe)
     outcome = outcome_of(ctx, data, units, universe)
     goals = goals_of(ctx, sub_table(ctx, data, "goals"), units, universe, decisions, outcome)
-    expect = expect_of(ctx, sub_table(ctx, data, "expect"), units, universe, outcome)
+    expect = expect_of(ctx, sub_table(ctx, data, "expect"), units, universe, outcome, group.seed)
     check_expected_goals(ctx, expect, goals)
     check_expected_dynamics(ctx, expect, protocol.influence_rounds)
     return Scenario(

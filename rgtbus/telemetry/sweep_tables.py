@@ -382,6 +382,47 @@ def write_tables(
     return results
 
 
+class Record(dict[str, Any]):
+    """A table's struct or map cell as a dict that pandas can group, sort, deduplicate and
+    merge on: hashable, and ordered, by its content (JSON with sorted keys). Read it as a dict
+    (``cell["unit"]``, ``dict(cell)``); it is not to be changed in place (its hash would)."""
+
+    __slots__ = ()
+
+    def _key(self) -> str:
+        return json.dumps(self, sort_keys=True, default=repr)
+
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(self._key())
+
+    def __lt__(self, other: object) -> bool:
+        if not isinstance(other, Record):
+            return NotImplemented
+        return self._key() < other._key()
+
+
+def usable(value: Any) -> Any:
+    """A cell as a value pandas can use: a list or array as a tuple, a dict (a struct, or a map
+    read as one) as a ``Record``, each inside too; anything else as it is."""
+    if isinstance(value, dict):
+        return Record({k: usable(v) for k, v in value.items()})
+    if isinstance(value, list | tuple) or getattr(value, "ndim", 0) == 1:  # a NumPy array
+        return tuple(usable(v) for v in value)
+    return value
+
+
+def read_table(path: Path) -> pd.DataFrame:
+    """A sweep's Parquet table as a DataFrame whose every column pandas can group, sort,
+    deduplicate and merge on: lists as tuples, structs and maps as ``Record`` dicts."""
+    import pyarrow.parquet as pq
+
+    frame: pd.DataFrame = pq.read_table(path).to_pandas(maps_as_pydicts="strict")
+    for column in frame.columns:
+        if frame[column].dtype == object:
+            frame[column] = frame[column].map(usable, na_action="ignore")
+    return frame
+
+
 class SweepTables(NamedTuple):
     """A sweep directory's tables as pandas DataFrames (``read_sweep``)."""
 
@@ -391,8 +432,9 @@ class SweepTables(NamedTuple):
 
 def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     """``(results, decisions)`` of the sweep written to ``out`` (``sweep(..., out=DIR)`` or
-    ``rgtbus sweep --out DIR``), as ``pd.read_parquet`` gives them. A directory without
-    ``decisions.parquet`` (an older rgtbus) gives an empty decisions table."""
+    ``rgtbus sweep --out DIR``), each column one pandas can group, sort, deduplicate and merge
+    on (``read_table``: lists as tuples, structs and maps as ``Record`` dicts). A directory
+    without ``decisions.parquet`` (an older rgtbus) gives an empty decisions table."""
     import pandas as pd
 
     d = Path(out)
@@ -402,5 +444,5 @@ def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     dec = d / "decisions.parquet"
     columns = ["sweep", "run_id", "run", "seed", "unit", "round", "low", "high", "choice",
                "frustrated", "wrong", "t"]  # fmt: skip
-    decisions = pd.read_parquet(dec) if dec.is_file() else pd.DataFrame(columns=columns)
-    return SweepTables(pd.read_parquet(path), decisions)
+    decisions = read_table(dec) if dec.is_file() else pd.DataFrame(columns=columns)
+    return SweepTables(read_table(path), decisions)
