@@ -235,7 +235,7 @@ def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(
         pd.testing.assert_frame_equal(getattr(log, table)(), getattr(whole, table)(), obj=table)
     assert log.summary() == {**whole.summary(), "log": str(path)}
     # the file replaced by another after it was opened: its traces are not read as garbage
-    rgtbus.run(ROOT / "scenarios/gate.toml", log=path, traces=True)
+    rgtbus.run(ROOT / "scenarios/gate.toml", log=path)
     with pytest.raises(rgtbus.RgtbusError, match="changed since it was opened"):
         log.messages("/trace/a")
 

@@ -159,6 +159,7 @@ def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_c
     assert_prefix_is_whole(log, CROWD10)
 
 
+@pytest.mark.slow  # a paced run to its end (10 s): CI's slow pass
 def test_merge_never_writes_over_nor_reads_from_a_log_a_run_is_writing(tmp_path):
     """One writer, always: ``merge -o`` onto the log of a run still going is refused in one
     line (exit 2), and so is a merge with it as an input; the run goes on and its log is its
