@@ -122,6 +122,7 @@ def assert_verifies_as_cut(log: Path) -> None:
     assert "INCOMPLETE" in verify.stdout and "MISMATCH" not in verify.stdout
 
 
+@pytest.mark.slow  # a paced run 90 s in (6 s), verified against the whole run: the slow pass
 def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
     """kill -9 of a paced ``rgtbus run`` once its log has grown: Python's mcap readers read it
     without an error up to its last flush (at most about a second before the kill), and
@@ -139,6 +140,7 @@ def test_a_run_killed_outright_leaves_a_log_every_reader_reads(tmp_path):
     assert_prefix_is_whole(log, CROWD10)
 
 
+@pytest.mark.slow  # two paced runs, each verified against the whole run: the slow pass
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_run_stopped_by_a_signal_says_so_in_one_line_and_its_log_verifies_as_cut(tmp_path, sig):
     """``rgtbus run`` on SIGINT or SIGTERM: stops, one line (no traceback), exit 128 + the
