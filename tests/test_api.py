@@ -215,13 +215,18 @@ def test_every_public_name_of_the_face_says_what_it_is():
 
 
 def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(tmp_path):
-    """A traced log's traces stay in the file until asked for, every other topic stays JSON
-    until asked for; each table is the same as from a stream (read whole, nothing deferred)."""
+    """A traced log's traces stay in the file until asked for (opened by path, or as a file
+    opened from one), every other topic stays JSON until asked for; each table is the same as
+    from a stream of no file (read whole, nothing deferred)."""
+    import io
+
     path = tmp_path / "t.mcap"
     rgtbus.run(ROOT / "scenarios/example2.toml", log=path, traces=True)
     log = rgtbus.open_log(path)
-    with open(path, "rb") as f:
-        whole = rgtbus.open_log(f)
+    whole = rgtbus.open_log(io.BytesIO(path.read_bytes()))
+    with open(path, "rb") as f:  # a file opened from a path: its traces left there too
+        assert not [t for t in rgtbus.open_log(f).replay.by_topic if t.startswith("/trace/")]
+    assert [t for t in whole.replay.by_topic if t.startswith("/trace/")]
     held = log.replay.by_topic
     assert not [t for t in held if t.startswith("/trace/")]  # left in the file
     assert held._raw >= {"/rx/spike", "/medium", "/log"}  # not decoded yet

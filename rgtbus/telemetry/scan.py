@@ -173,11 +173,24 @@ def scan_log(
     file yields all complete records before the cut. Not an MCAP file: RgtbusError.
 
     ``defer``: topics whose messages are checked but left in the file (``raw.deferred``
-    reads them when asked for); only for a path (a stream is read once)."""
-    if defer is None or not isinstance(source, str | os.PathLike):
+    reads them when asked for); for a path, or a file opened from one (``open(path, "rb")``:
+    its ``name``); a stream of no file (``io.BytesIO``) is read whole."""
+    path = _file_of(source) if defer is not None else None
+    if defer is None or path is None:
         return _from_source(source, _scan)
-    path = os.fspath(source)
     return _from_source(source, lambda f, label: _scan(f, label, Deferred(path, defer)))
+
+
+def _file_of(source: str | os.PathLike[str] | IO[bytes]) -> str | None:
+    """The file a source reads: a path, or a seekable stream opened from a regular file."""
+    if isinstance(source, str | os.PathLike):
+        return os.fspath(source)
+    name = getattr(source, "name", None)
+    try:
+        seekable = bool(source.seekable())
+    except (AttributeError, ValueError, OSError):
+        return None
+    return name if isinstance(name, str) and seekable and os.path.isfile(name) else None
 
 
 T = TypeVar("T")
