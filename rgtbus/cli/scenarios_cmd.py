@@ -11,6 +11,7 @@ from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
+    from rgtbus.scenario.shipped import ShippedScenario
 
 
 def register(subparsers: SubParsers) -> None:
@@ -43,18 +44,7 @@ def list_scenarios(args: argparse.Namespace) -> int:
     if shipped_dir() is None:
         raise RgtbusError("no shipped scenarios found (neither rgtbus/scenarios/ nor scenarios/)")
     found = shipped_scenarios()
-    if args.json:
-        print(json.dumps([s.to_json() for s in found]))
-        return 0
-    from rgtbus.cli.tables import table_lines
-
-    rows = [
-        (s.name, "?" if s.units is None else str(s.units), s.schedule or "?", str(s.path))
-        for s in found
-    ]
-    headers = ("NAME", "UNITS", "SCHEDULE", "PATH")
-    for line in table_lines(rows, headers, align=("left", "right", "left", "left"), indent=""):
-        print(line)
+    _print_entries(found, args.json, "SCHEDULE", [s.schedule or "?" for s in found])
     return 0
 
 
@@ -66,14 +56,21 @@ def list_sweeps(args: argparse.Namespace) -> int:
     if not found:
         raise RgtbusError("no shipped sweeps found (neither rgtbus/scenarios/sweeps/ nor "
                           "scenarios/sweeps/)")  # fmt: skip
-    if args.json:
+    _print_entries(found, args.json, "STUDIES", [s.description[:60] for s in found])
+    return 0
+
+
+def _print_entries(
+    found: list[ShippedScenario], as_json: bool, third: str, column: list[str]
+) -> None:
+    """Shipped files as a JSON list, or a table: name, units, ``third`` (``column``), path."""
+    if as_json:
         print(json.dumps([s.to_json() for s in found]))
-        return 0
+        return
     from rgtbus.cli.tables import table_lines
 
-    rows = [(s.name, "?" if s.units is None else str(s.units), s.description[:60], str(s.path))
-            for s in found]  # fmt: skip
-    headers = ("NAME", "UNITS", "STUDIES", "PATH")
+    rows = [(s.name, "?" if s.units is None else str(s.units), c, str(s.path))
+            for s, c in zip(found, column, strict=True)]  # fmt: skip
+    headers = ("NAME", "UNITS", third, "PATH")
     for line in table_lines(rows, headers, align=("left", "right", "left", "left"), indent=""):
         print(line)
-    return 0

@@ -35,7 +35,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics
-from rgtbus.telemetry.recorder import LogContents, LogMessage
+from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
     LOG,
     MEDIUM,
@@ -59,7 +59,7 @@ from rgtbus.telemetry.records import (
     spike_units,
     trace_topic,
 )
-from rgtbus.telemetry.scan import Deferred, decode_log, require_run_log, scan_log
+from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.timebase import ns, seconds, time_of
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
@@ -459,7 +459,7 @@ class Replay:
         self.metadata: dict[str, dict[str, str]] = contents.metadata
         self.truncated: bool = contents.truncated
         self.note: str = contents.note
-        self.deferred: Deferred | None = contents.deferred
+        self.deferred: DeferredTopics | None = contents.deferred
         self.end_ns: int | None = contents.end_ns
         self.by_topic = Topics(contents.messages, label, contents.current)
         self.scenario: Scenario | None = None

@@ -17,7 +17,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Collection, Iterator, Mapping
-from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, Self, runtime_checkable
+from typing import Any, BinaryIO, Protocol, Self, runtime_checkable
 
 import foxglove
 import orjson
@@ -30,9 +30,6 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.records import LOG, MEDIUM
 from rgtbus.timebase import NS_PER_SECOND, ns
-
-if TYPE_CHECKING:
-    from rgtbus.telemetry.scan import Deferred
 
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
 _COMPRESSION = {
@@ -702,6 +699,20 @@ class NullRecorder:
         self.close()
 
 
+class DeferredTopics(Protocol):
+    """Topics a reader left in the file, to be read when asked for (``scan.Deferred``)."""
+
+    last_ns: int | None  # the log time of the last such message
+
+    def held(self) -> dict[str, int]:
+        """How many messages each such topic holds."""
+        ...
+
+    def read(self, topic: str) -> list[tuple[int, bytes]]:
+        """``topic``'s messages as ``(log_time, data)`` in log-time order."""
+        ...
+
+
 class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     """``(messages, metadata)`` — unpacks as a pair — plus how the read ended.
 
@@ -709,7 +720,7 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     metadata: ``{name: {key: value}}`` (a repeated name: the last record wins).
     ``truncated``: the file ended before its footer; ``note``: one line saying where and why;
     ``end_ns``: log time of the last message read (None when there was none).
-    ``deferred``: the topics whose messages were left in the file (``scan.Deferred``), or None.
+    ``deferred``: the topics whose messages were left in the file (``DeferredTopics``), or None.
     ``current``: the topics whose channel's schema is this rgtbus's own.
     """
 
@@ -717,7 +728,7 @@ class LogContents(tuple[list[LogMessage], dict[str, dict[str, str]]]):
     metadata: dict[str, dict[str, str]]
     truncated: bool
     note: str
-    deferred: Deferred | None = None
+    deferred: DeferredTopics | None = None
     # topics whose channel's schema is this rgtbus's own (``scan.current_topics``): their
     # messages are checked against it before use; an older log's are read as they are
     current: frozenset[str] = frozenset()
