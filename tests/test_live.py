@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import queue
 import re
 import socket
@@ -14,9 +15,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+from rgtbus import api
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.live import LiveView, parse_address
+from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, decode_rows
+from rgtbus.timebase import ns
 
 sys.path.insert(0, str(Path(__file__).parent))
 from live_client import collect_sync
@@ -33,6 +37,28 @@ def _mcap(path: Path) -> tuple[list[tuple[str, int, bytes]], dict[str, tuple[str
             msgs.append((channel.topic, m.log_time, bytes(m.data)))
             schemas[channel.topic] = (schema.name, bytes(schema.data))
     return sorted(msgs), schemas
+
+
+def _split_live(got) -> tuple[list[tuple[str, int, bytes]], list[tuple[int, str]]]:
+    """What a live client got: the log's messages (sorted), and the decodes offered to the
+    view alone as they were made (``/rx/decode``, sorted (time, JSON))."""
+    logged = sorted((topic, t, data) for topic, t, data, _ in got.messages if topic != RX_DECODE)
+    offered = sorted(
+        (t, json.dumps(json.loads(data), sort_keys=True))
+        for topic, t, data, _ in got.messages
+        if topic == RX_DECODE
+    )
+    return logged, offered
+
+
+def _decodes_of(messages: list[tuple[str, int, bytes]]) -> list[tuple[int, str]]:
+    """The log's decode blocks, one decode a row at its own time (what ``cat`` prints)."""
+    return sorted(
+        (ns(row["t"]), json.dumps(row, sort_keys=True))
+        for topic, _, data in messages
+        if topic == RX_DECODES
+        for row in decode_rows(json.loads(data))
+    )
 
 
 def _live_run(tmp_path: Path, *extra: str, scenario: str = "gate") -> tuple:
@@ -57,10 +83,18 @@ def _live_run(tmp_path: Path, *extra: str, scenario: str = "gate") -> tuple:
 
 
 @pytest.mark.parametrize("pace", [[], ["--realtime", "400"]], ids=["unpaced", "paced"])
-def test_a_client_gets_every_message_of_the_log(tmp_path, pace):
+def test_a_client_gets_every_message_of_the_log(tmp_path, pace, monkeypatch):
     got, log = _live_run(tmp_path, *pace)
     messages, schemas = _mcap(log)
-    assert sorted((topic, t, data) for topic, t, data, _ in got.messages) == messages
+    logged, offered = _split_live(got)
+    assert logged == messages
+    # and each decode as it was made: the log's blocks, one decode a message
+    assert offered == _decodes_of(messages) and len(offered) > 100
+    # the log is the one a run with no viewer writes (docs/foxglove.md)
+    alone = tmp_path / "alone.mcap"
+    monkeypatch.chdir(ROOT)
+    assert main(["run", "scenarios/gate.toml", "--log", str(alone), "--quiet"]) == 0
+    assert _mcap(alone)[0] == messages
     # every topic under the same schema as in the file
     live = {c["topic"]: (c["schemaName"], c["schema"].encode()) for c in got.channels.values()}
     for topic, schema in schemas.items():
@@ -70,12 +104,46 @@ def test_a_client_gets_every_message_of_the_log(tmp_path, pace):
     assert got.times[-1] <= max(t for _, t, _ in messages) + 10**9
 
 
+class _Looking:
+    """A live sink that is always looking, and keeps what it is offered."""
+
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, int, bytes, None]] = []
+
+    def begin(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def watched(self) -> bool:
+        return True
+
+    def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
+        self.messages.append((topic, t_ns, bytes(data), None))
+
+
+@pytest.mark.parametrize("scenario", ["gate_repair", "crowd10", "coalition10", "group6"])
+def test_a_watched_run_logs_what_nobody_watching_logs(tmp_path, scenario):
+    """Watched, units wake for each thing they do and take no batch of decodes; the log holds
+    the same messages all the same, and the view gets them and each decode as it was made."""
+    path = str(ROOT / "scenarios" / f"{scenario}.toml")
+    alone, watched = tmp_path / "alone.mcap", tmp_path / "watched.mcap"
+    api.run(path, log=alone)
+    view = _Looking()
+    api.run(path, log=watched, live=view)  # type: ignore[arg-type]
+    messages = _mcap(alone)[0]
+    assert _mcap(watched)[0] == messages
+    got = type("Got", (), {"messages": view.messages})
+    assert _split_live(got) == (messages, _decodes_of(messages))
+
+
 def test_traces_are_served_too(tmp_path):
     # paced so that a client on a loaded machine keeps up: the server keeps a bounded backlog
     got, log = _live_run(tmp_path, "--traces", "--realtime", "200", scenario="example1")
     messages, _ = _mcap(log)
     assert any(topic.startswith("/trace/") for topic, _, _ in messages)
-    assert sorted((topic, t, data) for topic, t, data, _ in got.messages) == messages
+    assert _split_live(got) == (messages, _decodes_of(messages))
 
 
 def test_a_paced_message_is_never_sent_before_it_is_due():
@@ -177,9 +245,8 @@ def test_watch_serves_a_cross_process_run_as_an_observer(procs, tmp_path):
     reader.join(timeout=30)
     err = "".join(lines.get() for _ in range(lines.qsize()))
     client.join(timeout=60)
-    got = sorted((topic, t, data) for topic, t, data, _ in result["r"].messages)
     logged = sorted(m for u in units for m in _mcap(tmp_path / f"{u}.mcap")[0])
-    assert got == logged and len(got) > 100
+    assert _split_live(result["r"]) == (logged, _decodes_of(logged)) and len(logged) > 100
     assert "from run(s) watched" in err
 
 

@@ -32,6 +32,7 @@ from rgtbus.signal.decoder import (
     nearest_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
+from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
 
 if TYPE_CHECKING:
@@ -78,6 +79,12 @@ class DecodeColumns:
 
     def __len__(self) -> int:
         return len(self._turns)
+
+    def count(self, kind: str) -> int:
+        """How many of the decodes are of ``kind`` (id, relation or influence)."""
+        _, what, rows = self.arrays()
+        of_kind = np.array([row[0] == kind for row in rows] or [False])
+        return int(of_kind[what].sum()) if len(what) else 0
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
         """(each decode's turn, the index of its (kind, addressee, code) in the third),
@@ -203,6 +210,16 @@ class Listening:
         self.omegas = [sc.frequencies[u] for u in self.units]
         self.id_words = WordSet.of(self.cb.distinct_words())
         self.families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
+        # every word name a decode can read, each once: a batch's codes index into it, and
+        # the log's records of decodes index into these tables (``UnitLog.tables``)
+        words: list[str] = []
+        for family in (self.id_words, *self.families.values()):
+            for word in family.names:
+                if word not in words:
+                    words.append(word)
+        self.words = tuple(words)
+        self.log_tables: records.DecodeTables = (self.units, KINDS, self.words)
+        log.tables = self.log_tables
         self.index_of = {u: i for i, u in enumerate(self.units)}
         self._gains = sc.channel.gain_row(sc.units, name)  # what it hears of each sender
         self._timed = sc.channel.timed  # pulses land off their samples (delays, clocks)
@@ -300,15 +317,11 @@ class Listening:
         assert ears is not None
         index, tau, cb = self.index_of, self.tau, self.cb
         listens = [queue.listens[i] for i in queue.order]
-        names: list[str] = []
-        maps = {}
-        for key, words in (("id", self.id_words), *self.families.items()):
-            ix = []
-            for name in words.names:
-                if name not in names:
-                    names.append(name)
-                ix.append(names.index(name))
-            maps[key] = np.array(ix, dtype=np.int64)
+        names = self.words
+        maps = {
+            key: np.array([names.index(name) for name in words.names], dtype=np.int64)
+            for key, words in (("id", self.id_words), *self.families.items())
+        }
         universe = self.scenario.universe
         alternatives = set(self.families["alternative"].names)
         value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
@@ -356,7 +369,7 @@ class Listening:
             unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
             what=(kind * n + expected) * len(names),
             channel=np.where(kind == _ID, sender, expected),
-            names=tuple(names),
+            names=names,
             alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
             value=np.array(value, dtype=np.int64),
             id_word=names.index("id") if "id" in names else -1,
@@ -465,7 +478,7 @@ class Listening:
                 times=reads.t_ready[a:b],
                 accepted=np.ones(b - a, dtype=bool),
             )
-            self.log.decode_batch(part, (self.units, KINDS, names))
+            self.log.decode_batch(part, self.log_tables)
         self._learn_batch(reads, a, b, word)
 
     def _learn_batch(self, reads: QueueReads, a: int, b: int, word: np.ndarray) -> None:

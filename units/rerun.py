@@ -54,6 +54,12 @@ class CaptureRecorder:
     def metadata(self, name: str, values: dict[str, str]) -> None:
         pass
 
+    def watched(self) -> bool:
+        return False
+
+    def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        pass
+
     def close(self) -> None:
         self.closed = True
 

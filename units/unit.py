@@ -191,22 +191,18 @@ class AutonomousUnit:
         """Whether this unit may take its decodes a batch at a wake (``Timers.batch_end``):
         their records then leave at the wake, each at its own log time, up to
         ``BATCH_SECONDS`` behind the run's clock, and the blocks of spikes the ears hand on
-        meanwhile wait for the wake too. Not with traces, nor when a live view must get every
-        record as the clock reaches it (``watched``). Asked at every wake, with no block
-        held: a watcher that comes mid-run gets this unit's records on time from its next
-        wake on, one that leaves lets it batch again."""
+        meanwhile wait for the wake too. Not with traces, nor while a live view may be looking
+        (``watched``): it then wakes for each thing it does and offers each decode as it is
+        made (``UnitLog.offers``). Asked at every wake, with no block held: a watcher that
+        comes mid-run gets this unit's records on time from its next wake on, one that leaves
+        lets it batch again. Either way the log holds the same records."""
         if self.traces or self.protocol.confirmed:
             return False
         return not self.watched()
 
     def watched(self) -> bool:
-        """Whether a live view may be looking (``LiveSink.watched``), so this unit's records
-        should leave as the run's clock reaches them."""
-        live = getattr(self.recorder, "live", None)
-        if live is None:
-            return False
-        watched = getattr(live, "watched", None)
-        return watched is None or bool(watched())
+        """Whether a live view may be looking (``Recorder.watched``)."""
+        return self.recorder.watched()
 
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (``Transmitter.take_outbox``)."""
@@ -272,7 +268,7 @@ class AutonomousUnit:
         if self.log.holds_spikes:  # not done before the samples of this wake: they are its
             self.log.release_spikes(None)
         self._batches = self.batching()  # none held now: it may change (a watcher came)
-        self.log.holds = not self.watched()
+        self.log.offers = self.watched()
         t = self.timers.first
         aw = self._asked = self.awaited()
         if aw is None and self._batches:  # nothing it hears can change its plans

@@ -1,7 +1,9 @@
 """A run served live over the Foxglove WebSocket protocol, by foxglove-sdk's server.
 
 Every message a run logs is offered to connected clients on a channel with the same topic and
-JSON Schema as in the MCAP log (``topic_channel``, one definition for both). The live channels
+JSON Schema as in the MCAP log (``topic_channel``, one definition for both), and so is each
+decode as a unit makes it (``/rx/decode``, ``Recorder.offer``: the view's alone; the log holds
+them in blocks). The log is the same with a view or without. The live channels
 live on their own ``foxglove.Context``, so a slow client never holds the file back. The
 server's time (the Time capability) is the run's simulated time.
 

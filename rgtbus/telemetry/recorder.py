@@ -82,6 +82,17 @@ class Recorder(Protocol):
         """A metadata record ``name`` of string values."""
         ...
 
+    def watched(self) -> bool:
+        """Whether a live view may be looking now (``LiveSink.watched``): then a unit wakes for
+        each thing it does and offers it as it happens (``offer``). Never changes what is
+        logged."""
+        ...
+
+    def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """``message`` for the live view alone, never logged (nothing without a live view):
+        e.g. each decode on ``/rx/decode`` as it is made, where the log holds them in blocks."""
+        ...
+
     def close(self) -> None:
         """Finish the log; nothing is written after."""
         ...
@@ -192,9 +203,11 @@ class _Encoding:
     """Topic check, JSON encoding and optional validation, shared by the real recorders."""
 
     enabled = True
+    failed: str | None = None  # the one line that says why the stream failed (McapRecorder)
 
-    def __init__(self, validate: bool) -> None:
+    def __init__(self, validate: bool, live: LiveSink | None = None) -> None:
         self.validate = validate
+        self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
         self.counts: Counter[str] = Counter()  # messages written per topic
         self._closed = False
         self._schemas: dict[str, str] = {}  # topic -> schema name, once looked up
@@ -246,6 +259,25 @@ class _Encoding:
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         raise NotImplementedError
+
+    def watched(self) -> bool:
+        """Whether the live sink (if any) may be looking now (``LiveSink.watched``)."""
+        return self.live is not None and self.live.watched()
+
+    def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """``message`` to the live sink alone (encoded as ``write`` would; not counted, not
+        logged); nothing without a live sink, or once closed."""
+        live = self.live
+        if live is None or self._closed or self.failed:
+            return
+        schema = self._schemas.get(topic) or self._schemas.setdefault(
+            topic, topics.schema_for(topic)
+        )
+        try:
+            data = encode_json(message)
+        except (TypeError, ValueError) as e:
+            raise RgtbusError(f"message on {topic} at t_ns={t_ns} is not JSON: {e}") from None
+        live.put(topic, schema, data, _check_t_ns(t_ns))
 
     @property
     def closed(self) -> bool:
@@ -462,8 +494,7 @@ class McapRecorder(_Encoding):
         live: LiveSink | None = None,
         ahead_topics: Collection[str] = (MEDIUM,),
     ) -> None:
-        super().__init__(validate)
-        self.live = live  # every message is offered to it too (rgtbus.telemetry.live)
+        super().__init__(validate, live)
         if compression not in _COMPRESSION:
             raise RgtbusError(
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
@@ -473,7 +504,7 @@ class McapRecorder(_Encoding):
         ):
             raise RgtbusError("flush_seconds, flush_messages and flush_wall must be positive")
         self.stream = stream
-        self.failed: str | None = None
+        self.failed = None
         self._sink = _WatchedStream(stream)
         self.context = foxglove.Context()
         # Smaller chunks than mcap's 1 MiB default: a killed run loses at most one chunk.
@@ -636,19 +667,22 @@ class McapRecorder(_Encoding):
 
 class MemoryRecorder(_Encoding):
     """The in-process twin: keeps what an MCAP file would hold, JSON round-tripped so reading
-    it back equals ``read_log`` of the same writes. Validates by default (it serves tests)."""
+    it back equals ``read_log`` of the same writes, and offers each to ``live`` as the file's
+    recorder does. Validates by default (it serves tests)."""
 
-    def __init__(self, *, validate: bool = True) -> None:
-        super().__init__(validate)
+    def __init__(self, *, validate: bool = True, live: LiveSink | None = None) -> None:
+        super().__init__(validate, live)
         self.messages: list[LogMessage] = []
         self.metadata_records: dict[str, dict[str, str]] = {}
         self.logs: list[dict[str, Any]] = []
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         """Keep ``message`` as the file would hold it (JSON round-tripped, validated)."""
-        _, data, t = self._encode(topic, message, t_ns)
+        schema, data, t = self._encode(topic, message, t_ns)
         decoded = orjson.loads(data)
         self.messages.append((topic, t, decoded))
+        if self.live is not None:
+            self.live.put(topic, schema, data, t)
         if topic == LOG:
             self.logs.append(decoded)
 
@@ -685,6 +719,14 @@ class NullRecorder:
         pass
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Nothing."""
+        pass
+
+    def watched(self) -> bool:
+        """Nobody: nothing is recorded."""
+        return False
+
+    def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         """Nothing."""
         pass
 

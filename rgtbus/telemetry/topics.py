@@ -30,11 +30,12 @@ TOPICS: dict[str, tuple[str, str]] = {
     ),
     r.RX_DECODE: (
         "rgtbus.Decode",
-        "every decoded code, one record each (logs before /rx/decodes)",
+        "every decoded code, one record each: a live view's, as each is made "
+        "(earlier logs held these)",
     ),
     r.RX_DECODES: (
         "rgtbus.Decodes",
-        "every decoded code, per receiving unit and wake: one column a field",
+        "every decoded code, per receiving unit and 5 s block: one column a field",
     ),
     r.UNIT_RELATIONS: ("rgtbus.Relations", "relationship table as a unit holds it"),
     r.UNIT_INFLUENCES: (

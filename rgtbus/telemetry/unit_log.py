@@ -6,9 +6,11 @@ records written in time order (``UnitLog``).
   of decodes as arrays (its names as indexes into the batch's tables), a decode taken on its
   own as a row. A block is written before any other record of the unit, so its records stay in
   time order (a log cut short is complete before its last one), and at the end of a wake past
-  it. Which decodes a record holds depends on the blocks and the unit's other records alone,
-  never on its wakes, so every engine, bus and attention writes the same records. While a
-  live view watches (``holds`` false) they leave at every wake.
+  it. Which decodes a record holds, and how it holds them (``canonical``), depend on the
+  blocks and the unit's other records alone, never on its wakes or on how the decodes were
+  taken, so every engine, bus and attention, watched by a live view or not, writes the same
+  records. While a live view may be looking (``offers``) each decode is also offered to it
+  alone as it is made, one ``/rx/decode`` message at its own time (``Recorder.offer``).
 * **Spikes** come from the ears a block of ``SPIKE_BLOCK_SECONDS`` at a time (the engine's
   ``SpikeLog``), one ``/rx/spike`` record of columns a block; a unit that takes its decodes a
   batch at a wake holds a block until that wake says whether it was done before the block
@@ -146,6 +148,43 @@ def _joined(
     return DecodePart(*named), None
 
 
+def canonical(
+    part: DecodePart, tables: records.DecodeTables | None, own: records.DecodeTables | None
+) -> tuple[DecodePart, records.DecodeTables]:
+    """A block's decodes as its record holds them, whatever way they were taken (``tables``:
+    those ``part``'s indexes point into; None: ``part`` holds names): its names as indexes
+    into the unit's own tables (``own``: every name its decodes can hold), or, where a name
+    is in none of those, into tables of the names the block uses, each sorted. A batch taken
+    at one wake and the same decodes taken one at a time (a unit a live view watches) make
+    the same record."""
+    if own is not None:
+        if tables is not None and all(a is b or a == b for a, b in zip(tables, own, strict=True)):
+            return part, own  # a batch's: indexes into the unit's tables already
+        named = part if tables is None else _names_of(part, tables)
+        indexed = _indexed_part(named, own)
+        if indexed is not None:
+            return indexed, own
+        part, tables = named, None
+    elif tables is not None:
+        part, tables = _names_of(part, tables), None
+    cols = dict(zip(records.DECODE_COLUMNS, part, strict=True))
+    out: list[list[str]] = []
+    for table_name in records.DECODE_TABLES:
+        columns = [c for c, t in records.NAMED_COLUMNS.items() if t == table_name]
+        used = sorted(set().union(*(cols[c] for c in columns)))
+        at = {name: i for i, name in enumerate(used)}
+        for c in columns:
+            cols[c] = np.array([at[name] for name in cols[c]], dtype=np.int64)
+        out.append(used)
+    return DecodePart(**cols), (out[0], out[1], out[2])
+
+
+def _names_of(part: DecodePart, tables: records.DecodeTables) -> DecodePart:
+    """A part of indexes into ``tables`` as columns of names."""
+    columns = zip(records.DECODE_COLUMNS, part, strict=True)
+    return DecodePart(*(_named_column(col, tables, c) for c, col in columns))
+
+
 class UnitLog:
     """Unit ``name``'s log on ``recorder``: its decode and spike blocks, its traces, and its
     own records in time order (see the module docstring). ``units``: the channels' names, in
@@ -176,7 +215,10 @@ class UnitLog:
         self._rows: list[tuple[Any, ...]] = []  # single decodes since the last part
         self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / tau))
         self.held_block = -1  # the decode block of the first decode held (-1: none)
-        self.holds = True  # decodes wait for their block's end (no live view watches)
+        self.offers = False  # each decode offered to a live view as it is made (never logged)
+        # the unit's tables of every name its decodes can hold (``canonical``): set by its
+        # Listening; None: each record's own tables of the names it uses
+        self.tables: records.DecodeTables | None = None
 
     # -- lines and records ---------------------------------------------------------------------
 
@@ -220,6 +262,11 @@ class UnitLog:
         accepted: bool,
     ) -> None:
         """One decode taken on its own, held for its block's record."""
+        if self.offers:
+            row = records.decode(
+                self.name, turn, sender, addressee, channel, kind, code, margin, t, accepted
+            )
+            self.recorder.offer(records.RX_DECODE, row, ns(t))
         if self.held_block < 0:
             self.held_block = self._block_of(t)
         self._rows.append((turn, sender, addressee, channel, kind, code, margin, t, accepted))
@@ -227,6 +274,9 @@ class UnitLog:
     def decode_batch(self, part: DecodePart, tables: records.DecodeTables) -> None:
         """A batch of decodes as arrays (its names as indexes into ``tables``), held for its
         block's record; the arrays are the record's from then on."""
+        if self.offers:
+            for row in records.decode_rows(records.decodes_of_columns(self.name, part, tables)):
+                self.recorder.offer(records.RX_DECODE, row, ns(row["t"]))
         self._rows_to_part()
         if self.held_block < 0:
             self.held_block = self._block_of(float(part.times[0]))
@@ -235,10 +285,8 @@ class UnitLog:
 
     def after_wake(self, pos: int) -> None:
         """The unit's wake is over, every sample before ``pos`` heard: the decode blocks that
-        ended go out (all held, while a live view watches)."""
-        if not self.holds:
-            self.flush_decodes()
-        elif 0 <= self.held_block < pos // self._decode_block:  # past a block of decodes
+        ended go out."""
+        if 0 <= self.held_block < pos // self._decode_block:  # past a block of decodes
             self.flush_decodes(before=pos)
 
     def _block_of(self, t: float) -> int:
@@ -280,7 +328,7 @@ class UnitLog:
                 self.held_block = blocks[a]
                 return
             part = cols if b - a == len(blocks) else DecodePart(*(c[a:b] for c in cols))
-            record = records.decodes_of_columns(self.name, part, table)
+            record = records.decodes_of_columns(self.name, *canonical(part, table, self.tables))
             self.recorder.write(records.RX_DECODES, record, ns(record["t"]))
 
     # -- spikes (the engine's SpikeLog) ----------------------------------------------------------
