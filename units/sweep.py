@@ -74,7 +74,7 @@ from rgtbus.units.workers import (
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.summary import summary_json
+from rgtbus.summary import decode_errors_left, summary_json
 from rgtbus.telemetry.sweep_tables import (
     NOT_COLUMNS,
     SweepTables,
@@ -104,6 +104,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     import pandas as pd
+    from rgtbus.units.unit import AutonomousUnit
 
 # -- one run -----------------------------------------------------------------------------------
 
@@ -151,6 +152,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         decodes = sum(len(m.decoded) for m in out.units)
         row["decodes"] = decodes
         row["decode_error_rate"] = len(s["decode_errors"]) / decodes if decodes else None
+        row.update(id_columns(s["decode_errors"], out.units))
         row["failed"] = s["error"] is not None
     except Exception as exc:  # a run that raises is a result of the sweep, never its end
         last = traceback.extract_tb(exc.__traceback__)[-1:] or None
@@ -160,6 +162,27 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row["failed"] = True
     row["log"] = log_path
     return row
+
+
+def id_columns(
+    errors: Sequence[Mapping[str, Any]], units: Sequence[AutonomousUnit]
+) -> dict[str, Any]:
+    """A run's ID-codes as read: how many its units decoded (``id_decodes``), how many of
+    those read otherwise than sent (``id_misread_count``, ``id_misread_rate``), and how many
+    misread IDs stayed wrong in what the unit took from their turns (``id_misreads_left``,
+    as ``summary.decode_errors_left`` judges: a repair, or the payload read right all the
+    same, sets one right). What the ID-noise study plots (scenarios/sweeps/id_noise.toml)."""
+    from rgtbus.units.group import shared_reports
+
+    misread = [e for e in errors if e["kind"] == "id"]
+    decoded = sum(m.decoded.count("id") for m in units)
+    left = decode_errors_left(shared_reports(units), misread) if misread else 0
+    return {
+        "id_decodes": decoded,
+        "id_misread_count": len(misread),
+        "id_misread_rate": len(misread) / decoded if decoded else None,
+        "id_misreads_left": left,
+    }
 
 
 def _row_head(sweep: Sweep, task: Task) -> dict[str, Any]:

@@ -30,7 +30,9 @@ SWEEP_KEYS = {"name", "description", "scenario", "seeds", "grid", "cases"}
 MAX_RUNS = 1_000_000
 # the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
 # types and decisions.parquet; 1 (no key) held nested columns as JSON text
-TABLES_VERSION = 3  # 3: every row names its sweep and run (sweep, run_id)
+# 3: every row names its sweep and run (sweep, run_id); 4: the ID-codes as read (id_decodes,
+# id_misread_count, id_misread_rate, id_misreads_left)
+TABLES_VERSION = 4
 ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
 

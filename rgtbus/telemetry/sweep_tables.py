@@ -121,6 +121,10 @@ def _derived_types() -> list[tuple[str, pa.DataType]]:
         ("alliance_share", f64),
         ("decodes", i64),
         ("decode_error_rate", f64),
+        ("id_decodes", i64),
+        ("id_misread_count", i64),
+        ("id_misread_rate", f64),
+        ("id_misreads_left", i64),
         ("failed", yes),
         ("log", pa.string()),
     ]
