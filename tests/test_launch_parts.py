@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 from rgtbus.units.group import run_group
 from rgtbus.units.launch import LaunchProcesses, _is_stopped, default_timeout, recovered
 from rgtbus.units.process import PauseWatch, join_seconds, lateness
@@ -98,6 +99,7 @@ def _start(processes, name, steps, then):
     processes._results[name] = reader
 
 
+@pytest.mark.slow  # 3 s of waiting: CI's slow pass (the fast suite stays near 3 min)
 def test_the_launcher_waits_while_a_world_moves_and_calls_stalled_one_that_stopped_moving():
     """No wall-clock limit on a run: a process whose world moves (its beats) is waited for as
     long as it moves; one whose world stopped moving for ``stall_after`` is stalled (absent

@@ -153,7 +153,9 @@ def comparable(summary: dict) -> dict:
     return {k: v for k, v in summary.items() if k not in ("wall_seconds", "log")}
 
 
-@pytest.mark.parametrize("kind", ["zenoh", "memory"])
+@pytest.mark.parametrize(
+    "kind", [pytest.param("zenoh", marks=pytest.mark.slow), "memory"]
+)  # zenoh: CI's slow pass (the fast suite stays near 3 min)
 def test_a_keyed_gate_run_flooded_by_a_keyless_peer_decides_as_the_clean_run(kind, monkeypatch):
     """The gate, keyed, in this process; a keyless peer floods every member's key with 256 KB
     and 4 KB wrongly tagged frames (a zenoh peer in its own process, or ``put_raw`` from a

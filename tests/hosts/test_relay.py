@@ -11,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 RELAY = Path(__file__).with_name("relay.py")
 
 
@@ -32,6 +34,7 @@ def echo_server() -> tuple[socket.socket, threading.Thread]:
     return srv, thread
 
 
+@pytest.mark.slow  # timed delays: CI's slow pass (the fast suite stays near 3 min)
 def test_the_relay_delays_every_chunk_and_keeps_the_order(tmp_path):
     srv, thread = echo_server()
     port = srv.getsockname()[1]
