@@ -36,8 +36,8 @@ from functools import lru_cache
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal._walk import read_rows, timings
 from rgtbus.signal.codebook import Codebook
+from rgtbus.signal.kernels import read_rows, timings
 from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
 from rgtbus.timebase import time_of

@@ -9,7 +9,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from rgtbus.signal._walk import WalkModel, walk_lanes
+from rgtbus.signal.kernels import WalkModel, walk_lanes
 
 
 class BankModel(Protocol):

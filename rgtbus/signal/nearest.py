@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rgtbus.signal._walk import score
+from rgtbus.signal.kernels import score
 
 # (row, word, distance, margin, separation) of one decode: the compiled twin's tuple as it is
 # (built at every decode: a named tuple would add its own construction to the hot path)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal._walk import WalkModel
+from rgtbus.signal.kernels import WalkModel
 from rgtbus.signal.lanes import Trajectory, spike_table, walk, walk_every_lane, walking_lanes
 from rgtbus.timebase import times_of
 

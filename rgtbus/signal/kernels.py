@@ -1,0 +1,46 @@
+"""The receiver's loops: the compiled module (``_walk``, Cython), or its NumPy twin
+(``walk_numpy``: the same bits, slower) where the compiled one is missing (an sdist installed
+without a C compiler) or ``RGTBUS_WALK=numpy`` asks for it. Said once, on stderr, when the
+twin stands in for a missing module."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from rgtbus.errors import RgtbusError
+
+_ASKED = os.environ.get("RGTBUS_WALK", "").strip().lower()
+if _ASKED not in ("", "compiled", "numpy"):
+    raise RgtbusError(f"RGTBUS_WALK={_ASKED!r}: expected compiled or numpy (or unset)")
+
+if _ASKED == "numpy":
+    from rgtbus.signal.walk_numpy import WalkModel, read_rows, score, timings, walk_lanes
+
+    COMPILED = False
+else:
+    try:
+        from rgtbus.signal._walk import (  # type: ignore[assignment]
+            WalkModel,
+            read_rows,
+            score,
+            timings,
+            walk_lanes,
+        )
+
+        COMPILED = True
+    except ImportError as exc:
+        if _ASKED == "compiled":
+            raise RgtbusError(
+                f"RGTBUS_WALK=compiled: the compiled walk is missing ({exc})"
+            ) from None
+        from rgtbus.signal.walk_numpy import WalkModel, read_rows, score, timings, walk_lanes
+
+        COMPILED = False
+        print(
+            "rgtbus: the compiled receiver (rgtbus.signal._walk) is not installed (built without "
+            "a C compiler?): using its NumPy twin, same results, several times slower",
+            file=sys.stderr,
+        )
+
+__all__ = ["COMPILED", "WalkModel", "read_rows", "score", "timings", "walk_lanes"]
