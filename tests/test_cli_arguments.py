@@ -74,8 +74,9 @@ def test_a_parser_without_checked_options_is_left_alone():
 
 
 def test_every_command_that_prints_a_result_prints_it_as_json_too(tmp_path, capsys):
-    """``--json`` on every command but ``cat`` (JSON lines already) and ``scenario`` (a TOML
-    file's text); merge's and recover's objects say what they wrote."""
+    """``--json`` on every command but ``cat`` (JSON lines already), ``scenario`` (a TOML
+    file's text) and ``completion`` (shell code); merge's and recover's objects say what they
+    wrote."""
     import json
 
     import rgtbus
@@ -85,7 +86,7 @@ def test_every_command_that_prints_a_result_prints_it_as_json_too(tmp_path, caps
     commands = next(a for a in parser._actions if a.dest == "command").choices
     lacking = [name for name, sub in commands.items()
                if not any("--json" in a.option_strings for a in sub._actions)]  # fmt: skip
-    assert sorted(lacking) == ["cat", "scenario"]
+    assert sorted(lacking) == ["cat", "completion", "scenario"]
     log = tmp_path / "gate.mcap"
     rgtbus.run("gate", log=log)
     capsys.readouterr()

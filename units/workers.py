@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -540,13 +541,10 @@ def check_scheduler(address: str) -> None:
 
 @contextlib.contextmanager
 def _dask(scheduler: str) -> Iterator[tuple[Executor, int]]:
+    require("distributed", f"--scheduler {scheduler!r}")
     check_scheduler(scheduler)
-    try:
-        from distributed import Client
-    except ImportError:
-        raise RgtbusError(
-            f"scheduler {scheduler!r}: Dask distributed is not installed (pip install distributed)"
-        ) from None
+    from distributed import Client
+
     timeout = _connect_seconds()
     with contextlib.ExitStack() as quiet:
         # a client that loses its scheduler logs tracebacks from its event loop's thread, and

@@ -96,6 +96,7 @@ COMMANDS: dict[str, str] = {
     "watch": "watch_cmd",
     "sweep": "sweep_cmds",
     "sweep-plot": "sweep_cmds",
+    "completion": "completion_cmd",
 }
 
 
@@ -125,7 +126,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``rgtbus ARGV...``: parse, check the run options (``arguments.check_arguments``), run
     the command; its exit code (2 and one line on stderr for an ``RgtbusError``)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv[0] if argv else None)
+    if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (rgtbus completion)
+        import argcomplete
+
+        argcomplete.autocomplete(build_parser())  # every command's parser; exits
+    try:
+        parser = build_parser(argv[0] if argv else None)
+    except RgtbusError as exc:  # the environment a module reads as it loads (RGTBUS_WALK)
+        print(f"rgtbus: error: {exc}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
     hold = getattr(args, "quiet_holds_stdout", False) and args.quiet
     try:

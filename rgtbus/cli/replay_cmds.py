@@ -19,6 +19,7 @@ from rgtbus.cli.tables import (
     wrapped_table_lines,
 )
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
@@ -95,6 +96,8 @@ def replay(args: argparse.Namespace) -> int:
 
     if args.plot is None and args.unit:
         raise RgtbusError("--unit goes with --plot OUT.png")
+    if args.plot is not None:  # before the log is read: the plot is what was asked for
+        require("matplotlib", "--plot")
     if (args.t_from is not None or args.t_to is not None) and (args.verify or args.json):
         raise RgtbusError("--from and --to go with the timeline, --csv and --plot")
     rp = load_replay(args.log)

@@ -21,6 +21,7 @@ from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 from rgtbus.scenario.limits import MAX_SECONDS, RECORDED, check_trials, over_budget
 from rgtbus.signal.codebook import paper_codebook
 from rgtbus.signal.plan import PAPER_OMEGA_TEXT, PAPER_OMEGAS, parse_omega
@@ -234,6 +235,8 @@ def run_resonate(
 
 def cmd_resonate(args: argparse.Namespace) -> int:
     """``rgtbus resonate``: each resonator's peak y and spike times (and ``--plot``)."""
+    if args.plot:
+        require("matplotlib", "--plot")
     texts = args.omega or list(PAPER_OMEGA_TEXT[:3])
     omegas = [parse_omega(t, where="--omega") for t in texts]
     word = _parse_pulses(args.pulses)
@@ -311,6 +314,8 @@ def cmd_ser(args: argparse.Namespace) -> int:
     maximum-likelihood bounds (and ``--plot``)."""
     from rgtbus.signal.evaluate import ser_against_bound
 
+    if args.plot:
+        require("matplotlib", "--plot")
     sigmas = _sigmas(args.sigma)
     check_trials(args.trials, len(sigmas))  # bounded work: the budget, before any decode
     if args.scenario:
@@ -354,6 +359,7 @@ def cmd_ser(args: argparse.Namespace) -> int:
 
 def _pyplot() -> ModuleType:
     """``matplotlib.pyplot``, drawing to files only (Agg)."""
+    require("matplotlib", "a plot")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -700,6 +706,7 @@ PAIRS = (((0, 1), "ab"), ((0, 2), "ac"))
 
 def cmd_figures(args: argparse.Namespace) -> int:
     """``rgtbus figures OUTDIR``: every figure written, each with its caption on stdout."""
+    require("matplotlib", "rgtbus figures")
     out = Path(args.outdir)
     if out.exists() and not out.is_dir():
         raise RgtbusError(f"OUTDIR {str(out)!r} exists and is not a directory")

@@ -9,7 +9,7 @@ holds, as a table when it fits and one line a pair when not.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 INDENT = "  "
@@ -60,15 +60,16 @@ def plain_width(
     relationship tables of a large group (50 units: 1,225 pairs) are not rendered only to
     find they do not fit."""
     body = [list(headers), *rows] if headers else [list(r) for r in rows]
-    if not body or not _widths_are_lengths():
+    if not body:
         return 0
+    width = _cell_width()
     # a cell of several lines is as wide as its widest line (tabulate strips each cell)
     texts = [[[line.strip() for line in str(c).splitlines()] or [""] for c in r] for r in body]
     ncols = max(len(r) for r in texts)
     widths = [0] * ncols
     for r in texts:
         for c, cell in enumerate(r):
-            widths[c] = max(widths[c], *map(len, cell))
+            widths[c] = max(widths[c], *map(width, cell))
     starts, at = [], len(indent)
     for w in widths:
         starts.append(at)
@@ -76,20 +77,23 @@ def plain_width(
     widest = len(indent.rstrip())
     for r in texts:
         for c in range(len(r) - 1, -1, -1):
-            cut = max(map(len, r[c]))
+            cut = max(map(width, r[c]))
             if cut:
                 widest = max(widest, starts[c] + cut)
                 break
     return widest
 
 
-def _widths_are_lengths() -> bool:
-    """Whether tabulate pads cells by their length (not by their display width: it does
-    that when the ``wcwidth`` package is installed, and then ``plain_width`` measures
-    nothing)."""
+def _cell_width() -> Callable[[str], int]:
+    """How tabulate measures a cell's text: its length, or (with the ``wcwidth`` package
+    installed) its display width, as tabulate's own padding does."""
     import tabulate
 
-    return not tabulate.WIDE_CHARS_MODE
+    if not tabulate.WIDE_CHARS_MODE:
+        return len
+    import wcwidth
+
+    return lambda text: int(wcwidth.wcswidth(text))
 
 
 def fitted_table_lines(
@@ -135,7 +139,6 @@ def wrapped_table_lines(
     # left-aligned cells of one line each: plain_width is the rendered width, no trial renders
     exact = (
         (align is None or all(a == "left" for a in align))
-        and _widths_are_lengths()
         and all(len(str(cell).splitlines()) <= 1 for r in rows for cell in r)
     )
 

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 from rgtbus.telemetry.logtools import check_time_range
 
 if TYPE_CHECKING:
@@ -109,6 +110,7 @@ def activity_figure(
 ) -> Figure:
     """The figure (not yet saved). ``trace``: ``{"t", "y" (n × channels), "channels",
     "recomputed"}`` as ``rgtbus.units.rerun.traces_for`` returns it."""
+    require("matplotlib", "the activity figure")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 
 Z95 = 1.959963984540054
 
@@ -138,6 +139,7 @@ def plot_sweep(
     """Draw each metric of ``y`` against ``x`` in its own panel, side by side (one curve per
     ``by`` value), of the runs that match every ``where`` (``KEY=VALUE``); return the PNG's
     path."""
+    require("matplotlib", "sweep-plot")
     import matplotlib
 
     matplotlib.use("Agg")

@@ -1,0 +1,21 @@
+"""What the core leaves to extras: plots need ``matplotlib`` (``rgtbus[plot]``), a sweep on a
+Dask cluster needs ``distributed`` (``rgtbus[dask]``); ``rgtbus[all]`` has both. A command or
+function that needs a missing one says which, in one line (``RgtbusError``: exit 2)."""
+
+from __future__ import annotations
+
+import importlib.util
+
+from rgtbus.errors import RgtbusError
+
+EXTRAS = {"matplotlib": "plot", "distributed": "dask"}  # module -> the extra that installs it
+
+
+def require(module: str, what: str) -> None:
+    """Refuse, in one line, ``what`` (e.g. ``"--plot"``) when ``module`` is not installed."""
+    if importlib.util.find_spec(module) is None:
+        extra = EXTRAS[module]
+        raise RgtbusError(
+            f"{what} needs {module}, which rgtbus leaves to its {extra!r} extra: "
+            f"pip install 'rgtbus[{extra}]'"
+        )
