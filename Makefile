@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck imports tree bench clean bytecode
+.PHONY: demo test docs lint typecheck imports tree bench clean bytecode
 
 $(STAMP): pyproject.toml setup.py MANIFEST.in rgtbus/signal/_walk.pyx
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -45,8 +45,18 @@ imports: tree
 	cd build/tree && PYTHONPATH=. $(CURDIR)/$(VENV)/bin/lint-imports --no-logo --no-cache \
 		$(CURDIR)/pyproject.toml
 
+# The documentation site (mkdocs-material, mkdocstrings), strict: a broken link, a missing
+# reference or a failing notebook cell fails it. Into site/.
+DOCS_STAMP := $(VENV)/.docs-installed
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[docs]'
+	@touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP) tree
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+
 bench: $(STAMP)
 	$(PY) -m benchmarks
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache build *.egg-info
+	rm -rf $(VENV) .pytest_cache .ruff_cache build *.egg-info site
