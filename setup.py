@@ -35,6 +35,27 @@ MAPPED = {
     "rgtbus.scenarios.sweeps": "scenarios/sweeps",
 }
 
+EXTENSIONS = cythonize(
+    [
+        Extension(
+            "rgtbus.signal._walk",
+            ["rgtbus/signal/_walk.pyx"],
+            # every product and sum rounded as written: no fused multiply-add
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+            # CPython's stable ABI from 3.11 on: one wheel (abi3) for every later Python
+            define_macros=[("Py_LIMITED_API", LIMITED_API)],
+            py_limited_api=True,
+        )
+    ],
+    compiler_directives={"language_level": 3},
+)
+# Optional: with no C compiler the package installs all the same, and runs on the module's
+# NumPy twin (rgtbus.signal.kernels says so once). Set on cythonize's Extensions: it makes new
+# ones and drops the flag.
+for _ext in EXTENSIONS:
+    _ext.optional = True
+
+
 setup(
     long_description=long_description(),
     long_description_content_type="text/markdown",
@@ -46,22 +67,6 @@ setup(
         "rgtbus.scenarios": ["*.toml"],
         "rgtbus.scenarios.sweeps": ["*.toml"],
     },
-    ext_modules=cythonize(
-        [
-            Extension(
-                "rgtbus.signal._walk",
-                ["rgtbus/signal/_walk.pyx"],
-                # every product and sum rounded as written: no fused multiply-add
-                extra_compile_args=["-O2", "-ffp-contract=off"],
-                # CPython's stable ABI from 3.11 on: one wheel (abi3) for every later Python
-                define_macros=[("Py_LIMITED_API", LIMITED_API)],
-                py_limited_api=True,
-                # no C compiler: the package installs all the same, and runs on the module's
-                # NumPy twin (rgtbus.signal.kernels says so once)
-                optional=True,
-            )
-        ],
-        compiler_directives={"language_level": 3},
-    ),
+    ext_modules=EXTENSIONS,
     options={"bdist_wheel": {"py_limited_api": "cp311"}},
 )
