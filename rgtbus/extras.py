@@ -1,5 +1,6 @@
 """What the core leaves to extras: plots need ``matplotlib`` (``rgtbus[plot]``), a sweep on a
-Dask cluster needs ``distributed`` (``rgtbus[dask]``); ``rgtbus[all]`` has both. A command or
+Dask cluster needs ``distributed`` (``rgtbus[dask]``), TLS identities (``rgtbus certs``,
+``--tls``) need ``cryptography`` (``rgtbus[tls]``); ``rgtbus[all]`` has them all. A command or
 function that needs a missing one says which, in one line (``RgtbusError``: exit 2)."""
 
 from __future__ import annotations
@@ -8,7 +9,8 @@ import importlib.util
 
 from rgtbus.errors import RgtbusError
 
-EXTRAS = {"matplotlib": "plot", "distributed": "dask"}  # module -> the extra that installs it
+# module -> the extra that installs it
+EXTRAS = {"matplotlib": "plot", "distributed": "dask", "cryptography": "tls"}
 
 
 def require(module: str, what: str) -> None:

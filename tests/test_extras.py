@@ -1,5 +1,6 @@
-"""The core without its extras: what needs matplotlib (``rgtbus[plot]``) or Dask's
-distributed (``rgtbus[dask]``) says which extra, in one line, exit 2; the rest runs."""
+"""The core without its extras: what needs matplotlib (``rgtbus[plot]``), Dask's distributed
+(``rgtbus[dask]``) or cryptography (``rgtbus[tls]``) says which extra, in one line, exit 2;
+the rest runs."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # a process that cannot import the extras, as a venv without them
 _CORE = (
     "import sys\n"
-    "sys.modules['matplotlib'] = sys.modules['distributed'] = sys.modules['dask'] = None\n"
+    "for m in ('matplotlib', 'distributed', 'dask', 'cryptography'): sys.modules[m] = None\n"
     "from rgtbus.cli import main\n"
     "sys.exit(main(sys.argv[1:]))\n"
 )
@@ -51,6 +52,9 @@ def core_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         (["figures", "figs"], "plot"),
         (["sweep-plot", "s", "--x", "n", "--y", "failed"], "plot"),
         (["sweep", "s.toml", "--out", "s2", "--scheduler", "tcp://127.0.0.1:9"], "dask"),
+        (["certs", "gate", "--out", "ids"], "tls"),
+        (["launch", "gate", "--tls", "ids"], "tls"),
+        (["unit", "a", "gate", "--tls", "ids"], "tls"),
     ],
 )
 def test_what_needs_an_extra_names_it_in_one_line(core_run, args, extra):

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 
 if TYPE_CHECKING:
     from cryptography import x509
@@ -248,6 +249,8 @@ def make_certs(
     ``days``, or a directory that cannot be written."""
     from rgtbus.bus.base import check_name
 
+    require("cryptography", "rgtbus certs")
+
     if isinstance(days, bool) or not isinstance(days, int | float) or not 0 < days <= 36500:
         raise RgtbusError(f"--days {days!r}: must be a number of days from 1 to 36500")
     names = list(units)
@@ -366,6 +369,7 @@ def check_tls(directory: str | os.PathLike[str], identity: str) -> TlsFiles:
     identity's certificate and key are there and well-formed, both certificates valid now, the
     identity's signed by the run's CA with ``identity`` as its common name, and the key its
     certificate's. Anything else: RgtbusError, one line naming the file and the reason."""
+    require("cryptography", f"--tls {os.fspath(directory)}")
     d = Path(directory)
     if not d.is_dir():
         raise RgtbusError(
