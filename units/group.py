@@ -28,6 +28,7 @@ from rgtbus.timebase import ns
 class RunOutput:
     summary: dict[str, Any]
     units: list[AutonomousUnit]
+    reports: list[dict[str, Any]]  # what the summary was made from (``shared_reports``)
 
 
 def default_run_id(sc: Scenario) -> str:
@@ -100,9 +101,10 @@ def run_group(
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
     for m in members:
         m.write_report(result.sim_seconds)
-    summary = summarise(sc, shared_reports(members), result, engine=engine)
+    reports = shared_reports(members)
+    summary = summarise(sc, reports, result, engine=engine)
     recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
-    return RunOutput(summary, members)
+    return RunOutput(summary, members, reports)
 
 
 def shared_reports(members: Sequence[AutonomousUnit]) -> list[dict[str, Any]]:

@@ -152,7 +152,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         decodes = sum(len(m.decoded) for m in out.units)
         row["decodes"] = decodes
         row["decode_error_rate"] = len(s["decode_errors"]) / decodes if decodes else None
-        row.update(id_columns(s["decode_errors"], out.units))
+        row.update(id_columns(s["decode_errors"], out.units, out.reports))
         row["failed"] = s["error"] is not None
     except Exception as exc:  # a run that raises is a result of the sweep, never its end
         last = traceback.extract_tb(exc.__traceback__)[-1:] or None
@@ -165,18 +165,19 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
 
 
 def id_columns(
-    errors: Sequence[Mapping[str, Any]], units: Sequence[AutonomousUnit]
+    errors: Sequence[Mapping[str, Any]],
+    units: Sequence[AutonomousUnit],
+    reports: Sequence[Mapping[str, Any]],
 ) -> dict[str, Any]:
     """A run's ID-codes as read: how many its units decoded (``id_decodes``), how many of
     those read otherwise than sent (``id_misread_count``, ``id_misread_rate``), and how many
     misread IDs stayed wrong in what the unit took from their turns (``id_misreads_left``,
     as ``summary.decode_errors_left`` judges: a repair, or the payload read right all the
-    same, sets one right). What the ID-noise study plots (scenarios/sweeps/id_noise.toml)."""
-    from rgtbus.units.group import shared_reports
-
+    same, sets one right; ``reports``: the units' reports the run's summary was made from).
+    What the ID-noise study plots (scenarios/sweeps/id_noise.toml)."""
     misread = [e for e in errors if e["kind"] == "id"]
     decoded = sum(m.decoded.count("id") for m in units)
-    left = decode_errors_left(shared_reports(units), misread) if misread else 0
+    left = decode_errors_left(reports, misread) if misread else 0
     return {
         "id_decodes": decoded,
         "id_misread_count": len(misread),

@@ -212,12 +212,14 @@ class _Encoding:
         self._closed = False
         self._schemas: dict[str, str] = {}  # topic -> schema name, once looked up
 
+    def _schema(self, topic: str) -> str:
+        """``topic``'s schema name, looked up once."""
+        return self._schemas.get(topic) or self._schemas.setdefault(topic, topics.schema_for(topic))
+
     def _encode(self, topic: str, message: Mapping[str, Any], t_ns: int) -> tuple[str, bytes, int]:
         if self._closed:
             raise RgtbusError(f"write to {topic!r} on a closed recorder")
-        schema = self._schemas.get(topic) or self._schemas.setdefault(
-            topic, topics.schema_for(topic)
-        )
+        schema = self._schema(topic)
         # the common case first: a plain int in range (a run writes millions of these)
         t = t_ns if type(t_ns) is int and 0 <= t_ns <= _U64_MAX else _check_t_ns(t_ns)
         if type(message) is not dict and not isinstance(message, dict):
@@ -270,9 +272,7 @@ class _Encoding:
         live = self.live
         if live is None or self._closed or self.failed:
             return
-        schema = self._schemas.get(topic) or self._schemas.setdefault(
-            topic, topics.schema_for(topic)
-        )
+        schema = self._schema(topic)
         try:
             data = encode_json(message)
         except (TypeError, ValueError) as e:
