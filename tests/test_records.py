@@ -76,6 +76,9 @@ def built() -> dict[str, dict]:
             "done_at": None,
             "mind_error": None,
         },
+        "/scene": records.scene_update(
+            "b", 9.0, {"a": [0.0, 0.0], "b": [2.0, 0.0, 1.0]}, {"a-b": "conflict"}
+        ),
         "/run": records.run_record(
             {
                 "scenario": "s",

@@ -24,6 +24,7 @@ from rgtbus.telemetry import (
     NullRecorder,
     Recorder,
     read_log,
+    records,
     schema_for,
     topics_markdown,
 )
@@ -168,6 +169,9 @@ SAMPLES: dict[str, dict] = {
         "file": "",
         "line": 0,
     },
+    "/scene": records.scene_update(
+        "a", 1.5, {"a": [0.0, 0.0], "b": [3.0, 4.0]}, {"a-b": "alliance"}
+    ),
     "/trace/a": {
         "unit": "a",
         "sample": 3,

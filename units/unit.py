@@ -184,6 +184,7 @@ class AutonomousUnit:
             self.arq.begin(self.listening.read)
         self._batches = self.batching()
         self.timers.add(self.limit, self.limit - 1, "limit")
+        self._draw(0.0)
         self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
         self._ask()
 
@@ -498,6 +499,7 @@ class AutonomousUnit:
                         mind.p4,
                     )  # fmt: skip
                     self.log.write_in_order(records.UNIT_RELATIONS, record, t)
+                    self._draw(t, mind.installed())
                 if mind.error:
                     self.log.log("error", f"{self.name}: {mind.error}", t)
                 elif mind.p4 is not None:  # a result, said once by each unit that found it
@@ -514,6 +516,14 @@ class AutonomousUnit:
             self._log_decisions(t, done)
         if mind.all_rounds_decided and (self.arq is None or not self.arq.left):
             self.finished = True
+
+    def _draw(self, t: float, installed: dict[str, str] | None = None) -> None:
+        """Its place on ``/scene`` (a spatial scenario's only): its sphere and name, and once it
+        holds its relationship table its half of each link (``records.scene_update``)."""
+        positions = self.scenario.channel.positions
+        if self.log.enabled and positions:
+            update = records.scene_update(self.name, t, positions, installed)
+            self.log.write_in_order(records.SCENE, update, t)
 
     def _log_decisions(self, t: float, rnd: int) -> None:
         """Its decision of round ``rnd`` (kept for its report), and the forward task of every

@@ -10,11 +10,12 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
-from rgtbus.timebase import time_of
+from rgtbus.timebase import NS_PER_SECOND, ns, time_of
 
 if TYPE_CHECKING:
     import numpy as np
@@ -34,6 +35,7 @@ UNIT_GOAL = "/unit/goal"
 UNIT_REPORT = "/unit/report"
 LOG = "/log"
 RUN = "/run"
+SCENE = "/scene"  # foxglove.SceneUpdate: a spatial scenario's units and links (3D panel)
 TRACE_PREFIX = "/trace/"  # a family: one topic a traced unit
 
 
@@ -239,6 +241,14 @@ class RunRecord(TypedDict):
     error: str | None
 
 
+class SceneUpdateRecord(TypedDict):
+    """``/scene``: a ``foxglove.SceneUpdate`` (Foxglove's own schema, JSON-encoded) holding one
+    unit's entity: its sphere, its label and its half of each link (``scene_update``)."""
+
+    deletions: list[dict[str, Any]]
+    entities: list[dict[str, Any]]
+
+
 class MediumRecord(TypedDict):
     """``/medium``: one window of the shared medium that carries a pulse."""
 
@@ -271,6 +281,7 @@ RECORD_TYPES: dict[str, type] = {
     UNIT_GOAL: GoalRecord,
     UNIT_REPORT: UnitReportRecord,
     RUN: RunRecord,
+    SCENE: SceneUpdateRecord,
 }
 
 
@@ -601,6 +612,116 @@ def run_record(summary: Mapping[str, Any]) -> RunRecord:
         "sim_seconds": summary["sim_seconds"],
         "error": summary["error"],
     }
+
+
+# -- the scene (foxglove.SceneUpdate) ---------------------------------------------------------
+
+SCENE_FRAME = "world"  # the frame every entity is in: the scenario's positions, in metres
+RELATION_COLOURS: dict[str, tuple[float, float, float, float]] = {
+    "alliance": (0.18, 0.72, 0.35, 1.0),  # green
+    "conflict": (0.86, 0.20, 0.18, 1.0),  # red
+}
+_UNIT_COLOUR = (0.25, 0.47, 0.85, 1.0)
+_LABEL_COLOUR = (1.0, 1.0, 1.0, 1.0)
+
+
+def scene_entity_id(unit: str) -> str:
+    """The id of ``unit``'s entity on ``/scene`` (each update replaces the unit's last)."""
+    return f"unit/{unit}"
+
+
+def _xyz(p: Sequence[float]) -> dict[str, float]:
+    return {"x": float(p[0]), "y": float(p[1]), "z": float(p[2]) if len(p) > 2 else 0.0}
+
+
+def _rgba(c: Sequence[float]) -> dict[str, float]:
+    return {"r": c[0], "g": c[1], "b": c[2], "a": c[3]}
+
+
+def _pose(p: Sequence[float]) -> dict[str, Any]:
+    return {"position": _xyz(p), "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+
+
+def _sphere_size(positions: Mapping[str, Sequence[float]]) -> float:
+    """A sphere's diameter: a quarter of the closest two units' distance (every unit finds the
+    same), so no two spheres touch; 0.25 m where units share a place."""
+    pts = list(positions.values())
+    gaps = [math.dist(_list3(a), _list3(b)) for i, a in enumerate(pts) for b in pts[i + 1 :]]
+    closest = min((g for g in gaps if g > 0), default=0.0)
+    return 0.25 * closest if closest > 0 else 0.25
+
+
+def _list3(p: Sequence[float]) -> list[float]:
+    return [float(p[0]), float(p[1]), float(p[2]) if len(p) > 2 else 0.0]
+
+
+def scene_update(
+    unit: str,
+    t: float,
+    positions: Mapping[str, Sequence[float]],
+    installed: Mapping[str, str] | None = None,
+) -> SceneUpdateRecord:
+    """A ``/scene`` message: ``unit``'s entity (id ``scene_entity_id``) at time ``t``, a sphere
+    at its position with its name above it, and, once it holds its relationship table
+    (``installed``, ``{"a-b": "alliance" | "conflict"}``), a line from it to the midpoint
+    towards each other unit, green for an alliance and red for a conflict as *it* holds it: where
+    every unit agrees, each pair's two halves make one line of one colour; a pair drawn in two
+    colours is a pair its two units hold differently. ``positions``: every unit's place in metres
+    (x y, or x y z) in the frame ``SCENE_FRAME``."""
+    here = _list3(positions[unit])
+    size = _sphere_size(positions)
+    halves: dict[str, list[dict[str, float]]] = {kind: [] for kind in RELATION_COLOURS}
+    for key, kind in sorted((installed or {}).items()):
+        a, _, b = key.partition("-")
+        other = b if a == unit else a if b == unit else None
+        if other is None or other not in positions or kind not in halves:
+            continue
+        there = _list3(positions[other])
+        middle = [(x + y) / 2 for x, y in zip(here, there, strict=True)]
+        halves[kind] += [_xyz(here), _xyz(middle)]
+    lines = [
+        {
+            "type": 2,  # LINE_LIST: each two points a segment
+            "pose": _pose((0.0, 0.0, 0.0)),
+            "thickness": 4.0,  # pixels (scale_invariant)
+            "scale_invariant": True,
+            "points": points,
+            "color": _rgba(RELATION_COLOURS[kind]),
+            "colors": [],
+            "indices": [],
+        }
+        for kind, points in halves.items()
+        if points
+    ]
+    t_ns = ns(t)
+    entity = {
+        "timestamp": {"sec": t_ns // NS_PER_SECOND, "nsec": t_ns % NS_PER_SECOND},
+        "frame_id": SCENE_FRAME,
+        "id": scene_entity_id(unit),
+        "lifetime": {"sec": 0, "nsec": 0},  # until replaced
+        "frame_locked": False,
+        "metadata": [{"key": "unit", "value": unit}],
+        "arrows": [],
+        "cubes": [],
+        "spheres": [
+            {"pose": _pose(here), "size": _xyz((size, size, size)), "color": _rgba(_UNIT_COLOUR)}
+        ],
+        "cylinders": [],
+        "lines": lines,
+        "triangles": [],
+        "texts": [
+            {
+                "pose": _pose((here[0], here[1], here[2] + size)),
+                "billboard": True,
+                "font_size": 14.0,  # pixels (scale_invariant)
+                "scale_invariant": True,
+                "color": _rgba(_LABEL_COLOUR),
+                "text": unit,
+            }
+        ],
+        "models": [],
+    }
+    return {"deletions": [], "entities": [entity]}
 
 
 def medium_window(window: int, t: float, sample_rate: float, samples: list[float]) -> MediumRecord:

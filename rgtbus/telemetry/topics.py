@@ -55,6 +55,11 @@ TOPICS: dict[str, tuple[str, str]] = {
         "what a unit knows at the end of its run: its share of the run summary",
     ),
     r.LOG: ("foxglove.Log", "text log lines (Foxglove's Log panel)"),
+    r.SCENE: (
+        "foxglove.SceneUpdate",
+        "a spatial scenario's units on Foxglove's 3D panel: each unit's sphere and name, then "
+        "its half of each link, green for an alliance and red for a conflict as it holds it",
+    ),
     r.RUN: ("rgtbus.RunSummary", "how the run ended, written last"),
 }
 

@@ -100,6 +100,7 @@ _KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
     r.UNIT_DECISION: lambda t, m: (m.get("unit"), m.get("subject"), m.get("round", 1)),
     r.UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
     r.LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
+    r.SCENE: lambda t, m: (t, *(e.get("id") for e in m.get("entities", ()))),
 }
 
 
@@ -117,6 +118,8 @@ def _key_text(topic: str, key: MessageKey) -> str:
         return f"goal choice of turn {key[1]}"
     if topic == r.LOG:
         return f"line {key[3]!r}"
+    if topic == r.SCENE:
+        return f"entity {', '.join(map(str, key[1:]))}"
     if r.is_trace_topic(topic):
         return f"trace at {seconds(key[0]):.3f} s"
     return "table"
