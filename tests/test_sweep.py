@@ -430,6 +430,95 @@ def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
     pd.testing.assert_frame_equal(again_df[cols], df[cols])
 
 
+def test_the_json_lines_parquet_and_csv_hold_the_same_tables(tmp_path):
+    """results.jsonl and decisions.jsonl (what the core reads, no pyarrow) are the Parquet
+    tables' rows value for value; the frames read from either agree; the CSV has the same
+    columns with nested ones as JSON text, a null as an empty cell."""
+    import csv
+
+    import pandas as pd
+    from rgtbus.units.sweep import sweep
+
+    from rgtbus.telemetry import sweep_tables as st
+
+    out = tmp_path / "both"
+    grid = {"n": [3, 4], "relations.p": [0.3, 0.9], "engine": ["event"]}
+    sweep(RANDOM, grid=grid, seeds=2, workers=1, out=out)
+    for name in ("results", "decisions"):
+        jsonl = [json.loads(line) for line in (out / f"{name}.jsonl").read_text().splitlines()]
+        assert jsonl == table_rows(pq.read_table(out / f"{name}.parquet")), name
+        from_json = st.frame_of(jsonl, st.table_columns(out, name))
+        from_parquet = st.read_table(out / f"{name}.parquet")
+        pd.testing.assert_frame_equal(from_json, from_parquet)  # dtypes too
+        # bare rows (no columns.json: pandas chooses the dtypes): the same values where a
+        # column holds any (an all-null column is None there, NaN in pandas' string dtype)
+        bare = st.frame_of(jsonl)
+        held = [c for c in from_parquet.columns if from_parquet[c].notna().any()]
+        pd.testing.assert_frame_equal(bare[held], from_parquet[held], check_dtype=False)
+    results = table_rows(pq.read_table(out / "results.parquet"))
+    with open(out / "results.csv", newline="", encoding="utf-8") as f:
+        cells = list(csv.DictReader(f))
+    assert [list(c) for c in cells] == [list(r) for r in results]
+    for row, cell in zip(results, cells, strict=True):
+        for key, value in row.items():
+            if value is None:
+                assert cell[key] == ""
+            elif isinstance(value, dict | list):
+                assert json.loads(cell[key]) == value
+            elif isinstance(value, bool):
+                assert cell[key] == ("true" if value else "false")
+            else:
+                assert type(value)(cell[key]) == value, key
+
+
+def test_rows_plain_equal_the_arrow_tables_for_every_shape_of_row():
+    """``results_rows`` (no Arrow) gives what the Arrow table gives back, on rows with every
+    nested column filled, emptied and missing (an older rgtbus's JSON text too)."""
+    from rgtbus.telemetry import sweep_tables as st
+
+    axes = [("n", [3, 4]), ("channel.noise", [0.0, 0.5]), ("case", ["x"])]
+    full = {
+        "run": 0, "n": 3, "channel.noise": 0, "case": "x", "seed": 1, "relations": {"a-b": "x"},
+        "influences": {"a>b": ["go"]}, "units": {"a": {"interval": [[], ["go"]], "choice": []}},
+        "goals": [{"unit": "a", "want": [[], ["go"]], "share": 1, "extra": "gone"}],
+        "rounds": {"count": 2, "influences": [{"a>b": []}]}, "sim_seconds": 3,
+        "repair": {"mode": "arq", "seconds": 1, "requests": 2},
+        "_decisions": [{"unit": "a", "round": 1, "low": [], "t": 2}],
+    }  # fmt: skip
+    rows = [full, {"run": 1, "n": 4, "seed": 2}, {**full, "run": 2, "units": json.dumps({})}]
+    for make_rows, make_table in (
+        (st.results_rows, st.results_table),
+        (st.decisions_rows, st.decisions_table),
+    ):
+        assert make_rows(axes, rows, "s") == table_rows(make_table(axes, rows, "s"))
+
+
+def test_a_directory_of_parquet_only_reads_with_pyarrow_or_says_which_extra(tmp_path):
+    """A sweep an older rgtbus wrote (Parquet, no JSON Lines) reads from its Parquet; without
+    pyarrow, reading it names the extra in one line."""
+    import subprocess
+    import sys
+
+    from rgtbus.units.sweep import read_sweep, sweep
+
+    out = tmp_path / "old"
+    df = sweep(RANDOM, grid={"n": [3]}, seeds=2, workers=1, out=out)
+    for name in ("results.jsonl", "decisions.jsonl"):
+        (out / name).unlink()
+    results, decisions = read_sweep(out)
+    assert len(results) == len(df) == 2 and len(decisions) > 0
+    code = (
+        "import sys; sys.modules['pyarrow'] = None\n"
+        "from rgtbus.errors import RgtbusError\n"
+        "from rgtbus.units.sweep import read_sweep\n"
+        "try:\n    read_sweep(sys.argv[1])\nexcept RgtbusError as e:\n    print(e)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    said = done.stdout.strip()
+    assert "pip install 'rgtbus[parquet]'" in said and "results.parquet" in said, done
+
+
 def test_the_cli_and_the_library_give_the_same_table(tmp_path, capsys):
     from rgtbus.units.sweep import sweep
 

@@ -26,9 +26,10 @@ runs them in this process. Rows are appended to ``rows.jsonl`` as they arrive, e
 digest, in a directory locked against a second writer, so a sweep stopped halfway (Ctrl-C, a
 kill, a lost cluster: docs/sweeps.md, "Faults") resumes with only what is missing; the tables
 are written as
-``results.parquet`` (one row per run, native Arrow types: ``RESULTS_SCHEMA``),
-``results.csv`` (the same, nested columns as JSON text) and ``decisions.parquet`` (one row per
-run, unit and influence round).
+``results.jsonl`` (one row per run, plain JSON), ``decisions.jsonl`` (one row per run, unit and
+influence round), ``results.csv`` (the results, nested columns as JSON text) and, where pyarrow
+is installed (the ``parquet`` extra), ``results.parquet`` and ``decisions.parquet`` with native
+Arrow types (``rgtbus.telemetry.sweep_tables``).
 
 The local pool never imports the caller's ``__main__`` in its workers (``_NoMainSpawnContext``):
 the task function lives here, so a script or notebook cell without an
@@ -78,9 +79,12 @@ from rgtbus.summary import decode_errors_left, summary_json
 from rgtbus.telemetry.sweep_tables import (
     NOT_COLUMNS,
     SweepTables,
+    decisions_rows,
     decisions_table,
+    parquet_available,
+    read_results,
     read_sweep,
-    read_table,
+    results_rows,
     results_table,
     table_rows,
     write_tables,
@@ -599,8 +603,11 @@ def prepare_out(sweep: Sweep, out_dir: Path, resume: bool) -> list[dict[str, Any
     if resume:
         rows, rewrite = read_rows(out_dir, sweep.digest, sealed)
         try:  # rows of an older rgtbus (JSON text columns) are re-tabled, or refused here
-            results_table(sweep.axes, rows)
-            decisions_table(sweep.axes, rows)
+            results_rows(sweep.axes, rows)
+            decisions_rows(sweep.axes, rows)
+            if parquet_available():
+                results_table(sweep.axes, rows)
+                decisions_table(sweep.axes, rows)
         except Exception as exc:
             raise RgtbusError(
                 f"{str(out_dir)!r}: cannot resume: its rows.jsonl does not fit this rgtbus's "
@@ -733,7 +740,7 @@ def _run(
         _write_versions(sweep, out_dir, pool)
     rows = [have[t.key] for t in tasks]
     try:
-        return table_rows(write_tables(sweep.axes, rows, out_dir, sweep.id))
+        return write_tables(sweep.axes, rows, out_dir, sweep.id)
     except OSError as exc:
         raise RgtbusError(
             f"cannot write the tables in {str(out_dir)!r} ({exc.strerror}): every row is in "
@@ -754,7 +761,7 @@ def run_sweep(
 ) -> list[dict[str, Any]]:
     """Run every task not yet in ``out_dir`` on ``executor`` (``None``: in this process) or
     ``pool``; write the tables and return the results table's rows in task order (plain
-    values: ``table_rows``). ``progress(done, total, failures)`` after every batch (every run
+    values: ``results_rows``). ``progress(done, total, failures)`` after every batch (every run
     on the local pool)."""
     with _Held(sweep, Path(out_dir), resume) as held:
         return _run(held, pool or pool_of(executor, workers), logs=logs, progress=progress)
@@ -830,8 +837,8 @@ def sweep(
     Dask cluster at ``scheduler``. Workers never import the caller's ``__main__``, so this
     works from a plain script or notebook cell without an ``if __name__ == "__main__"`` guard.
 
-    Returns one row per run (in grid-then-seed order), ``results.parquet`` read so that pandas
-    can group, sort, deduplicate and merge on every column (``read_table``: ``relations`` a
+    Returns one row per run (in grid-then-seed order), the results read so that pandas
+    can group, sort, deduplicate and merge on every column (``frame_of``: ``relations`` a
     ``Record`` dict, ``units`` a tuple of them, lists as tuples; docs/sweeps.md).
     Equation-free: the table holds what the simulated units did (their intervals, choices,
     decode errors) and judgements against the noise-free forward task; it computes no RGT of
@@ -862,11 +869,11 @@ def sweep(
             raise RgtbusError("sweep: logs=True needs out= (a directory to keep them in)")
         with tempfile.TemporaryDirectory(prefix="rgtbus-sweep-") as tmp:
             execute_sweep(sw, tmp, **kw)
-            return read_table(Path(tmp) / "results.parquet")
+            return read_results(tmp)
     execute_sweep(sw, out, **kw)
-    return read_table(Path(out) / "results.parquet")
+    return read_results(out)
 
 
 def decisions(out: str | os.PathLike[str]) -> pd.DataFrame:
-    """decisions.parquet of the sweep written to ``out``: ``read_sweep(out).decisions``."""
+    """The decisions of the sweep written to ``out``: ``read_sweep(out).decisions``."""
     return read_sweep(out).decisions

@@ -24,8 +24,9 @@ def register(subparsers: SubParsers) -> None:
         help="run a scenario over seeds and a grid of keys; a table of results",
         description="Run a sweep file (a base scenario, seeds and a [grid] of scenario keys) on "
         "local worker processes or a Dask distributed cluster; one row per run in "
-        "DIR/results.parquet and DIR/results.csv, one per run, unit and round in "
-        "DIR/decisions.parquet (docs/sweeps.md).",
+        "DIR/results.jsonl and DIR/results.csv, one per run, unit and round in "
+        "DIR/decisions.jsonl, and both as Parquet where pyarrow is installed "
+        "(rgtbus[parquet]; docs/sweeps.md).",
     )
     p.add_argument(
         "sweep", metavar="SWEEP", help="a sweep file, e.g. scenarios/sweeps/gate_noise.toml"
@@ -119,10 +120,19 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         for r in rows:
             print(json.dumps(r))
     else:
+        from rgtbus.telemetry.sweep_tables import PARQUET_FILES, TABLE_FILES
+
+        written = [str(out / f) for f in (*PARQUET_FILES, *TABLE_FILES) if (out / f).is_file()]
         print(
             f"sweep {sweep.name}: {len(rows)} runs ({failed} ended with an error) -> "
-            f"{out / 'results.parquet'}, {out / 'results.csv'}, {out / 'decisions.parquet'}"
+            + ", ".join(written)
         )
+        if not (out / PARQUET_FILES[0]).is_file():
+            print(
+                "no Parquet tables: they need pyarrow, which rgtbus leaves to its 'parquet' "
+                "extra: pip install 'rgtbus[parquet]'",
+                file=sys.stderr,
+            )
     return 0
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 from rgtbus.errors import RgtbusError
 from rgtbus.extras import require
+from rgtbus.telemetry.sweep_tables import results_of
 
 Z95 = 1.959963984540054
 
@@ -43,19 +44,6 @@ def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, fl
         return m, m, m
     sd = math.sqrt(math.fsum((v - m) ** 2 for v in values) / (n - 1))
     return m, m - z * sd / math.sqrt(n), m + z * sd / math.sqrt(n)
-
-
-def read_results(out_dir: Path) -> list[dict[str, Any]]:
-    """The runs of ``out_dir/results.parquet`` as plain values (nested columns, native Arrow
-    types since tables version 2, as lists and dicts; an older table's JSON text as text)."""
-    import pyarrow.parquet as pq
-
-    from rgtbus.telemetry.sweep_tables import table_rows
-
-    path = out_dir / "results.parquet"
-    if not path.is_file():
-        raise RgtbusError(f"{str(out_dir)!r}: no results.parquet (run rgtbus sweep first)")
-    return table_rows(pq.read_table(path))
 
 
 def _metric(
@@ -148,9 +136,9 @@ def plot_sweep(
     ys = [y] if isinstance(y, str) else list(y)
     if not ys:
         raise RgtbusError("--y: name at least one metric")
-    rows = read_results(out_dir)
+    rows = results_of(out_dir)
     if not rows:
-        raise RgtbusError(f"{str(out_dir)!r}: results.parquet holds no runs")
+        raise RgtbusError(f"{str(out_dir)!r}: the sweep's results hold no runs")
     _key(rows, x, "--x")
     if by:
         _key(rows, by, "--by")

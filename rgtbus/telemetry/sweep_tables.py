@@ -1,18 +1,28 @@
-"""A sweep's tables: ``results.parquet`` (one row per run: grid columns, seed, the run
-summary with native Arrow types) and ``decisions.parquet`` (one row per run, unit and influence
-round), each with a schema fixed by the grid's axes, never by the data, so two sweeps' tables
-stack. ``axes``: the grid's keys and values in column order (``case`` first when there are
-cases). Written and read here; run by ``rgtbus.units.sweep``."""
+"""A sweep's tables: the results (one row per run: grid columns, seed, the run summary with
+typed nested columns) and the decisions (one row per run, unit and influence round), each with
+columns fixed by the grid's axes, never by the data, so two sweeps' tables stack. ``axes``: the
+grid's keys and values in column order (``case`` first when there are cases).
+
+Files: ``results.jsonl`` and ``decisions.jsonl`` (a row a line, plain JSON: what the core reads
+back), ``results.csv`` (nested columns as JSON text) and, with pyarrow (the ``parquet``
+extra), ``results.parquet`` and ``decisions.parquet`` with native Arrow types. A column's type
+is said here once, without Arrow (``ColumnType``), and made an Arrow type only for Parquet.
+Written and read here; run by ``rgtbus.units.sweep``."""
 
 from __future__ import annotations
 
+import csv
+import importlib.util
 import json
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeAlias
+
+import orjson
 
 from rgtbus.errors import RgtbusError
+from rgtbus.extras import require
 from rgtbus.summary import SUMMARY_JSON_KEYS
 
 if TYPE_CHECKING:
@@ -24,183 +34,235 @@ Axes = Sequence[tuple[str, Sequence[Any]]]
 # summary fields that are no column of their own (a grid key, or a table of their own)
 NOT_COLUMNS = ("seed", "engine", "schedule", "log", "decisions")
 
+# -- column types, without Arrow ---------------------------------------------------------------
+
+# "text", "int", "float", "bool"; ("list", T); ("map", K, V); ("struct", ((name, T), ...))
+ColumnType: TypeAlias = "str | tuple[Any, ...]"
+Columns = list[tuple[str, ColumnType]]
+TEXT, INT, FLOAT, BOOL = "text", "int", "float", "bool"
+
+
+def list_of(item: ColumnType) -> ColumnType:
+    return ("list", item)
+
+
+def map_of(key: ColumnType, value: ColumnType) -> ColumnType:
+    return ("map", key, value)
+
+
+def struct_of(*fields: tuple[str, ColumnType]) -> ColumnType:
+    return ("struct", tuple(fields))
+
+
+def is_nested(kind: ColumnType) -> bool:
+    """A list, map or struct (JSON text in the CSV; ``Record`` dicts and tuples in frames)."""
+    return isinstance(kind, tuple)
+
+
+def arrow_type(kind: ColumnType) -> pa.DataType:
+    """The Arrow type of a column type (Parquet's, and the frames read from it)."""
+    import pyarrow as pa
+
+    scalars = {TEXT: pa.string(), INT: pa.int64(), FLOAT: pa.float64(), BOOL: pa.bool_()}
+    if isinstance(kind, str):
+        return scalars[kind]
+    if kind[0] == "list":
+        return pa.list_(arrow_type(kind[1]))
+    if kind[0] == "map":
+        return pa.map_(arrow_type(kind[1]), arrow_type(kind[2]))
+    return pa.struct([(name, arrow_type(t)) for name, t in kind[1]])
+
+
+def arrow_schema(columns: Columns) -> pa.Schema:
+    import pyarrow as pa
+
+    return pa.schema([(name, arrow_type(kind)) for name, kind in columns])
+
+
+def plain(value: Any, kind: ColumnType) -> Any:
+    """A cell as plain JSON, as Arrow would hold it and give it back: a map as an object, a
+    struct with exactly its fields (a missing one null), numbers of the column's type."""
+    if value is None:
+        return None
+    if isinstance(kind, str):
+        if kind == FLOAT:
+            return float(value)
+        if kind == INT:
+            return int(value)
+        return value
+    if kind[0] == "list":
+        return [plain(v, kind[1]) for v in value]
+    if kind[0] == "map":
+        pairs = value.items() if isinstance(value, Mapping) else value
+        return {k: plain(v, kind[2]) for k, v in pairs}
+    return {name: plain(value.get(name), t) for name, t in kind[1]}
+
+
 # -- the tables --------------------------------------------------------------------------------
 
 
-def _summary_types() -> dict[str, pa.DataType]:
-    """The Arrow type of each summary field that is a column of the results (a field not named
+def _summary_types() -> dict[str, ColumnType]:
+    """The type of each summary field that is a column of the results (a field not named
     here, e.g. one a later summary adds, is stored as JSON text)."""
-    import pyarrow as pa
-
-    text, alts = pa.string(), pa.list_(pa.string())
-    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
-    influences = pa.map_(text, alts)  # "s>r" -> the alternative sent (sorted action names)
-    unit = pa.struct(
-        [
-            ("unit", text),
-            ("low", alts),  # the interval [low, high] of its decision (B and A); None: frustrated
-            ("high", alts),
-            ("choice", alts),
-            ("frustrated", yes),
-            ("decided", yes),
-            ("A", alts),
-            ("B", alts),
-            ("canonical", text),
-        ]
+    alts = list_of(TEXT)
+    influences = map_of(TEXT, alts)  # "s>r" -> the alternative sent (sorted action names)
+    unit = struct_of(
+        ("unit", TEXT),
+        ("low", alts),  # the interval [low, high] of its decision (B and A); None: frustrated
+        ("high", alts),
+        ("choice", alts),
+        ("frustrated", BOOL),
+        ("decided", BOOL),
+        ("A", alts),
+        ("B", alts),
+        ("canonical", TEXT),
     )
-    goal = pa.struct(
-        [
-            ("unit", text),
-            ("target", text),
-            ("want_low", alts),
-            ("want_high", alts),
-            ("mode", text),
-            ("reached", yes),
-            ("reachable", yes),
-            ("share", f64),
-        ]
+    goal = struct_of(
+        ("unit", TEXT),
+        ("target", TEXT),
+        ("want_low", alts),
+        ("want_high", alts),
+        ("mode", TEXT),
+        ("reached", BOOL),
+        ("reachable", BOOL),
+        ("share", FLOAT),
     )
-    rounds = pa.struct(
-        [
-            ("count", i64),
-            ("state", text),
-            ("since", i64),
-            ("length", i64),
-            ("influences", pa.list_(influences)),
-        ]
+    rounds = struct_of(
+        ("count", INT),
+        ("state", TEXT),
+        ("since", INT),
+        ("length", INT),
+        ("influences", list_of(influences)),
     )
-    decode_error = pa.struct(
-        [("unit", text), ("turn", i64), ("kind", text), ("decoded", text), ("sent", text)]
+    decode_error = struct_of(
+        ("unit", TEXT), ("turn", INT), ("kind", TEXT), ("decoded", TEXT), ("sent", TEXT)
     )
     counts = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")
-    repair = pa.struct(
-        [("mode", text), ("blocks_per_phase", i64), ("seconds", f64)] + [(k, i64) for k in counts]
+    repair = struct_of(
+        ("mode", TEXT), ("blocks_per_phase", INT), ("seconds", FLOAT), *[(k, INT) for k in counts]
     )
     return {
-        "scenario": text,
-        "polynomial": text,
-        "decomposable": yes,
+        "scenario": TEXT,
+        "polynomial": TEXT,
+        "decomposable": BOOL,
         "p4": alts,
-        "relations": pa.map_(text, text),  # "a-b" -> alliance | conflict
-        "agree": yes,
+        "relations": map_of(TEXT, TEXT),  # "a-b" -> alliance | conflict
+        "agree": BOOL,
         "influences": influences,
-        "units": pa.list_(unit),
+        "units": list_of(unit),
         "frustrated": alts,
         "wrong_decisions": alts,
-        "goals": pa.list_(goal),
+        "goals": list_of(goal),
         "rounds": rounds,
-        "outcome": text,
-        "sim_seconds": f64,
-        "wall_seconds": f64,
-        "decode_errors": pa.list_(decode_error),
-        "decode_errors_left": i64,  # those not set right (summary.decode_errors_left)
-        "codebook": text,
+        "outcome": TEXT,
+        "sim_seconds": FLOAT,
+        "wall_seconds": FLOAT,
+        "decode_errors": list_of(decode_error),
+        "decode_errors_left": INT,  # those not set right (summary.decode_errors_left)
+        "codebook": TEXT,
         "repair": repair,  # null without a repair
-        "error": text,
+        "error": TEXT,
     }
 
 
-def _derived_types() -> list[tuple[str, pa.DataType]]:
-    import pyarrow as pa
-
-    i64, f64, yes = pa.int64(), pa.float64(), pa.bool_()
+def _derived_types() -> Columns:
     return [
-        ("decode_error_count", i64),
-        ("frustrated_count", i64),
-        ("decided_count", i64),
-        ("wrong_decision_count", i64),
-        ("wrong_decision_rate", f64),
-        ("goal_count", i64),
-        ("goal_reached_rate", f64),
-        ("goal_reachable_rate", f64),
-        ("goal_share_mean", f64),
-        ("goal_reached", yes),
-        ("goal_reachable", yes),
-        ("rounds_state", pa.string()),
-        ("rounds_cycle_length", i64),
-        ("alliance_share", f64),
-        ("decodes", i64),
-        ("decode_error_rate", f64),
-        ("id_decodes", i64),
-        ("id_misread_count", i64),
-        ("id_misread_rate", f64),
-        ("id_misreads_left", i64),
-        ("failed", yes),
-        ("log", pa.string()),
+        ("decode_error_count", INT),
+        ("frustrated_count", INT),
+        ("decided_count", INT),
+        ("wrong_decision_count", INT),
+        ("wrong_decision_rate", FLOAT),
+        ("goal_count", INT),
+        ("goal_reached_rate", FLOAT),
+        ("goal_reachable_rate", FLOAT),
+        ("goal_share_mean", FLOAT),
+        ("goal_reached", BOOL),
+        ("goal_reachable", BOOL),
+        ("rounds_state", TEXT),
+        ("rounds_cycle_length", INT),
+        ("alliance_share", FLOAT),
+        ("decodes", INT),
+        ("decode_error_rate", FLOAT),
+        ("id_decodes", INT),
+        ("id_misread_count", INT),
+        ("id_misread_rate", FLOAT),
+        ("id_misreads_left", INT),
+        ("failed", BOOL),
+        ("log", TEXT),
     ]
 
 
-def grid_type(key: str, values: Sequence[Any]) -> pa.DataType:
+def grid_type(key: str, values: Sequence[Any]) -> ColumnType:
     """A grid column's type, from the grid's values (never from the runs): all booleans bool,
-    all integers int64, numbers float64, anything else text (a list or table as JSON text)."""
-    import pyarrow as pa
-
+    all integers int, numbers float, anything else text (a list or table as JSON text)."""
     kinds = {type(v) for v in values}
     if key in ("case", "engine") or not kinds:
-        return pa.string()
+        return TEXT
     if kinds == {bool}:
-        return pa.bool_()
+        return BOOL
     if kinds == {int}:
-        return pa.int64()
+        return INT
     if kinds <= {int, float}:
-        return pa.float64()
-    return pa.string()
+        return FLOAT
+    return TEXT
 
 
-def _grid_fields(axes: Axes) -> list[tuple[str, pa.DataType]]:
+def _grid_fields(axes: Axes) -> Columns:
     return [(key, grid_type(key, values)) for key, values in axes]
 
 
-def results_schema(axes: Axes) -> pa.Schema:
-    """The results table's schema: fixed but for the grid columns (``grid_type``), so two
+def results_columns(axes: Axes) -> Columns:
+    """The results table's columns: fixed but for the grid columns (``grid_type``), so two
     sweeps' tables concatenate and a column whose runs are all empty keeps its type."""
-    import pyarrow as pa
-
     keys = {k for k, _ in axes}
     # which sweep and which run, across sweeps: two sweeps' tables concatenate with every row
     # still named (``run`` is a run's place in its own sweep)
-    fields: list[tuple[str, pa.DataType]] = [
-        ("sweep", pa.string()), ("run_id", pa.string()), ("run", pa.int64())
-    ]  # fmt: skip
+    fields: Columns = [("sweep", TEXT), ("run_id", TEXT), ("run", INT)]
     fields += _grid_fields(axes)
-    fields.append(("seed", pa.int64()))
+    fields.append(("seed", INT))
     if "engine" not in keys:
-        fields.append(("engine", pa.string()))
-    fields += [("digest", pa.string()), ("schedule", pa.string()), ("n_units", pa.int64())]
+        fields.append(("engine", TEXT))
+    fields += [("digest", TEXT), ("schedule", TEXT), ("n_units", INT)]
     types_ = _summary_types()
     for k in SUMMARY_JSON_KEYS:
         if k not in NOT_COLUMNS:
-            fields.append((f"summary.{k}" if k in keys else k, types_.get(k, pa.string())))
+            fields.append((f"summary.{k}" if k in keys else k, types_.get(k, TEXT)))
     fields += _derived_types()
     names = [n for n, _ in fields]
     clash = sorted({n for n in names if names.count(n) > 1})
     if clash:
         raise RgtbusError(f"sweep grid: {clash[0]!r} is a column of the results, not a grid key")
-    return pa.schema(fields)
+    return fields
+
+
+def decisions_columns(axes: Axes) -> Columns:
+    """The decisions table's columns: one row per run, unit and influence round."""
+    alts = list_of(TEXT)
+    return [
+        ("sweep", TEXT),
+        ("run_id", TEXT),
+        ("run", INT),
+        *_grid_fields(axes),
+        ("seed", INT),
+        ("unit", TEXT),
+        ("round", INT),
+        ("low", alts),
+        ("high", alts),
+        ("choice", alts),
+        ("frustrated", BOOL),
+        ("wrong", BOOL),
+        ("t", FLOAT),
+    ]
+
+
+def results_schema(axes: Axes) -> pa.Schema:
+    """results.parquet's Arrow schema (``results_columns``)."""
+    return arrow_schema(results_columns(axes))
 
 
 def decisions_schema(axes: Axes) -> pa.Schema:
-    """decisions.parquet: one row per run, unit and influence round."""
-    import pyarrow as pa
-
-    alts = pa.list_(pa.string())
-    return pa.schema(
-        [
-            ("sweep", pa.string()),
-            ("run_id", pa.string()),
-            ("run", pa.int64()),
-            *_grid_fields(axes),
-            ("seed", pa.int64()),
-            ("unit", pa.string()),
-            ("round", pa.int64()),
-            ("low", alts),
-            ("high", alts),
-            ("choice", alts),
-            ("frustrated", pa.bool_()),
-            ("wrong", pa.bool_()),
-            ("t", pa.float64()),
-        ]
-    )
+    """decisions.parquet's Arrow schema (``decisions_columns``)."""
+    return arrow_schema(decisions_columns(axes))
 
 
 def _loaded(value: Any) -> Any:
@@ -252,32 +314,29 @@ _SHAPES: dict[str, Callable[[Any], Any]] = {
 }
 
 
-def _shaped(axes: Axes, schema: pa.Schema, row: Mapping[str, Any]) -> dict[str, Any]:
+def _shaped(axes: Axes, columns: Columns, row: Mapping[str, Any]) -> dict[str, Any]:
     """A row as ``run_row`` gives it (or an older rgtbus stored it) in the table's shapes."""
-    import pyarrow as pa
-
     grid = {k for k, _ in axes}
     out: dict[str, Any] = {}
-    for f in schema:
-        v = row.get(f.name)
+    for name, kind in columns:
+        v = row.get(name)
         if v is None:
-            out[f.name] = None
+            out[name] = None
             continue
         # the summary field a column holds (a grid column: none)
-        if f.name.startswith("summary."):
-            summary_field: str | None = f.name.removeprefix("summary.")
+        if name.startswith("summary."):
+            summary_field: str | None = name.removeprefix("summary.")
         else:
-            summary_field = None if f.name in grid else f.name
-        nested = pa.types.is_nested(f.type)
-        if nested:
+            summary_field = None if name in grid else name
+        if is_nested(kind):
             v = _loaded(v)
             if summary_field in _SHAPES and v is not None:
                 v = _SHAPES[summary_field](v)
-        elif pa.types.is_string(f.type) and not isinstance(v, str):
+        elif kind == TEXT and not isinstance(v, str):
             v = json.dumps(v)
-        elif pa.types.is_floating(f.type) and isinstance(v, int) and not isinstance(v, bool):
+        elif kind == FLOAT and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
-        out[f.name] = v
+        out[name] = v
     return out
 
 
@@ -286,41 +345,77 @@ def run_id(sweep_id: str, run: Any) -> str:
     return f"{sweep_id}/{run}"
 
 
-def results_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
-    """The results table of ``rows`` (one a run, in order), typed by ``results_schema``;
-    ``sweep_id`` (``Sweep.id``) names the sweep in each row."""
-    import pyarrow as pa
-
-    schema = results_schema(axes)
-    named = [{**r, "sweep": sweep_id, "run_id": run_id(sweep_id, r.get("run"))} for r in rows]
-    return pa.Table.from_pylist([_shaped(axes, schema, r) for r in named], schema=schema)
+def _named(rows: Sequence[Mapping[str, Any]], sweep_id: str) -> list[dict[str, Any]]:
+    return [{**r, "sweep": sweep_id, "run_id": run_id(sweep_id, r.get("run"))} for r in rows]
 
 
-def decisions_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
-    """Every decision of every run: one row per run, unit and influence round (each named by
-    its sweep and run id, as in the results)."""
-    import pyarrow as pa
+def _results_shaped(
+    axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str
+) -> tuple[Columns, list[dict[str, Any]]]:
+    columns = results_columns(axes)
+    return columns, [_shaped(axes, columns, r) for r in _named(rows, sweep_id)]
 
-    schema = decisions_schema(axes)
+
+def _decisions_shaped(
+    axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str
+) -> tuple[Columns, list[dict[str, Any]]]:
+    columns = decisions_columns(axes)
+    names = [n for n, _ in columns]
     keys = [k for k, _ in axes]
     head = ["sweep", "run_id", "run", *keys, "seed"]
-    rows = [{**r, "sweep": sweep_id, "run_id": run_id(sweep_id, r.get("run"))} for r in rows]
-    grid = {f.name: f.type for f in schema if f.name in keys}
+    grid = {n: kind for n, kind in columns if n in keys}
     out = []
-    for r in rows:
+    for r in _named(rows, sweep_id):
         decisions = r.get("_decisions")
         if decisions is None and "decisions" not in keys:  # an older row, if it had them
             decisions = r.get("decisions")
         cell = {k: r.get(k) for k in head}
-        for k, t in grid.items():
+        for k, kind in grid.items():
             v = cell[k]
-            if v is not None and pa.types.is_string(t) and not isinstance(v, str):
+            if v is not None and kind == TEXT and not isinstance(v, str):
                 cell[k] = json.dumps(v)
-            elif v is not None and pa.types.is_floating(t):
+            elif v is not None and kind == FLOAT:
                 cell[k] = float(v)
         for d in _loaded(decisions) or ():
-            out.append({**cell, **{k: d.get(k) for k in schema.names if k not in cell}})
-    return pa.Table.from_pylist(out, schema=schema)
+            out.append({**cell, **{k: d.get(k) for k in names if k not in cell}})
+    return columns, out
+
+
+def _plain_rows(columns: Columns, shaped: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    return [{name: plain(r.get(name), kind) for name, kind in columns} for r in shaped]
+
+
+def results_rows(
+    axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = ""
+) -> list[dict[str, Any]]:
+    """The results of ``rows`` (one a run, in order) as plain JSON rows, every column of
+    ``results_columns`` in each, as the Parquet table gives them back (``table_rows``);
+    ``sweep_id`` (``Sweep.id``) names the sweep in each row."""
+    return _plain_rows(*_results_shaped(axes, rows, sweep_id))
+
+
+def decisions_rows(
+    axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = ""
+) -> list[dict[str, Any]]:
+    """Every decision of every run as plain JSON rows: one per run, unit and influence round
+    (each named by its sweep and run id, as in the results)."""
+    return _plain_rows(*_decisions_shaped(axes, rows, sweep_id))
+
+
+def results_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
+    """The results as an Arrow table (results.parquet), typed by ``results_columns``."""
+    import pyarrow as pa
+
+    columns, shaped = _results_shaped(axes, rows, sweep_id)
+    return pa.Table.from_pylist(shaped, schema=arrow_schema(columns))
+
+
+def decisions_table(axes: Axes, rows: Sequence[Mapping[str, Any]], sweep_id: str = "") -> pa.Table:
+    """The decisions as an Arrow table (decisions.parquet), typed by ``decisions_columns``."""
+    import pyarrow as pa
+
+    columns, shaped = _decisions_shaped(axes, rows, sweep_id)
+    return pa.Table.from_pylist(shaped, schema=arrow_schema(columns))
 
 
 def jsonable(value: Any, typ: pa.DataType) -> Any:
@@ -339,7 +434,7 @@ def jsonable(value: Any, typ: pa.DataType) -> Any:
 
 
 def table_rows(table: pa.Table) -> list[dict[str, Any]]:
-    """A table's rows as plain Python and JSON values (maps as dicts)."""
+    """An Arrow table's rows as plain Python and JSON values (maps as dicts)."""
     import pyarrow as pa
 
     nested = {f.name: f.type for f in table.schema if pa.types.is_nested(f.type)}
@@ -350,35 +445,80 @@ def table_rows(table: pa.Table) -> list[dict[str, Any]]:
     return rows
 
 
-def _csv_table(table: pa.Table) -> pa.Table:
-    """The table with nested columns as JSON text (CSV holds no nested values)."""
-    import pyarrow as pa
+def _csv_cell(value: Any, kind: ColumnType) -> str:
+    """A plain cell as CSV text: null empty, booleans ``true``/``false``, nested as JSON."""
+    if value is None:
+        return ""
+    if is_nested(kind):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value) if not isinstance(value, float) else repr(value)
 
-    for i, f in enumerate(table.schema):
-        if pa.types.is_nested(f.type):
-            text = [
-                None if v is None else json.dumps(jsonable(v, f.type))
-                for v in table.column(i).to_pylist()
-            ]
-            table = table.set_column(i, pa.field(f.name, pa.string()), pa.array(text, pa.string()))
-    return table
+
+def _write_csv(path: Path, columns: Columns, rows: Sequence[Mapping[str, Any]]) -> None:
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        out = csv.writer(f)
+        out.writerow([name for name, _ in columns])
+        for r in rows:
+            out.writerow([_csv_cell(r.get(name), kind) for name, kind in columns])
+
+
+def _write_jsonl(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    with open(path, "wb") as f:
+        for r in rows:
+            f.write(orjson.dumps(r) + b"\n")
+
+
+def _write_columns(path: Path, results: Columns, decisions: Columns) -> None:
+    text = json.dumps({"results": results, "decisions": decisions})
+    path.write_text(text + "\n", encoding="utf-8")
+
+
+def parquet_available() -> bool:
+    """Whether this install writes and reads Parquet (pyarrow: the ``parquet`` extra)."""
+    return importlib.util.find_spec("pyarrow") is not None
+
+
+TABLE_FILES = ("results.jsonl", "decisions.jsonl", "results.csv", "columns.json")
+PARQUET_FILES = ("results.parquet", "decisions.parquet")
 
 
 def write_tables(
     axes: Axes, rows: Sequence[Mapping[str, Any]], out_dir: Path, sweep_id: str = ""
-) -> pa.Table:
-    """``results.parquet`` and ``results.csv`` (one row per run, the same columns in both) and
-    ``decisions.parquet``; each written whole, then moved into place. Returns the results."""
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    results = results_table(axes, rows, sweep_id)
-    decisions = decisions_table(axes, rows, sweep_id)
+) -> list[dict[str, Any]]:
+    """The sweep's tables in ``out_dir``: ``results.jsonl``, ``decisions.jsonl``,
+    ``results.csv`` and their columns' types (``columns.json``) always, ``results.parquet`` and
+    ``decisions.parquet`` where pyarrow is installed (else any left by an earlier write go:
+    they would be stale); each written whole, then moved into place. Returns the results as
+    plain rows (``results_rows``)."""
+    columns, shaped = _results_shaped(axes, rows, sweep_id)
+    dcolumns, dshaped = _decisions_shaped(axes, rows, sweep_id)
+    results = _plain_rows(columns, shaped)
+    decisions = _plain_rows(dcolumns, dshaped)
     writes: list[tuple[str, Callable[[Path], None]]] = [
-        ("results.parquet", lambda p: pq.write_table(results, p)),
-        ("decisions.parquet", lambda p: pq.write_table(decisions, p)),
-        ("results.csv", lambda p: pacsv.write_csv(_csv_table(results), p)),
+        ("results.jsonl", lambda p: _write_jsonl(p, results)),
+        ("decisions.jsonl", lambda p: _write_jsonl(p, decisions)),
+        ("results.csv", lambda p: _write_csv(p, columns, results)),
+        # each table's columns and their types: frames read from the JSON Lines get the
+        # dtypes of the Parquet tables', without Arrow
+        ("columns.json", lambda p: _write_columns(p, columns, dcolumns)),
     ]
+    if parquet_available():
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        def parquet(cols: Columns, table_rows: list[dict[str, Any]]) -> Callable[[Path], None]:
+            table = pa.Table.from_pylist(table_rows, schema=arrow_schema(cols))
+            return lambda p: pq.write_table(table, p)
+
+        writes += [
+            ("results.parquet", parquet(columns, shaped)),
+            ("decisions.parquet", parquet(dcolumns, dshaped)),
+        ]
+    else:
+        for name in PARQUET_FILES:
+            (out_dir / name).unlink(missing_ok=True)
     for name, write in writes:
         tmp = out_dir / f".{name}.part"
         write(tmp)
@@ -415,16 +555,94 @@ def usable(value: Any) -> Any:
     return value
 
 
-def read_table(path: Path) -> pd.DataFrame:
-    """A sweep's Parquet table as a DataFrame whose every column pandas can group, sort,
-    deduplicate and merge on: lists as tuples, structs and maps as ``Record`` dicts."""
-    import pyarrow.parquet as pq
-
-    frame: pd.DataFrame = pq.read_table(path).to_pandas(maps_as_pydicts="strict")
+def _usable_frame(frame: pd.DataFrame) -> pd.DataFrame:
     for column in frame.columns:
         if frame[column].dtype == object:
             frame[column] = frame[column].map(usable, na_action="ignore")
     return frame
+
+
+def read_table(path: Path) -> pd.DataFrame:
+    """A sweep's Parquet table as a DataFrame whose every column pandas can group, sort,
+    deduplicate and merge on: lists as tuples, structs and maps as ``Record`` dicts. Needs
+    pyarrow (the ``parquet`` extra)."""
+    require("pyarrow", f"reading {str(path)!r}")
+    import pyarrow.parquet as pq
+
+    return _usable_frame(pq.read_table(path).to_pandas(maps_as_pydicts="strict"))
+
+
+def frame_of(
+    rows: Sequence[Mapping[str, Any]], columns: Columns | Sequence[str] = ()
+) -> pd.DataFrame:
+    """Plain rows (``results_rows``, a line of ``results.jsonl`` each) as a DataFrame whose every
+    column pandas can group, sort, deduplicate and merge on: lists as tuples, structs and maps
+    as ``Record`` dicts. ``columns``: (name, type) pairs give each column the dtype the Parquet
+    table's frame has (``read_table``: whole numbers int64, float64 with a null; yes/no bool,
+    object with a null; text pandas' string dtype); bare names (or none: the first row's) leave
+    the dtypes to pandas."""
+    import pandas as pd
+
+    kinds = dict(c for c in columns if isinstance(c, tuple))
+    names = [c[0] if isinstance(c, tuple) else c for c in columns] or (
+        list(rows[0]) if rows else []
+    )
+    frame = pd.DataFrame.from_records(list(rows), columns=names)
+    # pandas 3 reads Arrow text as its string dtype, pandas 2 as objects
+    text = "str" if int(pd.__version__.split(".")[0]) >= 3 else object
+    for name, kind in kinds.items():
+        if name not in frame:
+            continue
+        values = [r.get(name) for r in rows]
+        nulls = any(v is None for v in values)
+        if kind == INT:
+            frame[name] = pd.Series(values, dtype="float64" if nulls else "int64")
+        elif kind == FLOAT:
+            frame[name] = pd.Series(values, dtype="float64")
+        elif kind == BOOL:
+            frame[name] = pd.Series(values, dtype=object if nulls else bool)
+        elif kind == TEXT:
+            frame[name] = pd.Series(values, dtype=text)
+        else:
+            frame[name] = pd.Series(values, dtype=object)
+    return _usable_frame(frame)
+
+
+def _read_jsonl(path: Path) -> list[dict[str, Any]]:
+    rows = []
+    try:
+        with open(path, "rb") as f:
+            for n, line in enumerate(f, 1):
+                if not line.strip():
+                    continue
+                try:
+                    row = orjson.loads(line)
+                except orjson.JSONDecodeError:
+                    row = None
+                if not isinstance(row, dict):
+                    raise RgtbusError(f"{path}:{n}: not a row of a sweep's table (a JSON object)")
+                rows.append(row)
+    except OSError as exc:
+        raise RgtbusError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+    return rows
+
+
+def results_of(out: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The results of the sweep written to ``out`` as plain rows: ``results.jsonl``, or, in a
+    directory an rgtbus before it wrote, ``results.parquet`` (pyarrow)."""
+    d = Path(out)
+    if (d / "results.jsonl").is_file():
+        return _read_jsonl(d / "results.jsonl")
+    if (d / "results.parquet").is_file():
+        require("pyarrow", f"reading {str(d / 'results.parquet')!r}")
+        import pyarrow.parquet as pq
+
+        return table_rows(pq.read_table(d / "results.parquet"))
+    raise RgtbusError(f"{str(d)!r}: no results.jsonl or results.parquet (run the sweep first)")
+
+
+_DECISION_COLUMNS = ("sweep", "run_id", "run", "seed", "unit", "round", "low", "high", "choice",
+                     "frustrated", "wrong", "t")  # fmt: skip
 
 
 class SweepTables(NamedTuple):
@@ -434,19 +652,50 @@ class SweepTables(NamedTuple):
     decisions: pd.DataFrame
 
 
+def _as_column(item: Any) -> tuple[str, ColumnType]:
+    """A (name, type) pair as ``columns.json`` holds it (JSON lists for tuples)."""
+
+    def kind(k: Any) -> ColumnType:
+        if isinstance(k, str):
+            return k
+        if k[0] == "struct":
+            return ("struct", tuple((n, kind(t)) for n, t in k[1]))
+        return (k[0], *(kind(t) for t in k[1:]))
+
+    return str(item[0]), kind(item[1])
+
+
+def table_columns(out: str | os.PathLike[str], table: str) -> Columns:
+    """The columns of a sweep directory's ``table`` ("results" or "decisions") with their
+    types, from its ``columns.json`` (none in a directory an older rgtbus wrote)."""
+    path = Path(out) / "columns.json"
+    if not path.is_file():
+        return []
+    try:
+        return [_as_column(c) for c in json.loads(path.read_text(encoding="utf-8"))[table]]
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        raise RgtbusError(f"{str(path)!r}: not a sweep's columns ({type(exc).__name__})") from None
+
+
+def read_results(out: str | os.PathLike[str]) -> pd.DataFrame:
+    """The results of the sweep written to ``out`` as a DataFrame (``read_sweep(out).results``)."""
+    return frame_of(results_of(out), table_columns(out, "results"))
+
+
 def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     """``(results, decisions)`` of the sweep written to ``out`` (``sweep(..., out=DIR)`` or
-    ``rgtbus sweep --out DIR``), each column one pandas can group, sort, deduplicate and merge
-    on (``read_table``: lists as tuples, structs and maps as ``Record`` dicts). A directory
-    without ``decisions.parquet`` (an older rgtbus) gives an empty decisions table."""
-    import pandas as pd
-
+    ``rgtbus sweep --out DIR``), read from ``results.jsonl`` and ``decisions.jsonl`` (no pyarrow
+    needed), each column one pandas can group, sort, deduplicate and merge on (``frame_of``:
+    lists as tuples, structs and maps as ``Record`` dicts). A directory an older rgtbus wrote
+    (Parquet only) is read from its Parquet files (pyarrow); one without decisions gives an
+    empty decisions table."""
     d = Path(out)
-    path = d / "results.parquet"
-    if not path.is_file():
-        raise RgtbusError(f"{str(d)!r}: no results.parquet (run the sweep first)")
-    dec = d / "decisions.parquet"
-    columns = ["sweep", "run_id", "run", "seed", "unit", "round", "low", "high", "choice",
-               "frustrated", "wrong", "t"]  # fmt: skip
-    decisions = read_table(dec) if dec.is_file() else pd.DataFrame(columns=columns)
-    return SweepTables(read_table(path), decisions)
+    results = read_results(d)
+    if (d / "decisions.jsonl").is_file():
+        columns = table_columns(d, "decisions") or _DECISION_COLUMNS
+        decisions = frame_of(_read_jsonl(d / "decisions.jsonl"), columns)
+    elif (d / "decisions.parquet").is_file() and not (d / "results.jsonl").is_file():
+        decisions = read_table(d / "decisions.parquet")
+    else:
+        decisions = frame_of([], _DECISION_COLUMNS)
+    return SweepTables(results, decisions)
