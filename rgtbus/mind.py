@@ -154,7 +154,7 @@ def choose(
 
 
 _T = TypeVar("_T")
-_MEMO: dict[tuple[Hashable, tuple[tuple[str, ...], bool, bytes]], Any] = {}
+_MEMO: dict[tuple[Hashable, tuple[tuple[str, ...], bool, int, bytes]], Any] = {}
 _MEMO_SIZE = 16
 
 

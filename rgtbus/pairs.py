@@ -39,7 +39,16 @@ def parse_pair_key(key: str) -> Pair:
     return s, r
 
 
-_ABSENT = -(2**63)  # an empty slot (no value of a table comes near it)
+_ABSENT = -(2**63)  # the value no table can hold (an empty slot, at the widest width)
+# A table's widths, narrowest first: (array typecode, NumPy dtype, the empty slot's value, the
+# largest value). A table starts at one byte an entry (the values of a group's tables: yes/no
+# and alternatives of a few actions) and widens only when a value needs it.
+_WIDTHS = (
+    ("b", "int8", -(2**7), 2**7 - 1),
+    ("h", "int16", -(2**15), 2**15 - 1),
+    ("i", "int32", -(2**31), 2**31 - 1),
+    ("q", "int64", _ABSENT, 2**63 - 1),
+)
 
 
 @functools.lru_cache(maxsize=64)
@@ -74,21 +83,44 @@ class _PairValues(ValuesView[int]):
 
 class PairTable(MutableMapping[Pair, int]):
     """A mapping ``(sender, receiver) -> int`` over the ordered pairs of one group, held in an
-    array of n² machine integers instead of a dict: each of n units holds the group's tables
-    as it hears them, n³ entries in all: 8 bytes an entry here, a fraction of a dict's.
+    array of n² small integers instead of a dict: each of n units holds the group's tables as
+    it hears them, n³ entries in all: one byte an entry while every value fits in a byte (the
+    array widens, to 2, 4 or 8 bytes, when a value needs it). Any int but -2⁶³ can be held.
     Iterates in the group's order (senders, then receivers), not in the order the values came.
     ``boolean``: values read back as bools (the relation codes: alliance or not). A unit name
     outside the group: KeyError."""
 
-    __slots__ = ("_bool", "_count", "_n", "_slots", "_units", "_vals")
+    __slots__ = ("_absent", "_bool", "_count", "_n", "_slots", "_top", "_units", "_vals", "_width")
 
     def __init__(self, units: Sequence[str], *, boolean: bool = False) -> None:
         self._units = tuple(units)
         self._slots = _slots_of(self._units)
         self._n = len(self._units)
-        self._vals = array("q", [_ABSENT]) * (self._n * self._n)
+        self._width = 0
+        code, _, self._absent, self._top = _WIDTHS[0]
+        self._vals = array(code, [self._absent]) * (self._n * self._n)
         self._count = 0
         self._bool = boolean
+
+    def _widen(self, low: int, high: int) -> None:
+        """Hold values from ``low`` to ``high`` too: the array at the narrowest width that
+        does (its empty slots the new width's empty value)."""
+        import numpy as np
+
+        if low == _ABSENT:
+            raise ValueError(f"{_ABSENT} cannot be held")
+        w = self._width
+        while w + 1 < len(_WIDTHS) and not (_WIDTHS[w][2] < low and high <= _WIDTHS[w][3]):
+            w += 1
+        code, dtype, absent, top = _WIDTHS[w]
+        old = np.frombuffer(self._vals, dtype=_WIDTHS[self._width][1])
+        new = old.astype(dtype)
+        new[old == self._absent] = absent
+        self._vals = array(code, new.tobytes())
+        self._width, self._absent, self._top = w, absent, top
+
+    def _fits(self, value: int) -> bool:
+        return self._absent < value <= self._top
 
     def _slot(self, key: Pair) -> int:
         try:
@@ -98,7 +130,7 @@ class PairTable(MutableMapping[Pair, int]):
 
     def __getitem__(self, key: Pair) -> int:
         v = self._vals[self._slot(key)]
-        if v == _ABSENT:
+        if v == self._absent:
             raise KeyError(key)
         return bool(v) if self._bool else v
 
@@ -107,40 +139,39 @@ class PairTable(MutableMapping[Pair, int]):
             i = self._slots[key]
         except (KeyError, TypeError):
             raise KeyError(key) from None
+        if not self._absent < value <= self._top:  # also refuses what is no int
+            self._widen(int(value), int(value))
         vals = self._vals
-        old = vals[i]
+        empty = vals[i] == self._absent
         vals[i] = value  # an int (a bool is one): the array refuses anything else
-        if value == _ABSENT:
-            vals[i] = old
-            raise ValueError(f"{key}: {value} cannot be held")
-        if old == _ABSENT:
-            self._count += 1
+        self._count += empty
 
     def __delitem__(self, key: Pair) -> None:
         i = self._slot(key)
-        if self._vals[i] == _ABSENT:
+        if self._vals[i] == self._absent:
             raise KeyError(key)
-        self._vals[i] = _ABSENT
+        self._vals[i] = self._absent
         self._count -= 1
 
     def holds_every_pair(self) -> bool:
         """Whether every ordered pair of two distinct units has a value (``ordered_pairs``):
         n(n−1) values off the diagonal (a unit paired with itself counts for none), n reads
         instead of n² lookups."""
-        n, vals = self._n, self._vals
-        diagonal = sum(vals[i * (n + 1)] != _ABSENT for i in range(n))
+        n, vals, absent = self._n, self._vals, self._absent
+        diagonal = sum(vals[i * (n + 1)] != absent for i in range(n))
         return self._count - diagonal == n * (n - 1)
 
     def __contains__(self, key: object) -> bool:
         try:
-            return self._vals[self._slot(key)] != _ABSENT  # type: ignore[arg-type]
+            return self._vals[self._slot(key)] != self._absent  # type: ignore[arg-type]
         except KeyError:
             return False
 
     def __iter__(self) -> Iterator[Pair]:
         pairs = _pairs_of(self._units)
+        absent = self._absent
         for i, v in enumerate(self._vals):
-            if v != _ABSENT:
+            if v != absent:
                 yield pairs[i]
 
     def items(self) -> ItemsView[Pair, int]:
@@ -156,11 +187,14 @@ class PairTable(MutableMapping[Pair, int]):
         """The group, in order: the pair (units[i], units[j]) is slot i·n + j."""
         return self._units
 
+    def _array(self) -> np.ndarray:
+        import numpy as np
+
+        return np.frombuffer(self._vals, dtype=_WIDTHS[self._width][1])
+
     def absent(self, slots: np.ndarray) -> np.ndarray:
         """Whether each of these slots holds nothing yet (a bool array)."""
-        import numpy as np  # a table is made and read without numpy; a batch brings it
-
-        empty: np.ndarray = np.frombuffer(self._vals, dtype=np.int64)[slots] == _ABSENT
+        empty: np.ndarray = self._array()[slots] == self._absent
         return empty
 
     def set_slots(self, slots: np.ndarray, values: np.ndarray, *, unique: bool = False) -> None:
@@ -175,27 +209,28 @@ class PairTable(MutableMapping[Pair, int]):
             return
         if slots.min() < 0 or slots.max() >= self._n * self._n:
             raise KeyError(f"slot outside the {self._n}-unit table")
-        if (values == _ABSENT).any():
-            raise ValueError(f"{_ABSENT} cannot be held")
+        low, high = int(values.min()), int(values.max())
+        if not (self._fits(low) and self._fits(high)):
+            self._widen(low, high)
         if not unique:
             last = slots.size - 1 - np.unique(slots[::-1], return_index=True)[1]
             slots, values = slots[last], values[last]
-        vals = np.frombuffer(self._vals, dtype=np.int64)
-        self._count += int((vals[slots] == _ABSENT).sum())
+        vals = self._array()
+        self._count += int((vals[slots] == self._absent).sum())
         vals[slots] = values
 
-    def snapshot(self) -> tuple[tuple[str, ...], bool, bytes]:
+    def snapshot(self) -> tuple[tuple[str, ...], bool, int, bytes]:
         """What the table holds, hashable: equal tables, equal snapshots (what a table
         derived from one is memoised on: the units of a group mostly hold equal ones)."""
-        return self._units, self._bool, self._vals.tobytes()
+        return self._units, self._bool, self._width, self._vals.tobytes()
 
     def _items(self) -> Iterator[tuple[Pair, int]]:
         # a report or a decision reads a whole table: n² items, n tables, each round
         pairs = _pairs_of(self._units)
-        vals = self._vals
+        vals, absent = self._vals, self._absent
         if self._bool:
-            return ((pairs[i], bool(v)) for i, v in enumerate(vals) if v != _ABSENT)
-        return ((pairs[i], v) for i, v in enumerate(vals) if v != _ABSENT)
+            return ((pairs[i], bool(v)) for i, v in enumerate(vals) if v != absent)
+        return ((pairs[i], v) for i, v in enumerate(vals) if v != absent)
 
     def __len__(self) -> int:
         return self._count

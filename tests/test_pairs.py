@@ -132,3 +132,27 @@ def test_a_pair_table_holds_every_pair_once_each_pair_of_two_units_has_a_value(s
     for u in units:  # off the diagonal again: only the pairs count
         t.pop((u, u), None)
     assert t.holds_every_pair() == want
+
+
+def test_a_table_takes_a_byte_an_entry_and_widens_only_when_a_value_needs_it():
+    """n³ entries in all at n units: a group's yes/no and few-action tables take one byte an
+    entry; a value past a byte (one by one, or in a batch) widens the array, keeping every
+    value and every empty slot."""
+    import numpy as np
+
+    units = [f"u{i}" for i in range(5)]
+    t, d = PairTable(units), {}
+    assert t._vals.itemsize == 1
+    for (p, v), size in zip(
+        [(("u0", "u1"), 5), (("u1", "u2"), -127), (("u2", "u3"), 300), (("u3", "u4"), -(2**20)),
+         (("u4", "u0"), 2**40), (("u0", "u2"), -(2**63) + 1)],
+        [1, 1, 2, 4, 8, 8],
+        strict=True,
+    ):  # fmt: skip
+        t[p] = d[p] = v
+        assert t._vals.itemsize == size and t == d and len(t) == len(d)
+        assert ("u1", "u0") not in t
+    b = PairTable(units)
+    b.set_slots(np.array([1, 7]), np.array([1, 2**33]))
+    assert b._vals.itemsize == 8 and b == {("u0", "u1"): 1, ("u1", "u2"): 2**33}
+    assert b.absent(np.array([0, 1, 2])).tolist() == [True, False, True]

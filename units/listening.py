@@ -47,22 +47,32 @@ KINDS = ("id", "relation", "influence")
 
 
 class DecodeColumns:
-    """A unit's decodes as columns: the turn of each (4 bytes) and which (kind, addressee,
-    code) it read (4 bytes, an index into the few distinct ones), not a Python object per
-    decode. Iterates as ``DecodedRow`` tuples, in order; ``tolist()`` for JSON."""
+    """A unit's decodes as the summary judges them, as columns: the turn of each (4 bytes) and
+    which (kind, addressee, code) it read (2 bytes, 4 past 65,535 distinct ones: an index into
+    the few distinct ones), not a Python object per decode. An ID read as the ID (``("id", *,
+    "id")``) is only counted: the summary never finds one wrong, and half of a run's n³
+    decodes are such IDs. So the columns hold every payload decode and every ID read otherwise,
+    in decode order; ``len`` and ``count`` count every decode. Iterates as ``DecodedRow``
+    tuples, in order; ``tolist()`` for JSON."""
 
-    __slots__ = ("_rows", "_seen", "_turns", "_what")
+    __slots__ = ("_counted", "_ids_read_right", "_rows", "_seen", "_turns", "_what")
 
     def __init__(self) -> None:
         self._turns = array("i")
-        self._what = array("I")
+        self._what = array("H")
         self._rows: list[tuple[str, str, str]] = []
         self._seen: dict[tuple[str, str, str], int] = {}
+        self._counted = bytearray()  # per distinct row: 1 for an ID read as the ID
+        self._ids_read_right = 0
 
     def append(self, turn: int, kind: str, addressee: str, code: str) -> None:
         """One decode."""
+        i = self.index((kind, addressee, code))
+        if self._counted[i]:
+            self._ids_read_right += 1
+            return
         self._turns.append(turn)
-        self._what.append(self.index((kind, addressee, code)))
+        self._what.append(i)
 
     def index(self, key: tuple[str, str, str]) -> int:
         """The index of a (kind, addressee, code) among the distinct ones (made on first use)."""
@@ -70,28 +80,41 @@ class DecodeColumns:
         if i is None:
             i = self._seen[key] = len(self._rows)
             self._rows.append(key)
+            self._counted.append(key[0] == "id" and key[2] == "id")
+            if i > 0xFFFF and self._what.typecode == "H":  # past two bytes: four
+                self._what = array("I", self._what)
         return i
 
     def extend_index(self, turns: np.ndarray, what: np.ndarray) -> None:
         """A batch of decodes at once: their turns, and each one's ``index``."""
+        what = np.asarray(what)
+        counted = np.frombuffer(bytes(self._counted), dtype=np.uint8)[what].astype(bool)
+        if counted.any():
+            self._ids_read_right += int(counted.sum())
+            keep = ~counted
+            turns, what = np.asarray(turns)[keep], what[keep]
         self._turns.frombytes(np.asarray(turns, dtype=np.intc).tobytes())
-        self._what.frombytes(np.asarray(what, dtype=np.uintc).tobytes())
+        dtype = np.uint16 if self._what.typecode == "H" else np.uintc
+        self._what.frombytes(np.asarray(what, dtype=dtype).tobytes())
 
     def __len__(self) -> int:
-        return len(self._turns)
+        """Every decode, the IDs only counted too."""
+        return len(self._turns) + self._ids_read_right
 
     def count(self, kind: str) -> int:
         """How many of the decodes are of ``kind`` (id, relation or influence)."""
         _, what, rows = self.arrays()
         of_kind = np.array([row[0] == kind for row in rows] or [False])
-        return int(of_kind[what].sum()) if len(what) else 0
+        held = int(of_kind[what].sum()) if len(what) else 0
+        return held + (self._ids_read_right if kind == "id" else 0)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
-        """(each decode's turn, the index of its (kind, addressee, code) in the third),
+        """(each held decode's turn, the index of its (kind, addressee, code) in the third),
         as arrays over the columns' own memory (``rgtbus.summary.wrong_decodes``)."""
+        dtype = np.uint16 if self._what.typecode == "H" else np.uintc
         return (
             np.frombuffer(self._turns, dtype=np.intc),
-            np.frombuffer(self._what, dtype=np.uintc),
+            np.frombuffer(self._what, dtype=dtype),
             self._rows,
         )
 
@@ -101,7 +124,7 @@ class DecodeColumns:
             yield (turn, *rows[i])
 
     def tolist(self) -> list[list[Any]]:
-        """Every decode as a list (turn, kind, addressee, code)."""
+        """Every held decode as a list (turn, kind, addressee, code)."""
         return [list(row) for row in self]
 
 
