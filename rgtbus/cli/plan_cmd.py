@@ -54,13 +54,15 @@ def register(subparsers: SubParsers) -> None:
 
 def _check_size(args: argparse.Namespace) -> None:
     """The plan's run is bounded as a scenario's is (docs/scenarios.md, "Budgets"): N units
-    by the decodes of a run with one influence round, the sample rate by the samples of a run
-    at the default max_seconds (3600 s) and of a default window (0.1 s)."""
+    by the memory and wall time of a run with one influence round, the sample rate by the
+    samples of a run at the default max_seconds (3600 s) and of a default window (0.1 s)."""
     from rgtbus.scenario import limits
 
     try:
+        why = limits.over_run_budget(args.n, 1)
+        if why:
+            raise RgtbusError(f"N = {args.n}: a run of this plan: {why}")
         checks = [
-            (f"N = {args.n}", limits.DECODES, limits.decodes(args.n, 1)),
             (f"--sample-rate {args.sample_rate:g}", limits.SAMPLES, 3600 * args.sample_rate),
             (f"--sample-rate {args.sample_rate:g}", limits.WINDOW_SAMPLES, 0.1 * args.sample_rate),
         ]

@@ -1,11 +1,14 @@
 """How big a run may be before it starts: estimates and budgets (docs/scenarios.md, "Budgets").
 
 A run's size is estimated from its scenario before anything is built: samples (``max_seconds ×
-sample_rate``), samples a bus window (``window × sample_rate``), decodes (every unit decodes
-every code: ``2·n²·(n−1)·(1 + influence_rounds)``, the decodes in ``/rx/decodes`` of a finished
-run) and the generated codebook's search (its ``2^k`` words against every candidate word). One
-beyond its budget is refused in one line naming the key and the estimate. ``RGTBUS_BUDGET=large``
-(environment) raises every budget a hundredfold; the hard limits below it never move.
+sample_rate``), samples a bus window (``window × sample_rate``), the group's peak memory and
+wall time (from its decodes: every unit decodes every code, ``2·n²·(n−1)·(1 + influence_rounds)``,
+calibrated against ``benchmarks.bench_scale``: ``run_estimate``) and the generated codebook's
+search (its ``2^k`` words against every candidate word). A group is refused only when it would
+need more memory than the machine has free or more than an hour (``RUN_HOURS``); any other
+estimate beyond its budget is refused too, each in one line naming the key and the estimate.
+``RGTBUS_BUDGET=large`` (environment) raises every budget a hundredfold; the hard limits below
+it never move.
 
 Also here: how deep a TOML text may nest (tomllib recurses, and gives up at about 400 levels)
 and the files a scenario or sweep may be read from (regular files only: a FIFO blocks forever).
@@ -39,7 +42,15 @@ class Budget(NamedTuple):
 # what exhausts a small machine's memory or the log writer first (docs/engine.md).
 SAMPLES = Budget("samples", 1e9, "samples (max_seconds × sample_rate)")
 WINDOW_SAMPLES = Budget("window", 1e5, "samples a bus window (window × sample_rate)")
-DECODES = Budget("decodes", 5e6, "decodes (2·n²·(n−1)·(1 + influence_rounds))")
+# A group's run in the user's terms (``run_estimate``): its wall time against an hour, its peak
+# memory against what the machine has free.
+RUN_HOURS = 1.0
+# Calibrated against benchmarks.bench_scale --scale-sizes (docs/engine.md, "What it costs"): a
+# process running the whole group with its log, on a 2-core machine: peak memory RUN_BASE_MB plus
+# RUN_BYTES_PER_DECODE a decode, wall time about RUN_SECONDS_PER_DECODE a decode.
+RUN_BASE_MB = 120.0
+RUN_BYTES_PER_DECODE = 14.5
+RUN_SECONDS_PER_DECODE = 3.0e-6
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).
@@ -85,6 +96,77 @@ def over_budget(budget: Budget, estimate: float) -> str | None:
 
 
 # -- estimates ---------------------------------------------------------------------------------
+
+
+class RunEstimate(NamedTuple):
+    """What a group's run will take (``run_estimate``): its decodes, its peak memory in MB and
+    its wall time in seconds, one process running the whole group with its log."""
+
+    decodes: float
+    memory_mb: float
+    seconds: float
+
+
+def run_estimate(n: int, influence_rounds: int) -> RunEstimate:
+    """The peak memory and wall time of a run of ``n`` units, from its decodes (calibrated:
+    ``RUN_BASE_MB``, ``RUN_BYTES_PER_DECODE``, ``RUN_SECONDS_PER_DECODE``). A launch's unit
+    processes each take about 1/n of the decodes' share."""
+    d = decodes(n, influence_rounds)
+    return RunEstimate(d, RUN_BASE_MB + d * RUN_BYTES_PER_DECODE / 1e6, d * RUN_SECONDS_PER_DECODE)
+
+
+def free_memory_mb() -> float | None:
+    """The memory this machine has free for a new run, in MB (Linux: ``MemAvailable``); None
+    where it cannot be read (then only the hour limits a run)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _size(mb: float) -> str:
+    return f"{mb:,.0f} MB" if mb < 100_000 else f"{mb / 1024:.3g} GB"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 2 * 3600:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.3g} h"
+
+
+def over_run_budget(n: int, influence_rounds: int) -> str | None:
+    """None when a run of ``n`` units fits this machine (``run_estimate``: its peak memory
+    within the free memory, its wall time within ``RUN_HOURS``, each times ``budget_scale``);
+    else the reason, in one line, naming both figures and how to override."""
+    est = run_estimate(n, influence_rounds)
+    scale = budget_scale()
+    free = free_memory_mb()
+    hours = RUN_HOURS * scale
+    over = []
+    if free is not None and est.memory_mb > free * scale:
+        times = "" if scale == 1 else f"{scale:g} × "
+        over.append(f"more than {times}the memory this machine has free ({_size(free)})")
+    if est.seconds > hours * 3600:
+        over.append(f"more than {'an hour' if scale == 1 else f'{hours:g} hours'}")
+    if not over:
+        return None
+    override = (
+        f"set {BUDGET_ENV}=large to run it anyway"
+        if scale == 1
+        else f"beyond {BUDGET_ENV}=large too"
+    )
+    return (
+        f"about {_size(est.memory_mb)} at its peak and {_duration(est.seconds)} of wall time "
+        f"({est.decodes:.3g} decodes), {' and '.join(over)} ({override}; "
+        'docs/scenarios.md, "Budgets")'
+    )
+
 
 
 def decodes(n: int, influence_rounds: int) -> float:
@@ -229,9 +311,9 @@ def check_size(ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: A
     why = over_budget(WINDOW_SAMPLES, timing.window * timing.sample_rate)
     if why:
         raise ctx.error("timing", _blamed(t, ("window", "sample_rate")), why)
-    why = over_budget(DECODES, decodes(n, rounds))
+    why = over_run_budget(n, rounds)
     if why:
-        if rounds > 1 and over_budget(DECODES, decodes(n, 1)) is None:
+        if rounds > 1 and over_run_budget(n, 1) is None:
             raise ctx.error("protocol", "influence_rounds", f"{rounds} rounds of {n} units: {why}")
         raise ctx.error("", "units", f"{n} units, {rounds} influence round(s): {why}")
 

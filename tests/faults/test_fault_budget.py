@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent.parent
 GATE = (ROOT / "scenarios" / "gate.toml").read_text()
 EXE = [sys.executable, "-m", "rgtbus"]
 NAME = "big.toml"
+FREE_MB = 8192.0  # the free memory these tests give the machine (the loader asks the OS)
 
 
 def reached(what: str):
@@ -40,6 +41,7 @@ def nothing_costly(monkeypatch):
     """The loader's costly steps (codebook search, frequency plan, groups) and any run fail
     the test if reached."""
     monkeypatch.delenv(limits_mod.BUDGET_ENV, raising=False)
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: FREE_MB)
     for name in ("codebook_of", "frequencies_of", "relations_of"):
         monkeypatch.setattr(load, name, reached(name))
     import rgtbus.units.group
@@ -92,19 +94,30 @@ def gate_with(old: str, new: str) -> str:
             "timing.sample_rate",
             "about 1e+06 samples a bus window (window × sample_rate), beyond the budget of 1e+05",
         ),
-        # 3.4 GB, then failed
+        # beyond the free memory and the hour (where 16 units x 1000 rounds now fit)
         (
-            group(16, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
+            group(100, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
             "protocol.influence_rounds",
-            "1000 rounds of 16 units: about 7.69e+06 decodes",
+            "1000 rounds of 100 units: about ",  # the figures: below
+        ),
+        (
+            group(100, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
+            "protocol.influence_rounds",
+            "of wall time (1.98e+09 decodes), more than the memory this machine has free "
+            "(8,192 MB)",
         ),
         # MemoryError after 27 s
-        (group(10_000), "units", "10000 units, 1 influence round(s): about 4e+12 decodes"),
-        # 7.7 GB and rising
         (
-            group(200, '[protocol]\nschedule = "concurrent"'),
+            group(10_000),
             "units",
-            "200 units, 1 influence round(s): about 3.18e+07 decodes",
+            "h of wall time (4e+12 decodes), more than the memory this machine has free (8,192 MB) "
+            "and more than an hour",
+        ),
+        # 7.7 GB and rising before; 1,000 units would now take 24 GB and 100 min
+        (
+            group(1000, '[protocol]\nschedule = "concurrent"'),
+            "units",
+            "1000 units, 1 influence round(s): about ",
         ),
         # a hang beyond 120 s at load
         (
@@ -117,7 +130,10 @@ def gate_with(old: str, new: str) -> str:
             "generated for 14 actions at N = 8: about 1.35e+10 word comparisons",
         ),
     ],
-    ids=["sample_rate-1e9", "window", "rounds-1000", "cograph-10000", "n200", "codebook-14"],
+    ids=[
+        "sample_rate-1e9", "window", "rounds-1000", "rounds-figures", "cograph-10000", "n1000",
+        "codebook-14",
+    ],
 )
 def test_a_run_beyond_its_budget_is_refused_before_anything_is_built(
     nothing_costly, monkeypatch, text, key, says
@@ -140,18 +156,41 @@ def test_a_run_beyond_its_budget_is_refused_before_anything_is_built(
 
 def test_the_cli_refuses_it_in_one_line_exit_2(nothing_costly, tmp_path, capsys):
     path = tmp_path / "big.toml"
-    path.write_text(group(200, '[protocol]\nschedule = "concurrent"'))
+    path.write_text(group(1000, '[protocol]\nschedule = "concurrent"'))
     code = main(["run", str(path), "--bus", "memory"])
     out, err = capsys.readouterr()
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert err.startswith(f"rgtbus run: error: {path}:2: units: 200 units"), err
+    assert err.startswith(f"rgtbus run: error: {path}:2: units: 1000 units"), err
+
+
+def test_a_group_is_refused_only_beyond_the_free_memory_or_an_hour(monkeypatch):
+    """The budget is the machine's: 200 and 300 units load by default where the memory is
+    free, and the same group is refused on a machine without it, naming both figures."""
+    monkeypatch.delenv(limits_mod.BUDGET_ENV, raising=False)
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: FREE_MB)
+    for n in (200, 300):
+        est = limits_mod.run_estimate(n, 1)
+        assert est.memory_mb < 2000 and est.seconds < 3600, est
+        assert limits_mod.over_run_budget(n, 1) is None
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: 400.0)
+    why = limits_mod.over_run_budget(300, 1)
+    assert why is not None and "more than the memory this machine has free (400 MB)" in why
+    assert "RGTBUS_BUDGET=large" in why and "min of wall time" in why
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: None)  # unknown: the hour only
+    assert limits_mod.over_run_budget(300, 1) is None
+    assert "more than an hour" in (limits_mod.over_run_budget(800, 1) or "")
 
 
 def test_a_large_budget_is_asked_for_by_name(monkeypatch):
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: FREE_MB)
     text = group(16, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000')
     monkeypatch.setenv("RGTBUS_BUDGET", "large")
-    sc = parse_scenario(text, NAME)  # 7.7 million decodes: within 100 × the budget
-    assert sc.influence_rounds == 1000 and len(sc.units) == 16
+    assert limits_mod.over_run_budget(100, 1000) is None  # within 100 × the budget
+    why = limits_mod.over_run_budget(16, 10**9) or ""
+    assert "(7.68e+12 decodes)" in why and "100 × the memory this machine has free" in why, why
+    assert "more than 100 hours (beyond RGTBUS_BUDGET=large too" in why, why
+    sc = parse_scenario(text.replace("1000", "2"), NAME)
+    assert sc.influence_rounds == 2 and len(sc.units) == 16
     assert "beyond RGTBUS_BUDGET=large too" in refused(group(10_000))
     monkeypatch.setenv("RGTBUS_BUDGET", "huge")
     assert "RGTBUS_BUDGET='huge': unknown budget (default or large)" in refused(GATE)
@@ -251,6 +290,7 @@ def no_plan_work(monkeypatch):
     import rgtbus.signal.plan as plan_mod
 
     monkeypatch.delenv(limits_mod.BUDGET_ENV, raising=False)
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: FREE_MB)
     monkeypatch.setattr(plan_mod, "crosstalk_peak", reached("crosstalk_peak"))
     return plan_mod
 
@@ -261,10 +301,10 @@ def no_plan_work(monkeypatch):
         # 14 GB in 20 s
         (["4", "--sample-rate", "1e12"], "--sample-rate 1e+12: a run of this plan: about 3.6e+15"),
         # 9.6 GB after 10 minutes (and the concurrent schedule's placement, n³)
-        (["10000"], "N = 10000: a run of this plan: about 4e+12 decodes"),
-        (["10000", "--schedule", "concurrent"], "N = 10000: a run of this plan: about 4e+12"),
+        (["10000"], "N = 10000: a run of this plan: about 5.66e+04 GB at its peak"),
+        (["10000", "--schedule", "concurrent"], "(4e+12 decodes), more than the memory this"),
         # StopIteration
-        (["1000000"], "N = 1000000: a run of this plan: about 4e+18 decodes"),
+        (["1000000"], "N = 1000000: a run of this plan: about 5.66e+10 GB at its peak"),
         # ZeroDivisionError
         (["4", "--sample-rate", "inf"], "--sample-rate inf: must be a positive finite number"),
         (["4", "--sample-rate", "nan"], "--sample-rate nan: must be a positive finite number"),
