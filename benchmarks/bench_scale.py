@@ -2,7 +2,7 @@
 
     python -m benchmarks.bench_scale [--sizes 4,6,8,10,12,16,20] [--large 30,50,100]
                                      [--log-upto 50] [--ser-sizes 10,50] [--quick]
-    python -m benchmarks.bench_scale --scale-sizes 10,30,50,100 [--repeat R] [--calls-upto 30]
+    python -m benchmarks.bench_scale --scale-sizes 50,100,200,300 [--repeat R] [--calls-upto 30]
 
 Every run is a fresh process (no cache of one run helps another) over the memory bus with the
 event engine. Groups of n units: a seeded decomposable group (relations policy cograph), random
@@ -144,6 +144,7 @@ def count_calls(n: int, schedule: str) -> dict[str, Any]:
     return {"calls": calls, "medium_pulses": pulses, "calls_per_pulse": calls / max(pulses, 1)}
 
 
+IDLE_MB = 50.0  # peak RSS of a child before its run: the interpreter, numpy, rgtbus (measured)
 REF_CHUNK = 1 << 22  # scores per decode block: bounds the reference's memory (32 MB a block)
 
 
@@ -183,7 +184,7 @@ def numpy_reference(
                 phase = m.protocol.schedule[send.turn].phase
                 fam, name = ("relation" if phase == PHASES[0] else "alternative"), send.code
             rows_s.append(send.samples)
-            rows_m.append(m.word(send))
+            rows_m.append(m.transmitter.word(send))
             chans.append(index[send.channel])
             senders.append(index[m.name])
             fams.append(fam_index[fam])
@@ -370,6 +371,23 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
         f"Exponent of wall (no log) in n over {span}: "
         + (f"{slope:.2f}" if slope is not None else "- (needs two sizes)")
     )
+    # memory above what the interpreter holds before the run (its imports: the smallest run's
+    # peak less its decodes' share is close to it)
+    base = IDLE_MB
+    mem = fit_exponent([(n, f["rss_mb"] - base) for n, f in fig.items() if f["rss_mb"] > base])
+    print(
+        f"Exponent of peak memory (no log, less {base:.0f} MB of interpreter and imports) in n "
+        f"over {span}: " + (f"{mem:.2f}" if mem is not None else "- (needs two sizes)")
+    )
+    print("The loader's estimate (rgtbus.scenario.limits.run_estimate, with the log) per n:")
+    from rgtbus.scenario.limits import run_estimate
+
+    for n, f in fig.items():
+        est = run_estimate(n, 1)
+        print(
+            f"- n = {n}: estimated {est.memory_mb:.0f} MB and {est.seconds:.0f} s; measured "
+            f"{f['log_rss_mb']:.0f} MB and {f['log_wall']:.1f} s with the log"
+        )
     print(
         f"Machine: {os.cpu_count()} CPUs; load average (1, 5, 15 min) at start "
         f"{', '.join(f'{x:.2f}' for x in load0)}, at end {', '.join(f'{x:.2f}' for x in load1)}"
@@ -383,12 +401,33 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
 
 
 def engine_goals(fig: dict[int, dict[str, float]]) -> None:
-    """Issue 23's goals against the engine table (a goal whose case was not run is left out)."""
+    """Issues 23's and 38's goals against the engine table (a goal whose case was not run is
+    left out)."""
 
     def verdict(ok: bool) -> str:
         return "met" if ok else "NOT met"
 
     lines = []
+    for n, mb_goal in ((300, 800.0), (500, 2048.0)):
+        if n in fig:
+            f = fig[n]
+            ok = max(f["rss_mb"], f["log_rss_mb"]) < mb_goal
+            lines.append(
+                f"n = {n} peak memory: {f['rss_mb']:.0f} MB no log, {f['log_rss_mb']:.0f} MB with "
+                f"it (goal < {mb_goal:g} MB): {verdict(ok)}"
+            )
+    for n in (100, 200, 300):
+        if n in fig:
+            f = fig[n]
+            lines.append(
+                f"n = {n} run / NumPy reference: {f['ref_ratio']:.2f}x (goal <= 1.0x): "
+                f"{verdict(f['ref_ratio'] <= 1.0)}"
+            )
+            if n <= 200:
+                lines.append(
+                    f"n = {n} log / no log: {f['log_ratio']:.2f}x (goal <= 1.5x): "
+                    f"{verdict(f['log_ratio'] <= 1.5)}"
+                )
     for n, wall_goal, mb_goal in ((100, 20.0, 250.0), (200, 120.0, 1024.0)):
         if n in fig:
             f = fig[n]
