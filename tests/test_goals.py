@@ -238,9 +238,9 @@ def test_goal_runs_agree_on_every_bus_engine_and_in_the_replay(tmp_path):
 
 def test_a_goal_unit_that_fails_before_its_choice_sends_its_policys_influence():
     sc = load_scenario(SCENARIOS / "gate_goal.toml")
-    text = sc.text.replace("guard = 0.5", 'guard = 0.5\nanchor = "schedule"\nmax_seconds = 100')
+    text = sc.text.replace("guard = 0.5", 'guard = 0.5\nanchor = "schedule"\nstop = 100')
     s, messages = _run(parse_scenario(text))
-    assert s["error"] and "max_seconds" in s["error"]
+    assert s["error"] and "timing.stop" in s["error"]
     goals = _topic(messages, "/unit/goal")
     assert [g["rule"] for g in goals] == ["none"] * 3
     assert all("failed before its choice" in g["reason"] and g["sent"] == [] for g in goals)
@@ -326,8 +326,8 @@ def test_the_clean_trajectory_is_what_the_units_send():
 
 def test_a_run_that_stops_mid_rounds_is_judged_on_its_whole_rounds():
     sc = load_scenario(SCENARIOS / "tug_of_war.toml")
-    s, _ = _run(parse_scenario(sc.text.replace("guard = 0.5", "guard = 0.5\nmax_seconds = 250")))
-    assert s["error"] and "max_seconds" in s["error"]
+    s, _ = _run(parse_scenario(sc.text.replace("guard = 0.5", "guard = 0.5\nstop = 250")))
+    assert s["error"] and "timing.stop" in s["error"]
     sent = s["rounds"]["influences"]
     whole = [r for r in sent if len(r) == 12]
     assert len(whole) < 3 and len(sent[-1]) < 12  # the last round was cut

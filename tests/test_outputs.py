@@ -340,11 +340,11 @@ def test_plan_says_what_a_margin_not_met_means(capsys):
 
 
 def _cut_gate(tmp_path: Path) -> Path:
-    """The gate, stopped by ``max_seconds`` after its tables are complete: a failed run whose
+    """The gate, stopped by ``timing.stop`` after its tables are complete: a failed run whose
     polynomial and agreement happen to be what ``[expect]`` says."""
     text = GATE.read_text().replace("guard = 0.5", 'guard = 0.5\nanchor = "schedule"')
     path = tmp_path / "cut.toml"
-    path.write_text(text.replace("[timing]", "[timing]\nmax_seconds = 100", 1))
+    path.write_text(text.replace("[timing]", "[timing]\nstop = 100", 1))
     return path
 
 

@@ -120,12 +120,12 @@ def test_a_run_that_raises_is_a_row_with_its_error(tmp_path, monkeypatch):
 
 
 def test_runs_that_fail_are_rows_too(tmp_path, capsys):
-    body = SWEEP.replace('"relations.p" = [0.61]', '"timing.max_seconds" = [2.0]')
+    body = SWEEP.replace('"relations.p" = [0.61]', '"timing.stop" = [2.0]')
     out = tmp_path / "o"
     assert main(["sweep", str(write_sweep(tmp_path, body)), "--out", str(out), "--quiet"]) == 0
     rows = table(out)
     assert len(rows) == 6 and all(r["failed"] for r in rows)
-    assert all("timing.max_seconds" in r["error"] for r in rows)
+    assert all("timing.stop" in r["error"] for r in rows)
 
 
 @pytest.mark.parametrize(
@@ -606,7 +606,7 @@ def test_tables_have_one_schema_whatever_the_data(tmp_path):
     db = pq.read_table(tmp_path / "b" / "decisions.parquet")
     assert pa.concat_tables([da, db]).num_rows == da.num_rows + db.num_rows == 3 + 4
     # a failed run (no summary at all) has the same columns and types
-    c = sweep(RANDOM, grid={"timing.max_seconds": [2.0]}, seeds=1, out=tmp_path / "c")
+    c = sweep(RANDOM, grid={"timing.stop": [2.0]}, seeds=1, out=tmp_path / "c")
     tc = pq.read_table(tmp_path / "c" / "results.parquet")
     assert bool(c["failed"][0]) and tc.schema.field("units").type == s.field("units").type
     assert pq.read_table(tmp_path / "c" / "decisions.parquet").num_rows == 0

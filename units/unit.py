@@ -21,6 +21,7 @@ decodes a batch at a wake (``BATCH_SECONDS``; docs/engine.md): the same decodes,
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import TYPE_CHECKING, Any
 
 import simpy
@@ -118,7 +119,10 @@ class AutonomousUnit:
         self._pending: dict[int, Send] = {}
         self._pending_first = NEVER
         self.relation_choice, self.influence_choice = intents(sc, name)
-        self.limit = sample_of(sc.timing.max_seconds, self.tau)  # listens to samples before it
+        # it listens to samples before its limit: max_seconds, or a deliberate stop before it
+        stop = sc.timing.stop
+        self.cut = stop is not None and stop < sc.timing.max_seconds
+        self.limit = sample_of(min(stop or math.inf, sc.timing.max_seconds), self.tau)
         self.timers = Timers()
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
         self._batch_span = max(1, sample_of(BATCH_SECONDS, self.tau))
@@ -328,8 +332,12 @@ class AutonomousUnit:
             if self.failure is None and not self.arq.left and self.mind.all_rounds_decided:
                 self.finished = True
         elif t.kind == "limit":
+            timing = self.scenario.timing
             self._fail(
-                f"{self.name}: not finished after {self.scenario.timing.max_seconds:g} s of "
+                f"{self.name}: stopped at {timing.stop:g} s of simulated time, not finished "
+                "(timing.stop)"
+                if self.cut
+                else f"{self.name}: not finished after {timing.max_seconds:g} s of "
                 "simulated time (timing.max_seconds)",
                 t.at,
             )

@@ -109,6 +109,23 @@ class Plan:
             self._listens = ListenQueue.of(listens)
         return self._listens
 
+    def nominal_end(self) -> float:
+        """When the schedule's last transmission ends, in seconds, every ID's spike taken at its
+        last pulse (the earliest a reaction counts from: a run never ends before this). The
+        concurrent schedule's rounds are placed (and kept for the run); the serial one's turns
+        are chained as each unit's reactions chain them, repair blocks included."""
+        if self.kind == "concurrent":
+            last = self.timing()[-1]
+            return last.repairs[-1].end if last.repairs else last.end
+        start, end, tau = self.start, self.start, self.tau
+        for turn in range(len(self.schedule)):
+            t = self.schedule[turn]
+            ids = code_samples(start, self.omegas[t.sender], self.pulses, tau)
+            r = self._react(turn, start, ids[-1])
+            end = r.repairs[-1].end if r.repairs else r.payload[-1] * tau
+            start = r.next_start
+        return end
+
     def reaction(self, turn: int, turn_start: float, sample: int) -> Reaction:
         """What follows from turn ``turn`` (started at ``turn_start``) having its ID spike at
         ``sample``: the payload, what to decode when, and the next turn's start (worked out

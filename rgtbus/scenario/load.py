@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import RgtbusError
+from rgtbus.protocol.timetable import plan_of
 from rgtbus.scenario.channel import channel_of, check_timed_channel
 from rgtbus.scenario.codebook_section import codebook_of, default_codebook, mode_of
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
@@ -26,7 +27,7 @@ from rgtbus.scenario.outcome import outcome_of
 from rgtbus.scenario.relations import relations_of
 from rgtbus.scenario.schedule import protocol_of
 from rgtbus.scenario.shipped import find_shipped, is_name
-from rgtbus.scenario.timing import timing_of
+from rgtbus.scenario.timing import fit_to_schedule, timing_of
 
 TOP_KEYS = {
     "name",
@@ -145,6 +146,14 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
     freq = frequencies_of(ctx, data, units, universe, mode, codebook, timing.tau, protocol.schedule)
     channel = channel_of(ctx, data, units)
+    plan = plan_of(
+        tuple(units), tuple((u, float(freq.frequencies[u])) for u in units), timing.tau,
+        freq.codebook.pulses, timing.reaction_delay, timing.guard, timing.search,
+        protocol.schedule, timing.start, protocol.influence_rounds,
+        protocol.repair_rounds if protocol.repair == "arq" else 0, 1 if channel.timed else 0,
+    )  # fmt: skip
+    # the run's plan (``ProtocolState`` asks for the same one, cached): what the schedule needs
+    timing = fit_to_schedule(ctx, data, timing, plan.nominal_end())
     check_timed_channel(ctx, channel, protocol, timing)
     relations = relations_of(ctx, data, units)
     influences = influences_of(ctx, data, units, universe)

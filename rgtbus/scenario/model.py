@@ -21,7 +21,10 @@ class Timing:
     start: float = 0.001  # first transmission, seconds after onset (the paper's 1 ms)
     reaction_delay: float = 0.5  # from the ID spike to the addressed code
     guard: float = 0.5  # silence between one transmission's end and the next ID
-    max_seconds: float = 3600.0  # a run that has not finished by then fails
+    # a run that has not finished by then fails: by default the schedule's nominal end with a
+    # margin, at least an hour (``rgtbus.scenario.timing.fit_to_schedule``)
+    max_seconds: float = 3600.0
+    stop: float | None = None  # a deliberate cut: the run ends here, finished or not
     anchor: str = "spike"  # reactions count from the ID spike (paper) or the ID's last pulse
     # the spike anchor's attention: "confirmed" by the ID decode with a timing search, or the
     # paper's "threshold" crossing alone (docs/protocol.md, "Attention")

@@ -3,6 +3,7 @@ together (blamed on a key the file sets)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -19,6 +20,7 @@ TIMING_KEYS = {
     "reaction_delay",
     "guard",
     "max_seconds",
+    "stop",
     "anchor",
     "attention",
     "search",
@@ -133,6 +135,39 @@ def _check_window(ctx: Ctx, t: dict[str, Any], timing: Timing) -> None:
         )
 
 
+# The default max_seconds: the schedule's nominal end times SCHEDULE_MARGIN plus SCHEDULE_SLACK
+# seconds (spikes later than a code's last pulse, propagation delays), and never under an hour.
+SCHEDULE_MARGIN = 1.25
+SCHEDULE_SLACK = 60.0
+DEFAULT_MAX_SECONDS = 3600.0
+
+
+def default_max_seconds(needed: float) -> float:
+    """The default ``max_seconds`` of a schedule whose last transmission ends at ``needed``
+    seconds at the earliest (``Plan.nominal_end``)."""
+    return max(DEFAULT_MAX_SECONDS, float(math.ceil(needed * SCHEDULE_MARGIN + SCHEDULE_SLACK)))
+
+
+def fit_to_schedule(ctx: Ctx, data: dict[str, Any], timing: Timing, needed: float) -> Timing:
+    """``max_seconds`` for a schedule that needs ``needed`` seconds (``Plan.nominal_end``): the
+    default follows from it; a value the file sets that is shorter is refused here, at load,
+    naming what the schedule needs, never a run that fails on it after all its work. A
+    deliberate cut short of it is ``stop``."""
+    t = sub_table(ctx, data, "timing")
+    default = default_max_seconds(needed)
+    if "max_seconds" not in t:
+        return dataclasses.replace(timing, max_seconds=default)
+    if timing.max_seconds < needed:
+        raise ctx.error(
+            "timing",
+            "max_seconds",
+            f"{timing.max_seconds:g} s is shorter than the schedule needs: its last "
+            f"transmission ends at {needed:.1f} s at the earliest (leave max_seconds out for "
+            f"a default that fits, {default:g} s; timing.stop cuts a run short on purpose)",
+        )
+    return timing
+
+
 def _check_gaps(ctx: Ctx, t: dict[str, Any], timing: Timing) -> None:
     """A guard of at least one sample; the first transmission before the run's end."""
     if timing.guard < timing.tau - 1e-12:
@@ -141,6 +176,13 @@ def _check_gaps(ctx: Ctx, t: dict[str, Any], timing: Timing) -> None:
             _blame(t, "guard", "sample_rate"),
             f"guard {timing.guard:g} s is shorter than one sample "
             f"(1/sample_rate = {timing.tau:g} s){_GUARD_WHY}",
+        )
+    if timing.stop is not None and timing.start >= timing.stop:
+        raise ctx.error(
+            "timing",
+            "stop",
+            f"stop {timing.stop:g} s is not after start {timing.start:g} s: the run would end "
+            "before its first transmission",
         )
     if timing.start >= timing.max_seconds:
         raise ctx.error(
