@@ -45,12 +45,16 @@ WINDOW_SAMPLES = Budget("window", 1e5, "samples a bus window (window × sample_r
 # A group's run in the user's terms (``run_estimate``): its wall time against an hour, its peak
 # memory against what the machine has free.
 RUN_HOURS = 1.0
-# Calibrated against benchmarks.bench_scale --scale-sizes (docs/engine.md, "What it costs"): a
-# process running the whole group with its log, on a 2-core machine: peak memory RUN_BASE_MB plus
-# RUN_BYTES_PER_DECODE a decode, wall time about RUN_SECONDS_PER_DECODE a decode.
-RUN_BASE_MB = 120.0
-RUN_BYTES_PER_DECODE = 14.5
-RUN_SECONDS_PER_DECODE = 3.0e-6
+# Calibrated against benchmarks.bench_scale --scale-sizes 50,100,200,300 (docs/engine.md, "What
+# it costs"): one process running the whole group with its log, on a 2-core machine. Peak
+# memory: RUN_BASE_MB, plus RUN_MEMORY_MB at 10⁸ decodes, growing as decodes^RUN_MEMORY_EXPONENT
+# (the tables grow as n³ bytes, the decodes kept as a share of n³: measured 89, 186, 578 and
+# 1,292 MB at n = 50, 100, 200, 300); wall time RUN_SECONDS_PER_DECODE a decode (2.4, 11, 65
+# and 234 s).
+RUN_BASE_MB = 50.0
+RUN_MEMORY_MB = 1180.0
+RUN_MEMORY_EXPONENT = 0.7
+RUN_SECONDS_PER_DECODE = 2.5e-6
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).
@@ -109,10 +113,11 @@ class RunEstimate(NamedTuple):
 
 def run_estimate(n: int, influence_rounds: int) -> RunEstimate:
     """The peak memory and wall time of a run of ``n`` units, from its decodes (calibrated:
-    ``RUN_BASE_MB``, ``RUN_BYTES_PER_DECODE``, ``RUN_SECONDS_PER_DECODE``). A launch's unit
-    processes each take about 1/n of the decodes' share."""
+    ``RUN_BASE_MB``, ``RUN_MEMORY_MB``, ``RUN_MEMORY_EXPONENT``, ``RUN_SECONDS_PER_DECODE``).
+    A launch's unit processes each take a share of it."""
     d = decodes(n, influence_rounds)
-    return RunEstimate(d, RUN_BASE_MB + d * RUN_BYTES_PER_DECODE / 1e6, d * RUN_SECONDS_PER_DECODE)
+    memory = RUN_BASE_MB + RUN_MEMORY_MB * (d / 1e8) ** RUN_MEMORY_EXPONENT
+    return RunEstimate(d, memory, d * RUN_SECONDS_PER_DECODE)
 
 
 def free_memory_mb() -> float | None:
