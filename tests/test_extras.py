@@ -95,6 +95,7 @@ def test_the_core_reads_its_logs_and_sweeps_without_the_extras(core_run):
     assert done.returncode == 0, done.stderr
 
 
+@pytest.mark.slow
 def test_a_sweep_rewritten_without_pyarrow_leaves_no_stale_parquet(core_run):
     """A sweep written with pyarrow, then resumed where pyarrow is missing: its Parquet
     tables (which would no longer match the JSON Lines) are gone, the rest written anew."""

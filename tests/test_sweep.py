@@ -430,6 +430,7 @@ def test_the_library_sweep_returns_what_the_parquet_holds(tmp_path):
     pd.testing.assert_frame_equal(again_df[cols], df[cols])
 
 
+@pytest.mark.slow
 def test_the_json_lines_parquet_and_csv_hold_the_same_tables(tmp_path):
     """results.jsonl and decisions.jsonl (what the core reads, no pyarrow) are the Parquet
     tables' rows value for value; the frames read from either agree; the CSV has the same
