@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from rgtbus.units.sweep import load_sweep, run_sweep, table_rows
 from rgtbus.units.sweep_spec import TABLES_VERSION
 
 from rgtbus.cli import main
+from rgtbus.errors import RgtbusError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -518,6 +520,34 @@ def test_a_directory_of_parquet_only_reads_with_pyarrow_or_says_which_extra(tmp_
                           text=True, timeout=120)  # fmt: skip
     said = done.stdout.strip()
     assert "pip install 'rgtbus[parquet]'" in said and "results.parquet" in said, done
+
+
+def test_a_damaged_sweep_directory_is_one_line_naming_its_file(tmp_path):
+    """What the core reads of a sweep (its JSON Lines and columns.json), damaged or not fitting
+    each other, is refused in one line naming the file (and line, or column)."""
+    import shutil
+
+    from rgtbus.units.sweep import read_sweep, sweep
+
+    good = tmp_path / "good"
+    sweep(RANDOM, grid={"n": [3]}, seeds=2, workers=1, out=good)
+    columns = json.loads((good / "columns.json").read_text())
+    columns["results"] = [[n, "int" if n == "scenario" else k] for n, k in columns["results"]]
+    cases = [
+        ("columns.json", "{not json", "columns.json'?: not a sweep's columns"),
+        ("columns.json", '{"results": [[1]]}', "columns.json'?: not a sweep's columns"),
+        ("columns.json", json.dumps(columns), "results.jsonl: column 'scenario' holds"),
+        ("results.jsonl", '{"run": 0}\n[1, 2]\n', "results.jsonl:2: not a row"),
+        ("decisions.jsonl", "\x00\xff", "decisions.jsonl:1: not a row"),
+    ]
+    for i, (name, text, says) in enumerate(cases):
+        bad = tmp_path / f"bad{i}"
+        shutil.copytree(good, bad)
+        (bad / name).write_text(text, encoding="latin-1")
+        with pytest.raises(RgtbusError) as err:
+            read_sweep(bad)
+        msg = str(err.value)
+        assert re.search(says, msg) and "\n" not in msg and str(bad) in msg, (name, msg)
 
 
 def test_the_cli_and_the_library_give_the_same_table(tmp_path, capsys):

@@ -10,11 +10,13 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import relation_key
 from rgtbus.timebase import NS_PER_SECOND, ns, time_of
 
 if TYPE_CHECKING:
@@ -642,11 +644,12 @@ def _pose(p: Sequence[float]) -> dict[str, Any]:
     return {"position": _xyz(p), "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
 
 
-def _sphere_size(positions: Mapping[str, Sequence[float]]) -> float:
+@functools.lru_cache(maxsize=8)
+def _sphere_size(points: tuple[tuple[float, ...], ...]) -> float:
     """A sphere's diameter: a quarter of the closest two units' distance (every unit finds the
-    same), so no two spheres touch; 0.25 m where units share a place."""
-    pts = list(positions.values())
-    gaps = [math.dist(_list3(a), _list3(b)) for i, a in enumerate(pts) for b in pts[i + 1 :]]
+    same), so no two spheres touch; 0.25 m where units share a place. Worked out once a group
+    (n² distances), not once a message."""
+    gaps = [math.dist(a, b) for i, a in enumerate(points) for b in points[i + 1 :]]
     closest = min((g for g in gaps if g > 0), default=0.0)
     return 0.25 * closest if closest > 0 else 0.25
 
@@ -669,13 +672,17 @@ def scene_update(
     colours is a pair its two units hold differently. ``positions``: every unit's place in metres
     (x y, or x y z) in the frame ``SCENE_FRAME``."""
     here = _list3(positions[unit])
-    size = _sphere_size(positions)
+    size = _sphere_size(tuple(tuple(_list3(p)) for p in positions.values()))
     halves: dict[str, list[dict[str, float]]] = {kind: [] for kind in RELATION_COLOURS}
-    for key, kind in sorted((installed or {}).items()):
-        a, _, b = key.partition("-")
-        other = b if a == unit else a if b == unit else None
-        if other is None or other not in positions or kind not in halves:
-            continue
+    table = installed or {}
+    mine = []  # its pairs, found by their keys (n lookups, not a pass over the n² pairs)
+    for other in positions:
+        keys = (relation_key(unit, other), relation_key(other, unit))  # either unit first
+        key = next((k for k in keys if k in table), None)
+        if other != unit and key is not None and table[key] in halves:
+            mine.append((key, other))
+    for key, other in sorted(mine):  # in the order of the keys
+        kind = table[key]
         there = _list3(positions[other])
         middle = [(x + y) / 2 for x, y in zip(here, there, strict=True)]
         halves[kind] += [_xyz(here), _xyz(middle)]

@@ -572,15 +572,37 @@ def read_table(path: Path) -> pd.DataFrame:
     return _usable_frame(pq.read_table(path).to_pandas(maps_as_pydicts="strict"))
 
 
+_PYTHON_TYPES: dict[str, tuple[type, ...]] = {
+    INT: (int,),
+    FLOAT: (int, float),
+    BOOL: (bool,),
+    TEXT: (str,),
+}
+
+
+def _misfit(value: Any, kind: ColumnType) -> bool:
+    """Whether a plain cell cannot be of ``kind`` (a row and its columns from two sources)."""
+    if value is None:
+        return False
+    if isinstance(kind, str):
+        if kind in (INT, FLOAT) and isinstance(value, bool):
+            return True
+        return not isinstance(value, _PYTHON_TYPES.get(kind, (object,)))
+    return not isinstance(value, dict if kind[0] in ("map", "struct") else list)
+
+
 def frame_of(
-    rows: Sequence[Mapping[str, Any]], columns: Columns | Sequence[str] = ()
+    rows: Sequence[Mapping[str, Any]],
+    columns: Columns | Sequence[str] = (),
+    where: str = "rows",
 ) -> pd.DataFrame:
     """Plain rows (``results_rows``, a line of ``results.jsonl`` each) as a DataFrame whose every
     column pandas can group, sort, deduplicate and merge on: lists as tuples, structs and maps
     as ``Record`` dicts. ``columns``: (name, type) pairs give each column the dtype the Parquet
     table's frame has (``read_table``: whole numbers int64, float64 with a null; yes/no bool,
     object with a null; text pandas' string dtype); bare names (or none: the first row's) leave
-    the dtypes to pandas."""
+    the dtypes to pandas. ``where``: what the rows are, for the one-line error (RgtbusError)
+    when a cell is not of its column's type."""
     import pandas as pd
 
     kinds = dict(c for c in columns if isinstance(c, tuple))
@@ -594,6 +616,12 @@ def frame_of(
         if name not in frame:
             continue
         values = [r.get(name) for r in rows]
+        bad = next((v for v in values if _misfit(v, kind)), None)
+        if bad is not None:
+            raise RgtbusError(
+                f"{where}: column {name!r} holds {bad!r}, not of its type {kind!r} "
+                "(its columns.json does not fit its rows)"
+            )
         nulls = any(v is None for v in values)
         if kind == INT:
             frame[name] = pd.Series(values, dtype="float64" if nulls else "int64")
@@ -679,7 +707,9 @@ def table_columns(out: str | os.PathLike[str], table: str) -> Columns:
 
 def read_results(out: str | os.PathLike[str]) -> pd.DataFrame:
     """The results of the sweep written to ``out`` as a DataFrame (``read_sweep(out).results``)."""
-    return frame_of(results_of(out), table_columns(out, "results"))
+    return frame_of(
+        results_of(out), table_columns(out, "results"), str(Path(out) / "results.jsonl")
+    )
 
 
 def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
@@ -693,7 +723,9 @@ def read_sweep(out: str | os.PathLike[str]) -> SweepTables:
     results = read_results(d)
     if (d / "decisions.jsonl").is_file():
         columns = table_columns(d, "decisions") or _DECISION_COLUMNS
-        decisions = frame_of(_read_jsonl(d / "decisions.jsonl"), columns)
+        decisions = frame_of(
+            _read_jsonl(d / "decisions.jsonl"), columns, str(d / "decisions.jsonl")
+        )
     elif (d / "decisions.parquet").is_file() and not (d / "results.jsonl").is_file():
         decisions = read_table(d / "decisions.parquet")
     else:
