@@ -512,7 +512,8 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
         k: v for k, v in whole.items() if k not in ("wall_seconds", "sync")
     }
     assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
-    assert max(held) <= 3  # a few chunks at a time, never the whole queue
+    # a batch's chunks at a time (20 s of codes here), never the whole queue (12 chunks)
+    assert max(held) <= 4 < len(reads) // 8
 
 
 def test_a_run_says_what_keeping_its_clock_cost():

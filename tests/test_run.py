@@ -685,8 +685,9 @@ def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on():
     logs, offered = [], []
     unwatched = _Sink(watched=False)
     for live in (None, unwatched, "flip"):
-        if live == "flip":  # a watcher comes a quarter of the way through the units' asks
-            live = _Sink(watched=False, flip=unwatched.asked // 4)
+        if live == "flip":  # a watcher comes three quarters of the way through the units'
+            # asks: each unit asks a few times as it begins, then once a batch (20 s)
+            live = _Sink(watched=False, flip=unwatched.asked * 3 // 4)
         rec = MemoryRecorder(live=live)
         run_group(sc, "memory", rec)
         logs.append(_log_of(rec))

@@ -47,15 +47,18 @@ KINDS = ("id", "relation", "influence")
 
 
 class DecodeColumns:
-    """A unit's decodes as the summary judges them, as columns: the turn of each (4 bytes) and
-    which (kind, addressee, code) it read (2 bytes, 4 past 65,535 distinct ones: an index into
-    the few distinct ones), not a Python object per decode. An ID read as the ID (``("id", *,
-    "id")``) is only counted: the summary never finds one wrong, and half of a run's n³
-    decodes are such IDs. So the columns hold every payload decode and every ID read otherwise,
-    in decode order; ``len`` and ``count`` count every decode. Iterates as ``DecodedRow``
-    tuples, in order; ``tolist()`` for JSON."""
+    """A unit's decodes as the summary judges them, held as the state they are, not as a
+    Python object per decode. An ID read as the ID (``("id", *, "id")``) is only counted: the
+    summary never finds one wrong, and half of a run's n³ decodes are such IDs. A run of a
+    shared listen queue taken as a batch (``extend_run``) keeps one byte a payload: the word
+    it read; its turn, kind and addressee are the queue's own (``QueueReads``, one copy for
+    every unit). Any other decode is a row: its turn (4 bytes) and which (kind, addressee,
+    code) it read (2 bytes, 4 past 65,535 distinct ones: an index into the few distinct
+    ones). ``len`` and ``count`` count every decode; ``arrays()`` gives every held decode in
+    decode order; it iterates as ``DecodedRow`` tuples, in order; ``tolist()`` for JSON."""
 
-    __slots__ = ("_counted", "_ids_read_right", "_rows", "_seen", "_turns", "_what")
+    __slots__ = ("_counted", "_ids_read_right", "_rows", "_runs", "_seen", "_turns", "_what",
+                 "_words")  # fmt: skip
 
     def __init__(self) -> None:
         self._turns = array("i")
@@ -64,6 +67,9 @@ class DecodeColumns:
         self._seen: dict[tuple[str, str, str], int] = {}
         self._counted = bytearray()  # per distinct row: 1 for an ID read as the ID
         self._ids_read_right = 0
+        self._words = array("B")  # the runs' payload words, in decode order
+        # [rows before it, queue reads, first position, end position, its first word]
+        self._runs: list[list[Any]] = []
 
     def append(self, turn: int, kind: str, addressee: str, code: str) -> None:
         """One decode."""
@@ -85,21 +91,25 @@ class DecodeColumns:
                 self._what = array("I", self._what)
         return i
 
-    def extend_index(self, turns: np.ndarray, what: np.ndarray) -> None:
-        """A batch of decodes at once: their turns, and each one's ``index``."""
-        what = np.asarray(what)
-        counted = np.frombuffer(bytes(self._counted), dtype=np.uint8)[what].astype(bool)
-        if counted.any():
-            self._ids_read_right += int(counted.sum())
-            keep = ~counted
-            turns, what = np.asarray(turns)[keep], what[keep]
-        self._turns.frombytes(np.asarray(turns, dtype=np.intc).tobytes())
-        dtype = np.uint16 if self._what.typecode == "H" else np.uintc
-        self._what.frombytes(np.asarray(what, dtype=dtype).tobytes())
+    def extend_run(self, reads: QueueReads, a: int, b: int, word: np.ndarray) -> None:
+        """Positions [a, b) of a shared queue, each read as the word ``word`` names and
+        accepted (every ID read as the ID: counted)."""
+        ids = reads.is_id[a:b]
+        self._ids_read_right += int(np.count_nonzero(ids))
+        if len(reads.names) > 0xFF and self._words.typecode == "B":
+            self._words = array("H", self._words)
+        dtype = np.uint8 if self._words.typecode == "B" else np.uint16
+        start = len(self._words)
+        self._words.frombytes(np.asarray(word)[~ids].astype(dtype).tobytes())
+        last = self._runs[-1] if self._runs else None
+        if last is not None and last[0] == len(self._turns) and last[1] is reads and last[3] == a:
+            last[3] = b  # goes on from the last run: one run
+        else:
+            self._runs.append([len(self._turns), reads, a, b, start])
 
     def __len__(self) -> int:
         """Every decode, the IDs only counted too."""
-        return len(self._turns) + self._ids_read_right
+        return len(self._turns) + len(self._words) + self._ids_read_right
 
     def count(self, kind: str) -> int:
         """How many of the decodes are of ``kind`` (id, relation or influence)."""
@@ -110,17 +120,36 @@ class DecodeColumns:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
         """(each held decode's turn, the index of its (kind, addressee, code) in the third),
-        as arrays over the columns' own memory (``rgtbus.summary.wrong_decodes``)."""
+        in decode order (``rgtbus.summary.wrong_decodes``): over the rows' own memory when
+        there is no run, else built (a unit's, once)."""
         dtype = np.uint16 if self._what.typecode == "H" else np.uintc
-        return (
-            np.frombuffer(self._turns, dtype=np.intc),
-            np.frombuffer(self._what, dtype=dtype),
-            self._rows,
+        turns = np.frombuffer(self._turns, dtype=np.intc)
+        what: np.ndarray = np.frombuffer(self._what, dtype=dtype)
+        if not self._runs:
+            return turns, what, self._rows
+        words = np.frombuffer(
+            self._words, dtype=np.uint8 if self._words.typecode == "B" else np.uint16
         )
+        parts_t: list[np.ndarray] = []
+        parts_w: list[np.ndarray] = []
+        done = 0  # rows taken so far
+        for rows_before, reads, a, b, w0 in self._runs:
+            parts_t.append(turns[done:rows_before])
+            parts_w.append(what[done:rows_before].astype(np.int64))
+            done = rows_before
+            pay = ~reads.is_id[a:b]
+            codes = reads.what[a:b][pay] + words[w0 : w0 + int(np.count_nonzero(pay))]
+            distinct, inverse = np.unique(codes, return_inverse=True)
+            index = np.array([self.index(reads.key(int(c))) for c in distinct], dtype=np.int64)
+            parts_t.append(reads.turn[a:b][pay].astype(np.intc))
+            parts_w.append(index[inverse.reshape(-1)])
+        parts_t.append(turns[done:])
+        parts_w.append(what[done:].astype(np.int64))
+        return np.concatenate(parts_t), np.concatenate(parts_w), self._rows
 
     def __iter__(self) -> Iterator[DecodedRow]:
-        rows = self._rows
-        for turn, i in zip(self._turns, self._what, strict=True):
+        turns, what, rows = self.arrays()
+        for turn, i in zip(turns.tolist(), what.tolist(), strict=True):
             yield (turn, *rows[i])
 
     def tolist(self) -> list[list[Any]]:
@@ -157,6 +186,13 @@ class QueueReads:
     value: np.ndarray  # per name: its alternative (-1: not one)
     id_word: int  # the name index of "id"
     read: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    units: tuple[str, ...] = ()  # the group, as ``what`` indexes it
+
+    def key(self, code: int) -> tuple[str, str, str]:
+        """The (kind, addressee, code) a ``what`` + word stands for."""
+        k, w = divmod(code, len(self.names))
+        kind, addressee = divmod(k, len(self.units))
+        return (KINDS[kind], self.units[addressee], self.names[w])
 
 
 def _completes(table: PairTable | None, had: int, slots: np.ndarray, full: int) -> int:
@@ -250,7 +286,6 @@ class Listening:
         self._attention_words: dict[int, tuple[WordSet, tuple[float, ...]]] = {}
         self._channel_sets: dict[tuple[str, ...], tuple[int, ...]] = {}
         # a decoded row's index in ``decoded``, by its integer code (``_take_batch``)
-        self._what_of = np.zeros(0, dtype=np.int64)
         self.ears: Ears | None = None
         self.member = 0  # its index among the ears' listeners
 
@@ -331,6 +366,7 @@ class Listening:
         end = self._queue_due(reads, first_seq, i, pos, timers)
         while i < end and not done():
             i = self._take_decodes(queue, reads, i, end)
+        self.ears.queues.passed(self.member, queue, i)
         timers.queue_next(queue, first_seq, i)
 
     def _queue_reads(self, queue: ListenQueue) -> QueueReads:
@@ -397,6 +433,7 @@ class Listening:
             value=np.array(value, dtype=np.int64),
             id_word=names.index("id") if "id" in names else -1,
             read=read,
+            units=tuple(self.units),
         )
 
     def _queue_due(
@@ -474,21 +511,7 @@ class Listening:
     ) -> None:
         """Positions [a, b), each accepted and completing no table: recorded (and logged)
         and learned from as arrays, as ``act`` would one by one."""
-        names = reads.names
-        n_units = len(self.units)
-        # (kind, addressee, code) as one integer, and as the unit's index of it
-        code = reads.what[a:b] + word
-        if self._what_of.size != len(KINDS) * n_units * len(names):
-            self._what_of = np.full(len(KINDS) * n_units * len(names), -1)
-        what = self._what_of[code]
-        if (what < 0).any():
-            for c in np.unique(code[what < 0]).tolist():
-                k, w = divmod(c, len(names))
-                kind, addressee = divmod(k, n_units)
-                key = (KINDS[kind], self.units[addressee], names[w])
-                self._what_of[c] = self.decoded.index(key)
-            what = self._what_of[code]
-        self.decoded.extend_index(reads.turn[a:b], what)
+        self.decoded.extend_run(reads, a, b, word)
         if self.log.enabled:  # names as indexes into the batch's tables
             part = DecodePart(
                 turn=reads.turn[a:b],

@@ -57,8 +57,10 @@ if TYPE_CHECKING:
     from rgtbus.engine.hearing import Ears
     from rgtbus.rgt.control import SteeringChoice
 
-KEEP_SECONDS = 30.0  # readout history kept for decoding (longest code + reaction + search)
-BATCH_SECONDS = 4.0  # a unit's decodes of this much time wait for one wake (no live view)
+KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction + search)
+# a unit's decodes of this much time wait for one wake (no live view): a wake costs about
+# 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units
+BATCH_SECONDS = 20.0
 
 
 def protocol_of(sc: Scenario, name: str) -> ProtocolState:
@@ -164,7 +166,7 @@ class AutonomousUnit:
             bursts=None
             if sc.channel.burst is None
             else BurstStates(sc.channel.burst, self.tau, burst_rng(sc.seed, me)),
-            keep=sample_of(KEEP_SECONDS, self.tau),
+            keep=sample_of(KEEP_SECONDS + BATCH_SECONDS, self.tau),  # the batch's first too
             arrival=sc.channel.arrivals(self.units, self.name, self.tau)
             if sc.channel.timed
             else None,

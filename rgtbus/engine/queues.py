@@ -82,7 +82,7 @@ class SharedQueues:
         """Unit ``i``'s decodes of positions [lo, hi) of ``queue`` (all heard): each one's
         word, channel index and margin, as columns. ``read(q)`` decodes position q for every
         receiver at once; each position is read once, and kept until every listening unit
-        has taken it."""
+        has taken it (``passed``)."""
         cache = self._queues.get(id(queue))
         if cache is None:
             cache = self._queues[id(queue)] = QueueDecodes(queue, self.receivers)
@@ -90,12 +90,19 @@ class SharedQueues:
             cache.rows(c, lo, hi, read, i)
             for c in range(lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK + 1)
         ]
-        cache.cursor[i] = hi
-        cache.forget(int(cache.cursor[self.listening].min(initial=hi)))
+        self.passed(i, queue, lo)
         if len(parts) == 1:
             return parts[0]
         word, chan, margin = zip(*parts, strict=True)
         return np.concatenate(word), np.concatenate(chan), np.concatenate(margin)
+
+    def passed(self, i: int, queue: object, q: int) -> None:
+        """Unit ``i`` has taken every position of ``queue`` before ``q`` (it may ask again
+        for any from ``q`` on: a batch it acted on only in part)."""
+        cache = self._queues.get(id(queue))
+        if cache is not None:
+            cache.cursor[i] = max(int(cache.cursor[i]), q)
+            cache.forget(int(cache.cursor[self.listening].min(initial=q)))
 
     def stop(self, i: int) -> None:
         """Unit ``i`` listens no more: the queues no longer wait for it."""

@@ -103,7 +103,7 @@ class ProtocolState:
         )
         self.schedule = self.plan.schedule
         self._periods = self.plan.periods
-        self._own_turns = [t.index for t in self.schedule if t.sender == self.me]
+        self._own_turns = self.plan.turns_sent_by(self.me)
         # each turn's payload length, (N − 1)·T of its addressee (the chain of reactions)
         self._tails = self.plan.tails
         self.turn_start = self.start
@@ -196,17 +196,16 @@ class ProtocolState:
                 acts.quench.append(rnd.quench)
                 self.turn_starts.append(rnd.start)
             acts.repairs.extend(rnd.repairs)
-            for p in rnd.placed:
-                t = p.turn
-                if t.sender == self.me:
-                    acts.sends.append(
-                        Send(t.index, "id", t.sender, "id", p.id_start, p.id_samples, t.sender,
-                             t.addressee)
-                    )  # fmt: skip
-                    acts.sends.append(
-                        Send(t.index, "payload", t.addressee, self._codes[t.phase][t.addressee],
-                             p.payload_start, p.payload_samples, t.sender, t.addressee)
-                    )  # fmt: skip
+        for p in self.plan.placed_by(self.me):
+            t = p.turn
+            acts.sends.append(
+                Send(t.index, "id", t.sender, "id", p.id_start, p.id_samples, t.sender,
+                     t.addressee)
+            )  # fmt: skip
+            acts.sends.append(
+                Send(t.index, "payload", t.addressee, self._codes[t.phase][t.addressee],
+                     p.payload_start, p.payload_samples, t.sender, t.addressee)
+            )  # fmt: skip
         acts.queue = self.plan.concurrent_listens()
         acts.listens = acts.queue.listens
         acts.sends.sort(key=lambda s: s.samples[0])

@@ -82,12 +82,34 @@ class Plan:
         self._reactions: dict[tuple[int, float, int], Reaction] = {}
         self._timing: tuple[RoundTiming, ...] | None = None
         self._listens: ListenQueue | None = None
+        self._sent_by: dict[str, tuple[int, ...]] | None = None
+        self._placed_by: dict[str, tuple[Placed, ...]] | None = None
 
     def timing(self) -> tuple[RoundTiming, ...]:
         """The concurrent schedule's rounds, placed (once for every unit)."""
         if self._timing is None:
             self._timing = place_rounds(self)
         return self._timing
+
+    def turns_sent_by(self, sender: str) -> tuple[int, ...]:
+        """The indexes of the turns ``sender`` sends, ascending (once for every unit: a unit
+        looking through all n(n−1) turns for its own made n³ steps in a run)."""
+        if self._sent_by is None:
+            by: dict[str, list[int]] = {u: [] for u in self.units}
+            for t in self.schedule:
+                by[t.sender].append(t.index)
+            self._sent_by = {u: tuple(ts) for u, ts in by.items()}
+        return self._sent_by.get(sender, ())
+
+    def placed_by(self, sender: str) -> tuple[Placed, ...]:
+        """The concurrent schedule's placed turns that ``sender`` sends, in round order."""
+        if self._placed_by is None:
+            by: dict[str, list[Placed]] = {u: [] for u in self.units}
+            for rnd in self.timing():
+                for p in rnd.placed:
+                    by[p.turn.sender].append(p)
+            self._placed_by = {u: tuple(ps) for u, ps in by.items()}
+        return self._placed_by.get(sender, ())
 
     def concurrent_listens(self) -> ListenQueue:
         """Every decode of the concurrent schedule, the same for every unit (each unit decodes
