@@ -502,7 +502,9 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     rows = queues.QueueDecodes.rows
 
     def counted(self, c, lo, hi, read, i):
-        got = rows(self, c, lo, hi, lambda q: (reads.append(q), read(q))[1], i)
+        got = rows(
+            self, c, lo, hi, lambda q0, q1: (reads.extend(range(q0, q1)), read(q0, q1))[1], i
+        )
         held.append(len(self.chunks))
         return got
 
@@ -514,6 +516,43 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
     # a batch's chunks at a time (20 s of codes here), never the whole queue (12 chunks)
     assert max(held) <= 4 < len(reads) // 8
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+def test_a_block_of_queued_codes_decodes_as_each_code_alone(monkeypatch, seed):
+    """The ears decode a shared queue a block of positions at a time, every receiver at
+    once (``read_block``): on a noisy medium heard through unequal gains (every receiver's
+    values differ) the run and its log are those of decoding one position at a time."""
+    import dataclasses
+
+    import numpy as np
+    from rgtbus.units.listening import Listening
+
+    sc = random_group(seed, noise=0.1, gains=True, anchor="schedule")
+    sc = parse_scenario(sc.text + '[protocol]\nschedule = "concurrent"\n', "<blocks>")
+    got = []
+    for alone in (False, True):
+        if alone:
+            build = Listening._queue_reads
+
+            def one_at_a_time(self, queue, build=build):
+                reads = build(self, queue)
+
+                def block(q0, q1):
+                    cols = zip(*(reads.read(q) for q in range(q0, q1)), strict=True)
+                    return tuple(np.stack(c) for c in cols)
+
+                return dataclasses.replace(reads, read_block=block)
+
+            monkeypatch.setattr(Listening, "_queue_reads", one_at_a_time)
+        rec = MemoryRecorder()
+        out = run_group(sc, "memory", rec)
+        summary = {k: v for k, v in out.summary.items() if k not in ("wall_seconds", "sync")}
+        got.append(
+            (summary, sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
+        )
+    assert got[0] == got[1]
+    assert got[0][0]["decode_errors"]  # noisy enough that some codes are misread
 
 
 def test_a_run_says_what_keeping_its_clock_cost():

@@ -27,9 +27,11 @@ from rgtbus.scenario import Scenario
 from rgtbus.signal.decoder import (
     Decision,
     WordSet,
+    code_candidates,
     decode_among_columns,
     nearer_than_silence,
     nearest_columns,
+    nearest_many_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
 from rgtbus.telemetry import records
@@ -186,6 +188,8 @@ class QueueReads:
     value: np.ndarray  # per name: its alternative (-1: not one)
     id_word: int  # the name index of "id"
     read: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+    # positions [q0, q1) for every receiver at once, (positions × receivers) each
+    read_block: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
     units: tuple[str, ...] = ()  # the group, as ``what`` indexes it
 
     def key(self, code: int) -> tuple[str, str, str]:
@@ -405,6 +409,50 @@ class Listening:
             )
             return maps[family][w], c, m
 
+        def read_block(q0: int, q1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Positions [q0, q1) for every receiver, (positions × receivers) each: the codes
+            of one kind and number of candidates decoded in one vectorised step (the same
+            answers as ``read`` a position at a time; one whose candidates reach past what
+            has been heard is ``read`` alone, as ``decode_among_columns`` trims them)."""
+            R = ears.readout.receivers
+            word = np.empty((q1 - q0, R), dtype=np.int64)
+            chan = np.empty((q1 - q0, R), dtype=np.int64)
+            margin = np.empty((q1 - q0, R))
+            end = ears.readout.end
+            groups: dict[tuple[str, int], tuple[list[int], list[Any], list[Any]]] = {}
+            for q in range(q0, q1):
+                listen = listens[q]
+                if listen.kind == "id":
+                    family = "id"
+                    ch = index[listen.sender]
+                    inst = np.array([code_samples(listen.start, self.omegas[ch], cb.pulses, tau)])
+                    chans = np.array([ch], dtype=np.int64)
+                else:
+                    family = "relation" if listen.kind == "relation" else "alternative"
+                    pairs = tuple((c, float(omegas[c])) for c in self.channels_of(listen))
+                    chans, inst = code_candidates(pairs, listen.start, cb.pulses, tau, search)
+                if int(inst[:, -1].max()) >= end:
+                    word[q - q0], chan[q - q0], margin[q - q0] = read(q)
+                    continue
+                at, insts, chs = groups.setdefault((family, inst.shape[0]), ([], [], []))
+                at.append(q - q0)
+                insts.append(inst)
+                chs.append(chans)
+            for (family, _), (at, insts, chs) in groups.items():
+                words = self.id_words if family == "id" else self.families[family]
+                cands = np.stack(chs)
+                row, w, m = nearest_many_columns(
+                    ears.readout,
+                    np.stack(insts),
+                    cands,
+                    words,
+                    "name" if family == "id" else "order",
+                )
+                word[at] = maps[family][w]
+                chan[at] = np.take_along_axis(cands, row, axis=1)
+                margin[at] = m
+            return word, chan, margin
+
         kind = np.array([KINDS.index(li.kind) for li in listens], dtype=np.int64)
         rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
         slot = sender * n + expected
@@ -433,6 +481,7 @@ class Listening:
             value=np.array(value, dtype=np.int64),
             id_word=names.index("id") if "id" in names else -1,
             read=read,
+            read_block=read_block,
             units=tuple(self.units),
         )
 
@@ -461,7 +510,7 @@ class Listening:
         completed: ``_first_event``), that one as a decode of its own. Returns the next
         position to take."""
         assert self.ears is not None
-        word, chan, margin = self.ears.queues.decodes(self.member, queue, a, b, reads.read)
+        word, chan, margin = self.ears.queues.decodes(self.member, queue, a, b, reads.read_block)
         # accepted: an ID read as "id", a payload found on its addressee's channel
         refused = np.flatnonzero(
             (word != reads.id_word) & reads.is_id[a:b]

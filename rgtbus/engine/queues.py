@@ -15,8 +15,9 @@ from typing import TypeVar, cast
 import numpy as np
 
 QUEUE_CHUNK = 256  # positions of a shared queue read (for every receiver) and kept together
-# decodes position q of a queue for every receiver: (word, channel index, margin) each
-QueueRead = Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+# decodes positions [q0, q1) of a queue for every receiver: (word, channel index, margin),
+# (positions × receivers) each
+QueueRead = Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 _T = TypeVar("_T")
@@ -48,10 +49,10 @@ class QueueDecodes:
         word, chan, margin, filled = chunk
         base = c * QUEUE_CHUNK
         a, b = max(lo, base) - base, min(hi, base + QUEUE_CHUNK) - base
-        while filled[0] < b:  # in order: every position before is heard too
+        if filled[0] < b:  # in order: every position before is heard too
             k = filled[0]
-            word[k], chan[k], margin[k] = read(base + k)
-            filled[0] = k + 1
+            word[k:b], chan[k:b], margin[k:b] = read(base + k, base + b)
+            filled[0] = b
         return word[a:b, i], chan[a:b, i], margin[a:b, i]
 
     def forget(self, low: int) -> None:
@@ -80,9 +81,9 @@ class SharedQueues:
 
     def decodes(self, i: int, queue: object, lo: int, hi: int, read: QueueRead) -> Columns:
         """Unit ``i``'s decodes of positions [lo, hi) of ``queue`` (all heard): each one's
-        word, channel index and margin, as columns. ``read(q)`` decodes position q for every
-        receiver at once; each position is read once, and kept until every listening unit
-        has taken it (``passed``)."""
+        word, channel index and margin, as columns. ``read(q0, q1)`` decodes positions
+        [q0, q1) for every receiver at once; each position is read once, and kept until
+        every listening unit has taken it (``passed``)."""
         cache = self._queues.get(id(queue))
         if cache is None:
             cache = self._queues[id(queue)] = QueueDecodes(queue, self.receivers)

@@ -38,7 +38,7 @@ import numpy as np
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.kernels import read_rows, timings
-from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word
+from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word, nearest_words
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
 from rgtbus.timebase import time_of
 
@@ -396,6 +396,39 @@ def nearest_columns(
         reads = np.ascontiguousarray(every[r : r + 1])
         _, word[k], _, margin[k], _ = nearest_word(reads, mat, rank)
     return word[which], margin[which]
+
+
+def nearest_many_columns(
+    history: ReadoutHistory, instants: np.ndarray, channels: np.ndarray, words: Words, rank: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """P decodes at once, each with M candidate reads: ``instants`` (P, M, N) on ``channels``
+    (P, M), scored by the nearest-codeword rule for every receiver of ``history``. Returns
+    each decode's (P, R) candidate row, word (an index into the words' names) and margin.
+    ``rank`` breaks ties: ``"order"`` (the first word, as ``decode_among_columns``) or
+    ``"name"`` (alphabetical, as ``nearest_columns``). Each distinct receiver's values are
+    scored once, all P decodes in one vectorised step (``nearest_words``: the bits of the
+    compiled rule), so the answers are those of P calls of the one-decode forms."""
+    P, M, N = instants.shape
+    names, mat = word_matrix(words, N, "decode")
+    order = in_order(mat.shape[0]) if rank == "order" else alphabetical(names)
+    every = history.gather(instants.reshape(P * M, N), channels.reshape(P * M))  # (R, P·M, N)
+    firsts, which = _distinct(every)
+    got = nearest_words(every[firsts].reshape(firsts.size * P, M, N), mat, order)
+    back = (firsts.size, P)
+    return (
+        got.row.reshape(back)[which].T,
+        got.word.reshape(back)[which].T,
+        got.margin.reshape(back)[which].T,
+    )
+
+
+def code_candidates(
+    channels: tuple[tuple[int, float], ...], start: float, pulses: int, tau: float, search: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """A code's (channel, instants) candidates as ``decode_among_columns`` reads them: (M,)
+    channel indexes and (M, pulses) instants (read-only)."""
+    chans, _, inst, _, _ = _candidates(channels, start, pulses, tau, search)
+    return chans, inst
 
 
 @lru_cache(maxsize=64)  # every unit of a run decodes the same codes, at about the same time
