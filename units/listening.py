@@ -135,16 +135,24 @@ class DecodeColumns:
         parts_t: list[np.ndarray] = []
         parts_w: list[np.ndarray] = []
         done = 0  # rows taken so far
+        lookups: dict[int, np.ndarray] = {}
         for rows_before, reads, a, b, w0 in self._runs:
             parts_t.append(turns[done:rows_before])
             parts_w.append(what[done:rows_before].astype(np.int64))
             done = rows_before
             pay = ~reads.is_id[a:b]
             codes = reads.what[a:b][pay] + words[w0 : w0 + int(np.count_nonzero(pay))]
-            distinct, inverse = np.unique(codes, return_inverse=True)
-            index = np.array([self.index(reads.key(int(c))) for c in distinct], dtype=np.int64)
+            lookup = lookups.get(id(reads))  # a code's row index (-1: not made yet)
+            if lookup is None:
+                size = len(KINDS) * len(reads.units) * len(reads.names)
+                lookup = lookups[id(reads)] = np.full(size, -1, dtype=np.int64)
+            index = lookup[codes]
+            if (index < 0).any():
+                for c in np.unique(codes[index < 0]).tolist():
+                    lookup[c] = self.index(reads.key(c))
+                index = lookup[codes]
             parts_t.append(reads.turn[a:b][pay].astype(np.intc))
-            parts_w.append(index[inverse.reshape(-1)])
+            parts_w.append(index)
         parts_t.append(turns[done:])
         parts_w.append(what[done:].astype(np.int64))
         return np.concatenate(parts_t), np.concatenate(parts_w), self._rows

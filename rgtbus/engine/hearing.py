@@ -376,10 +376,13 @@ class Ears:
             if not live:
                 self.quiet.succeed()
                 return
-            while self._quench and self._quench[0][0] == self.pos:  # before this sample
+            resting = []  # before this sample: one copy of the state for all of them
+            while self._quench and self._quench[0][0] == self.pos:
                 n = heapq.heappop(self._quench)[1]
                 if self.listeners[n].active:
-                    self.bank.quench(n)
+                    resting.append(n)
+            if resting:
+                self.bank.quench(resting)
             boundary = min(lst.request[0] for lst in live)  # type: ignore[index]
             target = min(boundary, self.horizon)
             if self._quench:

@@ -17,7 +17,17 @@ from rgtbus.errors import RgtbusError
 from rgtbus.pairs import parse_pair_key
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
-from rgtbus.rgt.expr import ONE, ZERO, Expr, Sum, format_expr, needs_star, readable, substitute
+from rgtbus.rgt.expr import (
+    ONE,
+    ZERO,
+    Expr,
+    Memo,
+    Sum,
+    format_expr,
+    needs_star,
+    readable,
+    substitute,
+)
 
 
 @dataclass(frozen=True)
@@ -60,9 +70,16 @@ def canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
 @lru_cache(maxsize=4096)
 def _canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
     # Minimising A and B is the costly part; units holding the same group share the result.
-    a = readable(substitute(df.display, {subject: ONE}), df.order)
-    b = readable(substitute(df.display, {subject: ZERO}), df.order)
+    memo = _memo(df)  # the subtrees without the subject: simplified once for every subject
+    a = readable(substitute(df.display, {subject: ONE}, memo), df.order)
+    b = readable(substitute(df.display, {subject: ZERO}, memo), df.order)
     return CanonicalForm(subject, a, b)
+
+
+@lru_cache(maxsize=8)
+def _memo(df: DecisionFunction) -> Memo:
+    """``simplify``'s answers for the subtrees of F's displayed form (kept with F)."""
+    return {}
 
 
 def canonical_forms(df: DecisionFunction) -> dict[str, CanonicalForm]:

@@ -136,13 +136,31 @@ def format_expr(e: Expr, star: bool | None = None) -> str:
 # Local simplification (keeps the paper's shape; no global minimisation)
 
 
-def simplify(e: Expr) -> Expr:
+# simplify's answers by the very object asked (the object is held with its answer, so its id
+# is not reused while the entry lives): for the subtrees of one large expression that many
+# substitutions leave as they are (``substitute``'s ``memo``)
+Memo = dict[int, tuple[Expr, Expr]]
+
+
+def simplify(e: Expr, memo: Memo | None = None) -> Expr:
     """Constants, flattening, double negation, duplicates, ``x+not(x)=1``, ``x·not(x)=0``,
-    and absorption (``x + x·y = x``, ``x·(x+y) = x``)."""
+    and absorption (``x + x·y = x``, ``x·(x+y) = x``). ``memo``: answers kept by object
+    (the same answers; a subtree asked again costs a lookup)."""
     if isinstance(e, Var | Const):
         return e
+    if memo is not None:
+        got = memo.get(id(e))
+        if got is not None and got[0] is e:
+            return got[1]
+        out = _simplify(e, memo)
+        memo[id(e)] = (e, out)
+        return out
+    return _simplify(e, None)
+
+
+def _simplify(e: Expr, memo: Memo | None) -> Expr:
     if isinstance(e, Not):
-        a = simplify(e.arg)
+        a = simplify(e.arg, memo)
         if isinstance(a, Const):
             return Const(not a.value)
         if isinstance(a, Not):
@@ -153,26 +171,29 @@ def simplify(e: Expr) -> Expr:
     absorbing = ONE if is_sum else ZERO
     neutral = ZERO if is_sum else ONE
     items: list[Expr] = []
+    seen: set[Expr] = set()  # the items, for lookups (a sum of n terms: n, not n², compares)
     for c in children(e):
-        s = simplify(c)
+        s = simplify(c, memo)
         if s == absorbing:
             return absorbing
         if s == neutral:
             continue
         for part in children(s) if isinstance(s, kind) else (s,):
-            if part not in items:
+            if part not in seen:
+                seen.add(part)
                 items.append(part)
     for x in items:
         if isinstance(x, Not):
             y = x.arg
             # x + not(x) = 1 and x·not(x) = 0, also when x was flattened into the items.
-            if y in items or (isinstance(y, kind) and all(p in items for p in children(y))):
+            if y in seen or (isinstance(y, kind) and all(p in seen for p in children(y))):
                 return absorbing
     dual = Prod if is_sum else Sum
-    # Absorption: drop a dual term that contains another item as one of its parts.
+    # Absorption: drop a dual term that contains another item as one of its parts (an item
+    # is never a part of itself).
     kept = []
     for x in items:
-        if isinstance(x, dual) and any(y is not x and y in children(x) for y in items):
+        if isinstance(x, dual) and any(p in seen for p in children(x)):
             continue
         kept.append(x)
     if not kept:
@@ -182,21 +203,26 @@ def simplify(e: Expr) -> Expr:
     return kind(tuple(kept))
 
 
-def substitute(e: Expr, values: dict[str, Expr]) -> Expr:
-    """Replace variables by expressions (typically constants), then simplify."""
+def substitute(e: Expr, values: dict[str, Expr], memo: Memo | None = None) -> Expr:
+    """Replace variables by expressions (typically constants), then simplify. A subtree with
+    no variable replaced stays the very same object, so with a ``memo`` kept for ``e``
+    (every subject's canonical form substitutes into one F) it is simplified once."""
 
     def sub(x: Expr) -> Expr:
         if isinstance(x, Var):
             return values.get(x.name, x)
         if isinstance(x, Not):
-            return Not(sub(x.arg))
-        if isinstance(x, Sum):
-            return Sum(tuple(sub(t) for t in x.terms))
-        if isinstance(x, Prod):
-            return Prod(tuple(sub(f) for f in x.factors))
+            a = sub(x.arg)
+            return x if a is x.arg else Not(a)
+        if isinstance(x, Sum | Prod):
+            parts = children(x)
+            new = tuple(sub(p) for p in parts)
+            if all(a is b for a, b in zip(new, parts, strict=True)):
+                return x
+            return Sum(new) if isinstance(x, Sum) else Prod(new)
         return x
 
-    return simplify(sub(e))
+    return simplify(sub(e), memo)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -519,19 +519,23 @@ class ResonatorBank:
         """Back to rest: z = 0 everywhere, sample counter 0."""
         self.state = BankState.rest(self.model.lanes)
 
-    def quench(self, receiver: int | None = None) -> None:
+    def quench(self, receiver: int | Sequence[int] | None = None) -> None:
         """Back to rest (z = 0) without moving the sample counter, so spike indexes stay
         absolute and feeding in chunks stays exact across the quench: every resonator, or only
-        those of one ``receiver``."""
+        those of one ``receiver`` (or of each of several, at one copy of the state)."""
         if receiver is None:
             self.state = BankState.rest(self.model.lanes, self.state.n)
             return
-        if not 0 <= receiver < self.n_receivers:
-            raise RgtbusError(f"quench: receiver {receiver} not in the bank ({self.n_receivers})")
-        lanes = slice(receiver * self.n_channels, (receiver + 1) * self.n_channels)
+        receivers = [receiver] if isinstance(receiver, int) else list(receiver)
+        for r in receivers:
+            if not 0 <= r < self.n_receivers:
+                raise RgtbusError(f"quench: receiver {r} not in the bank ({self.n_receivers})")
         s = self.state
         wr, wi, pend = s.wr.copy(), s.wi.copy(), s.pend.copy()
-        wr[lanes], wi[lanes], pend[lanes] = 0.0, 0.0, False
+        C = self.n_channels
+        for r in receivers:
+            lanes = slice(r * C, (r + 1) * C)
+            wr[lanes], wi[lanes], pend[lanes] = 0.0, 0.0, False
         self.state = BankState(wr, wi, pend, s.n)
 
     @property
