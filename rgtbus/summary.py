@@ -32,9 +32,9 @@ Fields beyond the tables and decisions:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, TypedDict, cast
+from typing import Any, Protocol, TypedDict, TypeVar, cast
 
 import numpy as np
 
@@ -43,6 +43,8 @@ from rgtbus.pairs import pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
 from rgtbus.truth import Truth
+
+_T = TypeVar("_T")
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -128,6 +130,16 @@ class SentTruth:
         self.sent = sent
         self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.names: dict[str, int] = {}  # every addressee and code, as a number
+        self._shared: dict[int, tuple[object, Any]] = {}
+
+    def shared(self, key: object, build: Callable[[], _T]) -> _T:
+        """What every unit's decodes judge alike from ``key`` (a shared listen queue, say),
+        built once with this truth by the first that asks (``key`` is kept alive: it is found
+        by id)."""
+        got = self._shared.get(id(key))
+        if got is None:
+            got = self._shared[id(key)] = (key, build())
+        return cast(_T, got[1])
 
     def number(self, text: str) -> int:
         return self.names.setdefault(text, len(self.names))
@@ -155,6 +167,9 @@ def wrong_decodes(
     order, as ``decode_error`` entries; a decode of a turn with no known send is not judged.
     Rows (turn, kind, addressee, code) are judged one by one; columns in one vectorised step
     (n³ decodes at n units)."""
+    judge = getattr(decodes, "wrong", None)
+    if judge is not None:  # decodes that judge themselves (a unit's ``DecodeColumns``)
+        return cast(list[dict[str, Any]], judge(unit, truth))
     sent_of = truth.sent
     arrays = getattr(decodes, "arrays", None)
     if arrays is None:

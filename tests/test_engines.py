@@ -553,6 +553,16 @@ def test_a_block_of_queued_codes_decodes_as_each_code_alone(monkeypatch, seed):
         )
     assert got[0] == got[1]
     assert got[0][0]["decode_errors"]  # noisy enough that some codes are misread
+    # a unit judges its batches against the queue's truth: as its decodes judged row by row
+    from rgtbus.summary import _sent_truth, wrong_decodes
+
+    truth = _sent_truth(out.reports)
+    for unit in out.units:
+        rows = [list(row) for row in unit.decoded]
+        assert wrong_decodes(unit.name, unit.decoded, truth) == wrong_decodes(
+            unit.name, rows, truth
+        )
+        assert unit.decoded._runs  # its batches were held as runs
 
 
 def test_a_run_says_what_keeping_its_clock_cost():

@@ -578,6 +578,65 @@ def test_wrong_decodes_judge_columns_as_rows():
     )
 
 
+def test_a_units_batches_are_judged_as_the_same_decodes_held_as_rows():
+    """A batch of a shared queue is held as one byte a payload (``extend_run``) and judged
+    against the queue's truth (``DecodeColumns.wrong``): the same errors, in decode order, as
+    the same decodes appended one by one and judged as rows; rows between batches keep
+    their place."""
+    import dataclasses
+
+    import numpy as np
+    from rgtbus.units.listening import KINDS, DecodeColumns, QueueReads
+
+    from rgtbus.summary import SentTruth, wrong_decodes
+
+    units, names = ("a", "b", "c"), ("id", "alliance", "conflict", "{go}")
+    # positions: (turn, kind, sender, expected addressee)
+    queue = [
+        (0, "id", "a", "b"), (0, "relation", "a", "b"), (1, "id", "b", "c"),
+        (1, "relation", "b", "c"), (2, "id", "c", "a"), (2, "influence", "c", "a"),
+        (3, "id", "a", "c"), (3, "influence", "a", "c"), (9, "id", "b", "a"),
+        (9, "relation", "b", "a"),
+    ]  # fmt: skip
+    truth = SentTruth({
+        (0, "id"): ("b", "id"), (0, "payload"): ("b", "alliance"),
+        (1, "id"): ("c", "id"), (1, "payload"): ("c", "conflict"),
+        (2, "id"): ("a", "id"), (2, "payload"): ("a", "{go}"),
+        (3, "id"): ("b", "id"), (3, "payload"): ("b", "{go}"),  # sent to b, read on c's
+    })  # fmt: skip
+    kind = np.array([KINDS.index(k) for _, k, _, _ in queue])
+    expected = np.array([units.index(e) for *_, e in queue])
+    n = np.zeros(len(queue) + 1, dtype=np.int64)
+    reads = QueueReads(
+        bounds=n[1:], seq=np.arange(len(queue)), kind=kind,
+        turn=np.array([t for t, *_ in queue]),
+        sender=np.array([units.index(s) for *_, s, _ in queue]),
+        expected=expected, slot=n[1:], rnd=n[1:], t_ready=n[1:] * 1.0, is_id=kind == 0,
+        is_rel=kind == 1, is_inf=kind == 2, n_rel=n, n_inf=n,
+        n_pay=np.concatenate(([0], np.cumsum(kind != 0))), unique=True,
+        what=(kind * len(units) + expected) * len(names), channel=expected, names=names,
+        alliance=np.array([1, 1, 0, 0]), value=np.array([-1, -1, -1, 1]), id_word=0,
+        read=lambda q: (n, n, n), read_block=lambda a, b: (n, n, n), units=units,
+    )  # fmt: skip
+    assert dataclasses.is_dataclass(reads)
+    read = ["id", "conflict", "id", "conflict", "id", "alliance", "id", "{go}", "id", "conflict"]
+    word = np.array([names.index(w) for w in read])
+    cols, rows = DecodeColumns(), []
+    for lo, hi, loose in ((0, 4, (7, "relation", "a", "alliance")), (4, 10, None)):
+        cols.extend_run(reads, lo, hi, word[lo:hi])
+        for q in range(lo, hi):
+            rows.append((queue[q][0], queue[q][1], queue[q][3], read[q]))
+        if loose:
+            cols.append(*loose)
+            rows.append(loose)
+    assert len(cols) == len(rows) and list(cols) == [r for r in rows if r[1::2] != ("id", "id")]
+    got = wrong_decodes("u", cols, truth)
+    assert got == wrong_decodes("u", [list(r) for r in rows], truth)
+    assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
+        (0, "conflict", "alliance"), (2, "alliance", "{go}"), (3, "{go}", "{go}")
+    ]  # fmt: skip
+
+
 def test_units_that_agree_share_one_copy_of_the_tables_in_their_reports():
     """A run's reports keep one copy of tables the units agree on (n³ entries in all), and a
     unit's own table where it differs."""

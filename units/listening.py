@@ -34,6 +34,7 @@ from rgtbus.signal.decoder import (
     nearest_many_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
+from rgtbus.summary import SentTruth, decode_error, wrong_decodes
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
 
@@ -157,6 +158,39 @@ class DecodeColumns:
         parts_w.append(what[done:].astype(np.int64))
         return np.concatenate(parts_t), np.concatenate(parts_w), self._rows
 
+    def wrong(self, unit: str, truth: SentTruth) -> list[dict[str, Any]]:
+        """``rgtbus.summary.wrong_decodes`` of these decodes (the summary asks this), in
+        decode order, without building every held decode: rows are judged as rows, a run
+        against its queue's truth, worked out once a queue for every unit (``_queue_truth``):
+        a few array operations over its bytes."""
+        dtype = np.uint16 if self._what.typecode == "H" else np.uintc
+        turns = np.frombuffer(self._turns, dtype=np.intc)
+        what = np.frombuffer(self._what, dtype=dtype)
+        words = np.frombuffer(
+            self._words, dtype=np.uint8 if self._words.typecode == "B" else np.uint16
+        )
+        out: list[dict[str, Any]] = []
+        done = 0  # rows judged so far
+        for rows_before, reads, a, b, w0 in self._runs:
+            part = _HeldRows(turns[done:rows_before], what[done:rows_before], self._rows)
+            out += wrong_decodes(unit, part, truth)
+            done = rows_before
+            judged, addressed, sent_word, where = _queue_truth(reads, truth)
+            pa, pb = int(reads.n_pay[a]), int(reads.n_pay[b])
+            read = words[w0 : w0 + pb - pa]
+            bad = judged[pa:pb] & ((sent_word[pa:pb] != read) | ~addressed[pa:pb])
+            for i in np.flatnonzero(bad).tolist():
+                p = int(where[pa + i])
+                turn = int(reads.turn[p])
+                out.append(
+                    decode_error(
+                        unit, turn, KINDS[int(reads.kind[p])], reads.names[int(read[i])],
+                        truth.sent[(turn, "payload")][1],
+                    )
+                )  # fmt: skip
+        out += wrong_decodes(unit, _HeldRows(turns[done:], what[done:], self._rows), truth)
+        return out
+
     def __iter__(self) -> Iterator[DecodedRow]:
         turns, what, rows = self.arrays()
         for turn, i in zip(turns.tolist(), what.tolist(), strict=True):
@@ -165,6 +199,42 @@ class DecodeColumns:
     def tolist(self) -> list[list[Any]]:
         """Every held decode as a list (turn, kind, addressee, code)."""
         return [list(row) for row in self]
+
+
+class _HeldRows:
+    """A slice of a unit's rows, as ``rgtbus.summary.wrong_decodes`` judges columns."""
+
+    def __init__(self, turns: np.ndarray, what: np.ndarray, rows: list[tuple[str, str, str]]):
+        self._arrays = (turns, what, rows)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
+        return self._arrays
+
+
+def _queue_truth(
+    reads: QueueReads, truth: SentTruth
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Over a queue's payloads, in queue order (once a queue and truth: ``truth.shared``):
+    whether each is judged (its turn's payload is known), whether it was sent to the
+    addressee whose channel the queue reads it on, the index in ``reads.names`` of the word
+    sent (-1: none of them), and each payload's position in the queue. As ``wrong_decodes``
+    judges a payload row: wrong when the code or the addressee differs from what was sent."""
+
+    def build() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        known, to_of, code_of = truth.arrays()
+        where = np.flatnonzero(~reads.is_id)
+        t = reads.turn[where]
+        in_span = (t >= 0) & (t < known.shape[1])
+        t = np.where(in_span, t, 0)
+        judged = in_span & known[1, t]
+        unit_number = np.array([truth.number(u) for u in reads.units], dtype=np.int64)
+        addressed = to_of[1, t] == unit_number[reads.expected[where]]
+        sent_word = np.full(where.size, -1, dtype=np.int64)
+        for w, name in enumerate(reads.names):
+            sent_word[code_of[1, t] == truth.number(name)] = w
+        return judged, addressed, sent_word, where
+
+    return truth.shared(reads, build)
 
 
 @dataclass(frozen=True, eq=False)
@@ -188,6 +258,7 @@ class QueueReads:
     is_inf: np.ndarray  # bool: an influence
     n_rel: np.ndarray  # relation codes before each position (one more entry than positions)
     n_inf: np.ndarray  # influences before each position (likewise)
+    n_pay: np.ndarray  # payloads before each position (likewise)
     unique: bool  # no pair of one table twice (a batch sets each slot once)
     what: np.ndarray  # (kind · units + addressee) · len(names): + the word, a decoded row
     channel: np.ndarray  # unit index of the channel it is carried on (an ID: its sender's)
@@ -481,6 +552,7 @@ class Listening:
             is_inf=kind == _INFLUENCE,
             n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
             n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
+            n_pay=np.concatenate(([0], np.cumsum(kind != _ID))),
             unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
             what=(kind * n + expected) * len(names),
             channel=np.where(kind == _ID, sender, expected),
