@@ -490,6 +490,8 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     """The ears read each position of a shared queue once, for every receiver, whichever
     unit gets there first, and drop a chunk once every listening unit has passed it: the
     run is the same with chunks of 8 positions."""
+    from rgtbus.units import unit as unit_module
+
     from rgtbus.engine import queues
 
     sc = random_group(7, noise=0.01, gains=True, anchor="schedule")
@@ -497,6 +499,7 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     sc = parse_scenario(text, "<chunks>")
     whole = run_group(sc, "memory", MemoryRecorder()).summary
     monkeypatch.setattr(queues, "QUEUE_CHUNK", 8)
+    monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)  # several batches in this short run
     reads: list[int] = []
     held: list[int] = []
     rows = queues.QueueDecodes.rows
@@ -514,7 +517,7 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
         k: v for k, v in whole.items() if k not in ("wall_seconds", "sync")
     }
     assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
-    # a batch's chunks at a time (20 s of codes here), never the whole queue (12 chunks)
+    # a batch's chunks at a time (4 s of codes here), never the whole queue (12 chunks)
     assert max(held) <= 4 < len(reads) // 8
 
 

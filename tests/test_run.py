@@ -2,6 +2,7 @@
 
 import json
 import math
+import pickle
 import random
 from dataclasses import replace
 from pathlib import Path
@@ -567,6 +568,10 @@ def test_wrong_decodes_judge_columns_as_rows():
         cols.append(*row)
     got = wrong_decodes("u", cols, truth)
     assert got == wrong_decodes("u", [list(r) for r in rows], truth)
+    # a unit process's report is pickled: its runs go as rows (their queue stays behind)
+    again = pickle.loads(pickle.dumps(cols))
+    assert list(again) == list(cols) and len(again) == len(cols)
+    assert wrong_decodes("u", again, truth) == got
     assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
         (0, "conflict", "alliance"),
         (1, "alliance", "id"),
@@ -632,9 +637,16 @@ def test_a_units_batches_are_judged_as_the_same_decodes_held_as_rows():
     assert len(cols) == len(rows) and list(cols) == [r for r in rows if r[1::2] != ("id", "id")]
     got = wrong_decodes("u", cols, truth)
     assert got == wrong_decodes("u", [list(r) for r in rows], truth)
+    # a unit process's report is pickled: its runs go as rows (their queue stays behind)
+    again = pickle.loads(pickle.dumps(cols))
+    assert list(again) == list(cols) and len(again) == len(cols)
+    assert wrong_decodes("u", again, truth) == got
     assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
         (0, "conflict", "alliance"), (2, "alliance", "{go}"), (3, "{go}", "{go}")
     ]  # fmt: skip
+    again = pickle.loads(pickle.dumps(cols))  # runs pickled as rows
+    assert list(again) == list(cols) and len(again) == len(cols)
+    assert wrong_decodes("u", again, truth) == got
 
 
 def test_units_that_agree_share_one_copy_of_the_tables_in_their_reports():
@@ -734,19 +746,23 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
     ) == _log_of(rec)
 
 
-def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on():
+def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monkeypatch):
     """A unit process's telemetry nobody watches lets its units batch and offers nothing
     alone; once a watcher subscribes (``watched`` turns True), each unit offers every decode
     it makes from its next wake on (a suffix of its decodes). The log is the same as ever."""
+    from rgtbus.units import unit as unit_module
+
     from rgtbus.telemetry.verify import decodes_per_row
+
+    # batches of 4 s: a short run's units wake several times (at a minute, once)
+    monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)
 
     sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
     logs, offered = [], []
     unwatched = _Sink(watched=False)
     for live in (None, unwatched, "flip"):
-        if live == "flip":  # a watcher comes three quarters of the way through the units'
-            # asks: each unit asks a few times as it begins, then once a batch (20 s)
-            live = _Sink(watched=False, flip=unwatched.asked * 3 // 4)
+        if live == "flip":  # a watcher comes a quarter of the way through the units' asks
+            live = _Sink(watched=False, flip=unwatched.asked // 4)
         rec = MemoryRecorder(live=live)
         run_group(sc, "memory", rec)
         logs.append(_log_of(rec))

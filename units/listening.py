@@ -110,6 +110,12 @@ class DecodeColumns:
         else:
             self._runs.append([len(self._turns), reads, a, b, start])
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled (a unit process's report) as rows: a run's queue stays in its process."""
+        turns, what, rows = self.arrays()
+        return (_decodes_of_rows, (turns.tobytes(), what.astype(np.uintc).tobytes(), rows,
+                                   self._ids_read_right))  # fmt: skip
+
     def __len__(self) -> int:
         """Every decode, the IDs only counted too."""
         return len(self._turns) + len(self._words) + self._ids_read_right
@@ -199,6 +205,21 @@ class DecodeColumns:
     def tolist(self) -> list[list[Any]]:
         """Every held decode as a list (turn, kind, addressee, code)."""
         return [list(row) for row in self]
+
+
+def _decodes_of_rows(
+    turns: bytes, what: bytes, rows: list[tuple[str, str, str]], ids_read_right: int
+) -> DecodeColumns:
+    """``DecodeColumns`` of held rows (``DecodeColumns.__reduce__``)."""
+    out = DecodeColumns()
+    for key in rows:
+        out.index(key)
+    out._turns.frombytes(turns)
+    index = np.frombuffer(what, dtype=np.uintc)
+    dtype = np.uint16 if out._what.typecode == "H" else np.uintc
+    out._what.frombytes(index.astype(dtype).tobytes())
+    out._ids_read_right = ids_read_right
+    return out
 
 
 class _HeldRows:
@@ -508,8 +529,14 @@ class Listening:
                     chans = np.array([ch], dtype=np.int64)
                 else:
                     family = "relation" if listen.kind == "relation" else "alternative"
-                    pairs = tuple((c, float(omegas[c])) for c in self.channels_of(listen))
-                    chans, inst = code_candidates(pairs, listen.start, cb.pulses, tau, search)
+                    channels = self.channels_of(listen)
+                    if len(channels) != 1:  # a code that may be on any of several channels
+                        word[q - q0], chan[q - q0], margin[q - q0] = read(q)
+                        continue
+                    c = channels[0]
+                    chans, inst = code_candidates(
+                        c, float(omegas[c]), listen.start, cb.pulses, tau, search
+                    )
                 if int(inst[:, -1].max()) >= end:
                     word[q - q0], chan[q - q0], margin[q - q0] = read(q)
                     continue

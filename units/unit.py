@@ -59,8 +59,9 @@ if TYPE_CHECKING:
 
 KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction + search)
 # a unit's decodes of this much time wait for one wake (no live view): a wake costs about
-# 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units
-BATCH_SECONDS = 20.0
+# 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units (at 60 s, 300
+# units hold the same memory as at 20 s, and at 120 s more: docs/engine.md)
+BATCH_SECONDS = 60.0
 
 
 def protocol_of(sc: Scenario, name: str) -> ProtocolState:

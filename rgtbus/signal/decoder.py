@@ -423,12 +423,26 @@ def nearest_many_columns(
 
 
 def code_candidates(
-    channels: tuple[tuple[int, float], ...], start: float, pulses: int, tau: float, search: int
+    channel: int, omega: float, start: float, pulses: int, tau: float, search: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A code's (channel, instants) candidates as ``decode_among_columns`` reads them: (M,)
-    channel indexes and (M, pulses) instants (read-only)."""
-    chans, _, inst, _, _ = _candidates(channels, start, pulses, tau, search)
+    """A code's candidates on one channel as ``decode_among_columns`` reads them: (M,)
+    channel indexes and (M, pulses) instants, nearest shift first (``_candidates``, uncached:
+    a shared queue reads each code once for every unit)."""
+    chans, _, inst = timings(*_one_channel(channel, omega), start, pulses, tau, search)
+    if start < (search + 1) * tau and inst[:, 0].min() < 0:  # before the first sample: left out
+        keep = inst[:, 0] >= 0
+        if not keep.any():
+            raise RgtbusError(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
+        chans, inst = chans[keep], inst[keep]
     return chans, inst
+
+
+@lru_cache(maxsize=4096)
+def _one_channel(channel: int, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """A channel index and its ω as ``timings`` takes them (one array each, made once)."""
+    return np.array([channel], dtype=np.int64), np.array([omega])
 
 
 @lru_cache(maxsize=64)  # every unit of a run decodes the same codes, at about the same time
