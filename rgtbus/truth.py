@@ -141,7 +141,8 @@ def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
         influence_rounds=sc.influence_rounds,
         repair_rounds=sc.repairs_per_phase,
     )
-    return plan, plan.begin(relations, influences).listens
+    acts = plan.begin(relations, influences)
+    return plan, acts.queue.listens if acts.queue is not None else acts.listens
 
 
 # (boundary, rank, turn, kind): a decode is done once its ready sample is heard (rank 0); a goal's

@@ -54,7 +54,8 @@ def test_repair_blocks_follow_each_phase_and_hold_a_slot_for_each_of_its_payload
         assert [s.turn for s in b.slots] == turns  # a slot for every payload of the phase
         pulses = [k for s in b.slots for k in (*s.request, *s.repeat)]
         assert len(pulses) == len(set(pulses))
-        last_decode = max(li.ready_sample for li in acts.listens if li.turn in turns)
+        listens = acts.listens if acts.queue is None else acts.queue.listens
+        last_decode = max(li.ready_sample for li in listens if li.turn in turns)
         assert b.request_choice > last_decode
         assert b.repeat_choice > max(s.request[-1] for s in b.slots)
         assert b.request_choice < b.first_request and b.repeat_choice < b.first_repeat
@@ -84,7 +85,8 @@ def test_the_book_holds_what_is_unsure_asks_for_it_and_decodes_the_mean_of_its_r
     ps = _state("a", "concurrent", rounds=2)
     acts = ps.begin({"b": "alliance", "c": "alliance"}, {"b": "0", "c": "1"})
     first, second = acts.repairs[2], acts.repairs[3]  # the influence phase's blocks
-    listen = next(li for li in acts.listens if li.kind == "influence" and li.turn == 6)
+    listens = acts.listens if acts.queue is None else acts.queue.listens
+    listen = next(li for li in listens if li.kind == "influence" and li.turn == 6)
     words = cb.family("alternative")
     sent = np.array(words["{alpha}"])
     first_read = np.array([0.42, 0.17, 0.6])  # nearest {alpha}, by a small margin

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rgtbus.units.timers import Timer, Timers
 
+from rgtbus.errors import RgtbusError
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import Listen, ListenQueue, ProtocolState, code_samples
 from rgtbus.scenario import Scenario
@@ -479,7 +480,10 @@ class Listening:
         ears = self.ears
         assert ears is not None
         index, tau, cb = self.index_of, self.tau, self.cb
-        listens = [queue.listens[i] for i in queue.order]
+        if queue.units != tuple(self.units):
+            raise RgtbusError(f"{self.name}: a listen queue of another group")
+        due = queue.order  # the i-th position: the listen planned due[i]-th
+        start = queue.start[due]
         names = self.words
         maps = {
             key: np.array([names.index(name) for name in words.names], dtype=np.int64)
@@ -489,14 +493,16 @@ class Listening:
         alternatives = set(self.families["alternative"].names)
         value = [universe.parse_alternative(n) if n in alternatives else -1 for n in names]
         n = len(self.units)
-        sender = np.array([index[li.sender] for li in listens], dtype=np.int64)
-        expected = np.array([index[li.expected_addressee] for li in listens], dtype=np.int64)
+        sender = queue.sender[due].astype(np.int64)
+        expected = queue.addressee[due].astype(np.int64)
+        channel = queue.channel[due].astype(np.int64)
+        kind = queue.kind[due].astype(np.int64)  # LISTEN_KINDS, KINDS: the same order
         schedule = self.protocol.schedule
         search = self.protocol.search
         omegas = ears.bank.omegas
 
         def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            listen = listens[q]
+            listen = queue.listen(int(due[q]))
             if listen.kind == "id":
                 ch = index[listen.sender]
                 samples = code_samples(listen.start, self.omegas[ch], cb.pulses, tau)
@@ -520,23 +526,20 @@ class Listening:
             margin = np.empty((q1 - q0, R))
             end = ears.readout.end
             groups: dict[tuple[str, int], tuple[list[int], list[Any], list[Any]]] = {}
-            for q in range(q0, q1):
-                listen = listens[q]
-                if listen.kind == "id":
+            for q, k, c, t0 in zip(
+                range(q0, q1),
+                kind[q0:q1].tolist(),
+                channel[q0:q1].tolist(),
+                start[q0:q1].tolist(),
+                strict=True,
+            ):
+                if k == _ID:
                     family = "id"
-                    ch = index[listen.sender]
-                    inst = np.array([code_samples(listen.start, self.omegas[ch], cb.pulses, tau)])
-                    chans = np.array([ch], dtype=np.int64)
+                    inst = np.array([code_samples(t0, self.omegas[c], cb.pulses, tau)])
+                    chans = np.array([c], dtype=np.int64)
                 else:
-                    family = "relation" if listen.kind == "relation" else "alternative"
-                    channels = self.channels_of(listen)
-                    if len(channels) != 1:  # a code that may be on any of several channels
-                        word[q - q0], chan[q - q0], margin[q - q0] = read(q)
-                        continue
-                    c = channels[0]
-                    chans, inst = code_candidates(
-                        c, float(omegas[c]), listen.start, cb.pulses, tau, search
-                    )
+                    family = "relation" if k == _RELATION else "alternative"
+                    chans, inst = code_candidates(c, float(omegas[c]), t0, cb.pulses, tau, search)
                 if int(inst[:, -1].max()) >= end:
                     word[q - q0], chan[q - q0], margin[q - q0] = read(q)
                     continue
@@ -559,21 +562,22 @@ class Listening:
                 margin[at] = m
             return word, chan, margin
 
-        kind = np.array([KINDS.index(li.kind) for li in listens], dtype=np.int64)
-        rnd = np.array([schedule[li.turn].round for li in listens], dtype=np.int64)
+        turn = queue.turn[due]
+        rounds = np.array([t.round for t in schedule], dtype=np.int64)
+        rnd = rounds[turn]
         slot = sender * n + expected
         payload = kind != _ID
         tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
         return QueueReads(
-            bounds=np.array(queue.boundaries, dtype=np.int64),
-            seq=np.array(queue.order, dtype=np.int64),
+            bounds=queue.boundaries,
+            seq=queue.order,
             kind=kind,
-            turn=np.array([li.turn for li in listens], dtype=np.int64),
+            turn=turn,
             sender=sender,
             expected=expected,
             slot=slot,
             rnd=rnd,
-            t_ready=np.array([li.ready_sample * tau for li in listens]),
+            t_ready=queue.ready[due] * tau,
             is_id=kind == _ID,
             is_rel=kind == _RELATION,
             is_inf=kind == _INFLUENCE,
@@ -582,7 +586,7 @@ class Listening:
             n_pay=np.concatenate(([0], np.cumsum(kind != _ID))),
             unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
             what=(kind * n + expected) * len(names),
-            channel=np.where(kind == _ID, sender, expected),
+            channel=channel,
             names=names,
             alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
             value=np.array(value, dtype=np.int64),
@@ -628,7 +632,7 @@ class Listening:
             self._take_batch(reads, a, a + e, word[:e], margin[:e])
         q = a + e
         if q < b:
-            listen = queue.listens[int(reads.seq[q])]
+            listen = queue.listen(int(reads.seq[q]))
             self.act(listen, reads.names[int(word[e])], float(margin[e]), int(chan[e]))
             self.settle(int(reads.bounds[q]) - 1)
             return q + 1

@@ -63,17 +63,17 @@ class Timers:
 
     def add_queue(self, queue: ListenQueue) -> None:
         """A shared listen queue: a cursor at its first position (its listens take the next
-        ``len(queue.order)`` seqs)."""
+        ``len(queue)`` seqs)."""
         self.queue_next(queue, self.seq, 0)
-        self.seq += len(queue.order)
+        self.seq += len(queue)
 
     def queue_next(self, queue: ListenQueue, first_seq: int, i: int) -> None:
         """The i-th listen of ``queue`` to fall due goes on the heap, with the seq it would
         have had as a timer of its own."""
-        if i < len(queue.order):
-            n = queue.order[i]
-            b = queue.boundaries[i]
-            listen = queue.listens[n]
+        if i < len(queue):
+            n = int(queue.order[i])
+            b = int(queue.boundaries[i])
+            listen = queue.listen(n)
             heapq.heappush(
                 self.heap,
                 Timer(b, 0, first_seq + n, b - 1, "listen", listen, (queue, first_seq, i)),

@@ -18,7 +18,7 @@ def register(subparsers: SubParsers) -> None:
         "completion",
         help="print the shell code that completes rgtbus's commands and options",
         description="Print the code that makes SHELL complete rgtbus's commands, options and "
-        "file names. Once a session: eval \"$(rgtbus completion bash)\" (bash, zsh), "
+        'file names. Once a session: eval "$(rgtbus completion bash)" (bash, zsh), '
         "rgtbus completion fish | source (fish); or put that line in ~/.bashrc, ~/.zshrc or "
         "~/.config/fish/config.fish (docs/install.md).",
     )

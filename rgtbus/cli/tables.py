@@ -138,9 +138,8 @@ def wrapped_table_lines(
         )
 
     # left-aligned cells of one line each: plain_width is the rendered width, no trial renders
-    exact = (
-        (align is None or all(a == "left" for a in align))
-        and all(len(str(cell).splitlines()) <= 1 for r in rows for cell in r)
+    exact = (align is None or all(a == "left" for a in align)) and all(
+        len(str(cell).splitlines()) <= 1 for r in rows for cell in r
     )
 
     def too_wide(cols: list[int]) -> bool:

@@ -206,8 +206,7 @@ class ProtocolState:
                 Send(t.index, "payload", t.addressee, self._codes[t.phase][t.addressee],
                      p.payload_start, p.payload_samples, t.sender, t.addressee)
             )  # fmt: skip
-        acts.queue = self.plan.concurrent_listens()
-        acts.listens = acts.queue.listens
+        acts.queue = self.plan.concurrent_listens()  # its listens as columns: no Listen each
         acts.sends.sort(key=lambda s: s.samples[0])
         self.turn = len(self.schedule)  # every reaction is known: nothing left to wait for
         return acts

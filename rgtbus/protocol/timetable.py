@@ -115,20 +115,32 @@ class Plan:
         """Every decode of the concurrent schedule, the same for every unit (each unit decodes
         every turn's ID and payload, its own too), worked out once for all of them."""
         if self._listens is None:
-            listens: list[Listen] = []
+            index = {u: i for i, u in enumerate(self.units)}
+            turn: list[int] = []
+            kind: list[int] = []
+            sender: list[int] = []
+            addressee: list[int] = []
+            channel: list[int] = []
+            start: list[float] = []
+            ready: list[int] = []
             for rnd in self.timing():
                 for p in rnd.placed:
                     t = p.turn
-                    kind = "relation" if t.phase == "relations" else "influence"
-                    listens.append(
-                        Listen(t.index, "id", t.sender, t.addressee, (t.sender,), p.id_start,
-                               p.id_samples[-1])
-                    )  # fmt: skip
-                    listens.append(
-                        Listen(t.index, kind, t.sender, t.addressee, (t.addressee,),
-                               p.payload_start, p.payload_samples[-1] + self.search)
-                    )  # fmt: skip
-            self._listens = ListenQueue.of(listens)
+                    s, a = index[t.sender], index[t.addressee]
+                    payload = 1 if t.phase == "relations" else 2  # LISTEN_KINDS
+                    turn += (t.index, t.index)
+                    kind += (0, payload)
+                    sender += (s, s)
+                    addressee += (a, a)
+                    channel += (
+                        s,
+                        a,
+                    )  # the ID on its sender's channel, the payload on its addressee's
+                    start += (p.id_start, p.payload_start)
+                    ready += (p.id_samples[-1], p.payload_samples[-1] + self.search)
+            self._listens = ListenQueue.of_columns(
+                self.units, turn, kind, sender, addressee, channel, start, ready
+            )
         return self._listens
 
     def nominal_end(self) -> float:

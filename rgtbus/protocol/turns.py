@@ -7,6 +7,8 @@ import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.waveform import pulse_samples
 from rgtbus.timebase import sample_of
@@ -123,26 +125,97 @@ class Listen:
         object.__setattr__(self, "pair", (self.sender, self.expected_addressee))
 
 
-@dataclass(frozen=True, slots=True)
-class ListenQueue:
-    """Listens in the order they fall due, to be taken one at a time: ``listens[order[i]]`` is
-    the i-th due, at ``boundaries[i]`` (its ready sample + 1); listens due at one boundary keep
-    their planning order. One queue is shared by every unit that plans the same listens (the
-    concurrent schedule: every unit decodes every code), so a unit holds a cursor into it, not
-    an object per (unit, code)."""
+LISTEN_KINDS = ("id", "relation", "influence")  # a ListenQueue's kinds, by index
 
-    listens: tuple[Listen, ...]
-    boundaries: tuple[int, ...]
-    order: tuple[int, ...]
+
+@dataclass(frozen=True, eq=False)
+class ListenQueue:
+    """Listens as columns, in planning order, each read on one channel; ``order[i]`` is the
+    i-th to fall due, at ``boundaries[i]`` (its ready sample + 1); listens due at one
+    boundary keep their planning order. One queue is shared by every unit that plans the
+    same listens (the concurrent schedule: every unit decodes every code), so a unit holds a
+    cursor into it, not an object per (unit, code); and the queue holds about 50 bytes a
+    listen, not a ``Listen`` object each (``listen(n)`` makes one when it is asked for)."""
+
+    units: tuple[str, ...]  # the group, as the unit columns index it
+    turn: np.ndarray  # int64
+    kind: np.ndarray  # int8: an index into LISTEN_KINDS
+    sender: np.ndarray  # int32: a unit index
+    addressee: np.ndarray  # int32: the expected addressee's unit index
+    channel: np.ndarray  # int32: the unit index of the one channel it reads
+    start: np.ndarray  # float64, s
+    ready: np.ndarray  # int64: its ready sample
+    order: np.ndarray  # int64
+    boundaries: np.ndarray  # int64
 
     @classmethod
-    def of(cls, listens: Sequence[Listen]) -> ListenQueue:
-        order = sorted(range(len(listens)), key=lambda i: listens[i].ready_sample)  # stable
-        return cls(
-            tuple(listens),
-            tuple(listens[i].ready_sample + 1 for i in order),
-            tuple(order),
+    def of(cls, listens: Sequence[Listen], units: Sequence[str]) -> ListenQueue:
+        """The queue of ``listens`` (each on one channel) over the group ``units``."""
+        index = {u: i for i, u in enumerate(units)}
+        for li in listens:
+            if len(li.channels) != 1:
+                raise RgtbusError(f"a listen queue reads one channel a listen, not {li.channels}")
+        return cls.of_columns(
+            units,
+            [li.turn for li in listens],
+            [LISTEN_KINDS.index(li.kind) for li in listens],
+            [index[li.sender] for li in listens],
+            [index[li.expected_addressee] for li in listens],
+            [index[li.channels[0]] for li in listens],
+            [li.start for li in listens],
+            [li.ready_sample for li in listens],
         )
+
+    @classmethod
+    def of_columns(
+        cls,
+        units: Sequence[str],
+        turn: Sequence[int],
+        kind: Sequence[int],
+        sender: Sequence[int],
+        addressee: Sequence[int],
+        channel: Sequence[int],
+        start: Sequence[float],
+        ready: Sequence[int],
+    ) -> ListenQueue:
+        """The queue of listens given as columns (unit columns index ``units``)."""
+        ready_ = np.array(ready, dtype=np.int64)
+        order = np.argsort(ready_, kind="stable")
+        columns = (
+            np.array(turn, dtype=np.int64),
+            np.array(kind, dtype=np.int8),
+            np.array(sender, dtype=np.int32),
+            np.array(addressee, dtype=np.int32),
+            np.array(channel, dtype=np.int32),
+            np.array(start, dtype=np.float64),
+            ready_,
+            order.astype(np.int64),
+            ready_[order] + 1,
+        )
+        for col in columns:
+            col.flags.writeable = False
+        return cls(tuple(units), *columns)
+
+    def __len__(self) -> int:
+        return int(self.turn.size)
+
+    def listen(self, n: int) -> Listen:
+        """The ``n``-th listen planned, as a ``Listen``."""
+        u = self.units
+        return Listen(
+            int(self.turn[n]),
+            LISTEN_KINDS[int(self.kind[n])],
+            u[int(self.sender[n])],
+            u[int(self.addressee[n])],
+            (u[int(self.channel[n])],),
+            float(self.start[n]),
+            int(self.ready[n]),
+        )
+
+    @property
+    def listens(self) -> tuple[Listen, ...]:
+        """Every listen, in planning order (made anew: for a reader of a small group)."""
+        return tuple(self.listen(n) for n in range(len(self)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,12 +276,18 @@ class Actions:
     listens: Sequence[Listen] = field(default_factory=list)
     quench: list[int] = field(default_factory=list)
     deadline: int | None = None
-    queue: ListenQueue | None = None  # ``listens`` in the order they fall due, when shared
+    # the listens as a shared queue (the concurrent schedule; ``listens`` then holds none)
+    queue: ListenQueue | None = None
     repairs: list[RepairBlock] = field(default_factory=list)  # repair blocks now known
 
     def __bool__(self) -> bool:
         return bool(
-            self.sends or self.listens or self.quench or self.deadline is not None or self.repairs
+            self.sends
+            or self.listens
+            or self.queue is not None
+            or self.quench
+            or self.deadline is not None
+            or self.repairs
         )
 
 

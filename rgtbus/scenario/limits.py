@@ -172,7 +172,6 @@ def over_run_budget(n: int, influence_rounds: int) -> str | None:
     )
 
 
-
 def decodes(n: int, influence_rounds: int) -> float:
     """Decodes of a run of ``n`` units: each of the n units decodes every one of the n·(n−1)
     codes of the relationship phase and of each influence round, twice (the ID and the
