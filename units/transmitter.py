@@ -12,12 +12,14 @@ at the send's start, then each pulse at its sample, in time order, then planning
 from __future__ import annotations
 
 import heapq
+from array import array
 from collections.abc import Generator
 from typing import Any
 
 import numpy as np
 import simpy
 
+from rgtbus.errors import RgtbusError
 from rgtbus.protocol import Send
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.pulses import Pulses
@@ -58,7 +60,10 @@ class Transmitter:
         self.log = log
         self.sent: list[Send] = []
         self.payload_code: dict[int, str] = {}  # turn -> the payload code it sent
-        self._outbox: list[tuple[int, float]] = []
+        # the pulses planned since the world last looked: samples and magnitudes, 16 bytes a
+        # pulse (a run plans every pulse of its schedule at once: n² codes)
+        self._out_at = array("q")
+        self._out_value = array("d")
         self._air: list[_OnAir] = []
         self._air_seq = 0
         self._air_until = AWAKE  # when the on-air process sleeps until (AWAKE: it will look)
@@ -81,16 +86,21 @@ class Transmitter:
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
         the order they were planned)."""
-        box, self._outbox = self._outbox, []
-        if not box:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        box.sort(key=lambda p: p[0])  # stable: planning order within a sample
-        return np.array([p[0] for p in box], dtype=np.int64), np.array([p[1] for p in box])
+        at = np.frombuffer(self._out_at, dtype=np.int64).copy()
+        value = np.frombuffer(self._out_value, dtype=np.float64).copy()
+        self._out_at, self._out_value = array("q"), array("d")
+        order = np.argsort(at, kind="stable")  # stable: planning order within a sample
+        return at[order], value[order]
 
     def emit(self, send: Send) -> None:
         """Plan a send: its pulses go out to the bus now (ahead of time), and to the log."""
         word = self.word(send)
-        self._outbox.extend((k, float(m)) for k, m in zip(send.samples, word, strict=True))
+        if len(word) != len(send.samples):
+            raise RgtbusError(
+                f"{send.code!r}: {len(word)} magnitudes for {len(send.samples)} pulses"
+            )
+        self._out_at.extend(send.samples)
+        self._out_value.extend(word)
         if not send.block:  # a repair's sends are counted (``RepairBook``), not listed
             self.sent.append(send)
             if send.kind == "payload":
