@@ -98,14 +98,23 @@ class ReadoutHistory:
         if self._hi + k > self._buf_rows.size:
             live = self._hi - self._lo
             size = self._buf_rows.size
-            while live + k > size // 2:  # keep room: a half-full buffer after compaction
-                size *= 2
-            new_rows = np.zeros(size, dtype=np.int64)
-            new_vals = np.zeros((size, *self._buf_vals.shape[1:]))
-            new_rows[:live] = self._buf_rows[self._lo : self._hi]
-            new_vals[:live] = self._buf_vals[self._lo : self._hi]
-            self._buf_rows, self._buf_vals = new_rows, new_vals
-            self._lo, self._hi = 0, live
+            if live + k <= size // 2:  # room enough once the history moves to the front
+                # in place: a new buffer beside the old one would hold the history twice
+                # (n receivers' values a row: the largest array of a large run)
+                self._buf_rows[:live] = self._buf_rows[self._lo : self._hi].copy()
+                for a in range(0, live, _MOVE_ROWS):  # in pieces: no copy of it all at once
+                    b = min(live, a + _MOVE_ROWS)
+                    self._buf_vals[a:b] = self._buf_vals[self._lo + a : self._lo + b]
+                self._lo, self._hi = 0, live
+            else:
+                while live + k > size // 2:  # keep room: a half-full buffer after compaction
+                    size *= 2
+                new_rows = np.zeros(size, dtype=np.int64)
+                new_vals = np.zeros((size, *self._buf_vals.shape[1:]))
+                new_rows[:live] = self._buf_rows[self._lo : self._hi]
+                new_vals[:live] = self._buf_vals[self._lo : self._hi]
+                self._buf_rows, self._buf_vals = new_rows, new_vals
+                self._lo, self._hi = 0, live
         self._buf_rows[self._hi : self._hi + k] = rows
         self._buf_vals[self._hi : self._hi + k] = values
         self._hi += k
@@ -489,6 +498,9 @@ def _timings(
         float(tau),
         int(search),
     )
+
+
+_MOVE_ROWS = 256  # rows of a history moved to the front of its buffer at a time
 
 
 @dataclass(frozen=True)
