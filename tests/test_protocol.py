@@ -234,3 +234,25 @@ def test_relation_choice_is_seeded_fixed_or_drawn():
     # fixing one peer never shifts the others' draws
     free = choose_relations("a", units, seed=3, fixed={}, draws={}, p=0.61)
     assert free["d"] == one["d"]
+
+
+def test_a_shared_listen_queue_is_its_listens_as_columns():
+    """The concurrent schedule's queue holds its listens as columns: each one made back is
+    the listen the plan lays out, and a queue made of ``Listen`` objects holds the same."""
+    units = ("a", "b", "c", "d")
+    omegas = {u: (3 + i) * math.pi / 2 for i, u in enumerate(units)}
+    ps = ProtocolState("b", units, omegas, 0.005, anchor="schedule", kind="concurrent")
+    acts = ps.begin({u: "alliance" for u in units}, {u: "0" for u in units})
+    queue = acts.queue
+    assert queue is not None and acts.listens == [] and len(queue) == 4 * 4 * 3
+    listens = queue.listens
+    again = type(queue).of(listens, units)
+    assert again.listens == listens
+    for name in ("turn", "kind", "sender", "addressee", "channel", "start", "ready", "order"):
+        assert getattr(again, name).tolist() == getattr(queue, name).tolist()
+    due = [listens[i] for i in queue.order.tolist()]
+    assert [li.ready_sample for li in due] == sorted(li.ready_sample for li in listens)
+    assert queue.boundaries.tolist() == [li.ready_sample + 1 for li in due]
+    assert {li.kind for li in listens} == {"id", "relation", "influence"}
+    assert all(li.channels == ((li.sender,) if li.kind == "id" else (li.expected_addressee,))
+               for li in listens)  # fmt: skip

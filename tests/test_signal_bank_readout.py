@@ -167,3 +167,30 @@ def test_word_sets_are_equal_by_value():
     c = WordSet(*word_matrix(cb.family("relation"), None, "words"))  # made directly: not shared
     assert c == a and hash(c) == hash(a) and c is not a
     assert a != WordSet.of(cb.family("alternative"))
+
+
+def test_a_history_that_outgrows_its_buffer_keeps_every_value_it_holds():
+    """Stored a few rows at a time over a long run, a history moves what it holds to the
+    front of its buffer in place when there is room (and grows when there is not): every
+    sample still held reads what was stored, for every receiver, and the buffer stays within
+    a few times the most it held."""
+    rng = np.random.default_rng(5)
+    hist = ReadoutHistory(2, capacity=300, receivers=3)
+    stored: dict[int, np.ndarray] = {}
+    end = most = 0
+    for step in range(400):
+        n = int(rng.integers(1, 40))
+        rows = np.sort(rng.choice(np.arange(end, end + n), size=min(n, 5), replace=False))
+        values = rng.normal(size=(rows.size, 3, 2))
+        values[:, :, 1] = values[:, :, 0]  # every channel reads the same d
+        hist.store(end, n, rows, values)
+        for r, v in zip(rows.tolist(), values, strict=True):
+            stored[r] = v[:, 0]
+        end += n
+        held = [r for r in stored if r >= end - 300]
+        most = max(most, len(held))
+        if step % 50 == 0 or step == 399:
+            for receiver in range(3):
+                got = hist.values(np.array(held), 0, receiver)
+                assert got.tolist() == [stored[r][receiver] for r in held]
+        assert hist._buf_rows.size <= 4 * max(16, most + 5)  # a few times the most held

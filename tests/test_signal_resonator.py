@@ -375,3 +375,22 @@ def test_receivers_that_hear_alike_walk_once_with_the_same_results(views, seed, 
         still = np.repeat(~walking, len(om))
         assert not np.isin(sp[:, 1], np.flatnonzero(~walking)).any()
         assert not st_.wr[still].any()  # never walked: still at rest
+
+
+def test_quench_several_receivers_at_once_is_each_in_turn():
+    """The ears quench every unit due at a sample with one copy of the state: the same state
+    as quenching them one by one."""
+    u = sparse_medium(2000, 30, 12, receivers=4)
+    om = np.linspace(3, 6, 3)
+    once, each = ResonatorBank(om, n_receivers=4), ResonatorBank(om, n_receivers=4)
+    for bank in (once, each):
+        bank.feed(u[:1200])
+    once.quench([2, 0])
+    each.quench(2)
+    each.quench(0)
+    for got, want in ((once.state.wr, each.state.wr), (once.state.wi, each.state.wi)):
+        assert np.array_equal(got, want)
+    assert np.array_equal(once.state.pend, each.state.pend)
+    assert np.all(once.z[[0, 2]] == 0) and np.any(once.z[[1, 3]] != 0)
+    with pytest.raises(RgtbusError, match="receiver 7"):
+        once.quench([1, 7])
