@@ -446,7 +446,7 @@ def test_the_hand_over_of_units_that_walked_as_one_equals_the_general_one(seed):
 def _one_decode_at_a_time(self, queue, reads, a, b):
     """The reference for a unit's batch of queued decodes: each on its own, read from the
     unit's own readout (``decode``: the ears' per-decode path, no column of the queue)."""
-    listen = queue.listens[int(reads.seq[a])]
+    listen = queue.listen(int(reads.seq[a]))
     self.decode(listen)
     self.settle(int(reads.bounds[a]) - 1)
     return a + 1
@@ -463,6 +463,7 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
     for every unit, recorded and learned from as arrays, one at a time only where a code is
     refused or a table completes): its log and summary equal those of each decode taken on
     its own, on noisy groups (refused codes, wrong channels), rounds, goals."""
+    from rgtbus.units import unit as unit_module
     from rgtbus.units.listening import Listening
 
     from rgtbus.telemetry.verify import decodes_per_row
@@ -476,6 +477,8 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
     for reference in (False, True):
         if reference:
             monkeypatch.setattr(Listening, "_take_decodes", _one_decode_at_a_time)
+            # read at the batch's wake, from the unit's own readout: kept a batch longer
+            monkeypatch.setattr(unit_module, "KEEP_SECONDS", 30.0 + unit_module.BATCH_SECONDS)
         rec = MemoryRecorder()
         out = run_group(sc, "memory", rec)
         rows = decodes_per_row(rec.messages)
@@ -502,22 +505,20 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)  # several batches in this short run
     reads: list[int] = []
     held: list[int] = []
-    rows = queues.QueueDecodes.rows
+    fill = queues.QueueDecodes.fill
 
-    def counted(self, c, lo, hi, read, i):
-        got = rows(
-            self, c, lo, hi, lambda q0, q1: (reads.extend(range(q0, q1)), read(q0, q1))[1], i
-        )
+    def counted(self, upto, read):
+        fill(self, upto, lambda q0, q1: (reads.extend(range(q0, q1)), read(q0, q1))[1])
         held.append(len(self.chunks))
-        return got
 
-    monkeypatch.setattr(queues.QueueDecodes, "rows", counted)
+    monkeypatch.setattr(queues.QueueDecodes, "fill", counted)
     summary = run_group(sc, "memory", MemoryRecorder()).summary
     assert {k: v for k, v in summary.items() if k not in ("wall_seconds", "sync")} == {
         k: v for k, v in whole.items() if k not in ("wall_seconds", "sync")
     }
     assert sorted(reads) == list(range(len(reads))) and len(reads) > 80
-    # a batch's chunks at a time (4 s of codes here), never the whole queue (12 chunks)
+    # read as heard, held until every unit has taken them (a batch of 4 s here): a few chunks
+    # at a time, never the whole queue (12 chunks)
     assert max(held) <= 4 < len(reads) // 8
 
 

@@ -474,6 +474,14 @@ class Listening:
         self.ears.queues.passed(self.member, queue, i)
         timers.queue_next(queue, first_seq, i)
 
+    def expect_queue(self, queue: ListenQueue) -> None:
+        """Its listens are ``queue``'s (shared by the units of its ears): the ears read each
+        position for all of them as soon as it is heard whole (``read_as_heard``), so a unit
+        that takes them a batch at a time needs no readout kept for its batch."""
+        assert self.ears is not None
+        reads = self.ears.queues.shared(queue, lambda: self._queue_reads(queue))
+        self.ears.queues.read_as_heard(queue, reads.bounds, reads.read_block)
+
     def _queue_reads(self, queue: ListenQueue) -> QueueReads:
         """``QueueReads`` of ``queue`` for the units of this unit's ears (each would build the
         same: the first to ask does; ``read`` decodes for all of them)."""

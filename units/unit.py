@@ -167,7 +167,11 @@ class AutonomousUnit:
             bursts=None
             if sc.channel.burst is None
             else BurstStates(sc.channel.burst, self.tau, burst_rng(sc.seed, me)),
-            keep=sample_of(KEEP_SECONDS + BATCH_SECONDS, self.tau),  # the batch's first too
+            # a batch's listens read at its wake reach back a batch more; the concurrent
+            # schedule's are read as they are heard (``Listening.expect_queue``)
+            keep=sample_of(
+                KEEP_SECONDS + (0.0 if sc.schedule == "concurrent" else BATCH_SECONDS), self.tau
+            ),
             arrival=sc.channel.arrivals(self.units, self.name, self.tau)
             if sc.channel.timed
             else None,
@@ -375,6 +379,7 @@ class AutonomousUnit:
             self._transmit(send)
         if acts.queue is not None:  # shared: a cursor into it, not a timer per listen
             self.timers.add_queue(acts.queue)
+            self.listening.expect_queue(acts.queue)
         else:
             for listen in acts.listens:
                 self.timers.add(listen.ready_sample + 1, listen.ready_sample, "listen", listen)

@@ -64,7 +64,7 @@ from rgtbus.signal.resonator import (
     input_readout,
     resonate,
 )
-from rgtbus.timebase import time_of
+from rgtbus.timebase import sample_of, time_of
 
 _AmongKey = tuple[tuple[int, ...], float, WordSet, int]  # channels, start, words, search
 _ReadKey = tuple[tuple[int, ...], int, WordSet]  # samples, channel, words
@@ -139,6 +139,7 @@ class Ears:
         self._reads: dict[tuple[tuple[int, ...], int, WordSet], list[Decision]] = {}
         self._decodes_end = -1
         self.queues = SharedQueues(len(self.listeners))  # what every unit reads alike
+        self._read_span = max(1, sample_of(READ_AS_HEARD_SECONDS, self.tau))
         self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
         self.process = env.process(self._run())
 
@@ -392,6 +393,8 @@ class Ears:
                     target = min(target, lst.watch_from)
             if self.dense:
                 target = min(target, (self.pos // self.window + 1) * self.window)
+            if self.queues.eager:  # a queue read as heard reads back no further than this
+                target = min(target, self.pos + self._read_span)
             if self.kept.logging and self._walks:  # what the walk and the hand-over hold stays
                 # small in a large run (a block or so of every lane's spikes), while a small
                 # one still advances a long wait at once
@@ -399,6 +402,7 @@ class Ears:
                 target = min(target, self.kept.due + blocks * self.kept.block)
             if self.pos < target:
                 k = self._advance(target)
+                self.queues.read_heard(self.pos)
                 if k is not None:  # a watched spike: wake whoever watched it, at its time
                     yield env.timeout(max(0.0, time_of(k, self.tau) - env.now))
                     yield env.timeout(0)  # after what is already due then (see _after_due)
@@ -545,6 +549,9 @@ class Ears:
 
 
 WALK_LANE_SAMPLES = 1 << 22  # a logged run's advance: about this many lane-samples at most
+# with a queue read as it is heard (``SharedQueues.read_as_heard``), the ears advance at most
+# this far at a time: a position is read at most this long after its last sample
+READ_AS_HEARD_SECONDS = 10.0
 
 
 def _fire(ev: simpy.Event) -> None:

@@ -25,34 +25,42 @@ _T = TypeVar("_T")
 
 class QueueDecodes:
     """One shared listen queue's decodes for every receiver: chunks of ``QUEUE_CHUNK``
-    positions, each (positions × receivers) arrays of word, channel and margin, filled in
-    order as units reach them and dropped once every listening unit has passed them."""
+    positions, each (positions × receivers) arrays of word, channel (4 bytes each) and
+    margin, filled in order (as the ears hear each position whole, or as a unit reaches it)
+    and dropped once every listening unit has passed them."""
 
     def __init__(self, queue: object, receivers: int) -> None:
         self.queue = queue  # kept alive: it is found by id
         self.receivers = receivers
         self.cursor = np.zeros(receivers, dtype=np.int64)  # each unit's next position
-        self.chunks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]] = {}
+        self.chunks: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.filled = 0  # every position before this one is read
+
+    def fill(self, upto: int, read: QueueRead) -> None:
+        """Read every position before ``upto`` not read yet, a chunk's part at a time."""
+        while self.filled < upto:
+            c, k = divmod(self.filled, QUEUE_CHUNK)
+            chunk = self.chunks.get(c)
+            if chunk is None:
+                R = self.receivers
+                chunk = self.chunks[c] = (
+                    np.empty((QUEUE_CHUNK, R), dtype=np.int32),
+                    np.empty((QUEUE_CHUNK, R), dtype=np.int32),
+                    np.empty((QUEUE_CHUNK, R)),
+                )
+            b = min(QUEUE_CHUNK, upto - c * QUEUE_CHUNK)
+            word, chan, margin = chunk
+            base = c * QUEUE_CHUNK
+            word[k:b], chan[k:b], margin[k:b] = read(base + k, base + b)
+            self.filled = base + b
 
     def rows(self, c: int, lo: int, hi: int, read: QueueRead, i: int) -> Columns:
-        """Receiver ``i``'s decodes of positions [lo, hi) within chunk ``c`` (the chunk read
-        up to ``hi`` for every receiver first, in order)."""
-        chunk = self.chunks.get(c)
-        if chunk is None:
-            R = self.receivers
-            chunk = self.chunks[c] = (
-                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
-                np.empty((QUEUE_CHUNK, R), dtype=np.int64),
-                np.empty((QUEUE_CHUNK, R)),
-                [0],  # positions filled
-            )
-        word, chan, margin, filled = chunk
+        """Receiver ``i``'s decodes of positions [lo, hi) within chunk ``c`` (read up to
+        ``hi`` for every receiver first, in order)."""
+        self.fill(hi, read)
+        word, chan, margin = self.chunks[c]
         base = c * QUEUE_CHUNK
         a, b = max(lo, base) - base, min(hi, base + QUEUE_CHUNK) - base
-        if filled[0] < b:  # in order: every position before is heard too
-            k = filled[0]
-            word[k:b], chan[k:b], margin[k:b] = read(base + k, base + b)
-            filled[0] = b
         return word[a:b, i], chan[a:b, i], margin[a:b, i]
 
     def forget(self, low: int) -> None:
@@ -70,6 +78,32 @@ class SharedQueues:
         self._queues: dict[int, QueueDecodes] = {}
         self._shared: dict[int, tuple[object, object]] = {}
         self.listening = np.ones(receivers, dtype=bool)
+        # queues read as the ears hear their positions whole: (decodes, boundaries, read)
+        self._eager: dict[int, tuple[QueueDecodes, np.ndarray, QueueRead]] = {}
+
+    @property
+    def eager(self) -> bool:
+        """Whether a queue is read as its positions are heard (``read_heard``)."""
+        return bool(self._eager)
+
+    def read_as_heard(self, queue: object, boundaries: np.ndarray, read: QueueRead) -> None:
+        """Read ``queue``'s positions as soon as they are heard whole (position i once the
+        ears are at ``boundaries[i]``), not when a unit first asks for them: a unit that
+        takes its decodes a batch at a time then needs no readout kept for the batch."""
+        if id(queue) not in self._eager:
+            self._eager[id(queue)] = (self._cache(queue), boundaries, read)
+
+    def read_heard(self, pos: int) -> None:
+        """The ears are at sample ``pos``: every position of an eager queue whose samples have
+        all been heard is read (``read_as_heard``)."""
+        for cache, boundaries, read in self._eager.values():
+            cache.fill(int(boundaries.searchsorted(pos, side="right")), read)
+
+    def _cache(self, queue: object) -> QueueDecodes:
+        cache = self._queues.get(id(queue))
+        if cache is None:
+            cache = self._queues[id(queue)] = QueueDecodes(queue, self.receivers)
+        return cache
 
     def shared(self, key: object, build: Callable[[], _T]) -> _T:
         """What every unit works out alike from ``key`` (a listen queue, say), built once by
@@ -84,9 +118,7 @@ class SharedQueues:
         word, channel index and margin, as columns. ``read(q0, q1)`` decodes positions
         [q0, q1) for every receiver at once; each position is read once, and kept until
         every listening unit has taken it (``passed``)."""
-        cache = self._queues.get(id(queue))
-        if cache is None:
-            cache = self._queues[id(queue)] = QueueDecodes(queue, self.receivers)
+        cache = self._cache(queue)
         parts = [
             cache.rows(c, lo, hi, read, i)
             for c in range(lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK + 1)
