@@ -502,7 +502,9 @@ def test_each_queued_code_is_read_once_for_every_unit_and_dropped_when_all_passe
     sc = parse_scenario(text, "<chunks>")
     whole = run_group(sc, "memory", MemoryRecorder()).summary
     monkeypatch.setattr(queues, "QUEUE_CHUNK", 8)
-    monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)  # several batches in this short run
+    # several batches in this short run
+    monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)
+    monkeypatch.setattr(unit_module, "LOGGED_BATCH_SECONDS", 4.0)
     reads: list[int] = []
     held: list[int] = []
     fill = queues.QueueDecodes.fill

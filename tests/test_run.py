@@ -756,6 +756,7 @@ def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monk
 
     # batches of 4 s: a short run's units wake several times (at a minute, once)
     monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)
+    monkeypatch.setattr(unit_module, "LOGGED_BATCH_SECONDS", 4.0)
 
     sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
     logs, offered = [], []

@@ -62,6 +62,10 @@ KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction 
 # 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units (at 60 s, 300
 # units hold the same memory as at 20 s, and at 120 s more: docs/engine.md)
 BATCH_SECONDS = 60.0
+# with a log, what a batch holds for it (its decodes, the blocks of spikes handed meanwhile)
+# grows with the batch, while the run's time goes to the log: 300 units with their log peak
+# about 90 MB lower at 20 s, for a tenth more time
+LOGGED_BATCH_SECONDS = 20.0
 
 
 def protocol_of(sc: Scenario, name: str) -> ProtocolState:
@@ -128,7 +132,8 @@ class AutonomousUnit:
         self.limit = sample_of(min(stop or math.inf, sc.timing.max_seconds), self.tau)
         self.timers = Timers()
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
-        self._batch_span = max(1, sample_of(BATCH_SECONDS, self.tau))
+        self._batch_seconds = LOGGED_BATCH_SECONDS if recorder.enabled else BATCH_SECONDS
+        self._batch_span = max(1, sample_of(self._batch_seconds, self.tau))
         self.log = UnitLog(name, recorder, self.tau, self.units, self._holds_spikes)
         self.transmitter = Transmitter(sc.codebook, dict(sc.frequencies), self.tau, self.log)
         self.listening = Listening(
@@ -170,7 +175,8 @@ class AutonomousUnit:
             # a batch's listens read at its wake reach back a batch more; the concurrent
             # schedule's are read as they are heard (``Listening.expect_queue``)
             keep=sample_of(
-                KEEP_SECONDS + (0.0 if sc.schedule == "concurrent" else BATCH_SECONDS), self.tau
+                KEEP_SECONDS + (0.0 if sc.schedule == "concurrent" else self._batch_seconds),
+                self.tau,
             ),
             arrival=sc.channel.arrivals(self.units, self.name, self.tau)
             if sc.channel.timed
