@@ -194,3 +194,30 @@ def test_a_history_that_outgrows_its_buffer_keeps_every_value_it_holds():
                 got = hist.values(np.array(held), 0, receiver)
                 assert got.tolist() == [stored[r][receiver] for r in held]
         assert hist._buf_rows.size <= 4 * max(16, most + 5)  # a few times the most held
+
+
+def test_a_read_of_receivers_alike_reads_the_first_alone():
+    """``gather_distinct``: each distinct receiver's values once and each receiver's set, the
+    same as ``gather`` sorted into sets, whether the rows read hold values that differ
+    between receivers or not (then only the first receiver's are read); -0.0 and 0.0 count
+    as different, as the bytes do."""
+    rng = np.random.default_rng(9)
+    hist = ReadoutHistory(3, capacity=1000, receivers=4)
+    same = rng.normal(size=(20, 1, 3)).repeat(4, axis=1)  # rows 0..19: every receiver alike
+    mixed = rng.normal(size=(20, 4, 3))
+    mixed[:, 2] = mixed[:, 0]  # receivers 0 and 2 alike
+    signed = np.zeros((1, 4, 3))
+    signed[0, 1] = -0.0  # bit for bit different
+    hist.store(0, 20, np.arange(20), same)
+    hist.store(20, 20, np.arange(20, 40), mixed)
+    hist.store(40, 1, np.array([40]), signed)
+    hist.store(41, 10, np.zeros(0, dtype=np.int64), np.zeros((0, 4, 3)))
+    for span in ((0, 19), (3, 30), (25, 39), (38, 45), (44, 50)):
+        idx = rng.integers(span[0], span[1] + 1, size=(7, 3))
+        chans = rng.integers(0, 3, size=7)
+        every = hist.gather(idx, chans)
+        values, which = hist.gather_distinct(idx, chans)
+        assert np.array_equal(values[which], every)
+        assert len({every[r].tobytes() for r in range(4)}) == len(values)
+        if span[1] < 20 or span[0] > 40:  # rows whose receivers are alike (or silence)
+            assert len(values) == 1

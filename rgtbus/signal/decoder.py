@@ -82,6 +82,9 @@ class ReadoutHistory:
         # channels' values agree to the readout's rounding (1e-12).
         self._buf_rows = np.zeros(16, dtype=np.int64)
         self._buf_vals = np.zeros((16, receivers, 1))
+        # per row: whether its receivers' values differ (bit for bit); where none of the rows
+        # a read touches does, every receiver reads what the first does (``gather_distinct``)
+        self._buf_mixed = np.zeros(16, dtype=bool)
         self._lo = self._hi = 0
         self._end = 0  # absolute index one past the newest sample
 
@@ -102,6 +105,7 @@ class ReadoutHistory:
                 # in place: a new buffer beside the old one would hold the history twice
                 # (n receivers' values a row: the largest array of a large run)
                 self._buf_rows[:live] = self._buf_rows[self._lo : self._hi].copy()
+                self._buf_mixed[:live] = self._buf_mixed[self._lo : self._hi].copy()
                 for a in range(0, live, _MOVE_ROWS):  # in pieces: no copy of it all at once
                     b = min(live, a + _MOVE_ROWS)
                     self._buf_vals[a:b] = self._buf_vals[self._lo + a : self._lo + b]
@@ -111,12 +115,18 @@ class ReadoutHistory:
                     size *= 2
                 new_rows = np.zeros(size, dtype=np.int64)
                 new_vals = np.zeros((size, *self._buf_vals.shape[1:]))
+                new_mixed = np.zeros(size, dtype=bool)
                 new_rows[:live] = self._buf_rows[self._lo : self._hi]
                 new_vals[:live] = self._buf_vals[self._lo : self._hi]
+                new_mixed[:live] = self._buf_mixed[self._lo : self._hi]
                 self._buf_rows, self._buf_vals = new_rows, new_vals
+                self._buf_mixed = new_mixed
                 self._lo, self._hi = 0, live
         self._buf_rows[self._hi : self._hi + k] = rows
-        self._buf_vals[self._hi : self._hi + k] = values
+        vals = self._buf_vals[self._hi : self._hi + k]
+        vals[...] = values
+        bits = vals.reshape(k, -1).view(np.int64)
+        self._buf_mixed[self._hi : self._hi + k] = (bits != bits[:, :1]).any(axis=1)
         self._hi += k
 
     @classmethod
@@ -200,6 +210,30 @@ class ReadoutHistory:
         for w in range(1, self.window):
             got = got + read_rows(self._rows, self._vals, idx + w, chans)
         return got
+
+    def gather_distinct(
+        self, indices: np.ndarray, channels: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``gather``'s values, each distinct receiver's once (bit for bit): (S, M, N), and
+        each receiver's set, an index into them (R,). Where no row the read touches holds
+        values that differ between receivers (a medium without noise heard through equal
+        gains), only the first receiver's are read."""
+        idx = np.ascontiguousarray(indices, dtype=np.int64)
+        if idx.size and self.receivers > 1:
+            lo, hi = int(idx.min()), int(idx.max()) + self.window - 1
+            self._check(idx, (lo, hi))
+            rows = self._rows
+            a, b = int(rows.searchsorted(lo)), int(rows.searchsorted(hi, side="right"))
+            if not self._buf_mixed[self._lo + a : self._lo + b].any():
+                first = np.ascontiguousarray(self._vals[:, :1])
+                chans = np.zeros(np.asarray(channels).shape, dtype=np.int64)
+                got: np.ndarray = read_rows(rows, first, idx, chans)
+                for w in range(1, self.window):
+                    got = got + read_rows(rows, first, idx + w, chans)
+                return got, np.zeros(self.receivers, dtype=np.int64)
+        every = self.gather(idx, channels)
+        firsts, which = _distinct(every)
+        return every[firsts], which
 
     def _find(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where each sample's readout is kept (clipped), and whether it is (else it reads 0)."""
@@ -420,10 +454,11 @@ def nearest_many_columns(
     P, M, N = instants.shape
     names, mat = word_matrix(words, N, "decode")
     order = in_order(mat.shape[0]) if rank == "order" else alphabetical(names)
-    every = history.gather(instants.reshape(P * M, N), channels.reshape(P * M))  # (R, P·M, N)
-    firsts, which = _distinct(every)
-    got = nearest_words(every[firsts].reshape(firsts.size * P, M, N), mat, order)
-    back = (firsts.size, P)
+    # each distinct receiver's values (S, P·M, N), and each receiver's set
+    values, which = history.gather_distinct(instants.reshape(P * M, N), channels.reshape(P * M))
+    S = values.shape[0]
+    got = nearest_words(values.reshape(S * P, M, N), mat, order)
+    back = (S, P)
     return (
         got.row.reshape(back)[which].T,
         got.word.reshape(back)[which].T,
