@@ -13,6 +13,7 @@ it takes on its own. The same decodes either way (tested).
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -38,6 +39,7 @@ from rgtbus.signal.resonator import clean_first_spike
 from rgtbus.summary import SentTruth, decode_error, wrong_decodes
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
+from rgtbus.timebase import samples_of
 
 if TYPE_CHECKING:
     from rgtbus.engine.hearing import Ears
@@ -523,6 +525,9 @@ class Listening:
             )
             return maps[family][w], c, m
 
+        periods = np.array([2 * math.pi / w for w in self.omegas])  # as pulse_samples makes T
+        pulse_index = np.arange(cb.pulses)[None, :]
+
         def read_block(q0: int, q1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             """Positions [q0, q1) for every receiver, (positions × receivers) each: the codes
             of one kind and number of candidates decoded in one vectorised step (the same
@@ -533,34 +538,37 @@ class Listening:
             chan = np.empty((q1 - q0, R), dtype=np.int64)
             margin = np.empty((q1 - q0, R))
             end = ears.readout.end
-            groups: dict[tuple[str, int], tuple[list[int], list[Any], list[Any]]] = {}
-            for q, k, c, t0 in zip(
-                range(q0, q1),
-                kind[q0:q1].tolist(),
-                channel[q0:q1].tolist(),
-                start[q0:q1].tolist(),
-                strict=True,
-            ):
-                if k == _ID:
-                    family = "id"
-                    inst = np.array([code_samples(t0, self.omegas[c], cb.pulses, tau)])
-                    chans = np.array([c], dtype=np.int64)
-                else:
-                    family = "relation" if k == _RELATION else "alternative"
-                    chans, inst = code_candidates(c, float(omegas[c]), t0, cb.pulses, tau, search)
+            groups: dict[tuple[str, int], tuple[list[Any], list[Any], list[Any]]] = {}
+            ks, cs, ts = kind[q0:q1], channel[q0:q1], start[q0:q1]
+            # every ID of the block at once: pulse j at round((start + j·T)/τ), T = 2π/ω
+            # (``pulse_samples``, the same float operations in the same order)
+            ids = np.flatnonzero(ks == _ID)
+            id_inst = samples_of(ts[ids, None] + pulse_index * periods[cs[ids], None], tau)
+            heard = id_inst[:, -1] < end
+            if heard.any():
+                at = ids[heard]
+                groups[("id", 1)] = ([at], [id_inst[heard, None, :]], [cs[at, None]])
+            late = ids[~heard].tolist()
+            for q in late:  # past what has been heard: read alone
+                word[q], chan[q], margin[q] = read(q0 + q)
+            for q in np.flatnonzero(ks != _ID).tolist():
+                k, c, t0 = int(ks[q]), int(cs[q]), float(ts[q])
+                family = "relation" if k == _RELATION else "alternative"
+                chans, inst = code_candidates(c, float(omegas[c]), t0, cb.pulses, tau, search)
                 if int(inst[:, -1].max()) >= end:
-                    word[q - q0], chan[q - q0], margin[q - q0] = read(q)
+                    word[q], chan[q], margin[q] = read(q0 + q)
                     continue
-                at, insts, chs = groups.setdefault((family, inst.shape[0]), ([], [], []))
-                at.append(q - q0)
-                insts.append(inst)
-                chs.append(chans)
-            for (family, _), (at, insts, chs) in groups.items():
+                at_, insts, chs = groups.setdefault((family, inst.shape[0]), ([], [], []))
+                at_.append(q)
+                insts.append(inst[None])
+                chs.append(chans[None])
+            for (family, _), (ats, insts, chs) in groups.items():
                 words = self.id_words if family == "id" else self.families[family]
-                cands = np.stack(chs)
+                cands = np.concatenate(chs)
+                at = np.concatenate(ats) if family == "id" else np.array(ats, dtype=np.int64)
                 row, w, m = nearest_many_columns(
                     ears.readout,
-                    np.stack(insts),
+                    np.concatenate(insts),
                     cands,
                     words,
                     "name" if family == "id" else "order",
