@@ -540,6 +540,20 @@ def test_spike_records_are_columns_one_entry_a_spike():
         assert m["samples"][-1] < (m["sample"] // 200 + 1) * 200  # one block
 
 
+def _judged_alike(cols, rows, truth):
+    """The errors of a unit's decodes held as columns, checked against the same decodes
+    judged as rows, and against the columns pickled (a unit process's report: its runs go
+    as rows, their queue stays behind)."""
+    from rgtbus.summary import wrong_decodes
+
+    got = wrong_decodes("u", cols, truth)
+    assert got == wrong_decodes("u", [list(r) for r in rows], truth)
+    again = pickle.loads(pickle.dumps(cols))
+    assert list(again) == list(cols) and len(again) == len(cols)
+    assert wrong_decodes("u", again, truth) == got
+    return got
+
+
 def test_wrong_decodes_judge_columns_as_rows():
     """The summary judges a unit's decodes held as columns (a live run) in one vectorised
     step, and rows (read from a log) one by one: the same errors, in decode order."""
@@ -566,12 +580,7 @@ def test_wrong_decodes_judge_columns_as_rows():
     cols = DecodeColumns()
     for row in rows:
         cols.append(*row)
-    got = wrong_decodes("u", cols, truth)
-    assert got == wrong_decodes("u", [list(r) for r in rows], truth)
-    # a unit process's report is pickled: its runs go as rows (their queue stays behind)
-    again = pickle.loads(pickle.dumps(cols))
-    assert list(again) == list(cols) and len(again) == len(cols)
-    assert wrong_decodes("u", again, truth) == got
+    got = _judged_alike(cols, rows, truth)
     assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
         (0, "conflict", "alliance"),
         (1, "alliance", "id"),
@@ -635,12 +644,7 @@ def test_a_units_batches_are_judged_as_the_same_decodes_held_as_rows():
             cols.append(*loose)
             rows.append(loose)
     assert len(cols) == len(rows) and list(cols) == [r for r in rows if r[1::2] != ("id", "id")]
-    got = wrong_decodes("u", cols, truth)
-    assert got == wrong_decodes("u", [list(r) for r in rows], truth)
-    # a unit process's report is pickled: its runs go as rows (their queue stays behind)
-    again = pickle.loads(pickle.dumps(cols))
-    assert list(again) == list(cols) and len(again) == len(cols)
-    assert wrong_decodes("u", again, truth) == got
+    got = _judged_alike(cols, rows, truth)
     assert [(e["turn"], e["decoded"], e["sent"]) for e in got] == [
         (0, "conflict", "alliance"), (2, "alliance", "{go}"), (3, "{go}", "{go}")
     ]  # fmt: skip
