@@ -395,26 +395,37 @@ def decode_errors_left(
     was sent (a repair's copy read right, ``[protocol] repair``; or, for a misread ID, the
     payload read right all the same). What ``--check`` judges: what the run decided on."""
     sent_truth = _sent_truth(reports)
-    right = {r["unit"]: _payloads_read_right(r["decodes"], sent_truth) for r in reports}
+    asked: dict[str, set[int]] = {}  # per unit, the turns of its errors
+    for e in errors:
+        asked.setdefault(e["unit"], set()).add(e["turn"])
+    right = {
+        r["unit"]: _payloads_read_right(r["decodes"], sent_truth, asked[r["unit"]])
+        for r in reports
+        if r["unit"] in asked
+    }
     return sum(1 for e in errors if e["turn"] not in right.get(e["unit"], set()))
 
 
 def _payloads_read_right(
-    decodes: Iterable[Sequence[Any]] | DecodeArrays, truth: SentTruth
+    decodes: Iterable[Sequence[Any]] | DecodeArrays, truth: SentTruth, turns_asked: set[int]
 ) -> set[int]:
-    """The turns whose payload the unit last read as it was sent (code and addressee)."""
+    """Which of ``turns_asked`` have their payload last read by the unit as it was sent (code
+    and addressee); the decodes of other turns are not looked at (held as columns, a large
+    run's are n² a unit)."""
     last: dict[int, bool] = {}
     arrays = getattr(decodes, "arrays", None)
     sent_of = truth.sent
     if arrays is None:
         for turn, kind, addressee, code in cast(Iterable[Sequence[Any]], decodes):
             key = (turn, "payload")
-            if kind != "id" and key in sent_of:
+            if turn in turns_asked and kind != "id" and key in sent_of:
                 sent_to, sent = sent_of[key]
                 last[turn] = not is_wrong_decode(kind, code, addressee, sent, sent_to)
         return {t for t, ok in last.items() if ok}
     turns, what, rows = arrays()
-    for i, t in enumerate(turns.tolist()):  # in decode order: the last read of a turn wins
+    asked = np.array(sorted(t for t in turns_asked if t is not None), dtype=np.int64)
+    at = np.flatnonzero(np.isin(turns, asked))
+    for i, t in zip(at.tolist(), turns[at].tolist(), strict=True):  # the last read wins
         kind, addressee, code = rows[what[i]]
         key = (int(t), "payload")
         if kind != "id" and key in sent_of:
