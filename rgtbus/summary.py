@@ -32,7 +32,8 @@ Fields beyond the tables and decisions:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from array import array
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypedDict, TypeVar, cast
 
@@ -369,12 +370,60 @@ def summarise(
 
 
 def _sent_truth(reports: Sequence[Mapping[str, Any]]) -> SentTruth:
-    """The ground truth of decode errors: every report's sends, per (turn, kind)."""
-    truth = {}
+    """The ground truth of decode errors: every report's sends, per (turn, kind) (the last
+    send of a key counts), held as arrays by turn: a run of n units sends 4n(n−1) codes, and
+    a dict of tuples held about 190 bytes a send."""
+    truth = SentTruth({})
+    number = truth.number
+    turns, classes, to, codes = array("q"), array("q"), array("q"), array("q")
+    other: dict[tuple[int, str], tuple[str, str]] = {}
     for r in reports:
         for turn, kind, addressee, code in r["sends"]:
-            truth[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-    return SentTruth(truth)
+            if isinstance(turn, int) and turn >= 0:
+                turns.append(turn)
+                classes.append(kind != "id")
+                to.append(number(addressee))
+                codes.append(number(code))
+            else:  # not a turn of the arrays: looked up as it is
+                other[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+    t, c = np.frombuffer(turns, dtype=np.int64), np.frombuffer(classes, dtype=np.int64)
+    span = int(t.max()) + 1 if t.size else 0
+    known = np.zeros((2, span), dtype=bool)
+    to_of = np.full((2, span), -1)
+    code_of = np.full((2, span), -1)
+    known[c, t] = True
+    to_of[c, t] = np.frombuffer(to, dtype=np.int64)  # in order: the last send of a key wins
+    code_of[c, t] = np.frombuffer(codes, dtype=np.int64)
+    truth._arrays = (known, to_of, code_of)
+    truth.sent = _SentByTurn(truth, other)
+    return truth
+
+
+class _SentByTurn(Mapping[tuple[int, str], tuple[str, str]]):
+    """``SentTruth.sent`` read from its arrays: (turn, "id" | "payload") -> (addressee, code)."""
+
+    def __init__(self, truth: SentTruth, other: dict[tuple[int, str], tuple[str, str]]) -> None:
+        self._arrays = truth.arrays()
+        self._names = list(truth.names)  # a number's text
+        self._other = other
+
+    def __getitem__(self, key: tuple[int, str]) -> tuple[str, str]:
+        known, to_of, code_of = self._arrays
+        turn, cls = key
+        if isinstance(turn, int) and 0 <= turn < known.shape[1] and cls in ("id", "payload"):
+            c = int(cls != "id")
+            if known[c, turn]:
+                return self._names[to_of[c, turn]], self._names[code_of[c, turn]]
+        return self._other[key]
+
+    def __iter__(self) -> Iterator[tuple[int, str]]:
+        cls, turn = np.nonzero(self._arrays[0])
+        for c, t in zip(cls.tolist(), turn.tolist(), strict=True):
+            yield (t, "payload" if c else "id")
+        yield from self._other
+
+    def __len__(self) -> int:
+        return int(self._arrays[0].sum()) + len(self._other)
 
 
 def all_wrong_decodes(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:

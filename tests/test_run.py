@@ -826,3 +826,32 @@ def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name, watch
         assert got == want and all(t == round(m["t"] * 1e9) for t, m in pulses)
         lines = [m for tp, _, m in rec.messages if tp == "/log" and m["name"] == unit.name]
         assert sum(" -> " in m["message"] for m in lines) == len(unit.sent)
+
+
+def test_the_truth_of_sends_is_held_as_arrays_and_read_as_a_mapping():
+    """A run's sends, the ground truth of its decode errors, are held by turn as arrays; read
+    as a mapping they are every (turn, kind) -> (addressee, code), the last send of a key
+    counting, as a dict of them would be; a key that is no turn is kept as it is."""
+    from rgtbus.summary import SentTruth, _sent_truth, wrong_decodes
+
+    reports = [
+        {"sends": [[0, "id", "b", "id"], [0, "payload", "b", "alliance"],
+                   [3, "repeat", "c", "{go}"]]},
+        {"sends": [[2, "id", "a", "id"], [2, "payload", "a", "{go}"],
+                   [0, "payload", "b", "conflict"]]},  # turn 0's payload again: the last counts
+        {"sends": [[-1, "payload", "a", "odd"]]},
+    ]  # fmt: skip
+    want = {}
+    for r in reports:
+        for turn, kind, addressee, code in r["sends"]:
+            want[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+    truth = _sent_truth(reports)
+    assert dict(truth.sent) == want and len(truth.sent) == len(want)
+    assert (0, "payload") in truth.sent and (1, "id") not in truth.sent
+    rows = [
+        (0, "relation", "b", "alliance"),
+        (2, "influence", "a", "{go}"),
+        (3, "influence", "c", "x"),
+    ]
+    assert wrong_decodes("u", rows, truth) == wrong_decodes("u", rows, SentTruth(want))
+    assert [e["turn"] for e in wrong_decodes("u", rows, truth)] == [0, 3]
