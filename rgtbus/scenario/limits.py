@@ -48,12 +48,12 @@ RUN_HOURS = 1.0
 # Calibrated against benchmarks.bench_scale --scale-sizes 50,100,200,300 (docs/engine.md, "What
 # it costs"): one process running the whole group with its log, on a 2-core machine. Peak
 # memory: RUN_BASE_MB, plus RUN_MEMORY_MB at 10⁸ decodes, growing as decodes^RUN_MEMORY_EXPONENT
-# (measured 89, 186, 578 and 1,292 MB at n = 50, 100, 200, 300; 3,841 MB at n = 500 without
-# the log); wall time RUN_SECONDS_PER_DECODE a decode (2.4, 11, 65 and 234 s).
+# (measured 87, 147, 405 and 820 MB at n = 50, 100, 200, 300; 2,031 MB at n = 500 without the
+# log); wall time RUN_SECONDS_PER_DECODE a decode (1.3, 6.0, 37.6 and 126.7 s: the log's).
 RUN_BASE_MB = 50.0
-RUN_MEMORY_MB = 1175.0
-RUN_MEMORY_EXPONENT = 0.75
-RUN_SECONDS_PER_DECODE = 2.5e-6
+RUN_MEMORY_MB = 735.0
+RUN_MEMORY_EXPONENT = 0.64
+RUN_SECONDS_PER_DECODE = 1.2e-6
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).

@@ -94,16 +94,17 @@ def gate_with(old: str, new: str) -> str:
             "timing.sample_rate",
             "about 1e+06 samples a bus window (window × sample_rate), beyond the budget of 1e+05",
         ),
-        # beyond the free memory and the hour (where 16 units x 1000 rounds now fit)
+        # beyond the free memory and the hour (where 16 units x 1000 rounds, and 100 units x
+        # 1000 rounds in 40 min, now fit)
         (
-            group(100, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
+            group(200, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
             "protocol.influence_rounds",
-            "1000 rounds of 100 units: about ",  # the figures: below
+            "1000 rounds of 200 units: about ",  # the figures: below
         ),
         (
-            group(100, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
+            group(200, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000'),
             "protocol.influence_rounds",
-            "of wall time (1.98e+09 decodes), more than the memory this machine has free "
+            "of wall time (1.59e+10 decodes), more than the memory this machine has free "
             "(8,192 MB)",
         ),
         # MemoryError after 27 s
@@ -113,7 +114,7 @@ def gate_with(old: str, new: str) -> str:
             "h of wall time (4e+12 decodes), more than the memory this machine has free (8,192 MB) "
             "and more than an hour",
         ),
-        # 7.7 GB and rising before; 1,000 units would now take 24 GB and 100 min
+        # 7.7 GB and rising before; 1,000 units would now take 7.8 GB and 80 min
         (
             group(1000, '[protocol]\nschedule = "concurrent"'),
             "units",
@@ -178,7 +179,7 @@ def test_a_group_is_refused_only_beyond_the_free_memory_or_an_hour(monkeypatch):
     assert "RGTBUS_BUDGET=large" in why and "min of wall time" in why
     monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: None)  # unknown: the hour only
     assert limits_mod.over_run_budget(300, 1) is None
-    assert "more than an hour" in (limits_mod.over_run_budget(800, 1) or "")
+    assert "more than an hour" in (limits_mod.over_run_budget(1000, 1) or "")
 
 
 def test_a_large_budget_is_asked_for_by_name(monkeypatch):
@@ -301,10 +302,10 @@ def no_plan_work(monkeypatch):
         # 14 GB in 20 s
         (["4", "--sample-rate", "1e12"], "--sample-rate 1e+12: a run of this plan: about 3.6e+15"),
         # 9.6 GB after 10 minutes (and the concurrent schedule's placement, n³)
-        (["10000"], "N = 10000: a run of this plan: about 3.25e+03 GB at its peak"),
+        (["10000"], "N = 10000: a run of this plan: about 633 GB at its peak"),
         (["10000", "--schedule", "concurrent"], "(4e+12 decodes), more than the memory this"),
         # StopIteration
-        (["1000000"], "N = 1000000: a run of this plan: about 1.03e+08 GB at its peak"),
+        (["1000000"], "N = 1000000: a run of this plan: about 4.38e+06 GB at its peak"),
         # ZeroDivisionError
         (["4", "--sample-rate", "inf"], "--sample-rate inf: must be a positive finite number"),
         (["4", "--sample-rate", "nan"], "--sample-rate nan: must be a positive finite number"),
