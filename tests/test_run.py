@@ -18,7 +18,7 @@ from rgtbus.cli import main
 from rgtbus.mind import choose_relations
 from rgtbus.scenario import Timing, load_scenario, parse_scenario
 from rgtbus.summary import check_expectations
-from rgtbus.telemetry import McapRecorder, MemoryRecorder, read_log, records
+from rgtbus.telemetry import McapRecorder, MemoryRecorder, NullRecorder, read_log, records
 from rgtbus.telemetry.recorder import encode_json
 
 ROOT = Path(__file__).parent.parent
@@ -855,3 +855,17 @@ def test_the_truth_of_sends_is_held_as_arrays_and_read_as_a_mapping():
     ]
     assert wrong_decodes("u", rows, truth) == wrong_decodes("u", rows, SentTruth(want))
     assert [e["turn"] for e in wrong_decodes("u", rows, truth)] == [0, 3]
+
+
+def test_a_units_report_reads_its_sends_as_rows():
+    """The summary's report of a unit reads its sends as rows as they are iterated (not a
+    second copy of a group's 4n(n−1) sends): the rows of its ``/unit/report`` record, by index
+    and slice, as JSON lists, and pickled as the list of them."""
+    sc = load_scenario(ROOT / "scenarios" / "group6.toml")
+    out = run_group(sc, "memory", NullRecorder())
+    for unit, report in zip(out.units, out.reports, strict=True):
+        rows = report["sends"]
+        want = unit.report_record()["sends"]
+        assert list(rows) == want and len(rows) == len(want) and rows == want
+        assert rows[0] == want[0] and rows[1:3] == want[1:3] and rows.tolist() == want
+        assert pickle.loads(pickle.dumps(rows)) == want

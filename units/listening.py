@@ -582,27 +582,35 @@ class Listening:
         rounds = np.array([t.round for t in schedule], dtype=np.int64)
         rnd = rounds[turn]
         slot = sender * n + expected
-        payload = kind != _ID
-        tables = np.stack([kind, np.where(kind == _INFLUENCE, rnd, 0), slot])[:, payload]
+        # a (kind, round, slot) of a payload twice: a batch could not set each slot once
+        table_key = (np.where(kind == _INFLUENCE, rnd, 0) * 3 + kind) * (n * n) + slot
+        unique = np.unique(table_key[kind != _ID]).size == int(np.count_nonzero(kind != _ID))
+        # 4-byte columns where every value fits (4n(n−1) positions: 16 MB a column at n = 500)
+        what = (kind * n + expected) * len(names)
+        fits = max(n * n, int(what.max(initial=0)) + len(names), len(kind) + 1) < 2**31
+
+        def small(col: np.ndarray) -> np.ndarray:
+            return col.astype(np.int32) if fits else col
+
         return QueueReads(
             bounds=queue.boundaries,
             seq=queue.order,
-            kind=kind,
-            turn=turn,
-            sender=sender,
-            expected=expected,
-            slot=slot,
-            rnd=rnd,
+            kind=small(kind),
+            turn=small(turn),
+            sender=small(sender),
+            expected=small(expected),
+            slot=small(slot),
+            rnd=small(rnd),
             t_ready=queue.ready[due] * tau,
             is_id=kind == _ID,
             is_rel=kind == _RELATION,
             is_inf=kind == _INFLUENCE,
-            n_rel=np.concatenate(([0], np.cumsum(kind == _RELATION))),
-            n_inf=np.concatenate(([0], np.cumsum(kind == _INFLUENCE))),
-            n_pay=np.concatenate(([0], np.cumsum(kind != _ID))),
-            unique=np.unique(tables, axis=1).shape[1] == tables.shape[1],
-            what=(kind * n + expected) * len(names),
-            channel=channel,
+            n_rel=small(np.concatenate(([0], np.cumsum(kind == _RELATION)))),
+            n_inf=small(np.concatenate(([0], np.cumsum(kind == _INFLUENCE)))),
+            n_pay=small(np.concatenate(([0], np.cumsum(kind != _ID)))),
+            unique=unique,
+            what=small(what),
+            channel=small(channel),
             names=names,
             alliance=np.array([nm == "alliance" for nm in names], dtype=np.int64),
             value=np.array(value, dtype=np.int64),

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any
+from collections.abc import Iterator, Sequence
+from typing import TYPE_CHECKING, Any, overload
 
 import simpy
 import simpy.rt
@@ -580,7 +581,7 @@ class AutonomousUnit:
             "influences": mind.influence_table(),
             "result": result_fields(mind),
             "decisions": list(self.decisions),
-            "sends": [[s.turn, s.kind, s.addressee, s.code] for s in self.sent],
+            "sends": [_send_row(s) for s in self.sent],
             "sent_influences": influences_sent(self.sent, self.protocol, self.scenario),
             "failure": self.failure,
             "failed_at": self.done_at if self.failure else None,
@@ -596,8 +597,52 @@ class AutonomousUnit:
         record and its decodes."""
         return {
             **self.report_record(),
+            # read from its sends as they are iterated: a group's 4n(n−1) sends, not held twice
+            "sends": SendRows(self.sent),
             "decodes": self.decoded,  # columns (DecodeColumns): iterates as rows
         }
+
+
+class SendRows(Sequence[list[Any]]):
+    """A unit's sends as its report's rows, ``[turn, kind, addressee, code]``, made as they
+    are read; pickled (a unit process's report) as the list of them."""
+
+    __slots__ = ("_sent",)
+
+    def __init__(self, sent: Sequence[Send]) -> None:
+        self._sent = sent
+
+    def __len__(self) -> int:
+        return len(self._sent)
+
+    @overload
+    def __getitem__(self, i: int) -> list[Any]: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[list[Any]]: ...
+    def __getitem__(self, i: int | slice) -> list[Any] | list[list[Any]]:
+        if isinstance(i, slice):
+            return [_send_row(s) for s in self._sent[i]]
+        return _send_row(self._sent[i])
+
+    def __iter__(self) -> Iterator[list[Any]]:
+        return (_send_row(s) for s in self._sent)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Sequence) and list(self) == list(other)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def tolist(self) -> list[list[Any]]:
+        """Every row, as a list (for JSON)."""
+        return list(self)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (list, (list(self),))
+
+
+def _send_row(s: Send) -> list[Any]:
+    """A send as a row of a unit's report (``/unit/report``'s ``sends``)."""
+    return [s.turn, s.kind, s.addressee, s.code]
 
 
 def decision_records(
