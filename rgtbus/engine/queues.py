@@ -54,15 +54,6 @@ class QueueDecodes:
             word[k:b], chan[k:b], margin[k:b] = read(base + k, base + b)
             self.filled = base + b
 
-    def rows(self, c: int, lo: int, hi: int, read: QueueRead, i: int) -> Columns:
-        """Receiver ``i``'s decodes of positions [lo, hi) within chunk ``c`` (read up to
-        ``hi`` for every receiver first, in order)."""
-        self.fill(hi, read)
-        word, chan, margin = self.chunks[c]
-        base = c * QUEUE_CHUNK
-        a, b = max(lo, base) - base, min(hi, base + QUEUE_CHUNK) - base
-        return word[a:b, i], chan[a:b, i], margin[a:b, i]
-
     def forget(self, low: int) -> None:
         """Drop the chunks every listening unit has passed (``low``: the least cursor)."""
         for c in [c for c in self.chunks if (c + 1) * QUEUE_CHUNK <= low]:
@@ -119,15 +110,25 @@ class SharedQueues:
         [q0, q1) for every receiver at once; each position is read once, and kept until
         every listening unit has taken it (``passed``)."""
         cache = self._cache(queue)
-        parts = [
-            cache.rows(c, lo, hi, read, i)
-            for c in range(lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK + 1)
-        ]
+        cache.fill(hi, read)
+        first, last = lo // QUEUE_CHUNK, (hi - 1) // QUEUE_CHUNK
         self.passed(i, queue, lo)
-        if len(parts) == 1:
-            return parts[0]
-        word, chan, margin = zip(*parts, strict=True)
-        return np.concatenate(word), np.concatenate(chan), np.concatenate(margin)
+        chunks = cache.chunks
+        if first == last:
+            word, chan, margin = chunks[first]
+            a, b = lo - first * QUEUE_CHUNK, hi - first * QUEUE_CHUNK
+            return word[a:b, i], chan[a:b, i], margin[a:b, i]
+        out: Columns = (  # receiver i's column of each chunk, into one array each
+            np.empty(hi - lo, dtype=np.int32),
+            np.empty(hi - lo, dtype=np.int32),
+            np.empty(hi - lo),
+        )
+        for c in range(first, last + 1):
+            base = c * QUEUE_CHUNK
+            a, b = max(lo, base), min(hi, base + QUEUE_CHUNK)
+            for col, part in zip(out, chunks[c], strict=True):
+                col[a - lo : b - lo] = part[a - base : b - base, i]
+        return out
 
     def passed(self, i: int, queue: object, q: int) -> None:
         """Unit ``i`` has taken every position of ``queue`` before ``q`` (it may ask again
