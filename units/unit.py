@@ -60,9 +60,9 @@ if TYPE_CHECKING:
 
 KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction + search)
 # a unit's decodes of this much time wait for one wake (no live view): a wake costs about
-# 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units (at 60 s, 300
-# units hold the same memory as at 20 s, and at 120 s more: docs/engine.md)
-BATCH_SECONDS = 60.0
+# 100 µs of Python, so at 4 s a 300-unit run spent a minute waking its units; 300 units run
+# in 20 s batching a minute, 18 s two minutes (16 MB more decoded codes held), 17 s four
+BATCH_SECONDS = 120.0
 # with a log, what a batch holds for it (its decodes, the blocks of spikes handed meanwhile)
 # grows with the batch, while the run's time goes to the log: 300 units with their log peak
 # at 869 MB batching a minute, 820 MB at 20 s, 758 MB at 10 s
