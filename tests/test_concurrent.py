@@ -148,3 +148,27 @@ def test_two_hundred_units_are_placed_without_a_shared_sample():
     for rnd in plan.timing()[:3]:
         samples = [k for q in rnd.placed for k in (*q.id_samples, *q.payload_samples)]
         assert len(samples) == len(set(samples))
+
+
+@pytest.mark.parametrize("omega", [0.5, 0.3])
+def test_slow_channels_codes_of_tens_of_seconds_are_read_whole(omega):
+    """A unit keeps its readout for its longest code as well as for how late a code may be
+    read (the concurrent schedule's, as the ears hear them whole: up to 10 s): channels of
+    0.3 rad/s make 3-pulse codes of 42 s, and every one is read, none refused as outside
+    the history."""
+    from rgtbus.telemetry import NullRecorder
+
+    text = f"""name = "slow"
+seed = 3
+units = ["a", "b", "c"]
+actions = ["alpha", "beta"]
+frequencies = {{ a = {omega}, b = {omega * 1.1:.4f}, c = {omega * 1.21:.4f} }}
+[protocol]
+schedule = "concurrent"
+[relations]
+policy = "random"
+[influences]
+policy = "random"
+"""
+    s = run_group(parse_scenario(text, "slow.toml"), "memory", NullRecorder()).summary
+    assert s["error"] is None and s["decode_errors"] == []

@@ -33,6 +33,7 @@ from rgtbus.units.timers import REPAIR_STEPS, Timer, Timers
 from rgtbus.units.transmitter import Transmitter
 
 from rgtbus.bus.payload import NEVER
+from rgtbus.engine.hearing import READ_AS_HEARD_SECONDS
 from rgtbus.engine.listener import Heard, Listener
 from rgtbus.mind import (
     Mind,
@@ -173,12 +174,7 @@ class AutonomousUnit:
             bursts=None
             if sc.channel.burst is None
             else BurstStates(sc.channel.burst, self.tau, burst_rng(sc.seed, me)),
-            # a batch's listens read at its wake reach back a batch more; the concurrent
-            # schedule's are read as they are heard (``Listening.expect_queue``)
-            keep=sample_of(
-                KEEP_SECONDS + (0.0 if sc.schedule == "concurrent" else self._batch_seconds),
-                self.tau,
-            ),
+            keep=sample_of(self._keep_seconds(), self.tau),
             arrival=sc.channel.arrivals(self.units, self.name, self.tau)
             if sc.channel.timed
             else None,
@@ -205,6 +201,16 @@ class AutonomousUnit:
         self._draw(0.0)
         self._apply(self.protocol.begin(self.relation_choice, self.influence_choice))
         self._ask()
+
+    def _keep_seconds(self) -> float:
+        """How far back its readout is kept: ``KEEP_SECONDS``, plus its longest code (slow
+        channels make codes of tens of seconds), plus how late a code may be read: a batch's
+        listens at its wake, the concurrent schedule's as the ears hear them whole
+        (``Listening.expect_queue``, at most ``READ_AS_HEARD_SECONDS`` late)."""
+        sc = self.scenario
+        longest = (sc.codebook.pulses - 1) * max(2 * math.pi / w for w in sc.frequencies.values())
+        late = READ_AS_HEARD_SECONDS if sc.schedule == "concurrent" else self._batch_seconds
+        return KEEP_SECONDS + longest + late
 
     def batching(self) -> bool:
         """Whether this unit may take its decodes a batch at a wake (``Timers.batch_end``):
