@@ -95,12 +95,15 @@ class Leaving:
     once that a member left)."""
 
     def __init__(self, s: zenoh.Session) -> None:
+        self.alive: list[str] = []
         self.gone: list[str] = []
         self.sub = s.liveliness().declare_subscriber(keys.every_unit(keys.ALIVE, RUN), self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.DELETE:
             self.gone.append(str(sample.key_expr))
+        else:
+            self.alive.append(str(sample.key_expr))
 
 
 def closes_and_is_seen_gone(c: zenoh.Session, leaving: Leaving, heard: Heard) -> None:
@@ -108,6 +111,9 @@ def closes_and_is_seen_gone(c: zenoh.Session, leaving: Leaving, heard: Heard) ->
     session watching sees its token end, through the access control."""
     token = c.liveliness().declare_token(keys.key(keys.ALIVE, RUN, "c"))
     forge_then_speak(c, heard)
+    # the token's route is up once the watcher has seen it: a token closed before that ends
+    # unseen (a race the test would lose now and then on a loaded machine)
+    assert until(lambda: keys.key(keys.ALIVE, RUN, "c") in leaving.alive), leaving.alive
     del token
     c.close()
     assert until(lambda: keys.key(keys.ALIVE, RUN, "c") in leaving.gone), leaving.gone
