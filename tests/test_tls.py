@@ -97,7 +97,11 @@ class Leaving:
     def __init__(self, s: zenoh.Session) -> None:
         self.alive: list[str] = []
         self.gone: list[str] = []
-        self.sub = s.liveliness().declare_subscriber(keys.every_unit(keys.ALIVE, RUN), self._on)
+        # history: the tokens already up when the router takes this subscription are reported
+        # too (without it, a token declared while the subscription is on its way is never seen)
+        self.sub = s.liveliness().declare_subscriber(
+            keys.every_unit(keys.ALIVE, RUN), self._on, history=True
+        )
 
     def _on(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.DELETE:

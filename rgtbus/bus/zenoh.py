@@ -555,8 +555,10 @@ class ZenohBus(QueueBus):
                     if s.kind == delete and key.startswith(alive_prefix):
                         gone(key[len(alive_prefix) :])
 
+                # history: a member's token that reached the router before this subscription
+                # did is reported too, so its end is seen (without it, such a token ends unseen)
                 self._alive_sub = liveliness.declare_subscriber(
-                    keys.every_unit(keys.ALIVE, self.run_id), on_token
+                    keys.every_unit(keys.ALIVE, self.run_id), on_token, history=True
                 )
         except Exception as e:  # presence is a shortcut: the run's timeout still holds
             self._notes.append(f"liveliness not declared: {e}")
