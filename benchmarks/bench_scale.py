@@ -3,6 +3,7 @@
     python -m benchmarks.bench_scale [--sizes 4,6,8,10,12,16,20] [--large 30,50,100]
                                      [--log-upto 50] [--ser-sizes 10,50] [--quick]
     python -m benchmarks.bench_scale --scale-sizes 50,100,200,300 [--repeat R] [--calls-upto 30]
+    python -m benchmarks.bench_scale --instructions 50,100   (needs valgrind)
 
 Every run is a fresh process (no cache of one run helps another) over the memory bus with the
 event engine. Groups of n units: a seeded decomposable group (relations policy cograph), random
@@ -21,14 +22,19 @@ n = 30, 1 above), peak RSS of both, a NumPy reference doing the run's necessary 
 per-sample resonator bank over the medium for every distinct receiver view, then a vectorised
 nearest-codeword decode of every code for every receiver) and the run's ratio to it, Python
 calls per pulse (cProfile, up to ``--calls-upto`` units), the fitted exponent of wall in n and
-the machine's load. Goals (issue 23, 2 cores): n = 100 concurrent with its full log under 20 s
-and 250 MB, n = 200 under 2 min and 1 GB; the run within 3x the NumPy reference at n = 50; log /
-no log <= 1.3x at n = 50; exponent of wall over n = 10...100 <= 3.0 (the decodes are n^3).
+the machine's load. ``--instructions`` prints the instructions (callgrind's Ir) of the run
+without a log and of the reference, each section counted alone in a process run under
+``valgrind --tool=callgrind --instr-atstart=no``: issue 38 asks for the run / reference ratio
+in instructions as well as in wall time. Goals (issue 23, 2 cores): n = 100 concurrent with its
+full log under 20 s and 250 MB, n = 200 under 2 min and 1 GB; the run within 3x the NumPy
+reference at n = 50; log / no log <= 1.3x at n = 50; exponent of wall over n = 10...100 <= 3.0
+(the decodes are n^3).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import itertools
 import json
@@ -40,6 +46,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -74,6 +81,39 @@ def scale_toml(n: int, schedule: str, seed: int = 11, noise: float = 0.0) -> str
     )
 
 
+class Callgrind:
+    """Instruction counts of marked sections of this process, when it runs under callgrind
+    started with ``--instr-atstart=no`` (``instructions``): each section is instrumented alone
+    and dumped under its label (``callgrind_control``); otherwise sections cost nothing."""
+
+    def __init__(self, active: bool) -> None:
+        self.active = active
+
+    def _control(self, *args: str) -> None:
+        subprocess.run(["callgrind_control", *args, str(os.getpid())], check=True,
+                       capture_output=True, timeout=600)  # fmt: skip
+
+    def start(self) -> None:
+        if self.active:
+            self._control("-i", "on")
+
+    def stop(self, label: str) -> None:
+        if self.active:
+            self._control("-d", label)  # a dump zeroes the counts: sections do not add up
+            self._control("-i", "off")
+
+    @contextlib.contextmanager
+    def section(self, label: str) -> Iterator[None]:
+        self.start()
+        try:
+            yield
+        finally:
+            self.stop(label)
+
+
+NO_COUNT = Callgrind(False)
+
+
 def medium_pulses(members: list[AutonomousUnit]) -> int:
     """Every pulse the run put on the medium (each send's samples, every unit)."""
     return sum(len(send.samples) for m in members for send in m.sent)
@@ -87,8 +127,10 @@ def one(
     *,
     log_file: bool = False,
     reference: bool = False,
+    count: Callgrind = NO_COUNT,
 ) -> dict[str, Any]:
-    """In a child process: one run's figures (``reference``: then the NumPy reference's)."""
+    """In a child process: one run's figures (``reference``: then the NumPy reference's;
+    ``count``: the run's instructions and the reference's, under callgrind)."""
     from rgtbus.units.group import run_group
 
     from rgtbus.scenario import parse_scenario
@@ -99,8 +141,9 @@ def one(
     with tempfile.TemporaryFile() if log and log_file else io.BytesIO() as buf:
         rec = McapRecorder(buf) if log else NullRecorder()
         t0 = time.perf_counter()
-        out = run_group(sc, "memory", rec)
-        rec.close()
+        with count.section("run"):
+            out = run_group(sc, "memory", rec)
+            rec.close()
         wall = time.perf_counter() - t0
         log_mb = buf.seek(0, io.SEEK_END) / 1e6
     s = out.summary
@@ -119,7 +162,7 @@ def one(
         "mode": sc.mode,
     }
     if reference and not s["error"]:
-        got.update(numpy_reference(sc, out.units, s["sim_seconds"]))
+        got.update(numpy_reference(sc, out.units, s["sim_seconds"], count))
     return got
 
 
@@ -149,7 +192,7 @@ REF_CHUNK = 1 << 22  # scores per decode block: bounds the reference's memory (3
 
 
 def numpy_reference(
-    sc: Scenario, members: list[AutonomousUnit], sim_seconds: float
+    sc: Scenario, members: list[AutonomousUnit], sim_seconds: float, count: Callgrind = NO_COUNT
 ) -> dict[str, Any]:
     """The run's necessary work in plain NumPy, timed apart from the run (noise 0 assumed).
 
@@ -198,6 +241,7 @@ def numpy_reference(
     end = max(round(sim_seconds / tau), int(S.max()) + reaction) + 1
 
     # (a) the dense bank
+    count.start()
     t0 = time.perf_counter()
     gains = np.array([sc.channel.gain_row(units, u) for u in units])  # [receiver, sender]
     views, view_of = np.unique(gains, axis=0, return_inverse=True)
@@ -230,8 +274,10 @@ def numpy_reference(
         if hit is not None:  # d = Im z - Im(before the input), only where a decode reads it
             readout[a:b] = (zi[:, c] - before).T
     bank_s = time.perf_counter() - t0
+    count.stop("ref_bank")
 
     # (b) every code, every receiver, at once (in blocks of receivers to bound the memory)
+    count.start()
     t0 = time.perf_counter()
     X = readout[np.searchsorted(keys, S * n + ch[:, None])].transpose(2, 0, 1)  # (views, C, P)
     decodes = mismatches = 0
@@ -249,6 +295,7 @@ def numpy_reference(
             mismatches += int(np.count_nonzero(got != wf))
             decodes += got.size
     decode_s = time.perf_counter() - t0
+    count.stop("ref_decode")
     return {
         "ref_s": bank_s + decode_s,
         "ref_bank_s": bank_s,
@@ -400,6 +447,66 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
     engine_goals(fig)
 
 
+def callgrind_counts(n: int) -> dict[str, int]:
+    """Instructions (callgrind's Ir) of a fresh process's run without a log and of its NumPy
+    reference's bank and decode, each section counted alone (``Callgrind``)."""
+    import shutil
+
+    if shutil.which("valgrind") is None or shutil.which("callgrind_control") is None:
+        raise SystemExit("--instructions needs valgrind (callgrind) on PATH")
+    python = sys.executable  # the venv's interpreter (a link to a binary, not a shim script)
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = [
+            "valgrind", "--tool=callgrind", "--instr-atstart=no",
+            f"--callgrind-out-file={tmp}/cg.%p", python, "-m", "benchmarks.bench_scale",
+            "--one", str(n), "concurrent", "--no-log", "--reference", "--callgrind",
+        ]  # fmt: skip
+        proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=7200)
+        if proc.returncode != 0:
+            raise SystemExit(f"n={n} under callgrind failed: {proc.stderr.strip()[-800:]}")
+        counts: dict[str, int] = {}
+        for dump in Path(tmp).glob("cg.*"):
+            label, total = None, None
+            for line in dump.read_text(errors="replace").splitlines():
+                if line.startswith("desc: Trigger: dump "):
+                    label = line.removeprefix("desc: Trigger: dump ").strip()
+                elif line.startswith("totals:"):
+                    total = int(line.split()[1])
+            if label is not None and total is not None:
+                counts[label] = total
+    missing = {"run", "ref_bank", "ref_decode"} - set(counts)
+    if missing:
+        raise SystemExit(f"n={n}: no callgrind dump of {sorted(missing)}")
+    return counts
+
+
+def instructions_table(sizes: list[int]) -> None:
+    """Instruction counts of the run (no log) and of the NumPy reference, per n, beside the
+    walls of a plain fresh process: a figure the machine's load does not move."""
+    print("## Instructions (callgrind Ir): run without a log against the NumPy reference")
+    print()
+    print(
+        "| n | run Ir (G) | reference Ir (G): bank + decode | run / reference (Ir) | "
+        "run / reference (wall, plain process) |"
+    )
+    print("|---|---|---|---|---|")
+    for n in sizes:
+        c = callgrind_counts(n)
+        wall = measure(n, "concurrent", reference=True)
+        ref = c["ref_bank"] + c["ref_decode"]
+        print(
+            f"| {n} | {c['run'] / 1e9:.2f} | {ref / 1e9:.2f}: {c['ref_bank'] / 1e9:.2f} + "
+            f"{c['ref_decode'] / 1e9:.2f} | {c['run'] / ref:.2f}x | "
+            f"{wall['wall'] / wall['ref_s']:.2f}x |"
+        )
+    print()
+    print(
+        "Each count is of its section alone (callgrind_control toggles the instrumentation "
+        "around it); imports, the scenario's parse and the reference's Python bookkeeping are "
+        "not counted."
+    )
+
+
 def engine_goals(fig: dict[int, dict[str, float]]) -> None:
     """Issues 23's and 38's goals against the engine table (a goal whose case was not run is
     left out)."""
@@ -471,6 +578,11 @@ def main() -> None:
     ap.add_argument("--log-file", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--reference", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--count-calls", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--callgrind", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--instructions",
+        help="only the instruction counts (callgrind) of run and reference at these sizes",
+    )
     ap.add_argument(
         "--scale-sizes", help="only the engine table (issue 23) at these sizes, e.g. 10,30,50,100"
     )
@@ -487,9 +599,13 @@ def main() -> None:
             print(json.dumps(count_calls(n, schedule)))
             return
         got = one(
-            n, schedule, args.log, args.noise, log_file=args.log_file, reference=args.reference
-        )
+            n, schedule, args.log, args.noise, log_file=args.log_file,
+            reference=args.reference, count=Callgrind(args.callgrind),
+        )  # fmt: skip
         print(json.dumps(got))
+        return
+    if args.instructions:
+        instructions_table([int(x) for x in args.instructions.split(",") if x])
         return
     if args.scale_sizes:
         sizes = [int(x) for x in args.scale_sizes.split(",") if x]
