@@ -93,9 +93,11 @@ def not_decomposable_text(p4: Sequence[str]) -> str:
 
 def agreement(tables: Sequence[Any], polynomials: Sequence[Any], expected: int) -> bool:
     """Every one of ``expected`` units holds the same relationship table and polynomial."""
+    # a process's units share equal tables as one object (``shared_reports``): n² entries a
+    # table, compared only where they are not the very same
     return (
         len(tables) == expected
-        and all(t == tables[0] for t in tables)
+        and all(t is tables[0] or t == tables[0] for t in tables)
         and all(p == polynomials[0] for p in polynomials)
     )
 
@@ -349,9 +351,7 @@ def summarise(
         "rounds": {
             "count": sc.influence_rounds,
             **round_dynamics(rounds[:whole]),
-            "influences": [
-                {k: u.to_list(u.parse_alternative(v)) for k, v in r.items()} for r in rounds
-            ],
+            "influences": [_alternative_lists(u, r) for r in rounds],
         },
         "outcome": outcome,
         "decode_errors": decode_errors,
@@ -367,6 +367,19 @@ def summarise(
     }
     summary["goals"] = judge_goals(sc, units_out, should.goal_prospects(last_round))
     return summary
+
+
+def _alternative_lists(u: Universe, texts: Mapping[str, str]) -> dict[str, list[str]]:
+    """A table of alternatives' texts in their JSON form (each distinct text parsed once: a
+    round holds n(n−1) influences of a few distinct values)."""
+    forms: dict[str, list[str]] = {}
+    out: dict[str, list[str]] = {}
+    for k, v in texts.items():
+        form = forms.get(v)
+        if form is None:
+            form = forms[v] = u.to_list(u.parse_alternative(v))
+        out[k] = list(form)  # a list of its own, as each entry had
+    return out
 
 
 def _sent_truth(reports: Sequence[Mapping[str, Any]]) -> SentTruth:

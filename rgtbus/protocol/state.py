@@ -191,11 +191,10 @@ class ProtocolState:
         """Every round at once: this unit's IDs and payloads, every decode of every round, a
         quench at every round's start but the first."""
         acts = Actions()
-        for i, rnd in enumerate(self.plan.timing()):
-            if i:
-                acts.quench.append(rnd.quench)
-                self.turn_starts.append(rnd.start)
-            acts.repairs.extend(rnd.repairs)
+        quench, starts, repairs = self.plan.rounds_at()
+        acts.quench.extend(quench)
+        self.turn_starts.extend(starts)
+        acts.repairs.extend(repairs)
         for p in self.plan.placed_by(self.me):
             t = p.turn
             acts.sends.append(

@@ -84,12 +84,28 @@ class Plan:
         self._listens: ListenQueue | None = None
         self._sent_by: dict[str, tuple[int, ...]] | None = None
         self._placed_by: dict[str, tuple[Placed, ...]] | None = None
+        self._rounds_at: (
+            tuple[tuple[int, ...], tuple[float, ...], tuple[RepairBlock, ...]] | None
+        ) = None
 
     def timing(self) -> tuple[RoundTiming, ...]:
         """The concurrent schedule's rounds, placed (once for every unit)."""
         if self._timing is None:
             self._timing = place_rounds(self)
         return self._timing
+
+    def rounds_at(self) -> tuple[tuple[int, ...], tuple[float, ...], tuple[RepairBlock, ...]]:
+        """The concurrent schedule's rounds as every unit begins them (once for all of them):
+        the first sample of each round but the first (a quench there), each one's start, and
+        every repair block, in order."""
+        if self._rounds_at is None:
+            timing = self.timing()
+            self._rounds_at = (
+                tuple(r.quench for r in timing[1:]),
+                tuple(r.start for r in timing[1:]),
+                tuple(b for r in timing for b in r.repairs),
+            )
+        return self._rounds_at
 
     def turns_sent_by(self, sender: str) -> tuple[int, ...]:
         """The indexes of the turns ``sender`` sends, ascending (once for every unit: a unit
