@@ -1,5 +1,7 @@
 """The paper's worked examples through the API, with the corrected values of docs/errata.md."""
 
+import copy
+import dataclasses
 import random
 
 import pytest
@@ -164,3 +166,63 @@ def test_an_influence_matrix_from_a_mapping_refuses_what_set_refuses():
     ]:
         with pytest.raises(RgtbusError, match=message):
             InfluenceMatrix.from_mapping(bad, ["a", "b", "c"], u)
+
+
+def test_an_equal_f_built_apart_gets_the_same_canonical_forms():
+    """Units build equal Fs apart: each subject's form is worked out on the first one's
+    displayed form (its nodes are the ones the memo and the holders name), and is right."""
+    rng = random.Random(23)
+    order = [chr(97 + i) for i in range(7)]
+    full = (1 << (1 << 7)) - 1
+    for _ in range(5):
+        poly = random_polynomial(order, rng)
+        first = decision_function(poly, order)
+        second = dataclasses.replace(  # built apart: nodes of its own
+            first,
+            polynomial=copy.deepcopy(first.polynomial),
+            structural=copy.deepcopy(first.structural),
+        )
+        assert first == second and first is not second
+        assert second.display == first.display and second.display is not first.display
+        canonical_form(first, order[0])  # the first F asked first
+        for i, x in enumerate(order[1:], start=1):
+            form = canonical_form(second, x)
+            xt = variable_table(i, 7)
+            assert truth_table(form.A, order) == (second.table & xt) | (
+                (second.table & xt) >> (1 << i)
+            )
+            assert truth_table(form.B, order) == (second.table & (full ^ xt)) | (
+                (second.table & (full ^ xt)) << (1 << i)
+            )
+
+
+def test_substitute_within_the_holders_visits_only_them():
+    from rgtbus.rgt.expr import ONE, ZERO, holders, substitute, variables
+
+    rng = random.Random(5)
+    order = [chr(97 + i) for i in range(8)]
+    for _ in range(20):
+        e = decision_function(random_polynomial(order, rng), order).display
+        held = holders(e)
+        assert sorted(held) == sorted(variables(e))
+        for x in variables(e):
+            for value in (ONE, ZERO):
+                assert substitute(e, {x: value}, within=held[x]) == substitute(e, {x: value})
+        # a variable the form does not hold: nothing to visit, the form itself
+        assert substitute(e, {"zz": ONE}, within=frozenset()) == substitute(e, {})
+        assert variables(e, most=2) == variables(e)[:2]
+
+
+def test_an_expression_pickles_without_its_hash():
+    """A node keeps its hash once worked out; a string's hash differs from process to
+    process, so a pickled node works its own out again."""
+    import pickle
+
+    from rgtbus.rgt.expr import Not, Prod, Sum, Var
+
+    e = Sum((Prod((Var("a"), Not(Var("b")))), Var("c")))
+    h = hash(e)
+    assert h == hash((e.terms,))  # the dataclass's own value
+    back = pickle.loads(pickle.dumps(e))
+    assert back == e and back._hash is None and hash(back) == h
+    assert {e: 1}[back] == 1

@@ -24,6 +24,7 @@ from rgtbus.rgt.expr import (
     Memo,
     Sum,
     format_expr,
+    holders,
     needs_star,
     readable,
     substitute,
@@ -71,9 +72,21 @@ def canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
 def _canonical_form(df: DecisionFunction, subject: str) -> CanonicalForm:
     # Minimising A and B is the costly part; units holding the same group share the result.
     memo = _memo(df)  # the subtrees without the subject: simplified once for every subject
-    a = readable(substitute(df.display, {subject: ONE}, memo), df.order)
-    b = readable(substitute(df.display, {subject: ZERO}, memo), df.order)
+    # the displayed form of the first F equal to this one (the memo's and the holders' nodes
+    # are its own), and its nodes on the way to the subject: the others are not visited
+    display, held = _holders(df)
+    within = held.get(subject, frozenset())
+    a = readable(substitute(display, {subject: ONE}, memo, within), df.order)
+    b = readable(substitute(display, {subject: ZERO}, memo, within), df.order)
     return CanonicalForm(subject, a, b)
+
+
+@lru_cache(maxsize=8)
+def _holders(df: DecisionFunction) -> tuple[Expr, dict[str, frozenset[int]]]:
+    """F's displayed form and, per subject, the ids of its nodes that hold it (kept with the
+    form they name; an equal F met later gets this same form)."""
+    display = df.display
+    return display, holders(display)
 
 
 @lru_cache(maxsize=8)

@@ -9,8 +9,8 @@ truth table; ``truth_table`` computes it bit-parallel as one Python integer with
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Container, Sequence
+from dataclasses import dataclass, field
 from functools import cache
 
 from rgtbus.errors import RgtbusError
@@ -39,11 +39,28 @@ class Const(Expr):
     value: bool
 
 
+# A node's hash is its operands' (a tuple's hash walks the whole subtree), worked out once and
+# kept: simplifying sets of subtrees hashed a 300-subject F's nodes 1.7 million times for its
+# canonical forms. The value is the one the dataclass would give; it is never pickled (a
+# string's hash differs from process to process).
+
+
 @dataclass(frozen=True, slots=True)
 class Not(Expr):
     """Negation (complement in the algebra of alternatives)."""
 
     arg: Expr
+    _hash: int | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __hash__(self) -> int:
+        h = self._hash
+        if h is None:
+            h = hash((self.arg,))
+            object.__setattr__(self, "_hash", h)
+        return h
+
+    def __reduce__(self) -> tuple[type[Not], tuple[Expr]]:
+        return (Not, (self.arg,))
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,6 +68,17 @@ class Sum(Expr):
     """Disjunction: conflict between the terms."""
 
     terms: tuple[Expr, ...]
+    _hash: int | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __hash__(self) -> int:
+        h = self._hash
+        if h is None:
+            h = hash((self.terms,))
+            object.__setattr__(self, "_hash", h)
+        return h
+
+    def __reduce__(self) -> tuple[type[Sum], tuple[tuple[Expr, ...]]]:
+        return (Sum, (self.terms,))
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +86,17 @@ class Prod(Expr):
     """Conjunction: alliance between the factors."""
 
     factors: tuple[Expr, ...]
+    _hash: int | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __hash__(self) -> int:
+        h = self._hash
+        if h is None:
+            h = hash((self.factors,))
+            object.__setattr__(self, "_hash", h)
+        return h
+
+    def __reduce__(self) -> tuple[type[Prod], tuple[tuple[Expr, ...]]]:
+        return (Prod, (self.factors,))
 
 
 ONE = Const(True)
@@ -75,12 +114,15 @@ def children(e: Expr) -> tuple[Expr, ...]:
     return ()
 
 
-def variables(e: Expr) -> list[str]:
-    """Variable names in order of first appearance (left to right)."""
+def variables(e: Expr, most: int | None = None) -> list[str]:
+    """Variable names in order of first appearance (left to right); only the first ``most``
+    when given (the walk stops there)."""
     out: list[str] = []
     seen: set[str] = set()
 
     def walk(x: Expr) -> None:
+        if most is not None and len(out) >= most:
+            return
         if isinstance(x, Var) and x.name not in seen:
             seen.add(x.name)
             out.append(x.name)
@@ -89,6 +131,24 @@ def variables(e: Expr) -> list[str]:
 
     walk(e)
     return out
+
+
+def holders(e: Expr) -> dict[str, frozenset[int]]:
+    """Per variable, the ids of the nodes of ``e`` whose subtree holds it (its leaves
+    included): what ``substitute`` must visit to replace it (valid while ``e`` lives)."""
+    found: dict[str, set[int]] = {}
+    path: list[int] = []
+
+    def walk(x: Expr) -> None:
+        path.append(id(x))
+        if isinstance(x, Var):
+            found.setdefault(x.name, set()).update(path)
+        for c in children(x):
+            walk(c)
+        path.pop()
+
+    walk(e)
+    return {name: frozenset(ids) for name, ids in found.items()}
 
 
 def needs_star(names: Sequence[str]) -> bool:
@@ -203,12 +263,21 @@ def _simplify(e: Expr, memo: Memo | None) -> Expr:
     return kind(tuple(kept))
 
 
-def substitute(e: Expr, values: dict[str, Expr], memo: Memo | None = None) -> Expr:
+def substitute(
+    e: Expr,
+    values: dict[str, Expr],
+    memo: Memo | None = None,
+    within: Container[int] | None = None,
+) -> Expr:
     """Replace variables by expressions (typically constants), then simplify. A subtree with
     no variable replaced stays the very same object, so with a ``memo`` kept for ``e``
-    (every subject's canonical form substitutes into one F) it is simplified once."""
+    (every subject's canonical form substitutes into one F) it is simplified once.
+    ``within``: the ids of the nodes that hold a replaced variable (``holders``); the others
+    are not visited."""
 
     def sub(x: Expr) -> Expr:
+        if within is not None and id(x) not in within:
+            return x
         if isinstance(x, Var):
             return values.get(x.name, x)
         if isinstance(x, Not):
@@ -450,7 +519,7 @@ def readable(local: Expr, order: Sequence[str]) -> Expr:
     """
     # Over the variables ``local`` holds only (in ``order``): the same minimal form, without a
     # table of 2^n bits for a large group.
-    present = set(variables(local))
+    present = set(variables(local, most=MAX_TABLE_VARS + 1))
     if len(present) > MAX_TABLE_VARS:
         return local
     order = [v for v in order if v in present]
