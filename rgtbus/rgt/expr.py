@@ -39,10 +39,16 @@ class Const(Expr):
     value: bool
 
 
-# A node's hash is its operands' (a tuple's hash walks the whole subtree), worked out once and
-# kept: simplifying sets of subtrees hashed a 300-subject F's nodes 1.7 million times for its
-# canonical forms. The value is the one the dataclass would give; it is never pickled (a
-# string's hash differs from process to process).
+def _hash_once(node: Not | Sum | Prod, operands: object) -> int:
+    """A node's hash: its operands' (a tuple's hash walks the whole subtree), worked out once
+    and kept (simplifying sets of subtrees hashed a 300-subject F's nodes 1.7 million times for
+    its canonical forms). The value is the one the dataclass would give; it is never pickled
+    (a string's hash differs from process to process: ``__reduce__`` leaves it out)."""
+    h = node._hash
+    if h is None:
+        h = hash((operands,))
+        object.__setattr__(node, "_hash", h)
+    return h
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,11 +59,7 @@ class Not(Expr):
     _hash: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def __hash__(self) -> int:
-        h = self._hash
-        if h is None:
-            h = hash((self.arg,))
-            object.__setattr__(self, "_hash", h)
-        return h
+        return _hash_once(self, self.arg)
 
     def __reduce__(self) -> tuple[type[Not], tuple[Expr]]:
         return (Not, (self.arg,))
@@ -71,11 +73,7 @@ class Sum(Expr):
     _hash: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def __hash__(self) -> int:
-        h = self._hash
-        if h is None:
-            h = hash((self.terms,))
-            object.__setattr__(self, "_hash", h)
-        return h
+        return _hash_once(self, self.terms)
 
     def __reduce__(self) -> tuple[type[Sum], tuple[tuple[Expr, ...]]]:
         return (Sum, (self.terms,))
@@ -89,11 +87,7 @@ class Prod(Expr):
     _hash: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def __hash__(self) -> int:
-        h = self._hash
-        if h is None:
-            h = hash((self.factors,))
-            object.__setattr__(self, "_hash", h)
-        return h
+        return _hash_once(self, self.factors)
 
     def __reduce__(self) -> tuple[type[Prod], tuple[tuple[Expr, ...]]]:
         return (Prod, (self.factors,))
