@@ -116,7 +116,10 @@ class Ears:
         self._poke = env.event()  # fired when the last listening unit has asked
         self._more = env.event()
         self._asking = len(self.listeners)  # listening units that have not asked yet
-        self._quench: list[tuple[int, int]] = []  # (sample, unit): rest before that sample
+        # rest before a sample: the samples (a heap, each once) and the units at each (every
+        # unit of a concurrent run quenches at each round's start: n a sample, n² in all)
+        self._quench: list[int] = []
+        self._quench_units: dict[int, list[int]] = {}
         self.quiet = env.event()  # every unit is done listening
         self._gains = np.stack([lst.gains for lst in self.listeners])  # listeners × senders
         self._unit_gains = bool(np.all(self._gains == 1.0))
@@ -277,11 +280,18 @@ class Ears:
                 f"{self.listeners[i].name}: quench before sample {sample}, "
                 f"but the ears are at {self.pos}"
             )
-        heapq.heappush(self._quench, (sample, i))
+        units = self._quench_units.get(sample)
+        if units is None:
+            self._quench_units[sample] = [i]
+            heapq.heappush(self._quench, sample)
+        else:
+            units.append(i)
 
     def quench_between(self, i: int, lo: int, hi: int) -> list[int]:
         """The samples in [lo, hi) before which unit ``i``'s resonators go back to rest."""
-        return sorted(q for q, n in self._quench if n == i and lo <= q < hi)
+        return sorted(
+            q for q, units in self._quench_units.items() if lo <= q < hi for n in units if n == i
+        )
 
     def stop(self, i: int, at: int | None = None) -> None:
         """Unit ``i`` is done: it listens no more (and draws no more noise). ``at``: the
@@ -377,17 +387,18 @@ class Ears:
             if not live:
                 self.quiet.succeed()
                 return
-            resting = []  # before this sample: one copy of the state for all of them
-            while self._quench and self._quench[0][0] == self.pos:
-                n = heapq.heappop(self._quench)[1]
-                if self.listeners[n].active:
-                    resting.append(n)
-            if resting:
-                self.bank.quench(resting)
+            if self._quench and self._quench[0] == self.pos:
+                heapq.heappop(self._quench)
+                # before this sample: one copy of the state for all of them, in unit order
+                resting = sorted(
+                    n for n in self._quench_units.pop(self.pos) if self.listeners[n].active
+                )
+                if resting:
+                    self.bank.quench(resting)
             boundary = min(lst.request[0] for lst in live)  # type: ignore[index]
             target = min(boundary, self.horizon)
             if self._quench:
-                target = min(target, self._quench[0][0])
+                target = min(target, self._quench[0])
             for lst in live:  # a watch that starts later splits the advance there
                 if lst.watch is not None and lst.watch_from > self.pos:
                     target = min(target, lst.watch_from)
