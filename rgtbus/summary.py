@@ -150,17 +150,53 @@ class SentTruth:
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """[class (0: ID, 1: payload), turn] -> known, the addressee's and the code's number."""
         if self._arrays is None:
-            span = max((t for t, _ in self.sent), default=-1) + 1
-            known = np.zeros((2, span), dtype=bool)
-            to_of = np.full((2, span), -1)
-            code_of = np.full((2, span), -1)
-            for (turn, cls), (addressee, code) in self.sent.items():
-                if turn >= 0:
-                    c = int(cls != "id")
-                    known[c, turn] = True
-                    to_of[c, turn], code_of[c, turn] = self.number(addressee), self.number(code)
-            self._arrays = (known, to_of, code_of)
+            self._arrays = self._by_turn(
+                (turn, cls != "id", addressee, code)
+                for (turn, cls), (addressee, code) in self.sent.items()
+                if turn >= 0
+            )
         return self._arrays
+
+    @classmethod
+    def of_sends(cls, sends: Iterable[Sequence[Any]]) -> SentTruth:
+        """The truth of sends given as rows ``(turn, kind, addressee, code)`` (the last send
+        of a key counts), held as arrays by turn: a run of n units sends 4n(n−1) codes, and a
+        dict of tuples held about 190 bytes a send."""
+        truth = cls({})
+        other: dict[tuple[int, str], tuple[str, str]] = {}
+
+        def of_turns() -> Iterator[tuple[int, bool, str, str]]:
+            for turn, kind, addressee, code in sends:
+                if isinstance(turn, int) and turn >= 0:
+                    yield turn, kind != "id", addressee, code
+                else:  # not a turn of the arrays: looked up as it is
+                    other[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
+
+        truth._arrays = truth._by_turn(of_turns())
+        truth.sent = _SentByTurn(truth, other)
+        return truth
+
+    def _by_turn(
+        self, sends: Iterable[tuple[int, bool, str, str]]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``arrays`` of sends ``(turn, payload?, addressee, code)``, in order: the last of a
+        key wins."""
+        number = self.number
+        turns, classes, to, codes = array("q"), array("q"), array("q"), array("q")
+        for turn, payload, addressee, code in sends:
+            turns.append(turn)
+            classes.append(payload)
+            to.append(number(addressee))
+            codes.append(number(code))
+        t, c = np.frombuffer(turns, dtype=np.int64), np.frombuffer(classes, dtype=np.int64)
+        span = int(t.max()) + 1 if t.size else 0
+        known = np.zeros((2, span), dtype=bool)
+        to_of = np.full((2, span), -1)
+        code_of = np.full((2, span), -1)
+        known[c, t] = True
+        to_of[c, t] = np.frombuffer(to, dtype=np.int64)
+        code_of[c, t] = np.frombuffer(codes, dtype=np.int64)
+        return known, to_of, code_of
 
 
 def wrong_decodes(
@@ -383,33 +419,8 @@ def _alternative_lists(u: Universe, texts: Mapping[str, str]) -> dict[str, list[
 
 
 def _sent_truth(reports: Sequence[Mapping[str, Any]]) -> SentTruth:
-    """The ground truth of decode errors: every report's sends, per (turn, kind) (the last
-    send of a key counts), held as arrays by turn: a run of n units sends 4n(n−1) codes, and
-    a dict of tuples held about 190 bytes a send."""
-    truth = SentTruth({})
-    number = truth.number
-    turns, classes, to, codes = array("q"), array("q"), array("q"), array("q")
-    other: dict[tuple[int, str], tuple[str, str]] = {}
-    for r in reports:
-        for turn, kind, addressee, code in r["sends"]:
-            if isinstance(turn, int) and turn >= 0:
-                turns.append(turn)
-                classes.append(kind != "id")
-                to.append(number(addressee))
-                codes.append(number(code))
-            else:  # not a turn of the arrays: looked up as it is
-                other[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-    t, c = np.frombuffer(turns, dtype=np.int64), np.frombuffer(classes, dtype=np.int64)
-    span = int(t.max()) + 1 if t.size else 0
-    known = np.zeros((2, span), dtype=bool)
-    to_of = np.full((2, span), -1)
-    code_of = np.full((2, span), -1)
-    known[c, t] = True
-    to_of[c, t] = np.frombuffer(to, dtype=np.int64)  # in order: the last send of a key wins
-    code_of[c, t] = np.frombuffer(codes, dtype=np.int64)
-    truth._arrays = (known, to_of, code_of)
-    truth.sent = _SentByTurn(truth, other)
-    return truth
+    """The ground truth of decode errors: every report's sends (``SentTruth.of_sends``)."""
+    return SentTruth.of_sends(row for r in reports for row in r["sends"])
 
 
 class _SentByTurn(Mapping[tuple[int, str], tuple[str, str]]):

@@ -86,11 +86,11 @@ class Transmitter:
     def take_outbox(self) -> Pulses:
         """The pulses planned since the last call (sample order; one sample's magnitudes in
         the order they were planned)."""
-        at = np.frombuffer(self._out_at, dtype=np.int64).copy()
-        value = np.frombuffer(self._out_value, dtype=np.float64).copy()
-        self._out_at, self._out_value = array("q"), array("d")
+        at = np.frombuffer(self._out_at, dtype=np.int64)
+        value = np.frombuffer(self._out_value, dtype=np.float64)
+        self._out_at, self._out_value = array("q"), array("d")  # the views keep the old ones
         order = np.argsort(at, kind="stable")  # stable: planning order within a sample
-        return at[order], value[order]
+        return at[order], value[order]  # copies: arrays of their own
 
     def emit(self, send: Send) -> None:
         """Plan a send: its pulses go out to the bus now (ahead of time), and to the log."""

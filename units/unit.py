@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator, Sequence
-from typing import TYPE_CHECKING, Any, overload
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import simpy
 import simpy.rt
@@ -577,6 +577,19 @@ class AutonomousUnit:
     def report_record(self) -> records.UnitReportRecord:
         """What this unit knows at the end of its run (``/unit/report``): everything its share
         of the run summary needs but its decodes (those are ``/rx/decodes``)."""
+        return self._report_fields(SendRows(self.sent).tolist())
+
+    def report(self) -> dict[str, Any]:
+        """This unit's share of the run summary (``rgtbus.summary.summarise``): its report
+        record and its decodes."""
+        return {
+            # read from its sends as they are iterated: a group's 4n(n−1) sends, not held twice
+            **self._report_fields(SendRows(self.sent)),
+            "decodes": self.decoded,  # columns (DecodeColumns): iterates as rows
+        }
+
+    def _report_fields(self, sends: Sequence[list[Any]]) -> records.UnitReportRecord:
+        """The report record with ``sends`` as its rows of sends."""
         mind = self.mind
         out: records.UnitReportRecord = {
             "unit": self.name,
@@ -587,7 +600,7 @@ class AutonomousUnit:
             "influences": mind.influence_table(),
             "result": result_fields(mind),
             "decisions": list(self.decisions),
-            "sends": [_send_row(s) for s in self.sent],
+            "sends": cast(list[list[Any]], sends),
             "sent_influences": influences_sent(self.sent, self.protocol, self.scenario),
             "failure": self.failure,
             "failed_at": self.done_at if self.failure else None,
@@ -597,16 +610,6 @@ class AutonomousUnit:
         if self.arq is not None:
             out["repair"] = self.arq.book.report()  # type: ignore[typeddict-item]
         return out
-
-    def report(self) -> dict[str, Any]:
-        """This unit's share of the run summary (``rgtbus.summary.summarise``): its report
-        record and its decodes."""
-        return {
-            **self.report_record(),
-            # read from its sends as they are iterated: a group's 4n(n−1) sends, not held twice
-            "sends": SendRows(self.sent),
-            "decodes": self.decoded,  # columns (DecodeColumns): iterates as rows
-        }
 
 
 class SendRows(Sequence[list[Any]]):

@@ -148,10 +148,7 @@ class Plan:
                     kind += (0, payload)
                     sender += (s, s)
                     addressee += (a, a)
-                    channel += (
-                        s,
-                        a,
-                    )  # the ID on its sender's channel, the payload on its addressee's
+                    channel += (s, a)  # the ID on its sender's channel, the payload on a's
                     start += (p.id_start, p.payload_start)
                     ready += (p.id_samples[-1], p.payload_samples[-1] + self.search)
             self._listens = ListenQueue.of_columns(
