@@ -37,7 +37,7 @@ from functools import lru_cache
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 from rgtbus.errors import NotDecomposable, RgtbusError
-from rgtbus.pairs import PairTable, ordered_pairs, pair_key, relation_key
+from rgtbus.pairs import PairTable, SharedTable, ordered_pairs, pair_key, relation_key
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
@@ -162,7 +162,7 @@ def _memo(kind: Hashable, table: Mapping[Pair, Any], build: Callable[[], _T]) ->
     """``build()``, the same object for every table equal to ``table`` (a ``PairTable``;
     another mapping is built afresh): the units of a group mostly hold equal tables, and a
     report built from one of n² entries for each of n units would be n³ work. What is
-    returned is shared: read, never changed."""
+    returned is shared: read, never changed (a table as a ``SharedTable``)."""
     if not isinstance(table, PairTable):
         return build()
     key = (kind, table.snapshot())
@@ -170,7 +170,8 @@ def _memo(kind: Hashable, table: Mapping[Pair, Any], build: Callable[[], _T]) ->
     if got is None:
         if len(_MEMO) >= _MEMO_SIZE:  # a few tables at a time are the run's; drop the old
             _MEMO.clear()
-        got = _MEMO[key] = build()
+        built: Any = build()
+        _MEMO[key] = got = SharedTable(built) if type(built) is dict else built
     return cast(_T, got)
 
 

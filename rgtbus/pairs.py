@@ -6,12 +6,13 @@ from __future__ import annotations
 import functools
 from array import array
 from collections.abc import ItemsView, Iterator, MutableMapping, Sequence, ValuesView
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 if TYPE_CHECKING:
     import numpy as np
 
 Pair = tuple[str, str]
+_V = TypeVar("_V")
 
 
 def ordered_pairs(units: Sequence[str]) -> list[Pair]:
@@ -31,6 +32,24 @@ def relation_key(a: str, b: str) -> str:
     """``"a-b"``: how tables name the relationship of an unordered pair (a before b in the
     group's order). One string a pair, shared, as ``pair_key``."""
     return f"{a}-{b}"
+
+
+class SharedTable(dict[str, _V]):
+    """A table keyed by pair text that the units holding an equal table share as one object
+    (the mind's memo, ``rgtbus.mind``): read, never changed, so that whatever is worked out
+    from it once holds for every unit that holds it (a log encodes it once, not once a unit:
+    ``rgtbus.telemetry.recorder``). Changing one raises ``TypeError``."""
+
+    __slots__ = ()
+
+    def _frozen(self, *args: object, **kwargs: object) -> NoReturn:
+        raise TypeError("a SharedTable is shared by units: copy it (dict(table)) to change it")
+
+    __setitem__ = __delitem__ = __ior__ = _frozen
+    clear = pop = popitem = setdefault = update = _frozen
+
+    def __reduce__(self) -> tuple[Any, ...]:  # pickled as the plain dict it holds
+        return (dict, (dict(self),))
 
 
 def parse_pair_key(key: str) -> Pair:

@@ -82,6 +82,7 @@ def test_minds_with_equal_tables_share_one_copy_of_what_they_derive_from_them():
     """The tables a report holds (relation codes, pairs installed, influences) are built once
     for every mind whose table is equal, and afresh once a table changes."""
     from rgtbus.mind import mind_of
+    from rgtbus.pairs import SharedTable
 
     sc = load_scenario(ROOT / "scenarios" / "gate.toml")
     a, b = mind_of(sc, sc.units[0]), mind_of(sc, sc.units[1])
@@ -89,6 +90,7 @@ def test_minds_with_equal_tables_share_one_copy_of_what_they_derive_from_them():
     for i, p in enumerate(pairs):
         a.sent[p] = b.sent[p] = i % 3 == 0
     assert a.sent_table() is b.sent_table() and a.installed() is b.installed()
+    assert type(a.sent_table()) is SharedTable  # read, never changed: its JSON written once
     assert a.sent_table() == {
         f"{s}>{r}": "alliance" if i % 3 == 0 else "conflict"
         for i, (s, r) in sorted(enumerate(pairs), key=lambda x: x[1])

@@ -889,3 +889,64 @@ def test_the_error_walk_agrees_with_the_validator(topic, data):
     valid = validate_mod.errors(msg, schema) == []
     walked = list(validate_mod._errors(msg, schema, "$"))
     assert (walked == []) == valid, (msg, walked)
+
+
+def test_a_shared_table_is_encoded_once_and_as_the_plain_table():
+    """A table the units share (``SharedTable``) is written as the dict it holds, wherever it
+    sits in a record, its JSON worked out once for every record that holds it; a NaN in one
+    is refused as in a plain table; other subclasses of plain types write as those types."""
+    import collections
+    import enum
+
+    import orjson
+
+    from rgtbus.pairs import SharedTable
+    from rgtbus.telemetry.recorder import _shared_json, encode_json
+
+    plain = {"a>b": "alliance", "b>a": ["alpha", "beta"]}
+    table = SharedTable(plain)
+    assert encode_json({"unit": "a", "sent": table}) == orjson.dumps({"unit": "a", "sent": plain})
+    nested = {"r": [{"x": table}], "p": None}
+    assert encode_json(nested) == orjson.dumps({"r": [{"x": plain}], "p": None})
+    assert _shared_json(table) is _shared_json(table)
+    assert _shared_json(SharedTable(plain)) is not _shared_json(table)  # another object
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        encode_json({"t": SharedTable({"a>b": float("nan")})})
+    with pytest.raises(TypeError, match="not JSON serializable: object"):
+        encode_json({"t": SharedTable({"a>b": object()})})
+
+    class Level(enum.IntEnum):
+        INFO = 2
+
+    class Name(str):
+        def __str__(self) -> str:
+            return "not the value"
+
+    odd = {"c": collections.Counter(x=2), "l": Level.INFO, "n": Name("u1"), "np": np.str_("v")}
+    assert orjson.loads(encode_json(odd)) == {"c": {"x": 2}, "l": 2, "n": "u1", "np": "v"}
+
+
+def test_a_shared_table_cannot_be_changed_and_pickles_as_a_dict():
+    """A shared table is read, never changed (every unit holding it would see the change);
+    pickled (a unit process's report) it is the plain dict it holds."""
+    import pickle
+
+    from rgtbus.pairs import SharedTable
+
+    table = SharedTable({"a>b": "alliance"})
+    for change in (
+        lambda: table.__setitem__("b>a", "conflict"),
+        lambda: table.pop("a>b"),
+        lambda: table.update({"x": 1}),
+        lambda: table.setdefault("x", 1),
+        lambda: table.clear(),
+        lambda: table.popitem(),
+        lambda: table.__delitem__("a>b"),
+    ):
+        with pytest.raises(TypeError, match="shared"):
+            change()
+    with pytest.raises(TypeError, match="shared"):
+        table |= {"x": 1}
+    assert table == {"a>b": "alliance"} and json.loads(json.dumps(table)) == table
+    back = pickle.loads(pickle.dumps(table))
+    assert type(back) is dict and back == table

@@ -27,6 +27,7 @@ from mcap.records import DataEnd, Footer
 from mcap.records import Metadata as McapMetadata
 
 from rgtbus.errors import RgtbusError
+from rgtbus.pairs import SharedTable
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.records import LOG, MEDIUM
 from rgtbus.timebase import NS_PER_SECOND, ns
@@ -113,9 +114,23 @@ class LiveSink(Protocol):
 
 
 def _default(obj: Any) -> Any:
-    # numpy arrays and scalars without importing numpy here
+    """What orjson does not write itself, as what it does: a table units share as its JSON
+    encoded once (``_shared_json``), numpy arrays and scalars as lists and numbers (without
+    importing numpy here), and (``OPT_PASSTHROUGH_SUBCLASS`` hands them here, so that a
+    ``SharedTable`` costs no look at every message) any other subclass of a dict, list, str or
+    int as that plain type."""
+    if type(obj) is SharedTable:
+        return _shared_json(obj)
     if hasattr(obj, "tolist"):
         return obj.tolist()
+    if isinstance(obj, dict):
+        return dict(obj)
+    if isinstance(obj, list):
+        return list(obj)
+    if isinstance(obj, str):
+        return str.__str__(obj)  # its text, whatever its own __str__ says
+    if isinstance(obj, int):
+        return int(obj)
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
@@ -155,12 +170,33 @@ def log_message(
     }
 
 
-_ORJSON = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
+_ORJSON = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS | orjson.OPT_PASSTHROUGH_SUBCLASS
+
+
+_SHARED: dict[int, tuple[SharedTable[Any], orjson.Fragment]] = {}  # id -> (table, its JSON)
+_SHARED_SIZE = 6  # a report's three tables, twice
+
+
+def _shared_json(table: SharedTable[Any]) -> orjson.Fragment | dict[str, Any]:
+    """A shared table's JSON, encoded once for every record that holds it (the units of a
+    group hold one table object: n tables of n² entries a run would be n³ bytes to encode).
+    Kept by identity with the table itself, so its id is not another's while kept."""
+    got = _SHARED.get(id(table))
+    if got is None:
+        try:
+            data = encode_json(dict(table))
+        except (TypeError, ValueError):  # raised here, orjson would only say "not JSON"
+            return dict(table)  # not kept: the message's own checks name what is wrong
+        if len(_SHARED) >= _SHARED_SIZE:  # a few tables at a time are the run's: the oldest
+            del _SHARED[next(iter(_SHARED))]  # goes (n² entries each: few are kept)
+        got = _SHARED[id(table)] = (table, orjson.Fragment(data))
+    return got[1]
 
 
 def encode_json(message: Any) -> bytes:
     """A message as compact JSON (numpy values as numbers and lists); TypeError for what JSON
-    cannot hold, ValueError for NaN or infinity."""
+    cannot hold, ValueError for NaN or infinity. A ``SharedTable`` in it is encoded once
+    (``_shared_json``): the same bytes, n times less work."""
     data = orjson.dumps(message, default=_default, option=_ORJSON)
     if b"null" in data:  # a None, or a NaN or infinity written as null: find out which
         # each None writes one null, as does each NaN (and a text may hold the word): as many
