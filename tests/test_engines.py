@@ -582,3 +582,26 @@ def test_a_run_says_what_keeping_its_clock_cost():
     assert sync["members"] == 4 and sync["rounds"] == result.details["steps"] > 0
     assert sync["frames"] >= sync["null_frames"] >= 0 and sync["frames"] >= 4
     assert sync["wait_seconds"] >= 0 and sync["ahead_rounds"] == 0
+
+
+def test_a_logged_batch_of_any_length_writes_the_same_log(monkeypatch):
+    """A unit with a log takes its decodes a batch of ``batch_seconds`` at a wake (shorter in
+    a large group, where what a batch holds weighs most): the records are the same whatever
+    the batch, only the wakes and the file's order differ."""
+    from rgtbus.units import unit as unit_module
+
+    assert unit_module.batch_seconds(10, logged=False) == unit_module.BATCH_SECONDS
+    small = unit_module.batch_seconds(unit_module.LARGE_GROUP, logged=True)
+    large = unit_module.batch_seconds(unit_module.LARGE_GROUP + 1, logged=True)
+    assert large < small < unit_module.BATCH_SECONDS
+
+    sc = random_group(5, noise=0.02, gains=True, anchor="schedule")
+    sc = parse_scenario(sc.text + '[protocol]\nschedule = "concurrent"\n', "<batches>")
+    logs = []
+    for seconds, large_group in ((small, 10**6), (4.0, 10**6), (small, 0)):
+        monkeypatch.setattr(unit_module, "LOGGED_BATCH_SECONDS", seconds)
+        monkeypatch.setattr(unit_module, "LARGE_GROUP", large_group)  # 0: every group is large
+        rec = MemoryRecorder()
+        run_group(sc, "memory", rec)
+        logs.append(sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
+    assert logs[0] == logs[1] == logs[2] and len(logs[0]) > 100

@@ -65,9 +65,23 @@ KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction 
 # in 20 s batching a minute, 18 s two minutes (16 MB more decoded codes held), 17 s four
 BATCH_SECONDS = 120.0
 # with a log, what a batch holds for it (its decodes, the blocks of spikes handed meanwhile)
-# grows with the batch, while the run's time goes to the log: 300 units with their log peak
-# at 869 MB batching a minute, 820 MB at 20 s, 758 MB at 10 s
-LOGGED_BATCH_SECONDS = 10.0
+# grows with the batch, and so do the wakes' cost with their number: 100 units with their log
+# take 7.0 s batching 10 s, 6.2 s at 20 s, 5.8 s at 30 s, 6.0 s at a minute (the log's chunks
+# then hold fewer units' records of one time and compress less: 22.7, 24.2, 25.5, 28.9 MB);
+# 200 units 38 s at 10 s, 32 s at 30 s (380 MB, 394 MB). 300 units peak at 816 MB batching
+# 30 s and 768 MB at 10 s: a group larger than LARGE_GROUP batches its log's 10 s
+LOGGED_BATCH_SECONDS = 30.0
+LARGE_GROUP = 200
+LARGE_GROUP_LOGGED_BATCH_SECONDS = 10.0
+
+
+def batch_seconds(units: int, logged: bool) -> float:
+    """How much time of its decodes a unit of a group of ``units`` takes at one wake, when
+    it batches (``BATCH_SECONDS``; with a log ``LOGGED_BATCH_SECONDS``, shorter in a group
+    larger than ``LARGE_GROUP``, where what a batch holds weighs most)."""
+    if not logged:
+        return BATCH_SECONDS
+    return LOGGED_BATCH_SECONDS if units <= LARGE_GROUP else LARGE_GROUP_LOGGED_BATCH_SECONDS
 
 
 def protocol_of(sc: Scenario, name: str) -> ProtocolState:
@@ -134,7 +148,7 @@ class AutonomousUnit:
         self.limit = sample_of(min(stop or math.inf, sc.timing.max_seconds), self.tau)
         self.timers = Timers()
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
-        self._batch_seconds = LOGGED_BATCH_SECONDS if recorder.enabled else BATCH_SECONDS
+        self._batch_seconds = batch_seconds(len(sc.units), recorder.enabled)
         self._batch_span = max(1, sample_of(self._batch_seconds, self.tau))
         self.log = UnitLog(name, recorder, self.tau, self.units, self._holds_spikes)
         self.transmitter = Transmitter(sc.codebook, dict(sc.frequencies), self.tau, self.log)
