@@ -950,3 +950,33 @@ def test_a_shared_table_cannot_be_changed_and_pickles_as_a_dict():
     assert table == {"a>b": "alliance"} and json.loads(json.dumps(table)) == table
     back = pickle.loads(pickle.dumps(table))
     assert type(back) is dict and back == table
+
+
+def test_equal_columns_are_encoded_once_and_write_the_same_bytes():
+    """A decode record's columns of floats are written from their JSON worked out once for
+    equal columns (the units of a process hold them alike): the record's bytes are those
+    of the plain record; a column JSON cannot hold is left for the record to refuse."""
+    import orjson
+
+    from rgtbus.telemetry import recorder as recorder_mod
+    from rgtbus.telemetry.recorder import column_json, encode_json
+
+    margin = np.array([0.2449489742783178, 0.1, 1e-300, 2.5100000000000002])
+    a, b = column_json(margin), column_json(margin.copy())
+    assert a is b and isinstance(a, orjson.Fragment)
+    record = {"unit": "u1", "margin": margin, "times": np.arange(4) * 0.005}
+    cached = {**record, "margin": a, "times": column_json(record["times"])}
+    assert encode_json(cached) == encode_json(record) == orjson.dumps(
+        {"unit": "u1", "margin": margin.tolist(), "times": record["times"].tolist()}
+    )
+    # the same values in another dtype are another column
+    assert column_json(margin.astype(np.float32)) is not a
+    for other in ([0.5, 1.5], np.zeros((2, 2)), 3.0):
+        assert column_json(other) is other
+    bad = np.array([1.0, float("nan")])
+    assert column_json(bad) is bad
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        encode_json({"margin": column_json(bad)})
+    for k in range(recorder_mod._COLUMNS_SIZE + 10):  # kept a bounded few at a time
+        column_json(np.array([float(k)]))
+    assert len(recorder_mod._COLUMNS) <= recorder_mod._COLUMNS_SIZE

@@ -479,6 +479,12 @@ def decodes_of_columns(
     return record
 
 
+# columns of a topic's records that other records mostly hold alike (the units of a process
+# read each code alike: their records of a block of decodes hold equal columns), written
+# from their JSON made once (``recorder.column_json``): floats, which cost orjson more to
+# write than to compare; the other columns cost less to write than to compare
+SHARED_COLUMNS = {RX_DECODES: frozenset({"margin", "times"})}
+
 # the columns of names that a record with tables holds as indexes: the table each indexes
 NAMED_COLUMNS = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
                  "code": "codes"}  # fmt: skip
