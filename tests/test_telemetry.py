@@ -803,15 +803,28 @@ _NESTED = st.recursive(
 )
 
 
-@given(_NESTED)
+_COLUMN = st.one_of(
+    st.lists(st.floats(), max_size=300).map(np.array),  # NaN and infinities among them
+    st.lists(st.integers(-(2**40), 2**40), max_size=300).map(np.array),
+    st.lists(st.booleans(), max_size=300).map(lambda v: np.array(v, dtype=bool)),
+    st.lists(st.text(max_size=6), max_size=300),
+    st.lists(st.one_of(st.text(max_size=3), st.floats()), max_size=300),
+)
+
+
+@given(_NESTED, st.booleans(), st.dictionaries(st.sampled_from("abcdef"), _COLUMN, max_size=4))
 @settings(max_examples=300, deadline=None)
-def test_encode_json_refuses_exactly_the_values_strict_json_refuses(value):
+def test_encode_json_refuses_exactly_the_values_strict_json_refuses(value, large, columns):
     """orjson writes NaN and infinity as null, as it writes None: the encoder looks into the
     parts that hold a null and refuses a non-finite number wherever it is, as the standard
-    library's strict encoder does, and otherwise writes what orjson wrote."""
+    library's strict encoder does, and otherwise writes what orjson wrote. A large message
+    (``large``: past ``_LOOK_BEFORE_SCAN``) whose values show by their types that they are
+    finite is not looked into: columns of numbers or names, beside any value."""
     from rgtbus.telemetry.recorder import encode_json
 
-    message = {"m": value, "none": None}
+    message = {"m": value, "none": None, **columns}
+    if large:
+        message["pad"] = "null " * 1000
     strict = json.JSONEncoder(allow_nan=False, default=lambda o: o.tolist())
     try:
         want = json.loads(strict.encode(message))
@@ -980,3 +993,40 @@ def test_equal_columns_are_encoded_once_and_write_the_same_bytes():
     for k in range(recorder_mod._COLUMNS_SIZE + 10):  # kept a bounded few at a time
         column_json(np.array([float(k)]))
     assert len(recorder_mod._COLUMNS) <= recorder_mod._COLUMNS_SIZE
+    # a table of names (a tuple: the same object in every record of a unit) by identity
+    names = ("u1", "a>b", "null")
+    assert column_json(names) is column_json(names)
+    assert encode_json({"names": column_json(names)}) == b'{"names":["u1","a>b","null"]}'
+    for other in (("u1", 2), ("u1", np.str_("v"))):  # not plain text: as it is
+        assert column_json(other) is other
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+@pytest.mark.parametrize(
+    "where",
+    ["float column", "float32 column", "top float", "list of floats", "list of names and a float",
+     "nested", "column of objects"],
+)  # fmt: skip
+def test_a_large_message_is_refused_wherever_a_non_finite_number_hides(bad, where):
+    """A large message is written without a scan for null when its values' types show that
+    none is a NaN or infinity (``_finite_by_type``): a non-finite number anywhere still
+    refuses it, and a finite one writes what orjson writes."""
+    import orjson
+
+    from rgtbus.telemetry.recorder import _LOOK_BEFORE_SCAN, encode_json
+
+    names = [f"u{i:03d}" for i in range(_LOOK_BEFORE_SCAN // 4)]
+    good = {"unit": "u1", "t": 1.5, "none": None, "turn": np.arange(9), "ok": np.ones(3, bool),
+            "margin": np.linspace(0, 1, 9), "names": names, "n": 3}  # fmt: skip
+    assert encode_json(good) == orjson.dumps(good, option=orjson.OPT_SERIALIZE_NUMPY)
+    value = {
+        "float column": np.array([0.5, bad]),
+        "float32 column": np.array([0.5, bad], dtype=np.float32),
+        "top float": bad,
+        "list of floats": [0.5, bad],
+        "list of names and a float": ["a", bad],
+        "nested": {"x": [bad]},
+        "column of objects": np.array([0.5, bad], dtype=object),
+    }[where]
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        encode_json({**good, "bad": value})

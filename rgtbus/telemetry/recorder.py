@@ -195,15 +195,36 @@ def _shared_json(table: SharedTable[Any]) -> orjson.Fragment | dict[str, Any]:
 
 _COLUMNS: dict[tuple[str, bytes], orjson.Fragment] = {}  # (dtype, bytes) -> its JSON
 _COLUMNS_SIZE = 256
+_TEXT = frozenset({str})
+
+
+_NAMES: dict[int, tuple[tuple[str, ...], orjson.Fragment]] = {}  # id -> (names, their JSON)
+
+
+def _names_json(names: tuple[Any, ...]) -> Any:
+    """A tuple of names (a table the records of a unit's decodes index into, the same object
+    in each) as its JSON, kept by identity (a tuple of text never changes); anything else
+    as it is."""
+    got = _NAMES.get(id(names))
+    if got is None:
+        if not set(map(type, names)) <= _TEXT:
+            return names
+        if len(_NAMES) >= _COLUMNS_SIZE:
+            del _NAMES[next(iter(_NAMES))]
+        got = _NAMES[id(names)] = (names, orjson.Fragment(orjson.dumps(names)))
+    return got[1]
 
 
 def column_json(values: Any) -> Any:
-    """A one-dimensional numpy column of numbers as its JSON (an ``orjson.Fragment``, for a
-    record to hold in its place), worked out once for equal columns: the units of a process
+    """A one-dimensional numpy column of numbers (or a tuple of names, ``_names_json``) as
+    its JSON (an ``orjson.Fragment``, for a record to hold in its place), worked out once for
+    equal columns: the units of a process
     read each code alike, so their records of a block of decodes hold equal columns, and a
     float costs orjson ~50 ns to write, against a few ns a byte to compare. Kept by value
     (dtype and bytes), the oldest dropped first; anything else (or a column JSON cannot
     hold, whose record's own encoding then says why) is returned as it is."""
+    if type(values) is tuple:
+        return _names_json(values)
     if getattr(values, "ndim", 0) != 1:
         return values
     key = (values.dtype.str, values.tobytes())
@@ -219,11 +240,47 @@ def column_json(values: Any) -> Any:
     return got
 
 
+# scanning a message's JSON for null costs ~0.7 ns a byte, half of what orjson took to write
+# it: above this many bytes, a message whose values show by their types that none is a NaN
+# (``_finite_by_type``) is not scanned (a decode record of 200 units is ~11 kB)
+_LOOK_BEFORE_SCAN = 2048
+
+
+def _finite_by_type(message: dict[str, Any]) -> bool:
+    """Whether no value of ``message`` can be a NaN or infinity, as their types show without
+    a walk: text, integers, None, finite floats, lists of text, columns already written
+    (``column_json``) and numpy columns of integers or booleans, or of floats whose sum is
+    finite. False says
+    only that the JSON must be looked into."""
+    for v in message.values():
+        kind = type(v)
+        if kind is str or kind is int or kind is bool or v is None or kind is orjson.Fragment:
+            continue
+        if kind is float:
+            if math.isfinite(v):
+                continue
+            return False
+        if kind is list:  # a list of names: the types of its items, in one pass in C
+            if set(map(type, v)) <= _TEXT:
+                continue
+            return False
+        dtype = getattr(v, "dtype", None)
+        if dtype is None:
+            return False  # a dict, a table, a list of more than names: its JSON is looked into
+        if dtype.kind in "iub":
+            continue
+        if dtype.kind != "f" or not math.isfinite(v.sum()):  # one NaN or inf: not finite
+            return False
+    return True
+
+
 def encode_json(message: Any) -> bytes:
     """A message as compact JSON (numpy values as numbers and lists); TypeError for what JSON
     cannot hold, ValueError for NaN or infinity. A ``SharedTable`` in it is encoded once
     (``_shared_json``): the same bytes, n times less work."""
     data = orjson.dumps(message, default=_default, option=_ORJSON)
+    if len(data) > _LOOK_BEFORE_SCAN and type(message) is dict and _finite_by_type(message):
+        return data  # a large record of plain values and columns: no NaN, nothing to scan
     if b"null" in data:  # a None, or a NaN or infinity written as null: find out which
         # each None writes one null, as does each NaN (and a text may hold the word): as many
         # nulls as the record's own None fields leave no null for a NaN (a unit's report)

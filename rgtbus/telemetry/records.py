@@ -128,9 +128,9 @@ class DecodesRecord(TypedDict, total=False):
     margin: Required[FloatColumn]
     times: Required[FloatColumn]
     accepted: Required[BoolColumn]
-    names: list[str]  # the units sender, addressee and channel index
-    kinds: list[str]  # the kinds kind indexes
-    codes: list[str]  # the code names code indexes
+    names: Sequence[str]  # the units sender, addressee and channel index
+    kinds: Sequence[str]  # the kinds kind indexes
+    codes: Sequence[str]  # the code names code indexes
 
 
 # a record's tables of names, when its name columns hold indexes: (units, kinds, codes)
@@ -473,17 +473,18 @@ def decodes_of_columns(
         "times": cols[7],
         "accepted": cols[8],
     }
-    if tables is not None:
+    if tables is not None:  # a tuple as it is: the unit's own, the same in every record
         for key, table in zip(DECODE_TABLES, tables, strict=True):
-            record[key] = list(table)  # type: ignore[literal-required]
+            record[key] = table if type(table) is tuple else list(table)  # type: ignore[literal-required]
     return record
 
 
 # columns of a topic's records that other records mostly hold alike (the units of a process
 # read each code alike: their records of a block of decodes hold equal columns), written
 # from their JSON made once (``recorder.column_json``): floats, which cost orjson more to
-# write than to compare; the other columns cost less to write than to compare
-SHARED_COLUMNS = {RX_DECODES: frozenset({"margin", "times"})}
+# write than to compare, and the tables of names (the same tuple in every record of a unit);
+# the other columns cost less to write than to compare
+SHARED_COLUMNS = {RX_DECODES: frozenset({"margin", "times", "names", "kinds", "codes"})}
 
 # the columns of names that a record with tables holds as indexes: the table each indexes
 NAMED_COLUMNS = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
@@ -515,7 +516,10 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     RgtbusError naming the unit and the column."""
     unit = cast(str, record.get("unit"))
     # columns a writer holds as arrays (a record not yet written) read as a log gives them
-    record = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in record.items()}
+    record = {
+        k: v.tolist() if hasattr(v, "tolist") else list(v) if type(v) is tuple else v
+        for k, v in record.items()
+    }
     if any(t in record for t in DECODE_TABLES):
         _named(unit, record)
     times = record.get("times")
