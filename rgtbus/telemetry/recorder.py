@@ -345,7 +345,9 @@ class _Encoding:
             raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
         shared = SHARED_COLUMNS.get(topic)
         if shared is not None:  # columns other records hold too: their JSON made once
-            message = {k: column_json(v) if k in shared else v for k, v in message.items()}
+            message = dict(message)  # the caller's record stays as it gave it
+            for k in shared.intersection(message):
+                message[k] = column_json(message[k])
         try:
             data = encode_json(message)
         except (TypeError, ValueError) as e:
