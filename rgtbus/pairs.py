@@ -40,7 +40,7 @@ class SharedTable(dict[str, _V]):
     from it once holds for every unit that holds it (a log encodes it once, not once a unit:
     ``rgtbus.telemetry.recorder``). Changing one raises ``TypeError``."""
 
-    __slots__ = ()
+    __slots__ = ("__weakref__",)  # what is worked out from it may live as long as it does
 
     def _frozen(self, *args: object, **kwargs: object) -> NoReturn:
         raise TypeError("a SharedTable is shared by units: copy it (dict(table)) to change it")

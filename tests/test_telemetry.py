@@ -936,6 +936,17 @@ def test_a_shared_table_is_encoded_once_and_as_the_plain_table():
     assert encode_json(nested) == orjson.dumps({"r": [{"x": plain}], "p": None})
     assert _shared_json(table) is _shared_json(table)
     assert _shared_json(SharedTable(plain)) is not _shared_json(table)  # another object
+    # the cache keeps the JSON while the table lives, never the table itself
+    import weakref
+
+    from rgtbus.telemetry import recorder as recorder_mod
+
+    passing = SharedTable({"x>y": "conflict"})
+    _shared_json(passing)
+    key, gone = id(passing), weakref.ref(passing)
+    assert key in recorder_mod._SHARED
+    del passing
+    assert gone() is None and key not in recorder_mod._SHARED
     with pytest.raises(ValueError, match="not JSON compliant"):
         encode_json({"t": SharedTable({"a>b": float("nan")})})
     with pytest.raises(TypeError, match="not JSON serializable: object"):

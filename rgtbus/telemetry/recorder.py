@@ -15,6 +15,7 @@ import math
 import operator
 import threading
 import time
+import weakref
 from collections import Counter
 from collections.abc import Callable, Collection, Iterator, Mapping
 from typing import Any, BinaryIO, Protocol, Self, runtime_checkable
@@ -173,28 +174,31 @@ def log_message(
 _ORJSON = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS | orjson.OPT_PASSTHROUGH_SUBCLASS
 
 
-_SHARED: dict[int, tuple[SharedTable[Any], orjson.Fragment]] = {}  # id -> (table, its JSON)
-_SHARED_SIZE = 6  # a report's three tables, twice
+_SHARED: dict[int, orjson.Fragment] = {}  # id of a live shared table -> its JSON
+_SHARED_SIZE = 3  # a report's three tables
 
 
 def _shared_json(table: SharedTable[Any]) -> orjson.Fragment | dict[str, Any]:
     """A shared table's JSON, encoded once for every record that holds it (the units of a
     group hold one table object: n tables of n² entries a run would be n³ bytes to encode).
-    Kept by identity with the table itself, so its id is not another's while kept."""
-    got = _SHARED.get(id(table))
+    Kept under the table's identity while it lives (a weak reference drops it with the
+    table: the cache never keeps a table of n² entries alive), a few at a time."""
+    key = id(table)
+    got = _SHARED.get(key)
     if got is None:
         try:
             data = encode_json(dict(table))
         except (TypeError, ValueError):  # raised here, orjson would only say "not JSON"
             return dict(table)  # not kept: the message's own checks name what is wrong
         if len(_SHARED) >= _SHARED_SIZE:  # a few tables at a time are the run's: the oldest
-            del _SHARED[next(iter(_SHARED))]  # goes (n² entries each: few are kept)
-        got = _SHARED[id(table)] = (table, orjson.Fragment(data))
-    return got[1]
+            del _SHARED[next(iter(_SHARED))]
+        got = _SHARED[key] = orjson.Fragment(data)
+        weakref.finalize(table, _SHARED.pop, key, None)
+    return got
 
 
 _COLUMNS: dict[tuple[str, bytes], orjson.Fragment] = {}  # (dtype, bytes) -> its JSON
-_COLUMNS_SIZE = 256
+_COLUMNS_SIZE = 64  # a wake's blocks of decodes, two float columns each, alike in all units
 _TEXT = frozenset({str})
 
 
