@@ -49,8 +49,8 @@ RUN_HOURS = 1.0
 # it costs"): one process running the whole group with its log, on a 2-core machine. Peak
 # memory: RUN_BASE_MB, plus RUN_MEMORY_MB at 10⁸ decodes, growing as decodes^RUN_MEMORY_EXPONENT
 # (measured 87, 147, 405 and 820 MB at n = 50, 100, 200, 300; 2,031 MB at n = 500 without the
-# log); wall time RUN_SECONDS_PER_DECODE a decode (1.3, 6.0, 37.6 and 126.7 s: the log's; 1.1,
-# 4.6, 28.5 and 122.6 s, 87, 149, 406 and 791 MB, once the log's tables and columns were
+# log); wall time RUN_SECONDS_PER_DECODE a decode (1.3, 6.0, 37.6 and 126.7 s: the log's; 1.2,
+# 5.2, 29.1 and 113.4 s, 87, 148, 405 and 794 MB, once the log's tables and columns were
 # written from JSON made once: 1.2 µs still bounds a decode from n = 100 on).
 RUN_BASE_MB = 50.0
 RUN_MEMORY_MB = 735.0
