@@ -69,7 +69,7 @@ BATCH_SECONDS = 120.0
 # take 7.0 s batching 10 s, 6.2 s at 20 s, 5.8 s at 30 s, 6.0 s at a minute (the log's chunks
 # then hold fewer units' records of one time and compress less: 22.7, 24.2, 25.5, 28.9 MB);
 # 200 units 38 s at 10 s, 32 s at 30 s (380 MB, 394 MB). 300 units peak at 816 MB batching
-# 30 s and 768 MB at 10 s: a group larger than LARGE_GROUP batches its log's 10 s
+# 30 s, 775-805 MB at 10 s: a group larger than LARGE_GROUP batches its log's 10 s
 LOGGED_BATCH_SECONDS = 30.0
 LARGE_GROUP = 200
 LARGE_GROUP_LOGGED_BATCH_SECONDS = 10.0

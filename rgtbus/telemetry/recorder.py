@@ -222,11 +222,11 @@ def _names_json(names: tuple[Any, ...]) -> Any:
 def column_json(values: Any) -> Any:
     """A one-dimensional numpy column of numbers (or a tuple of names, ``_names_json``) as
     its JSON (an ``orjson.Fragment``, for a record to hold in its place), worked out once for
-    equal columns: the units of a process
-    read each code alike, so their records of a block of decodes hold equal columns, and a
-    float costs orjson ~50 ns to write, against a few ns a byte to compare. Kept by value
-    (dtype and bytes), the oldest dropped first; anything else (or a column JSON cannot
-    hold, whose record's own encoding then says why) is returned as it is."""
+    equal columns: the units of a process read each code alike, so their records of a block
+    of decodes hold equal columns, and a float costs orjson ~50 ns to write, against a few ns
+    a byte to compare. Kept by value (dtype and bytes), the oldest dropped first; anything
+    else (or a column JSON cannot hold, whose record's own encoding then says why) is
+    returned as it is."""
     if type(values) is tuple:
         return _names_json(values)
     if getattr(values, "ndim", 0) != 1:
@@ -254,8 +254,7 @@ def _finite_by_type(message: dict[str, Any]) -> bool:
     """Whether no value of ``message`` can be a NaN or infinity, as their types show without
     a walk: text, integers, None, finite floats, lists of text, columns already written
     (``column_json``) and numpy columns of integers or booleans, or of floats whose sum is
-    finite. False says
-    only that the JSON must be looked into."""
+    finite. False says only that the JSON must be looked into."""
     for v in message.values():
         kind = type(v)
         if kind is str or kind is int or kind is bool or v is None or kind is orjson.Fragment:
