@@ -20,6 +20,7 @@ import numpy as np
 
 from rgtbus.errors import RgtbusError
 
+_GROUPS_KEPT = 64  # groups of units whose names and logs a keeper keeps made (``_group``)
 SMALL_HAND_OVER = 4096  # spikes of a hand-over grouped in plain Python (``_hand_blocks_small``)
 
 
@@ -80,10 +81,12 @@ class SharedSpikes:
         end: int,
         members: Sequence[int],
         names: Sequence[str],
+        member_set: frozenset[int] | None = None,
     ) -> None:
         self.samples, self.index, self.fired, self.end = samples, index, fired, end
-        self.members, self.names = list(members), list(names)
-        self._member_set = frozenset(self.members)  # fifty members settle each block
+        # read, never changed: a keeper hands every block of one group the same lists
+        self.members, self.names = members, names
+        self._member_set = frozenset(members) if member_set is None else member_set
         self._kept: dict[int, bool] = {}
 
     def settle(self, member: int, kept: bool) -> list[str] | None:
@@ -138,6 +141,9 @@ class SpikeKeeper:
         self.log_mask = np.array([lst.spike_log is not None for lst in self.listeners])
         self.ended = np.zeros(len(self.listeners), dtype=bool)  # its last block handed
         self.logging = bool(self.log_mask.any())  # whether any listener logs its spikes
+        # the units of a group that heard blocks alike: their names, logs and set, made once
+        # for the thousands of blocks a large group hears alike (``_hand_block``)
+        self._groups: dict[tuple[int, ...], tuple[list[str], list[SpikeLog], frozenset[int]]] = {}
 
     def stop(self, i: int) -> None:
         """Listener ``i`` listens no more: its spikes are no longer kept."""
@@ -365,6 +371,21 @@ class SpikeKeeper:
             a = z
         return True
 
+    def _group(self, units: list[int]) -> tuple[list[str], list[SpikeLog], frozenset[int]]:
+        """The names, logs and set of ``units``, made once a group (a few groups at a time:
+        a noisy run's groups change from block to block)."""
+        key = tuple(units)
+        got = self._groups.get(key)
+        if got is None:
+            if len(self._groups) >= _GROUPS_KEPT:
+                self._groups.clear()
+            got = self._groups[key] = (
+                [self.listeners[u].name for u in units],
+                [cast(SpikeLog, self.listeners[u].spike_log) for u in units],
+                frozenset(units),
+            )
+        return got
+
     def _hand_block(
         self, units: list[int], samples: np.ndarray, channel: np.ndarray, end: int
     ) -> None:
@@ -380,11 +401,10 @@ class SpikeKeeper:
             assert log is not None
             log.spikes(samples, index, fired, end)
             return
-        names = [self.listeners[u].name for u in units]
-        logs = [cast(SpikeLog, self.listeners[u].spike_log) for u in units]
+        names, logs, member_set = self._group(units)
         if all(log.keeps_now() for log in logs):  # as the last of them to settle would write
-            logs[-1].shared_kept(names, samples, index, fired, end)
+            logs[-1].shared_kept(list(names), samples, index, fired, end)
             return
-        share = SharedSpikes(samples, index, fired, end, units, names)
+        share = SharedSpikes(samples, index, fired, end, units, names, member_set)
         for log in logs:
             log.shared_spikes(share)

@@ -23,7 +23,6 @@ read by its position.
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, Protocol
 
@@ -125,6 +124,8 @@ def _joined(
 ) -> tuple[DecodePart, records.DecodeTables | None]:
     """The parts held as one: arrays with the batches' tables where every part can be
     indexed into one set of tables, else lists of names."""
+    if len(parts) == 1 and tables[0] is not None:  # one batch (the usual case): as it is
+        return parts[0], tables[0]
     table = next((t for t in tables if t is not None), None)
     indexed: list[DecodePart] = []
     if table is not None and all(t is None or t == table for t in tables):
@@ -158,7 +159,9 @@ def canonical(
     at one wake and the same decodes taken one at a time (a unit a live view watches) make
     the same record."""
     if own is not None:
-        if tables is not None and all(a is b or a == b for a, b in zip(tables, own, strict=True)):
+        if tables is own or (
+            tables is not None and all(a is b or a == b for a, b in zip(tables, own, strict=True))
+        ):
             return part, own  # a batch's: indexes into the unit's tables already
         named = part if tables is None else _names_of(part, tables)
         indexed = _indexed_part(named, own)
@@ -312,24 +315,26 @@ class UnitLog:
             return
         cols, table = _joined(parts, tables)
         times = cols.times
+        total = len(times)
         if type(times) is list:
             blocks = [self._block_of(t) for t in times]
-            cuts = [0, *(i for i in range(1, len(blocks)) if blocks[i] != blocks[i - 1])]
+            cuts = [0, *(i for i in range(1, total) if blocks[i] != blocks[i - 1])]
+            firsts = [blocks[a] for a in cuts]
         else:  # a batch's: in time order, so a block's decodes are one run
             of = samples_of(times, self.tau) // self._decode_block
             cuts = [0, *(np.flatnonzero(of[1:] != of[:-1]) + 1).tolist()]
-            blocks = of.tolist()
-        cuts.append(len(blocks))
+            firsts = of[cuts].tolist()  # each block's, not each decode's
         now = _NEVER if before is None else before // self._decode_block
-        for a, b in itertools.pairwise(cuts):
-            if blocks[a] >= now:  # the block still going on: held, as one part
-                self._parts = [DecodePart(*(c[a:] for c in cols))]
+        own, write, name = self.tables, self.recorder.write, self.name
+        for a, b, block in zip(cuts, [*cuts[1:], total], firsts, strict=True):
+            if block >= now:  # the block still going on: held, as one part
+                self._parts = [DecodePart(*[c[a:] for c in cols])]
                 self._tables = [table]
-                self.held_block = blocks[a]
+                self.held_block = block
                 return
-            part = cols if b - a == len(blocks) else DecodePart(*(c[a:b] for c in cols))
-            record = records.decodes_of_columns(self.name, *canonical(part, table, self.tables))
-            self.recorder.write(records.RX_DECODES, record, ns(record["t"]))
+            part = cols if b - a == total else DecodePart(*[c[a:b] for c in cols])
+            record = records.decodes_of_columns(name, *canonical(part, table, own))
+            write(records.RX_DECODES, record, ns(record["t"]))
 
     # -- spikes (the engine's SpikeLog) ----------------------------------------------------------
 
@@ -365,8 +370,15 @@ class UnitLog:
         """Log the blocks held for this wake: all of them, or (``stop``: done before that
         sample) their spikes before ``stop``, the last block ending there."""
         held, self._held = self._held, []
-        for block in held:
-            self._settle_spikes(block, stop)
+        if stop is not None:
+            for block in held:
+                self._settle_spikes(block, stop)
+            return
+        member = self.member  # all kept (``_settle_spikes``), in a loop of its own: a large
+        for block in held:  # group settles each of its blocks once a unit
+            units = block.settle(member, True)
+            if units:
+                self._log_spikes(units, block.samples, block.index, block.fired, block.end)
 
     @property
     def holds_spikes(self) -> bool:
