@@ -31,7 +31,7 @@ def _no_zenoh_config_from_the_shell(monkeypatch):
 @contextlib.contextmanager
 def small_chunk_logs(size: int = 1024) -> Iterator[None]:
     """Logs written meanwhile in chunks of ``size`` bytes: a short run's log then has many
-    chunks to cut and flip, as a long run's has (the default 256 KB makes one of a gate's)."""
+    chunks to cut and flip, as a long run's has (the default 1 MiB makes one of a gate's)."""
     from rgtbus.telemetry import recorder
 
     small = functools.partial(recorder.McapRecorder, chunk_size=size)

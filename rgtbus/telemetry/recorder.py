@@ -617,7 +617,7 @@ class McapRecorder(_Encoding):
         compression: str = "zstd",
         compression_level: int = 1,
         validate: bool = False,
-        chunk_size: int = 256 * 1024,
+        chunk_size: int = 1024 * 1024,
         flush_seconds: float | None = None,
         flush_messages: int = 4096,
         flush_wall: float = 0.5,
@@ -642,7 +642,10 @@ class McapRecorder(_Encoding):
         self.failed = None
         self._sink = _WatchedStream(stream)
         self.context = foxglove.Context()
-        # Smaller chunks than mcap's 1 MiB default: a killed run loses at most one chunk.
+        # mcap's default chunk of 1 MiB: what a killed run loses is bounded by flush_wall and
+        # flush_messages; a chunk holds more units' records of one block, which compress as
+        # one (a 200-unit run's log: 140 MB in chunks of 1 MiB, 195 MB in chunks of 256 KiB,
+        # in the same time).
         # Compression on the calling thread: a launch runs one writer per unit process.
         # zstd's fastest level by default: a 200-unit run with its log took 28.7 s at level 1
         # and 30.5 s at zstd's default (3), for 195 MB of log instead of 190.

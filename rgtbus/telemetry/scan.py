@@ -383,8 +383,8 @@ def _take(raw: RawLog, rec: Any, start: int) -> None:
         raw.schemas[rec.id] = rec
 
 
-# The most a chunk may claim to hold once decompressed: rgtbus writes chunks of 256 KiB, mcap's
-# writers 1 MiB by default. A chunk claiming more is refused before anything is allocated
+# The most a chunk may claim to hold once decompressed: rgtbus and mcap's writers write chunks of
+# 1 MiB by default. A chunk claiming more is refused before anything is allocated
 # (a compression bomb: 56 KB of file claiming gigabytes).
 MAX_CHUNK_BYTES = 64 << 20
 
