@@ -17,18 +17,19 @@ the serial one's; n = 50 concurrent socialises in under 60 s wall without a log 
 that with the full log; n = 100 under 10 min.
 
 ``--scale-sizes`` prints only the engine table of the concurrent schedule (issue 23): per n the
-wall without and with the full log (median of ``--repeat`` fresh processes; default 3 up to
-n = 30, 1 above), peak RSS of both, a NumPy reference doing the run's necessary work (a dense
-per-sample resonator bank over the medium for every distinct receiver view, then a vectorised
-nearest-codeword decode of every code for every receiver) and the run's ratio to it, Python
-calls per pulse (cProfile, up to ``--calls-upto`` units), the fitted exponent of wall in n and
-the machine's load. ``--instructions`` prints the instructions (callgrind's Ir) of the run
-without a log and of the reference, each section counted alone in a process run under
-``valgrind --tool=callgrind --instr-atstart=no``: issue 38 asks for the run / reference ratio
-in instructions as well as in wall time. Goals (issue 23, 2 cores): n = 100 concurrent with its
-full log under 20 s and 250 MB, n = 200 under 2 min and 1 GB; the run within 3x the NumPy
-reference at n = 50; log / no log <= 1.3x at n = 50; exponent of wall over n = 10...100 <= 3.0
-(the decodes are n^3).
+wall without and with the full log, and with the log's records built and none written
+(``DiscardingRecorder``: what the log costs before encoding and writing), each the median of
+``--repeat`` fresh processes (default 3 up to n = 30, 1 above), peak RSS of both, a NumPy reference
+doing the run's necessary work (a dense per-sample resonator bank over the medium for every
+distinct receiver view, then a vectorised nearest-codeword decode of every code for every receiver)
+and the run's ratio to it, Python calls per pulse (cProfile, up to ``--calls-upto`` units), the
+fitted exponent of wall in n and the machine's load. ``--instructions`` prints the instructions
+(callgrind's Ir) of the run without a log and of the reference, each section counted alone in a
+process run under ``valgrind --tool=callgrind --instr-atstart=no``: issue 38 asks for the run /
+reference ratio in instructions as well as in wall time. Goals (issue 23, 2 cores): n = 100
+concurrent with its full log under 20 s and 250 MB, n = 200 under 2 min and 1 GB; the run within 3x
+the NumPy reference at n = 50; log / no log <= 1.3x at n = 50; exponent of wall over n = 10...100
+<= 3.0 (the decodes are n^3).
 """
 
 from __future__ import annotations
@@ -119,6 +120,32 @@ def medium_pulses(members: list[AutonomousUnit]) -> int:
     return sum(len(send.samples) for m in members for send in m.sent)
 
 
+class DiscardingRecorder:
+    """A recorder that is on (``enabled``: the units build every record of a full log, work
+    out every spike, batch as a logged run does) and keeps nothing: what a log costs before a
+    byte of it is encoded or written (``--scale-sizes``'s "records built" cell)."""
+
+    enabled = True
+
+    def write(self, topic: str, message: Any, t_ns: int) -> None:
+        pass
+
+    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None:
+        pass
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        pass
+
+    def watched(self) -> bool:
+        return False
+
+    def offer(self, topic: str, message: Any, t_ns: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 def one(
     n: int,
     schedule: str,
@@ -126,11 +153,13 @@ def one(
     noise: float,
     *,
     log_file: bool = False,
+    discard: bool = False,
     reference: bool = False,
     count: Callgrind = NO_COUNT,
 ) -> dict[str, Any]:
-    """In a child process: one run's figures (``reference``: then the NumPy reference's;
-    ``count``: the run's instructions and the reference's, under callgrind)."""
+    """In a child process: one run's figures (``discard``: its log's records built and none
+    written, ``DiscardingRecorder``; ``reference``: then the NumPy reference's; ``count``: the
+    run's instructions and the reference's, under callgrind)."""
     from rgtbus.units.group import run_group
 
     from rgtbus.scenario import parse_scenario
@@ -139,7 +168,7 @@ def one(
     sc = parse_scenario(scale_toml(n, schedule, noise=noise), f"<scale{n}>")
     # a log file on disk, as `rgtbus run` writes it: in memory its bytes would count as RSS
     with tempfile.TemporaryFile() if log and log_file else io.BytesIO() as buf:
-        rec = McapRecorder(buf) if log else NullRecorder()
+        rec = DiscardingRecorder() if discard else McapRecorder(buf) if log else NullRecorder()
         t0 = time.perf_counter()
         with count.section("run"):
             out = run_group(sc, "memory", rec)
@@ -315,12 +344,14 @@ def measure(
     noise: float = 0.0,
     *,
     log_file: bool = False,
+    discard: bool = False,
     reference: bool = False,
     calls: bool = False,
 ) -> dict[str, Any]:
     argv = [sys.executable, "-m", "benchmarks.bench_scale", "--one", str(n), schedule]
     argv += ["--log" if log else "--no-log", "--noise", repr(noise)]
-    argv += ["--log-file"] * log_file + ["--reference"] * reference + ["--count-calls"] * calls
+    argv += ["--log-file"] * log_file + ["--discard"] * discard + ["--reference"] * reference
+    argv += ["--count-calls"] * calls
     proc = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=7200)
     if proc.returncode != 0:
         raise SystemExit(f"n={n} {schedule} failed: {proc.stderr.strip()[-800:]}")
@@ -370,12 +401,14 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
     for n in sizes:
         runs: list[dict[str, Any]] = []
         logs: list[dict[str, Any]] = []
+        built: list[dict[str, Any]] = []
         for _ in range(repeat or (3 if n <= 30 else 1)):
-            # alternated, so a change of the machine's load hits both alike
+            # alternated, so a change of the machine's load hits them alike
             runs.append(measure(n, "concurrent", reference=True))
             logs.append(measure(n, "concurrent", log=True, log_file=True))
+            built.append(measure(n, "concurrent", discard=True))
         calls = measure(n, "concurrent", calls=True) if n <= calls_upto else None
-        cases[n] = {"runs": runs, "logs": logs, "calls": calls}
+        cases[n] = {"runs": runs, "logs": logs, "built": built, "calls": calls}
     load1 = os.getloadavg()
 
     def med(rs: list[dict[str, Any]], key: str) -> float:
@@ -385,21 +418,24 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
     print()
     print(
         "| n | R | pulses | decodes: run / reference (ref. mismatches) | wall s no log | "
-        "wall s full log | log / no log | peak MB no log / log | NumPy reference s "
-        "(bank + decode) | run / reference | Python calls per pulse |"
+        "wall s full log | log / no log | wall s records built, none written | built / no log "
+        "| peak MB no log / log | NumPy reference s (bank + decode) | run / reference | "
+        "Python calls per pulse |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     fig: dict[int, dict[str, float]] = {}
     for n, case in cases.items():
-        runs, logs, calls = case["runs"], case["logs"], case["calls"]
-        bad = [r["failure"] for r in runs + logs if r["failure"]]
+        runs, logs, built, calls = case["runs"], case["logs"], case["built"], case["calls"]
+        bad = [r["failure"] for r in runs + logs + built if r["failure"]]
         r0 = runs[0]
         if bad:  # a run that cannot finish is a result too: say where it stopped
-            print(f"| {n} | {len(runs)} | - | failed: {bad[0]} |" + " - |" * 7)
+            print(f"| {n} | {len(runs)} | - | failed: {bad[0]} |" + " - |" * 9)
             continue
         f = {k: med(runs, k) for k in ("wall", "rss_mb", "ref_s", "ref_bank_s", "ref_decode_s")}
         f |= {"log_wall": med(logs, "wall"), "log_rss_mb": med(logs, "rss_mb")}
         f["log_ratio"] = f["log_wall"] / f["wall"]
+        f["built_wall"] = med(built, "wall")
+        f["built_ratio"] = f["built_wall"] / f["wall"]
         f["ref_ratio"] = f["wall"] / f["ref_s"]
         fig[n] = f
         per_pulse = f"{calls['calls_per_pulse']:.0f}" if calls else "-"
@@ -407,6 +443,7 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
             f"| {n} | {len(runs)} | {r0['medium_pulses']} | {r0['decodes']} / "
             f"{r0['ref_decodes']} ({max(r['ref_mismatches'] for r in runs)}) | "
             f"{f['wall']:.2f} | {f['log_wall']:.2f} | {f['log_ratio']:.2f}x | "
+            f"{f['built_wall']:.2f} | {f['built_ratio']:.2f}x | "
             f"{f['rss_mb']:.0f} / {f['log_rss_mb']:.0f} | {f['ref_s']:.2f} "
             f"({f['ref_bank_s']:.2f} + {f['ref_decode_s']:.2f}) | {f['ref_ratio']:.2f}x | "
             f"{per_pulse} |"
@@ -441,7 +478,9 @@ def engine_table(sizes: list[int], repeat: int | None, calls_upto: int) -> None:
     )
     print(
         "Medians of R fresh processes per cell; the log run writes its MCAP to a temporary "
-        "file; the reference assumes noise 0 and is timed after the run, in its process."
+        "file; the records-built run builds every record of the log and writes none (the "
+        "log's cost before encoding and writing); the reference assumes noise 0 and is timed "
+        "after the run, in its process."
     )
     print()
     engine_goals(fig)
@@ -533,7 +572,8 @@ def engine_goals(fig: dict[int, dict[str, float]]) -> None:
             if n <= 200:
                 lines.append(
                     f"n = {n} log / no log: {f['log_ratio']:.2f}x (goal <= 1.5x): "
-                    f"{verdict(f['log_ratio'] <= 1.5)}"
+                    f"{verdict(f['log_ratio'] <= 1.5)} (records built, none written: "
+                    f"{f['built_ratio']:.2f}x)"
                 )
     for n, wall_goal, mb_goal in ((100, 20.0, 250.0), (200, 120.0, 1024.0)):
         if n in fig:
@@ -576,6 +616,7 @@ def main() -> None:
     ap.add_argument("--no-log", dest="log", action="store_false", help=argparse.SUPPRESS)
     ap.add_argument("--noise", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--log-file", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--discard", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--reference", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--count-calls", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--callgrind", action="store_true", help=argparse.SUPPRESS)
@@ -599,7 +640,7 @@ def main() -> None:
             print(json.dumps(count_calls(n, schedule)))
             return
         got = one(
-            n, schedule, args.log, args.noise, log_file=args.log_file,
+            n, schedule, args.log, args.noise, log_file=args.log_file, discard=args.discard,
             reference=args.reference, count=Callgrind(args.callgrind),
         )  # fmt: skip
         print(json.dumps(got))
