@@ -594,6 +594,11 @@ def test_a_logged_batch_of_any_length_writes_the_same_log(monkeypatch):
     small = unit_module.batch_seconds(unit_module.LARGE_GROUP, logged=True)
     large = unit_module.batch_seconds(unit_module.LARGE_GROUP + 1, logged=True)
     assert large < small < unit_module.BATCH_SECONDS
+    # paced: at most PACED_BATCH_WALL_SECONDS of wall time (a log cut by a kill trails little)
+    wall = unit_module.PACED_BATCH_WALL_SECONDS
+    assert unit_module.batch_seconds(10, logged=True, realtime=4.0) == 4.0 * wall
+    assert unit_module.batch_seconds(10, logged=True, realtime=1e6) == small
+    assert unit_module.batch_seconds(10, logged=False, realtime=4.0) == unit_module.BATCH_SECONDS
 
     sc = random_group(5, noise=0.02, gains=True, anchor="schedule")
     sc = parse_scenario(sc.text + '[protocol]\nschedule = "concurrent"\n', "<batches>")

@@ -689,6 +689,28 @@ def test_a_unit_batches_its_decodes_only_when_no_live_view_waits_for_its_records
     assert not unit.batching()
 
 
+def test_a_paced_run_batches_a_wall_second_of_its_log_at_most(monkeypatch):
+    """A logged unit's records of a batch leave at its next wake: paced, a batch holds at
+    most ``PACED_BATCH_WALL_SECONDS`` of wall time (a log cut by a kill trails the paced clock
+    by little), unpaced a minute; the log holds the same records either way."""
+    from rgtbus.units import unit as unit_module
+
+    monkeypatch.setattr(unit_module, "PACED_BATCH_WALL_SECONDS", 0.1)  # a quick paced run
+    sc = load_scenario(ROOT / "scenarios" / "gate_noisy.toml")  # timed by the schedule
+    logs, batches = [], []
+    for realtime in (None, 400.0):
+        rec = MemoryRecorder()
+        out = run_group(sc, "memory", rec, realtime=realtime)
+        assert all(m.batching() for m in out.units)
+        batches.append({m._batch_seconds for m in out.units})
+        logs.append(_log_of(rec))
+    assert batches == [
+        {unit_module.LOGGED_BATCH_SECONDS},
+        {400.0 * 0.1},
+    ]
+    assert logs[0] == logs[1]
+
+
 class _Sink:
     """A live sink whose ``watched`` says what the test sets (from the ``flip``-th ask on:
     watched), counting what it is offered."""

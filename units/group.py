@@ -91,7 +91,7 @@ def run_group(
     sc = scenario
     run_id = run_id or default_run_id(sc)
     write_metadata(recorder, sc, bus_kind, run_id, engine=engine, auth=auth_name(key))
-    members = [AutonomousUnit(u, sc, recorder, traces=traces) for u in sc.units]
+    members = [AutonomousUnit(u, sc, recorder, traces=traces, realtime=realtime) for u in sc.units]
     with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate, key=key) as bus:
         result = World.for_scenario(
             sc, members, bus, recorder,

@@ -193,7 +193,7 @@ def run_units(
     write_metadata(
         recorder, sc, "zenoh", run_id, process=first, engine=engine, auth=auth_name(key), **hosted
     )
-    units = [AutonomousUnit(name, sc, recorder, traces=traces) for name in names]
+    units = [AutonomousUnit(name, sc, recorder, traces=traces, realtime=realtime) for name in names]
     opts = dict(zenoh_options or {})
     # a peer starved of CPU keeps its links as long as the run would wait for it
     opts.setdefault("send_patience", timeout)

@@ -66,22 +66,31 @@ KEEP_SECONDS = 30.0  # readout a decode may reach back (longest code + reaction 
 BATCH_SECONDS = 120.0
 # with a log, what a batch holds for it (its decodes, the blocks of spikes handed meanwhile)
 # grows with the batch, and so do the wakes' cost with their number: 100 units with their log
-# take 7.0 s batching 10 s, 6.2 s at 20 s, 5.8 s at 30 s, 6.0 s at a minute (the log's chunks
-# then hold fewer units' records of one time and compress less: 22.7, 24.2, 25.5, 28.9 MB);
-# 200 units 38 s at 10 s, 32 s at 30 s (380 MB, 394 MB). 300 units peak at 816 MB batching
-# 30 s, 775-805 MB at 10 s: a group larger than LARGE_GROUP batches its log's 10 s
-LOGGED_BATCH_SECONDS = 30.0
+# took 7.0 s batching 10 s, 6.2 s at 20 s, 5.8 s at 30 s, 6.0 s at a minute in chunks of
+# 256 KiB (which then held fewer units' records of one time); in chunks of 1 MiB, 4.5 s at
+# 30 s and 4.3 s at a minute, 200 units 25.5 s and 23.3 s (141 and 158 MB of log, a peak of
+# 400 and 418 MB). 300 units peak at 816 MB batching 30 s, 775-805 MB at 10 s: a group larger
+# than LARGE_GROUP batches its log's 10 s
+LOGGED_BATCH_SECONDS = 60.0
 LARGE_GROUP = 200
 LARGE_GROUP_LOGGED_BATCH_SECONDS = 10.0
+# a logged batch's records leave at the wake after it: a paced run's units batch at most
+# this much of its wall time, so that a log cut by a kill trails the paced clock by little
+PACED_BATCH_WALL_SECONDS = 1.0
 
 
-def batch_seconds(units: int, logged: bool) -> float:
+def batch_seconds(units: int, logged: bool, realtime: float | None = None) -> float:
     """How much time of its decodes a unit of a group of ``units`` takes at one wake, when
     it batches (``BATCH_SECONDS``; with a log ``LOGGED_BATCH_SECONDS``, shorter in a group
-    larger than ``LARGE_GROUP``, where what a batch holds weighs most)."""
+    larger than ``LARGE_GROUP``, where what a batch holds weighs most, and in a run paced at
+    ``realtime`` simulated seconds a wall second at most ``PACED_BATCH_WALL_SECONDS`` of wall
+    time)."""
     if not logged:
         return BATCH_SECONDS
-    return LOGGED_BATCH_SECONDS if units <= LARGE_GROUP else LARGE_GROUP_LOGGED_BATCH_SECONDS
+    batch = LOGGED_BATCH_SECONDS if units <= LARGE_GROUP else LARGE_GROUP_LOGGED_BATCH_SECONDS
+    if realtime is not None:
+        batch = min(batch, realtime * PACED_BATCH_WALL_SECONDS)
+    return batch
 
 
 def protocol_of(sc: Scenario, name: str) -> ProtocolState:
@@ -113,10 +122,16 @@ def lay_out_plan(sc: Scenario) -> None:
 
 class AutonomousUnit:
     """Unit ``name`` of ``scenario``, writing to ``recorder`` (``traces``: its resonators'
-    states too). See the module docstring."""
+    states too; ``realtime``: the run is paced, at that many simulated seconds a wall second,
+    ``batch_seconds``). See the module docstring."""
 
     def __init__(
-        self, name: str, scenario: Scenario, recorder: Recorder, traces: bool = False
+        self,
+        name: str,
+        scenario: Scenario,
+        recorder: Recorder,
+        traces: bool = False,
+        realtime: float | None = None,
     ) -> None:
         sc = scenario
         self.name, self.scenario, self.recorder, self.traces = name, sc, recorder, traces
@@ -148,7 +163,7 @@ class AutonomousUnit:
         self.limit = sample_of(min(stop or math.inf, sc.timing.max_seconds), self.tau)
         self.timers = Timers()
         self._batches = False  # its decodes may wait for one wake a batch (set at begin)
-        self._batch_seconds = batch_seconds(len(sc.units), recorder.enabled)
+        self._batch_seconds = batch_seconds(len(sc.units), recorder.enabled, realtime)
         self._batch_span = max(1, sample_of(self._batch_seconds, self.tau))
         self.log = UnitLog(name, recorder, self.tau, self.units, self._holds_spikes)
         self.transmitter = Transmitter(sc.codebook, dict(sc.frequencies), self.tau, self.log)
