@@ -51,9 +51,10 @@ RUN_HOURS = 1.0
 # (measured 87, 147, 405 and 820 MB at n = 50, 100, 200, 300; 2,031 MB at n = 500 without the
 # log); wall time RUN_SECONDS_PER_DECODE a decode (1.3, 6.0, 37.6 and 126.7 s: the log's; 1.2,
 # 5.2, 29.1 and 113.4 s, 87, 148, 405 and 794 MB, once the log's tables and columns were
-# written from JSON made once: 1.2 µs still bounds a decode from n = 100 on).
+# written from JSON made once: 1.2 µs still bounds a decode from n = 100 on; 1.0, 4.3, 24.0
+# and 100 s, 87, 149, 394-420 and 774 MB with a logged batch of a minute up to 200 units).
 RUN_BASE_MB = 50.0
-RUN_MEMORY_MB = 735.0
+RUN_MEMORY_MB = 760.0
 RUN_MEMORY_EXPONENT = 0.64
 RUN_SECONDS_PER_DECODE = 1.2e-6
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")

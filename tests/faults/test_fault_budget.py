@@ -302,10 +302,10 @@ def no_plan_work(monkeypatch):
         # 14 GB in 20 s
         (["4", "--sample-rate", "1e12"], "--sample-rate 1e+12: a run of this plan: about 3.6e+15"),
         # 9.6 GB after 10 minutes (and the concurrent schedule's placement, n³)
-        (["10000"], "N = 10000: a run of this plan: about 633 GB at its peak"),
+        (["10000"], "N = 10000: a run of this plan: about 654 GB at its peak"),
         (["10000", "--schedule", "concurrent"], "(4e+12 decodes), more than the memory this"),
         # StopIteration
-        (["1000000"], "N = 1000000: a run of this plan: about 4.38e+06 GB at its peak"),
+        (["1000000"], "N = 1000000: a run of this plan: about 4.53e+06 GB at its peak"),
         # ZeroDivisionError
         (["4", "--sample-rate", "inf"], "--sample-rate inf: must be a positive finite number"),
         (["4", "--sample-rate", "nan"], "--sample-rate nan: must be a positive finite number"),
