@@ -51,6 +51,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rgtbus.telemetry import NullRecorder
+
 if TYPE_CHECKING:
     from rgtbus.units.unit import AutonomousUnit
 
@@ -120,30 +122,13 @@ def medium_pulses(members: list[AutonomousUnit]) -> int:
     return sum(len(send.samples) for m in members for send in m.sent)
 
 
-class DiscardingRecorder:
+class DiscardingRecorder(NullRecorder):
     """A recorder that is on (``enabled``: the units build every record of a full log, work
-    out every spike, batch as a logged run does) and keeps nothing: what a log costs before a
-    byte of it is encoded or written (``--scale-sizes``'s "records built" cell)."""
+    out every spike, batch as a logged run does) and keeps nothing, as ``NullRecorder``: what
+    a log costs before a byte of it is encoded or written (``--scale-sizes``'s "records built"
+    cell)."""
 
     enabled = True
-
-    def write(self, topic: str, message: Any, t_ns: int) -> None:
-        pass
-
-    def log(self, level: str, text: str, t_ns: int, name: str = "rgtbus") -> None:
-        pass
-
-    def metadata(self, name: str, values: dict[str, str]) -> None:
-        pass
-
-    def watched(self) -> bool:
-        return False
-
-    def offer(self, topic: str, message: Any, t_ns: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def one(
@@ -163,7 +148,7 @@ def one(
     from rgtbus.units.group import run_group
 
     from rgtbus.scenario import parse_scenario
-    from rgtbus.telemetry import McapRecorder, NullRecorder
+    from rgtbus.telemetry import McapRecorder
 
     sc = parse_scenario(scale_toml(n, schedule, noise=noise), f"<scale{n}>")
     # a log file on disk, as `rgtbus run` writes it: in memory its bytes would count as RSS
@@ -204,7 +189,6 @@ def count_calls(n: int, schedule: str) -> dict[str, Any]:
     from rgtbus.units.group import run_group
 
     from rgtbus.scenario import parse_scenario
-    from rgtbus.telemetry import NullRecorder
 
     sc = parse_scenario(scale_toml(n, schedule), f"<scale{n}>")
     pr = cProfile.Profile()
