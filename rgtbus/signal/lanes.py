@@ -224,34 +224,32 @@ def shared_views(
     U, C = M.receivers, M.channels
     if live.size < 2:
         return None
-    if live.size == U and _all_alike(vals, state, U, C):  # the usual case, with no copies
-        walker_of = np.full(U, live[0])
-        return Views(live, walker_of, live[0] * C + np.arange(C))
+    if _all_alike(vals, state, live, U, C):  # the usual case when any is: one view for all
+        return Views(live, np.full(live.size, live[0]), live[0] * C + np.arange(C))
     inputs = np.ascontiguousarray(vals[:, live].T).view(np.int64)
     wr = state.wr.reshape(U, C)[live].view(np.int64)
     wi = state.wi.reshape(U, C)[live].view(np.int64)
     pend = state.pend.reshape(U, C)[live].astype(np.int64)
     key = np.concatenate([inputs, wr, wi, pend], axis=1)
-    if (key == key[0]).all():  # the usual case when any is: one view for all
-        walker_of = np.full(live.size, live[0])
-    else:
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        if first.size * 2 > live.size:  # little to share: walking each is cheaper
-            return None
-        walker_of = live[first][inverse.reshape(-1)]
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    if first.size * 2 > live.size:  # little to share: walking each is cheaper
+        return None
+    walker_of = live[first][inverse.reshape(-1)]
     walkers = np.unique(walker_of)
     lanes = (walkers[:, None] * C + np.arange(C)).ravel()
     return Views(live, walker_of, lanes)
 
 
-def _all_alike(vals: np.ndarray, state: BankState, U: int, C: int) -> bool:
-    """Whether all ``U`` receivers start from the same lane states and hear the same input,
-    bit for bit (``shared_views``'s test, on views of the arrays rather than copies)."""
+def _all_alike(vals: np.ndarray, state: BankState, live: np.ndarray, U: int, C: int) -> bool:
+    """Whether the ``live`` receivers all start from the same lane states and hear the same
+    input, bit for bit: on views of the arrays when every receiver is live (no copies), the
+    first that differs ending the test."""
+    pick = slice(None) if live.size == U else live
     grids = (
-        np.ascontiguousarray(vals).view(np.int64).T,  # receivers × rows
-        state.wr.reshape(U, C).view(np.int64),
-        state.wi.reshape(U, C).view(np.int64),
-        state.pend.reshape(U, C),
+        np.ascontiguousarray(vals).view(np.int64)[:, pick].T,  # receivers × rows
+        state.wr.reshape(U, C)[pick].view(np.int64),
+        state.wi.reshape(U, C)[pick].view(np.int64),
+        state.pend.reshape(U, C)[pick],
     )
     return all(bool((grid == grid[0]).all()) for grid in grids)
 
