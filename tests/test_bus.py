@@ -776,12 +776,12 @@ def test_the_first_hellos_come_soon_then_every_period():
 def test_a_claimant_saying_its_hello_again_unread_keeps_its_claim(repeated):
     """The gate reads a hello said again unchanged no more, but notes when it came: the claim
     of a unit's first claimant stays alive while it repeats itself, so a second claimant
-    heard later than three hello periods after the first one was read is still a conflict.
+    heard later than ``claim_silence`` after the first one was read is still a conflict.
     A claimant that fell silent (died, or was replaced) no longer counts."""
     from types import SimpleNamespace
 
     from rgtbus.bus.hello import Hello
-    from rgtbus.bus.zenoh import _Barrier
+    from rgtbus.bus.zenoh import _Barrier, claim_silence
 
     digest = "0" * 64
     bus = SimpleNamespace(members=("a", "b"), nonce=b"A" * 16, process="host:1", run_id="r",
@@ -790,7 +790,8 @@ def test_a_claimant_saying_its_hello_again_unread_keeps_its_claim(repeated):
     first = Hello("b", digest, b"1" * 16, process="host:2")
     barrier.claim(first, time.monotonic())
     barrier.nonces["b"] = first.nonce  # read: the latest claimant on b's key
-    time.sleep(0.2)  # more than three periods since it was read
+    # read longer ago than a claimant may go unheard
+    barrier.claims["b"][first.nonce] = ("host:2", time.monotonic() - claim_silence(0.05) - 0.1)
     if repeated:
         bus._repeated_at["b"] = time.monotonic()  # said again, unchanged: not read
     barrier.claim(Hello("b", digest, b"2" * 16, process="host:3"), time.monotonic())
@@ -815,3 +816,94 @@ def test_a_join_that_hears_nobody_says_how_units_reach_each_other():
     said = str(timed_out.value)
     assert "timed out after 1 s: no answer from b; no other unit was heard at all" in said
     assert "rgtbus router" in said and "a watcher (rgtbus watch) relays nothing" in said
+
+
+def _committed_barrier(heard: float | None = None):
+    """A barrier of a (local), b and c that has said it is ready: b and c hold its view, b is
+    ready and c not yet (their hellos heard at ``heard``, monotonic: now by default). The
+    barrier, its view, and b's and c's nonces."""
+    from types import SimpleNamespace
+
+    from rgtbus.bus.hello import Hello, view_digest
+    from rgtbus.bus.zenoh import _Barrier
+
+    said: list[tuple[str, bytes, bool]] = []
+    bus = SimpleNamespace(
+        members=("a", "b", "c"), nonce=b"A" * 16, process="host:1", run_id="r",
+        _repeated_at={}, _nonces={},
+        _say_hello=lambda u, d, view, *, ready: said.append((u, view, ready)),
+    )  # fmt: skip
+    barrier = _Barrier(bus, ["a"], DIGEST, 0.05)  # type: ignore[arg-type]
+    nb, nc = b"B" * 16, b"C" * 16
+    view = view_digest("r", DIGEST, {"a": bus.nonce, "b": nb, "c": nc})
+    now = time.monotonic() if heard is None else heard
+    assert not barrier.hear(Hello("b", DIGEST, nb, view, ready=True, process="host:2"), now)
+    assert not barrier.hear(Hello("c", DIGEST, nc, view, process="host:3"), now)
+    barrier.say()
+    assert said == [("a", view, True)] and barrier.committed == view
+    return barrier, view, nb, nc
+
+
+def test_a_ready_member_takes_a_later_claimant_as_late_and_still_opens():
+    """Once a member said it is ready, another may open with its view: a second claimant of b
+    heard after that changes nothing there (no conflict, b's nonce kept), and the barrier
+    opens when c says it is ready too."""
+    from rgtbus.bus.hello import Hello
+
+    barrier, view, nb, nc = _committed_barrier()
+    rival = Hello("b", DIGEST, b"2" * 16, process="host:4")
+    assert not barrier.hear(rival, time.monotonic())
+    assert barrier.late(rival) and barrier.conflict is None
+    assert barrier.nonces["b"] == nb and barrier.view() == view
+    assert barrier.rival is not None and "host:2" in barrier.rival and "host:4" in barrier.rival
+    assert barrier.hear(
+        Hello("c", DIGEST, nc, view, ready=True, process="host:3"), time.monotonic()
+    )
+
+
+def test_a_ready_member_stops_when_a_member_of_its_view_heard_the_rival_first():
+    """c heard the second claimant of b before it was ready: its view moves, so nobody can open
+    with the view a promised; a's promise ends and it stops for the conflict it kept, naming
+    b and both claimants (it does not run on alone while c stops)."""
+    from rgtbus.bus.hello import Hello, view_digest
+
+    barrier, _view, _nb, nc = _committed_barrier()
+    n2 = b"2" * 16
+    barrier.hear(Hello("b", DIGEST, n2, process="host:4"), time.monotonic())
+    moved = view_digest("r", DIGEST, {"a": b"A" * 16, "b": n2, "c": nc})
+    assert not barrier.hear(Hello("c", DIGEST, nc, moved, process="host:3"), time.monotonic())
+    assert barrier.committed == b"" and not barrier.done()
+    said = barrier.conflict
+    assert said is not None and said.startswith("two processes claim unit 'b' of run 'r': ")
+    assert "host:2" in said and "host:4" in said
+
+
+def test_a_ready_member_follows_a_claimant_that_replaced_a_silent_one():
+    """b's first process fell silent (died) after a was ready, and a new one claims b: no
+    conflict. When c's view moves to the new b, a's promise ends without a conflict and a
+    takes up the join with the new b's nonce."""
+    from rgtbus.bus.hello import Hello, view_digest
+    from rgtbus.bus.zenoh import claim_silence
+
+    barrier, _view, nb, nc = _committed_barrier(heard=time.monotonic() - claim_silence(0.05) - 0.1)
+    n2 = b"2" * 16  # the first b was last heard longer ago than a claimant may be silent
+    new_b = Hello("b", DIGEST, n2, process="host:4")
+    assert not barrier.hear(new_b, time.monotonic())
+    assert barrier.rival is None and barrier.nonces["b"] == nb  # late while a's promise holds
+    moved = view_digest("r", DIGEST, {"a": b"A" * 16, "b": n2, "c": nc})
+    barrier.hear(Hello("c", DIGEST, nc, moved, process="host:3"), time.monotonic())
+    assert barrier.committed == b"" and barrier.conflict is None
+    barrier.hear(new_b, time.monotonic())
+    assert barrier.nonces["b"] == n2 and barrier.view() == moved
+
+
+def test_a_member_stopping_for_a_conflict_never_says_it_is_ready():
+    """The join says its hello on for a while after a conflict, so that everyone hears it:
+    never as ready, or another member could open with a member that is about to stop."""
+    barrier, view, _nb, _nc = _committed_barrier()
+    barrier.committed = b""  # as before its promise
+    barrier.conflict = "two processes claim unit 'b' of run 'r': ..."
+    said: list[tuple[str, bytes, bool]] = []
+    barrier.bus._say_hello = lambda u, d, v, *, ready: said.append((u, v, ready))
+    barrier.say()
+    assert said == [("a", view, False)] and barrier.committed == b""

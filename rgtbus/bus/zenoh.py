@@ -196,11 +196,36 @@ def hello_gap(period: float, said: int) -> float:
     return min(period, _FIRST_HELLO_GAP * 2.0 ** min(said, 30))
 
 
+# s: the least silence after which a unit's claimant no longer counts (it died, or was
+# replaced). Processes starting together on a loaded machine go unheard for hundreds of ms
+# (starved of CPU); a second claimant heard meanwhile is a conflict, not the replacement of
+# the first. A restarted process takes longer than this to say its first hello.
+CLAIM_SILENCE = 1.0
+
+
+def claim_silence(period: float) -> float:
+    """How long a claimant of a unit may go unheard and still count: three hello periods,
+    and at least ``CLAIM_SILENCE``."""
+    return max(3.0 * period, CLAIM_SILENCE)
+
+
 class _Barrier:
     """One join's state (``ZenohBus.join``): the latest nonce heard of each member
     (``nonces``, ours among them), each member's latest view and readiness, whether a hello
     brought news since we last spoke (``news``: we answer at the next round, once for all of
-    it), and who claims each unit (``claims``: nonce -> (process, when last heard))."""
+    it), and who claims each unit (``claims``: nonce -> (process, when last heard)).
+
+    **Ready is a promise** (``committed``): once we have said we are ready with view V, another
+    member may open its barrier with V at any moment, so our view no longer changes. A claimant
+    heard after that whose nonce V lacks is a late joiner (``hear`` passes it by, and once the
+    run starts it is told so), not a conflict; a conflict it would have made is kept
+    (``rival``). The promise ends only when a member of V says a view other than V
+    (``_release``): the first member of V to do so never said it was ready with V, and each
+    later one had seen a member that never did, so nobody can open with V (opening needs every
+    other member ready with it); we take up the join again, and stop for the kept conflict if
+    there is one. So a second claimant heard by some members before they were ready and by
+    others after cannot leave a member running alone: either every member opens with one view,
+    or every member that heard both claims stops (docs/security.md)."""
 
     def __init__(self, bus: ZenohBus, mine: list[str], digest: str, period: float) -> None:
         self.bus, self.mine, self.digest, self.period = bus, mine, digest, period
@@ -212,6 +237,8 @@ class _Barrier:
         self.news = False
         self.claims: dict[str, dict[bytes, tuple[str, float]]] = {}
         self.conflict: str | None = None  # two live processes claim one unit
+        self.committed = b""  # the view we said we are ready with (b"": not said)
+        self.rival: str | None = None  # a conflict heard once committed: a late claimant
 
     def view(self) -> bytes:
         """Our view of the run (``view_digest``), or b"" while a member is unheard."""
@@ -240,19 +267,22 @@ class _Barrier:
         )
 
     def say(self, *, ready: bool | None = None) -> None:
-        """Each of our units' hello (ready: once every other member is fresh)."""
+        """Each of our units' hello (ready: once every other member is fresh, and never while
+        the join stops for a conflict: a member that is ready may be opened with)."""
         if ready is None:
-            ready = self.fresh() >= self.others
+            ready = self.conflict is None and self.fresh() >= self.others
         view = self.view()
+        if ready and view:
+            self.committed = view
         for u in self.mine:
             self.bus._say_hello(u, self.digest, view, ready=ready)
         self.news = False
 
     def claim(self, h: Hello, heard_at: float) -> None:
         """``h``'s process claims ``h.unit``: ``conflict`` set when another process claims it
-        too and still says so (its last hello within three periods: a claimant that died, or
-        was replaced, falls silent), naming the unit and both claimants. Our own units' claims
-        are ours. ``heard_at``: when it arrived (monotonic)."""
+        too and still says so (its last hello within ``claim_silence``: a claimant that died,
+        or was replaced, falls silent), naming the unit and both claimants. Our own units'
+        claims are ours. ``heard_at``: when it arrived (monotonic)."""
         now = time.monotonic()
         claims = self.claims.setdefault(h.unit, {})
         if h.unit in self.local:
@@ -264,7 +294,8 @@ class _Barrier:
             proc, at = claims[latest]
             claims[latest] = (proc, max(at, self.bus._repeated_at.get(h.unit, at)))
         claims[h.nonce] = (h.process, max(heard_at, claims.get(h.nonce, ("", heard_at))[1]))
-        for nonce in [n for n, (_, at) in claims.items() if now - at > 3 * self.period]:
+        silence = claim_silence(self.period)
+        for nonce in [n for n, (_, at) in claims.items() if now - at > silence]:
             if nonce != self.bus.nonce:
                 del claims[nonce]
         if len(claims) > 1:
@@ -272,10 +303,27 @@ class _Barrier:
                 f"{proc or '(unnamed)'} (nonce {nonce.hex()[:8]})"
                 for nonce, (proc, _) in sorted(claims.items(), key=lambda c: c[1][1])
             )
-            self.conflict = self.conflict or (
+            said = (
                 f"two processes claim unit {h.unit!r} of run {self.bus.run_id!r}: {who}: "
                 "the join stops for both"
             )
+            if self.committed:  # the later claimant is late, unless the promise ends
+                self.rival = self.rival or said
+            else:
+                self.conflict = self.conflict or said
+
+    def late(self, h: Hello) -> bool:
+        """Whether ``h`` (not ours) claims its unit too late: we are committed to a view that
+        holds another nonce for it."""
+        return bool(self.committed) and self.nonces.get(h.unit) != h.nonce
+
+    def _release(self, h: Hello) -> None:
+        """Member ``h.unit`` of our committed view says another view: it never said it was
+        ready with ours, so nobody opens with it; the promise ends, and a conflict kept while
+        it held stops the join."""
+        if self.committed and h.view != self.committed:
+            self.committed = b""
+            self.conflict = self.conflict or self.rival
 
     def hear(self, h: Hello, heard_at: float) -> bool:
         """One member's hello (not ours, arrived at ``heard_at``); whether the barrier opens
@@ -294,6 +342,9 @@ class _Barrier:
                     f"{h.sample}): {self.mine[0]!r} joined too late"
                 )
             return False  # an answer to someone else
+        if self.late(h):
+            return False  # a later claimant of a unit we promised to run with
+        self._release(h)
         was_fresh = h.unit in self.fresh() and self.readies.get(h.unit) == h.ready
         if self.nonces.get(h.unit) != h.nonce:  # our view changes: say so
             self.nonces[h.unit] = h.nonce
@@ -477,8 +528,11 @@ class ZenohBus(QueueBus):
         subscriber declarations share a link in order, so a hello from a peer proves its tx
         subscriber is declared: nobody's first frame can be lost. Refused: a member on another
         scenario or seed (digest differs), a run that already started (a late joiner), and two live
-        processes claiming one unit: every process that hears both stops its join, naming the unit
-        and both claimants (``_Barrier.claim``). Running members answer late hellos from ``wait``.
+        processes claiming one unit: every process that hears both before it said it is ready
+        stops its join, naming the unit and both claimants (``_Barrier.claim``); one that said it
+        is ready takes the later one as late, unless a member shows it never was (``_Barrier``:
+        either all open with one view, or none). Running members answer late hellos (a later
+        claimant of one of their own units too) from ``wait``.
         On a keyed run only hellos with a valid tag count; the nonces heard are what later frames
         are checked with, from the moment a member's hello proves fresh (it starts sending only once
         we said we are ready, after that).
@@ -619,8 +673,8 @@ class ZenohBus(QueueBus):
             except queue.Empty:
                 return
             h = self._read_hello(raw)
-            if h is None or h.started or h.unit in mine:
-                continue
+            if h is None or h.started or (h.unit in mine and h.nonce == self.nonce):
+                continue  # an answer, or our own hello
             if h.ready and self._nonces.get(h.unit) == h.nonce:
                 continue  # a member's last barrier hello, not a late joiner
             # A late joiner (or a replay of an old hello): answered once per (unit, nonce), at

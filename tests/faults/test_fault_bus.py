@@ -956,13 +956,15 @@ def test_a_process_hearing_another_claim_its_own_unit_stops_naming_both():
 
 
 def test_a_claimant_that_fell_silent_is_no_conflict():
-    """A process that said it is b, then fell silent (died, restarted): once three periods
-    have passed without it, a new claimant of b is no conflict; the join goes on (and times
-    out here, b never answering a's nonce)."""
+    """A process that said it is b, then fell silent (died, restarted): once it has been
+    unheard longer than ``claim_silence``, a new claimant of b is no conflict; the join goes
+    on (and times out here, b never answering a's nonce)."""
+    from rgtbus.bus.zenoh import claim_silence, hello_period
+
     with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["a"]) as bus:
         gone = Hello("b", "0" * 64, bytes([9]) * 16, process="old:1")
         bus._hello_gate(bus.hello_key("b"), encode_hello(gone, RUN, None))
-        time.sleep(0.5)  # more than three periods of 50 ms: it fell silent before the join
+        time.sleep(claim_silence(hello_period(2)) + 0.1)  # it fell silent before the join
         new = Hello("b", "0" * 64, NONCE, process="new:2")
         said = _join_hearing(bus, "a", [new], timeout=1.0)
     assert said.startswith("joining run") and "timed out" in said, said
