@@ -290,3 +290,29 @@ def test_cat_of_one_unit_shows_the_spike_records_it_shares_as_its_own(gate_log, 
         == (sorted((t, json.dumps(m, sort_keys=True)) for t, m in want))
         and want
     )
+
+
+def test_cat_and_info_read_the_log_of_a_unit_whose_join_failed(tmp_path, capsys):
+    """A unit whose join failed writes its lines at 0 s and nothing later: ``cat`` prints
+    them (its run is one instant long, which no range excludes) and ``info`` reads it."""
+    from rgtbus.units.group import write_metadata
+
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry import McapRecorder
+
+    sc = load_scenario(Path(__file__).parent.parent / "scenarios" / "gate.toml")
+    path = tmp_path / "a.mcap"
+    with path.open("wb") as f:
+        rec = McapRecorder(f)
+        write_metadata(rec, sc, "zenoh", "claims", process="a")
+        rec.log("error", "a: join failed: two processes claim unit 'b'", 0, name="a")
+        rec.close()
+    capsys.readouterr()
+    assert main(["cat", str(path)]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [(x["topic"], x["t"]) for x in lines] == [("/log", 0.0)]
+    assert "join failed" in lines[0]["message"]["message"]
+    assert main(["cat", str(path), "--to", "0"]) == 0 and capsys.readouterr().out
+    assert main(["cat", str(path), "--from", "1"]) == 2
+    assert "outside the run (0 to 0 s)" in capsys.readouterr().err
+    assert main(["info", str(path)]) == 0

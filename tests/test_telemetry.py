@@ -678,6 +678,25 @@ def test_check_time_range_refuses_a_range_outside_the_run(t_from, t_to, message)
     assert str(e.value) == message
 
 
+@pytest.mark.parametrize(
+    ("t_from", "t_to", "held"),
+    [(None, None, True), (0, None, True), (None, 0.005, True), (0, 1, True), (0.006, None, False),
+     (None, 0.004, False)],
+)  # fmt: skip
+def test_check_time_range_on_a_run_of_one_instant(t_from, t_to, held):
+    """A log whose records are all at one time (a unit whose join failed writes its lines at
+    0 s, or at its first sample): no range, or one holding that instant, keeps it."""
+    from rgtbus.telemetry.logtools import check_time_range
+
+    if held:
+        lo, hi = check_time_range(t_from, t_to, 0.005, 0.005)
+        assert lo <= 0.005 <= hi
+    else:
+        with pytest.raises(RgtbusError, match=r"outside the run \(0.005 to 0.005 s\)"):
+            check_time_range(t_from, t_to, 0.005, 0.005)
+
+
+
 def test_plots_module_imports_no_matplotlib():
     import subprocess
     import sys

@@ -457,7 +457,9 @@ def check_time_range(
     ``(lo, hi)`` (a missing bound is the run's); ``RgtbusError``, one line naming the values
     and the run's span, when it holds none of the run: a bound that is no number, from ≥ to,
     from at or past the run's end, or to at or before its start. A range that overlaps the run
-    only in part is kept as asked."""
+    only in part is kept as asked. A run of one instant (a log whose every record is at one
+    time: a unit whose join failed) is held by a range that holds that instant, and by no
+    range at all."""
     bounds = (("from", t_from), ("to", t_to))
     given = " ".join(f"--{name} {value:g}" for name, value in bounds if value is not None)
     span = f"{start:g} to {end:g} s"
@@ -468,7 +470,9 @@ def check_time_range(
         raise RgtbusError(f"{given}: empty time range (the run is {span})")
     lo = start if t_from is None else float(t_from)
     hi = end if t_to is None else float(t_to)
-    if lo >= end or hi <= start:
+    # a run of one instant: a range holds it or not
+    outside = lo > end or hi < start if start == end else lo >= end or hi <= start
+    if outside:
         raise RgtbusError(f"{given or 'the log'}: outside the run ({span})")
     return lo, hi
 
