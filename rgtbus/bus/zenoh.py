@@ -584,9 +584,12 @@ class ZenohBus(QueueBus):
                     if alone
                     else ""
                 )
+                # a member that stopped for a conflict before it was ready leaves those that
+                # were waiting for it: the claim they heard once ready is why
+                rival = f"; heard once ready: {barrier.rival}" if barrier.rival else ""
                 raise RgtbusError(
                     f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
-                    f"{', '.join(barrier.missing())}{hint}"
+                    f"{', '.join(barrier.missing())}{hint}{rival}"
                 )
 
     def _declare_presence(self, unit: str) -> None:

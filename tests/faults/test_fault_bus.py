@@ -968,3 +968,46 @@ def test_a_claimant_that_fell_silent_is_no_conflict():
         new = Hello("b", "0" * 64, NONCE, process="new:2")
         said = _join_hearing(bus, "a", [new], timeout=1.0)
     assert said.startswith("joining run") and "timed out" in said, said
+
+
+def test_a_ready_member_left_waiting_names_the_claim_it_heard_once_ready():
+    """a has heard b and c with its view and said it is ready; c never says it is ready (it
+    stopped: it heard a second claimant of b before it was ready). A second claimant of b
+    heard after a was ready is late to a, but when a's join times out waiting for c, its
+    line names that claim too: why c never came."""
+    import threading
+
+    from rgtbus.bus.hello import view_digest
+
+    nb, nc, n2 = bytes([1]) * 16, bytes([2]) * 16, bytes([3]) * 16
+    digest = "0" * 64
+    with open_bus("zenoh", RUN, ("a", "b", "c"), RATE, local=["a"]) as bus:
+        view = view_digest(RUN, digest, {"a": bus.nonce, "b": nb, "c": nc})
+        ready = [
+            Hello("b", digest, nb, view, ready=True, process="host-b:1"),
+            Hello("c", digest, nc, view, process="host-c:2"),  # never ready
+        ]
+        out: list[str] = []
+
+        def join() -> None:
+            try:
+                bus.join("a", digest, timeout=1.5)
+                out.append("joined")
+            except RgtbusError as e:
+                out.append(str(e))
+
+        t = threading.Thread(target=join)
+        t.start()
+        started = time.monotonic()
+        while t.is_alive():
+            hellos = list(ready)
+            if time.monotonic() - started > 0.5:  # a has long said it is ready
+                hellos.append(Hello("b", digest, n2, process="host-x:3"))
+            for h in hellos:
+                bus._hello_gate(bus.hello_key(h.unit), encode_hello(h, RUN, None))
+            time.sleep(0.02)
+        t.join()
+    said = out[0]
+    assert said.startswith(f"joining run '{RUN}' timed out after 1.5 s: no answer from c; "), said
+    assert f"heard once ready: two processes claim unit 'b' of run '{RUN}': " in said
+    assert "host-b:1" in said and "host-x:3" in said and "\n" not in said

@@ -405,6 +405,9 @@ def test_a_second_process_claiming_a_unit_never_takes_its_place(procs, tmp_path,
         # b2 stops too: it heard both claims, or a member that had already started (which
         # finished its join with the real b before b2 spoke) refused it as late
         assert b_code == 2 and b2_code == 2 and (conflict in b2_err or late in b2_err), said
+        # and nobody started without b: every member stopped its join, naming the conflict
+        # (or, ready before it came, timed out waiting for b, naming it too)
+        assert all(said[u][0] == 2 and conflict in said[u][1] for u in "acd"), said
     else:
         assert b_code == 0 and b2_code == 2 and (late in b2_err or conflict in b2_err), said
         assert all(said[u][0] == 0 for u in "acd"), said
