@@ -57,6 +57,15 @@ RUN_BASE_MB = 50.0
 RUN_MEMORY_MB = 760.0
 RUN_MEMORY_EXPONENT = 0.64
 RUN_SECONDS_PER_DECODE = 1.2e-6
+# A medium its receivers hear differently (noise, bursts, link gains other than 1, delays or
+# clocks: ``Channel.alike`` false) costs far more: no receiver shares another's walk, and with
+# noise no silence is skipped, so every receiver's resonators walk every sample and every unit
+# writes its own spikes and decodes. Calibrated with the log, concurrent, noise 0.01: 7.5 s
+# and 180 MB at n = 50, 68.5 s and 547 MB at n = 100, and a 200-unit group 625 s and 2,292 MB;
+# path loss at n = 50 (no noise): 5.6 s and 144 MB. Against 0.7, 2.8 and 15.7 s alike.
+DIFFER_MEMORY_MB = 5120.0
+DIFFER_MEMORY_EXPONENT = 0.72
+DIFFER_SECONDS_PER_DECODE = 2.2e-5  # 15.3, 17.3 and 19.6 µs at n = 50, 100, 200
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).
@@ -113,13 +122,17 @@ class RunEstimate(NamedTuple):
     seconds: float
 
 
-def run_estimate(n: int, influence_rounds: int) -> RunEstimate:
+def run_estimate(n: int, influence_rounds: int, alike: bool = True) -> RunEstimate:
     """The peak memory and wall time of a run of ``n`` units, from its decodes (calibrated:
-    ``RUN_BASE_MB``, ``RUN_MEMORY_MB``, ``RUN_MEMORY_EXPONENT``, ``RUN_SECONDS_PER_DECODE``).
-    A launch's unit processes each take a share of it."""
+    ``RUN_BASE_MB``, ``RUN_MEMORY_MB``, ``RUN_MEMORY_EXPONENT``, ``RUN_SECONDS_PER_DECODE``;
+    ``alike`` False, a medium its receivers hear differently: the ``DIFFER_`` figures). A
+    launch's unit processes each take a share of it."""
     d = decodes(n, influence_rounds)
-    memory = RUN_BASE_MB + RUN_MEMORY_MB * (d / 1e8) ** RUN_MEMORY_EXPONENT
-    return RunEstimate(d, memory, d * RUN_SECONDS_PER_DECODE)
+    if alike:
+        memory = RUN_BASE_MB + RUN_MEMORY_MB * (d / 1e8) ** RUN_MEMORY_EXPONENT
+        return RunEstimate(d, memory, d * RUN_SECONDS_PER_DECODE)
+    memory = RUN_BASE_MB + DIFFER_MEMORY_MB * (d / 1e8) ** DIFFER_MEMORY_EXPONENT
+    return RunEstimate(d, memory, d * DIFFER_SECONDS_PER_DECODE)
 
 
 def free_memory_mb() -> float | None:
@@ -147,11 +160,11 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.3g} h"
 
 
-def over_run_budget(n: int, influence_rounds: int) -> str | None:
+def over_run_budget(n: int, influence_rounds: int, alike: bool = True) -> str | None:
     """None when a run of ``n`` units fits this machine (``run_estimate``: its peak memory
     within the free memory, its wall time within ``RUN_HOURS``, each times ``budget_scale``);
     else the reason, in one line, naming both figures and how to override."""
-    est = run_estimate(n, influence_rounds)
+    est = run_estimate(n, influence_rounds, alike)
     scale = budget_scale()
     free = free_memory_mb()
     hours = RUN_HOURS * scale
@@ -168,9 +181,10 @@ def over_run_budget(n: int, influence_rounds: int) -> str | None:
         if scale == 1
         else f"beyond {BUDGET_ENV}=large too"
     )
+    medium = "" if alike else ", on a medium its receivers hear differently"
     return (
         f"about {_size(est.memory_mb)} at its peak and {_duration(est.seconds)} of wall time "
-        f"({est.decodes:.3g} decodes), {' and '.join(over)} ({override}; "
+        f"({est.decodes:.3g} decodes{medium}), {' and '.join(over)} ({override}; "
         'docs/scenarios.md, "Budgets")'
     )
 
@@ -301,10 +315,13 @@ def _blamed(t: Mapping[str, Any], keys: tuple[str, ...]) -> str:
     return max(set_keys, key=ratio)
 
 
-def check_size(ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: Any) -> None:
+def check_size(
+    ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: Any, alike: bool = True
+) -> None:
     """Refuse (``ctx.error``: file:line: key) a run whose estimated size is beyond its budget:
-    samples, samples a window, decodes. Called as soon as the units, the protocol and the
-    timing are read, before anything costly is built (codebook, frequency plan, groups)."""
+    samples, samples a window, decodes (``alike``: whether its receivers hear the medium
+    alike, ``run_estimate``). Called as soon as the units, the protocol, the timing and the
+    channel are read, before anything costly is built (codebook, frequency plan, groups)."""
     try:
         budget_scale()
     except RgtbusError as exc:
@@ -317,9 +334,9 @@ def check_size(ctx: Any, data: Mapping[str, Any], n: int, rounds: int, timing: A
     why = over_budget(WINDOW_SAMPLES, timing.window * timing.sample_rate)
     if why:
         raise ctx.error("timing", _blamed(t, ("window", "sample_rate")), why)
-    why = over_run_budget(n, rounds)
+    why = over_run_budget(n, rounds, alike)
     if why:
-        if rounds > 1 and over_run_budget(n, 1) is None:
+        if rounds > 1 and over_run_budget(n, 1, alike) is None:
             raise ctx.error("protocol", "influence_rounds", f"{rounds} rounds of {n} units: {why}")
         raise ctx.error("", "units", f"{n} units, {rounds} influence round(s): {why}")
 

@@ -139,13 +139,14 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     protocol = protocol_of(ctx, data)
     timing = timing_of(ctx, data, protocol.schedule, protocol.repair)
-    # How big the run would be, before anything is built (the codebook's search: codebook_of).
-    check_size(ctx, data, len(units), protocol.influence_rounds, timing)
+    # How big the run would be, before anything is built (the codebook's search: codebook_of),
+    # on its channel: receivers that hear the medium differently cost far more.
+    channel = channel_of(ctx, data, units)
+    check_size(ctx, data, len(units), protocol.influence_rounds, timing, channel.alike)
     mode = mode_of(ctx, data)
     # No codebook given: the paper's (one or two actions), else the shortest generated one.
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
     freq = frequencies_of(ctx, data, units, universe, mode, codebook, timing.tau, protocol.schedule)
-    channel = channel_of(ctx, data, units)
     plan = plan_of(
         tuple(units), tuple((u, float(freq.frequencies[u])) for u in units), timing.tau,
         freq.codebook.pulses, timing.reaction_delay, timing.guard, timing.search,

@@ -161,6 +161,12 @@ class Channel:
         """Whether a receiver hears any noise (white, or in bursts)."""
         return self.noise > 0 or self.burst is not None
 
+    @property
+    def alike(self) -> bool:
+        """Whether every receiver hears the medium alike: no noise, every link gain 1, no delay
+        and no clock of its own (what a run's cost depends on: ``limits.run_estimate``)."""
+        return not self.noisy and not self.timed and all(g == 1.0 for g in self.gains.values())
+
     def distance(self, a: str, b: str) -> float:
         """The distance between units ``a`` and ``b`` in metres (0 without positions)."""
         if not self.positions:

@@ -182,6 +182,47 @@ def test_a_group_is_refused_only_beyond_the_free_memory_or_an_hour(monkeypatch):
     assert "more than an hour" in (limits_mod.over_run_budget(1000, 1) or "")
 
 
+@pytest.mark.parametrize(
+    "channel",
+    [
+        "[channel]\nnoise = 0.01",
+        '[channel]\ngain = { "u0>u1" = 0.5 }',
+        "[channel.burst]\nnoise = 0.5\nevery = 10.0\nlength = 0.1",
+    ],
+    ids=["noise", "gain", "burst"],
+)
+def test_a_group_its_receivers_hear_differently_is_estimated_apart(
+    nothing_costly, monkeypatch, channel
+):
+    """No receiver shares another's work on such a medium (a noisy 200-unit group took 10.4
+    min and 2.3 GB with its log, where a clean one takes 16 s and 0.4 GB): its estimate is
+    its own, and it is refused where that does not fit, saying why; the same group on a
+    clean medium still loads."""
+    monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: 2000.0)
+    differ = limits_mod.run_estimate(200, 1, alike=False)
+    alike = limits_mod.run_estimate(200, 1)
+    assert differ.memory_mb > 5 * alike.memory_mb and differ.seconds > 15 * alike.seconds
+    text = group(200, '[protocol]\nschedule = "concurrent"', '["go", "stay"]') + channel
+    msg = refused(text)
+    assert msg.startswith(f"{NAME}:{line_of(text, 'units = ')}: units: 200 units, "), msg
+    assert "about 2,296 MB at its peak and 12 min of wall time" in msg, msg
+    assert "decodes, on a medium its receivers hear differently), more than the memory" in msg
+    monkeypatch.setattr(load, "codebook_of", reached("codebook_of (the clean group loads)"))
+    with pytest.raises(AssertionError, match="the clean group loads"):
+        parse_scenario(text.replace(channel, ""), NAME)
+
+
+def test_a_channel_says_whether_its_receivers_hear_alike():
+    from rgtbus.signal.channel import Burst, Channel, Clock
+
+    assert Channel().alike and Channel(gains={("a", "b"): 1.0}).alike
+    assert not Channel(noise=0.001).alike
+    assert not Channel(burst=Burst(0.5, 10.0, 0.1)).alike
+    assert not Channel(gains={("a", "b"): 0.5}).alike
+    assert not Channel(speed=343.0, positions={"a": (0, 0, 0), "b": (1, 0, 0)}).alike
+    assert not Channel(clocks={"a": Clock(0.1, 1.0)}).alike
+
+
 def test_a_large_budget_is_asked_for_by_name(monkeypatch):
     monkeypatch.setattr(limits_mod, "free_memory_mb", lambda: FREE_MB)
     text = group(16, '[protocol]\nschedule = "concurrent"\ninfluence_rounds = 1000')
