@@ -599,14 +599,23 @@ def test_a_logged_batch_of_any_length_writes_the_same_log(monkeypatch):
     assert unit_module.batch_seconds(10, logged=True, realtime=4.0) == 4.0 * wall
     assert unit_module.batch_seconds(10, logged=True, realtime=1e6) == small
     assert unit_module.batch_seconds(10, logged=False, realtime=4.0) == unit_module.BATCH_SECONDS
+    # receivers that hear the medium differently each hold their own spikes: shorter batches
+    differ = unit_module.DIFFER_LOGGED_BATCH_SECONDS
+    assert differ < small and unit_module.batch_seconds(10, logged=True, alike=False) == differ
+    assert unit_module.batch_seconds(10, logged=True, realtime=1.0, alike=False) == 1.0 * wall
+    assert unit_module.batch_seconds(10, logged=False, alike=False) == unit_module.BATCH_SECONDS
 
     sc = random_group(5, noise=0.02, gains=True, anchor="schedule")
     sc = parse_scenario(sc.text + '[protocol]\nschedule = "concurrent"\n', "<batches>")
     logs = []
-    for seconds, large_group in ((small, 10**6), (4.0, 10**6), (small, 0)):
+    # a noisy group (its receivers hear differently): each batch as asked, and its own
+    for seconds, large_group, differ_s in (
+        (small, 10**6, 10**6), (4.0, 10**6, 10**6), (small, 0, 10**6), (small, 10**6, differ),
+    ):  # fmt: skip
         monkeypatch.setattr(unit_module, "LOGGED_BATCH_SECONDS", seconds)
         monkeypatch.setattr(unit_module, "LARGE_GROUP", large_group)  # 0: every group is large
+        monkeypatch.setattr(unit_module, "DIFFER_LOGGED_BATCH_SECONDS", differ_s)
         rec = MemoryRecorder()
         run_group(sc, "memory", rec)
         logs.append(sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
-    assert logs[0] == logs[1] == logs[2] and len(logs[0]) > 100
+    assert logs[0] == logs[1] == logs[2] == logs[3] and len(logs[0]) > 100
