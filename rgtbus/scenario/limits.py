@@ -60,12 +60,15 @@ RUN_SECONDS_PER_DECODE = 1.2e-6
 # A medium its receivers hear differently (noise, bursts, link gains other than 1, delays or
 # clocks: ``Channel.alike`` false) costs far more: no receiver shares another's walk, and with
 # noise no silence is skipped, so every receiver's resonators walk every sample and every unit
-# writes its own spikes and decodes. Calibrated with the log, concurrent, noise 0.01: 7.5 s
-# and 180 MB at n = 50, 68.5 s and 547 MB at n = 100, and a 200-unit group 625 s and 2,292 MB;
-# path loss at n = 50 (no noise): 5.6 s and 144 MB. Against 0.7, 2.8 and 15.7 s alike.
-DIFFER_MEMORY_MB = 5120.0
-DIFFER_MEMORY_EXPONENT = 0.72
-DIFFER_SECONDS_PER_DECODE = 2.2e-5  # 15.3, 17.3 and 19.6 µs at n = 50, 100, 200
+# writes its own spikes and decodes. Calibrated with the log, concurrent, noise 0.01, each
+# unit batching 5 s of its log (``units.unit.DIFFER_LOGGED_BATCH_SECONDS``): 7.2 s and 148 MB
+# at n = 50, 65.1 s and 303 MB at n = 100, 612 s and 1,471 MB at n = 200 (2 million misread
+# decodes in its summary); path loss at n = 50 (no noise): 5.6 s and 144 MB. Against 0.7, 2.8
+# and 15.7 s on a clean medium. (Batching a minute, as on a clean medium: 180, 547 and 2,233
+# MB.)
+DIFFER_MEMORY_MB = 3670.0
+DIFFER_MEMORY_EXPONENT = 0.83
+DIFFER_SECONDS_PER_DECODE = 2.2e-5  # 14.6, 16.4 and 19.2 µs at n = 50, 100, 200
 CODEBOOK_SEARCH = Budget("codebook", 1e8, "word comparisons (2^actions words × candidates)")
 # rgtbus plan's crosstalk simulation: every channel's ID through a bank of every channel,
 # n²·L resonator-samples (L: the longest ID plus a period, in samples).
