@@ -323,8 +323,9 @@ def check_size(
 ) -> None:
     """Refuse (``ctx.error``: file:line: key) a run whose estimated size is beyond its budget:
     samples, samples a window, decodes (``alike``: whether its receivers hear the medium
-    alike, ``run_estimate``). Called as soon as the units, the protocol, the timing and the
-    channel are read, before anything costly is built (codebook, frequency plan, groups)."""
+    alike, ``run_estimate``). Called as soon as the units, the protocol and the timing are
+    read, before anything costly is built (channel, codebook, frequency plan, groups); again
+    once the channel is read, if its receivers hear it differently."""
     try:
         budget_scale()
     except RgtbusError as exc:

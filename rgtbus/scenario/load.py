@@ -139,10 +139,14 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     # The schedule first: the concurrent one is timed by the schedule (its default anchor).
     protocol = protocol_of(ctx, data)
     timing = timing_of(ctx, data, protocol.schedule, protocol.repair)
-    # How big the run would be, before anything is built (the codebook's search: codebook_of),
-    # on its channel: receivers that hear the medium differently cost far more.
+    # How big the run would be, before anything is built (the codebook's search: codebook_of):
+    # at least what a medium every receiver hears alike costs, then (the channel's link gains
+    # are n² entries: only once that fits) what its own medium costs, far more where its
+    # receivers hear it differently.
+    check_size(ctx, data, len(units), protocol.influence_rounds, timing)
     channel = channel_of(ctx, data, units)
-    check_size(ctx, data, len(units), protocol.influence_rounds, timing, channel.alike)
+    if not channel.alike:
+        check_size(ctx, data, len(units), protocol.influence_rounds, timing, alike=False)
     mode = mode_of(ctx, data)
     # No codebook given: the paper's (one or two actions), else the shortest generated one.
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)

@@ -212,6 +212,21 @@ def test_a_group_its_receivers_hear_differently_is_estimated_apart(
         parse_scenario(text.replace(channel, ""), NAME)
 
 
+def test_a_huge_group_with_positions_is_refused_before_its_link_gains_are_built(
+    nothing_costly, monkeypatch
+):
+    """The channel's link gains are n² entries (10⁸ at 10,000 units): a group too large on
+    any medium is refused before the channel is built."""
+    import rgtbus.scenario.channel as channel_section
+
+    monkeypatch.setattr(channel_section, "link_gains", reached("link_gains"))
+    n = 10_000
+    positions = "\n".join(f"u{i} = [{i}, 0]" for i in range(n))
+    text = group(n) + f"[channel]\npath_loss = 2\n[channel.positions]\n{positions}\n"
+    msg = refused(text)
+    assert msg.startswith(f"{NAME}:{line_of(text, 'units = ')}: units: 10000 units"), msg
+
+
 def test_a_channel_says_whether_its_receivers_hear_alike():
     from rgtbus.signal.channel import Burst, Channel, Clock
 
