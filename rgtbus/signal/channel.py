@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -161,10 +162,11 @@ class Channel:
         """Whether a receiver hears any noise (white, or in bursts)."""
         return self.noise > 0 or self.burst is not None
 
-    @property
+    @cached_property
     def alike(self) -> bool:
         """Whether every receiver hears the medium alike: no noise, every link gain 1, no delay
-        and no clock of its own (what a run's cost depends on: ``limits.run_estimate``)."""
+        and no clock of its own (what a run's cost depends on: ``limits.run_estimate``). Worked
+        out once: every unit of a run asks, and the gains are n² entries."""
         return not self.noisy and not self.timed and all(g == 1.0 for g in self.gains.values())
 
     def distance(self, a: str, b: str) -> float:
