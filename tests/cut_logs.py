@@ -4,18 +4,28 @@ the crash tests (tests/test_crash_consistency.py) and the process faults
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import io
+import subprocess
+import sys
 import tempfile
+import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from mcap.reader import NonSeekingReader, make_reader
 from rgtbus.units.rerun import verify_log
 
 import rgtbus
 from rgtbus.telemetry.read import Replay, load_replay
 from rgtbus.timebase import ns
+
+ROOT = Path(__file__).parent.parent
+CROWD10 = ROOT / "scenarios" / "crowd10.toml"
+EXE = [sys.executable, "-m", "rgtbus"]
 
 # how far behind a cut log's last block of spikes its verified time may stay: a decode block
 # (5 s, unit_log.DECODE_BLOCK_SECONDS), twice where a record cuts one, and a block of spikes.
@@ -72,3 +82,32 @@ def assert_prefix_is_whole(log: Path, scenario: Path) -> float:
     first_to_end = min(last.values(), default=0.0)
     assert report.until >= first_to_end - SLACK_SECONDS, (report.until, last)
     return report.until
+
+
+def standard_read(data: bytes) -> list[int]:
+    """The log times every standard reader finds (seeking and not, in log-time order: the
+    default), which must agree; any error fails the test."""
+    seeking = [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages()]
+    streaming = [m.log_time for _, _, m in NonSeekingReader(io.BytesIO(data)).iter_messages()]
+    assert seeking == streaming
+    return seeking
+
+
+@contextlib.contextmanager
+def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
+    """A paced crowd10 ``rgtbus run`` logging to ``log``, handed over once its log holds more
+    than ``grown`` messages to the standard readers (bounded wait); killed if still running."""
+    argv = [*EXE, "run", str(CROWD10), "--realtime", "25",
+            "--log", str(log), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (log.exists() and len(standard_read(log.read_bytes())) > grown):
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            assert time.monotonic() < deadline, f"the log never grew past {grown} messages"
+            time.sleep(0.2)
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)

@@ -15,12 +15,11 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from cut_logs import assert_prefix_is_whole
-from mcap.reader import NonSeekingReader, make_reader
+from cut_logs import assert_prefix_is_whole, paced_run, standard_read
+from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.recorder import UNFINISHED, McapRecorder
@@ -29,15 +28,6 @@ from rgtbus.telemetry.scan import scan_log, verified_by_crcs
 ROOT = Path(__file__).parent.parent
 CROWD10 = ROOT / "scenarios" / "crowd10.toml"
 EXE = [sys.executable, "-m", "rgtbus"]
-
-
-def standard_read(data: bytes) -> list[int]:
-    """The log times every standard reader finds (seeking and not, in log-time order: the
-    default), which must agree; any error fails the test."""
-    seeking = [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages()]
-    streaming = [m.log_time for _, _, m in NonSeekingReader(io.BytesIO(data)).iter_messages()]
-    assert seeking == streaming
-    return seeking
 
 
 def test_a_log_between_flushes_is_a_whole_file_to_every_reader(tmp_path):
@@ -92,26 +82,6 @@ def test_a_log_written_to_a_stream_that_cannot_seek_is_whole():
     assert UNFINISHED.encode() not in pipe.data  # nothing to overwrite it with later
     rec.close()
     assert standard_read(bytes(pipe.data)) == list(range(30))
-
-
-@contextlib.contextmanager
-def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
-    """A paced crowd10 ``rgtbus run`` logging to ``log``, handed over once its log holds more
-    than ``grown`` messages to the standard readers (bounded wait); killed if still running."""
-    argv = [*EXE, "run", str(CROWD10), "--realtime", "25",
-            "--log", str(log), "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while not (log.exists() and len(standard_read(log.read_bytes())) > grown):
-            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
-            assert time.monotonic() < deadline, f"the log never grew past {grown} messages"
-            time.sleep(0.2)
-        yield proc
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
 
 
 def assert_verifies_as_cut(log: Path) -> None:

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
@@ -70,7 +70,7 @@ def merge_logs(
         if log.corrupt and not salvage:  # never copy a damaged chunk into a whole-looking log
             raise RgtbusError(f"{log.corruption}; not merged")
     res = MergeResult()
-    writer = Writer(stream, compression=_COMPRESSION[compression], enable_data_crcs=True)
+    writer = _writer(logs, stream, compression)
     writer.start(profile="", library=f"rgtbus {__version__} {'recover' if salvage else 'merge'}")
     entries = _register(writer, logs, res)
     if salvage:  # read up to the damage, and no further: a cut as far as readers go
@@ -82,6 +82,25 @@ def merge_logs(
     res.metadata = list(kept)
     writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer leaves it bare
     return res
+
+
+def _writer(logs: Sequence[RawLog], stream: BinaryIO, compression: str) -> Writer:
+    """An MCAP writer whose summary has a group (and a summary offset) only for records the
+    merge writes: a summary offset for a group that is not there (mcap's writer gives one for
+    every kind it indexes, even with none of it) is what ``mcap doctor`` rejects
+    (SUMMARY_OFFSET_WITHOUT_GROUP). No attachments are ever written; there is always metadata
+    (the ``merge`` record)."""
+    indexes = IndexType.MESSAGE | IndexType.METADATA
+    if any(log.messages for log in logs):
+        indexes |= IndexType.CHUNK
+    return Writer(
+        stream,
+        compression=_COMPRESSION[compression],
+        index_types=indexes,
+        repeat_schemas=any(log.schemas for log in logs),
+        repeat_channels=any(log.channels for log in logs),
+        enable_data_crcs=True,
+    )
 
 
 def _register(writer: Writer, logs: Sequence[RawLog], res: MergeResult) -> list[_Entry]:
