@@ -78,8 +78,10 @@ def _ended(note: str) -> int:
     ``rgtbus replay``)."""
     if not note:
         return 0
+    from rgtbus.telemetry.untrusted import printable
+
     sys.stdout.flush()
-    print(f"note: {note}", file=sys.stderr)
+    print(f"note: {printable(note)}", file=sys.stderr)
     return EXIT_TRUNCATED
 
 
@@ -87,8 +89,9 @@ def info(args: argparse.Namespace) -> int:
     """``rgtbus info LOG``: what the log holds, as text or ``--json``."""
     from rgtbus.telemetry.logtools import info_text, log_info
     from rgtbus.telemetry.scan import check_log
+    from rgtbus.telemetry.untrusted import printable_errors
 
-    with check_log(args.log) as log:
+    with printable_errors(), check_log(args.log) as log:
         data = log_info(log)
     print(json.dumps(data) if args.json else info_text(data))
     return _ended(log.note)
@@ -98,9 +101,11 @@ def cat(args: argparse.Namespace) -> int:
     """``rgtbus cat LOG``: its messages as JSON lines, filtered by topic, unit and time."""
     from rgtbus.telemetry.logtools import cat_messages
     from rgtbus.telemetry.scan import check_log
+    from rgtbus.telemetry.untrusted import printable_errors
 
     out = sys.stdout
-    with check_log(args.log) as log:
+    # a line is JSON, which escapes every control character (json.dumps: ASCII only)
+    with printable_errors(), check_log(args.log) as log:
         for msg in cat_messages(
             log,
             topics=args.topic,
@@ -117,8 +122,9 @@ def scenario(args: argparse.Namespace) -> int:
     """``rgtbus scenario LOG``: the scenario TOML the run was made with, its seed the run's."""
     from rgtbus.telemetry.logtools import stored_scenario
     from rgtbus.telemetry.scan import check_log
+    from rgtbus.telemetry.untrusted import printable_errors
 
-    with check_log(args.log) as log:
-        text = stored_scenario(log)
+    with printable_errors(), check_log(args.log) as log:
+        text = stored_scenario(log)  # printable: its control characters escaped
     sys.stdout.write(text if text.endswith("\n") else text + "\n")
     return _ended(log.note)

@@ -20,6 +20,7 @@ from rgtbus.cli.tables import (
 )
 from rgtbus.errors import RgtbusError
 from rgtbus.extras import require
+from rgtbus.telemetry.untrusted import printable
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
@@ -100,9 +101,15 @@ def replay(args: argparse.Namespace) -> int:
         require("matplotlib", "--plot")
     if (args.t_from is not None or args.t_to is not None) and (args.verify or args.json):
         raise RgtbusError("--from and --to go with the timeline, --csv and --plot")
-    rp = load_replay(args.log)
-    with explained(rp.messages, rp.label):  # a message that breaks its schema: named, exit 2
-        return _replay(rp, args)
+    from rgtbus.telemetry.untrusted import printable_errors, printable_lines
+
+    with printable_errors():  # an error quoting the log is printed escaped
+        rp = load_replay(args.log)
+        with explained(rp.messages, rp.label):  # a message that breaks its schema: exit 2
+            if args.json:  # JSON escapes every control character itself
+                return _replay(rp, args)
+            with printable_lines():  # what the log holds cannot forge lines on the screen
+                return _replay(rp, args)
 
 
 def _replay(rp: Replay, args: argparse.Namespace) -> int:
@@ -276,9 +283,9 @@ def _alt(rp: Replay, v: Any) -> str:
 
 def print_timeline(rp: Replay, span: Span | None = None) -> None:
     """What happened, in order; with ``span`` (from, to) only what happens in it."""
-    info = rp.info()
+    info = {k: printable(v) if isinstance(v, str) else v for k, v in rp.info().items()}
     s = rp.summary()
-    units = list(rp.units)
+    units = list(rp.units)  # a scenario's unit names are plain (printable_lines: the rest)
     _print_head(rp, info, s, units, span)
     _print_transmissions(rp, span)
     print("spikes per unit (rows) and channel (columns):")
@@ -290,7 +297,7 @@ def print_timeline(rp: Replay, span: Span | None = None) -> None:
     _print_relations(rp, s, units, span)
     _print_decisions(rp, span)
     if s["outcome"] is not None:
-        print(f"outcome: {s['outcome']}")
+        print(f"outcome: {printable(s['outcome'])}")
     _print_ending(rp, s, units)
 
 
@@ -299,14 +306,15 @@ def _print_head(
 ) -> None:
     """The log (``info``: its metadata), its run and what part of it is shown."""
     print(
-        f"log {rp.label}: scenario {info['scenario']} ({info['path']}), seed {info['seed']}, "
+        f"log {printable(rp.label)}: scenario {info['scenario']} ({info['path']}), "
+        f"seed {info['seed']}, "
         f"rgtbus {info['version']}, bus {info['bus']}, run {info['run_id']}"
     )
     print(
         f"units {', '.join(units)}; {s['sim_seconds']:g} s simulated; {rp.message_count()} messages"
     )
     if rp.truncated:
-        print(f"NOTE: {rp.note}")
+        print(f"NOTE: {printable(rp.note)}")
     if span is not None:
         lo = "start" if span[0] is None else f"{span[0]:g} s"
         hi = "end" if span[1] is None else f"{span[1]:g} s"
@@ -341,8 +349,8 @@ def _print_transmissions(rp: Replay, span: Span | None) -> None:
             for d in decs
         )
         rows.append(
-            [f"{tx.start:.3f}–{tx.end:.3f} s", f"turn {tx.turn}", tx.label, f"on {tx.channel}",
-             marks or "(no decodes)"]
+            [f"{tx.start:.3f}–{tx.end:.3f} s", f"turn {tx.turn}", printable(tx.label),
+             f"on {printable(tx.channel)}", printable(marks) or "(no decodes)"]
         )  # fmt: skip
     for line in table_lines(rows, align=("right", "right", "left", "left", "left")):
         print(line)
@@ -409,7 +417,7 @@ def _print_decisions(rp: Replay, span: Span | None) -> None:
             lo, hi = (_alt(rp, x) for x in dec["interval"])
             verdict = f"{dec['unit']} = {lo}" if lo == hi else f"{hi} ⊇ {dec['unit']} ⊇ {lo}"
             choice = f"choice {_alt(rp, dec['choice'])}"
-        rows.append([f"t={dec['t']:.3f}s", dec["canonical"], verdict, choice])
+        rows.append([f"t={dec['t']:.3f}s", *map(printable, (dec["canonical"], verdict, choice))])
     for line in fitted_table_lines(rows):
         print(line)
 
@@ -424,4 +432,4 @@ def _print_ending(rp: Replay, s: dict[str, Any], units: list[str]) -> None:
         absent = ", ".join(u for u in units if u not in rp.unit_processes)
         print(f"no /run record, and no log of {absent} in this one: not the whole run")
     elif s["error"]:
-        print(f"run failed: {s['error']}")
+        print(f"run failed: {printable(s['error'])}")

@@ -16,18 +16,21 @@ with, its seed set to the run's, so ``rgtbus run`` repeats the run.
 from __future__ import annotations
 
 import heapq
-import json
 import math
 import os
 import re
+import struct
 import tomllib
 from collections import Counter
 from collections.abc import Iterator, Sequence
-from typing import Any
+from typing import IO, Any
 
+import numpy as np
+import orjson
 from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
+from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.records import (
     LOG,
@@ -38,34 +41,58 @@ from rgtbus.telemetry.records import (
     is_trace_topic,
     logged_seed,
 )
-from rgtbus.telemetry.scan import CheckedLog, RawLog, check_log, current_topics
+from rgtbus.telemetry.scan import (
+    CheckedLog,
+    RawLog,
+    check_log,
+    current_topics,
+    require_run_log,
+    scan_log,
+)
+from rgtbus.telemetry.untrusted import message as checked
+from rgtbus.telemetry.untrusted import printable
 from rgtbus.timebase import ns, seconds
 
 
 def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
     """Duration, messages per topic, schemas, compression, scenario, seed, version, units and
-    outcome of a log (a path, or a log ``check_log`` opened; see the module docstring)."""
+    outcome of a log (a path, or a log ``check_log`` opened; see the module docstring), and
+    ``problems``: one line each, what the log says of itself that its records contradict
+    (statistics that disagree with the messages indexed, two ``/run`` records, a metadata
+    record written twice). Where the statistics disagree with the file, the figures given
+    are those measured, record by record."""
     if not isinstance(log, CheckedLog):
         with check_log(log) as checked:
             return log_info(checked)
     if log.raw is not None:
         return _scanned_info(log, log.raw)
     label, size, summary, f = log.label, log.size, log.summary, log.stream
-    metadata = {name: values for name, values in log.metadata}  # a repeated name: last wins
-    f.seek(0)
-    reader = make_reader(f)
     stats = summary.statistics
     channels = summary.channels
-    counts = {channels[cid].topic: n for cid, n in sorted(stats.channel_message_counts.items())}
+    # CRCs vouch for the bytes, not for what they say: the statistics are checked against the
+    # message indexes (no decompression), and the file read record by record when they differ
+    held = _index_figures(f, summary, size)
+    problems = _statistics_problems(log, held) if held is not None else ["?"]
+    if problems:
+        f.seek(0)
+        raw = scan_log(f)
+        require_run_log(raw)
+        problems = _statistics_problems(log, _raw_figures(raw)) + _summary_twice(f, size)
+        return _scanned_info(log, raw, problems)
+    problems = _summary_twice(f, size)
+    counts: Counter[str] = Counter()
+    for cid, n in sorted(stats.channel_message_counts.items()):
+        counts[channels[cid].topic] += n
     schema_of = {
         ch.topic: summary.schemas[ch.schema_id].name
         for ch in channels.values()
         if ch.schema_id in summary.schemas
     }
-    run = None
+    runs = []
     if any(ch.topic == RUN for ch in channels.values()):
-        for _, _, m in reader.iter_messages(topics=[RUN]):
-            run = _run_record(label, m.data)
+        f.seek(0)
+        runs = [_run_record(label, m.log_time, m.data)
+                for _, _, m in make_reader(f).iter_messages(topics=[RUN])]  # fmt: skip
     compression = sorted({c.compression or "none" for c in summary.chunk_indexes})
     return _info(
         label,
@@ -73,18 +100,126 @@ def log_info(log: str | os.PathLike[str] | CheckedLog) -> dict[str, Any]:
         library=log.library,
         start=stats.message_start_time if stats.message_count else None,
         end=stats.message_end_time if stats.message_count else None,
-        counts=counts,
+        counts=dict(counts),
         schemas=schema_of,
         compression=compression,
         chunks=len(summary.chunk_indexes),
-        metadata=metadata,
-        run=run,
+        metadata=log.metadata,
+        runs=runs,
         truncated=False,
         note="",
+        problems=problems,
     )
 
 
-def _scanned_info(log: CheckedLog, raw: RawLog) -> dict[str, Any]:
+# (messages, first log time, last log time) of each channel id
+_Figures = dict[int, tuple[int, int, int]]
+
+_MESSAGE_INDEX = 0x07
+_STATISTICS = 0x0B
+
+
+def _index_figures(f: IO[bytes], summary: Any, size: int) -> _Figures | None:
+    """Each channel's messages as the message indexes the chunk indexes point at hold them;
+    None when they cannot be read as such (an offset to no message index of that channel, a
+    time outside its chunk's range): the file is then read record by record."""
+    out: _Figures = {}
+    for ci in summary.chunk_indexes:
+        for cid, offset in ci.message_index_offsets.items():
+            if not 0 <= offset <= size - 15:
+                return None
+            f.seek(offset)
+            opcode, length, channel, n_bytes = struct.unpack("<BQHI", f.read(15))
+            if (opcode, channel) != (_MESSAGE_INDEX, cid) or n_bytes % 16 or length != n_bytes + 6:
+                return None
+            if offset + 15 + n_bytes > size:
+                return None
+            times = np.frombuffer(f.read(n_bytes), dtype="<u8")[::2]  # (log time, offset) pairs
+            if not len(times):
+                continue
+            lo, hi = int(times.min()), int(times.max())
+            if lo < ci.message_start_time or hi > ci.message_end_time:
+                return None
+            n, first, last = out.get(cid, (0, lo, hi))
+            out[cid] = (n + len(times), min(first, lo), max(last, hi))
+    return out
+
+
+def _raw_figures(raw: RawLog) -> _Figures:
+    """Each channel's messages as the file holds them, record by record."""
+    out: _Figures = {}
+    for cid, t, *_ in raw.messages:
+        n, first, last = out.get(cid, (0, t, t))
+        out[cid] = (n + 1, min(first, t), max(last, t))
+    return out
+
+
+def _statistics_problems(log: CheckedLog, held: _Figures) -> list[str]:
+    """Where the summary's Statistics record contradicts ``held`` (what the file holds) or the
+    summary itself, in one line (empty when they agree)."""
+    summary = log.summary
+    stats, channels = summary.statistics, summary.channels
+    total = sum(n for n, _, _ in held.values())
+    said = []
+    if stats.message_count != total:
+        said.append(f"says {stats.message_count} messages, it holds {total}")
+    per_channel = sum(stats.channel_message_counts.values())
+    if per_channel != stats.message_count:
+        said.append(f"its counts per channel add up to {per_channel}, not {stats.message_count}")
+    wrong = []
+    for cid in sorted(set(stats.channel_message_counts) | set(held)):
+        says, holds = stats.channel_message_counts.get(cid, 0), held.get(cid, (0,))[0]
+        if says != holds:
+            topic = channels[cid].topic if cid in channels else f"channel {cid}"
+            wrong.append(f"{says} on {topic}, it holds {holds}")
+    if wrong:
+        more = f" (and {len(wrong) - 3} more channels)" if len(wrong) > 3 else ""
+        said.append("says " + ", ".join(wrong[:3]) + more)
+    a, b = stats.message_start_time, stats.message_end_time
+    if a > b:
+        said.append(
+            f"says its messages start at {seconds(a):g} s, after they end at {seconds(b):g} s"
+        )
+    if total:
+        first = min(t for _, t, _ in held.values())
+        last = max(t for _, _, t in held.values())
+        if (a, b) != (first, last):
+            said.append(
+                f"says log time {seconds(a):g} to {seconds(b):g} s, its messages span "
+                f"{seconds(first):g} to {seconds(last):g} s"
+            )
+    for what, says, holds in (
+        ("chunks", stats.chunk_count, len(summary.chunk_indexes)),
+        ("channels", stats.channel_count, len(channels)),
+        ("schemas", stats.schema_count, len(summary.schemas)),
+        ("metadata records", stats.metadata_count, len(log.metadata)),
+    ):
+        if says != holds:
+            said.append(f"says {says} {what}, it holds {holds}")
+    return [f"statistics disagree with the file: {'; '.join(said)}"] if said else []
+
+
+def _summary_twice(f: IO[bytes], size: int) -> list[str]:
+    """A Statistics record the summary section holds more than once (mcap's reader takes one
+    and says nothing), in one line; the records are walked by their lengths, nothing parsed."""
+    try:
+        f.seek(size - 8 - 29)  # the footer: opcode, length, summary start, offset start, CRC
+        opcode, _, start, _, _ = struct.unpack("<BQQQI", f.read(29))
+        if opcode != 0x02 or not 0 < start < size - 8 - 29:
+            return []
+        f.seek(start)
+        body = f.read(size - 8 - 29 - start)
+    except (OSError, struct.error):
+        return []
+    at, seen = 0, 0
+    while at + 9 <= len(body):
+        opcode, length = struct.unpack_from("<BQ", body, at)
+        seen += opcode == _STATISTICS
+        at += 9 + length
+    return [f"its summary holds {seen} Statistics records (a log writes one)"] if seen > 1 else []
+
+
+def _scanned_info(log: CheckedLog, raw: RawLog, problems: Sequence[str] = ()) -> dict[str, Any]:
     label, size = log.label, log.size
     topics = {cid: ch.topic for cid, ch in raw.channels.items()}
     counts: Counter[str] = Counter(topics[cid] for cid, *_ in raw.messages)
@@ -94,13 +229,12 @@ def _scanned_info(log: CheckedLog, raw: RawLog) -> dict[str, Any]:
         if ch.schema_id in raw.schemas
     }
     times = [t for _, t, *_ in raw.messages]
-    run = None
-    for cid, _, _, _, data in raw.messages:
-        if topics[cid] == RUN:
-            run = _run_record(label, data)
-    metadata: dict[str, dict[str, str]] = {}
-    for name, values in raw.metadata:
-        metadata[name] = dict(values)
+    runs = [_run_record(label, t, data) for cid, t, _, _, data in raw.messages
+            if topics[cid] == RUN]  # fmt: skip
+    if problems:  # a whole file whose summary is not to be believed: read without it
+        note = "read record by record"
+    else:
+        note = raw.note or "no summary section or CRCs to check it by: read record by record"
     return _info(
         label,
         size,
@@ -111,18 +245,16 @@ def _scanned_info(log: CheckedLog, raw: RawLog) -> dict[str, Any]:
         schemas=schema_of,
         compression=[],
         chunks=None,
-        metadata=metadata,
-        run=run,
+        metadata=raw.metadata,
+        runs=runs,
         truncated=bool(raw.note),
-        note=raw.note or "no summary section or CRCs to check it by: read record by record",
+        note=note,
+        problems=list(problems),
     )
 
 
-def _run_record(label: str, data: bytes) -> dict[str, Any]:
-    try:
-        run = json.loads(data)
-    except ValueError:
-        run = None
+def _run_record(label: str, log_time: int, data: bytes) -> dict[str, Any]:
+    run = checked(RUN, log_time, data, label, check=False)  # not JSON, or too deep: refused
     if not isinstance(run, dict):
         raise RgtbusError(f"{label}: its /run record is not a JSON object")
     return run
@@ -139,15 +271,24 @@ def _info(
     schemas: dict[str, str],
     compression: list[str],
     chunks: int | None,
-    metadata: dict[str, dict[str, str]],
-    run: dict[str, Any] | None,
+    metadata: Sequence[tuple[str, dict[str, str]]],
+    runs: list[dict[str, Any]],
     truncated: bool,
     note: str,
+    problems: list[str],
 ) -> dict[str, Any]:
-    sc = metadata.get("scenario", {})
-    meta_run = metadata.get("run", {})
-    units = _units_of(sc.get("text"), metadata.get("frequencies"))
-    ends = unit_process_ends(metadata, units)
+    twice = [name for name, n in Counter(name for name, _ in metadata).items() if n > 1]
+    problems += [f"{len(runs)} /run records (a run writes one): its outcome is not known"] * (
+        len(runs) > 1
+    )
+    problems += [f"metadata record {name!r} written {sum(n == name for n, _ in metadata)} times "
+                 "(a log writes each once)" for name in twice]  # fmt: skip
+    run = runs[0] if len(runs) == 1 else None
+    by_name = dict(metadata)  # a name written twice is named in problems; the last one read
+    sc = by_name.get("scenario", {})
+    meta_run = by_name.get("run", {})
+    units = _units_of(sc.get("text"), by_name.get("frequencies"))
+    ends = unit_process_ends(by_name, units)
     return {
         "log": label,
         "bytes": size,
@@ -161,22 +302,24 @@ def _info(
         "chunks": chunks,
         "scenario": sc.get("name"),
         "scenario_path": sc.get("path"),
-        "seed": logged_seed(metadata, label),
+        "seed": logged_seed(by_name, label),
         "version": meta_run.get("version"),
         "bus": meta_run.get("bus"),
         "engine": meta_run.get("engine"),
         "run_id": meta_run.get("run_id"),
-        "codebook": _codebook_name(metadata),
+        "codebook": _codebook_name(by_name),
         "units": units,
         "outcome": None if run is None else run.get("outcome"),
         "agree": None if run is None else run.get("agree"),
         "error": run.get("error") if run is not None else _unit_error(ends),
         # A run's log ends with its /run record; a merge of unit processes' logs (rgtbus unit
         # and merge by hand) has none, and is finished when every unit's process ended "done".
-        "finished": run is not None or _all_done(ends, units),
+        "finished": bool(runs) or _all_done(ends, units),
         "unit_processes": ends,
         "truncated": truncated,
         "note": note,
+        "run_records": len(runs),
+        "problems": problems,
     }
 
 
@@ -226,8 +369,11 @@ def _units_of(text: str | None, frequencies: dict[str, str] | None) -> list[str]
 
 
 def info_text(info: dict[str, Any]) -> str:
-    """``rgtbus info`` as text, in the manner of ``mcap info``."""
+    """``rgtbus info`` as text, in the manner of ``mcap info``: every line printable
+    (``untrusted.printable``: a log's names and values cannot forge lines on a terminal),
+    what the log contradicts first."""
     lines = [f"log:         {info['log']} ({_size(info['bytes'])})"]
+    lines += [f"problem:     {p}" for p in info.get("problems", ())]
     if info["note"]:
         lines.append(f"note:        {info['note']}")
     lines += [
@@ -235,7 +381,7 @@ def info_text(info: dict[str, Any]) -> str:
         f"seed:        {info['seed']}",
         f"rgtbus:      {info['version']} (bus {info['bus']}, engine {info['engine'] or 'event'}, "
         f"run {info['run_id']})",
-        f"units:       {', '.join(info['units'])} ({len(info['units'])})",
+        f"units:       {', '.join(map(printable, info['units']))} ({len(info['units'])})",
         f"codebook:    {info.get('codebook') or '-'}",
     ]
     if info["duration"] is not None:
@@ -251,12 +397,13 @@ def info_text(info: dict[str, Any]) -> str:
     lines.append(f"messages:    {info['messages']}")
     from tabulate import tabulate  # slow to import: only for the text
 
-    rows = [[topic, str(v["count"]), v["schema"] or ""] for topic, v in info["topics"].items()]
+    rows = [[printable(topic), str(v["count"]), printable(v["schema"] or "")]
+            for topic, v in info["topics"].items()]  # fmt: skip
     table = tabulate(
         rows, tablefmt="plain", disable_numparse=True, colalign=("left", "right", "left")
     )
     lines += [f"  {line}".rstrip() for line in table.splitlines()]
-    return "\n".join(lines)
+    return "\n".join(printable(line) for line in lines)
 
 
 def _codebook_name(metadata: dict[str, dict[str, str]]) -> str | None:
@@ -266,7 +413,7 @@ def _codebook_name(metadata: dict[str, dict[str, str]]) -> str | None:
     if name is None:
         return None
     try:
-        value = json.loads(name)
+        value = orjson.loads(name)  # no recursion, whatever the metadata holds
     except ValueError:
         return name
     return value if isinstance(value, str) else name
@@ -274,6 +421,8 @@ def _codebook_name(metadata: dict[str, dict[str, str]]) -> str | None:
 
 def _outcome_text(info: dict[str, Any]) -> str:
     ends = info.get("unit_processes") or {}
+    if info.get("run_records", 0) > 1:
+        return f"(not known: the log holds {info['run_records']} /run records, a run writes one)"
     if info["finished"] and info["error"]:
         return f"failed: {info['error']}"
     if info["finished"] and info["outcome"] is None and info["agree"] is None and ends:
@@ -320,6 +469,8 @@ def _unit_of(topic: str, message: dict[str, Any]) -> str | None:
     a log line's name. The medium and the run summary belong to no unit."""
     if is_trace_topic(topic):
         return topic[len(TRACE_PREFIX) :]
+    if not isinstance(message, dict):
+        return None
     if topic == LOG:
         return message.get("name")
     unit = message.get("unit")
@@ -411,7 +562,7 @@ def _cat_indexed(
     for _, channel, m in reader.iter_messages(
         topics=list(wanted), starting_at=start, ending_at=end, log_time_order=True
     ):
-        msg = _record(channel.topic, m.log_time, m.data, unit)
+        msg = _record(log.label, channel, m.log_time, m.data, unit)
         if msg is not None:
             yield msg
 
@@ -422,6 +573,7 @@ def _cat_scanned(
     raw = log.raw
     assert raw is not None
     topics = {cid: ch.topic for cid, ch in raw.channels.items()}
+    channels = raw.channels
     rows = sorted(
         ((t, i, cid, data) for i, (cid, t, _, _, data) in enumerate(raw.messages)),
         key=lambda r: (r[0], r[1]),
@@ -431,15 +583,21 @@ def _cat_scanned(
             continue
         if end is not None and t > end:
             continue
-        msg = _record(topics[cid], t, data, unit)
+        msg = _record(log.label, channels[cid], t, data, unit)
         if msg is not None:
             yield msg
 
 
-def _record(topic: str, log_time: int, data: bytes, unit: str | None) -> dict[str, Any] | None:
-    try:
-        message = json.loads(data)
-    except ValueError:
+def _record(
+    label: str, channel: Any, log_time: int, data: bytes, unit: str | None
+) -> dict[str, Any] | None:
+    """A message as ``cat`` prints it (None: not about ``unit``). A message of a JSON
+    channel that is not JSON, or nests too deep, is refused as every reader refuses it
+    (``untrusted.message``); one of another encoding is shown as its length."""
+    topic = channel.topic
+    if channel.message_encoding == "json":
+        message = checked(topic, log_time, data, label, check=False)
+    else:
         message = {"undecodable": len(data)}
     if unit is not None and _unit_of(topic, message) != unit:
         shared = message.get("units") if isinstance(message, dict) else None
@@ -494,15 +652,38 @@ def stored_scenario(log: str | os.PathLike[str] | CheckedLog) -> str:
     text = metadata.get("scenario", {}).get("text")
     if text is None:
         raise RgtbusError(f"{label}: stores no scenario (not an rgtbus run log, or a unit's part)")
+    too_deep = nesting_error(text, f"{label}: its stored scenario")  # before tomllib recurses
+    if too_deep is not None:
+        raise RgtbusError(too_deep)
     seed = logged_seed(metadata, label)
-    if seed is None:
-        return text
     try:
-        return with_seed_text(text, seed)
-    except (ValueError, RecursionError):  # TOMLDecodeError is a ValueError
+        return printable_toml(text if seed is None else with_seed_text(text, seed))
+    except (ValueError, RecursionError):  # TOMLDecodeError is a ValueError; dotted keys deep
         raise RgtbusError(
             f"{label}: its stored scenario (run seed {seed!r}) is not a scenario's TOML"
         ) from None
+
+
+def printable_toml(text: str) -> str:
+    """``text`` (TOML) as it may be printed: as it is when it holds no character a terminal
+    acts on (tabs and newlines aside; CRLF ends lines as LF); else its data written anew with
+    every such character escaped (``\\uXXXX``, inside the strings that hold them), so it
+    still parses to the same data, comments lost. Not TOML: ValueError."""
+    text = text.replace("\r\n", "\n")
+    if all(c.isprintable() or c in "\n\t" for c in text):
+        return text
+    import tomli_w
+
+    data = tomllib.loads(text)
+    # tomli_w writes every string as a basic string, where an escape reads as its character
+    out = "".join(
+        c if c.isprintable() or c == "\n" else f"\\u{ord(c):04x}" if ord(c) < 0x10000
+        else f"\\U{ord(c):08x}"
+        for c in tomli_w.dumps(data)
+    )  # fmt: skip
+    if tomllib.loads(out) != data:
+        raise ValueError("no printable TOML for it")
+    return "# written anew by rgtbus scenario: the stored text held control characters\n" + out
 
 
 def with_seed_text(text: str, seed: int) -> str:

@@ -34,7 +34,7 @@ from rgtbus.summary import (
     summarise,
     summary_json,
 )
-from rgtbus.telemetry import topics
+from rgtbus.telemetry import topics, untrusted
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
     LOG,
@@ -427,7 +427,7 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
             return []
         if topic in self._raw:
             check = topic in self.current
-            held[:] = [(t, topics.checked_message(topic, t, m, self.label, check)) for t, m in held]
+            held[:] = [(t, untrusted.message(topic, t, m, self.label, check)) for t, m in held]
             self._raw.discard(topic)
         return held
 
@@ -532,7 +532,7 @@ class Replay:
         if deferred is not None and topic in deferred.held():
             label, check = self.label, topic in self.by_topic.current
             msgs = deferred.read(topic)
-            return [(t, topics.checked_message(topic, t, m, label, check)) for t, m in msgs]
+            return [(t, untrusted.message(topic, t, m, label, check)) for t, m in msgs]
         return []
 
     def topic_counts(self) -> dict[str, int]:
@@ -1052,15 +1052,24 @@ def schema_error(messages: Iterable[LogMessage]) -> str | None:
             schema = topics.schema_for(topic)
         except RgtbusError:
             continue  # a topic of someone else's: not ours to read
-        if isinstance(message, bytes | bytearray | memoryview):
-            try:
-                message = orjson.loads(message)
-            except ValueError:
-                return f"message on {topic} at t = {seconds(t_ns):.3f} s is not JSON"
+        message, why = _decoded(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
         errs = validate.errors(message, topics.load_schema(schema))
         if errs:
             return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
     return None
+
+
+def _decoded(message: Any) -> tuple[Any, str | None]:
+    """A message held as JSON bytes decoded, and (None, why) when it is not JSON or nests
+    deeper than any reader walks (``untrusted.depth_error``: the walks below recurse)."""
+    if isinstance(message, bytes | bytearray | memoryview):
+        try:
+            message = orjson.loads(message)
+        except ValueError:
+            return None, "is not JSON"
+    return message, untrusted.depth_error(message)
 
 
 _INT64 = 2**63
@@ -1089,11 +1098,9 @@ def range_error(messages: Iterable[LogMessage]) -> str | None:
     """The first message holding a number out of every reader's range, in one line (None:
     none). Run only once reading has failed, as ``schema_error``."""
     for topic, t_ns, message in messages:
-        if isinstance(message, bytes | bytearray | memoryview):
-            try:
-                message = orjson.loads(message)
-            except ValueError:
-                return f"message on {topic} at t = {seconds(t_ns):.3f} s is not JSON"
+        message, why = _decoded(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
         why = _beyond_int64(message)
         if why is not None:
             return f"message on {topic} at t = {seconds(t_ns):.3f} s: {why}"

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from typing import IO, Any, TypeVar, cast
 
 import mcap.exceptions
-import orjson
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
@@ -659,7 +658,10 @@ def current_topics(log: RawLog | CheckedLog) -> frozenset[str]:
 
 def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> LogContents:
     """A scanned log as ``read_log`` returns it. Messages on topics for which ``keep_raw``
-    is true stay undecoded JSON ``bytes`` (for readers that may never need them)."""
+    is true stay undecoded JSON ``bytes`` (for readers that may never need them); the others
+    are decoded (``untrusted.message``: not JSON, or nesting too deep, is RgtbusError)."""
+    from rgtbus.telemetry import untrusted
+
     label = raw.label
     if raw.corrupt:
         raise RgtbusError(raw.corruption)
@@ -670,12 +672,7 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
         if cid in lazy:
             messages.append((topics[cid], t, bytes(data)))
             continue
-        try:
-            messages.append((topics[cid], t, orjson.loads(data)))
-        except ValueError as e:
-            raise RgtbusError(
-                f"{label}: message on {topics[cid]} at {t} ns is not JSON: {e}"
-            ) from None
+        messages.append((topics[cid], t, untrusted.message(topics[cid], t, data, label, False)))
     messages.sort(key=lambda m: m[1])
     metadata = {name: values for name, values in raw.metadata}  # a repeated name: last wins
     note = raw.note  # says how far it read (the scan's last log time)

@@ -1,0 +1,119 @@
+"""What a log holds is not to be trusted, even with every CRC valid (a file written by hand or
+tampered with): the one rule for how deep a message may nest (``message``, ``depth_error``)
+and the one way text from a log reaches a terminal (``printable``). Every reader of a log
+(``rgtbus info``, ``cat``, ``scenario``, ``replay`` and ``rgtbus.open_log``) goes through them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Iterator
+from typing import Any, TextIO
+
+from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import topics
+from rgtbus.timebase import seconds
+
+# The deepest a message may nest (lists and objects): what rgtbus's own writer (orjson) writes
+# at most. orjson reads 1024 levels, but what walks a message after it (json.dumps, ==, a
+# recursive check, orjson.dumps when a message is compared) gives up sooner, with a
+# RecursionError or a TypeError; rgtbus's own records nest 6 deep at most.
+MAX_DEPTH = 254
+
+
+def depth_error(value: Any, limit: int = MAX_DEPTH) -> str | None:
+    """``nests deeper than N levels`` when ``value`` (decoded JSON) holds lists and objects
+    more than ``limit`` deep, else None. Walked with a stack, not by recursion."""
+    stack: list[tuple[Any, int]] = [(value, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict):
+            children: Any = node.values()
+        elif isinstance(node, list):
+            children = node
+        else:
+            continue
+        if depth > limit:
+            return f"nests deeper than {limit} levels"
+        stack.extend((v, depth + 1) for v in children if isinstance(v, dict | list))
+    return None
+
+
+def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) -> Any:
+    """A message as a reader may use it: decoded and, with ``check``, checked against its
+    topic's schema (``topics.checked_message``), and no deeper than ``MAX_DEPTH``. Not JSON,
+    breaking its schema or nesting deeper: RgtbusError naming the log, topic and log time."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        data = bytes(data)
+        # no JSON nests deeper than it has brackets: most messages need no walk
+        deep = data.count(b"[") + data.count(b"{") > MAX_DEPTH
+    else:
+        deep = True
+    if deep:
+        # before the schema check, whose walk compares values (==, which recurses)
+        decoded = topics.checked_message(topic, t_ns, data, label, check=False)
+        why = depth_error(decoded)
+        if why is not None:
+            where = printable(f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s")
+            raise RgtbusError(f"{where} {why}")
+        data = decoded
+    return topics.checked_message(topic, t_ns, data, label, check)
+
+
+# Unicode's bidi controls (U+202A-U+202E, U+2066-U+2069) are format characters (Cf), as are
+# the zero-width ones: str.isprintable says no to them, as to C0 and C1 controls, DEL and line
+# and paragraph separators.
+
+
+def printable(text: Any) -> str:
+    """``text`` (made a str) safe to print on a terminal: every character that is not
+    printable (C0 and C1 controls, DEL, escape sequences' ESC, ``\\r``, ``\\b``, tabs and
+    newlines, bidi overrides and other format characters) written as ``repr`` writes it
+    (``\\x1b``, ``\\r``, ``\\u202e``); letters of every script, and spaces, kept as they are.
+    Anything read from a log goes through it before it reaches a terminal: a log cannot
+    forge lines on the screen."""
+    s = text if isinstance(text, str) else str(text)
+    if s.isprintable():
+        return s
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in s)
+
+
+@contextlib.contextmanager
+def printable_errors() -> Iterator[None]:
+    """An ``RgtbusError`` raised meanwhile goes on with its text ``printable``: an error may
+    quote a log (a topic, a field, a value)."""
+    try:
+        yield
+    except RgtbusError as e:
+        text = str(e)
+        if text.isprintable():
+            raise
+        raise RgtbusError(printable(text)) from None
+
+
+class _PrintableLines:
+    """A text stream that writes every line ``printable`` (the newlines between kept)."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        self.stream.write("\n".join(printable(part) for part in text.split("\n")))
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+@contextlib.contextmanager
+def printable_lines() -> Iterator[None]:
+    """What is printed meanwhile (stdout and stderr) goes out ``printable`` line by line: a
+    report whose every value comes from a log (``rgtbus replay``'s timeline) can forge no
+    line but by a newline in a value, which the report escapes itself where it may hold one."""
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _PrintableLines(out), _PrintableLines(err)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = out, err
