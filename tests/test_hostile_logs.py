@@ -285,3 +285,17 @@ def test_a_metadata_record_written_twice_is_named(gate, tmp_path):
     assert log_info(path)["problems"] == [
         "metadata record 'run' written 2 times (a log writes each once)"
     ]
+
+
+def test_deep_metadata_values_are_read_without_recursion(gate, tmp_path):
+    def deep(held: Any, metadata: list[tuple[str, dict[str, str]]]) -> None:
+        metadata.append(("merge", {"truncated": nested(5000).decode()}))
+        metadata.append(("codebook", {"name": nested(5000).decode()}))
+
+    path = tmp_path / "meta.mcap"
+    path.write_bytes(rebuilt(gate, deep))
+    for reader in (["info"], ["replay"], ["replay", "--json"]):
+        code, _, err = run_cli(reader[0], str(path), *reader[1:])
+        # replay: a merge record that does not parse is read as a cut log's (info reads none)
+        assert code == (0 if reader == ["info"] else 3), (reader, err)
+    assert "a merge record that does not parse" in err

@@ -143,8 +143,10 @@ def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
     out: list[str] = []
     for name, values in metadata.items():
         if name == "merge" or name.startswith("merge."):
-            try:
-                notes = json.loads(values.get("truncated", "[]"))
+            try:  # orjson, and the one depth rule: str() of a note recurses
+                notes = orjson.loads(values.get("truncated", "[]"))
+                if untrusted.depth_error(notes) is not None:
+                    raise ValueError
             except ValueError:
                 notes = ["a merge record that does not parse"]
             if isinstance(notes, list):
