@@ -33,6 +33,7 @@ from rgtbus.bus import (
     encode,
     open_bus,
 )
+from rgtbus.bus.base import AHEAD_WINDOW
 from rgtbus.bus.logbus import LogBus, LogEnded
 from rgtbus.bus.payload import HEADER_SIZE, MAX_MAGNITUDE
 from rgtbus.errors import RgtbusError
@@ -361,18 +362,20 @@ def test_foreign_malformed_replayed_and_late_frames_are_dropped_and_counted(make
     bus.put_raw("rgtbus/r1/tx/a", _frame(1, 10, rate=100.0))  # another sample rate
     bus.put_raw("rgtbus/r1/tx/a", good)  # accepted
     bus.put_raw("rgtbus/r1/tx/a", good)  # replayed
-    bus.put_raw("rgtbus/r1/tx/a", _frame(3, 30))  # a frame missing before it
+    bus.put_raw("rgtbus/r1/tx/a", _frame(3, 30))  # a frame missing before it: held
     bus.put_raw("rgtbus/r1/tx/a", _frame(2, 9))  # promise going back
     bus.put_raw("rgtbus/r1/tx/a", _frame(2, 12, [5], [0.1]))  # pulse before its promise
+    bus.put_raw("rgtbus/r1/tx/a", _frame(3 + AHEAD_WINDOW, 30))  # far ahead: dropped unread
     bus.put_raw("rgtbus/r1/tx/b", _frame(1, 12, flags=FINAL, done_at=4))
     bus.put_raw("rgtbus/r1/tx/b", _frame(2, 13, flags=FAILED, done_at=4))  # done flags change
-    wait_for(lambda: bus.stats()["received"] == 11)
+    wait_for(lambda: bus.stats()["received"] == 12)
     st_ = bus.stats()
     assert set(st_) == set(STAT_KEYS)
     assert st_["dropped_foreign"] == 2
     assert st_["dropped_malformed"] == 4  # garbage, rate, promise back, flags changed
     assert st_["dropped_duplicate"] == 1
     assert st_["dropped_ahead"] == 1
+    assert st_["held"] == 1  # frame 3, until a good frame 2 comes
     assert st_["dropped_late"] == 1
     assert st_["accepted"] == 2
     notes = bus.drop_notes()

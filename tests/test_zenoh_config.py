@@ -85,6 +85,7 @@ def test_the_access_control_lets_each_unit_put_only_on_its_own_keys(ids):
     for u in UNITS:
         assert allowed(u, "ingress", "put") == {
             f"rgtbus/r1/tx/{u}", f"rgtbus/r1/hello/{u}", f"rgtbus/r1/telemetry/{u}",
+            f"rgtbus/r1/resend/{u}",
         }  # fmt: skip
         assert allowed(u, "ingress", "liveliness_token") == {f"rgtbus/r1/alive/{u}"}
         assert allowed(u, "ingress", "declare_subscriber") == every
@@ -96,7 +97,7 @@ def test_the_access_control_lets_each_unit_put_only_on_its_own_keys(ids):
     # no run id (a router not told which run): the same rules, for any run
     anyrun = access_control(UNITS, None)
     assert by_id(anyrun["rules"])["puts of b"]["key_exprs"] == [
-        "rgtbus/*/tx/b", "rgtbus/*/hello/b", "rgtbus/*/telemetry/b",
+        "rgtbus/*/tx/b", "rgtbus/*/hello/b", "rgtbus/*/telemetry/b", "rgtbus/*/resend/b",
     ]  # fmt: skip
 
 

@@ -16,7 +16,7 @@ from typing import Any
 from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus._version import __version__
-from rgtbus.bus import open_bus
+from rgtbus.bus import drop_summary, open_bus
 from rgtbus.engine.sim import World
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
@@ -99,6 +99,9 @@ def run_group(
         ).run()  # fmt: skip
         for note in bus.drop_notes():  # what reached the bus and was refused, say why
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
+        dropped = drop_summary(bus.stats())
+        if dropped:  # once, with the counts
+            recorder.log("warning", f"dropped: {dropped}", ns(result.sim_seconds))
     for m in members:
         m.write_report(result.sim_seconds)
     reports = shared_reports(members)

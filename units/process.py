@@ -28,7 +28,7 @@ from rgtbus.units.group import (
 )
 from rgtbus.units.unit import AutonomousUnit
 
-from rgtbus.bus import open_bus
+from rgtbus.bus import drop_summary, open_bus
 from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.engine.sim import World, WorldResult
@@ -228,6 +228,8 @@ def run_units(
                 if flush is not None:  # the reports on disk before anyone is told
                     flush()
                 on_result(outs)
+            if not result.failure and isinstance(bus, ZenohBus):
+                bus.linger()  # its last frames may be asked for again
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
     except BaseException as exc:
@@ -309,7 +311,11 @@ def _reported(
         unit.write_report(sim_seconds)
     for note in bus.drop_notes():
         recorder.log("warning", f"dropped: {note}", ns(sim_seconds), name=units[0].name)
-    return dict(bus.stats())
+    stats = dict(bus.stats())
+    dropped = drop_summary(stats)
+    if dropped:  # once, with the counts: a flood is a number, not a stream of lines
+        recorder.log("warning", f"dropped: {dropped}", ns(sim_seconds), name=units[0].name)
+    return stats
 
 
 def _output(

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, QueueBus
+from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, QueueBus, drop_summary
 from rgtbus.bus.keys import tx_key
 from rgtbus.bus.memory import MemoryBus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
@@ -40,6 +40,7 @@ __all__ = [
     "Pulses",
     "QueueBus",
     "decode",
+    "drop_summary",
     "encode",
     "open_bus",
     "tx_key",

@@ -13,11 +13,24 @@ Bounded whatever arrives: the gate drops a frame larger than the run's bound
 (``dropped_oversize``) before any other work, and queues at most a bounded number of bytes per
 member (``dropped_overflow``). On a keyed run only frames with a valid tag, each sequence number
 once, are queued at all: what an outsider sends costs at most one HMAC over a bounded frame and
-never memory, and a member's own frames are never crowded out (docs/security.md).
+never memory, and a member's own frames are never crowded out (docs/security.md). Before the
+tag, what a frame's header alone rules out is dropped (a number already accepted, or far ahead),
+and the tags checked that fail are held to a rate a member's key (``dropped_rate`` beyond it):
+a flood of wrongly tagged frames costs a bounded number of HMACs a second.
+
+A frame lost (a full queue, a link that hiccuped, the rate above) is asked for again
+(docs/engine.md, "A frame lost is asked for again"): frames after a gap are held, and a member
+that holds the horizon with a gap before its frames, or quiet for ``REPAIR_QUIET`` s, is asked
+for what follows its last frame received (``_ask_resend``); every bus keeps its own units'
+recent frames as sent and sends them again when asked. A member is judged by what it proved to
+say: two different frames under one number, or a frame no member running rgtbus would send, from
+a member whose frames are authenticated (a key, or TLS identities) names it at once
+(``MembersSilent``); its silence names it at the run's timeout.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import queue
@@ -57,6 +70,28 @@ _LEFT_GRACE = 1.0  # s: a member that left may still have frames on their way
 # number once) get here, so the cap is a safety net; on an open run it is what bounds a flood.
 INBOX_BYTES_OPEN = 4 << 20
 INBOX_BYTES_KEYED = 64 << 20
+# Repair. A member's frames held after a gap (at most so many, so many bytes), and what is
+# dropped unread as too far ahead of its last frame accepted (a member in lockstep is a few
+# frames ahead at most).
+AHEAD_FRAMES = 1024
+AHEAD_BYTES = 16 << 20
+AHEAD_WINDOW = 4096
+# A member holding the horizon and quiet this long is asked for what follows its last frame
+# (then again at twice the gap, up to REPAIR_GAP_MAX s, until it makes progress).
+REPAIR_QUIET = 0.25
+REPAIR_GAP_MAX = 2.0
+_REPAIR_TICK = 0.05  # s: how often a wait looks for gaps
+# Each local unit's frames as sent, for a resend: at most so many, so many bytes.
+HISTORY_FRAMES = 4096
+HISTORY_BYTES = 32 << 20
+RESEND_BATCH = 256  # frames sent again for one request at most
+_RESEND_AGAIN = 0.1  # s: a request for the same frames within this is served once
+# Each member's recent frames' digests: a second frame under one of these numbers that differs
+# is an impostor's (or a broken member's); further back, a number seen is a duplicate.
+RECENT_DIGESTS = 64
+# Tags checked a second on a member's key that may fail (a burst of twice as many): a flood of
+# wrongly tagged frames costs at most this many HMACs; a frame whose tag holds costs nothing.
+CHECKS_PER_S = 2000.0
 
 
 @dataclass
@@ -265,8 +300,53 @@ STAT_KEYS = (
     "dropped_unauthenticated",
     "dropped_oversize",  # larger than the run's frame (or hello) bound: dropped unread
     "dropped_overflow",  # the member's receive queue was full (or the hello queue)
+    "dropped_rate",  # beyond the tags a member's key may fail a second: dropped unchecked
     "hellos_unanswered",  # hellos heard again or too fast (replays): not answered
+    "held",  # frames after a gap, held until it is filled (now): received, not yet read
+    "resend_asked",  # requests this bus sent for frames it missed
+    "resent",  # frames this bus sent again, asked to
 )
+# What the gate drops and every other drop reason: the counters a flood shows in.
+DROP_KEYS = tuple(k for k in STAT_KEYS if k.startswith("dropped_"))
+
+
+def drop_summary(stats: dict[str, int]) -> str | None:
+    """One line on what a bus dropped, for the log and a summary (None: nothing): the total and
+    each reason's count."""
+    counts = {k: int(stats.get(k, 0)) for k in DROP_KEYS if stats.get(k)}
+    if not counts:
+        return None
+    parts = ", ".join(f"{k.removeprefix('dropped_')} {n}" for k, n in counts.items())
+    return f"{sum(counts.values())} payloads dropped in all ({parts})"
+
+
+class Budget:
+    """A token bucket: ``take()`` at most ``rate`` times a second on average, ``burst`` at
+    once; ``give_back()`` returns a token taken for nothing (a check that passed)."""
+
+    def __init__(self, rate: float, burst: float) -> None:
+        self.rate, self.burst = rate, burst
+        self.tokens = burst
+        self.at = time.monotonic()
+
+    def take(self) -> bool:
+        """Whether a token was left (and now is spent)."""
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
+        self.at = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+    def give_back(self) -> None:
+        """A token taken for a check that passed."""
+        self.tokens = min(self.burst, self.tokens + 1.0)
+
+
+def frame_digest(data: bytes) -> bytes:
+    """What tells two frames apart (16 bytes of BLAKE2b): a resend is the frame itself."""
+    return hashlib.blake2b(data, digest_size=16).digest()
 
 
 class Payload(Protocol):
@@ -356,6 +436,27 @@ class QueueBus(BusBase):
         self.close_problem: str | None = None  # a transport slow to close, once closed
         # Members the transport saw leave (their session ended), and when: under _gate_lock.
         self._gone: dict[str, float] = {}
+        # Whether a member's frames prove who sent them (a key; TLS identities under an ACL):
+        # then a bad frame, or two different frames under one number, names it at once.
+        self._identified = self._key is not None
+        now = time.monotonic()
+        # Repair (the module docstring): each local unit's recent frames as sent (number ->
+        # bytes, oldest first); frames after a gap, held; each member's recent frames' digests;
+        # when each made progress last, and when to ask it next.
+        self._history: dict[str, dict[int, bytes]] = {u: {} for u in self.local}
+        self._history_bytes = dict.fromkeys(self.local, 0)
+        self._ahead: dict[str, dict[int, tuple[str, bytes, bool]]] = {u: {} for u in self.members}
+        self._ahead_bytes = dict.fromkeys(self.members, 0)
+        self._recent: dict[str, dict[int, bytes]] = {u: {} for u in self.members}
+        self._progress_at = dict.fromkeys(self.members, now)
+        self._ask_at = dict.fromkeys(self.members, 0.0)
+        self._ask_gap = dict.fromkeys(self.members, REPAIR_QUIET)
+        self._served: dict[tuple[str, int], float] = {}
+        self._budgets = {u: Budget(CHECKS_PER_S, 2 * CHECKS_PER_S) for u in self.members}
+        # A member's bad authenticated frames: how many, and the latest reason; and a member
+        # named untrustworthy (an identified run): why.
+        self._bad: dict[str, tuple[int, str]] = {}
+        self._faulty: dict[str, str] = {}
 
     # -- public API -------------------------------------------------------------------------
 
@@ -397,19 +498,30 @@ class QueueBus(BusBase):
                 return tag(key, "frame", run_id, unit, nonce, body)
 
         data = encode(frame, self.sample_rate, sign=sign)
+        self._keep(unit, frame.seq, data)
         self._send(self._keys[unit], data)
         mine.seq, mine.promise = frame.seq, frame.promise
         self._stats["published"] += 1
+
+    def _keep(self, unit: str, seq: int, data: bytes) -> None:
+        """A local unit's frame as sent, for a resend (the oldest go past the bounds)."""
+        history = self._history[unit]
+        history[seq] = data
+        self._history_bytes[unit] += len(data)
+        while len(history) > HISTORY_FRAMES or self._history_bytes[unit] > HISTORY_BYTES:
+            self._history_bytes[unit] -= len(history.pop(next(iter(history))))
 
     def wait(self, beyond: int, timeout: float = 5.0) -> int:
         """Block until every member has promised past sample ``beyond`` (once everyone has
         promised silence for good: until every member is done); return the horizon (the
         smallest promise). RgtbusError naming the silent members after ``timeout`` s."""
         self._check_open("wait")
-        deadline = time.monotonic() + max(0.0, float(timeout))
+        started = time.monotonic()
+        deadline = started + max(0.0, float(timeout))
         self._drain()
         self._stats["waits"] += 1
         while not self._past(beyond):
+            self._check_trusted()
             left = self._left_holding(beyond)
             if left:
                 raise MembersSilent(
@@ -429,16 +541,105 @@ class QueueBus(BusBase):
                 )
                 raise MembersSilent(
                     f"no news for {timeout:g} s in run {self.run_id!r}: "
-                    f"{', '.join(late)} {what}: stalled or gone",
+                    f"{', '.join(late)} {what}: stalled or gone{self._why_late(late)}",
                     tuple(late),
                 )
+            self._between_frames()
+            self._repair(beyond, started)
             try:
-                item = self._inbox.get(timeout=min(remaining, _LEFT_GRACE))
+                item = self._inbox.get(timeout=min(remaining, _REPAIR_TICK))
             except queue.Empty:
                 continue
             self._accept(*item)
             self._drain()
         return self.horizon()
+
+    def _why_late(self, late: Sequence[str]) -> str:
+        """What this bus knows of why ``late`` members are late: bad frames, a gap."""
+        said = []
+        for u in late:
+            if u in self._bad:
+                n, why = self._bad[u]
+                said.append(f"{u} sent {n} bad frame{'s' * (n != 1)} (last: {why})")
+            held = self._ahead[u]
+            if held:
+                first = self._members[u].seq + 1
+                said.append(f"{u}'s frame {first} never came ({len(held)} after it held)")
+        return f" ({'; '.join(said)})" if said else ""
+
+    def _check_trusted(self) -> None:
+        """MembersSilent naming a member whose frames proved it untrustworthy (an identified
+        run: two different frames under one number, or a frame no healthy member sends)."""
+        if self._faulty:
+            unit, why = next(iter(self._faulty.items()))
+            raise MembersSilent(
+                f"{unit} is not trusted in run {self.run_id!r}: {why} (another process speaks "
+                "with its identity, or it is broken)",
+                (unit,),
+            )
+
+    def _between_frames(self) -> None:
+        """What a transport does while a wait waits (answer requests): nothing here."""
+
+    def _ask_resend(self, unit: str, first: int) -> None:
+        """Ask member ``unit`` for its frames from number ``first`` on: nothing here (a bus
+        whose members are all local never misses a frame of another process)."""
+
+    def _repair(self, beyond: int, started: float) -> None:
+        """Ask again for what is missing of each member that holds the horizon at or before
+        ``beyond``: one with a gap before frames held, or quiet since ``REPAIR_QUIET`` s
+        (counted from the wait's start, ``started``, at the earliest); then at twice the gap,
+        up to ``REPAIR_GAP_MAX``. A local unit's own frames lost on the way back are taken
+        from what it sent."""
+        now = time.monotonic()
+        for u in self.members:
+            if self._past(beyond, u) or u in self._faulty:
+                continue
+            m = self._members[u]
+            quiet = now - max(self._progress_at[u], started) >= REPAIR_QUIET
+            if u in self._sent:
+                if quiet and m.seq < self._sent[u].seq:
+                    self._refeed(u)
+                continue
+            if (self._ahead[u] or quiet) and now >= self._ask_at[u]:
+                self._ask_resend(u, m.seq + 1)
+                self._stats["resend_asked"] += 1
+                self._ask_at[u] = now + self._ask_gap[u]
+                self._ask_gap[u] = min(REPAIR_GAP_MAX, 2.0 * self._ask_gap[u])
+
+    def _refeed(self, unit: str) -> None:
+        """A local unit's frames after the last one received back, from what it sent."""
+        history, key = self._history[unit], self._keys[unit]
+        while (data := history.get(self._members[unit].seq + 1)) is not None:
+            seq = self._members[unit].seq
+            self._accept_frame(key, data, unit, True)
+            if self._members[unit].seq == seq:
+                return
+
+    def _resend(self, unit: str, first: int, asker: str) -> None:
+        """Local unit ``unit``'s frames from ``first`` on, sent again (at most
+        ``RESEND_BATCH``; the same request within ``_RESEND_AGAIN`` s served once)."""
+        history = self._history.get(unit)
+        if history is None:
+            return  # not one of ours: its own process answers
+        last = self._sent[unit].seq
+        if first > last:
+            return  # nothing sent after what it has: the member is behind, not lost
+        now = time.monotonic()
+        if now - self._served.get((unit, first), -math.inf) < _RESEND_AGAIN:
+            return
+        if len(self._served) > 4 * len(self.members):
+            self._served = {k: t for k, t in self._served.items() if now - t < _RESEND_AGAIN}
+        self._served[(unit, first)] = now
+        key, sent = self._keys[unit], 0
+        for seq in range(first, min(last, first + RESEND_BATCH - 1) + 1):
+            data = history.get(seq)
+            if data is None:
+                self._drop_note("resent", f"{asker} asked for {unit}'s frame {seq}: no longer held")
+                continue
+            self._send(key, data)
+            sent += 1
+        self._stats["resent"] += sent
 
     def _member_gone(self, unit: str) -> None:
         """The transport saw member ``unit``'s session end (any thread; never blocks)."""
@@ -458,10 +659,24 @@ class QueueBus(BusBase):
             if not self._gone:
                 return []
             gone = dict(self._gone)
+        if not self._link_up():
+            return []  # we are the one cut off: the run's timeout judges
         cut = time.monotonic() - _LEFT_GRACE
+        # gone, and nothing authenticated heard from it since (its last frames had time)
         return [
-            u for u in self.members if gone.get(u, cut + 1) <= cut and not self._past(beyond, u)
+            u
+            for u in self.members
+            if max(gone.get(u, cut + 1), self._progress_at[u]) <= cut and not self._past(beyond, u)
         ]
+
+    def _member_back(self, unit: str) -> None:
+        """The transport sees member ``unit`` again (its session back after a hiccup)."""
+        with self._gate_lock:
+            self._gone.pop(unit, None)
+
+    def _link_up(self) -> bool:
+        """Whether this process still reaches the others (a transport that knows says)."""
+        return True
 
     def _past(self, beyond: int, unit: str | None = None) -> bool:
         members = [self._members[unit]] if unit else self._members.values()
@@ -517,12 +732,14 @@ class QueueBus(BusBase):
 
     def stats(self) -> dict[str, int]:
         """Counters so far; drains what already arrived first so they are current. Every
-        payload received is counted once as accepted or under one ``dropped_*`` reason."""
+        payload received is counted once as accepted, under one ``dropped_*`` reason, or
+        ``held`` (after a gap, until it is filled)."""
         if not self._closed:
             self._drain()
         with self._gate_lock:
             out = {k: v + self._gate_stats[k] for k, v in self._stats.items()}
         out["pending"] = sum(int(p[0].size) for m in self._members.values() for p in m.pending)
+        out["held"] = sum(len(h) for h in self._ahead.values())
         return out
 
     def drop_notes(self) -> list[str]:
@@ -573,9 +790,22 @@ class QueueBus(BusBase):
     def _drop(self, counter: str, note: str) -> None:
         # On the caller's thread (_accept, hellos); the notes are shared with the gate.
         self._stats[counter] += 1
+        self._drop_note(counter, note)
+
+    def _drop_note(self, counter: str, note: str) -> None:
         with self._gate_lock:
             if self._noting(counter):
                 self._notes.append(note)
+
+    def _bad_frame(self, unit: str, counter: str, note: str, checked: bool) -> None:
+        """A frame of ``unit`` that no healthy member sends, dropped under ``counter``; with
+        proof of who sent it (``checked`` on an identified run) the member is not trusted."""
+        self._drop(counter, note)
+        n, _ = self._bad.get(unit, (0, ""))
+        why = note.split(": ", 1)[-1]
+        self._bad[unit] = (n + 1, why)
+        if checked and self._identified:
+            self._faulty.setdefault(unit, why)
 
     def _gate_drop(self, counter: str, key: str, why: object, received: bool = True) -> None:
         """A payload dropped at the gate (any thread): counted, its note kept if not flooded."""
@@ -628,6 +858,15 @@ class QueueBus(BusBase):
         except RgtbusError as e:
             self._gate_drop("dropped_malformed", key, e)
             return
+        # What the header alone rules out, before the tag: a number accepted long ago (its
+        # digest forgotten: only a duplicate), or far ahead of the last accepted.
+        accepted = self._members[unit].seq
+        if header.seq <= accepted and header.seq not in self._recent[unit]:
+            self._gate_drop("dropped_duplicate", key, f"frame {header.seq} received twice")
+            return
+        if header.seq > accepted + AHEAD_WINDOW:
+            self._gate_drop("dropped_ahead", key, f"frame {header.seq} while {accepted + 1} is due")
+            return
         checked = False
         if self._key is not None and nonce is not None:
             if not header.tagged:
@@ -637,6 +876,17 @@ class QueueBus(BusBase):
                     "frame not authenticated (no tag) on a run with a key",
                 )
                 return
+            budget = self._budgets[unit]
+            with self._gate_lock:
+                allowed = budget.take()
+            if not allowed:
+                self._gate_drop(
+                    "dropped_rate",
+                    key,
+                    f"more than {CHECKS_PER_S:g} frames a second on {unit!r}'s key failed "
+                    "their tag: dropped unchecked",
+                )
+                return
             try:
                 check_tag(
                     self._key, "frame", self.run_id, unit, nonce, data[:-TAG_SIZE], data[-TAG_SIZE:]
@@ -644,13 +894,15 @@ class QueueBus(BusBase):
             except AuthError as e:
                 self._gate_drop("dropped_unauthenticated", key, e)
                 return
+            with self._gate_lock:
+                budget.give_back()
             checked = True
         with self._gate_lock:
             if checked:
                 # Signed frames are the member's own: each sequence number is queued once (a
                 # replay of a frame seen on the network can cost one queue place, not more).
                 seqs = self._queued_seqs[unit]
-                if header.seq <= self._members[unit].seq or header.seq in seqs:
+                if header.seq in seqs:
                     self._gate_stats["dropped_duplicate"] += 1
                     self._gate_stats["received"] += 1
                     if self._noting("dropped_duplicate"):
@@ -671,17 +923,53 @@ class QueueBus(BusBase):
             self._inbox.put((key, data, unit, header.seq, checked))  # never blocks
 
     def _accept(self, key: str, data: bytes, unit: str, seq: int, checked: bool) -> None:
-        """A queued frame (it passed the gate), on the caller's thread."""
+        """A queued frame (it passed the gate), on the caller's thread: held when it comes
+        after a gap, else read; then the frames held after it that are now due."""
         try:
+            m = self._members[unit]
+            if seq > m.seq + 1:
+                self._hold(key, data, unit, seq, checked)
+                return
             self._accept_frame(key, data, unit, checked)
+            held = self._ahead[unit]
+            while held and (item := held.pop(m.seq + 1, None)) is not None:
+                self._ahead_bytes[unit] -= len(item[1])
+                self._read_frame(*item[:2], unit, item[2])  # received when it was held
         finally:
             with self._gate_lock:
                 self._queued_bytes[unit] -= len(data)
                 if checked:
                     self._queued_seqs[unit].discard(seq)
 
+    def _hold(self, key: str, data: bytes, unit: str, seq: int, checked: bool) -> None:
+        """A frame after a gap, held until the gap is filled (bounded: beyond, dropped).
+        Received now: it is then accepted or dropped, or still held."""
+        held = self._ahead[unit]
+        self._stats["received"] += 1
+        if seq in held:
+            self._drop("dropped_duplicate", f"{key}: frame {seq} received twice")
+            return
+        if len(held) >= AHEAD_FRAMES or self._ahead_bytes[unit] + len(data) > AHEAD_BYTES:
+            due = self._members[unit].seq + 1
+            self._drop("dropped_ahead", f"{key}: frame {seq} while {due} is due (too many held)")
+            return
+        held[seq] = (key, data, checked)
+        self._ahead_bytes[unit] += len(data)
+        now = time.monotonic()
+        self._ask_at[unit] = min(self._ask_at[unit], now)  # a gap: ask at once
+
+    def _remember(self, unit: str, seq: int, data: bytes) -> None:
+        recent = self._recent[unit]
+        recent[seq] = frame_digest(data)
+        if len(recent) > RECENT_DIGESTS:
+            del recent[next(iter(recent))]
+
     def _accept_frame(self, key: str, data: bytes, unit: str, checked: bool) -> None:
         self._stats["received"] += 1
+        self._read_frame(key, data, unit, checked)
+
+    def _read_frame(self, key: str, data: bytes, unit: str, checked: bool) -> None:
+        """A frame received: into its member's state, or dropped and counted."""
         check = None
         if self._key is not None:
             if not checked:  # every frame of a keyed run had its tag checked at the gate
@@ -706,27 +994,51 @@ class QueueBus(BusBase):
             return
         m = self._members[unit]
         if frame.seq <= m.seq:
+            seen = self._recent[unit].get(frame.seq)
+            if seen is not None and seen != frame_digest(data):
+                self._bad_frame(
+                    unit,
+                    "dropped_duplicate",
+                    f"{key}: two different frames numbered {frame.seq}",
+                    checked,
+                )
+                return
             self._drop("dropped_duplicate", f"{key}: frame {frame.seq} received twice (replayed?)")
             return
         if frame.seq != m.seq + 1:
             self._drop("dropped_ahead", f"{key}: frame {frame.seq} while {m.seq + 1} is due")
             return
         if frame.promise < m.promise:
-            self._drop(
-                "dropped_malformed", f"{key}: promise {frame.promise} goes back from {m.promise}"
+            self._bad_frame(
+                unit,
+                "dropped_malformed",
+                f"{key}: promise {frame.promise} goes back from {m.promise}",
+                checked,
             )
             return
         if frame.samples.size and frame.samples[0] < max(m.promise, self._taken):
-            self._drop(
+            self._bad_frame(
+                unit,
                 "dropped_late",
                 f"{key}: pulse at sample {int(frame.samples[0])} is before its promise "
                 f"(sample {m.promise})",
+                checked,
             )
             return
         if m.flags and frame.flags != m.flags:
-            self._drop("dropped_malformed", f"{key}: done flags changed after the unit was done")
+            self._bad_frame(
+                unit, "dropped_malformed", f"{key}: done flags changed after it was done", checked
+            )
             return
         m.seq, m.promise, m.flags, m.done_at = frame.seq, frame.promise, frame.flags, frame.done_at
         if frame.samples.size:
             m.pending.append((frame.samples, frame.values))
         self._stats["accepted"] += 1
+        self._remember(unit, frame.seq, data)
+        now = time.monotonic()
+        self._progress_at[unit] = now
+        self._ask_gap[unit] = REPAIR_QUIET
+        self._ask_at[unit] = now + REPAIR_QUIET
+        gone_at = self._gone.get(unit)
+        if gone_at is not None and now - gone_at > _LEFT_GRACE:
+            self._member_back(unit)  # heard, authenticated, well after it seemed to leave

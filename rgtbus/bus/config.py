@@ -80,7 +80,7 @@ def tls_settings(files: TlsFiles) -> dict[str, Any]:
 # Nothing else is allowed.
 PUT, TOKEN, SUBSCRIBE = "put", "liveliness_token", "declare_subscriber"
 WATCH_TOKENS = "declare_liveliness_subscriber"  # a unit learns at once that a member left
-OWN_PUTS = (keys.TX, keys.HELLO, keys.TELEMETRY)
+OWN_PUTS = (keys.TX, keys.HELLO, keys.TELEMETRY, keys.RESEND)
 
 
 def _subject(identity: str) -> str:
@@ -91,7 +91,8 @@ def access_control(units: Sequence[str], run_id: str | None = None) -> dict[str,
     """The ``access_control`` block of every process of a run with roster ``units`` (``run_id``
     None: any run), deny by default. Subjects are certificate common names (rgtbus.bus.certs).
 
-    From unit U (ingress): ``put`` only on its own keys ``rgtbus/<run>/{tx,hello,telemetry}/U``,
+    From unit U (ingress): ``put`` only on its own keys
+    ``rgtbus/<run>/{tx,hello,telemetry,resend}/U``,
     a ``liveliness_token`` only on ``rgtbus/<run>/alive/U``, and ``declare_subscriber`` and
     ``declare_liveliness_subscriber`` on the run's keys (and on every run's frames and
     telemetry: a unit counts foreign frames, a watcher may watch every run). To a unit, the

@@ -4,6 +4,7 @@
     rgtbus/<run>/hello/<unit>       join hellos
     rgtbus/<run>/alive/<unit>       liveliness tokens
     rgtbus/<run>/telemetry/<unit>   what a unit logs, for ``rgtbus watch``
+    rgtbus/<run>/resend/<unit>      a member's requests for frames it missed
 
 ``run=None`` in a subscription means every run (``*``): a bus that counts foreign traffic.
 """
@@ -11,11 +12,11 @@
 from __future__ import annotations
 
 ROOT = "rgtbus"
-TX, HELLO, ALIVE, TELEMETRY = "tx", "hello", "alive", "telemetry"
+TX, HELLO, ALIVE, TELEMETRY, RESEND = "tx", "hello", "alive", "telemetry", "resend"
 
 
 def key(kind: str, run_id: str, unit: str) -> str:
-    """One member's key of ``kind`` (``TX``, ``HELLO``, ``ALIVE``, ``TELEMETRY``)."""
+    """One member's key of ``kind`` (``TX``, ``HELLO``, ``ALIVE``, ``TELEMETRY``, ``RESEND``)."""
     return f"{ROOT}/{run_id}/{kind}/{unit}"
 
 

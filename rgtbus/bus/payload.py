@@ -292,3 +292,74 @@ def open_signed_telemetry(
     body = bytes(payload[:-TAG_SIZE])
     check(nonce, body, bytes(payload[-TAG_SIZE:]))
     return nonce, seq, body[_SIGNED_TELEMETRY.size :]
+
+
+# -- resend requests: a member asks another for the frames it missed ------------------------------
+#
+# A receiver that misses frames of a member (a gap before frames it holds, or a member that
+# holds the horizon and has said nothing for a while) asks for them again on its own key
+# ``rgtbus/<run>/resend/<asker>`` (docs/engine.md, "A frame lost is asked for again")::
+#
+#     offset  size  field
+#     0       4     magic b"RGTQ"
+#     4       1     version (1)
+#     5       1     flags: bit 2 TAGGED (a 32-byte tag follows, kind "resend", the asker's)
+#     6       2     length L of the member's name, u16
+#     8       8     the first sequence number missing, u64
+#     16      L     the member asked (UTF-8)
+#     16+L    32    TAGGED only: HMAC-SHA256 of everything before it (rgtbus.bus.auth)
+
+_RESEND = struct.Struct("<4sBBHQ")
+_RESEND_MAGIC = b"RGTQ"
+_RESEND_VERSION = 1
+MAX_NAME = 255  # bytes of a unit name in a resend request
+
+
+class ResendAsk(NamedTuple):
+    """A request for ``unit``'s frames from sequence number ``first`` on."""
+
+    unit: str
+    first: int
+
+
+def max_resend_size() -> int:
+    """The largest resend request a member can send (larger ones are dropped unread)."""
+    return _RESEND.size + MAX_NAME + TAG_SIZE
+
+
+def encode_resend(ask: ResendAsk, *, sign: Callable[[bytes], bytes] | None = None) -> bytes:
+    """A resend request (see above), signed when ``sign`` is given."""
+    name = ask.unit.encode()
+    if not name or len(name) > MAX_NAME:
+        raise RgtbusError(f"resend request: unit name of {len(name)} bytes (1..{MAX_NAME})")
+    first = _u64(ask.first, "sequence number")
+    flags = TAGGED if sign is not None else 0
+    body = _RESEND.pack(_RESEND_MAGIC, _RESEND_VERSION, flags, len(name), first) + name
+    return body if sign is None else body + sign(body)
+
+
+def decode_resend(data: bytes, *, check: Callable[[bytes, bytes], None] | None = None) -> ResendAsk:
+    """Inverse of ``encode_resend``; RgtbusError (AuthError for the tag, as ``decode``) on
+    anything else."""
+    if len(data) < _RESEND.size or len(data) > max_resend_size():
+        raise RgtbusError(f"resend request of {len(data)} bytes")
+    magic, version, flags, n, first = _RESEND.unpack_from(data)
+    if magic != _RESEND_MAGIC or version != _RESEND_VERSION or flags & ~TAGGED:
+        raise RgtbusError(f"not a resend request (magic {magic!r}, version {version})")
+    tagged = bool(flags & TAGGED)
+    end = _RESEND.size + n
+    if len(data) != end + (TAG_SIZE if tagged else 0):
+        raise RgtbusError(f"resend request of {len(data)} bytes for a name of {n}")
+    if check is not None:
+        if not tagged:
+            raise AuthError("resend request not authenticated (no tag) on a run with a key")
+        check(bytes(data[:end]), bytes(data[end:]))
+    elif tagged:
+        raise AuthError("resend request authenticated with a key this run does not have")
+    if first > NEVER:
+        raise RgtbusError(f"resend request: sequence number {first} out of range")
+    try:
+        unit = bytes(data[_RESEND.size : end]).decode()
+    except UnicodeDecodeError:
+        raise RgtbusError("resend request: the unit's name is not UTF-8") from None
+    return ResendAsk(unit, first)

@@ -14,6 +14,7 @@ happen in ``wait`` (and ``join``) on the caller's thread. Hellos are answered at
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import queue
 import socket
@@ -26,8 +27,8 @@ from typing import Any
 import zenoh
 
 from rgtbus.bus import keys
-from rgtbus.bus.auth import AuthError, tag
-from rgtbus.bus.base import QueueBus
+from rgtbus.bus.auth import AuthError, check_tag, tag
+from rgtbus.bus.base import Budget, QueueBus
 from rgtbus.bus.certs import process_tls
 from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.hello import (
@@ -39,7 +40,14 @@ from rgtbus.bus.hello import (
     read_hello,
     view_digest,
 )
-from rgtbus.bus.payload import encode_telemetry, sign_telemetry
+from rgtbus.bus.payload import (
+    ResendAsk,
+    decode_resend,
+    encode_resend,
+    encode_telemetry,
+    max_resend_size,
+    sign_telemetry,
+)
 from rgtbus.errors import RgtbusError
 
 # A declared callback subscriber leaves a non-daemon zenoh thread behind, and the interpreter
@@ -162,22 +170,12 @@ def max_hello(members: Sequence[str]) -> int:
     return min(MAX_HELLO, 1024 + max((len(u) for u in members), default=0))
 
 
-class _Rate:
-    """A token bucket: ``take()`` at most ``rate`` times a second (bursts of ``burst``)."""
-
-    def __init__(self, rate: float, burst: float) -> None:
-        self.rate, self.burst = rate, burst
-        self.tokens = burst
-        self.at = time.monotonic()
-
-    def take(self) -> bool:
-        now = time.monotonic()
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
-        self.at = now
-        if self.tokens < 1.0:
-            return False
-        self.tokens -= 1.0
-        return True
+RESEND_QUEUE = 256  # resend requests heard, not yet read (more: dropped_overflow)
+_ASKS_PER_S = 50.0  # resend requests read a second from one member (more: dropped_rate)
+# s: a finished process answers resend requests this long after the last it heard (or until
+# every other member has left): its last frames may have been lost on the way
+LINGER = 0.6
+LINGER_MAX = 5.0
 
 
 _FIRST_HELLO_GAP = 0.05  # s: the first unprompted hellos, each gap twice the last
@@ -359,6 +357,11 @@ class _Barrier:
         return self.done()
 
 
+def _check_ask(key: bytes, run_id: str, asker: str, nonce: bytes, body: bytes, got: bytes) -> None:
+    """AuthError unless ``got`` is ``asker``'s tag of the resend request ``body``."""
+    check_tag(key, "resend", run_id, asker, nonce, body, got)
+
+
 class ZenohBus(QueueBus):
     """The bus over zenoh (see the module docstring): a session of its own, or one given
     (``session``: then left open for its owner), or options for one (``mode``, ``connect``,
@@ -419,7 +422,14 @@ class ZenohBus(QueueBus):
         # (this process's units, digest) once the run has started
         self._joined: tuple[tuple[str, ...], str] | None = None
         self._late_answered: set[tuple[str, bytes]] = set()
-        self._late_rate = _Rate(_LATE_ANSWERS_PER_S, _LATE_ANSWERS_PER_S)
+        self._late_rate = Budget(_LATE_ANSWERS_PER_S, _LATE_ANSWERS_PER_S)
+        # resend requests heard, not yet read: (asker, what it said)
+        self._asks: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=RESEND_QUEUE)
+        self._ask_budgets = {u: Budget(_ASKS_PER_S, _ASKS_PER_S) for u in self.members}
+        self._resend_prefix = keys.prefix(keys.RESEND, self.run_id)
+        self._resend_sub: Any = None
+        self._identified = self._key is not None or tls is not None
+        self._via_router = False  # whether the join found a router (_link_up)
         self._owns_session = session is None
         if session is None:
             tls_run = None
@@ -467,6 +477,11 @@ class ZenohBus(QueueBus):
             deliver = self._deliver  # the gate: bounded work, never blocks
             self._subscriber = session.declare_subscriber(
                 sub_key, lambda s: deliver(str(s.key_expr), s.payload)
+            )
+            ask_gate = self._ask_gate  # the same: bounded work, never blocks
+            self._resend_sub = session.declare_subscriber(
+                keys.every_unit(keys.RESEND, self.run_id),
+                lambda s: ask_gate(str(s.key_expr), s.payload),
             )
             for unit in self.local:
                 # BLOCK: a frame must never be lost to congestion (the run would stall);
@@ -571,6 +586,7 @@ class ZenohBus(QueueBus):
                     self._hellos.get_nowait()
                 self._nonces.update({u: barrier.nonces[u] for u in barrier.others})
                 self._joined = (tuple(mine), digest)
+                self._via_router = self._routers() > 0
                 self._forget_gone()  # a claimant that left before the start is no member
                 return
             if time.monotonic() > deadline:
@@ -605,12 +621,18 @@ class ZenohBus(QueueBus):
             self._tokens.append(liveliness.declare_token(keys.key(keys.ALIVE, self.run_id, unit)))
             if self._alive_sub is None:
                 alive_prefix, gone = keys.prefix(keys.ALIVE, self.run_id), self._member_gone
+                back = self._member_back
                 delete = zenoh.SampleKind.DELETE
 
                 def on_token(s: zenoh.Sample) -> None:  # on zenoh's thread: never blocks
                     key = str(s.key_expr)
-                    if s.kind == delete and key.startswith(alive_prefix):
-                        gone(key[len(alive_prefix) :])
+                    if not key.startswith(alive_prefix):
+                        return
+                    unit = key[len(alive_prefix) :]
+                    if s.kind == delete:
+                        gone(unit)
+                    else:  # declared (again: its session back after a hiccup)
+                        back(unit)
 
                 # history: a member's token that reached the router before this subscription
                 # did is reported too, so its end is seen (without it, such a token ends unseen)
@@ -661,10 +683,121 @@ class ZenohBus(QueueBus):
         return None
 
     def wait(self, beyond: int, timeout: float = 5.0) -> int:
-        """As ``QueueBus.wait``, answering late hellos first once the run has started."""
+        """As ``QueueBus.wait``, answering late hellos and resend requests while it waits once
+        the run has started."""
+        self._between_frames()
+        return super().wait(beyond, timeout)
+
+    def _between_frames(self) -> None:
         if self._joined is not None:
             self._answer_late_hellos()
-        return super().wait(beyond, timeout)
+            self._answer_asks()
+
+    # -- resend requests (QueueBus._repair) ---------------------------------------------------
+
+    def _ask_resend(self, unit: str, first: int) -> None:
+        if not self.local or self._closed:
+            return
+        asker = self.local[0]
+        sign = None
+        if self._key is not None:
+            secret, run_id, nonce = self._key, self.run_id, self.nonce
+
+            def sign(body: bytes) -> bytes:
+                return tag(secret, "resend", run_id, asker, nonce, body)
+
+        data = encode_resend(ResendAsk(unit, first), sign=sign)
+        with contextlib.suppress(Exception):  # a request lost is asked again
+            self.session.put(keys.key(keys.RESEND, self.run_id, asker), data)
+
+    def _ask_gate(self, key: str, payload: Any) -> None:
+        """The resend subscriber's callback (a zenoh thread, never blocks): a member's key
+        other than ours, at most ``max_resend_size`` bytes, within the asker's rate, room in
+        the queue; else dropped and counted (``received`` counts frames only)."""
+        try:
+            asker = key[len(self._resend_prefix) :] if key.startswith(self._resend_prefix) else ""
+            if asker not in self._member_set:
+                why = "resend request on a non-member's key"
+                self._gate_drop("dropped_foreign", key, why, False)
+                return
+            if asker in self.local:
+                return  # our own request, heard back
+            size = len(payload)
+            if size > max_resend_size():
+                self._gate_drop("dropped_oversize", key, f"resend request of {size} bytes", False)
+                return
+            with self._gate_lock:
+                allowed = self._ask_budgets[asker].take()
+            if not allowed:
+                self._gate_drop(
+                    "dropped_rate", key, f"more than {_ASKS_PER_S:g} resend requests a second",
+                    False,
+                )  # fmt: skip
+                return
+            raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+            self._asks.put_nowait((asker, raw))
+        except queue.Full:
+            self._gate_drop("dropped_overflow", key, "resend request queue full", False)
+        except Exception as e:  # a callback must not raise (docs/zenoh-notes.md)
+            self._gate_drop("dropped_malformed", key, f"resend request: {type(e).__name__}", False)
+
+    def _answer_asks(self) -> int:
+        """The resend requests heard, each read (its tag checked on a keyed run) and answered
+        (``QueueBus._resend``); how many were read."""
+        read = 0
+        while True:
+            try:
+                asker, raw = self._asks.get_nowait()
+            except queue.Empty:
+                return read
+            read += 1
+            check = None
+            if self._key is not None:
+                nonce = self._nonces.get(asker)
+                if nonce is None:
+                    self._drop("dropped_unauthenticated", f"resend request: {asker!r} unheard")
+                    continue
+                check = functools.partial(_check_ask, self._key, self.run_id, asker, nonce)
+
+            try:
+                ask = decode_resend(raw, check=check)
+            except AuthError as e:
+                self._drop("dropped_unauthenticated", f"resend request of {asker!r}: {e}")
+                continue
+            except RgtbusError as e:
+                self._drop("dropped_malformed", f"resend request of {asker!r}: {e}")
+                continue
+            if ask.unit in self._history:
+                self._resend(ask.unit, ask.first, asker)
+
+    def linger(self) -> None:
+        """A finished run: answer resend requests a while (``LINGER`` s after the last one,
+        at most ``LINGER_MAX`` s; until every other member has left, if sooner): a member
+        whose last frames were lost on the way asks for them again, and nobody else holds
+        them."""
+        if self._closed or self._joined is None or set(self.local) >= self._member_set:
+            return
+        start = last = time.monotonic()
+        others = self._member_set - set(self.local)
+        while (now := time.monotonic()) - last < LINGER and now - start < LINGER_MAX:
+            with self._gate_lock:
+                if others <= self._gone.keys():
+                    return
+            if self._answer_asks():
+                last = time.monotonic()
+            time.sleep(0.02)
+
+    def _routers(self) -> int:
+        """How many routers this session reaches now (0 if zenoh cannot say)."""
+        try:
+            return len(list(self.session.info.routers_zid()))
+        except Exception:
+            return 0
+
+    def _link_up(self) -> bool:
+        # Through a router, losing it is being cut off (every member seems to leave at once,
+        # and comes back with the link); in a mesh, a peer gone is a member gone.
+        return not self._via_router or self._routers() > 0
 
     def _answer_late_hellos(self) -> None:
         assert self._joined is not None
@@ -757,6 +890,7 @@ class ZenohBus(QueueBus):
             feed.closed = True  # the recorder may still log after the bus is gone: dropped
         entities = [
             self._hello_sub,
+            self._resend_sub,
             self._subscriber,
             *self._publishers.values(),
             *(f.listener for f in self._telemetry),
@@ -766,7 +900,7 @@ class ZenohBus(QueueBus):
         ]
         self._telemetry = []
         self._tokens = []
-        self._hello_sub = self._alive_sub = None
+        self._hello_sub = self._alive_sub = self._resend_sub = None
         self._subscriber = None
         self._publishers = {}
         for ent in entities:

@@ -365,9 +365,11 @@ def test_anything_on_the_wire_is_accepted_or_dropped_and_counted_once(bus_kind, 
                 before = bus.stats()
                 bus.put_raw(key, data)
                 after = delivered(bus, i)
-                # Exactly one counter moved, by one: accepted or a single reason to drop.
-                moved = {k: after[k] - before[k] for k in ("accepted", *DROPS)}
-                assert sorted(moved.values()) == [0] * len(DROPS) + [1], moved
+                # Exactly one payload more has an outcome: accepted, one reason to drop, or held
+                # after a gap (a frame filling a gap lets those held after it be read too).
+                moved = {k: after[k] - before[k] for k in ("accepted", *DROPS, "held")}
+                assert sum(moved.values()) == 1, moved
+                assert all(v >= 0 for k, v in moved.items() if k != "held"), moved
                 if moved["accepted"]:
                     assert key == TX_A
                     if keyed:  # nothing but our own signature gets in
@@ -376,7 +378,7 @@ def test_anything_on_the_wire_is_accepted_or_dropped_and_counted_once(bus_kind, 
                 horizon = bus.horizon()
             stats = bus.stats()
             dropped = sum(stats[k] for k in DROPS)
-            assert stats["received"] == len(batch) == stats["accepted"] + dropped
+            assert stats["received"] == len(batch) == stats["accepted"] + dropped + stats["held"]
             check_pulses(*bus.known(NEVER)["a"])
             try:
                 h = bus.wait(0, timeout=0.01)
