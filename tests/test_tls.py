@@ -331,3 +331,57 @@ def test_units_on_their_hosts_files_through_a_router_equal_the_single_run(procs,
         got = json.loads(out)
         assert got["report"]["result"] == ref["units"][u] and got["error"] is None
         assert got["sim_seconds"] == ref["sim_seconds"]
+
+
+@pytest.mark.slow
+def test_a_process_with_c_s_certificate_sending_junk_as_c_gets_c_named_by_every_member(
+    procs, ids, tmp_path
+):
+    """Through a TLS router, a process holding c's own certificate (the access control rightly
+    lets it speak on c's keys) puts well-formed frames of its own as c, over and over, while the
+    paced run goes: two different frames under one number from an identified member. Every
+    other unit ends within its timeout, in one line naming c, its result so far kept; none
+    hangs."""
+    from rgtbus.bus.payload import NEVER, Frame, encode
+    from rgtbus.scenario import load_scenario
+
+    rate = load_scenario(GATE).timing.sample_rate
+    port = free_ports(1)[0]
+    router = procs(
+        "router", "-l", f"tls/127.0.0.1:{port}", "--tls", str(ids), "--scenario", GATE,
+        "--run-id", RUN,
+    )  # fmt: skip
+    assert router.stdout.readline().startswith("router listening")
+    started = {}
+    for u in UNITS:
+        started[u] = procs(
+            "unit", u, GATE, "-m", "client", "-e", f"tls/127.0.0.1:{port}", "--tls", str(ids),
+            "--log", str(tmp_path / f"{u}.mcap"), "--run-id", RUN, "--json", "--realtime", "25",
+            "--timeout", "10",
+        )  # fmt: skip
+    impostor = session(ids, "c", mode="client", connect=[f"tls/127.0.0.1:{port}"])
+    stop = threading.Event()
+
+    def speak_as_c() -> None:
+        seq = 0
+        while not stop.is_set():
+            seq = seq % 400 + 1
+            impostor.put(keys.key(keys.TX, RUN, "c"), encode(Frame(seq, NEVER - seq), rate))
+            time.sleep(0.002)
+
+    speaker = threading.Thread(target=speak_as_c, daemon=True)
+    speaker.start()
+    try:
+        for u, p in started.items():
+            out, err = p.communicate(timeout=180)  # never a hang
+            if u == "c":
+                continue  # c itself hears two of itself: it may stop, or finish
+            assert p.returncode == 1 and out, (u, p.returncode, err)
+            got = json.loads(out)
+            assert "c is not trusted" in got["error"], (u, got["error"])
+            assert "\n" not in got["error"]
+            assert got["report"] is not None  # what it knew is kept
+    finally:
+        stop.set()
+        speaker.join(timeout=30)
+        impostor.close()

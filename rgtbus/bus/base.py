@@ -520,6 +520,7 @@ class QueueBus(BusBase):
         deadline = started + max(0.0, float(timeout))
         self._drain()
         self._stats["waits"] += 1
+        self._check_trusted()
         while not self._past(beyond):
             self._check_trusted()
             left = self._left_holding(beyond)
@@ -799,12 +800,13 @@ class QueueBus(BusBase):
 
     def _bad_frame(self, unit: str, counter: str, note: str, checked: bool) -> None:
         """A frame of ``unit`` that no healthy member sends, dropped under ``counter``; with
-        proof of who sent it (``checked`` on an identified run) the member is not trusted."""
+        proof of who sent it (an identified run: its tag ``checked`` on a keyed run, its
+        transport's identity on a run without a key) the member is not trusted."""
         self._drop(counter, note)
         n, _ = self._bad.get(unit, (0, ""))
         why = note.split(": ", 1)[-1]
         self._bad[unit] = (n + 1, why)
-        if checked and self._identified:
+        if self._identified and (checked or self._key is None):
             self._faulty.setdefault(unit, why)
 
     def _gate_drop(self, counter: str, key: str, why: object, received: bool = True) -> None:

@@ -20,6 +20,7 @@ every transmission is out. The world knows members only through ``Member`` (no i
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
@@ -107,6 +108,9 @@ class SyncCost:
         }
 
 
+PACED_SLICE_WALL = 0.5  # wall seconds a paced world sleeps at most before it looks at the bus
+
+
 class World:
     """Runs local members over a bus until every member is done; see the module docstring."""
 
@@ -143,6 +147,10 @@ class World:
             if realtime
             else simpy.Environment()
         )
+        # A paced world sleeps toward the horizon in slices of this much simulated time, and
+        # asks the bus between them: a member's promise far ahead (an impostor's frame taken
+        # before the member's own) is never a sleep of years, and its fault ends the run.
+        self._slice = PACED_SLICE_WALL * realtime if realtime else math.inf
         self.failure: str | None = None
         self.steps = 0
         self.horizon = 0
@@ -246,7 +254,11 @@ class World:
                     if heard > h:
                         self.sync.ahead_rounds += 1
                 self._heard = max(h, heard)
-                yield env.timeout(max(0.0, (heard - 0.5) * self.tau - env.now))
+                until = (heard - 0.5) * self.tau
+                while until - env.now > self._slice:
+                    yield env.timeout(self._slice)
+                    self.bus.wait(h - 1, timeout=self.timeout)  # every promise is past: a look
+                yield env.timeout(max(0.0, until - env.now))
             else:  # every member promised silence: run until the local units are done
                 yield env.all_of([e.quiet for e in self._ears])
         end = self.end_sample()
