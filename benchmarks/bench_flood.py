@@ -41,6 +41,8 @@ from typing import Any
 
 from rgtbus.units.launch import free_ports
 
+from benchmarks.flooder import MODES
+
 ROOT = Path(__file__).resolve().parent.parent
 GATE = ROOT / "scenarios" / "gate.toml"
 MEMBERS = ("a", "b", "c", "d")
@@ -506,7 +508,7 @@ def rows(pairs: list[tuple[dict[str, Any], dict[str, Any]]]) -> list[dict[str, A
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mode", default="mixed", choices=("oversize", "small", "mixed", "replay"))
+    ap.add_argument("--mode", default="mixed", choices=MODES)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--realtime", type=float, default=25.0, help="the units' --realtime")
     ap.add_argument(

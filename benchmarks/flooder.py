@@ -1,7 +1,7 @@
 """A keyless zenoh process that floods a keyed run's frame keys (issue 50's attacker).
 
     python -m benchmarks.flooder --connect tcp/HOST:PORT --run RUN_ID --members a,b,c,d
-        [--mode oversize|small|mixed|replay] [--seconds S] [--max-frames N] [--report FILE]
+        [--mode oversize|small|mixed|near|replay] [--seconds S] [--max-frames N] [--report FILE]
         [--session-mode client|peer]
 
 It opens a zenoh session without the run's key, declares a publisher on every member's
@@ -16,6 +16,10 @@ sent SIGTERM / SIGINT:
   (``dropped_unauthenticated``) unless it is rate-gated first;
 - ``mixed``: both, one big to four small on each key in turn (as the in-process flood test,
   tests/faults/test_fault_flood.py);
+- ``near``: 4 KB such frames numbered 1 to 64 over and over, where the run's own frames
+  are: none is ruled out by its header, each costs a tag check up to the receiver's rate
+  gate (``dropped_unauthenticated``, then ``dropped_rate``), and the run's own frames share
+  that gate with them (one crowded out is asked for again);
 - ``replay``: it listens to the run's own frames as they go by (keeping at most
   ``MAX_CAPTURE``) and puts every captured frame again and again on its own key: frames with a
   valid tag, heard before (``dropped_duplicate`` / ``dropped_late``).
@@ -53,7 +57,8 @@ RATE = 200.0  # the sample rate the junk claims (a receiver checks the tag befor
 # reserved, seq, promise, done_at, rate, count, reserved.
 HEADER = struct.Struct("<4sBBHQQQdII")
 assert HEADER.size == HEADER_SIZE, "rgtbus.bus.payload's header changed: update HEADER"
-MODES = ("oversize", "small", "mixed", "replay")
+MODES = ("oversize", "small", "mixed", "near", "replay")
+NEAR = 64  # near: small junk numbered 1..64 over and over, where a run's own frames are
 
 
 def junk_parts(size: int) -> tuple[int, bytes]:
@@ -205,6 +210,8 @@ def flood_junk(pubs: list[zenoh.Publisher], flood: Flood, end: float) -> None:
             return
         for pub in pubs:
             seq += 1
+            if mode == "near":  # every one passes the header's checks: a tag check each
+                flood.put(pub, junk(SMALL, seq % NEAR + 1, small_parts), "small")
             if mode in ("oversize", "mixed"):
                 flood.put(pub, junk(BIG, seq, big_parts), "big")
             if mode in ("small", "mixed"):

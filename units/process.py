@@ -229,7 +229,7 @@ def run_units(
                     flush()
                 on_result(outs)
             if not result.failure and isinstance(bus, ZenohBus):
-                bus.linger()  # its last frames may be asked for again
+                bus.linger(timeout)  # its last frames may be asked for again
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
     except BaseException as exc:

@@ -90,8 +90,13 @@ _RESEND_AGAIN = 0.1  # s: a request for the same frames within this is served on
 # is an impostor's (or a broken member's); further back, a number seen is a duplicate.
 RECENT_DIGESTS = 64
 # Tags checked a second on a member's key that may fail (a burst of twice as many): a flood of
-# wrongly tagged frames costs at most this many HMACs; a frame whose tag holds costs nothing.
+# wrongly tagged frames costs at most this many HMACs, but for frames under the one number the
+# run waits for next (always checked); a frame whose tag holds costs nothing.
 CHECKS_PER_S = 2000.0
+# ... and of frames under a number already accepted (kept only to catch two different frames
+# under one number): beyond this, such a frame is a duplicate unchecked, and a flood of old
+# numbers takes nothing from the checks of the frames a run waits for.
+OLD_CHECKS_PER_S = 200.0
 
 
 @dataclass
@@ -453,6 +458,7 @@ class QueueBus(BusBase):
         self._ask_gap = dict.fromkeys(self.members, REPAIR_QUIET)
         self._served: dict[tuple[str, int], float] = {}
         self._budgets = {u: Budget(CHECKS_PER_S, 2 * CHECKS_PER_S) for u in self.members}
+        self._old_budgets = {u: Budget(OLD_CHECKS_PER_S, OLD_CHECKS_PER_S) for u in self.members}
         # A member's bad authenticated frames: how many, and the latest reason; and a member
         # named untrustworthy (an identified run): why.
         self._bad: dict[str, tuple[int, str]] = {}
@@ -606,7 +612,8 @@ class QueueBus(BusBase):
                 self._ask_resend(u, m.seq + 1)
                 self._stats["resend_asked"] += 1
                 self._ask_at[u] = now + self._ask_gap[u]
-                self._ask_gap[u] = min(REPAIR_GAP_MAX, 2.0 * self._ask_gap[u])
+                if not self._ahead[u]:  # a known gap is asked for again and again; quiet less
+                    self._ask_gap[u] = min(REPAIR_GAP_MAX, 2.0 * self._ask_gap[u])
 
     def _refeed(self, unit: str) -> None:
         """A local unit's frames after the last one received back, from what it sent."""
@@ -878,9 +885,15 @@ class QueueBus(BusBase):
                     "frame not authenticated (no tag) on a run with a key",
                 )
                 return
-            budget = self._budgets[unit]
+            # The frame the run waits for now (the next number) is always checked: that costs
+            # a flood aimed at it one HMAC a frame, no more than its callback already costs.
+            old, due = header.seq <= accepted, header.seq == accepted + 1
+            budget = (self._old_budgets if old else self._budgets)[unit]
             with self._gate_lock:
-                allowed = budget.take()
+                allowed = due or budget.take()
+            if not allowed and old:
+                self._gate_drop("dropped_duplicate", key, f"frame {header.seq} received twice")
+                return
             if not allowed:
                 self._gate_drop(
                     "dropped_rate",
@@ -896,8 +909,9 @@ class QueueBus(BusBase):
             except AuthError as e:
                 self._gate_drop("dropped_unauthenticated", key, e)
                 return
-            with self._gate_lock:
-                budget.give_back()
+            if not due:
+                with self._gate_lock:
+                    budget.give_back()
             checked = True
         with self._gate_lock:
             if checked:

@@ -28,7 +28,7 @@ import zenoh
 
 from rgtbus.bus import keys
 from rgtbus.bus.auth import AuthError, check_tag, tag
-from rgtbus.bus.base import Budget, QueueBus
+from rgtbus.bus.base import REPAIR_GAP_MAX, Budget, QueueBus
 from rgtbus.bus.certs import process_tls
 from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.hello import (
@@ -172,10 +172,12 @@ def max_hello(members: Sequence[str]) -> int:
 
 RESEND_QUEUE = 256  # resend requests heard, not yet read (more: dropped_overflow)
 _ASKS_PER_S = 50.0  # resend requests read a second from one member (more: dropped_rate)
-# s: a finished process answers resend requests this long after the last it heard (or until
-# every other member has left): its last frames may have been lost on the way
+# s: a finished process answers resend requests this long when nobody asks, this long after
+# the last request once one came, and at most LINGER_MAX (the run's timeout, where a unit
+# process lingers): its last frames may have been lost on the way (ZenohBus.linger)
 LINGER = 0.6
-LINGER_MAX = 5.0
+LINGER_ASKED = REPAIR_GAP_MAX + 0.5
+LINGER_MAX = 10.0
 
 
 _FIRST_HELLO_GAP = 0.05  # s: the first unprompted hellos, each gap twice the last
@@ -428,6 +430,7 @@ class ZenohBus(QueueBus):
         self._ask_budgets = {u: Budget(_ASKS_PER_S, _ASKS_PER_S) for u in self.members}
         self._resend_prefix = keys.prefix(keys.RESEND, self.run_id)
         self._resend_sub: Any = None
+        self._resend_pub: Any = None
         self._identified = self._key is not None or tls is not None
         self._via_router = False  # whether the join found a router (_link_up)
         self._owns_session = session is None
@@ -488,6 +491,12 @@ class ZenohBus(QueueBus):
                 # express: no batching delay between a frame's publish and the peers' wait.
                 self._publishers[unit] = session.declare_publisher(
                     self._keys[unit],
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    express=True,
+                )
+            if self.local:  # the same for what asks for lost frames (a flood congests links)
+                self._resend_pub = session.declare_publisher(
+                    keys.key(keys.RESEND, self.run_id, self.local[0]),
                     congestion_control=zenoh.CongestionControl.BLOCK,
                     express=True,
                 )
@@ -708,7 +717,7 @@ class ZenohBus(QueueBus):
 
         data = encode_resend(ResendAsk(unit, first), sign=sign)
         with contextlib.suppress(Exception):  # a request lost is asked again
-            self.session.put(keys.key(keys.RESEND, self.run_id, asker), data)
+            self._resend_pub.put(data)
 
     def _ask_gate(self, key: str, payload: Any) -> None:
         """The resend subscriber's callback (a zenoh thread, never blocks): a member's key
@@ -770,21 +779,23 @@ class ZenohBus(QueueBus):
             if ask.unit in self._history:
                 self._resend(ask.unit, ask.first, asker)
 
-    def linger(self) -> None:
-        """A finished run: answer resend requests a while (``LINGER`` s after the last one,
-        at most ``LINGER_MAX`` s; until every other member has left, if sooner): a member
-        whose last frames were lost on the way asks for them again, and nobody else holds
-        them."""
+    def linger(self, at_most: float = LINGER_MAX) -> None:
+        """A finished run: answer resend requests a while before closing, since a member whose
+        last frames were lost on the way asks for them again and nobody else holds them:
+        ``LINGER`` s if nobody asks, and once one did, until ``LINGER_ASKED`` s pass without a
+        request (an asker waits up to ``REPAIR_GAP_MAX`` s between two), every other member
+        has left (it had all it needed), or ``at_most`` s in all."""
         if self._closed or self._joined is None or set(self.local) >= self._member_set:
             return
         start = last = time.monotonic()
+        quiet = LINGER
         others = self._member_set - set(self.local)
-        while (now := time.monotonic()) - last < LINGER and now - start < LINGER_MAX:
+        while (now := time.monotonic()) - start < at_most and now - last < quiet:
             with self._gate_lock:
                 if others <= self._gone.keys():
                     return
             if self._answer_asks():
-                last = time.monotonic()
+                last, quiet = time.monotonic(), LINGER_ASKED
             time.sleep(0.02)
 
     def _routers(self) -> int:
@@ -891,6 +902,7 @@ class ZenohBus(QueueBus):
         entities = [
             self._hello_sub,
             self._resend_sub,
+            self._resend_pub,
             self._subscriber,
             *self._publishers.values(),
             *(f.listener for f in self._telemetry),
@@ -900,7 +912,7 @@ class ZenohBus(QueueBus):
         ]
         self._telemetry = []
         self._tokens = []
-        self._hello_sub = self._alive_sub = self._resend_sub = None
+        self._hello_sub = self._alive_sub = self._resend_sub = self._resend_pub = None
         self._subscriber = None
         self._publishers = {}
         for ent in entities:

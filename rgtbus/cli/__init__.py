@@ -144,7 +144,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()  # a reader that has gone: BrokenPipeError here, not at exit
         return code
     except RgtbusError as exc:
-        print(f"rgtbus {args.command}: error: {exc}", file=sys.stderr)
+        # an error may quote what a file or a peer said: never a control character raw
+        from rgtbus.telemetry.untrusted import printable
+
+        print(f"rgtbus {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # rgtbus cat LOG | head -1: the reader has what it wanted
         _stdout_to_devnull()
