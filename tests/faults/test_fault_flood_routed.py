@@ -25,7 +25,7 @@ def failures(case: dict[str, Any]) -> dict[str, str]:
 
 
 @pytest.mark.slow  # two routed runs of four unit processes each, one of them flooded
-@pytest.mark.parametrize("mode", ["mixed", "replay"])
+@pytest.mark.parametrize("mode", ["mixed", "near", "replay"])
 def test_a_routed_keyed_run_flooded_by_a_keyless_process_decides_as_the_clean_run(
     tmp_path: Path, mode: str
 ) -> None:
