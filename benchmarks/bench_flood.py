@@ -42,6 +42,7 @@ from typing import Any
 from rgtbus.units.launch import free_ports
 
 from benchmarks.flooder import MODES
+from rgtbus.bus.base import DROP_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
 GATE = ROOT / "scenarios" / "gate.toml"
@@ -51,18 +52,9 @@ FLOODER = [sys.executable, "-m", "benchmarks.flooder"]
 RUN_TIMEOUT = 180.0  # one run, spawn to the last unit's exit
 GOAL_RATIO = 1.5
 POLL = 0.02  # RSS sampling period, seconds
-# What a unit's summary (``bus``) counts as not taken from the wire.
-DROPPED = (
-    "dropped_foreign",
-    "dropped_malformed",
-    "dropped_late",
-    "dropped_duplicate",
-    "dropped_ahead",
-    "dropped_unauthenticated",
-    "dropped_oversize",
-    "dropped_overflow",
-    "hellos_unanswered",
-)
+# What a unit's summary (``bus``) counts as not taken from the wire: every drop reason the bus
+# has (rgtbus.bus.base.DROP_KEYS), and the hellos it left unanswered.
+DROPPED = (*DROP_KEYS, "hellos_unanswered")
 
 
 def write_key(folder: Path) -> Path:

@@ -527,6 +527,7 @@ class QueueBus(BusBase):
         self._drain()
         self._stats["waits"] += 1
         self._check_trusted()
+        next_look = started + _REPAIR_TICK  # the first look for gaps, requests
         while not self._past(beyond):
             self._check_trusted()
             left = self._left_holding(beyond)
@@ -551,8 +552,11 @@ class QueueBus(BusBase):
                     f"{', '.join(late)} {what}: stalled or gone{self._why_late(late)}",
                     tuple(late),
                 )
-            self._between_frames()
-            self._repair(beyond, started)
+            now = time.monotonic()
+            if now >= next_look:  # at most every tick: each is a pass over the members
+                next_look = now + _REPAIR_TICK
+                self._between_frames()
+                self._repair(beyond, started)
             try:
                 item = self._inbox.get(timeout=min(remaining, _REPAIR_TICK))
             except queue.Empty:
