@@ -93,6 +93,14 @@ def standard_read(data: bytes) -> list[int]:
     return seeking
 
 
+def _bytes(log: Path) -> bytes:
+    """What ``log`` holds now: nothing if it is not there yet."""
+    try:
+        return log.read_bytes()
+    except FileNotFoundError:
+        return b""
+
+
 @contextlib.contextmanager
 def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
     """A paced crowd10 ``rgtbus run`` logging to ``log``, handed over once its log holds more
@@ -102,7 +110,9 @@ def paced_run(log: Path, grown: int) -> Iterator[subprocess.Popen[str]]:
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
-        while not (log.exists() and len(standard_read(log.read_bytes())) > grown):
+        # the file is created empty before its writer's first flush (the header and the
+        # run's records): empty is not begun; any other state must be whole to every reader
+        while not ((data := _bytes(log)) and len(standard_read(data)) > grown):
             assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
             assert time.monotonic() < deadline, f"the log never grew past {grown} messages"
             time.sleep(0.2)
