@@ -235,3 +235,34 @@ def test_a_flood_of_wrong_tags_costs_a_bounded_number_of_checks_and_the_run_goes
         assert after["dropped_unauthenticated"] == st["dropped_unauthenticated"] + 3 * CHECKS_PER_S
     finally:
         bus.close()
+
+
+def test_a_replayed_frame_costs_no_tag_check(monkeypatch):
+    """Copies of a member's frames, queued or lately accepted, replayed as fast as a thread
+    can put them: each a duplicate found by a look-up (and a digest), never an HMAC (a replay
+    flood slowed a keyed run 5x, every copy of the frame due next checked); another frame
+    under a queued number is still checked."""
+    import rgtbus.bus.base as base
+
+    checks = []
+    real = base.check_tag
+    monkeypatch.setattr(base, "check_tag", lambda *a: (checks.append(a[4]), real(*a))[1])
+    bus = MemoryBus("replay", ("a", "b"), RATE, key=KEY)
+    try:
+        bus.publish("b", [], [], promise=NEVER)
+        first, second = _signed(bus, "a", 1, 10, [3], [0.5]), _signed(bus, "a", 2, 20)
+        bus.put_raw("rgtbus/replay/tx/a", first)
+        assert bus.wait(9, timeout=5) == 10  # accepted: a recent frame
+        bus.put_raw("rgtbus/replay/tx/a", second)  # queued, not yet read
+        done = len(checks)  # each frame checked once (b's own too)
+        for _ in range(500):
+            bus.put_raw("rgtbus/replay/tx/a", first)
+            bus.put_raw("rgtbus/replay/tx/a", second)
+        assert len(checks) == done and bus.stats()["dropped_duplicate"] == 1000
+        other = bytearray(_signed(bus, "a", 2, 25))  # another frame 2, wrongly tagged
+        other[-1] ^= 0xFF
+        bus.put_raw("rgtbus/replay/tx/a", bytes(other))
+        assert len(checks) == done + 1 and bus.stats()["dropped_unauthenticated"] == 1
+        assert bus.wait(19, timeout=5) == 20
+    finally:
+        bus.close()

@@ -432,7 +432,9 @@ class QueueBus(BusBase):
         self._gate_stats = dict.fromkeys(STAT_KEYS, 0)
         self._noted = dict.fromkeys(STAT_KEYS, 0)  # notes kept per counter since drop_notes()
         self._queued_bytes = dict.fromkeys(self.members, 0)
-        self._queued_seqs: dict[str, set[int]] = {u: set() for u in self.members}
+        # a keyed run's checked frames queued and not yet read, by number: their bytes (the
+        # queue's own; a copy of one is known for a duplicate before any HMAC)
+        self._queued_seqs: dict[str, dict[int, bytes]] = {u: {} for u in self.members}
         self._inbox_cap = INBOX_BYTES_OPEN if self._key is None else INBOX_BYTES_KEYED
         self.nonce = os.urandom(16)  # this process's, bound into every tag it makes
         # Whose tags we can check: our own units now, the others' once their hello is heard.
@@ -880,6 +882,11 @@ class QueueBus(BusBase):
         if header.seq > accepted + AHEAD_WINDOW:
             self._gate_drop("dropped_ahead", key, f"frame {header.seq} while {accepted + 1} is due")
             return
+        if self._copy_of_known(unit, header.seq, accepted, data):
+            # a replay: the same bytes under a number queued or lately accepted cost a
+            # look-up (and a digest), never an HMAC; another frame under it is checked below
+            self._gate_drop("dropped_duplicate", key, f"frame {header.seq} received twice")
+            return
         checked = False
         if self._key is not None and nonce is not None:
             if not header.tagged:
@@ -938,9 +945,22 @@ class QueueBus(BusBase):
                     )
                 return
             if checked:
-                seqs.add(header.seq)
+                seqs[header.seq] = data
             self._queued_bytes[unit] += size
             self._inbox.put((key, data, unit, header.seq, checked))  # never blocks
+
+    def _copy_of_known(self, unit: str, seq: int, accepted: int, data: bytes) -> bool:
+        """Whether ``data`` is byte for byte a frame of ``unit`` numbered ``seq`` that is
+        queued (a keyed run's, its tag checked) or among the last accepted (by its digest).
+        Runs on the transport's threads, as the gate does."""
+        if seq <= accepted:
+            kept = self._recent[unit].get(seq)
+            return kept is not None and kept == frame_digest(data)
+        if self._key is None:
+            return False
+        with self._gate_lock:
+            queued = self._queued_seqs[unit].get(seq)
+        return queued is not None and queued == data
 
     def _accept(self, key: str, data: bytes, unit: str, seq: int, checked: bool) -> None:
         """A queued frame (it passed the gate), on the caller's thread: held when it comes
@@ -959,7 +979,7 @@ class QueueBus(BusBase):
             with self._gate_lock:
                 self._queued_bytes[unit] -= len(data)
                 if checked:
-                    self._queued_seqs[unit].discard(seq)
+                    self._queued_seqs[unit].pop(seq, None)
 
     def _hold(self, key: str, data: bytes, unit: str, seq: int, checked: bool) -> None:
         """A frame after a gap, held until the gap is filled (bounded: beyond, dropped).
