@@ -69,7 +69,12 @@ def register(subparsers: SubParsers) -> None:
     )
     m.add_argument("inputs", nargs="+", metavar="LOG", help="input MCAP logs")
     m.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="merged log")
-    m.add_argument("--keep-duplicates", action="store_true", help="keep byte-identical messages")
+    m.add_argument(
+        "--keep-duplicates",
+        action="store_true",
+        help="keep byte-identical messages, and each process's record of spikes its units "
+        "heard alike",
+    )
     m.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     add_quiet_argument(m)
@@ -245,7 +250,8 @@ def merge(args: argparse.Namespace) -> int:
     renamed = "; ".join(f"{k} -> {v}" for k, v in res.renamed.items())
     print(
         f"merged {len(logs)} logs into {out}: {res.messages} messages "
-        f"({res.duplicates} duplicates dropped), {res.channels} channels, {res.schemas} schemas, "
+        f"({res.duplicates} duplicates dropped, {res.joined} records of spikes heard alike "
+        f"joined), {res.channels} channels, {res.schemas} schemas, "
         f"metadata {', '.join(res.metadata)}" + (f" (renamed: {renamed})" if renamed else "")
     )
     return 0

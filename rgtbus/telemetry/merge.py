@@ -4,24 +4,29 @@ Records are copied undecoded. Schemas are shared when identical (name, encoding,
 channels when identical (topic, encoding, schema, metadata); messages are ordered by log time
 (ties: input order, then file order) and renumbered per channel. A message that is byte for
 byte the same on the same topic at the same time in two inputs (e.g. the medium, logged by
-every process) is kept once unless ``dedupe=False``. Metadata records are kept once when
-identical; a record whose name is taken by a different one (e.g. each process's ``run``) is
-kept as ``NAME.K`` (K = the input's position, from 1). A ``merge`` record lists the inputs.
-A corrupt input (``RawLog.corrupt``) is refused; a truncated one is merged as far as it goes.
+every process) is kept once unless ``dedupe=False``; and then blocks of spikes that units
+heard alike are one record naming them all, whichever process wrote them (``shared_spikes``):
+the merge of a run's logs is the same whatever the split of its units into processes.
+Metadata records are kept once when identical; a record whose name is taken by a different
+one (e.g. each process's ``run``) is kept as ``NAME.K`` (K = the input's position, from 1).
+A ``merge`` record lists the inputs. A corrupt input (``RawLog.corrupt``) is refused; a
+truncated one is merged as far as it goes.
 """
 
 from __future__ import annotations
 
 import json
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
+import orjson
 from mcap.writer import CompressionType, IndexType, Writer
 
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.records import RX_SPIKE
 from rgtbus.telemetry.scan import RawLog
 
 _COMPRESSION = {
@@ -38,6 +43,7 @@ class MergeResult:
 
     messages: int = 0
     duplicates: int = 0  # identical messages dropped
+    joined: int = 0  # records of spikes heard alike, made part of another
     channels: int = 0
     schemas: int = 0
     metadata: list[str] = field(default_factory=list)  # record names written
@@ -72,9 +78,11 @@ def merge_logs(
     res = MergeResult()
     writer = _writer(logs, stream, compression)
     writer.start(profile="", library=f"rgtbus {__version__} {'recover' if salvage else 'merge'}")
-    entries = _register(writer, logs, res)
+    entries, spike_channels = _register(writer, logs, res)
     if salvage:  # read up to the damage, and no further: a cut as far as readers go
         res.notes += [f"{log.corruption} (recovered up to there)" for log in logs if log.corrupt]
+    elif dedupe:
+        entries = list(shared_spikes(entries, spike_channels, res))
     _write_messages(writer, entries, dedupe, res)
     kept = _merged_metadata(logs, res)
     for name, values in kept.items():
@@ -103,10 +111,12 @@ def _writer(logs: Sequence[RawLog], stream: BinaryIO, compression: str) -> Write
     )
 
 
-def _register(writer: Writer, logs: Sequence[RawLog], res: MergeResult) -> list[_Entry]:
+def _register(
+    writer: Writer, logs: Sequence[RawLog], res: MergeResult
+) -> tuple[list[_Entry], set[int]]:
     """Every input's schemas and channels registered once each (identical ones shared), and
     every message as an entry on its merged channel, in log-time order (ties: input order,
-    then file order)."""
+    then file order); and the merged channels of ``/rx/spike``."""
     schema_ids: dict[tuple[str, str, bytes], int] = {}
     channel_ids: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
     entries: list[_Entry] = []
@@ -135,7 +145,91 @@ def _register(writer: Writer, logs: Sequence[RawLog], res: MergeResult) -> list[
     entries.sort(key=lambda e: (e[0], e[1], e[2]))
     res.channels = len(channel_ids)
     res.schemas = len(schema_ids)
-    return entries
+    return entries, {cid for key, cid in channel_ids.items() if key[0] == RX_SPIKE}
+
+
+def _spike_head(data: bytes) -> tuple[list[str], bytes] | None:
+    """A ``/rx/spike`` record's units and the rest of its bytes after them, when it is as
+    rgtbus writes it (``{"unit":…,`` or ``{"units":[…],`` first); else None (left as it is).
+    Only the head is read: the units' value ends at the first ``",`` or ``],`` whose prefix
+    is whole JSON (one inside a name leaves a string open), not at the block's columns."""
+    if data.startswith(b'{"unit":"'):
+        end = b'",'
+    elif data.startswith(b'{"units":["'):
+        end = b"],"
+    else:
+        return None
+    at = data.find(end)
+    while at >= 0:
+        try:
+            record = orjson.loads(data[: at + len(end) - 1] + b"}")
+        except orjson.JSONDecodeError:
+            at = data.find(end, at + 1)
+            continue
+        one, many = record.get("unit"), record.get("units")
+        if isinstance(one, str) and len(record) == 1:
+            units = [one]
+        elif isinstance(many, list) and len(many) >= 2 and all(isinstance(u, str) for u in many):
+            units = many
+        else:
+            return None
+        head = at + len(end)
+        return (units, data[head:]) if data[:head] == _head(units) else None
+    return None
+
+
+def _head(units: list[str]) -> bytes:
+    return spike_units_head(units[0] if len(units) == 1 else units)
+
+
+def spike_units_head(units: str | list[str]) -> bytes:
+    """The first bytes of a ``/rx/spike`` record of ``units`` as rgtbus writes it: one unit's
+    ``{"unit":"a",``, two or more units' ``{"units":["a","b"],``."""
+    key = {"unit": units} if isinstance(units, str) else {"units": units}
+    return orjson.dumps(key)[:-1] + b","
+
+
+def shared_spikes(
+    entries: Sequence[_Entry], spike_channels: set[int], res: MergeResult
+) -> Iterator[_Entry]:
+    """``entries`` with the ``/rx/spike`` records of one log time and channel that hold the
+    same spikes (their bytes after the units) made one record naming every unit of them, in
+    sorted order (``records.spikes`` writes them so), where the first of them was: units of
+    one process write a block they heard alike once, those of several processes once each,
+    and the merge is the same for any split. A record not as rgtbus writes it is kept as it
+    is."""
+    i = 0
+    while i < len(entries):
+        j = i + 1
+        while j < len(entries) and entries[j][0] == entries[i][0]:
+            j += 1
+        if j - i == 1 or not any(e[3] in spike_channels for e in entries[i:j]):
+            yield from entries[i:j]
+            i = j
+            continue
+        groups: dict[tuple[int, bytes], list[str]] = {}
+        first: dict[tuple[int, bytes], int] = {}
+        heads: list[tuple[int, bytes] | None] = []
+        for k in range(i, j):
+            cid, data = entries[k][3], entries[k][5]
+            parsed = _spike_head(data) if cid in spike_channels else None
+            if parsed is None:
+                heads.append(None)
+                continue
+            key = (cid, parsed[1])
+            groups.setdefault(key, []).extend(parsed[0])
+            first.setdefault(key, k)
+            heads.append(key)
+        for k, head in zip(range(i, j), heads, strict=True):
+            if head is None:
+                yield entries[k]
+            elif first[head] != k:
+                res.joined += 1
+            else:
+                merged = _head(sorted(set(groups[head]))) + head[1]
+                log_time, source, order, cid, publish_time, _ = entries[k]
+                yield (log_time, source, order, cid, publish_time, merged)
+        i = j
 
 
 def _write_messages(writer: Writer, entries: list[_Entry], dedupe: bool, res: MergeResult) -> None:
@@ -179,6 +273,7 @@ def _merged_metadata(logs: Sequence[RawLog], res: MergeResult) -> dict[str, dict
         "renamed": json.dumps(res.renamed),
         "truncated": json.dumps(res.notes),
         "duplicates_dropped": str(res.duplicates),
+        "spike_records_joined": str(res.joined),
     }
     return kept
 

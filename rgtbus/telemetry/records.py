@@ -333,7 +333,9 @@ def spikes(
     they are (the encoder takes them whole: a large run's receivers fire millions of times).
     ``unit`` a list of two or more names: each of those units heard exactly these spikes in
     the block (units of one process on a noise-free medium hear alike), one record for all
-    (``units``); a list of one is that unit's own record. ``spike_units`` reads either.
+    (``units``, in sorted order: the merge of several processes' logs makes their records of
+    one block one record so, ``merge.shared_spikes``); a list of one is that unit's own
+    record. ``spike_units`` reads either.
     Logs before it held the block as ``samples`` and per-sample lists of names, and before
     that one record a sample; ``read.spike_table`` reads them all."""
     first = int(samples[0])
@@ -343,7 +345,7 @@ def spikes(
     elif not unit:
         raise RgtbusError("a block of spikes of no unit")
     else:
-        record = {"units": list(unit)}
+        record = {"units": sorted(unit)}
     record.update(
         {
             "t": time_of(first, tau),
