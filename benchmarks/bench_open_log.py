@@ -7,7 +7,8 @@ Python process (its peak RSS is ``ru_maxrss``, imports included), the baseline i
 run: ``read_log`` decodes every message into Python objects, as ``open_log`` first did before
 issue 35 (it then also expanded every spike and decode into a row object: 6.3 GB for the
 3.5 MB group50 log). Then ``open_log`` alone, ``open_log`` + ``summary()``, + one unit's traces as a
-DataFrame (``messages("/trace/<unit>")``), + ``spikes()``. Goal (issue 35): a log opens in
+DataFrame (``messages("/trace/<unit>")``), + ``spikes()``, + ``decodes()`` (built as columns
+since issue 51: 890 MB for group50, as row objects, before). Goal (issue 35): a log opens in
 under 2x its size; a topic's frame costs about its own size. ``--big``: the traced group20
 log of the issue (~330 MB; about 20 s to write).
 """
@@ -30,6 +31,7 @@ STEPS = {
     "+summary": "log = rgtbus.open_log(path); log.summary()",
     "+traces": "log = rgtbus.open_log(path); log.messages(trace)",
     "+spikes": "log = rgtbus.open_log(path); log.spikes()",
+    "+decodes": "log = rgtbus.open_log(path); log.decodes()",
 }
 
 _CHILD = """

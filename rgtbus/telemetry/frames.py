@@ -15,10 +15,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any, TypeVar, cast
 
+import numpy as np
 import orjson
 
 from rgtbus.summary import summary_json
+from rgtbus.telemetry.decode_table import decode_table, match_sent
 from rgtbus.telemetry.read import Replay, explained, load_replay
+from rgtbus.telemetry.records import RX_DECODE, RX_DECODES
 from rgtbus.timebase import NS_PER_SECOND, times_of
 
 if TYPE_CHECKING:
@@ -96,6 +99,54 @@ class Log:
         """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
         margin, accepted, sent, matches`` (``value``: the alternative an influence's code
         names, a tuple of action names; None where the code names none)."""
+        import pandas as pd
+
+        if self.replay.by_topic.count(RX_DECODE):  # a log of one record a decode: as rows
+            return self._decodes_of_rows()
+        table = decode_table(self.replay.by_topic.each(RX_DECODES))
+        txs = self.replay.transmissions
+        sent = match_sent(table, [(x.sender, x.kind, x.turn, x.code, x.addressee) for x in txs])
+        names, kinds, codes = (
+            np.array(t, dtype=object) for t in (table.names, table.kinds, table.codes)
+        )
+        found = sent.tx >= 0
+        sc = self.scenario
+        values = np.array(
+            [_value(sc, kind, code) for kind in table.kinds for code in table.codes] or [None],
+            dtype=object,
+        )  # every (kind, code) pair's value, worked out once
+        if not found.all():  # as rows give them: None where no transmission was logged
+            turn: Any = [
+                int(v) if f else None for v, f in zip(table.turn.tolist(), found, strict=True)
+            ]
+            matches: Any = [
+                bool(m) if f else None for m, f in zip(sent.matches.tolist(), found, strict=True)
+            ]
+            sent_codes: Any = [txs[i].code if i >= 0 else None for i in sent.tx.tolist()]
+        else:
+            turn, matches = table.turn, sent.matches
+            tx_codes = np.array([x.code for x in txs] or [""], dtype=object)
+            sent_codes = tx_codes[sent.tx]
+        return pd.DataFrame(
+            {
+                "unit": names[table.unit],
+                "t": table.t,
+                "turn": turn,
+                "kind": kinds[table.kind],
+                "sender": names[table.sender],
+                "addressee": names[table.addressee],
+                "channel": names[table.channel],
+                "code": codes[table.code],
+                "value": values[table.kind.astype(np.int64) * len(table.codes) + table.code],
+                "margin": table.margin,
+                "accepted": table.accepted,
+                "sent": sent_codes,
+                "matches": matches,
+            }
+        )
+
+    def _decodes_of_rows(self) -> pd.DataFrame:
+        """``decodes`` of a log that holds one record a decode (before ``/rx/decodes``)."""
         import pandas as pd
 
         decodes = self.replay.decodes

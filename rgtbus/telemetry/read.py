@@ -442,6 +442,21 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
     def __contains__(self, topic: object) -> bool:
         return topic in self._held
 
+    def each(self, topic: str) -> Iterator[tuple[int, Any]]:
+        """``topic``'s messages one at a time, decoded (and checked) as ``[topic]`` gives
+        them, but none kept decoded: a large run's decodes are read into columns a record at
+        a time (``decode_table``), never all held as Python objects."""
+        held = self._held.get(topic, [])
+        if topic not in self._raw:
+            yield from held
+            return
+        check = topic in self.current
+        for t, m in held:
+            yield (
+                t,
+                untrusted.message(topic, t, m, self.label, check) if isinstance(m, bytes) else m,
+            )
+
     def count(self, topic: str) -> int:
         """How many messages ``topic`` holds (nothing decoded)."""
         return len(self._held.get(topic, ()))
