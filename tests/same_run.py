@@ -30,11 +30,25 @@ def content(messages):
     """Log content, order-free among simultaneous messages, decodes one a row: how a unit's
     wakes group its decodes into records depends on whether a live view waits for them (a
     unit process feeds ``rgtbus watch``), what it decoded does not; spikes one record a unit
-    (the units of one process share their records)."""
+    (the units of one process share their records); a bus's note of what it dropped left
+    out (the network's doing)."""
     from rgtbus.telemetry.verify import decodes_per_row, spikes_per_unit
 
     rows = spikes_per_unit(decodes_per_row(messages))
-    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in rows)
+    return sorted(
+        (ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in rows if not _transport_note(t, m)
+    )
+
+
+def _transport_note(topic: str, message) -> bool:
+    """A unit's note of what its bus dropped (``dropped: …``, once at its end): what the
+    network did (a link down for a while has frames sent again, and copies dropped), not
+    what the run did."""
+    return (
+        topic == "/log"
+        and isinstance(message, dict)
+        and str(message.get("message", "")).startswith("dropped: ")
+    )
 
 
 RESULT_KEYS = (
