@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -30,6 +30,7 @@ class _Names:
     def __init__(self) -> None:
         self.names: list[str] = []
         self.index: dict[str, int] = {}
+        self._maps: dict[tuple[str, ...], np.ndarray] = {}
 
     def of(self, name: str) -> int:
         i = self.index.get(name)
@@ -40,6 +41,24 @@ class _Names:
 
     def indexes(self, names: Sequence[str]) -> np.ndarray:
         return np.fromiter((self.of(n) for n in names), dtype=np.int32, count=len(names))
+
+    def known(self, own: Any) -> np.ndarray | None:
+        """``mapped(own)`` where ``own`` is a table seen before (so checked), else None."""
+        if type(own) is not list:
+            return None
+        try:
+            return self._maps.get(tuple(own))
+        except TypeError:  # a list of lists (a log written by hand): checked by the caller
+            return None
+
+    def mapped(self, own: list[str]) -> np.ndarray:
+        """A record's own table as indexes into this one (each table once: the records of a
+        run hold the same few tables again and again)."""
+        key = tuple(own)
+        got = self._maps.get(key)
+        if got is None:
+            got = self._maps[key] = self.indexes(own)
+        return got
 
 
 @dataclass
@@ -82,15 +101,20 @@ def decode_table(records: Iterable[tuple[int, Mapping[str, Any]]]) -> DecodeTabl
             raise RgtbusError(f"{RX_DECODES} at log time {t_ns} ns: not an object")
         unit = record.get("unit")
         where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
+        # a record as its writer built it (a re-run's: arrays, tuples of names) reads alike
+        record = {k: list(v) if type(v) is tuple else v for k, v in record.items()}
         n = _length(record, where)
         if not n:
             continue
         for column, dtype in _NUMBER_COLUMNS.items():
             parts[column].append(_numbers(record[column], dtype, column, where))
         accepted = record["accepted"]
-        if not all(type(a) is bool for a in accepted):
+        if isinstance(accepted, np.ndarray) and accepted.dtype == np.bool_:
+            parts["accepted"].append(accepted)
+        elif all(type(a) is bool for a in accepted):
+            parts["accepted"].append(np.asarray(accepted, dtype=np.bool_))
+        else:
             raise RgtbusError(f"{where}: column 'accepted' holds other than true and false")
-        parts["accepted"].append(np.asarray(accepted, dtype=np.bool_))
         for column, table_name in NAMED_COLUMNS.items():
             parts[column].append(_named(record, column, table_name, tables[table_name], where))
         parts["unit"].append(np.full(n, tables["names"].of(str(unit)), dtype=np.int32))
@@ -123,7 +147,11 @@ def _dtype(column: str) -> type:
     return np.bool_ if column == "accepted" else np.int32
 
 
-def _numbers(values: list[Any], dtype: type, column: str, where: str) -> np.ndarray:
+def _numbers(values: Any, dtype: type, column: str, where: str) -> np.ndarray:
+    if isinstance(values, np.ndarray):  # a writer's own: its dtype says what it holds
+        if values.dtype.kind not in ("iu" if dtype is np.int64 else "iuf"):
+            raise RgtbusError(f"{where}: column {column!r} holds other than numbers")
+        return values.astype(dtype, copy=False)
     if not all(type(v) in (int, float) for v in values) or (
         dtype is np.int64 and not all(type(v) is int for v in values)
     ):
@@ -134,20 +162,25 @@ def _numbers(values: list[Any], dtype: type, column: str, where: str) -> np.ndar
         raise RgtbusError(f"{where}: column {column!r} holds a number out of range") from None
 
 
+def _is_column(values: Any) -> TypeGuard[list[Any] | np.ndarray]:
+    """A list as read, or a writer's one-dimensional array."""
+    return isinstance(values, list) or (isinstance(values, np.ndarray) and values.ndim == 1)
+
+
 def _length(record: Mapping[str, Any], where: str) -> int:
     """The number of decodes in ``record``: the length of its ``times``, which every column
     must share (the words of ``records.decode_rows``)."""
     times = record.get("times")
-    n = len(times) if isinstance(times, list) else -1
+    n = len(times) if _is_column(times) else -1
     for column in ("times", *_COLUMNS):
         col = record.get(column)
-        if isinstance(col, list) and len(col) == n:
+        if _is_column(col) and len(col) == n:
             continue
         got = (
             "missing"
             if col is None
             else f"{len(col)} entries"
-            if isinstance(col, list)
+            if _is_column(col)
             else type(col).__name__
         )
         want = "a list" if n < 0 else f"{n} entries like times"
@@ -162,20 +195,28 @@ def _named(
     own table (each checked to lie in it), or its names (logs before the tables)."""
     col = record[column]
     if not any(t in record for t in DECODE_TABLES):
-        if not all(isinstance(x, str) for x in col):
+        names = col.tolist() if isinstance(col, np.ndarray) else col
+        if not all(isinstance(x, str) for x in names):
             raise RgtbusError(f"{where}: {column} holds other than names")
-        return table.indexes(col)
-    own = record.get(table_name)
-    if not (isinstance(own, list) and all(isinstance(x, str) for x in own)):
-        raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
+        return table.indexes(names)
+    own: Any = record.get(table_name)
+    mapped = table.known(own)
+    if mapped is None:
+        if not (isinstance(own, list) and all(isinstance(x, str) for x in own)):
+            raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
+        mapped = table.mapped(own)
     idx = None
-    if all(type(i) is int for i in col):
+    if isinstance(col, np.ndarray):  # a writer's own record, or one read as arrays
+        if col.dtype.kind in "iu":
+            idx = col.astype(np.int64, copy=False)
+        col = col.tolist()
+    elif all(type(i) is int for i in col):
         with contextlib.suppress(OverflowError):  # an index beyond 64 bits: named below
             idx = np.asarray(col, dtype=np.int64)
     if idx is None or (idx.size and (idx.min() < 0 or idx.max() >= len(own))):
         bad = next(i for i in col if not (type(i) is int and 0 <= i < len(own)))
         raise RgtbusError(f"{where}: {column} {bad!r} is no index into its {len(own)} {table_name}")
-    return table.indexes(own)[idx] if own else np.empty(0, np.int32)
+    return mapped[idx] if own else np.empty(0, np.int32)
 
 
 @dataclass

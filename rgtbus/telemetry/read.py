@@ -571,9 +571,10 @@ class Replay:
     def every_message(self) -> Iterator[tuple[str, int, Any]]:
         """Every message of the log as ``(topic, log_time, message)``, decoded (traces
         excepted: JSON bytes), topic by topic in log-time order: those read when the log was
-        opened, then those left in the file until now."""
-        for topic in self.by_topic:
-            for t, m in self.by_topic[topic]:
+        opened, then those left in the file until now. Decoded as they go (``Topics.each``):
+        what the caller keeps is up to it."""
+        for topic in self.by_topic:  # none kept decoded: a large run's spikes and decodes
+            for t, m in self.by_topic.each(topic):  # as Python lists are gigabytes
                 yield topic, t, m
         if self.deferred is not None:
             for topic in self.deferred.held():

@@ -7,6 +7,7 @@ Every disagreement is a ``Mismatch``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections import Counter, defaultdict
@@ -17,10 +18,12 @@ from typing import Any, cast
 import numpy as np
 import orjson
 
+from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import LogMessage, encode_json
+from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
 from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
@@ -281,6 +284,24 @@ def diff_messages(
     ``tau``: spikes are compared one sample at a time (``spikes_per_sample``).
     Returns the mismatches and how many messages of each topic were compared.
     """
+    # the hot topics compared as columns first: rows are built only to explain a difference
+    hot_a: dict[str, list[tuple[int, Any]]] = defaultdict(list)
+    hot_b: dict[str, list[tuple[int, Any]]] = defaultdict(list)
+    logged, recomputed = _held_hot(logged, hot_a), _held_hot(recomputed, hot_b)
+    rest_a, rest_b = list(logged), list(recomputed)  # (the hot ones are held as they go)
+    checked: Counter[str] = Counter()
+    if not hot_a[r.RX_DECODE] and not hot_b[r.RX_DECODE]:
+        n = _same(same_decodes, hot_a[r.RX_DECODES], hot_b[r.RX_DECODES], until_ns)
+        if n is not None:
+            checked[r.RX_DECODE] = n
+            del hot_a[r.RX_DECODES], hot_b[r.RX_DECODES]
+    if tau is not None:
+        n = _same(same_spikes, hot_a[r.RX_SPIKE], hot_b[r.RX_SPIKE], tau, until_ns)
+        if n is not None:
+            checked[r.RX_SPIKE] = n
+            del hot_a[r.RX_SPIKE], hot_b[r.RX_SPIKE]
+    logged = itertools.chain(rest_a, _messages(hot_a))
+    recomputed = itertools.chain(rest_b, _messages(hot_b))
     logged, recomputed = decodes_per_row(logged), decodes_per_row(recomputed)
     if tau is not None:
         logged = spikes_per_sample(logged, tau)
@@ -293,12 +314,41 @@ def diff_messages(
         if topic not in a:  # a log of an rgtbus before the topic
             b.pop(topic, None)
     mismatches: list[Mismatch] = []
-    checked: Counter[str] = Counter()
     for topic in sorted(set(a) | set(b)):
         found, checked[topic] = _topic_mismatches(topic, a.get(topic, {}), b.get(topic, {}))
         mismatches += found
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
+
+
+_HOT = frozenset({r.RX_DECODES, r.RX_DECODE, r.RX_SPIKE})
+
+
+def _held_hot(
+    messages: Iterable[LogMessage], hot: dict[str, list[tuple[int, Any]]]
+) -> Iterator[LogMessage]:
+    """``messages`` less those of the hot topics, which go into ``hot`` by topic, their
+    columns as arrays (``compact``)."""
+    for topic, t_ns, m in messages:
+        if topic in _HOT:
+            hot[topic].append((t_ns, compact(m)))
+        else:
+            yield topic, t_ns, m
+
+
+def _messages(hot: dict[str, list[tuple[int, Any]]]) -> Iterator[LogMessage]:
+    for topic, held in hot.items():
+        for t_ns, m in held:
+            yield topic, t_ns, m
+
+
+def _same(compare: Callable[..., int | None], *args: Any) -> int | None:
+    """``compare``'s count, or None where it cannot say (a record it cannot read as columns:
+    the rows then say what is wrong with it)."""
+    try:
+        return compare(*args)
+    except RgtbusError:
+        return None
 
 
 @dataclass
