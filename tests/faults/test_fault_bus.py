@@ -384,8 +384,9 @@ def test_anything_on_the_wire_is_accepted_or_dropped_and_counted_once(bus_kind, 
                 h = bus.wait(0, timeout=0.01)
             except RgtbusError as e:
                 why = one_line(e)
-                if "is not trusted" in why:  # two different frames under one number, both
-                    assert keyed and "two different frames numbered" in why  # signed: named
+                if "is not trusted" in why:  # a signed frame no healthy member sends (two
+                    assert keyed and "speaks with its identity" in why  # under one number, a
+                    # promise going back, ...): its member is named
                 else:
                     assert "no news" in why
                     assert horizon == 0
