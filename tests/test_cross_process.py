@@ -50,7 +50,7 @@ def launch_equals_single(argv: list[str], name: str, tmp_path: Path) -> dict:
     [
         ("example2", False),
         ("gate", False),
-        ("example2", True),
+        pytest.param("example2", True, marks=pytest.mark.slow),  # a router: also below
         # goal-driven choices over three influence rounds (issue 14)
         ("tug_of_war", False),
     ],
@@ -76,7 +76,7 @@ def test_launch_equals_the_single_process_run(tmp_path, name, router):
     ("name", "procs", "files", "shared"),
     [
         # goals over three rounds, 4 units in 2 processes; a group of 6 in 4 uneven processes
-        ("tug_of_war", 2, ["proc-0", "proc-1"], 2),
+        pytest.param("tug_of_war", 2, ["proc-0", "proc-1"], 2, marks=pytest.mark.slow),
         ("group6", 4, ["proc-0", "proc-1", "proc-2", "proc-3"], 2),
         ("gate", 1, ["proc-0"], 1),
     ],
@@ -213,6 +213,7 @@ def test_a_stalled_unit_stops_the_others_with_a_clear_message(procs, tmp_path):
     started["b"].kill()
 
 
+@pytest.mark.slow  # a few seconds: the fuzzed gate (tests/faults/test_fault_bus.py) is quicker
 def test_foreign_and_malformed_samples_are_dropped_counted_and_logged(procs, tmp_path):
     scenario = str(ROOT / "scenarios" / "example2.toml")
     ports, started = start_mesh(procs, scenario, tmp_path, "--realtime", "40")

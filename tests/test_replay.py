@@ -458,6 +458,7 @@ def test_plot_writes_png_with_the_expected_panels(tmp_path, capsys):
     assert fig.axes[0].get_xlim() == (10, 40)
 
 
+@pytest.mark.slow  # a re-run of a unit for its trace: seconds
 def test_plot_recomputes_the_trace_when_not_logged(tmp_path, capsys):
     path = write(tmp_path, log_bytes())
     png = tmp_path / "c.png"
