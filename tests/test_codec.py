@@ -92,7 +92,7 @@ def same(got: object, want: object) -> bool:
     return list(got) == want if isinstance(want, list) else got == want  # type: ignore[call-overload]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(blocks())
 def test_the_library_reads_the_codecs_bytes_and_writes_the_same(values):
     data = encode(BLOCK, values)
@@ -103,7 +103,7 @@ def test_the_library_reads_the_codecs_bytes_and_writes_the_same(values):
     assert message.SerializeToString(deterministic=True) == data
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(blocks())
 def test_the_codec_reads_back_what_it_wrote_and_what_the_library_wrote(values):
     data = encode(BLOCK, values)
@@ -206,7 +206,7 @@ def test_hostile_bytes_are_one_line_naming_the_field():
         decode(BLOCK, b"\x0a\x05hello", max_rows=1, max_text=4)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.binary(max_size=200))
 def test_any_bytes_are_a_block_or_one_error(data):
     try:

@@ -92,6 +92,7 @@ KINDS = [
 ]
 
 
+@pytest.mark.slow  # a run, a launch, a paced run killed, merges: ~9 s (CI's slow pass runs it)
 @pytest.mark.parametrize("kind", KINDS)
 def test_every_kind_of_written_file_passes_doctor(written, kind):
     found = doctor(written[kind])
