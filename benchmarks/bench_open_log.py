@@ -3,14 +3,16 @@
     python -m benchmarks.bench_open_log [--big] [--repeat N]
 
 Each case's log is written once (memory bus, zstd MCAP). Every measurement runs in a fresh
-Python process (its peak RSS is ``ru_maxrss``, imports included), the baseline in the same
-run: ``read_log`` decodes every message into Python objects, as ``open_log`` first did before
-issue 35 (it then also expanded every spike and decode into a row object: 6.3 GB for the
-3.5 MB group50 log). Then ``open_log`` alone, ``open_log`` + ``summary()``, + one unit's traces as a
-DataFrame (``messages("/trace/<unit>")``), + ``spikes()``, + ``decodes()`` (built as columns
-since issue 51: 890 MB for group50, as row objects, before). Goal (issue 35): a log opens in
-under 2x its size; a topic's frame costs about its own size. ``--big``: the traced group20
-log of the issue (~330 MB; about 20 s to write).
+Python process (its peak RSS is ``ru_maxrss``, imports included), the baselines in the same
+run: the Python ``mcap`` reader going over every message undecoded (its read rate, MB of file
+a second, against ``open_log``'s: issue 51 asks 100 MB/s of a reader); ``read_log`` decodes
+every message into Python objects, as ``open_log`` first did before issue 35 (it then also
+expanded every spike and decode into a row object: 6.3 GB for the 3.5 MB group50 log). Then
+``open_log`` alone, ``open_log`` + ``summary()``, + one unit's traces as a DataFrame
+(``messages("/trace/<unit>")``), + ``spikes()``, + ``decodes()`` (built as columns since
+issue 51: 890 MB for group50, as row objects, before). Goal (issue 35): a log opens in under
+2x its size; a topic's frame costs about its own size. ``--big``: the traced group20 log of
+the issue (~330 MB; about 20 s to write).
 """
 
 from __future__ import annotations
@@ -26,6 +28,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 STEPS = {
+    "mcap reader": (
+        "from mcap.reader import make_reader\n"
+        "with open(path, 'rb') as f:\n"
+        "    for _ in make_reader(f).iter_messages(log_time_order=False): pass"
+    ),
     "read_log": "from rgtbus.telemetry import read_log; read_log(path)",
     "open_log": "log = rgtbus.open_log(path)",
     "+summary": "log = rgtbus.open_log(path); log.summary()",
@@ -107,6 +114,13 @@ def main() -> None:
         cells = "".join(f"{got[s][1]:>9.0f} /{got[s][0]:>6.2f}s" for s in STEPS)
         ratio = got["open_log"][1] / got["read_log"][1]
         print(f"{label:<16}{size:>9.1f}{cells}{ratio:>10.2f}")
+    print()
+    print("Read rate, MB of file a second (median wall)")
+    for label, size, got in rows:
+        rates = ", ".join(
+            f"{s} {size * 2**20 / 1e6 / got[s][0]:.1f}" for s in ("mcap reader", "open_log")
+        )
+        print(f"{label:<16}{rates}")
     print()
     print(
         "read_log: every message decoded (the baseline); "
