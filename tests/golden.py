@@ -1,7 +1,8 @@
 """Golden log digests: what a restructuring must not change (docs/engine.md, "Golden logs").
 
 Each case runs one scenario in this process on the memory bus with its full log and digests
-every message: its topic, log time and content (canonical JSON), and every metadata record,
+every message: its topic, log time and content (canonical JSON, or a block's own bytes: the
+format writes them canonically, docs/format.md), and every metadata record,
 less what depends on the machine rather than the run (the scenario's path, the Python version).
 Messages are digested in a canonical order (log time, topic, content): the writer may place
 records of one log time in another order between runs, and the order is not what a reader
@@ -96,7 +97,10 @@ def log_digests(data: bytes) -> dict[str, str]:
     reader = make_reader(io.BytesIO(data))
     rows: list[tuple[int, str, str]] = []
     for _, channel, message in reader.iter_messages(log_time_order=False):
-        content = json.dumps(json.loads(message.data), sort_keys=True)
+        if channel.message_encoding == "protobuf":  # a block: its bytes are canonical
+            content = bytes(message.data).hex()
+        else:
+            content = json.dumps(json.loads(message.data), sort_keys=True)
         rows.append((message.log_time, channel.topic, content))
     rows.sort()
     meta: list[str] = []

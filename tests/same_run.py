@@ -18,6 +18,24 @@ ROOT = Path(__file__).parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]
 
 
+def plain(value):
+    """``json.dumps``'s ``default`` for a record as read: a block's columns (NumPy arrays)
+    as lists, so records compare and print as JSON."""
+    return value.tolist()
+
+
+def read_message(topic: str, data: bytes):
+    """A message's bytes as a reader reads them: a hot topic's block decoded (columns as
+    lists, to compare as JSON), any other's JSON."""
+    from rgtbus.telemetry.blocks import decode_record, schema_of
+
+    schema = schema_of(topic)
+    if schema is None:
+        return json.loads(data)
+    record = decode_record(schema, bytes(data), topic)
+    return {k: v.tolist() if hasattr(v, "tolist") else v for k, v in record.items()}
+
+
 def single(name: str):
     """The single-process run of shipped scenario ``name`` on the memory bus: (its summary,
     its log's messages)."""
@@ -36,7 +54,9 @@ def content(messages):
 
     rows = spikes_per_unit(decodes_per_row(messages))
     return sorted(
-        (ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in rows if not _transport_note(t, m)
+        (ns, t, json.dumps(m, sort_keys=True, default=plain))
+        for t, ns, m in rows
+        if not _transport_note(t, m)
     )
 
 

@@ -9,12 +9,14 @@ import json
 import random
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 import rgtbus
 from rgtbus.cli import main
 from rgtbus.summary import SUMMARY_JSON_KEYS
+from rgtbus.telemetry.blocks import pulse_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = [
@@ -156,7 +158,9 @@ def test_log_tables(tmp_path):
     assert len(spikes) and set(spikes.columns) == {"unit", "sample", "t", "channel", "omega"}
     assert spikes["channel"].map(type).eq(str).all()  # one row per channel that fired
     tx = log.transmissions()
-    pulses = log.messages("/tx/pulse")
+    blocks = log.messages("/tx/pulse")  # a sender's pulses of a block a row: one a pulse here
+    pulses = pd.DataFrame([p for _, b in blocks.iterrows() for p in pulse_rows(b)])
+    assert len(pulses) > len(blocks) and set(blocks["unit"]) == {"a", "b", "c", "d"}
     assert len(tx) == pulses["message"].map(lambda m: (m["sender"], m["id"])).nunique()
     assert tx["pulses"].sum() == len(pulses)
     assert set(tx["kind"]) == {"id", "payload"}
@@ -234,7 +238,9 @@ def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(
     for topic in log.topics:
         pd.testing.assert_frame_equal(log.messages(topic), whole.messages(topic), obj=topic)
     trace = log.messages("/trace/a")
-    assert len(trace) and isinstance(trace["y"].iloc[0], list)
+    y = trace["y"].iloc[0]  # a sample's states, one a channel (a block's column)
+    assert len(trace) and isinstance(y, np.ndarray) and y.dtype == np.float64
+    assert len(y) == len(trace["x"].iloc[0]) > 0
     assert "/trace/a" not in held  # read for the frame, not kept
     for table in ("decisions", "decodes", "spikes", "transmissions", "medium"):
         pd.testing.assert_frame_equal(getattr(log, table)(), getattr(whole, table)(), obj=table)

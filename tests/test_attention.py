@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
+from same_run import plain
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import parse_scenario
@@ -35,7 +36,9 @@ def _messages(run, text: str, engine: str) -> tuple[dict, list]:
     summary, data = run(parse_scenario(text, "s.toml"), engine)
     messages, _ = read_log(io.BytesIO(data))
     return summary, sorted(
-        (ns, topic, json.dumps(m, sort_keys=True)) for topic, ns, m in messages if topic != "/run"
+        (ns, topic, json.dumps(m, sort_keys=True, default=plain))
+        for topic, ns, m in messages
+        if topic != "/run"
     )
 
 

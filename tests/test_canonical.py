@@ -18,9 +18,11 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from rgtbus.telemetry.blocks import SPIKE, descriptor, encode_record, spike_head, spike_head_bytes
 from rgtbus.telemetry.merge import MergeResult, merge_logs, shared_spikes
 from rgtbus.telemetry.records import RX_SPIKE, spikes
 from rgtbus.telemetry.scan import scan_log
+from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 ROOT = Path(__file__).parent.parent
 EXE = [sys.executable, "-m", "rgtbus"]
@@ -79,10 +81,11 @@ def test_one_process_three_and_one_a_unit_merge_to_the_same_messages(tmp_path):
         _rgtbus("launch", str(scenario), "--procs", procs, "--log-dir", str(folder), "-q")
         logs[f"{procs} processes"] = messages(folder / "run.mcap")
     reference = logs.pop("one process")
-    shared = [m for m in reference if m[0] == RX_SPIKE and m[2].startswith(b'{"units":')]
+    heads = [spike_head(m[2]) for m in reference if m[0] == RX_SPIKE]
+    assert None not in heads  # every spike block as rgtbus writes it
+    shared = [units for units, _ in heads if len(units) > 1]
     assert shared, "no block heard alike: the test shows nothing"
-    assert all(m[2].startswith(b'{"units":["Alpha","b_c","echo","mike_2","x9","zulu"],')
-               for m in shared)  # fmt: skip
+    assert all(units == ["Alpha", "b_c", "echo", "mike_2", "x9", "zulu"] for units in shared)
     for layout, got in logs.items():
         assert got == reference, (layout, _differences(got, reference))
     # the one-process log itself differs at most by records of its units' last blocks,
@@ -107,7 +110,11 @@ def _spike(unit: str | list[str], samples: list[int], names: list[str]) -> bytes
     import numpy as np
 
     record = spikes(unit, 0.005, np.array(samples), np.arange(len(samples)), names)
-    return orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY)
+    return encode_record(SPIKE, record)
+
+
+# a block of spikes not as rgtbus writes it: one unit under ``units`` (two or more go there)
+_ONE_OF_UNITS = spike_head_bytes(["a"], one=False) + spike_head(_spike("a", [1], ["x"]))[1]
 
 
 @pytest.mark.parametrize("names", [["a", "b", "c", "d"], ['q"],"', "b\\", "]", "ü,"]])
@@ -121,9 +128,9 @@ def test_records_of_one_block_from_several_processes_are_one_record(names):
         _entry(10, 2, 1, _spike(d, [3, 6], ["x", "y"])),  # other spikes: its own record
         _entry(10, 2, 1, _spike(a, *block)),  # the same record twice: its unit once
         _entry(11, 2, 1, _spike(b, *block)),  # another time: its own record
-        _entry(12, 0, 1, b'{"unit":"a",}'),  # not JSON: as it is
-        _entry(12, 1, 1, b'{"units":["a"],"t":1}'),  # not as rgtbus writes it: as it is
-        _entry(12, 1, 1, b'{"units":["a"],"t":1}'),
+        _entry(12, 0, 1, b"\n\x05a"),  # no block (a unit's name past its end): as it is
+        _entry(12, 1, 1, _ONE_OF_UNITS),  # not as rgtbus writes it: as it is
+        _entry(12, 1, 1, _ONE_OF_UNITS),
     ]
     res = MergeResult()
     out = list(shared_spikes(entries, {1}, res))
@@ -133,9 +140,9 @@ def test_records_of_one_block_from_several_processes_are_one_record(names):
         b'{"unit":"a","t":1}',
         _spike(d, [3, 6], ["x", "y"]),
         _spike(b, *block),
-        b'{"unit":"a",}',
-        b'{"units":["a"],"t":1}',
-        b'{"units":["a"],"t":1}',
+        b"\n\x05a",
+        _ONE_OF_UNITS,
+        _ONE_OF_UNITS,
     ]
     assert out[0][:4] == entries[0][:4] and out[1] == entries[2]  # where the first one was
 
@@ -148,8 +155,9 @@ def test_a_merge_of_hand_written_spike_records_reads_back():
         buf = io.BytesIO()
         w = Writer(buf)
         w.start()
-        sid = w.register_schema("rgtbus.Spikes", "jsonschema", b"{}")
-        cid = w.register_channel(RX_SPIKE, "json", sid)
+        w.add_metadata(FORMAT_RECORD, format_metadata())
+        sid = w.register_schema(SPIKE.name, "protobuf", descriptor(SPIKE.name))
+        cid = w.register_channel(RX_SPIKE, "protobuf", sid)
         w.add_message(cid, 5_000_000, _spike(unit, [1], ["x"]), 5_000_000)
         w.finish()
         buf.seek(0)

@@ -189,7 +189,7 @@ def test_a_stalled_unit_stops_the_others_with_a_clear_message(procs, tmp_path):
         procs, scenario, tmp_path, "--timeout", "1.5", "--join-timeout", "60", "--realtime", "20"
     )
     # Stall b once the run is under way, however slowly this machine started it: a's log is
-    # written as the run goes, so its first pulse shows there (bounded wait).
+    # written as the run goes, so its first block of pulses shows there (bounded wait).
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         if (tmp_path / "a.mcap").exists():

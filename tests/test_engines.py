@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from rgtbus.units.group import run_group
+from same_run import plain
 
 from rgtbus.scenario import Scenario, load_scenario, parse_scenario
 from rgtbus.telemetry import MemoryRecorder, NullRecorder
@@ -37,10 +38,15 @@ def run(sc: Scenario, engine: str):
     return out.summary, rec.read()[0]
 
 
+def _json(m) -> str:
+    """A record as JSON (a block's columns as lists): records compare by it."""
+    return json.dumps(m, sort_keys=True, default=plain)
+
+
 def content(messages):
     """The log's content, order-free among messages of the same time; a block of spikes
     units shared as each unit's own (the dense engine's ears are a unit's own)."""
-    return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in spikes_per_unit(messages))
+    return sorted((ns, t, _json(m)) for t, ns, m in spikes_per_unit(messages))
 
 
 def assert_same_run(sc: Scenario):
@@ -204,13 +210,13 @@ def test_a_run_that_walks_no_resonator_is_the_same_run(monkeypatch, source, nois
 
 
 def _unit_rows(messages, tau):
-    """A log's unit records as comparable rows (topic, log time, JSON), decodes and spikes
-    one a row: what a cut log must hold in full before its bound."""
-    from rgtbus.telemetry.verify import decodes_per_row, spikes_per_sample
+    """A log's unit records as comparable rows (topic, log time, JSON), decodes, spikes and
+    pulses one a row: what a cut log must hold in full before its bound."""
+    from rgtbus.telemetry.verify import decodes_per_row, pulses_per_row, spikes_per_sample
 
     skip = {"/log", "/medium", "/run", "/unit/report"}
-    rows = spikes_per_sample(decodes_per_row(messages), tau)
-    return [(tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rows if tp not in skip]
+    rows = spikes_per_sample(pulses_per_row(decodes_per_row(messages)), tau)
+    return [(tp, t, _json(m)) for tp, t, m in rows if tp not in skip]
 
 
 @pytest.mark.parametrize(
@@ -270,7 +276,7 @@ def test_a_unit_that_batches_logs_what_it_logs_waking_for_each_decode(seed, nois
     for live in (None, Looking()):
         rec = MemoryRecorder(live=live)
         run_group(sc, "memory", rec)
-        logs.append(sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
+        logs.append(sorted((t, tp, _json(m)) for tp, t, m in rec.messages))
     assert logs[0] == logs[1]
 
 
@@ -483,7 +489,7 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
         out = run_group(sc, "memory", rec)
         rows = decodes_per_row(rec.messages)
         summary = {k: v for k, v in out.summary.items() if k not in ("wall_seconds", "sync")}
-        got.append((summary, sorted((t, tp, json.dumps(m, sort_keys=True)) for tp, t, m in rows)))
+        got.append((summary, sorted((t, tp, _json(m)) for tp, t, m in rows)))
     assert got[0] == got[1]
 
 
@@ -555,7 +561,7 @@ def test_a_block_of_queued_codes_decodes_as_each_code_alone(monkeypatch, seed):
         out = run_group(sc, "memory", rec)
         summary = {k: v for k, v in out.summary.items() if k not in ("wall_seconds", "sync")}
         got.append(
-            (summary, sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
+            (summary, sorted((tp, t, _json(m)) for tp, t, m in rec.messages))
         )
     assert got[0] == got[1]
     assert got[0][0]["decode_errors"]  # noisy enough that some codes are misread
@@ -617,5 +623,5 @@ def test_a_logged_batch_of_any_length_writes_the_same_log(monkeypatch):
         monkeypatch.setattr(unit_module, "DIFFER_LOGGED_BATCH_SECONDS", differ_s)
         rec = MemoryRecorder()
         run_group(sc, "memory", rec)
-        logs.append(sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages))
+        logs.append(sorted((tp, t, _json(m)) for tp, t, m in rec.messages))
     assert logs[0] == logs[1] == logs[2] == logs[3] and len(logs[0]) > 100

@@ -18,6 +18,7 @@ from rgtbus.rgt import solve_brute_force
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.summary import check_expectations, round_dynamics
 from rgtbus.telemetry import MemoryRecorder
+from rgtbus.telemetry.blocks import pulse_rows
 from rgtbus.truth import clean_rounds, intended_group
 
 ROOT = Path(__file__).parent.parent
@@ -196,7 +197,8 @@ def test_gate_goal_d_finds_the_influence_1_itself_and_the_gate_opens():
     # d had heard the others' 0 on each target, and the choice came before the code went out
     assert goals[0]["heard"] == {"b": [], "c": []}
     code = goals[0]["turn"] * 2 + 1  # the message id of the turn's payload
-    first = min(m["t"] for m in _topic(messages, "/tx/pulse") if m["message"]["id"] == code)
+    pulses = [p for m in _topic(messages, "/tx/pulse") for p in pulse_rows(m)]
+    first = min(p["t"] for p in pulses if p["message"]["id"] == code)
     assert goals[0]["t"] < first
     # without the goal, d's policy (0) keeps the gate closed: the goal made the difference
     plain = parse_scenario(sc.text.split("[goals.d]")[0] + "[decision]\npolicy = 'max'\n")

@@ -1,9 +1,10 @@
 """No log can trick a reader (issue 50, item 3): logs with valid CRCs (written with mcap's own
-writer) whose messages nest deeper than any reader walks, whose text holds terminal escapes,
-controls and bidi overrides, whose Statistics record lies, or that hold two ``/run``
-records. Every reader answers in one line naming the file, topic and time (exit 2), or reads
-the log; nothing it prints holds a character a terminal acts on; what a log contradicts
-about itself is said, in ``log_info``'s ``problems`` and in ``rgtbus info``'s text.
+writer) whose messages nest deeper than any reader walks (JSON, or protobuf groups in a hot
+topic's block, which is flat), whose text holds terminal escapes, controls and bidi
+overrides, whose Statistics record lies, or that hold two ``/run`` records. Every reader
+answers in one line naming the file, topic and time (exit 2), or reads the log; nothing it
+prints holds a character a terminal acts on; what a log contradicts about itself is said,
+in ``log_info``'s ``problems`` and in ``rgtbus info``'s text.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import struct
 import tomllib
 import zlib
@@ -123,19 +125,34 @@ READERS: list[list[str]] = [
 ]  # fmt: skip
 
 
+def groups(n: int) -> bytes:
+    """A protobuf message of ``n`` groups opened one inside the other (field 100, wire type 3:
+    proto2's nesting, which no block uses), never closed."""
+    return bytes([0xA3, 0x06]) * n
+
+
 @pytest.mark.parametrize(
-    "topic, depth, says",
+    "topic, data, says",
     [
-        ("/tx/pulse", 100_000, "is not JSON: depth limit exceeded"),  # beyond orjson's 1024
-        ("/run", 100_000, "is not JSON: depth limit exceeded"),
-        ("/log", 1020, f"nests deeper than {MAX_DEPTH} levels"),  # orjson reads it, Python can't
-        ("/run", 1020, f"nests deeper than {MAX_DEPTH} levels"),
+        ("/unit/decision", nested(100_000), "is not JSON: depth limit exceeded"),  # > orjson's
+        ("/run", nested(100_000), "is not JSON: depth limit exceeded"),
+        ("/log", nested(1020), f"nests deeper than {MAX_DEPTH} levels"),  # orjson reads it
+        ("/run", nested(1020), f"nests deeper than {MAX_DEPTH} levels"),  # (Python can't)
+        # a hot topic's block is flat: nesting in it is refused at its first level, unwalked
+        ("/tx/pulse", groups(100_000),
+         "rgtbus.PulseBlock: unknown field 100: wire type 3, which no block uses"),
+        ("/rx/decodes", groups(100_000),
+         "rgtbus.DecodeBlock: unknown field 100: wire type 3, which no block uses"),
+        # JSON where a block belongs (a '[' is a group's tag too, of field 11)
+        ("/tx/pulse", nested(100_000),
+         "rgtbus.PulseBlock: field 'magnitude': wire type 3, a column is packed (2)"),
     ],
-)
-def test_deep_nesting_is_refused_in_one_line_by_every_reader(gate, tmp_path, topic, depth,
-                                                              says):  # fmt: skip
+    ids=["decision-json", "run-json", "log-depth", "run-depth", "pulse-groups",
+         "decodes-groups", "pulse-json"],
+)  # fmt: skip
+def test_deep_nesting_is_refused_in_one_line_by_every_reader(gate, tmp_path, topic, data, says):
     path = tmp_path / "deep.mcap"
-    path.write_bytes(rebuilt(gate, replaced(topic, nested(depth))))
+    path.write_bytes(rebuilt(gate, replaced(topic, data)))
     refused = 0
     for reader in READERS:
         code, out, err = run_cli(reader[0], str(path), *reader[1:])
@@ -149,9 +166,9 @@ def test_deep_nesting_is_refused_in_one_line_by_every_reader(gate, tmp_path, top
     # info needs /run, cat prints every message, replay --verify compares every one
     assert refused >= (4 if topic == "/run" else 2)
     if topic != "/log":  # the API refuses it as the CLI does (a log line it never reads)
-        with pytest.raises(RgtbusError, match=says):
+        with pytest.raises(RgtbusError, match=re.escape(says)):
             log = rgtbus.open_log(path)
-            log.summary(), log.transmissions()
+            log.summary(), log.transmissions(), log.decodes()
 
 
 def test_a_nested_value_within_the_limit_reads():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import json
 import queue
 import re
@@ -10,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -18,8 +20,9 @@ from mcap.reader import make_reader
 from rgtbus import api
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.blocks import DECODE, PULSE, TRACE, decode_record, encode_record, pulse_rows
 from rgtbus.telemetry.live import LiveView, parse_address
-from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, decode_rows
+from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, TX_PULSE, decode_rows
 from rgtbus.timebase import ns
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -39,16 +42,28 @@ def _mcap(path: Path) -> tuple[list[tuple[str, int, bytes]], dict[str, tuple[str
     return sorted(msgs), schemas
 
 
-def _split_live(got) -> tuple[list[tuple[str, int, bytes]], list[tuple[int, str]]]:
-    """What a live client got: the log's messages (sorted), and the decodes offered to the
-    view alone as they were made (``/rx/decode``, sorted (time, JSON))."""
-    logged = sorted((topic, t, data) for topic, t, data, _ in got.messages if topic != RX_DECODE)
+def _split_live(
+    got, messages: list[tuple[str, int, bytes]]
+) -> tuple[list[tuple[str, int, bytes]], list[tuple[int, str]], list[tuple[int, str]]]:
+    """What a live client got: the log's messages (``messages``, sorted, as far as it got
+    them), the decodes offered to the view alone as they were made (``/rx/decode``, sorted
+    (time, JSON)), and the rest: each pulse offered alone as it was made (a ``/tx/pulse``
+    block of one, beside the log's blocks), sorted (time, JSON of its row); anything else
+    the client got stays as it came (it matches no pulse)."""
+    rest = Counter((topic, t, data) for topic, t, data, _ in got.messages if topic != RX_DECODE)
+    alone = rest - Counter(messages)
+    logged = sorted((rest - alone).elements())
     offered = sorted(
         (t, json.dumps(json.loads(data), sort_keys=True))
         for topic, t, data, _ in got.messages
         if topic == RX_DECODE
     )
-    return logged, offered
+    pulses = []
+    for topic, t, data in alone.elements():
+        rows = pulse_rows(decode_record(PULSE, data, topic)) if topic == TX_PULSE else []
+        one = len(rows) == 1
+        pulses.append((t, json.dumps(rows[0], sort_keys=True) if one else repr((topic, data))))
+    return logged, offered, sorted(pulses)
 
 
 def _decodes_of(messages: list[tuple[str, int, bytes]]) -> list[tuple[int, str]]:
@@ -57,8 +72,31 @@ def _decodes_of(messages: list[tuple[str, int, bytes]]) -> list[tuple[int, str]]
         (ns(row["t"]), json.dumps(row, sort_keys=True))
         for topic, _, data in messages
         if topic == RX_DECODES
-        for row in decode_rows(json.loads(data))
+        for row in decode_rows(decode_record(DECODE, data, topic))
     )
+
+
+def _pulses_of(messages: list[tuple[str, int, bytes]]) -> list[tuple[int, str]]:
+    """The log's pulse blocks, one pulse a row at its own time."""
+    return sorted(
+        (ns(row["t"]), json.dumps(row, sort_keys=True))
+        for topic, _, data in messages
+        if topic == TX_PULSE
+        for row in pulse_rows(decode_record(PULSE, data, topic))
+    )
+
+
+def _live_of(messages: list[tuple[str, int, bytes]]) -> tuple:
+    """What a client watching from the start gets of a run that logs ``messages``
+    (``_split_live``): every message of the log, each decode and each pulse alone besides."""
+    return messages, _decodes_of(messages), _pulses_of(messages)
+
+
+def _schema_data(channel: dict) -> bytes:
+    """A WebSocket channel's schema as its bytes: a protobuf one is base64 text."""
+    if channel.get("schemaEncoding") == "protobuf":
+        return base64.b64decode(channel["schema"], validate=True)
+    return channel["schema"].encode()
 
 
 def _live_run(tmp_path: Path, *extra: str, scenario: str = "gate") -> tuple:
@@ -86,17 +124,20 @@ def _live_run(tmp_path: Path, *extra: str, scenario: str = "gate") -> tuple:
 def test_a_client_gets_every_message_of_the_log(tmp_path, pace, monkeypatch):
     got, log = _live_run(tmp_path, *pace)
     messages, schemas = _mcap(log)
-    logged, offered = _split_live(got)
+    logged, offered, pulses = _split_live(got, messages)
     assert logged == messages
     # and each decode as it was made: the log's blocks, one decode a message
     assert offered == _decodes_of(messages) and len(offered) > 100
+    # and each pulse as it was made: the log's blocks, one pulse a message
+    assert pulses == _pulses_of(messages) and len(pulses) > 100
     # the log is the one a run with no viewer writes (docs/foxglove.md)
     alone = tmp_path / "alone.mcap"
     monkeypatch.chdir(ROOT)
     assert main(["run", "scenarios/gate.toml", "--log", str(alone), "--quiet"]) == 0
     assert _mcap(alone)[0] == messages
-    # every topic under the same schema as in the file
-    live = {c["topic"]: (c["schemaName"], c["schema"].encode()) for c in got.channels.values()}
+    # every topic under the same schema as in the file (a binary one, a hot topic's protobuf
+    # FileDescriptorSet, base64 in the WebSocket protocol's text)
+    live = {c["topic"]: (c["schemaName"], _schema_data(c)) for c in got.channels.values()}
     for topic, schema in schemas.items():
         assert live[topic] == schema
     # simulated time as the server's time: never going back, within the run
@@ -135,7 +176,7 @@ def test_a_watched_run_logs_what_nobody_watching_logs(tmp_path, scenario):
     messages = _mcap(alone)[0]
     assert _mcap(watched)[0] == messages
     got = type("Got", (), {"messages": view.messages})
-    assert _split_live(got) == (messages, _decodes_of(messages))
+    assert _split_live(got, messages) == _live_of(messages)
 
 
 def test_traces_are_served_too(tmp_path):
@@ -143,7 +184,7 @@ def test_traces_are_served_too(tmp_path):
     got, log = _live_run(tmp_path, "--traces", "--realtime", "200", scenario="example1")
     messages, _ = _mcap(log)
     assert any(topic.startswith("/trace/") for topic, _, _ in messages)
-    assert _split_live(got) == (messages, _decodes_of(messages))
+    assert _split_live(got, messages) == _live_of(messages)
 
 
 def test_a_paced_message_is_never_sent_before_it_is_due():
@@ -246,7 +287,10 @@ def test_watch_serves_a_cross_process_run_as_an_observer(procs, tmp_path):
     err = "".join(lines.get() for _ in range(lines.qsize()))
     client.join(timeout=60)
     logged = sorted(m for u in units for m in _mcap(tmp_path / f"{u}.mcap")[0])
-    assert _split_live(result["r"]) == (logged, _decodes_of(logged)) and len(logged) > 100
+    got, decodes, pulses = _split_live(result["r"], logged)
+    assert (got, decodes) == (logged, _decodes_of(logged)) and len(logged) > 100
+    # and the pulses each unit made once it knew it was watched, each alone as it was made
+    assert pulses and not Counter(pulses) - Counter(_pulses_of(logged))
     assert "from run(s) watched" in err
 
 
@@ -363,7 +407,7 @@ def test_clients_that_never_read_cost_a_bounded_backlog_and_never_hold_the_run()
     runner.start()
     clients: list = []
     try:
-        live.advertise([("/trace/a", "rgtbus.ResonatorTrace"), ("/log", "foxglove.Log")])
+        live.advertise([("/trace/a", "rgtbus.TraceBlock"), ("/log", "foxglove.Log")])
 
         async def connect_all():
             return await asyncio.gather(*(_stuck_client(live.url) for _ in range(3)))
@@ -371,13 +415,15 @@ def test_clients_that_never_read_cost_a_bounded_backlog_and_never_hold_the_run()
         clients = asyncio.run_coroutine_threadsafe(connect_all(), loop).result(timeout=60)
         assert live.wait_for_client(30) and len(live.subscriptions.pairs) == 6
         base = _rss_mb()
-        payload = b'{"y": [' + b"0.123456789," * 80 + b'0.0], "x": [0.5, 0.5]}'  # ~1 KB
+        y = [0.123456789] * 30 + [0.0] * 30
+        payload = encode_record(TRACE, {"unit": "a", "sample": 1, "t": 0.005, "y": y, "x": y})
+        assert 900 < len(payload) < 1100  # ~1 KB
         put_time = grew = 0.0
         deadline = time.monotonic() + 60
         for chunk in range(200):
             t0 = time.monotonic()
             for i in range(300):
-                live.put("/trace/a", "rgtbus.ResonatorTrace", payload, (chunk * 300 + i) * 1000)
+                live.put("/trace/a", "rgtbus.TraceBlock", payload, (chunk * 300 + i) * 1000)
             put_time = max(put_time, time.monotonic() - t0)
             while live._queued:  # every message handed to the server (none dropped here)
                 assert time.monotonic() < deadline, "the view's thread is stuck"
@@ -407,7 +453,7 @@ def test_the_view_refuses_topics_beyond_its_bound():
     said: list[str] = []
     with LiveView("127.0.0.1", 0, max_channels=3, linger=0, say=said.append) as live:
         for i in range(10):
-            live.put(f"/trace/u{i}", "rgtbus.ResonatorTrace", b"{}", i)
+            live.put(f"/trace/u{i}", "rgtbus.TraceBlock", b"{}", i)
     assert len(live._channels) == 3 and live.refused == 7 and live.sent == 3
     assert any("7 refused" in s for s in said), said
 
@@ -536,7 +582,7 @@ def test_a_watcher_bounds_its_topics():
                     encode_telemetry("/log", "foxglove.Log", b"{}", 1),
                 )
                 n0 = w.received + w.dropped
-                trace = "rgtbus.ResonatorTrace"
+                trace = "rgtbus.TraceBlock"
                 s.put("rgtbus/r1/telemetry/a", encode_telemetry("/trace/b", trace, b"{}", 2))
                 for i in range(20):  # 20 units, of as many runs: 5 traces served
                     s.put(

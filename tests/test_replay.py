@@ -12,19 +12,26 @@ import struct
 from functools import cache
 from pathlib import Path
 
+import numpy as np
 import pytest
 from rgtbus.units.group import run_group
 from rgtbus.units.rerun import rerun, traces_for, verify_log
+from same_run import plain
 
 from rgtbus.cli import main
+from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario, parse_scenario
-from rgtbus.telemetry import McapRecorder, read_log, records, schema_for
+from rgtbus.telemetry import McapRecorder, blocks, read_log, records, schema_for
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
+from rgtbus.telemetry.codec import encode
+from rgtbus.telemetry.convert import convert_log
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
 from rgtbus.telemetry.read import load_replay
 from rgtbus.telemetry.records import each_unit_spikes, spike_samples, spike_units
+from rgtbus.telemetry.scan import scan_log
 from rgtbus.telemetry.verify import EXIT_TRUNCATED
+from rgtbus.telemetry.version import FORMAT_RECORD
 
 ROOT = Path(__file__).resolve().parent.parent
 RUN_KEYS = (
@@ -71,19 +78,21 @@ def rewrite(data: bytes, edit) -> bytes:
     """The log with its messages passed through ``edit(list) -> list`` (a hand-altered log)."""
     messages, metadata = read_log(io.BytesIO(data))
     buf = io.BytesIO()
-    rec = McapRecorder(buf)
+    rec = McapRecorder(buf)  # (it writes the format record itself, first)
     for name, values in metadata.items():
-        rec.metadata(name, values)
-    for topic, t, m in edit([(tp, t, json.loads(json.dumps(m))) for tp, t, m in messages]):
+        if name != FORMAT_RECORD:
+            rec.metadata(name, values)
+    as_json = [(tp, t, json.loads(json.dumps(m, default=plain))) for tp, t, m in messages]
+    for topic, t, m in edit(as_json):
         rec.write(topic, m, t)
     rec.close()
     return buf.getvalue()
 
 
-def as_older(data: bytes, topic: str) -> bytes:
-    """The log with the schema of ``topic``'s channel changed (as an older rgtbus's log
-    declared its older record): readers take its messages as that version wrote them, not
-    checked against this version's schema."""
+def copied(data: bytes, edit) -> bytes:
+    """The log copied record for record with mcap's own writer, each message's bytes passed
+    through ``edit(topic, log time, data) -> data``: a hostile writer's bytes, which rgtbus's
+    recorder would never write."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
@@ -92,23 +101,125 @@ def as_older(data: bytes, topic: str) -> bytes:
     assert summary is not None
     buf = io.BytesIO()
     writer = Writer(buf, compression=CompressionType.ZSTD)
-    writer.start(profile="", library="rgtbus (older)")
-    topic_of = {c.schema_id: c.topic for c in summary.channels.values()}
-    schemas = {}
-    for sid, sch in summary.schemas.items():
-        older = topic_of.get(sid) == topic
-        text = b'{"title": "an older record"}' if older else sch.data
-        schemas[sid] = writer.register_schema(sch.name, sch.encoding, text)
-    channels = {cid: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id],
-                                             c.metadata)
-                for cid, c in summary.channels.items()}  # fmt: skip
-    for _, channel, message in reader.iter_messages():
-        writer.add_message(channels[channel.id], message.log_time, message.data,
-                           message.publish_time)  # fmt: skip
-    for record in reader.iter_metadata():
-        writer.add_metadata(record.name, record.metadata)
+    writer.start(profile="", library="rgtbus (by hand)")
+    for record in reader.iter_metadata():  # (first, as rgtbus writes them)
+        writer.add_metadata(record.name, dict(record.metadata))
+    channels = {}
+    for cid, c in summary.channels.items():
+        s = summary.schemas[c.schema_id]
+        sid = writer.register_schema(s.name, s.encoding, s.data)
+        channels[cid] = writer.register_channel(c.topic, c.message_encoding, sid, c.metadata)
+    for _, channel, message in reader.iter_messages(log_time_order=False):
+        body = edit(channel.topic, message.log_time, message.data)
+        writer.add_message(channels[channel.id], message.log_time, body, message.publish_time)
     writer.finish()
     return buf.getvalue()
+
+
+def first_block(topic: str, change, where=lambda record: True):
+    """A ``copied`` edit: the first block on ``topic`` whose record (as a reader gets it) is
+    ``where`` replaced by ``change(record, data) -> data``; asserted to find one."""
+    done = []
+
+    def edit(tp: str, t: int, data: bytes) -> bytes:
+        if tp != topic or done:
+            return data
+        record = blocks.decode_record(blocks.schema_of(topic), data, "the log")
+        if not where(record):
+            return data
+        done.append(tp)
+        return change(record, data)
+
+    edit.done = done  # type: ignore[attr-defined]
+    return edit
+
+
+# Format 1 (rgtbus before format 2): every topic JSON, the hot ones under these schemas; no
+# ``format`` record. A ``/tx/pulse`` record was one pulse.
+FORMAT1_SCHEMAS = {
+    "/medium": "rgtbus.MediumWindow",
+    "/tx/pulse": "rgtbus.Pulse",
+    "/rx/spike": "rgtbus.Spikes",
+    "/rx/decode": "rgtbus.Decode",
+    "/rx/decodes": "rgtbus.Decodes",
+}
+
+
+def as_format1(data: bytes, spikes=None, decodes=None) -> bytes:
+    """The log as an rgtbus of format 1 wrote the same run: no ``format`` record, every hot
+    topic JSON under format 1's schemas, one ``/tx/pulse`` record a pulse. ``spikes`` and
+    ``decodes``: ``(t_ns, record) -> [(topic, t_ns, record), ...]``, the format-1 messages of
+    a ``/rx/spike`` or ``/rx/decodes`` record (as JSON gives it back; default: that record)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    def pulses(t_ns, record):
+        return [("/tx/pulse", round(p["t"] * 1e9), p) for p in blocks.pulse_rows(record)]
+
+    forms = {"/tx/pulse": pulses, "/rx/spike": spikes, "/rx/decodes": decodes}
+    reader = make_reader(io.BytesIO(data))
+    summary = reader.get_summary()
+    assert summary is not None
+    buf = io.BytesIO()
+    writer = Writer(buf, compression=CompressionType.ZSTD)
+    writer.start(profile="", library="rgtbus 0.9 (format 1)")
+    for record in reader.iter_metadata():
+        if record.name != FORMAT_RECORD:
+            writer.add_metadata(record.name, dict(record.metadata))
+    channels: dict[str, int] = {}
+
+    def channel(topic: str, schema_id: int) -> int:
+        if topic not in channels:
+            if blocks.schema_of(topic) is None and topic != "/rx/decode":
+                s = summary.schemas[schema_id]
+                sid = writer.register_schema(s.name, s.encoding, s.data)
+            else:
+                name = FORMAT1_SCHEMAS.get(topic, "rgtbus.ResonatorTrace")
+                text = json.dumps({"title": name, "type": "object"}).encode()
+                sid = writer.register_schema(name, "jsonschema", text)
+            channels[topic] = writer.register_channel(topic, "json", sid)
+        return channels[topic]
+
+    held = []
+    for _, c, m in reader.iter_messages(log_time_order=False):
+        block = blocks.schema_of(c.topic)
+        if block is None:
+            held.append((m.log_time, c.topic, c.schema_id, m.data))
+            continue
+        record = blocks.decode_record(block, m.data, "the log")
+        if c.topic != "/tx/pulse":
+            record = json.loads(json.dumps(record, default=plain))
+        form = forms.get(c.topic) or (lambda t_ns, rec, topic=c.topic: [(topic, t_ns, rec)])
+        for topic, t_ns, old in form(m.log_time, record):
+            held.append((t_ns, topic, c.schema_id, json.dumps(old, default=plain).encode()))
+    for t_ns, topic, schema_id, body in sorted(held, key=lambda h: h[0]):
+        writer.add_message(channel(topic, schema_id), t_ns, body, t_ns)
+    writer.finish()
+    return buf.getvalue()
+
+
+def converted(tmp_path: Path, old: Path, name: str = "converted.mcap") -> Path:
+    """``old`` (a format-1 log) as ``rgtbus convert`` writes it: format 2."""
+    out = tmp_path / name
+    with open(out, "wb") as f:
+        done = convert_log(scan_log(old), f)
+    assert done.ended == "" and done.written > 0
+    return out
+
+
+def refused_as_format1(capsys, path: Path) -> None:
+    """Every reader refuses a format-1 log in one line naming ``rgtbus convert`` (exit 2)."""
+    for extra in ([], ["--verify"], ["--json"]):
+        code, out, err = cli(capsys, "replay", path, *extra)
+        assert code == 2 and out == "" and err.count("\n") == 1, err
+        assert "an rgtbus log of format 1" in err and f"rgtbus convert {path}" in err, err
+    for command in ("info", "cat"):
+        code, _, err = cli(capsys, command, path)
+        assert code == 2 and err.count("\n") == 1 and "rgtbus convert" in err, err
+    import rgtbus
+
+    with pytest.raises(RgtbusError, match=r"format 1 .*rgtbus convert"):
+        rgtbus.open_log(path)
 
 
 def cli(capsys, *args) -> tuple[int, str, str]:
@@ -180,8 +291,8 @@ def _tamper_choice(msgs):
 
 
 def _tamper_sample(msgs):
-    for _, _, m in msgs:
-        if "samples" in m and any(m["samples"]):
+    for tp, _, m in msgs:
+        if tp == "/medium" and any(m["samples"]):
             i = next(i for i, v in enumerate(m["samples"]) if v)
             m["samples"][i] += 0.001
             return msgs
@@ -203,17 +314,22 @@ def _tamper_delete_decode(msgs):
 
 
 def _tamper_pulse_time(msgs):
-    i = next(i for i, (tp, _, _) in enumerate(msgs) if tp == "/tx/pulse")
-    tp, t, m = msgs[i]
-    return [*msgs[:i], (tp, t + 1_000_000, m), *msgs[i + 1 :]]
-
-
-def _tamper_flag(msgs):
+    """A pulse logged a sample later than it was sent (a pulse's time is its sample on its
+    sender's clock: its row of a /tx/pulse block)."""
     for tp, _, m in msgs:
-        if tp == "/rx/decodes" and True in m["accepted"]:
-            m["accepted"][m["accepted"].index(True)] = 1  # equal in Python, not in a log
+        if tp == "/tx/pulse" and len(m["sample"]) > 1:
+            m["sample"][1] += 1
             return msgs
-    raise AssertionError("no accepted decode to tamper with")
+    raise AssertionError("no pulse block to tamper with")
+
+
+def _tamper_flag(record, data: bytes) -> bytes:
+    """``true`` logged as ``2`` in a block's bool column (a byte, 0 or 1 in a log): the
+    ``accepted`` column is a /rx/decodes block's last field, so its bytes end the block."""
+    accepted = record["accepted"]
+    at = len(data) - len(accepted) + int(np.argmax(accepted))
+    assert data[at] == 1, "the accepted column ends the block"
+    return data[:at] + b"\x02" + data[at + 1 :]
 
 
 @pytest.mark.parametrize(
@@ -222,7 +338,7 @@ def _tamper_flag(msgs):
         (_tamper_choice, "/unit/decision", "choice"),
         (_tamper_sample, "/medium", "samples["),
         (_tamper_delete_decode, "/rx/decode", "from"),
-        (_tamper_pulse_time, "/tx/pulse", "log_time"),
+        (_tamper_pulse_time, "/tx/pulse", "at sample"),
     ],
     ids=["decision-choice", "medium-sample", "deleted-decode", "pulse-time"],
 )
@@ -235,15 +351,18 @@ def test_tampering_is_caught(tmp_path, capsys, edit, topic, field):
 
 
 def test_a_tampered_message_that_breaks_its_schema_is_named_before_it_is_used(tmp_path, capsys):
-    """``true`` logged as ``1`` (equal in Python, not in a log): every message is checked
-    against its schema before a reader uses it, so it is refused in one line naming the topic,
+    """``true`` logged as ``2`` (true to a byte, not to a bool column): every block is checked
+    against its type before a reader uses it, so it is refused in one line naming the topic,
     the time and the field (exit 2), not compared as a decode."""
-    path = write(tmp_path, rewrite(log_bytes(), _tamper_flag))
-    code, out, err = cli(capsys, "replay", path, "--verify")
-    assert code == 2 and not out
-    assert len(err.strip().splitlines()) == 1
-    assert "message on /rx/decodes at t = " in err and "breaks rgtbus.Decodes" in err, err
-    assert "accepted" in err, err
+    edit = first_block("/rx/decodes", _tamper_flag, lambda rec: rec["accepted"].any())
+    path = write(tmp_path, copied(log_bytes(), edit))
+    assert edit.done
+    for extra in (["--verify"], [], ["--json"]):
+        code, out, err = cli(capsys, "replay", path, *extra)
+        assert code == 2 and not out
+        assert len(err.strip().splitlines()) == 1
+        assert "message on /rx/decodes at t = " in err and "rgtbus.DecodeBlock: " in err, err
+        assert "field 'accepted': a bool column holds a value other than 0 and 1" in err, err
 
 
 def test_tampered_decision_names_logged_and_recomputed(tmp_path):
@@ -388,8 +507,8 @@ def test_merge_two_process_logs(tmp_path, capsys):
     assert code == 0 and "duplicates dropped" in text
     merged = read_log(out)
     orig = read_log(io.BytesIO(data))
-    key = lambda m: (m[1], m[0], json.dumps(m[2], sort_keys=True))  # noqa: E731
-    assert sorted(merged.messages, key=key) == sorted(orig.messages, key=key)
+    key = lambda m: (m[1], m[0], json.dumps(m[2], sort_keys=True, default=plain))  # noqa: E731
+    assert sorted(map(key, merged.messages)) == sorted(map(key, orig.messages))
     assert [m[1] for m in merged.messages] == sorted(m[1] for m in merged.messages)
     assert merged.metadata["run"]["process"] == "a"
     assert merged.metadata["run.2"]["process"] == "rest"
@@ -533,12 +652,44 @@ def test_csv_tables(tmp_path, capsys):
     assert some and all(10 <= float(r["t"]) <= 20 for r in some) and len(some) < 72
 
 
+def _library_class(schema):
+    """The protobuf library's message class of a channel's schema, from the
+    ``FileDescriptorSet`` the file stores with it alone (what Foxglove reads a block by)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    for f in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+
+
 def test_every_logged_message_validates_against_its_schema():
-    messages, _ = read_log(io.BytesIO(log_bytes(traces=True)))
+    """A JSON topic's messages against the JSON Schema its channel carries; a hot topic's
+    blocks against the protobuf type its channel carries: the protobuf library reads each
+    from the file's own descriptor and writes back the very bytes logged, and rgtbus reads it
+    with every check."""
+    from mcap.reader import make_reader
+
+    reader = make_reader(io.BytesIO(log_bytes(traces=True)))
+    classes: dict[int, type] = {}
     seen = set()
-    for topic, _, m in messages:
-        schema = topics_mod.load_schema(schema_for(topic))
-        assert validate_mod.errors(m, schema) == [], topic
+    for schema, channel, message in reader.iter_messages():
+        topic = channel.topic
+        assert schema.name == schema_for(topic), topic
+        assert schema.data == topics_mod.schema_bytes(schema.name), topic
+        block = blocks.schema_of(topic)
+        if block is None:
+            assert (schema.encoding, channel.message_encoding) == ("jsonschema", "json"), topic
+            m = json.loads(message.data)
+            assert validate_mod.errors(m, json.loads(schema.data)) == [], topic
+        else:
+            assert (schema.encoding, channel.message_encoding) == ("protobuf", "protobuf")
+            assert schema.name == block.name, topic
+            if schema.id not in classes:
+                classes[schema.id] = _library_class(schema)
+            parsed = classes[schema.id].FromString(message.data)
+            assert parsed.SerializeToString() == message.data, topic
+            blocks.decode_record(block, message.data, topic)  # raises on anything wrong
         seen.add(topic)
     assert {
         "/medium",
@@ -624,46 +775,71 @@ def test_log_without_scenario_cannot_be_verified(tmp_path, capsys):
     assert code == 2 and "not an rgtbus run log: no scenario or run metadata" in err
 
 
-def test_a_log_of_one_spike_record_a_sample_still_reads_and_verifies(tmp_path):
-    """Logs before the columnar /rx/spike held one record per unit and sample, and before
-    shared records one per unit and block: the same run written either way reads to the same
-    spikes and summary, and verifies."""
+def test_a_format1_log_is_refused_naming_convert_and_converted_verifies(tmp_path, capsys):
+    """A log of format 1 (no ``format`` record, every topic JSON, one ``/tx/pulse`` record a
+    pulse) is refused by every reader in one line naming ``rgtbus convert`` (exit 2), never
+    read as format 2; the log ``convert`` writes of it holds the same messages, block for
+    block, as the run's own, and verifies."""
+    import rgtbus
+
+    new = tmp_path / "new.mcap"
+    rgtbus.run("gate", bus="memory", log=new)
+    old = write(tmp_path, as_format1(new.read_bytes()), "old.mcap")
+    assert FORMAT_RECORD not in dict(scan_log(old).metadata) and scan_log(old).messages
+    refused_as_format1(capsys, old)
+    conv = converted(tmp_path, old)
+    ours, theirs = read_log(new).messages, read_log(conv).messages
+    for topic in ("/tx/pulse", "/rx/spike", "/rx/decodes", "/medium", "/unit/decision", "/log"):
+        a = [(t, m) for tp, t, m in ours if tp == topic]
+        b = [(t, m) for tp, t, m in theirs if tp == topic]
+        assert len(a) == len(b) > 0, topic
+        assert json.dumps(a, default=plain) == json.dumps(b, default=plain), topic
+    assert len(ours) == len(theirs)
+    before, after = rgtbus.open_log(new), rgtbus.open_log(conv)
+    assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
+    assert main(["replay", str(conv), "--verify", "--quiet"]) == 0
+
+
+def test_a_format1_log_of_one_spike_record_a_sample_converted_verifies(tmp_path, capsys):
+    """Format-1 logs before the columnar /rx/spike held one record per unit and sample, and
+    before shared records one per unit and block: refused as format 1 naming ``convert``,
+    and converted, the same run written either way reads to the same spikes and summary,
+    and verifies."""
     import pandas as pd
 
     import rgtbus
 
     new = tmp_path / "new.mcap"
     rgtbus.run("gate", bus="memory", log=new)  # a few blocks hold more than one sample
+    tau = rgtbus.open_log(new).replay.scenario.timing.tau
 
-    def per_sample(msgs):
-        for topic, t_ns, m in msgs:
-            if topic != "/rx/spike":
-                yield topic, t_ns, m
-                continue
-            for k, chans in spike_samples(m):
-                for unit in spike_units(m):
-                    one = {"unit": unit, "t": k * 0.005, "sample": k, "channels": chans}
-                    yield topic, round(k * 0.005 * 1e9), one
+    def per_sample(t_ns, m):
+        out = []
+        for k, chans in spike_samples(m):
+            for unit in spike_units(m):
+                one = {"unit": unit, "t": k * tau, "sample": k, "channels": chans}
+                out.append(("/rx/spike", round(k * tau * 1e9), one))
+        return out
 
-    def per_unit(msgs):  # the columnar records before units shared them
-        for topic, t_ns, m in msgs:
-            for one in each_unit_spikes(m) if topic == "/rx/spike" else [m]:
-                yield topic, t_ns, one
+    def per_unit(t_ns, m):  # the columnar records before units shared them
+        return [("/rx/spike", t_ns, one) for one in each_unit_spikes(m)]
 
     assert any("units" in m for m in rgtbus.open_log(new).messages("/rx/spike"))
     for form in (per_sample, per_unit):
-        older = as_older(rewrite(new.read_bytes(), form), "/rx/spike")
-        old = write(tmp_path, older, f"{form.__name__}.mcap")
-        before, after = rgtbus.open_log(new), rgtbus.open_log(old)
+        old = write(tmp_path, as_format1(new.read_bytes(), spikes=form), f"{form.__name__}.mcap")
+        refused_as_format1(capsys, old)
+        conv = converted(tmp_path, old, f"{form.__name__}-2.mcap")
+        before, after = rgtbus.open_log(new), rgtbus.open_log(conv)
         assert len(after.messages("/rx/spike")) > len(before.messages("/rx/spike"))
         pd.testing.assert_frame_equal(before.spikes(), after.spikes())
         assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
-        assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # compared per sample
+        assert main(["replay", str(conv), "--verify", "--quiet"]) == 0  # compared per sample
 
 
-def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):
-    """Logs before the columnar /rx/decodes held one /rx/decode per decode: the same run
-    written that way reads to the same decodes and summary, and verifies."""
+def test_a_format1_log_of_one_decode_record_a_decode_converted_verifies(tmp_path, capsys):
+    """Format-1 logs before the columnar /rx/decodes held one /rx/decode per decode: refused
+    as format 1 naming ``convert``, and converted (a unit's decodes of 5 s one /rx/decodes block,
+    as a run writes them), the same run reads to the same decodes and summary, and verifies."""
     import pandas as pd
 
     import rgtbus
@@ -671,74 +847,79 @@ def test_a_log_of_one_decode_record_a_decode_still_reads_and_verifies(tmp_path):
     new = tmp_path / "new.mcap"
     rgtbus.run("random_group", bus="memory", log=new)
 
-    def per_decode(msgs):
-        for topic, t_ns, m in msgs:
-            if topic != "/rx/decodes":
-                yield topic, t_ns, m
-                continue
-            for row in records.decode_rows(m):
-                yield "/rx/decode", round(row["t"] * 1e9), row
+    def per_decode(t_ns, m):
+        return [("/rx/decode", round(row["t"] * 1e9), row) for row in records.decode_rows(m)]
 
-    old = write(tmp_path, rewrite(new.read_bytes(), per_decode), "old.mcap")
-    before, after = rgtbus.open_log(new), rgtbus.open_log(old)
-    assert len(after.messages("/rx/decodes")) == 0 < len(after.messages("/rx/decode"))
-    assert len(after.decodes()) == len(before.decodes()) > 0
+    old = write(tmp_path, as_format1(new.read_bytes(), decodes=per_decode), "old.mcap")
+    refused_as_format1(capsys, old)
+    conv = converted(tmp_path, old)
+    before, after = rgtbus.open_log(new), rgtbus.open_log(conv)
+    topics = [tp for tp, _, _ in read_log(conv).messages]
+    assert "/rx/decode" not in topics
+    blocks_of = [tp for tp, _, _ in read_log(new).messages].count("/rx/decodes")
+    assert topics.count("/rx/decodes") == blocks_of > 0  # the blocks a run writes
     pd.testing.assert_frame_equal(before.decodes(), after.decodes())
     assert {**before.summary(), "log": None} == {**after.summary(), "log": None}
-    assert main(["replay", str(old), "--verify", "--quiet"]) == 0  # decodes compare one by one
+    assert main(["replay", str(conv), "--verify", "--quiet"]) == 0  # decodes compare one by one
 
 
 def test_a_damaged_decodes_record_is_named_in_one_line(tmp_path, capsys):
-    """Columns of unequal length in a /rx/decodes record: every reader says which, exit 2."""
+    """Columns of unequal length in a /rx/decodes block (one ``code`` too many): every reader
+    says which, in one line, exit 2."""
 
-    def damage(msgs):
-        out, done = [], False
-        for topic, t_ns, m in msgs:
-            if topic == "/rx/decodes" and not done:
-                m["code"].append(m["code"][0])
-                done = True
-            out.append((topic, t_ns, m))
-        assert done
-        return out
+    def damage(record, data: bytes) -> bytes:
+        return encode(blocks.DECODE, {**record, "code": np.append(record["code"], 0)})
 
-    path = write(tmp_path, rewrite(log_bytes(), damage), "bad.mcap")
+    edit = first_block("/rx/decodes", damage)
+    path = write(tmp_path, copied(log_bytes(), edit), "bad.mcap")
+    assert edit.done
     for extra in ([], ["--json"], ["--verify"]):
         code, _, err = cli(capsys, "replay", path, *extra)
         assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
-        assert "/rx/decodes of" in err and "column 'code' is" in err, err
+        assert "message on /rx/decodes at t = " in err and "rgtbus.DecodeBlock: " in err, err
+        found = re.search(r"table 'rows': column 'turn' has (\d+) rows, 'code' (\d+)", err)
+        assert found and int(found[2]) == int(found[1]) + 1, err
+
+
+def _units(units: list[str], unit: str = ""):
+    """A ``first_block`` change: a shared /rx/spike block's units (and unit) replaced."""
+
+    def change(record, data: bytes) -> bytes:
+        rest = {k: v for k, v in record.items() if k not in ("unit", "units")}
+        return encode(blocks.SPIKE, {**rest, "unit": unit, "units": units})
+
+    return change
+
+
+def _units_not_utf8(record, data: bytes) -> bytes:
+    """A shared /rx/spike block whose first unit's name is not text."""
+    rest = {k: v for k, v in record.items() if k not in ("unit", "units")}
+    name = b"\xff\xfe"
+    return b"\x12" + bytes([len(name)]) + name + encode(blocks.SPIKE, {**rest, "units": ["b"]})
 
 
 @pytest.mark.parametrize(
-    "units, also, says",
+    "change, says",
     [
-        ("ab", {}, r"\$\.units: expected array, got string"),
-        ([], {}, r"\$\.units: 0 items, at least 2 needed"),
-        ([1, 2], {}, r"\$\.units\[0\]: expected string, got integer"),
-        (None, {"unit": "a"}, r"\$: holds 2 of unit or units, not exactly 1"),
+        (_units(["ab"]), r"units \['ab'\]: not two or more unit names alone"),
+        (_units([]), r"no unit$"),
+        (_units(["a", "a"]), r"units \['a', 'a'\]: not two or more unit names alone"),
+        (_units(["a", "b"], "a"), r"units \['a', 'b'\]: not two or more unit names alone"),
+        (_units_not_utf8, r"field 'units': not UTF-8"),
     ],
+    ids=["one-name", "no-unit", "twice", "unit-and-units", "not-text"],
 )
 @pytest.mark.parametrize("extra", [[], ["--verify"], ["--json"]])
-def test_a_tampered_shared_spike_record_is_named_not_read(
-    tmp_path, capsys, units, also, says, extra
-):
-    """A shared /rx/spike record whose ``units`` is no list of unit names (or that names a
-    ``unit`` too) is refused in one line naming the message and what breaks its schema, exit
-    2: never read as the letters of a string or as nobody's spikes."""
-
-    def edit(msgs):
-        done = False
-        for tp, t, m in msgs:
-            if tp == "/rx/spike" and "units" in m and not done:
-                done = True
-                m.update(also)
-                if units is not None:
-                    m["units"] = units
-            yield tp, t, m
-
-    log = write(tmp_path, rewrite(log_bytes("gate"), edit))
+def test_a_tampered_shared_spike_record_is_named_not_read(tmp_path, capsys, change, says, extra):
+    """A shared /rx/spike block whose ``units`` is not two or more distinct unit names (or
+    that names a ``unit`` too, or no unit at all) is refused in one line naming the message
+    and what is wrong with it, exit 2: never read as one unit's spikes, or as nobody's."""
+    edit = first_block("/rx/spike", change, lambda record: "units" in record)
+    log = write(tmp_path, copied(log_bytes("gate"), edit))
+    assert edit.done
     code, _, err = cli(capsys, "replay", log, "--quiet", *extra)
     assert code == 2 and err.count("\n") == 1, err
-    assert re.search("message on /rx/spike at t = [0-9.]+ s breaks rgtbus.Spikes: " + says, err), (
+    assert re.search("message on /rx/spike at t = [0-9.]+ s: rgtbus.SpikeBlock: .*" + says, err), (
         err
     )
 
@@ -761,3 +942,43 @@ def test_every_tool_counts_a_logs_messages_alike(tmp_path, capsys):
     report = verify_log(log)  # the untraced one: a traced verify re-runs every trace (slow)
     assert report.messages == counted and report.compared > counted
     assert f"the log's {counted} messages; {report.compared} records compared" in report.verdict()
+
+
+@pytest.mark.parametrize("what", ["log time", "own time"])
+def test_a_block_moved_in_time_is_named_by_verify(what, tmp_path, capsys):
+    """A block's rows are compared at their own times; the block's log time (and its own
+    ``t``) is compared too: a pulse block moved by 1 ms is a mismatch naming the block."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    data = log_bytes("gate")
+    reader = make_reader(io.BytesIO(data))
+    summary = reader.get_summary()
+    path = tmp_path / "moved.mcap"
+    moved = []
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="rgtbus (by hand)")
+        for record in reader.iter_metadata():
+            w.add_metadata(record.name, dict(record.metadata))
+        ids = {}
+        for cid, c in summary.channels.items():
+            s = summary.schemas[c.schema_id]
+            ids[cid] = w.register_channel(
+                c.topic, c.message_encoding, w.register_schema(s.name, s.encoding, s.data)
+            )
+        for _, c, m in reader.iter_messages(log_time_order=False):
+            t, body = m.log_time, m.data
+            if c.topic == "/tx/pulse" and not moved:
+                moved.append(t)
+                if what == "log time":
+                    t += 1_000_000
+                else:
+                    record = blocks.decode_record(blocks.PULSE, body, "x")
+                    record["t"] += 0.001
+                    body = blocks.encode_record(blocks.PULSE, record)
+            w.add_message(ids[c.id], t, body, t)
+        w.finish()
+    assert main(["replay", str(path), "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "/tx/pulse" in out and ("block log time" in out or "its log time" in out), out

@@ -4,6 +4,7 @@ import json
 import math
 import pickle
 import random
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -13,16 +14,23 @@ import pytest
 from rgtbus.units.group import run_group
 from rgtbus.units.listening import Listening
 from rgtbus.units.unit import AutonomousUnit
+from same_run import plain
 
 from rgtbus.cli import main
 from rgtbus.mind import choose_relations
 from rgtbus.scenario import Timing, load_scenario, parse_scenario
 from rgtbus.summary import check_expectations
 from rgtbus.telemetry import McapRecorder, MemoryRecorder, NullRecorder, read_log, records
-from rgtbus.telemetry.recorder import encode_json
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, decode_record, pulse_rows, schema_of
+from rgtbus.telemetry.recorder import message_bytes
 
 ROOT = Path(__file__).parent.parent
 PAPER = ["overview", "example1", "example2", "gate"]
+
+
+def _bytes(messages) -> list[tuple[str, int, bytes]]:
+    """A log's messages as the log holds them (``message_bytes``: a hot topic's block)."""
+    return [(tp, t, message_bytes(tp, m)) for tp, t, m in messages]
 
 
 def run(name_or_scenario, bus="memory", **kw):
@@ -63,7 +71,8 @@ def test_same_seed_same_log_and_buses_agree():
     _, s1, (m1, meta1) = run("example2", "memory")
     _, _s2, (m2, meta2) = run("example2", "memory")
     _, s3, (m3, meta3) = run("example2", "zenoh")
-    assert m1 == m2 == m3  # every pulse, spike, decode, table and decision, bit for bit
+    # every pulse, spike, decode, table and decision, bit for bit
+    assert _bytes(m1) == _bytes(m2) == _bytes(m3)
     assert meta1 == meta2
     assert {k: v for k, v in meta1["run"].items() if k != "bus"} == {
         k: v for k, v in meta3["run"].items() if k != "bus"
@@ -84,7 +93,7 @@ def test_window_size_never_changes_a_result():
         # Same content; simultaneous messages may be written in another order.
         logs.append(
             sorted(
-                (ns, t, json.dumps(m, sort_keys=True))
+                (ns, t, json.dumps(m, sort_keys=True, default=plain))
                 for t, ns, m in messages
                 if t not in ("/medium", "/run")
             )
@@ -210,7 +219,7 @@ def test_cli_run_json_and_log(tmp_path, capsys):
     } <= topics
     assert metadata["run"]["seed"] == "3" and "gate" in metadata["scenario"]["text"]
     assert [ns for _, ns, _ in messages] == sorted(ns for _, ns, _ in messages)
-    pulses = [m for t, _, m in messages if t == "/tx/pulse"]
+    pulses = [p for t, _, m in messages if t == "/tx/pulse" for p in pulse_rows(m)]
     assert len(pulses) == 24 * 2 * 3  # 24 turns, ID + payload, 3 pulses each
 
 
@@ -328,7 +337,10 @@ def test_schedule_anchor_changes_nothing_on_a_clean_channel():
     def content(ms):  # decodes one a row: on the schedule a unit takes them a batch a wake
         from rgtbus.telemetry.verify import decodes_per_row
 
-        return sorted((ns, t, json.dumps(m, sort_keys=True)) for t, ns, m in decodes_per_row(ms))
+        return sorted(
+            (ns, t, json.dumps(m, sort_keys=True, default=plain))
+            for t, ns, m in decodes_per_row(ms)
+        )
 
     assert content(m_sched) == content(m_spike)
     assert s["units"] == spike["units"]
@@ -451,6 +463,11 @@ def test_decode_records_hold_a_block_of_time_each(name):
         assert (m["names"], m["kinds"], m["codes"]) == tuple(map(list, tables[m["unit"]]))
 
 
+def _block(data: bytes) -> dict[str, Any]:
+    """A ``/rx/decodes`` block's bytes as a reader of the log gets the record."""
+    return decode_record(schema_of(records.RX_DECODES), data, "a decode block")
+
+
 def test_single_decodes_join_a_batch_as_its_indexes():
     """A unit's single decodes (names) held in a block with its batches (indexes) are written
     as indexes into the batches' tables, every column as it was (margins and times to the
@@ -467,8 +484,8 @@ def test_single_decodes_join_a_batch_as_its_indexes():
     assert indexed is not None
 
     def read(*args: Any) -> list[Any]:  # as a reader of the log gets it
-        record = json.loads(encode_json(records.decodes_of_columns("x", *args)))
-        return list(records.decode_rows(record))
+        data = message_bytes(records.RX_DECODES, records.decodes_of_columns("x", *args))
+        return list(records.decode_rows(_block(data)))
 
     got = read(indexed, tables)
     assert got == read(part) and len(got) == 2
@@ -497,12 +514,13 @@ def test_a_block_makes_one_record_however_its_decodes_were_taken():
         times=np.array([1.0, 2.0]), accepted=np.array([True, False]),
     )  # fmt: skip
 
-    def record(part: DecodePart, tables: Any, mine: Any) -> bytes:
-        return encode_json(records.decodes_of_columns("x", *canonical(part, tables, mine)))
+    def record(part: DecodePart, tables: Any, mine: Any) -> bytes:  # as the log holds it
+        made = records.decodes_of_columns("x", *canonical(part, tables, mine))
+        return message_bytes(records.RX_DECODES, made)
 
     one = record(named, None, own)
     assert record(batch, own, own) == one
-    assert json.loads(one)["names"] == ["b", "a", "c"]  # the unit's tables, as they are
+    assert _block(one)["names"] == ["b", "a", "c"]  # the unit's tables, as they are
     # a batch with other tables (the same names in another order): the same record
     other = (("c", "b", "a"), own[1], own[2])
     moved = batch._replace(
@@ -510,15 +528,15 @@ def test_a_block_makes_one_record_however_its_decodes_were_taken():
     )
     assert record(moved, other, own) == one
     # no tables of the unit's, or a name outside them: the block's own names, sorted
-    alone = json.loads(record(named, None, None))
+    alone = _block(record(named, None, None))
     assert (alone["names"], alone["kinds"], alone["codes"]) == (
         ["a", "b", "c"], ["id", "relation"], ["conflict", "id"],
     )  # fmt: skip
     assert record(batch, own, None) == record(named, None, None)
     odd = named._replace(code=["conflict", "?"])
-    assert json.loads(record(odd, None, own))["codes"] == ["?", "conflict"]
+    assert _block(record(odd, None, own))["codes"] == ["?", "conflict"]
     for part, tables in ((named, None), (batch, own)):  # every decode reads back as it was
-        rows_back = list(records.decode_rows(json.loads(record(part, tables, own))))
+        rows_back = list(records.decode_rows(_block(record(part, tables, own))))
         assert [(r["sender"], r["code"], r["margin"]) for r in rows_back] == [
             ("a", "conflict", 0.25), ("c", "id", 0.5),
         ]  # fmt: skip
@@ -530,14 +548,15 @@ def test_spike_records_are_columns_one_entry_a_spike():
     record a sample, no list a sample."""
     _, _, (messages, _) = run("example2")
     blocks = [(t, m) for topic, t, m in messages if topic == "/rx/spike"]
-    assert blocks and any(len(set(m["samples"])) > 1 for _, m in blocks)
+    assert blocks and any(len(set(m["samples"].tolist())) > 1 for _, m in blocks)
     for t, m in blocks:
-        assert m["samples"] == sorted(m["samples"]) and m["sample"] == m["samples"][0]
-        assert len(m["channel"]) == len(m["samples"])
-        assert sorted(set(m["channel"])) == list(range(len(m["names"])))
+        samples, channel = m["samples"].tolist(), m["channel"].tolist()
+        assert samples == sorted(samples) and m["sample"] == samples[0]
+        assert len(channel) == len(samples)
+        assert sorted(set(channel)) == list(range(len(m["names"])))
         block_end = (m["sample"] // 200 + 1) * 1_000_000_000  # τ = 5 ms: 200 samples a second
-        assert m["samples"][-1] * 5_000_000 < t <= block_end  # its end, or where a unit stopped
-        assert m["samples"][-1] < (m["sample"] // 200 + 1) * 200  # one block
+        assert samples[-1] * 5_000_000 < t <= block_end  # its end, or where a unit stopped
+        assert samples[-1] < (m["sample"] // 200 + 1) * 200  # one block
 
 
 def _judged_alike(cols, rows, truth):
@@ -714,30 +733,44 @@ def test_a_paced_run_batches_a_wall_second_of_its_log_at_most(monkeypatch):
 
 
 class _Sink:
-    """A live sink whose ``watched`` says what the test sets (from the ``flip``-th ask on:
-    watched), counting what it is offered."""
+    """A live sink whose ``watched`` says what the test sets (once it was given ``flip``
+    logged decodes or more: watched), counting what it is offered."""
 
     def __init__(self, *, watched: bool, flip: int | None = None) -> None:
-        self.is_watched, self.flip, self.asked = watched, flip, 0
+        self.is_watched, self.flip, self.asked, self.decodes = watched, flip, 0, 0
         self.got: list[tuple[str, int, Any]] = []
 
     def put(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
-        self.got.append((topic, t_ns, json.loads(data)))
+        block = schema_of(topic)  # a hot topic's block, decoded as a reader of the log would
+        m = json.loads(data) if block is None else decode_record(block, data, topic)
+        self.got.append((topic, t_ns, m))
+        if topic == "/rx/decodes":
+            self.decodes += len(m["turn"])
 
     def watched(self) -> bool:
         self.asked += 1
-        if self.flip is not None and self.asked >= self.flip:
+        if self.flip is not None and self.decodes >= self.flip:
             self.is_watched = True
         return self.is_watched
 
 
-def _log_of(rec: MemoryRecorder) -> list[tuple[str, int, str]]:
-    return sorted((tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in rec.messages)
+def _log_of(rec: MemoryRecorder) -> list[tuple[str, int, bytes]]:
+    return sorted(_bytes(rec.messages))
 
 
 def _offered(sink: _Sink) -> list[tuple[int, str]]:
     """The decodes a live sink was offered alone (``/rx/decode``), as (time, JSON)."""
     return [(t, json.dumps(m, sort_keys=True)) for tp, t, m in sink.got if tp == "/rx/decode"]
+
+
+def _rows(messages) -> list[str]:
+    """The pulses of ``/tx/pulse`` blocks, one a pulse, as JSON (sorted)."""
+    return sorted(
+        json.dumps(p, sort_keys=True)
+        for tp, _, m in messages
+        if tp == "/tx/pulse"
+        for p in pulse_rows(m)
+    )
 
 
 def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
@@ -756,7 +789,7 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
     run_group(sc, "memory", rec)
     assert _log_of(rec) == _log_of(alone)
     rows = [
-        (t, json.dumps(m, sort_keys=True))
+        (t, json.dumps(m, sort_keys=True, default=plain))
         for tp, t, m in decodes_per_row(rec.messages)
         if tp == "/rx/decode"
     ]
@@ -768,10 +801,16 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
         elif tp not in ("/tx/pulse", "/medium"):
             latest = max(latest, t)
     assert lag <= 100_000_000  # ns: a sample or so, where a batch would be seconds late
-    # the logged records reach the view too, as the file gets them
-    assert sorted(
-        (tp, t, json.dumps(m, sort_keys=True)) for tp, t, m in sink.got if tp != "/rx/decode"
-    ) == _log_of(rec)
+    # the logged records reach the view too, as the file gets them; besides them, only each
+    # pulse offered alone as it is made (a block of one), every pulse of the log's blocks
+    got = Counter(_bytes((tp, t, m) for tp, t, m in sink.got if tp != "/rx/decode"))
+    logged = Counter(_log_of(rec))
+    assert not logged - got  # every logged record
+    alone = list((got - logged).elements())
+    assert {tp for tp, _, _ in alone} == {"/tx/pulse"}
+    blocks = [(tp, t, decode_record(schema_of(tp), m, tp)) for tp, t, m in alone]
+    assert all(len(pulse_rows(m)) == 1 for _, _, m in blocks)
+    assert _rows(blocks) == _rows(rec.messages)
 
 
 def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monkeypatch):
@@ -790,8 +829,10 @@ def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monk
     logs, offered = [], []
     unwatched = _Sink(watched=False)
     for live in (None, unwatched, "flip"):
-        if live == "flip":  # a watcher comes a quarter of the way through the units' asks
-            live = _Sink(watched=False, flip=unwatched.asked // 4)
+        # a watcher comes once a quarter of the units' decodes are logged (not after a count
+        # of asks: a unit asks for each pulse it sends too, and a group plans its sends early)
+        if live == "flip":
+            live = _Sink(watched=False, flip=unwatched.decodes // 4)
         rec = MemoryRecorder(live=live)
         run_group(sc, "memory", rec)
         logs.append(_log_of(rec))
@@ -801,7 +842,9 @@ def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monk
     rows = [(t, m) for tp, t, m in decodes_per_row(rec.messages) if tp == "/rx/decode"]
     suffixes = []
     for unit in sc.units:
-        mine = [(t, json.dumps(m, sort_keys=True)) for t, m in rows if m["unit"] == unit]
+        mine = [
+            (t, json.dumps(m, sort_keys=True, default=plain)) for t, m in rows if m["unit"] == unit
+        ]
         got = [o for o in offered[2] if json.loads(o[1])["unit"] == unit]
         assert got == mine[len(mine) - len(got) :]
         suffixes.append(len(got) / len(mine))
@@ -818,15 +861,33 @@ class _Watching:
         return True
 
 
+class _Offers(MemoryRecorder):
+    """A memory recorder that keeps, in order, what it offers a live view alone."""
+
+    def __init__(self, **kw) -> None:
+        super().__init__(**kw)
+        self.offered: list[tuple[str, int, Any]] = []
+
+    def offer(self, topic, message, t_ns) -> None:
+        self.offered.append((topic, t_ns, message))
+        super().offer(topic, message, t_ns)
+
+
+def _pulse_key(p) -> tuple:
+    m = p["message"]
+    return (p["sample"], m["kind"], m["sender"], m["addressee"], p["magnitude"])
+
+
 @pytest.mark.parametrize("watched", [True, False])
 @pytest.mark.parametrize("name", ["steering", "coalition10", "gate"])
 def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name, watched):
-    """With a live view, one transmitter process a unit logs each send as it goes on air:
-    every pulse of every send the unit made (goal-driven ones chosen late, ahead of sends
-    planned earlier, wake it), at its sample's time, with its magnitude, written in time
-    order; a log line a send. With none, the same records, written as each send is planned."""
+    """With a live view, one transmitter process a unit offers the view each send as it goes
+    on air: every pulse of every send the unit made (goal-driven ones chosen late, ahead of
+    sends planned earlier, wake it), alone, at its sample's time, with its magnitude, in time
+    order; a log line a send. Watched or not, the log holds the same pulses, a sender's
+    pulses of one block (5 s) a ``/tx/pulse`` record at its time."""
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
-    rec = MemoryRecorder(live=_Watching() if watched else None)
+    rec = _Offers(live=_Watching() if watched else None)
     out = run_group(sc, "memory", rec)
     for unit in out.units:
         want = sorted(
@@ -834,20 +895,24 @@ def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name, watch
             for send in unit.sent
             for k, m in zip(send.samples, unit.transmitter.word(send), strict=True)
         )
-        pulses = [
+        blocks = [
             (t, m) for tp, t, m in rec.messages if tp == "/tx/pulse" and m["unit"] == unit.name
         ]
+        got = sorted(_pulse_key(p) for _, m in blocks for p in pulse_rows(m))
+        assert got == want and all(t == round(m["t"] * 1e9) for t, m in blocks)
+        for _, m in blocks:  # one block of the sender's clock each
+            block = round(BLOCK_SECONDS / m["tau"])
+            assert len({p["sample"] // block for p in pulse_rows(m)}) == 1
+        alone = [
+            (t, m) for tp, t, m in rec.offered if tp == "/tx/pulse" and m["unit"] == unit.name
+        ]
         if watched:
-            assert [t for t, _ in pulses] == sorted(t for t, _ in pulses)  # on time, in order
-        got = sorted(
-            (
-                m["sample"],
-                *(m["message"][f] for f in ("kind", "sender", "addressee")),
-                m["magnitude"],
-            )
-            for _, m in pulses
-        )
-        assert got == want and all(t == round(m["t"] * 1e9) for t, m in pulses)
+            assert [t for t, _ in alone] == sorted(t for t, _ in alone)  # on time, in order
+            assert all(len(pulse_rows(m)) == 1 for _, m in alone)
+            offered = sorted(_pulse_key(p) for _, m in alone for p in pulse_rows(m))
+            assert offered == want and all(t == round(m["t"] * 1e9) for t, m in alone)
+        else:
+            assert alone == []  # nobody to offer them to
         lines = [m for tp, _, m in rec.messages if tp == "/log" and m["name"] == unit.name]
         assert sum(" -> " in m["message"] for m in lines) == len(unit.sent)
 

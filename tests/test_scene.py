@@ -19,6 +19,7 @@ import foxglove.messages as fm
 import pytest
 from mcap.reader import make_reader
 from rgtbus.units.group import run_group
+from same_run import plain
 
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.telemetry import McapRecorder, read_log, records, topics
@@ -228,7 +229,7 @@ def test_verify_compares_the_scene_and_reads_a_log_written_before_it():
         for name, values in metadata.items():
             w.metadata(name, values)
         for topic, t, m in messages:
-            m = keep(topic, json.loads(json.dumps(m)))
+            m = keep(topic, json.loads(json.dumps(m, default=plain)))
             if m is not None:
                 w.write(topic, m, t)
         w.close()

@@ -23,6 +23,7 @@ from rgtbus.telemetry import (
     MemoryRecorder,
     NullRecorder,
     Recorder,
+    blocks,
     read_log,
     records,
     schema_for,
@@ -30,6 +31,8 @@ from rgtbus.telemetry import (
 )
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
+from rgtbus.telemetry.recorder import LogContents
+from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 SCHEMA_DIR = Path(topics_mod.__file__).parent / "schemas"
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "topics.md"
@@ -39,18 +42,22 @@ SAMPLES: dict[str, dict] = {
     "/medium": {"window": 3, "t": 0.3, "sample_rate": 200.0, "samples": [0.0, 0.4, -0.4]},
     "/tx/pulse": {
         "unit": "a",
-        "channel": "c",
-        "omega": 5 * math.pi / 3,
-        "magnitude": -0.4,
         "t": 1.25,
-        "sample": 250,
-        "message": {
-            "id": 7,
-            "kind": "relation",
-            "code": "conflict",
-            "sender": "a",
-            "addressee": "c",
-        },
+        "tau": 0.005,
+        "channels": ["c"],
+        "omegas": [5 * math.pi / 3],
+        "names": ["a", "c"],
+        "kinds": ["relation"],
+        "codes": ["conflict"],
+        "sample": [250],
+        "channel": [0],
+        "magnitude": [-0.4],
+        "message": [7],
+        "kind": [0],
+        "code": [0],
+        "sender": [0],
+        "addressee": [1],
+        "block": [0],
     },
     "/rx/spike": {
         "unit": "b",
@@ -219,12 +226,43 @@ class Harness:
             self._file.close()
 
     def read(self):
+        """What the recorder holds, as read back: block columns as lists, the format record
+        every file begins with left out (``test_every_file_says_its_format``)."""
         self.finish()
         if self.kind == "mcap-bytes":
-            return read_log(io.BytesIO(self.buf.getvalue()))
-        if self.kind == "mcap-file":
-            return read_log(self.path)
-        return self.rec.read()
+            got = read_log(io.BytesIO(self.buf.getvalue()))
+        elif self.kind == "mcap-file":
+            got = read_log(self.path)
+        else:
+            got = self.rec.read()
+        messages = [(tp, t, _plain(tp, m)) for tp, t, m in got.messages]
+        metadata = {k: v for k, v in got.metadata.items() if k != FORMAT_RECORD}
+        return LogContents(messages, metadata, got.truncated, got.note)
+
+
+def is_block_topic(topic: str) -> bool:
+    return blocks.schema_of(topic) is not None
+
+
+def _plain(topic, message):
+    """A record as read, its columns (NumPy arrays) as lists; a block of decodes as the
+    records of one decode each (its names held as names or as indexes into its tables)."""
+    if not isinstance(message, dict):
+        return message
+    if topic == "/rx/decodes":
+        return [dict(r) for r in records.decode_rows(message)]
+    return {k: v.tolist() if hasattr(v, "tolist") else v for k, v in message.items()}
+
+
+def test_every_file_says_its_format(harness):
+    harness.finish()
+    if harness.kind == "memory":
+        metadata = harness.rec.read().metadata
+    else:
+        bytes_ = harness.kind == "mcap-bytes"
+        source = io.BytesIO(harness.buf.getvalue()) if bytes_ else harness.path
+        metadata = read_log(source).metadata
+    assert metadata[FORMAT_RECORD] == {"name": "rgtbus", "version": "2"}
 
 
 @pytest.fixture(params=["mcap-bytes", "mcap-file", "memory"])
@@ -242,7 +280,7 @@ def _write_all(rec) -> list[tuple[str, int, dict]]:
     expected = []
     for i, (topic, msg) in reversed(list(enumerate(order))):
         rec.write(topic, msg, _t_ns(i))
-        expected.append((topic, _t_ns(i), msg))
+        expected.append((topic, _t_ns(i), _plain(topic, msg)))
     rec.write("/medium", {**SAMPLES["/medium"], "samples": np.array([1.5, -2.0])}, _t_ns(0))
     expected.append(("/medium", _t_ns(0), {**SAMPLES["/medium"], "samples": [1.5, -2.0]}))
     # sorted by time; the two /medium at the same time keep write order
@@ -308,10 +346,12 @@ def test_refusals(harness):
             rec.write("/medium", SAMPLES["/medium"], bad)
     with pytest.raises(RgtbusError, match="must be a dict, got list"):
         rec.write("/medium", [], 0)
-    with pytest.raises(RgtbusError, match=r"message on /medium at t_ns=0 is not JSON"):
+    with pytest.raises(RgtbusError, match=r"message on /medium at t_ns=0: .*nan is not a finite"):
         rec.write("/medium", {**SAMPLES["/medium"], "samples": [math.nan]}, 0)
-    with pytest.raises(RgtbusError, match="is not JSON"):
+    with pytest.raises(RgtbusError, match=r"message on /medium at t_ns=0: .*samples"):
         rec.write("/medium", {**SAMPLES["/medium"], "samples": {1, 2}}, 0)
+    with pytest.raises(RgtbusError, match="is not JSON"):
+        rec.write("/run", {**SAMPLES["/run"], "sim_seconds": math.nan}, 0)
     with pytest.raises(RgtbusError, match=r"metadata 'm': 'k': 1 is not a string to a string"):
         rec.metadata("m", {"k": 1})
     rec.write("/trace/unit_7.b-c", SAMPLES["/trace/a"], np.int64(3))  # numpy ints are fine
@@ -322,11 +362,13 @@ def test_refusals(harness):
 @pytest.mark.parametrize(
     ("topic", "change", "msg"),
     [
-        ("/medium", {"window": None}, r"\$\.window: expected integer, got null"),
-        ("/medium", {"window": True}, r"\$\.window: expected integer, got boolean"),
-        ("/medium", {"samples": [1, "x"]}, r"\$\.samples\[1\]: expected number, got string"),
-        ("/medium", {"extra": 1}, r"\$: unexpected field 'extra'"),
-        ("/tx/pulse", {"message": {"id": 1}}, r"\$\.message: missing required field 'kind'"),
+        ("/medium", {"window": None}, r"MediumBlock: window: None is not an integer"),
+        ("/medium", {"window": True}, r"MediumBlock: window: True is not an integer"),
+        ("/medium", {"samples": [1, "x"]}, r"MediumBlock: samples: could not convert"),
+        ("/medium", {"samples": [1, math.inf]}, r"MediumBlock: samples: inf is not a finite"),
+        ("/medium", {"extra": 1}, r"MediumBlock: unexpected field 'extra'"),
+        ("/tx/pulse", {"sample": [1.5]}, r"PulseBlock: column 'sample': float64 values for a"),
+        ("/tx/pulse", {"tau": "x"}, r"PulseBlock: tau: 'x' is not a number"),
         ("/unit/relations", {"sent": {"a>b": "truce"}}, r"'truce' not one of"),
         ("/unit/relations", {"sent": {"ab": "alliance"}}, r"key 'ab'.* does not match"),
         ("/unit/decision", {"interval": [["a"]]}, r"1 items, at least 2 needed"),
@@ -411,7 +453,7 @@ def test_mcap_log_time_publish_time_and_encodings():
     ]
     assert all(s[1] == s[2] for s in seen)
     assert {(s[0], s[3], s[4], s[5]) for s in seen} == {
-        ("/medium", "rgtbus.MediumWindow", "jsonschema", "json"),
+        ("/medium", "rgtbus.MediumBlock", "protobuf", "protobuf"),
         ("/log", "foxglove.Log", "jsonschema", "json"),
     }
     summary = reader.get_summary()
@@ -449,7 +491,8 @@ def test_every_compression_level_reads_back_the_same_and_a_bad_one_is_refused(co
     for level in (0, 1, 9):
         data = _mcap_bytes(60, compression=compression, compression_level=level)
         got[level] = read_log(io.BytesIO(data))
-    assert got[0].messages == got[1].messages == got[9].messages and len(got[1].messages) == 61
+    same = [[(tp, t, _plain(tp, m)) for tp, t, m in got[k].messages] for k in (0, 1, 9)]
+    assert same[0] == same[1] == same[2] and len(got[1].messages) == 61
     for bad in (-1, 20, 1.5, "1", True):
         with pytest.raises(RgtbusError, match=f"compression level {bad!r} is not an integer"):
             McapRecorder(io.BytesIO(), compression=compression, compression_level=bad)
@@ -458,14 +501,18 @@ def test_every_compression_level_reads_back_the_same_and_a_bad_one_is_refused(co
 def test_truncated_log_is_read_as_far_as_it_goes():
     data = _mcap_bytes(400, chunk_size=4096)
     full = read_log(io.BytesIO(data))
+
+    def plain(messages):
+        return [(tp, t, _plain(tp, m)) for tp, t, m in messages]
+
     assert not full.truncated and full.note == "" and len(full.messages) == 401
     assert full.end_ns == 400 * 100_000_000
     counts = []
     for cut in [len(data) - 1, len(data) - 200, len(data) * 2 // 3, len(data) // 3, 200]:
         part = read_log(io.BytesIO(data[:cut]))
         assert part.truncated and "log truncated" in part.note and "\n" not in part.note
-        assert part.messages == full.messages[: len(part.messages)]
-        assert part.metadata == {"run": {"seed": "1"}}
+        assert plain(part.messages) == plain(full.messages[: len(part.messages)])
+        assert part.metadata == {"run": {"seed": "1"}, FORMAT_RECORD: format_metadata()}
         counts.append(len(part.messages))
     assert counts[0] == 401 and "all messages present" in read_log(io.BytesIO(data[:-1])).note
     assert counts == sorted(counts, reverse=True) and 0 < counts[3] < counts[2] < 401
@@ -525,15 +572,20 @@ def test_every_schema_file_is_a_json_object_schema_the_validator_understands():
 
 
 def test_topic_table_and_schema_files_agree():
-    used = set(topics_mod.schema_names())
+    used = {s for s in topics_mod.schema_names() if not topics_mod.is_block_schema(s)}
     on_disk = {f.stem for f in SCHEMA_DIR.glob("*.json")}
-    assert used == on_disk  # every topic's schema exists, and no orphan schema
+    assert used == on_disk  # every JSON topic's schema exists, and no orphan schema
     for topic, (schema, _) in TOPICS.items():
         assert schema_for(topic) == schema
     assert schema_for("/trace/a") == TOPIC_PATTERNS[0][2]
     # every topic has a sample message above, and it is valid
     assert set(SAMPLES) == set(TOPICS) | {"/trace/a"}
     for topic, msg in SAMPLES.items():
+        if is_block_topic(topic):  # a block: what its codec writes and reads back
+            block = blocks.schema_of(topic)
+            back = blocks.decode_record(block, blocks.encode_record(block, msg), topic)
+            assert _plain(topic, back) == _plain(topic, msg), topic
+            continue
         assert validate_mod.errors(msg, topics_mod.load_schema(schema_for(topic))) == [], topic
 
 
@@ -560,7 +612,17 @@ def test_validation_names_every_error_in_the_messages_order():
     """fastjsonschema says a message breaks its schema; jsonschema then names every way, in
     the project's words, in the order the message has its fields. JSON Schema's types: a
     whole float is an integer, a boolean is no number."""
-    schema = topics_mod.load_schema("rgtbus.MediumWindow")
+    schema = {  # the medium's JSON Schema of format 1
+        "type": "object",
+        "properties": {
+            "window": {"type": "integer", "minimum": 0},
+            "t": {"type": "number"},
+            "sample_rate": {"type": "number", "minimum": 0},
+            "samples": {"type": "array", "items": {"type": "number"}},
+        },
+        "required": ["window", "t", "sample_rate", "samples"],
+        "additionalProperties": False,
+    }
     msg = {**SAMPLES["/medium"], "window": "3", "samples": [0.0, None, True], "extra": 1}
     assert validate_mod.errors(msg, schema) == [
         "$: unexpected field 'extra'",
@@ -910,7 +972,7 @@ _JUNK = st.one_of(
 
 
 @settings(max_examples=300, deadline=None)
-@given(topic=st.sampled_from(sorted(SAMPLES)), data=st.data())
+@given(topic=st.sampled_from(sorted(t for t in SAMPLES if not is_block_topic(t))), data=st.data())
 def test_the_error_walk_agrees_with_the_validator(topic, data):
     """One library validates (fastjsonschema); the walk that names the errors finds one
     exactly when it says a message breaks its schema, on messages with fields replaced,
@@ -1006,41 +1068,6 @@ def test_a_shared_table_cannot_be_changed_and_pickles_as_a_dict():
     assert table == {"a>b": "alliance"} and json.loads(json.dumps(table)) == table
     back = pickle.loads(pickle.dumps(table))
     assert type(back) is dict and back == table
-
-
-def test_equal_columns_are_encoded_once_and_write_the_same_bytes():
-    """A decode record's columns of floats are written from their JSON worked out once for
-    equal columns (the units of a process hold them alike): the record's bytes are those
-    of the plain record; a column JSON cannot hold is left for the record to refuse."""
-    import orjson
-
-    from rgtbus.telemetry import recorder as recorder_mod
-    from rgtbus.telemetry.recorder import column_json, encode_json
-
-    margin = np.array([0.2449489742783178, 0.1, 1e-300, 2.5100000000000002])
-    a, b = column_json(margin), column_json(margin.copy())
-    assert a is b and isinstance(a, orjson.Fragment)
-    record = {"unit": "u1", "margin": margin, "times": np.arange(4) * 0.005}
-    cached = {**record, "margin": a, "times": column_json(record["times"])}
-    plain = {"unit": "u1", "margin": margin.tolist(), "times": record["times"].tolist()}
-    assert encode_json(cached) == encode_json(record) == orjson.dumps(plain)
-    # the same values in another dtype are another column
-    assert column_json(margin.astype(np.float32)) is not a
-    for other in ([0.5, 1.5], np.zeros((2, 2)), 3.0):
-        assert column_json(other) is other
-    bad = np.array([1.0, float("nan")])
-    assert column_json(bad) is bad
-    with pytest.raises(ValueError, match="not JSON compliant"):
-        encode_json({"margin": column_json(bad)})
-    for k in range(recorder_mod._COLUMNS_SIZE + 10):  # kept a bounded few at a time
-        column_json(np.array([float(k)]))
-    assert len(recorder_mod._COLUMNS) <= recorder_mod._COLUMNS_SIZE
-    # a table of names (a tuple: the same object in every record of a unit) by identity
-    names = ("u1", "a>b", "null")
-    assert column_json(names) is column_json(names)
-    assert encode_json({"names": column_json(names)}) == b'{"names":["u1","a>b","null"]}'
-    for other in (("u1", 2), ("u1", np.str_("v"))):  # not plain text: as it is
-        assert column_json(other) is other
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])

@@ -141,7 +141,7 @@ class Transmitter:
         record = records.pulse(
             self.log.name, send.channel, ref[1], float(word[j]), self.tau, k, ref[0]
         )
-        self.log.write(records.TX_PULSE, record, time_of(k, self.tau))
+        self.log.pulse(record)
 
     def _on_air(self) -> Generator[simpy.Event, Any, None]:
         """The on-air process: one SimPy process a unit (not one a send: a large group plans

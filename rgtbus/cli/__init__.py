@@ -86,6 +86,7 @@ COMMANDS: dict[str, str] = {
     "replay": "replay_cmds",
     "merge": "replay_cmds",
     "recover": "replay_cmds",
+    "convert": "replay_cmds",
     "info": "log_cmds",
     "cat": "log_cmds",
     "scenario": "log_cmds",

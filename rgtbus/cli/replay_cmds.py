@@ -95,6 +95,21 @@ def register(subparsers: SubParsers) -> None:
     add_quiet_argument(r)
     r.set_defaults(func=recover)
 
+    c = subparsers.add_parser(
+        "convert",
+        help="write a log of format 1 (before 2) as format 2",
+        description="Write LOG, an rgtbus log of format 1 (every topic JSON), as a log of "
+        "format 2 (docs/format.md): the hot topics as protobuf blocks, every other topic and "
+        "the metadata as they are. A log cut short is converted up to its cut and stays cut; "
+        "a damaged one is refused (recover needs format 2: convert what a cut file holds).",
+    )
+    c.add_argument("log", metavar="LOG", help="the format-1 MCAP log")
+    c.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="the format-2 log")
+    c.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    add_quiet_argument(c)
+    c.set_defaults(func=convert)
+
 
 def replay(args: argparse.Namespace) -> int:
     """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
@@ -274,6 +289,31 @@ def recover(args: argparse.Namespace) -> int:
     elif not args.quiet:
         how = f"it ended early: {res.ended}" if res.ended else "it was whole"
         print(f"recovered {res.messages} messages of {args.log} into {out}; {how}")
+    return 0
+
+
+def convert(args: argparse.Namespace) -> int:
+    """``rgtbus convert LOG -o OUT``: ``convert_log``, written whole or not at all (through
+    ``OUT.part``); one line saying what it wrote."""
+    from rgtbus.telemetry.convert import convert_log
+    from rgtbus.telemetry.scan import scan_log
+
+    out = Path(args.output)
+    if os.path.exists(args.log) and out.exists() and os.path.samefile(args.log, out):
+        raise RgtbusError(f"-o {args.output!r}: is the log to convert (write it elsewhere)")
+    _one_writer(out, [args.log])
+    log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
+    res = _written_whole(
+        out, lambda f: convert_log(log, f, compression=args.compression, source=args.log)
+    )
+    if args.json:
+        print(json.dumps({"output": str(out), "input": args.log, **asdict(res)}))
+    elif not args.quiet:
+        how = f"; it ended early: {res.ended}" if res.ended else ""
+        print(
+            f"converted {res.read} messages of {printable(args.log)} (format 1) into "
+            f"{res.written} of {out} (format 2){printable(how)}"
+        )
     return 0
 
 

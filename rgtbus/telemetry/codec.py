@@ -24,7 +24,9 @@ caller's ``where``: a file, topic and log time), the message type and the field.
 
 from __future__ import annotations
 
+import functools
 import re
+import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, NoReturn, TypeAlias
@@ -105,6 +107,8 @@ class BlockSchema:
             names.add(f.name)
             numbers.add(f.number)
         object.__setattr__(self, "_by_number", {f.number: f for f in self.fields})
+        object.__setattr__(self, "_in_order", tuple(sorted(self.fields, key=lambda f: f.number)))
+        object.__setattr__(self, "_names", frozenset(names))
 
     def field(self, number: int) -> Field | None:
         """The field numbered ``number``, or None (an unknown field: skipped when read)."""
@@ -120,7 +124,12 @@ class BlockSchema:
         return self.name.rpartition(".")[2]
 
 
+_ONE_BYTE = [bytes((i,)) for i in range(0x80)]
+
+
 def _varint(value: int) -> bytes:
+    if value < 0x80:
+        return _ONE_BYTE[value]
     out = bytearray()
     while value > 0x7F:
         out.append((value & 0x7F) | 0x80)
@@ -129,11 +138,37 @@ def _varint(value: int) -> bytes:
     return bytes(out)
 
 
+@functools.cache
 def _tag(number: int, wire: int) -> bytes:
     return _varint(number << 3 | wire)
 
 
+# a repeated string's bytes, kept by (field number, its texts): a block's tables of names are the
+# same in most blocks of a run (a unit's own units, kinds and codes), and cost more to encode than
+# its columns do
+_TEXTS: dict[tuple[int, tuple[str, ...]], bytes] = {}
+_TEXTS_SIZE = 256
+
+
+def _texts(number: int, values: Sequence[Any]) -> bytes:
+    key = (number, values if type(values) is tuple else tuple(values))
+    got = _TEXTS.get(key)
+    if got is None:
+        tag = _tag(number, LEN)
+        parts: list[bytes] = []
+        for text in key[1]:
+            raw = str(text).encode()
+            parts += (tag, _varint(len(raw)), raw)
+        got = b"".join(parts)
+        if len(_TEXTS) >= _TEXTS_SIZE:
+            del _TEXTS[next(iter(_TEXTS))]
+        _TEXTS[key] = got
+    return got
+
+
 def _column(f: Field, values: Any) -> np.ndarray:
+    if type(values) is np.ndarray and values.dtype == f.dtype and values.ndim == 1:
+        return values  # as the wire holds it already (a block builder's own)
     array = np.asarray(values)
     if array.ndim != 1:
         raise RgtbusError(f"column {f.name!r}: {array.ndim}-dimensional, a column is 1")
@@ -152,6 +187,33 @@ def _column(f: Field, values: Any) -> np.ndarray:
     return out
 
 
+_CODES = {"double": "d", "float": "f", "fixed32": "I", "sfixed32": "i", "fixed64": "Q",
+          "sfixed64": "q"}  # fmt: skip
+_SMALL = 64  # a list this short is packed by struct: NumPy's fixed cost is the larger
+
+
+def _small_column(f: Field, values: list[Any]) -> bytes | None:
+    """A short list's packed bytes, or None when it holds what only ``_column`` says well
+    (a value of another type, one out of range)."""
+    want = float if f.dtype.kind == "f" else int
+    if not all(type(v) is want for v in values):
+        return None
+    try:
+        return struct.pack(f"<{len(values)}{_CODES[f.kind]}", *values)
+    except (struct.error, OverflowError):
+        return None
+
+
+_PACK = {
+    "double": struct.Struct("<d"),
+    "float": struct.Struct("<f"),
+    "fixed32": struct.Struct("<I"),
+    "sfixed32": struct.Struct("<i"),
+    "fixed64": struct.Struct("<Q"),
+    "sfixed64": struct.Struct("<q"),
+}
+
+
 def _scalar(f: Field, value: Any) -> bytes:
     """A scalar's bytes (tag included), or b"" for proto3's default (left out)."""
     if f.kind == "string":
@@ -159,13 +221,23 @@ def _scalar(f: Field, value: Any) -> bytes:
         return _tag(f.number, LEN) + _varint(len(text)) + text if text else b""
     if f.kind == "bool":
         return _tag(f.number, VARINT) + b"\x01" if value else b""
-    dtype, wire = _NUMERIC[f.kind]
-    packed = np.array([value]).astype(dtype, copy=False)
-    if dtype.kind in "iu" and packed[0] != value:
-        raise RgtbusError(f"field {f.name!r}: {value!r} outside {f.kind}")
-    raw = packed.tobytes()
+    pack = _PACK[f.kind]
+    if f.kind in ("float", "double"):
+        if type(value) is not float and not isinstance(value, int | float | np.number):
+            raise RgtbusError(f"field {f.name!r}: {value!r} is not a number")
+        try:
+            raw = pack.pack(float(value))
+        except OverflowError:
+            raise RgtbusError(f"field {f.name!r}: {value!r} outside {f.kind}") from None
+    else:
+        if isinstance(value, float | np.floating) and not float(value).is_integer():
+            raise RgtbusError(f"field {f.name!r}: {value!r} is not an integer")
+        try:
+            raw = pack.pack(int(value))
+        except (struct.error, OverflowError, TypeError, ValueError):
+            raise RgtbusError(f"field {f.name!r}: {value!r} outside {f.kind}") from None
     # protobuf writes a scalar whose bits are not all zero (so -0.0 too, not 0.0)
-    return _tag(f.number, wire) + raw if any(raw) else b""
+    return _tag(f.number, _NUMERIC[f.kind][1]) + raw if any(raw) else b""
 
 
 def encode(schema: BlockSchema, values: Mapping[str, Any]) -> bytes:
@@ -173,21 +245,26 @@ def encode(schema: BlockSchema, values: Mapping[str, Any]) -> bytes:
     a repeated string, a number, bool or str for a scalar) as ``schema``'s message: the bytes
     protobuf's serializer writes for it. A missing field is its default (empty, zero). A
     name that is no field of ``schema``, or a value the field cannot hold: RgtbusError."""
-    unknown = set(values) - {f.name for f in schema.fields}
+    names: frozenset[str] = schema.__dict__["_names"]
+    unknown = values.keys() - names
     if unknown:
         raise RgtbusError(f"{schema.name}: no field {sorted(unknown)[0]!r}")
     parts: list[bytes] = []
-    for f in sorted(schema.fields, key=lambda f: f.number):
+    in_order: tuple[Field, ...] = schema.__dict__["_in_order"]
+    for f in in_order:
         if f.name not in values:
             continue
         value = values[f.name]
         if not f.repeated:
             parts.append(_scalar(f, value))
         elif f.kind == "string":
-            for text in value:
-                raw = str(text).encode()
-                parts.append(_tag(f.number, LEN) + _varint(len(raw)) + raw)
+            parts.append(_texts(f.number, value))
         else:
+            if type(value) is list and 0 < len(value) <= _SMALL and f.kind != "bool":
+                raw = _small_column(f, value)
+                if raw is not None:
+                    parts += (_tag(f.number, LEN), _varint(len(raw)), raw)
+                    continue
             column = _column(f, value)
             if column.size:
                 parts += (_tag(f.number, LEN), _varint(column.nbytes), column.tobytes())

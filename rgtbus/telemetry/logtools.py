@@ -22,7 +22,7 @@ import re
 import struct
 import tomllib
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import IO, Any
 
 import numpy as np
@@ -32,11 +32,13 @@ from mcap.reader import make_reader
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
+from rgtbus.telemetry.blocks import MESSAGE_ENCODING, pulse_rows, schema_of
 from rgtbus.telemetry.records import (
     LOG,
     RUN,
     RX_DECODES,
     TRACE_PREFIX,
+    TX_PULSE,
     decode_rows,
     is_trace_topic,
     logged_seed,
@@ -45,12 +47,12 @@ from rgtbus.telemetry.scan import (
     CheckedLog,
     RawLog,
     check_log,
-    current_topics,
     require_run_log,
     scan_log,
 )
 from rgtbus.telemetry.untrusted import message as checked
 from rgtbus.telemetry.untrusted import printable
+from rgtbus.telemetry.version import format_of
 from rgtbus.timebase import ns, seconds
 
 
@@ -293,6 +295,7 @@ def _info(
         "log": label,
         "bytes": size,
         "library": library,
+        "format": format_of(metadata),
         "start": None if start is None else seconds(start),
         "end": None if end is None else seconds(end),
         "duration": None if start is None or end is None else seconds(end - start),
@@ -380,7 +383,7 @@ def info_text(info: dict[str, Any]) -> str:
         f"scenario:    {info['scenario']} ({info['scenario_path']})",
         f"seed:        {info['seed']}",
         f"rgtbus:      {info['version']} (bus {info['bus']}, engine {info['engine'] or 'event'}, "
-        f"run {info['run_id']})",
+        f"run {info['run_id']}), log format {info['format']}",
         f"units:       {', '.join(map(printable, info['units']))} ({len(info['units'])})",
         f"codebook:    {info.get('codebook') or '-'}",
     ]
@@ -492,9 +495,10 @@ def cat_messages(
     damaged log is refused, never printed in part). Unknown topics or units: RgtbusError
     naming them and what the log has.
 
-    A ``/rx/decodes`` record (a unit's decodes of a block, as columns) is given one decode a
-    message (``records.decode_rows``: what a ``/rx/decode`` holds), each at its own time and
-    filtered by it; ``blocks``: the records as stored instead."""
+    A ``/rx/decodes`` block (a unit's decodes of a block, as columns) is given one decode a
+    message (``records.decode_rows``: what a ``/rx/decode`` holds), and a ``/tx/pulse`` block
+    one pulse a message (``blocks.pulse_rows``), each at its own time and filtered by it;
+    ``blocks``: the blocks as stored instead (their columns as lists)."""
     if not isinstance(log, CheckedLog):
         with check_log(log) as checked:
             yield from cat_messages(checked, topics=topics, unit=unit, t_from=t_from,
@@ -512,41 +516,40 @@ def cat_messages(
     start = None if t_from is None else ns(t_from)
     end = None if t_to is None else ns(t_to)  # inclusive, like start
     wanted = set(topics or known)
-    rows = not blocks and RX_DECODES in wanted
-    plain = wanted - {RX_DECODES} if rows else wanted
+    rows = set() if blocks else wanted & set(_ROWS)
     stored = _cat_scanned if log.raw is not None else _cat_indexed
-    messages = stored(log, plain, unit, start, end)
-    if rows:  # a block's decodes reach back before its log time: every block is read
-        blocks_of = stored(log, {RX_DECODES}, unit, None, None)
-        check = RX_DECODES in current_topics(log)  # an older log's records are as written
-        decodes = _decode_rows(blocks_of, start, end, log.label, check)
-        messages = heapq.merge(messages, decodes, key=lambda m: m["log_time"])
+    messages = stored(log, wanted - rows, unit, start, end)
+    for topic in sorted(rows):  # a block's rows reach back before its log time: all are read
+        blocks_of = stored(log, {topic}, unit, None, None)
+        each = _block_rows(topic, blocks_of, start, end, log.label)
+        messages = heapq.merge(messages, each, key=lambda m: m["log_time"])
     yield from messages
 
 
-def _decode_rows(
-    blocks: Iterator[dict[str, Any]], start: int | None, end: int | None, label: str, check: bool
+# the block topics whose blocks ``cat`` gives one row a message: what one row is
+_ROWS: dict[str, Callable[[Mapping[str, Any]], Iterable[Mapping[str, Any]]]] = {
+    RX_DECODES: decode_rows,
+    TX_PULSE: pulse_rows,
+}
+
+
+def _block_rows(
+    topic: str, blocks: Iterator[dict[str, Any]], start: int | None, end: int | None, label: str
 ) -> Iterator[dict[str, Any]]:
-    """The decodes of ``/rx/decodes`` records (as ``_record`` gives them) one a message, at
-    their own times, from ``start`` to ``end`` ns, in time order (stable: as logged); with
-    ``check``, each record checked against this version's schema first."""
+    """The rows of ``topic``'s blocks (as ``_record`` gives them) one a message, at their own
+    times, from ``start`` to ``end`` ns, in time order (stable: as logged)."""
     out: list[tuple[int, dict[str, Any]]] = []
     for block in blocks:
-        # its columns are read: a record that breaks its schema is named, not taken apart
-        message = topics_mod.checked_message(RX_DECODES, block["log_time"], block["message"],
-                                             label, check)  # fmt: skip
         try:
-            rows = [(ns(row["t"]), row) for row in decode_rows(message)]
+            rows = [(ns(row["t"]), row) for row in _ROWS[topic](block["message"])]
         except (TypeError, ValueError, KeyError, OverflowError, AttributeError) as exc:
-            # an older log's record (not checked against this version's schema) that is no
-            # record of columns
             raise RgtbusError(
-                f"{label}: message on {RX_DECODES} at t = {seconds(block['log_time']):.3f} s "
-                f"is no record of decodes ({type(exc).__name__}: {exc})"
+                f"{label}: message on {topic} at t = {seconds(block['log_time']):.3f} s "
+                f"is no block of rows ({type(exc).__name__}: {exc})"
             ) from None
         for t, row in rows:
             if (start is None or t >= start) and (end is None or t <= end):
-                line = {"topic": RX_DECODES, "t": seconds(t), "log_time": t, "message": row}
+                line = {"topic": topic, "t": seconds(t), "log_time": t, "message": dict(row)}
                 out.append((t, line))
     out.sort(key=lambda m: m[0])
     return (line for _, line in out)
@@ -595,8 +598,12 @@ def _record(
     channel that is not JSON, or nests too deep, is refused as every reader refuses it
     (``untrusted.message``); one of another encoding is shown as its length."""
     topic = channel.topic
-    if channel.message_encoding == "json":
+    if channel.message_encoding == "json" or (
+        channel.message_encoding == MESSAGE_ENCODING and schema_of(topic) is not None
+    ):
         message = checked(topic, log_time, data, label, check=False)
+        if schema_of(topic) is not None:  # a block: its columns as lists
+            message = {k: v.tolist() if hasattr(v, "tolist") else v for k, v in message.items()}
     else:
         message = {"undecodable": len(data)}
     if unit is not None and _unit_of(topic, message) != unit:

@@ -21,13 +21,14 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
-import orjson
 from mcap.writer import CompressionType, IndexType, Writer
 
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.blocks import spike_head, spike_head_bytes
 from rgtbus.telemetry.records import RX_SPIKE
 from rgtbus.telemetry.scan import RawLog
+from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata, require_format
 
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,
@@ -75,9 +76,12 @@ def merge_logs(
     for log in logs:
         if log.corrupt and not salvage:  # never copy a damaged chunk into a whole-looking log
             raise RgtbusError(f"{log.corruption}; not merged")
+        if not log.header_only:  # (one that holds nothing adds nothing)
+            require_format(log.label, log.metadata)  # a format-1 input: convert it first
     res = MergeResult()
     writer = _writer(logs, stream, compression)
     writer.start(profile="", library=f"rgtbus {__version__} {'recover' if salvage else 'merge'}")
+    writer.add_metadata(FORMAT_RECORD, format_metadata())  # first, as in every rgtbus file
     entries, spike_channels = _register(writer, logs, res)
     if salvage:  # read up to the damage, and no further: a cut as far as readers go
         res.notes += [f"{log.corruption} (recovered up to there)" for log in logs if log.corrupt]
@@ -148,45 +152,8 @@ def _register(
     return entries, {cid for key, cid in channel_ids.items() if key[0] == RX_SPIKE}
 
 
-def _spike_head(data: bytes) -> tuple[list[str], bytes] | None:
-    """A ``/rx/spike`` record's units and the rest of its bytes after them, when it is as
-    rgtbus writes it (``{"unit":…,`` or ``{"units":[…],`` first); else None (left as it is).
-    Only the head is read: the units' value ends at the first ``",`` or ``],`` whose prefix
-    is whole JSON (one inside a name leaves a string open), not at the block's columns."""
-    if data.startswith(b'{"unit":"'):
-        end = b'",'
-    elif data.startswith(b'{"units":["'):
-        end = b"],"
-    else:
-        return None
-    at = data.find(end)
-    while at >= 0:
-        try:
-            record = orjson.loads(data[: at + len(end) - 1] + b"}")
-        except orjson.JSONDecodeError:
-            at = data.find(end, at + 1)
-            continue
-        one, many = record.get("unit"), record.get("units")
-        if isinstance(one, str) and len(record) == 1:
-            units = [one]
-        elif isinstance(many, list) and len(many) >= 2 and all(isinstance(u, str) for u in many):
-            units = many
-        else:
-            return None
-        head = at + len(end)
-        return (units, data[head:]) if data[:head] == _head(units) else None
-    return None
-
-
 def _head(units: list[str]) -> bytes:
-    return spike_units_head(units[0] if len(units) == 1 else units)
-
-
-def spike_units_head(units: str | list[str]) -> bytes:
-    """The first bytes of a ``/rx/spike`` record of ``units`` as rgtbus writes it: one unit's
-    ``{"unit":"a",``, two or more units' ``{"units":["a","b"],``."""
-    key = {"unit": units} if isinstance(units, str) else {"units": units}
-    return orjson.dumps(key)[:-1] + b","
+    return spike_head_bytes(units)
 
 
 def shared_spikes(
@@ -212,7 +179,7 @@ def shared_spikes(
         heads: list[tuple[int, bytes] | None] = []
         for k in range(i, j):
             cid, data = entries[k][3], entries[k][5]
-            parsed = _spike_head(data) if cid in spike_channels else None
+            parsed = spike_head(data) if cid in spike_channels else None
             if parsed is None:
                 heads.append(None)
                 continue
@@ -255,6 +222,8 @@ def _merged_metadata(logs: Sequence[RawLog], res: MergeResult) -> dict[str, dict
     kept: dict[str, dict[str, str]] = {}
     for k, log in enumerate(logs, start=1):
         for name, values in log.metadata:
+            if name == FORMAT_RECORD:
+                continue  # written first, once
             if any(
                 v == values and (n == name or n.startswith(f"{name}.")) for n, v in kept.items()
             ):

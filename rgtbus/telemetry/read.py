@@ -35,6 +35,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics, untrusted
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, pulse_rows, schema_of
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
     LOG,
@@ -50,6 +51,7 @@ from rgtbus.telemetry.records import (
     UNIT_REPORT,
     DecisionRecord,
     InfluencesRecord,
+    PulseRecord,
     RelationsRecord,
     RunRecord,
     decode_rows,
@@ -60,7 +62,7 @@ from rgtbus.telemetry.records import (
     trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
-from rgtbus.timebase import ns, seconds, time_of
+from rgtbus.timebase import ns, sample_of, seconds, time_of
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
@@ -508,6 +510,12 @@ class Replay:
 
     # -- construction ------------------------------------------------------------------------
 
+    def pulses(self) -> Iterator[PulseRecord]:
+        """Every pulse sent, one record each (``records.pulse``), block by block as logged
+        (a sender's in the order it sent them)."""
+        for _, block in self.by_topic[TX_PULSE]:
+            yield from pulse_rows(block)
+
     def _each_decode(self) -> Iterator[tuple[int, dict[str, Any]]]:
         """Every decode as one ``/rx/decode`` message at its own time, however the log holds
         it (one a decode, or columns a wake in ``/rx/decodes``), in file order: not yet
@@ -617,8 +625,11 @@ class Replay:
         return tuple(seen)
 
     def _transmissions(self) -> list[Transmission]:
-        groups: dict[tuple[str, int, int], list[dict[str, Any]]] = {}
-        for _, p in self.by_topic[TX_PULSE]:
+        groups: dict[tuple[str, int, int], list[PulseRecord]] = {}
+        # in time order, units of one time in the scenario's order: as they go on air
+        rank = {u: i for i, u in enumerate(self.units)}
+        pulses = sorted(self.pulses(), key=lambda p: (p["t"], rank.get(p["unit"], len(rank))))
+        for p in pulses:
             m = p["message"]
             groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
         out = []
@@ -948,7 +959,7 @@ class Replay:
         them: the floats add up as the unit added them)."""
         rows: dict[str, list[int]] = {u: [] for u in self.units}
         vals: dict[str, list[float]] = {u: [] for u in self.units}
-        for _, p in self.by_topic[TX_PULSE]:
+        for p in self.pulses():
             if p["unit"] in rows:
                 rows[p["unit"]].append(int(p["sample"]))
                 vals[p["unit"]].append(float(p["magnitude"]))
@@ -996,11 +1007,29 @@ class Replay:
         # heard through: its log is complete before the earlier of the two streams, and a unit
         # with either stream still empty (e.g. killed before its first flush, or stopped
         # before its first decode) only before the start. In one file cut short, the records
-        # written last need not be the latest in log time either.
-        return min(
-            (min(last.get(f"{u}\0records", 0), last.get(f"{u}\0spikes", 0)) for u in self.units),
-            default=None,
-        )
+        # written last need not be the latest in log time either. Its pulses go out a block
+        # at a time, a block once its records are a block past it (``PulseBlocks.before``):
+        # complete before the start of the block before its last record's, or whole once it
+        # reported (at its end).
+        reported = {m.get("unit") for _, m in self.by_topic[UNIT_REPORT]}
+        pulses = self._pulse_bound
+
+        def bound(u: str) -> int:
+            records = last.get(f"{u}\0records", 0)
+            out = min(records, last.get(f"{u}\0spikes", 0))
+            return out if u in reported else min(out, pulses(records))
+
+        return min((bound(u) for u in self.units), default=None)
+
+    def _pulse_bound(self, t_ns: int) -> int:
+        """Before which log time a unit's pulses are all in a log that holds its records up
+        to ``t_ns`` (``PulseBlocks.before``, blocks of ``BLOCK_SECONDS``)."""
+        tau = self.scenario.timing.tau if self.scenario is not None else None
+        if tau is None:
+            return 0
+        block = max(1, round(BLOCK_SECONDS / tau))
+        done = (sample_of(seconds(t_ns), tau) - block) // block
+        return max(0, ns(time_of(done * block, tau)))
 
     def traced_units(self) -> list[str]:
         """The units whose resonator traces the log holds."""
@@ -1066,6 +1095,8 @@ def schema_error(messages: Iterable[LogMessage]) -> str | None:
     from rgtbus.telemetry import validate
 
     for topic, t_ns, message in messages:
+        if schema_of(topic) is not None:
+            continue  # a block: checked whole as it is read (``blocks.decode_record``)
         try:
             schema = topics.schema_for(topic)
         except RgtbusError:
@@ -1116,6 +1147,8 @@ def range_error(messages: Iterable[LogMessage]) -> str | None:
     """The first message holding a number out of every reader's range, in one line (None:
     none). Run only once reading has failed, as ``schema_error``."""
     for topic, t_ns, message in messages:
+        if schema_of(topic) is not None:
+            continue  # a block: its ranges checked as it is read
         message, why = _decoded(message)
         if why is not None:
             return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"

@@ -30,7 +30,9 @@ from mcap.records import Metadata as McapMetadata
 from rgtbus.errors import RgtbusError
 from rgtbus.pairs import SharedTable
 from rgtbus.telemetry import topics, validate
-from rgtbus.telemetry.records import LOG, MEDIUM, SHARED_COLUMNS
+from rgtbus.telemetry.blocks import decode_record, encode_record, schema_of
+from rgtbus.telemetry.records import LOG, MEDIUM
+from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 from rgtbus.timebase import NS_PER_SECOND, ns
 
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
@@ -197,51 +199,7 @@ def _shared_json(table: SharedTable[Any]) -> orjson.Fragment | dict[str, Any]:
     return got
 
 
-_COLUMNS: dict[tuple[str, bytes], orjson.Fragment] = {}  # (dtype, bytes) -> its JSON
-_COLUMNS_SIZE = 64  # a wake's blocks of decodes, two float columns each, alike in all units
 _TEXT = frozenset({str})
-
-
-_NAMES: dict[int, tuple[tuple[str, ...], orjson.Fragment]] = {}  # id -> (names, their JSON)
-
-
-def _names_json(names: tuple[Any, ...]) -> Any:
-    """A tuple of names (a table the records of a unit's decodes index into, the same object
-    in each) as its JSON, kept by identity (a tuple of text never changes); anything else
-    as it is."""
-    got = _NAMES.get(id(names))
-    if got is None:
-        if not set(map(type, names)) <= _TEXT:
-            return names
-        if len(_NAMES) >= _COLUMNS_SIZE:
-            del _NAMES[next(iter(_NAMES))]
-        got = _NAMES[id(names)] = (names, orjson.Fragment(orjson.dumps(names)))
-    return got[1]
-
-
-def column_json(values: Any) -> Any:
-    """A one-dimensional numpy column of numbers (or a tuple of names, ``_names_json``) as
-    its JSON (an ``orjson.Fragment``, for a record to hold in its place), worked out once for
-    equal columns: the units of a process read each code alike, so their records of a block
-    of decodes hold equal columns, and a float costs orjson ~50 ns to write, against a few ns
-    a byte to compare. Kept by value (dtype and bytes), the oldest dropped first; anything
-    else (or a column JSON cannot hold, whose record's own encoding then says why) is
-    returned as it is."""
-    if type(values) is tuple:
-        return _names_json(values)
-    if getattr(values, "ndim", 0) != 1:
-        return values
-    key = (values.dtype.str, values.tobytes())
-    got = _COLUMNS.get(key)
-    if got is None:
-        try:
-            data = encode_json(values)
-        except (TypeError, ValueError):
-            return values
-        if len(_COLUMNS) >= _COLUMNS_SIZE:
-            del _COLUMNS[next(iter(_COLUMNS))]
-        got = _COLUMNS[key] = orjson.Fragment(data)
-    return got
 
 
 # scanning a message's JSON for null costs ~0.7 ns a byte, half of what orjson took to write
@@ -297,6 +255,13 @@ def encode_json(message: Any) -> bytes:
     return data
 
 
+def message_bytes(topic: str, message: Mapping[str, Any]) -> bytes:
+    """``message`` on ``topic`` as the log holds it: a hot topic's block (``blocks``), any
+    other's JSON. Two records are the same record when these bytes are equal."""
+    block = schema_of(topic)
+    return encode_json(message) if block is None else encode_record(block, message)
+
+
 _CONTAINERS = (dict, list, tuple)
 
 
@@ -346,11 +311,14 @@ class _Encoding:
         t = t_ns if type(t_ns) is int and 0 <= t_ns <= _U64_MAX else _check_t_ns(t_ns)
         if type(message) is not dict and not isinstance(message, dict):
             raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
-        shared = SHARED_COLUMNS.get(topic)
-        if shared is not None:  # columns other records hold too: their JSON made once
-            message = dict(message)  # the caller's record stays as it gave it
-            for k in shared.intersection(message):
-                message[k] = column_json(message[k])
+        block = schema_of(topic)
+        if block is not None:  # a hot topic: its block's bytes, checked as they are built
+            try:
+                data = encode_record(block, message)
+            except RgtbusError as e:
+                raise RgtbusError(f"message on {topic} at t_ns={t}: {e}") from None
+            self.counts[topic] += 1
+            return schema, data, t
         try:
             data = encode_json(message)
         except (TypeError, ValueError) as e:
@@ -400,8 +368,9 @@ class _Encoding:
         if live is None or self._closed or self.failed:
             return
         schema = self._schema(topic)
+        block = schema_of(topic)
         try:
-            data = encode_json(message)
+            data = encode_json(message) if block is None else encode_record(block, message)
         except (TypeError, ValueError) as e:
             raise RgtbusError(f"message on {topic} at t_ns={t_ns} is not JSON: {e}") from None
         live.put(topic, schema, data, _check_t_ns(t_ns))
@@ -571,14 +540,16 @@ def sdk_logs_to_python() -> None:
 
 
 def topic_channel(context: foxglove.Context, topic: str, schema: str) -> foxglove.Channel:
-    """A foxglove channel for ``topic``: JSON messages under the topic's JSON Schema (the same
-    for the MCAP file and the live view)."""
+    """A foxglove channel for ``topic``: a hot topic's protobuf blocks under their
+    ``FileDescriptorSet``, any other's JSON under its JSON Schema (the same for the MCAP file
+    and the live view)."""
+    schema_encoding, message_encoding = topics.encodings(schema)
     return foxglove.Channel(
         topic,
         schema=foxglove.Schema(
-            name=schema, encoding=topics.SCHEMA_ENCODING, data=topics.schema_bytes(schema)
+            name=schema, encoding=schema_encoding, data=topics.schema_bytes(schema)
         ),
-        message_encoding=topics.MESSAGE_ENCODING,
+        message_encoding=message_encoding,
         context=context,
     )
 
@@ -664,6 +635,7 @@ class McapRecorder(_Encoding):
             self._writer = foxglove.open_mcap(
                 self._sink, context=self.context, writer_options=options
             )
+            self._writer.write_metadata(FORMAT_RECORD, format_metadata())  # first, always
             self._writer.flush()
             # a valid (empty, unfinished) MCAP file from the start; a target that takes no
             # bytes fails here, before any run
@@ -708,6 +680,16 @@ class McapRecorder(_Encoding):
             raise self._broken(e) from None
         if self._sink.error is not None:  # a write inside the writer failed quietly
             raise self._broken(self._sink.error)
+
+    @contextlib.contextmanager
+    def raw_io(self) -> Iterator[None]:
+        """Around a write to a channel of this recorder's ``context`` made elsewhere (``convert``
+        copies topics under their own schemas): one writer at a time, a failed write one line."""
+        with self._lock, self._io():
+            yield
+        self._unflushed += 1
+        if self._unflushed >= self._flush_messages:
+            self.flush()
 
     def _broken(self, e: Exception) -> RgtbusError:
         """The stream failed: remember the one line that says so (nothing more is written)."""
@@ -814,13 +796,17 @@ class MemoryRecorder(_Encoding):
     def __init__(self, *, validate: bool = True, live: LiveSink | None = None) -> None:
         super().__init__(validate, live)
         self.messages: list[LogMessage] = []
-        self.metadata_records: dict[str, dict[str, str]] = {}
+        self.metadata_records: dict[str, dict[str, str]] = {FORMAT_RECORD: format_metadata()}
         self.logs: list[dict[str, Any]] = []
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         """Keep ``message`` as the file would hold it (JSON round-tripped, validated)."""
         schema, data, t = self._encode(topic, message, t_ns)
-        decoded = orjson.loads(data)
+        block = schema_of(topic)
+        if block is None:
+            decoded = orjson.loads(data)
+        else:  # as a reader of the file gets it back
+            decoded = decode_record(block, data, f"memory log: message on {topic}")
         self.messages.append((topic, t, decoded))
         if self.live is not None:
             self.live.put(topic, schema, data, t)

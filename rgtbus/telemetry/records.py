@@ -83,6 +83,29 @@ class PulseRecord(TypedDict):
     message: MessageRef
 
 
+class PulseBlockRecord(TypedDict):
+    """``/tx/pulse``: a sender's pulses of one 5 s block, one row a pulse, in order of sample
+    (``blocks.PulseBatch``; ``blocks.pulse_rows`` reads them as ``PulseRecord``s)."""
+
+    unit: str  # the sender
+    t: float  # the last pulse's time
+    tau: float  # the sender's sample period: a pulse's t is its sample × tau
+    channels: list[str]  # the channels its pulses are on
+    omegas: FloatColumn  # each channel's ω
+    names: list[str]  # the units sender and addressee index
+    kinds: list[str]  # the message kinds kind indexes
+    codes: list[str]  # the code names code indexes
+    sample: IntColumn
+    channel: IntColumn  # into channels
+    magnitude: FloatColumn
+    message: IntColumn  # the message's id (``MessageRef.id``)
+    kind: IntColumn  # into kinds
+    code: IntColumn  # into codes
+    sender: IntColumn  # into names
+    addressee: IntColumn  # into names
+    block: IntColumn  # a request's or repeat's repair block, else 0
+
+
 class SpikeRecord(TypedDict, total=False):
     """``/rx/spike``: a block of resonator spikes of one unit (or of units that heard the same), as
     columns (``spikes``)."""
@@ -273,7 +296,7 @@ class TraceRecord(TypedDict):
 # topic -> its record type (``/trace/<unit>`` is a family: ``TraceRecord``)
 RECORD_TYPES: dict[str, type] = {
     MEDIUM: MediumRecord,
-    TX_PULSE: PulseRecord,
+    TX_PULSE: PulseBlockRecord,
     RX_SPIKE: SpikeRecord,
     RX_DECODE: DecodeRecord,
     RX_DECODES: DecodesRecord,
@@ -480,13 +503,6 @@ def decodes_of_columns(
             record[key] = table if type(table) is tuple else list(table)  # type: ignore[literal-required]
     return record
 
-
-# columns of a topic's records that other records mostly hold alike (the units of a process
-# read each code alike: their records of a block of decodes hold equal columns), written
-# from their JSON made once (``recorder.column_json``): floats, which cost orjson more to
-# write than to compare, and the tables of names (the same tuple in every record of a unit);
-# the other columns cost less to write than to compare
-SHARED_COLUMNS = {RX_DECODES: frozenset({"margin", "times", "names", "kinds", "codes"})}
 
 # the columns of names that a record with tables holds as indexes: the table each indexes
 NAMED_COLUMNS = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",

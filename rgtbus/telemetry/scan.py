@@ -21,6 +21,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.recorder import MCAP_MAGIC, UNFINISHED, LogContents
+from rgtbus.telemetry.version import require_format
 from rgtbus.timebase import seconds
 
 
@@ -468,15 +469,23 @@ def require_run_log(raw: RawLog) -> None:
     everything before the cut is good."""
     if raw.corrupt:
         raise RgtbusError(raw.corruption)
-    _require_run(raw.label, raw.library, {name for name, _ in raw.metadata}, raw.header_only)
+    _require_run(raw.label, raw.library, raw.metadata, raw.header_only)
 
 
-def _require_run(label: str, library: str | None, names: set[str], header_only: bool) -> None:
+def _require_run(
+    label: str,
+    library: str | None,
+    metadata: list[tuple[str, dict[str, str]]],
+    header_only: bool,
+    fmt: bool = True,
+) -> None:
     by = f" (written by {library!r})" if library else ""
     if header_only:
         raise RgtbusError(f"{label}: holds only an MCAP header{by}: no records to read")
-    if not names & {"scenario", "run"}:
+    if not {name for name, _ in metadata} & {"scenario", "run"}:
         raise RgtbusError(f"{label}: not an rgtbus run log: no scenario or run metadata{by}")
+    if fmt:
+        require_format(label, metadata)
 
 
 # -- one way to open a log: checked whole before anything is read from it ----------------------
@@ -585,7 +594,7 @@ def _by_summary(stream: IO[bytes], label: str, size: int) -> CheckedLog | None:
     except Exception:  # a layout mcap's reader does not take: scan it instead
         return None
     empty = not (summary.schemas or summary.channels or summary.statistics.message_count)
-    _require_run(label, library, {name for name, _ in metadata}, empty and not metadata)
+    _require_run(label, library, metadata, empty and not metadata)
     return CheckedLog(label, stream, size, None, summary, library, metadata)
 
 

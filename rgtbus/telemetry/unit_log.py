@@ -29,16 +29,12 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from rgtbus.telemetry import records
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, PulseBlocks, pulse_block_of
 from rgtbus.telemetry.recorder import Recorder
 from rgtbus.timebase import ns, sample_of, samples_of
 
 SPIKE_BLOCK_SECONDS = 1.0  # a unit's spikes of this much time make one /rx/spike record
-# a unit's decodes of this much time make one /rx/decodes record: short enough that a log cut
-# by a kill holds a unit's decodes to within a few seconds of its other records (so a paced
-# run's verified prefix reaches about a wall second before the cut), long enough that a record
-# carries many decodes (1 s blocks cost a 50-unit run 25 % more time, 5 s blocks 8 %, against
-# 60 s blocks)
-DECODE_BLOCK_SECONDS = 5.0
+DECODE_BLOCK_SECONDS = BLOCK_SECONDS  # a unit's decodes of this much time: one record
 _NEVER = 2**63 - 1  # no block ends before it
 
 
@@ -219,6 +215,7 @@ class UnitLog:
         self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / tau))
         self.held_block = -1  # the decode block of the first decode held (-1: none)
         self.offers = False  # each decode offered to a live view as it is made (never logged)
+        self._pulses = PulseBlocks(name, tau, self._decode_block)  # its pulses held
         # the unit's tables of every name its decodes can hold (``canonical``): set by its
         # Listening; None: each record's own tables of the names it uses
         self.tables: records.DecodeTables | None = None
@@ -230,13 +227,30 @@ class UnitLog:
         self.recorder.log(level, text, ns(t), name=self.name)
 
     def write(self, topic: str, record: Any, t: float) -> None:
-        """A record at ``t`` seconds, written as it comes (a pulse, ahead of the clock)."""
+        """A record at ``t`` seconds, written as it comes."""
         self.recorder.write(topic, record, ns(t))
+
+    def pulse(self, record: records.PulseRecord) -> None:
+        """One pulse this unit sends (``records.pulse``), held in the batch of its decode block
+        and written one ``/tx/pulse`` record a block (``PulseBlocks``: which pulses a record
+        holds depends on the pulses alone). While a live view may be looking, each pulse is
+        also offered to it alone as it is made, as a block of one."""
+        self._pulses.add(record)
+        if self.recorder.watched():
+            one = pulse_block_of([record], self.name, self.tau)
+            self.recorder.offer(records.TX_PULSE, one, ns(one["t"]))
 
     def write_in_order(self, topic: str, record: Any, t: float) -> None:
         """A record of this unit's own at ``t`` seconds, after the decodes that came before."""
         self.flush_decodes()
+        self._pulses_before(t)
         self.recorder.write(topic, record, ns(t))
+
+    def _pulses_before(self, t: float) -> None:
+        """The pulse blocks that ended a block or more before ``t``, the time of a record of
+        this unit's own: a log cut after that record holds them (``Replay.units_until_ns``)."""
+        for block in self._pulses.before(sample_of(t, self.tau) - self._decode_block):
+            self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
 
     def trace(self, first: int, x: np.ndarray, y: np.ndarray) -> None:
         """Resonator states from sample ``first`` on (x, y: samples × channels), one message a
@@ -334,6 +348,7 @@ class UnitLog:
                 return
             part = cols if b - a == total else DecodePart(*[c[a:b] for c in cols])
             record = records.decodes_of_columns(name, *canonical(part, table, own))
+            self._pulses_before(record["t"])
             write(records.RX_DECODES, record, ns(record["t"]))
 
     # -- spikes (the engine's SpikeLog) ----------------------------------------------------------
@@ -416,5 +431,7 @@ class UnitLog:
 
     def end(self) -> None:
         """The run is over for this unit: what it holds is written."""
+        for block in self._pulses.end():
+            self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
         self.flush_decodes()
         self.release_spikes(None)

@@ -43,7 +43,12 @@ def depth_error(value: Any, limit: int = MAX_DEPTH) -> str | None:
 def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) -> Any:
     """A message as a reader may use it: decoded and, with ``check``, checked against its
     topic's schema (``topics.checked_message``), and no deeper than ``MAX_DEPTH``. Not JSON,
-    breaking its schema or nesting deeper: RgtbusError naming the log, topic and log time."""
+    breaking its schema or nesting deeper: RgtbusError naming the log, topic and log time.
+    A hot topic's block nests nothing: it is decoded and checked as it is read."""
+    from rgtbus.telemetry.blocks import schema_of
+
+    if schema_of(topic) is not None:
+        return topics.checked_message(topic, t_ns, data, label, check)
     if isinstance(data, bytes | bytearray | memoryview):
         data = bytes(data)
         # no JSON nests deeper than it has brackets: most messages need no walk

@@ -21,6 +21,7 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
+from rgtbus.telemetry.blocks import TRACE, decode_record, pulse_rows
 from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import LogMessage, encode_json
 from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
@@ -55,10 +56,17 @@ def _field_diffs(logged: Any, recomputed: Any, path: str = "") -> list[tuple[str
     return [(path or "(message)", logged, recomputed)]
 
 
+def _trace_record(m: bytes | bytearray | dict[str, Any]) -> dict[str, Any]:
+    """A trace as read (its block decoded, if still its bytes)."""
+    if isinstance(m, bytes | bytearray):
+        return decode_record(TRACE, bytes(m), "a logged trace")
+    return m
+
+
 def _same_trace(logged: bytes | dict[str, Any], recomputed: dict[str, Any]) -> bool:
     """Equal as the recorder would write them: JSON floats round-trip exactly, so comparing the
     numbers equals comparing the bytes, at half the cost of encoding the re-run's traces."""
-    m = orjson.loads(logged) if isinstance(logged, bytes | bytearray) else logged
+    m = _trace_record(logged)
     if set(m) != set(recomputed):
         return False
     for key, value in recomputed.items():
@@ -161,6 +169,17 @@ def spikes_per_unit(
             yield topic, t_ns, one
 
 
+def pulses_per_row(messages: Iterable[LogMessage]) -> Iterator[LogMessage]:
+    """The messages with every ``/tx/pulse`` block as one message a pulse at its own time:
+    pulses are compared one by one, and a mismatch names its pulse."""
+    for topic, t_ns, m in messages:
+        if topic != r.TX_PULSE or not isinstance(m, dict) or "sample" not in m:
+            yield topic, t_ns, m
+            continue
+        for row in pulse_rows(m):
+            yield topic, ns(row["t"]), cast(dict[str, Any], row)
+
+
 def decodes_per_row(
     messages: Iterable[LogMessage],
 ) -> Iterator[LogMessage]:
@@ -243,8 +262,8 @@ def _pair_mismatches(
     missing; a trace decoded only now, to explain)."""
     x, y = logged, recomputed
     t_ns, m = x if x is not None else y  # type: ignore[misc]  # never both missing
-    if isinstance(m, bytes | bytearray):
-        m = orjson.loads(m)
+    if isinstance(m, bytes | bytearray):  # a trace, read only now
+        m = _trace_record(m)
     unit = m.get("unit", m.get("name"))
     what = _key_text(topic, key)
     if x is None:
@@ -254,7 +273,7 @@ def _pair_mismatches(
             return []
         return [Mismatch(topic, seconds(t_ns), unit, what, m, "(not produced)")]
     if trace:
-        diffs = _trace_diff(m, y[1])
+        diffs = _trace_diff(m, _trace_record(y[1]))
     else:
         # the re-run's message as the recorder would log it
         mine = encode_json(y[1])
@@ -287,7 +306,10 @@ def diff_messages(
     # the hot topics compared as columns first: rows are built only to explain a difference
     hot_a: dict[str, list[tuple[int, Any]]] = defaultdict(list)
     hot_b: dict[str, list[tuple[int, Any]]] = defaultdict(list)
-    logged, recomputed = _held_hot(logged, hot_a), _held_hot(recomputed, hot_b)
+    blocks_a: Counter[tuple[str, str, int]] = Counter()
+    blocks_b: Counter[tuple[str, str, int]] = Counter()
+    logged = _held_hot(_block_times(logged, blocks_a, until_ns), hot_a)
+    recomputed = _held_hot(_block_times(recomputed, blocks_b, until_ns), hot_b)
     rest_a, rest_b = list(logged), list(recomputed)  # (the hot ones are held as they go)
     checked: Counter[str] = Counter()
     if not hot_a[r.RX_DECODE] and not hot_b[r.RX_DECODE]:
@@ -303,6 +325,7 @@ def diff_messages(
     logged = itertools.chain(rest_a, _messages(hot_a))
     recomputed = itertools.chain(rest_b, _messages(hot_b))
     logged, recomputed = decodes_per_row(logged), decodes_per_row(recomputed)
+    logged, recomputed = pulses_per_row(logged), pulses_per_row(recomputed)
     if tau is not None:
         logged = spikes_per_sample(logged, tau)
         recomputed = spikes_per_sample(recomputed, tau)
@@ -317,8 +340,43 @@ def diff_messages(
     for topic in sorted(set(a) | set(b)):
         found, checked[topic] = _topic_mismatches(topic, a.get(topic, {}), b.get(topic, {}))
         mismatches += found
+    mismatches += _block_mismatches(blocks_a, blocks_b)
     mismatches.sort(key=lambda m: (m.t if m.t is not None else -1.0, m.topic))
     return mismatches, checked
+
+
+# the block topics whose rows are compared at their own times: each block's log time (and the
+# rows it groups) is compared as well, as the unit that logged it and its log time
+_BLOCK_TIMES = frozenset({r.TX_PULSE, r.RX_DECODES})
+
+
+def _block_times(
+    messages: Iterable[LogMessage], out: Counter[tuple[str, str, int]], until_ns: int | None
+) -> Iterator[LogMessage]:
+    """``messages`` as they are, each block of ``_BLOCK_TIMES`` counted in ``out`` by (topic,
+    unit, log time): a block whose own time is not its log time counts under a key no re-run
+    writes (its log time less one: named as a block at the wrong time)."""
+    for topic, t_ns, m in messages:
+        if topic in _BLOCK_TIMES and isinstance(m, dict) and (until_ns is None or t_ns < until_ns):
+            t = m.get("t")
+            own = ns(t) if isinstance(t, float) and math.isfinite(t) else None
+            out[(topic, str(m.get("unit")), t_ns if own == t_ns else -1 - t_ns)] += 1
+        yield topic, t_ns, m
+
+
+def _block_mismatches(
+    logged: Counter[tuple[str, str, int]], recomputed: Counter[tuple[str, str, int]]
+) -> list[Mismatch]:
+    out = []
+    for key in sorted(set(logged) | set(recomputed)):
+        a, b = logged.get(key, 0), recomputed.get(key, 0)
+        if a == b:
+            continue
+        topic, unit, t_ns = key
+        what = "block log time" if t_ns >= 0 else "block whose t is not its log time"
+        at = t_ns if t_ns >= 0 else -1 - t_ns
+        out.append(Mismatch(topic, seconds(at), unit, what, f"{a} block(s)", f"{b} block(s)"))
+    return out
 
 
 _HOT = frozenset({r.RX_DECODES, r.RX_DECODE, r.RX_SPIKE})

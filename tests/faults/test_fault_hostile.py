@@ -1,10 +1,12 @@
 """Readers survive any log (issue 35): logs with valid CRCs and hostile content, made from a
 real run's log by a generator, never make a reader raise. Each message of each topic is
 mutated one way at a time (not JSON, a list for an object, a field missing, a string, a null,
-a huge or negative number, a nested or empty list, an unknown unit), the file rewritten whole
-with mcap's own writer, and every reader run on it in this process: ``info``, ``cat``,
-``scenario``, ``merge``, ``replay`` (text and ``--json``), ``replay --verify`` and
-``rgtbus.open_log`` with its tables. Each answers with its result (exit 0, 3 for a cut log,
+a huge or negative number, a nested or empty list, an unknown unit; a hot topic's protobuf
+block cut short, or a field of it missing, of another wire type, huge, negative, not a number,
+doubled, empty or an unknown name), the file rewritten whole with mcap's own writer, and
+every reader run on it in this process: ``info``, ``cat``, ``scenario``, ``merge``,
+``replay`` (text and ``--json``), ``replay --verify`` and ``rgtbus.open_log`` with its
+tables. Each answers with its result (exit 0, 3 for a cut log,
 1 when ``--verify`` finds the tampered message disagrees with a re-run) or one line naming the
 message (exit 2; the API raises ``RgtbusError``); none raises anything else. A chunk that
 claims more than any chunk may hold is refused before it is decompressed.
@@ -22,6 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
@@ -29,6 +32,8 @@ from mcap.writer import CompressionType, Writer
 import rgtbus
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import blocks
+from rgtbus.telemetry.codec import BlockSchema, Field, decode, encode
 from rgtbus.telemetry.scan import MAX_CHUNK_BYTES, scan_log
 
 ROOT = Path(__file__).parent.parent.parent
@@ -42,10 +47,15 @@ def gate_log(tmp_path_factory) -> bytes:
     return path.read_bytes()
 
 
-def mutations(message: Any) -> Iterator[tuple[str, Any]]:
-    """(what, the message changed one way: a value, or raw bytes)."""
+def mutations(topic: str, data: bytes) -> Iterator[tuple[str, Any]]:
+    """(what, the message ``data`` on ``topic`` changed one way: a value, or raw bytes)."""
     yield "not JSON", b"{not json"
     yield "a list", [1, 2, 3]
+    schema = blocks.schema_of(topic)
+    if schema is not None:
+        yield from block_mutations(schema, data)
+        return
+    message = json.loads(data)
     if not isinstance(message, dict):
         return
     for key, value in message.items():
@@ -62,6 +72,63 @@ def mutations(message: Any) -> Iterator[tuple[str, Any]]:
             yield f"{key} empty", {**message, key: []}
         if key in UNITS_FIELDS:
             yield f"{key} unknown", {**message, key: "zz_nobody"}
+
+
+_MISSING, _WIRE = object(), object()  # a field left out; a field of another wire type
+
+
+def block_mutations(schema: BlockSchema, data: bytes) -> Iterator[tuple[str, bytes]]:
+    """(what, a hot topic's block ``data`` changed one way): cut short, a length past its
+    end, an unknown field; each field missing, of another wire type, huge, negative, not a
+    number, doubled, empty or an unknown name, as a hostile writer may write it (past every
+    check of rgtbus's own recorder)."""
+    yield "cut short", data[: len(data) // 2]
+    yield "a length past the end", data + b"\x0a\xff\xff\x03"  # field 1: 65535 bytes
+    yield "an unknown field", data + b"\xa2\x06\x01x"  # field 100, 1 byte: skipped
+    fields = decode(schema, data, max_rows=blocks.MAX_ROWS)
+    for f in schema.fields:
+        for what, new in _field_mutations(f, fields[f.name]):
+            if new is _WIRE:
+                other = Field(f.name, f.number, "double" if f.kind == "string" else "string",
+                              repeated=f.repeated)  # fmt: skip
+                changed = BlockSchema(schema.name, tuple(other if g is f else g
+                                                         for g in schema.fields))  # fmt: skip
+                value: Any = ("x" if f.kind != "string" else 1.5) if not f.repeated else (
+                    ["x"] if f.kind != "string" else np.array([1.5]))  # fmt: skip
+                out = encode(changed, {**fields, f.name: value})
+            else:
+                rest = {k: v for k, v in fields.items() if k != f.name}
+                out = encode(schema, rest if new is _MISSING else {**rest, f.name: new})
+            if out != data:  # (a change that writes the same bytes is none)
+                yield f"{f.name} {what}", out
+
+
+def _field_mutations(f: Field, value: Any) -> Iterator[tuple[str, Any]]:
+    yield "missing", _MISSING
+    yield "of another wire type", _WIRE
+    if f.kind == "string":
+        names = value if f.repeated else [value]
+        unknown = [f"zz_nobody{i}" for i in range(len(names))]
+        yield "unknown", unknown if f.repeated else unknown[0]
+        yield "huge", ["x" * 70_000] if f.repeated else "x" * 70_000  # > a text's bound
+        if f.repeated:
+            yield "doubled", [*value, *value]
+            yield "empty", []
+        return
+    dtype = f.dtype
+    extremes: list[tuple[str, Any]] = []
+    if f.kind != "bool":
+        top = np.finfo(dtype).max if dtype.kind == "f" else np.iinfo(dtype).max
+        extremes.append(("huge", top))
+        if dtype.kind in "if":
+            extremes.append(("negative", -7))
+        if dtype.kind == "f":
+            extremes += [("not a number", np.nan), ("infinite", -np.inf)]
+    for what, x in extremes:
+        yield what, np.full(len(value), x, dtype=dtype) if f.repeated else dtype.type(x).item()
+    if f.repeated:
+        yield "doubled", np.concatenate([value, value])
+        yield "empty", np.empty(0, dtype=np.bool_ if f.kind == "bool" else dtype)
 
 
 # A message as a log holds it: (topic, log time, publish time, data).
@@ -195,10 +262,10 @@ def read_every_way(path: Path, out_dir: Path) -> list[str]:
     return wrong
 
 
-def first_messages(src: bytes) -> dict[str, Any]:
-    out: dict[str, Any] = {}
+def first_messages(src: bytes) -> dict[str, bytes]:
+    out: dict[str, bytes] = {}
     for _, channel, message in make_reader(io.BytesIO(src)).iter_messages():
-        out.setdefault(channel.topic, json.loads(message.data))
+        out.setdefault(channel.topic, message.data)
     return out
 
 
@@ -212,18 +279,18 @@ def hostile_logs(src: bytes) -> Iterator[tuple[str, Any]]:
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
     later = {t: rng.randrange(n) for t, n in counts.items()}
     for topic, message in first_messages(src).items():
-        for what, payload in mutations(message):
+        for what, payload in mutations(topic, message):
             yield f"{topic}: {what}", functools.partial(rewritten, src, topic, payload)
         nth = nth_message(src, topic, later[topic])
-        for what, payload in mutations(nth):
+        for what, payload in mutations(topic, nth):
             yield (f"{topic} #{later[topic]}: {what}",
                    functools.partial(rewritten, src, topic, payload, later[topic]))  # fmt: skip
     for what, edit in order_and_count_edits(src):
         yield what, functools.partial(rebuilt, src, edit)
 
 
-def nth_message(src: bytes, topic: str, n: int) -> Any:
-    got = [json.loads(m.data) for _, c, m in make_reader(io.BytesIO(src)).iter_messages(
+def nth_message(src: bytes, topic: str, n: int) -> bytes:
+    got = [m.data for _, c, m in make_reader(io.BytesIO(src)).iter_messages(
         log_time_order=False) if c.topic == topic]  # fmt: skip
     return got[n]
 
@@ -248,6 +315,25 @@ def test_a_sample_of_hostile_logs_makes_no_reader_raise(gate_log, tmp_path):
         for line in read_every_way(path, tmp_path):
             wrong.setdefault(line, []).append(what)
     assert not wrong, {k: v[:3] for k, v in wrong.items()}
+
+
+@pytest.mark.parametrize(
+    "what",
+    [
+        "/rx/decodes: margin not a number",
+        "/rx/decodes: times not a number",
+        "/tx/pulse: magnitude not a number",
+        "/tx/pulse: tau huge",
+    ],
+)
+def test_a_block_of_non_finite_numbers_is_named_not_a_traceback(gate_log, tmp_path, what):
+    """Found by the generator: a block whose double column holds NaN, or a period so large
+    its times overflow (a block's double holds any 64 bits; no JSON held them): every reader
+    answers or names it in one line."""
+    make = dict(hostile_logs(gate_log))[what]
+    path = tmp_path / "hostile.mcap"
+    path.write_bytes(make())
+    assert read_every_way(path, tmp_path) == []
 
 
 def bomb(src: bytes) -> bytes:

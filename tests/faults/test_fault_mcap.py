@@ -16,9 +16,19 @@ from mcap.writer import CompressionType, Writer
 
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry import McapRecorder, read_log, require_run_log, scan_log
+from rgtbus.telemetry import (
+    McapRecorder,
+    blocks,
+    read_log,
+    require_run_log,
+    scan_log,
+    schema_for,
+    topics,
+)
+from rgtbus.telemetry.codec import encode
 from rgtbus.telemetry.merge import merge_logs
 from rgtbus.telemetry.recorder import MCAP_MAGIC, log_message
+from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 SCENARIO = (ROOT / "scenarios" / "example2.toml").read_text()
@@ -205,8 +215,8 @@ def test_a_writer_killed_after_any_of_its_writes_leaves_a_cut_log_never_a_corrup
     with McapRecorder(stream, compression="zstd", chunk_size=4096, flush_wall=3600.0) as rec:
         rec.metadata("scenario", {"name": "example2", "path": "example2.toml", "text": SCENARIO})
         for i in range(120):
-            rec.write("/medium", {"window": i, "t": i * 0.1, "samples": [0.001 * i] * 20},
-                      i * 100_000_000)  # fmt: skip
+            rec.write("/medium", {"window": i, "t": i * 0.1, "sample_rate": 200.0,
+                                  "samples": [0.001 * i] * 20}, i * 100_000_000)  # fmt: skip
             if i % 7 == 6:
                 rec.flush()
     states = stream.after_each_write[:-1]  # the last is the finished file
@@ -335,17 +345,34 @@ def test_a_log_is_written_as_the_run_goes():
 
 @pytest.mark.parametrize("extra", [[], ["--verify"], ["--json"], ["--csv", "CSV"]])
 def test_messages_that_break_their_schema_are_named_not_a_traceback(tmp_path, capsys, extra):
-    """Whole CRCs, but a message written by hand without its fields: exit 2, one line."""
+    """Whole CRCs, but messages written by hand without their fields (a JSON record, and a
+    block, which rgtbus's recorder would refuse to write): exit 2, one line."""
     path = tmp_path / "hand.mcap"
-    with open(path, "wb") as f, McapRecorder(f) as rec:
-        rec.metadata("scenario", {"name": "example2", "path": "example2.toml", "text": SCENARIO})
-        rec.metadata("run", {"seed": "2", "version": "0.1.0", "bus": "memory"})
-        rec.write("/rx/decode", {"unit": "a"}, 1_500_000_000)
-        rec.write("/tx/pulse", {"unit": "a"}, 2_000_000_000)
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="", library="by hand")
+        w.add_metadata(FORMAT_RECORD, format_metadata())
+        w.add_metadata("scenario", {"name": "example2", "path": "example2.toml", "text": SCENARIO})
+        w.add_metadata("run", {"seed": "2", "version": "0.1.0", "bus": "memory"})
+        for topic, t_ns, data in (
+            ("/rx/decode", 1_500_000_000, b'{"unit": "a"}'),
+            ("/tx/pulse", 2_000_000_000, encode(blocks.PULSE, {"unit": "a"})),
+        ):
+            name = schema_for(topic)
+            if blocks.schema_of(topic) is None:
+                sid = w.register_schema(name, "jsonschema", topics.schema_bytes(name))
+                cid = w.register_channel(topic, "json", sid)
+            else:
+                sid = w.register_schema(name, "protobuf", blocks.descriptor(name))
+                cid = w.register_channel(topic, "protobuf", sid)
+            w.add_message(cid, t_ns, data, t_ns)
+        w.finish()
     argv = [str(tmp_path / "CSV") if a == "CSV" else a for a in extra]
     code, _out, err = cli(capsys, "replay", path, *argv)
     assert code == 2 and "Traceback" not in err and err.count("\n") == 1, err
-    # each topic is checked as a reader first takes it: either bad message may be named
+    # each topic is checked as a reader first takes it: either bad message may be named (a
+    # /tx/pulse block's missing fields read as their defaults: its sample period is 0)
     named = ("message on /rx/decode at t = 1.500 s breaks rgtbus.Decode",
-             "message on /tx/pulse at t = 2.000 s breaks rgtbus.Pulse")  # fmt: skip
+             "message on /tx/pulse at t = 2.000 s: rgtbus.PulseBlock: tau 0.0 is not a "
+             "sample period")  # fmt: skip
     assert any(n in err for n in named), err

@@ -23,6 +23,7 @@ import zenoh
 from cut_logs import assert_prefix_is_whole
 from rgtbus.units.group import run_group
 from rgtbus.units.launch import free_ports
+from same_run import plain
 
 from rgtbus.bus.auth import tag
 from rgtbus.bus.config import make_config
@@ -122,9 +123,12 @@ def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     assert len(run) == 1 and run[0]["error"] == first.removeprefix("launch: ")
     # every record of b's is in the merge: a block of spikes b heard alike with others is in
     # their one record (the merge joins them), so spikes are compared one record a unit
-    merged = {(t, ns, json.dumps(m, sort_keys=True)) for t, ns, m in spikes_per_unit(messages)}
+    merged = {
+        (t, ns, json.dumps(m, sort_keys=True, default=plain))
+        for t, ns, m in spikes_per_unit(messages)
+    }
     assert all(
-        (t, ns, json.dumps(m, sort_keys=True)) in merged
+        (t, ns, json.dumps(m, sort_keys=True, default=plain)) in merged
         for t, ns, m in spikes_per_unit(b_messages)
     )
     assert verify_code(tmp_path / "run.mcap") == 3  # ends early: verified only that far
