@@ -54,8 +54,8 @@ def what_units_did(rp: Replay, until: float) -> Counter[tuple[Any, ...]]:
     """Every pulse sent, spike heard and code decoded before ``until`` seconds, one entry each
     however the log grouped them into records."""
     did: Counter[tuple[Any, ...]] = Counter()
-    for t_ns, p in rp.by_topic["/tx/pulse"]:
-        if t_ns < ns(until):
+    for p in rp.pulses():  # each pulse at its own time (a block holds a sender's 5 s)
+        if ns(p["t"]) < ns(until):
             did["pulse", p["unit"], p["sample"], p["magnitude"]] += 1
     for s in rp.spikes.rows(rp.spikes.t < until):
         did["spike", s["unit"], s["sample"], s["channel"]] += 1

@@ -128,7 +128,7 @@ def test_a_hostile_block_is_one_line_naming_its_field(schema, block, error) -> N
         (blocks.DECODE, {"unit": "b", "t": np.inf}, "t holds a value that is not a finite"),
         (blocks.DECODE, {"unit": "b", "t": 1e12}, "t holds a time outside"),
         (blocks.SPIKE, {"unit": "b", "samples": np.array([-1], "i8"),
-                        "channel": np.zeros(1, "u4"), "names": ["x"]}, "samples holds a sample"),
+                        "channel": np.zeros(1, "u4"), "names": ["x"]}, "samples holds an index"),
         (blocks.PULSE, {"unit": "a", "tau": 1e300}, "tau 1e+300 is not a sample period"),
         (blocks.PULSE, {"unit": "a", "tau": 0.5, "channels": ["x"], "omegas": np.ones(1),
                         "names": ["a"], "kinds": ["id"], "codes": ["id"],

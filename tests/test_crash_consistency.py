@@ -296,7 +296,7 @@ def test_a_run_whose_disk_fills_verifies_up_to_a_right_time(tmp_path):
 
     sc = load_scenario(CROWD10)
     reached = []
-    for limit in (120_000, 135_000, 150_000, 170_000):
+    for limit in (70_000, 90_000, 110_000, 130_000):  # crowd10 logs ~145 kB
         disk = _SmallDisk(limit)
         rec = McapRecorder(disk, flush_messages=500)  # type: ignore[arg-type]
         with contextlib.suppress(RgtbusError):  # the disk filled: the run, or its close, says so

@@ -1,9 +1,10 @@
 """Every kind of file rgtbus writes passes a reader no one here wrote: ``pymcap-cli doctor``
 (the MCAP container specification, checked record by record). A run's log, each unit's log and
-the merged ``run.mcap`` of a launch, a log cut by ``kill -9`` and ``recover``'s and ``merge``'s
-outputs. An error fails; so does a warning (none is expected: docs/foxglove.md, "Checked by
-other readers"). Infos (messages out of log-time order inside a chunk, no attachments, a cut
-log without a summary) are the file as the specification allows it."""
+the merged ``run.mcap`` of a launch, a log cut by ``kill -9``, and ``recover``'s, ``merge``'s
+and ``convert``'s outputs. An error fails; so does a warning (none is expected:
+docs/foxglove.md, "Checked by other readers"). Infos (messages out of log-time order inside a
+chunk, no attachments, a cut log without a summary) are the file as the specification allows
+it."""
 
 from __future__ import annotations
 
@@ -76,6 +77,13 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["merge of a cut and a whole log"] = tmp / "merged-cut.mcap"
     _rgtbus("merge", str(files["cut by kill -9"]), str(files["run"]), "-o",
             str(files["merge of a cut and a whole log"]))  # fmt: skip
+    old = Path(__file__).parent / "data" / "format1"
+    files["convert of a format-1 log"] = tmp / "converted.mcap"
+    _rgtbus("convert", str(old / "crowd10.mcap"), "-o", str(files["convert of a format-1 log"]))
+    cut = tmp / "cut-format1.mcap"
+    cut.write_bytes((old / "crowd10.mcap").read_bytes()[:-2000])  # its summary cut
+    files["convert of a cut format-1 log"] = tmp / "converted-cut.mcap"
+    _rgtbus("convert", str(cut), "-o", str(files["convert of a cut format-1 log"]))
     return files
 
 
@@ -89,6 +97,8 @@ KINDS = [
     "recover of a file with no message",
     "merge",
     "merge of a cut and a whole log",
+    "convert of a format-1 log",
+    "convert of a cut format-1 log",
 ]
 
 
@@ -112,3 +122,119 @@ def test_doctor_sees_what_merge_once_wrote(tmp_path):
         writer.add_metadata("m", {"k": "v"})
         writer.finish()
     assert ("error", "SUMMARY_OFFSET_WITHOUT_GROUP") in doctor(path)
+
+
+def _library_message(schema, cache: dict):
+    """The protobuf library's class for a channel's schema, from its FileDescriptorSet alone
+    (what Foxglove does, with protobufjs)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    if schema.id not in cache:
+        fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+        pool = descriptor_pool.DescriptorPool()
+        for f in fds.file:
+            pool.Add(f)
+        cache[schema.id] = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+    return cache[schema.id]
+
+
+@pytest.mark.slow  # the files above (CI's slow pass runs it)
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_of_written_file_reads_whole_in_the_python_readers(written, kind):
+    """Python ``mcap``'s seeking and streaming readers read every message, CRCs checked, in
+    the same order; the protobuf library decodes every block from the file's own schema to the
+    values rgtbus reads (``blocks.decode_record``); every JSON message is JSON."""
+    import io
+
+    import numpy as np
+    from mcap.reader import NonSeekingReader, make_reader
+
+    from rgtbus.telemetry import blocks
+
+    data = written[kind].read_bytes()
+    seeking = list(make_reader(io.BytesIO(data), validate_crcs=True).iter_messages())
+    streaming = list(NonSeekingReader(io.BytesIO(data), validate_crcs=True).iter_messages())
+    assert [(c.topic, m.log_time, m.data) for _, c, m in seeking] == [
+        (c.topic, m.log_time, m.data) for _, c, m in streaming
+    ]
+    classes: dict = {}
+    hot = 0
+    for schema, channel, message in seeking:
+        if channel.message_encoding == "json":
+            json.loads(message.data)
+            continue
+        assert channel.message_encoding == "protobuf" and schema.encoding == "protobuf"
+        theirs = _library_message(schema, classes).FromString(message.data)
+        ours = blocks.decode_record(blocks.SCHEMAS[schema.name], message.data, channel.topic)
+        for field in blocks.SCHEMAS[schema.name].fields:
+            mine, got = ours.get(field.name), getattr(theirs, field.name)
+            if field.repeated and field.kind != "string":
+                assert np.array_equal(np.asarray(mine), np.asarray(list(got))), field.name
+            elif field.name in ours:
+                assert mine == (list(got) if field.repeated else got), field.name
+        hot += 1
+    assert hot or kind in ("launcher's own", "recover of a file with no message"), kind
+
+
+NODE = shutil.which("node")
+JS = Path(__file__).parent / "js"
+
+
+def _camel(name: str) -> str:
+    head, *rest = name.split("_")
+    return head + "".join(part[:1].upper() + part[1:] for part in rest)
+
+
+@pytest.mark.slow  # the files above (CI's slow pass runs it, after npm ci --prefix tests/js)
+@pytest.mark.skipif(NODE is None, reason="no Node.js on this machine: .ci/run installs the readers")
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_of_written_file_reads_whole_in_foxglove_s_readers(written, kind):
+    """@mcap/core reads the file whole, CRCs checked, and protobufjs decodes every block from
+    the file's own schema (what Foxglove does) to the values rgtbus reads; JSON to its JSON."""
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from rgtbus.telemetry import blocks
+
+    assert (JS / "node_modules").is_dir(), "npm ci --prefix tests/js (as .ci/run does)"
+    done = subprocess.run([NODE, str(JS / "check.mjs"), str(written[kind])],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    theirs = [json.loads(line) for line in done.stdout.splitlines()]
+    for m in theirs:  # a block's defaults (empty columns too), as left out below
+        if blocks.schema_of(m["topic"]) is not None:
+            m["value"] = {k: v for k, v in m["value"].items() if v not in ("", 0, False, [])}
+    with open(written[kind], "rb") as f:
+        ours = [(s, c, m) for s, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert len(theirs) == len(ours)
+    by_time = sorted(_norm(m) for m in theirs)
+    mine = []
+    for schema, channel, message in ours:
+        if channel.message_encoding == "json":
+            value = json.loads(message.data)
+        else:
+            block = blocks.SCHEMAS[schema.name]
+            record = blocks.decode_record(block, message.data, channel.topic)
+            value = {}
+            for f in block.fields:  # as protobufjs gives it: defaults left out, names in camel
+                v = record.get(f.name)
+                v = v.tolist() if isinstance(v, np.ndarray) else v
+                if v not in (None, "", 0, 0.0, False, []):
+                    value[_camel(f.name)] = v
+        mine.append({"topic": channel.topic, "log_time": message.log_time, "value": value})
+    assert by_time == sorted(_norm(m) for m in mine)
+
+
+def _norm(message: dict) -> tuple[int, str, str]:
+    """A message as (log time, topic, its value as canonical JSON, every number a float):
+    JavaScript writes 200 where Python writes 200.0, and orders keys as it read them."""
+
+    def floats(v):
+        if isinstance(v, dict):
+            return {k: floats(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [floats(x) for x in v]
+        return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else v
+
+    value = json.dumps(floats(message["value"]), sort_keys=True)
+    return message["log_time"], message["topic"], value

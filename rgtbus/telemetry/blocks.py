@@ -404,7 +404,7 @@ _TO_RECORD: dict[str, Callable[[Block, str], dict[str, Any]]] = {
 MAX_SECONDS = 1e9  # ~31 years of simulated time
 MAX_SAMPLE = 1 << 53  # a float64 holds every integer up to here
 _TIMES = frozenset({"t", "times"})
-_SAMPLES = frozenset({"sample", "samples"})
+_SAMPLES = frozenset({"sample", "samples", "window", "message"})  # indexes and counts: >= 0
 
 
 def _ranges(schema: BlockSchema, block: Block, where: str) -> None:
@@ -421,7 +421,7 @@ def _ranges(schema: BlockSchema, block: Block, where: str) -> None:
         elif f.name in _SAMPLES:
             array = value if isinstance(value, np.ndarray) else np.asarray([value])
             if array.size and (int(array.min()) < 0 or int(array.max()) > MAX_SAMPLE):
-                raise RgtbusError(f"{where}: {f.name} holds a sample index outside 0..2^53")
+                raise RgtbusError(f"{where}: {f.name} holds an index outside 0..2^53")
 
 
 def decode_record(schema: BlockSchema, data: bytes, where: str) -> dict[str, Any]:
@@ -572,11 +572,11 @@ class PulseBatch:
 
 class PulseBlocks:
     """A sender's pulses held in the batches of their blocks (``block`` samples each), a block
-    let go once the sender's own clock is a block past its end (``before``: its other records
-    say how far it has come, and no pulse is ever planned in its past), and the rest at the
-    end: which pulses a ``/tx/pulse`` record holds depends on the pulses alone, never on the
-    order they were logged in (a sender plans a late choice before sends it planned earlier),
-    and when it is written on how far the sender has come. The one rule for the writer
+    let go once the sender's own clock is past its end (``before``: its other records say how
+    far it has come, and no pulse is ever planned in its past), and the rest at the end: which
+    pulses a ``/tx/pulse`` record holds depends on the pulses alone, never on the order they
+    were logged in (a sender plans a late choice before sends it planned earlier), and when it
+    is written on how far the sender has come. The one rule for the writer
     (``UnitLog.pulse``) and ``convert``."""
 
     def __init__(self, unit: str, tau: float, block: int) -> None:

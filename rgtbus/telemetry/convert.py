@@ -166,13 +166,13 @@ class _Converter:
 
     def passed(self, t_ns: int) -> None:
         """The log has come to ``t_ns`` (messages in log-time order): every sender's pulse
-        blocks a block or more behind it are whole."""
+        blocks, and every unit's decode blocks, that end by then are whole."""
         if self.tau is None:
             return
         now = sample_of(seconds(t_ns), self.tau)
-        self._decodes_before(now - self._block())
+        self._decodes_before(now)
         for blocks in self.pulses.values():
-            for record in blocks.before(now - blocks.block):
+            for record in blocks.before(now):
                 self.write(r.TX_PULSE, record, ns(record["t"]))
 
     def copy(self, cid: int, t_ns: int, data: bytes) -> None:

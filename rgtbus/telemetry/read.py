@@ -1008,9 +1008,8 @@ class Replay:
         # with either stream still empty (e.g. killed before its first flush, or stopped
         # before its first decode) only before the start. In one file cut short, the records
         # written last need not be the latest in log time either. Its pulses go out a block
-        # at a time, a block once its records are a block past it (``PulseBlocks.before``):
-        # complete before the start of the block before its last record's, or whole once it
-        # reported (at its end).
+        # at a time, a block once its records are past it (``PulseBlocks.before``): complete
+        # before the start of its last record's block, or whole once it reported (at its end).
         reported = {m.get("unit") for _, m in self.by_topic[UNIT_REPORT]}
         pulses = self._pulse_bound
 
@@ -1028,7 +1027,7 @@ class Replay:
         if tau is None:
             return 0
         block = max(1, round(BLOCK_SECONDS / tau))
-        done = (sample_of(seconds(t_ns), tau) - block) // block
+        done = sample_of(seconds(t_ns), tau) // block
         return max(0, ns(time_of(done * block, tau)))
 
     def traced_units(self) -> list[str]:

@@ -247,9 +247,10 @@ class UnitLog:
         self.recorder.write(topic, record, ns(t))
 
     def _pulses_before(self, t: float) -> None:
-        """The pulse blocks that ended a block or more before ``t``, the time of a record of
-        this unit's own: a log cut after that record holds them (``Replay.units_until_ns``)."""
-        for block in self._pulses.before(sample_of(t, self.tau) - self._decode_block):
+        """The pulse blocks that ended by ``t``, the time of a record of this unit's own (it is
+        written at or after its time, and no pulse is logged for a time already past): a log
+        cut after that record holds them (``Replay.units_until_ns``)."""
+        for block in self._pulses.before(sample_of(t, self.tau)):
             self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
 
     def trace(self, first: int, x: np.ndarray, y: np.ndarray) -> None:
