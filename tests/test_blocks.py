@@ -170,3 +170,22 @@ def test_a_record_the_block_cannot_hold_is_refused_when_written() -> None:
         blocks.encode_record(
             blocks.MEDIUM, {"window": 1, "t": 0.0, "sample_rate": 1.0, "samples": ["x"]}
         )
+
+
+def test_which_pulses_a_block_holds_does_not_depend_on_the_order_they_were_logged_in() -> None:
+    """A sender plans a late choice before sends it planned earlier (logged as planned), or
+    logs each pulse as it goes on air: the same blocks either way, each let go once the
+    sender's own records are past it."""
+
+    def pulse(k: int) -> records.PulseRecord:
+        ref = records.message_ref(k // 100, "id", "id", "u1", "u2")
+        return records.pulse("u1", "u2", 10.0, 0.4, 0.005, k, ref)
+
+    got = []
+    for order in ((5261, 7094, 5517, 5817), (5261, 5517, 5817, 7094)):
+        held = blocks.PulseBlocks("u1", 0.005, 1000)
+        for k in order:
+            held.add(pulse(k))
+        out = held.before(6000) + held.end()  # a record of u1's at sample 6000, then its end
+        got.append([list(b["sample"]) for b in out])
+    assert got[0] == got[1] == [[5261, 5517, 5817], [7094]]
