@@ -218,6 +218,7 @@ def test_every_public_name_of_the_face_says_what_it_is():
     assert not missing, missing
 
 
+@pytest.mark.slow  # a traced run's every topic as a frame, twice: ~5 s (CI's slow pass)
 def test_open_log_reads_each_topic_when_asked_and_alike_from_a_path_or_a_stream(tmp_path):
     """A traced log's traces stay in the file until asked for (opened by path, or as a file
     opened from one), every other topic stays JSON until asked for; each table is the same as

@@ -663,6 +663,7 @@ def _library_class(schema):
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
 
 
+@pytest.mark.slow  # every message of a traced run decoded twice: ~2 s (CI's slow pass)
 def test_every_logged_message_validates_against_its_schema():
     """A JSON topic's messages against the JSON Schema its channel carries; a hot topic's
     blocks against the protobuf type its channel carries: the protobuf library reads each
@@ -718,6 +719,7 @@ def _layout_topics(node, out):
     return out
 
 
+@pytest.mark.slow  # a traced run read whole: ~3 s (CI's slow pass)
 def test_foxglove_layout_names_only_existing_topics():
     layout = json.loads((ROOT / "docs" / "foxglove-layout.json").read_text())
     panels = set(layout["configById"])

@@ -407,20 +407,33 @@ _TIMES = frozenset({"t", "times"})
 _SAMPLES = frozenset({"sample", "samples", "window", "message"})  # indexes and counts: >= 0
 
 
+_NOT_FINITE = "a value that is not a finite number"
+
+
 def _ranges(schema: BlockSchema, block: Block, where: str) -> None:
     for f in schema.fields:
         value = block[f.name]
         if f.kind in ("double", "float"):
-            array = value if isinstance(value, np.ndarray) else np.asarray([value])
-            if array.size and not np.isfinite(array).all():
-                raise RgtbusError(f"{where}: {f.name} holds a value that is not a finite number")
-            if f.name in _TIMES and array.size and (
-                float(array.min()) < 0 or float(array.max()) > MAX_SECONDS
-            ):
+            if isinstance(value, np.ndarray):
+                if not value.size:
+                    continue
+                lo, hi = float(value.min()), float(value.max())  # NaN: both NaN
+                if not (math.isfinite(lo) and math.isfinite(hi)):
+                    raise RgtbusError(f"{where}: {f.name} holds {_NOT_FINITE}")
+            else:
+                lo = hi = float(value)  # type: ignore[arg-type]
+                if not math.isfinite(lo):
+                    raise RgtbusError(f"{where}: {f.name} holds {_NOT_FINITE}")
+            if f.name in _TIMES and (lo < 0 or hi > MAX_SECONDS):
                 raise RgtbusError(f"{where}: {f.name} holds a time outside 0..{MAX_SECONDS:g} s")
         elif f.name in _SAMPLES:
-            array = value if isinstance(value, np.ndarray) else np.asarray([value])
-            if array.size and (int(array.min()) < 0 or int(array.max()) > MAX_SAMPLE):
+            if isinstance(value, np.ndarray):
+                if not value.size:
+                    continue
+                lo_i, hi_i = int(value.min()), int(value.max())
+            else:
+                lo_i = hi_i = int(value)  # type: ignore[arg-type]
+            if lo_i < 0 or hi_i > MAX_SAMPLE:
                 raise RgtbusError(f"{where}: {f.name} holds an index outside 0..2^53")
 
 
