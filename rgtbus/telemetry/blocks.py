@@ -18,6 +18,9 @@ tables, so a record a reader gets from a block is as sound as one its writer bui
 
 from __future__ import annotations
 
+import array
+import heapq
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from functools import cache
@@ -189,11 +192,11 @@ def _number(record: Mapping[str, Any], key: str, kind: type) -> Any:
 def _decode_block(record: Mapping[str, Any]) -> Block:
     block: Block = {"unit": record["unit"], "t": _number(record, "t", float)}
     if "names" in record:  # indexes into the record's own tables
-        for key in (*r.DECODE_TABLES, *r.NAMED_COLUMNS):
-            block[key] = record[key] if key in r.DECODE_TABLES else _index(record[key])
-        block["names"] = list(block["names"])  # type: ignore[arg-type]
-        block["kinds"] = list(block["kinds"])  # type: ignore[arg-type]
-        block["codes"] = list(block["codes"])  # type: ignore[arg-type]
+        for key in r.DECODE_TABLES:  # a unit's own tables: the same tuple in every record
+            table = record[key]
+            block[key] = table if type(table) is tuple else _texts(record, key)  # type: ignore[assignment]
+        for key in r.NAMED_COLUMNS:
+            block[key] = _index(record[key])
     else:  # columns of names: tables made here (units first, as a unit's own tables are)
         units: dict[str, int] = {}
         for key in ("sender", "addressee", "channel"):
@@ -223,6 +226,7 @@ def _index(column: Any) -> np.ndarray:
 
 
 _U4 = np.dtype("<u4")
+_I8 = np.dtype("<i8")
 
 
 def _within(index: np.ndarray, table: Sequence[Any], column: str, name: str) -> np.ndarray:
@@ -233,6 +237,12 @@ def _within(index: np.ndarray, table: Sequence[Any], column: str, name: str) -> 
             bad = int(index[index >= len(table)][0])
             raise ValueError(f"{column} {bad} is no index into its {len(table)} {name}")
         return index
+    if index.dtype == _I8 and index.flags.c_contiguous:
+        # a negative index seen as unsigned is beyond any table: one pass finds both
+        if index.size and int(index.view(np.uint64).max()) >= len(table):
+            bad = int(index[(index < 0) | (index >= len(table))][0])
+            raise ValueError(f"{column} {bad} is no index into its {len(table)} {name}")
+        return index.astype(_U4)
     if index.size and index.dtype.kind not in "iu":
         raise ValueError(f"{column}: {index.dtype} values, not indexes")
     if index.size and (int(index.min()) < 0 or int(index.max()) >= len(table)):
@@ -485,6 +495,13 @@ def pulse_rows(block: Mapping[str, Any]) -> list[r.PulseRecord]:
 _PULSE_ROW = ("channel", "magnitude", "message", "kind", "code", "sender", "addressee", "block")
 
 
+_PULSE_TYPES = "qIdqIIIII"  # the typecodes of PulseBatch's columns
+
+
+def _pulse_columns() -> tuple[array.array[Any], ...]:
+    return tuple(array.array(code) for code in _PULSE_TYPES)
+
+
 class PulseBatch:
     """A sender's pulses of one block, held until the block is over (``take``): the columns of
     a ``/tx/pulse`` block, with its tables built as pulses come."""
@@ -493,8 +510,10 @@ class PulseBatch:
 
     def __init__(self, unit: str, tau: float) -> None:
         self.unit, self.tau = unit, tau
-        # sample, channel, magnitude, message, kind, code, sender, addressee, block
-        self.cols: tuple[list[Any], ...] = tuple([] for _ in range(9))
+        # sample, channel, magnitude, message, kind, code, sender, addressee, block: typed
+        # arrays, no Python object a pulse (a sender plans a run's sends ahead: its pulses
+        # wait here until its clock passes their block)
+        self.cols: tuple[array.array[Any], ...] = _pulse_columns()
         self.channels: dict[str, int] = {}
         self.omegas: list[float] = []
         self.names: dict[str, int] = {}
@@ -513,28 +532,34 @@ class PulseBatch:
             c = self.channels[pulse["channel"]] = len(self.omegas)
             self.omegas.append(float(pulse["omega"]))
         names, kinds, codes = self.names, self.kinds, self.codes
-        for col, value in zip(
-            self.cols,
-            (
-                int(pulse["sample"]),
-                c,
-                float(pulse["magnitude"]),
-                int(m["id"]),
-                kinds.setdefault(m["kind"], len(kinds)),
-                codes.setdefault(m["code"], len(codes)),
-                names.setdefault(m["sender"], len(names)),
-                names.setdefault(m["addressee"], len(names)),
-                int(m.get("block", 0)),
-            ),
-            strict=True,
-        ):
-            col.append(value)
+        sample, channel, magnitude, message, kind, code, sender, addressee, block = self.cols
+        sample.append(pulse["sample"])
+        channel.append(c)
+        magnitude.append(pulse["magnitude"])
+        message.append(m["id"])
+        kind.append(kinds.setdefault(m["kind"], len(kinds)))
+        code.append(codes.setdefault(m["code"], len(codes)))
+        sender.append(names.setdefault(m["sender"], len(names)))
+        addressee.append(names.setdefault(m["addressee"], len(names)))
+        block.append(m.get("block", 0))
 
     def take(self) -> dict[str, Any]:
-        """The batch as a ``/tx/pulse`` block record (at least one pulse), emptied. Canonical:
-        its tables sorted, its rows in order of sample (then message, repair block, channel,
-        kind, code, sender, addressee, magnitude), whatever order the pulses came in. Its
-        columns are lists (a block holds a few pulses: packed as they are, ``codec``)."""
+        """The batch as a ``/tx/pulse`` block record (at least one pulse); the batch is done
+        with. Canonical: its tables sorted, its rows in order of sample (then message, repair
+        block, channel, kind, code, sender, addressee, magnitude), whatever order the pulses
+        came in. Pulses logged in time order into tables first seen in sorted order (the
+        usual case) are that already: its columns are then its arrays as they are."""
+        tables = (self.channels, self.kinds, self.codes, self.names)
+        sample = self.cols[0]
+        if all(list(t) == sorted(t) for t in tables) and all(
+            a < b for a, b in itertools.pairwise(sample)
+        ):
+            cols = [np.frombuffer(c, dtype=c.typecode) for c in self.cols]
+            channels, kinds, codes, names = (list(t) for t in tables)
+            return self._record(channels, kinds, codes, names, cols)
+        return self._sorted()
+
+    def _sorted(self) -> dict[str, Any]:
         channels, c_at = _sorted_table(self.channels)
         kinds, k_at = _sorted_table(self.kinds)
         codes, d_at = _sorted_table(self.codes)
@@ -554,30 +579,39 @@ class PulseBatch:
                 strict=True,
             )
         )
-        cols = list(zip(*rows, strict=True))
-        record = {
+        by = list(zip(*rows, strict=True))
+        cols = [by[0], by[3], by[8], by[1], by[4], by[5], by[6], by[7], by[2]]
+        typed = [np.array(c, dtype=code) for c, code in zip(cols, _PULSE_TYPES, strict=True)]
+        return self._record(channels, kinds, codes, names, typed)
+
+    def _record(
+        self,
+        channels: list[str],
+        kinds: list[str],
+        codes: list[str],
+        names: list[str],
+        cols: Sequence[np.ndarray],
+    ) -> dict[str, Any]:
+        sample, channel, magnitude, message, kind, code, sender, addressee, block = cols
+        return {
             "unit": self.unit,
             "tau": self.tau,
-            "t": float(cols[0][-1] * self.tau),
+            "t": float(int(sample[-1]) * self.tau),
             "channels": channels,
             "omegas": [self.omegas[self.channels[c]] for c in channels],
             "names": names,
             "kinds": kinds,
             "codes": codes,
-            "sample": list(cols[0]),
-            "channel": list(cols[3]),
-            "magnitude": list(cols[8]),
-            "message": list(cols[1]),
-            "kind": list(cols[4]),
-            "code": list(cols[5]),
-            "sender": list(cols[6]),
-            "addressee": list(cols[7]),
-            "block": list(cols[2]),
+            "sample": sample,
+            "channel": channel,
+            "magnitude": magnitude,
+            "message": message,
+            "kind": kind,
+            "code": code,
+            "sender": sender,
+            "addressee": addressee,
+            "block": block,
         }
-        self.cols = tuple([] for _ in range(9))
-        self.channels, self.omegas = {}, []
-        self.names, self.kinds, self.codes = {}, {}, {}
-        return record
 
     def __len__(self) -> int:
         return len(self.cols[0])
@@ -595,6 +629,7 @@ class PulseBlocks:
     def __init__(self, unit: str, tau: float, block: int) -> None:
         self.unit, self.tau, self.block = unit, tau, block
         self._held: dict[int, PulseBatch] = {}
+        self._order: list[int] = []  # the blocks held, a heap
 
     def add(self, pulse: Mapping[str, Any]) -> None:
         """Hold ``pulse`` in its block's batch."""
@@ -602,18 +637,22 @@ class PulseBlocks:
         batch = self._held.get(b)
         if batch is None:
             batch = self._held[b] = PulseBatch(self.unit, self.tau)
+            heapq.heappush(self._order, b)
         batch.add(pulse)
 
     def before(self, sample: int) -> list[dict[str, Any]]:
         """The blocks held that end at or before ``sample``, in order: the sender's clock has
         passed them (its other records say so), no pulse of theirs is still to come."""
-        done = [k for k in sorted(self._held) if (k + 1) * self.block <= sample]
-        return [self._held.pop(k).take() for k in done]
+        order, out = self._order, []
+        while order and (order[0] + 1) * self.block <= sample:
+            out.append(self._held.pop(heapq.heappop(order)).take())
+        return out
 
     def end(self) -> list[dict[str, Any]]:
         """Every block still held, in order (the sender is done)."""
         out = [self._held[k].take() for k in sorted(self._held)]
         self._held.clear()
+        self._order.clear()
         return out
 
 

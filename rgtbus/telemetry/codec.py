@@ -192,15 +192,22 @@ _CODES = {"double": "d", "float": "f", "fixed32": "I", "sfixed32": "i", "fixed64
 _SMALL = 64  # a list this short is packed by struct: NumPy's fixed cost is the larger
 
 
+_STRUCTS: dict[tuple[int, str], struct.Struct] = {}
+
+
 def _small_column(f: Field, values: list[Any]) -> bytes | None:
     """A short list's packed bytes, or None when it holds what only ``_column`` says well
-    (a value of another type, one out of range)."""
-    want = float if f.dtype.kind == "f" else int
-    if not all(type(v) is want for v in values):
+    (a value of another type, one out of range: struct refuses a float for an integer, text
+    and None for any number)."""
+    key = (len(values), f.kind)
+    packer = _STRUCTS.get(key)
+    if packer is None:
+        packer = _STRUCTS[key] = struct.Struct(f"<{len(values)}{_CODES[f.kind]}")
+    if f.dtype.kind != "f" and any(type(v) is bool for v in values):
         return None
     try:
-        return struct.pack(f"<{len(values)}{_CODES[f.kind]}", *values)
-    except (struct.error, OverflowError):
+        return packer.pack(*values)
+    except (struct.error, OverflowError, TypeError):
         return None
 
 
