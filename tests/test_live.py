@@ -179,6 +179,7 @@ def test_a_watched_run_logs_what_nobody_watching_logs(tmp_path, scenario):
     assert _split_live(got, messages) == _live_of(messages)
 
 
+@pytest.mark.slow  # a traced run served live: ~2.5 s (CI's slow pass)
 def test_traces_are_served_too(tmp_path):
     # paced so that a client on a loaded machine keeps up: the server keeps a bounded backlog
     got, log = _live_run(tmp_path, "--traces", "--realtime", "200", scenario="example1")

@@ -926,6 +926,7 @@ def test_a_tampered_shared_spike_record_is_named_not_read(tmp_path, capsys, chan
     )
 
 
+@pytest.mark.slow  # a traced log through every tool: ~3 s (CI's slow pass)
 def test_every_tool_counts_a_logs_messages_alike(tmp_path, capsys):
     """info, replay, open_log and replay --verify give one number of messages for a traced
     log (the traces left in the file until asked for count too); verify says apart how many
