@@ -16,7 +16,7 @@ import pytest
 import rgtbus
 from rgtbus.cli import main
 from rgtbus.summary import SUMMARY_JSON_KEYS
-from rgtbus.telemetry.blocks import pulse_rows
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = [

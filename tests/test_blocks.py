@@ -11,7 +11,7 @@ import pytest
 from google.protobuf import json_format
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry import blocks, records
+from rgtbus.telemetry import blocks, pulse_blocks, records
 from rgtbus.telemetry.codec import encode
 from tests.test_codec import library_class
 
@@ -47,20 +47,20 @@ def test_every_hot_topic_has_its_block() -> None:
 
 def test_a_pulse_block_holds_each_pulse_as_sent() -> None:
     pulses = _pulses()
-    record = blocks.pulse_block_of(pulses, "a", TAU)
+    record = pulse_blocks.pulse_block_of(pulses, "a", TAU)
     data = blocks.encode_record(blocks.PULSE, record)
     back = blocks.decode_record(blocks.PULSE, data, "test")
-    assert blocks.pulse_rows(back) == pulses
+    assert pulse_blocks.pulse_rows(back) == pulses
     assert back["t"] == pulses[-1]["t"]
 
 
 def test_a_pulse_block_is_canonical_whatever_order_its_pulses_came_in() -> None:
     pulses = _pulses()
-    want = blocks.encode_record(blocks.PULSE, blocks.pulse_block_of(pulses, "a", TAU))
+    want = blocks.encode_record(blocks.PULSE, pulse_blocks.pulse_block_of(pulses, "a", TAU))
     for seed in range(5):
         shuffled = list(pulses)
         random.Random(seed).shuffle(shuffled)
-        record = blocks.pulse_block_of(shuffled, "a", TAU)
+        record = pulse_blocks.pulse_block_of(shuffled, "a", TAU)
         assert blocks.encode_record(blocks.PULSE, record) == want
 
 
@@ -84,7 +84,7 @@ def test_decodes_spikes_medium_and_trace_round_trip() -> None:
 
 def test_the_protobuf_library_reads_each_block_from_its_descriptor() -> None:
     """What Foxglove does: the message class from the channel's schema data alone."""
-    record = blocks.pulse_block_of(_pulses(), "a", TAU)
+    record = pulse_blocks.pulse_block_of(_pulses(), "a", TAU)
     data = blocks.encode_record(blocks.PULSE, record)
     message = library_class(blocks.PULSE).FromString(data)
     assert list(message.sample) == list(record["sample"])
@@ -183,7 +183,7 @@ def test_which_pulses_a_block_holds_does_not_depend_on_the_order_they_were_logge
 
     got = []
     for order in ((5261, 7094, 5517, 5817), (5261, 5517, 5817, 7094)):
-        held = blocks.PulseBlocks("u1", 0.005, 1000)
+        held = pulse_blocks.PulseBlocks("u1", 0.005, 1000)
         for k in order:
             held.add(pulse(k))
         out = held.before(6000) + held.end()  # a record of u1's at sample 6000, then its end

@@ -18,7 +18,7 @@ from rgtbus.rgt import solve_brute_force
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.summary import check_expectations, round_dynamics
 from rgtbus.telemetry import MemoryRecorder
-from rgtbus.telemetry.blocks import pulse_rows
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.truth import clean_rounds, intended_group
 
 ROOT = Path(__file__).parent.parent

@@ -20,8 +20,9 @@ from mcap.reader import make_reader
 from rgtbus import api
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.blocks import DECODE, PULSE, TRACE, decode_record, encode_record, pulse_rows
+from rgtbus.telemetry.blocks import DECODE, PULSE, TRACE, decode_record, encode_record
 from rgtbus.telemetry.live import LiveView, parse_address
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, TX_PULSE, decode_rows
 from rgtbus.timebase import ns
 

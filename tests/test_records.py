@@ -4,7 +4,7 @@ TypedDicts name the schemas' fields."""
 
 from __future__ import annotations
 
-from rgtbus.telemetry import blocks, records, topics
+from rgtbus.telemetry import blocks, pulse_blocks, records, topics
 from rgtbus.telemetry.recorder import MemoryRecorder
 
 
@@ -12,7 +12,7 @@ def built() -> dict[str, dict]:
     ref = records.message_ref(3, "payload", "{go}", "a", "b")
     return {
         "/medium": records.medium_window(2, 0.2, 200.0, [0.0, 0.4]),
-        "/tx/pulse": blocks.pulse_block_of(
+        "/tx/pulse": pulse_blocks.pulse_block_of(
             [records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref)], "a", 0.005
         ),
         "/rx/spike": records.spikes("b", 0.005, [41, 41, 44], [0, 1, 1], ["a", "b"]),

@@ -21,7 +21,7 @@ from same_run import plain
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario, parse_scenario
-from rgtbus.telemetry import McapRecorder, blocks, read_log, records, schema_for
+from rgtbus.telemetry import McapRecorder, blocks, pulse_blocks, read_log, records, schema_for
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
 from rgtbus.telemetry.codec import encode
@@ -154,7 +154,7 @@ def as_format1(data: bytes, spikes=None, decodes=None) -> bytes:
     from mcap.writer import CompressionType, Writer
 
     def pulses(t_ns, record):
-        return [("/tx/pulse", round(p["t"] * 1e9), p) for p in blocks.pulse_rows(record)]
+        return [("/tx/pulse", round(p["t"] * 1e9), p) for p in pulse_blocks.pulse_rows(record)]
 
     forms = {"/tx/pulse": pulses, "/rx/spike": spikes, "/rx/decodes": decodes}
     reader = make_reader(io.BytesIO(data))

@@ -1,7 +1,7 @@
 """``rgtbus convert``: a log of format 1 (every topic JSON) written as format 2 (docs/format.md).
 
 The hot topics become blocks as a run of today writes them: a sender's pulses one
-``/tx/pulse`` block a decode block (``blocks.PulseBlocks``, the writer's own rule), decodes,
+``/tx/pulse`` block a decode block (``pulse_blocks.PulseBlocks``, the writer's own rule), decodes,
 spikes, the medium and traces one block a record (spikes of the older per-sample forms as
 columns). Every other topic is copied message for message, with its own schema. The metadata
 records are copied, with a ``convert`` record saying what was converted. A log cut short is
@@ -23,7 +23,8 @@ import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
-from rgtbus.telemetry.blocks import BLOCK_SECONDS, PulseBlocks
+from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.pulse_blocks import PulseBlocks
 from rgtbus.telemetry.recorder import McapRecorder
 from rgtbus.telemetry.scan import RawLog, _require_run
 from rgtbus.telemetry.untrusted import depth_error, printable

@@ -32,7 +32,8 @@ from mcap.reader import make_reader
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
-from rgtbus.telemetry.blocks import MESSAGE_ENCODING, pulse_rows, schema_of
+from rgtbus.telemetry.blocks import MESSAGE_ENCODING, schema_of
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.records import (
     LOG,
     RUN,
@@ -497,7 +498,7 @@ def cat_messages(
 
     A ``/rx/decodes`` block (a unit's decodes of a block, as columns) is given one decode a
     message (``records.decode_rows``: what a ``/rx/decode`` holds), and a ``/tx/pulse`` block
-    one pulse a message (``blocks.pulse_rows``), each at its own time and filtered by it;
+    one pulse a message (``pulse_blocks.pulse_rows``), each at its own time and filtered by it;
     ``blocks``: the blocks as stored instead (their columns as lists)."""
     if not isinstance(log, CheckedLog):
         with check_log(log) as checked:

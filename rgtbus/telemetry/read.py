@@ -35,7 +35,8 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics, untrusted
-from rgtbus.telemetry.blocks import BLOCK_SECONDS, pulse_rows, schema_of
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, schema_of
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
     LOG,

@@ -85,7 +85,7 @@ class PulseRecord(TypedDict):
 
 class PulseBlockRecord(TypedDict):
     """``/tx/pulse``: a sender's pulses of one 5 s block, one row a pulse, in order of sample
-    (``blocks.PulseBatch``; ``blocks.pulse_rows`` reads them as ``PulseRecord``s)."""
+    (``pulse_blocks.PulseBatch``; ``pulse_blocks.pulse_rows`` reads them as ``PulseRecord``s)."""
 
     unit: str  # the sender
     t: float  # the last pulse's time

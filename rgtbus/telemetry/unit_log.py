@@ -29,7 +29,8 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from rgtbus.telemetry import records
-from rgtbus.telemetry.blocks import BLOCK_SECONDS, PulseBlocks, pulse_block_of
+from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.pulse_blocks import PulseBlocks, pulse_block_of
 from rgtbus.telemetry.recorder import Recorder
 from rgtbus.timebase import ns, sample_of, samples_of
 

@@ -21,7 +21,8 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
-from rgtbus.telemetry.blocks import TRACE, decode_record, pulse_rows
+from rgtbus.telemetry.blocks import TRACE, decode_record
+from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import LogMessage, encode_json
 from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
