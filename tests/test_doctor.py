@@ -186,7 +186,10 @@ def _camel(name: str) -> str:
 
 
 @pytest.mark.slow  # the files above (CI's slow pass runs it, after npm ci --prefix tests/js)
-@pytest.mark.skipif(NODE is None, reason="no Node.js on this machine: .ci/run installs the readers")
+@pytest.mark.skipif(
+    NODE is None or shutil.which("npm") is None,
+    reason="no Node.js and npm on this machine (where they are, .ci/run installs the readers)",
+)
 @pytest.mark.parametrize("kind", KINDS)
 def test_every_kind_of_written_file_reads_whole_in_foxglove_s_readers(written, kind):
     """@mcap/core reads the file whole, CRCs checked, and protobufjs decodes every block from
