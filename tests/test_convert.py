@@ -1,10 +1,11 @@
 """Format 1 and ``rgtbus convert`` (docs/format.md).
 
-The logs under tests/data/format1/ were written by rgtbus before format 2 (commit 59e06c0):
-gate (seed 3) and crowd10, each with the scenario's own seed. ``frames.json`` holds, for every
-shipped scenario of up to 12 units, the DataFrames that rgtbus's reader of that time gave for its
-log (columns, dtypes, rows and a digest of the values): today's reader must give the same ones
-for today's log of the same run."""
+The format-1 logs are made as format 1 wrote them (``format1.as_format1``: every topic JSON,
+one ``/tx/pulse`` record a pulse, no ``format`` record); at 59e06c0 the same test converted logs
+that rgtbus of format 1 wrote itself, to the same bytes. ``tests/data/format1/frames.json``
+holds, for every shipped scenario of up to 12 units, the DataFrames that format 1's own reader
+(59e06c0) gave for its log (columns, dtypes, rows and a digest of the values): today's reader
+must give the same ones for today's log of the same run."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from format1 import format1_log
 from mcap.reader import make_reader
 
 from rgtbus import open_log
@@ -29,7 +31,14 @@ from rgtbus.telemetry.version import FORMAT_RECORD
 ROOT = Path(__file__).parent.parent
 DATA = Path(__file__).parent / "data" / "format1"
 FRAMES = json.loads((DATA / "frames.json").read_text())
-OLD = {"gate": DATA / "gate-seed3.mcap", "crowd10": DATA / "crowd10.mcap"}
+NAMES = ("crowd10", "gate")
+
+
+@pytest.fixture(scope="module")
+def old(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A format-1 log of gate and of crowd10 (each with its own seed)."""
+    tmp = tmp_path_factory.mktemp("format1")
+    return {name: format1_log(name, tmp / f"{name}.mcap") for name in NAMES}
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
@@ -43,12 +52,12 @@ def _run(name: str, log: Path) -> None:
     assert main(["run", scenario, "--bus", "memory", "--log", str(log), "--quiet"]) == 0
 
 
-@pytest.mark.parametrize("name", sorted(OLD))
-def test_a_converted_log_is_the_log_of_the_same_run_today(name, tmp_path, capsys):
+@pytest.mark.parametrize("name", NAMES)
+def test_a_converted_log_is_the_log_of_the_same_run_today(name, old, tmp_path, capsys):
     """old -> convert: every message byte for byte what a run of today writes for the same
     scenario and seed, the same summary, DataFrames and metadata; it verifies."""
     converted, today = tmp_path / "converted.mcap", tmp_path / "today.mcap"
-    assert main(["convert", str(OLD[name]), "-o", str(converted)]) == 0
+    assert main(["convert", str(old[name]), "-o", str(converted)]) == 0
     assert "(format 1) into" in capsys.readouterr().out
     _run(name, today)
     assert _messages(converted) == _messages(today)
@@ -103,18 +112,18 @@ _READERS = [
 
 
 @pytest.mark.parametrize("argv", _READERS, ids=lambda a: " ".join(a[:2]))
-def test_every_reader_names_format_1_and_convert_in_one_line(argv, tmp_path, capsys):
+def test_every_reader_names_format_1_and_convert_in_one_line(argv, old, tmp_path, capsys):
     out = tmp_path / "out.mcap"
-    code = main([a.format(log=OLD["gate"], out=out) for a in argv])
+    code = main([a.format(log=old["gate"], out=out) for a in argv])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err, err
-    assert "format 1" in err and f"rgtbus convert {OLD['gate']} -o NEW.mcap" in err
+    assert "format 1" in err and f"rgtbus convert {old['gate']} -o NEW.mcap" in err
     assert not out.exists()
 
 
-def test_open_log_names_format_1_and_convert():
+def test_open_log_names_format_1_and_convert(old):
     with pytest.raises(RgtbusError, match=r"format 1 .*rgtbus convert"):
-        open_log(OLD["gate"])
+        open_log(old["gate"])
 
 
 def test_convert_refuses_what_it_cannot_convert_in_one_line(tmp_path, capsys):
@@ -134,20 +143,29 @@ def test_convert_refuses_what_it_cannot_convert_in_one_line(tmp_path, capsys):
         assert not out.exists()
 
 
-def _cut(path: Path, keep: float, dest: Path) -> Path:
-    data = path.read_bytes()
-    dest.write_bytes(data[: int(len(data) * keep)])
+def _cut(path: Path, at: int, dest: Path) -> Path:
+    dest.write_bytes(path.read_bytes()[:at])
     return dest
 
 
-def test_a_cut_format_1_log_converts_up_to_its_cut_and_stays_cut(tmp_path, capsys):
-    """Cut in its summary (every message whole): the same messages as the whole log's
+def _summary_start(path: Path) -> int:
+    """Where a finished MCAP file's summary begins (its footer says; 0: no summary)."""
+    data = path.read_bytes()
+    footer = len(data) - 8 - 29  # the magic after it; opcode, length, then summary_start
+    return int.from_bytes(data[footer + 9 : footer + 17], "little")
+
+
+def test_a_cut_format_1_log_converts_up_to_its_cut_and_stays_cut(old, tmp_path, capsys):
+    """Cut at its summary (every message whole): the same messages as the whole log's
     conversion, and a cut log still; cut in its one chunk: no message, and a cut log."""
     whole = tmp_path / "whole.mcap"
-    assert main(["convert", str(OLD["crowd10"]), "-o", str(whole), "--quiet"]) == 0
-    for keep, messages in ((0.9, _messages(whole)), (0.3, [])):
-        cut = _cut(OLD["crowd10"], keep, tmp_path / "cut.mcap")
-        out = tmp_path / f"out{keep}.mcap"
+    assert main(["convert", str(old["crowd10"]), "-o", str(whole), "--quiet"]) == 0
+    size = old["crowd10"].stat().st_size
+    summary = _summary_start(old["crowd10"])
+    assert 0 < summary < size
+    for at, messages in ((summary, _messages(whole)), (size // 3, [])):
+        cut = _cut(old["crowd10"], at, tmp_path / "cut.mcap")
+        out = tmp_path / f"out{at}.mcap"
         assert main(["convert", str(cut), "-o", str(out), "--json"]) == 0
         res = json.loads(capsys.readouterr().out)
         assert "truncated" in res["ended"] and res["written"] == len(messages)
@@ -156,13 +174,13 @@ def test_a_cut_format_1_log_converts_up_to_its_cut_and_stays_cut(tmp_path, capsy
     assert main(["replay", str(out), "--verify", "--quiet"]) == 3  # nothing verified: cut
 
 
-def _hostile(tmp_path: Path, topic: str, edit) -> Path:
+def _hostile(src: Path, tmp_path: Path, topic: str, edit) -> Path:
     """The gate log with the first message of ``topic`` edited (``edit(record)``), every CRC
     valid: written again with mcap's own writer."""
     from mcap.writer import Writer
 
     out = tmp_path / "hostile.mcap"
-    with open(OLD["gate"], "rb") as f, open(out, "wb") as g:
+    with open(src, "rb") as f, open(out, "wb") as g:
         reader = make_reader(f)
         w = Writer(g)
         w.start(profile="", library="test")
@@ -196,8 +214,10 @@ def _hostile(tmp_path: Path, topic: str, edit) -> Path:
         ("/medium", lambda r: r.update(window=True), "window: True is not an integer"),
     ],
 )
-def test_a_hostile_format_1_log_is_one_line_and_no_output(topic, edit, says, tmp_path, capsys):
-    src = _hostile(tmp_path, topic, edit)
+def test_a_hostile_format_1_log_is_one_line_and_no_output(
+    topic, edit, says, old, tmp_path, capsys
+):
+    src = _hostile(old["gate"], tmp_path, topic, edit)
     out = tmp_path / "out.mcap"
     assert main(["convert", str(src), "-o", str(out)]) == 2
     err = capsys.readouterr().err.strip()
@@ -205,9 +225,9 @@ def test_a_hostile_format_1_log_is_one_line_and_no_output(topic, edit, says, tmp
     assert not out.exists() and not out.with_name("out.mcap.part").exists()
 
 
-def test_convert_log_is_a_library_call(tmp_path):
+def test_convert_log_is_a_library_call(old, tmp_path):
     buf = io.BytesIO()
-    res = convert_log(scan_log(OLD["gate"]), buf)
+    res = convert_log(scan_log(old["gate"]), buf)
     assert res.read > res.written > 0 and res.ended == ""
     copy = tmp_path / "c.mcap"
     copy.write_bytes(buf.getvalue())

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 from cut_logs import EXE, ROOT, paced_run
+from format1 import format1_log
 
 GATE = ROOT / "scenarios" / "gate.toml"
 DOCTOR = shutil.which("pymcap-cli", path=str(Path(sys.executable).parent)) or shutil.which(
@@ -77,11 +78,11 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     files["merge of a cut and a whole log"] = tmp / "merged-cut.mcap"
     _rgtbus("merge", str(files["cut by kill -9"]), str(files["run"]), "-o",
             str(files["merge of a cut and a whole log"]))  # fmt: skip
-    old = Path(__file__).parent / "data" / "format1"
+    old = format1_log("crowd10", tmp / "format1.mcap")
     files["convert of a format-1 log"] = tmp / "converted.mcap"
-    _rgtbus("convert", str(old / "crowd10.mcap"), "-o", str(files["convert of a format-1 log"]))
+    _rgtbus("convert", str(old), "-o", str(files["convert of a format-1 log"]))
     cut = tmp / "cut-format1.mcap"
-    cut.write_bytes((old / "crowd10.mcap").read_bytes()[:-2000])  # its summary cut
+    cut.write_bytes(old.read_bytes()[:-2000])  # its summary cut
     files["convert of a cut format-1 log"] = tmp / "converted-cut.mcap"
     _rgtbus("convert", str(cut), "-o", str(files["convert of a cut format-1 log"]))
     return files
