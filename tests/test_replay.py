@@ -90,10 +90,11 @@ def rewrite(data: bytes, edit) -> bytes:
     return buf.getvalue()
 
 
-def copied(data: bytes, edit) -> bytes:
+def copied(data: bytes, edit, retime=lambda topic, t: t) -> bytes:
     """The log copied record for record with mcap's own writer, each message's bytes passed
-    through ``edit(topic, log time, data) -> data``: a hostile writer's bytes, which rgtbus's
-    recorder would never write."""
+    through ``edit(topic, log time, data) -> data`` and its log time through
+    ``retime(topic, log time)``: a hostile writer's bytes, which rgtbus's recorder would never
+    write."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
@@ -112,7 +113,8 @@ def copied(data: bytes, edit) -> bytes:
         channels[cid] = writer.register_channel(c.topic, c.message_encoding, sid, c.metadata)
     for _, channel, message in reader.iter_messages(log_time_order=False):
         body = edit(channel.topic, message.log_time, message.data)
-        writer.add_message(channels[channel.id], message.log_time, body, message.publish_time)
+        t = retime(channel.topic, message.log_time)
+        writer.add_message(channels[channel.id], t, body, t)
     writer.finish()
     return buf.getvalue()
 
@@ -888,37 +890,20 @@ def test_every_tool_counts_a_logs_messages_alike(tmp_path, capsys):
 def test_a_block_moved_in_time_is_named_by_verify(what, tmp_path, capsys):
     """A block's rows are compared at their own times; the block's log time (and its own
     ``t``) is compared too: a pulse block moved by 1 ms is a mismatch naming the block."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    first: list[int] = []
 
-    data = log_bytes("gate")
-    reader = make_reader(io.BytesIO(data))
-    summary = reader.get_summary()
-    path = tmp_path / "moved.mcap"
-    moved = []
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start(profile="", library="rgtbus (by hand)")
-        for record in reader.iter_metadata():
-            w.add_metadata(record.name, dict(record.metadata))
-        ids = {}
-        for cid, c in summary.channels.items():
-            s = summary.schemas[c.schema_id]
-            ids[cid] = w.register_channel(
-                c.topic, c.message_encoding, w.register_schema(s.name, s.encoding, s.data)
-            )
-        for _, c, m in reader.iter_messages(log_time_order=False):
-            t, body = m.log_time, m.data
-            if c.topic == "/tx/pulse" and not moved:
-                moved.append(t)
-                if what == "log time":
-                    t += 1_000_000
-                else:
-                    record = blocks.decode_record(blocks.PULSE, body, "x")
-                    record["t"] += 0.001
-                    body = blocks.encode_record(blocks.PULSE, record)
-            w.add_message(ids[c.id], t, body, t)
-        w.finish()
+    def retime(topic: str, t: int) -> int:
+        if topic == "/tx/pulse" and not first:
+            first.append(t)
+            return t + 1_000_000 if what == "log time" else t
+        return t
+
+    def later(record, data: bytes) -> bytes:
+        record["t"] += 0.001
+        return blocks.encode_record(blocks.PULSE, record)
+
+    edit = first_block("/tx/pulse", later) if what == "own time" else lambda tp, t, d: d
+    path = write(tmp_path, copied(log_bytes("gate"), edit, retime), "moved.mcap")
     assert main(["replay", str(path), "--verify"]) == 1
     out = capsys.readouterr().out
     assert "/tx/pulse" in out and ("block log time" in out or "its log time" in out), out
