@@ -40,7 +40,11 @@ def as_format1(data: bytes, spikes=None, decodes=None) -> bytes:
     def pulses(t_ns, record):
         return [("/tx/pulse", round(p["t"] * 1e9), p) for p in pulse_blocks.pulse_rows(record)]
 
-    forms = {"/tx/pulse": pulses, "/rx/spike": spikes, "/rx/decodes": decodes}
+    def each_unit(t_ns, record):  # format 1 wrote a unit's decodes a record of its own
+        units = record.pop("units", None) or [record.pop("unit")]
+        return [("/rx/decodes", t_ns, {"unit": u, **record}) for u in units]
+
+    forms = {"/tx/pulse": pulses, "/rx/spike": spikes, "/rx/decodes": decodes or each_unit}
     reader = make_reader(io.BytesIO(data))
     summary = reader.get_summary()
     assert summary is not None

@@ -158,9 +158,9 @@ def test_log_tables(tmp_path):
     assert len(spikes) and set(spikes.columns) == {"unit", "sample", "t", "channel", "omega"}
     assert spikes["channel"].map(type).eq(str).all()  # one row per channel that fired
     tx = log.transmissions()
-    blocks = log.messages("/tx/pulse")  # a sender's pulses of a block a row: one a pulse here
+    blocks = log.messages("/tx/pulse")  # every sender's pulses of a block a row
     pulses = pd.DataFrame([p for _, b in blocks.iterrows() for p in pulse_rows(b)])
-    assert len(pulses) > len(blocks) and set(blocks["unit"]) == {"a", "b", "c", "d"}
+    assert len(pulses) > len(blocks) and set(pulses["unit"]) == {"a", "b", "c", "d"}
     assert len(tx) == pulses["message"].map(lambda m: (m["sender"], m["id"])).nunique()
     assert tx["pulses"].sum() == len(pulses)
     assert set(tx["kind"]) == {"id", "payload"}

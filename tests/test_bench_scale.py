@@ -20,8 +20,8 @@ def test_a_discarding_recorder_runs_the_logged_path_and_keeps_nothing(monkeypatc
     built_for: list[str] = []  # whose decode records were built (and handed on)
     real = records.decodes_of_columns
 
-    def decodes_of_columns(unit: str, *args: Any, **kwargs: Any) -> Any:
-        built_for.append(unit)
+    def decodes_of_columns(unit: str | list[str], *args: Any, **kwargs: Any) -> Any:
+        built_for.extend([unit] if isinstance(unit, str) else unit)
         return real(unit, *args, **kwargs)
 
     monkeypatch.setattr(records, "decodes_of_columns", decodes_of_columns)

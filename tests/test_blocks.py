@@ -47,7 +47,7 @@ def test_every_hot_topic_has_its_block() -> None:
 
 def test_a_pulse_block_holds_each_pulse_as_sent() -> None:
     pulses = _pulses()
-    record = pulse_blocks.pulse_block_of(pulses, "a", TAU)
+    record = pulse_blocks.pulse_block_of(pulses, TAU)
     data = blocks.encode_record(blocks.PULSE, record)
     back = blocks.decode_record(blocks.PULSE, data, "test")
     assert pulse_blocks.pulse_rows(back) == pulses
@@ -56,11 +56,11 @@ def test_a_pulse_block_holds_each_pulse_as_sent() -> None:
 
 def test_a_pulse_block_is_canonical_whatever_order_its_pulses_came_in() -> None:
     pulses = _pulses()
-    want = blocks.encode_record(blocks.PULSE, pulse_blocks.pulse_block_of(pulses, "a", TAU))
+    want = blocks.encode_record(blocks.PULSE, pulse_blocks.pulse_block_of(pulses, TAU))
     for seed in range(5):
         shuffled = list(pulses)
         random.Random(seed).shuffle(shuffled)
-        record = pulse_blocks.pulse_block_of(shuffled, "a", TAU)
+        record = pulse_blocks.pulse_block_of(shuffled, TAU)
         assert blocks.encode_record(blocks.PULSE, record) == want
 
 
@@ -84,7 +84,7 @@ def test_decodes_spikes_medium_and_trace_round_trip() -> None:
 
 def test_the_protobuf_library_reads_each_block_from_its_descriptor() -> None:
     """What Foxglove does: the message class from the channel's schema data alone."""
-    record = pulse_blocks.pulse_block_of(_pulses(), "a", TAU)
+    record = pulse_blocks.pulse_block_of(_pulses(), TAU)
     data = blocks.encode_record(blocks.PULSE, record)
     message = library_class(blocks.PULSE).FromString(data)
     assert list(message.sample) == list(record["sample"])
@@ -111,7 +111,9 @@ def test_the_protobuf_library_reads_each_block_from_its_descriptor() -> None:
         (blocks.SPIKE, {"units": ["a", "a"]}, "not two or more unit names alone"),
         (blocks.SPIKE, {"samples": np.array([1], "i8"), "channel": np.array([0], "u4"),
                         "names": ["x"]}, "no unit"),
-        (blocks.PULSE, {"unit": "a", "tau": -1.0}, "tau -1.0 is not a sample period"),
+        (blocks.PULSE, {"tau": -1.0}, "tau -1.0 is not a sample period"),
+        (blocks.DECODE, {"units": ["a"]}, "not two or more unit names alone"),
+        (blocks.DECODE, {"unit": "a", "units": ["a", "b"]}, "not two or more unit names alone"),
         (blocks.DECODE, {"unit": "b", "turn": np.array([1], "i4")}, "table 'rows'"),
     ],
 )  # fmt: skip
@@ -129,8 +131,8 @@ def test_a_hostile_block_is_one_line_naming_its_field(schema, block, error) -> N
         (blocks.DECODE, {"unit": "b", "t": 1e12}, "t holds a time outside"),
         (blocks.SPIKE, {"unit": "b", "samples": np.array([-1], "i8"),
                         "channel": np.zeros(1, "u4"), "names": ["x"]}, "samples holds an index"),
-        (blocks.PULSE, {"unit": "a", "tau": 1e300}, "tau 1e+300 is not a sample period"),
-        (blocks.PULSE, {"unit": "a", "tau": 0.5, "channels": ["x"], "omegas": np.ones(1),
+        (blocks.PULSE, {"tau": 1e300}, "tau 1e+300 is not a sample period"),
+        (blocks.PULSE, {"tau": 0.5, "channels": ["x"], "omegas": np.ones(1),
                         "names": ["a"], "kinds": ["id"], "codes": ["id"],
                         **{c: np.zeros(1, "u4") for c in ("channel", "kind", "code", "sender",
                                                           "addressee", "block")},
@@ -183,7 +185,7 @@ def test_which_pulses_a_block_holds_does_not_depend_on_the_order_they_were_logge
 
     got = []
     for order in ((5261, 7094, 5517, 5817), (5261, 5517, 5817, 7094)):
-        held = pulse_blocks.PulseBlocks("u1", 0.005, 1000)
+        held = pulse_blocks.PulseBlocks(0.005, 1000)
         for k in order:
             held.add(pulse(k))
         out = held.before(6000) + held.end()  # a record of u1's at sample 6000, then its end

@@ -3,7 +3,7 @@ item 3): the messages (topic, log time, bytes) of one process's log merged, of a
 three processes and of a launch of one process a unit are equal, byte for byte. What differed
 was ``/rx/spike``: units of one process write a block they heard alike once, naming them all;
 the merge makes the records of one block from several processes one record so
-(``rgtbus.telemetry.merge.shared_spikes``)."""
+(``rgtbus.telemetry.merge.shared_blocks``)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from rgtbus.telemetry.blocks import SPIKE, descriptor, encode_record, spike_head, spike_head_bytes
-from rgtbus.telemetry.merge import MergeResult, merge_logs, shared_spikes
+from rgtbus.telemetry.blocks import SPIKE, descriptor, encode_record, units_head, units_head_bytes
+from rgtbus.telemetry.merge import MergeResult, merge_logs, shared_blocks
 from rgtbus.telemetry.records import RX_SPIKE, spikes
 from rgtbus.telemetry.scan import scan_log
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
@@ -81,7 +81,7 @@ def test_one_process_three_and_one_a_unit_merge_to_the_same_messages(tmp_path):
         _rgtbus("launch", str(scenario), "--procs", procs, "--log-dir", str(folder), "-q")
         logs[f"{procs} processes"] = messages(folder / "run.mcap")
     reference = logs.pop("one process")
-    heads = [spike_head(m[2]) for m in reference if m[0] == RX_SPIKE]
+    heads = [units_head(m[2]) for m in reference if m[0] == RX_SPIKE]
     assert None not in heads  # every spike block as rgtbus writes it
     shared = [units for units, _ in heads if len(units) > 1]
     assert shared, "no block heard alike: the test shows nothing"
@@ -114,7 +114,7 @@ def _spike(unit: str | list[str], samples: list[int], names: list[str]) -> bytes
 
 
 # a block of spikes not as rgtbus writes it: one unit under ``units`` (two or more go there)
-_ONE_OF_UNITS = spike_head_bytes(["a"], one=False) + spike_head(_spike("a", [1], ["x"]))[1]
+_ONE_OF_UNITS = units_head_bytes(["a"], one=False) + units_head(_spike("a", [1], ["x"]))[1]
 
 
 @pytest.mark.parametrize("names", [["a", "b", "c", "d"], ['q"],"', "b\\", "]", "ü,"]])
@@ -133,7 +133,7 @@ def test_records_of_one_block_from_several_processes_are_one_record(names):
         _entry(12, 1, 1, _ONE_OF_UNITS),
     ]
     res = MergeResult()
-    out = list(shared_spikes(entries, {1}, res))
+    out = list(shared_blocks(entries, {1}, res))
     assert res.joined == 2
     assert [e[5] for e in out] == [
         _spike(sorted([a, b, c]), *block),

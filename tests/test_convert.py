@@ -5,7 +5,10 @@ one ``/tx/pulse`` record a pulse, no ``format`` record); at 59e06c0 the same tes
 that rgtbus of format 1 wrote itself, to the same bytes. ``tests/data/format1/frames.json``
 holds, for every shipped scenario of up to 12 units, the DataFrames that format 1's own reader
 (59e06c0) gave for its log (columns, dtypes, rows and a digest of the values): today's reader
-must give the same ones for today's log of the same run."""
+must give the same ones for today's log of the same run. The decodes of one time are now in
+the run's order of units (format 1 gave them in the order its units wrote their records): six
+scenarios' ``decodes`` digests are of format 1's own frame so ordered (a stable sort by time,
+then unit), the same rows."""
 
 from __future__ import annotations
 

@@ -145,7 +145,7 @@ def groups(n: int) -> bytes:
          "rgtbus.DecodeBlock: unknown field 100: wire type 3, which no block uses"),
         # JSON where a block belongs (a '[' is a group's tag too, of field 11)
         ("/tx/pulse", nested(100_000),
-         "rgtbus.PulseBlock: field 'magnitude': wire type 3, a column is packed (2)"),
+         "rgtbus.PulseBlock: field 'message': wire type 3, a column is packed (2)"),
     ],
     ids=["decision-json", "run-json", "log-depth", "run-depth", "pulse-groups",
          "decodes-groups", "pulse-json"],

@@ -13,7 +13,7 @@ def built() -> dict[str, dict]:
     return {
         "/medium": records.medium_window(2, 0.2, 200.0, [0.0, 0.4]),
         "/tx/pulse": pulse_blocks.pulse_block_of(
-            [records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref)], "a", 0.005
+            [records.pulse("a", "b", 4.71, 0.4, 0.005, 40, ref)], 0.005
         ),
         "/rx/spike": records.spikes("b", 0.005, [41, 41, 44], [0, 1, 1], ["a", "b"]),
         "/rx/decode": records.decode("b", 3, "a", "b", "b", "influence", "{go}", 0.3, 9.5, True),

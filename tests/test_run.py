@@ -443,25 +443,31 @@ def test_decode_records_hold_a_block_of_time_each(name):
         samples = [round(t / sc.timing.tau) for t in m["times"]]
         assert len({k // span for k in samples}) == 1 and m["t"] == m["times"][-1]
     assert any(len(m["times"]) > 1 for m in blocks)  # held across wakes
-    for unit in out.units:  # its own records, as written (the pulses are its transmitter's)
+    for unit in out.units:  # its own records, as written (pulses and decodes: its group's)
         own = [
             t
             for topic, t, m in rec.messages
-            if m.get("unit") == unit.name and topic not in ("/tx/pulse", "/rx/spike")
+            if m.get("unit") == unit.name
+            and topic not in ("/tx/pulse", "/rx/spike", "/rx/decodes")
         ]
         assert own == sorted(own)
         got = [
             (r["turn"], r["kind"], r["addressee"], r["code"])
             for m in blocks
-            if m["unit"] == unit.name
+            if unit.name in records.decode_units(m)
             for r in records.decode_rows(m)
+            if r["unit"] == unit.name
         ]
         # the columns hold every decode but the IDs read as the ID, which they only count
         assert [r for r in got if r[1::2] != ("id", "id")] == list(unit.decoded)
         assert len(got) == len(unit.decoded) and any(r[1::2] == ("id", "id") for r in got)
     tables = {u.name: u.listening.log_tables for u in out.units}
     for m in blocks:
-        assert (m["names"], m["kinds"], m["codes"]) == tuple(map(list, tables[m["unit"]]))
+        for u in records.decode_units(m):
+            assert (m["names"], m["kinds"], m["codes"]) == tuple(map(list, tables[u]))
+    # the decodes units made alike: one record naming them (the serial runs' units decode
+    # their own sends differently from the others: some records name one unit)
+    assert any("units" in m for m in blocks)
 
 
 def _block(data: bytes) -> dict[str, Any]:
@@ -885,27 +891,30 @@ def test_a_unit_s_transmitter_logs_every_pulse_of_every_send_on_time(name, watch
     """With a live view, one transmitter process a unit offers the view each send as it goes
     on air: every pulse of every send the unit made (goal-driven ones chosen late, ahead of
     sends planned earlier, wake it), alone, at its sample's time, with its magnitude, in time
-    order; a log line a send. Watched or not, the log holds the same pulses, a sender's
+    order; a log line a send. Watched or not, the log holds the same pulses, the senders'
     pulses of one block (5 s) a ``/tx/pulse`` record at its time."""
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
     rec = _Offers(live=_Watching() if watched else None)
     out = run_group(sc, "memory", rec)
+    blocks = [(t, m) for tp, t, m in rec.messages if tp == "/tx/pulse"]
+    assert all(t == round(m["t"] * 1e9) for t, m in blocks)
+    held = [len({p["sample"] // round(BLOCK_SECONDS / m["tau"]) for p in pulse_rows(m)})
+            for _, m in blocks]  # fmt: skip
+    assert held == [1] * len(blocks)  # one block of the senders' clock each
+    windows = [int(m["sample"][0]) // round(BLOCK_SECONDS / m["tau"]) for _, m in blocks]
+    assert len(set(windows)) == len(windows)  # every sender's pulses of a block: one record
     for unit in out.units:
         want = sorted(
             (k, send.kind, send.sender, send.addressee, float(m))
             for send in unit.sent
             for k, m in zip(send.samples, unit.transmitter.word(send), strict=True)
         )
-        blocks = [
-            (t, m) for tp, t, m in rec.messages if tp == "/tx/pulse" and m["unit"] == unit.name
-        ]
-        got = sorted(_pulse_key(p) for _, m in blocks for p in pulse_rows(m))
-        assert got == want and all(t == round(m["t"] * 1e9) for t, m in blocks)
-        for _, m in blocks:  # one block of the sender's clock each
-            block = round(BLOCK_SECONDS / m["tau"])
-            assert len({p["sample"] // block for p in pulse_rows(m)}) == 1
+        mine = [p for _, m in blocks for p in pulse_rows(m) if p["unit"] == unit.name]
+        assert sorted(_pulse_key(p) for p in mine) == want
         alone = [
-            (t, m) for tp, t, m in rec.offered if tp == "/tx/pulse" and m["unit"] == unit.name
+            (t, m)
+            for tp, t, m in rec.offered
+            if tp == "/tx/pulse" and pulse_rows(m)[0]["unit"] == unit.name
         ]
         if watched:
             assert [t for t, _ in alone] == sorted(t for t, _ in alone)  # on time, in order

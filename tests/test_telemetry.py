@@ -41,7 +41,6 @@ DOCS = Path(__file__).resolve().parent.parent / "docs" / "topics.md"
 SAMPLES: dict[str, dict] = {
     "/medium": {"window": 3, "t": 0.3, "sample_rate": 200.0, "samples": [0.0, 0.4, -0.4]},
     "/tx/pulse": {
-        "unit": "a",
         "t": 1.25,
         "tau": 0.005,
         "channels": ["c"],

@@ -108,10 +108,9 @@ class Transmitter:
         assert self.env is not None
         if not self.log.enabled:
             return
-        if not self.on_time:
-            ref = self._log_line(send)
-            for j in range(len(send.samples)):
-                self._log_pulse(send, word, j, ref)
+        if not self.on_time:  # a message's pulses at once (nobody looks on)
+            message, omega = self._log_line(send)
+            self.log.send(send.samples, word, send.channel, omega, message)
             return
         at = min(send.start, time_of(send.samples[0], self.tau))
         heapq.heappush(self._air, (at, self._air_seq, -1, send, word, None))

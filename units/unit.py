@@ -52,6 +52,7 @@ from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
+from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.unit_log import UnitLog
 from rgtbus.timebase import ns, sample_of, time_of
 
@@ -224,6 +225,10 @@ class AutonomousUnit:
             # else its plans never wait for a spike
             awaits=self.protocol.anchor == "spike" and not self.protocol.confirmed,
         )
+
+    def join_log(self, group: GroupLog, at: int) -> None:
+        """Its pulses and decodes go to the log of its process's units, as unit ``at``."""
+        self.log.join(group, at)
 
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None:
         """The run begins: its world, its ears and its index among their listeners."""

@@ -40,6 +40,7 @@ from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.telemetry import Recorder, records
+from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.timebase import ns, time_of
 
 
@@ -52,6 +53,7 @@ class Member(Protocol):
     failure: str | None
 
     def listener(self) -> Listener: ...
+    def join_log(self, group: GroupLog, at: int) -> None: ...
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None: ...
     def take_outbox(self) -> Pulses: ...
     def promise(self, horizon: int) -> int: ...
@@ -190,6 +192,10 @@ class World:
 
     def _build_ears(self) -> None:
         r = self.receivers
+        if self.recorder.enabled:  # the local units' pulses and alike decodes: one record
+            shared = GroupLog(self.recorder, r.tau, [m.name for m in self.members])
+            for k, m in enumerate(self.members):
+                m.join_log(shared, k)
         dense = self.engine == "dense"
         # The event engine shares one bank among its local units; the reference gives each
         # unit its own, fed every window.

@@ -54,23 +54,22 @@ def _col(name: str, number: int, kind: Any, table: str | None = "rows") -> Field
 PULSE = BlockSchema(
     "rgtbus.PulseBlock",
     (
-        Field("unit", 1, "string"),  # the sender whose pulses these are
-        Field("t", 2, "double"),  # the last pulse's time: the block's log time
-        Field("tau", 3, "double"),  # the sender's sample period: a pulse's t is sample × tau
-        _col("channels", 4, "string", "channels"),  # the channels its pulses are on
-        _col("omegas", 5, "double", "channels"),  # each channel's ω (rad/s)
-        _col("names", 6, "string", None),  # the units sender and addressee index
-        _col("kinds", 7, "string", None),  # the message kinds kind indexes
-        _col("codes", 8, "string", None),  # the code names code indexes
-        _col("sample", 9, "sfixed64"),  # each pulse's sample on the sender's clock
-        _col("channel", 10, "fixed32"),  # into channels
-        _col("magnitude", 11, "double"),
-        _col("message", 12, "sfixed64"),  # the message's id (turn × 2, +1 for a payload)
-        _col("kind", 13, "fixed32"),  # into kinds
-        _col("code", 14, "fixed32"),  # into codes
-        _col("sender", 15, "fixed32"),  # into units
-        _col("addressee", 16, "fixed32"),  # into units
-        _col("block", 17, "fixed32"),  # a request's or a repeat's repair block (1..K), else 0
+        Field("t", 1, "double"),  # the last pulse's time: the block's log time
+        Field("tau", 2, "double"),  # the senders' sample period: a pulse's t is sample × tau
+        _col("channels", 3, "string", "channels"),  # the channels its pulses are on
+        _col("omegas", 4, "double", "channels"),  # each channel's ω (rad/s)
+        _col("names", 5, "string", None),  # the units sender and addressee index
+        _col("kinds", 6, "string", None),  # the message kinds kind indexes
+        _col("codes", 7, "string", None),  # the code names code indexes
+        _col("sample", 8, "sfixed64"),  # each pulse's sample on the senders' clock
+        _col("channel", 9, "fixed32"),  # into channels
+        _col("magnitude", 10, "double"),
+        _col("message", 11, "sfixed64"),  # the message's id (turn × 2, +1 for a payload)
+        _col("kind", 12, "fixed32"),  # into kinds
+        _col("code", 13, "fixed32"),  # into codes
+        _col("sender", 14, "fixed32"),  # into names: the unit that sent the pulse
+        _col("addressee", 15, "fixed32"),  # into names
+        _col("block", 16, "fixed32"),  # a request's or a repeat's repair block (1..K), else 0
     ),
 )
 
@@ -90,20 +89,21 @@ SPIKE = BlockSchema(
 DECODE = BlockSchema(
     "rgtbus.DecodeBlock",
     (
-        Field("unit", 1, "string"),  # the unit that decoded
-        Field("t", 2, "double"),  # the last decode's time: the block's log time
-        _col("names", 3, "string", None),  # the units sender, addressee and channel index
-        _col("kinds", 4, "string", None),  # the kinds kind indexes
-        _col("codes", 5, "string", None),  # the code names code indexes
-        _col("turn", 6, "sfixed32"),
-        _col("sender", 7, "fixed32"),
-        _col("addressee", 8, "fixed32"),
-        _col("channel", 9, "fixed32"),
-        _col("kind", 10, "fixed32"),
-        _col("code", 11, "fixed32"),
-        _col("margin", 12, "double"),
-        _col("times", 13, "double"),
-        _col("accepted", 14, "bool"),
+        Field("unit", 1, "string"),  # the one unit that decoded these, or
+        _col("units", 2, "string", None),  # the units (two or more) that decoded these alike
+        Field("t", 3, "double"),  # the last decode's time: the block's log time
+        _col("names", 4, "string", None),  # the units sender, addressee and channel index
+        _col("kinds", 5, "string", None),  # the kinds kind indexes
+        _col("codes", 6, "string", None),  # the code names code indexes
+        _col("turn", 7, "sfixed32"),
+        _col("sender", 8, "fixed32"),
+        _col("addressee", 9, "fixed32"),
+        _col("channel", 10, "fixed32"),
+        _col("kind", 11, "fixed32"),
+        _col("code", 12, "fixed32"),
+        _col("margin", 13, "double"),
+        _col("times", 14, "double"),
+        _col("accepted", 15, "bool"),
     ),
 )
 
@@ -186,7 +186,11 @@ def _number(record: Mapping[str, Any], key: str, kind: type) -> Any:
 
 
 def _decode_block(record: Mapping[str, Any]) -> Block:
-    block: Block = {"unit": record["unit"], "t": _number(record, "t", float)}
+    block: Block = {"t": _number(record, "t", float)}
+    if "units" in record:
+        block["units"] = _texts(record, "units")
+    else:
+        block["unit"] = record["unit"]
     if "names" in record:  # indexes into the record's own tables
         for key in r.DECODE_TABLES:  # a unit's own tables: the same tuple in every record
             table = record[key]
@@ -355,12 +359,17 @@ def _unit(block: Block, where: str) -> str:
 def _decode_record(block: Block, where: str) -> dict[str, Any]:
     for column, table in r.NAMED_COLUMNS.items():
         _check_index(block, column, table, where)
-    record: dict[str, Any] = {"unit": _unit(block, where), **block}
-    return record
+    return _units_record(block, where)
 
 
 def _spike_record(block: Block, where: str) -> dict[str, Any]:
     _check_index(block, "channel", "names", where)
+    return _units_record(block, where)
+
+
+def _units_record(block: Block, where: str) -> dict[str, Any]:
+    """A block of one unit's (``unit``) or of several units' alike (``units``, two or more
+    names, each once), as its record."""
     units = block.pop("units")
     assert isinstance(units, list)
     if units:
@@ -384,7 +393,7 @@ def _pulse_record(block: Block, where: str) -> dict[str, Any]:
     assert isinstance(sample, np.ndarray)
     if sample.size and int(sample.max()) * tau > MAX_SECONDS:
         raise RgtbusError(f"{where}: sample {int(sample.max())} is beyond {MAX_SECONDS:g} s")
-    return {"unit": _unit(block, where), **block}
+    return dict(block)
 
 
 def _medium_record(block: Block, where: str) -> dict[str, Any]:
@@ -457,13 +466,14 @@ def decode_record(schema: BlockSchema, data: bytes, where: str) -> dict[str, Any
     return _TO_RECORD[schema.name](block, where)
 
 
-# -- a block of spikes' units, read and written alone (merge joins blocks heard alike) ------------
+# -- a block's units, read and written alone (merge joins blocks units made alike) ----------------
 
 
-def spike_head(data: bytes) -> tuple[list[str], bytes] | None:
-    """A ``/rx/spike`` block's units and the rest of its bytes after them, when it is as rgtbus
-    writes it (its one ``unit`` or its ``units`` first: fields 1 and 2, in number order); else
-    None (left as it is). Only the head is read, not the block's columns."""
+def units_head(data: bytes) -> tuple[list[str], bytes] | None:
+    """A ``/rx/spike`` or ``/rx/decodes`` block's units and the rest of its bytes after them,
+    when it is as rgtbus writes it (its one ``unit`` or its ``units`` first: fields 1 and 2,
+    in number order, in both block types); else None (left as it is). Only the head is read,
+    not the block's columns."""
     units: list[str] = []
     pos, n, tag = 0, len(data), 0
     while pos < n and data[pos] in (0x0A, 0x12):
@@ -480,7 +490,7 @@ def spike_head(data: bytes) -> tuple[list[str], bytes] | None:
         pos += length
     if not units or (tag == 0x12 and len(units) < 2):
         return None
-    return (units, data[pos:]) if data[:pos] == spike_head_bytes(units, tag == 0x0A) else None
+    return (units, data[pos:]) if data[:pos] == units_head_bytes(units, tag == 0x0A) else None
 
 
 def _short_varint(data: bytes, pos: int) -> tuple[int, int]:
@@ -495,14 +505,21 @@ def _short_varint(data: bytes, pos: int) -> tuple[int, int]:
     return -1, pos
 
 
-def spike_head_bytes(units: list[str], one: bool | None = None) -> bytes:
-    """The first bytes of a ``/rx/spike`` block of ``units``: one unit's ``unit`` field, two or
-    more units' ``units`` fields (``one``: which, when the list says it not by its length)."""
+def units_head_bytes(units: list[str], one: bool | None = None) -> bytes:
+    """The first bytes of a ``/rx/spike`` or ``/rx/decodes`` block of ``units``: one unit's
+    ``unit`` field, two or more units' ``units`` fields (``one``: which, when the list says it
+    not by its length)."""
     if one is None:
         one = len(units) == 1
     if one:
         return encode(SPIKE, {"unit": units[0]})
     return encode(SPIKE, {"units": units})
+
+
+if [(f.name, f.number, f.kind) for f in SPIKE.fields[:2]] != [
+    (f.name, f.number, f.kind) for f in DECODE.fields[:2]
+]:  # units_head reads both
+    raise ImportError("SpikeBlock and DecodeBlock begin with different fields")
 
 
 @cache

@@ -1,11 +1,12 @@
 """``rgtbus convert``: a log of format 1 (every topic JSON) written as format 2 (docs/format.md).
 
-The hot topics become blocks as a run of today writes them: a sender's pulses one
-``/tx/pulse`` block a decode block (``pulse_blocks.PulseBlocks``, the writer's own rule), decodes,
-spikes, the medium and traces one block a record (spikes of the older per-sample forms as
-columns). Every other topic is copied message for message, with its own schema. The metadata
-records are copied, with a ``convert`` record saying what was converted. A log cut short is
-converted up to its cut and ends as a cut log does; a damaged one is refused.
+The hot topics become blocks as a run of today writes them (``group_log.GroupLog``, the
+writer's own rules): every sender's pulses of a block of time one ``/tx/pulse`` block, the
+decodes units made alike in a block one ``/rx/decodes`` record naming them; spikes, the medium
+and traces one block a record (spikes of the older per-sample forms as columns). Every other
+topic is copied message for message, with its own schema. The metadata records are copied,
+with a ``convert`` record saying what was converted. A log cut short is converted up to its
+cut and ends as a cut log does; a damaged one is refused.
 
 The input is not trusted: a message is read only once it is needed, one at a time, and a
 record that is not what format 1 held is one line naming the topic, its log time and the field.
@@ -24,9 +25,10 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS
-from rgtbus.telemetry.pulse_blocks import PulseBlocks
+from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.recorder import McapRecorder
 from rgtbus.telemetry.scan import RawLog, _require_run
+from rgtbus.telemetry.unit_log import DecodePart, canonical
 from rgtbus.telemetry.untrusted import depth_error, printable
 from rgtbus.telemetry.version import FORMAT_RECORD, format_of
 from rgtbus.timebase import ns, sample_of, seconds
@@ -59,17 +61,19 @@ def _decoded(label: str, topic: str, t_ns: int, data: bytes) -> Any:
     return message
 
 
-def _tau(raw: RawLog) -> float:
-    """The sample period of the log's scenario (what a pulse block's rows are timed by)."""
+def _scenario(raw: RawLog) -> tuple[float, list[str]]:
+    """The sample period of the log's scenario (what a pulse block's rows are timed by) and
+    its units."""
     from rgtbus.scenario import parse_scenario
 
     meta = dict(raw.metadata).get("scenario", {})
     if "text" not in meta:
         raise RgtbusError(f"{raw.label}: cannot convert its pulses: no scenario metadata")
     try:
-        return float(parse_scenario(meta["text"], meta.get("path", "<scenario>")).timing.tau)
+        sc = parse_scenario(meta["text"], meta.get("path", "<scenario>"))
     except (RgtbusError, ValueError) as e:
         raise RgtbusError(f"{raw.label}: cannot convert its pulses: the scenario: {e}") from None
+    return float(sc.timing.tau), list(sc.units)
 
 
 def _spike_columns(record: Mapping[str, Any]) -> dict[str, Any]:
@@ -113,7 +117,8 @@ class _Converter:
     def __init__(self, raw: RawLog, out: McapRecorder) -> None:
         self.raw, self.out = raw, out
         self.tau: float | None = None
-        self.pulses: dict[str, PulseBlocks] = {}
+        self.group: GroupLog | None = None
+        self.members: dict[str, int] = {}
         # unit -> decode block -> its rows (``/rx/decode``, one decode a record: the oldest logs)
         self.decodes: dict[str, dict[int, list[r.DecodeFields]]] = {}
         self.copied: dict[str, foxglove.Channel] = {}
@@ -123,58 +128,81 @@ class _Converter:
         self.out.write(topic, record, t_ns)
         self.written += 1
 
+    def _group(self) -> GroupLog:
+        """The writer's rules for pulses and decodes, over the scenario's units."""
+        if self.group is None:
+            self.tau, units = _scenario(self.raw)
+            self.members = {u: i for i, u in enumerate(units)}
+            self.group = GroupLog(self, self.tau, units)
+        return self.group
+
+    def _member(self, unit: Any) -> int:
+        at = self.members.get(unit) if isinstance(unit, str) else None
+        if at is None:
+            raise ValueError(f"unit {printable(repr(unit))} is no unit of the scenario")
+        return at
+
     def hot(self, topic: str, t_ns: int, message: dict[str, Any]) -> None:
+        group = self._group()
         if topic == r.TX_PULSE:
-            self.pulse(message)
+            self._member(message["unit"])
+            group.pulse(message)  # type: ignore[arg-type]
         elif topic == r.RX_SPIKE:
             self.write(topic, _spike_columns(message), t_ns)
         elif topic == r.RX_DECODE:
             unit = message["unit"]
-            if not isinstance(unit, str):
-                raise ValueError(f"unit {unit!r} is not a name")
+            self._member(unit)
             row = _decode_row(message)
             block = sample_of(float(row[7]), self._tau()) // self._block()
             self.decodes.setdefault(unit, {}).setdefault(block, []).append(row)
-        else:  # decodes, the medium and traces: one block a record, as they are
+        elif topic == r.RX_DECODES:
+            self._piece(message)
+        else:  # the medium and traces: one block a record, as they are
             self.write(topic, message, t_ns)
 
+    def _piece(self, record: Mapping[str, Any]) -> None:
+        """A unit's decodes of one block (a format-1 ``/rx/decodes`` record), for its group's
+        record."""
+        member = self._member(record["unit"])
+        cols = DecodePart(*(record[c] for c in r.DECODE_COLUMNS))
+        tables = (
+            tuple(record[t] for t in r.DECODE_TABLES)
+            if all(t in record for t in r.DECODE_TABLES)
+            else None
+        )
+        times = cols.times
+        if not len(times):
+            raise ValueError("no decode")
+        block = sample_of(float(times[-1]), self._tau()) // self._block()
+        piece, own = canonical(cols, tables, tables)
+        self._group().decodes(member, block, piece, own)
+
     def _tau(self) -> float:
-        if self.tau is None:
-            self.tau = _tau(self.raw)
+        self._group()
+        assert self.tau is not None
         return self.tau
 
     def _block(self) -> int:
         return max(1, round(BLOCK_SECONDS / self._tau()))
 
     def _decodes_before(self, sample: int | None) -> None:
-        """The held decode blocks that end at or before ``sample`` (all: None), one
-        ``/rx/decodes`` block each, at its last decode's time (as the writer groups them)."""
+        """The held single decodes of the blocks that end at or before ``sample`` (all:
+        None), one piece a unit and block, as the writer holds them."""
         for unit, held in self.decodes.items():
             for b in sorted(held):
                 if sample is None or (b + 1) * self._block() <= sample:
-                    record = r.decodes(unit, held.pop(b))
-                    self.write(r.RX_DECODES, record, ns(record["t"]))
-
-    def pulse(self, message: dict[str, Any]) -> None:
-        self._tau()
-        unit = message["unit"]
-        if not isinstance(unit, str):
-            raise ValueError(f"unit {unit!r} is not a name")
-        blocks = self.pulses.get(unit)
-        if blocks is None:
-            blocks = self.pulses[unit] = PulseBlocks(unit, self._tau(), self._block())
-        blocks.add(message)
+                    self._piece(r.decodes(unit, held.pop(b)))
 
     def passed(self, t_ns: int) -> None:
-        """The log has come to ``t_ns`` (messages in log-time order): every sender's pulse
-        blocks, and every unit's decode blocks, that end by then are whole."""
-        if self.tau is None:
+        """The log has come to ``t_ns`` (messages in log-time order): every unit is past the
+        blocks that end by then."""
+        if self.group is None:
             return
-        now = sample_of(seconds(t_ns), self.tau)
+        now = sample_of(seconds(t_ns), self._tau())
         self._decodes_before(now)
-        for blocks in self.pulses.values():
-            for record in blocks.before(now):
-                self.write(r.TX_PULSE, record, ns(record["t"]))
+        for at in self.members.values():
+            self.group.pulses_passed(at, now)
+            self.group.decoded_to(at, now // self._block())
 
     def copy(self, cid: int, t_ns: int, data: bytes) -> None:
         """A message of a topic that keeps its form: as it is, under its own schema."""
@@ -196,9 +224,9 @@ class _Converter:
 
     def end(self) -> None:
         self._decodes_before(None)
-        for blocks in self.pulses.values():
-            for record in blocks.end():
-                self.write(r.TX_PULSE, record, ns(record["t"]))
+        if self.group is not None:
+            for at in self.members.values():
+                self.group.end(at)
         for ch in self.copied.values():
             ch.close()
 

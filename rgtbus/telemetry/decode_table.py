@@ -21,7 +21,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES
+from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES, decode_units
 
 
 class _Names:
@@ -89,17 +89,22 @@ class DecodeTable:
 _NUMBER_COLUMNS = {"turn": np.int64, "margin": np.float64, "times": np.float64}
 
 
-def decode_table(records: Iterable[tuple[int, Mapping[str, Any]]]) -> DecodeTable:
+def decode_table(
+    records: Iterable[tuple[int, Mapping[str, Any]]], units: Sequence[str] = ()
+) -> DecodeTable:
     """The decodes of ``records`` (``/rx/decodes`` messages as read: ``(log_time, record)``,
-    each checked against its schema) as one ``DecodeTable``. A record whose columns differ in
-    length or whose index lies outside its table: RgtbusError naming the unit, the record's
-    time and the column."""
+    each checked against its schema) as one ``DecodeTable``, each unit's of a record of
+    several units' (``units``) rows of its own; in order of time, then unit (as ``units``
+    orders them; others by name), then as logged. A record whose columns differ in length
+    or whose index lies outside its table: RgtbusError naming the unit, the record's time
+    and the column."""
     tables = {"names": _Names(), "kinds": _Names(), "codes": _Names()}
     parts: dict[str, list[np.ndarray]] = {c: [] for c in (*_COLUMNS, "unit")}
     for t_ns, record in records:
         if not isinstance(record, Mapping):
             raise RgtbusError(f"{RX_DECODES} at log time {t_ns} ns: not an object")
-        unit = record.get("unit")
+        whose = decode_units(record)
+        unit = whose[0] if len(whose) == 1 else whose
         where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
         # a record as its writer built it (a re-run's: arrays, tuples of names) reads alike
         record = {k: list(v) if type(v) is tuple else v for k, v in record.items()}
@@ -117,10 +122,19 @@ def decode_table(records: Iterable[tuple[int, Mapping[str, Any]]]) -> DecodeTabl
             raise RgtbusError(f"{where}: column 'accepted' holds other than true and false")
         for column, table_name in NAMED_COLUMNS.items():
             parts[column].append(_named(record, column, table_name, tables[table_name], where))
-        parts["unit"].append(np.full(n, tables["names"].of(str(unit)), dtype=np.int32))
+        if len(whose) > 1:  # the same rows, once a unit
+            for column in _COLUMNS:
+                parts[column][-1] = np.tile(parts[column][-1], len(whose))
+        of = [tables["names"].of(u) for u in whose]
+        parts["unit"].append(np.repeat(np.asarray(of, dtype=np.int32), n))
     cols = {c: np.concatenate(p) if p else np.empty(0, _dtype(c)) for c, p in parts.items()}
-    # in log-time order, as Replay.decode_records sorts the rows: by integer ns, stable
-    order = np.argsort(np.rint(cols["times"] * 1e9).astype(np.int64), kind="stable")
+    # in log-time order, as Replay.decode_records sorts the rows: by integer ns, then unit,
+    # stable (np.lexsort is: a unit's decodes of one time keep the order logged)
+    names = tables["names"].names
+    first = {u: i for i, u in enumerate(units)}
+    by_name = {u: len(first) + i for i, u in enumerate(sorted(set(names) - set(first)))}
+    rank = np.asarray([first.get(u, by_name.get(u, 0)) for u in names] or [0], dtype=np.int64)
+    order = np.lexsort((rank[cols["unit"]], np.rint(cols["times"] * 1e9).astype(np.int64)))
     return DecodeTable(
         unit=cols["unit"][order],
         t=cols["times"][order],

@@ -103,7 +103,7 @@ class Log:
 
         if self.replay.by_topic.count(RX_DECODE):  # a log of one record a decode: as rows
             return self._decodes_of_rows()
-        table = decode_table(self.replay.by_topic.each(RX_DECODES))
+        table = decode_table(self.replay.by_topic.each(RX_DECODES), self.replay.units)
         txs = self.replay.transmissions
         sent = match_sent(table, [(x.sender, x.kind, x.turn, x.code, x.addressee) for x in txs])
         names, kinds, codes = (

@@ -481,6 +481,20 @@ def _unit_of(topic: str, message: dict[str, Any]) -> str | None:
     return unit if isinstance(unit, str) else None
 
 
+def _units_of_block(topic: str, message: Any) -> list[str]:
+    """The units a block without one ``unit`` is about: a ``/tx/pulse`` block's senders (every
+    sender of a process's block of time), a shared record's ``units``."""
+    if not isinstance(message, dict):
+        return []
+    if topic == TX_PULSE:
+        names, senders = message.get("names"), message.get("sender")
+        if isinstance(names, list) and isinstance(senders, list):
+            return [names[i] for i in sorted(set(senders)) if isinstance(i, int) and i < len(names)]
+        return []
+    shared = message.get("units")
+    return shared if isinstance(shared, list) else []
+
+
 def cat_messages(
     log: str | os.PathLike[str] | CheckedLog,
     *,
@@ -522,7 +536,7 @@ def cat_messages(
     messages = stored(log, wanted - rows, unit, start, end)
     for topic in sorted(rows):  # a block's rows reach back before its log time: all are read
         blocks_of = stored(log, {topic}, unit, None, None)
-        each = _block_rows(topic, blocks_of, start, end, log.label)
+        each = _block_rows(topic, blocks_of, start, end, log.label, unit)
         messages = heapq.merge(messages, each, key=lambda m: m["log_time"])
     yield from messages
 
@@ -535,10 +549,16 @@ _ROWS: dict[str, Callable[[Mapping[str, Any]], Iterable[Mapping[str, Any]]]] = {
 
 
 def _block_rows(
-    topic: str, blocks: Iterator[dict[str, Any]], start: int | None, end: int | None, label: str
+    topic: str,
+    blocks: Iterator[dict[str, Any]],
+    start: int | None,
+    end: int | None,
+    label: str,
+    unit: str | None = None,
 ) -> Iterator[dict[str, Any]]:
     """The rows of ``topic``'s blocks (as ``_record`` gives them) one a message, at their own
-    times, from ``start`` to ``end`` ns, in time order (stable: as logged)."""
+    times, from ``start`` to ``end`` ns, ``unit``'s alone where one is named, in time order
+    (stable: as logged)."""
     out: list[tuple[int, dict[str, Any]]] = []
     for block in blocks:
         try:
@@ -549,6 +569,8 @@ def _block_rows(
                 f"is no block of rows ({type(exc).__name__}: {exc})"
             ) from None
         for t, row in rows:
+            if unit is not None and row.get("unit") != unit:
+                continue
             if (start is None or t >= start) and (end is None or t <= end):
                 line = {"topic": topic, "t": seconds(t), "log_time": t, "message": dict(row)}
                 out.append((t, line))
@@ -608,11 +630,10 @@ def _record(
     else:
         message = {"undecodable": len(data)}
     if unit is not None and _unit_of(topic, message) != unit:
-        shared = message.get("units") if isinstance(message, dict) else None
-        if not (isinstance(shared, list) and unit in shared):
+        if unit not in _units_of_block(topic, message):
             return None
-        # a record units share (/rx/spike): shown as that unit's own
-        message = {"unit": unit, **{k: v for k, v in message.items() if k != "units"}}
+        if "units" in message:  # a record units share (/rx/spike, /rx/decodes): as its own
+            message = {"unit": unit, **{k: v for k, v in message.items() if k != "units"}}
     return {"topic": topic, "t": seconds(log_time), "log_time": log_time, "message": message}
 
 

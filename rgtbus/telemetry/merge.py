@@ -5,8 +5,10 @@ channels when identical (topic, encoding, schema, metadata); messages are ordere
 (ties: input order, then file order) and renumbered per channel. A message that is byte for
 byte the same on the same topic at the same time in two inputs (e.g. the medium, logged by
 every process) is kept once unless ``dedupe=False``; and then blocks of spikes that units
-heard alike are one record naming them all, whichever process wrote them (``shared_spikes``):
-the merge of a run's logs is the same whatever the split of its units into processes.
+heard alike, and of decodes they made alike, are one record naming them all, whichever
+process wrote them (``shared_blocks``), and the blocks of pulses of one block of time are one
+(``joined_pulses``): the merge of a run's logs is the same whatever the split of its units
+into processes.
 Metadata records are kept once when identical; a record whose name is taken by a different
 one (e.g. each process's ``run``) is kept as ``NAME.K`` (K = the input's position, from 1).
 A ``merge`` record lists the inputs. A corrupt input (``RawLog.corrupt``) is refused; a
@@ -19,14 +21,22 @@ import json
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, IndexType, Writer
 
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.blocks import spike_head, spike_head_bytes
-from rgtbus.telemetry.records import RX_SPIKE
+from rgtbus.telemetry.blocks import (
+    BLOCK_SECONDS,
+    PULSE,
+    decode_record,
+    encode_record,
+    units_head,
+    units_head_bytes,
+)
+from rgtbus.telemetry.pulse_blocks import join_pulse_blocks
+from rgtbus.telemetry.records import RX_DECODES, RX_SPIKE, TX_PULSE
 from rgtbus.telemetry.scan import RawLog
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata, require_format
 
@@ -44,7 +54,8 @@ class MergeResult:
 
     messages: int = 0
     duplicates: int = 0  # identical messages dropped
-    joined: int = 0  # records of spikes heard alike, made part of another
+    joined: int = 0  # records of spikes or decodes units made alike, made part of another
+    pulses_joined: int = 0  # blocks of pulses made part of another of their block of time
     channels: int = 0
     schemas: int = 0
     metadata: list[str] = field(default_factory=list)  # record names written
@@ -82,11 +93,13 @@ def merge_logs(
     writer = _writer(logs, stream, compression)
     writer.start(profile="", library=f"rgtbus {__version__} {'recover' if salvage else 'merge'}")
     writer.add_metadata(FORMAT_RECORD, format_metadata())  # first, as in every rgtbus file
-    entries, spike_channels = _register(writer, logs, res)
+    entries, shared, pulses = _register(writer, logs, res)
     if salvage:  # read up to the damage, and no further: a cut as far as readers go
         res.notes += [f"{log.corruption} (recovered up to there)" for log in logs if log.corrupt]
     elif dedupe:
-        entries = list(shared_spikes(entries, spike_channels, res))
+        entries = list(shared_blocks(entries, shared, res))
+        if len(logs) > 1:
+            entries = joined_pulses(entries, pulses, res)
     _write_messages(writer, entries, dedupe, res)
     kept = _merged_metadata(logs, res)
     for name, values in kept.items():
@@ -117,10 +130,11 @@ def _writer(logs: Sequence[RawLog], stream: BinaryIO, compression: str) -> Write
 
 def _register(
     writer: Writer, logs: Sequence[RawLog], res: MergeResult
-) -> tuple[list[_Entry], set[int]]:
+) -> tuple[list[_Entry], set[int], set[int]]:
     """Every input's schemas and channels registered once each (identical ones shared), and
     every message as an entry on its merged channel, in log-time order (ties: input order,
-    then file order); and the merged channels of ``/rx/spike``."""
+    then file order); and the merged channels of ``/rx/spike`` and ``/rx/decodes``, and of
+    ``/tx/pulse``."""
     schema_ids: dict[tuple[str, str, bytes], int] = {}
     channel_ids: dict[tuple[str, str, int, tuple[tuple[str, str], ...]], int] = {}
     entries: list[_Entry] = []
@@ -149,22 +163,20 @@ def _register(
     entries.sort(key=lambda e: (e[0], e[1], e[2]))
     res.channels = len(channel_ids)
     res.schemas = len(schema_ids)
-    return entries, {cid for key, cid in channel_ids.items() if key[0] == RX_SPIKE}
+    shared = {cid for key, cid in channel_ids.items() if key[0] in (RX_SPIKE, RX_DECODES)}
+    pulses = {cid for key, cid in channel_ids.items() if key[0] == TX_PULSE}
+    return entries, shared, pulses
 
 
-def _head(units: list[str]) -> bytes:
-    return spike_head_bytes(units)
-
-
-def shared_spikes(
+def shared_blocks(
     entries: Sequence[_Entry], spike_channels: set[int], res: MergeResult
 ) -> Iterator[_Entry]:
-    """``entries`` with the ``/rx/spike`` records of one log time and channel that hold the
-    same spikes (their bytes after the units) made one record naming every unit of them, in
-    sorted order (``records.spikes`` writes them so), where the first of them was: units of
-    one process write a block they heard alike once, those of several processes once each,
-    and the merge is the same for any split. A record not as rgtbus writes it is kept as it
-    is."""
+    """``entries`` with the ``/rx/spike`` (or ``/rx/decodes``) records of one log time and
+    channel that hold the same spikes (decodes) — their bytes after the units — made one
+    record naming every unit of them, in sorted order (``records.spikes`` and
+    ``GroupLog`` write them so), where the first of them was: units of one process write a
+    block they made alike once, those of several processes once each, and the merge is the
+    same for any split. A record not as rgtbus writes it is kept as it is."""
     i = 0
     while i < len(entries):
         j = i + 1
@@ -179,7 +191,7 @@ def shared_spikes(
         heads: list[tuple[int, bytes] | None] = []
         for k in range(i, j):
             cid, data = entries[k][3], entries[k][5]
-            parsed = spike_head(data) if cid in spike_channels else None
+            parsed = units_head(data) if cid in spike_channels else None
             if parsed is None:
                 heads.append(None)
                 continue
@@ -193,10 +205,50 @@ def shared_spikes(
             elif first[head] != k:
                 res.joined += 1
             else:
-                merged = _head(sorted(set(groups[head]))) + head[1]
+                merged = units_head_bytes(sorted(set(groups[head]))) + head[1]
                 log_time, source, order, cid, publish_time, _ = entries[k]
                 yield (log_time, source, order, cid, publish_time, merged)
         i = j
+
+
+def joined_pulses(
+    entries: list[_Entry], pulse_channels: set[int], res: MergeResult
+) -> list[_Entry]:
+    """``entries`` with the ``/tx/pulse`` blocks of one channel and one block of time that
+    several processes wrote (each its own senders') made the one block a single process of
+    all their senders writes (``join_pulse_blocks``), at its last pulse's time. A block not as
+    rgtbus writes it (unreadable, or its pulses in more than one block of time) is kept as it
+    is."""
+    if not pulse_channels:
+        return entries
+    by_block: dict[tuple[int, float, int], list[tuple[int, dict[str, Any]]]] = {}
+    for k, e in enumerate(entries):
+        if e[3] not in pulse_channels:
+            continue
+        try:
+            record = decode_record(PULSE, e[5], "merge")
+        except RgtbusError:
+            continue
+        span = max(1, round(BLOCK_SECONDS / record["tau"]))
+        blocks = {int(s) // span for s in (record["sample"][0], record["sample"][-1])}
+        if len(blocks) == 1 and len(record["sample"]):
+            by_block.setdefault((e[3], record["tau"], blocks.pop()), []).append((k, record))
+    dropped: set[int] = set()
+    added: list[_Entry] = []
+    for (cid, _, _), held in by_block.items():
+        if len(held) < 2:
+            continue
+        joined = join_pulse_blocks([record for _, record in held])
+        first = entries[held[0][0]]
+        t_ns = max(entries[k][0] for k, _ in held)
+        added.append((t_ns, first[1], first[2], cid, t_ns, encode_record(PULSE, joined)))
+        dropped.update(k for k, _ in held)
+        res.pulses_joined += len(held) - 1
+    if not added:
+        return entries
+    out = [e for k, e in enumerate(entries) if k not in dropped] + added
+    out.sort(key=lambda e: (e[0], e[1], e[2]))
+    return out
 
 
 def _write_messages(writer: Writer, entries: list[_Entry], dedupe: bool, res: MergeResult) -> None:
@@ -243,6 +295,7 @@ def _merged_metadata(logs: Sequence[RawLog], res: MergeResult) -> dict[str, dict
         "truncated": json.dumps(res.notes),
         "duplicates_dropped": str(res.duplicates),
         "spike_records_joined": str(res.joined),
+        "pulse_blocks_joined": str(res.pulses_joined),
     }
     return kept
 

@@ -5,15 +5,17 @@ batch of one block (``PulseBatch``), the rule that says when a block is whole
 
 from __future__ import annotations
 
-import array
 import heapq
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
+from rgtbus.telemetry.untrusted import printable
 from rgtbus.timebase import times_of
 
 # -- a block of pulses, one pulse at a time (what a reader of single pulses wants) ---------------
@@ -21,8 +23,8 @@ from rgtbus.timebase import times_of
 
 def pulse_rows(block: Mapping[str, Any]) -> list[r.PulseRecord]:
     """The pulses of a ``/tx/pulse`` block as the records of one pulse each (``records.pulse``),
-    in the order sent."""
-    unit, tau = block["unit"], block["tau"]
+    in the block's order (by sample, then sender)."""
+    tau = block["tau"]
     channels, omegas = block["channels"], np.asarray(block["omegas"]).tolist()
     units, kinds, codes = block["names"], block["kinds"], block["codes"]
     samples = np.asarray(block["sample"])
@@ -35,7 +37,7 @@ def pulse_rows(block: Mapping[str, Any]) -> list[r.PulseRecord]:
         ref["id"] = mid
         out.append(
             {
-                "unit": unit,
+                "unit": units[s],
                 "channel": channels[c],
                 "omega": omegas[c],
                 "magnitude": m,
@@ -50,181 +52,200 @@ def pulse_rows(block: Mapping[str, Any]) -> list[r.PulseRecord]:
 _PULSE_ROW = ("channel", "magnitude", "message", "kind", "code", "sender", "addressee", "block")
 
 
-_PULSE_TYPES = "qIdqIIIII"  # the typecodes of PulseBatch's columns
-
-
-def _pulse_columns() -> tuple[array.array[Any], ...]:
-    return tuple(array.array(code) for code in _PULSE_TYPES)
-
-
 class PulseBatch:
-    """A sender's pulses of one block, held until the block is over (``take``): the columns of
-    a ``/tx/pulse`` block, with its tables built as pulses come."""
+    """The pulses of one block, any number of senders', held until the block is over
+    (``take``): a row a message (its samples and magnitudes, and what it is), no Python object
+    a pulse; the block's columns and tables are made once, when it is taken."""
 
-    __slots__ = ("channels", "codes", "cols", "kinds", "names", "omegas", "tau", "unit")
+    __slots__ = ("rows", "tau")
 
-    def __init__(self, unit: str, tau: float) -> None:
-        self.unit, self.tau = unit, tau
-        # sample, channel, magnitude, message, kind, code, sender, addressee, block: typed
-        # arrays, no Python object a pulse (a sender plans a run's sends ahead: its pulses
-        # wait here until its clock passes their block)
-        self.cols: tuple[array.array[Any], ...] = _pulse_columns()
-        self.channels: dict[str, int] = {}
-        self.omegas: list[float] = []
-        self.names: dict[str, int] = {}
-        self.kinds: dict[str, int] = {}
-        self.codes: dict[str, int] = {}
-
-    @classmethod
-    def of(cls, unit: str, tau: float) -> PulseBatch:
-        return cls(unit, tau)
+    def __init__(self, tau: float) -> None:
+        self.tau = tau
+        # (samples, magnitudes, channel, omega, id, kind, code, sender, addressee, block)
+        self.rows: list[tuple[Any, ...]] = []
 
     def add(self, pulse: Mapping[str, Any]) -> None:
-        """One pulse (``records.pulse``'s record) into the batch."""
+        """One pulse (``records.pulse``'s record) into the batch: a pulse is its sender's (a
+        record whose unit is not its message's sender: RgtbusError naming both)."""
         m = pulse["message"]
-        c = self.channels.get(pulse["channel"])
-        if c is None:
-            c = self.channels[pulse["channel"]] = len(self.omegas)
-            self.omegas.append(float(pulse["omega"]))
-        names, kinds, codes = self.names, self.kinds, self.codes
-        sample, channel, magnitude, message, kind, code, sender, addressee, block = self.cols
-        sample.append(pulse["sample"])
-        channel.append(c)
-        magnitude.append(pulse["magnitude"])
-        message.append(m["id"])
-        kind.append(kinds.setdefault(m["kind"], len(kinds)))
-        code.append(codes.setdefault(m["code"], len(codes)))
-        sender.append(names.setdefault(m["sender"], len(names)))
-        addressee.append(names.setdefault(m["addressee"], len(names)))
-        block.append(m.get("block", 0))
+        if pulse["unit"] != m["sender"]:
+            raise RgtbusError(
+                f"a pulse of {printable(repr(pulse['unit']))} in a message sent by "
+                f"{printable(repr(m['sender']))}"
+            )
+        # checked as it comes (a pulse read from an old log): a batch is made into columns
+        # only once its block is over, far from the record that was wrong
+        for key, value in (("sample", pulse["sample"]), ("message id", m["id"]),
+                           ("block", m.get("block", 0))):  # fmt: skip
+            if type(value) is not int or value < 0:
+                raise ValueError(f"{key} {printable(repr(value))} is not a count")
+        for key, value in (("magnitude", pulse["magnitude"]), ("omega", pulse["omega"])):
+            if type(value) not in (int, float) or not math.isfinite(value):
+                raise ValueError(f"{key} {printable(repr(value))} is not a finite number")
+        for key in ("kind", "code", "sender", "addressee"):
+            if type(m[key]) is not str:
+                raise ValueError(f"{key} {printable(repr(m[key]))} is not a name")
+        if type(pulse["channel"]) is not str:
+            raise ValueError(f"channel {printable(repr(pulse['channel']))} is not a name")
+        self.add_send(
+            (pulse["sample"],), (pulse["magnitude"],), pulse["channel"], pulse["omega"], m
+        )
+
+    def add_send(
+        self,
+        samples: Sequence[int],
+        magnitudes: Sequence[float],
+        channel: str,
+        omega: float,
+        m: Mapping[str, Any],
+    ) -> None:
+        """Pulses of one message (``m``, ``records.message_ref``) on ``channel`` (its ω): at
+        ``samples``, of ``magnitudes``."""
+        self.rows.append(
+            (samples, magnitudes, channel, omega, m["id"], m["kind"], m["code"], m["sender"],
+             m["addressee"], m.get("block", 0))
+        )  # fmt: skip
 
     def take(self) -> dict[str, Any]:
         """The batch as a ``/tx/pulse`` block record (at least one pulse); the batch is done
-        with. Canonical: its tables sorted, its rows in order of sample (then message, repair
-        block, channel, kind, code, sender, addressee, magnitude), whatever order the pulses
-        came in. Pulses logged in time order into tables first seen in sorted order (the
-        usual case) are that already: its columns are then its arrays as they are."""
-        tables = (self.channels, self.kinds, self.codes, self.names)
-        sample = self.cols[0]
-        if all(list(t) == sorted(t) for t in tables) and all(
-            a < b for a, b in itertools.pairwise(sample)
-        ):
-            cols = [np.frombuffer(c, dtype=c.typecode) for c in self.cols]
-            channels, kinds, codes, names = (list(t) for t in tables)
-            return self._record(channels, kinds, codes, names, cols)
-        return self._sorted()
-
-    def _sorted(self) -> dict[str, Any]:
-        channels, c_at = _sorted_table(self.channels)
-        kinds, k_at = _sorted_table(self.kinds)
-        codes, d_at = _sorted_table(self.codes)
-        names, n_at = _sorted_table(self.names)
-        sample, channel, magnitude, message, kind, code, sender, addressee, block = self.cols
-        rows = sorted(
-            zip(
-                sample,
-                message,
-                block,
-                [c_at[c] for c in channel],
-                [k_at[k] for k in kind],
-                [d_at[d] for d in code],
-                [n_at[u] for u in sender],
-                [n_at[u] for u in addressee],
-                magnitude,
-                strict=True,
-            )
-        )
+        with. Canonical: its tables sorted, its rows in order of sample (then sender, message,
+        repair block, channel, kind, code, addressee, magnitude), whatever order the pulses
+        came in."""
+        rows, self.rows = self.rows, []
         by = list(zip(*rows, strict=True))
-        cols = [by[0], by[3], by[8], by[1], by[4], by[5], by[6], by[7], by[2]]
-        typed = [np.array(c, dtype=code) for c, code in zip(cols, _PULSE_TYPES, strict=True)]
-        return self._record(channels, kinds, codes, names, typed)
+        counts = np.fromiter(map(len, by[0]), dtype=np.int64, count=len(rows))
+        total = int(counts.sum())
+        sample = np.fromiter(itertools.chain.from_iterable(by[0]), dtype=np.int64, count=total)
+        magnitude = np.fromiter(
+            itertools.chain.from_iterable(by[1]), dtype=np.float64, count=total
+        )
+        omega_of = dict(zip(by[2], by[3], strict=True))
+        channels = sorted(omega_of)
+        kinds, codes = sorted(set(by[5])), sorted(set(by[6]))
+        names = sorted(set(by[7]) | set(by[8]))
 
-    def _record(
-        self,
-        channels: list[str],
-        kinds: list[str],
-        codes: list[str],
-        names: list[str],
-        cols: Sequence[np.ndarray],
-    ) -> dict[str, Any]:
-        sample, channel, magnitude, message, kind, code, sender, addressee, block = cols
+        def column(values: Sequence[Any], dtype: Any = np.uint32) -> np.ndarray:
+            return np.repeat(np.fromiter(values, dtype=dtype, count=len(rows)), counts)
+
+        def indexes(values: Sequence[str], table: list[str]) -> np.ndarray:
+            at = {name: i for i, name in enumerate(table)}
+            return column([at[v] for v in values])
+
+        cols = [
+            sample,
+            indexes(by[2], channels),
+            magnitude,
+            column(by[4], np.int64),
+            indexes(by[5], kinds),
+            indexes(by[6], codes),
+            indexes(by[7], names),
+            indexes(by[8], names),
+            column(by[9]),
+        ]
+        _, channel, _, message, kind, code, sender, addressee, block = cols
+        # the last key first: np.lexsort sorts by its last key
+        order = np.lexsort(
+            (magnitude, addressee, code, kind, channel, block, message, sender, sample)
+        )
+        if not (order[1:] > order[:-1]).all():
+            cols = [c[order] for c in cols]
         return {
-            "unit": self.unit,
+            "t": float(int(sample.max()) * self.tau),
             "tau": self.tau,
-            "t": float(int(sample[-1]) * self.tau),
             "channels": channels,
-            "omegas": [self.omegas[self.channels[c]] for c in channels],
+            "omegas": [float(omega_of[c]) for c in channels],
             "names": names,
             "kinds": kinds,
             "codes": codes,
-            "sample": sample,
-            "channel": channel,
-            "magnitude": magnitude,
-            "message": message,
-            "kind": kind,
-            "code": code,
-            "sender": sender,
-            "addressee": addressee,
-            "block": block,
+            **dict(zip(_COLUMNS, cols, strict=True)),
         }
 
     def __len__(self) -> int:
-        return len(self.cols[0])
+        return sum(len(row[0]) for row in self.rows)
+
+
+_COLUMNS = ("sample", "channel", "magnitude", "message", "kind", "code", "sender", "addressee",
+            "block")  # fmt: skip
 
 
 class PulseBlocks:
-    """A sender's pulses held in the batches of their blocks (``block`` samples each), a block
-    let go once the sender's own clock is past its end (``before``: its other records say how
-    far it has come, and no pulse is ever planned in its past), and the rest at the end: which
-    pulses a ``/tx/pulse`` record holds depends on the pulses alone, never on the order they
-    were logged in (a sender plans a late choice before sends it planned earlier), and when it
-    is written on how far the sender has come. The one rule for the writer
-    (``UnitLog.pulse``) and ``convert``."""
+    """Pulses held in the batches of their blocks (``block`` samples each, on the senders'
+    clock), any number of senders': a block let go (``before``) once every sender's clock is
+    past its end, and the rest at the end. Which pulses a ``/tx/pulse`` record holds depends
+    on the pulses alone, never on the order they were logged in (a sender plans a late choice
+    before sends it planned earlier), and when it is written on how far its senders have
+    come. The one rule for the writer (``GroupLog``), ``convert`` and ``merge``."""
 
-    def __init__(self, unit: str, tau: float, block: int) -> None:
-        self.unit, self.tau, self.block = unit, tau, block
+    def __init__(self, tau: float, block: int) -> None:
+        self.tau, self.block = tau, block
         self._held: dict[int, PulseBatch] = {}
         self._order: list[int] = []  # the blocks held, a heap
 
-    def add(self, pulse: Mapping[str, Any]) -> None:
-        """Hold ``pulse`` in its block's batch."""
-        b = int(pulse["sample"]) // self.block
+    def batch(self, sample: int) -> PulseBatch:
+        """The batch of the block of ``sample``."""
+        b = sample // self.block
         batch = self._held.get(b)
         if batch is None:
-            batch = self._held[b] = PulseBatch(self.unit, self.tau)
+            batch = self._held[b] = PulseBatch(self.tau)
             heapq.heappush(self._order, b)
-        batch.add(pulse)
+        return batch
+
+    def add(self, pulse: Mapping[str, Any]) -> None:
+        """Hold ``pulse`` in its block's batch."""
+        self.batch(int(pulse["sample"])).add(pulse)
+
+    def add_send(
+        self,
+        samples: Sequence[int],
+        magnitudes: Sequence[float],
+        channel: str,
+        omega: float,
+        m: Mapping[str, Any],
+    ) -> None:
+        """Hold a message's pulses (``PulseBatch.add_send``) in their blocks' batches."""
+        block = self.block
+        if samples[0] // block == samples[-1] // block:
+            self.batch(samples[0]).add_send(samples, magnitudes, channel, omega, m)
+            return
+        # a long message (a slow channel's pulses are seconds apart): its pulses of each block
+        parts: dict[int, tuple[list[int], list[float]]] = {}
+        for k, v in zip(samples, magnitudes, strict=True):
+            ks, vs = parts.setdefault(k // block, ([], []))
+            ks.append(k)
+            vs.append(v)
+        for ks, vs in parts.values():
+            self.batch(ks[0]).add_send(ks, vs, channel, omega, m)
 
     def before(self, sample: int) -> list[dict[str, Any]]:
-        """The blocks held that end at or before ``sample``, in order: the sender's clock has
-        passed them (its other records say so), no pulse of theirs is still to come."""
+        """The blocks held that end at or before ``sample``, in order: every sender's clock has
+        passed them (their other records say so), no pulse of theirs is still to come."""
         order, out = self._order, []
         while order and (order[0] + 1) * self.block <= sample:
             out.append(self._held.pop(heapq.heappop(order)).take())
         return out
 
     def end(self) -> list[dict[str, Any]]:
-        """Every block still held, in order (the sender is done)."""
+        """Every block still held, in order (the senders are done)."""
         out = [self._held[k].take() for k in sorted(self._held)]
         self._held.clear()
         self._order.clear()
         return out
 
 
-def _sorted_table(table: dict[str, int]) -> tuple[list[str], list[int]]:
-    """A table of names (name -> index as first seen) sorted: (its names, each old index's
-    new one)."""
-    names = sorted(table)
-    at = [0] * len(table)
-    for i, name in enumerate(names):
-        at[table[name]] = i
-    return names, at
+def join_pulse_blocks(blocks: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Blocks of one block of time from several writers (processes), as the one block a
+    single writer of all their senders writes (``merge``)."""
+    batch = PulseBatch(float(blocks[0]["tau"]))
+    for block in blocks:
+        for p in pulse_rows(block):
+            batch.add(p)
+    return batch.take()
 
 
-def pulse_block_of(pulses: Sequence[Mapping[str, Any]], unit: str, tau: float) -> dict[str, Any]:
-    """Single pulses of one sender (records of ``records.pulse``, in order) as one block record:
-    how ``convert`` writes a format-1 log's pulses."""
-    batch = PulseBatch.of(unit, tau)
+def pulse_block_of(pulses: Sequence[Mapping[str, Any]], tau: float) -> dict[str, Any]:
+    """Single pulses (records of ``records.pulse``) as one block record: what a live view is
+    offered, a pulse at a time."""
+    batch = PulseBatch(tau)
     for p in pulses:
         batch.add(p)
     return batch.take()

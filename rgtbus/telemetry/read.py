@@ -56,6 +56,7 @@ from rgtbus.telemetry.records import (
     RelationsRecord,
     RunRecord,
     decode_rows,
+    decode_units,
     is_trace_topic,
     logged_seed,
     spike_samples,
@@ -530,8 +531,11 @@ class Replay:
     def decode_records(self) -> list[tuple[int, dict[str, Any]]]:
         """Every decode as one ``/rx/decode`` message, in log-time order: what every reader
         reads (built when first asked for: a large run decodes millions of times)."""
-        # stable: a unit's decodes of one time keep their order
-        return sorted(self._each_decode(), key=lambda r: r[0])
+        # by time, then unit (in the run's order), stable: a unit's decodes of one time keep
+        # their order
+        rank = {u: i for i, u in enumerate(self.units)}
+        last = len(rank)
+        return sorted(self._each_decode(), key=lambda r: (r[0], rank.get(r[1]["unit"], last)))
 
     @functools.cached_property
     def decodes(self) -> list[DecodeRow]:
@@ -619,7 +623,12 @@ class Replay:
         seen: dict[str, None] = {}
         for topic in (TX_PULSE, RX_SPIKE, RX_DECODE, RX_DECODES, UNIT_RELATIONS):
             for _, m in self.by_topic[topic]:
-                names = spike_units(m) if topic == RX_SPIKE else [m.get("unit")]
+                if topic == TX_PULSE:
+                    names = [m["names"][i] for i in np.unique(m["sender"]).tolist()]
+                elif topic in (RX_SPIKE, RX_DECODES):
+                    names = spike_units(m) if topic == RX_SPIKE else decode_units(m)
+                else:
+                    names = [m.get("unit")]
                 for name in names:
                     if isinstance(name, str):
                         seen.setdefault(name, None)
@@ -994,7 +1003,7 @@ class Replay:
                 continue
             stream = "spikes" if topic == RX_SPIKE else "records"
             for t, m in msgs:
-                if "units" in m and stream == "spikes":  # one record for several units
+                if "units" in m:  # one record for several units (spikes, decodes)
                     whos = [str(u) for u in m["units"]]
                 else:
                     whos = [str(m.get("unit", m.get("name", "")))]

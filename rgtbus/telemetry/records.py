@@ -84,12 +84,12 @@ class PulseRecord(TypedDict):
 
 
 class PulseBlockRecord(TypedDict):
-    """``/tx/pulse``: a sender's pulses of one 5 s block, one row a pulse, in order of sample
+    """``/tx/pulse``: the pulses of one 5 s block (every sender's that one process runs; after
+    ``merge``, every sender's), one row a pulse, in order of sample, then sender
     (``pulse_blocks.PulseBatch``; ``pulse_blocks.pulse_rows`` reads them as ``PulseRecord``s)."""
 
-    unit: str  # the sender
     t: float  # the last pulse's time
-    tau: float  # the sender's sample period: a pulse's t is its sample × tau
+    tau: float  # the senders' sample period: a pulse's t is its sample × tau
     channels: list[str]  # the channels its pulses are on
     omegas: FloatColumn  # each channel's ω
     names: list[str]  # the units sender and addressee index
@@ -137,9 +137,12 @@ class DecodeRecord(TypedDict):
 
 
 class DecodesRecord(TypedDict, total=False):
-    """``/rx/decodes``: a unit's decodes of one wake, as columns (``decodes``)."""
+    """``/rx/decodes``: a unit's decodes of one block, as columns (``decodes``); or the
+    decodes two or more units made alike (``units``, sorted, in place of ``unit``:
+    ``group_log.GroupLog``)."""
 
-    unit: Required[str]
+    unit: str
+    units: list[str]
     t: Required[float]  # the last decode's time: the record's log time
     turn: Required[IntColumn]  # each decode's, in the order the unit made them
     # names, or (with ``names``, ``kinds`` and ``codes``) indexes into those tables
@@ -357,7 +360,7 @@ def spikes(
     ``unit`` a list of two or more names: each of those units heard exactly these spikes in
     the block (units of one process on a noise-free medium hear alike), one record for all
     (``units``, in sorted order: the merge of several processes' logs makes their records of
-    one block one record so, ``merge.shared_spikes``); a list of one is that unit's own
+    one block one record so, ``merge.shared_blocks``); a list of one is that unit's own
     record. ``spike_units`` reads either.
     Logs before it held the block as ``samples`` and per-sample lists of names, and before
     that one record a sample; ``read.spike_table`` reads them all."""
@@ -473,11 +476,12 @@ def decodes(unit: str, rows: Sequence[DecodeFields]) -> DecodesRecord:
 
 
 def decodes_of_columns(
-    unit: str, cols: Sequence[Any], tables: DecodeTables | None = None
+    unit: str | list[str], cols: Sequence[Any], tables: DecodeTables | None = None
 ) -> DecodesRecord:
-    """``decodes`` from its nine columns, in the order of a row (a unit that takes a batch of
+    """``decodes`` from its nine columns, in the order of a row (``unit`` a list of two or more
+    names, sorted: the decodes each of them made, alike); a unit that takes a batch of
     decodes as arrays gives them so: turn, margin, times and accepted may be numpy arrays,
-    which the encoder writes whole, with no Python object per decode). ``tables``: sender,
+    which the encoder writes whole, with no Python object per decode. ``tables``: sender,
     addressee and channel are indexes into its units, kind into its kinds and code into its
     codes (integer arrays: a 50-unit run decodes 490,000 codes, five names each, and the
     names cost more to make, write and compress than the rest of the record). The columns
@@ -486,7 +490,7 @@ def decodes_of_columns(
         raise RgtbusError(f"{RX_DECODES} of {unit!r}: no decode to log")
     margin = cols[6]
     record: DecodesRecord = {
-        "unit": unit,
+        **({"unit": unit} if isinstance(unit, str) else {"units": unit}),  # type: ignore[typeddict-item]
         "t": float(cols[7][-1]),
         "turn": cols[0],
         "sender": cols[1],
@@ -532,7 +536,8 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
     """The decodes of a ``/rx/decodes`` record (as read) one at a time, each as ``decode``
     builds it (what a log of one record a decode holds). Columns of unequal length:
     RgtbusError naming the unit and the column."""
-    unit = cast(str, record.get("unit"))
+    units = decode_units(record)
+    unit = units[0]
     # columns a writer holds as arrays (a record not yet written) read as a log gives them
     record = {
         k: v.tolist() if hasattr(v, "tolist") else list(v) if type(v) is tuple else v
@@ -558,10 +563,33 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
             f"{RX_DECODES} of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
             f"not {want}"
         )
-    for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
-        *(record[c] for c in DECODE_COLUMNS), strict=True
+    for unit in units:  # a record of several units' decodes alike: each unit's in turn
+        for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
+            *(record[c] for c in DECODE_COLUMNS), strict=True
+        ):
+            yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)
+
+
+def decode_units(record: Mapping[str, Any]) -> list[str]:
+    """The units whose decodes a ``/rx/decodes`` record holds: its ``unit``, or its ``units``
+    (two or more names, each once, which each made its decodes alike). Anything else:
+    RgtbusError naming the record."""
+    units = record.get("units")
+    if units is None:
+        return [cast(str, record.get("unit"))]
+    units = list(units) if isinstance(units, list | tuple) else units
+    if (
+        not isinstance(units, list)
+        or len(units) < 2
+        or not all(type(u) is str for u in units)
+        or len(set(units)) < len(units)
+        or "unit" in record
     ):
-        yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)
+        raise RgtbusError(
+            f"{RX_DECODES} at t = {record.get('t')}: units {units!r}: not two or more unit "
+            "names alone"
+        )
+    return units
 
 
 def relations(

@@ -2,7 +2,8 @@
 records written in time order (``UnitLog``).
 
 * **Decodes** go to the log one ``/rx/decodes`` record a decode block of
-  ``DECODE_BLOCK_SECONDS`` (each at its last decode's time), whatever the unit's wakes: a batch
+  ``DECODE_BLOCK_SECONDS`` (each at its last decode's time; decodes that units of one process
+  made alike, one record naming them: ``group_log.GroupLog``), whatever the unit's wakes: a batch
   of decodes as arrays (its names as indexes into the batch's tables), a decode taken on its
   own as a row. A block is written before any other record of the unit, so its records stay in
   time order (a log cut short is complete before its last one), and at the end of a wake past
@@ -30,7 +31,8 @@ import numpy as np
 
 from rgtbus.telemetry import records
 from rgtbus.telemetry.blocks import BLOCK_SECONDS
-from rgtbus.telemetry.pulse_blocks import PulseBlocks, pulse_block_of
+from rgtbus.telemetry.group_log import GroupLog
+from rgtbus.telemetry.pulse_blocks import pulse_block_of
 from rgtbus.telemetry.recorder import Recorder
 from rgtbus.timebase import ns, sample_of, samples_of
 
@@ -216,7 +218,10 @@ class UnitLog:
         self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / tau))
         self.held_block = -1  # the decode block of the first decode held (-1: none)
         self.offers = False  # each decode offered to a live view as it is made (never logged)
-        self._pulses = PulseBlocks(name, tau, self._decode_block)  # its pulses held
+        # the log of the units of its process, where their pulses and alike decodes are one
+        # record (``join``); until it joins one, a group of its own
+        self.group = GroupLog(recorder, tau, [name])
+        self.at = 0  # its index in the group
         # the unit's tables of every name its decodes can hold (``canonical``): set by its
         # Listening; None: each record's own tables of the names it uses
         self.tables: records.DecodeTables | None = None
@@ -231,28 +236,46 @@ class UnitLog:
         """A record at ``t`` seconds, written as it comes."""
         self.recorder.write(topic, record, ns(t))
 
+    def join(self, group: GroupLog, at: int) -> None:
+        """Its pulses and decodes go to ``group`` (the log of its process's units), as unit
+        ``at`` of it; before it logs any."""
+        self.group, self.at = group, at
+
     def pulse(self, record: records.PulseRecord) -> None:
-        """One pulse this unit sends (``records.pulse``), held in the batch of its decode block
-        and written one ``/tx/pulse`` record a block (``PulseBlocks``: which pulses a record
-        holds depends on the pulses alone). While a live view may be looking, each pulse is
-        also offered to it alone as it is made, as a block of one."""
-        self._pulses.add(record)
+        """One pulse this unit sends (``records.pulse``), held in the batch of its block and
+        written one ``/tx/pulse`` record a block of its process's units (``GroupLog``: which
+        pulses a record holds depends on the pulses alone). While a live view may be
+        looking, each pulse is also offered to it alone as it is made, as a block of one."""
+        self.group.pulse(record)
         if self.recorder.watched():
-            one = pulse_block_of([record], self.name, self.tau)
+            one = pulse_block_of([record], self.tau)
             self.recorder.offer(records.TX_PULSE, one, ns(one["t"]))
+
+    def send(
+        self,
+        samples: Sequence[int],
+        magnitudes: Sequence[float],
+        channel: str,
+        omega: float,
+        message: records.MessageRef,
+    ) -> None:
+        """The pulses of one message this unit sends, as ``pulse`` would each (while nobody
+        may be looking: none is offered)."""
+        self.group.send(samples, magnitudes, channel, omega, message)
 
     def write_in_order(self, topic: str, record: Any, t: float) -> None:
         """A record of this unit's own at ``t`` seconds, after the decodes that came before."""
         self.flush_decodes()
+        self.group.decoded_to(self.at, self._block_of(t))
         self._pulses_before(t)
         self.recorder.write(topic, record, ns(t))
 
     def _pulses_before(self, t: float) -> None:
-        """The pulse blocks that ended by ``t``, the time of a record of this unit's own (it is
-        written at or after its time, and no pulse is logged for a time already past): a log
-        cut after that record holds them (``Replay.units_until_ns``)."""
-        for block in self._pulses.before(sample_of(t, self.tau)):
-            self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
+        """This unit's clock is at ``t``, the time of a record of its own (it is written at or
+        after its time, and no pulse is logged for a time already past): the pulse blocks
+        every unit of its group is past go out, so a log cut after that record holds them
+        (``Replay.units_until_ns``)."""
+        self.group.pulses_passed(self.at, sample_of(t, self.tau))
 
     def trace(self, first: int, x: np.ndarray, y: np.ndarray) -> None:
         """Resonator states from sample ``first`` on (x, y: samples × channels), one message a
@@ -307,6 +330,7 @@ class UnitLog:
         ended go out."""
         if 0 <= self.held_block < pos // self._decode_block:  # past a block of decodes
             self.flush_decodes(before=pos)
+        self.group.decoded_to(self.at, pos // self._decode_block)
 
     def _block_of(self, t: float) -> int:
         """The decode block of a decode at time ``t``."""
@@ -341,7 +365,7 @@ class UnitLog:
             cuts = [0, *(np.flatnonzero(of[1:] != of[:-1]) + 1).tolist()]
             firsts = of[cuts].tolist()  # each block's, not each decode's
         now = _NEVER if before is None else before // self._decode_block
-        own, write, name = self.tables, self.recorder.write, self.name
+        own, hand = self.tables, self.group.decodes
         for a, b, block in zip(cuts, [*cuts[1:], total], firsts, strict=True):
             if block >= now:  # the block still going on: held, as one part
                 self._parts = [DecodePart(*[c[a:] for c in cols])]
@@ -349,9 +373,9 @@ class UnitLog:
                 self.held_block = block
                 return
             part = cols if b - a == total else DecodePart(*[c[a:b] for c in cols])
-            record = records.decodes_of_columns(name, *canonical(part, table, own))
-            self._pulses_before(record["t"])
-            write(records.RX_DECODES, record, ns(record["t"]))
+            piece, piece_tables = canonical(part, table, own)
+            self._pulses_before(float(piece.times[-1]))
+            hand(self.at, block, piece, piece_tables)
 
     # -- spikes (the engine's SpikeLog) ----------------------------------------------------------
 
@@ -432,8 +456,8 @@ class UnitLog:
         self.recorder.write(records.RX_SPIKE, record, ns(end * self.tau))
 
     def end(self) -> None:
-        """The run is over for this unit: what it holds is written."""
-        for block in self._pulses.end():
-            self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
+        """The run is over for this unit: what it holds is written (what it shares with its
+        group, once every unit of it is past)."""
         self.flush_decodes()
+        self.group.end(self.at)
         self.release_spikes(None)

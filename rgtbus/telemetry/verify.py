@@ -21,7 +21,7 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
-from rgtbus.telemetry.blocks import TRACE, decode_record
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, TRACE, decode_record
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.read import Mismatch, Replay
 from rgtbus.telemetry.recorder import LogMessage, encode_json
@@ -356,9 +356,13 @@ def _block_times(
 ) -> Iterator[LogMessage]:
     """``messages`` as they are, each block of ``_BLOCK_TIMES`` counted in ``out`` by (topic,
     unit, log time): a block whose own time is not its log time counts under a key no re-run
-    writes (its log time less one: named as a block at the wrong time)."""
+    writes (its log time less one: named as a block at the wrong time). In a cut log, only
+    the blocks whose block of time surely ended before ``until_ns`` (a block's span and a
+    hundredth earlier): a block of time the cut runs through may hold what its units wrote
+    as they stopped, less than a whole run's (its rows are compared all the same)."""
+    whole = None if until_ns is None else until_ns - ns(BLOCK_SECONDS * 1.01)
     for topic, t_ns, m in messages:
-        if topic in _BLOCK_TIMES and isinstance(m, dict) and (until_ns is None or t_ns < until_ns):
+        if topic in _BLOCK_TIMES and isinstance(m, dict) and (whole is None or t_ns < whole):
             t = m.get("t")
             own = ns(t) if isinstance(t, float) and math.isfinite(t) else None
             out[(topic, str(m.get("unit")), t_ns if own == t_ns else -1 - t_ns)] += 1

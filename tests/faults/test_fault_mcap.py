@@ -356,7 +356,7 @@ def test_messages_that_break_their_schema_are_named_not_a_traceback(tmp_path, ca
         w.add_metadata("run", {"seed": "2", "version": "0.1.0", "bus": "memory"})
         for topic, t_ns, data in (
             ("/rx/decode", 1_500_000_000, b'{"unit": "a"}'),
-            ("/tx/pulse", 2_000_000_000, encode(blocks.PULSE, {"unit": "a"})),
+            ("/tx/pulse", 2_000_000_000, encode(blocks.PULSE, {"t": 2.0})),
         ):
             name = schema_for(topic)
             if blocks.schema_of(topic) is None:

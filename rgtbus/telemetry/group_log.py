@@ -1,0 +1,226 @@
+"""The log of the units one process runs, where their records are one (``GroupLog``).
+
+* **Pulses.** Every local sender's pulses of one block of ``BLOCK_SECONDS`` are one
+  ``/tx/pulse`` record (``PulseBlocks``), let go once every sender's own records are past the
+  block (no sender plans a pulse in its past) or the sender is done.
+* **Decodes.** Each unit hands its decodes a piece at a time: the decodes of one block of
+  ``BLOCK_SECONDS`` up to where its own records cut it (``UnitLog.flush_decodes``, in the
+  block's canonical form). Once every local unit is past the block, the pieces that hold the
+  same decodes are one ``/rx/decodes`` record naming their units (two or more: ``units``, in
+  sorted order; one: ``unit``): on a clean medium the units of a group decode each code alike,
+  and a 100-unit run writes its 3.96 M decodes as 39,600 rows, not once per receiver. A
+  unit's deviations (another margin, a misread, a miss, a block cut elsewhere by its own
+  records) make its piece a record of its own.
+
+What a record holds is a function of the blocks' contents alone: ``merge`` joins the records of
+several processes by the same rules (blocks of pulses of one block of time become one; records
+of decodes that hold the same bytes after their units become one), so a run's merged log is the
+same whatever the split of its units into processes (docs/format.md, "Canonical").
+
+A log cut short is whole before the start of the block of the earliest of its units' last
+records (``Replay.units_until_ns``): a block goes out once every unit has moved past it, and a
+unit's records go out after it has.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from rgtbus.telemetry import records
+from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.pulse_blocks import PulseBlocks
+from rgtbus.timebase import ns
+
+
+class RecordSink(Protocol):
+    """Where a group's records go: a ``Recorder`` (or ``convert``'s writer)."""
+
+    def write(self, topic: str, message: Any, t_ns: int) -> None: ...
+
+
+_DONE = 2**62  # a unit that is done is past every block
+
+# how each column of a decode piece is compared (its values' bits: equal bits, equal bytes on
+# the wire, so a join here is the join ``merge`` makes)
+_BITS = {
+    "turn": np.int64, "sender": np.int64, "addressee": np.int64, "channel": np.int64,
+    "kind": np.int64, "code": np.int64, "margin": np.float64, "times": np.float64,
+    "accepted": np.uint8,
+}  # fmt: skip
+
+
+class _Cursors:
+    """How far each unit is (every block before its cursor is whole for it), and the least
+    cursor of them all: blocks before it are whole for every unit."""
+
+    def __init__(self, n: int) -> None:
+        self.at = [0] * n
+        self.low = 0 if n else _DONE
+
+    def move(self, member: int, block: int) -> bool:
+        """Unit ``member`` is past every block before ``block``; whether the least moved."""
+        at = self.at
+        old = at[member]
+        if block <= old:
+            return False
+        at[member] = block
+        if old != self.low:
+            return False
+        low = min(at)
+        moved = low > self.low
+        self.low = low
+        return moved
+
+
+class GroupLog:
+    """The pulses and decodes of the units ``names`` (one process's, in member order) as the
+    records they share (see the module docstring), on ``recorder``."""
+
+    def __init__(self, recorder: RecordSink, tau: float, names: Sequence[str]) -> None:
+        self.recorder = recorder
+        self.tau = tau
+        self.names = list(names)
+        self.span = max(1, round(BLOCK_SECONDS / tau))  # samples a block
+        self.pulses = PulseBlocks(tau, self.span)
+        self._pulse_at = _Cursors(len(names))
+        self._decode_at = _Cursors(len(names))
+        # block -> its pieces: (member, columns as records.DECODE_COLUMNS, tables)
+        self._pieces: dict[int, list[tuple[int, Sequence[Any], records.DecodeTables]]] = {}
+        self._blocks: list[int] = []  # the blocks of pieces held, a heap
+        # id(tables) -> (tables, its token): kept alive, so an id is never another's
+        self._keys: dict[int, tuple[Any, int]] = {}
+        self._tokens: dict[tuple[tuple[str, ...], ...], int] = {}  # tables -> a token
+
+    # -- pulses ------------------------------------------------------------------------------
+
+    def send(
+        self,
+        samples: Sequence[int],
+        magnitudes: Sequence[float],
+        channel: str,
+        omega: float,
+        message: records.MessageRef,
+    ) -> None:
+        """A message's pulses, held for their blocks' records."""
+        self.pulses.add_send(samples, magnitudes, channel, omega, message)
+
+    def pulse(self, record: records.PulseRecord) -> None:
+        """One pulse (``records.pulse``), held for its block's record."""
+        self.pulses.add(record)
+
+    def pulses_passed(self, member: int, sample: int) -> None:
+        """Unit ``member``'s records have come to ``sample``: no pulse of its is still to come
+        in a block that ends by then; the blocks every sender is past go out."""
+        if self._pulse_at.move(member, sample // self.span):
+            self._write_pulses(self._pulse_at.low * self.span)
+
+    def _write_pulses(self, sample: int) -> None:
+        for block in self.pulses.before(sample):
+            self.recorder.write(records.TX_PULSE, block, ns(block["t"]))
+
+    # -- decodes -----------------------------------------------------------------------------
+
+    def decodes(
+        self, member: int, block: int, part: Sequence[Any], tables: records.DecodeTables
+    ) -> None:
+        """A piece of unit ``member``'s decodes of block ``block`` (its canonical columns, in
+        ``records.DECODE_COLUMNS`` order, indexes into ``tables``), held until every unit is
+        past the block."""
+        held = self._pieces.get(block)
+        if held is None:
+            held = self._pieces[block] = []
+            heapq.heappush(self._blocks, block)
+        held.append((member, part, tables))
+
+    def decoded_to(self, member: int, block: int) -> None:
+        """Unit ``member`` has handed every piece of the blocks before ``block``: the blocks
+        every unit is past go out."""
+        if self._decode_at.move(member, block):
+            self._write_decodes(self._decode_at.low)
+
+    def _write_decodes(self, upto: int) -> None:
+        blocks, write = self._blocks, self.recorder.write
+        while blocks and blocks[0] < upto:
+            pieces = self._pieces.pop(heapq.heappop(blocks))
+            out = []
+            for group in self._alike(pieces):
+                units = sorted({self.names[pieces[i][0]] for i in group})
+                _, part, tables = pieces[group[0]]
+                if len(units) < len(group):  # one unit's two pieces alike: kept apart
+                    out += [self._record(i, pieces) for i in group]
+                    continue
+                record = records.decodes_of_columns(units[0] if len(units) == 1 else units,
+                                                    part, tables)  # fmt: skip
+                out.append(record)
+            out.sort(key=_order)
+            for record in out:
+                write(records.RX_DECODES, record, ns(record["t"]))
+
+    def _record(
+        self, i: int, pieces: list[tuple[int, Sequence[Any], records.DecodeTables]]
+    ) -> records.DecodesRecord:
+        member, part, tables = pieces[i]
+        return records.decodes_of_columns(self.names[member], part, tables)
+
+    def _alike(
+        self, pieces: list[tuple[int, Sequence[Any], records.DecodeTables]]
+    ) -> list[list[int]]:
+        """The pieces (their indexes) that hold the same decodes, grouped, in order of each
+        group's first: by their columns' bytes as they are (a piece of a batch and the
+        others' of the same batch: views of like arrays), then those groups by their values
+        (a column of another dtype, the same numbers), as ``merge`` compares them."""
+        as_is: dict[tuple[Any, ...], list[int]] = {}
+        for i, (_, part, tables) in enumerate(pieces):
+            key = (self._token(tables), *map(_raw, part))
+            as_is.setdefault(key, []).append(i)
+        if len(as_is) == 1:
+            return list(as_is.values())
+        by_value: dict[tuple[Any, ...], list[int]] = {}
+        for idx in as_is.values():
+            _, part, tables = pieces[idx[0]]
+            key = (
+                self._token(tables),
+                *(
+                    np.asarray(c, dtype=d).tobytes()
+                    for c, d in zip(part, _BITS.values(), strict=True)
+                ),
+            )
+            by_value.setdefault(key, []).extend(idx)
+        return sorted((sorted(g) for g in by_value.values()), key=lambda g: g[0])
+
+    def _token(self, tables: records.DecodeTables) -> int:
+        """``tables`` as a small number, one a distinct content: a unit's own tables (a
+        tuple, the same in every piece) looked up once."""
+        got = self._keys.get(id(tables))
+        if got is not None and got[0] is tables:
+            return got[1]
+        content = tuple(tuple(t) for t in tables)
+        token = self._tokens.setdefault(content, len(self._tokens))
+        if type(tables) is tuple:
+            self._keys[id(tables)] = (tables, token)
+        return token
+
+    # -- the end -----------------------------------------------------------------------------
+
+    def end(self, member: int) -> None:
+        """Unit ``member`` is done: past every block."""
+        if self._pulse_at.move(member, _DONE):
+            self._write_pulses(_DONE * self.span)
+        if self._decode_at.move(member, _DONE):
+            self._write_decodes(_DONE)
+
+
+def _raw(column: Any) -> tuple[str, bytes]:
+    """A column's dtype and bytes as they are."""
+    array = column if type(column) is np.ndarray else np.asarray(column)
+    return array.dtype.str, array.tobytes()
+
+
+def _order(record: records.DecodesRecord) -> tuple[float, list[str]]:
+    """Records of one block in the order they are written: by time, then units."""
+    units = record.get("units") or [record.get("unit", "")]
+    return (float(record["t"]), list(units))
