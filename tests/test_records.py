@@ -186,3 +186,29 @@ def test_a_damaged_decodes_record_is_named():
             list(records.decode_rows(bad))
     with pytest.raises(RgtbusError, match="no decode to log"):
         records.decodes("b", [])
+
+
+def test_a_report_leaves_out_the_tables_its_last_records_hold_and_a_reader_puts_them_back():
+    """``/unit/report`` holds a unit's tables only where they changed since its last
+    ``/unit/relations`` or ``/unit/influences`` record (a group's n² tables once a unit, not
+    twice); ``full_report`` gives back the report as the unit held it, either way."""
+    sent, installed = {"a>b": "alliance"}, {"a-b": "alliance"}
+    infl = {"a>b": ["go"]}
+    report = {
+        **{"unit": "a", "installed": installed, "polynomial": "a+b", "p4": None},
+        **{"sent_relations": sent, "influences": infl, "result": {}, "decisions": []},
+    }
+    rel = records.relations("a", 3.0, dict(sent), dict(installed), "a+b", None)
+    table = records.influences("a", 9.0, dict(infl), 1)
+    slim = records.slim_report(report, rel, table)
+    assert set(slim) == {"unit", "result", "decisions"}
+    assert records.full_report(slim, rel, table) == report
+    # a table that changed after its record (or no record at all) stays in the report
+    later = {**report, "influences": {"a>b": ["stop"]}}
+    kept = records.slim_report(later, rel, table)
+    assert kept["influences"] == {"a>b": ["stop"]} and "installed" not in kept
+    assert records.full_report(kept, rel, table) == later
+    other = records.relations("a", 3.0, dict(sent), {"a-b": "conflict"}, "a+b", None)
+    assert records.slim_report(report, other, None) == report  # all relations fields or none
+    cut = records.full_report(slim, None, None)  # a log cut before the records: empty tables
+    assert cut["installed"] == {} and cut["influences"] == {} and cut["polynomial"] is None

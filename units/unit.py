@@ -194,6 +194,10 @@ class AutonomousUnit:
         self.env: simpy.Environment | None = None
         self.ears: Ears | None = None
         self.index = 0  # its index among its ears' listeners
+        # its last /unit/relations and /unit/influences records (its report leaves out what
+        # they hold as it is at its end)
+        self._logged_relations: records.RelationsRecord | None = None
+        self._logged_influences: records.InfluencesRecord | None = None
 
     @property
     def sent(self) -> list[Send]:
@@ -574,6 +578,7 @@ class AutonomousUnit:
                         mind.p4,
                     )  # fmt: skip
                     self.log.write_in_order(records.UNIT_RELATIONS, record, t)
+                    self._logged_relations = record
                     self._draw(t, mind.installed())
                 if mind.error:
                     self.log.log("error", f"{self.name}: {mind.error}", t)
@@ -588,6 +593,7 @@ class AutonomousUnit:
             if self.log.enabled:
                 table = records.influences(self.name, t, mind.influence_table(), done)
                 self.log.write_in_order(records.UNIT_INFLUENCES, table, t)
+                self._logged_influences = table
             self._log_decisions(t, done)
         if mind.all_rounds_decided and (self.arq is None or not self.arq.left):
             self.finished = True
@@ -622,8 +628,14 @@ class AutonomousUnit:
 
     def report_record(self) -> records.UnitReportRecord:
         """What this unit knows at the end of its run (``/unit/report``): everything its share
-        of the run summary needs but its decodes (those are ``/rx/decodes``)."""
-        return self._report_fields(SendRows(self.sent).tolist())
+        of the run summary needs but its decodes (those are ``/rx/decodes``), and but its
+        tables where its last ``/unit/relations`` or ``/unit/influences`` record holds them as
+        they are now (``records.slim_report``: a group's n² tables once a unit, not twice)."""
+        return records.slim_report(
+            self._report_fields(SendRows(self.sent).tolist()),
+            self._logged_relations,
+            self._logged_influences,
+        )
 
     def report(self) -> dict[str, Any]:
         """This unit's share of the run summary (``rgtbus.summary.summarise``): its report

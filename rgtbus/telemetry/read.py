@@ -57,6 +57,7 @@ from rgtbus.telemetry.records import (
     RunRecord,
     decode_rows,
     decode_units,
+    full_report,
     is_trace_topic,
     logged_seed,
     spike_samples,
@@ -775,7 +776,10 @@ class Replay:
         decodes = {
             u: [row for _, row in sorted(rows, key=lambda r: r[0])] for u, rows in timed.items()
         }
-        reports = {m["unit"]: m for _, m in self.by_topic[UNIT_REPORT]}
+        reports = {
+            m["unit"]: full_report(m, self.relations.get(m["unit"]), self.influences.get(m["unit"]))
+            for _, m in self.by_topic[UNIT_REPORT]
+        }
         if not reports:
             reports = {u: self._legacy_report(u) for u in self.units}
         return [{**reports[u], "decodes": decodes.get(u, [])} for u in self.units if u in reports]

@@ -239,14 +239,17 @@ class RepairCounts(TypedDict):
 
 
 class UnitReportRecord(TypedDict, total=False):
-    """``/unit/report``: what a unit knows at the end of its run, its share of the run summary."""
+    """``/unit/report``: what a unit knows at the end of its run, its share of the run summary.
+    Its tables (``RELATIONS_FIELDS``, ``influences``) are left out where the unit's last
+    ``/unit/relations`` (``/unit/influences``) record holds them as they are at its end
+    (``slim_report``; ``full_report`` puts them back)."""
 
     unit: Required[str]
-    installed: Required[dict[str, str]]
-    polynomial: Required[str | None]
-    p4: Required[list[str] | None]
-    sent_relations: Required[dict[str, str]]
-    influences: Required[dict[str, Alternative]]
+    installed: dict[str, str]
+    polynomial: str | None
+    p4: list[str] | None
+    sent_relations: dict[str, str]
+    influences: dict[str, Alternative]
     result: Required[dict[str, Any]]
     decisions: Required[list[DecisionRow]]
     sends: Required[list[list[Any]]]
@@ -590,6 +593,48 @@ def decode_units(record: Mapping[str, Any]) -> list[str]:
             "names alone"
         )
     return units
+
+
+# a report's fields that a /unit/relations record holds: (report field, relations field)
+RELATIONS_FIELDS = (("sent_relations", "sent"), ("installed", "installed"),
+                    ("polynomial", "polynomial"), ("p4", "p4"))  # fmt: skip
+
+
+def slim_report(
+    report: UnitReportRecord,
+    relations: Mapping[str, Any] | None,
+    influences: Mapping[str, Any] | None,
+) -> UnitReportRecord:
+    """``report`` less the tables that the unit's last ``/unit/relations`` record
+    (``relations``) and ``/unit/influences`` record (``influences``) hold as they are (all
+    of the relations fields or none, so a reader never mixes the two)."""
+    out = dict(report)
+    if relations is not None and all(
+        report.get(mine) == relations.get(theirs) for mine, theirs in RELATIONS_FIELDS
+    ):
+        for mine, _ in RELATIONS_FIELDS:
+            del out[mine]
+    if influences is not None and report.get("influences") == influences.get("influences"):
+        del out["influences"]
+    return cast(UnitReportRecord, out)
+
+
+def full_report(
+    report: Mapping[str, Any],
+    relations: Mapping[str, Any] | None,
+    influences: Mapping[str, Any] | None,
+) -> dict[str, Any]:
+    """A ``/unit/report`` as read, with the tables ``slim_report`` left out put back from the
+    unit's last ``/unit/relations`` and ``/unit/influences`` records (empty where the log
+    holds none: a log cut before them)."""
+    out = dict(report)
+    if "sent_relations" not in out:
+        rel = relations or {}
+        for mine, theirs in RELATIONS_FIELDS:
+            out[mine] = rel.get(theirs, {} if mine in ("sent_relations", "installed") else None)
+    if "influences" not in out:
+        out["influences"] = (influences or {}).get("influences", {})
+    return out
 
 
 def relations(
