@@ -32,7 +32,8 @@ from rgtbus.bus.payload import FINAL, NEVER, Frame, encode
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log, scan_log
-from rgtbus.telemetry.verify import spikes_per_unit
+from rgtbus.telemetry.pulse_blocks import pulse_rows
+from rgtbus.telemetry.verify import decodes_per_row, pulses_per_row, spikes_per_unit
 
 ROOT = Path(__file__).parent.parent.parent
 GATE = str(ROOT / "scenarios" / "gate.toml")
@@ -121,16 +122,16 @@ def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     messages, _metadata = read_log(tmp_path / "run.mcap")
     run = [m for t, _, m in messages if t == "/run"]
     assert len(run) == 1 and run[0]["error"] == first.removeprefix("launch: ")
-    # every record of b's is in the merge: a block of spikes b heard alike with others is in
-    # their one record (the merge joins them), so spikes are compared one record a unit
-    merged = {
-        (t, ns, json.dumps(m, sort_keys=True, default=plain))
-        for t, ns, m in spikes_per_unit(messages)
-    }
-    assert all(
-        (t, ns, json.dumps(m, sort_keys=True, default=plain)) in merged
-        for t, ns, m in spikes_per_unit(b_messages)
-    )
+    # every record of b's is in the merge: a block of spikes b heard alike with others, or of
+    # decodes b made alike with them, is in their one record, and b's pulses in its block of
+    # time with theirs (the merge joins them), so those are compared one row a unit
+    def rows(msgs):
+        return {
+            (t, ns, json.dumps(m, sort_keys=True, default=plain))
+            for t, ns, m in pulses_per_row(decodes_per_row(spikes_per_unit(msgs)))
+        }
+
+    assert rows(b_messages) <= rows(messages)
     assert verify_code(tmp_path / "run.mcap") == 3  # ends early: verified only that far
 
 
@@ -278,8 +279,17 @@ def test_a_unit_without_the_key_cannot_join_and_says_so_in_its_log(procs, tmp_pa
 
 
 def own_records(path: Path, unit: str) -> list[str]:
-    """The topics of what ``unit`` logged of its own (not the medium logged ahead)."""
-    return [t for t, _, m in read_log(path)[0] if t != "/medium" and m.get("unit") == unit]
+    """The topics of what ``unit`` logged of its own (not the medium logged ahead; a block of
+    pulses holding one of its)."""
+    return [
+        t
+        for t, _, m in read_log(path)[0]
+        if t != "/medium"
+        and (
+            m.get("unit") == unit
+            or (t == "/tx/pulse" and any(p["unit"] == unit for p in pulse_rows(m)))
+        )
+    ]
 
 
 @pytest.mark.slow  # ten unit processes, paced
