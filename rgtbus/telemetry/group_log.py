@@ -170,27 +170,31 @@ class GroupLog:
         self, pieces: list[tuple[int, Sequence[Any], records.DecodeTables]]
     ) -> list[list[int]]:
         """The pieces (their indexes) that hold the same decodes, grouped, in order of each
-        group's first: by their columns' bytes as they are (a piece of a batch and the
-        others' of the same batch: views of like arrays), then those groups by their values
-        (a column of another dtype, the same numbers), as ``merge`` compares them."""
-        as_is: dict[tuple[Any, ...], list[int]] = {}
+        group's first: a bucket of pieces of one length and tables at a time, each column of
+        the bucket joined into one array (its values as ``merge`` compares them: equal
+        numbers of any dtype alike, floats by their bits), the rows of their bytes compared."""
+        buckets: dict[tuple[int, int], list[int]] = {}
         for i, (_, part, tables) in enumerate(pieces):
-            key = (self._token(tables), *map(_raw, part))
-            as_is.setdefault(key, []).append(i)
-        if len(as_is) == 1:
-            return list(as_is.values())
-        by_value: dict[tuple[Any, ...], list[int]] = {}
-        for idx in as_is.values():
-            _, part, tables = pieces[idx[0]]
-            key = (
-                self._token(tables),
-                *(
-                    np.asarray(c, dtype=d).tobytes()
-                    for c, d in zip(part, _BITS.values(), strict=True)
-                ),
-            )
-            by_value.setdefault(key, []).extend(idx)
-        return sorted((sorted(g) for g in by_value.values()), key=lambda g: g[0])
+            buckets.setdefault((len(part[7]), self._token(tables)), []).append(i)
+        groups: list[list[int]] = []
+        for (rows, _), idx in buckets.items():
+            if len(idx) == 1:
+                groups.append(idx)
+                continue
+            columns = [
+                np.ascontiguousarray(
+                    np.concatenate([pieces[i][1][c] for i in idx]), dtype=dtype
+                )
+                .reshape(len(idx), rows)
+                .view(np.uint8)
+                for c, dtype in enumerate(_BITS.values())
+            ]
+            found: dict[bytes, list[int]] = {}
+            for i, row in zip(idx, np.concatenate(columns, axis=1), strict=True):
+                found.setdefault(row.tobytes(), []).append(i)
+            groups += found.values()
+        groups.sort(key=lambda g: g[0])
+        return groups
 
     def _token(self, tables: records.DecodeTables) -> int:
         """``tables`` as a small number, one a distinct content: a unit's own tables (a
@@ -212,12 +216,6 @@ class GroupLog:
             self._write_pulses(_DONE * self.span)
         if self._decode_at.move(member, _DONE):
             self._write_decodes(_DONE)
-
-
-def _raw(column: Any) -> tuple[str, bytes]:
-    """A column's dtype and bytes as they are."""
-    array = column if type(column) is np.ndarray else np.asarray(column)
-    return array.dtype.str, array.tobytes()
 
 
 def _order(record: records.DecodesRecord) -> tuple[float, list[str]]:
