@@ -25,7 +25,7 @@ TOPICS: dict[str, tuple[str, str]] = {
     ),
     r.TX_PULSE: (
         "rgtbus.PulseBlock",
-        "every transmitted pulse: per sender and 5 s block, one row a pulse",
+        "every transmitted pulse: one block a process's senders and 5 s, one row a pulse",
     ),
     r.RX_SPIKE: (
         "rgtbus.SpikeBlock",
