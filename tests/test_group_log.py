@@ -65,7 +65,7 @@ def test_a_process_s_pulses_of_a_block_are_one_record_once_every_sender_is_past_
     group = GroupLog(sink, TAU, ["a", "b"])
     for sender, samples in (("b", (40, 140, 1040)), ("a", (50, 60, 70))):
         ref = records.message_ref(0, "id", "id", sender, "a")
-        group.send(samples, (0.5, 0.4, 0.3), "a", 6.28, ref)
+        group.pulses.add_send(samples, (0.5, 0.4, 0.3), "a", 6.28, ref)
     group.pulses_passed(0, 2 * SPAN)
     assert sink.written == []  # b's clock is not past the first block
     group.pulses_passed(1, SPAN)

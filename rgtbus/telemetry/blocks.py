@@ -37,6 +37,13 @@ from rgtbus.telemetry.codec import decode as decode_block
 # 60 s blocks)
 BLOCK_SECONDS = 5.0
 
+
+def block_samples(tau: float) -> int:
+    """The samples of one block of ``BLOCK_SECONDS`` on a clock of period ``tau``: block k
+    holds samples [k·n, (k+1)·n). The one rule of the writer (pulses, decodes), ``merge``,
+    ``convert`` and a cut log's bound."""
+    return max(1, round(BLOCK_SECONDS / tau))
+
 SCHEMA_ENCODING = "protobuf"
 MESSAGE_ENCODING = "protobuf"
 

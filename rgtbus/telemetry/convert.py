@@ -24,7 +24,7 @@ import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
-from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.recorder import McapRecorder
 from rgtbus.telemetry.scan import RawLog, _require_run
@@ -146,7 +146,7 @@ class _Converter:
         group = self._group()
         if topic == r.TX_PULSE:
             self._member(message["unit"])
-            group.pulse(message)  # type: ignore[arg-type]
+            group.pulses.add(message)
         elif topic == r.RX_SPIKE:
             self.write(topic, _spike_columns(message), t_ns)
         elif topic == r.RX_DECODE:
@@ -183,7 +183,7 @@ class _Converter:
         return self.tau
 
     def _block(self) -> int:
-        return max(1, round(BLOCK_SECONDS / self._tau()))
+        return block_samples(self._tau())
 
     def _decodes_before(self, sample: int | None) -> None:
         """The held single decodes of the blocks that end at or before ``sample`` (all:

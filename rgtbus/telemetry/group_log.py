@@ -31,7 +31,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from rgtbus.telemetry import records
-from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.blocks import block_samples
 from rgtbus.telemetry.pulse_blocks import PulseBlocks
 from rgtbus.timebase import ns
 
@@ -84,8 +84,8 @@ class GroupLog:
         self.recorder = recorder
         self.tau = tau
         self.names = list(names)
-        self.span = max(1, round(BLOCK_SECONDS / tau))  # samples a block
-        self.pulses = PulseBlocks(tau, self.span)
+        self.span = block_samples(tau)
+        self.pulses = PulseBlocks(tau, self.span)  # every unit's pulses, held: add them here
         self._pulse_at = _Cursors(len(names))
         self._decode_at = _Cursors(len(names))
         # block -> its pieces: (member, columns as records.DECODE_COLUMNS, tables)
@@ -96,21 +96,6 @@ class GroupLog:
         self._tokens: dict[tuple[tuple[str, ...], ...], int] = {}  # tables -> a token
 
     # -- pulses ------------------------------------------------------------------------------
-
-    def send(
-        self,
-        samples: Sequence[int],
-        magnitudes: Sequence[float],
-        channel: str,
-        omega: float,
-        message: records.MessageRef,
-    ) -> None:
-        """A message's pulses, held for their blocks' records."""
-        self.pulses.add_send(samples, magnitudes, channel, omega, message)
-
-    def pulse(self, record: records.PulseRecord) -> None:
-        """One pulse (``records.pulse``), held for its block's record."""
-        self.pulses.add(record)
 
     def pulses_passed(self, member: int, sample: int) -> None:
         """Unit ``member``'s records have come to ``sample``: no pulse of its is still to come

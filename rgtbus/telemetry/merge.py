@@ -28,8 +28,8 @@ from mcap.writer import CompressionType, IndexType, Writer
 from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.blocks import (
-    BLOCK_SECONDS,
     PULSE,
+    block_samples,
     decode_record,
     encode_record,
     units_head,
@@ -229,7 +229,7 @@ def joined_pulses(
             record = decode_record(PULSE, e[5], "merge")
         except RgtbusError:
             continue
-        span = max(1, round(BLOCK_SECONDS / record["tau"]))
+        span = block_samples(record["tau"])
         blocks = {int(s) // span for s in (record["sample"][0], record["sample"][-1])}
         if len(blocks) == 1 and len(record["sample"]):
             by_block.setdefault((e[3], record["tau"], blocks.pop()), []).append((k, record))

@@ -160,9 +160,6 @@ class PulseBatch:
             **dict(zip(_COLUMNS, cols, strict=True)),
         }
 
-    def __len__(self) -> int:
-        return sum(len(row[0]) for row in self.rows)
-
 
 _COLUMNS = ("sample", "channel", "magnitude", "message", "kind", "code", "sender", "addressee",
             "block")  # fmt: skip

@@ -35,7 +35,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics, untrusted
-from rgtbus.telemetry.blocks import BLOCK_SECONDS, schema_of
+from rgtbus.telemetry.blocks import block_samples, schema_of
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
@@ -829,7 +829,7 @@ class Replay:
         tau = self.scenario.timing.tau if self.scenario is not None else None
         if tau is None:
             return 0
-        block = max(1, round(BLOCK_SECONDS / tau))
+        block = block_samples(tau)
         done = sample_of(seconds(t_ns), tau) // block
         return max(0, ns(time_of(done * block, tau)))
 

@@ -30,7 +30,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from rgtbus.telemetry import records
-from rgtbus.telemetry.blocks import BLOCK_SECONDS
+from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.pulse_blocks import pulse_block_of
 from rgtbus.telemetry.recorder import Recorder
@@ -215,7 +215,7 @@ class UnitLog:
         self._parts: list[DecodePart] = []
         self._tables: list[records.DecodeTables | None] = []  # a part's (None: names)
         self._rows: list[tuple[Any, ...]] = []  # single decodes since the last part
-        self._decode_block = max(1, round(DECODE_BLOCK_SECONDS / tau))
+        self._decode_block = block_samples(tau)
         self.held_block = -1  # the decode block of the first decode held (-1: none)
         self.offers = False  # each decode offered to a live view as it is made (never logged)
         # the log of the units of its process, where their pulses and alike decodes are one
@@ -246,7 +246,7 @@ class UnitLog:
         written one ``/tx/pulse`` record a block of its process's units (``GroupLog``: which
         pulses a record holds depends on the pulses alone). While a live view may be
         looking, each pulse is also offered to it alone as it is made, as a block of one."""
-        self.group.pulse(record)
+        self.group.pulses.add(record)
         if self.recorder.watched():
             one = pulse_block_of([record], self.tau)
             self.recorder.offer(records.TX_PULSE, one, ns(one["t"]))
@@ -261,7 +261,7 @@ class UnitLog:
     ) -> None:
         """The pulses of one message this unit sends, as ``pulse`` would each (while nobody
         may be looking: none is offered)."""
-        self.group.send(samples, magnitudes, channel, omega, message)
+        self.group.pulses.add_send(samples, magnitudes, channel, omega, message)
 
     def write_in_order(self, topic: str, record: Any, t: float) -> None:
         """A record of this unit's own at ``t`` seconds, after the decodes that came before."""
