@@ -497,3 +497,33 @@ def test_the_lookahead_of_propagation_changes_rounds_not_results(tmp_path):
     assert sorted(sync) == ["a", "b", "c", "d"]
     assert all(s["members"] == 1 and s["rounds"] > 0 for s in sync.values()), sync
     assert any(s["ahead_rounds"] > 0 for s in sync.values()), sync
+
+
+def test_a_process_stopped_once_its_parts_are_out_ends_as_a_whole_run(tmp_path, monkeypatch):
+    """A launcher reaps a unit process that told its parts and still lingers (its last frames
+    may be asked for again): SIGTERM then ends the linger, and the log is the run's whole log,
+    however long the linger took (CI once saw every unit write "interrupted" there under
+    load, and the merged log differ from the single process's)."""
+    from rgtbus.units.process import run_logged_units
+
+    from rgtbus.bus.zenoh import ZenohBus
+    from rgtbus.telemetry.topics import UNIT_DONE, unit_end_record
+
+    def stopped(self, timeout):
+        raise KeyboardInterrupt  # the launcher's SIGTERM, as ``interrupted_by`` raises it
+
+    monkeypatch.setattr(ZenohBus, "linger", stopped)
+    sc = load_scenario(ROOT / "scenarios" / "gate.toml")
+    told: list[dict] = []
+    (port,) = free_ports(1)
+    log = tmp_path / "gate.mcap"
+    outs = run_logged_units(
+        sc, list(sc.units), log,
+        zenoh_options={"listen": [f"tcp/127.0.0.1:{port}"]}, on_result=told.append,
+    )  # fmt: skip
+    assert told and set(outs) == set(sc.units)
+    messages, metadata = read_log(log)
+    lines = [m["message"] for topic, _, m in messages if topic == "/log"]
+    assert lines and not [line for line in lines if "interrupted" in line]
+    ends = {u: metadata.get(unit_end_record(u)) for u in sc.units}
+    assert {v["status"] if v else None for v in ends.values()} == {UNIT_DONE}

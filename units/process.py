@@ -200,6 +200,7 @@ def run_units(
     world_options = {"engine": engine, "timeout": timeout, "progress": progress,
                      "realtime": realtime, "write_medium": sc.units[0] == first}  # fmt: skip
     sim_seconds = 0.0
+    told = False  # the parts are out (``on_result``): being stopped then loses nothing
     try:
         with open_bus(
             "zenoh",
@@ -228,10 +229,20 @@ def run_units(
                 if flush is not None:  # the reports on disk before anyone is told
                     flush()
                 on_result(outs)
+                told = True
             if not result.failure and isinstance(bus, ZenohBus):
                 bus.linger(timeout)  # its last frames may be asked for again
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
+    except KeyboardInterrupt as exc:
+        if not told:  # stopped before its parts were out: the units ended early
+            for name in names:
+                _write_end(
+                    recorder, name, UNIT_ENDED_EARLY, str(exc) or type(exc).__name__, sim_seconds
+                )
+            raise
+        # a launcher reaping a process that told its parts and lingers (or closes its
+        # session): the run is whole, and its log the same however long that took
     except BaseException as exc:
         for name in names:
             _write_end(
