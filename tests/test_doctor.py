@@ -43,6 +43,53 @@ def doctor(path: Path) -> Counter[tuple[str, str]]:
     return found
 
 
+def unordered_chunks(path: Path) -> dict[str, int]:
+    """Per topic, the chunks (in file order) that hold a message earlier in log time than one
+    of an earlier chunk of that topic: what ``rerun mcap check`` reports as "unordered chunks
+    on message_log_time" (readers that index a file by its chunks' times, Foxglove's player
+    among them, then read a topic's chunks out of order)."""
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    latest: dict[int, int] = {}
+    bad: Counter[int] = Counter()
+    topics: dict[int, str] = {}
+    with open(path, "rb") as f:
+        for record in StreamReader(f, emit_chunks=True).records:
+            if not isinstance(record, Chunk):
+                continue
+            first: dict[int, int] = {}
+            last: dict[int, int] = {}
+            for inner in breakup_chunk(record, validate_crc=True):
+                if isinstance(inner, Message):
+                    cid, t = inner.channel_id, inner.log_time
+                    first[cid] = min(first.get(cid, t), t)
+                    last[cid] = max(last.get(cid, t), t)
+                elif hasattr(inner, "topic"):
+                    topics[inner.id] = inner.topic
+            for cid, t in first.items():
+                if t < latest.get(cid, -1):
+                    bad[cid] += 1
+                latest[cid] = max(latest.get(cid, -1), last[cid])
+    return {topics.get(cid, str(cid)): n for cid, n in bad.items()}
+
+
+RERUN = os.environ.get("RGTBUS_RERUN") or shutil.which("rerun")
+
+
+def rerun_problems(path: Path) -> list[str]:
+    """The topics ``rerun mcap check`` (rerun-sdk) reports a problem with, as its lines. A
+    cut log has no summary (as the specification allows): rerun reads it with ``--recover``,
+    as it asks."""
+    assert RERUN
+    argv = [RERUN, "mcap", "check", str(path)]
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    if out.returncode and "summary is missing" in out.stderr:
+        out = subprocess.run([*argv, "--recover"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return [line for line in out.stdout.splitlines() if line.startswith("PROBLEM")]
+
+
 def _rgtbus(*argv: str) -> None:
     done = subprocess.run([*EXE, *argv], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
@@ -109,6 +156,53 @@ def test_every_kind_of_written_file_passes_doctor(written, kind):
     found = doctor(written[kind])
     bad = {key: n for key, n in found.items() if key[0] in ("error", "warning")}
     assert not bad, f"{kind}: {bad}"
+
+
+@pytest.mark.slow  # the files above (CI's slow pass runs it)
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_of_written_file_has_each_topic_s_chunks_in_time_order(written, kind):
+    assert unordered_chunks(written[kind]) == {}, kind
+
+
+@pytest.mark.slow  # the files above (CI's slow pass runs it, rerun-sdk installed by .ci/run)
+@pytest.mark.skipif(RERUN is None, reason="no rerun (rerun-sdk): .ci/run installs one for CI")
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_of_written_file_passes_rerun_s_check(written, kind):
+    assert rerun_problems(written[kind]) == [], kind
+
+
+@pytest.mark.parametrize("name", ["group20", "gate_repair", "tug_of_war"])
+def test_a_run_s_log_has_each_topic_s_chunks_in_time_order(tmp_path, name):
+    """Units plan sends ahead and tell spikes late; the recorder holds what comes early and
+    writes each topic in log-time order (``Recorder.advance``), chunk after chunk (a
+    20-unit run's /log and /rx/spike had chunks out of order before). Chunks of a message
+    each find any disorder."""
+    from rgtbus.units.group import run_group
+
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry import McapRecorder
+
+    path = tmp_path / f"{name}.mcap"
+    with open(path, "wb") as f:
+        rec = McapRecorder(f, chunk_size=4096)
+        run_group(load_scenario(ROOT / "scenarios" / f"{name}.toml"), "memory", rec)
+        rec.close()
+    assert unordered_chunks(path) == {}
+
+
+def test_the_chunk_order_check_can_fail(tmp_path):
+    from mcap.writer import Writer
+
+    path = tmp_path / "late.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=10)
+        writer.start()
+        writer.register_schema("s", "jsonschema", b"{}")
+        cid = writer.register_channel("/t", "json", 1)
+        for t in (5, 9, 7):  # the third chunk starts before the second ended
+            writer.add_message(cid, t, b"{}", t)
+        writer.finish()
+    assert unordered_chunks(path) == {"/t": 1}
 
 
 def test_doctor_sees_what_merge_once_wrote(tmp_path):

@@ -264,16 +264,25 @@ def _honest(gate: bytes, tmp_path: Path) -> Path:
 
 
 def test_statistics_whose_counts_do_not_add_up_are_named(gate, tmp_path):
+    moved: list[int] = []
+
     def off(stats: Any) -> None:
         cid = min(stats.channel_message_counts)
+        moved[:] = [cid, stats.channel_message_counts[cid]]
         stats.channel_message_counts[cid] -= 1
         stats.channel_message_counts[cid + 100] = 1  # a channel the log has not
 
     path = tmp_path / "counts.mcap"
     path.write_bytes(rebuilt(gate, stats=off))
+    summary = make_reader(io.BytesIO(rebuilt(gate))).get_summary()
+    assert summary is not None
+    cid, held = moved
+    topic = summary.channels[cid].topic
     (problem,) = log_info(path)["problems"]
     assert "its counts per channel add up to" not in problem  # they do: one moved
-    assert problem.endswith("says 47 on /log, it holds 48, 1 on channel 101, it holds 0")
+    assert problem.endswith(
+        f"says {held - 1} on {topic}, it holds {held}, 1 on channel {cid + 100}, it holds 0"
+    )
 
 
 def test_two_run_records_are_a_contradiction(gate, tmp_path):

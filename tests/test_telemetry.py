@@ -1098,3 +1098,49 @@ def test_a_large_message_is_refused_wherever_a_non_finite_number_hides(bad, wher
     }[where]
     with pytest.raises(ValueError, match="not JSON compliant"):
         encode_json({**good, "bad": value})
+
+
+def _spike_block(unit, sample: int) -> dict:
+    from rgtbus.telemetry import records
+
+    return records.spikes(unit, 0.005, np.array([sample]), np.array([0]), ["a"])
+
+
+@pytest.mark.parametrize("kind", ["mcap", "memory"])
+def test_records_held_until_the_run_passes_them_go_out_in_time_order(kind):
+    """``advance``: records at or after the point the run has come to are held, and written in
+    log-time order (then arrival) as it moves on; a record told late goes out at once; blocks
+    of spikes of one time that hold the same spikes become one naming their units, as
+    ``merge`` joins them; ``close`` writes what is still held. Both recorders alike."""
+    from rgtbus.telemetry import MemoryRecorder, records
+    from rgtbus.telemetry.blocks import SPIKE, decode_record
+    from rgtbus.telemetry.recorder import log_message
+
+    buf = io.BytesIO()
+    rec = McapRecorder(buf) if kind == "mcap" else MemoryRecorder()
+    rec.write(records.LOG, log_message("info", "before any advance", 5, "u"), 5)
+    rec.advance(10)
+    rec.log("info", "planned ahead", 300, name="u")
+    rec.log("info", "now", 20, name="u")
+    rec.write(records.RX_SPIKE, _spike_block("b", 3), 20)
+    rec.write(records.RX_SPIKE, _spike_block("a", 3), 20)
+    rec.write(records.RX_SPIKE, _spike_block("c", 4), 20)  # other spikes: a record of its own
+    rec.log("info", "told late", 8, name="u")
+    rec.advance(100)
+    rec.log("info", "after", 150, name="u")
+    rec.close()
+    if kind == "mcap":
+        in_file = make_reader(io.BytesIO(buf.getvalue())).iter_messages(log_time_order=False)
+        got = [(c.topic, m.log_time, m.data) for _, c, m in in_file]
+    else:
+        got = [(t, n, m) for t, n, m in rec.messages]
+    order = [(topic, t) for topic, t, _ in got]
+    assert order == [
+        ("/log", 5), ("/log", 8), ("/log", 20), ("/rx/spike", 20), ("/rx/spike", 20),
+        ("/log", 150), ("/log", 300),
+    ]  # fmt: skip
+    spikes = [m for topic, _, m in got if topic == "/rx/spike"]
+    if kind == "mcap":
+        spikes = [decode_record(SPIKE, m, "test") for m in spikes]
+    assert [s.get("units") or s.get("unit") for s in spikes] == [["a", "b"], "c"]
+    assert rec.counts["/rx/spike"] == 2

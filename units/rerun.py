@@ -60,6 +60,9 @@ class CaptureRecorder:
     def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         pass
 
+    def advance(self, t_ns: int) -> None:
+        """Nothing: writes are kept in the order made (the diff compares by time)."""
+
     def close(self) -> None:
         self.closed = True
 

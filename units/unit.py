@@ -378,7 +378,7 @@ class AutonomousUnit:
                 self._on_timer(t)
             else:
                 self.listening.take_queue(t, pos, self.timers, self._is_done)
-        self.log.after_wake(pos)
+        self.log.after_wake(pos, self.ears.spikes_from)
         self._ask()
 
     def _on_timer(self, t: Timer) -> None:

@@ -293,6 +293,13 @@ class Ears:
             q for q, units in self._quench_units.items() if lo <= q < hi for n in units if n == i
         )
 
+    @property
+    def spikes_from(self) -> int:
+        """No block of spikes still to be handed to a unit's log ends before this sample (the
+        last boundary the keeper handed blocks over at; or the present, with no spike log)."""
+        kept = self.kept
+        return kept.due - kept.block if kept.logging else self.pos
+
     def stop(self, i: int, at: int | None = None) -> None:
         """Unit ``i`` is done: it listens no more (and draws no more noise). ``at``: the
         sample it was done before, if the ears went on past it meanwhile (a unit that took a

@@ -162,6 +162,7 @@ class World:
         self._sent_promise: dict[str, int] = {m.name: -1 for m in self.members}
         self._sent_flags: dict[str, int] = {m.name: 0 for m in self.members}
         self._ears: list[Ears] = []
+        self._group_log: GroupLog | None = None  # the local units' log, when logged
         self._where: dict[str, tuple[Ears, int]] = {}
         self._ahead: dict[str, Pulses] = {}  # local members' published pulses not yet heard
         self._heard = 0  # the world ran every event before this sample
@@ -193,7 +194,9 @@ class World:
     def _build_ears(self) -> None:
         r = self.receivers
         if self.recorder.enabled:  # the local units' pulses and alike decodes: one record
-            shared = GroupLog(self.recorder, r.tau, [m.name for m in self.members])
+            names = [m.name for m in self.members]  # the log in time order (GroupLog.clock)
+            shared = GroupLog(self.recorder, r.tau, names, ordered=self.recorder)
+            self._group_log = shared
             for k, m in enumerate(self.members):
                 m.join_log(shared, k)
         dense = self.engine == "dense"
@@ -457,6 +460,8 @@ class World:
             if not interruptible:
                 raise
             self.failure = f"stopped (asked to, at t = {self.env.now:.3f} s)"
+        if self._group_log is not None:
+            self._group_log.finish()
         return WorldResult(
             steps=self.steps,
             sim_seconds=round(time_of(self.end_sample() + 1, self.tau), 9),

@@ -500,6 +500,32 @@ def units_head(data: bytes) -> tuple[list[str], bytes] | None:
     return (units, data[pos:]) if data[:pos] == units_head_bytes(units, tag == 0x0A) else None
 
 
+def join_alike(datas: Sequence[bytes]) -> list[bytes | None]:
+    """The ``/rx/spike`` (or ``/rx/decodes``) blocks of one log time and channel, with the ones
+    that hold the same spikes (decodes) — their bytes after the units — made one block naming
+    every unit of them, in sorted order, where the first of them was; None where one was
+    joined into an earlier one. A block not as rgtbus writes it stays as it is. The one rule
+    by which the units of one process write a block they made alike once, and ``merge``
+    joins the blocks of several processes: the result is the same for any split."""
+    groups: dict[bytes, list[str]] = {}
+    heads: list[bytes | None] = []
+    for data in datas:
+        parsed = units_head(data)
+        if parsed is None:
+            heads.append(None)
+            continue
+        heads.append(parsed[1])
+        groups.setdefault(parsed[1], []).extend(parsed[0])
+    out: list[bytes | None] = []
+    for data, head in zip(datas, heads, strict=True):
+        if head is None:
+            out.append(data)
+            continue
+        joined = groups.pop(head, None)
+        out.append(None if joined is None else units_head_bytes(sorted(set(joined))) + head)
+    return out
+
+
 def _short_varint(data: bytes, pos: int) -> tuple[int, int]:
     """A varint of at most 4 bytes at ``pos`` (a name's length): (value, where it ends), or
     (-1, pos) when there is none."""

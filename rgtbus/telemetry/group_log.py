@@ -17,6 +17,11 @@ several processes by the same rules (blocks of pulses of one block of time becom
 of decodes that hold the same bytes after their units become one), so a run's merged log is the
 same whatever the split of its units into processes (docs/format.md, "Canonical").
 
+* **Time order.** Each unit says how far it has come (``clock``: it writes no record before
+  that sample, save what its group holds here); the least of them is how far the process
+  has come, and the recorder writes the records held before it in log-time order
+  (``Recorder.advance``; ``ordered``). A unit that is done is past everything.
+
 A log cut short is whole before the start of the block of the earliest of its units' last
 records (``Replay.units_until_ns``): a block goes out once every unit has moved past it, and a
 unit's records go out after it has.
@@ -42,7 +47,14 @@ class RecordSink(Protocol):
     def write(self, topic: str, message: Any, t_ns: int) -> None: ...
 
 
+class OrderedSink(RecordSink, Protocol):
+    """A sink that holds records until the run has passed them (``Recorder.advance``)."""
+
+    def advance(self, t_ns: int) -> None: ...
+
+
 _DONE = 2**62  # a unit that is done is past every block
+_FOREVER = 2**63  # past every log time
 
 # how each column of a decode piece is compared (its values' bits: equal bits, equal bytes on
 # the wire, so a join here is the join ``merge`` makes)
@@ -80,11 +92,23 @@ class GroupLog:
     """The pulses and decodes of the units ``names`` (one process's, in member order) as the
     records they share (see the module docstring), on ``recorder``."""
 
-    def __init__(self, recorder: RecordSink, tau: float, names: Sequence[str]) -> None:
+    def __init__(
+        self,
+        recorder: RecordSink,
+        tau: float,
+        names: Sequence[str],
+        ordered: OrderedSink | None = None,
+    ) -> None:
+        """``ordered``: the recorder to tell how far every unit has come (``clock``), which
+        then writes in log-time order; None: nobody is told."""
         self.recorder = recorder
         self.tau = tau
         self.names = list(names)
         self.span = block_samples(tau)
+        self._ordered = ordered
+        self._clock = _Cursors(len(names))
+        if ordered is not None:
+            ordered.advance(0)
         self.pulses = PulseBlocks(tau, self.span)  # every unit's pulses, held: add them here
         self._pulse_at = _Cursors(len(names))
         self._decode_at = _Cursors(len(names))
@@ -193,10 +217,26 @@ class GroupLog:
             self._keys[id(tables)] = (tables, token)
         return token
 
+    # -- time order ----------------------------------------------------------------------------
+
+    def clock(self, member: int, sample: int) -> None:
+        """Unit ``member`` will write no record of its own before ``sample`` (what it hands
+        here aside): once every unit is past a point, the records held before it go out."""
+        if self._clock.move(member, sample) and self._ordered is not None:
+            low = self._clock.low
+            if low < _DONE:  # all done: the run's last words may still come (``finish``)
+                self._ordered.advance(ns(low * self.tau))
+
+    def finish(self) -> None:
+        """The run is over (its units' last blocks of spikes handed): what is held goes out."""
+        if self._ordered is not None:
+            self._ordered.advance(_FOREVER)
+
     # -- the end -----------------------------------------------------------------------------
 
     def end(self, member: int) -> None:
         """Unit ``member`` is done: past every block."""
+        self.clock(member, _DONE)
         if self._pulse_at.move(member, _DONE):
             self._write_pulses(_DONE * self.span)
         if self._decode_at.move(member, _DONE):

@@ -32,8 +32,7 @@ from rgtbus.telemetry.blocks import (
     block_samples,
     decode_record,
     encode_record,
-    units_head,
-    units_head_bytes,
+    join_alike,
 )
 from rgtbus.telemetry.pulse_blocks import join_pulse_blocks
 from rgtbus.telemetry.records import RX_DECODES, RX_SPIKE, TX_PULSE
@@ -186,28 +185,23 @@ def shared_blocks(
             yield from entries[i:j]
             i = j
             continue
-        groups: dict[tuple[int, bytes], list[str]] = {}
-        first: dict[tuple[int, bytes], int] = {}
-        heads: list[tuple[int, bytes] | None] = []
+        by_channel: dict[int, list[int]] = {}  # the shared topics' entries, a channel each
         for k in range(i, j):
-            cid, data = entries[k][3], entries[k][5]
-            parsed = units_head(data) if cid in spike_channels else None
-            if parsed is None:
-                heads.append(None)
-                continue
-            key = (cid, parsed[1])
-            groups.setdefault(key, []).extend(parsed[0])
-            first.setdefault(key, k)
-            heads.append(key)
-        for k, head in zip(range(i, j), heads, strict=True):
-            if head is None:
+            if entries[k][3] in spike_channels:
+                by_channel.setdefault(entries[k][3], []).append(k)
+        out: dict[int, bytes | None] = {}
+        for ks in by_channel.values():
+            out.update(zip(ks, join_alike([entries[k][5] for k in ks]), strict=True))
+        for k in range(i, j):
+            if k not in out:
                 yield entries[k]
-            elif first[head] != k:
+                continue
+            data = out[k]
+            if data is None:
                 res.joined += 1
-            else:
-                merged = units_head_bytes(sorted(set(groups[head]))) + head[1]
-                log_time, source, order, cid, publish_time, _ = entries[k]
-                yield (log_time, source, order, cid, publish_time, merged)
+                continue
+            log_time, source, order, cid, publish_time, _ = entries[k]
+            yield (log_time, source, order, cid, publish_time, data)
         i = j
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import functools
+import heapq
 import json
 import logging
 import math
@@ -30,8 +31,8 @@ from mcap.records import Metadata as McapMetadata
 from rgtbus.errors import RgtbusError
 from rgtbus.pairs import SharedTable
 from rgtbus.telemetry import topics, validate
-from rgtbus.telemetry.blocks import decode_record, encode_record, schema_of
-from rgtbus.telemetry.records import LOG, MEDIUM
+from rgtbus.telemetry.blocks import decode_record, encode_record, join_alike, schema_of
+from rgtbus.telemetry.records import LOG, MEDIUM, RX_DECODES, RX_SPIKE
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 from rgtbus.timebase import NS_PER_SECOND, ns
 
@@ -95,6 +96,12 @@ class Recorder(Protocol):
     def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
         """``message`` for the live view alone, never logged (nothing without a live view):
         e.g. each decode on ``/rx/decode`` as it is made, where the log holds them in blocks."""
+        ...
+
+    def advance(self, t_ns: int) -> None:
+        """The run will write no record before ``t_ns`` (records told late aside): what is held
+        before it is written, in log-time order, and from the first call on a record at or
+        after the present one is held until the run has passed it (``_Encoding``)."""
         ...
 
     def close(self) -> None:
@@ -286,8 +293,34 @@ def _not_finite(value: Any) -> float | None:
     return None
 
 
+# a record held for its time: (log time, arrival, topic, schema, bytes)
+_Held = tuple[int, int, str, str, bytes]
+
+
+# topics whose blocks of one log time that hold the same rows are one, naming their units
+_JOINED_TOPICS = frozenset((RX_SPIKE, RX_DECODES))
+
+
+
+
 class _Encoding:
-    """Topic check, JSON encoding and optional validation, shared by the real recorders."""
+    """Topic check, JSON encoding and optional validation, shared by the real recorders; and
+    the order of what they write.
+
+    **Time order.** Units plan sends ahead (a send's log line is made when it is planned) and
+    tell blocks of spikes late (at their wake), so records come in an order of their own. Once
+    the run says how far it has come (``advance``: no record before that log time is still
+    to come), a record at or after that point is held, and the held ones go out in log-time
+    order (then the order they came in) as the point moves on. Each topic's messages then
+    follow log time in the file, chunk after chunk, as readers that index a file by its chunks'
+    times expect (``rerun mcap check``, Foxglove's player), and a file cut after any record
+    holds every record before it in log time that the run had passed then (what
+    ``Replay.units_until_ns`` counts on). A record the run tells late, before that point
+    (a block of pulses or decodes, which ``GroupLog`` writes once every unit is past it),
+    goes out at once. A live view gets every record as it is made, not held (a block of spikes
+    or decodes as written, joined: it is told late anyway). ``close`` writes
+    what is still held. Before the first ``advance`` nothing is held.
+    """
 
     enabled = True
     failed: str | None = None  # the one line that says why the stream failed (McapRecorder)
@@ -298,6 +331,10 @@ class _Encoding:
         self.counts: Counter[str] = Counter()  # messages written per topic
         self._closed = False
         self._schemas: dict[str, str] = {}  # topic -> schema name, once looked up
+        # held records (log time, arrival, topic, schema, bytes), a heap; None: none held
+        self._held: list[_Held] | None = None
+        self._hold_from = -1  # no record before this log time is still to come
+        self._arrival = 0
 
     def _schema(self, topic: str) -> str:
         """``topic``'s schema name, looked up once."""
@@ -355,7 +392,82 @@ class _Encoding:
         self.write(LOG, log_message(level, text, t_ns, name, file, line), t_ns)
 
     def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Encode ``message`` on ``topic`` at ``t_ns`` and write it, or hold it for its time
+        (see the class docstring); the live sink gets it now. RgtbusError for a message its
+        topic's schema or JSON cannot take, and once the stream has failed."""
+        schema, data, t = self._encode(topic, message, t_ns)
+        if self.failed:
+            raise RgtbusError(self.failed)
+        if self.live is not None and topic not in _JOINED_TOPICS:
+            self.live.put(topic, schema, data, t)  # as made (a block as joined: ``_out``)
+        if self._held is not None and t >= self._hold_from:
+            heapq.heappush(self._held, (t, self._arrival, topic, schema, data))
+            self._arrival += 1
+            return
+        self._out(topic, schema, data, t)  # nothing held, or told late
+
+    def _out(self, topic: str, schema: str, data: bytes, t: int) -> None:
+        """Write one message; the live sink gets a block of spikes (decodes) as written."""
+        if self.live is not None and topic in _JOINED_TOPICS:
+            self.live.put(topic, schema, data, t)
+        self._emit(topic, schema, data, t)
+
+    def _emit(self, topic: str, schema: str, data: bytes, t: int) -> None:
+        """Write one encoded message (the recorder's own medium)."""
         raise NotImplementedError
+
+    def advance(self, t_ns: int) -> None:
+        """No record before ``t_ns`` is still to come (see the class docstring): the held ones
+        before it go out, in order."""
+        if self._held is None:
+            self._held = []
+        if t_ns <= self._hold_from:
+            return
+        self._hold_from = t_ns
+        held = self._held
+        if held and held[0][0] < t_ns:
+            out = []
+            while held and held[0][0] < t_ns:
+                out.append(heapq.heappop(held))
+            self._write_held(out)
+
+    def _write_held(self, out: list[_Held]) -> None:
+        """Write held records (in log-time order, then arrival). Blocks of spikes (decodes) of
+        one log time that hold the same rows become one naming every unit of them
+        (``join_alike``, the rule ``merge`` follows): all of one time leave together."""
+        emit = self._out
+        i, n = 0, len(out)
+        while i < n:
+            t = out[i][0]
+            j = i + 1
+            while j < n and out[j][0] == t:
+                j += 1
+            run = out[i:j]
+            i = j
+            shared: dict[str, list[int]] = {}
+            for k, e in enumerate(run):
+                if e[2] in _JOINED_TOPICS:
+                    shared.setdefault(e[2], []).append(k)
+            joined: dict[int, bytes | None] = {}
+            for ks in shared.values():
+                if len(ks) > 1:
+                    joined.update(zip(ks, join_alike([run[k][4] for k in ks]), strict=True))
+            for k, (_, _, topic, schema, data) in enumerate(run):
+                if k in joined:
+                    got = joined[k]
+                    if got is None:
+                        self.counts[topic] -= 1
+                        continue
+                    data = got
+                emit(topic, schema, data, t)
+
+    def _release_all(self) -> None:
+        """Write every record still held (the run is over), and hold none from now on."""
+        held, self._held = self._held, None
+        self._hold_from = -1
+        if held:
+            held.sort()
+            self._write_held(held)
 
     def watched(self) -> bool:
         """Whether the live sink (if any) may be looking now (``LiveSink.watched``)."""
@@ -708,11 +820,8 @@ class McapRecorder(_Encoding):
         self._logs[topic] = base.log if base is not None else channel.log
         return channel
 
-    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
-        """Encode ``message`` on ``topic`` at ``t_ns`` and hand it to the writer (and the live
-        sink); the chunk is finished when due. RgtbusError for a message its topic's schema or
-        JSON cannot take, and once the stream has failed."""
-        schema, data, t = self._encode(topic, message, t_ns)
+    def _emit(self, topic: str, schema: str, data: bytes, t: int) -> None:
+        """Hand one encoded message to the writer; the chunk is finished when due."""
         if self.failed:
             raise RgtbusError(self.failed)
         log = self._logs.get(topic)
@@ -735,8 +844,6 @@ class McapRecorder(_Encoding):
                 if self._flush_due == _U64_MAX:
                     self._flush_due = min(self._present + self._flush_ns, _U64_MAX)
                 due = due or self._present >= self._flush_due
-        if self.live is not None:
-            self.live.put(topic, schema, data, t)
         if self._sink.error is not None:
             raise self._broken(self._sink.error)
         if due:
@@ -770,6 +877,9 @@ class McapRecorder(_Encoding):
         whole file to every reader, truncated to rgtbus), not as a whole run's."""
         if self._closed:
             return
+        if not self.failed:  # what is still held goes out (a failed write ends it here)
+            with contextlib.suppress(RgtbusError):
+                self._release_all()
         self._stop_flusher.set()
         self._flusher.join()
         if not finished:
@@ -799,17 +909,14 @@ class MemoryRecorder(_Encoding):
         self.metadata_records: dict[str, dict[str, str]] = {FORMAT_RECORD: format_metadata()}
         self.logs: list[dict[str, Any]] = []
 
-    def write(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
-        """Keep ``message`` as the file would hold it (JSON round-tripped, validated)."""
-        schema, data, t = self._encode(topic, message, t_ns)
+    def _emit(self, topic: str, schema: str, data: bytes, t: int) -> None:
+        """Keep a message as the file would hold it (JSON round-tripped, validated)."""
         block = schema_of(topic)
         if block is None:
             decoded = orjson.loads(data)
         else:  # as a reader of the file gets it back
             decoded = decode_record(block, data, f"memory log: message on {topic}")
         self.messages.append((topic, t, decoded))
-        if self.live is not None:
-            self.live.put(topic, schema, data, t)
         if topic == LOG:
             self.logs.append(decoded)
 
@@ -822,12 +929,15 @@ class MemoryRecorder(_Encoding):
             self.metadata_records[name] = values
 
     def read(self) -> LogContents:
-        """What ``read_log`` would return for the same writes."""
+        """What ``read_log`` would return for the same writes (what is held too: ``close``
+        would write it)."""
+        self._release_all()
         msgs = sorted(self.messages, key=lambda m: m[1])
         return LogContents(msgs, {k: dict(v) for k, v in self.metadata_records.items()})
 
     def close(self) -> None:
-        """Refuse further writes."""
+        """Write what is held; refuse further writes."""
+        self._release_all()
         self._closed = True
 
 
@@ -854,6 +964,10 @@ class NullRecorder:
         return False
 
     def offer(self, topic: str, message: Mapping[str, Any], t_ns: int) -> None:
+        """Nothing."""
+        pass
+
+    def advance(self, t_ns: int) -> None:
         """Nothing."""
         pass
 

@@ -325,12 +325,18 @@ class UnitLog:
         self._parts.append(part)
         self._tables.append(tables)
 
-    def after_wake(self, pos: int) -> None:
+    def after_wake(self, pos: int, spikes_from: int) -> None:
         """The unit's wake is over, every sample before ``pos`` heard: the decode blocks that
-        ended go out."""
+        ended go out. ``spikes_from``: no block of spikes still to be handed to it ends
+        before that sample. It writes nothing more before the least of ``pos``, that and
+        the starts of the blocks of spikes it holds (``GroupLog.clock``)."""
         if 0 <= self.held_block < pos // self._decode_block:  # past a block of decodes
             self.flush_decodes(before=pos)
         self.group.decoded_to(self.at, pos // self._decode_block)
+        low = min(pos, spikes_from)
+        for block in self._held:  # logged at its end, or cut short where the unit was done
+            low = min(low, block.end - self.block)
+        self.group.clock(self.at, low)
 
     def _block_of(self, t: float) -> int:
         """The decode block of a decode at time ``t``."""
@@ -459,5 +465,5 @@ class UnitLog:
         """The run is over for this unit: what it holds is written (what it shares with its
         group, once every unit of it is past)."""
         self.flush_decodes()
+        self.release_spikes(None)  # before the group hears it is done: held, to be joined
         self.group.end(self.at)
-        self.release_spikes(None)
