@@ -20,7 +20,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import orjson
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
@@ -29,7 +32,7 @@ from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.logtools import log_info, stored_scenario
 from rgtbus.telemetry.scan import verified_by_crcs
-from rgtbus.telemetry.untrusted import MAX_DEPTH, depth_error, printable
+from rgtbus.telemetry.untrusted import MAX_DEPTH, depth_error, printable, text_depth
 
 ROOT = Path(__file__).resolve().parent.parent
 BIDI = set("\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069\u200e\u200f\u061c")
@@ -177,6 +180,31 @@ def test_a_nested_value_within_the_limit_reads():
     assert depth_error([deep]) == f"nests deeper than {MAX_DEPTH} levels"
     assert depth_error({"a": {"b": [1, {"c": []}]}}, limit=5) is None  # 5 levels
     assert depth_error({"a": {"b": [1, {"c": []}]}}, limit=4) is not None
+
+
+def _walked_depth(value) -> int:
+    if isinstance(value, dict | list):
+        children = value.values() if isinstance(value, dict) else value
+        return 1 + max((_walked_depth(v) for v in children), default=0)
+    return 0
+
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**62), 2**62) | st.text(alphabet='ab"\\[]{}\né'),
+    lambda inner: st.lists(inner) | st.dictionaries(st.text(alphabet='k"\\[{}'), inner),
+    max_leaves=30,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_JSON)
+def test_a_json_text_s_depth_from_its_bytes_is_its_depth(value):
+    """``text_depth`` counts brackets outside strings (escaped quotes and backslashes in them,
+    brackets in keys and values): what a walk of the decoded value finds, in any layout."""
+    for data in (orjson.dumps(value), json.dumps(value, indent=1).encode(),
+                 json.dumps(value, ensure_ascii=False).encode()):  # fmt: skip
+        assert text_depth(data) == _walked_depth(value), data
+    assert text_depth(nested(MAX_DEPTH + 1)) == MAX_DEPTH + 1
 
 
 def test_printable_escapes_what_a_terminal_acts_on_and_keeps_letters():

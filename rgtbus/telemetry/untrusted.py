@@ -11,6 +11,8 @@ import sys
 from collections.abc import Iterator
 from typing import Any, TextIO
 
+import numpy as np
+
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.timebase import seconds
@@ -40,6 +42,28 @@ def depth_error(value: Any, limit: int = MAX_DEPTH) -> str | None:
     return None
 
 
+def text_depth(data: bytes) -> int:
+    """How deep the lists and objects of a JSON text nest (0: a bare value), from its bytes:
+    the brackets outside its strings counted as arrays, not walked object by object (a
+    100-unit run's tables hold 10,000 entries each). Exact for valid JSON: a quote is escaped
+    by an odd run of backslashes before it, and nothing else opens or closes a string."""
+    b = np.frombuffer(data, dtype=np.uint8)
+    if not b.size:
+        return 0
+    slash = np.concatenate(([False], b == 0x5C, [False]))
+    edges = np.flatnonzero(slash[1:] != slash[:-1])  # run starts and ends, alternately
+    starts, ends = edges[0::2], edges[1::2]
+    escaped = np.zeros(b.size, dtype=bool)
+    odd = ends[(ends - starts) % 2 == 1]  # the byte after an odd run of backslashes
+    escaped[odd[odd < b.size]] = True
+    quote = (b == 0x22) & ~escaped
+    inside = np.cumsum(quote) % 2 == 1  # in a string (its opening quote included)
+    step = np.zeros(b.size, dtype=np.int32)
+    step[((b == 0x5B) | (b == 0x7B)) & ~inside] = 1
+    step[((b == 0x5D) | (b == 0x7D)) & ~inside] = -1
+    return int(np.cumsum(step).max(initial=0))
+
+
 def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) -> Any:
     """A message as a reader may use it: decoded and, with ``check``, checked against its
     topic's schema (``topics.checked_message``), and no deeper than ``MAX_DEPTH``. Not JSON,
@@ -51,14 +75,19 @@ def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) ->
         return topics.checked_message(topic, t_ns, data, label, check)
     if isinstance(data, bytes | bytearray | memoryview):
         data = bytes(data)
-        # no JSON nests deeper than it has brackets: most messages need no walk
+        # no JSON nests deeper than it has brackets: most messages need no count
         deep = data.count(b"[") + data.count(b"{") > MAX_DEPTH
     else:
         deep = True
     if deep:
         # before the schema check, whose walk compares values (==, which recurses)
         decoded = topics.checked_message(topic, t_ns, data, label, check=False)
-        why = depth_error(decoded)
+        if isinstance(data, bytes):  # JSON (it parsed): its brackets tell
+            why = None
+            if text_depth(data) > MAX_DEPTH:
+                why = f"nests deeper than {MAX_DEPTH} levels"
+        else:
+            why = depth_error(decoded)
         if why is not None:
             where = printable(f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s")
             raise RgtbusError(f"{where} {why}")
