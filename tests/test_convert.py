@@ -8,7 +8,9 @@ holds, for every shipped scenario of up to 12 units, the DataFrames that format 
 must give the same ones for today's log of the same run. The decodes of one time are now in
 the run's order of units (format 1 gave them in the order its units wrote their records): six
 scenarios' ``decodes`` digests are of format 1's own frame so ordered (a stable sort by time,
-then unit), the same rows."""
+then unit), the same rows. coalition10's ``spikes`` digest is of format 1's own frame ordered by
+sample, then unit (stably), the same rows: its units that heard their last spikes alike are one
+record now, on both engines (format 1 wrote the first unit done apart from the others)."""
 
 from __future__ import annotations
 

@@ -317,9 +317,11 @@ class _Encoding:
     holds every record before it in log time that the run had passed then (what
     ``Replay.units_until_ns`` counts on). A record the run tells late, before that point
     (a block of pulses or decodes, which ``GroupLog`` writes once every unit is past it),
-    goes out at once. A live view gets every record as it is made, not held (a block of spikes
-    or decodes as written, joined: it is told late anyway). ``close`` writes
-    what is still held. Before the first ``advance`` nothing is held.
+    goes out at once. The medium, written ahead of the run by design and in order, is never
+    held: a cut log holds it past its units' records, as its re-run needs. A live view gets
+    every record as it is made, not held (a block of spikes or decodes as written, joined: it
+    is told late anyway). ``close`` writes what is still held. Before the first ``advance``
+    nothing is held.
     """
 
     enabled = True
@@ -335,6 +337,9 @@ class _Encoding:
         self._held: list[_Held] | None = None
         self._hold_from = -1  # no record before this log time is still to come
         self._arrival = 0
+        # written ahead of the run by design, in order, never held: a log cut short holds
+        # the medium past its units' records, which its re-run needs (``rerun_replay``)
+        self._ahead_topics: frozenset[str] = frozenset((MEDIUM,))
 
     def _schema(self, topic: str) -> str:
         """``topic``'s schema name, looked up once."""
@@ -400,7 +405,7 @@ class _Encoding:
             raise RgtbusError(self.failed)
         if self.live is not None and topic not in _JOINED_TOPICS:
             self.live.put(topic, schema, data, t)  # as made (a block as joined: ``_out``)
-        if self._held is not None and t >= self._hold_from:
+        if self._held is not None and t >= self._hold_from and topic not in self._ahead_topics:
             heapq.heappush(self._held, (t, self._arrival, topic, schema, data))
             self._arrival += 1
             return
