@@ -299,8 +299,12 @@ _Held = tuple[int, int, str, str, bytes]
 
 # topics whose blocks of one log time that hold the same rows are one, naming their units
 _JOINED_TOPICS = frozenset((RX_SPIKE, RX_DECODES))
-
-
+# the topics a run tells out of log-time order, held for their time: a send's log line is
+# made when the send is planned (up to the whole run ahead), a unit's blocks of spikes at its
+# wake. Every other topic comes in order already (a unit's own records at its own time, the
+# medium ahead and in order, blocks of pulses and decodes once every unit is past them), and
+# goes out at once (a 100-unit run's relation tables are 34 MB of JSON, each written once).
+_TOLD_OUT_OF_ORDER = frozenset((LOG, RX_SPIKE))
 
 
 class _Encoding:
@@ -308,20 +312,18 @@ class _Encoding:
     the order of what they write.
 
     **Time order.** Units plan sends ahead (a send's log line is made when it is planned) and
-    tell blocks of spikes late (at their wake), so records come in an order of their own. Once
-    the run says how far it has come (``advance``: no record before that log time is still
-    to come), a record at or after that point is held, and the held ones go out in log-time
-    order (then the order they came in) as the point moves on. Each topic's messages then
-    follow log time in the file, chunk after chunk, as readers that index a file by its chunks'
-    times expect (``rerun mcap check``, Foxglove's player), and a file cut after any record
-    holds every record before it in log time that the run had passed then (what
-    ``Replay.units_until_ns`` counts on). A record the run tells late, before that point
-    (a block of pulses or decodes, which ``GroupLog`` writes once every unit is past it),
-    goes out at once. The medium, written ahead of the run by design and in order, is never
-    held: a cut log holds it past its units' records, as its re-run needs. A live view gets
-    every record as it is made, not held (a block of spikes or decodes as written, joined: it
-    is told late anyway). ``close`` writes what is still held. Before the first ``advance``
-    nothing is held.
+    tell blocks of spikes late (at their wake): those two topics (``_TOLD_OUT_OF_ORDER``) come
+    in an order of their own. Once the run says how far it has come (``advance``: no record
+    before that log time is still to come), a record of theirs at or after that point is
+    held, and the held ones go out in log-time order (then the order they came in) as the
+    point moves on. Every other topic comes in order already and goes out at once: a unit's
+    own records at its own time, the medium ahead of the run and in order (a cut log holds it
+    past its units' records, as its re-run needs), blocks of pulses and decodes once every
+    unit is past them. Each topic's messages then follow log time in the file, chunk after
+    chunk, as readers that index a file by its chunks' times expect (``rerun mcap check``,
+    Foxglove's player). A live view gets every record as it is made, not held (a block of
+    spikes as written, joined: it is told late anyway). ``close`` writes what is still held.
+    Before the first ``advance`` nothing is held.
     """
 
     enabled = True
@@ -337,9 +339,6 @@ class _Encoding:
         self._held: list[_Held] | None = None
         self._hold_from = -1  # no record before this log time is still to come
         self._arrival = 0
-        # written ahead of the run by design, in order, never held: a log cut short holds
-        # the medium past its units' records, which its re-run needs (``rerun_replay``)
-        self._ahead_topics: frozenset[str] = frozenset((MEDIUM,))
 
     def _schema(self, topic: str) -> str:
         """``topic``'s schema name, looked up once."""
@@ -405,7 +404,9 @@ class _Encoding:
             raise RgtbusError(self.failed)
         if self.live is not None and topic not in _JOINED_TOPICS:
             self.live.put(topic, schema, data, t)  # as made (a block as joined: ``_out``)
-        if self._held is not None and t >= self._hold_from and topic not in self._ahead_topics:
+        if self._held is not None and t >= self._hold_from and topic in _TOLD_OUT_OF_ORDER:
+            if len(data) < 4096:  # orjson's bytes keep a 4 KiB buffer: a planned line held
+                data = bytes(memoryview(data))  # as it came took 4 KiB, not its 150 bytes
             heapq.heappush(self._held, (t, self._arrival, topic, schema, data))
             self._arrival += 1
             return
