@@ -234,21 +234,15 @@ def run_units(
                 bus.linger(timeout)  # its last frames may be asked for again
         if bus.close_problem:
             recorder.log("warning", bus.close_problem, ns(result.sim_seconds), name=first)
-    except KeyboardInterrupt as exc:
-        if not told:  # stopped before its parts were out: the units ended early
+    except BaseException as exc:
+        # a launcher reaping a process that told its parts and lingers (or closes its
+        # session) loses nothing: the run is whole, its log the same however long that took
+        if not (told and isinstance(exc, KeyboardInterrupt)):
             for name in names:
                 _write_end(
                     recorder, name, UNIT_ENDED_EARLY, str(exc) or type(exc).__name__, sim_seconds
                 )
             raise
-        # a launcher reaping a process that told its parts and lingers (or closes its
-        # session): the run is whole, and its log the same however long that took
-    except BaseException as exc:
-        for name in names:
-            _write_end(
-                recorder, name, UNIT_ENDED_EARLY, str(exc) or type(exc).__name__, sim_seconds
-            )
-        raise
     for unit in units:
         if result.failure:  # the others went silent: the rest of this run never happened
             _write_end(recorder, unit.name, UNIT_ENDED_EARLY, result.failure, sim_seconds)

@@ -49,7 +49,7 @@ import foxglove
 from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import sdk_logs_to_python, topic_channel
+from rgtbus.telemetry.recorder import kept_bytes, sdk_logs_to_python, topic_channel
 from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"
@@ -227,9 +227,9 @@ class LiveView:
         else queued for the view's thread. Never waits for the server or a client."""
         if self.realtime is None and self._direct(topic, schema, data, t_ns):
             return
-        # A copy: the recorder's JSON (orjson's bytes) keeps far more allocation behind a
-        # message than its length, which the queue's budget would not see.
-        item = (t_ns, next(self._order), topic, schema, bytes(memoryview(data)))
+        # A copy: the recorder's JSON keeps far more allocation behind a message than its
+        # length, which the queue's budget would not see.
+        item = (t_ns, next(self._order), topic, schema, kept_bytes(data))
         with self._wake:
             if self._closing:
                 self.dropped += 1

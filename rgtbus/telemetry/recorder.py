@@ -10,6 +10,7 @@ import contextlib
 import errno
 import functools
 import heapq
+import itertools
 import json
 import logging
 import math
@@ -32,7 +33,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.pairs import SharedTable
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.blocks import decode_record, encode_record, join_alike, schema_of
-from rgtbus.telemetry.records import LOG, MEDIUM, RX_DECODES, RX_SPIKE
+from rgtbus.telemetry.records import LOG, MEDIUM, RX_SPIKE
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 from rgtbus.timebase import NS_PER_SECOND, ns
 
@@ -242,6 +243,13 @@ def _finite_by_type(message: dict[str, Any]) -> bool:
     return True
 
 
+def kept_bytes(data: bytes) -> bytes:
+    """``data`` as bytes of its own size, to keep: orjson's ``dumps`` gives bytes that hold a
+    4 KiB buffer behind a ~150-byte message (what the recorder holds for its time, and a live
+    view queues)."""
+    return bytes(memoryview(data))
+
+
 def encode_json(message: Any) -> bytes:
     """A message as compact JSON (numpy values as numbers and lists); TypeError for what JSON
     cannot hold, ValueError for NaN or infinity. A ``SharedTable`` in it is encoded once
@@ -297,8 +305,6 @@ def _not_finite(value: Any) -> float | None:
 _Held = tuple[int, int, str, str, bytes]
 
 
-# topics whose blocks of one log time that hold the same rows are one, naming their units
-_JOINED_TOPICS = frozenset((RX_SPIKE, RX_DECODES))
 # the topics a run tells out of log-time order, held for their time: a send's log line is
 # made when the send is planned (up to the whole run ahead), a unit's blocks of spikes at its
 # wake. Every other topic comes in order already (a unit's own records at its own time, the
@@ -402,19 +408,17 @@ class _Encoding:
         schema, data, t = self._encode(topic, message, t_ns)
         if self.failed:
             raise RgtbusError(self.failed)
-        if self.live is not None and topic not in _JOINED_TOPICS:
-            self.live.put(topic, schema, data, t)  # as made (a block as joined: ``_out``)
+        if self.live is not None and topic != RX_SPIKE:
+            self.live.put(topic, schema, data, t)  # as made (a block of spikes as joined)
         if self._held is not None and t >= self._hold_from and topic in _TOLD_OUT_OF_ORDER:
-            if len(data) < 4096:  # orjson's bytes keep a 4 KiB buffer: a planned line held
-                data = bytes(memoryview(data))  # as it came took 4 KiB, not its 150 bytes
-            heapq.heappush(self._held, (t, self._arrival, topic, schema, data))
+            heapq.heappush(self._held, (t, self._arrival, topic, schema, kept_bytes(data)))
             self._arrival += 1
             return
         self._out(topic, schema, data, t)  # nothing held, or told late
 
     def _out(self, topic: str, schema: str, data: bytes, t: int) -> None:
-        """Write one message; the live sink gets a block of spikes (decodes) as written."""
-        if self.live is not None and topic in _JOINED_TOPICS:
+        """Write one message; the live sink gets a block of spikes as written."""
+        if self.live is not None and topic == RX_SPIKE:
             self.live.put(topic, schema, data, t)
         self._emit(topic, schema, data, t)
 
@@ -438,34 +442,21 @@ class _Encoding:
             self._write_held(out)
 
     def _write_held(self, out: list[_Held]) -> None:
-        """Write held records (in log-time order, then arrival). Blocks of spikes (decodes) of
-        one log time that hold the same rows become one naming every unit of them
-        (``join_alike``, the rule ``merge`` follows): all of one time leave together."""
-        emit = self._out
-        i, n = 0, len(out)
-        while i < n:
-            t = out[i][0]
-            j = i + 1
-            while j < n and out[j][0] == t:
-                j += 1
-            run = out[i:j]
-            i = j
-            shared: dict[str, list[int]] = {}
-            for k, e in enumerate(run):
-                if e[2] in _JOINED_TOPICS:
-                    shared.setdefault(e[2], []).append(k)
+        """Write held records (in log-time order, then arrival). Blocks of spikes of one log
+        time that hold the same spikes become one naming every unit of them (``join_alike``,
+        the rule ``merge`` follows): all of one time leave together."""
+        for t, group in itertools.groupby(out, key=operator.itemgetter(0)):
+            run = list(group)
+            spikes = [k for k, e in enumerate(run) if e[2] == RX_SPIKE]
             joined: dict[int, bytes | None] = {}
-            for ks in shared.values():
-                if len(ks) > 1:
-                    joined.update(zip(ks, join_alike([run[k][4] for k in ks]), strict=True))
+            if len(spikes) > 1:
+                joined = dict(zip(spikes, join_alike([run[k][4] for k in spikes]), strict=True))
             for k, (_, _, topic, schema, data) in enumerate(run):
-                if k in joined:
-                    got = joined[k]
-                    if got is None:
-                        self.counts[topic] -= 1
-                        continue
-                    data = got
-                emit(topic, schema, data, t)
+                got = joined.get(k, data)
+                if got is None:
+                    self.counts[topic] -= 1
+                else:
+                    self._out(topic, schema, got, t)
 
     def _release_all(self) -> None:
         """Write every record still held (the run is over), and hold none from now on."""
