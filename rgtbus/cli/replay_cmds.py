@@ -329,6 +329,7 @@ def _alt(rp: Replay, v: Any) -> str:
 
 def print_timeline(rp: Replay, span: Span | None = None) -> None:
     """What happened, in order; with ``span`` (from, to) only what happens in it."""
+    rp.read_tables()
     info = {k: printable(v) if isinstance(v, str) else v for k, v in rp.info().items()}
     s = rp.summary()
     units = list(rp.units)  # a scenario's unit names are plain (printable_lines: the rest)

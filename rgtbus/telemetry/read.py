@@ -288,17 +288,44 @@ class Replay:
         self.run: RunRecord | None = (
             cast(RunRecord, self.by_topic[RUN][-1][1]) if self.by_topic[RUN] else None
         )
-        self.transmissions = self._transmissions()
         self.frequencies = _frequencies(self.metadata)
-        self.relations: dict[str, RelationsRecord] = {
-            m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
-        }
-        self.influences: dict[str, InfluencesRecord] = {
-            m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]
-        }
-        self.decisions: list[DecisionRecord] = [
-            cast(DecisionRecord, m) for _, m in self.by_topic[UNIT_DECISION]
-        ]
+
+    # -- what is read when first asked for (a topic a reader does not use stays undecoded) -----
+
+    def read_tables(self) -> None:
+        """Read every table of the log now, not when first asked for: a reader that shows
+        them all (``rgtbus replay``) refuses a bad log before it prints a line."""
+        for table in ("transmissions", "relations", "influences", "decisions", "decodes"):
+            getattr(self, table)
+
+    @functools.cached_property
+    def transmissions(self) -> list[Transmission]:
+        """The logged pulses grouped into codes, with their meaning, in start order."""
+        with explained(self.by_topic.messages, self.label):
+            return self._transmissions()
+
+    @functools.cached_property
+    def relations(self) -> dict[str, RelationsRecord]:
+        """Each unit's last ``/unit/relations`` record (a 200-unit run's are 200 tables of
+        39,800 pairs: read only when asked for)."""
+        with explained(self.by_topic.messages, self.label):
+            return {
+                m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
+            }
+
+    @functools.cached_property
+    def influences(self) -> dict[str, InfluencesRecord]:
+        """Each unit's last ``/unit/influences`` record."""
+        with explained(self.by_topic.messages, self.label):
+            return {
+                m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]
+            }
+
+    @functools.cached_property
+    def decisions(self) -> list[DecisionRecord]:
+        """Every ``/unit/decision`` record, in log-time order."""
+        with explained(self.by_topic.messages, self.label):
+            return [cast(DecisionRecord, m) for _, m in self.by_topic[UNIT_DECISION]]
 
     # -- construction ------------------------------------------------------------------------
 
