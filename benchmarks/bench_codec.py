@@ -7,7 +7,7 @@ most of the log's bytes and CPU): time (double), unit, sender and code (fixed32 
 margin (float), accepted (bool), cut into blocks of ``--block`` rows. Each form encodes every
 block to bytes and decodes the bytes back to NumPy columns of the same dtypes:
 
-- **JSON**: today's writer (``recorder.encode_json`` of the columns) and reader (orjson, then
+- **JSON**: today's writer (``message_json.encode_json`` of the columns) and reader (orjson, then
   ``np.asarray`` per column);
 - **protobuf library**: a message class built from the codec's own descriptor set, its
   repeated fields ``extend``-ed from the arrays and ``SerializeToString``; back through
@@ -32,7 +32,7 @@ import numpy as np
 import orjson
 
 from rgtbus.telemetry.codec import BlockSchema, Field, decode, encode, file_descriptor_set
-from rgtbus.telemetry.recorder import encode_json
+from rgtbus.telemetry.message_json import encode_json
 
 DECODES = BlockSchema(
     "rgtbus.bench.Decodes",

@@ -32,10 +32,10 @@ def _no_zenoh_config_from_the_shell(monkeypatch):
 def small_chunk_logs(size: int = 1024) -> Iterator[None]:
     """Logs written meanwhile in chunks of ``size`` bytes: a short run's log then has many
     chunks to cut and flip, as a long run's has (the default 1 MiB makes one of a gate's)."""
-    from rgtbus.telemetry import recorder
+    from rgtbus.telemetry import mcap_recorder
 
-    small = functools.partial(recorder.McapRecorder, chunk_size=size)
-    with mock.patch.object(recorder, "McapRecorder", small):
+    small = functools.partial(mcap_recorder.McapRecorder, chunk_size=size)
+    with mock.patch.object(mcap_recorder, "McapRecorder", small):
         yield
 
 

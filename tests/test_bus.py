@@ -240,8 +240,8 @@ def test_a_run_is_identical_over_every_bus(gate_runs):
     decisions, tables and unit messages."""
     from rgtbus.units.rerun import rerun_replay
 
+    from rgtbus.telemetry.message_json import message_bytes
     from rgtbus.telemetry.read import load_replay
-    from rgtbus.telemetry.recorder import message_bytes
 
     mem, zen = gate_runs["memory"], gate_runs["zenoh"]
     replayed = rerun_replay(load_replay(mem.path))

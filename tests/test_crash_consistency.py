@@ -22,7 +22,8 @@ from cut_logs import assert_prefix_is_whole, paced_run, standard_read
 from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import UNFINISHED, McapRecorder
+from rgtbus.telemetry.mcap_recorder import McapRecorder
+from rgtbus.telemetry.recorder import UNFINISHED
 from rgtbus.telemetry.scan import scan_log, verified_by_crcs
 
 ROOT = Path(__file__).parent.parent

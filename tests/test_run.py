@@ -22,8 +22,8 @@ from rgtbus.scenario import Timing, load_scenario, parse_scenario
 from rgtbus.summary import check_expectations
 from rgtbus.telemetry import McapRecorder, MemoryRecorder, NullRecorder, read_log, records
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, decode_record, schema_of
+from rgtbus.telemetry.message_json import message_bytes
 from rgtbus.telemetry.pulse_blocks import pulse_rows
-from rgtbus.telemetry.recorder import message_bytes
 
 ROOT = Path(__file__).parent.parent
 PAPER = ["overview", "example1", "example2", "gate"]

@@ -935,7 +935,7 @@ def test_encode_json_refuses_exactly_the_values_strict_json_refuses(value, large
     library's strict encoder does, and otherwise writes what orjson wrote. A large message
     (``large``: past ``_LOOK_BEFORE_SCAN``) whose values show by their types that they are
     finite is not looked into: columns of numbers or names, beside any value."""
-    from rgtbus.telemetry.recorder import encode_json
+    from rgtbus.telemetry.message_json import encode_json
 
     message = {"m": value, "none": None, **columns}
     if large:
@@ -1029,7 +1029,7 @@ def test_a_shared_table_is_encoded_once_and_as_the_plain_table():
     import orjson
 
     from rgtbus.pairs import SharedTable
-    from rgtbus.telemetry.recorder import _shared_json, encode_json
+    from rgtbus.telemetry.message_json import _shared_json, encode_json
 
     plain = {"a>b": "alliance", "b>a": ["alpha", "beta"]}
     table = SharedTable(plain)
@@ -1041,7 +1041,7 @@ def test_a_shared_table_is_encoded_once_and_as_the_plain_table():
     # the cache keeps the JSON while the table lives, never the table itself
     import weakref
 
-    from rgtbus.telemetry import recorder as recorder_mod
+    from rgtbus.telemetry import message_json as recorder_mod
 
     passing = SharedTable({"x>y": "conflict"})
     _shared_json(passing)
@@ -1103,7 +1103,7 @@ def test_a_large_message_is_refused_wherever_a_non_finite_number_hides(bad, wher
     refuses it, and a finite one writes what orjson writes."""
     import orjson
 
-    from rgtbus.telemetry.recorder import _LOOK_BEFORE_SCAN, encode_json
+    from rgtbus.telemetry.message_json import _LOOK_BEFORE_SCAN, encode_json
 
     names = [f"u{i:03d}" for i in range(_LOOK_BEFORE_SCAN // 4)]
     good = {"unit": "u1", "t": 1.5, "none": None, "turn": np.arange(9), "ok": np.ones(3, bool),
@@ -1136,7 +1136,7 @@ def test_records_held_until_the_run_passes_them_go_out_in_time_order(kind):
     ``merge`` joins them; ``close`` writes what is still held. Both recorders alike."""
     from rgtbus.telemetry import MemoryRecorder, records
     from rgtbus.telemetry.blocks import SPIKE, decode_record
-    from rgtbus.telemetry.recorder import log_message
+    from rgtbus.telemetry.message_json import log_message
 
     buf = io.BytesIO()
     rec = McapRecorder(buf) if kind == "mcap" else MemoryRecorder()

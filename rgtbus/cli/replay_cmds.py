@@ -24,7 +24,8 @@ from rgtbus.telemetry.untrusted import printable
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
-    from rgtbus.telemetry.read import DecodeRow, Replay
+    from rgtbus.telemetry.read import Replay
+    from rgtbus.telemetry.transmissions import DecodeRow
 
 # simulated seconds (from, to) the timeline, CSV tables and plot are cut to; None: open
 Span = tuple[float | None, float | None]
@@ -113,7 +114,8 @@ def register(subparsers: SubParsers) -> None:
 
 def replay(args: argparse.Namespace) -> int:
     """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
-    from rgtbus.telemetry.read import explained, load_replay
+    from rgtbus.telemetry.read import load_replay
+    from rgtbus.telemetry.untrusted import explained
 
     if args.plot is None and args.unit:
         raise RgtbusError("--unit goes with --plot OUT.png")

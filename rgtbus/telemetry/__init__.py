@@ -9,16 +9,9 @@ a run back: ``replay`` (timeline, summary, verification against a re-run), ``mer
 
 from typing import TYPE_CHECKING, Any
 
-from rgtbus.telemetry.recorder import (
-    LOG_LEVELS,
-    LogContents,
-    McapRecorder,
-    MemoryRecorder,
-    NullRecorder,
-    Recorder,
-    level_number,
-    log_message,
-)
+from rgtbus.telemetry.mcap_recorder import McapRecorder
+from rgtbus.telemetry.message_json import LOG_LEVELS, level_number, log_message
+from rgtbus.telemetry.recorder import LogContents, MemoryRecorder, NullRecorder, Recorder
 from rgtbus.telemetry.topics import TOPIC_PATTERNS, TOPICS, schema_for, topics_markdown
 
 if TYPE_CHECKING:

@@ -26,7 +26,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
-from rgtbus.telemetry.recorder import McapRecorder
+from rgtbus.telemetry.mcap_recorder import McapRecorder
 from rgtbus.telemetry.scan import RawLog, _require_run
 from rgtbus.telemetry.unit_log import DecodePart, canonical
 from rgtbus.telemetry.untrusted import depth_error, printable

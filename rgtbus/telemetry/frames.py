@@ -20,8 +20,9 @@ import orjson
 
 from rgtbus.summary import summary_json
 from rgtbus.telemetry.decode_table import decode_table, match_sent
-from rgtbus.telemetry.read import Replay, explained, load_replay
+from rgtbus.telemetry.read import Replay, load_replay
 from rgtbus.telemetry.records import RX_DECODE, RX_DECODES
+from rgtbus.telemetry.untrusted import explained
 from rgtbus.timebase import NS_PER_SECOND, times_of
 
 if TYPE_CHECKING:
@@ -37,7 +38,7 @@ _Method = TypeVar("_Method", bound=Callable[..., Any])
 
 def _explained(method: _Method) -> _Method:
     """A ``Log`` method that reads a message breaking its schema, or a number out of range,
-    raises RgtbusError naming it (``read.explained``), never a KeyError from deep inside."""
+    raises RgtbusError naming it (``untrusted.explained``), never a KeyError from deep inside."""
 
     @functools.wraps(method)
     def wrapper(self: Log, *args: Any, **kwargs: Any) -> Any:

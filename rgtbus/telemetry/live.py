@@ -49,7 +49,8 @@ import foxglove
 from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.recorder import kept_bytes, sdk_logs_to_python, topic_channel
+from rgtbus.telemetry.mcap_recorder import sdk_logs_to_python, topic_channel
+from rgtbus.telemetry.message_json import kept_bytes
 from rgtbus.timebase import seconds
 
 DEFAULT_ADDRESS = "127.0.0.1:8765"

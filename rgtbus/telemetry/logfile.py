@@ -15,7 +15,7 @@ from rgtbus.errors import RgtbusError
 
 if TYPE_CHECKING:
     from rgtbus.telemetry.live import LiveView
-    from rgtbus.telemetry.recorder import McapRecorder
+    from rgtbus.telemetry.mcap_recorder import McapRecorder
 
 
 def _lock_holder(fd: int) -> str:
@@ -99,7 +99,7 @@ def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRe
     directory, no permission, a target that takes no bytes (``/proc/version``, a full disk),
     a log another run is writing (each run holds an exclusive lock on its log file until
     ``close_log``). ``live``: a live view offered every message too."""
-    from rgtbus.telemetry.recorder import McapRecorder
+    from rgtbus.telemetry.mcap_recorder import McapRecorder
 
     for parent in path.parents:  # mkdir says "File exists" for a file on the way
         if parent.exists():

@@ -10,14 +10,13 @@ found while reading or verifying is a ``Mismatch``.
 
 from __future__ import annotations
 
-import bisect
 import contextlib
 import functools
 import json
 import math
 import os
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import IO, Any, cast
 
@@ -35,7 +34,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import topics, untrusted
-from rgtbus.telemetry.blocks import block_samples, schema_of
+from rgtbus.telemetry.blocks import block_samples
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
@@ -65,51 +64,17 @@ from rgtbus.telemetry.records import (
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log
 from rgtbus.telemetry.spike_table import SpikeTable, spike_table
+from rgtbus.telemetry.transmissions import (
+    DecodeRow,
+    Transmission,
+    matched_decodes,
+    transmissions_of,
+)
+from rgtbus.telemetry.untrusted import INT64, explained
 from rgtbus.timebase import ns, sample_of, seconds, time_of
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
-
-
-@dataclass
-class Transmission:
-    """One code on the medium: the logged pulses of one message, with what it means."""
-
-    turn: int
-    kind: str  # "id" | "payload"
-    phase: str  # "relations" | "influences"
-    sender: str
-    addressee: str
-    channel: str
-    code: str
-    meaning: str  # "ID", "alliance", "conflict", "influence {alpha}", ...
-    start: float
-    end: float
-    pulses: list[tuple[float, float]]  # (t, magnitude)
-
-    @property
-    def label(self) -> str:
-        """``sender → addressee: meaning``, as a plot labels the code."""
-        return f"{self.sender} → {self.addressee}: {self.meaning}"
-
-
-@dataclass
-class DecodeRow:
-    """One decode as the log holds it, matched with the transmission it read (``turn``, ``sent``)
-    and whether it read what was sent (``matches``)."""
-
-    unit: str
-    t: float
-    sender: str
-    addressee: str
-    kind: str
-    code: str
-    margin: float
-    accepted: bool
-    turn: int | None  # of the transmission it read (None: no such transmission logged)
-    sent: str | None  # the code that transmission carried
-    matches: bool | None  # decoded what was sent (None: nothing to compare with)
-    channel: str | None = None  # the unit whose channel carried it (None: an older log)
 
 
 @dataclass
@@ -137,10 +102,6 @@ class Mismatch:
 def _short(value: Any, limit: int = 120) -> str:
     text = json.dumps(value, ensure_ascii=False, default=str)
     return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _phase_of(turn: int, n_units: int) -> str:
-    return "relations" if turn < n_units * (n_units - 1) else "influences"
 
 
 def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
@@ -302,7 +263,7 @@ class Replay:
     def transmissions(self) -> list[Transmission]:
         """The logged pulses grouped into codes, with their meaning, in start order."""
         with explained(self.by_topic.messages, self.label):
-            return self._transmissions()
+            return transmissions_of(self.pulses(), self.units)
 
     @functools.cached_property
     def relations(self) -> dict[str, RelationsRecord]:
@@ -357,7 +318,7 @@ class Replay:
     @functools.cached_property
     def decodes(self) -> list[DecodeRow]:
         """Every decode, matched with the transmission it read."""
-        return self._decodes()
+        return matched_decodes(self.transmissions, self.decode_records)
 
     @functools.cached_property
     def spikes(self) -> SpikeTable:
@@ -450,90 +411,6 @@ class Replay:
                     if isinstance(name, str):
                         seen.setdefault(name, None)
         return tuple(seen)
-
-    def _transmissions(self) -> list[Transmission]:
-        groups: dict[tuple[str, int, int], list[PulseRecord]] = {}
-        # in time order, units of one time in the scenario's order: as they go on air
-        rank = {u: i for i, u in enumerate(self.units)}
-        pulses = sorted(self.pulses(), key=lambda p: (p["t"], rank.get(p["unit"], len(rank))))
-        for p in pulses:
-            m = p["message"]
-            groups.setdefault((p["unit"], m["id"], m.get("block", 0)), []).append(p)
-        out = []
-        n = len(self.units)
-        for (_, mid, _), pulses in groups.items():
-            msg = pulses[0]["message"]
-            turn = mid // 2
-            phase = _phase_of(turn, n)
-            if msg["kind"] == "id":
-                meaning = "ID"
-            elif msg["kind"] == "request":
-                meaning = f"request (repair block {msg['block']})"
-            elif phase == "relations":
-                meaning = msg["code"]
-            else:
-                meaning = f"influence {msg['code']}"
-            if msg["kind"] == "repeat":
-                meaning += f" again (repair block {msg['block']})"
-            out.append(
-                Transmission(
-                    turn=turn,
-                    kind=msg["kind"],
-                    phase=phase,
-                    sender=msg["sender"],
-                    addressee=msg["addressee"],
-                    channel=pulses[0]["channel"],
-                    code=msg["code"],
-                    meaning=meaning,
-                    start=pulses[0]["t"],
-                    end=pulses[-1]["t"],
-                    pulses=[(p["t"], p["magnitude"]) for p in pulses],
-                )
-            )
-        out.sort(key=lambda x: (x.start, x.turn, x.kind))
-        return out
-
-    def _decodes(self) -> list[DecodeRow]:
-        # A decode reads the latest code of its class its sender started before it.
-        starts: dict[tuple[str, str], list[Transmission]] = defaultdict(list)
-        of_turn: dict[tuple[str, str, int], Transmission] = {}
-        for sent in self.transmissions:  # in start order: the latest of a turn wins
-            starts[(sent.sender, sent.kind)].append(sent)
-            of_turn[(sent.sender, sent.kind, sent.turn)] = sent
-        begun = {key: [tx.start for tx in txs] for key, txs in starts.items()}
-        rows = []
-        for _, d in self.decode_records:
-            cls = "id" if d["kind"] == "id" else "payload"
-            tx: Transmission | None = None
-            if "turn" in d:
-                tx = of_turn.get((d["sender"], cls, d["turn"]))
-            else:  # logs from before turns: the latest started by the decode
-                key = (d["sender"], cls)
-                i = bisect.bisect_right(begun.get(key, []), d["t"] + _NANOSECOND)
-                tx = starts[key][i - 1] if i else None
-            if tx is None:
-                matches = None
-            elif cls == "id":
-                matches = d["code"] == "id"
-            else:
-                matches = d["code"] == tx.code and d["addressee"] == tx.addressee
-            rows.append(
-                DecodeRow(
-                    unit=d["unit"],
-                    t=d["t"],
-                    sender=d["sender"],
-                    addressee=d["addressee"],
-                    kind=d["kind"],
-                    code=d["code"],
-                    margin=d["margin"],
-                    accepted=d["accepted"],
-                    turn=None if tx is None else tx.turn,
-                    sent=None if tx is None else tx.code,
-                    matches=matches,
-                    channel=d.get("channel"),
-                )
-            )
-        return rows
 
     # -- what the log says -------------------------------------------------------------------
 
@@ -740,7 +617,7 @@ class Replay:
         bad: list[Mismatch] = []
         for t_ns, m in self.by_topic[MEDIUM]:
             w = m["window"]
-            if not (isinstance(w, int) and 0 <= w < _INT64 // L):  # no sample index is there
+            if not (isinstance(w, int) and 0 <= w < INT64 // L):  # no sample index is there
                 bad.append(Mismatch(MEDIUM, seconds(t_ns), None, "window", w, "a window index"))
                 continue
             if w in out:
@@ -916,92 +793,6 @@ def load_replay(source: str | os.PathLike[str] | IO[bytes]) -> Replay:
     del raw
     with explained(lambda: contents.messages, label):
         return Replay(contents, label)
-
-
-def schema_error(messages: Iterable[LogMessage]) -> str | None:
-    """The first message that breaks its topic's schema, in one line (None: all keep them).
-    Run only once reading has failed: a log's messages are not validated on the way in."""
-    from rgtbus.telemetry import validate
-
-    for topic, t_ns, message in messages:
-        if schema_of(topic) is not None:
-            continue  # a block: checked whole as it is read (``blocks.decode_record``)
-        try:
-            schema = topics.schema_for(topic)
-        except RgtbusError:
-            continue  # a topic of someone else's: not ours to read
-        message, why = _decoded(message)
-        if why is not None:
-            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
-        errs = validate.errors(message, topics.load_schema(schema))
-        if errs:
-            return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
-    return None
-
-
-def _decoded(message: Any) -> tuple[Any, str | None]:
-    """A message held as JSON bytes decoded, and (None, why) when it is not JSON or nests
-    deeper than any reader walks (``untrusted.depth_error``: the walks below recurse)."""
-    if isinstance(message, bytes | bytearray | memoryview):
-        try:
-            message = orjson.loads(message)
-        except ValueError:
-            return None, "is not JSON"
-    return message, untrusted.depth_error(message)
-
-
-_INT64 = 2**63
-
-
-def _beyond_int64(value: Any, path: str = "$") -> str | None:
-    """The first number in ``value`` no 64-bit integer holds (as a sample index, a count or a
-    log time must be), as ``$.path: N``; None when there is none."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, int | float):  # JSON's 1e30 is an integer to a schema, a float here
-        inside = -_INT64 <= value < _INT64
-        return None if inside else f"{path}: {value:g} is beyond a 64-bit integer"
-    if isinstance(value, dict):
-        for k, v in value.items():
-            if (why := _beyond_int64(v, f"{path}.{k}")) is not None:
-                return why
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            if (why := _beyond_int64(v, f"{path}[{i}]")) is not None:
-                return why
-    return None
-
-
-def range_error(messages: Iterable[LogMessage]) -> str | None:
-    """The first message holding a number out of every reader's range, in one line (None:
-    none). Run only once reading has failed, as ``schema_error``."""
-    for topic, t_ns, message in messages:
-        if schema_of(topic) is not None:
-            continue  # a block: its ranges checked as it is read
-        message, why = _decoded(message)
-        if why is not None:
-            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
-        why = _beyond_int64(message)
-        if why is not None:
-            return f"message on {topic} at t = {seconds(t_ns):.3f} s: {why}"
-    return None
-
-
-@contextlib.contextmanager
-def explained(messages: Callable[[], Iterable[LogMessage]], label: str) -> Iterator[None]:
-    """Reading a log whose messages break their schemas or hold numbers beyond any reader's
-    range (written by hand or tampered with, with valid CRCs) fails as RgtbusError naming
-    the first such message, not with a KeyError or an OverflowError from deep inside; any
-    other failure is a bug and goes on as it is."""
-    try:
-        yield
-    except (KeyError, TypeError, IndexError, AttributeError, ValueError, OverflowError) as exc:
-        if isinstance(exc, RgtbusError):
-            raise
-        why = schema_error(messages()) or range_error(messages())
-        if why is None:
-            raise
-        raise RgtbusError(f"{label}: {why}") from None
 
 
 # -- verification ---------------------------------------------------------------------------

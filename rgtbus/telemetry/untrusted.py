@@ -8,14 +8,19 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from collections.abc import Iterator
-from typing import Any, TextIO
+from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
+import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics
+from rgtbus.telemetry.blocks import schema_of
 from rgtbus.timebase import seconds
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.recorder import LogMessage
 
 # The deepest a message may nest (lists and objects): what rgtbus's own writer (orjson) writes
 # at most. orjson reads 1024 levels, but what walks a message after it (json.dumps, ==, a
@@ -69,8 +74,6 @@ def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) ->
     topic's schema (``topics.checked_message``), and no deeper than ``MAX_DEPTH``. Not JSON,
     breaking its schema or nesting deeper: RgtbusError naming the log, topic and log time.
     A hot topic's block nests nothing: it is decoded and checked as it is read."""
-    from rgtbus.telemetry.blocks import schema_of
-
     if schema_of(topic) is not None:
         return topics.checked_message(topic, t_ns, data, label, check)
     if isinstance(data, bytes | bytearray | memoryview):
@@ -151,3 +154,92 @@ def printable_lines() -> Iterator[None]:
         yield
     finally:
         sys.stdout, sys.stderr = out, err
+
+
+# -- what a failed read was about ------------------------------------------------------------
+
+
+def schema_error(messages: Iterable[LogMessage]) -> str | None:
+    """The first message that breaks its topic's schema, in one line (None: all keep them).
+    Run only once reading has failed: a log's messages are not validated on the way in."""
+    from rgtbus.telemetry import validate
+
+    for topic, t_ns, message in messages:
+        if schema_of(topic) is not None:
+            continue  # a block: checked whole as it is read (``blocks.decode_record``)
+        try:
+            schema = topics.schema_for(topic)
+        except RgtbusError:
+            continue  # a topic of someone else's: not ours to read
+        message, why = _decoded(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
+        errs = validate.errors(message, topics.load_schema(schema))
+        if errs:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s breaks {schema}: {errs[0]}"
+    return None
+
+
+def _decoded(message: Any) -> tuple[Any, str | None]:
+    """A message held as JSON bytes decoded, and (None, why) when it is not JSON or nests
+    deeper than any reader walks (``untrusted.depth_error``: the walks below recurse)."""
+    if isinstance(message, bytes | bytearray | memoryview):
+        try:
+            message = orjson.loads(message)
+        except ValueError:
+            return None, "is not JSON"
+    return message, depth_error(message)
+
+
+INT64 = 2**63  # the first number no 64-bit integer holds
+
+
+def _beyond_int64(value: Any, path: str = "$") -> str | None:
+    """The first number in ``value`` no 64-bit integer holds (as a sample index, a count or a
+    log time must be), as ``$.path: N``; None when there is none."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):  # JSON's 1e30 is an integer to a schema, a float here
+        inside = -INT64 <= value < INT64
+        return None if inside else f"{path}: {value:g} is beyond a 64-bit integer"
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if (why := _beyond_int64(v, f"{path}.{k}")) is not None:
+                return why
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            if (why := _beyond_int64(v, f"{path}[{i}]")) is not None:
+                return why
+    return None
+
+
+def range_error(messages: Iterable[LogMessage]) -> str | None:
+    """The first message holding a number out of every reader's range, in one line (None:
+    none). Run only once reading has failed, as ``schema_error``."""
+    for topic, t_ns, message in messages:
+        if schema_of(topic) is not None:
+            continue  # a block: its ranges checked as it is read
+        message, why = _decoded(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s {why}"
+        why = _beyond_int64(message)
+        if why is not None:
+            return f"message on {topic} at t = {seconds(t_ns):.3f} s: {why}"
+    return None
+
+
+@contextlib.contextmanager
+def explained(messages: Callable[[], Iterable[LogMessage]], label: str) -> Iterator[None]:
+    """Reading a log whose messages break their schemas or hold numbers beyond any reader's
+    range (written by hand or tampered with, with valid CRCs) fails as RgtbusError naming
+    the first such message, not with a KeyError or an OverflowError from deep inside; any
+    other failure is a bug and goes on as it is."""
+    try:
+        yield
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError, OverflowError) as exc:
+        if isinstance(exc, RgtbusError):
+            raise
+        why = schema_error(messages()) or range_error(messages())
+        if why is None:
+            raise
+        raise RgtbusError(f"{label}: {why}") from None

@@ -27,7 +27,8 @@ from rgtbus.telemetry import (
 )
 from rgtbus.telemetry.codec import encode
 from rgtbus.telemetry.merge import merge_logs
-from rgtbus.telemetry.recorder import MCAP_MAGIC, log_message
+from rgtbus.telemetry.message_json import log_message
+from rgtbus.telemetry.recorder import MCAP_MAGIC
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 ROOT = Path(__file__).resolve().parent.parent.parent
