@@ -31,7 +31,9 @@ from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses
 from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message, records
-from rgtbus.telemetry.read import Mismatch, Replay, load_replay
+from rgtbus.telemetry.log_parts import stack_traces
+from rgtbus.telemetry.mismatch import Mismatch
+from rgtbus.telemetry.read import Replay, load_replay
 from rgtbus.telemetry.verify import VerifyReport, verify
 from rgtbus.timebase import ns, seconds
 
@@ -264,6 +266,6 @@ def traces_for(replay: Replay, unit: str) -> dict[str, Any]:
     out = rerun_replay(replay, traces=[unit], only=[unit])
     topic = records.trace_topic(unit)
     return {
-        **replay.stack_traces([m for t, _, m in out.messages if t == topic]),
+        **stack_traces([m for t, _, m in out.messages if t == topic], replay.units),
         "recomputed": True,
     }

@@ -10,18 +10,14 @@ found while reading or verifying is a ``Mismatch``.
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import json
-import math
 import os
 from collections import defaultdict
-from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Iterator, Mapping
+from dataclasses import asdict
 from typing import IO, Any, cast
 
 import numpy as np
-import orjson
 
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
@@ -33,12 +29,20 @@ from rgtbus.summary import (
     summarise,
     summary_json,
 )
-from rgtbus.telemetry import topics, untrusted
-from rgtbus.telemetry.blocks import block_samples
+from rgtbus.telemetry import logged_medium, untrusted
+from rgtbus.telemetry.log_parts import (
+    Topics,
+    frequencies_of,
+    legacy_report,
+    merge_notes,
+    stack_traces,
+    unit_process_ends,
+    units_until_ns,
+)
+from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
-    LOG,
     MEDIUM,
     RUN,
     RX_DECODE,
@@ -70,157 +74,11 @@ from rgtbus.telemetry.transmissions import (
     matched_decodes,
     transmissions_of,
 )
-from rgtbus.telemetry.untrusted import INT64, explained
-from rgtbus.timebase import ns, sample_of, seconds, time_of
+from rgtbus.telemetry.untrusted import explained
+from rgtbus.timebase import ns, seconds
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
-
-
-@dataclass
-class Mismatch:
-    """One disagreement between the log and what verification recomputed."""
-
-    topic: str
-    t: float | None
-    unit: str | None
-    field: str
-    logged: Any
-    recomputed: Any
-
-    def text(self) -> str:
-        """The disagreement in one line: topic, time, unit, field, both values (long values cut
-        short)."""
-        when = "" if self.t is None else f" t={self.t:.3f}s"
-        who = "" if self.unit is None else f" unit={self.unit}"
-        return (
-            f"{self.topic}{when}{who} {self.field}: logged {_short(self.logged)}, "
-            f"recomputed {_short(self.recomputed)}"
-        )
-
-
-def _short(value: Any, limit: int = 120) -> str:
-    text = json.dumps(value, ensure_ascii=False, default=str)
-    return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _merge_notes(metadata: dict[str, dict[str, str]]) -> list[str]:
-    """The truncation notes of a merged log's inputs (empty for a log that is no merge)."""
-    out: list[str] = []
-    for name, values in metadata.items():
-        if name == "merge" or name.startswith("merge."):
-            try:  # orjson, and the one depth rule: str() of a note recurses
-                notes = orjson.loads(values.get("truncated", "[]"))
-                if untrusted.depth_error(notes) is not None:
-                    raise ValueError
-            except ValueError:
-                notes = ["a merge record that does not parse"]
-            if isinstance(notes, list):
-                out += [str(n) for n in notes]
-    return out
-
-
-def _unit_process_ends(
-    metadata: dict[str, dict[str, str]], units: Sequence[str]
-) -> tuple[list[str], list[str]]:
-    """(how the units of unit processes that did not end "done" ended, every unit whose
-    process's log is in this one). A unit process's log has a ``run`` record naming it
-    (``process``; and ``units``, comma-separated, when it ran several) and, once each unit
-    ended, an ``end.<unit>`` record; a killed process has none."""
-    processes = []
-    for n, v in metadata.items():
-        if (n == "run" or n.startswith("run.")) and v.get("process") in units:
-            hosted = v["units"].split(",") if v.get("units") else [v["process"]]
-            processes += [u for u in hosted if u in units]
-    early = []
-    for unit in processes:
-        end = metadata.get(topics.unit_end_record(unit))
-        if end is None:
-            early.append(f"unit {unit}'s process ended without a word (killed?)")
-        elif end.get("status") != topics.UNIT_DONE:
-            early.append(f"unit {unit} {topics.UNIT_ENDED_EARLY}: {end.get('detail', '')}")
-    return early, processes
-
-
-def _frequencies(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
-    """Channel frequencies from a log's ``frequencies`` metadata (values that are no number
-    are left out: the verifier names a damaged scenario, this only labels spikes)."""
-    out = {}
-    for k, v in metadata.get("frequencies", {}).items():
-        with contextlib.suppress(ValueError):
-            out[k] = float(v)
-    return out
-
-
-_NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})
-# logged as each send is planned (or, with a live view or a paced run, by a unit's transmitter
-# as the clock reaches each pulse), not in step with the unit's other records: what a unit
-# logged before its last record or spike block holds every pulse before that time as well
-_ON_TIME = frozenset({TX_PULSE})
-
-
-class Topics(Mapping[str, list[tuple[int, Any]]]):
-    """A log's messages by topic, ``(log_time, message)`` in log-time order: a topic held as
-    its undecoded JSON is decoded, and each message checked against its schema, the first
-    time it is asked for (``checked_message``: a large run's decodes and spikes are tens of
-    megabytes of JSON, and many times that as Python objects); a topic that holds none is an
-    empty list."""
-
-    def __init__(
-        self, messages: Iterable[LogMessage], label: str, current: frozenset[str] = frozenset()
-    ) -> None:
-        self.current = current  # topics checked against their schema (LogContents.current)
-        self._held: dict[str, list[tuple[int, Any]]] = {}
-        self._raw: set[str] = set()  # topics still held (at least partly) as JSON bytes
-        self.label = label
-        for topic, t, m in messages:
-            self._held.setdefault(topic, []).append((t, m))
-            if isinstance(m, bytes):
-                self._raw.add(topic)
-
-    def __getitem__(self, topic: str) -> list[tuple[int, Any]]:
-        held = self._held.get(topic)
-        if held is None:
-            return []
-        if topic in self._raw:
-            check = topic in self.current
-            held[:] = [(t, untrusted.message(topic, t, m, self.label, check)) for t, m in held]
-            self._raw.discard(topic)
-        return held
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._held)
-
-    def __len__(self) -> int:
-        return len(self._held)
-
-    def __contains__(self, topic: object) -> bool:
-        return topic in self._held
-
-    def each(self, topic: str) -> Iterator[tuple[int, Any]]:
-        """``topic``'s messages one at a time, decoded (and checked) as ``[topic]`` gives
-        them, but none kept decoded: a large run's decodes are read into columns a record at
-        a time (``decode_table``), never all held as Python objects."""
-        held = self._held.get(topic, [])
-        if topic not in self._raw:
-            yield from held
-            return
-        check = topic in self.current
-        for t, m in held:
-            yield (
-                t,
-                untrusted.message(topic, t, m, self.label, check) if isinstance(m, bytes) else m,
-            )
-
-    def count(self, topic: str) -> int:
-        """How many messages ``topic`` holds (nothing decoded)."""
-        return len(self._held.get(topic, ()))
-
-    def messages(self) -> Iterator[LogMessage]:
-        """Every message as ``(topic, log_time, message)``, as held (decoded or JSON bytes)."""
-        for topic, msgs in self._held.items():
-            for t, m in msgs:
-                yield topic, t, m
 
 
 class Replay:
@@ -240,8 +98,8 @@ class Replay:
         self.units: tuple[str, ...] = self._units()
         # A merge of unit logs (launch, or ``rgtbus merge`` by hand) whose inputs ended early
         # (a killed unit) is as incomplete as a truncated file, though the file itself is whole.
-        early, self.unit_processes = _unit_process_ends(self.metadata, self.units)
-        self.cut_inputs: list[str] = _merge_notes(self.metadata) + early
+        early, self.unit_processes = unit_process_ends(self.metadata, self.units)
+        self.cut_inputs: list[str] = merge_notes(self.metadata) + early
         if self.cut_inputs:
             self.truncated = True
             self.note = "; ".join(filter(None, [self.note, *self.cut_inputs]))
@@ -249,7 +107,7 @@ class Replay:
         self.run: RunRecord | None = (
             cast(RunRecord, self.by_topic[RUN][-1][1]) if self.by_topic[RUN] else None
         )
-        self.frequencies = _frequencies(self.metadata)
+        self.frequencies = frequencies_of(self.metadata)
 
     # -- what is read when first asked for (a topic a reader does not use stays undecoded) -----
 
@@ -474,50 +332,14 @@ class Replay:
             for _, m in self.by_topic[UNIT_REPORT]
         }
         if not reports:
-            reports = {u: self._legacy_report(u) for u in self.units}
+            reports = {
+                u: legacy_report(
+                    u, self.relations.get(u), self.influences.get(u), self.decisions,
+                    self.transmissions,
+                )
+                for u in self.units
+            }  # fmt: skip
         return [{**reports[u], "decodes": decodes.get(u, [])} for u in self.units if u in reports]
-
-    def _legacy_report(self, unit: str) -> dict[str, Any]:
-        rel: Mapping[str, Any] = self.relations.get(unit) or {}
-        infl: Mapping[str, Any] = self.influences.get(unit) or {}
-        own = [d for d in self.decisions if d["unit"] == unit and d["subject"] == unit]
-        last = own[-1] if own else None
-        result = {
-            "interval": None if last is None else last["interval"],
-            "frustrated": False if last is None else bool(last["frustrated"]),
-            "choice": None if last is None else last["choice"],
-            "canonical": None if last is None else last["canonical"],
-            "A": None if last is None else last["A"],
-            "B": None if last is None else last["B"],
-            "decided": last is not None,
-        }
-        rows = []
-        for d in own:
-            low, high = d["interval"] or (None, None)
-            rows.append(
-                {"round": d.get("round", 1), "unit": unit, "low": low, "high": high,
-                 "choice": d["choice"], "frustrated": bool(d["frustrated"]), "t": d["t"]}
-            )  # fmt: skip
-        return {
-            "unit": unit,
-            "installed": rel.get("installed", {}),
-            "polynomial": rel.get("polynomial"),
-            "p4": rel.get("p4"),
-            "sent_relations": rel.get("sent", {}),
-            "influences": infl.get("influences", {}),
-            "result": result,
-            "decisions": rows,
-            "sends": [
-                [tx.turn, tx.kind, tx.addressee, tx.code]
-                for tx in self.transmissions
-                if tx.sender == unit
-            ],
-            "sent_influences": [],
-            "failure": None,
-            "failed_at": None,
-            "done_at": None,
-            "mind_error": None,
-        }
 
     def summary(self) -> dict[str, Any]:
         """The run's summary computed from the log alone by the one summary function
@@ -609,73 +431,18 @@ class Replay:
 
     def medium_windows(self) -> tuple[dict[int, np.ndarray], list[Mismatch]]:
         """The logged medium's windows (only windows that carried a pulse are logged), with
-        repeated and malformed windows reported."""
-        sc = self.require_scenario()
-        L = sc.timing.window_samples
-        ws = L / sc.timing.sample_rate
-        out: dict[int, np.ndarray] = {}
-        bad: list[Mismatch] = []
-        for t_ns, m in self.by_topic[MEDIUM]:
-            w = m["window"]
-            if not (isinstance(w, int) and 0 <= w < INT64 // L):  # no sample index is there
-                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, "window", w, "a window index"))
-                continue
-            if w in out:
-                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w}", "twice", "once"))
-                continue
-            if len(m["samples"]) != L:
-                bad.append(
-                    Mismatch(
-                        MEDIUM, seconds(t_ns), None, f"window {w} length", len(m["samples"]), L
-                    )
-                )
-                continue
-            if not math.isclose(m["t"], w * ws, abs_tol=_NANOSECOND) or t_ns != ns(w * ws):
-                bad.append(Mismatch(MEDIUM, seconds(t_ns), None, f"window {w} t", m["t"], w * ws))
-            if m["sample_rate"] != sc.timing.sample_rate:
-                bad.append(
-                    Mismatch(
-                        MEDIUM,
-                        seconds(t_ns),
-                        None,
-                        f"window {w} sample_rate",
-                        m["sample_rate"],
-                        sc.timing.sample_rate,
-                    )
-                )
-            out[w] = np.asarray(m["samples"], dtype=float)
-        return out, bad
+        repeated and malformed windows reported (``logged_medium.medium_windows``)."""
+        return logged_medium.medium_windows(self.require_scenario(), self.by_topic[MEDIUM])
 
     def medium_pulses(self) -> tuple[np.ndarray, np.ndarray]:
         """The logged medium as (sample indexes, values) of its non-silent samples: what every
-        unit heard, bit for bit (each unit's magnitudes added up, then the units in order)."""
-        sc = self.require_scenario()
-        L = sc.timing.window_samples
+        unit heard, bit for bit."""
         windows, _ = self.medium_windows()
-        rows, vals = [], []
-        for w in sorted(windows):
-            nz = np.flatnonzero(windows[w])
-            rows.append(nz + w * L)
-            vals.append(windows[w][nz])
-        if not rows:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        return np.concatenate(rows).astype(np.int64), np.concatenate(vals)
+        return logged_medium.medium_pulses(self.require_scenario(), windows)
 
     def sender_pulses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Each unit's own transmissions, rebuilt from its logged pulses (in the order it sent
-        them: the floats add up as the unit added them)."""
-        rows: dict[str, list[int]] = {u: [] for u in self.units}
-        vals: dict[str, list[float]] = {u: [] for u in self.units}
-        for p in self.pulses():
-            if p["unit"] in rows:
-                rows[p["unit"]].append(int(p["sample"]))
-                vals[p["unit"]].append(float(p["magnitude"]))
-        out = {}
-        for u in self.units:
-            r = np.array(rows[u], dtype=np.int64)
-            order = np.argsort(r, kind="stable")
-            out[u] = (r[order], np.array(vals[u])[order])
-        return out
+        """Each unit's own transmissions, rebuilt from its logged pulses."""
+        return logged_medium.sender_pulses(self.units, self.pulses())
 
     def has_gains(self) -> bool:
         """Whether units hear the senders differently (link gains, or delays and clocks):
@@ -685,57 +452,9 @@ class Replay:
 
     def units_until_ns(self) -> int | None:
         """The log time before which every unit's messages are complete in a log cut short
-        (a truncated file, or a merge whose inputs ended early): the earliest, over the units,
-        of each unit's last record and last block of spikes (a unit's records leave in its own
-        time order; spikes as the ears hear them; pulses, the medium and traces ahead); None
-        when nothing was logged."""
-        last: dict[str, int] = {}
-        # what is logged ahead of time (the medium, traces) or once the run is over (the run's
-        # and units' reports, and log lines, which a stopped unit writes at its end) says
-        # nothing of how far its records are complete
-        skip = _NOT_PROGRESS | _ON_TIME
-        every = [(t, self.by_topic[t]) for t in self.by_topic if t not in skip]
-        for topic, msgs in [*every, (RX_DECODE, self._each_decode())]:
-            if is_trace_topic(topic):
-                continue
-            stream = "spikes" if topic == RX_SPIKE else "records"
-            for t, m in msgs:
-                if "units" in m:  # one record for several units (spikes, decodes)
-                    whos = [str(u) for u in m["units"]]
-                else:
-                    whos = [str(m.get("unit", m.get("name", "")))]
-                for who in whos:
-                    if t > last.get(f"{who}\0{stream}", -1):
-                        last[f"{who}\0{stream}"] = t
-        if not last:
-            return None
-        # A unit's spikes go to the log in blocks as its ears hear them, which runs ahead of
-        # its other records (logged at their own time) and behind them within a block not yet
-        # heard through: its log is complete before the earlier of the two streams, and a unit
-        # with either stream still empty (e.g. killed before its first flush, or stopped
-        # before its first decode) only before the start. In one file cut short, the records
-        # written last need not be the latest in log time either. Its pulses go out a block
-        # at a time, a block once its records are past it (``PulseBlocks.before``): complete
-        # before the start of its last record's block, or whole once it reported (at its end).
-        reported = {m.get("unit") for _, m in self.by_topic[UNIT_REPORT]}
-        pulses = self._pulse_bound
-
-        def bound(u: str) -> int:
-            records = last.get(f"{u}\0records", 0)
-            out = min(records, last.get(f"{u}\0spikes", 0))
-            return out if u in reported else min(out, pulses(records))
-
-        return min((bound(u) for u in self.units), default=None)
-
-    def _pulse_bound(self, t_ns: int) -> int:
-        """Before which log time a unit's pulses are all in a log that holds its records up
-        to ``t_ns`` (``PulseBlocks.before``, blocks of ``BLOCK_SECONDS``)."""
+        (``log_parts.units_until_ns``); None when nothing was logged."""
         tau = self.scenario.timing.tau if self.scenario is not None else None
-        if tau is None:
-            return 0
-        block = block_samples(tau)
-        done = sample_of(seconds(t_ns), tau) // block
-        return max(0, ns(time_of(done * block, tau)))
+        return units_until_ns(self.by_topic, self._each_decode(), self.units, tau)
 
     def traced_units(self) -> list[str]:
         """The units whose resonator traces the log holds."""
@@ -746,25 +465,7 @@ class Replay:
         """``unit``'s logged traces stacked as arrays (``stack_traces``); None when none were
         logged."""
         msgs = [m for _, m in self.topic_messages(trace_topic(unit))]
-        return self.stack_traces(msgs) if msgs else None
-
-    def stack_traces(self, msgs: Sequence[dict[str, Any] | bytes]) -> dict[str, Any]:
-        """Trace messages -> ``{"t": (n,), "y": (n, channels), "channels": [...]}``: one message
-        a sample, or (logs of rgtbus before the per-sample layout) one a window."""
-        if not msgs:
-            return {"t": np.zeros(0), "y": np.zeros((0, 0)), "channels": []}
-        ms = [orjson.loads(m) if isinstance(m, bytes | bytearray) else m for m in msgs]
-        if "window" in ms[0]:
-            ts, ys = [], []
-            for m in ms:
-                y = np.asarray(m["y"], dtype=float)  # channels × samples
-                ts.append(m["t"] + np.arange(y.shape[1]) / m["sample_rate"])
-                ys.append(y.T)
-            t, yy = np.concatenate(ts), np.concatenate(ys)
-            return {"t": t, "y": yy, "channels": ms[0]["channels"]}
-        t = np.fromiter((m["t"] for m in ms), dtype=float, count=len(ms))
-        yy = np.asarray([m["y"] for m in ms], dtype=float)
-        return {"t": t, "y": yy, "channels": list(self.units)}
+        return stack_traces(msgs, self.units) if msgs else None
 
 
 def in_span(

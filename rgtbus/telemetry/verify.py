@@ -23,8 +23,9 @@ from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, TRACE, decode_record
 from rgtbus.telemetry.message_json import encode_json
+from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.pulse_blocks import pulse_rows
-from rgtbus.telemetry.read import Mismatch, Replay
+from rgtbus.telemetry.read import Replay
 from rgtbus.telemetry.recorder import LogMessage
 from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
 from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
