@@ -22,9 +22,10 @@ from cut_logs import assert_prefix_is_whole, paced_run, standard_read
 from mcap.reader import make_reader
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.log_check import verified_by_crcs
 from rgtbus.telemetry.mcap_recorder import McapRecorder
 from rgtbus.telemetry.recorder import UNFINISHED
-from rgtbus.telemetry.scan import scan_log, verified_by_crcs
+from rgtbus.telemetry.scan import scan_log
 
 ROOT = Path(__file__).parent.parent
 CROWD10 = ROOT / "scenarios" / "crowd10.toml"

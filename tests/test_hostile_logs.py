@@ -30,8 +30,8 @@ from mcap.writer import CompressionType, Writer
 import rgtbus
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.log_check import verified_by_crcs
 from rgtbus.telemetry.logtools import log_info, stored_scenario
-from rgtbus.telemetry.scan import verified_by_crcs
 from rgtbus.telemetry.untrusted import MAX_DEPTH, depth_error, printable, text_depth
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -87,8 +87,8 @@ def _ended(note: str) -> int:
 
 def info(args: argparse.Namespace) -> int:
     """``rgtbus info LOG``: what the log holds, as text or ``--json``."""
+    from rgtbus.telemetry.log_check import check_log
     from rgtbus.telemetry.logtools import info_text, log_info
-    from rgtbus.telemetry.scan import check_log
     from rgtbus.telemetry.untrusted import printable_errors
 
     with printable_errors(), check_log(args.log) as log:
@@ -99,8 +99,8 @@ def info(args: argparse.Namespace) -> int:
 
 def cat(args: argparse.Namespace) -> int:
     """``rgtbus cat LOG``: its messages as JSON lines, filtered by topic, unit and time."""
+    from rgtbus.telemetry.log_check import check_log
     from rgtbus.telemetry.logtools import cat_messages
-    from rgtbus.telemetry.scan import check_log
     from rgtbus.telemetry.untrusted import printable_errors
 
     out = sys.stdout
@@ -120,8 +120,8 @@ def cat(args: argparse.Namespace) -> int:
 
 def scenario(args: argparse.Namespace) -> int:
     """``rgtbus scenario LOG``: the scenario TOML the run was made with, its seed the run's."""
+    from rgtbus.telemetry.log_check import check_log
     from rgtbus.telemetry.logtools import stored_scenario
-    from rgtbus.telemetry.scan import check_log
     from rgtbus.telemetry.untrusted import printable_errors
 
     with printable_errors(), check_log(args.log) as log:

@@ -1,6 +1,6 @@
 """What ``rgtbus info``, ``rgtbus cat`` and ``rgtbus scenario`` read from a run's MCAP log.
 
-Every reader opens the log with ``check_log`` (rgtbus.telemetry.scan), which checks it
+Every reader opens the log with ``check_log`` (rgtbus.telemetry.log_check), which checks it
 whole first: a damaged log is refused in one line (``RgtbusError``), never read as if it were
 whole. ``log_info`` reads a finished log from its summary section (statistics, schemas,
 channels, chunk indexes, metadata index) and the ``/run`` record through the chunk index, once
@@ -33,6 +33,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.blocks import MESSAGE_ENCODING, schema_of
+from rgtbus.telemetry.log_check import CheckedLog, check_log
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.records import (
     LOG,
@@ -44,13 +45,7 @@ from rgtbus.telemetry.records import (
     is_trace_topic,
     logged_seed,
 )
-from rgtbus.telemetry.scan import (
-    CheckedLog,
-    RawLog,
-    check_log,
-    require_run_log,
-    scan_log,
-)
+from rgtbus.telemetry.scan import RawLog, require_run_log, scan_log
 from rgtbus.telemetry.untrusted import message as checked
 from rgtbus.telemetry.untrusted import printable
 from rgtbus.telemetry.version import format_of

@@ -1,29 +1,26 @@
 """Reading an MCAP log back, checked: ``scan_log`` (its records, undecoded, with every chunk's
 CRC checked and a cut or corrupt file told apart), ``read_log`` (decoded messages and metadata),
-``check_log`` (the summary section's CRCs first, for the log tools). Apart from the recorder, so
-a run that only writes its log never loads the reader (start-up).
+(``log_check.check_log``: the summary section's CRCs first, for the log tools); a chunk's
+records are split by ``chunks``. Apart from the recorder, so a run that only writes its log
+never loads the reader (start-up).
 """
 
 from __future__ import annotations
 
-import contextlib
 import io
 import os
 import struct
 import zlib
-from collections.abc import Callable, Container, Iterator
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, TypeVar, cast
 
-import lz4.frame
 import mcap.exceptions
-import zstandard
-from mcap.data_stream import ReadDataStream
-from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import CRCValidationError, StreamReader
+from mcap.stream_reader import CRCValidationError
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES, Reader, decompressed, split_chunk
 from rgtbus.telemetry.recorder import MCAP_MAGIC, UNFINISHED, LogContents
 from rgtbus.telemetry.version import require_format
 from rgtbus.timebase import seconds
@@ -161,7 +158,7 @@ def _records_at(f: IO[bytes], offset: int, size: int, crc: int | None) -> list[A
     if length > min(size - offset - 9, MAX_CHUNK_BYTES):
         raise _Corrupt(f"the record at byte {offset} runs past the end of the file")
     body = head + f.read(length)
-    reader = _Reader(io.BytesIO(body), skip_magic=True, emit_chunks=True)
+    reader = Reader(io.BytesIO(body), skip_magic=True, emit_chunks=True)
     try:
         rec = next(iter(reader.records))
     except Exception as e:
@@ -331,7 +328,7 @@ def _read_records(raw: RawLog, src: _Tracked, at: _Progress) -> None:
     short (``_Corrupt`` for damage it locates itself)."""
     # Chunks come out whole (emit_chunks) so each is CRC-checked here and damage is located;
     # validate_crcs makes the reader check the data section's CRC at DataEnd (when written).
-    reader = _Reader(
+    reader = Reader(
         cast(IO[bytes], src), emit_chunks=True, validate_crcs=True, record_size_limit=2**30
     )
     for rec in reader.records:
@@ -389,12 +386,6 @@ def _take(raw: RawLog, rec: Any, start: int) -> None:
         raw.schemas[rec.id] = rec
 
 
-# The most a chunk may claim to hold once decompressed: rgtbus and mcap's writers write chunks of
-# 1 MiB by default. A chunk claiming more is refused before anything is allocated
-# (a compression bomb: 56 KB of file claiming gigabytes).
-MAX_CHUNK_BYTES = 64 << 20
-
-
 def _chunk_data(chunk: Chunk, start: int) -> tuple[bytes, str]:
     """A chunk's records, decompressed and CRC-checked, and the words naming the chunk;
     ``_Corrupt`` naming it otherwise."""
@@ -408,64 +399,13 @@ def _chunk_data(chunk: Chunk, start: int) -> tuple[bytes, str]:
             f"{MAX_CHUNK_BYTES >> 20} MiB any chunk may hold (not decompressed)"
         )
     try:
-        return _decompressed(chunk), where
+        return decompressed(chunk), where
     except CRCValidationError as e:
         raise _Corrupt(
             f"{where}: CRC mismatch (stored {e.expected:#010x}, computed {e.actual:#010x})"
         ) from None
     except Exception as e:  # a complete chunk that does not decompress
         raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
-
-
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length
-
-
-Row = tuple[int, int, int, int, bytes]  # a message as ``RawLog.messages`` holds it
-
-
-def _split(
-    data: bytes, on_record: Callable[[Channel | Schema], None], later: Container[int] = ()
-) -> tuple[list[Row], dict[int, list[int]]]:
-    """A chunk's records (``data``, decompressed): its messages as rows, but those of the
-    channels ``later`` (their topics read when asked for), counted with their latest log
-    time (``{channel: [count, last]}``); each schema and channel record handed to
-    ``on_record`` as mcap reads it (a channel before its messages, as writers write them);
-    any other record skipped, as ``mcap.stream_reader.breakup_chunk`` skips it. mcap's own
-    splitter reads each field of each message through a stream object, about 8 MB/s here; a
-    chunk's messages are most of a log, so they are split here, with two ``struct`` calls a
-    message. Raises ``ValueError`` where the records do not fit the chunk."""
-    size, pos = len(data), 0
-    head, message = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
-    rows: list[Row] = []
-    seen: dict[int, list[int]] = {}
-    while pos < size:
-        if pos + 9 > size:
-            raise ValueError(f"a record's header cut at byte {pos} of the chunk's records")
-        opcode, length = head(data, pos)
-        start, pos = pos + 9, pos + 9 + length
-        if pos > size:
-            raise ValueError(f"the record at byte {start - 9} runs past the chunk's records")
-        if opcode == _MESSAGE:
-            if length < 22:
-                raise ValueError(f"the message at byte {start - 9} is {length} bytes long")
-            cid, seq, log_time, publish_time = message(data, start)
-            if cid not in later:
-                rows.append((cid, log_time, publish_time, seq, data[start + 22 : pos]))
-            elif (got := seen.get(cid)) is None:
-                seen[cid] = [1, log_time]
-            else:
-                got[0] += 1
-                if log_time > got[1]:
-                    got[1] = log_time
-        elif opcode == Opcode.CHANNEL:
-            on_record(Channel.read(ReadDataStream(io.BytesIO(data[start:pos]))))
-        elif opcode == Opcode.SCHEMA:
-            on_record(Schema.read(ReadDataStream(io.BytesIO(data[start:pos]))))
-    return rows, seen
-
-
-_MESSAGE = int(Opcode.MESSAGE)
 
 
 def _take_chunk(raw: RawLog, chunk: Chunk, start: int) -> None:
@@ -475,7 +415,7 @@ def _take_chunk(raw: RawLog, chunk: Chunk, start: int) -> None:
     data, where = _chunk_data(chunk, start)
     deferred = raw.deferred
     try:
-        rows, seen = _split(
+        rows, seen = split_chunk(
             data,
             lambda rec: _take(raw, rec, start),  # a channel: read (or deferred) from here on
             deferred.topics if deferred is not None else (),
@@ -497,46 +437,10 @@ def _chunk_rows(chunk: Chunk, start: int) -> list[Any]:
     data, where = _chunk_data(chunk, start)
     others: list[Any] = []
     try:
-        rows, _ = _split(data, others.append)
+        rows, _ = split_chunk(data, others.append)
     except Exception as e:
         raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
     return others + rows
-
-
-def _decompressed(chunk: Chunk) -> bytes:
-    """A chunk's records, decompressed (zstd, lz4 or none, as the MCAP spec allows) and
-    CRC-checked (``CRCValidationError``)."""
-    if chunk.compression == "zstd":
-        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
-    elif chunk.compression == "lz4":
-        data = lz4.frame.decompress(chunk.data)
-    elif chunk.compression == "":
-        data = bytes(chunk.data)
-    else:
-        raise ValueError(f"unknown compression {chunk.compression[:40]!r}")
-    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise CRCValidationError(chunk.uncompressed_crc, zlib.crc32(data), chunk)
-    return data
-
-
-class _Reader(StreamReader):
-    """mcap's reader, message index records (a chunk's table of offsets, one a channel and
-    chunk: a scan has no use for them) skipped undecoded: their bytes still go into the data
-    section's CRC. mcap decodes each entry through a stream object, and a traced log's
-    9,197 indexes took longer to read than its 1.35 M messages."""
-
-    def _read_record(self, opcode: int, length: int) -> Any:
-        if opcode == Opcode.MESSAGE_INDEX:
-            self._stream.read(length)
-            return _SKIPPED  # yielded (not None): the scan keeps each record's offset
-        return super()._read_record(opcode, length)
-
-
-class _Skipped:
-    """A record read past, undecoded (``_Reader``)."""
-
-
-_SKIPPED = _Skipped()
 
 
 def _check_summary_crc(footer: Footer, src: _Tracked) -> None:
@@ -616,168 +520,19 @@ def _require_run(
         require_format(label, metadata)
 
 
-# -- one way to open a log: checked whole before anything is read from it ----------------------
-
-_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, CRC
-_DATA_END_BYTES = 1 + 8 + 4  # opcode, length, data_section_crc
-
-
-def _crc_of(stream: IO[bytes], start: int, end: int) -> int | None:
-    """CRC-32 of the bytes ``start:end`` (None when the file ends before ``end``)."""
-    stream.seek(start)
-    crc, left = 0, end - start
-    while left > 0:
-        block = stream.read(min(left, 1 << 20))
-        if not block:
-            return None
-        crc = zlib.crc32(block, crc)
-        left -= len(block)
-    return crc
-
-
-def verified_by_crcs(stream: IO[bytes]) -> bool:
-    """Whether ``stream`` is a finished MCAP file whose data-section CRC and summary CRC were
-    both written and both hold: together they cover every byte but the closing magic (checked
-    too), so the whole file is vouched for without decompressing anything. False when it
-    cannot tell (cut short, a CRC not written, not seekable) or a CRC does not hold:
-    ``scan_log`` then says which and where."""
-    magic = len(MCAP_MAGIC)
-    try:
-        size = stream.seek(0, os.SEEK_END)
-        if size < 2 * magic + _DATA_END_BYTES + _FOOTER_BYTES:
-            return False
-        footer_at = size - magic - _FOOTER_BYTES
-        stream.seek(footer_at)
-        tail = stream.read(_FOOTER_BYTES + magic)
-        if len(tail) != _FOOTER_BYTES + magic or tail[_FOOTER_BYTES:] != MCAP_MAGIC:
-            return False
-        opcode, length, summary_start, _, summary_crc = struct.unpack_from("<BQQQI", tail)
-        if opcode != 0x02 or length != _FOOTER_BYTES - 9 or summary_crc == 0:
-            return False
-        data_end_at = (summary_start or footer_at) - _DATA_END_BYTES
-        if not magic <= data_end_at <= footer_at - _DATA_END_BYTES:
-            return False
-        stream.seek(data_end_at)
-        rec = stream.read(_DATA_END_BYTES)
-        if len(rec) != _DATA_END_BYTES:
-            return False
-        opcode, length, data_crc = struct.unpack_from("<BQI", rec)
-        if opcode != 0x0F or length != 4 or data_crc == 0:
-            return False
-        # the data section from the opening magic to DataEnd's CRC field; the summary section
-        # (from DataEnd's end) through the footer's last field before its own CRC
-        return bool(
-            _crc_of(stream, 0, data_end_at) == data_crc
-            and _crc_of(stream, data_end_at + _DATA_END_BYTES, footer_at + _FOOTER_BYTES - 4)
-            == summary_crc
-        )
-    except (OSError, ValueError, AttributeError, struct.error):
-        return False
-
-
-@dataclass
-class CheckedLog:
-    """A run's log file, opened and checked whole by ``check_log`` (so nothing read from it
-    later can be damaged). ``raw`` is the file's records as scanned (every chunk CRC-checked)
-    when it was read record by record; None when its CRCs vouched for every byte: read it
-    then through ``summary`` (mcap's) and its index, from ``stream``. ``metadata``: every
-    Metadata record, in file order. ``truncated``: the file ends early; ``note`` says where
-    and how far it was read (the last log time)."""
-
-    label: str
-    stream: IO[bytes]
-    size: int
-    raw: RawLog | None
-    summary: Any = None
-    library: str | None = None
-    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
-
-    @property
-    def truncated(self) -> bool:
-        """Whether the file ends early (a killed run)."""
-        return self.raw is not None and self.raw.truncated
-
-    @property
-    def note(self) -> str:
-        """Where the file was cut and how far it was read; empty for a whole file."""
-        return self.raw.note if self.raw is not None else ""
-
-
-def _by_summary(stream: IO[bytes], label: str, size: int) -> CheckedLog | None:
-    """A file its CRCs vouch for, read through its summary (None: no usable summary)."""
-    from mcap.reader import SeekingReader, make_reader
-
-    try:
-        stream.seek(0)
-        reader = make_reader(stream)
-        if not isinstance(reader, SeekingReader):
-            return None
-        summary = reader.get_summary()
-        if summary is None or summary.statistics is None:
-            return None
-        if any(ci.uncompressed_size > MAX_CHUNK_BYTES for ci in summary.chunk_indexes):
-            return None  # scanned instead, where such a chunk is refused before it is read
-        library = reader.get_header().library
-        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
-    except Exception:  # a layout mcap's reader does not take: scan it instead
-        return None
-    empty = not (summary.schemas or summary.channels or summary.statistics.message_count)
-    _require_run(label, library, metadata, empty and not metadata)
-    return CheckedLog(label, stream, size, None, summary, library, metadata)
-
-
-@contextlib.contextmanager
-def check_log(path: str | os.PathLike[str], *, scan: bool = False) -> Iterator[CheckedLog]:
-    """Open a run's log and check it whole: the one way ``rgtbus info``, ``cat`` and
-    ``scenario`` open a log (``rgtbus replay``, ``merge`` and ``rgtbus.open_log`` scan it
-    with ``scan_log`` and refuse with ``require_run_log``: the same checks, record by record).
-
-    A finished file whose data-section and summary CRCs hold (``verified_by_crcs``) is not
-    scanned unless ``scan``: it is read through its summary. Anything else is scanned record by
-    record, every chunk's CRC checked. Refused with one line (``RgtbusError``): unreadable, a
-    directory, not an MCAP file, corrupt (where and what), only a header, not an rgtbus run
-    log. A file cut short (a killed run) is read to its cut: ``truncated``, with a note."""
-    label = os.fspath(path)
-    try:
-        if os.path.isdir(path):
-            raise RgtbusError(f"cannot read log {label!r}: is a directory")
-        stream = open(path, "rb")  # noqa: SIM115 - closed below
-    except OSError as e:
-        raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
-    with stream:
-        try:
-            size = os.fstat(stream.fileno()).st_size
-            log = None
-            if not scan and verified_by_crcs(stream):
-                log = _by_summary(stream, label, size)
-            if log is None:
-                stream.seek(0)
-                raw = _scan(stream, label)
-                require_run_log(raw)
-                log = CheckedLog(label, stream, size, raw, None, raw.library, raw.metadata)
-        except OSError as e:
-            raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
-        yield log
-
-
 def _read(stream: IO[bytes], label: str) -> LogContents:
     return decode_log(_scan(stream, label))
 
 
-def current_topics(log: RawLog | CheckedLog) -> frozenset[str]:
+def current_topics(
+    channels: Mapping[int, Channel], schemas: Mapping[int, Schema]
+) -> frozenset[str]:
     """The topics whose channel's schema is this rgtbus's own, byte for byte (a log written
     by this version): the ones a reader checks every message of against its schema before
     use. An older log's schemas differ where its records did, and readers take its older
     forms as they are."""
     from rgtbus.telemetry import topics
 
-    if isinstance(log, CheckedLog):
-        if log.raw is None:
-            channels, schemas = log.summary.channels, log.summary.schemas
-        else:
-            channels, schemas = log.raw.channels, log.raw.schemas
-    else:
-        channels, schemas = log.channels, log.schemas
     out = set()
     for channel in channels.values():
         schema = schemas.get(channel.schema_id)
@@ -815,5 +570,5 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
     note = raw.note  # says how far it read (the scan's last log time)
     contents = LogContents(messages, metadata, bool(note), note)
     contents.deferred = raw.deferred
-    contents.current = current_topics(raw)
+    contents.current = current_topics(raw.channels, raw.schemas)
     return contents

@@ -33,8 +33,9 @@ import rgtbus
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import blocks
+from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES
 from rgtbus.telemetry.codec import BlockSchema, Field, decode, encode
-from rgtbus.telemetry.scan import MAX_CHUNK_BYTES, scan_log
+from rgtbus.telemetry.scan import scan_log
 
 ROOT = Path(__file__).parent.parent.parent
 UNITS_FIELDS = ("unit", "sender", "addressee", "name", "subject")

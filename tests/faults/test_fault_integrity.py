@@ -20,9 +20,10 @@ import pytest
 import rgtbus
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry import scan
+from rgtbus.telemetry import log_check
+from rgtbus.telemetry.log_check import check_log
 from rgtbus.telemetry.recorder import MCAP_MAGIC
-from rgtbus.telemetry.scan import check_log, scan_log
+from rgtbus.telemetry.scan import scan_log
 
 ROOT = Path(__file__).resolve().parent.parent.parent
 GATE = str(ROOT / "scenarios" / "gate.toml")
@@ -145,8 +146,8 @@ def test_info_checks_a_clean_log_by_its_crcs_without_scanning(tmp_path, capsys, 
     with check_log(path) as log:
         assert log.raw is None and log.summary is not None and not log.truncated
     scans = []
-    real_scan = scan._scan
-    monkeypatch.setattr(scan, "_scan", lambda *a: scans.append(a) or real_scan(*a))
+    real_scan = log_check._scan
+    monkeypatch.setattr(log_check, "_scan", lambda *a: scans.append(a) or real_scan(*a))
     code, out, err = cli(capsys, "info", path)
     assert code == 0 and "outcome:     gate: open" in out and scans == []
     path.write_bytes(flipped(data, len(data) // 3))  # inside a chunk
