@@ -6,6 +6,7 @@ whatever records hold them (a block cut in two, a record shared by units or one 
 from __future__ import annotations
 
 import copy
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,9 @@ def logs(tmp_path_factory):
     return out
 
 
-def _report(path: Path, monkeypatch, columns: bool):
+def _report(path: Path, monkeypatch, columns: bool, equal: bool = False):
+    """``verify``'s report of a log, the hot topics compared as columns (or as rows), with
+    (``equal``) or without the messages that are the same byte for byte left out first."""
     taken = []
 
     def spy(compare, *args):
@@ -41,8 +44,11 @@ def _report(path: Path, monkeypatch, columns: bool):
         return got
 
     monkeypatch.setattr(verify_module, "_same", spy)
+    if not equal:
+        monkeypatch.setattr(verify_module, "equal_messages", lambda *a: (set(), set(), Counter()))
     replay = load_replay(path)
     report = verify(replay, rerun_replay(replay), check_reasoning(replay))
+    monkeypatch.undo()
     return report, taken
 
 
@@ -51,9 +57,36 @@ def test_a_log_that_agrees_verifies_as_columns_with_the_counts_of_rows(logs, nam
     by_columns, taken = _report(logs[name], monkeypatch, columns=True)
     assert taken and all(n is not None for n in taken)  # no row built for decodes and spikes
     by_rows, _ = _report(logs[name], monkeypatch, columns=False)
-    assert by_columns.ok and by_rows.ok
-    assert by_columns.checked == by_rows.checked
-    assert by_columns.verdict() == by_rows.verdict()
+    # what is the same byte for byte is left out first: the counts are those of the rows
+    by_bytes, _ = _report(logs[name], monkeypatch, columns=False, equal=True)
+    assert by_columns.ok and by_rows.ok and by_bytes.ok
+    assert by_columns.checked == by_rows.checked == by_bytes.checked
+    assert by_columns.verdict() == by_rows.verdict() == by_bytes.verdict()
+
+
+def test_only_what_differs_is_compared_field_by_field(logs):
+    """The messages a re-run wrote byte for byte are left out of the field-by-field
+    comparison (never decoded): on a log that agrees, all of them; one decision changed in
+    the re-run, and that one (with its logged twin) is left in, and named."""
+    replay = load_replay(logs["crowd10"])
+    rerun = rerun_replay(replay)
+    leave, keep, same = verify_module.equal_messages(replay, rerun.messages, replay.units)
+    paired = {i for i, m in enumerate(rerun.messages) if m[0] in verify_module._PAIRED}
+    assert len(keep) == len(leave) > 0.9 * len(paired) and same[records.RX_DECODE] == 3600
+    # the rest: the units' last blocks of spikes, which the log holds as one record (its
+    # recorder joins what it held for their time, the re-run's capture does not)
+    assert {rerun.messages[i][0] for i in paired - keep} == {records.RX_SPIKE}
+    i, (topic, t_ns, m) = next(
+        (i, m) for i, m in enumerate(rerun.messages) if m[0] == records.UNIT_DECISION
+    )
+    rerun.messages[i] = (topic, t_ns, {**m, "frustrated": not m["frustrated"]})
+    leave2, keep2, _ = verify_module.equal_messages(replay, rerun.messages, replay.units)
+    assert keep - keep2 == {i} and len(leave - leave2) == 1
+    report = verify(replay, rerun, check_reasoning(replay))
+    assert not report.ok and report.checked[records.UNIT_DECISION] == same[records.UNIT_DECISION]
+    assert [(x.topic, x.field) for x in report.mismatches] == [
+        (records.UNIT_DECISION, f"subject {m['subject']}: frustrated")
+    ]
 
 
 def _decodes(path: Path):

@@ -8,7 +8,7 @@ before ``/unit/report`` (``legacy_report``), and its traces as arrays (``stack_t
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Container, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -69,20 +69,22 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
     def __contains__(self, topic: object) -> bool:
         return topic in self._held
 
-    def each(self, topic: str) -> Iterator[tuple[int, Any]]:
+    def each(
+        self, topic: str, leave: Container[int] = (), at: int = 0
+    ) -> Iterator[tuple[int, Any]]:
         """``topic``'s messages one at a time, decoded (and checked) as ``[topic]`` gives
         them, but none kept decoded: a large run's decodes are read into columns a record at
-        a time (``decode_table``), never all held as Python objects."""
+        a time (``decode_table``), never all held as Python objects. ``leave``: positions
+        (in ``messages()``'s order; this topic's first is ``at``) of messages left out,
+        undecoded."""
         held = self._held.get(topic, [])
-        if topic not in self._raw:
-            yield from held
-            return
         check = topic in self.current
-        for t, m in held:
-            yield (
-                t,
-                untrusted.message(topic, t, m, self.label, check) if isinstance(m, bytes) else m,
-            )
+        for k, (t, m) in enumerate(held, at):
+            if k in leave:
+                continue
+            if isinstance(m, bytes) and topic in self._raw:
+                m = untrusted.message(topic, t, m, self.label, check)
+            yield t, m
 
     def count(self, topic: str) -> int:
         """How many messages ``topic`` holds (nothing decoded)."""

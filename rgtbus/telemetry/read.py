@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import os
 from collections import defaultdict
-from collections.abc import Iterator, Mapping
+from collections.abc import Container, Iterator, Mapping
 from dataclasses import asdict
 from typing import IO, Any, cast
 
@@ -217,14 +217,17 @@ class Replay:
         asked for): what ``explained`` looks through once reading has failed."""
         return self.by_topic.messages()
 
-    def every_message(self) -> Iterator[tuple[str, int, Any]]:
+    def every_message(self, leave: Container[int] = ()) -> Iterator[tuple[str, int, Any]]:
         """Every message of the log as ``(topic, log_time, message)``, decoded (traces
         excepted: JSON bytes), topic by topic in log-time order: those read when the log was
         opened, then those left in the file until now. Decoded as they go (``Topics.each``):
-        what the caller keeps is up to it."""
+        what the caller keeps is up to it. ``leave``: the positions, in ``messages()``'s
+        order, of messages the caller has no use for (never decoded)."""
+        at = 0
         for topic in self.by_topic:  # none kept decoded: a large run's spikes and decodes
-            for t, m in self.by_topic.each(topic):  # as Python lists are gigabytes
+            for t, m in self.by_topic.each(topic, leave, at):  # as Python lists are gigabytes
                 yield topic, t, m
+            at += self.by_topic.count(topic)
         if self.deferred is not None:
             for topic in self.deferred.held():
                 for t, m in self.deferred.read(topic):

@@ -11,7 +11,7 @@ import itertools
 import json
 import math
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, cast
 
@@ -22,7 +22,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, TRACE, decode_record
-from rgtbus.telemetry.message_json import encode_json
+from rgtbus.telemetry.message_json import encode_json, message_bytes
 from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.read import Replay
@@ -290,6 +290,63 @@ def _pair_mismatches(
     ]
 
 
+# the topics a message of which is compared whole: one pair a message (``_KEYS``), and the
+# blocks, counted as the rows the comparison pairs (``_compared``)
+_PAIRED = frozenset(_KEYS) | {r.RX_DECODES}
+
+
+def equal_messages(
+    replay: Replay, recomputed: Sequence[LogMessage], units: Sequence[str]
+) -> tuple[set[int], set[int], Counter[str]]:
+    """The messages of a whole log that a re-run wrote byte for byte (topic, log time and
+    bytes as the recorder writes them), paired in order: their positions in the log
+    (``Replay.messages``' order) and in ``recomputed``, and how many records they hold, as
+    ``diff_messages`` counts what it compares. What is the same needs no decoding, no
+    schema and no rows: only what is left is compared field by field (a healthy log's
+    messages are all the same: group50's 19,663, 3.1 M records)."""
+    wanted: dict[tuple[str, int, bytes], list[int]] = {}
+    for i, (topic, t, m) in enumerate(recomputed):
+        if topic in _PAIRED:
+            wanted.setdefault((topic, t, message_bytes(topic, m)), []).append(i)
+    for waiting in wanted.values():
+        waiting.reverse()  # popped in order
+    names = frozenset(units)
+    leave: set[int] = set()
+    keep: set[int] = set()
+    same: Counter[str] = Counter()
+    for k, (topic, t, m) in enumerate(replay.messages()):
+        if topic not in _PAIRED:
+            continue
+        data = m if isinstance(m, bytes) else message_bytes(topic, m)
+        twins = wanted.get((topic, t, data))
+        if not twins:
+            continue
+        i = twins.pop()
+        leave.add(k)
+        keep.add(i)
+        counted, n = _compared(topic, recomputed[i][2], names)
+        same[counted] += n
+    return leave, keep, same
+
+
+def _compared(topic: str, m: Mapping[str, Any], units: frozenset[str]) -> tuple[str, int]:
+    """How many records ``diff_messages`` compares for message ``m`` (as recorded), and
+    under which topic it counts them: a pulse a row, a decode a row a unit, spikes one
+    record a unit and sample, a unit's log line one (another writer's lines are not
+    compared), any other message one."""
+    if topic == r.TX_PULSE:
+        return topic, len(m["sample"])
+    if topic == r.RX_DECODES:
+        return r.RX_DECODE, len(m["times"]) * len(r.decode_units(m))
+    if topic == r.RX_SPIKE:
+        samples = np.asarray(m["samples"])
+        per_sample = int(np.count_nonzero(samples[1:] != samples[:-1])) + bool(samples.size)
+        return topic, per_sample * len(r.spike_units(m))
+    if topic == r.LOG:
+        return topic, int(m.get("name") in units)
+    return topic, 1
+
+
 def diff_messages(
     logged: Iterable[LogMessage],
     recomputed: Iterable[LogMessage],
@@ -516,9 +573,15 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         until_ns = replay.units_until_ns() or 0
         until = seconds(until_ns)
     mismatches += check_medium(replay, until_ns)
+    logged, recomputed, same = replay.every_message(), rerun.messages, Counter[str]()
+    if until_ns is None:  # a whole log: what is the same, byte for byte, is left out first
+        leave, keep, same = equal_messages(replay, rerun.messages, sc.units)
+        logged = replay.every_message(leave)
+        recomputed = [m for i, m in enumerate(rerun.messages) if i not in keep]
     diffs, checked = diff_messages(
-        replay.every_message(), rerun.messages, sc.units, until_ns=until_ns, tau=sc.timing.tau
+        logged, recomputed, sc.units, until_ns=until_ns, tau=sc.timing.tau
     )
+    checked.update(same)
     mismatches += diffs
     mismatches += list(checks)
     checked[r.MEDIUM] = replay.windows
