@@ -125,6 +125,27 @@ class DecodeArrays(Protocol):
     def arrays(self) -> tuple[np.ndarray, np.ndarray, Sequence[tuple[str, str, str]]]: ...
 
 
+class HeldDecodes:
+    """Decodes held as columns already (``DecodeArrays``): each one's turn, and the index
+    of its (kind, addressee, code) in ``rows`` (a slice of a unit's, or a unit's decodes
+    read from a log's columns)."""
+
+    def __init__(self, turns: np.ndarray, what: np.ndarray, rows: Sequence[tuple[str, str, str]]):
+        self._arrays = (turns, what, rows)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, Sequence[tuple[str, str, str]]]:
+        return self._arrays
+
+    def __len__(self) -> int:
+        return len(self._arrays[0])
+
+    def __iter__(self) -> Iterator[list[Any]]:
+        """Each decode as a row: ``[turn, kind, addressee, code]``."""
+        turns, what, rows = self._arrays
+        for turn, w in zip(turns.tolist(), what.tolist(), strict=True):
+            yield [turn, *rows[w]]
+
+
 class SentTruth:
     """What was sent, per (turn, "id" | "payload"): (addressee, code), the ground truth of
     decode errors. Built once a run; its arrays (by turn) once, on first use by columns."""

@@ -183,6 +183,30 @@ def test_summary_round_trip_and_clean_verify(name):
     assert report.checked["/rx/decode"] > 0 and report.checked["/unit/decision"] > 0
 
 
+@pytest.mark.parametrize("name", ["gate_repair", "crowd10"])
+def test_the_summary_reads_each_units_decodes_as_columns(name):
+    """What the summary judges decode errors on, read from the blocks as columns
+    (``HeldDecodes``: no Python object per decode), holds each unit's decodes in the order
+    and with the values of the rows (by time, stable as logged), and gives the run's
+    decode errors."""
+    from rgtbus.summary import HeldDecodes
+
+    data, summary_json = _run(name)
+    rp = load_replay(io.BytesIO(data))
+    held = rp._unit_decodes()
+    assert set(held) == set(rp.units) and all(type(h) is HeldDecodes for h in held.values())
+    rows: dict[str, list[tuple[int, list]]] = {}
+    for t, d in rp._each_decode():
+        row = [d["turn"], d["kind"], d["addressee"], d["code"]]
+        rows.setdefault(d["unit"], []).append((t, row))
+    for unit, got in held.items():
+        want = [row for _, row in sorted(rows[unit], key=lambda r: r[0])]
+        assert list(got) == want and len(got) == len(want)
+    summary = json.loads(summary_json)
+    assert rp.summary()["decode_errors"] == summary["decode_errors"]
+    assert (len(summary["decode_errors"]) > 0) == (name == "gate_repair")
+
+
 def test_rerun_summary_equals_the_runs_own():
     data, summary_json = _run("example2")
     rp = load_replay(io.BytesIO(data))

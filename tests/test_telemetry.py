@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import orjson
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -1166,3 +1167,28 @@ def test_records_held_until_the_run_passes_them_go_out_in_time_order(kind):
         spikes = [decode_record(SPIKE, m, "test") for m in spikes]
     assert [s.get("units") or s.get("unit") for s in spikes] == [["a", "b"], "c"]
     assert rec.counts["/rx/spike"] == 2
+
+
+def test_large_tables_units_hold_alike_are_checked_once_and_held_once():
+    """A reader decoding a topic keeps the large tables its messages hold alike once (the n²
+    pairs every unit installed), each message still checked whole: one that breaks its
+    schema elsewhere, or holds another table, is refused as before."""
+    from rgtbus.telemetry import records
+    from rgtbus.telemetry.topics import SharedTables, checked_message
+
+    sent = {f"u{i}>u{j}": "alliance" for i in range(9) for j in range(9) if i != j}
+    pairs = {f"u{i}-u{j}": "alliance" for i in range(12) for j in range(i + 1, 12)}
+    tables = SharedTables()
+
+    def read(record):
+        data = orjson.dumps(record)
+        return checked_message(records.UNIT_RELATIONS, 5, data, "<log>", True, tables)
+
+    a = read(records.relations("u0", 1.0, sent, pairs, "u0*u1", None))
+    b = read(records.relations("u1", 2.0, dict(sent), dict(pairs), "u0*u1", None))
+    assert b["installed"] is a["installed"] and b["sent"] is a["sent"] and b["unit"] == "u1"
+    with pytest.raises(RgtbusError, match=r"polynomial"):
+        read({**records.relations("u2", 3.0, sent, pairs, None, None), "polynomial": 5})
+    other = {**pairs, "u0-u1": "maybe"}
+    with pytest.raises(RgtbusError, match=r"installed"):
+        read(records.relations("u3", 4.0, sent, other, None, None))

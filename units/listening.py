@@ -36,7 +36,7 @@ from rgtbus.signal.decoder import (
     nearest_many_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
-from rgtbus.summary import SentTruth, decode_error, wrong_decodes
+from rgtbus.summary import HeldDecodes, SentTruth, decode_error, wrong_decodes
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
 from rgtbus.timebase import samples_of
@@ -181,7 +181,7 @@ class DecodeColumns:
         out: list[dict[str, Any]] = []
         done = 0  # rows judged so far
         for rows_before, reads, a, b, w0 in self._runs:
-            part = _HeldRows(turns[done:rows_before], what[done:rows_before], self._rows)
+            part = HeldDecodes(turns[done:rows_before], what[done:rows_before], self._rows)
             out += wrong_decodes(unit, part, truth)
             done = rows_before
             judged, addressed, sent_word, where = _queue_truth(reads, truth)
@@ -197,7 +197,7 @@ class DecodeColumns:
                         truth.sent[(turn, "payload")][1],
                     )
                 )  # fmt: skip
-        out += wrong_decodes(unit, _HeldRows(turns[done:], what[done:], self._rows), truth)
+        out += wrong_decodes(unit, HeldDecodes(turns[done:], what[done:], self._rows), truth)
         return out
 
     def __iter__(self) -> Iterator[DecodedRow]:
@@ -223,16 +223,6 @@ def _decodes_of_rows(
     out._what.frombytes(index.astype(dtype).tobytes())
     out._ids_read_right = ids_read_right
     return out
-
-
-class _HeldRows:
-    """A slice of a unit's rows, as ``rgtbus.summary.wrong_decodes`` judges columns."""
-
-    def __init__(self, turns: np.ndarray, what: np.ndarray, rows: list[tuple[str, str, str]]):
-        self._arrays = (turns, what, rows)
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
-        return self._arrays
 
 
 def _queue_truth(

@@ -81,6 +81,10 @@ class DecodeTable:
     names: list[str] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
     codes: list[str] = field(default_factory=list)
+    # a table of each record's rows once (``decode_table(..., once=True)``): each row's
+    # record, and each record's units (indexes into ``names``); ``unit`` is then its first
+    record: np.ndarray | None = None
+    holders: list[list[int]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -90,16 +94,19 @@ _NUMBER_COLUMNS = {"turn": np.int64, "margin": np.float64, "times": np.float64}
 
 
 def decode_table(
-    records: Iterable[tuple[int, Mapping[str, Any]]], units: Sequence[str] = ()
+    records: Iterable[tuple[int, Mapping[str, Any]]], units: Sequence[str] = (), once: bool = False
 ) -> DecodeTable:
     """The decodes of ``records`` (``/rx/decodes`` messages as read: ``(log_time, record)``,
     each checked against its schema) as one ``DecodeTable``, each unit's of a record of
     several units' (``units``) rows of its own; in order of time, then unit (as ``units``
-    orders them; others by name), then as logged. A record whose columns differ in length
-    or whose index lies outside its table: RgtbusError naming the unit, the record's time
-    and the column."""
+    orders them; others by name), then as logged. ``once``: a record's rows once, whatever
+    units it names (``DecodeTable.record``, ``holders``), in order of time, then as logged:
+    a 100-unit run's 39,600 distinct decodes rather than 3.96 M. A record whose columns
+    differ in length or whose index lies outside its table: RgtbusError naming the unit,
+    the record's time and the column."""
     tables = {"names": _Names(), "kinds": _Names(), "codes": _Names()}
-    parts: dict[str, list[np.ndarray]] = {c: [] for c in (*_COLUMNS, "unit")}
+    parts: dict[str, list[np.ndarray]] = {c: [] for c in (*_COLUMNS, "unit", "record")}
+    holders: list[list[int]] = []
     for t_ns, record in records:
         if not isinstance(record, Mapping):
             raise RgtbusError(f"{RX_DECODES} at log time {t_ns} ns: not an object")
@@ -122,10 +129,15 @@ def decode_table(
             raise RgtbusError(f"{where}: column 'accepted' holds other than true and false")
         for column, table_name in NAMED_COLUMNS.items():
             parts[column].append(_named(record, column, table_name, tables[table_name], where))
+        of = [tables["names"].of(u) for u in whose]
+        if once:
+            parts["unit"].append(np.full(n, of[0], dtype=np.int32))
+            parts["record"].append(np.full(n, len(holders), dtype=np.int32))
+            holders.append(of)
+            continue
         if len(whose) > 1:  # the same rows, once a unit
             for column in _COLUMNS:
                 parts[column][-1] = np.tile(parts[column][-1], len(whose))
-        of = [tables["names"].of(u) for u in whose]
         parts["unit"].append(np.repeat(np.asarray(of, dtype=np.int32), n))
     cols = {c: np.concatenate(p) if p else np.empty(0, _dtype(c)) for c, p in parts.items()}
     # in log-time order, as Replay.decode_records sorts the rows: by integer ns, then unit,
@@ -134,7 +146,8 @@ def decode_table(
     first = {u: i for i, u in enumerate(units)}
     by_name = {u: len(first) + i for i, u in enumerate(sorted(set(names) - set(first)))}
     rank = np.asarray([first.get(u, by_name.get(u, 0)) for u in names] or [0], dtype=np.int64)
-    order = np.lexsort((rank[cols["unit"]], np.rint(cols["times"] * 1e9).astype(np.int64)))
+    at_ns = np.rint(cols["times"] * 1e9).astype(np.int64)
+    order = np.argsort(at_ns, kind="stable") if once else np.lexsort((rank[cols["unit"]], at_ns))
     return DecodeTable(
         unit=cols["unit"][order],
         t=cols["times"][order],
@@ -149,6 +162,8 @@ def decode_table(
         names=tables["names"].names,
         kinds=tables["kinds"].names,
         codes=tables["codes"].names,
+        record=cols["record"][order] if once else None,
+        holders=holders,
     )
 
 

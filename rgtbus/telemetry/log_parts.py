@@ -56,7 +56,10 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
             return []
         if topic in self._raw:
             check = topic in self.current
-            held[:] = [(t, untrusted.message(topic, t, m, self.label, check)) for t, m in held]
+            tables = topics.SharedTables()  # a table the units hold alike: checked once
+            held[:] = [
+                (t, untrusted.message(topic, t, m, self.label, check, tables)) for t, m in held
+            ]
             self._raw.discard(topic)
         return held
 

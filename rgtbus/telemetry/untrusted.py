@@ -69,13 +69,20 @@ def text_depth(data: bytes) -> int:
     return int(np.cumsum(step).max(initial=0))
 
 
-def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) -> Any:
+def message(
+    topic: str,
+    t_ns: int,
+    data: Any,
+    label: str,
+    check: bool = True,
+    tables: topics.SharedTables | None = None,
+) -> Any:
     """A message as a reader may use it: decoded and, with ``check``, checked against its
     topic's schema (``topics.checked_message``), and no deeper than ``MAX_DEPTH``. Not JSON,
     breaking its schema or nesting deeper: RgtbusError naming the log, topic and log time.
     A hot topic's block nests nothing: it is decoded and checked as it is read."""
     if schema_of(topic) is not None:
-        return topics.checked_message(topic, t_ns, data, label, check)
+        return topics.checked_message(topic, t_ns, data, label, check, tables)
     if isinstance(data, bytes | bytearray | memoryview):
         data = bytes(data)
         # no JSON nests deeper than it has brackets: most messages need no count
@@ -95,7 +102,7 @@ def message(topic: str, t_ns: int, data: Any, label: str, check: bool = True) ->
             where = printable(f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s")
             raise RgtbusError(f"{where} {why}")
         data = decoded
-    return topics.checked_message(topic, t_ns, data, label, check)
+    return topics.checked_message(topic, t_ns, data, label, check, tables)
 
 
 # Unicode's bidi controls (U+202A-U+202E, U+2066-U+2069) are format characters (Cf), as are
