@@ -1,6 +1,6 @@
 """Reading a log in bounded memory: ``rgtbus.open_log`` against reading every message.
 
-    python -m benchmarks.bench_open_log [--big] [--repeat N]
+    python -m benchmarks.bench_open_log [--big] [--scale N] [--repeat N]
 
 Each case's log is written once (memory bus, zstd MCAP). Every measurement runs in a fresh
 Python process (its peak RSS is ``ru_maxrss``, imports included), the baselines in the same
@@ -11,14 +11,18 @@ expanded every spike and decode into a row object: 6.3 GB for the 3.5 MB group50
 ``open_log`` alone, ``open_log`` + ``summary()``, + one unit's traces as a DataFrame
 (``messages("/trace/<unit>")``), + ``spikes()``, + ``decodes()`` (built as columns since
 issue 51: 890 MB for group50, as row objects, before). Goal (issue 35): a log opens in under
-2x its size; a topic's frame costs about its own size. ``--big``: the traced group20 log of
-the issue (~330 MB; about 20 s to write).
+2x its size; a topic's frame costs about its own size; issue 51: 100 MB/s or more, in at most
+its own size of memory (``rgtbus`` imported is the ``imports`` step: what every step pays
+before it reads a byte). ``--big``: the traced group20 log (~104 MB in format 2; about 20 s to
+write). ``--scale N``: an N-unit concurrent run's log (``bench_scale``'s group): its n²
+tables and n³ decodes are what ``summary()`` reads.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import subprocess
 import sys
@@ -28,6 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 STEPS = {
+    "imports": "pass",
     "mcap reader": (
         "from mcap.reader import make_reader\n"
         "with open(path, 'rb') as f:\n"
@@ -48,14 +53,37 @@ path, trace = sys.argv[1], sys.argv[2]
 t0 = time.perf_counter()
 {step}
 wall = time.perf_counter() - t0
-print(json.dumps({{"wall": wall, "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}}))
+print(json.dumps({{"wall": wall, "rss": peak_kib()}}))
+"""
+
+# The child's own peak (KiB): Linux's VmHWM, which exec resets; ru_maxrss keeps the peak of the
+# process before its exec, which is the parent's size when it forked (the parent writes the
+# logs, so every step read as at least its size).
+_PEAK = """
+def peak_kib():
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 """
 
 
 def write_log(scenario: str, traces: bool, path: Path) -> None:
     import rgtbus
 
-    result = rgtbus.run(ROOT / "scenarios" / scenario, bus="memory", log=path, traces=traces)
+    if scenario.startswith("scale"):  # an N-unit group of bench_scale's
+        from benchmarks.bench_scale import scale_toml
+        from rgtbus.scenario import parse_scenario
+
+        n = int(scenario.removeprefix("scale"))
+        sc = parse_scenario(scale_toml(n, "concurrent"), f"<scale{n}>")
+        result = rgtbus.run(sc, bus="memory", log=path)
+    else:
+        result = rgtbus.run(ROOT / "scenarios" / scenario, bus="memory", log=path, traces=traces)
     if result.summary["error"]:
         raise SystemExit(f"{scenario} failed: {result.summary['error']}")
 
@@ -68,7 +96,7 @@ def rgtbus_units(path: Path) -> tuple[str, ...]:
 
 def measure(step: str, path: Path, trace: str) -> tuple[float, float]:
     """(wall seconds, peak RSS in MiB) of ``step`` in a fresh process."""
-    code = _CHILD.format(step=STEPS[step])
+    code = _PEAK + _CHILD.format(step=STEPS[step])
     out = subprocess.run(
         [sys.executable, "-c", code, str(path), trace],
         capture_output=True,
@@ -83,11 +111,24 @@ def measure(step: str, path: Path, trace: str) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--big", action="store_true", help="also the traced group20 log (~330 MB)")
+    ap.add_argument("--scale", type=int, default=0, help="also an N-unit concurrent run's log")
     ap.add_argument("--repeat", type=int, default=3, help="median of N runs of each step")
+    ap.add_argument(
+        "--skip", default="", help="steps left out, comma-separated (e.g. read_log,+spikes)"
+    )
     args = ap.parse_args()
+    skip = set(filter(None, args.skip.split(",")))
+    if skip - set(STEPS):
+        bad = sorted(skip - set(STEPS))[0]
+        raise SystemExit(f"--skip: no step {bad!r} (steps: {', '.join(STEPS)})")
+    steps = [s for s in STEPS if s not in skip]
+    if "imports" not in steps:
+        steps.insert(0, "imports")
     cases = [("group6 traced", "group6.toml", True), ("group50", "group50.toml", False)]
     if args.big:
         cases.append(("group20 traced", "group20.toml", True))
+    if args.scale:
+        cases.append((f"{args.scale} units", f"scale{args.scale}", False))
     with tempfile.TemporaryDirectory() as tmp:
         rows = []
         for label, scenario, traces in cases:
@@ -96,7 +137,7 @@ def main() -> None:
             size = path.stat().st_size / 2**20
             trace = "/trace/" + rgtbus_units(path)[0] if traces else "/log"
             got = {}
-            for step in STEPS:
+            for step in steps:
                 runs = [measure(step, path, trace) for _ in range(args.repeat)]
                 got[step] = (
                     statistics.median(w for w, _ in runs),
@@ -106,21 +147,25 @@ def main() -> None:
             print(f"{label}: done", file=sys.stderr)
     print("Peak RSS (MiB, imports included) and wall (s), median of", args.repeat, "runs")
     head = (
-        f"{'case':<16}{'file MiB':>9}" + "".join(f"{s:>18}" for s in STEPS) + f"{'open/read':>10}"
+        f"{'case':<16}{'file MiB':>9}" + "".join(f"{s:>18}" for s in steps) + f"{'open/read':>10}"
     )
     print(head)
     print("-" * len(head))
     for label, size, got in rows:
-        cells = "".join(f"{got[s][1]:>9.0f} /{got[s][0]:>6.2f}s" for s in STEPS)
-        ratio = got["open_log"][1] / got["read_log"][1]
+        cells = "".join(f"{got[s][1]:>9.0f} /{got[s][0]:>6.2f}s" for s in steps)
+        ratio = got["open_log"][1] / got["read_log"][1] if "read_log" in got else math.nan
         print(f"{label:<16}{size:>9.1f}{cells}{ratio:>10.2f}")
     print()
-    print("Read rate, MB of file a second (median wall)")
+    print("Read rate (MB of file a second, median wall) and memory over the imports' (MiB)")
     for label, size, got in rows:
-        rates = ", ".join(
-            f"{s} {size * 2**20 / 1e6 / got[s][0]:.1f}" for s in ("mcap reader", "open_log")
+        mb = size * 2**20 / 1e6
+        base = got["imports"][1]
+        cells = ", ".join(
+            f"{s} {mb / got[s][0]:.1f} MB/s +{got[s][1] - base:.0f} MiB"
+            for s in ("mcap reader", "open_log", "+summary")
+            if s in got
         )
-        print(f"{label:<16}{rates}")
+        print(f"{label:<16}{cells}")
     print()
     print(
         "read_log: every message decoded (the baseline); "
