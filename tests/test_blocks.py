@@ -13,6 +13,7 @@ from google.protobuf import json_format
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import blocks, pulse_blocks, records
 from rgtbus.telemetry.codec import encode
+from rgtbus.telemetry.record_rows import decode_rows
 from tests.test_codec import library_class
 
 TAU = 1e-3
@@ -67,8 +68,8 @@ def test_a_pulse_block_is_canonical_whatever_order_its_pulses_came_in() -> None:
 def test_decodes_spikes_medium_and_trace_round_trip() -> None:
     decodes = _decodes()
     back = blocks.decode_record(blocks.DECODE, blocks.encode_record(blocks.DECODE, decodes), "t")
-    assert [dict(r) for r in records.decode_rows(back)] == [
-        dict(r) for r in records.decode_rows(decodes)
+    assert [dict(r) for r in decode_rows(back)] == [
+        dict(r) for r in decode_rows(decodes)
     ]
     spikes = records.spikes(["b", "a"], TAU, np.array([3, 3, 7]), np.array([0, 1, 0]), ["x", "y"])
     back = blocks.decode_record(blocks.SPIKE, blocks.encode_record(blocks.SPIKE, spikes), "t")

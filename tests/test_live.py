@@ -23,7 +23,8 @@ from rgtbus.errors import RgtbusError
 from rgtbus.telemetry.blocks import DECODE, PULSE, TRACE, decode_record, encode_record
 from rgtbus.telemetry.live import LiveView, parse_address
 from rgtbus.telemetry.pulse_blocks import pulse_rows
-from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, TX_PULSE, decode_rows
+from rgtbus.telemetry.record_rows import decode_rows
+from rgtbus.telemetry.records import RX_DECODE, RX_DECODES, TX_PULSE
 from rgtbus.timebase import ns
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -12,8 +12,8 @@ from mcap.reader import make_reader
 from same_run import plain, read_message
 
 from rgtbus.cli import main
-from rgtbus.telemetry import records
 from rgtbus.telemetry.logtools import with_seed_text
+from rgtbus.telemetry.record_rows import decode_rows, decode_units, each_unit_spikes
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -91,7 +91,7 @@ def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     times = [
         t
         for topic, t, m in _messages(gate_log)
-        if topic == "/rx/decodes" and "b" in records.decode_units(m)
+        if topic == "/rx/decodes" and "b" in decode_units(m)
     ]
     assert len(times) >= 3
     lo, hi = times[0] + 1_000_000, times[-1] - 1_000_000  # ns
@@ -101,7 +101,7 @@ def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     want = [  # a record b shares with others: shown as b's own
         (t, {"unit": "b", **{k: v for k, v in m.items() if k not in ("unit", "units")}})
         for topic, t, m in _messages(gate_log)
-        if topic == "/rx/decodes" and "b" in records.decode_units(m) and lo <= t <= hi
+        if topic == "/rx/decodes" and "b" in decode_units(m) and lo <= t <= hi
     ]
     assert [(x["log_time"], x["message"]) for x in lines] == want
     assert 0 < len(want) == len(times) - 2
@@ -110,7 +110,7 @@ def test_cat_filters_by_topic_unit_and_time(gate_log, capsys):
     assert main([*args, "--to", str(hi / 1e9)]) == 0
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     every = [dict(r) for topic, _, m in _messages(gate_log) if topic == "/rx/decodes"
-             for r in records.decode_rows(m)]  # fmt: skip
+             for r in decode_rows(m)]  # fmt: skip
     mine = [r for r in every if r["unit"] == "b" and lo <= round(r["t"] * 1e9) <= hi]
     assert [x["message"] for x in lines] == sorted(mine, key=lambda r: r["t"]) != []
     assert all(x["log_time"] == round(x["message"]["t"] * 1e9) for x in lines)
@@ -280,7 +280,6 @@ def test_router_units_and_merge_by_hand_is_a_finished_run(tmp_path, capsys, proc
 def test_cat_of_one_unit_shows_the_spike_records_it_shares_as_its_own(gate_log, capsys):
     """The units of a process that heard the same spikes share one /rx/spike record: cat
     --unit shows each as that unit's own (``unit``, no ``units``), every spike of it once."""
-    from rgtbus.telemetry.records import each_unit_spikes
 
     capsys.readouterr()
     shared = [(t, m) for topic, t, m in _messages(gate_log) if topic == "/rx/spike"]

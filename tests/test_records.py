@@ -5,7 +5,9 @@ TypedDicts name the schemas' fields."""
 from __future__ import annotations
 
 from rgtbus.telemetry import blocks, pulse_blocks, records, topics
+from rgtbus.telemetry.record_rows import decode_rows
 from rgtbus.telemetry.recorder import MemoryRecorder
+from rgtbus.telemetry.scene import scene_update
 
 
 def built() -> dict[str, dict]:
@@ -78,7 +80,7 @@ def built() -> dict[str, dict]:
             "done_at": None,
             "mind_error": None,
         },
-        "/scene": records.scene_update(
+        "/scene": scene_update(
             "b", 9.0, {"a": [0.0, 0.0], "b": [2.0, 0.0, 1.0]}, {"a-b": "conflict"}
         ),
         "/run": records.run_record(
@@ -126,7 +128,7 @@ def test_a_decodes_record_reads_back_as_the_records_of_one_decode_each():
     rec.write("/rx/decodes", records.decodes("b", rows), 2_500_000_000)
     ((_, t_ns, back),) = rec.messages
     assert t_ns == 2_500_000_000 and back["t"] == 2.5  # the last decode's time
-    assert list(records.decode_rows(back)) == [records.decode("b", *row) for row in rows]
+    assert list(decode_rows(back)) == [records.decode("b", *row) for row in rows]
 
 
 def test_a_decodes_record_of_indexes_reads_back_as_names():
@@ -152,7 +154,7 @@ def test_a_decodes_record_of_indexes_reads_back_as_names():
     rec.write("/rx/decodes", records.decodes_of_columns("b", cols, tables), 2_500_000_000)
     ((_, _, back),) = rec.messages
     assert back["names"] == ["a", "b", "c"] and back["sender"].tolist() == [0, 0]
-    assert list(records.decode_rows(back)) == [records.decode("b", *row) for row in rows]
+    assert list(decode_rows(back)) == [records.decode("b", *row) for row in rows]
     for change, says in (
         ({"code": [1, 2]}, "code 2 is no index into its 2 codes"),
         ({"sender": [0, -1]}, "sender -1 is no index into its 3 names"),
@@ -161,7 +163,7 @@ def test_a_decodes_record_of_indexes_reads_back_as_names():
         ({"names": None}, "'names' is not a list of names"),
     ):
         with pytest.raises(RgtbusError, match="/rx/decodes of 'b' at t = 2.5: " + says):
-            list(records.decode_rows({**back, **change}))
+            list(decode_rows({**back, **change}))
 
 
 def test_a_damaged_decodes_record_is_named():
@@ -183,7 +185,7 @@ def test_a_damaged_decodes_record_is_named():
         else:
             bad[column] = value  # type: ignore[literal-required]
         with pytest.raises(RgtbusError, match="/rx/decodes of 'b' at t = 1.25: " + says):
-            list(records.decode_rows(bad))
+            list(decode_rows(bad))
     with pytest.raises(RgtbusError, match="no decode to log"):
         records.decodes("b", [])
 

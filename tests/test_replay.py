@@ -29,7 +29,7 @@ from rgtbus.telemetry.codec import encode
 from rgtbus.telemetry.convert import convert_log
 from rgtbus.telemetry.plots import DPI, activity_figure, figure_size
 from rgtbus.telemetry.read import load_replay
-from rgtbus.telemetry.records import each_unit_spikes, spike_samples, spike_units
+from rgtbus.telemetry.record_rows import decode_rows, each_unit_spikes, spike_samples, spike_units
 from rgtbus.telemetry.scan import scan_log
 from rgtbus.telemetry.verify import EXIT_TRUNCATED
 from rgtbus.telemetry.version import FORMAT_RECORD
@@ -813,7 +813,7 @@ def test_a_format1_log_of_one_decode_record_a_decode_converted_verifies(tmp_path
     rgtbus.run("random_group", bus="memory", log=new)
 
     def per_decode(t_ns, m):
-        return [("/rx/decode", round(row["t"] * 1e9), row) for row in records.decode_rows(m)]
+        return [("/rx/decode", round(row["t"] * 1e9), row) for row in decode_rows(m)]
 
     old = write(tmp_path, as_format1(new.read_bytes(), decodes=per_decode), "old.mcap")
     refused_as_format1(capsys, old)

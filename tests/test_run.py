@@ -24,6 +24,7 @@ from rgtbus.telemetry import McapRecorder, MemoryRecorder, NullRecorder, read_lo
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, decode_record, schema_of
 from rgtbus.telemetry.message_json import message_bytes
 from rgtbus.telemetry.pulse_blocks import pulse_rows
+from rgtbus.telemetry.record_rows import decode_rows, decode_units
 
 ROOT = Path(__file__).parent.parent
 PAPER = ["overview", "example1", "example2", "gate"]
@@ -454,8 +455,8 @@ def test_decode_records_hold_a_block_of_time_each(name):
         got = [
             (r["turn"], r["kind"], r["addressee"], r["code"])
             for m in blocks
-            if unit.name in records.decode_units(m)
-            for r in records.decode_rows(m)
+            if unit.name in decode_units(m)
+            for r in decode_rows(m)
             if r["unit"] == unit.name
         ]
         # the columns hold every decode but the IDs read as the ID, which they only count
@@ -463,7 +464,7 @@ def test_decode_records_hold_a_block_of_time_each(name):
         assert len(got) == len(unit.decoded) and any(r[1::2] == ("id", "id") for r in got)
     tables = {u.name: u.listening.log_tables for u in out.units}
     for m in blocks:
-        for u in records.decode_units(m):
+        for u in decode_units(m):
             assert (m["names"], m["kinds"], m["codes"]) == tuple(map(list, tables[u]))
     # the decodes units made alike: one record naming them (the serial runs' units decode
     # their own sends differently from the others: some records name one unit)
@@ -492,7 +493,7 @@ def test_single_decodes_join_a_batch_as_its_indexes():
 
     def read(*args: Any) -> list[Any]:  # as a reader of the log gets it
         data = message_bytes(records.RX_DECODES, records.decodes_of_columns("x", *args))
-        return list(records.decode_rows(_block(data)))
+        return list(decode_rows(_block(data)))
 
     got = read(indexed, tables)
     assert got == read(part) and len(got) == 2
@@ -543,7 +544,7 @@ def test_a_block_makes_one_record_however_its_decodes_were_taken():
     odd = named._replace(code=["conflict", "?"])
     assert _block(record(odd, None, own))["codes"] == ["?", "conflict"]
     for part, tables in ((named, None), (batch, own)):  # every decode reads back as it was
-        rows_back = list(records.decode_rows(_block(record(part, tables, own))))
+        rows_back = list(decode_rows(_block(record(part, tables, own))))
         assert [(r["sender"], r["code"], r["margin"]) for r in rows_back] == [
             ("a", "conflict", 0.25), ("c", "id", 0.5),
         ]  # fmt: skip

@@ -23,6 +23,7 @@ from same_run import plain
 
 from rgtbus.scenario import load_scenario, parse_scenario
 from rgtbus.telemetry import McapRecorder, read_log, records, topics
+from rgtbus.telemetry.scene import RELATION_COLOURS, SCENE_FRAME, scene_update
 from rgtbus.telemetry.validate import errors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,7 +111,7 @@ def test_every_scene_message_is_foxgloves_own_scene_update(name):
 
 
 def test_the_official_schema_refuses_what_is_not_in_it():
-    message = records.scene_update("a", 1.0, {"a": [0, 0], "b": [1, 0]}, {"a-b": "alliance"})
+    message = scene_update("a", 1.0, {"a": [0, 0], "b": [1, 0]}, {"a-b": "alliance"})
     bad = json.loads(json.dumps(message))
     bad["entities"][0]["spheres"][0]["colour"] = bad["entities"][0]["spheres"][0].pop("color")
     with pytest.raises(AssertionError):
@@ -147,7 +148,7 @@ def test_each_unit_is_a_sphere_with_its_name_then_its_half_of_each_link(name):
     for unit, entities in by_unit.items():
         last = entities[-1][1]
         for line in last["lines"]:
-            colour = next(k for k, c in records.RELATION_COLOURS.items()
+            colour = next(k for k, c in RELATION_COLOURS.items()
                           if tuple(line["color"].values()) == c)  # fmt: skip
             pts = [(p["x"], p["y"], p["z"]) for p in line["points"]]
             for start, end in zip(pts[::2], pts[1::2], strict=True):
@@ -168,8 +169,8 @@ def _mid(positions: Any, a: str, b: str) -> tuple[float, ...]:
 
 def test_a_pair_held_differently_is_drawn_in_two_colours():
     positions = {"a": [0.0, 0.0], "b": [4.0, 0.0]}
-    a = records.scene_update("a", 2.0, positions, {"a-b": "alliance"})["entities"][0]
-    b = records.scene_update("b", 2.0, positions, {"a-b": "conflict"})["entities"][0]
+    a = scene_update("a", 2.0, positions, {"a-b": "alliance"})["entities"][0]
+    b = scene_update("b", 2.0, positions, {"a-b": "conflict"})["entities"][0]
     (la,), (lb,) = a["lines"], b["lines"]
     assert la["points"] == [{"x": 0.0, "y": 0.0, "z": 0.0}, {"x": 2.0, "y": 0.0, "z": 0.0}]
     assert lb["points"] == [{"x": 4.0, "y": 0.0, "z": 0.0}, {"x": 2.0, "y": 0.0, "z": 0.0}]
@@ -199,7 +200,7 @@ def test_the_shipped_layouts_3d_panel_is_the_sdks_own_config():
             distance=30.0, perspective=False, phi=0.0, target=(0.0, 0.0, 0.0),
             target_offset=(-0.75, 0.75, 0.0), theta_offset=0.0,
         ),
-        follow_tf=records.SCENE_FRAME,
+        follow_tf=SCENE_FRAME,
         follow_mode="follow-none",
     )  # fmt: skip
     panel = json.loads(fl.Layout(content=fl.ThreeDeePanel(config=sdk)).to_json())["content"]

@@ -32,7 +32,9 @@ from rgtbus.telemetry import (
 )
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry import validate as validate_mod
+from rgtbus.telemetry.record_rows import decode_rows
 from rgtbus.telemetry.recorder import LogContents
+from rgtbus.telemetry.scene import scene_update
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 SCHEMA_DIR = Path(topics_mod.__file__).parent / "schemas"
@@ -176,7 +178,7 @@ SAMPLES: dict[str, dict] = {
         "file": "",
         "line": 0,
     },
-    "/scene": records.scene_update(
+    "/scene": scene_update(
         "a", 1.5, {"a": [0.0, 0.0], "b": [3.0, 4.0]}, {"a-b": "alliance"}
     ),
     "/trace/a": {
@@ -250,7 +252,7 @@ def _plain(topic, message):
     if not isinstance(message, dict):
         return message
     if topic == "/rx/decodes":
-        return [dict(r) for r in records.decode_rows(message)]
+        return [dict(r) for r in decode_rows(message)]
     return {k: v.tolist() if hasattr(v, "tolist") else v for k, v in message.items()}
 
 
@@ -1124,7 +1126,6 @@ def test_a_large_message_is_refused_wherever_a_non_finite_number_hides(bad, wher
 
 
 def _spike_block(unit, sample: int) -> dict:
-    from rgtbus.telemetry import records
 
     return records.spikes(unit, 0.005, np.array([sample]), np.array([0]), ["a"])
 
@@ -1135,7 +1136,7 @@ def test_records_held_until_the_run_passes_them_go_out_in_time_order(kind):
     log-time order (then arrival) as it moves on; a record told late goes out at once; blocks
     of spikes of one time that hold the same spikes become one naming their units, as
     ``merge`` joins them; ``close`` writes what is still held. Both recorders alike."""
-    from rgtbus.telemetry import MemoryRecorder, records
+    from rgtbus.telemetry import MemoryRecorder
     from rgtbus.telemetry.blocks import SPIKE, decode_record
     from rgtbus.telemetry.message_json import log_message
 
@@ -1173,7 +1174,6 @@ def test_large_tables_units_hold_alike_are_checked_once_and_held_once():
     """A reader decoding a topic keeps the large tables its messages hold alike once (the n²
     pairs every unit installed), each message still checked whole: one that breaks its
     schema elsewhere, or holds another table, is refused as before."""
-    from rgtbus.telemetry import records
     from rgtbus.telemetry.topics import SharedTables, checked_message
 
     sent = {f"u{i}>u{j}": "alliance" for i in range(9) for j in range(9) if i != j}

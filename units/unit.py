@@ -53,6 +53,7 @@ from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.group_log import GroupLog
+from rgtbus.telemetry.scene import scene_update
 from rgtbus.telemetry.unit_log import UnitLog
 from rgtbus.timebase import ns, sample_of, time_of
 
@@ -600,10 +601,10 @@ class AutonomousUnit:
 
     def _draw(self, t: float, installed: dict[str, str] | None = None) -> None:
         """Its place on ``/scene`` (a spatial scenario's only): its sphere and name, and once it
-        holds its relationship table its half of each link (``records.scene_update``)."""
+        holds its relationship table its half of each link (``scene_update``)."""
         positions = self.scenario.channel.positions
         if self.log.enabled and positions:
-            update = records.scene_update(self.name, t, positions, installed)
+            update = scene_update(self.name, t, positions, installed)
             self.log.write_in_order(records.SCENE, update, t)
 
     def _log_decisions(self, t: float, rnd: int) -> None:

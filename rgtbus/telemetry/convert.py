@@ -27,6 +27,7 @@ from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.mcap_recorder import McapRecorder
+from rgtbus.telemetry.record_rows import spike_samples
 from rgtbus.telemetry.scan import RawLog, _require_run
 from rgtbus.telemetry.unit_log import DecodePart, canonical
 from rgtbus.telemetry.untrusted import depth_error, printable
@@ -85,7 +86,7 @@ def _spike_columns(record: Mapping[str, Any]) -> dict[str, Any]:
     channel: list[int] = []
     names: dict[str, int] = {}
     if "samples" in record:
-        pairs: Iterator[tuple[int, list[str]]] = r.spike_samples(record)
+        pairs: Iterator[tuple[int, list[str]]] = spike_samples(record)
     else:  # one record a sample (the oldest form)
         pairs = iter([(record["sample"], list(record["channels"]))])
     for k, fired in pairs:

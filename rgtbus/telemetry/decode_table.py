@@ -21,7 +21,8 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES, decode_units
+from rgtbus.telemetry.record_rows import decode_units
+from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES
 
 
 class _Names:
@@ -198,7 +199,7 @@ def _is_column(values: Any) -> TypeGuard[list[Any] | np.ndarray]:
 
 def _length(record: Mapping[str, Any], where: str) -> int:
     """The number of decodes in ``record``: the length of its ``times``, which every column
-    must share (the words of ``records.decode_rows``)."""
+    must share (the words of ``decode_rows``)."""
     times = record.get("times")
     n = len(times) if _is_column(times) else -1
     for column in ("times", *_COLUMNS):

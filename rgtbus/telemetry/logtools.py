@@ -35,13 +35,13 @@ from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.blocks import MESSAGE_ENCODING, schema_of
 from rgtbus.telemetry.log_check import CheckedLog, check_log
 from rgtbus.telemetry.pulse_blocks import pulse_rows
+from rgtbus.telemetry.record_rows import decode_rows
 from rgtbus.telemetry.records import (
     LOG,
     RUN,
     RX_DECODES,
     TRACE_PREFIX,
     TX_PULSE,
-    decode_rows,
     is_trace_topic,
     logged_seed,
 )
@@ -506,7 +506,7 @@ def cat_messages(
     naming them and what the log has.
 
     A ``/rx/decodes`` block (a unit's decodes of a block, as columns) is given one decode a
-    message (``records.decode_rows``: what a ``/rx/decode`` holds), and a ``/tx/pulse`` block
+    message (``decode_rows``: what a ``/rx/decode`` holds), and a ``/tx/pulse`` block
     one pulse a message (``pulse_blocks.pulse_rows``), each at its own time and filtered by it;
     ``blocks``: the blocks as stored instead (their columns as lists)."""
     if not isinstance(log, CheckedLog):

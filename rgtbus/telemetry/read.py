@@ -43,6 +43,7 @@ from rgtbus.telemetry.log_parts import (
 )
 from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.pulse_blocks import pulse_rows
+from rgtbus.telemetry.record_rows import decode_rows, decode_units, spike_units
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
     MEDIUM,
@@ -60,12 +61,9 @@ from rgtbus.telemetry.records import (
     PulseRecord,
     RelationsRecord,
     RunRecord,
-    decode_rows,
-    decode_units,
     full_report,
     is_trace_topic,
     logged_seed,
-    spike_units,
     trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log

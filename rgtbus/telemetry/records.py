@@ -10,14 +10,11 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 
 from __future__ import annotations
 
-import functools
-import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
 from rgtbus.errors import RgtbusError
-from rgtbus.pairs import relation_key
-from rgtbus.timebase import NS_PER_SECOND, ns, time_of
+from rgtbus.timebase import time_of
 
 if TYPE_CHECKING:
     import numpy as np
@@ -387,65 +384,6 @@ def spikes(
     return record
 
 
-def spike_units(record: Mapping[str, Any]) -> list[str]:
-    """The units whose spikes a ``/rx/spike`` record holds: its ``units``, or its one
-    ``unit`` (the only form before records were shared)."""
-    units = record.get("units")
-    if units is None:
-        return [record["unit"]]
-    ok = isinstance(units, list) and len(units) >= 2 and "unit" not in record
-    if not ok or not all(isinstance(u, str) for u in units) or len(set(units)) < len(units):
-        # a record written by hand or tampered with: readers name it by its schema
-        raise TypeError(f"{RX_SPIKE} units {units!r}: not two or more unit names alone")
-    names: list[str] = units
-    return names
-
-
-def each_unit_spikes(record: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """A ``/rx/spike`` record as one record a unit: a shared record's spikes once for each of
-    its units (with its ``unit``), any other as it is. How two logs compare whose units kept
-    their spikes in other groups (another engine, another split of units into processes)."""
-    if "units" not in record:
-        return [dict(record)]
-    rest = {k: v for k, v in record.items() if k != "units"}
-    return [{"unit": u, **rest} for u in spike_units(record)]
-
-
-def _spikes_of(record: Mapping[str, Any]) -> str:
-    return f"{RX_SPIKE} of {record.get('unit', record.get('units'))!r}"
-
-
-def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
-    """A block of spikes (``/rx/spike``, as read) one sample at a time: (sample, the names
-    of the channels that fired there, in order). Reads the columns of one entry a spike
-    (``samples``, ``channel`` into ``names``) and the block of logs before them (``samples``
-    and a list of names per sample). A channel index outside ``names``: RgtbusError."""
-    samples = record["samples"]
-    if "names" not in record:
-        yield from zip(samples, record["channels"], strict=True)
-        return
-    names, channel = record["names"], record["channel"]
-    if len(channel) != len(samples):
-        raise RgtbusError(
-            f"{_spikes_of(record)} at sample {record.get('sample')}: "
-            f"{len(samples)} samples but {len(channel)} channels"
-        )
-    i, n = 0, len(samples)
-    while i < n:
-        k = samples[i]
-        fired = []
-        while i < n and samples[i] == k:
-            c = channel[i]
-            if not 0 <= c < len(names):
-                raise RgtbusError(
-                    f"{_spikes_of(record)} at sample {k}: channel {c} is not "
-                    f"one of its {len(names)} names"
-                )
-            fired.append(names[c])
-            i += 1
-        yield k, fired
-
-
 def decode(
     unit: str, turn: int, sender: str, addressee: str, channel: str, kind: str, code: str,
     margin: float, t: float, accepted: bool,
@@ -515,84 +453,6 @@ def decodes_of_columns(
 NAMED_COLUMNS = {"sender": "names", "addressee": "names", "channel": "names", "kind": "kinds",
                  "code": "codes"}  # fmt: skip
 DECODE_TABLES = ("names", "kinds", "codes")  # the order of ``DecodeTables``
-
-
-def _named(unit: str, record: dict[str, Any]) -> None:
-    """A record's columns of indexes (``decodes_of_columns`` with tables) as names, in place;
-    a table that is not a list of names, or an index out of it: RgtbusError naming both."""
-    where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
-    for column, table_name in NAMED_COLUMNS.items():
-        table, col = record.get(table_name), record.get(column)
-        if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
-            raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
-        if not isinstance(col, list):
-            continue  # said below, with the other columns
-        bad = [i for i in col if not (type(i) is int and 0 <= i < len(table))]
-        if bad:
-            raise RgtbusError(
-                f"{where}: {column} {bad[0]!r} is no index into its {len(table)} {table_name}"
-            )
-        record[column] = [table[i] for i in col]
-
-
-def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
-    """The decodes of a ``/rx/decodes`` record (as read) one at a time, each as ``decode``
-    builds it (what a log of one record a decode holds). Columns of unequal length:
-    RgtbusError naming the unit and the column."""
-    units = decode_units(record)
-    unit = units[0]
-    # columns a writer holds as arrays (a record not yet written) read as a log gives them
-    record = {
-        k: v.tolist() if hasattr(v, "tolist") else list(v) if type(v) is tuple else v
-        for k, v in record.items()
-    }
-    if any(t in record for t in DECODE_TABLES):
-        _named(unit, record)
-    times = record.get("times")
-    n = len(times) if isinstance(times, list) else -1
-    for name in ("times", *DECODE_COLUMNS):  # the times first: the others are held to them
-        col = record.get(name)
-        if isinstance(col, list) and len(col) == n:
-            continue
-        got = (
-            "missing"
-            if col is None
-            else f"{len(col)} entries"
-            if isinstance(col, list)
-            else type(col).__name__
-        )
-        want = "a list" if n < 0 else f"{n} entries like times"
-        raise RgtbusError(
-            f"{RX_DECODES} of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
-            f"not {want}"
-        )
-    for unit in units:  # a record of several units' decodes alike: each unit's in turn
-        for turn, sender, addressee, channel, kind, code, margin, t, accepted in zip(
-            *(record[c] for c in DECODE_COLUMNS), strict=True
-        ):
-            yield decode(unit, turn, sender, addressee, channel, kind, code, margin, t, accepted)
-
-
-def decode_units(record: Mapping[str, Any]) -> list[str]:
-    """The units whose decodes a ``/rx/decodes`` record holds: its ``unit``, or its ``units``
-    (two or more names, each once, which each made its decodes alike). Anything else:
-    RgtbusError naming the record."""
-    units = record.get("units")
-    if units is None:
-        return [cast(str, record.get("unit"))]
-    units = list(units) if isinstance(units, list | tuple) else units
-    if (
-        not isinstance(units, list)
-        or len(units) < 2
-        or not all(type(u) is str for u in units)
-        or len(set(units)) < len(units)
-        or "unit" in record
-    ):
-        raise RgtbusError(
-            f"{RX_DECODES} at t = {record.get('t')}: units {units!r}: not two or more unit "
-            "names alone"
-        )
-    return units
 
 
 # a report's fields that a /unit/relations record holds: (report field, relations field)
@@ -715,121 +575,6 @@ def run_record(summary: Mapping[str, Any]) -> RunRecord:
         "sim_seconds": summary["sim_seconds"],
         "error": summary["error"],
     }
-
-
-# -- the scene (foxglove.SceneUpdate) ---------------------------------------------------------
-
-SCENE_FRAME = "world"  # the frame every entity is in: the scenario's positions, in metres
-RELATION_COLOURS: dict[str, tuple[float, float, float, float]] = {
-    "alliance": (0.18, 0.72, 0.35, 1.0),  # green
-    "conflict": (0.86, 0.20, 0.18, 1.0),  # red
-}
-_UNIT_COLOUR = (0.25, 0.47, 0.85, 1.0)
-_LABEL_COLOUR = (1.0, 1.0, 1.0, 1.0)
-
-
-def scene_entity_id(unit: str) -> str:
-    """The id of ``unit``'s entity on ``/scene`` (each update replaces the unit's last)."""
-    return f"unit/{unit}"
-
-
-def _xyz(p: Sequence[float]) -> dict[str, float]:
-    return {"x": float(p[0]), "y": float(p[1]), "z": float(p[2]) if len(p) > 2 else 0.0}
-
-
-def _rgba(c: Sequence[float]) -> dict[str, float]:
-    return {"r": c[0], "g": c[1], "b": c[2], "a": c[3]}
-
-
-def _pose(p: Sequence[float]) -> dict[str, Any]:
-    return {"position": _xyz(p), "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
-
-
-@functools.lru_cache(maxsize=8)
-def _sphere_size(points: tuple[tuple[float, ...], ...]) -> float:
-    """A sphere's diameter: a quarter of the closest two units' distance (every unit finds the
-    same), so no two spheres touch; 0.25 m where units share a place. Worked out once a group
-    (n² distances), not once a message."""
-    gaps = [math.dist(a, b) for i, a in enumerate(points) for b in points[i + 1 :]]
-    closest = min((g for g in gaps if g > 0), default=0.0)
-    return 0.25 * closest if closest > 0 else 0.25
-
-
-def _list3(p: Sequence[float]) -> list[float]:
-    return [float(p[0]), float(p[1]), float(p[2]) if len(p) > 2 else 0.0]
-
-
-def scene_update(
-    unit: str,
-    t: float,
-    positions: Mapping[str, Sequence[float]],
-    installed: Mapping[str, str] | None = None,
-) -> SceneUpdateRecord:
-    """A ``/scene`` message: ``unit``'s entity (id ``scene_entity_id``) at time ``t``, a sphere
-    at its position with its name above it, and, once it holds its relationship table
-    (``installed``, ``{"a-b": "alliance" | "conflict"}``), a line from it to the midpoint
-    towards each other unit, green for an alliance and red for a conflict as *it* holds it: where
-    every unit agrees, each pair's two halves make one line of one colour; a pair drawn in two
-    colours is a pair its two units hold differently. ``positions``: every unit's place in metres
-    (x y, or x y z) in the frame ``SCENE_FRAME``."""
-    here = _list3(positions[unit])
-    size = _sphere_size(tuple(tuple(_list3(p)) for p in positions.values()))
-    halves: dict[str, list[dict[str, float]]] = {kind: [] for kind in RELATION_COLOURS}
-    table = installed or {}
-    mine = []  # its pairs, found by their keys (n lookups, not a pass over the n² pairs)
-    for other in positions:
-        keys = (relation_key(unit, other), relation_key(other, unit))  # either unit first
-        key = next((k for k in keys if k in table), None)
-        if other != unit and key is not None and table[key] in halves:
-            mine.append((key, other))
-    for key, other in sorted(mine):  # in the order of the keys
-        kind = table[key]
-        there = _list3(positions[other])
-        middle = [(x + y) / 2 for x, y in zip(here, there, strict=True)]
-        halves[kind] += [_xyz(here), _xyz(middle)]
-    lines = [
-        {
-            "type": 2,  # LINE_LIST: each two points a segment
-            "pose": _pose((0.0, 0.0, 0.0)),
-            "thickness": 4.0,  # pixels (scale_invariant)
-            "scale_invariant": True,
-            "points": points,
-            "color": _rgba(RELATION_COLOURS[kind]),
-            "colors": [],
-            "indices": [],
-        }
-        for kind, points in halves.items()
-        if points
-    ]
-    t_ns = ns(t)
-    entity = {
-        "timestamp": {"sec": t_ns // NS_PER_SECOND, "nsec": t_ns % NS_PER_SECOND},
-        "frame_id": SCENE_FRAME,
-        "id": scene_entity_id(unit),
-        "lifetime": {"sec": 0, "nsec": 0},  # until replaced
-        "frame_locked": False,
-        "metadata": [{"key": "unit", "value": unit}],
-        "arrows": [],
-        "cubes": [],
-        "spheres": [
-            {"pose": _pose(here), "size": _xyz((size, size, size)), "color": _rgba(_UNIT_COLOUR)}
-        ],
-        "cylinders": [],
-        "lines": lines,
-        "triangles": [],
-        "texts": [
-            {
-                "pose": _pose((here[0], here[1], here[2] + size)),
-                "billboard": True,
-                "font_size": 14.0,  # pixels (scale_invariant)
-                "scale_invariant": True,
-                "color": _rgba(_LABEL_COLOUR),
-                "text": unit,
-            }
-        ],
-        "models": [],
-    }
-    return {"deletions": [], "entities": [entity]}
 
 
 def medium_window(window: int, t: float, sample_rate: float, samples: list[float]) -> MediumRecord:

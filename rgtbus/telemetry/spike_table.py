@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.telemetry.records import RX_SPIKE, spike_samples, spike_units
+from rgtbus.telemetry.record_rows import spike_samples, spike_units
+from rgtbus.telemetry.records import RX_SPIKE
 from rgtbus.timebase import seconds, time_of
 
 _NANOSECOND = seconds(1)

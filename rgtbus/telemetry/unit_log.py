@@ -33,6 +33,7 @@ from rgtbus.telemetry import records
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.telemetry.pulse_blocks import pulse_block_of
+from rgtbus.telemetry.record_rows import decode_rows
 from rgtbus.telemetry.recorder import Recorder
 from rgtbus.timebase import ns, sample_of, samples_of
 
@@ -317,7 +318,7 @@ class UnitLog:
         """A batch of decodes as arrays (its names as indexes into ``tables``), held for its
         block's record; the arrays are the record's from then on."""
         if self.offers:
-            for row in records.decode_rows(records.decodes_of_columns(self.name, part, tables)):
+            for row in decode_rows(records.decodes_of_columns(self.name, part, tables)):
                 self.recorder.offer(records.RX_DECODE, row, ns(row["t"]))
         self._rows_to_part()
         if self.held_block < 0:

@@ -26,6 +26,13 @@ from rgtbus.telemetry.message_json import encode_json, message_bytes
 from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.read import Replay
+from rgtbus.telemetry.record_rows import (
+    decode_rows,
+    decode_units,
+    each_unit_spikes,
+    spike_samples,
+    spike_units,
+)
 from rgtbus.telemetry.recorder import LogMessage
 from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
 from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
@@ -151,8 +158,8 @@ def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[Lo
         if topic != r.RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
             yield topic, t_ns, m
             continue
-        units = r.spike_units(m)  # a record the units of a process share: each unit's own
-        for k, chans in r.spike_samples(m):
+        units = spike_units(m)  # a record the units of a process share: each unit's own
+        for k, chans in spike_samples(m):
             t = time_of(k, tau)
             for unit in units:
                 yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
@@ -168,7 +175,7 @@ def spikes_per_unit(
         if topic != r.RX_SPIKE or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for one in r.each_unit_spikes(m):
+        for one in each_unit_spikes(m):
             yield topic, t_ns, one
 
 
@@ -193,7 +200,7 @@ def decodes_per_row(
         if topic != r.RX_DECODES or not isinstance(m, dict):
             yield topic, t_ns, m
             continue
-        for row in r.decode_rows(m):
+        for row in decode_rows(m):
             yield r.RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
 
 
@@ -337,11 +344,11 @@ def _compared(topic: str, m: Mapping[str, Any], units: frozenset[str]) -> tuple[
     if topic == r.TX_PULSE:
         return topic, len(m["sample"])
     if topic == r.RX_DECODES:
-        return r.RX_DECODE, len(m["times"]) * len(r.decode_units(m))
+        return r.RX_DECODE, len(m["times"]) * len(decode_units(m))
     if topic == r.RX_SPIKE:
         samples = np.asarray(m["samples"])
         per_sample = int(np.count_nonzero(samples[1:] != samples[:-1])) + bool(samples.size)
-        return topic, per_sample * len(r.spike_units(m))
+        return topic, per_sample * len(spike_units(m))
     if topic == r.LOG:
         return topic, int(m.get("name") in units)
     return topic, 1

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from rgtbus.telemetry.decode_table import DecodeTable, decode_table
-from rgtbus.telemetry.records import spike_units
+from rgtbus.telemetry.record_rows import spike_units
 
 Message = tuple[int, Any]  # (log time, message) of one topic
 
