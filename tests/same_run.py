@@ -50,7 +50,7 @@ def content(messages):
     unit process feeds ``rgtbus watch``), what it decoded does not; spikes one record a unit
     (the units of one process share their records); a bus's note of what it dropped left
     out (the network's doing)."""
-    from rgtbus.telemetry.verify import decodes_per_row, spikes_per_unit
+    from rgtbus.telemetry.record_rows import decodes_per_row, spikes_per_unit
 
     rows = spikes_per_unit(decodes_per_row(messages))
     return sorted(

@@ -18,7 +18,7 @@ from same_run import plain
 
 from rgtbus.scenario import Scenario, load_scenario, parse_scenario
 from rgtbus.telemetry import MemoryRecorder, NullRecorder
-from rgtbus.telemetry.verify import spikes_per_unit
+from rgtbus.telemetry.record_rows import spikes_per_unit
 
 ROOT = Path(__file__).parent.parent
 # The dense engine walks every window of every unit: a reference for groups of up to 12 (the
@@ -212,7 +212,7 @@ def test_a_run_that_walks_no_resonator_is_the_same_run(monkeypatch, source, nois
 def _unit_rows(messages, tau):
     """A log's unit records as comparable rows (topic, log time, JSON), decodes, spikes and
     pulses one a row: what a cut log must hold in full before its bound."""
-    from rgtbus.telemetry.verify import decodes_per_row, pulses_per_row, spikes_per_sample
+    from rgtbus.telemetry.record_rows import decodes_per_row, pulses_per_row, spikes_per_sample
 
     skip = {"/log", "/medium", "/run", "/unit/report"}
     rows = spikes_per_sample(pulses_per_row(decodes_per_row(messages)), tau)
@@ -473,7 +473,7 @@ def test_a_batch_of_decodes_as_columns_is_each_decode_on_its_own(
     from rgtbus.units import unit as unit_module
     from rgtbus.units.listening import Listening
 
-    from rgtbus.telemetry.verify import decodes_per_row
+    from rgtbus.telemetry.record_rows import decodes_per_row
 
     base = random_group(seed, noise=noise, gains=True, anchor="schedule")
     text = base.text + f'[protocol]\nschedule = "concurrent"\ninfluence_rounds = {rounds}\n'

@@ -337,7 +337,7 @@ def test_schedule_anchor_changes_nothing_on_a_clean_channel():
     _, s, (m_sched, _) = run(sched)
 
     def content(ms):  # decodes one a row: on the schedule a unit takes them a batch a wake
-        from rgtbus.telemetry.verify import decodes_per_row
+        from rgtbus.telemetry.record_rows import decodes_per_row
 
         return sorted(
             (ns, t, json.dumps(m, sort_keys=True, default=plain))
@@ -787,7 +787,7 @@ def test_a_live_view_gets_each_decode_on_time_and_the_same_log():
     (``/rx/decode``, never logged): each before any record of a later time (pulses and the
     medium are written ahead of the clock by design), and all of them the log's decodes,
     one a row. The log is the one written with no view."""
-    from rgtbus.telemetry.verify import decodes_per_row
+    from rgtbus.telemetry.record_rows import decodes_per_row
 
     sc = load_scenario(ROOT / "scenarios" / "random_group.toml")
     alone = MemoryRecorder()
@@ -827,7 +827,7 @@ def test_a_watcher_that_comes_mid_run_gets_each_decode_on_time_from_then_on(monk
     it makes from its next wake on (a suffix of its decodes). The log is the same as ever."""
     from rgtbus.units import unit as unit_module
 
-    from rgtbus.telemetry.verify import decodes_per_row
+    from rgtbus.telemetry.record_rows import decodes_per_row
 
     # batches of 4 s: a short run's units wake several times (at a minute, once)
     monkeypatch.setattr(unit_module, "BATCH_SECONDS", 4.0)

@@ -1,20 +1,26 @@
 """The medium as a log holds it: its windows checked (``medium_windows``), its non-silent
 samples (``medium_pulses``), and each sender's own pulses rebuilt (``sender_pulses``): what a
-re-run of the units hears, and what the verifier adds up against the medium."""
+re-run of the units hears; and the verifier's check that the pulses add up to the medium
+(``check_medium``)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rgtbus.scenario import Scenario
+from rgtbus.signal.pulses import medium_sum
+from rgtbus.telemetry import records as r
 from rgtbus.telemetry.mismatch import Mismatch
 from rgtbus.telemetry.records import MEDIUM, PulseRecord
 from rgtbus.telemetry.untrusted import INT64
-from rgtbus.timebase import ns, seconds
+from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
+
+if TYPE_CHECKING:
+    from rgtbus.telemetry.read import Replay
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
@@ -94,3 +100,48 @@ def sender_pulses(
         order = np.argsort(r, kind="stable")
         out[u] = (r[order], np.array(vals[u])[order])
     return out
+
+
+def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
+    """Every logged window exactly equals the sum of the logged pulses (each unit's
+    magnitudes in the order sent, then the units in order), and every window that carries
+    a pulse is logged; only windows that end before ``until_ns`` when given (a truncated
+    log: the medium is logged ahead of the pulses)."""
+    sc = replay.require_scenario()
+    L = sc.timing.window_samples
+    tau = sc.timing.tau
+    windows, bad = replay.medium_windows()
+    parts = replay.sender_pulses()
+    rows, expected = medium_sum([parts[u] for u in replay.units])
+    want: dict[int, np.ndarray] = {}
+    for k, v in zip(rows.tolist(), expected.tolist(), strict=True):
+        if v != 0.0:
+            want.setdefault(k // L, np.zeros(L))[k % L] = v
+    end = replay.sim_seconds / tau if replay.run is not None else math.inf
+    if until_ns is not None:
+        end = min(end, seconds(until_ns) / tau - L)
+    for w in sorted(set(windows) | set(want)):
+        if until_ns is not None and time_of((w + 1) * L, tau) * NS_PER_SECOND > until_ns:
+            continue
+        logged = windows.get(w)
+        exp = want.get(w, np.zeros(L))
+        if logged is None:
+            if w * L <= end:  # a run logs its medium up to its end
+                bad.append(
+                    Mismatch(
+                        r.MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present"
+                    )
+                )
+            continue
+        for k in np.flatnonzero(logged != exp):
+            bad.append(
+                Mismatch(
+                    r.MEDIUM,
+                    time_of(w * L + int(k), tau),
+                    None,
+                    f"window {w} samples[{int(k)}]",
+                    float(logged[k]),
+                    float(exp[k]),
+                )
+            )
+    return bad

@@ -1,15 +1,20 @@
 """A hot topic's record read back as its rows and units: a ``/rx/spike`` block's units
 (``spike_units``), one record a unit (``each_unit_spikes``) and its spikes a sample at a time
 (``spike_samples``); a ``/rx/decodes`` record's units (``decode_units``) and its decodes one
-``/rx/decode`` record at a time (``decode_rows``). The records themselves are built by
-``records``; readers, the verifier and ``merge`` read them through here."""
+``/rx/decode`` record at a time (``decode_rows``); and a stream of messages with its blocks
+as rows (``spikes_per_sample``, ``spikes_per_unit``, ``pulses_per_row``, ``decodes_per_row``:
+how two logs are compared, however their writers grouped records). The records themselves
+are built by ``records``; readers, the verifier and ``merge`` read them through here."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Any, cast
 
 from rgtbus.errors import RgtbusError
+from rgtbus.telemetry import records as r
+from rgtbus.telemetry.pulse_blocks import pulse_rows
+from rgtbus.telemetry.recorder import LogMessage
 from rgtbus.telemetry.records import (
     DECODE_COLUMNS,
     DECODE_TABLES,
@@ -19,6 +24,7 @@ from rgtbus.telemetry.records import (
     DecodeRecord,
     decode,
 )
+from rgtbus.timebase import ns, time_of
 
 
 def spike_units(record: Mapping[str, Any]) -> list[str]:
@@ -156,3 +162,60 @@ def decode_units(record: Mapping[str, Any]) -> list[str]:
             "names alone"
         )
     return units
+
+
+# -- a stream of messages with its blocks as rows (how two logs are compared) ------------
+
+
+def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[LogMessage]:
+    """The messages with every ``/rx/spike`` block as one message per sample (as logs before
+    the columnar record held them): spikes are compared sample by sample, so a log of either
+    form verifies, and a mismatch names its sample."""
+    for topic, t_ns, m in messages:
+        if topic != r.RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
+            yield topic, t_ns, m
+            continue
+        units = spike_units(m)  # a record the units of a process share: each unit's own
+        for k, chans in spike_samples(m):
+            t = time_of(k, tau)
+            for unit in units:
+                yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
+
+
+def spikes_per_unit(
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
+    """The messages with every ``/rx/spike`` record that units shared as one record a unit
+    (``each_unit_spikes``): how logs compare whose units were split into processes, or
+    engines, that share records differently."""
+    for topic, t_ns, m in messages:
+        if topic != r.RX_SPIKE or not isinstance(m, dict):
+            yield topic, t_ns, m
+            continue
+        for one in each_unit_spikes(m):
+            yield topic, t_ns, one
+
+
+def pulses_per_row(messages: Iterable[LogMessage]) -> Iterator[LogMessage]:
+    """The messages with every ``/tx/pulse`` block as one message a pulse at its own time:
+    pulses are compared one by one, and a mismatch names its pulse."""
+    for topic, t_ns, m in messages:
+        if topic != r.TX_PULSE or not isinstance(m, dict) or "sample" not in m:
+            yield topic, t_ns, m
+            continue
+        for row in pulse_rows(m):
+            yield topic, ns(row["t"]), cast(dict[str, Any], row)
+
+
+def decodes_per_row(
+    messages: Iterable[LogMessage],
+) -> Iterator[LogMessage]:
+    """The messages with every ``/rx/decodes`` record as one ``/rx/decode`` message a decode
+    at its own time (as logs before the columnar record held them): decodes are compared one
+    by one, however a run grouped them into records, and a mismatch names its decode."""
+    for topic, t_ns, m in messages:
+        if topic != r.RX_DECODES or not isinstance(m, dict):
+            yield topic, t_ns, m
+            continue
+        for row in decode_rows(m):
+            yield r.RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)

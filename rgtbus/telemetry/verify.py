@@ -13,29 +13,28 @@ import math
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import orjson
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.pulses import medium_sum
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, TRACE, decode_record
+from rgtbus.telemetry.logged_medium import check_medium
 from rgtbus.telemetry.message_json import encode_json, message_bytes
 from rgtbus.telemetry.mismatch import Mismatch
-from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.read import Replay
 from rgtbus.telemetry.record_rows import (
-    decode_rows,
     decode_units,
-    each_unit_spikes,
-    spike_samples,
+    decodes_per_row,
+    pulses_per_row,
     spike_units,
+    spikes_per_sample,
 )
 from rgtbus.telemetry.recorder import LogMessage
 from rgtbus.telemetry.verify_columns import compact, same_decodes, same_spikes
-from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
+from rgtbus.timebase import ns, seconds
 
 # Exit codes of ``rgtbus replay --verify`` (2 is every CLI's "bad input").
 EXIT_VERIFIED = 0
@@ -148,60 +147,6 @@ def _key_text(topic: str, key: MessageKey) -> str:
     if r.is_trace_topic(topic):
         return f"trace at {seconds(key[0]):.3f} s"
     return "table"
-
-
-def spikes_per_sample(messages: Iterable[LogMessage], tau: float) -> Iterator[LogMessage]:
-    """The messages with every ``/rx/spike`` block as one message per sample (as logs before
-    the columnar record held them): spikes are compared sample by sample, so a log of either
-    form verifies, and a mismatch names its sample."""
-    for topic, t_ns, m in messages:
-        if topic != r.RX_SPIKE or not isinstance(m, dict) or "samples" not in m:
-            yield topic, t_ns, m
-            continue
-        units = spike_units(m)  # a record the units of a process share: each unit's own
-        for k, chans in spike_samples(m):
-            t = time_of(k, tau)
-            for unit in units:
-                yield topic, ns(t), {"unit": unit, "t": t, "sample": k, "channels": chans}
-
-
-def spikes_per_unit(
-    messages: Iterable[LogMessage],
-) -> Iterator[LogMessage]:
-    """The messages with every ``/rx/spike`` record that units shared as one record a unit
-    (``each_unit_spikes``): how logs compare whose units were split into processes, or
-    engines, that share records differently."""
-    for topic, t_ns, m in messages:
-        if topic != r.RX_SPIKE or not isinstance(m, dict):
-            yield topic, t_ns, m
-            continue
-        for one in each_unit_spikes(m):
-            yield topic, t_ns, one
-
-
-def pulses_per_row(messages: Iterable[LogMessage]) -> Iterator[LogMessage]:
-    """The messages with every ``/tx/pulse`` block as one message a pulse at its own time:
-    pulses are compared one by one, and a mismatch names its pulse."""
-    for topic, t_ns, m in messages:
-        if topic != r.TX_PULSE or not isinstance(m, dict) or "sample" not in m:
-            yield topic, t_ns, m
-            continue
-        for row in pulse_rows(m):
-            yield topic, ns(row["t"]), cast(dict[str, Any], row)
-
-
-def decodes_per_row(
-    messages: Iterable[LogMessage],
-) -> Iterator[LogMessage]:
-    """The messages with every ``/rx/decodes`` record as one ``/rx/decode`` message a decode
-    at its own time (as logs before the columnar record held them): decodes are compared one
-    by one, however a run grouped them into records, and a mismatch names its decode."""
-    for topic, t_ns, m in messages:
-        if topic != r.RX_DECODES or not isinstance(m, dict):
-            yield topic, t_ns, m
-            continue
-        for row in decode_rows(m):
-            yield r.RX_DECODE, ns(row["t"]), cast(dict[str, Any], row)
 
 
 # (log time, message) of one topic and key, in the order logged
@@ -633,51 +578,3 @@ def verify(replay: Replay, rerun: Any, checks: Iterable[Mismatch] = ()) -> Verif
         until=until,
         messages=replay.message_count(),
     )
-
-
-# -- CSV ------------------------------------------------------------------------------------
-
-
-def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
-    """Every logged window exactly equals the sum of the logged pulses (each unit's
-    magnitudes in the order sent, then the units in order), and every window that carries
-    a pulse is logged; only windows that end before ``until_ns`` when given (a truncated
-    log: the medium is logged ahead of the pulses)."""
-    sc = replay.require_scenario()
-    L = sc.timing.window_samples
-    tau = sc.timing.tau
-    windows, bad = replay.medium_windows()
-    parts = replay.sender_pulses()
-    rows, expected = medium_sum([parts[u] for u in replay.units])
-    want: dict[int, np.ndarray] = {}
-    for k, v in zip(rows.tolist(), expected.tolist(), strict=True):
-        if v != 0.0:
-            want.setdefault(k // L, np.zeros(L))[k % L] = v
-    end = replay.sim_seconds / tau if replay.run is not None else math.inf
-    if until_ns is not None:
-        end = min(end, seconds(until_ns) / tau - L)
-    for w in sorted(set(windows) | set(want)):
-        if until_ns is not None and time_of((w + 1) * L, tau) * NS_PER_SECOND > until_ns:
-            continue
-        logged = windows.get(w)
-        exp = want.get(w, np.zeros(L))
-        if logged is None:
-            if w * L <= end:  # a run logs its medium up to its end
-                bad.append(
-                    Mismatch(
-                        r.MEDIUM, time_of(w * L, tau), None, f"window {w}", "missing", "present"
-                    )
-                )
-            continue
-        for k in np.flatnonzero(logged != exp):
-            bad.append(
-                Mismatch(
-                    r.MEDIUM,
-                    time_of(w * L + int(k), tau),
-                    None,
-                    f"window {w} samples[{int(k)}]",
-                    float(logged[k]),
-                    float(exp[k]),
-                )
-            )
-    return bad

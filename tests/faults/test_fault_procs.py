@@ -33,7 +33,7 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario
 from rgtbus.telemetry import MemoryRecorder, read_log, scan_log
 from rgtbus.telemetry.pulse_blocks import pulse_rows
-from rgtbus.telemetry.verify import decodes_per_row, pulses_per_row, spikes_per_unit
+from rgtbus.telemetry.record_rows import decodes_per_row, pulses_per_row, spikes_per_unit
 
 ROOT = Path(__file__).parent.parent.parent
 GATE = str(ROOT / "scenarios" / "gate.toml")
