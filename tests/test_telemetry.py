@@ -738,7 +738,7 @@ def example2_log(tmp_path_factory):
     ],
 )
 def test_check_time_range_keeps_a_range_that_holds_some_of_the_run(t_from, t_to, expected):
-    from rgtbus.telemetry.logtools import check_time_range
+    from rgtbus.telemetry.log_cat import check_time_range
 
     assert check_time_range(t_from, t_to, 0.0, 162.1) == expected
 
@@ -757,7 +757,7 @@ def test_check_time_range_keeps_a_range_that_holds_some_of_the_run(t_from, t_to,
     ],
 )
 def test_check_time_range_refuses_a_range_outside_the_run(t_from, t_to, message):
-    from rgtbus.telemetry.logtools import check_time_range
+    from rgtbus.telemetry.log_cat import check_time_range
 
     with pytest.raises(RgtbusError) as e:
         check_time_range(t_from, t_to, 0.0, 162.1)
@@ -772,7 +772,7 @@ def test_check_time_range_refuses_a_range_outside_the_run(t_from, t_to, message)
 def test_check_time_range_on_a_run_of_one_instant(t_from, t_to, held):
     """A log whose records are all at one time (a unit whose join failed writes its lines at
     0 s, or at its first sample): no range, or one holding that instant, keeps it."""
-    from rgtbus.telemetry.logtools import check_time_range
+    from rgtbus.telemetry.log_cat import check_time_range
 
     if held:
         lo, hi = check_time_range(t_from, t_to, 0.005, 0.005)

@@ -1,5 +1,5 @@
 """``rgtbus info LOG``, ``rgtbus cat LOG`` and ``rgtbus scenario LOG``: the log tools users of
-``mcap`` and ``ros2 bag`` expect (rgtbus/telemetry/logtools.py).
+``mcap`` and ``ros2 bag`` expect (rgtbus/telemetry/logtools.py, log_cat.py).
 
 Each opens its log with ``check_log``, which checks it whole before anything is printed. Exit
 codes, as ``rgtbus replay``'s: 0 read; 2 unreadable, not MCAP, corrupt (a chunk, data-section
@@ -99,8 +99,8 @@ def info(args: argparse.Namespace) -> int:
 
 def cat(args: argparse.Namespace) -> int:
     """``rgtbus cat LOG``: its messages as JSON lines, filtered by topic, unit and time."""
+    from rgtbus.telemetry.log_cat import cat_messages
     from rgtbus.telemetry.log_check import check_log
-    from rgtbus.telemetry.logtools import cat_messages
     from rgtbus.telemetry.untrusted import printable_errors
 
     out = sys.stdout

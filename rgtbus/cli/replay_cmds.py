@@ -135,7 +135,7 @@ def replay(args: argparse.Namespace) -> int:
 
 
 def _replay(rp: Replay, args: argparse.Namespace) -> int:
-    from rgtbus.telemetry.logtools import check_time_range
+    from rgtbus.telemetry.log_cat import check_time_range
     from rgtbus.telemetry.verify import EXIT_TRUNCATED
 
     span = None

@@ -9,7 +9,7 @@ relationship table was complete (with the polynomial) and its decision; the zoom
 shaded.
 
 ``attention_spikes`` is pure (no matplotlib): it tells attention from other spikes without
-drawing. A ``--from``/``--to`` range is checked by ``logtools.check_time_range``, the one rule
+drawing. A ``--from``/``--to`` range is checked by ``log_cat.check_time_range``, the one rule
 for the timeline, CSV, ``cat`` and plots.
 
 Labels are placed in up to ``LABEL_ROWS`` staggered rows; a label that fits in no row is left
@@ -26,7 +26,7 @@ import numpy as np
 
 from rgtbus.errors import RgtbusError
 from rgtbus.extras import require
-from rgtbus.telemetry.logtools import check_time_range
+from rgtbus.telemetry.log_cat import check_time_range
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
