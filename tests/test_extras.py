@@ -80,7 +80,7 @@ def test_the_core_reads_its_logs_and_sweeps_without_the_extras(core_run):
         "for m in ('matplotlib', 'distributed', 'pyarrow'): sys.modules[m] = None\n"
         "import rgtbus\n"
         "log = rgtbus.open_log('gate.mcap'); assert len(log.decisions()) > 0\n"
-        "from rgtbus.telemetry.sweep_tables import read_sweep\n"
+        "from rgtbus.telemetry.sweep_read import read_sweep\n"
         "results, decisions = read_sweep('s')\n"
         "assert len(results) == 2 and len(decisions) > 0\n"
         "assert results['n'].dtype == 'int64' and results.groupby('relations').size().sum() == 2\n"

@@ -442,7 +442,7 @@ def test_the_json_lines_parquet_and_csv_hold_the_same_tables(tmp_path):
     import pandas as pd
     from rgtbus.units.sweep import sweep
 
-    from rgtbus.telemetry import sweep_tables as st
+    from rgtbus.telemetry import sweep_read as sr
 
     out = tmp_path / "both"
     grid = {"n": [3, 4], "relations.p": [0.3, 0.9], "engine": ["event"]}
@@ -450,12 +450,12 @@ def test_the_json_lines_parquet_and_csv_hold_the_same_tables(tmp_path):
     for name in ("results", "decisions"):
         jsonl = [json.loads(line) for line in (out / f"{name}.jsonl").read_text().splitlines()]
         assert jsonl == table_rows(pq.read_table(out / f"{name}.parquet")), name
-        from_json = st.frame_of(jsonl, st.table_columns(out, name))
-        from_parquet = st.read_table(out / f"{name}.parquet")
+        from_json = sr.frame_of(jsonl, sr.table_columns(out, name))
+        from_parquet = sr.read_table(out / f"{name}.parquet")
         pd.testing.assert_frame_equal(from_json, from_parquet)  # dtypes too
         # bare rows (no columns.json: pandas chooses the dtypes): the same values where a
         # column holds any (an all-null column is None there, NaN in pandas' string dtype)
-        bare = st.frame_of(jsonl)
+        bare = sr.frame_of(jsonl)
         held = [c for c in from_parquet.columns if from_parquet[c].notna().any()]
         pd.testing.assert_frame_equal(bare[held], from_parquet[held], check_dtype=False)
     results = table_rows(pq.read_table(out / "results.parquet"))

@@ -76,14 +76,12 @@ from rgtbus._version import __version__
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.summary import decode_errors_left, summary_json
+from rgtbus.telemetry.sweep_read import SweepTables, read_results, read_sweep
 from rgtbus.telemetry.sweep_tables import (
     NOT_COLUMNS,
-    SweepTables,
     decisions_rows,
     decisions_table,
     parquet_available,
-    read_results,
-    read_sweep,
     results_rows,
     results_table,
     table_rows,

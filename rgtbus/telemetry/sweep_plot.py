@@ -19,7 +19,7 @@ from typing import Any
 
 from rgtbus.errors import RgtbusError
 from rgtbus.extras import require
-from rgtbus.telemetry.sweep_tables import results_of
+from rgtbus.telemetry.sweep_read import results_of
 
 Z95 = 1.959963984540054
 
