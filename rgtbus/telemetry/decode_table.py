@@ -14,6 +14,7 @@ a transmission's key is one integer, looked up with ``searchsorted``.
 from __future__ import annotations
 
 import contextlib
+from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeGuard
@@ -21,6 +22,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from rgtbus.errors import RgtbusError
+from rgtbus.summary import HeldDecodes
 from rgtbus.telemetry.record_rows import decode_units
 from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES
 
@@ -294,3 +296,34 @@ def match_sent(table: DecodeTable, transmissions: Sequence[tuple[str, str, int, 
         (table.code == sent_code[tx]) & (table.addressee == sent_to[tx]),
     )
     return Sent(tx=tx, matches=matches & (tx >= 0))
+
+
+def held_decodes(
+    records: Iterable[tuple[int, Mapping[str, Any]]], units: Sequence[str] = ()
+) -> dict[str, HeldDecodes]:
+    """Each unit's decodes of ``records`` (``/rx/decodes`` messages as read), in log-time
+    order (stable: as logged within one time), as the summary judges them: each decode's turn
+    and the index of its (kind, addressee, code) among the distinct ones, read from the
+    records' columns with a record's rows once, whatever units it names (``once``), and no
+    Python object per decode."""
+    table = decode_table(records, units, once=True)
+    names, kinds, codes = table.names, table.kinds, table.codes
+    # each distinct (kind, addressee, code) once: a decode's is an index into them
+    span = max(1, len(codes))
+    key = (table.kind.astype(np.int64) * len(names) + table.addressee) * span + table.code
+    distinct, what = np.unique(key, return_inverse=True)
+    k, rest = np.divmod(distinct, len(names) * span)
+    a, c = np.divmod(rest, span)
+    rows = [(kinds[i], names[j], codes[m]) for i, j, m in zip(
+        k.tolist(), a.tolist(), c.tolist(), strict=True)]  # fmt: skip
+    held: dict[int, list[int]] = defaultdict(list)  # a unit's records
+    for r, holders in enumerate(table.holders):
+        for u in holders:
+            held[u].append(r)
+    assert table.record is not None
+    out: dict[str, HeldDecodes] = {}
+    for u, name in enumerate(names):
+        if held.get(u):
+            mine = np.flatnonzero(np.isin(table.record, held[u]))  # in the table's order
+            out[name] = HeldDecodes(table.turn[mine], what[mine], rows)
+    return out

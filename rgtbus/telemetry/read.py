@@ -23,7 +23,6 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
 from rgtbus.summary import (
     HOW_IT_RAN,
-    HeldDecodes,
     RunEnd,
     agreement,
     decode_error,
@@ -31,7 +30,7 @@ from rgtbus.summary import (
     summary_json,
 )
 from rgtbus.telemetry import logged_medium, untrusted
-from rgtbus.telemetry.decode_table import decode_table
+from rgtbus.telemetry.decode_table import held_decodes
 from rgtbus.telemetry.log_parts import (
     Topics,
     frequencies_of,
@@ -349,27 +348,7 @@ class Replay:
                 timed[d["unit"]].append((t, row))
             return {u: [row for _, row in sorted(rows, key=lambda r: r[0])]
                     for u, rows in timed.items()}  # fmt: skip
-        table = decode_table(self.by_topic.each(RX_DECODES), self.units, once=True)
-        names, kinds, codes = table.names, table.kinds, table.codes
-        # each distinct (kind, addressee, code) once: a decode's is an index into them
-        span = max(1, len(codes))
-        key = (table.kind.astype(np.int64) * len(names) + table.addressee) * span + table.code
-        distinct, what = np.unique(key, return_inverse=True)
-        k, rest = np.divmod(distinct, len(names) * span)
-        a, c = np.divmod(rest, span)
-        rows = [(kinds[i], names[j], codes[m]) for i, j, m in zip(
-            k.tolist(), a.tolist(), c.tolist(), strict=True)]  # fmt: skip
-        held: dict[int, list[int]] = defaultdict(list)  # a unit's records
-        for r, units in enumerate(table.holders):
-            for u in units:
-                held[u].append(r)
-        assert table.record is not None
-        out: dict[str, HeldDecodes] = {}
-        for u, name in enumerate(names):
-            if held.get(u):
-                mine = np.flatnonzero(np.isin(table.record, held[u]))  # in the table's order
-                out[name] = HeldDecodes(table.turn[mine], what[mine], rows)
-        return out
+        return held_decodes(self.by_topic.each(RX_DECODES), self.units)
 
     def summary(self) -> dict[str, Any]:
         """The run's summary computed from the log alone by the one summary function
