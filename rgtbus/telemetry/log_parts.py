@@ -1,8 +1,9 @@
 """A read log's parts before ``Replay`` organises them: its messages by topic (``Topics``, each
 topic decoded and checked when first asked for), what its metadata says of how it was
-written (a merge's cut inputs, unit processes that ended early, channel frequencies), how
-far a log cut short is whole (``units_until_ns``), a unit's report rebuilt for a log from
-before ``/unit/report`` (``legacy_report``), and its traces as arrays (``stack_traces``).
+written (a merge's cut inputs, unit processes that ended early, channel frequencies, the
+seed: ``logged_seed``), how far a log cut short is whole (``units_until_ns``), a unit's
+report rebuilt for a log from before ``/unit/report`` (``legacy_report``), and its traces as
+arrays (``stack_traces``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 import numpy as np
 import orjson
 
+from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, untrusted
 from rgtbus.telemetry.blocks import block_samples
 from rgtbus.telemetry.recorder import LogMessage
@@ -146,6 +148,18 @@ def frequencies_of(metadata: dict[str, dict[str, str]]) -> dict[str, float]:
         with contextlib.suppress(ValueError):
             out[k] = float(v)
     return out
+
+
+def logged_seed(metadata: Mapping[str, Mapping[str, str]], label: str = "log") -> int | None:
+    """The seed a log's ``run`` metadata record names (None when it names none); a value
+    that is no integer (a log written by hand or tampered with): RgtbusError in one line."""
+    seed = metadata.get("run", {}).get("seed")
+    if seed is None:
+        return None
+    try:
+        return int(str(seed).strip(), 10)
+    except ValueError:
+        raise RgtbusError(f"{label}: metadata run: seed {seed!r} is not an integer") from None
 
 
 _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})

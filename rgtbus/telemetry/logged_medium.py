@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -19,8 +19,21 @@ from rgtbus.telemetry.records import MEDIUM, PulseRecord
 from rgtbus.telemetry.untrusted import INT64
 from rgtbus.timebase import NS_PER_SECOND, ns, seconds, time_of
 
-if TYPE_CHECKING:
-    from rgtbus.telemetry.read import Replay
+
+class MediumLog(Protocol):
+    """What ``check_medium`` reads of a log (``read.Replay`` is one)."""
+
+    units: tuple[str, ...]
+    run: Any
+
+    @property
+    def sim_seconds(self) -> float: ...
+
+    def require_scenario(self) -> Scenario: ...
+
+    def medium_windows(self) -> tuple[dict[int, np.ndarray], list[Mismatch]]: ...
+
+    def sender_pulses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]: ...
 
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
@@ -102,7 +115,7 @@ def sender_pulses(
     return out
 
 
-def check_medium(replay: Replay, until_ns: int | None = None) -> list[Mismatch]:
+def check_medium(replay: MediumLog, until_ns: int | None = None) -> list[Mismatch]:
     """Every logged window exactly equals the sum of the logged pulses (each unit's
     magnitudes in the order sent, then the units in order), and every window that carries
     a pulse is logged; only windows that end before ``until_ns`` when given (a truncated

@@ -31,9 +31,9 @@ from rgtbus.errors import RgtbusError
 from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.log_check import CheckedLog, check_log
+from rgtbus.telemetry.log_parts import logged_seed
 from rgtbus.telemetry.records import (
     RUN,
-    logged_seed,
 )
 from rgtbus.telemetry.scan import RawLog, require_run_log, scan_log
 from rgtbus.telemetry.untrusted import message as checked

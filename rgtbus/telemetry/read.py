@@ -35,6 +35,7 @@ from rgtbus.telemetry.log_parts import (
     Topics,
     frequencies_of,
     legacy_report,
+    logged_seed,
     merge_notes,
     stack_traces,
     unit_process_ends,
@@ -62,7 +63,6 @@ from rgtbus.telemetry.records import (
     RunRecord,
     full_report,
     is_trace_topic,
-    logged_seed,
     trace_topic,
 )
 from rgtbus.telemetry.scan import decode_log, require_run_log, scan_log

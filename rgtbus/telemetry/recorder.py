@@ -34,6 +34,7 @@ from rgtbus.telemetry.message_json import (
     log_message,
 )
 from rgtbus.telemetry.records import LOG, RX_SPIKE
+from rgtbus.telemetry.records import LogMessage as LogMessage  # its home: records
 from rgtbus.telemetry.version import FORMAT_RECORD, format_metadata
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -57,8 +58,6 @@ def unfinished_trailer() -> bytes:
     return bytes(out.end()) + MCAP_MAGIC  # type: ignore[no-untyped-call]  # mcap leaves it bare
 
 
-# one message as read back: (topic, log time in ns, the message)
-LogMessage = tuple[str, int, dict[str, Any]]
 
 
 @runtime_checkable

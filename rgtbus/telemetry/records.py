@@ -38,6 +38,10 @@ SCENE = "/scene"  # foxglove.SceneUpdate: a spatial scenario's units and links (
 TRACE_PREFIX = "/trace/"  # a family: one topic a traced unit
 
 
+# one message as read back: (topic, log time in ns, the message)
+LogMessage = tuple[str, int, dict[str, Any]]
+
+
 def trace_topic(unit: str) -> str:
     """The topic of ``unit``'s resonator traces."""
     return f"{TRACE_PREFIX}{unit}"
@@ -585,15 +589,3 @@ def medium_window(window: int, t: float, sample_rate: float, samples: list[float
 def trace(unit: str, sample: int, t: float, y: list[float], x: list[float]) -> TraceRecord:
     """A ``/trace/<unit>`` record: ``unit``'s resonator states ``y`` and ``x`` at ``sample``."""
     return {"unit": unit, "sample": sample, "t": t, "y": y, "x": x}
-
-
-def logged_seed(metadata: Mapping[str, Mapping[str, str]], label: str = "log") -> int | None:
-    """The seed a log's ``run`` metadata record names (None when it names none); a value
-    that is no integer (a log written by hand or tampered with): RgtbusError in one line."""
-    seed = metadata.get("run", {}).get("seed")
-    if seed is None:
-        return None
-    try:
-        return int(str(seed).strip(), 10)
-    except ValueError:
-        raise RgtbusError(f"{label}: metadata run: seed {seed!r} is not an integer") from None

@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import Any, TextIO
 
 import numpy as np
 import orjson
@@ -17,10 +17,8 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.blocks import schema_of
+from rgtbus.telemetry.records import LogMessage
 from rgtbus.timebase import seconds
-
-if TYPE_CHECKING:
-    from rgtbus.telemetry.recorder import LogMessage
 
 # The deepest a message may nest (lists and objects): what rgtbus's own writer (orjson) writes
 # at most. orjson reads 1024 levels, but what walks a message after it (json.dumps, ==, a
