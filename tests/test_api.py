@@ -15,6 +15,7 @@ import pytest
 
 import rgtbus
 from rgtbus.cli import main
+from rgtbus.errors import RgtbusError
 from rgtbus.summary import SUMMARY_JSON_KEYS
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 
@@ -157,6 +158,15 @@ def test_log_tables(tmp_path):
     spikes = log.spikes()
     assert len(spikes) and set(spikes.columns) == {"unit", "sample", "t", "channel", "omega"}
     assert spikes["channel"].map(type).eq(str).all()  # one row per channel that fired
+    # a unit's rows alone (a large run's every spike is too many for one frame): the rows
+    # of the whole frame that are its, in their order, with the same categories
+    for some in ("b", ["a", "c"]):
+        mine = log.spikes(units=some)
+        whose = {some} if isinstance(some, str) else set(some)
+        want = spikes[spikes["unit"].isin(whose)].reset_index(drop=True)
+        pd.testing.assert_frame_equal(mine, want)
+    with pytest.raises(RgtbusError, match=r"units=...\): 'e' is not one of the log's 4 units"):
+        log.spikes(units=["a", "e"])
     tx = log.transmissions()
     blocks = log.messages("/tx/pulse")  # every sender's pulses of a block a row
     pulses = pd.DataFrame([p for _, b in blocks.iterrows() for p in pulse_rows(b)])

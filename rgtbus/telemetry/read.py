@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import os
 from collections import defaultdict
-from collections.abc import Container, Iterable, Iterator, Mapping
+from collections.abc import Collection, Container, Iterable, Iterator, Mapping
 from dataclasses import asdict
 from typing import IO, Any, cast
 
@@ -180,9 +180,13 @@ class Replay:
     @functools.cached_property
     def spikes(self) -> SpikeTable:
         """Every resonator spike, as columns (``SpikeTable``)."""
+        return self.spikes_of(None)
+
+    def spikes_of(self, units: Collection[str] | None) -> SpikeTable:
+        """The spikes of ``units`` (None: every unit's), as columns (not kept)."""
         tau = self.scenario.timing.tau if self.scenario is not None else None
         records = (m for _, m in self.by_topic[RX_SPIKE])
-        return spike_table(records, self.frequencies, tau, self.units)
+        return spike_table(records, self.frequencies, tau, self.units, units)
 
     def topic_messages(self, topic: str) -> list[tuple[int, Any]]:
         """``topic``'s messages as ``(log_time, message)`` in log-time order, decoded and
