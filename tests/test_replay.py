@@ -19,6 +19,7 @@ from rgtbus.units.group import run_group
 from rgtbus.units.rerun import rerun, traces_for, verify_log
 from same_run import plain
 
+import rgtbus
 from rgtbus.cli import main
 from rgtbus.errors import RgtbusError
 from rgtbus.scenario import load_scenario, parse_scenario
@@ -205,6 +206,36 @@ def test_the_summary_reads_each_units_decodes_as_columns(name):
     summary = json.loads(summary_json)
     assert rp.summary()["decode_errors"] == summary["decode_errors"]
     assert (len(summary["decode_errors"]) > 0) == (name == "gate_repair")
+
+
+def test_a_log_from_a_path_keeps_each_topic_in_the_file_until_it_is_asked_for(tmp_path):
+    """Opening a log reads every chunk (CRCs, counts) but keeps only its /run record; a topic
+    is read from the file when first asked for, and the log reads as one read whole from a
+    stream. A file replaced since it was opened is refused, in one line, when a topic not
+    read yet is asked for."""
+    path = tmp_path / "gate.mcap"
+    rgtbus.run(ROOT / "scenarios" / "gate.toml", log=path)
+    rp = load_replay(path)
+    whole = load_replay(io.BytesIO(path.read_bytes()))
+    assert records.RUN not in rp.by_topic.in_file and whole.by_topic.in_file == {}
+    assert {records.RX_SPIKE, records.RX_DECODES, records.TX_PULSE} <= set(rp.by_topic.in_file)
+    assert rp.topic_counts() == whole.topic_counts() and set(rp.by_topic) == set(whole.by_topic)
+    summary = rp.summary()
+    assert {k: v for k, v in summary.items() if k != "log"} == {
+        k: v for k, v in whole.summary().items() if k != "log"
+    }
+    assert records.RX_SPIKE in rp.by_topic.in_file  # the summary needs no spike
+    def by_topic(replay):
+        out: dict[str, list] = {}
+        for topic, t, m in replay.messages():  # every topic read now, as held
+            out.setdefault(topic, []).append((t, m))
+        return out
+
+    assert by_topic(rp) == by_topic(whole)
+    again = load_replay(path)
+    rgtbus.run(ROOT / "scenarios" / "gate.toml", seed=5, log=path)  # another run's log there
+    with pytest.raises(RgtbusError, match=r"gate.mcap: changed since it was opened"):
+        again.by_topic[records.RX_SPIKE]
 
 
 def test_rerun_summary_equals_the_runs_own():

@@ -33,11 +33,15 @@ Row = tuple[int, int, int, int, bytes]  # a message as ``RawLog.messages`` holds
 
 
 def split_chunk(
-    data: bytes, on_record: Callable[[Channel | Schema], None], later: Container[int] = ()
+    data: bytes,
+    on_record: Callable[[Channel | Schema], None],
+    later: Container[int] = (),
+    only: Container[int] | None = None,
 ) -> tuple[list[Row], dict[int, list[int]]]:
-    """A chunk's records (``data``, decompressed): its messages as rows, but those of the
-    channels ``later`` (their topics read when asked for), counted with their latest log
-    time (``{channel: [count, last]}``); each schema and channel record handed to
+    """A chunk's records (``data``, decompressed): its messages as rows (those of the
+    channels ``only``, when given), but those of the channels ``later`` (their topics read
+    when asked for), counted with their latest log time (``{channel: [count, last]}``);
+    each schema and channel record handed to
     ``on_record`` as mcap reads it (a channel before its messages, as writers write them);
     any other record skipped, as ``mcap.stream_reader.breakup_chunk`` skips it. mcap's own
     splitter reads each field of each message through a stream object, about 8 MB/s here; a
@@ -59,7 +63,8 @@ def split_chunk(
                 raise ValueError(f"the message at byte {start - 9} is {length} bytes long")
             cid, seq, log_time, publish_time = message(data, start)
             if cid not in later:
-                rows.append((cid, log_time, publish_time, seq, data[start + 22 : pos]))
+                if only is None or cid in only:
+                    rows.append((cid, log_time, publish_time, seq, data[start + 22 : pos]))
             elif (got := seen.get(cid)) is None:
                 seen[cid] = [1, log_time]
             else:

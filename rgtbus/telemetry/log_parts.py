@@ -18,7 +18,7 @@ import orjson
 from rgtbus.errors import RgtbusError
 from rgtbus.telemetry import topics, untrusted
 from rgtbus.telemetry.blocks import block_samples
-from rgtbus.telemetry.recorder import LogMessage
+from rgtbus.telemetry.recorder import DeferredTopics, LogMessage
 from rgtbus.telemetry.records import (
     LOG,
     MEDIUM,
@@ -38,10 +38,16 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
     its undecoded JSON is decoded, and each message checked against its schema, the first
     time it is asked for (``checked_message``: a large run's decodes and spikes are tens of
     megabytes of JSON, and many times that as Python objects); a topic that holds none is an
-    empty list."""
+    empty list. A topic left in the file (``later``: a log read from a path) is read from it
+    the first time it is asked for, and held from then on (traces aside: ``Replay`` reads
+    them from the file each time and never holds them); the topics keep one order."""
 
     def __init__(
-        self, messages: Iterable[LogMessage], label: str, current: frozenset[str] = frozenset()
+        self,
+        messages: Iterable[LogMessage],
+        label: str,
+        current: frozenset[str] = frozenset(),
+        later: DeferredTopics | None = None,
     ) -> None:
         self.current = current  # topics checked against their schema (LogContents.current)
         self._held: dict[str, list[tuple[int, Any]]] = {}
@@ -51,8 +57,28 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
             self._held.setdefault(topic, []).append((t, m))
             if isinstance(m, bytes):
                 self._raw.add(topic)
+        self._later = later
+        self._waiting: dict[str, int] = {}  # left in the file: how many messages each holds
+        for topic, n in (later.held() if later is not None else {}).items():
+            if not is_trace_topic(topic) and topic not in self._held:
+                self._waiting[topic] = n
+        self._order = [*self._held, *self._waiting]
+
+    @property
+    def in_file(self) -> dict[str, int]:
+        """The topics still left in the file (none read yet), and how many messages each
+        holds."""
+        return dict(self._waiting)
+
+    def _read(self, topic: str) -> None:
+        """A topic left in the file, read now (its messages' bytes, CRC-checked) and held."""
+        if topic in self._waiting and self._later is not None:
+            del self._waiting[topic]
+            self._held[topic] = list(self._later.read(topic))
+            self._raw.add(topic)
 
     def __getitem__(self, topic: str) -> list[tuple[int, Any]]:
+        self._read(topic)
         held = self._held.get(topic)
         if held is None:
             return []
@@ -66,13 +92,13 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
         return held
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._held)
+        return iter(self._order)
 
     def __len__(self) -> int:
-        return len(self._held)
+        return len(self._order)
 
     def __contains__(self, topic: object) -> bool:
-        return topic in self._held
+        return topic in self._held or topic in self._waiting
 
     def each(
         self, topic: str, leave: Container[int] = (), at: int = 0
@@ -82,6 +108,7 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
         a time (``decode_table``), never all held as Python objects. ``leave``: positions
         (in ``messages()``'s order; this topic's first is ``at``) of messages left out,
         undecoded."""
+        self._read(topic)
         held = self._held.get(topic, [])
         check = topic in self.current
         for k, (t, m) in enumerate(held, at):
@@ -92,13 +119,16 @@ class Topics(Mapping[str, list[tuple[int, Any]]]):
             yield t, m
 
     def count(self, topic: str) -> int:
-        """How many messages ``topic`` holds (nothing decoded)."""
-        return len(self._held.get(topic, ()))
+        """How many messages ``topic`` holds (nothing read or decoded)."""
+        held = self._held.get(topic)
+        return len(held) if held is not None else self._waiting.get(topic, 0)
 
     def messages(self) -> Iterator[LogMessage]:
-        """Every message as ``(topic, log_time, message)``, as held (decoded or JSON bytes)."""
-        for topic, msgs in self._held.items():
-            for t, m in msgs:
+        """Every message as ``(topic, log_time, message)``, as held (decoded or JSON bytes),
+        topic by topic in their order (a topic left in the file read now)."""
+        for topic in self._order:
+            self._read(topic)
+            for t, m in self._held.get(topic, ()):
                 yield topic, t, m
 
 

@@ -11,7 +11,7 @@ import io
 import os
 import struct
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Container, Mapping
 from dataclasses import dataclass, field
 from typing import IO, Any, TypeVar, cast
 
@@ -133,7 +133,7 @@ class Deferred:
             with open(self.path, "rb") as f:
                 size = os.fstat(f.fileno()).st_size
                 for offset in offsets:
-                    for rec in _records_at(f, offset, size, self.crcs.get(offset)):
+                    for rec in _records_at(f, offset, size, self.crcs.get(offset), cids):
                         if type(rec) is tuple and rec[0] in cids:
                             out.append((rec[1], bytes(rec[4])))
                         elif isinstance(rec, Message) and rec.channel_id in cids:
@@ -146,10 +146,12 @@ class Deferred:
         return out
 
 
-def _records_at(f: IO[bytes], offset: int, size: int, crc: int | None) -> list[Any]:
+def _records_at(
+    f: IO[bytes], offset: int, size: int, crc: int | None, only: Container[int]
+) -> list[Any]:
     """The records of the one record (a chunk, or an unchunked message) at ``offset``, its
-    CRC checked (a chunk's the one ``crc`` the scan found there); ``_Corrupt`` when no such
-    record is there."""
+    CRC checked (a chunk's the one ``crc`` the scan found there), a chunk's messages of the
+    channels ``only`` alone; ``_Corrupt`` when no such record is there."""
     f.seek(offset)
     head = f.read(9)
     if len(head) < 9:
@@ -167,7 +169,7 @@ def _records_at(f: IO[bytes], offset: int, size: int, crc: int | None) -> list[A
         return [rec]
     if crc is not None and rec.uncompressed_crc != crc:
         raise _Corrupt(f"the chunk at byte {offset} is not the one read then (another CRC)")
-    return _chunk_rows(rec, offset)
+    return _chunk_rows(rec, offset, only)
 
 
 def scan_log(
@@ -431,13 +433,14 @@ def _take_chunk(raw: RawLog, chunk: Chunk, start: int) -> None:
             deferred.note(cid, last, start, count)
 
 
-def _chunk_rows(chunk: Chunk, start: int) -> list[Any]:
-    """A chunk's records, its CRC checked: each message as ``RawLog.messages`` holds it, a
-    schema or channel record as mcap reads it; ``_Corrupt`` naming the chunk otherwise."""
+def _chunk_rows(chunk: Chunk, start: int, only: Container[int]) -> list[Any]:
+    """A chunk's records, its CRC checked: each message of the channels ``only`` as
+    ``RawLog.messages`` holds it, a schema or channel record as mcap reads it; ``_Corrupt``
+    naming the chunk otherwise."""
     data, where = _chunk_data(chunk, start)
     others: list[Any] = []
     try:
-        rows, _ = split_chunk(data, others.append)
+        rows, _ = split_chunk(data, others.append, only=only)
     except Exception as e:
         raise _Corrupt(f"{where}: cannot be read ({type(e).__name__}: {e})") from None
     return others + rows
