@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import rgtbus.checks as checks
 from rgtbus.errors import RgtbusError
@@ -120,10 +120,12 @@ def run(
     return result_of(sc, out.summary, path)
 
 
-def open_log(source: str | os.PathLike[str]) -> Log:
+def open_log(source: str | os.PathLike[str] | IO[bytes]) -> Log:
     """A run's MCAP log, read (CRC-checked) and organised: ``.summary()`` (the summary of
     ``rgtbus run --json``, from the log alone), ``.metadata``, and DataFrames ``.decisions()``,
-    ``.decodes()``, ``.spikes()``, ``.transmissions()``, ``.medium()``, ``.messages(topic)``."""
+    ``.decodes()``, ``.spikes()``, ``.transmissions()``, ``.medium()``, ``.messages(topic)``.
+    From a path, each topic is read from the file when first asked for (keep the file); from
+    a binary stream, the log is read whole at once."""
     from rgtbus.telemetry.frames import open_log as open_frames
 
     return open_frames(source)
