@@ -232,6 +232,11 @@ def test_a_log_from_a_path_keeps_each_topic_in_the_file_until_it_is_asked_for(tm
         return out
 
     assert by_topic(rp) == by_topic(whole)
+    traced = log_bytes(traces=True)  # a log read whole holds its traces; from a path, not
+    assert load_replay(io.BytesIO(traced)).trace_arrays("c") is not None
+    (tmp_path / "traced.mcap").write_bytes(traced)
+    from_path = load_replay(tmp_path / "traced.mcap")
+    assert "/trace/c" not in from_path.by_topic and from_path.trace_arrays("c") is not None
     again = load_replay(path)
     rgtbus.run(ROOT / "scenarios" / "gate.toml", seed=5, log=path)  # another run's log there
     with pytest.raises(RgtbusError, match=r"gate.mcap: changed since it was opened"):

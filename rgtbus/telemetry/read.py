@@ -194,8 +194,8 @@ class Replay:
         asked for (traces) is read from the file now and not kept."""
         if topic == RX_DECODE:
             return self.decode_records
-        if not is_trace_topic(topic):
-            return self.by_topic[topic]
+        if not is_trace_topic(topic) or topic in self.by_topic:  # (a log read whole holds
+            return self.by_topic[topic]  # its traces)
         deferred = self.deferred  # a trace: read from the file each time, never held
         if deferred is not None and topic in deferred.held():
             label, check = self.label, topic in self.by_topic.current
