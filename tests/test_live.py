@@ -319,7 +319,7 @@ def test_a_watcher_drops_what_is_not_telemetry():
 
     from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry
-    from rgtbus.bus.watch import Watcher
+    from rgtbus.telemetry.watch import Watcher
 
     class Sink:
         def __init__(self) -> None:
@@ -496,7 +496,7 @@ def test_a_keyed_runs_telemetry_is_signed_and_a_watcher_with_the_key_shows_only_
     from rgtbus.bus.auth import tag
     from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry, is_signed_telemetry, sign_telemetry
-    from rgtbus.bus.watch import Watcher
+    from rgtbus.telemetry.watch import Watcher
 
     key, other = bytes(range(1, 33)), b"\xa5" * 32
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(3)]  # the watchers', the bus's
@@ -565,10 +565,10 @@ def test_a_watcher_bounds_its_topics():
     import zenoh
     from rgtbus.units.launch import free_ports
 
-    from rgtbus.bus import watch
     from rgtbus.bus.config import make_config
     from rgtbus.bus.payload import encode_telemetry
-    from rgtbus.bus.watch import Watcher
+    from rgtbus.telemetry import watch
+    from rgtbus.telemetry.watch import Watcher
 
     ep = f"tcp/127.0.0.1:{free_ports(1)[0]}"
     sink = _Sink()
@@ -609,7 +609,7 @@ def test_a_unit_process_s_telemetry_says_whether_a_watcher_subscribes():
     from rgtbus.units.launch import free_ports
 
     from rgtbus.bus import open_bus
-    from rgtbus.bus.watch import Watcher
+    from rgtbus.telemetry.watch import Watcher
 
     eps = [f"tcp/127.0.0.1:{p}" for p in free_ports(2)]  # the watcher's, the bus's
 

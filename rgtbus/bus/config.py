@@ -75,7 +75,7 @@ def tls_settings(files: TlsFiles) -> dict[str, Any]:
     }
 
 
-# What the processes of a run do on zenoh (rgtbus.bus.zenoh, rgtbus.bus.watch): put (frames,
+# What the processes of a run do on zenoh (rgtbus.bus.zenoh, rgtbus.telemetry.watch): put (frames,
 # hellos, telemetry), declare a liveliness token, subscribe, and subscribe to the run's tokens.
 # Nothing else is allowed.
 PUT, TOKEN, SUBSCRIBE = "put", "liveliness_token", "declare_subscriber"

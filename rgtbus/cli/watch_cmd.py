@@ -72,8 +72,8 @@ def register(subparsers: SubParsers) -> None:
 def run_watch(args: argparse.Namespace) -> int:
     """``rgtbus watch``: serve the runs' telemetry live until Ctrl-C or ``--idle-exit``; then
     say what was received and dropped."""
-    from rgtbus.bus.watch import Watcher
     from rgtbus.telemetry.live import LiveView, parse_address
+    from rgtbus.telemetry.watch import Watcher
 
     host, port = parse_address(args.live)
     key = read_key(args)

@@ -1,4 +1,5 @@
-"""A watcher of a cross-process run: it joins the run's zenoh network and hears what every unit
+"""A watcher of a cross-process run (a telemetry tool over the bus: the telemetry layer sits above
+the bus, docs/engine.md): it joins the run's zenoh network and hears what every unit
 process logs (``rgtbus/<run>/telemetry/<unit>``, rgtbus.bus.payload telemetry frames).
 
 A watcher is never a member: it declares no hello, token or publisher, so the lockstep neither
