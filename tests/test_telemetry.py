@@ -1192,3 +1192,54 @@ def test_large_tables_units_hold_alike_are_checked_once_and_held_once():
     other = {**pairs, "u0-u1": "maybe"}
     with pytest.raises(RgtbusError, match=r"installed"):
         read(records.relations("u3", 4.0, sent, other, None, None))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_runs_of_equal_messages_split_as_the_loop_splits_them(seed, monkeypatch):
+    """A run of messages of one length is split as arrays (``chunks._equal_run``): on chunks
+    of runs of every length, several channels within a run, channel records between, and
+    channels kept, deferred (counted with their last time) or filtered out, the same rows,
+    counts and records as the record-at-a-time loop."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Channel, Message
+
+    from rgtbus.telemetry import chunks
+
+    rng = np.random.default_rng(seed)
+    out = RecordBuilder()
+
+    def channel(cid: int) -> None:
+        Channel(id=cid, topic=f"/t{cid}", message_encoding="json", schema_id=0, metadata={}).write(
+            out
+        )
+
+    for cid in range(1, 5):
+        channel(cid)
+    seq = 0
+    for _ in range(40):
+        size = int(rng.integers(0, 12))
+        for _ in range(int(rng.choice([1, 2, 3, 15, 16, 17, 70, 400]))):
+            cid = int(rng.integers(1, 5)) if rng.random() < 0.5 else 2
+            seq += 1
+            body = rng.integers(0, 256, size).astype(np.uint8).tobytes()
+            t = int(rng.integers(0, 2**40))
+            message = Message(
+                channel_id=cid, sequence=seq, log_time=t, publish_time=t + 1, data=body
+            )
+            message.write(out)
+        if rng.random() < 0.2:
+            channel(9)
+    data = out.end()
+
+    def split(only):
+        records: list = []
+        rows, seen = chunks.split_chunk(data, records.append, later={2, 3}, only=only)
+        return rows, seen, [r.id for r in records]
+
+    for only in (None, {1}, {4, 9}):
+        fast = split(only)
+        monkeypatch.setattr(chunks, "_RUN_LEAST", 10**9)  # every record through the loop
+        slow = split(only)
+        monkeypatch.undo()
+        assert fast == slow
+        assert sum(n for n, _ in fast[1].values()) > 200 and len(fast[2]) >= 4
