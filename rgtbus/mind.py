@@ -397,19 +397,19 @@ def intents(sc: Scenario, me: str) -> tuple[dict[str, str], dict[str, str]]:
         me,
         sc.units,
         seed=sc.seed,
-        fixed=sc.fixed_relations,
-        draws=sc.draws,
-        p=sc.alliance_p,
-        policy=sc.relation_policy,
+        fixed=sc.relations.fixed,
+        draws=sc.relations.draws,
+        p=sc.relations.p,
+        policy=sc.relations.policy,
     )
     influences = choose_influences(
         me,
         sc.units,
-        sc.influences,
+        sc.influences.pairs,
         sc.universe,
-        policy=sc.influence_policy,
-        value=sc.influence_value,
-        weights=sc.influence_weights,
+        policy=sc.influences.policy,
+        value=sc.influences.value,
+        weights=sc.influences.weights,
         seed=sc.seed,
     )
     return relations, influences
@@ -423,7 +423,7 @@ def mind_of(sc: Scenario, me: str) -> Mind:
         sc.universe,
         sc.decisions[me],
         random.Random(f"{sc.seed}:{me}:decision"),
-        rounds=sc.influence_rounds,
+        rounds=sc.protocol.influence_rounds,
     )
 
 

@@ -390,7 +390,7 @@ def summarise(
     summary = {
         "scenario": sc.name,
         "seed": sc.seed,
-        "schedule": sc.schedule,
+        "schedule": sc.protocol.schedule,
         "codebook": sc.codebook.name,  # the words the run's codes were drawn from
         "polynomial": ref["polynomial"],
         "decomposable": decomposable,
@@ -406,7 +406,7 @@ def summarise(
         "decisions": judged_decisions(sc, reports, clean) if units_out else [],
         "goals": [],
         "rounds": {
-            "count": sc.influence_rounds,
+            "count": sc.protocol.influence_rounds,
             **round_dynamics(rounds[:whole]),
             "influences": [_alternative_lists(u, r) for r in rounds],
         },
@@ -697,12 +697,12 @@ def repair_summary(sc: Scenario, reports: Sequence[Mapping[str, Any]]) -> dict[s
     """What the repair cost and did (``[protocol] repair = "arq"``; None without): its blocks
     after each phase, the simulated seconds they add, and the units' counts summed (requests
     and repeats sent, copies read and missing, payloads resolved and still unsure)."""
-    if sc.repair == "none":
+    if sc.protocol.repair == "none":
         return None
     counts = [r["repair"] for r in reports if r.get("repair") is not None]
     return {
-        "mode": sc.repair,
-        "blocks_per_phase": sc.repair_rounds,
+        "mode": sc.protocol.repair,
+        "blocks_per_phase": sc.protocol.repair_rounds,
         "seconds": max((c["seconds"] for c in counts), default=0.0),
         **{k: sum(int(c[k]) for c in counts) for k in REPAIR_COUNTS},
     }
@@ -711,7 +711,7 @@ def repair_summary(sc: Scenario, reports: Sequence[Mapping[str, Any]]) -> dict[s
 def sent_rounds(sc: Scenario, reports: Iterable[Mapping[str, Any]]) -> list[dict[str, str]]:
     """What the units sent in each influence round: ``[{"s>r": code}, ...]`` (pairs in
     scenario order; a unit without a report is missing from them)."""
-    out: list[dict[str, str]] = [{} for _ in range(sc.influence_rounds)]
+    out: list[dict[str, str]] = [{} for _ in range(sc.protocol.influence_rounds)]
     by_unit = {r["unit"]: r.get("sent_influences", []) for r in reports}
     for rnd, row in enumerate(out):
         for s, r in sc.pairs():

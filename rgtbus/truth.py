@@ -137,9 +137,9 @@ def clean_timeline(sc: Scenario) -> tuple[ProtocolState, Sequence[Listen]]:
         guard=sc.timing.guard,
         search=sc.timing.search,
         anchor="schedule",
-        kind=sc.schedule,
-        influence_rounds=sc.influence_rounds,
-        repair_rounds=sc.repairs_per_phase,
+        kind=sc.protocol.schedule,
+        influence_rounds=sc.protocol.influence_rounds,
+        repair_rounds=sc.protocol.repairs_per_phase,
     )
     acts = plan.begin(relations, influences)
     return plan, acts.queue.listens if acts.queue is not None else acts.listens
@@ -172,7 +172,7 @@ def sent_in_rounds(sc: Scenario, known: Mind, policy: Mapping[Pair, int]) -> lis
     """What every unit would send in every influence round on a perfect medium: the policy's
     influences, and a goal-driven unit's choices made exactly as the unit makes them (each
     with the influences decoded before its choice sample). ``known``: the intended group."""
-    k = sc.influence_rounds
+    k = sc.protocol.influence_rounds
     if not sc.goals:
         return [dict(policy) for _ in range(k)]
     plan, events = _decodes_and_choices(sc)

@@ -139,8 +139,8 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
     if threshold:
         text = placed.text.replace("[timing]", '[timing]\nattention = "threshold"', 1)
         placed, opens = parse_scenario(text, "geo.toml"), False
-    assert min(placed.gains.values()) < 1.0  # the links do lose
-    table = "".join(f'"{s}>{r}" = {g!r}\n' for (s, r), g in placed.gains.items())
+    assert min(placed.channel.gains.values()) < 1.0  # the links do lose
+    table = "".join(f'"{s}>{r}" = {g!r}\n' for (s, r), g in placed.channel.gains.items())
     listed = parse_scenario(
         placed.text.replace(CHANNEL, CHANNEL + "[channel.gain]\n" + table, 1)
         .replace('path_loss = "free-space"', "")
@@ -153,7 +153,8 @@ def test_a_placed_run_is_the_run_of_its_link_gains_on_both_engines_and_verifies(
         summary, data = logged_run(placed, engine)
         summaries[engine] = summary
         rp = load_replay(io.BytesIO(data))
-        assert rp.scenario.gains == placed.gains and rp.scenario.positions == placed.positions
+        assert rp.scenario.channel.gains == placed.channel.gains
+        assert rp.scenario.channel.positions == placed.channel.positions
         assert verify_log(rp).ok
     same, _ = logged_run(listed)
     skip = {"wall_seconds", "engine", "steps", "bus", "sync", "log", "scenario"}  # not results
@@ -401,3 +402,34 @@ def test_robots_on_a_plane_over_zenoh_equal_the_memory_run():
         for bus in ("memory", "zenoh")
     ]
     assert runs[0] == runs[1] and runs[0]["error"] is None
+
+
+def test_a_scenario_holds_its_channel_so_alike_is_worked_out_once_a_run(monkeypatch):
+    """``Scenario.channel`` is the section the loader built, one object (it was rebuilt from
+    flat fields at every access, and every unit asked whether the medium is heard alike:
+    n² work n times, 2.64 s at 300 units). A variation is a replaced section."""
+    from dataclasses import replace
+    from functools import cached_property
+
+    from rgtbus.units.group import run_group
+
+    from rgtbus.signal.channel import Channel
+    from rgtbus.telemetry import NullRecorder
+
+    calls: list[int] = []
+    work = Channel.__dict__["alike"].func
+
+    def counted(self: Channel) -> bool:
+        calls.append(1)
+        return work(self)
+
+    alike = cached_property(counted)
+    alike.__set_name__(Channel, "alike")
+    monkeypatch.setattr(Channel, "alike", alike)
+    sc = parse_scenario(GATE, "gate.toml")
+    noisy = replace(sc, channel=replace(sc.channel, noise=0.02))
+    assert noisy.channel is noisy.channel and noisy.channel.noise == 0.02
+    assert sc.channel.noise == 0.0 and noisy.units == sc.units
+    before = len(calls)
+    run_group(noisy, "memory", NullRecorder())
+    assert len(calls) == before + 1  # the new channel's, once for all four units

@@ -366,7 +366,7 @@ def test_a_launch_over_a_channel_with_distance_and_bursts_equals_the_single_proc
     path = tmp_path / "placed.toml"
     path.write_text(text)
     sc = load_scenario(path)
-    assert sc.channel.noisy and min(sc.gains.values()) < 1.0
+    assert sc.channel.noisy and min(sc.channel.gains.values()) < 1.0
     rec = MemoryRecorder()
     ref = run_group(sc, "memory", rec).summary
     assert ref["error"] is None

@@ -235,7 +235,7 @@ def test_a_log_cut_anywhere_is_complete_before_its_bound(seed, noise, schedule):
     from rgtbus.telemetry.recorder import LogContents
 
     sc = random_group(seed, noise=noise, gains=True, anchor="schedule")
-    sc = dataclasses.replace(sc, schedule=schedule)
+    sc = dataclasses.replace(sc, protocol=dataclasses.replace(sc.protocol, schedule=schedule))
     rec = MemoryRecorder()
     run_group(sc, "memory", rec)
     written = rec.messages  # in the order they were written
@@ -272,7 +272,7 @@ def test_a_unit_that_batches_logs_what_it_logs_waking_for_each_decode(seed, nois
             return True
 
     sc = random_group(seed, noise=noise, gains=True, anchor="schedule")
-    sc = dataclasses.replace(sc, schedule="concurrent")
+    sc = dataclasses.replace(sc, protocol=dataclasses.replace(sc.protocol, schedule="concurrent"))
     logs = []
     for live in (None, Looking()):
         rec = MemoryRecorder(live=live)

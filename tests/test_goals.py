@@ -90,7 +90,7 @@ outcome = "adopted"
     assert (outcome_b.lo, outcome_b.mode) == (u.parse_alternative("{alpha}"), "smallest")
     assert sc.goals_of("b") == {}
     assert set(sc.goals_of("c")) == {"a", "b"}
-    assert sc.influence_rounds == 1
+    assert sc.protocol.influence_rounds == 1
 
 
 @pytest.mark.parametrize(

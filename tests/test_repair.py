@@ -115,8 +115,8 @@ def test_the_book_holds_what_is_unsure_asks_for_it_and_decodes_the_mean_of_its_r
 def test_without_repair_the_protocol_plans_no_block():
     ps = _state("a", "concurrent", rounds=0)
     assert ps.begin({"b": "alliance", "c": "alliance"}, {"b": "0", "c": "1"}).repairs == []
-    assert group(repair="none").repairs_per_phase == 0
-    assert group(extra="repair_rounds = 5").repairs_per_phase == 5
+    assert group(repair="none").protocol.repairs_per_phase == 0
+    assert group(extra="repair_rounds = 5").protocol.repairs_per_phase == 5
 
 
 def test_repair_needs_turns_timed_by_the_schedule():

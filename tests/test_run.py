@@ -129,7 +129,8 @@ def test_alliance_probability_is_0_61():
         sc = replace(base, seed=seed)
         for u in sc.units:
             choices = choose_relations(
-                u, sc.units, seed=seed, fixed=sc.fixed_relations, draws=sc.draws, p=sc.alliance_p
+                u, sc.units, seed=seed, fixed=sc.relations.fixed, draws=sc.relations.draws,
+                p=sc.relations.p,
             )
             n += len(choices)
             alliances += sum(v == "alliance" for v in choices.values())
@@ -158,7 +159,7 @@ def test_noisy_channel_still_decodes(seed):
     the increment readout itself stays exact up to the noise on the sample.
     """
     base = load_scenario(ROOT / "scenarios" / "gate.toml")
-    sc = replace(base, noise=0.002, seed=seed)
+    sc = replace(base, channel=replace(base.channel, noise=0.002), seed=seed)
     _, s, (messages, _) = run(sc)
     assert s["error"] is None and s["outcome"] == "gate: open" and s["decode_errors"] == []
     margins = [x for t, _, m in messages if t == "/rx/decodes" for x in m["margin"]]
@@ -352,7 +353,7 @@ def test_schedule_anchor_changes_nothing_on_a_clean_channel():
 def test_noisy_gate_decodes_at_sigma_0_05_when_anchored_on_the_schedule(seed):
     """Stated level for anchor = "schedule": sigma = 0.05 (25x what attention spikes stand)."""
     sc = load_scenario(ROOT / "scenarios" / "gate_noisy.toml").with_seed(seed)
-    assert sc.noise == 0.05 and sc.timing.anchor == "schedule"
+    assert sc.channel.noise == 0.05 and sc.timing.anchor == "schedule"
     sc_, s, _ = run(sc)
     assert s["error"] is None and s["decode_errors"] == []
     assert [w for w, ok, _ in check_expectations(sc_, s) if not ok] == []

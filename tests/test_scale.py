@@ -30,8 +30,8 @@ def expected(sc):
     matrix = InfluenceMatrix(sc.units, sc.universe)
     for me in sc.units:
         sent = choose_influences(
-            me, sc.units, sc.influences, sc.universe, policy=sc.influence_policy,
-            value=sc.influence_value, weights=sc.influence_weights, seed=sc.seed,
+            me, sc.units, sc.influences.pairs, sc.universe, policy=sc.influences.policy,
+            value=sc.influences.value, weights=sc.influences.weights, seed=sc.seed,
         )  # fmt: skip
         for r, text in sent.items():
             matrix.set(me, r, sc.universe.parse_alternative(text))
@@ -40,7 +40,7 @@ def expected(sc):
 
 def check(name: str) -> None:
     sc = load_scenario(ROOT / "scenarios" / f"{name}.toml")
-    assert sc.schedule == "concurrent"
+    assert sc.protocol.schedule == "concurrent"
     out = run_group(sc, "memory", NullRecorder()).summary
     assert out["error"] is None and out["decode_errors"] == [] and out["agree"]
     poly, results = expected(sc)

@@ -22,7 +22,7 @@ def test_shipped_scenarios_load(path):
 def test_gate_contents():
     sc = load_scenario(GATE)
     assert sc.units == ("a", "b", "c", "d") and sc.universe.actions == ("open",)
-    assert sc.influences[("d", "a")] == 1 and sc.influences[("a", "d")] == 0
+    assert sc.influences.pairs[("d", "a")] == 1 and sc.influences.pairs[("a", "d")] == 0
     assert sc.outcome.all_of == ("a", "b", "c")
     assert sc.timing.window_samples == 20
 

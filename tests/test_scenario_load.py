@@ -37,7 +37,7 @@ value = 1
 def test_text_loads_as_the_file_does():
     by_text, by_path = load_scenario(GATE.read_text()), load_scenario(GATE)
     assert by_text.path == "<text>" and by_text.text == by_path.text
-    assert by_text.units == by_path.units and by_text.influences == by_path.influences
+    assert by_text.units == by_path.units and by_text.influences.pairs == by_path.influences.pairs
     assert by_text.frequencies == by_path.frequencies and by_text.timing == by_path.timing
     assert load_scenario(SMALL).units == ("a", "b")
 
@@ -127,7 +127,7 @@ def test_shipped_scenarios_are_the_scenario_files():
 def test_every_listed_scenario_loads_by_name(entry):
     sc = load_scenario(entry.name)
     assert sc.name == entry.name and Path(sc.path) == entry.path
-    assert len(sc.units) == entry.units and sc.schedule == entry.schedule
+    assert len(sc.units) == entry.units and sc.protocol.schedule == entry.schedule
 
 
 def test_scenarios_command_text(capsys):

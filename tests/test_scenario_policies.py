@@ -49,7 +49,8 @@ def test_uniform_influences_with_an_override():
     sc = scenario('policy = "cograph"', 'policy = "uniform"\nvalue = "1"\n"d>a" = "0"')
     got = {
         me: choose_influences(
-            me, sc.units, sc.influences, sc.universe, policy="uniform", value=sc.influence_value
+            me, sc.units, sc.influences.pairs, sc.universe, policy="uniform",
+            value=sc.influences.value,
         )
         for me in sc.units
     }

@@ -246,7 +246,8 @@ def test_cases_are_named_sets_of_keys_crossed_with_the_grid(tmp_path):
     from rgtbus.units.sweep import scenario_for
 
     sc = scenario_for(sw, (("case", "serial, schedule anchor"), ("n", 3)), 4)
-    assert (sc.schedule, sc.timing.anchor, sc.units) == ("serial", "schedule", ("u1", "u2", "u3"))
+    got = (sc.protocol.schedule, sc.timing.anchor, sc.units)
+    assert got == ("serial", "schedule", ("u1", "u2", "u3"))
 
 
 @pytest.mark.parametrize(

@@ -56,7 +56,7 @@ class Arq:
         self.omegas = [scenario.frequencies[u] for u in self.units]
         self.pulses = scenario.codebook.pulses
         self.tau = scenario.timing.tau
-        self.blocks = scenario.repairs_per_phase
+        self.blocks = scenario.protocol.repairs_per_phase
         self.book = book
         self.payload_codes = payload_codes
         self.schedule, self.emit, self.record, self.learn, self.log = (

@@ -125,7 +125,7 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
     try:
         sc = scenario_for(sweep, task.cell, task.seed)
         row["digest"] = hashlib.sha256(sc.text.encode()).hexdigest()[:16]
-        row["schedule"] = sc.schedule
+        row["schedule"] = sc.protocol.schedule
         row["n_units"] = len(sc.units)
         if log_dir is not None:
             log_path = os.path.join(log_dir, f"run-{task.index:07d}.mcap")

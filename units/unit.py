@@ -112,8 +112,8 @@ def protocol_of(sc: Scenario, name: str) -> ProtocolState:
         name, sc.units, dict(sc.frequencies), sc.timing.tau,
         pulses=sc.codebook.pulses, start=sc.timing.start,
         reaction_delay=sc.timing.reaction_delay, guard=sc.timing.guard,
-        search=sc.timing.search, anchor=sc.timing.anchor, kind=sc.schedule,
-        influence_rounds=sc.influence_rounds, repair_rounds=sc.repairs_per_phase,
+        search=sc.timing.search, anchor=sc.timing.anchor, kind=sc.protocol.schedule,
+        influence_rounds=sc.protocol.influence_rounds, repair_rounds=sc.protocol.repairs_per_phase,
         attention=sc.timing.attention, read_margin=1 if sc.channel.timed else 0,
         expect_spike=ExpectedSpike(sc, name),
     )  # fmt: skip
@@ -183,12 +183,13 @@ class AutonomousUnit:
         self.transmitter = Transmitter(sc.codebook, dict(sc.frequencies), self.tau, self.log)
         self.listening = Listening(
             name, sc, self.protocol, self.mind, self.decoded, self.log,
-            act=self._act, settle=self._settle, repairs=bool(sc.repairs_per_phase),
+            act=self._act, settle=self._settle, repairs=bool(sc.protocol.repairs_per_phase),
         )  # fmt: skip
         self.arq: Arq | None = None  # [protocol] repair = "arq" (docs/protocol.md, "Repair")
-        if sc.repairs_per_phase:
+        if sc.protocol.repairs_per_phase:
             self.arq = Arq(
-                name, sc, RepairBook(sc.codebook, sc.repair_margin, sc.repairs_per_phase),
+                name, sc,
+                RepairBook(sc.codebook, sc.protocol.repair_margin, sc.protocol.repairs_per_phase),
                 payload_codes=self.transmitter.payload_code, schedule=self._schedule,
                 emit=self.transmitter.emit, record=self._record, learn=self._learn, log=self.log,
             )  # fmt: skip
@@ -260,7 +261,8 @@ class AutonomousUnit:
         (``Listening.expect_queue``, at most ``READ_AS_HEARD_SECONDS`` late)."""
         sc = self.scenario
         longest = (sc.codebook.pulses - 1) * max(2 * math.pi / w for w in sc.frequencies.values())
-        late = READ_AS_HEARD_SECONDS if sc.schedule == "concurrent" else self._batch_seconds
+        concurrent = sc.protocol.schedule == "concurrent"
+        late = READ_AS_HEARD_SECONDS if concurrent else self._batch_seconds
         return KEEP_SECONDS + longest + late
 
     def batching(self) -> bool:
@@ -769,7 +771,7 @@ def influences_sent(
 ) -> list[dict[str, str]]:
     """The influences among ``sent`` (a unit's sends), per influence round:
     ``[{addressee: code}, ...]``."""
-    out: list[dict[str, str]] = [{} for _ in range(scenario.influence_rounds)]
+    out: list[dict[str, str]] = [{} for _ in range(scenario.protocol.influence_rounds)]
     for send in sent:
         turn = protocol.schedule[send.turn]
         if send.kind == "payload" and turn.phase == PHASES[1]:

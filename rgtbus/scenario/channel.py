@@ -9,7 +9,7 @@ from typing import Any
 
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.model import Timing
-from rgtbus.scenario.schedule import Protocol
+from rgtbus.scenario.schedule import ProtocolSection
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
 from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, Clock, link_gains
 
@@ -207,7 +207,8 @@ def _path_loss(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float
     return float(value)
 
 
-def check_timed_channel(ctx: Ctx, channel: Channel, protocol: Protocol, timing: Timing) -> None:
+def check_timed_channel(ctx: Ctx, channel: Channel, protocol: ProtocolSection, timing: Timing
+) -> None:
     """A channel whose pulses land off their samples (a speed, clocks) needs turns that follow
     what each unit hears: the serial schedule timed by confirmed attention (each unit times
     every ID it hears by its timing search; docs/protocol.md, "Attention"), without a repair

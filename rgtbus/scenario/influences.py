@@ -3,7 +3,8 @@ fixed (every pair listed), uniform (one value), random (seeded, over weights).""
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from dataclasses import dataclass, field
+from typing import Any
 
 from rgtbus.pairs import ordered_pairs, pair_key
 from rgtbus.rgt import Universe
@@ -14,13 +15,15 @@ INFLUENCE_POLICIES = ("fixed", "uniform", "random")
 INFLUENCE_KEYS = {"policy", "value", "weights"}  # any other key of [influences] is a pair
 
 
-class Influences(NamedTuple):
-    """``[influences]`` as read: the policy, its value or weights, and the pairs listed."""
+@dataclass(frozen=True)
+class Influences:
+    """``[influences]`` as read (``Scenario.influences``): the policy, its value or weights,
+    and the pairs listed (how the others are chosen: ``rgtbus.mind.choose_influences``)."""
 
-    policy: str
-    value: int | None  # policy uniform
-    weights: dict[int, float]  # policy random
-    pairs: dict[tuple[str, str], int]  # listed per pair
+    policy: str = "fixed"
+    value: int | None = None  # policy uniform
+    weights: dict[int, float] = field(default_factory=dict)  # policy random
+    pairs: dict[tuple[str, str], int] = field(default_factory=dict)  # listed per pair
 
 
 def influences_of(

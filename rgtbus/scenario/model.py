@@ -8,7 +8,10 @@ from typing import Any
 import rgtbus.checks as checks
 from rgtbus.pairs import ordered_pairs
 from rgtbus.rgt import Universe
-from rgtbus.signal.channel import Burst, Channel, Clock
+from rgtbus.scenario.influences import Influences
+from rgtbus.scenario.relations import Relations
+from rgtbus.scenario.schedule import ProtocolSection
+from rgtbus.signal.channel import Channel
 from rgtbus.signal.codebook import Codebook
 
 
@@ -70,8 +73,11 @@ class Goal:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A scenario as loaded: its group, channel, codebook, frequencies, timing, relations,
-    influences, decisions, goals, outcome and expectations."""
+    """A scenario as loaded: its group (name, seed, units, universe), frequencies, codebook and
+    resonator mode, and one field for each remaining section of the file, typed as the loader
+    builds it: ``timing``, ``channel``, ``relations``, ``influences``, ``decisions``,
+    ``outcome``, ``goals``, ``protocol``, ``expect``. A variation is a replaced section:
+    ``replace(sc, channel=replace(sc.channel, noise=0.02))`` (docs/api.md)."""
 
     name: str
     path: str
@@ -84,62 +90,21 @@ class Scenario:
     codebook: Codebook
     mode: str
     timing: Timing
-    noise: float
-    gains: dict[tuple[str, str], float]  # every link's, path loss included (Channel.gains)
-    relation_policy: str
-    alliance_p: float
-    fixed_relations: dict[tuple[str, str], bool]
-    draws: dict[tuple[str, str], float]
-    influences: dict[tuple[str, str], int]
+    # [channel]: noise, every link's gain (path loss included), positions, bursts, the speed
+    # of propagation and the clocks (``rgtbus.signal.channel.Channel``)
+    channel: Channel
+    relations: Relations
+    influences: Influences
     decisions: dict[str, str]
     outcome: Outcome | None
+    protocol: ProtocolSection = field(default_factory=ProtocolSection)
+    goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
     expect: dict[str, Any] = field(default_factory=dict)
     description: str = ""
-    # How influences not listed per pair are chosen (rgtbus.mind.choose_influences).
-    schedule: str = (
-        "serial"  # [protocol] schedule: one code at a time, or rounds (docs/protocol.md)
-    )
-    influence_policy: str = "fixed"
-    influence_value: int | None = None  # policy uniform
-    influence_weights: dict[int, float] = field(default_factory=dict)  # policy random
-    influence_rounds: int = 1  # [protocol] influence_rounds: influence phases (the paper: 1)
-    goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
-    # [channel] positions (metres, x y z), path_loss and reference_distance (Channel)
-    positions: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    path_loss: float = 0.0
-    reference_distance: float = 1.0
-    burst: Burst | None = None  # [channel.burst]: noise in bursts (Gilbert–Elliott)
-    speed: float | None = None  # [channel] speed: m/s pulses travel (None: instantly)
-    clocks: dict[str, Clock] = field(default_factory=dict)  # [channel.clock] by unit
-    # [protocol] repair: "none" (the paper) or "arq" (docs/protocol.md, "Repair"); its blocks
-    # after each phase and the margin (a fraction of a family's smallest word distance) below
-    # which a decode is unsure
-    repair: str = "none"
-    repair_rounds: int = 3
-    repair_margin: float = 0.65
-
-    @property
-    def repairs_per_phase(self) -> int:
-        """Repair blocks after each phase (0: no repair)."""
-        return self.repair_rounds if self.repair == "arq" else 0
 
     def goals_of(self, unit: str) -> dict[str, Goal]:
         """Unit ``unit``'s goals by target (empty: it keeps its influence policy)."""
         return {g.target: g for g in self.goals if g.unit == unit}
-
-    @property
-    def channel(self) -> Channel:
-        """What each receiver hears from each sender (``rgtbus.signal.channel``)."""
-        return Channel(
-            self.noise,
-            self.gains,
-            self.positions,
-            self.path_loss,
-            self.reference_distance,
-            self.burst,
-            self.speed,
-            self.clocks,
-        )
 
     def pairs(self) -> list[tuple[str, str]]:
         """Every ordered pair of distinct units, sender-major in unit order."""

@@ -3,7 +3,8 @@ probability ``p``, ``fixed`` relations and given ``draws`` per ordered pair."""
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from dataclasses import dataclass, field
+from typing import Any
 
 from rgtbus.errors import RgtbusError
 from rgtbus.pairs import ordered_pairs, pair_key
@@ -15,14 +16,15 @@ RELATION_KEYS = {"policy", "p", "fixed", "draws"}
 RELATION_POLICIES = ("fixed", "random", "cograph")
 
 
-class Relations(NamedTuple):
-    """``[relations]`` as read: the policy, the alliance probability, and the fixed relations and
-    draw probabilities by pair."""
+@dataclass(frozen=True)
+class Relations:
+    """``[relations]`` as read (``Scenario.relations``): the policy, the alliance probability,
+    and the fixed relations and draw probabilities by pair."""
 
-    policy: str
-    p: float  # the alliance probability
-    fixed: dict[tuple[str, str], bool]  # True: alliance
-    draws: dict[tuple[str, str], float]
+    policy: str = "random"
+    p: float = 0.61  # the alliance probability
+    fixed: dict[tuple[str, str], bool] = field(default_factory=dict)  # True: alliance
+    draws: dict[tuple[str, str], float] = field(default_factory=dict)
 
 
 def relations_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Relations:

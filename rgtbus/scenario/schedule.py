@@ -4,7 +4,8 @@ repair (``repair = "none" | "arq"``, ``repair_rounds``, ``repair_margin``; docs/
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import Any
 
 from rgtbus.protocol import MAX_INFLUENCE_ROUNDS, SCHEDULES
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
@@ -19,17 +20,28 @@ DEFAULT_REPAIR_ROUNDS = 3
 DEFAULT_REPAIR_MARGIN = 0.65
 
 
-class Protocol(NamedTuple):
-    """``[protocol]`` as read: the schedule, the influence rounds and the repair."""
+@dataclass(frozen=True)
+class ProtocolSection:
+    """``[protocol]`` as read (``Scenario.protocol``): the schedule (serial: one code at a
+    time; concurrent: rounds, docs/protocol.md), the influence phases (the paper: 1) and the
+    repair: "none" (the paper) or "arq" (docs/protocol.md, "Repair"), its blocks after each
+    phase and the margin (a fraction of a family's smallest word distance) below which a
+    decode is unsure. Named for its section: not ``typing.Protocol``, not ``rgtbus.protocol``
+    (the protocol itself)."""
 
-    schedule: str
-    influence_rounds: int
+    schedule: str = "serial"
+    influence_rounds: int = 1
     repair: str = "none"
     repair_rounds: int = DEFAULT_REPAIR_ROUNDS
     repair_margin: float = DEFAULT_REPAIR_MARGIN
 
+    @property
+    def repairs_per_phase(self) -> int:
+        """Repair blocks after each phase (0: no repair)."""
+        return self.repair_rounds if self.repair == "arq" else 0
 
-def protocol_of(ctx: Ctx, data: dict[str, Any]) -> Protocol:
+
+def protocol_of(ctx: Ctx, data: dict[str, Any]) -> ProtocolSection:
     """``[protocol]``: schedule, influence rounds and repair, each checked."""
     proto = sub_table(ctx, data, "protocol")
     check_keys(ctx, proto, PROTOCOL_KEYS, "protocol")
@@ -67,4 +79,4 @@ def protocol_of(ctx: Ctx, data: dict[str, Any]) -> Protocol:
             "repair_margin",
             f"must be a number 0..2 (a fraction of the smallest word distance), got {margin!r}",
         )
-    return Protocol(schedule, influence_rounds, repair, rounds, float(margin))
+    return ProtocolSection(schedule, influence_rounds, repair, rounds, float(margin))

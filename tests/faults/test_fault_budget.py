@@ -247,7 +247,7 @@ def test_a_large_budget_is_asked_for_by_name(monkeypatch):
     assert "(7.68e+12 decodes)" in why and "100 × the memory this machine has free" in why, why
     assert "more than 100 hours (beyond RGTBUS_BUDGET=large too" in why, why
     sc = parse_scenario(text.replace("1000", "2"), NAME)
-    assert sc.influence_rounds == 2 and len(sc.units) == 16
+    assert sc.protocol.influence_rounds == 2 and len(sc.units) == 16
     assert "beyond RGTBUS_BUDGET=large too" in refused(group(10_000))
     monkeypatch.setenv("RGTBUS_BUDGET", "huge")
     assert "RGTBUS_BUDGET='huge': unknown budget (default or large)" in refused(GATE)
