@@ -314,13 +314,19 @@ class ExpectedSpike:
     def __init__(self, scenario: Scenario, name: str) -> None:
         self.scenario = scenario
         self._index = {u: i for i, u in enumerate(scenario.units)}
-        self._gains = scenario.channel.gain_row(scenario.units, name)
+        # its link gains as the engine made its receiver (``hear``, as the run begins)
+        self._gains: np.ndarray | None = None
+
+    def hear(self, gains: np.ndarray) -> None:
+        """The link gains of its receiver, as the engine made it (``Reception``)."""
+        self._gains = gains
 
     def __call__(self, sender: str, ids: tuple[int, ...], deadline: int) -> int | None:
         sc = self.scenario
         ch = self._index[sender]
         within = deadline - ids[0] + 1
         offsets = tuple(k - ids[0] for k in ids)
+        assert self._gains is not None, "an expected spike before the run began"
         gain = float(self._gains[ch])
         k = clean_first_spike(
             sc.frequencies[sender], sc.mode, sc.timing.tau, sc.codebook.id_word, offsets, gain,
@@ -377,7 +383,7 @@ class Listening:
         self.log_tables: records.DecodeTables = (self.units, KINDS, self.words)
         log.tables = self.log_tables
         self.index_of = {u: i for i, u in enumerate(self.units)}
-        self._gains = sc.channel.gain_row(sc.units, name)  # what it hears of each sender
+        self._gains = np.ones(0)  # what it hears of each sender: its receiver's (``begin``)
         self._timed = sc.channel.timed  # pulses land off their samples (delays, clocks)
         # by channel (``attend``): the ID as its link delivers it, alone and as a word set
         self._attention_words: dict[int, tuple[WordSet, tuple[float, ...]]] = {}
@@ -387,8 +393,10 @@ class Listening:
         self.member = 0  # its index among the ears' listeners
 
     def begin(self, ears: Ears, member: int) -> None:
-        """The ears it hears through, and its index among their listeners."""
+        """The ears it hears through, and its index among their listeners (whose link
+        gains, made by the engine, are what it hears of each sender)."""
         self.ears, self.member = ears, member
+        self._gains = ears.listeners[member].gains
 
     # -- a decode on its own ---------------------------------------------------------------------
 

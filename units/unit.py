@@ -34,7 +34,7 @@ from rgtbus.units.transmitter import Transmitter
 
 from rgtbus.bus.payload import NEVER
 from rgtbus.engine.hearing import READ_AS_HEARD_SECONDS
-from rgtbus.engine.listener import Heard, Listener
+from rgtbus.engine.listener import Heard, OwnHearing
 from rgtbus.mind import (
     Mind,
     decision_fields,
@@ -47,7 +47,6 @@ from rgtbus.protocol import NOTHING, PHASES, Actions, Listen, ProtocolState, Sen
 from rgtbus.repair import RepairBook
 from rgtbus.rgt import Universe
 from rgtbus.scenario import Goal, Scenario
-from rgtbus.signal.channel import BurstStates, burst_rng, noise_rng
 from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
@@ -105,9 +104,9 @@ def batch_seconds(
     return batch
 
 
-def protocol_of(sc: Scenario, name: str) -> ProtocolState:
+def protocol_of(sc: Scenario, name: str, expect: ExpectedSpike | None = None) -> ProtocolState:
     """Unit ``name``'s protocol state in scenario ``sc`` (its schedule's plan is shared by
-    every unit of a process: ``plan_of``)."""
+    every unit of a process: ``plan_of``), expecting its attention spikes by ``expect``."""
     return ProtocolState(
         name, sc.units, dict(sc.frequencies), sc.timing.tau,
         pulses=sc.codebook.pulses, start=sc.timing.start,
@@ -115,7 +114,7 @@ def protocol_of(sc: Scenario, name: str) -> ProtocolState:
         search=sc.timing.search, anchor=sc.timing.anchor, kind=sc.protocol.schedule,
         influence_rounds=sc.protocol.influence_rounds, repair_rounds=sc.protocol.repairs_per_phase,
         attention=sc.timing.attention, read_margin=1 if sc.channel.timed else 0,
-        expect_spike=ExpectedSpike(sc, name),
+        expect_spike=ExpectedSpike(sc, name) if expect is None else expect,
     )  # fmt: skip
 
 
@@ -161,7 +160,8 @@ class AutonomousUnit:
         self._aw_named: tuple[str, int, int] | None = None
         self._aw: tuple[int, int, int] = (0, 0, 0)
         self._asked: tuple[int, int, int] | None = None  # what the last ask awaited
-        self.protocol = protocol_of(sc, name)
+        self._expected = ExpectedSpike(sc, name)  # told its link gains as the run begins
+        self.protocol = protocol_of(sc, name, self._expected)
         self.mind = mind_of(sc, name)
         self.goals = sc.goals_of(name)
         # goal-driven influence sends: timed by the protocol, their code chosen at their
@@ -208,24 +208,12 @@ class AutonomousUnit:
 
     # -- the world's interface ---------------------------------------------------------------
 
-    def listener(self) -> Listener:
-        """This unit's receiver: its link gains, its noise (its own seeded generator), its
-        readout, its traces."""
-        sc = self.scenario
-        me = self._index[self.name]
-        return Listener(
-            name=self.name,
-            gains=sc.channel.gain_row(self.units, self.name),
-            noise=sc.channel.noise,
-            # a noise-free run never draws: it need not load numpy.random
-            rng=noise_rng(sc.seed, me) if sc.channel.noisy else None,
-            bursts=None
-            if sc.channel.burst is None
-            else BurstStates(sc.channel.burst, self.tau, burst_rng(sc.seed, me)),
+    def hearing(self) -> OwnHearing:
+        """What it supplies of its receiver (the engine makes the rest from the channel,
+        ``Reception``): the readout it keeps, its traces, its spikes, whether it waits for
+        one."""
+        return OwnHearing(
             keep=sample_of(self._keep_seconds(), self.tau),
-            arrival=sc.channel.arrivals(self.units, self.name, self.tau)
-            if sc.channel.timed
-            else None,
             trace=self.log.trace if self.traces else None,
             spike_log=self.log if self.recorder.enabled else None,  # only a log needs every spike
             # else its plans never wait for a spike
@@ -245,6 +233,7 @@ class AutonomousUnit:
         on_time = self.watched() or isinstance(env, simpy.rt.RealtimeEnvironment)
         self.transmitter.begin(env, on_time)
         self.listening.begin(ears, index)
+        self._expected.hear(ears.listeners[index].gains)
         self.log.member = index
         if self.arq is not None:
             self.arq.begin(self.listening.read)

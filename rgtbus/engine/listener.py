@@ -2,6 +2,12 @@
 where its spikes and traces go, and what it asked the ears for; and what a wake tells it
 (``Heard``).
 
+The engine makes each receiver's view of the medium from the run's channel (``Reception``):
+gains, noise and its generator, bursts, arrivals. The unit supplies only what is its own
+(``OwnHearing``: how much readout it keeps, where its traces and spikes go, whether its plans
+wait for a spike). A new channel effect is then ``rgtbus/signal/channel.py``, its keys in
+``rgtbus/scenario/channel.py`` and its share of a receiver here.
+
 A receiver's noise is white, ``n_k ~ N(0, σ²)`` (or ``σ_b(k)·z_k`` inside a burst), drawn in
 sample order from the unit's own seeded generator: the same numbers however the run is cut.
 """
@@ -10,12 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.channel import BurstStates
+from rgtbus.signal.channel import BurstStates, Channel, burst_rng, noise_rng
 
 if TYPE_CHECKING:
     from rgtbus.engine.spike_log import SpikeLog
@@ -91,3 +98,51 @@ class Listener:
             cut = min(upto - self._noise_at, self._noise.size)
             self._noise = self._noise[cut:]
             self._noise_at += cut
+
+
+class OwnHearing(NamedTuple):
+    """What a unit supplies of its receiver, all of it its own: the samples of readout history
+    it decodes from (``keep``), where its traces and its every spike go (None: nowhere), and
+    whether its plans can wait for a spike (``Listener.awaits``)."""
+
+    keep: int
+    trace: TraceSink | None = None
+    spike_log: SpikeLog | None = None
+    awaits: bool = True
+
+
+@dataclass(frozen=True)
+class Reception:
+    """How the receivers of a run hear the medium, made from its ``channel`` (units in member
+    order, the run's ``seed`` and sample period ``tau``): receiver r's link gains
+    ``g[s→r]`` for every sender s, its noise σ (``noise_rng(seed, r)``: no generator for a
+    noise-free receiver, which never draws), its bursts (``burst_rng(seed, r)``) and where
+    each sender's samples land on its own (``Channel.arrivals``, for a timed channel). See
+    ``rgtbus.signal.channel`` for the equations."""
+
+    channel: Channel
+    units: tuple[str, ...]
+    seed: int
+    tau: float
+
+    @cached_property
+    def _index(self) -> dict[str, int]:
+        return {u: i for i, u in enumerate(self.units)}
+
+    def listener(self, name: str, own: OwnHearing) -> Listener:
+        """Unit ``name``'s receiver: its view of the medium, and what it supplies (``own``)."""
+        ch, me = self.channel, self._index[name]
+        return Listener(
+            name=name,
+            gains=ch.gain_row(self.units, name),
+            noise=ch.noise,
+            rng=noise_rng(self.seed, me) if ch.noisy else None,
+            bursts=None
+            if ch.burst is None
+            else BurstStates(ch.burst, self.tau, burst_rng(self.seed, me)),
+            keep=own.keep,
+            arrival=ch.arrivals(self.units, name, self.tau) if ch.timed else None,
+            trace=own.trace,
+            spike_log=own.spike_log,
+            awaits=own.awaits,
+        )

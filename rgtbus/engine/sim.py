@@ -34,7 +34,7 @@ from rgtbus.bus.base import Bus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
-from rgtbus.engine.listener import Listener
+from rgtbus.engine.listener import OwnHearing, Reception
 from rgtbus.errors import MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
@@ -52,7 +52,7 @@ class Member(Protocol):
     done_at: int
     failure: str | None
 
-    def listener(self) -> Listener: ...
+    def hearing(self) -> OwnHearing: ...
     def join_log(self, group: GroupLog, at: int) -> None: ...
     def begin(self, env: simpy.Environment, ears: Ears, index: int) -> None: ...
     def take_outbox(self) -> Pulses: ...
@@ -65,11 +65,13 @@ _NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))
 
 @dataclass(frozen=True)
 class Receivers:
-    """How the units hear: every unit has one resonator per channel of the run."""
+    """How the units hear: every unit has one resonator per channel of the run, and hears
+    the medium as the run's channel makes it (``reception``: each receiver's view)."""
 
     omegas: tuple[float, ...]
     mode: str
     tau: float
+    reception: Reception
 
 
 @dataclass
@@ -184,7 +186,13 @@ class World:
     ) -> World:
         """The world of a scenario's ``members``: its channels, resonator mode and sample
         rate; its window (the medium's log blocks, and the dense engine's step)."""
-        receivers = Receivers(tuple(sc.frequencies[u] for u in sc.units), sc.mode, sc.timing.tau)
+        tau = sc.timing.tau
+        receivers = Receivers(
+            tuple(sc.frequencies[u] for u in sc.units),
+            sc.mode,
+            tau,
+            Reception(sc.channel, sc.units, sc.seed, tau),
+        )
         return cls(
             members, bus, recorder, receivers, window_samples=sc.timing.window_samples, **options
         )
@@ -208,7 +216,7 @@ class World:
             if not group:
                 continue
             bank = ResonatorBank(r.omegas, mode=r.mode, tau=r.tau, n_receivers=len(group))
-            listeners = [m.listener() for m in group]
+            listeners = [r.reception.listener(m.name, m.hearing()) for m in group]
             arrivals.extend(lst.arrival for lst in listeners)
             ears = Ears(
                 self.env,
