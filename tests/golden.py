@@ -47,8 +47,8 @@ def _timing(line: str) -> Callable[[str], str]:
 
 
 SHIPPED = (
-    "coalition10", "cograph_group", "crowd10", "example1", "example2", "gate", "gate_goal",
-    "gate_noisy", "gate_repair", "group20", "group6", "overview", "random_group",
+    "coalition10", "cograph_group", "crowd10", "example1", "example2", "gate", "gate_fading",
+    "gate_goal", "gate_noisy", "gate_repair", "group20", "group6", "overview", "random_group",
     "robots_in_a_field", "robots_on_a_plane", "steering", "tug_of_war",
 )  # fmt: skip
 SLOW_DENSE = {

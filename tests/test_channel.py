@@ -433,3 +433,54 @@ def test_a_scenario_holds_its_channel_so_alike_is_worked_out_once_a_run(monkeypa
     before = len(calls)
     run_group(noisy, "memory", NullRecorder())
     assert len(calls) == before + 1  # the new channel's, once for all four units
+
+
+def test_rayleigh_fading_has_unit_mean_power_and_each_receiver_draws_its_own():
+    """|h| = sqrt((x² + y²) / 2): E|h|² = 1 over many links, 1 on a unit's own link, the
+    same draws for a receiver whatever the others, and apart from its noise's draws."""
+    from rgtbus.signal.channel import fading_amplitudes, noise_rng
+
+    rows = np.array([fading_amplitudes("rayleigh", 7, r, 400) for r in range(400)])
+    assert np.all(np.diag(rows) == 1.0)
+    power = rows[~np.eye(400, dtype=bool)] ** 2
+    assert abs(power.mean() - 1.0) < 0.02  # 159,600 links: the mean's sd is 0.0025
+    assert abs(np.median(power) - math.log(2)) < 0.02  # exponential power: median ln 2
+    assert np.array_equal(fading_amplitudes("rayleigh", 7, 3, 400), rows[3])
+    assert not np.array_equal(fading_amplitudes("rayleigh", 8, 3, 400), rows[3])
+    assert np.all(fading_amplitudes("none", 7, 3, 5) == 1.0)
+    assert noise_rng(7, 3).standard_normal() == np.random.default_rng([7, 3, 1]).standard_normal()
+    with pytest.raises(ValueError, match="unknown fading 'rician'"):
+        fading_amplitudes("rician", 7, 3, 5)
+
+
+def test_a_faded_channel_is_not_heard_alike_and_a_bad_fading_is_one_line():
+    faded = gate_with('fading = "rayleigh"\n').channel
+    assert faded.fading == "rayleigh" and not faded.alike and not faded.unit_gains
+    assert gate_with("").channel.alike
+    with pytest.raises(RgtbusError, match=r"channel\.fading: unknown fading 'rician' \(none, "):
+        gate_with('fading = "rician"\n', "bad.toml")
+
+
+@pytest.mark.parametrize("engine", ["event", "dense"])
+def test_units_hear_and_decode_through_their_faded_links_and_the_log_verifies(engine, logged_run):
+    """Each receiver the engine builds hears its links faded (``Reception``) and its unit
+    decodes on those gains: the shipped gate_fading opens its gate, both engines alike, and
+    its log re-runs to the same records (``replay --verify``)."""
+    from rgtbus.units.rerun import verify_log
+
+    from rgtbus.engine.listener import OwnHearing, Reception
+    from rgtbus.scenario import load_scenario
+    from rgtbus.signal.channel import fading_amplitudes
+    from rgtbus.telemetry.read import load_replay
+
+    sc = load_scenario(ROOT / "scenarios" / "gate_fading.toml")
+    heard = Reception(sc.channel, sc.units, sc.seed, sc.timing.tau)
+    for r, u in enumerate(sc.units):
+        gains = heard.listener(u, OwnHearing(keep=10)).gains
+        assert np.array_equal(gains, fading_amplitudes("rayleigh", sc.seed, r, 4))
+        assert len(set(gains.round(6))) == 4  # every link its own
+    summary, data = logged_run(sc, engine)
+    assert summary["outcome"] == "gate: open" and summary["decode_errors"] == []
+    assert verify_log(load_replay(io.BytesIO(data))).ok
+    worse = [logged_run(sc.with_seed(seed), engine)[0] for seed in (1, 4)]
+    assert all(s["decode_errors"] for s in worse)  # a deep fade or a strong link misreads

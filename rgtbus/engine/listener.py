@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from rgtbus.errors import RgtbusError
-from rgtbus.signal.channel import BurstStates, Channel, burst_rng, noise_rng
+from rgtbus.signal.channel import BurstStates, Channel, burst_rng, fading_amplitudes, noise_rng
 
 if TYPE_CHECKING:
     from rgtbus.engine.spike_log import SpikeLog
@@ -114,11 +114,11 @@ class OwnHearing(NamedTuple):
 @dataclass(frozen=True)
 class Reception:
     """How the receivers of a run hear the medium, made from its ``channel`` (units in member
-    order, the run's ``seed`` and sample period ``tau``): receiver r's link gains
-    ``g[s→r]`` for every sender s, its noise σ (``noise_rng(seed, r)``: no generator for a
-    noise-free receiver, which never draws), its bursts (``burst_rng(seed, r)``) and where
-    each sender's samples land on its own (``Channel.arrivals``, for a timed channel). See
-    ``rgtbus.signal.channel`` for the equations."""
+    order, the run's ``seed`` and sample period ``tau``): receiver r's link gains ``g[s→r]``
+    for every sender s, faded (``fading_amplitudes``); its noise σ (``noise_rng(seed, r)``;
+    no generator for a noise-free receiver, which never draws); its bursts
+    (``burst_rng(seed, r)``); where each sender's samples land on its own
+    (``Channel.arrivals``, for a timed channel). The equations: ``rgtbus.signal.channel``."""
 
     channel: Channel
     units: tuple[str, ...]
@@ -134,7 +134,8 @@ class Reception:
         ch, me = self.channel, self._index[name]
         return Listener(
             name=name,
-            gains=ch.gain_row(self.units, name),
+            gains=ch.gain_row(self.units, name)
+            * fading_amplitudes(ch.fading, self.seed, me, len(self.units)),
             noise=ch.noise,
             rng=noise_rng(self.seed, me) if ch.noisy else None,
             bursts=None

@@ -1,7 +1,7 @@
 """``[channel]``: Gaussian ``noise`` on every sample heard, per-pair ``gain``, the units'
 ``positions`` with the ``path_loss`` of the distances between them and the ``speed`` pulses
-travel at, noise in bursts (``[channel.burst]``) and each unit's clock (``[channel.clock]``
-``offset`` and ``drift``) (the model: ``rgtbus.signal.channel``)."""
+travel at, the links' ``fading``, noise in bursts (``[channel.burst]``) and each unit's clock
+(``[channel.clock]`` ``offset`` and ``drift``) (the model: ``rgtbus.signal.channel``)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.model import Timing
 from rgtbus.scenario.schedule import ProtocolSection
 from rgtbus.scenario.values import MAX_LEVEL, is_finite, pair_of, unit_of
-from rgtbus.signal.channel import FREE_SPACE, Burst, Channel, Clock, link_gains
+from rgtbus.signal.channel import FADINGS, FREE_SPACE, Burst, Channel, Clock, link_gains
 
 CHANNEL_KEYS = {
     "noise", "gain", "positions", "path_loss", "reference_distance", "burst", "speed", "clock",
+    "fading",
 }  # fmt: skip
 BURST_KEYS = {"noise", "every", "length"}
 CLOCK_KEYS = {"offset", "drift"}
@@ -71,7 +72,16 @@ def channel_of(ctx: Ctx, data: dict[str, Any], units: tuple[str, ...]) -> Channe
         _burst(ctx, ch),
         _speed(ctx, ch, positions),
         _clocks(ctx, ch, units),
+        _fading(ctx, ch),
     )
+
+
+def _fading(ctx: Ctx, ch: dict[str, Any]) -> str:
+    """``fading``: "none" (the default) or "rayleigh" (each link faded once a run)."""
+    fading = ch.get("fading", "none")
+    if not isinstance(fading, str) or fading not in FADINGS:
+        raise ctx.error("channel", "fading", f"unknown fading {fading!r} ({', '.join(FADINGS)})")
+    return fading
 
 
 def _speed(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float | None:

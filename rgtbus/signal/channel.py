@@ -31,7 +31,17 @@ k + 1 (``ReadoutHistory`` with a window of 2): exact wherever the pulse lands in
 at √2 the noise. Without speed and clocks, a = 0 and b = 1: every pulse lands on its sample,
 reads take one sample, and nothing changes.
 
-A new channel effect (path loss, delay, drift, bursts) goes here, with its scenario keys in
+Fading (``[channel] fading = "rayleigh"``): every link is faded, once a run (slow fading: the
+run is shorter than the links' coherence time), by an amplitude drawn for it
+
+    g[s→r] ← g[s→r] · |h_sr|,   |h_sr| = √((x² + y²) / 2),   x, y ~ N(0, 1)
+
+a Rayleigh amplitude with E|h|² = 1 (no power lost on average; deep fades where the paths
+cancel), the senders' amplitudes drawn in member order from receiver r's own generator
+(``fading_rng``): independent per directed link, the same however the run is split. A unit
+hears itself unfaded (``fading_amplitudes``).
+
+A new channel effect (path loss, delay, drift, bursts, fading) goes here, with its scenario keys in
 ``rgtbus/scenario/channel.py``; the ears (``rgtbus.engine.hearing``) apply what this module says.
 """
 
@@ -135,6 +145,7 @@ class Channel:
     burst: Burst | None = None  # bursts of noise on top of ``noise`` (None: none)
     speed: float | None = None
     clocks: Mapping[str, Clock] = field(default_factory=dict)
+    fading: str = "none"  # "rayleigh": each link faded once a run (``fading_amplitudes``)
 
     @property
     def timed(self) -> bool:
@@ -167,7 +178,7 @@ class Channel:
         """Whether every receiver hears the medium alike: no noise, every link gain 1, no delay
         and no clock of its own (what a run's cost depends on: ``limits.run_estimate``). Worked
         out once: every unit of a run asks, and the gains are n² entries."""
-        return not self.noisy and not self.timed and all(g == 1.0 for g in self.gains.values())
+        return not self.noisy and not self.timed and self.unit_gains
 
     def distance(self, a: str, b: str) -> float:
         """The distance between units ``a`` and ``b`` in metres (0 without positions)."""
@@ -181,8 +192,9 @@ class Channel:
 
     @property
     def unit_gains(self) -> bool:
-        """Every link has gain 1: every receiver hears the same medium (before its noise)."""
-        return all(g == 1.0 for g in self.gains.values())
+        """Every link has gain 1 (and none fades): every receiver hears the same medium
+        (before its noise)."""
+        return self.fading == "none" and all(g == 1.0 for g in self.gains.values())
 
 
 def path_loss_gain(distance: np.ndarray, exponent: float, reference: float) -> np.ndarray:
@@ -225,6 +237,30 @@ def burst_rng(seed: int, unit_index: int) -> np.random.Generator:
     """Unit ``unit_index``'s own generator of burst states (``BurstStates``): apart from its
     noise's, so bursts change no draw of the calm noise."""
     return np.random.default_rng([seed, unit_index, 2])
+
+
+def fading_rng(seed: int, unit_index: int) -> np.random.Generator:
+    """Receiver ``unit_index``'s own generator of its links' fading (``fading_amplitudes``):
+    apart from its noise's and its bursts', so fading changes no draw of either."""
+    return np.random.default_rng([seed, unit_index, 3])
+
+
+FADINGS = ("none", "rayleigh")
+
+
+def fading_amplitudes(fading: str, seed: int, receiver: int, senders: int) -> np.ndarray:
+    """The amplitude |h_sr| each of ``senders`` links into receiver ``receiver`` (its index in
+    member order) is faded by in a run of ``seed`` (module docstring): Rayleigh,
+    √((x² + y²) / 2) with x, y standard normal from ``fading_rng``, 1 on its own link; all
+    ones without fading."""
+    out = np.ones(senders)
+    if fading == "rayleigh":
+        xy = fading_rng(seed, receiver).standard_normal((2, senders))
+        out = np.sqrt((xy[0] ** 2 + xy[1] ** 2) / 2.0)
+        out[receiver] = 1.0
+    elif fading != "none":
+        raise ValueError(f"unknown fading {fading!r} ({', '.join(FADINGS)})")
+    return out
 
 
 def render(
