@@ -65,13 +65,14 @@ def run(
     goes; ``live``: a Foxglove live view offered every message (needs ``log``). A run that
     fails returns its summary with ``error`` set (and its log closed and readable); bad
     arguments raise ``RgtbusError``."""
+    from rgtbus.bus.registry import bus_kinds
     from rgtbus.telemetry.recorder import NullRecorder
     from rgtbus.units.group import run_group
 
     sc = load_scenario(scenario)
     if seed is not None:
         sc = sc.with_seed(seed)
-    checks.choice(bus, checks.BUSES, "bus")
+    checks.choice(bus, bus_kinds(), "bus")
     checks.choice(engine, checks.ENGINES, "engine")
     if realtime is not None:
         checks.realtime(realtime)

@@ -11,7 +11,6 @@ from typing import Any
 from rgtbus.errors import RgtbusError
 
 ENGINES = ("event", "dense")  # how a world moves: event to event, or window by window
-BUSES = ("memory", "zenoh")  # what a run in one process goes over
 
 
 def is_seed(value: Any) -> bool:

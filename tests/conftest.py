@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from rgtbus.bus import open_bus
+from rgtbus.bus.registry import BUS_KINDS
 
 EXE = [sys.executable, "-m", "rgtbus"]
 RATE = 200.0
@@ -86,9 +87,10 @@ def logged_run():
     return _logged_run
 
 
-@pytest.fixture(params=["memory", "zenoh"])
+@pytest.fixture(params=sorted(BUS_KINDS))
 def kind(request):
-    """Every suite of a live transport runs on the memory bus and on the zenoh bus."""
+    """Every suite of a live transport runs on every kind of bus the registry names (memory,
+    zenoh): a new kind is run here as soon as it is registered."""
     return request.param
 
 

@@ -771,7 +771,7 @@ def test_sample_rows_is_unique_with_inverse(samples, ordered):
 def test_the_first_hellos_come_soon_then_every_period():
     """A hello said before a peer's subscription reaches the session is lost (the first ones
     of a run are): the next unprompted ones come 50, 100, 200 ms ... apart, then every period."""
-    from rgtbus.bus.zenoh import hello_gap, hello_period
+    from rgtbus.bus.join import hello_gap, hello_period
 
     period = hello_period(100)
     assert period == pytest.approx(1.0) and hello_period(2) == pytest.approx(0.05)
@@ -789,19 +789,19 @@ def test_a_claimant_saying_its_hello_again_unread_keeps_its_claim(repeated):
     from types import SimpleNamespace
 
     from rgtbus.bus.hello import Hello
-    from rgtbus.bus.zenoh import _Barrier, claim_silence
+    from rgtbus.bus.join import JoinBarrier, claim_silence
 
     digest = "0" * 64
     bus = SimpleNamespace(members=("a", "b"), nonce=b"A" * 16, process="host:1", run_id="r",
-                          _repeated_at={})  # fmt: skip
-    barrier = _Barrier(bus, ["a"], digest, 0.05)  # type: ignore[arg-type]
+                          repeated_at={})  # fmt: skip
+    barrier = JoinBarrier(bus, ["a"], digest, 0.05)  # type: ignore[arg-type]
     first = Hello("b", digest, b"1" * 16, process="host:2")
     barrier.claim(first, time.monotonic())
     barrier.nonces["b"] = first.nonce  # read: the latest claimant on b's key
     # read longer ago than a claimant may go unheard
     barrier.claims["b"][first.nonce] = ("host:2", time.monotonic() - claim_silence(0.05) - 0.1)
     if repeated:
-        bus._repeated_at["b"] = time.monotonic()  # said again, unchanged: not read
+        bus.repeated_at["b"] = time.monotonic()  # said again, unchanged: not read
     barrier.claim(Hello("b", digest, b"2" * 16, process="host:3"), time.monotonic())
     if repeated:
         assert barrier.conflict is not None
@@ -833,15 +833,16 @@ def _committed_barrier(heard: float | None = None):
     from types import SimpleNamespace
 
     from rgtbus.bus.hello import Hello, view_digest
-    from rgtbus.bus.zenoh import _Barrier
+    from rgtbus.bus.join import JoinBarrier
 
     said: list[tuple[str, bytes, bool]] = []
+    accepted: dict[str, bytes] = {}
     bus = SimpleNamespace(
         members=("a", "b", "c"), nonce=b"A" * 16, process="host:1", run_id="r",
-        _repeated_at={}, _nonces={},
-        _say_hello=lambda u, d, view, *, ready: said.append((u, view, ready)),
+        repeated_at={}, accept=accepted.__setitem__,
+        say_hello=lambda u, d, view, *, ready: said.append((u, view, ready)),
     )  # fmt: skip
-    barrier = _Barrier(bus, ["a"], DIGEST, 0.05)  # type: ignore[arg-type]
+    barrier = JoinBarrier(bus, ["a"], DIGEST, 0.05)  # type: ignore[arg-type]
     nb, nc = b"B" * 16, b"C" * 16
     view = view_digest("r", DIGEST, {"a": bus.nonce, "b": nb, "c": nc})
     now = time.monotonic() if heard is None else heard
@@ -891,7 +892,7 @@ def test_a_ready_member_follows_a_claimant_that_replaced_a_silent_one():
     conflict. When c's view moves to the new b, a's promise ends without a conflict and a
     takes up the join with the new b's nonce."""
     from rgtbus.bus.hello import Hello, view_digest
-    from rgtbus.bus.zenoh import claim_silence
+    from rgtbus.bus.join import claim_silence
 
     barrier, _view, nb, nc = _committed_barrier(heard=time.monotonic() - claim_silence(0.05) - 0.1)
     n2 = b"2" * 16  # the first b was last heard longer ago than a claimant may be silent
@@ -912,6 +913,34 @@ def test_a_member_stopping_for_a_conflict_never_says_it_is_ready():
     barrier.committed = b""  # as before its promise
     barrier.conflict = "two processes claim unit 'b' of run 'r': ..."
     said: list[tuple[str, bytes, bool]] = []
-    barrier.bus._say_hello = lambda u, d, v, *, ready: said.append((u, v, ready))
+    barrier.bus.say_hello = lambda u, d, v, *, ready: said.append((u, v, ready))
     barrier.say()
     assert said == [("a", view, False)] and barrier.committed == b""
+
+
+class LoopbackBus(MemoryBus):
+    """A new transport, as far as the house can tell: the memory bus under another name."""
+
+    kind = "loopback"
+
+
+def test_a_bus_kind_is_its_adapter_and_one_registry_line(monkeypatch):
+    """One line in ``rgtbus.bus.registry`` and a bus kind opens (``open_bus``), runs a
+    scenario (``rgtbus.run``) with the memory bus's results and is a choice of ``rgtbus run
+    --bus``; the shared suite's ``kind`` fixture reads the same registry."""
+    import rgtbus
+    from rgtbus.bus import open_bus, registry
+    from rgtbus.cli import build_parser
+
+    line = registry.BusKind("loopback", __name__, "LoopbackBus", False, "a test's twin")
+    monkeypatch.setitem(registry.BUS_KINDS, "loopback", line)
+    with open_bus("loopback", "r1", ("a", "b"), RATE) as bus:
+        assert isinstance(bus, LoopbackBus)
+    runs = [rgtbus.run("gate", seed=3, bus=kind).summary for kind in ("memory", "loopback")]
+    for s in runs:
+        s.pop("wall_seconds"), s.pop("bus", None), s.pop("sync", None)
+    assert runs[0] == runs[1] and runs[0]["outcome"] == "gate: open"
+    assert build_parser("run").parse_args(["run", "gate", "--bus", "loopback"]).bus == "loopback"
+    with pytest.raises(RgtbusError, match=r"unknown bus kind 'nope' \(use zenoh, memory, loop"):
+        open_bus("nope", "r1", ("a",), RATE)
+    assert registry.cross_process_kind() == "zenoh"

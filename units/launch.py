@@ -36,6 +36,7 @@ from rgtbus.units.result import RunResult
 
 import rgtbus.checks as checks
 from rgtbus.bus.hello import join_seconds
+from rgtbus.bus.registry import cross_process_kind
 from rgtbus.errors import RgtbusError
 from rgtbus.interrupts import interrupted_by
 from rgtbus.scenario import Scenario, load_scenario
@@ -710,7 +711,9 @@ def _merged(
 
     f, rec = open_log(where / "launch.mcap")
     try:
-        write_metadata(rec, sc, "zenoh", run_id, process="launch", auth=auth_name(key))
+        write_metadata(
+            rec, sc, cross_process_kind(), run_id, process="launch", auth=auth_name(key)
+        )
         for msg in failures:
             rec.log("error", msg, ns(summary["sim_seconds"]), name="launch")
         rec.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))

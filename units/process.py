@@ -30,6 +30,7 @@ from rgtbus.units.unit import AutonomousUnit
 
 from rgtbus.bus import drop_summary, open_bus
 from rgtbus.bus.hello import join_seconds
+from rgtbus.bus.registry import cross_process_kind
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.engine.sim import World, WorldResult
 from rgtbus.errors import RgtbusError
@@ -190,8 +191,9 @@ def run_units(
     run_id = run_id or default_run_id(sc)
     t0 = time.perf_counter()
     hosted = {"units": ",".join(names)} if len(names) > 1 else {}
+    kind = cross_process_kind()
     write_metadata(
-        recorder, sc, "zenoh", run_id, process=first, engine=engine, auth=auth_name(key), **hosted
+        recorder, sc, kind, run_id, process=first, engine=engine, auth=auth_name(key), **hosted
     )
     units = [AutonomousUnit(name, sc, recorder, traces=traces, realtime=realtime) for name in names]
     opts = dict(zenoh_options or {})
@@ -203,7 +205,7 @@ def run_units(
     told = False  # the parts are out (``on_result``): being stopped then loses nothing
     try:
         with open_bus(
-            "zenoh",
+            kind,
             run_id,
             sc.units,
             sc.timing.sample_rate,

@@ -1,7 +1,7 @@
 """The medium's transport: every member's frames (pulses and promises), seen by every member.
 
-``open_bus("zenoh" | "memory", run_id, members, sample_rate, **options)``; ``LogBus`` serves a
-logged run back (the replay twin).
+``open_bus(kind, run_id, members, sample_rate, **options)``, ``kind`` one of the registry's
+(``rgtbus.bus.registry``: zenoh, memory); ``LogBus`` serves a logged run back (the replay twin).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from rgtbus.bus.base import STAT_KEYS, Bus, MemberStatus, QueueBus, drop_summary
 from rgtbus.bus.keys import tx_key
 from rgtbus.bus.memory import MemoryBus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
+from rgtbus.bus.registry import bus_kind, bus_kinds
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.pulses import Pulses
 
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
         return [memory, zenoh, log]
 
 
-KINDS = ("zenoh", "memory")
+KINDS = bus_kinds()
 
 __all__ = [
     "FAILED",
@@ -54,15 +55,9 @@ def open_bus(
     sample_rate: float,
     **options: Any,
 ) -> QueueBus:
-    """Open a bus of ``kind``; unknown kinds and options are refused by name."""
-    if kind == "memory":
-        cls: type[QueueBus] = MemoryBus
-    elif kind == "zenoh":
-        from rgtbus.bus.zenoh import ZenohBus  # zenoh loads only when asked for
-
-        cls = ZenohBus
-    else:
-        raise RgtbusError(f"unknown bus kind {kind!r} (use {', '.join(KINDS)})")
+    """Open a bus of ``kind`` (``rgtbus.bus.registry``: its adapter's module is imported now,
+    so zenoh loads only when asked for); unknown kinds and options are refused by name."""
+    cls = bus_kind(kind).load()
     unknown = sorted(set(options) - cls.OPTIONS)
     if unknown:
         raise RgtbusError(

@@ -40,6 +40,7 @@ from rgtbus.bus.hello import (
     read_hello,
     view_digest,
 )
+from rgtbus.bus.join import JoinBarrier, hello_gap, hello_period
 from rgtbus.bus.payload import (
     ResendAsk,
     decode_resend,
@@ -180,185 +181,6 @@ LINGER_ASKED = REPAIR_GAP_MAX + 0.5
 LINGER_MAX = 10.0
 
 
-_FIRST_HELLO_GAP = 0.05  # s: the first unprompted hellos, each gap twice the last
-
-
-def hello_period(members: int) -> float:
-    """How often a joining process says its hello unprompted once it has said a few: 50 ms,
-    and longer in a large run (every member's hello reaches every process): 10 ms a member."""
-    return max(_FIRST_HELLO_GAP, 0.01 * members)
-
-
-def hello_gap(period: float, said: int) -> float:
-    """The wait before unprompted hello number ``said`` + 1: 50 ms, 100 ms, 200 ms ... up to
-    ``period``. A hello said before a peer's subscription has reached this session is lost,
-    and the first ones of a run are; the next comes soon, not a whole period later."""
-    return min(period, _FIRST_HELLO_GAP * 2.0 ** min(said, 30))
-
-
-# s: the least silence after which a unit's claimant no longer counts (it died, or was
-# replaced). Processes starting together on a loaded machine go unheard for hundreds of ms
-# (starved of CPU); a second claimant heard meanwhile is a conflict, not the replacement of
-# the first. A restarted process takes longer than this to say its first hello.
-CLAIM_SILENCE = 1.0
-
-
-def claim_silence(period: float) -> float:
-    """How long a claimant of a unit may go unheard and still count: three hello periods,
-    and at least ``CLAIM_SILENCE``."""
-    return max(3.0 * period, CLAIM_SILENCE)
-
-
-class _Barrier:
-    """One join's state (``ZenohBus.join``): the latest nonce heard of each member
-    (``nonces``, ours among them), each member's latest view and readiness, whether a hello
-    brought news since we last spoke (``news``: we answer at the next round, once for all of
-    it), and who claims each unit (``claims``: nonce -> (process, when last heard)).
-
-    **Ready is a promise** (``committed``): once we have said we are ready with view V, another
-    member may open its barrier with V at any moment, so our view no longer changes. A claimant
-    heard after that whose nonce V lacks is a late joiner (``hear`` passes it by, and once the
-    run starts it is told so), not a conflict; a conflict it would have made is kept
-    (``rival``). The promise ends only when a member of V says a view other than V
-    (``_release``): the first member of V to do so never said it was ready with V, and each
-    later one had seen a member that never did, so nobody can open with V (opening needs every
-    other member ready with it); we take up the join again, and stop for the kept conflict if
-    there is one. So a second claimant heard by some members before they were ready and by
-    others after cannot leave a member running alone: either every member opens with one view,
-    or every member that heard both claims stops (docs/security.md)."""
-
-    def __init__(self, bus: ZenohBus, mine: list[str], digest: str, period: float) -> None:
-        self.bus, self.mine, self.digest, self.period = bus, mine, digest, period
-        self.local = set(mine)
-        self.others = set(bus.members) - self.local
-        self.nonces: dict[str, bytes] = dict.fromkeys(mine, bus.nonce)
-        self.views: dict[str, bytes] = {}  # each other member's latest view
-        self.readies: dict[str, bool] = {}  # ... and whether it said it was ready
-        self.news = False
-        self.claims: dict[str, dict[bytes, tuple[str, float]]] = {}
-        self.conflict: str | None = None  # two live processes claim one unit
-        self.committed = b""  # the view we said we are ready with (b"": not said)
-        self.rival: str | None = None  # a conflict heard once committed: a late claimant
-
-    def view(self) -> bytes:
-        """Our view of the run (``view_digest``), or b"" while a member is unheard."""
-        if len(self.nonces) < len(self.bus.members):
-            return b""
-        return view_digest(self.bus.run_id, self.digest, self.nonces)
-
-    def fresh(self) -> set[str]:
-        """The other members whose latest hello holds our view: said after our nonce, and
-        having heard everyone as we did."""
-        ours = self.view()
-        return {u for u, v in self.views.items() if ours and v == ours}
-
-    def done(self) -> bool:
-        """Every other member is fresh and ready: the barrier opens."""
-        fresh = self.fresh()
-        return fresh >= self.others and all(self.readies.get(u) for u in self.others)
-
-    def missing(self) -> list[str]:
-        """Who holds the barrier: members unheard, else those not fresh, else not ready."""
-        unheard = sorted(self.others - self.nonces.keys())
-        if unheard:
-            return unheard
-        return sorted(self.others - self.fresh()) or sorted(
-            u for u in self.others if not self.readies.get(u)
-        )
-
-    def say(self, *, ready: bool | None = None) -> None:
-        """Each of our units' hello (ready: once every other member is fresh, and never while
-        the join stops for a conflict: a member that is ready may be opened with)."""
-        if ready is None:
-            ready = self.conflict is None and self.fresh() >= self.others
-        view = self.view()
-        if ready and view:
-            self.committed = view
-        for u in self.mine:
-            self.bus._say_hello(u, self.digest, view, ready=ready)
-        self.news = False
-
-    def claim(self, h: Hello, heard_at: float) -> None:
-        """``h``'s process claims ``h.unit``: ``conflict`` set when another process claims it
-        too and still says so (its last hello within ``claim_silence``: a claimant that died,
-        or was replaced, falls silent), naming the unit and both claimants. Our own units'
-        claims are ours. ``heard_at``: when it arrived (monotonic)."""
-        now = time.monotonic()
-        claims = self.claims.setdefault(h.unit, {})
-        if h.unit in self.local:
-            claims[self.bus.nonce] = (self.bus.process, now)
-        # the claimant read last on this unit's key repeats itself unread (the gate drops a
-        # hello said again unchanged): its repeats keep its claim alive
-        latest = self.nonces.get(h.unit)
-        if latest in claims and latest != h.nonce:
-            proc, at = claims[latest]
-            claims[latest] = (proc, max(at, self.bus._repeated_at.get(h.unit, at)))
-        claims[h.nonce] = (h.process, max(heard_at, claims.get(h.nonce, ("", heard_at))[1]))
-        silence = claim_silence(self.period)
-        for nonce in [n for n, (_, at) in claims.items() if now - at > silence]:
-            if nonce != self.bus.nonce:
-                del claims[nonce]
-        if len(claims) > 1:
-            who = " and ".join(
-                f"{proc or '(unnamed)'} (nonce {nonce.hex()[:8]})"
-                for nonce, (proc, _) in sorted(claims.items(), key=lambda c: c[1][1])
-            )
-            said = (
-                f"two processes claim unit {h.unit!r} of run {self.bus.run_id!r}: {who}: "
-                "the join stops for both"
-            )
-            if self.committed:  # the later claimant is late, unless the promise ends
-                self.rival = self.rival or said
-            else:
-                self.conflict = self.conflict or said
-
-    def late(self, h: Hello) -> bool:
-        """Whether ``h`` (not ours) claims its unit too late: we are committed to a view that
-        holds another nonce for it."""
-        return bool(self.committed) and self.nonces.get(h.unit) != h.nonce
-
-    def _release(self, h: Hello) -> None:
-        """Member ``h.unit`` of our committed view says another view: it never said it was
-        ready with ours, so nobody opens with it; the promise ends, and a conflict kept while
-        it held stops the join."""
-        if self.committed and h.view != self.committed:
-            self.committed = b""
-            self.conflict = self.conflict or self.rival
-
-    def hear(self, h: Hello, heard_at: float) -> bool:
-        """One member's hello (not ours, arrived at ``heard_at``); whether the barrier opens
-        with it. RgtbusError for a member on another scenario, or a run already started."""
-        run_id = self.bus.run_id
-        if h.digest != self.digest:
-            raise RgtbusError(
-                f"unit {h.unit!r} of run {run_id!r} runs another scenario or "
-                f"seed (digest {h.digest[:12]}, ours {self.digest[:12]})"
-            )
-        self.claim(h, heard_at)
-        if h.started:
-            if h.to == self.bus.nonce:  # an answer to us: the run started without us
-                raise RgtbusError(
-                    f"run {run_id!r} already started (unit {h.unit!r} is at sample "
-                    f"{h.sample}): {self.mine[0]!r} joined too late"
-                )
-            return False  # an answer to someone else
-        if self.late(h):
-            return False  # a later claimant of a unit we promised to run with
-        self._release(h)
-        was_fresh = h.unit in self.fresh() and self.readies.get(h.unit) == h.ready
-        if self.nonces.get(h.unit) != h.nonce:  # our view changes: say so
-            self.nonces[h.unit] = h.nonce
-            self.news = True
-        self.views[h.unit], self.readies[h.unit] = h.view, h.ready
-        if h.unit in self.fresh():
-            # Its frames are checked with this nonce from now on (at the gate): it sends its
-            # first only after our ready, which says we heard it fresh.
-            self.bus._nonces[h.unit] = h.nonce
-            if not was_fresh:
-                self.news = True
-        return self.done()
-
-
 def _check_ask(key: bytes, run_id: str, asker: str, nonce: bytes, body: bytes, got: bytes) -> None:
     """AuthError unless ``got`` is ``asker``'s tag of the resend request ``body``."""
     check_tag(key, "resend", run_id, asker, nonce, body, got)
@@ -417,7 +239,7 @@ class ZenohBus(QueueBus):
         # hellos heard, not yet read: (what was said, when it arrived)
         self._hellos: queue.Queue[tuple[bytes, float]] = queue.Queue(maxsize=HELLO_QUEUE)
         self._last_hello: dict[str, bytes] = {}  # each member's last hello heard, as said
-        self._repeated_at: dict[str, float] = {}  # when each member last said it again unchanged
+        self.repeated_at: dict[str, float] = {}  # when each member last said it again unchanged
         self.process = f"{socket.gethostname()}:{os.getpid()}"[:MAX_PROCESS]  # who says it
         self._hello_prefix = keys.prefix(keys.HELLO, self.run_id)
         self.max_hello = max_hello(self.members)
@@ -553,8 +375,8 @@ class ZenohBus(QueueBus):
         subscriber is declared: nobody's first frame can be lost. Refused: a member on another
         scenario or seed (digest differs), a run that already started (a late joiner), and two live
         processes claiming one unit: every process that hears both before it said it is ready
-        stops its join, naming the unit and both claimants (``_Barrier.claim``); one that said it
-        is ready takes the later one as late, unless a member shows it never was (``_Barrier``:
+        stops its join, naming the unit and both claimants (``JoinBarrier.claim``); one that said it
+        is ready takes the later one as late, unless a member shows it never was (``JoinBarrier``:
         either all open with one view, or none). Running members answer late hellos (a later
         claimant of one of their own units too) from ``wait``.
         On a keyed run only hellos with a valid tag count; the nonces heard are what later frames
@@ -571,7 +393,7 @@ class ZenohBus(QueueBus):
         check_digest(digest)
         self._declare_presence(mine[0])  # the process's voice for what it says once
         period = hello_period(len(self.members))
-        barrier = _Barrier(self, mine, digest, period)
+        barrier = JoinBarrier(self, mine, digest, period)
         deadline = time.monotonic() + timeout
         said, unprompted = -period, 0
         stop_at: float | None = None  # a conflict: said on a while, for all to hear it too
@@ -651,7 +473,7 @@ class ZenohBus(QueueBus):
         except Exception as e:  # presence is a shortcut: the run's timeout still holds
             self._notes.append(f"liveliness not declared: {e}")
 
-    def _hear_round(self, barrier: _Barrier, until: float) -> None:
+    def _hear_round(self, barrier: JoinBarrier, until: float) -> None:
         """The hellos heard until ``until`` (monotonic), each to the barrier, which may open
         before then."""
         while (left := until - time.monotonic()) > 0:
@@ -669,7 +491,7 @@ class ZenohBus(QueueBus):
             if barrier.hear(h, heard_at):
                 break
 
-    def _say_hello(
+    def say_hello(
         self,
         unit: str,
         digest: str,
@@ -681,6 +503,11 @@ class ZenohBus(QueueBus):
     ) -> None:
         h = Hello(unit, digest, self.nonce, view, started, self._taken, ready, self.process, to)
         self.session.put(self.hello_key(unit), encode_hello(h, self.run_id, self._key))
+
+    def accept(self, unit: str, nonce: bytes) -> None:
+        """Frames of ``unit`` are checked with ``nonce`` from now on (its claimant heard fresh
+        in the join: ``JoinBarrier``)."""
+        self._nonces[unit] = nonce
 
     def _read_hello(self, raw: bytes) -> Hello | None:
         try:
@@ -836,7 +663,7 @@ class ZenohBus(QueueBus):
             with self._gate_lock:
                 self._notes.append(f"hello from {h.unit!r} after the start: refused")
             view = view_digest(self.run_id, digest, self._nonces)
-            self._say_hello(unit, digest, view, ready=True, started=True, to=h.nonce)
+            self.say_hello(unit, digest, view, ready=True, started=True, to=h.nonce)
 
     def _may_answer(
         self, answered: set[Any], news: object, allowed: Callable[[], bool], why: str
@@ -871,7 +698,7 @@ class ZenohBus(QueueBus):
                 return
             raw = payload if isinstance(payload, bytes) else payload.to_bytes()
             if self._last_hello.get(who) == raw:  # said again, unchanged: nothing new to read,
-                self._repeated_at[who] = time.monotonic()  # but its claimant is still there
+                self.repeated_at[who] = time.monotonic()  # but its claimant is still there
                 return
             self._last_hello[who] = raw
             self._hellos.put_nowait((raw, time.monotonic()))

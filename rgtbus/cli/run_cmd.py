@@ -10,6 +10,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rgtbus.bus.registry import BUS_KINDS, bus_kinds
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import (
     add_engine_argument,
@@ -42,9 +43,10 @@ def register(subparsers: SubParsers) -> None:
     p.add_argument("scenario", metavar="SCENARIO", help="a scenario file, e.g. scenarios/gate.toml")
     p.add_argument(
         "--bus",
-        choices=("zenoh", "memory"),
-        default="zenoh",
-        help="zenoh (in-process session, no network; the default) or memory",
+        choices=bus_kinds(),
+        default=bus_kinds()[0],
+        help="; ".join(f"{k.name}: {k.about}" for k in BUS_KINDS.values())
+        + f" (default {bus_kinds()[0]}: an in-process session, no network)",
     )
     logs = p.add_mutually_exclusive_group()
     logs.add_argument(

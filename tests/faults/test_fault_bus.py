@@ -966,7 +966,7 @@ def test_a_claimant_that_fell_silent_is_no_conflict():
     """A process that said it is b, then fell silent (died, restarted): once it has been
     unheard longer than ``claim_silence``, a new claimant of b is no conflict; the join goes
     on (and times out here, b never answering a's nonce)."""
-    from rgtbus.bus.zenoh import claim_silence, hello_period
+    from rgtbus.bus.join import claim_silence, hello_period
 
     with open_bus("zenoh", RUN, ("a", "b"), RATE, local=["a"]) as bus:
         gone = Hello("b", "0" * 64, bytes([9]) * 16, process="old:1")
