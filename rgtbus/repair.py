@@ -23,6 +23,7 @@ import numpy as np
 from rgtbus.protocol import Listen, RepairBlock, RepairSlot
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.decoder import Decision, WordSet, nearest
+from rgtbus.signal.rules import NEAREST, Rule
 
 SILENCE = "(silence)"  # the word of nothing sent (a copy or a request that did not come)
 FAMILIES = ("relation", "alternative")
@@ -50,13 +51,16 @@ class RepairBook:
     """One unit's repair: the payloads it holds, what it asked for in the current block, and
     its counts (``/unit/report`` ``repair``)."""
 
-    def __init__(self, cb: Codebook, margin: float, blocks: int) -> None:
+    def __init__(self, cb: Codebook, margin: float, blocks: int, rule: Rule = NEAREST) -> None:
+        """``rule``: what its codes are read by (``rgtbus.signal.rules``)."""
         zeros = (0.0,) * cb.pulses
         self.blocks = blocks  # repair blocks after each phase
-        self.families = {f: WordSet.of(cb.family(f)) for f in FAMILIES}
+        self.families = {f: WordSet.of(cb.family(f), rule=rule) for f in FAMILIES}
         self.below = {f: margin * cb.family_min_distance(f) for f in FAMILIES}
-        self.request_words = WordSet.of({"request": cb.id_word, SILENCE: zeros})
-        self.copy_words = {f: WordSet.of({**cb.family(f), SILENCE: zeros}) for f in FAMILIES}
+        self.request_words = WordSet.of({"request": cb.id_word, SILENCE: zeros}, rule=rule)
+        self.copy_words = {
+            f: WordSet.of({**cb.family(f), SILENCE: zeros}, rule=rule) for f in FAMILIES
+        }
         self.held: dict[int, Held] = {}  # turn -> what it read of a payload it is unsure of
         self.asked: set[int] = set()  # turns asked for in the current block
         self.counts: dict[str, Any] = {

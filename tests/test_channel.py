@@ -484,3 +484,35 @@ def test_units_hear_and_decode_through_their_faded_links_and_the_log_verifies(en
     assert verify_log(load_replay(io.BytesIO(data))).ok
     worse = [logged_run(sc.with_seed(seed), engine)[0] for seed in (1, 4)]
     assert all(s["decode_errors"] for s in worse)  # a deep fade or a strong link misreads
+
+
+@pytest.mark.parametrize("engine", ["event", "dense"])
+def test_the_matched_filter_rule_reads_faded_links_that_the_nearest_word_misreads(
+    engine, logged_run
+):
+    """``decoding = "matched-filter"`` (a scenario's second rule, rgtbus.signal.rules): over
+    faded links and no noise every code is read right, seeds where the nearest word (which
+    weighs words by their length too) misreads included; its log re-runs to the same records."""
+    from dataclasses import replace
+
+    from rgtbus.units.rerun import verify_log
+
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry.read import load_replay
+
+    text = (ROOT / "scenarios" / "gate_fading.toml").read_text()
+
+    def decoding(rule: str) -> str:
+        return text.replace('\nmode = "paper"\n', f'\nmode = "paper"\ndecoding = "{rule}"\n', 1)
+
+    matched = parse_scenario(decoding("matched-filter"))
+    assert matched.decoding == "matched-filter"
+    nearest = load_scenario(ROOT / "scenarios" / "gate_fading.toml")
+    misread = [s for s in (1, 4) if logged_run(nearest.with_seed(s), engine)[0]["decode_errors"]]
+    assert misread == [1, 4]
+    for seed in (1, 4):
+        summary, data = logged_run(replace(matched, seed=seed), engine)
+        assert summary["decode_errors"] == [] and summary["outcome"] == "gate: open"
+        assert verify_log(load_replay(io.BytesIO(data))).ok
+    with pytest.raises(RgtbusError, match=r"decoding: unknown decoding rule 'ml' \(nearest, "):
+        parse_scenario(decoding("ml"), "x.toml")

@@ -259,3 +259,56 @@ def test_the_compiled_nearest_word_is_the_numpy_rule(data):
     for d in range(len(reads)):
         twin = nearest_word(np.ascontiguousarray(reads[d]), mat, rank)
         assert twin == tuple(column[d].item() for column in every)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.data())
+def test_the_matched_filter_rule_s_three_forms_are_one_rule(data):
+    """The second rule (``rgtbus.signal.rules.MATCHED``): its NumPy form (``many``) and its
+    compiled form (``one``; the NumPy twin: tests/test_signal_twin.py) give the same row,
+    word, distance, margin and separation to the last bit, ties included, the zero word
+    among the words."""
+    from rgtbus.signal.rules import MATCHED
+
+    n = data.draw(st.integers(1, 9), label="pulses")
+    word = st.lists(_GRID, min_size=n, max_size=n)
+    words = st.lists(st.one_of(word, st.just([0.0] * n)), min_size=1, max_size=6)
+    mat = np.array(data.draw(words, label="words"))
+    rank = np.array(data.draw(st.permutations(range(len(mat))), label="rank"), dtype=np.int64)
+    read = st.one_of(
+        st.sampled_from(mat.tolist()),
+        word,
+        st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=n, max_size=n),
+    )
+    rows = data.draw(st.integers(1, 4), label="rows")
+    decodes = data.draw(st.lists(st.lists(read, min_size=rows, max_size=rows), min_size=1))
+    reads = np.array(decodes, dtype=np.float64)
+    every = MATCHED.many(reads, mat, rank)
+    for d in range(len(reads)):
+        one = MATCHED.one(np.ascontiguousarray(reads[d]), mat, rank)
+        assert one == tuple(column[d].item() for column in every)
+
+
+def test_the_matched_filter_rule_needs_no_gain_and_is_sure_at_its_word():
+    """Any gain a > 0 of a word is read as that word (the nearest rule needs the gain); at
+    the word the confidence is 1; a near-silent read weighs less than a loud one when the
+    timing search chooses a row."""
+    from rgtbus.signal.nearest import in_order
+    from rgtbus.signal.rules import MATCHED, NEAREST, rule_named
+
+    mat = np.array([[0.4, 0.4, 0.4], [-0.4, -0.4, -0.4], [0.2, 0.3, 0.7], [0.7, 0.3, 0.2]])
+    rank = in_order(4)
+    for j in range(4):
+        for gain in (0.05, 0.5, 1.0, 3.0):
+            read = np.ascontiguousarray(gain * mat[j : j + 1])
+            _, word, _, margin, sep = MATCHED.one(read, mat, rank)
+            assert word == j
+            if gain == 1.0:
+                assert MATCHED.confidence(margin, sep) == pytest.approx(1.0)
+    faint = np.ascontiguousarray(0.3 * mat[2:3])  # '1' heard faintly: nearest takes 'id'
+    assert NEAREST.one(faint, mat, rank)[1] == 0 and MATCHED.one(faint, mat, rank)[1] == 2
+    rows = np.ascontiguousarray(np.vstack([0.01 * mat[3], 0.8 * mat[2]]))  # silence, the code
+    assert MATCHED.one(rows, mat, rank)[:2] == (1, 2)
+    assert rule_named("matched-filter") is MATCHED
+    with pytest.raises(RgtbusError, match=r"unknown decoding rule 'ml' \(nearest, matched-"):
+        rule_named("ml")

@@ -65,8 +65,11 @@ def test_the_score_the_timings_and_the_rows_are_the_compiled_bits():
         if rng.random() < 0.3:
             mat[-1] = mat[0]  # a word under two names
         vals = np.round(rng.normal(size=(M, N)), int(rng.integers(0, 3)))
+        if rng.random() < 0.2:
+            mat[int(rng.integers(0, W))] = 0.0  # silence among the words
         rank = rng.permutation(W).astype(np.int64)
         assert twin.score(vals, mat, rank) == _walk.score(vals, mat, rank)
+        assert twin.score_matched(vals, mat, rank) == _walk.score_matched(vals, mat, rank)
     for _ in range(200):
         C = int(rng.integers(1, 5))
         omegas = rng.uniform(0.5, 20.0, size=C)

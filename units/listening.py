@@ -36,6 +36,7 @@ from rgtbus.signal.decoder import (
     nearest_many_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
+from rgtbus.signal.rules import rule_named
 from rgtbus.summary import HeldDecodes, SentTruth, decode_error, wrong_decodes
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
@@ -370,8 +371,13 @@ class Listening:
         self.settle = settle
         self.repairs = repairs
         self.omegas = [sc.frequencies[u] for u in self.units]
-        self.id_words = WordSet.of(self.cb.distinct_words())
-        self.families = {f: WordSet.of(self.cb.family(f)) for f in ("relation", "alternative")}
+        # its codes' words, read by the scenario's rule (an ID's attention, below, by the
+        # nearest word: it knows its link's gain and weighs the ID against silence)
+        rule = rule_named(sc.decoding)
+        self.id_words = WordSet.of(self.cb.distinct_words(), rule=rule)
+        self.families = {
+            f: WordSet.of(self.cb.family(f), rule=rule) for f in ("relation", "alternative")
+        }
         # every word name a decode can read, each once: a batch's codes index into it, and
         # the log's records of decodes index into these tables (``UnitLog.tables``)
         words: list[str] = []

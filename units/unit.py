@@ -49,6 +49,7 @@ from rgtbus.rgt import Universe
 from rgtbus.scenario import Goal, Scenario
 from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import ResonatorBank
+from rgtbus.signal.rules import rule_named
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.group_log import GroupLog
@@ -189,7 +190,10 @@ class AutonomousUnit:
         if sc.protocol.repairs_per_phase:
             self.arq = Arq(
                 name, sc,
-                RepairBook(sc.codebook, sc.protocol.repair_margin, sc.protocol.repairs_per_phase),
+                RepairBook(
+                    sc.codebook, sc.protocol.repair_margin, sc.protocol.repairs_per_phase,
+                    rule_named(sc.decoding),
+                ),
                 payload_codes=self.transmitter.payload_code, schedule=self._schedule,
                 emit=self.transmitter.emit, record=self._record, learn=self._learn, log=self.log,
             )  # fmt: skip

@@ -17,10 +17,20 @@ from rgtbus.signal.codebook import (
     generate_codebook,
     paper_codebook,
 )
+from rgtbus.signal.rules import RULES
 
 MODES = ("paper", "exact")
 CODEBOOK_KINDS = ("paper", "generated", "custom")
 MAX_PULSES = 64  # a code's length grows with N; far beyond any plan's need (the paper's N = 3)
+
+
+def decoding_of(ctx: Ctx, data: dict[str, Any]) -> str:
+    """``decoding``: the rule a code's word is read by (``rgtbus.signal.rules``): nearest
+    (default: the paper's) or matched-filter."""
+    rule = data.get("decoding", "nearest")
+    if not isinstance(rule, str) or rule not in RULES:
+        raise ctx.error("", "decoding", f"unknown decoding rule {rule!r} ({', '.join(RULES)})")
+    return rule
 
 
 def mode_of(ctx: Ctx, data: dict[str, Any]) -> str:

@@ -13,7 +13,7 @@ from typing import Any
 from rgtbus.errors import RgtbusError
 from rgtbus.protocol.timetable import plan_of
 from rgtbus.scenario.channel import channel_of, check_timed_channel
-from rgtbus.scenario.codebook_section import codebook_of, default_codebook, mode_of
+from rgtbus.scenario.codebook_section import codebook_of, decoding_of, default_codebook, mode_of
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.decisions import decisions_of
 from rgtbus.scenario.expect import check_expected_dynamics, check_expected_goals, expect_of
@@ -38,6 +38,7 @@ TOP_KEYS = {
     "frequencies",
     "codebook",
     "mode",
+    "decoding",
     "timing",
     "channel",
     "relations",
@@ -148,6 +149,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     if not channel.alike:
         check_size(ctx, data, len(units), protocol.influence_rounds, timing, alike=False)
     mode = mode_of(ctx, data)
+    decoding = decoding_of(ctx, data)
     # No codebook given: the paper's (one or two actions), else the shortest generated one.
     codebook = codebook_of(ctx, data.get("codebook", default_codebook(universe)), universe)
     freq = frequencies_of(ctx, data, units, universe, mode, codebook, timing.tau, protocol.schedule)
@@ -179,6 +181,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
         frequency_text=freq.text,
         codebook=freq.codebook,
         mode=freq.mode,
+        decoding=decoding,
         timing=timing,
         channel=channel,
         relations=relations,

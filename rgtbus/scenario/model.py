@@ -99,6 +99,7 @@ class Scenario:
     outcome: Outcome | None
     protocol: ProtocolSection = field(default_factory=ProtocolSection)
     goals: tuple[Goal, ...] = ()  # [goals.UNIT]: influences chosen by the inverse task
+    decoding: str = "nearest"  # the rule a code's word is read by (rgtbus.signal.rules)
     expect: dict[str, Any] = field(default_factory=dict)
     description: str = ""
 

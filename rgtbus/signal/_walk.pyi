@@ -37,6 +37,9 @@ def walk_lanes(
 def score(
     vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
 ) -> tuple[int, int, float, float, float]: ...
+def score_matched(
+    vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
+) -> tuple[int, int, float, float, float]: ...
 def timings(
     chans: np.ndarray, omegas: np.ndarray, start: float, pulses: int, tau: float, search: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...

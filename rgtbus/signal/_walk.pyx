@@ -267,6 +267,55 @@ def score(const double[:, ::1] vals, const double[:, ::1] mat, const long[::1] r
     return best_m, best_w, best_d, runner - best_d, sep
 
 
+cdef inline double _matched(
+    const double[:, ::1] a, Py_ssize_t i, const double[:, ::1] mat, Py_ssize_t j, Py_ssize_t N
+) noexcept nogil:
+    """The matched-filter rule's distance of row i of ``a`` to word j
+    (``rgtbus.signal.rules.matched``): −Σ v·w / sqrt(Σ w²), −0 for the zero word, sums in k's
+    order."""
+    cdef double vw = 0.0, ww = 0.0
+    cdef Py_ssize_t k
+    for k in range(N):
+        vw = vw + a[i, k] * mat[j, k]
+        ww = ww + mat[j, k] * mat[j, k]
+    return -(vw / sqrt(ww)) if ww > 0.0 else -0.0
+
+
+def score_matched(const double[:, ::1] vals, const double[:, ::1] mat, const long[::1] rank):
+    """The matched-filter rule (``rgtbus.signal.rules``): as ``score``, each distance the
+    negative matched-filter output; a word is another word when it differs from the best (the
+    Euclidean gap), its separation the best word's own distance to it less its distance to
+    itself."""
+    cdef Py_ssize_t M = vals.shape[0], W = mat.shape[0], N = mat.shape[1]
+    cdef Py_ssize_t i, j, k, best_m = 0, best_w = 0
+    cdef double best_d = INFINITY, d, own, runner = INFINITY, sep = INFINITY, dist2, gap
+    with nogil:
+        for i in range(M):
+            for j in range(W):
+                d = _matched(vals, i, mat, j, N)
+                if d < best_d or (d == best_d and i == best_m and rank[j] < rank[best_w]):
+                    best_m = i
+                    best_w = j
+                    best_d = d
+        own = _matched(mat, best_w, mat, best_w, N)
+        for j in range(W):
+            dist2 = 0.0
+            for k in range(N):
+                gap = mat[j, k] - mat[best_w, k]
+                dist2 = dist2 + gap * gap
+            if dist2 == 0.0:
+                continue  # the same word under another name
+            d = _matched(vals, best_m, mat, j, N)
+            if d < runner:
+                runner = d
+            d = _matched(mat, best_w, mat, j, N) - own
+            if d < sep:
+                sep = d
+    if runner == INFINITY:
+        return best_m, best_w, best_d, INFINITY, 0.0
+    return best_m, best_w, best_d, runner - best_d, sep
+
+
 def timings(
     const long[::1] chans, const double[::1] omegas, double start, long pulses, double tau,
     long search,

@@ -38,8 +38,9 @@ import numpy as np
 from rgtbus.errors import RgtbusError
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.kernels import read_rows, timings
-from rgtbus.signal.nearest import alphabetical, confidence, in_order, nearest_word, nearest_words
+from rgtbus.signal.nearest import alphabetical, in_order
 from rgtbus.signal.resonator import PAPER_TAU, FeedResult, ResonatorBank
+from rgtbus.signal.rules import NEAREST, Rule
 from rgtbus.timebase import time_of
 
 
@@ -340,6 +341,7 @@ def decode_among_each(
     once (receivers that heard the same decode the same; each result depends only on that
     receiver's own readout)."""
     names, mat = word_matrix(words, None, "decode")
+    rule = rule_of(words)
     chans, shifts, inst, every = _heard_candidates(history, channels, start, mat, tau, search)
     order = in_order(mat.shape[0])
     out: list[tuple[Decision, int]] = []
@@ -348,12 +350,12 @@ def decode_among_each(
         key = vals.tobytes()
         got = seen.get(key)
         if got is None:
-            m, w, best, margin, sep = nearest_word(vals, mat, order)
+            m, w, best, margin, sep = rule.one(vals, mat, order)
             decision = Decision(
                 names[w],
                 best,
                 margin,
-                confidence(margin, sep),
+                rule.confidence(margin, sep),
                 tuple(vals[m].tolist()),
                 tuple(inst[m].tolist()),
                 int(shifts[m]),
@@ -411,6 +413,7 @@ def decode_among_columns(
     the words' names), channel index and margin, without a ``Decision`` each (a unit's batch
     of decodes reads them as arrays; every distinct set of values is scored once, as there)."""
     _, mat = word_matrix(words, None, "decode")
+    one = rule_of(words).one
     chans, _, _, every = _heard_candidates(history, channels, start, mat, tau, search)
     order = in_order(mat.shape[0])
     firsts, which = _distinct(every)
@@ -418,7 +421,7 @@ def decode_among_columns(
     chan = np.empty(firsts.size, dtype=np.int64)
     margin = np.empty(firsts.size)
     for k, r in enumerate(firsts.tolist()):
-        m, word[k], _, margin[k], _ = nearest_word(every[r], mat, order)
+        m, word[k], _, margin[k], _ = one(every[r], mat, order)
         chan[k] = chans[m]
     return word[which], chan[which], margin[which]
 
@@ -432,12 +435,13 @@ def nearest_columns(
     every = history.gather(idx, np.array([channel]))[:, 0]  # (R, N)
     names, mat = word_matrix(words, every.shape[1], "nearest")
     rank = alphabetical(names)
+    one = rule_of(words).one
     firsts, which = _distinct(every)
     word = np.empty(firsts.size, dtype=np.int64)
     margin = np.empty(firsts.size)
     for k, r in enumerate(firsts.tolist()):
         reads = np.ascontiguousarray(every[r : r + 1])
-        _, word[k], _, margin[k], _ = nearest_word(reads, mat, rank)
+        _, word[k], _, margin[k], _ = one(reads, mat, rank)
     return word[which], margin[which]
 
 
@@ -445,19 +449,19 @@ def nearest_many_columns(
     history: ReadoutHistory, instants: np.ndarray, channels: np.ndarray, words: Words, rank: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """P decodes at once, each with M candidate reads: ``instants`` (P, M, N) on ``channels``
-    (P, M), scored by the nearest-codeword rule for every receiver of ``history``. Returns
+    (P, M), scored by the words' rule (``WordSet.rule``) for every receiver of ``history``. Returns
     each decode's (P, R) candidate row, word (an index into the words' names) and margin.
     ``rank`` breaks ties: ``"order"`` (the first word, as ``decode_among_columns``) or
     ``"name"`` (alphabetical, as ``nearest_columns``). Each distinct receiver's values are
-    scored once, all P decodes in one vectorised step (``nearest_words``: the bits of the
-    compiled rule), so the answers are those of P calls of the one-decode forms."""
+    scored once, all P decodes in one vectorised step (``Rule.many``: the bits of the
+    compiled form), so the answers are those of P calls of the one-decode forms."""
     P, M, N = instants.shape
     names, mat = word_matrix(words, N, "decode")
     order = in_order(mat.shape[0]) if rank == "order" else alphabetical(names)
     # each distinct receiver's values (S, P·M, N), and each receiver's set
     values, which = history.gather_distinct(instants.reshape(P * M, N), channels.reshape(P * M))
     S = values.shape[0]
-    got = nearest_words(values.reshape(S * P, M, N), mat, order)
+    got = rule_of(words).many(values.reshape(S * P, M, N), mat, order)
     back = (S, P)
     return (
         got.row.reshape(back)[which].T,
@@ -556,14 +560,17 @@ class Decision:
 
 @dataclass(frozen=True, eq=False)
 class WordSet:
-    """Candidate words as names and a read-only (W, N) matrix: built once, decoded often.
-    Equal (and hashed) by value, so equal sets from different units share cached work."""
+    """Candidate words as names and a read-only (W, N) matrix, and the ``rule`` they are
+    decoded by (``rgtbus.signal.rules``: every decode form asks the set): built once, decoded
+    often. Equal (and hashed) by value, so equal sets from different units share cached
+    work."""
 
     names: tuple[str, ...]
     matrix: np.ndarray
+    rule: Rule = NEAREST
 
     def __post_init__(self) -> None:
-        key = (self.names, self.matrix.shape, self.matrix.tobytes())
+        key = (self.names, self.matrix.shape, self.matrix.tobytes(), self.rule.name)
         object.__setattr__(self, "_key", key)
         object.__setattr__(self, "_hash", hash(key))  # asked at every decode: once
 
@@ -574,11 +581,13 @@ class WordSet:
         return self._hash  # type: ignore[attr-defined,no-any-return]
 
     @classmethod
-    def of(cls, words: Mapping[str, Sequence[float]], where: str = "words") -> WordSet:
-        """The set of these words; equal sets asked for while one is alive are one object,
-        so a cache keyed by it finds it by identity (``==`` on a set compares its bytes, and
-        every decode asks)."""
-        made = cls(*word_matrix(words, None, where))
+    def of(
+        cls, words: Mapping[str, Sequence[float]], where: str = "words", rule: Rule = NEAREST
+    ) -> WordSet:
+        """The set of these words, decoded by ``rule``; equal sets asked for while one is
+        alive are one object, so a cache keyed by it finds it by identity (``==`` on a set
+        compares its bytes, and every decode asks)."""
+        made = cls(*word_matrix(words, None, where), rule)
         return _WORD_SETS.setdefault(made._key, made)  # type: ignore[attr-defined]
 
 
@@ -586,6 +595,11 @@ _WORD_SETS: weakref.WeakValueDictionary[tuple[object, ...], WordSet] = weakref.W
 
 
 Words = Mapping[str, Sequence[float]] | Mapping[str, np.ndarray] | WordSet
+
+
+def rule_of(words: Words) -> Rule:
+    """The rule ``words`` are decoded by: a word set's own, else nearest-word."""
+    return words.rule if isinstance(words, WordSet) else NEAREST
 
 
 def word_matrix(words: Words, n: int | None, where: str) -> tuple[tuple[str, ...], np.ndarray]:
@@ -627,16 +641,19 @@ def _words(
 
 
 def nearest(values: Sequence[float] | np.ndarray, words: Words) -> Decision:
-    """Maximum-likelihood (nearest Euclidean) word for the values read at a code's instants
-    (the rule of ``rgtbus.signal.nearest``).
+    """The word the values read at a code's instants are taken for, by the words' rule
+    (``WordSet.rule``; plain words: the nearest in Euclidean distance, the maximum-likelihood
+    word of ``rgtbus.signal.nearest``).
 
     Words equal to the best (e.g. ``id`` and ``alliance``) are not counted as runners-up; ties
     go to the first name in alphabetical order.
     """
     v = np.ascontiguousarray(values, dtype=float).reshape(1, -1)
     names, mat = word_matrix(words, v.shape[1], "nearest")
-    _, w, best, margin, sep = nearest_word(v, mat, alphabetical(names))
-    return Decision(names[w], best, margin, confidence(margin, sep), tuple(float(x) for x in v[0]))
+    rule = rule_of(words)
+    _, w, best, margin, sep = rule.one(v, mat, alphabetical(names))
+    read = tuple(float(x) for x in v[0])
+    return Decision(names[w], best, margin, rule.confidence(margin, sep), read)
 
 
 def nearer_than_silence(values: Sequence[float], word: Sequence[float]) -> bool:

@@ -15,7 +15,14 @@ if _ASKED not in ("", "compiled", "numpy"):
     raise RgtbusError(f"RGTBUS_WALK={_ASKED!r}: expected compiled or numpy (or unset)")
 
 if _ASKED == "numpy":
-    from rgtbus.signal.walk_numpy import WalkModel, read_rows, score, timings, walk_lanes
+    from rgtbus.signal.walk_numpy import (
+        WalkModel,
+        read_rows,
+        score,
+        score_matched,
+        timings,
+        walk_lanes,
+    )
 
     COMPILED = False
 else:
@@ -24,6 +31,7 @@ else:
             WalkModel,
             read_rows,
             score,
+            score_matched,
             timings,
             walk_lanes,
         )
@@ -34,7 +42,14 @@ else:
             raise RgtbusError(
                 f"RGTBUS_WALK=compiled: the compiled walk is missing ({exc})"
             ) from None
-        from rgtbus.signal.walk_numpy import WalkModel, read_rows, score, timings, walk_lanes
+        from rgtbus.signal.walk_numpy import (
+            WalkModel,
+            read_rows,
+            score,
+            score_matched,
+            timings,
+            walk_lanes,
+        )
 
         COMPILED = False
         print(
@@ -43,4 +58,6 @@ else:
             file=sys.stderr,
         )
 
-__all__ = ["COMPILED", "WalkModel", "read_rows", "score", "timings", "walk_lanes"]
+__all__ = [
+    "COMPILED", "WalkModel", "read_rows", "score", "score_matched", "timings", "walk_lanes",
+]  # fmt: skip

@@ -23,6 +23,7 @@ for finite reads (what a readout holds).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -73,27 +74,40 @@ def distances(reads: np.ndarray, mat: np.ndarray) -> np.ndarray:
     return root
 
 
-def nearest_choice(reads: np.ndarray, mat: np.ndarray, rank: np.ndarray) -> Choice:
+Distance = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (..., N), (W, N) -> (..., W)
+
+
+def nearest_choice(
+    reads: np.ndarray, mat: np.ndarray, rank: np.ndarray, by: Distance = distances
+) -> Choice:
     """The rule's choice (module docstring) for D decodes at once: ``reads`` (D, M, N), each
     decode's M candidate rows against the words of ``mat`` (W, N), ties broken by ``rank``
-    (W,): the least (distance, row, rank)."""
+    (W,): the least (distance, row, rank). ``by``: the distance (Euclidean; another rule's,
+    ``rgtbus.signal.rules``)."""
     reads = np.asarray(reads, dtype=np.float64)
     by_rank = np.argsort(rank, kind="stable")
     # words in rank order: the first least distance in (row, word) order is the rule's
-    dist = distances(reads, mat[by_rank]).reshape(reads.shape[0], -1)
+    dist = by(reads, mat[by_rank]).reshape(reads.shape[0], -1)
     first = dist.argmin(axis=1)
     row, at = np.divmod(first, mat.shape[0])
     return Choice(row, by_rank[at], dist[np.arange(dist.shape[0]), first])
 
 
-def nearest_words(reads: np.ndarray, mat: np.ndarray, rank: np.ndarray) -> Scores:
+def nearest_words(
+    reads: np.ndarray, mat: np.ndarray, rank: np.ndarray, by: Distance = distances
+) -> Scores:
     """The rule (module docstring) for D decodes at once: ``nearest_choice``'s row, word and
-    distance, and each one's margin and separation."""
-    row, word, best = nearest_choice(reads, mat, rank)
+    distance, and each one's margin and separation; ``by`` as there (a word is another word
+    when it differs from the best, whatever the distance)."""
+    row, word, best = nearest_choice(reads, mat, rank, by)
     decodes = np.arange(word.size)
-    gaps = distances(mat[word], mat)  # (D, W): each best word's distance to every word
-    others = gaps != 0.0  # a word equal to the best under another name is no runner-up
-    read = distances(np.asarray(reads, dtype=np.float64)[decodes, row], mat)  # (D, W)
+    apart = distances(mat[word], mat)  # (D, W): each best word's distance to every word
+    others = apart != 0.0  # a word equal to the best under another name is no runner-up
+    if by is not distances:  # the best word read exactly, less its distance to itself
+        read_exactly = by(mat[word], mat)
+        apart = read_exactly - read_exactly[decodes, word][:, None]
+    gaps = apart
+    read = by(np.asarray(reads, dtype=np.float64)[decodes, row], mat)  # (D, W)
     runner = np.where(others, read, np.inf).min(axis=1)
     has_others = others.any(axis=1)
     margin = np.where(has_others, runner - best, np.inf)

@@ -211,6 +211,41 @@ def score(
     return best_m, best_w, best_d, runner - best_d, sep
 
 
+def _matched(a: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    """The matched-filter distance of every row of ``a`` (R, N) to every word of ``mat``
+    (W, N), as the compiled ``_matched`` works it out: its sums in k's order."""
+    vw = np.zeros((a.shape[0], mat.shape[0]))
+    ww = np.zeros(mat.shape[0])
+    for k in range(mat.shape[1]):
+        vw = vw + a[:, k, None] * mat[None, :, k]
+        ww = ww + mat[:, k] * mat[:, k]
+    out: np.ndarray = np.where(ww > 0.0, -(vw / np.sqrt(np.where(ww > 0.0, ww, 1.0))), -0.0)
+    return out
+
+
+def score_matched(
+    vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
+) -> tuple[int, int, float, float, float]:
+    """``_walk.score_matched``: ``score`` by the matched-filter distance
+    (``rgtbus.signal.rules``)."""
+    d = _matched(vals, mat)  # (M, W)
+    best_d = float(d.min())
+    if not best_d < math.inf:
+        best_m, best_w = 0, 0
+        best_d = math.inf
+    else:
+        best_m = int(np.flatnonzero((d == best_d).any(axis=1))[0])
+        ties = np.flatnonzero(d[best_m] == best_d)
+        best_w = int(ties[np.argmin(rank[ties])])
+    other = _sum_squares(mat - mat[best_w][None, :]) != 0.0
+    if not other.any():
+        return best_m, best_w, best_d, math.inf, 0.0
+    runner = float(_matched(vals[best_m][None, :], mat)[0][other].min())
+    exactly = _matched(mat[best_w][None, :], mat)[0]
+    sep = float((exactly - exactly[best_w])[other].min())
+    return best_m, best_w, best_d, runner - best_d, sep
+
+
 def timings(
     chans: np.ndarray, omegas: np.ndarray, start: float, pulses: int, tau: float, search: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
