@@ -115,6 +115,8 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
             print(_interrupted(args, sweep.runs, out), file=sys.stderr, flush=True)
             return 130
+    for note in rows.notes:  # said even with --quiet: a run is run again
+        print(note, file=sys.stderr, flush=True)
     failed = sum(1 for r in rows if r.get("failed"))
     if args.json:
         for r in rows:

@@ -26,7 +26,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from rgtbus.units import sweep as sweep_mod
-from rgtbus.units.sweep import execute_sweep, load_sweep, read_rows, run_sweep
+from rgtbus.units.sweep import execute_sweep, load_sweep, run_sweep
+from rgtbus.units.sweep_store import read_rows
 from rgtbus.units.workers import SweepPool, WorkerDied
 
 from rgtbus.cli import main
@@ -175,7 +176,8 @@ def test_a_stopped_sweep_ends_at_once_keeps_its_rows_and_its_workers_end(
     assert "interrupted" in err and f"--out {out} --workers 2 --resume" in err, err
     kept = lines(out)
     assert before <= len(kept) < 2000 and f"{len(kept)} of 2000 runs" in err
-    rows, rewrite = read_rows(out, load_sweep(path).digest)  # every line whole and sealed
+    rows, rewrite, notes = read_rows(out, load_sweep(path).digest)  # every line whole and sealed
+    assert notes == []
     assert len(rows) == len(kept) and not rewrite
     wait_until(lambda: not alive(kids), "every worker gone", timeout=15)
     assert not (out / "results.parquet").exists()
@@ -397,7 +399,7 @@ def _tamper(out: Path, how: str) -> tuple[list[str], int]:
         del row["_hmac"]
         return [json.dumps(row), *rows[1:]], 1
     if how in ("forged, unkeyed", "forged, another key"):  # resealed by one without the key
-        from rgtbus.units.sweep import row_digest, row_seal
+        from rgtbus.units.sweep_store import row_digest, row_seal
 
         row = json.loads(rows[3])
         del row["_hmac"]
@@ -449,6 +451,31 @@ def test_a_line_cut_by_a_kill_is_run_again_with_a_note(tmp_path, capsys):
     assert pq.read_table(out / "results.parquet").drop(["wall_seconds"]).equals(whole)
     assert len(lines(out)) == 6
     assert main(["sweep", str(path), "--out", str(out), "--resume", "--quiet"]) == 0
+
+
+def test_the_library_returns_its_note_on_a_cut_line_and_prints_nothing(tmp_path, capsys):
+    """``run_sweep`` and ``sweep()`` say what they have to say as data (``SweepRows.notes``,
+    the frame's ``attrs["notes"]``), never on stderr: only ``rgtbus sweep`` prints it."""
+    from rgtbus.units.sweep import sweep
+
+    path, out = write_sweep(tmp_path, 6), tmp_path / "out"
+    sw = load_sweep(path)
+    run_sweep(sw, out)
+    text = (out / "rows.jsonl").read_text()
+    (out / "rows.jsonl").write_text(text[: text.rindex("\n", 0, -1) + 40])  # the last row cut
+    capsys.readouterr()
+    rows = run_sweep(sw, out, resume=True)
+    assert len(rows) == 6 and len(rows.notes) == 1
+    assert "rows.jsonl:6: a line cut short" in rows.notes[0]
+    assert run_sweep(sw, out, resume=True).notes == []
+    again = tmp_path / "again"
+    kw = {"grid": {"n": [3]}, "seeds": 3, "out": again, "workers": 1}
+    assert sweep("random_group", **kw).attrs["notes"] == []
+    text = (again / "rows.jsonl").read_text()
+    (again / "rows.jsonl").write_text(text[: text.rindex("\n", 0, -1) + 40])
+    frame = sweep("random_group", resume=True, **kw)
+    assert len(frame) == 3 and "a line cut short" in frame.attrs["notes"][0]
+    assert capsys.readouterr().err == ""
 
 
 # -- bad --out, bad --scheduler, a lost scheduler ----------------------------------------------
@@ -590,7 +617,7 @@ def test_rows_are_sealed_with_a_key_beside_the_table_and_an_older_sweep_is_seale
     """The seal is keyed by DIR/sweep.key (its owner's alone): without it no row is checked;
     a directory of an older rgtbus (unkeyed SHA-256 digests) is checked by that rule, then
     sealed with a key of its own on resume."""
-    from rgtbus.units.sweep import row_digest
+    from rgtbus.units.sweep_store import row_digest
 
     path, out = write_sweep(tmp_path, 6), tmp_path / "out"
     assert main(["sweep", str(path), "--out", str(out), "--workers", "1", "--quiet"]) == 0
