@@ -16,7 +16,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from rgtbus._version import __version__
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog, IOFailure, PeerSilent, RgtbusError
 
 if TYPE_CHECKING:
     from rgtbus.api import load_scenario, open_log, run, sweep
@@ -37,7 +37,11 @@ _LAZY = {
 }
 
 __all__ = [
+    "BadInput",
+    "BadLog",
+    "IOFailure",
     "Log",
+    "PeerSilent",
     "RgtbusError",
     "RunResult",
     "Scenario",

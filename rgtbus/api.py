@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 import rgtbus.checks as checks
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.units.result import RunResult, result_of
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ def run(
     if log is None:
         if live is not None:
             live.close()
-            raise RgtbusError("a live view needs a log (log=PATH): it serves what is logged")
+            raise BadInput("a live view needs a log (log=PATH): it serves what is logged")
         out = run_group(sc, bus, NullRecorder(), **options)
         return result_of(sc, out.summary, None)
     from rgtbus.telemetry.logfile import close_log

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 ENGINES = ("event", "dense")  # how a world moves: event to event, or window by window
 
@@ -21,7 +21,7 @@ def is_seed(value: Any) -> bool:
 def seed(value: Any, name: str = "seed") -> int:
     """A run's seed: a non-negative integer."""
     if not is_seed(value):
-        raise RgtbusError(f"{name} {value!r}: must be a non-negative integer")
+        raise BadInput(f"{name} {value!r}: must be a non-negative integer")
     return int(value)
 
 
@@ -34,19 +34,19 @@ def _positive(value: Any) -> bool:
 def realtime(value: Any, name: str = "realtime") -> float:
     """A pace: simulated seconds per wall second, a positive finite factor."""
     if not _positive(value):
-        raise RgtbusError(f"{name} {value!r}: must be a positive factor")
+        raise BadInput(f"{name} {value!r}: must be a positive factor")
     return float(value)
 
 
 def seconds(value: Any, name: str) -> float:
     """A wall-clock limit (a timeout): positive finite seconds."""
     if not _positive(value):
-        raise RgtbusError(f"{name} {value!r}: must be positive seconds")
+        raise BadInput(f"{name} {value!r}: must be positive seconds")
     return float(value)
 
 
 def choice(value: Any, choices: tuple[str, ...], name: str) -> str:
     """One of ``choices`` (an engine, a bus kind)."""
     if value not in choices:
-        raise RgtbusError(f"{name} {value!r}: must be one of {', '.join(choices)}")
+        raise BadInput(f"{name} {value!r}: must be one of {', '.join(choices)}")
     return str(value)

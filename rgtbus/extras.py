@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 # module -> the extra that installs it
 EXTRAS = {
@@ -24,7 +24,7 @@ def require(module: str, what: str) -> None:
     """Refuse, in one line, ``what`` (e.g. ``"--plot"``) when ``module`` is not installed."""
     if importlib.util.find_spec(module) is None:
         extra = EXTRAS[module]
-        raise RgtbusError(
+        raise BadInput(
             f"{what} needs {module}, which rgtbus leaves to its {extra!r} extra: "
             f"pip install 'rgtbus[{extra}]'"
         )

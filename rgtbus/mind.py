@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
-from rgtbus.errors import NotDecomposable, RgtbusError
+from rgtbus.errors import BadInput, NotDecomposable, RgtbusError
 from rgtbus.pairs import PairTable, SharedTable, ordered_pairs, pair_key, relation_key
 from rgtbus.rgt import (
     DecisionFunction,
@@ -132,7 +132,7 @@ def choose_influences(
         elif drawn is not None:
             chosen = drawn
         else:
-            raise RgtbusError(f"no influence for {me}>{r} (policy {policy})")
+            raise BadInput(f"no influence for {me}>{r} (policy {policy})")
         out[r] = universe.format(chosen)
     return out
 

@@ -36,7 +36,7 @@ from rgtbus.bus import (
 from rgtbus.bus.base import AHEAD_WINDOW
 from rgtbus.bus.logbus import LogBus, LogEnded
 from rgtbus.bus.payload import HEADER_SIZE, MAX_MAGNITUDE
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import PeerSilent, RgtbusError
 
 RATE = 200.0
 SHORT = 0.3  # seconds: long enough for in-process zenoh, short enough to keep the suite fast
@@ -822,6 +822,7 @@ def test_a_join_that_hears_nobody_says_how_units_reach_each_other():
     finally:
         bus.close()
     said = str(timed_out.value)
+    assert isinstance(timed_out.value, PeerSilent) and isinstance(timed_out.value, TimeoutError)
     assert "timed out after 1 s: no answer from b; no other unit was heard at all" in said
     assert "rgtbus router" in said and "a watcher (rgtbus watch) relays nothing" in said
 

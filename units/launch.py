@@ -37,7 +37,7 @@ from rgtbus.units.result import RunResult
 import rgtbus.checks as checks
 from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.registry import cross_process_kind
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.interrupts import interrupted_by
 from rgtbus.scenario import Scenario, load_scenario
 from rgtbus.summary import summarise, summary_json
@@ -66,7 +66,7 @@ def process_groups(units: Sequence[str], procs: int | None) -> dict[str, list[st
     if procs is None:
         return {u: [u] for u in units}
     if isinstance(procs, bool) or not isinstance(procs, int) or not 1 <= procs <= len(units):
-        raise RgtbusError(f"--procs {procs}: must be 1 to {len(units)} (the number of units)")
+        raise BadInput(f"--procs {procs}: must be 1 to {len(units)} (the number of units)")
     size, extra = divmod(len(units), procs)
     out: dict[str, list[str]] = {}
     at = 0
@@ -255,13 +255,13 @@ class LaunchProcesses:
         writer.close()
         self.procs["router"] = proc
         if not reader.poll(timeout):
-            raise RgtbusError(f"router did not start within {timeout:g} s")
+            raise BadInput(f"router did not start within {timeout:g} s")
         try:
             problem = reader.recv()
         except EOFError:
             problem = f"router process ended ({_signal_name(proc.exitcode)})"
         if problem is not None:
-            raise RgtbusError(problem)
+            raise BadInput(problem)
 
     def collect(
         self, first: float, stall_after: float, timeout: float, paced: bool = False
@@ -470,7 +470,7 @@ def zenoh_given(zenoh: Mapping[str, Any] | None) -> dict[str, Any]:
     given = dict(zenoh or {})
     for key in given:
         if key not in ZENOH_OPTIONS:
-            raise RgtbusError(f"zenoh option {key!r}: unknown (use {', '.join(ZENOH_OPTIONS)})")
+            raise BadInput(f"zenoh option {key!r}: unknown (use {', '.join(ZENOH_OPTIONS)})")
     return {k: v for k, v in given.items() if v is not None}
 
 
@@ -481,7 +481,7 @@ def _log_dir(sc: Scenario, log_dir: str | os.PathLike[str] | None, procs: Sequen
     try:
         where.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise RgtbusError(f"cannot create log dir {str(where)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot create log dir {str(where)!r}: {exc.strerror}") from None
     stale = [where / f"{u}.mcap" for u in sc.units] + [where / "launch.mcap"]
     for path in [*stale, *(where.glob("proc-*.mcap"))]:
         with contextlib.suppress(FileNotFoundError):  # never merge an earlier launch's log
@@ -575,7 +575,7 @@ def launch(
     if router is None:
         router = not net_given and len(groups) > ROUTER_ABOVE
     if net_given.get("listen") and len(groups) > 1:
-        raise RgtbusError(
+        raise BadInput(
             f"-l/--listen with {len(groups)} processes: each would listen on the same "
             "endpoint (give --procs 1, or -e/--connect to a router, or no endpoint at all)"
         )
@@ -732,6 +732,8 @@ def _merged(
     try:
         with open(merged, "wb") as out:
             merge_logs(logs, out)
+    except RgtbusError:  # already one line (an IOFailure is an OSError too)
+        raise
     except OSError as exc:
-        raise RgtbusError(f"cannot write log {str(merged)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot write log {str(merged)!r}: {exc.strerror}") from None
     return left_out

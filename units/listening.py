@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rgtbus.units.timers import Timer, Timers
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import Listen, ListenQueue, ProtocolState, code_samples
 from rgtbus.scenario import Scenario
@@ -495,7 +495,7 @@ class Listening:
         assert ears is not None
         index, tau, cb = self.index_of, self.tau, self.cb
         if queue.units != tuple(self.units):
-            raise RgtbusError(f"{self.name}: a listen queue of another group")
+            raise BadInput(f"{self.name}: a listen queue of another group")
         due = queue.order  # the i-th position: the listen planned due[i]-th
         start = queue.start[due]
         names = self.words

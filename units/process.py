@@ -33,7 +33,7 @@ from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.registry import cross_process_kind
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.engine.sim import World, WorldResult
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.telemetry import McapRecorder, Recorder
 from rgtbus.telemetry.topics import UNIT_DONE, UNIT_ENDED_EARLY, unit_end_record
@@ -114,10 +114,10 @@ def unit_names(text: str, sc: Scenario) -> list[str]:
     names = [n.strip() for n in text.split(",")]
     for name in names:
         if name not in sc.units:
-            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+            raise BadInput(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
-        raise RgtbusError(f"unit {dup!r} named twice in {text!r}")
+        raise BadInput(f"unit {dup!r} named twice in {text!r}")
     return names
 
 
@@ -258,12 +258,12 @@ def _checked_names(sc: Scenario, names: Sequence[str]) -> list[str]:
     whatever the layout of processes)."""
     names = list(names)
     if not names:
-        raise RgtbusError("no unit to run")
+        raise BadInput("no unit to run")
     for name in names:
         if name not in sc.units:
-            raise RgtbusError(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
+            raise BadInput(f"unknown unit {name!r} (units of {sc.name}: {', '.join(sc.units)})")
     if len(set(names)) != len(names):
-        raise RgtbusError(f"a unit named twice: {', '.join(names)}")
+        raise BadInput(f"a unit named twice: {', '.join(names)}")
     return [u for u in sc.units if u in names]
 
 
@@ -380,7 +380,7 @@ def open_router(
     tls_run = None
     if tls is not None:
         if not roster:
-            raise RgtbusError("--tls: a router needs the run's roster (give --scenario)")
+            raise BadInput("--tls: a router needs the run's roster (give --scenario)")
         if run_id is not None:
             check_name("run id", run_id)
         tls_run = TlsRun(check_tls(tls, ROUTER), tuple(roster), run_id)
@@ -395,6 +395,6 @@ def open_router(
     try:
         return zenoh.open(cfg)
     except Exception as exc:
-        raise RgtbusError(
+        raise IOFailure(
             f"router: cannot open a zenoh router on {list(listen or [])}: {zenoh_reason(exc)}"
         ) from None

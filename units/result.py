@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -43,7 +43,7 @@ class RunResult:
     def open_log(self) -> Log:
         """The run's log, read back (``RgtbusError`` if the run wrote none)."""
         if self.log is None:
-            raise RgtbusError("this run wrote no log: run it with log=PATH")
+            raise BadInput("this run wrote no log: run it with log=PATH")
         from rgtbus.telemetry.frames import open_log
 
         return open_log(self.log)

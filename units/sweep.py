@@ -70,7 +70,7 @@ from rgtbus.units.workers import (
     pool_of,
 )
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.summary import decode_errors_left, summary_json
 from rgtbus.telemetry.sweep_read import SweepTables, read_results, read_sweep
@@ -274,7 +274,7 @@ def _lost(pool: Pool, exc: BaseException, out_dir: Path) -> RgtbusError:
         if pool.kind == "dask"
         else f"the {pool.kind} failed"
     )
-    return RgtbusError(
+    return BadInput(
         f"{where} ({one_line(exc)}); the finished runs are in "
         f"{str(out_dir / 'rows.jsonl')!r}: --resume (resume=True) to finish"
     )
@@ -363,7 +363,7 @@ def _run(
         try:
             os.makedirs(log_dir, exist_ok=True)
         except OSError as exc:
-            raise RgtbusError(f"cannot write {log_dir!r}: {exc.strerror}") from None
+            raise IOFailure(f"cannot write {log_dir!r}: {exc.strerror}") from None
     failures = sum(1 for r in have.values() if r.get("failed"))
     if progress:
         progress(len(have), len(tasks), failures)
@@ -372,7 +372,7 @@ def _run(
     try:
         sink = open(rows_path, "a", encoding="utf-8")  # noqa: SIM115 (closed below)
     except OSError as exc:
-        raise RgtbusError(f"cannot write {str(rows_path)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot write {str(rows_path)!r}: {exc.strerror}") from None
     with sink:
         for batch_rows in _rows_as_they_finish(sweep, held.todo, pool, log_dir, out_dir):
             lines = []
@@ -385,7 +385,7 @@ def _run(
                 sink.write("".join(lines))
                 sink.flush()
             except OSError as exc:
-                raise RgtbusError(
+                raise IOFailure(
                     f"cannot write {str(rows_path)!r} ({exc.strerror}): the rows before are "
                     "kept: --resume (resume=True) to finish"
                 ) from None
@@ -397,7 +397,7 @@ def _run(
     try:
         return write_tables(sweep.axes, rows, out_dir, sweep.id)
     except OSError as exc:
-        raise RgtbusError(
+        raise IOFailure(
             f"cannot write the tables in {str(out_dir)!r} ({exc.strerror}): every row is in "
             f"{str(rows_path)!r}: --resume (resume=True) writes them"
         ) from None
@@ -442,7 +442,7 @@ def execute_sweep(
     (Ctrl-C) stops the workers at once (none is left behind) and propagates; every run that
     finished is in rows.jsonl, and ``resume=True`` runs the rest."""
     if workers is not None and (isinstance(workers, bool) or workers < 1):
-        raise RgtbusError(f"workers must be at least 1, got {workers}")
+        raise BadInput(f"workers must be at least 1, got {workers}")
     bar = None
     callback = progress if callable(progress) else None
     if progress is True:
@@ -525,7 +525,7 @@ def sweep(
     }
     if out is None:
         if logs:
-            raise RgtbusError("sweep: logs=True needs out= (a directory to keep them in)")
+            raise BadInput("sweep: logs=True needs out= (a directory to keep them in)")
         with tempfile.TemporaryDirectory(prefix="rgtbus-sweep-") as tmp:
             execute_sweep(sw, tmp, **kw)
             return read_results(tmp)

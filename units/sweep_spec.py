@@ -21,7 +21,7 @@ from typing import Any
 import tomli_w
 
 from rgtbus.checks import ENGINES
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.scenario import MAX_SCENARIO_BYTES, Scenario, parse_scenario
 from rgtbus.scenario.limits import key_depth_error, nesting_error, read_regular
 from rgtbus.scenario.shipped import find_shipped, find_sweep
@@ -126,7 +126,7 @@ def _error(path: str, text: str, key: str | None, reason: str) -> RgtbusError:
     if line is None and key and "." in key:  # [grid.relations] p = ..., or an inline table
         line = _line_of(text, key.rpartition(".")[2])
     where = f"{path}:{line}" if line else path
-    return RgtbusError(f"{where}: {key or 'sweep'}: {reason}")
+    return BadInput(f"{where}: {key or 'sweep'}: {reason}")
 
 
 def parse_seeds(value: Any) -> tuple[int, ...]:
@@ -167,16 +167,16 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
         text = data_bytes.decode("utf-8")
         too_deep = nesting_error(text, where)  # before tomllib, which recurses
         if too_deep:
-            raise RgtbusError(too_deep)
+            raise BadInput(too_deep)
         data = tomllib.loads(text)
     except UnicodeDecodeError:
-        raise RgtbusError(f"{where}: not a UTF-8 text file") from None
+        raise BadInput(f"{where}: not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
-        raise RgtbusError(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
+        raise BadInput(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
     too_deep = key_depth_error(data, text, where)  # a dotted key: [grid] is flattened below
     if too_deep:
-        raise RgtbusError(too_deep)
+        raise BadInput(too_deep)
 
     def err(key: str | None, reason: str) -> RgtbusError:
         return _error(where, text, key, reason)
@@ -288,11 +288,11 @@ def _read_capped(path: Path, what: str) -> bytes:
     except RgtbusError:  # already one line (a directory, a FIFO, a device)
         raise
     except ValueError as exc:  # a NUL in the path
-        raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc}") from None
+        raise BadInput(f"cannot read {what} {str(path)!r}: {exc}") from None
     except OSError as exc:
-        raise RgtbusError(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
     if len(data) > MAX_SCENARIO_BYTES:
-        raise RgtbusError(
+        raise BadInput(
             f"{str(path)!r}: larger than {MAX_SCENARIO_BYTES >> 20} MiB: not a {what}"
         )
     return data
@@ -324,11 +324,11 @@ def _plain(value: Any) -> Any:
 def _seeds_arg(seeds: int | Sequence[int] | str) -> tuple[int, ...]:
     """``seeds=N``: seeds 0..N-1; a sequence: those seeds; ``"a..b"``: as in a sweep file."""
     if isinstance(seeds, bool):
-        raise RgtbusError(f"sweep seeds: an integer N (seeds 0..N-1) or a list, got {seeds!r}")
+        raise BadInput(f"sweep seeds: an integer N (seeds 0..N-1) or a list, got {seeds!r}")
     if isinstance(seeds, numbers.Integral):
         n = int(seeds)
         if not 1 <= n <= MAX_RUNS:
-            raise RgtbusError(f"sweep seeds: N must be 1..{MAX_RUNS} (seeds 0..N-1), got {n}")
+            raise BadInput(f"sweep seeds: N must be 1..{MAX_RUNS} (seeds 0..N-1), got {n}")
         return tuple(range(n))
     try:
         if isinstance(seeds, str):
@@ -337,7 +337,7 @@ def _seeds_arg(seeds: int | Sequence[int] | str) -> tuple[int, ...]:
             raise TypeError(seeds)
         return parse_seeds(_plain(list(seeds)))
     except (TypeError, ValueError) as exc:
-        raise RgtbusError(f"sweep seeds: {exc}") from None
+        raise BadInput(f"sweep seeds: {exc}") from None
 
 
 def _seeds_text(seeds: tuple[int, ...]) -> str | list[int]:
@@ -360,12 +360,12 @@ def make_sweep(
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     if not isinstance(grid, Mapping):
-        raise RgtbusError(f"sweep grid: a mapping of key -> [values], got {type(grid).__name__}")
+        raise BadInput(f"sweep grid: a mapping of key -> [values], got {type(grid).__name__}")
     if cases is not None and not isinstance(cases, Mapping):
-        raise RgtbusError(f"sweep cases: a mapping of name -> {{key: value}}, got {cases!r}")
+        raise BadInput(f"sweep cases: a mapping of name -> {{key: value}}, got {cases!r}")
 
     def err(key: str | None, reason: str) -> RgtbusError:
-        return RgtbusError(f"sweep: {key}: {reason}" if key else f"sweep: {reason}")
+        return BadInput(f"sweep: {key}: {reason}" if key else f"sweep: {reason}")
 
     items = []
     for key, values in _flatten(grid):
@@ -388,7 +388,7 @@ def make_sweep(
     try:
         text = tomli_w.dumps(doc)
     except TypeError as exc:
-        raise RgtbusError(f"sweep grid: a value TOML cannot hold: {exc}") from None
+        raise BadInput(f"sweep grid: a value TOML cannot hold: {exc}") from None
     sw = Sweep(f"sweep({sc.path})", text, sweep_name, sc.path, sc.text, seeds_t, grid_t, cases_t)
     check_sweep(sw, err)
     return sw
@@ -412,7 +412,7 @@ def scenario_for(
             continue
         if key == "n":  # a group of n units u1..un (the scenario's own names replaced)
             if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 200:
-                raise RgtbusError(f"n: a group size must be an integer 1..200, got {value!r}")
+                raise BadInput(f"n: a group size must be an integer 1..200, got {value!r}")
             _set(data, "units", [f"u{i}" for i in range(1, value + 1)])
             continue
         _set(data, key, value)
@@ -422,7 +422,7 @@ def scenario_for(
     try:
         text = tomli_w.dumps(data)
     except TypeError as exc:  # a value TOML cannot hold (None, an object)
-        raise RgtbusError(f"not a TOML value: {exc}") from None
+        raise BadInput(f"not a TOML value: {exc}") from None
     return parse_scenario(text, label)
 
 
@@ -432,7 +432,7 @@ def _set(data: dict[str, Any], key: str, value: Any) -> None:
     for part in parts[:-1]:
         nxt = node.setdefault(part, {})
         if not isinstance(nxt, dict):
-            raise RgtbusError(f"{key}: {part!r} is not a table in the scenario")
+            raise BadInput(f"{key}: {part!r} is not a table in the scenario")
         node = nxt
     node[parts[-1]] = value
 

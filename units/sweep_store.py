@@ -22,7 +22,7 @@ from rgtbus.units.sweep_spec import TABLES_VERSION, Sweep
 from rgtbus.units.workers import Pool, one_line
 
 from rgtbus._version import __version__
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.telemetry.sweep_tables import (
     decisions_rows,
     decisions_table,
@@ -77,16 +77,16 @@ def sweep_key(out_dir: Path, *, create: bool) -> bytes | None:
             with os.fdopen(fd, "w", encoding="ascii") as f:
                 f.write(key.hex() + "\n")
         except OSError as exc:
-            raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror}") from None
+            raise IOFailure(f"cannot write {str(path)!r}: {exc.strerror}") from None
         return key
     except (OSError, UnicodeDecodeError) as exc:
-        raise RgtbusError(f"cannot read {str(path)!r}: {one_line(exc)}") from None
+        raise IOFailure(f"cannot read {str(path)!r}: {one_line(exc)}") from None
     try:
         key = bytes.fromhex(text)
     except ValueError:
         key = b""
     if len(key) < 16:
-        raise RgtbusError(f"{str(path)!r}: not a sweep's key (hex, at least 16 bytes)")
+        raise BadInput(f"{str(path)!r}: not a sweep's key (hex, at least 16 bytes)")
     return key
 
 
@@ -136,12 +136,12 @@ def read_rows(out_dir: Path, sweep_digest: str, sealed: bool | str = True) -> St
     except FileNotFoundError:
         return StoredRows([], False, [])
     except OSError as exc:
-        raise RgtbusError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot read {str(path)!r}: {exc.strerror}") from None
     lines = data.split(b"\n")
     tail = lines.pop()  # b"" when the file ends with a newline
 
     def bad(n: int, why: str) -> RgtbusError:
-        return RgtbusError(f"cannot resume: {path}:{n}: {why}")
+        return BadInput(f"cannot resume: {path}:{n}: {why}")
 
     rewrite = False
     rows: list[dict[str, Any]] = []
@@ -220,13 +220,13 @@ def _lock(out_dir: Path) -> IO[str]:
     this process's pid), refused at once (one line naming the holder) when another sweep holds
     it. Released when the returned file is closed (or the process ends, however it ends)."""
     if out_dir.exists() and not out_dir.is_dir():
-        raise RgtbusError(f"{str(out_dir)!r}: exists and is not a directory")
+        raise BadInput(f"{str(out_dir)!r}: exists and is not a directory")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         f = open(out_dir / LOCK, "a+", encoding="utf-8")  # noqa: SIM115 (held until closed)
     except OSError as exc:
         reason = exc.strerror or one_line(exc)
-        raise RgtbusError(f"{str(out_dir)!r}: cannot write a sweep there ({reason})") from None
+        raise IOFailure(f"{str(out_dir)!r}: cannot write a sweep there ({reason})") from None
     try:
         import fcntl
     except ImportError:  # no flock here: unlocked
@@ -239,7 +239,7 @@ def _lock(out_dir: Path) -> IO[str]:
         f.seek(0)
         holder = f.read().strip() or "unknown"
         f.close()
-        raise RgtbusError(
+        raise BadInput(
             f"{str(out_dir)!r} is in use by another sweep (pid {holder}): wait for it to end, "
             "or stop it"
         ) from None
@@ -254,7 +254,7 @@ def write_text(path: Path, text: str) -> None:
     try:
         path.write_text(text, encoding="utf-8")
     except OSError as exc:
-        raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror or one_line(exc)}") from None
+        raise IOFailure(f"cannot write {str(path)!r}: {exc.strerror or one_line(exc)}") from None
 
 
 def prepare_out(
@@ -266,7 +266,7 @@ def prepare_out(
     rows_path = out_dir / ROWS
     stored = out_dir / "sweep.json"
     if not resume and rows_path.exists() and rows_path.stat().st_size:
-        raise RgtbusError(
+        raise BadInput(
             f"{str(out_dir)!r} holds results already: --resume (resume=True) to finish that "
             "sweep, or choose another --out"
         )
@@ -279,17 +279,17 @@ def prepare_out(
             if not isinstance(before, dict):
                 raise ValueError("not a JSON object")
         except (OSError, ValueError) as exc:
-            raise RgtbusError(
+            raise IOFailure(
                 f"{str(out_dir)!r}: cannot resume: sweep.json unreadable: {exc}"
             ) from None
         if before.get("digest") != sweep.digest:
-            raise RgtbusError(
+            raise BadInput(
                 f"{str(out_dir)!r} holds results of another sweep (digest "
                 f"{before.get('digest')}, this one {sweep.digest}): cannot resume it with "
                 f"{sweep.path!r}"
             )
         if before.get("tables", 1) > TABLES_VERSION:
-            raise RgtbusError(
+            raise BadInput(
                 f"{str(out_dir)!r}: cannot resume: its tables are of a newer rgtbus (version "
                 f"{before.get('tables')}, this one writes {TABLES_VERSION})"
             )
@@ -304,7 +304,7 @@ def prepare_out(
                 results_table(sweep.axes, rows)
                 decisions_table(sweep.axes, rows)
         except Exception as exc:
-            raise RgtbusError(
+            raise BadInput(
                 f"{str(out_dir)!r}: cannot resume: its rows.jsonl does not fit this rgtbus's "
                 f"tables ({one_line(exc)}); "
                 "run the sweep into another directory"

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import simpy
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.protocol import Send
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.pulses import Pulses
@@ -96,7 +96,7 @@ class Transmitter:
         """Plan a send: its pulses go out to the bus now (ahead of time), and to the log."""
         word = self.word(send)
         if len(word) != len(send.samples):
-            raise RgtbusError(
+            raise BadInput(
                 f"{send.code!r}: {len(word)} magnitudes for {len(send.samples)} pulses"
             )
         self._out_at.extend(send.samples)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.extras import require
 
 if TYPE_CHECKING:
@@ -513,12 +513,12 @@ def check_scheduler(address: str) -> None:
     """A Dask scheduler address, checked before a client is made: a known scheme, a host and a
     port, something listening there (within the connect timeout). One line if not."""
     if not isinstance(address, str) or not address.strip():
-        raise RgtbusError(f"scheduler {address!r}: not an address (tcp://HOST:PORT)")
+        raise BadInput(f"scheduler {address!r}: not an address (tcp://HOST:PORT)")
     scheme, sep, rest = address.partition("://")
     if not sep:
         scheme, rest = "tcp", address
     if scheme not in SCHEDULER_SCHEMES:
-        raise RgtbusError(
+        raise BadInput(
             f"scheduler {address!r}: unknown scheme {scheme!r} (tcp://HOST:PORT; Dask knows "
             f"{', '.join(SCHEDULER_SCHEMES)})"
         )
@@ -528,18 +528,18 @@ def check_scheduler(address: str) -> None:
         parts = urlsplit("//" + rest)
         host, port = parts.hostname, parts.port
     except ValueError as exc:
-        raise RgtbusError(f"scheduler {address!r}: {exc} (tcp://HOST:PORT)") from None
+        raise BadInput(f"scheduler {address!r}: {exc} (tcp://HOST:PORT)") from None
     if not host or port is None or parts.path not in ("", "/"):
-        raise RgtbusError(f"scheduler {address!r}: not HOST:PORT (e.g. tcp://127.0.0.1:8786)")
+        raise BadInput(f"scheduler {address!r}: not HOST:PORT (e.g. tcp://127.0.0.1:8786)")
     try:
         socket.create_connection((host, port), timeout=_connect_seconds()).close()
     except TimeoutError:
-        raise RgtbusError(
+        raise BadInput(
             f"cannot reach Dask scheduler {address!r}: no answer within {_connect_seconds():g} s"
         ) from None
     except OSError as exc:
         reason = exc.strerror or one_line(exc)
-        raise RgtbusError(f"cannot reach Dask scheduler {address!r}: {reason}") from None
+        raise IOFailure(f"cannot reach Dask scheduler {address!r}: {reason}") from None
 
 
 @contextlib.contextmanager
@@ -558,7 +558,7 @@ def _dask(scheduler: str) -> Iterator[tuple[Executor, int]]:
             try:
                 info = client.scheduler_info()["workers"]
             except Exception as exc:
-                raise RgtbusError(f"Dask scheduler {scheduler!r}: {one_line(exc)}") from None
+                raise BadInput(f"Dask scheduler {scheduler!r}: {one_line(exc)}") from None
             n = max(1, sum(w.get("nthreads", 1) for w in info.values()))
             yield client.get_executor(pure=False), n
         finally:
@@ -582,12 +582,12 @@ def _client(make: Callable[..., Any], scheduler: str, timeout: float) -> Any:
     thread.start()
     thread.join(timeout + 2)
     if thread.is_alive():
-        raise RgtbusError(
+        raise BadInput(
             f"cannot reach Dask scheduler {scheduler!r}: no Dask scheduler answered within "
             f"{timeout:g} s"
         )
     if "error" in box:  # a peer that is no Dask scheduler says so in many ways
-        raise RgtbusError(
+        raise BadInput(
             f"cannot reach Dask scheduler {scheduler!r}: no Dask scheduler answered there "
             f"({one_line(box['error'])})"
         )

@@ -14,7 +14,7 @@ from rgtbus.bus.keys import tx_key
 from rgtbus.bus.memory import MemoryBus
 from rgtbus.bus.payload import FAILED, FINAL, NEVER, Frame, decode, encode
 from rgtbus.bus.registry import bus_kind, bus_kinds
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.pulses import Pulses
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ def open_bus(
     cls = bus_kind(kind).load()
     unknown = sorted(set(options) - cls.OPTIONS)
     if unknown:
-        raise RgtbusError(
+        raise BadInput(
             f"unknown option(s) {', '.join(unknown)} for the {kind} bus "
             f"(known: {', '.join(sorted(cls.OPTIONS))})"
         )

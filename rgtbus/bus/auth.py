@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 
 TAG_SIZE = 32
 NONCE_SIZE = 16
@@ -26,7 +26,7 @@ KEY_MIN = 16  # bytes: below this a guessed key is a real risk
 KEY_MAX = 4096
 
 
-class AuthError(RgtbusError):
+class AuthError(BadInput):
     """A payload without a valid tag (dropped and counted, never raised out of a bus)."""
 
 
@@ -64,12 +64,12 @@ def load_key(path: str | os.PathLike[str]) -> bytes:
         with open(name, "rb") as f:
             raw = f.read(KEY_MAX + 1)
     except OSError as e:
-        raise RgtbusError(f"key file {name!r}: {e.strerror or e}") from None
+        raise IOFailure(f"key file {name!r}: {e.strerror or e}") from None
     if len(raw) > KEY_MAX:
-        raise RgtbusError(f"key file {name!r}: more than {KEY_MAX} bytes (is it a key?)")
+        raise BadInput(f"key file {name!r}: more than {KEY_MAX} bytes (is it a key?)")
     key = raw.rstrip(b" \t\r\n")
     if len(key) < KEY_MIN:
-        raise RgtbusError(
+        raise BadInput(
             f"key file {name!r}: {len(key)} bytes of key, need at least {KEY_MIN} "
             "(e.g. head -c 32 /dev/urandom | base64 > FILE)"
         )
@@ -81,5 +81,5 @@ def check_key(key: object) -> bytes | None:
     if key is None:
         return None
     if not isinstance(key, bytes | bytearray) or len(key) < KEY_MIN:
-        raise RgtbusError(f"bus key must be None or at least {KEY_MIN} bytes")
+        raise BadInput(f"bus key must be None or at least {KEY_MIN} bytes")
     return bytes(key)

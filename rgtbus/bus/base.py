@@ -56,7 +56,7 @@ from rgtbus.bus.payload import (
     frame_size,
     max_frame_pulses,
 )
-from rgtbus.errors import MembersSilent, RgtbusError
+from rgtbus.errors import BadInput, MembersSilent, RgtbusError
 from rgtbus.signal.pulses import Pulses as Pulses  # re-exported: units/ take it from here
 from rgtbus.signal.pulses import merge_pulses, split_pulses
 
@@ -193,7 +193,7 @@ def check_name(kind: str, name: object) -> str:
     """``name`` if it can stand in a zenoh key (one chunk, no wildcard or separator);
     RgtbusError naming ``kind`` otherwise."""
     if not isinstance(name, str) or not _NAME.match(name):
-        raise RgtbusError(
+        raise BadInput(
             f"bad {kind} {name!r}: use letters, digits, '_', '.', '-' (no '/', '*', '$', '?', '#')"
         )
     return name
@@ -216,15 +216,15 @@ class BusBase:
         none twice; RgtbusError naming what is wrong."""
         self.run_id = check_name("run id", run_id)
         if isinstance(members, str):
-            raise RgtbusError(
+            raise BadInput(
                 f"members must be a sequence of unit names, got the string {members!r}"
             )
         self.members = tuple(check_name("unit name", m) for m in members)
         if not self.members:
-            raise RgtbusError(f"run {run_id!r} has no members")
+            raise BadInput(f"run {run_id!r} has no members")
         dup = sorted({m for m in self.members if self.members.count(m) > 1})
         if dup:
-            raise RgtbusError(f"duplicate member(s) {', '.join(dup)} in run {run_id!r}")
+            raise BadInput(f"duplicate member(s) {', '.join(dup)} in run {run_id!r}")
         self._member_set = frozenset(self.members)
 
     def _local_members(self, local: Sequence[str] | None) -> tuple[str, ...]:
@@ -265,11 +265,11 @@ class BusBase:
 
     def _check_open(self, what: str) -> None:
         if self._closed:
-            raise RgtbusError(f"{what} on closed {self.kind} bus of run {self.run_id!r}")
+            raise BadInput(f"{what} on closed {self.kind} bus of run {self.run_id!r}")
 
     def _check_member(self, unit: object) -> None:
         if unit not in self._member_set:
-            raise RgtbusError(
+            raise BadInput(
                 f"unit {unit!r} is not a member of run {self.run_id!r} "
                 f"(members: {', '.join(self.members)})"
             )
@@ -278,14 +278,14 @@ class BusBase:
         """RgtbusError unless ``unit`` is a member this bus publishes for."""
         self._check_member(unit)
         if unit not in self.local:
-            raise RgtbusError(
+            raise BadInput(
                 f"unit {unit!r} is not published from this bus (local: {', '.join(self.local)})"
             )
 
     def _check_take(self, until: int, horizon: int) -> None:
         """RgtbusError for a take up to ``until`` past the ``horizon`` (what is final)."""
         if until > horizon:
-            raise RgtbusError(f"take up to sample {until}: only samples before {horizon} are final")
+            raise BadInput(f"take up to sample {until}: only samples before {horizon} are final")
 
     def _close_transport(self) -> None:
         raise NotImplementedError
@@ -411,7 +411,7 @@ class QueueBus(BusBase):
         self._take_run(run_id, members)
         rate = float(sample_rate)
         if not (math.isfinite(rate) and rate > 0):
-            raise RgtbusError(f"sample rate must be finite and > 0, got {sample_rate!r}")
+            raise BadInput(f"sample rate must be finite and > 0, got {sample_rate!r}")
         self.sample_rate = rate
         self.local = self._local_members(local)
         self._prefix = tx_prefix(self.run_id)
@@ -484,14 +484,14 @@ class QueueBus(BusBase):
         mine = self._sent[unit]
         s = np.asarray(samples, dtype=np.int64).reshape(-1)
         if s.size and s[0] < mine.promise:
-            raise RgtbusError(
+            raise BadInput(
                 f"unit {unit!r}: pulse at sample {int(s[0])} is before its earlier promise "
                 f"(sample {mine.promise})"
             )
         if promise < mine.promise:
-            raise RgtbusError(f"unit {unit!r}: promise {promise} goes back from {mine.promise}")
+            raise BadInput(f"unit {unit!r}: promise {promise} goes back from {mine.promise}")
         if s.size > self.max_pulses:  # every receiver would drop it unread: say so here
-            raise RgtbusError(
+            raise BadInput(
                 f"unit {unit!r}: a frame of {s.size} pulses, a run of {len(self.members)} "
                 f"units carries at most {self.max_pulses} in one"
             )

@@ -29,7 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.extras import require
 
 if TYPE_CHECKING:
@@ -231,7 +231,7 @@ def _write(path: Path, data: bytes, mode: int) -> None:
         finally:
             os.close(fd)
     except OSError as e:
-        raise RgtbusError(f"{path}: cannot write: {e.strerror or e}") from None
+        raise IOFailure(f"{path}: cannot write: {e.strerror or e}") from None
 
 
 def make_certs(
@@ -252,14 +252,14 @@ def make_certs(
     require("cryptography", "rgtbus certs")
 
     if isinstance(days, bool) or not isinstance(days, int | float) or not 0 < days <= 36500:
-        raise RgtbusError(f"--days {days!r}: must be a number of days from 1 to 36500")
+        raise BadInput(f"--days {days!r}: must be a number of days from 1 to 36500")
     names = list(units)
     if not names:
-        raise RgtbusError("certs: no unit to make a certificate for")
+        raise BadInput("certs: no unit to make a certificate for")
     for u in names:
         check_name("unit name", u)
     if len(set(names)) != len(names):
-        raise RgtbusError(f"certs: a unit named twice in {names}")
+        raise BadInput(f"certs: a unit named twice in {names}")
     directory = Path(out)
     ca_crt, ca_key_path = ca_paths(directory)
     identities = [*names, ROUTER, WATCH]
@@ -267,13 +267,13 @@ def make_certs(
     if not force:
         for path in targets:
             if path.exists():
-                raise RgtbusError(
+                raise BadInput(
                     f"{path}: exists (give --force to replace the run's certificates)"
                 )
     try:
         (directory / RUN_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise RgtbusError(f"{directory}: cannot create: {e.strerror or e}") from None
+        raise IOFailure(f"{directory}: cannot create: {e.strerror or e}") from None
     now = _now()
     ca_key = _new_key()
     ca = _ca_certificate(label or directory.name, ca_key, days, now)
@@ -294,9 +294,9 @@ def _read(path: Path, what: str) -> bytes:
     try:
         return path.read_bytes()
     except FileNotFoundError:
-        raise RgtbusError(f"{path}: missing ({what})") from None
+        raise IOFailure(f"{path}: missing ({what})") from None
     except OSError as e:
-        raise RgtbusError(f"{path}: cannot read ({e.strerror or e})") from None
+        raise IOFailure(f"{path}: cannot read ({e.strerror or e})") from None
 
 
 def _load_cert(path: Path, what: str) -> x509.Certificate:
@@ -306,7 +306,7 @@ def _load_cert(path: Path, what: str) -> x509.Certificate:
     try:
         return x509.load_pem_x509_certificate(raw)
     except ValueError:
-        raise RgtbusError(f"{path}: not a PEM certificate (malformed)") from None
+        raise BadInput(f"{path}: not a PEM certificate (malformed)") from None
 
 
 def _common_name(cert: x509.Certificate) -> str | None:
@@ -327,11 +327,11 @@ def _is_ca(cert: x509.Certificate) -> bool:
 
 def _check_validity(cert: x509.Certificate, path: Path, now: datetime.datetime) -> None:
     if now < cert.not_valid_before_utc:
-        raise RgtbusError(
+        raise BadInput(
             f"{path}: not valid before {cert.not_valid_before_utc:%Y-%m-%d %H:%M:%S} UTC"
         )
     if now > cert.not_valid_after_utc:
-        raise RgtbusError(f"{path}: expired on {cert.not_valid_after_utc:%Y-%m-%d %H:%M:%S} UTC")
+        raise BadInput(f"{path}: expired on {cert.not_valid_after_utc:%Y-%m-%d %H:%M:%S} UTC")
 
 
 def _signed_by(cert: x509.Certificate, ca: x509.Certificate) -> bool:
@@ -352,15 +352,15 @@ def _check_key(key_path: Path, cert: x509.Certificate, cert_path: Path) -> None:
     try:
         key = serialization.load_pem_private_key(raw, password=None)
     except TypeError:
-        raise RgtbusError(
+        raise BadInput(
             f"{key_path}: an encrypted key (zenoh needs it unencrypted, mode 0600)"
         ) from None
     except (ValueError, UnsupportedAlgorithm):
-        raise RgtbusError(f"{key_path}: not a PEM private key (malformed)") from None
+        raise BadInput(f"{key_path}: not a PEM private key (malformed)") from None
     public = serialization.PublicFormat.SubjectPublicKeyInfo
     der = serialization.Encoding.DER
     if key.public_key().public_bytes(der, public) != cert.public_key().public_bytes(der, public):
-        raise RgtbusError(f"{key_path} is not the key of {cert_path}")
+        raise BadInput(f"{key_path} is not the key of {cert_path}")
 
 
 def check_tls(directory: str | os.PathLike[str], identity: str) -> TlsFiles:
@@ -372,28 +372,28 @@ def check_tls(directory: str | os.PathLike[str], identity: str) -> TlsFiles:
     require("cryptography", f"--tls {os.fspath(directory)}")
     d = Path(directory)
     if not d.is_dir():
-        raise RgtbusError(
+        raise BadInput(
             f"{d}: no such directory of TLS identities (rgtbus certs SCENARIO --out {d} makes one)"
         )
     now = _now()
     ca_path = ca_paths(d)[0]
     ca = _load_cert(ca_path, "the run's CA certificate")
     if not _is_ca(ca):
-        raise RgtbusError(f"{ca_path}: not a CA certificate")
+        raise BadInput(f"{ca_path}: not a CA certificate")
     _check_validity(ca, ca_path, now)
     cert_path, key_path = paths(d, identity)
     cert = _load_cert(cert_path, f"the certificate of {describe(identity)}")
     if not _signed_by(cert, ca):
-        raise RgtbusError(
+        raise BadInput(
             f"{cert_path}: not signed by the run's CA {ca_path} (a foreign certificate)"
         )
     _check_validity(cert, cert_path, now)
     if _is_ca(cert):
-        raise RgtbusError(f"{cert_path}: a CA certificate, not a process's")
+        raise BadInput(f"{cert_path}: a CA certificate, not a process's")
     holder = _common_name(cert)
     if holder != identity:
         said = "no single common name" if holder is None else f"the certificate of {holder!r}"
-        raise RgtbusError(f"{cert_path} is {said}, not of {describe(identity)}")
+        raise BadInput(f"{cert_path} is {said}, not of {describe(identity)}")
     _check_key(key_path, cert, cert_path)
     return TlsFiles(identity, ca_path, cert_path, key_path)
 
@@ -403,7 +403,7 @@ def process_tls(directory: str | os.PathLike[str], units: Sequence[str]) -> TlsF
     proves one identity, so with TLS it runs exactly one unit (RgtbusError otherwise)."""
     names = list(units)
     if len(names) != 1:
-        raise RgtbusError(
+        raise BadInput(
             f"--tls {os.fspath(directory)}: {len(names)} units in one process "
             f"({', '.join(names) or 'none'}): a process proves one identity (one "
             "certificate), so over TLS each unit runs in a process of its own"

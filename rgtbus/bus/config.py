@@ -25,7 +25,7 @@ import zenoh
 
 from rgtbus.bus import keys
 from rgtbus.bus.certs import ROUTER, WATCH, TlsFiles
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 MODES = ("peer", "client", "router")
 ENV = "ZENOH_CONFIG"  # the base config file when no -c/--config is given
@@ -170,7 +170,7 @@ def _base(
     try:
         return zenoh.Config.from_file(path), where
     except Exception as e:  # zenoh raises ZError; keep one line
-        raise RgtbusError(f"{where}: {zenoh_reason(e)}") from None
+        raise BadInput(f"{where}: {zenoh_reason(e)}") from None
 
 
 def _insert(cfg: zenoh.Config, key: str, value: object, what: str) -> None:
@@ -178,7 +178,7 @@ def _insert(cfg: zenoh.Config, key: str, value: object, what: str) -> None:
     try:
         cfg.insert_json5(key, json.dumps(value))
     except Exception as e:
-        raise RgtbusError(f"{what}: {zenoh_reason(e)}") from None
+        raise BadInput(f"{what}: {zenoh_reason(e)}") from None
 
 
 def _endpoints(cfg: zenoh.Config, name: str) -> tuple[list[str], str | None]:
@@ -225,13 +225,13 @@ def make_config(
         cfg.insert_json5("transport/link/tx/queue/size/data", "16")
     if mode is not None:
         if mode not in MODES:
-            raise RgtbusError(f"zenoh mode {mode!r} unknown (use {', '.join(MODES)})")
+            raise BadInput(f"zenoh mode {mode!r} unknown (use {', '.join(MODES)})")
         cfg.insert_json5("mode", json.dumps(mode))
     for name, eps in (("connect", connect), ("listen", listen)):
         if eps is None:
             continue
         if isinstance(eps, str):
-            raise RgtbusError(f"zenoh {name} endpoints must be a list, got the string {eps!r}")
+            raise BadInput(f"zenoh {name} endpoints must be a list, got the string {eps!r}")
         try:
             cfg.insert_json5(f"{name}/endpoints", json.dumps([str(e) for e in eps]))
         except Exception as e:
@@ -244,12 +244,12 @@ def make_config(
                 except Exception as one:
                     bad, reason = str(ep), zenoh_reason(one)
                     break
-            raise RgtbusError(f"zenoh {name} endpoint {bad!r}: {reason}") from None
+            raise BadInput(f"zenoh {name} endpoint {bad!r}: {reason}") from None
     if multicast is not None:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     if send_patience is not None:
         if not send_patience > 0 or send_patience == float("inf"):
-            raise RgtbusError(f"zenoh send patience must be seconds > 0, got {send_patience!r}")
+            raise BadInput(f"zenoh send patience must be seconds > 0, got {send_patience!r}")
         cfg.insert_json5(
             "transport/link/tx/queue/congestion_control/block/wait_before_close",
             str(int(send_patience * 1e6)),
@@ -280,7 +280,7 @@ def _add_tls(cfg: zenoh.Config, tls: TlsRun, where: str | None) -> None:
                 if by_mode:
                     whence.append(f"zenoh's default for a {by_mode}")
                 origin = f" ({', or '.join(whence)})" if whence else ""
-                raise RgtbusError(
+                raise BadInput(
                     f"zenoh {name} endpoint {ep!r}{origin}: with --tls every endpoint must be "
                     "tls/HOST:PORT"
                 )

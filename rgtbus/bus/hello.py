@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rgtbus.bus.auth import NONCE_SIZE, TAG_SIZE, AuthError, check_tag, tag
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 MAX_HELLO = 4 * 1024
 MAX_PROCESS = 128
@@ -96,7 +96,7 @@ def encode_hello(h: Hello, run_id: str, key: bytes | None) -> bytes:
 def check_digest(digest: object) -> str:
     """A scenario digest: 64 lowercase hex digits (SHA-256), as every hello carries."""
     if not isinstance(digest, str) or len(digest) != 64 or not _HEX.fullmatch(digest):
-        raise RgtbusError(f"hello digest must be 64 lowercase hex digits, got {str(digest)[:70]!r}")
+        raise BadInput(f"hello digest must be 64 lowercase hex digits, got {str(digest)[:70]!r}")
     return digest
 
 
@@ -107,22 +107,22 @@ def _hex(obj: Mapping[str, Any], name: str, size: int, *, empty: bool = False) -
         return b""
     if not isinstance(v, str) or len(v) != 2 * size or not _HEX.fullmatch(v):
         also = ' or ""' if empty else ""
-        raise RgtbusError(f"hello {name} must be {2 * size} lowercase hex digits{also}")
+        raise BadInput(f"hello {name} must be {2 * size} lowercase hex digits{also}")
     return bytes.fromhex(v)
 
 
 def _parsed(raw: bytes) -> dict[str, Any]:
     """The hello's JSON object, its size and form checked."""
     if not isinstance(raw, bytes | bytearray):
-        raise RgtbusError(f"hello must be bytes, got {type(raw).__name__}")
+        raise BadInput(f"hello must be bytes, got {type(raw).__name__}")
     if len(raw) > MAX_HELLO:
-        raise RgtbusError(f"hello of {len(raw)} bytes, at most {MAX_HELLO}")
+        raise BadInput(f"hello of {len(raw)} bytes, at most {MAX_HELLO}")
     try:
         obj = json.loads(bytes(raw).decode("utf-8"))
     except (ValueError, RecursionError) as e:  # UnicodeDecodeError is a ValueError
-        raise RgtbusError(f"hello is not JSON: {type(e).__name__}") from None
+        raise BadInput(f"hello is not JSON: {type(e).__name__}") from None
     if not isinstance(obj, dict):
-        raise RgtbusError(f"hello must be a JSON object, got {type(obj).__name__}")
+        raise BadInput(f"hello must be a JSON object, got {type(obj).__name__}")
     return obj
 
 
@@ -132,22 +132,22 @@ def read_hello(raw: bytes, run_id: str, members: Collection[str], key: bytes | N
     got_tag = obj.pop("tag", None)
     if set(obj) != _FIELDS:
         extra, missing = sorted(set(obj) - _FIELDS), sorted(_FIELDS - set(obj))
-        raise RgtbusError(f"hello fields: unknown {extra}, missing {missing}")
+        raise BadInput(f"hello fields: unknown {extra}, missing {missing}")
     unit = obj["unit"]
     if not isinstance(unit, str) or unit not in members:
-        raise RgtbusError(f"hello from {str(unit)[:40]!r}, not a member")
+        raise BadInput(f"hello from {str(unit)[:40]!r}, not a member")
     digest = check_digest(obj["digest"])
     nonce = _hex(obj, "nonce", NONCE_SIZE)
     view = _hex(obj, "view", VIEW_SIZE, empty=True)
     to = _hex(obj, "to", NONCE_SIZE, empty=True)
     started, sample, ready = obj["started"], obj["sample"], obj["ready"]
     if not isinstance(started, bool) or not isinstance(ready, bool):
-        raise RgtbusError("hello started and ready must be true or false")
+        raise BadInput("hello started and ready must be true or false")
     if isinstance(sample, bool) or not isinstance(sample, int) or not 0 <= sample <= _NEVER:
-        raise RgtbusError("hello sample must be an integer 0..2**63-1")
+        raise BadInput("hello sample must be an integer 0..2**63-1")
     process = obj["process"]
     if not isinstance(process, str) or len(process) > MAX_PROCESS or not process.isprintable():
-        raise RgtbusError(f"hello process must be printable text of at most {MAX_PROCESS}")
+        raise BadInput(f"hello process must be printable text of at most {MAX_PROCESS}")
     if key is not None:
         if (
             not isinstance(got_tag, str)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from typing import Protocol
 
 from rgtbus.bus.hello import Hello, view_digest
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 
 class JoinPeer(Protocol):
@@ -189,14 +189,14 @@ class JoinBarrier:
         with it. RgtbusError for a member on another scenario, or a run already started."""
         run_id = self.bus.run_id
         if h.digest != self.digest:
-            raise RgtbusError(
+            raise BadInput(
                 f"unit {h.unit!r} of run {run_id!r} runs another scenario or "
                 f"seed (digest {h.digest[:12]}, ours {self.digest[:12]})"
             )
         self.claim(h, heard_at)
         if h.started:
             if h.to == self.bus.nonce:  # an answer to us: the run started without us
-                raise RgtbusError(
+                raise BadInput(
                     f"run {run_id!r} already started (unit {h.unit!r} is at sample "
                     f"{h.sample}): {self.mine[0]!r} joined too late"
                 )

@@ -17,11 +17,11 @@ import numpy as np
 
 from rgtbus.bus.base import BusBase, MemberStatus
 from rgtbus.bus.payload import FINAL, NEVER
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.signal.pulses import Pulses, merge_pulses, split_pulses
 
 
-class LogEnded(RgtbusError):
+class LogEnded(BadLog):
     """The log holds no more of the medium (a truncated log)."""
 
 

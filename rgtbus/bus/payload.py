@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rgtbus.bus.auth import TAG_SIZE, AuthError
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 MAGIC = b"RGTB"
 VERSION = 2
@@ -77,26 +77,26 @@ class Frame:
 
 def _u64(value: object, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise RgtbusError(f"frame {what} must be an int, got {value!r}")
+        raise BadInput(f"frame {what} must be an int, got {value!r}")
     if not 0 <= int(value) <= NEVER:
-        raise RgtbusError(f"frame {what} {value} out of range 0..2**63-1")
+        raise BadInput(f"frame {what} {value} out of range 0..2**63-1")
     return int(value)
 
 
 def _check_pulses(samples: np.ndarray, values: np.ndarray) -> None:
     if samples.size != values.size:
-        raise RgtbusError(f"frame has {samples.size} sample indexes for {values.size} values")
+        raise BadInput(f"frame has {samples.size} sample indexes for {values.size} values")
     if samples.size > MAX_PULSES:
-        raise RgtbusError(f"frame holds at most {MAX_PULSES} pulses, got {samples.size}")
+        raise BadInput(f"frame holds at most {MAX_PULSES} pulses, got {samples.size}")
     if samples.size:
         if samples.min() < 0 or samples.max() > NEVER:
-            raise RgtbusError("frame sample index out of range 0..2**63-1")
+            raise BadInput("frame sample index out of range 0..2**63-1")
         if (samples[1:] < samples[:-1]).any():
-            raise RgtbusError("frame sample indexes are not in order")
+            raise BadInput("frame sample indexes are not in order")
         bad = ~np.isfinite(values) | (np.abs(values) > MAX_MAGNITUDE)
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise RgtbusError(
+            raise BadInput(
                 f"frame magnitude {float(values[k])!r} at sample {int(samples[k])} is not finite "
                 f"or beyond ±{MAX_MAGNITUDE:g}"
             )
@@ -109,21 +109,21 @@ def encode(
     ``decode`` would refuse."""
     flags = frame.flags
     if isinstance(flags, bool) or not isinstance(flags, int) or flags & ~_KNOWN_FLAGS:
-        raise RgtbusError(f"frame flags {flags!r}: only FINAL (1) and FAILED (2) are defined")
+        raise BadInput(f"frame flags {flags!r}: only FINAL (1) and FAILED (2) are defined")
     seq = _u64(frame.seq, "sequence number")
     promise = _u64(frame.promise, "promise")
     done_at = _u64(frame.done_at, "done_at")
     rate = float(sample_rate)
     if not (math.isfinite(rate) and rate > 0):
-        raise RgtbusError(f"frame sample rate must be finite and > 0, got {sample_rate!r}")
+        raise BadInput(f"frame sample rate must be finite and > 0, got {sample_rate!r}")
     samples = np.asarray(frame.samples)
     values = np.asarray(frame.values)
     if samples.ndim != 1 or values.ndim != 1:
-        raise RgtbusError("frame samples and values must be 1-D")
+        raise BadInput("frame samples and values must be 1-D")
     if samples.size and not np.issubdtype(samples.dtype, np.integer):
-        raise RgtbusError(f"frame sample indexes must be integers, got {samples.dtype}")
+        raise BadInput(f"frame sample indexes must be integers, got {samples.dtype}")
     if values.size and values.dtype != np.float64:
-        raise RgtbusError(f"frame magnitudes must be float64, got {values.dtype}")
+        raise BadInput(f"frame magnitudes must be float64, got {values.dtype}")
     samples = samples.astype(np.int64, copy=False)
     values = values.astype(np.float64, copy=False)
     _check_pulses(samples, values)
@@ -135,7 +135,7 @@ def encode(
         return body
     tag = sign(body)
     if len(tag) != TAG_SIZE:
-        raise RgtbusError(f"frame tag must be {TAG_SIZE} bytes, got {len(tag)}")
+        raise BadInput(f"frame tag must be {TAG_SIZE} bytes, got {len(tag)}")
     return body + tag
 
 
@@ -168,30 +168,30 @@ def check_header(data: bytes) -> Header:
     reserved fields, ranges, the length matching the count): O(1), no pulse read. Raises
     RgtbusError (one line) like ``decode``."""
     if not isinstance(data, bytes | bytearray):
-        raise RgtbusError(f"frame must be bytes, got {type(data).__name__}")
+        raise BadInput(f"frame must be bytes, got {type(data).__name__}")
     if len(data) < HEADER_SIZE:
-        raise RgtbusError(f"frame too short: {len(data)} bytes, header needs {HEADER_SIZE}")
+        raise BadInput(f"frame too short: {len(data)} bytes, header needs {HEADER_SIZE}")
     magic, version, flags, res1, seq, promise, done_at, rate, count, res2 = _HEADER.unpack_from(
         data
     )
     if magic != MAGIC:
-        raise RgtbusError(f"frame bad magic {magic!r}, expected {MAGIC!r}")
+        raise BadInput(f"frame bad magic {magic!r}, expected {MAGIC!r}")
     if version != VERSION:
-        raise RgtbusError(f"frame version {version} unsupported, expected {VERSION}")
+        raise BadInput(f"frame version {version} unsupported, expected {VERSION}")
     if flags & ~(_KNOWN_FLAGS | TAGGED):
-        raise RgtbusError(f"frame flags 0x{flags:02x} hold unknown bits")
+        raise BadInput(f"frame flags 0x{flags:02x} hold unknown bits")
     tagged = bool(flags & TAGGED)
     flags &= ~TAGGED
     if res1 or res2:
-        raise RgtbusError("frame reserved fields not zero")
+        raise BadInput("frame reserved fields not zero")
     if not (math.isfinite(rate) and rate > 0):
-        raise RgtbusError(f"frame sample rate {rate!r} not finite and > 0")
+        raise BadInput(f"frame sample rate {rate!r} not finite and > 0")
     for what, v in (("sequence number", seq), ("promise", promise), ("done_at", done_at)):
         if v > NEVER:
-            raise RgtbusError(f"frame {what} {v} out of range 0..2**63-1")
+            raise BadInput(f"frame {what} {v} out of range 0..2**63-1")
     expected = frame_size(count, tagged=tagged)
     if len(data) != expected:
-        raise RgtbusError(
+        raise BadInput(
             f"frame length {len(data)} bytes does not match count {count} (expected {expected})"
         )
     return Header(flags, tagged, seq, promise, done_at, rate, count)
@@ -215,7 +215,7 @@ def decode(
         raise AuthError("frame authenticated with a key this run does not have")
     raw = np.frombuffer(data, dtype="<u8", count=count, offset=HEADER_SIZE)
     if count and raw.max() > NEVER:
-        raise RgtbusError("frame sample index out of range 0..2**63-1")
+        raise BadInput("frame sample index out of range 0..2**63-1")
     samples = raw.astype(np.int64)
     values = np.frombuffer(data, dtype="<f8", count=count, offset=HEADER_SIZE + 8 * count).astype(
         np.float64
@@ -331,7 +331,7 @@ def encode_resend(ask: ResendAsk, *, sign: Callable[[bytes], bytes] | None = Non
     """A resend request (see above), signed when ``sign`` is given."""
     name = ask.unit.encode()
     if not name or len(name) > MAX_NAME:
-        raise RgtbusError(f"resend request: unit name of {len(name)} bytes (1..{MAX_NAME})")
+        raise BadInput(f"resend request: unit name of {len(name)} bytes (1..{MAX_NAME})")
     first = _u64(ask.first, "sequence number")
     flags = TAGGED if sign is not None else 0
     body = _RESEND.pack(_RESEND_MAGIC, _RESEND_VERSION, flags, len(name), first) + name
@@ -342,14 +342,14 @@ def decode_resend(data: bytes, *, check: Callable[[bytes, bytes], None] | None =
     """Inverse of ``encode_resend``; RgtbusError (AuthError for the tag, as ``decode``) on
     anything else."""
     if len(data) < _RESEND.size or len(data) > max_resend_size():
-        raise RgtbusError(f"resend request of {len(data)} bytes")
+        raise BadInput(f"resend request of {len(data)} bytes")
     magic, version, flags, n, first = _RESEND.unpack_from(data)
     if magic != _RESEND_MAGIC or version != _RESEND_VERSION or flags & ~TAGGED:
-        raise RgtbusError(f"not a resend request (magic {magic!r}, version {version})")
+        raise BadInput(f"not a resend request (magic {magic!r}, version {version})")
     tagged = bool(flags & TAGGED)
     end = _RESEND.size + n
     if len(data) != end + (TAG_SIZE if tagged else 0):
-        raise RgtbusError(f"resend request of {len(data)} bytes for a name of {n}")
+        raise BadInput(f"resend request of {len(data)} bytes for a name of {n}")
     if check is not None:
         if not tagged:
             raise AuthError("resend request not authenticated (no tag) on a run with a key")
@@ -357,9 +357,9 @@ def decode_resend(data: bytes, *, check: Callable[[bytes, bytes], None] | None =
     elif tagged:
         raise AuthError("resend request authenticated with a key this run does not have")
     if first > NEVER:
-        raise RgtbusError(f"resend request: sequence number {first} out of range")
+        raise BadInput(f"resend request: sequence number {first} out of range")
     try:
         unit = bytes(data[_RESEND.size : end]).decode()
     except UnicodeDecodeError:
-        raise RgtbusError("resend request: the unit's name is not UTF-8") from None
+        raise BadInput("resend request: the unit's name is not UTF-8") from None
     return ResendAsk(unit, first)

@@ -13,7 +13,7 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 if TYPE_CHECKING:
     from rgtbus.bus.base import QueueBus
@@ -63,5 +63,5 @@ def bus_kind(name: str) -> BusKind:
     """The kind named ``name``; a one-line error naming the kinds there are."""
     kind = BUS_KINDS.get(name) if isinstance(name, str) else None
     if kind is None:
-        raise RgtbusError(f"unknown bus kind {name!r} (use {', '.join(BUS_KINDS)})")
+        raise BadInput(f"unknown bus kind {name!r} (use {', '.join(BUS_KINDS)})")
     return kind

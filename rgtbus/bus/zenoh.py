@@ -49,7 +49,7 @@ from rgtbus.bus.payload import (
     max_resend_size,
     sign_telemetry,
 )
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, PeerSilent, RgtbusError
 
 # A declared callback subscriber leaves a non-daemon zenoh thread behind, and the interpreter
 # waits for it before atexit handlers run: a bus left open hangs the process at exit
@@ -289,12 +289,12 @@ class ZenohBus(QueueBus):
                         if not isinstance(config, zenoh.Config)
                         else "config",
                     )
-                raise RgtbusError(
+                raise IOFailure(
                     f"cannot open zenoh session ({', '.join(given) or 'mode peer'}): "
                     f"{zenoh_reason(e)}"
                 ) from None
         elif any(v is not None for v in (mode, connect, listen, multicast, config, tls)):
-            raise RgtbusError("zenoh bus: pass either a session or session options, not both")
+            raise BadInput("zenoh bus: pass either a session or session options, not both")
         self.session = session
         try:
             # Count foreign runs: listen one level wider than our own run's keys.
@@ -385,11 +385,11 @@ class ZenohBus(QueueBus):
         """
         mine = [units] if isinstance(units, str) else list(units)
         if not mine:
-            raise RgtbusError("join: no unit to join as")
+            raise BadInput("join: no unit to join as")
         for u in mine:
             self._check_member(u)
         if len(set(mine)) != len(mine):
-            raise RgtbusError(f"join: a unit named twice in {mine}")
+            raise BadInput(f"join: a unit named twice in {mine}")
         check_digest(digest)
         self._declare_presence(mine[0])  # the process's voice for what it says once
         period = hello_period(len(self.members))
@@ -408,7 +408,7 @@ class ZenohBus(QueueBus):
             if barrier.conflict is not None:
                 stop_at = stop_at or time.monotonic() + 4 * period
                 if time.monotonic() >= stop_at:
-                    raise RgtbusError(barrier.conflict)
+                    raise BadInput(barrier.conflict)
                 continue
             if barrier.done():
                 barrier.say(ready=True)
@@ -434,7 +434,7 @@ class ZenohBus(QueueBus):
                 # a member that stopped for a conflict before it was ready leaves those that
                 # were waiting for it: the claim they heard once ready is why
                 rival = f"; heard once ready: {barrier.rival}" if barrier.rival else ""
-                raise RgtbusError(
+                raise PeerSilent(
                     f"joining run {self.run_id!r} timed out after {timeout:g} s: no answer from "
                     f"{', '.join(barrier.missing())}{hint}{rival}"
                 )
@@ -756,4 +756,4 @@ class ZenohBus(QueueBus):
             elif problem:
                 errors.append(problem)
         if errors and self._owns_session:
-            raise RgtbusError(f"closing zenoh bus of run {self.run_id!r}: {errors[0]}")
+            raise BadInput(f"closing zenoh bus of run {self.run_id!r}: {errors[0]}")

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import table_lines
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
@@ -61,7 +61,7 @@ def _check_size(args: argparse.Namespace) -> None:
     try:
         why = limits.over_run_budget(args.n, 1)
         if why:
-            raise RgtbusError(f"N = {args.n}: a run of this plan: {why}")
+            raise BadInput(f"N = {args.n}: a run of this plan: {why}")
         checks = [
             (f"--sample-rate {args.sample_rate:g}", limits.SAMPLES, 3600 * args.sample_rate),
             (f"--sample-rate {args.sample_rate:g}", limits.WINDOW_SAMPLES, 0.1 * args.sample_rate),
@@ -69,9 +69,9 @@ def _check_size(args: argparse.Namespace) -> None:
         for what, budget, estimate in checks:
             why = limits.over_budget(budget, estimate)
             if why:
-                raise RgtbusError(f"{what}: a run of this plan: {why}")
+                raise BadInput(f"{what}: a run of this plan: {why}")
     except OverflowError:  # N beyond floats: beyond every budget
-        raise RgtbusError(f"N = {args.n}: far beyond every budget") from None
+        raise BadInput(f"N = {args.n}: far beyond every budget") from None
 
 
 def run_plan(args: argparse.Namespace) -> int:
@@ -82,11 +82,11 @@ def run_plan(args: argparse.Namespace) -> int:
     from rgtbus.timebase import sample_of
 
     if not args.n >= 1:
-        raise RgtbusError(f"N = {args.n}: must be a positive number of units")
+        raise BadInput(f"N = {args.n}: must be a positive number of units")
     if not (math.isfinite(args.sample_rate) and args.sample_rate > 0):
-        raise RgtbusError(f"--sample-rate {args.sample_rate}: must be a positive finite number")
+        raise BadInput(f"--sample-rate {args.sample_rate}: must be a positive finite number")
     if args.pulses is not None and not 1 <= args.pulses <= MAX_PLAN_PULSES:
-        raise RgtbusError(f"--pulses {args.pulses}: must be an integer 1..{MAX_PLAN_PULSES}")
+        raise BadInput(f"--pulses {args.pulses}: must be an integer 1..{MAX_PLAN_PULSES}")
     _check_size(args)
     tau = 1.0 / args.sample_rate
     options = {"schedule": args.schedule, "pulses": args.pulses, "mode": args.mode, "tau": tau}
@@ -94,7 +94,7 @@ def run_plan(args: argparse.Namespace) -> int:
     if not args.no_crosstalk:  # its simulation counted before it runs
         why = limits.over_budget(limits.CROSSTALK, crosstalk_size(plan.omegas, plan.pulses, tau))
         if why:
-            raise RgtbusError(f"the crosstalk simulation: {why}; or plan with --no-crosstalk")
+            raise BadInput(f"the crosstalk simulation: {why}; or plan with --no-crosstalk")
         plan = make_plan(args.n, crosstalk=True, **options)
     out = plan.to_json()
     if args.schedule == "concurrent":

@@ -25,7 +25,7 @@ from rgtbus.cli.arguments import (
     read_key,
     zenoh_options,
 )
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.interrupts import interrupted_by
 
 if TYPE_CHECKING:
@@ -267,13 +267,13 @@ def run_router(args: argparse.Namespace) -> int:
     from rgtbus.units.process import open_router
 
     if not args.listen and not args.zenoh_config and not os.environ.get(ENV):
-        raise RgtbusError(f"router: give at least one --listen ENDPOINT (or a --config, or {ENV})")
+        raise BadInput(f"router: give at least one --listen ENDPOINT (or a --config, or {ENV})")
     roster: tuple[str, ...] = ()
     if args.tls is None and (args.scenario or args.run_id):
-        raise RgtbusError("router: --scenario and --run-id are for --tls (its access control)")
+        raise BadInput("router: --scenario and --run-id are for --tls (its access control)")
     if args.tls is not None:
         if args.scenario is None:
-            raise RgtbusError("router: --tls needs --scenario (the roster of the access control)")
+            raise BadInput("router: --tls needs --scenario (the roster of the access control)")
         roster = _load(args.scenario, None).units
     session = open_router(
         args.listen or None, args.zenoh_config, tls=args.tls, roster=roster, run_id=args.run_id

@@ -18,7 +18,7 @@ from rgtbus.cli.tables import (
     table_lines,
     wrapped_table_lines,
 )
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.extras import require
 from rgtbus.telemetry.untrusted import printable
 
@@ -118,11 +118,11 @@ def replay(args: argparse.Namespace) -> int:
     from rgtbus.telemetry.untrusted import explained
 
     if args.plot is None and args.unit:
-        raise RgtbusError("--unit goes with --plot OUT.png")
+        raise BadInput("--unit goes with --plot OUT.png")
     if args.plot is not None:  # before the log is read: the plot is what was asked for
         require("matplotlib", "--plot")
     if (args.t_from is not None or args.t_to is not None) and (args.verify or args.json):
-        raise RgtbusError("--from and --to go with the timeline, --csv and --plot")
+        raise BadInput("--from and --to go with the timeline, --csv and --plot")
     from rgtbus.telemetry.untrusted import printable_errors, printable_lines
 
     with printable_errors():  # an error quoting the log is printed escaped
@@ -183,7 +183,7 @@ def _write_csv(rp: Replay, out: Path, span: Span | None) -> str:
             with open(out / name, "w", newline="", encoding="utf-8") as f:
                 write_csv(header, rows, f)
     except OSError as e:
-        raise RgtbusError(f"--csv {str(out)!r}: {e.strerror}") from None
+        raise IOFailure(f"--csv {str(out)!r}: {e.strerror}") from None
     return f"wrote {', '.join(tables)} to {out}"
 
 
@@ -193,14 +193,14 @@ def _plot(rp: Replay, args: argparse.Namespace) -> str:
 
     unit = args.unit or (rp.units[0] if rp.units else None)
     if unit is None or unit not in rp.units:
-        raise RgtbusError(f"--unit {unit!r}: not a unit of this log (units: {', '.join(rp.units)})")
+        raise BadInput(f"--unit {unit!r}: not a unit of this log (units: {', '.join(rp.units)})")
     trace = traces_for(rp, unit)
     fig = activity_figure(rp, unit, trace, t_from=args.t_from, t_to=args.t_to)
     try:
         with open(args.plot, "wb") as f:
             save_png(fig, f)
     except OSError as e:
-        raise RgtbusError(f"--plot {args.plot!r}: {e.strerror}") from None
+        raise IOFailure(f"--plot {args.plot!r}: {e.strerror}") from None
     src = "recomputed" if trace["recomputed"] else "logged"
     return f"wrote {args.plot} (unit {unit}, {src} resonator trace)"
 
@@ -228,8 +228,10 @@ def _written_whole(out: Path, write: Callable[[BinaryIO], _T]) -> _T:
             result = write(f)
         refuse_if_being_written(out, "-o")
         os.replace(tmp, out)
+    except RgtbusError:  # already one line (an IOFailure is an OSError too)
+        raise
     except OSError as e:
-        raise RgtbusError(f"-o {str(out)!r}: {e.strerror}") from None
+        raise IOFailure(f"-o {str(out)!r}: {e.strerror}") from None
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -245,14 +247,14 @@ def merge(args: argparse.Namespace) -> int:
     out = Path(args.output)
     for src in args.inputs:
         if os.path.exists(src) and out.exists() and os.path.samefile(src, out):
-            raise RgtbusError(f"-o {args.output!r}: is also an input")
+            raise BadInput(f"-o {args.output!r}: is also an input")
     _one_writer(out, args.inputs)
     logs = [scan_log(src) for src in args.inputs]
     for log in logs:
         try:
             require_run_log(log)  # corrupt, header-only or foreign: exit 2 naming the file
         except RgtbusError as e:
-            raise RgtbusError(f"{e}; not merged") from None
+            raise BadInput(f"{e}; not merged") from None
     res = _written_whole(
         out,
         lambda f: merge_logs(
@@ -282,7 +284,7 @@ def recover(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     if os.path.exists(args.log) and out.exists() and os.path.samefile(args.log, out):
-        raise RgtbusError(f"-o {args.output!r}: is the log to recover (write it elsewhere)")
+        raise BadInput(f"-o {args.output!r}: is the log to recover (write it elsewhere)")
     _one_writer(out, [args.log])
     log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
     res = _written_whole(out, lambda f: recover_log(log, f, compression=args.compression))
@@ -302,7 +304,7 @@ def convert(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     if os.path.exists(args.log) and out.exists() and os.path.samefile(args.log, out):
-        raise RgtbusError(f"-o {args.output!r}: is the log to convert (write it elsewhere)")
+        raise BadInput(f"-o {args.output!r}: is the log to convert (write it elsewhere)")
     _one_writer(out, [args.log])
     log = scan_log(args.log)  # not an MCAP file at all: one line, exit 2
     res = _written_whole(

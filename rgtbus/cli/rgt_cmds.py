@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.tables import fitted_table_lines, wrapped_table_lines
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
@@ -121,7 +121,7 @@ def _group_arguments(p: argparse.ArgumentParser) -> None:
 def _split_names(text: str, what: str) -> list[str]:
     names = [p.strip() for p in text.split(",")]
     if any(not n for n in names):
-        raise RgtbusError(f"empty name in {what} {text!r}")
+        raise BadInput(f"empty name in {what} {text!r}")
     return names
 
 
@@ -130,19 +130,19 @@ def load_group(args: argparse.Namespace) -> tuple[Expr, DecisionFunction, Univer
     polynomial, decision function and universe of actions."""
     universe = Universe.parse(args.actions)
     if args.poly is not None and (args.alliance is not None or args.subjects is not None):
-        raise RgtbusError("give either POLY or --alliance/--subjects, not both")
+        raise BadInput("give either POLY or --alliance/--subjects, not both")
     if args.poly is not None:
         poly = parse_polynomial(args.poly)
         return poly, decision_function(poly), universe
     if args.subjects is None:
-        raise RgtbusError("give the group: POLY, or --subjects (with --alliance)")
+        raise BadInput("give the group: POLY, or --subjects (with --alliance)")
     subjects = _split_names(args.subjects, "--subjects")
     pairs = []
     if args.alliance:
         for item in _split_names(args.alliance, "--alliance"):
             parts = item.split("-")
             if len(parts) != 2 or not all(parts):
-                raise RgtbusError(f"bad alliance {item!r} in --alliance: write a-b")
+                raise BadInput(f"bad alliance {item!r} in --alliance: write a-b")
             pairs.append((parts[0].strip(), parts[1].strip()))
     graph = RelationGraph.from_pairs(subjects, pairs)
     poly = graph_to_polynomial(graph)
@@ -164,7 +164,7 @@ def run_solve(args: argparse.Namespace) -> int:
         matrix = InfluenceMatrix.parse(args.influence, df.order, universe)
         results = forward(df, universe, matrix)
     elif args.influence:
-        raise RgtbusError("--symbolic takes no --influence")
+        raise BadInput("--symbolic takes no --influence")
 
     if args.json:
         out: dict[str, Any] = {
@@ -247,7 +247,7 @@ def run_control(args: argparse.Namespace) -> int:
     fixed = {}
     for (src, dst), v in matrix.items():
         if dst != subject:
-            raise RgtbusError(
+            raise BadInput(
                 f"influence {src}>{dst} does not act on the controlled subject {subject}"
             )
         fixed[src] = v

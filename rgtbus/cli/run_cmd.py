@@ -20,7 +20,7 @@ from rgtbus.cli.arguments import (
     read_key,
 )
 from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table_lines
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.interrupts import interrupted_by, last_signal
 from rgtbus.mind import goal_text
 from rgtbus.scenario import Scenario
@@ -104,10 +104,10 @@ def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Liv
     waited for a client if ``--live-wait``; its address on stderr."""
     if args.live is None:
         if args.live_wait:
-            raise RgtbusError("--live-wait goes with --live")
+            raise BadInput("--live-wait goes with --live")
         return None
     if not args.live_wait >= 0:
-        raise RgtbusError(f"--live-wait {args.live_wait}: must be 0 or more seconds")
+        raise BadInput(f"--live-wait {args.live_wait}: must be 0 or more seconds")
     from rgtbus.telemetry.live import LiveView, parse_address
 
     host, port = parse_address(args.live)
@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     key = read_key(args)
     if args.no_log and (args.live is not None or args.traces):
         what = "--live" if args.live is not None else "--traces"
-        raise RgtbusError(f"--no-log with {what}: {what} needs a log (it serves what is logged)")
+        raise BadInput(f"--no-log with {what}: {what} needs a log (it serves what is logged)")
     log_path = (
         None if args.no_log else Path(args.log) if args.log else default_log_path(scenario.name)
     )

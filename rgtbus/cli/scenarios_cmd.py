@@ -7,7 +7,7 @@ import argparse
 import json
 from typing import TYPE_CHECKING
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
@@ -42,7 +42,7 @@ def list_scenarios(args: argparse.Namespace) -> int:
     from rgtbus.scenario import shipped_dir, shipped_scenarios
 
     if shipped_dir() is None:
-        raise RgtbusError("no shipped scenarios found (neither rgtbus/scenarios/ nor scenarios/)")
+        raise BadInput("no shipped scenarios found (neither rgtbus/scenarios/ nor scenarios/)")
     found = shipped_scenarios()
     _print_entries(found, args.json, "SCHEDULE", [s.schedule or "?" for s in found])
     return 0
@@ -54,7 +54,7 @@ def list_sweeps(args: argparse.Namespace) -> int:
 
     found = shipped_sweeps()
     if not found:
-        raise RgtbusError("no shipped sweeps found (neither rgtbus/scenarios/sweeps/ nor "
+        raise BadInput("no shipped sweeps found (neither rgtbus/scenarios/sweeps/ nor "
                           "scenarios/sweeps/)")  # fmt: skip
     _print_entries(found, args.json, "STUDIES", [s.description[:60] for s in found])
     return 0

@@ -20,7 +20,7 @@ import numpy as np
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import add_seed_argument
 from rgtbus.cli.tables import table_lines
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.extras import require
 from rgtbus.scenario.limits import MAX_SECONDS, RECORDED, check_trials, over_budget
 from rgtbus.signal.codebook import paper_codebook
@@ -174,9 +174,9 @@ def _numbers(text: str, flag: str) -> tuple[float, ...]:
         try:
             v = float(tok)
         except ValueError:
-            raise RgtbusError(f"{flag}: {tok!r} is not a number") from None
+            raise BadInput(f"{flag}: {tok!r} is not a number") from None
         if not math.isfinite(v):
-            raise RgtbusError(f"{flag}: {tok!r} is not finite")
+            raise BadInput(f"{flag}: {tok!r} is not finite")
         out.append(v)
     return tuple(out)
 
@@ -199,32 +199,32 @@ def run_resonate(
 ) -> tuple[ResonatorBank, FeedResult]:
     """Bank over ``omegas`` fed one code (``word`` on ``omegas[on]`` from ``start``)."""
     if not 0 <= on < len(omegas):
-        raise RgtbusError(f"--on {on}: no such resonator (give 0..{len(omegas) - 1})")
+        raise BadInput(f"--on {on}: no such resonator (give 0..{len(omegas) - 1})")
     if not (math.isfinite(start) and start >= 0):
-        raise RgtbusError(f"--start {start!r}: must be a time ≥ 0 s")
+        raise BadInput(f"--start {start!r}: must be a time ≥ 0 s")
     if not (math.isfinite(noise) and noise >= 0):
-        raise RgtbusError(f"--noise {noise!r}: must be ≥ 0")
+        raise BadInput(f"--noise {noise!r}: must be ≥ 0")
     if mode == "paper":
         lim = euler_limit(tau)
         for w in omegas:
             if w >= lim:
-                raise RgtbusError(
+                raise BadInput(
                     f"--omega {w:.6g}: beyond Euler's stable band ({lim:.4g} rad/s) "
                     "in paper mode; use --mode exact"
                 )
     if duration is None:
         duration = start + len(word) * 2 * PI / min(omegas) + 0.5
     if not (math.isfinite(duration) and duration > 0):
-        raise RgtbusError(f"--duration {duration!r}: must be positive")
+        raise BadInput(f"--duration {duration!r}: must be positive")
     if duration > MAX_SECONDS:
-        raise RgtbusError(f"--duration {duration:g}: beyond {MAX_SECONDS:g} s")
+        raise BadInput(f"--duration {duration:g}: beyond {MAX_SECONDS:g} s")
     n = sample_of(duration, tau) + 1
     why = over_budget(RECORDED, float(n) * len(omegas))  # bounded work, before any sample
     if why is not None:
-        raise RgtbusError(f"--duration {duration:g}: {why}")
+        raise BadInput(f"--duration {duration:g}: {why}")
     last = pulse_instants(omegas[on], start, len(word), tau)[-1]
     if last >= n:
-        raise RgtbusError(
+        raise BadInput(
             f"--duration {duration:g}: the code's last pulse comes at "
             f"{time_of(last, tau):g} s, after the end"
         )
@@ -305,7 +305,7 @@ def _sigmas(text: str) -> list[float]:
     sigmas = list(_numbers(text, "--sigma"))
     for v in sigmas:
         if v < 0:
-            raise RgtbusError(f"--sigma: {v:g} is not a noise level >= 0")
+            raise BadInput(f"--sigma: {v:g} is not a noise level >= 0")
     return sigmas
 
 
@@ -374,7 +374,7 @@ def _save(fig: Figure, path: Path, caption: str) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
     except OSError as exc:
-        raise RgtbusError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None
+        raise IOFailure(f"cannot write {str(path)!r}: {exc.strerror or exc}") from None
     finally:
         _pyplot().close(fig)
 
@@ -709,14 +709,14 @@ def cmd_figures(args: argparse.Namespace) -> int:
     require("matplotlib", "rgtbus figures")
     out = Path(args.outdir)
     if out.exists() and not out.is_dir():
-        raise RgtbusError(f"OUTDIR {str(out)!r} exists and is not a directory")
+        raise BadInput(f"OUTDIR {str(out)!r} exists and is not a directory")
     check_trials(args.trials, len(SIGMAS) * SER_CURVES)  # decoder-ser.png's points
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise RgtbusError(f"cannot create OUTDIR {str(out)!r}: {exc.strerror or exc}") from None
+        raise IOFailure(f"cannot create OUTDIR {str(out)!r}: {exc.strerror or exc}") from None
     if not os.access(out, os.W_OK):
-        raise RgtbusError(f"OUTDIR {str(out)!r} is not writable")
+        raise BadInput(f"OUTDIR {str(out)!r} is not writable")
     made = []
     for pair, tag in PAIRS:
         a, b = (pi_text(PAPER_OMEGA_TEXT[i]) for i in pair)

@@ -89,11 +89,11 @@ def register(subparsers: SubParsers) -> None:
 def run_sweep_cmd(args: argparse.Namespace) -> int:
     """``rgtbus sweep SWEEP``: ``execute_sweep`` on the file's ``Sweep``; a stop (Ctrl-C,
     SIGTERM) says how many runs are kept and how to finish, exit 130."""
-    from rgtbus.errors import RgtbusError
+    from rgtbus.errors import BadInput
     from rgtbus.units.sweep import execute_sweep, load_sweep
 
     if args.workers is not None and args.workers < 1:
-        raise RgtbusError(f"--workers must be at least 1, got {args.workers}")
+        raise BadInput(f"--workers must be at least 1, got {args.workers}")
     # the same call as rgtbus.sweep(): a Sweep (here from the file) run by execute_sweep
     sweep = load_sweep(args.sweep)
     out = Path(args.out) if args.out else Path("logs") / "sweeps" / sweep.name

@@ -129,14 +129,14 @@ def run_watch(args: argparse.Namespace) -> int:
 def _roster(args: argparse.Namespace) -> tuple[str, ...]:
     """The roster of ``--scenario``, for ``--tls`` (its files checked here, before the live
     view opens); () without ``--tls``."""
-    from rgtbus.errors import RgtbusError
+    from rgtbus.errors import BadInput
 
     if args.tls is None:
         if args.scenario is not None:
-            raise RgtbusError("watch: --scenario is for --tls (its access control)")
+            raise BadInput("watch: --scenario is for --tls (its access control)")
         return ()
     if args.scenario is None:
-        raise RgtbusError("watch: --tls needs --scenario (the roster of the access control)")
+        raise BadInput("watch: --tls needs --scenario (the roster of the access control)")
     from rgtbus.bus.certs import WATCH, check_tls
     from rgtbus.scenario import load_scenario
 

@@ -45,7 +45,7 @@ from rgtbus.engine.listener import HEARD_NOTHING, Heard, Listener, Wake
 from rgtbus.engine.queues import SharedQueues
 from rgtbus.engine.spike_log import SpikeKeeper
 from rgtbus.engine.traces import TraceWindows
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.protocol import NEVER
 from rgtbus.signal.channel import heard_by, render
 from rgtbus.signal.decoder import (
@@ -84,7 +84,7 @@ class Ears:
         window: int = 20,
     ) -> None:
         if bank.n_receivers != len(listeners):
-            raise RgtbusError(f"{len(listeners)} listeners for a bank of {bank.n_receivers}")
+            raise BadInput(f"{len(listeners)} listeners for a bank of {bank.n_receivers}")
         self.env = env
         self.tau = bank.tau
         self.senders = tuple(senders)
@@ -98,7 +98,7 @@ class Ears:
         self._timed = bool(arrivals)
         if self._timed:
             if len(arrivals) != len(self.listeners):  # one channel: every link or none
-                raise RgtbusError("some listeners hear delays and clocks and others do not")
+                raise BadInput("some listeners hear delays and clocks and others do not")
             self._arrival = np.stack(arrivals)  # listeners × 2 × senders
         self.readout = ReadoutHistory(
             bank.n_channels,
@@ -163,7 +163,7 @@ class Ears:
         passes ``horizon`` by the shortest delay from the binding sender (the lookahead a
         channel's speed gives, docs/engine.md)."""
         if horizon < self.horizon and not self._timed:  # timed: on the listeners' samples
-            raise RgtbusError(f"horizon {horizon} goes back from {self.horizon}")
+            raise BadInput(f"horizon {horizon} goes back from {self.horizon}")
         parts = [(n, pulses[u]) for n, u in enumerate(self.senders) if u in pulses]
         parts = [(n, p) for n, p in parts if p[0].size]
         if self._timed:
@@ -171,7 +171,7 @@ class Ears:
         if parts:
             rows = np.concatenate([p[0] for _, p in parts])
             if rows.min() < self.horizon:
-                raise RgtbusError(f"a pulse at sample {int(rows.min())} arrived after its time")
+                raise BadInput(f"a pulse at sample {int(rows.min())} arrived after its time")
             who = np.concatenate([np.full(p[0].size, n) for n, p in parts])
             val = np.concatenate([p[1] for _, p in parts])
             order = np.argsort(rows, kind="stable")
@@ -230,9 +230,9 @@ class Ears:
         nothing waits on them)."""
         lst = self.listeners[i]
         if not lst.active:
-            raise RgtbusError(f"{lst.name} stopped listening")
+            raise BadInput(f"{lst.name} stopped listening")
         if boundary < self.pos:
-            raise RgtbusError(f"{lst.name}: boundary {boundary} is behind the ears ({self.pos})")
+            raise BadInput(f"{lst.name}: boundary {boundary} is behind the ears ({self.pos})")
         if lst.request is None:
             self._asking -= 1
         lst.request = (boundary, at, wake)
@@ -276,7 +276,7 @@ class Ears:
     def quench_at(self, i: int, sample: int) -> None:
         """Unit ``i``'s resonators back to rest before ``sample`` (the ears stop there)."""
         if sample < self.pos:
-            raise RgtbusError(
+            raise BadInput(
                 f"{self.listeners[i].name}: quench before sample {sample}, "
                 f"but the ears are at {self.pos}"
             )
@@ -335,7 +335,7 @@ class Ears:
         if until <= lo or not lst.active:
             return None
         if self._timed:  # a timed channel needs confirmed attention: no spike is awaited
-            raise RgtbusError(f"{lst.name}: a look-ahead for a spike on a timed channel")
+            raise BadInput(f"{lst.name}: a look-ahead for a spike on a timed channel")
         parts = [
             (n, p)
             for n, u in enumerate(self.senders)

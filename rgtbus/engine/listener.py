@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.channel import BurstStates, Channel, burst_rng, fading_amplitudes, noise_rng
 
 if TYPE_CHECKING:
@@ -80,7 +80,7 @@ class Listener:
         same numbers however the stretch is cut)."""
         have = self._noise_at + self._noise.size
         if lo < self._noise_at:
-            raise RgtbusError(f"{self.name}: noise for sample {lo} was already used")
+            raise BadInput(f"{self.name}: noise for sample {lo} was already used")
         if hi > have:
             assert self.rng is not None, f"{self.name}: noise {self.noise} with no generator"
             if self.bursts is None:

@@ -35,7 +35,7 @@ from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import OwnHearing, Reception
-from rgtbus.errors import MembersSilent, RgtbusError
+from rgtbus.errors import BadInput, MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
@@ -133,9 +133,9 @@ class World:
         realtime: float | None = None,
     ) -> None:
         if engine not in ENGINES:
-            raise RgtbusError(f"unknown engine {engine!r} (use {', '.join(ENGINES)})")
+            raise BadInput(f"unknown engine {engine!r} (use {', '.join(ENGINES)})")
         if window_samples < 1:
-            raise RgtbusError(f"window of {window_samples} samples: need at least one")
+            raise BadInput(f"window of {window_samples} samples: need at least one")
         self.members = list(members)
         self.bus = bus
         self.recorder = recorder

@@ -18,7 +18,7 @@ from typing import NamedTuple, Protocol, cast
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 _GROUPS_KEPT = 64  # groups of units whose names and logs a keeper keeps made (``_group``)
 SMALL_HAND_OVER = 4096  # spikes of a hand-over grouped in plain Python (``_hand_blocks_small``)
@@ -93,9 +93,9 @@ class SharedSpikes:
         """Member ``member`` kept the block, or left it; once every member has settled, the
         names of those that kept it (member order), else None."""
         if member not in self._member_set:
-            raise RgtbusError(f"unit {member} settles a block of units {self.members}")
+            raise BadInput(f"unit {member} settles a block of units {self.members}")
         if member in self._kept:
-            raise RgtbusError(f"unit {member} settles a block of units {self.members} again")
+            raise BadInput(f"unit {member} settles a block of units {self.members} again")
         self._kept[member] = kept
         if len(self._kept) < len(self.members):
             return None
@@ -131,7 +131,7 @@ class SpikeKeeper:
         self.listeners = list(listeners)
         blocks = {lst.spike_log.block for lst in self.listeners if lst.spike_log is not None}
         if len(blocks) > 1:
-            raise RgtbusError(f"the units log spikes in blocks of different sizes: {blocks}")
+            raise BadInput(f"the units log spikes in blocks of different sizes: {blocks}")
         self.block = blocks.pop() if blocks else 1
         self.pieces: list[SpikePiece] = []  # kept and not yet handed, an advance a piece
         self._pending: list[np.ndarray] = []  # advances' spikes not yet made a piece

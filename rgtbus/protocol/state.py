@@ -9,7 +9,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.protocol.timetable import plan_of
 from rgtbus.protocol.turns import (
     ANCHORS,
@@ -72,18 +72,18 @@ class ProtocolState:
 
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
-            raise RgtbusError(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
+            raise BadInput(f"unknown anchor {self.anchor!r} (anchors: {', '.join(ANCHORS)})")
         if self.attention not in ATTENTIONS:
-            raise RgtbusError(
+            raise BadInput(
                 f"unknown attention {self.attention!r} (attentions: {', '.join(ATTENTIONS)})"
             )
         if self.kind == "concurrent" and self.anchor != "schedule":
-            raise RgtbusError(
+            raise BadInput(
                 "the concurrent schedule is timed by the schedule (anchor schedule): every "
                 "round is known before the run"
             )
         if self.repair_rounds and self.anchor != "schedule":
-            raise RgtbusError(
+            raise BadInput(
                 "repair needs turns timed by the schedule (anchor schedule): a repair block "
                 "sits at samples every unit must know whatever it heard"
             )

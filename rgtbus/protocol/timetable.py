@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.protocol.turns import (
     SCHEDULES,
     Listen,
@@ -55,7 +55,7 @@ class Plan:
         read_margin: int = 0,
     ) -> None:
         if kind not in SCHEDULES:
-            raise RgtbusError(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
+            raise BadInput(f"unknown schedule {kind!r} (schedules: {', '.join(SCHEDULES)})")
         self.units, self.tau, self.pulses = units, tau, pulses
         self.reaction_delay, self.guard, self.search = reaction_delay, guard, search
         self.kind, self.start = kind, start
@@ -379,7 +379,7 @@ def _place(
                 used.take(samples)
                 hints[(start, omega)] = j + 1
                 return s, samples
-    raise RgtbusError(
+    raise BadInput(
         f"{what} finds no free samples within {MAX_STAGGER} samples of its place (too many "
         "codes for the sample rate)"
     )

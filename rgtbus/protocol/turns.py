@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.waveform import pulse_samples
 from rgtbus.timebase import sample_of
 
@@ -35,7 +35,7 @@ def phases(influence_rounds: int = 1) -> list[tuple[str, int]]:
     """The phases in order, each with its influence round: relations, then K influence rounds
     (every unit re-sends its influences in each; the paper has one)."""
     if not 1 <= influence_rounds <= MAX_INFLUENCE_ROUNDS:
-        raise RgtbusError(
+        raise BadInput(
             f"influence_rounds must be 1..{MAX_INFLUENCE_ROUNDS}, got {influence_rounds!r}"
         )
     return [("relations", 0)] + [("influences", r) for r in range(1, influence_rounds + 1)]
@@ -154,7 +154,7 @@ class ListenQueue:
         index = {u: i for i, u in enumerate(units)}
         for li in listens:
             if len(li.channels) != 1:
-                raise RgtbusError(f"a listen queue reads one channel a listen, not {li.channels}")
+                raise BadInput(f"a listen queue reads one channel a listen, not {li.channels}")
         return cls.of_columns(
             units,
             [li.turn for li in listens],

@@ -13,7 +13,7 @@ import re
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
@@ -29,16 +29,16 @@ class Universe:
         actions = tuple(self.actions)
         object.__setattr__(self, "actions", actions)
         if not actions:
-            raise RgtbusError("the universal set needs at least one action")
+            raise BadInput("the universal set needs at least one action")
         seen: dict[str, int] = {}
         for j, name in enumerate(actions):
             if not _NAME.match(name):
-                raise RgtbusError(
+                raise BadInput(
                     f"bad action name {name!r}: a name is ASCII letters A-Z a-z, digits 0-9 "
                     "and _, not starting with a digit"
                 )
             if name in seen:
-                raise RgtbusError(f"action {name!r} is listed twice")
+                raise BadInput(f"action {name!r} is listed twice")
             seen[name] = j
         object.__setattr__(self, "_index", seen)
 
@@ -47,7 +47,7 @@ class Universe:
         """``"alpha,beta"`` -> Universe(("alpha", "beta"))."""
         names = [part.strip() for part in text.split(",")]
         if any(not n for n in names):
-            raise RgtbusError(f"empty action name in {text!r}")
+            raise BadInput(f"empty action name in {text!r}")
         return cls(tuple(names))
 
     @property
@@ -72,14 +72,14 @@ class Universe:
         try:
             return 1 << self._index[action]
         except KeyError:
-            raise RgtbusError(
+            raise BadInput(
                 f"unknown action {action!r} (actions: {', '.join(self.actions)})"
             ) from None
 
     def check(self, mask: int) -> int:
         """``mask`` if it is an alternative of this algebra; refused otherwise."""
         if not (0 <= mask <= self.full):
-            raise RgtbusError(f"alternative {mask} is outside the algebra of {self.k} actions")
+            raise BadInput(f"alternative {mask} is outside the algebra of {self.k} actions")
         return mask
 
     def neg(self, mask: int) -> int:
@@ -106,15 +106,15 @@ class Universe:
                 return 0
             names = [part.strip() for part in inner.split(",")]
             if any(not n for n in names):
-                raise RgtbusError(f"empty action name in alternative {text!r}")
+                raise BadInput(f"empty action name in alternative {text!r}")
             return self.from_names(names)
         if _NAME.match(s) and s in self._index:
             return self.bit(s)
         if _NAME.match(s):
-            raise RgtbusError(
+            raise BadInput(
                 f"unknown action {s!r} in alternative {text!r} (actions: {', '.join(self.actions)})"
             )
-        raise RgtbusError(f"bad alternative {text!r}: write 1, 0, {{}}, or {{action,...}}")
+        raise BadInput(f"bad alternative {text!r}: write 1, 0, {{}}, or {{action,...}}")
 
     def parse_interval(self, text: str) -> tuple[int, int]:
         """``{alpha}`` -> (lo, hi) = ({alpha}, {alpha}); ``[{beta},1]`` -> ({beta}, 1)."""
@@ -129,7 +129,7 @@ class Universe:
             depth -= ch == "}"
             if ch == "," and depth == 0:
                 return self.parse_alternative(inner[:i]), self.parse_alternative(inner[i + 1 :])
-        raise RgtbusError(f"bad interval {text!r}: write [LOW,HIGH], e.g. [{{beta}},1]")
+        raise BadInput(f"bad interval {text!r}: write [LOW,HIGH], e.g. [{{beta}},1]")
 
     def to_list(self, mask: int) -> list[str]:
         """JSON form: sorted action names."""

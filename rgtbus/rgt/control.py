@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from math import prod
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
 from rgtbus.rgt.expr import variable_table
@@ -49,7 +49,7 @@ def meets(a: int, b: int, lo: int, hi: int, mode: str) -> bool:
         return a == hi and not b & ~a
     if mode == "smallest":
         return b == lo and not b & ~a
-    raise RgtbusError(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
+    raise BadInput(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
 
 
 @dataclass(frozen=True)
@@ -75,22 +75,22 @@ def _check(
 ) -> ControlProblem:
     df.index(subject)
     if mode not in MODES:
-        raise RgtbusError(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
+        raise BadInput(f"unknown mode {mode!r} (modes: {', '.join(MODES)})")
     universe.check(lo)
     universe.check(hi)
     if mode in SINGLE_MODES and lo != hi:
-        raise RgtbusError(
+        raise BadInput(
             f"mode {mode} wants one alternative, got the interval "
             f"[{universe.format(lo)}, {universe.format(hi)}]"
         )
     if lo & ~hi:
-        raise RgtbusError(
+        raise BadInput(
             f"target interval [{universe.format(lo)}, {universe.format(hi)}] is empty: "
             "its lower end is not within its upper end"
         )
     for s, v in fixed.items():
         if s == subject:
-            raise RgtbusError(f"influence {s}>{subject}: a subject does not influence itself")
+            raise BadInput(f"influence {s}>{subject}: a subject does not influence itself")
         df.index(s)
         universe.check(v)
     return ControlProblem(subject, lo, hi, mode, tuple(sorted(fixed.items())))
@@ -244,7 +244,7 @@ def solve_brute_force(
     free = [s for s in others if s not in fixed]
     total = len(universe) ** len(free)
     if total > max_evaluations:
-        raise RgtbusError(
+        raise BadInput(
             f"brute force needs {total} evaluations (limit {max_evaluations}); use per-action"
         )
     f = df.mask_function(universe.full)
@@ -318,10 +318,10 @@ def steer(
     4. **unreachable**: every count is 0: no influence of ``me`` can meet the goal.
     """
     if me == target:
-        raise RgtbusError(f"influence {me}>{target}: a subject does not influence itself")
+        raise BadInput(f"influence {me}>{target}: a subject does not influence itself")
     heard = dict(heard or {})
     if me in heard:
-        raise RgtbusError(f"influence {me}>{target}: {me}'s own influence is what is chosen")
+        raise BadInput(f"influence {me}>{target}: {me}'s own influence is what is chosen")
     df.index(me)
     unheard = [s for s in df.order if s not in (target, me) and s not in heard]
     guess = {s: v for s, v in (predicted or {}).items() if s in unheard}
@@ -364,7 +364,7 @@ def steerable_share(
     valid assignments with ``me``'s bit projected out (exists), counted; the product over
     actions (the inverse task's answer to "how often can ``me`` steer ``target`` alone")."""
     if me == target:
-        raise RgtbusError(f"influence {me}>{target}: a subject does not influence itself")
+        raise BadInput(f"influence {me}>{target}: a subject does not influence itself")
     res = solve_per_action(df, universe, target, lo, hi, mode)
     n = df.n
     full = (1 << (1 << n)) - 1

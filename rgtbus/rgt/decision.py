@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.pairs import parse_pair_key
 from rgtbus.rgt.algebra import Universe
 from rgtbus.rgt.diagonal import DecisionFunction
@@ -120,11 +120,11 @@ class InfluenceMatrix:
         where = f" in {origin}" if origin else ""
         for s in (src, dst):
             if s not in self._known:
-                raise RgtbusError(
+                raise BadInput(
                     f"unknown subject {s!r}{where} (subjects: {', '.join(self.subjects)})"
                 )
         if src == dst:
-            raise RgtbusError(f"influence {src}>{dst}{where}: a subject does not influence itself")
+            raise BadInput(f"influence {src}>{dst}{where}: a subject does not influence itself")
         self._values[(src, dst)] = self.universe.check(value)
 
     def get(self, src: str, dst: str) -> int | None:
@@ -143,7 +143,7 @@ class InfluenceMatrix:
                 continue
             v = self._values.get((src, dst))
             if v is None:
-                raise RgtbusError(f"missing influence {src}>{dst} (on subject {dst})")
+                raise BadInput(f"missing influence {src}>{dst} (on subject {dst})")
             out[src] = v
         return out
 
@@ -155,17 +155,17 @@ class InfluenceMatrix:
         m = cls(subjects, universe)
         for spec in specs:
             if "=" not in spec or ">" not in spec.split("=", 1)[0]:
-                raise RgtbusError(
+                raise BadInput(
                     f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}"
                 )
             lhs, value = spec.split("=", 1)
             src, dst = (p.strip() for p in parse_pair_key(lhs))
             if m.get(src, dst) is not None:
-                raise RgtbusError(f"influence {src}>{dst} is given twice")
+                raise BadInput(f"influence {src}>{dst} is given twice")
             try:
                 mask = universe.parse_alternative(value)
             except RgtbusError as exc:
-                raise RgtbusError(f"{exc} (influence {spec!r})") from None
+                raise BadInput(f"{exc} (influence {spec!r})") from None
             m.set(src, dst, mask, origin=repr(spec))
         return m
 
@@ -226,7 +226,7 @@ def evaluate(
             try:
                 v = on[s]
             except KeyError:
-                raise RgtbusError(
+                raise BadInput(
                     f"missing influence {s}>{subject} (on subject {subject})"
                 ) from None
             args_a.append(v)
@@ -239,7 +239,7 @@ def forward(
 ) -> dict[str, SubjectResult]:
     """The forward task for every subject."""
     if tuple(sorted(matrix.subjects)) != tuple(sorted(df.order)):
-        raise RgtbusError(
+        raise BadInput(
             f"influence matrix subjects {list(matrix.subjects)} differ from {list(df.order)}"
         )
     return {s: evaluate(df, universe, s, matrix.on(s)) for s in df.order}

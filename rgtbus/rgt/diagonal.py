@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.rgt.expr import (
     MAX_TABLE_VARS,
     ONE,
@@ -58,7 +58,7 @@ def fold(poly: Expr) -> Expr:
     elif isinstance(poly, Prod):
         w = Prod(tuple(fold(f) for f in poly.factors))
     else:
-        raise RgtbusError(f"cannot fold {format_expr(poly)!r}: not a polynomial")
+        raise BadInput(f"cannot fold {format_expr(poly)!r}: not a polynomial")
     w = simplify(w)
     if w == ONE:
         return poly  # N + not(1) = N
@@ -91,7 +91,7 @@ class DecisionFunction:
     def table(self) -> int:
         """F's truth table over ``order`` (2^n bits); RgtbusError beyond ``EXACT_VARS``."""
         if self.n > EXACT_VARS:
-            raise RgtbusError(
+            raise BadInput(
                 f"F's truth table over {self.n} subjects has 2^{self.n} entries: built only for "
                 f"groups of at most {EXACT_VARS} (the inverse task needs it; the forward task "
                 "does not)"
@@ -126,7 +126,7 @@ class DecisionFunction:
         try:
             return self.order.index(subject)
         except ValueError:
-            raise RgtbusError(
+            raise BadInput(
                 f"unknown subject {subject!r} (subjects: {', '.join(self.order)})"
             ) from None
 
@@ -145,10 +145,10 @@ def decision_function(poly: Expr, order: Sequence[str] | None = None) -> Decisio
     Pure and cached: every unit of a group that decoded the same polynomial shares one F.
     """
     if not is_polynomial(poly):
-        raise RgtbusError(f"{format_expr(poly)!r} is not a polynomial of a relationship graph")
+        raise BadInput(f"{format_expr(poly)!r} is not a polynomial of a relationship graph")
     names = tuple(order) if order is not None else tuple(variables(poly))
     if sorted(names) != sorted(variables(poly)):
-        raise RgtbusError(f"subjects {list(names)} do not match the polynomial's variables")
+        raise BadInput(f"subjects {list(names)} do not match the polynomial's variables")
     return _decision_function(poly, names)
 
 

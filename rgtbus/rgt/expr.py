@@ -13,7 +13,7 @@ from collections.abc import Callable, Container, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 
 class Expr:
@@ -316,7 +316,7 @@ def truth_table(e: Expr, order: Sequence[str]) -> int:
             try:
                 return variable_table(index[x.name], n)
             except KeyError:
-                raise RgtbusError(f"variable {x.name!r} is not one of {list(order)}") from None
+                raise BadInput(f"variable {x.name!r} is not one of {list(order)}") from None
         if isinstance(x, Const):
             return full if x.value else 0
         if isinstance(x, Not):
@@ -347,7 +347,7 @@ def compile_masks(e: Expr, order: Sequence[str], full: int) -> Callable[..., int
     def src(x: Expr) -> str:
         if isinstance(x, Var):
             if x.name not in index:
-                raise RgtbusError(f"variable {x.name!r} is not one of {list(order)}")
+                raise BadInput(f"variable {x.name!r} is not one of {list(order)}")
             return f"v{index[x.name]}"
         if isinstance(x, Const):
             return str(full if x.value else 0)

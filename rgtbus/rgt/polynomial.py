@@ -20,7 +20,7 @@ import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from rgtbus.errors import NotDecomposable, RgtbusError
+from rgtbus.errors import BadInput, NotDecomposable
 from rgtbus.rgt.expr import Const, Expr, Not, Prod, Sum, Var, format_expr, variables
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -34,15 +34,15 @@ def parse_polynomial(text: str) -> Expr:
     appear exactly once, as in the polynomial of a relationship graph.
     """
     if not text.strip():
-        raise RgtbusError("empty polynomial")
+        raise BadInput("empty polynomial")
     parser = _PolynomialParser(_tokens(text), text)
     expr = parser.sum()
     if parser.pos != len(parser.tokens):
-        raise RgtbusError(f"unexpected {parser.where()} in polynomial {text!r}")
+        raise BadInput(f"unexpected {parser.where()} in polynomial {text!r}")
     seen: set[str] = set()
     for name in _all_var_occurrences(expr):
         if name in seen:
-            raise RgtbusError(
+            raise BadInput(
                 f"variable {name!r} appears twice in polynomial {text!r}: each subject appears once"
             )
         seen.add(name)
@@ -80,7 +80,7 @@ def _tokens(text: str) -> list[_Token]:
         hint = ""
         if not star and (ch.isdigit() or ch == "_"):
             hint = " (multi-letter names need '*', e.g. robot1*robot2+robot3)"
-        raise RgtbusError(f"bad token {ch!r} at position {i} in polynomial {text!r}{hint}")
+        raise BadInput(f"bad token {ch!r} at position {i} in polynomial {text!r}{hint}")
     return tokens
 
 
@@ -123,7 +123,7 @@ class _PolynomialParser:
         """A variable, or a parenthesised sum."""
         t = self.peek()
         if t is None or t[0] in ("+", "*", ")"):
-            raise RgtbusError(
+            raise BadInput(
                 f"expected a variable or '(' but found {self.where()} in {self.text!r}"
             )
         self.pos += 1
@@ -132,7 +132,7 @@ class _PolynomialParser:
         inner = self.sum()  # after "("
         close = self.peek()
         if close is None or close[0] != ")":
-            raise RgtbusError(f"missing ')' for '(' at position {t[2]} in {self.text!r}")
+            raise BadInput(f"missing ')' for '(' at position {t[2]} in {self.text!r}")
         self.pos += 1
         return inner
 
@@ -210,21 +210,21 @@ class RelationGraph:
         name, an unknown subject or a subject allied with itself."""
         subs = tuple(subjects)
         if not subs:
-            raise RgtbusError("a group needs at least one subject")
+            raise BadInput("a group needs at least one subject")
         for s in subs:
             if not _IDENT.fullmatch(s):
-                raise RgtbusError(f"bad subject name {s!r}: use letters, digits and _")
+                raise BadInput(f"bad subject name {s!r}: use letters, digits and _")
         dup = [s for s in subs if subs.count(s) > 1]
         if dup:
-            raise RgtbusError(f"subject {dup[0]!r} is listed twice")
+            raise BadInput(f"subject {dup[0]!r} is listed twice")
         known = set(subs)
         pairs: set[frozenset[str]] = set()
         for a, b in alliances:
             for s in (a, b):
                 if s not in known:
-                    raise RgtbusError(f"unknown subject {s!r} in alliance {a}-{b}")
+                    raise BadInput(f"unknown subject {s!r} in alliance {a}-{b}")
             if a == b:
-                raise RgtbusError(f"alliance {a}-{b} joins a subject to itself")
+                raise BadInput(f"alliance {a}-{b} joins a subject to itself")
             pairs.add(_pair(a, b))
         return cls(subs, frozenset(pairs))
 
@@ -321,7 +321,7 @@ def polynomial_to_graph(poly: Expr, subjects: Sequence[str] | None = None) -> Re
     walk(poly)
     order = list(subjects) if subjects is not None else names
     if sorted(order) != sorted(names):
-        raise RgtbusError(f"subjects {order} do not match the polynomial's variables {names}")
+        raise BadInput(f"subjects {order} do not match the polynomial's variables {names}")
     return RelationGraph.from_pairs(order, alliances)
 
 
@@ -342,7 +342,7 @@ def install_relations(
     for a, b in itertools.combinations(subjects, 2):
         for key in ((a, b), (b, a)):
             if key not in sent:
-                raise RgtbusError(f"missing relationship code {key[0]}>{key[1]}")
+                raise BadInput(f"missing relationship code {key[0]}>{key[1]}")
         if sent[(a, b)] and sent[(b, a)]:
             pairs.append((a, b))
     return RelationGraph.from_pairs(subjects, pairs)
@@ -364,5 +364,5 @@ def random_polynomial(subjects: Sequence[str], rng: random.Random) -> Expr:
         return op(tuple(kids))
 
     if not names:
-        raise RgtbusError("a group needs at least one subject")
+        raise BadInput("a group needs at least one subject")
     return build(names, rng.choice((Sum, Prod)))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.rgt import Universe
 from rgtbus.scenario.context import Ctx
 from rgtbus.scenario.limits import CODEBOOK_SEARCH, codebook_search, over_budget
@@ -129,7 +129,7 @@ def _build(
         return generate_codebook(universe.actions, **options)
     if kind == "custom":
         return Codebook.from_dict(opts, where="codebook")
-    raise RgtbusError(f"unknown codebook kind {kind!r} ({', '.join(CODEBOOK_KINDS)})")
+    raise BadInput(f"unknown codebook kind {kind!r} ({', '.join(CODEBOOK_KINDS)})")
 
 
 def _check_words(ctx: Ctx, cb: Codebook, universe: Universe, section: str, key: str | None) -> None:

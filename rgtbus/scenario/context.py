@@ -6,7 +6,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, RgtbusError
 
 
 class Ctx:
@@ -54,7 +54,7 @@ class Ctx:
         line = self.line_of(section, key)
         where = f"{self.path}:{line}" if line else self.path
         name = ".".join(p for p in (section, key) if p)
-        return RgtbusError(f"{where}: {name or 'scenario'}: {reason}")
+        return BadInput(f"{where}: {name or 'scenario'}: {reason}")
 
 
 def check_keys(ctx: Ctx, table: Mapping[str, Any], allowed: set[str], section: str) -> None:

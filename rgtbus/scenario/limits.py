@@ -24,7 +24,7 @@ import stat
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 
 BUDGET_ENV = "RGTBUS_BUDGET"
 LARGE_FACTOR = 100  # RGTBUS_BUDGET=large: every budget this many times larger
@@ -92,7 +92,7 @@ def budget_scale() -> float:
         return 1.0
     if value == "large":
         return float(LARGE_FACTOR)
-    raise RgtbusError(
+    raise BadInput(
         f"{BUDGET_ENV}={os.environ.get(BUDGET_ENV)!r}: unknown budget (default or large)"
     )
 
@@ -285,16 +285,16 @@ def read_regular(path: str | os.PathLike[str], what: str, cap: int) -> bytes:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
         if exc.errno == errno.EISDIR:
-            raise RgtbusError(f"cannot read {what} {where!r}: is a directory") from None
+            raise IOFailure(f"cannot read {what} {where!r}: is a directory") from None
         raise
     try:
         mode = os.fstat(fd).st_mode
         if stat.S_ISDIR(mode):
-            raise RgtbusError(f"cannot read {what} {where!r}: is a directory")
+            raise IOFailure(f"cannot read {what} {where!r}: is a directory")
         if not stat.S_ISREG(mode):
             kind = "a FIFO, " if stat.S_ISFIFO(mode) else ""  # a device: as it always said
             kind = "a socket, " if stat.S_ISSOCK(mode) else kind
-            raise RgtbusError(f"cannot read {what} {where!r}: {kind}not a regular file")
+            raise IOFailure(f"cannot read {what} {where!r}: {kind}not a regular file")
         f = open(fd, "rb", closefd=False)  # noqa: SIM115 - fd is closed below
         return f.read(cap + 1)
     finally:
@@ -349,7 +349,7 @@ def check_trials(trials: int, points: int, flag: str = "--trials") -> None:
     """``trials`` Monte-Carlo decodes at each of ``points`` (noise levels × curves) within the
     ``TRIALS`` budget; else one line naming ``flag`` (RgtbusError)."""
     if trials < 1:
-        raise RgtbusError(f"{flag} {trials}: must be at least 1")
+        raise BadInput(f"{flag} {trials}: must be at least 1")
     why = over_budget(TRIALS, float(trials) * max(1, points))
     if why is not None:
-        raise RgtbusError(f"{flag} {trials}: {why}")
+        raise BadInput(f"{flag} {trials}: {why}")

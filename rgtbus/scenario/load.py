@@ -10,7 +10,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.protocol.timetable import plan_of
 from rgtbus.scenario.channel import channel_of, check_timed_channel
 from rgtbus.scenario.codebook_section import codebook_of, decoding_of, default_codebook, mode_of
@@ -64,7 +64,7 @@ def load_scenario(source: str | os.PathLike[str]) -> Scenario:
     if not os.path.exists(p):  # False for a path with a NUL: refused below, as it reads
         found = find_shipped(str(p))
         if found is not None and found.parent.name == "sweeps":
-            raise RgtbusError(
+            raise BadInput(
                 f"cannot read scenario {str(p)!r}: {found} is a sweep file, not a scenario "
                 "(rgtbus sweep runs it)"
             )
@@ -82,13 +82,13 @@ def _read_file(p: Path, where: str) -> bytes:
         hint = ""
         if exc.errno == errno.ENOENT and is_name(where):
             hint = ", nor the name of a shipped scenario (rgtbus scenarios lists them)"
-        raise RgtbusError(f"cannot read scenario {where!r}: {exc.strerror}{hint}") from None
+        raise IOFailure(f"cannot read scenario {where!r}: {exc.strerror}{hint}") from None
     except RgtbusError:  # already one line (a directory, a FIFO, a device)
         raise
     except ValueError as exc:  # a NUL in the path
-        raise RgtbusError(f"cannot read scenario {where!r}: {exc}") from None
+        raise BadInput(f"cannot read scenario {where!r}: {exc}") from None
     if len(data) > MAX_SCENARIO_BYTES:
-        raise RgtbusError(
+        raise BadInput(
             f"{where}: larger than {MAX_SCENARIO_BYTES // 2**20} MiB: not a scenario file"
         )
     return data
@@ -101,14 +101,14 @@ def _decode_text(data: bytes, where: str) -> str:
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         col = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise RgtbusError(
+        raise BadInput(
             f"{where}:{line}: not a UTF-8 text file "
             f"(byte 0x{data[exc.start]:02x} at line {line}, column {col})"
         ) from None
     nul = text.find("\0")
     if nul >= 0:
         line = text.count("\n", 0, nul) + 1
-        raise RgtbusError(
+        raise BadInput(
             f"{where}:{line}: a binary file, not a scenario (NUL byte on line {line})"
         )
     return text
@@ -117,16 +117,16 @@ def _decode_text(data: bytes, where: str) -> str:
 def _toml_of(text: str, path: str) -> dict[str, Any]:
     too_deep = nesting_error(text, path)  # before tomllib, which recurses
     if too_deep:
-        raise RgtbusError(too_deep)
+        raise BadInput(too_deep)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
         where = f"{path}:{m.group(1)}" if m else path
-        raise RgtbusError(f"{where}: not valid TOML: {exc}") from None
+        raise BadInput(f"{where}: not valid TOML: {exc}") from None
     too_deep = key_depth_error(data, text, path)
     if too_deep:
-        raise RgtbusError(too_deep)
+        raise BadInput(too_deep)
     return data
 
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 Word = tuple[float, ...]
 
@@ -59,7 +59,7 @@ class Codebook:
         """One family's words by name; refused for a name that is no family."""
         fams = self.families
         if name not in fams:
-            raise RgtbusError(f"codebook family {name!r} is not one of {', '.join(fams)}")
+            raise BadInput(f"codebook family {name!r} is not one of {', '.join(fams)}")
         return fams[name]
 
     def all_words(self) -> dict[str, Word]:
@@ -97,32 +97,32 @@ class Codebook:
         """From a TOML-like dict: ``pulses``, ``id``, ``relation`` {name: [..]}, ``alternative``
         {name: [..]}, optional ``min_distance``, ``name``, ``actions``."""
         if not isinstance(data, Mapping):
-            raise RgtbusError(f"{where}: must be a table, got {type(data).__name__}")
+            raise BadInput(f"{where}: must be a table, got {type(data).__name__}")
         known = {"name", "pulses", "min_distance", "actions", "id", "relation", "alternative"}
         for key in data:
             if key not in known:
-                raise RgtbusError(
+                raise BadInput(
                     f"{where}: unknown key {key!r} (known: {', '.join(sorted(known))})"
                 )
         for key in ("pulses", "id", "relation", "alternative"):
             if key not in data:
-                raise RgtbusError(f"{where}: missing key {key!r}")
+                raise BadInput(f"{where}: missing key {key!r}")
         pulses = data["pulses"]
         if not isinstance(pulses, int) or isinstance(pulses, bool) or pulses < 1:
-            raise RgtbusError(f"{where}.pulses: {pulses!r} must be a positive integer")
+            raise BadInput(f"{where}.pulses: {pulses!r} must be a positive integer")
 
         def table(key: str) -> dict[str, Word]:
             t = data[key]
             if not isinstance(t, Mapping) or not t:
-                raise RgtbusError(f"{where}.{key}: must be a non-empty table of name = [pulses]")
+                raise BadInput(f"{where}.{key}: must be a non-empty table of name = [pulses]")
             return {str(k): _as_word(v, f"{where}.{key}.{k}") for k, v in t.items()}
 
         md = data.get("min_distance", 0.2)
         if isinstance(md, bool) or not isinstance(md, (int, float)) or not md >= 0:
-            raise RgtbusError(f"{where}.min_distance: {md!r} must be a number ≥ 0")
+            raise BadInput(f"{where}.min_distance: {md!r} must be a number ≥ 0")
         actions = data.get("actions", ())
         if isinstance(actions, str) or not isinstance(actions, Sequence):
-            raise RgtbusError(f"{where}.actions: {actions!r} must be a list of action names")
+            raise BadInput(f"{where}.actions: {actions!r} must be a list of action names")
         return cls(
             pulses=pulses,
             id_word=_as_word(data["id"], f"{where}.id"),
@@ -136,13 +136,13 @@ class Codebook:
 
 def _as_word(value: Any, where: str) -> Word:
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence | np.ndarray):
-        raise RgtbusError(f"{where}: {value!r} is not a list of pulse magnitudes")
+        raise BadInput(f"{where}: {value!r} is not a list of pulse magnitudes")
     out = []
     for v in value:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-            raise RgtbusError(f"{where}: {v!r} is not a number")
+            raise BadInput(f"{where}: {v!r} is not a number")
         if not math.isfinite(float(v)):
-            raise RgtbusError(f"{where}: {v!r} is not finite")
+            raise BadInput(f"{where}: {v!r} is not finite")
         out.append(float(v))
     return tuple(out)
 
@@ -154,9 +154,9 @@ def _dist(a: Word, b: Word) -> float:
 def validate(cb: Codebook) -> None:
     """Refuse a codebook with wrong lengths, duplicates or too-close words (message names them)."""
     if not isinstance(cb.pulses, int) or cb.pulses < 1:
-        raise RgtbusError(f"codebook {cb.name}: pulses = {cb.pulses!r} must be a positive integer")
+        raise BadInput(f"codebook {cb.name}: pulses = {cb.pulses!r} must be a positive integer")
     if not (isinstance(cb.min_distance, (int, float)) and cb.min_distance >= 0):
-        raise RgtbusError(f"codebook {cb.name}: min_distance = {cb.min_distance!r} must be ≥ 0")
+        raise BadInput(f"codebook {cb.name}: min_distance = {cb.min_distance!r} must be ≥ 0")
     fams = {
         "id": {"id": cb.id_word},
         "relation": dict(cb.relations),
@@ -167,31 +167,31 @@ def validate(cb: Codebook) -> None:
             if not isinstance(w, tuple) or not all(
                 isinstance(v, float) and math.isfinite(v) for v in w
             ):
-                raise RgtbusError(
+                raise BadInput(
                     f"codebook {cb.name}: {fam} word {name!r} = {w!r} must be a "
                     "tuple of finite floats"
                 )
             if len(w) != cb.pulses:
-                raise RgtbusError(
+                raise BadInput(
                     f"codebook {cb.name}: {fam} word {name!r} has {len(w)} pulses, "
                     f"expected {cb.pulses}"
                 )
         for (n1, w1), (n2, w2) in itertools.combinations(words.items(), 2):
             if w1 == w2:
-                raise RgtbusError(
+                raise BadInput(
                     f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are the "
                     f"same pulses {list(w1)}"
                 )
             d = _dist(w1, w2)
             if d < cb.min_distance - 1e-9:
-                raise RgtbusError(
+                raise BadInput(
                     f"codebook {cb.name}: {fam} words {n1!r} and {n2!r} are "
                     f"{d:.3g} apart, closer than min_distance {cb.min_distance:g}"
                 )
     for name, w in cb.alternatives.items():
         d = _dist(w, cb.id_word)
         if d < cb.min_distance - 1e-9:
-            raise RgtbusError(
+            raise BadInput(
                 f"codebook {cb.name}: alternative {name!r} is {d:.3g} from the "
                 f"ID-code, closer than min_distance {cb.min_distance:g}"
             )
@@ -226,7 +226,7 @@ def paper_codebook(
     {−.4,−.4,−.4} and the four k = 2 alternatives; ``actions`` renames α, β; ``names`` remaps
     alternative names (e.g. Example 2's other reading ``{"1": "0", "0": "1"}``)."""
     if len(actions) not in (1, 2) or len(set(actions)) != len(actions):
-        raise RgtbusError(
+        raise BadInput(
             f"the paper codebook has words for k = 1 or 2 distinct actions, got {list(actions)}"
         )
     alts = {"1": PAPER_ALTERNATIVES["1"], "0": PAPER_ALTERNATIVES["0"]}
@@ -237,10 +237,10 @@ def paper_codebook(
     if names:
         unknown = [k for k in names if k not in alts]
         if unknown:
-            raise RgtbusError(f"paper codebook: no alternative named {unknown[0]!r} to rename")
+            raise BadInput(f"paper codebook: no alternative named {unknown[0]!r} to rename")
         alts = {names.get(k, k): v for k, v in alts.items()}
         if len(alts) != 1 << len(actions):
-            raise RgtbusError("paper codebook: renaming made two alternatives share a name")
+            raise BadInput("paper codebook: renaming made two alternatives share a name")
     return Codebook(
         pulses=3,
         id_word=(0.4, 0.4, 0.4),
@@ -276,9 +276,9 @@ def generate_codebook(
     """
     acts = [str(a) for a in actions]
     if not acts or len(set(acts)) != len(acts):
-        raise RgtbusError(f"actions {acts!r} must be distinct non-empty names")
+        raise BadInput(f"actions {acts!r} must be distinct non-empty names")
     if not isinstance(pulses, int) or pulses < 1:
-        raise RgtbusError(f"pulses = {pulses!r} must be a positive integer")
+        raise BadInput(f"pulses = {pulses!r} must be a positive integer")
     k = len(acts)
     need = 1 << k
     total = 0.4 * pulses if total is None else float(total)
@@ -288,14 +288,14 @@ def generate_codebook(
     pts = grid.words(round(total / step), step).astype(float) * step
     pts = pts[np.linalg.norm(pts - np.array(id_word), axis=1) >= min_distance - 1e-9]
     if len(pts) < need:
-        raise RgtbusError(
+        raise BadInput(
             f"codebook generator: only {len(pts)} candidate words for {need} "
             f"alternatives at N = {pulses} pulses; use more pulses"
         )
     words = _farthest_first(pts, id_word, need, seed)
     got = min(_dist(a, b) for a, b in itertools.combinations(words, 2)) if need > 1 else math.inf
     if got < min_distance - 1e-9:
-        raise RgtbusError(
+        raise BadInput(
             f"codebook generator: {need} words of {pulses} pulses reach only "
             f"{got:.3g} apart, below min_distance {min_distance:g}; use more pulses"
         )
@@ -344,14 +344,14 @@ class _Grid:
                 None,
             )
             if step is None:
-                raise RgtbusError(
+                raise BadInput(
                     f"codebook generator: no grid step keeps N = {self.pulses} pulses small"
                 )
         if not step > 0:
-            raise RgtbusError(f"codebook generator: step = {step!r} must be positive")
+            raise BadInput(f"codebook generator: step = {step!r} must be positive")
         # Counted before enumerating: the product itself could outlast any caller.
         if self.enumeration(step) > MAX_CANDIDATES:
-            raise RgtbusError(
+            raise BadInput(
                 f"codebook generator: about {self.enumeration(step):.3g} candidates at step "
                 f"{step:g} for N = {self.pulses} pulses; use a coarser step"
             )

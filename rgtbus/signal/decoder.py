@@ -35,7 +35,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.signal.codebook import Codebook
 from rgtbus.signal.kernels import read_rows, timings
 from rgtbus.signal.nearest import alphabetical, in_order
@@ -61,13 +61,13 @@ class ReadoutHistory:
         self, channels: int, capacity: int = 6000, receivers: int = 1, window: int = 1
     ) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
-            raise RgtbusError(f"readout capacity {capacity!r} must be a positive integer")
+            raise BadInput(f"readout capacity {capacity!r} must be a positive integer")
         if not isinstance(channels, int) or channels < 1:
-            raise RgtbusError(f"readout channels {channels!r} must be a positive integer")
+            raise BadInput(f"readout channels {channels!r} must be a positive integer")
         if not isinstance(receivers, int) or receivers < 1:
-            raise RgtbusError(f"readout receivers {receivers!r} must be a positive integer")
+            raise BadInput(f"readout receivers {receivers!r} must be a positive integer")
         if window not in (1, 2):
-            raise RgtbusError(f"readout window {window!r} must be 1 or 2 samples")
+            raise BadInput(f"readout window {window!r} must be 1 or 2 samples")
         self.channels = channels
         self.capacity = capacity
         self.receivers = receivers
@@ -143,14 +143,14 @@ class ReadoutHistory:
     def extend(self, result: FeedResult) -> None:
         """Append one advance's readout (``bank.advance(..., readout=True)`` or ``feed``)."""
         if result.readout is None or result.readout_rows is None:
-            raise RgtbusError("readout history needs results of an advance with readout=True")
+            raise BadInput("readout history needs results of an advance with readout=True")
         self.store(result.start, result.n, result.readout_rows, result.readout)
 
     def store(self, start: int, n: int, rows: np.ndarray, values: np.ndarray) -> None:
         """Samples [start, start + n) were processed; ``values`` (len(rows), receivers,
         channels) is the readout at the absolute samples ``rows`` among them; others read 0."""
         if start != self._end:
-            raise RgtbusError(
+            raise BadInput(
                 f"readout: samples from {start} appended, expected {self._end} (in order)"
             )
         end = start + n
@@ -161,7 +161,7 @@ class ReadoutHistory:
         rows = np.asarray(rows, dtype=np.int64)
         if rows.size:
             if rows[0] < start or rows[-1] >= end or (rows[1:] <= rows[:-1]).any():
-                raise RgtbusError(f"readout: rows must be ascending samples in {start}..{end - 1}")
+                raise BadInput(f"readout: rows must be ascending samples in {start}..{end - 1}")
             keep = rows >= end - self.capacity
             self._lo += old
             # the first channel before the rows: an advance's readout is a view broadcast
@@ -249,7 +249,7 @@ class ReadoutHistory:
                 span if span is not None else (int(idx.min()), int(idx.max()) + self.window - 1)
             )
             if lo < max(0, self._end - self.capacity) or hi >= self._end:
-                raise RgtbusError(
+                raise BadInput(
                     f"readout: samples {lo}..{hi} are outside "
                     f"the history {max(0, self._end - self.capacity)}..{self._end - 1}"
                 )
@@ -257,7 +257,7 @@ class ReadoutHistory:
     def of(self, receiver: int) -> ReceiverReadout:
         """One receiver's view of the history (what a unit decodes from)."""
         if not 0 <= receiver < self.receivers:
-            raise RgtbusError(f"readout: receiver {receiver} not in the history ({self.receivers})")
+            raise BadInput(f"readout: receiver {receiver} not in the history ({self.receivers})")
         return ReceiverReadout(self, receiver)
 
 
@@ -319,7 +319,7 @@ def _heard_candidates(
     if hi >= history.end:  # rarely: candidates past what has been heard
         ok = inst[:, -1] < history.end
         if not ok.any():
-            raise RgtbusError(
+            raise BadInput(
                 f"decode: no pulse instants of a code at {start:g} s are in the readout"
             )
         chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
@@ -480,7 +480,7 @@ def code_candidates(
     if start < (search + 1) * tau and inst[:, 0].min() < 0:  # before the first sample: left out
         keep = inst[:, 0] >= 0
         if not keep.any():
-            raise RgtbusError(
+            raise BadInput(
                 f"decode: no pulse instants of a code at {start:g} s are in the readout"
             )
         chans, inst = chans[keep], inst[keep]
@@ -505,7 +505,7 @@ def _candidates(
     )
     keep = insts[:, 0] >= 0
     if not keep.any():
-        raise RgtbusError(f"decode: no pulse instants of a code at {start:g} s are in the readout")
+        raise BadInput(f"decode: no pulse instants of a code at {start:g} s are in the readout")
     a, b, c = chans[keep], shifts[keep], insts[keep]
     for arr in (a, b, c):
         arr.flags.writeable = False
@@ -606,21 +606,21 @@ def word_matrix(words: Words, n: int | None, where: str) -> tuple[tuple[str, ...
     """Names and the (W, N) matrix of candidate words (checked; cached per word set)."""
     if isinstance(words, WordSet):
         if n is not None and words.matrix.shape[1] != n:
-            raise RgtbusError(
+            raise BadInput(
                 f"{where}: word {words.names[0]!r} has {words.matrix.shape[1]} pulses, expected {n}"
             )
         return words.names, words.matrix
     if not words:
-        raise RgtbusError(f"{where}: no candidate words")
+        raise BadInput(f"{where}: no candidate words")
     try:
         key = tuple((str(k), tuple(float(x) for x in v)) for k, v in words.items())
     except (TypeError, ValueError):
-        raise RgtbusError(f"{where}: words must be sequences of numbers") from None
+        raise BadInput(f"{where}: words must be sequences of numbers") from None
     if len({len(v) for _, v in key}) != 1:
-        raise RgtbusError(f"{where}: candidate words have different lengths")
+        raise BadInput(f"{where}: candidate words have different lengths")
     names, mat = _word_matrix(key)
     if n is not None and mat.shape[1] != n:
-        raise RgtbusError(f"{where}: word {names[0]!r} has {mat.shape[1]} pulses, expected {n}")
+        raise BadInput(f"{where}: word {names[0]!r} has {mat.shape[1]} pulses, expected {n}")
     return names, mat
 
 
@@ -702,7 +702,7 @@ def decode_code(
     ws = _words(words, None, "decode")
     n = {w.size for w in ws.values()}
     if len(n) != 1:
-        raise RgtbusError("decode: candidate words have different lengths")
+        raise BadInput("decode: candidate words have different lengths")
     pulses = n.pop()
     best: Decision | None = None
     for shift, inst in candidate_instants(omega, start, pulses, tau, search):
@@ -718,7 +718,7 @@ def decode_code(
                 dec.name, dec.distance, dec.margin, dec.confidence, dec.values, inst, shift
             )
     if best is None:
-        raise RgtbusError(
+        raise BadInput(
             f"decode: no pulse instants of the code at {start:g} s are in the readout"
         )
     return best
@@ -734,7 +734,7 @@ def read_at(
     arr = np.asarray(readout)
     idx = np.asarray(inst, dtype=np.int64) - offset
     if idx.min() < 0 or idx.max() >= arr.shape[0]:
-        raise RgtbusError(
+        raise BadInput(
             f"decode: pulse instants {list(inst)} fall outside the readout "
             f"(samples {offset}..{offset + arr.shape[0] - 1})"
         )

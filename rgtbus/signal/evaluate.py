@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.nearest import in_order, nearest_choice
 from rgtbus.signal.resonator import PAPER_TAU, ResonatorBank
 from rgtbus.signal.waveform import pulse_instants
@@ -56,9 +56,9 @@ def symbol_error_rate(
 ) -> SerResult:
     """Symbol error rate of decoding ``words`` sent on ``omega`` under noise ``sigma``."""
     if trials < 1:
-        raise RgtbusError(f"trials = {trials!r} must be positive")
+        raise BadInput(f"trials = {trials!r} must be positive")
     if not sigma >= 0:
-        raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
+        raise BadInput(f"noise sigma = {sigma!r} must be ≥ 0")
     names = list(words)
     W = np.array([words[n] for n in names], dtype=float)
     N = W.shape[1]
@@ -132,7 +132,7 @@ def noise_spike_rate(
 ) -> float:
     """Spikes per second per resonator on noise alone (false attention at noise σ)."""
     if not sigma >= 0:
-        raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
+        raise BadInput(f"noise sigma = {sigma!r} must be ≥ 0")
     n = sample_of(seconds, tau)
     u = np.random.default_rng(seed).normal(0.0, sigma, n) if sigma > 0 else np.zeros(n)
     res = ResonatorBank(omegas, mode=mode, tau=tau).feed(u)
@@ -170,10 +170,10 @@ def ml_ser_bounds(words: Mapping[str, Sequence[float]], sigma: float) -> MlSerBo
     Both are exact for two words, and tight once errors are rare (the nearest pairs dominate).
     Words that are equal can never be told apart: Q(0) = 1/2 each way."""
     if not sigma >= 0 or not math.isfinite(sigma):
-        raise RgtbusError(f"noise sigma = {sigma!r} must be finite and ≥ 0")
+        raise BadInput(f"noise sigma = {sigma!r} must be finite and ≥ 0")
     W = np.array([list(words[n]) for n in words], dtype=float)
     if W.ndim != 2 or len(W) < 1:
-        raise RgtbusError("words: at least one word, all of the same length")
+        raise BadInput("words: at least one word, all of the same length")
     M = len(W)
     if M == 1:
         return MlSerBounds(float(sigma), 0.0, 0.0)
@@ -194,7 +194,7 @@ def ml_ser_monte_carlo(
     at its N samples, decided by the nearest word (ties to the first). A check of the bounds,
     and what ``ser_against_bound`` puts the bank's decoder beside."""
     if trials < 1:
-        raise RgtbusError(f"trials = {trials!r} must be positive")
+        raise BadInput(f"trials = {trials!r} must be positive")
     W = np.array([list(words[n]) for n in words], dtype=float)
     rng = np.random.default_rng(seed)
     pick = rng.integers(len(W), size=trials)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.decoder import Decision, Readout, read_at, word_matrix
 from rgtbus.signal.nearest import distances, in_order, nearest_choice
 
@@ -40,7 +40,7 @@ def decode_joint(
     changes this transmitter's word.
     """
     if not transmissions:
-        raise RgtbusError("decode_joint: no transmissions")
+        raise BadInput("decode_joint: no transmissions")
     system = _JointSystem.of(transmissions)
     d = read_at(readout, system.union, offset, channel)
     estimate = np.linalg.lstsq(system.mixing, d, rcond=None)[0]

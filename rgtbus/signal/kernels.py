@@ -8,11 +8,11 @@ from __future__ import annotations
 import os
 import sys
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 
 _ASKED = os.environ.get("RGTBUS_WALK", "").strip().lower()
 if _ASKED not in ("", "compiled", "numpy"):
-    raise RgtbusError(f"RGTBUS_WALK={_ASKED!r}: expected compiled or numpy (or unset)")
+    raise BadInput(f"RGTBUS_WALK={_ASKED!r}: expected compiled or numpy (or unset)")
 
 if _ASKED == "numpy":
     from rgtbus.signal.walk_numpy import (
@@ -39,7 +39,7 @@ else:
         COMPILED = True
     except ImportError as exc:
         if _ASKED == "compiled":
-            raise RgtbusError(
+            raise BadInput(
                 f"RGTBUS_WALK=compiled: the compiled walk is missing ({exc})"
             ) from None
         from rgtbus.signal.walk_numpy import (

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.signal.resonator import PAPER_B, PAPER_TAU, euler_limit
 
 PI = math.pi
@@ -53,7 +53,7 @@ def parse_omega(text: str, where: str = "omega") -> float:
     s = str(text)
     m = _OMEGA_RE.match(s)
     if not m or not (m.group(1) or m.group(2)):
-        raise RgtbusError(
+        raise BadInput(
             f"{where}: cannot read {s!r} as a frequency; write e.g. 3pi/2, 1.5pi or 4.71 (rad/s)"
         )
     value = float(m.group(1)) if m.group(1) else 1.0
@@ -62,10 +62,10 @@ def parse_omega(text: str, where: str = "omega") -> float:
     if m.group(3):
         den = float(m.group(3))
         if den == 0:
-            raise RgtbusError(f"{where}: {s!r} divides by zero")
+            raise BadInput(f"{where}: {s!r} divides by zero")
         value /= den
     if not math.isfinite(value) or value <= 0:
-        raise RgtbusError(f"{where}: {s!r} is not a positive frequency")
+        raise BadInput(f"{where}: {s!r} is not a positive frequency")
     return value
 
 
@@ -86,51 +86,51 @@ def check_plan(
     """Refuse (``RgtbusError`` naming the rule) a plan that breaks a rule of the module doc
     (the concurrent schedule: rules 1–3 only)."""
     if mode not in ("paper", "exact"):
-        raise RgtbusError(f"mode {mode!r} is not one of paper, exact")
+        raise BadInput(f"mode {mode!r} is not one of paper, exact")
     if not isinstance(pulses, int) or pulses < 1:
-        raise RgtbusError(f"pulses = {pulses!r} must be a positive integer")
+        raise BadInput(f"pulses = {pulses!r} must be a positive integer")
     if not omegas:
-        raise RgtbusError("rule positive: a plan needs at least one frequency")
+        raise BadInput("rule positive: a plan needs at least one frequency")
     ws = [float(w) for w in omegas]
     for j, w in enumerate(ws):
         if not math.isfinite(w) or w <= 0:
-            raise RgtbusError(f"rule positive: omega[{j}] = {w!r} is not a positive frequency")
+            raise BadInput(f"rule positive: omega[{j}] = {w!r} is not a positive frequency")
     s = sorted(ws)
     for lo, hi in itertools.pairwise(s):
         if hi == lo:
-            raise RgtbusError(f"rule positive: frequency {lo:.6g} rad/s is used twice")
+            raise BadInput(f"rule positive: frequency {lo:.6g} rad/s is used twice")
     nyq = 2 * PI / (MIN_SAMPLES_PER_PERIOD * tau)
     if s[-1] > nyq:
-        raise RgtbusError(
+        raise BadInput(
             f"rule nyquist: omega {s[-1]:.6g} rad/s leaves fewer than {MIN_SAMPLES_PER_PERIOD} "
             f"samples a period at tau = {tau:g} s (limit {nyq:.6g} rad/s)"
         )
     if mode == "paper":
         lim = euler_limit(tau, b)
         if s[-1] >= lim:
-            raise RgtbusError(
+            raise BadInput(
                 f"rule euler: omega {s[-1]:.6g} rad/s is beyond Euler's stable band "
                 f"({lim:.4g} rad/s at b = {b:g}, tau = {tau:g}); use mode exact"
             )
     if b >= 0:
-        raise RgtbusError(f"rule decay: b = {b:g} must be negative (resonators must forget)")
+        raise BadInput(f"rule decay: b = {b:g} must be negative (resonators must forget)")
     if schedule == "concurrent":
         return  # attention rules are margins there (the module docstring)
     if s[-1] >= 2 * s[0]:
-        raise RgtbusError(
+        raise BadInput(
             f"rule octave: {s[-1]:.6g} rad/s is not below twice {s[0]:.6g} rad/s "
             "(a pulse train on ω also excites 2ω)"
         )
     need = SPACING_FACTOR / pulses
     for lo, hi in itertools.pairwise(s):
         if (hi - lo) / lo < need * (1 - 1e-9):
-            raise RgtbusError(
+            raise BadInput(
                 f"rule spacing: {lo:.6g} and {hi:.6g} rad/s are {100 * (hi - lo) / lo:.1f} % "
                 f"apart, below 0.3/N = {100 * need:.1f} % for N = {pulses} pulses"
             )
     length = message_length(s[0], pulses)
     if 1 / abs(b) < length:
-        raise RgtbusError(
+        raise BadInput(
             f"rule decay: memory 1/|b| = {1 / abs(b):.4g} s is shorter than the longest message "
             f"({pulses} pulses on {s[0]:.6g} rad/s: {length:.4g} s)"
         )
@@ -167,7 +167,7 @@ def check_tau(tau: float) -> None:
         or not isinstance(tau, int | float)
         or not (math.isfinite(tau) and tau > 0)
     ):
-        raise RgtbusError(f"tau = {tau!r} s: the sample period must be positive and finite")
+        raise BadInput(f"tau = {tau!r} s: the sample period must be positive and finite")
 
 
 def crosstalk_size(omegas: Sequence[float], pulses: int, tau: float) -> float:
@@ -202,7 +202,7 @@ def auto_plan(
     its ladder is squeezed into one octave (ratio 2^(1/n)), any n, the spacing then a margin.
     """
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise RgtbusError(f"number of units {n!r} must be a positive integer")
+        raise BadInput(f"number of units {n!r} must be a positive integer")
     paper_settings = (
         pulses == 3 and mode == "paper" and tau == PAPER_TAU and b == PAPER_B and omega_min is None
     )
@@ -212,7 +212,7 @@ def auto_plan(
     if n > max_units(pulses) and not squeeze:
         more = pulses_for(n)
         use = f"use at least {more} pulses" if more else "use the concurrent schedule"
-        raise RgtbusError(
+        raise BadInput(
             f"rule octave/spacing: {n} units do not fit one octave at 0.3/N spacing with "
             f"N = {pulses} pulses (at most {max_units(pulses)}); {use}"
         )
@@ -319,9 +319,9 @@ def make_plan(
     or paper unless Euler's band cannot hold the plan: then exact), the frequencies
     (:func:`auto_plan`) and every margin. RgtbusError naming the rule it cannot keep."""
     if schedule not in ("serial", "concurrent"):
-        raise RgtbusError(f"unknown schedule {schedule!r} (serial or concurrent)")
+        raise BadInput(f"unknown schedule {schedule!r} (serial or concurrent)")
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise RgtbusError(f"number of units {n!r} must be a positive integer")
+        raise BadInput(f"number of units {n!r} must be a positive integer")
     check_tau(tau)
     if pulses is None:
         pulses = _fewest_pulses(n, schedule)
@@ -355,7 +355,7 @@ def _fewest_pulses(n: int, schedule: str) -> int:
     on the serial, the fewest whose 0.3/N spacing fits them in one octave."""
     fit = 3 if schedule == "concurrent" else pulses_for(n)
     if fit is None:
-        raise RgtbusError(
+        raise BadInput(
             f"no plan for {n} units (serial): no code of up to {MAX_PLAN_PULSES} pulses "
             "fits them in one octave; use the concurrent schedule"
         )
@@ -373,7 +373,7 @@ def _first_mode_that_fits(
             return m, auto_plan(n, pulses=pulses, mode=m, tau=tau, b=b, schedule=schedule)
         except RgtbusError as e:
             errors.append(str(e))
-    raise RgtbusError(f"no plan for {n} units ({schedule}): " + "; ".join(errors))
+    raise BadInput(f"no plan for {n} units ({schedule}): " + "; ".join(errors))
 
 
 def _rule_margins(

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.kernels import WalkModel
 from rgtbus.signal.lanes import Trajectory, spike_table, walk, walk_every_lane, walking_lanes
 from rgtbus.timebase import times_of
@@ -76,7 +76,7 @@ def transition(
         return complex(1.0 + tau * b, tau * omega)
     if mode == "exact":
         return complex(np.exp(tau * complex(b, omega)))
-    raise RgtbusError(f"mode {mode!r} is not one of {', '.join(MODES)}")
+    raise BadInput(f"mode {mode!r} is not one of {', '.join(MODES)}")
 
 
 @dataclass
@@ -351,9 +351,9 @@ def resonate(
     """
     start = state.n
     if end < start:
-        raise RgtbusError(f"advance to sample {end}: the bank is already at {start}")
+        raise BadInput(f"advance to sample {end}: the bank is already at {start}")
     if (record or readout) and M.layout is not None:
-        raise RgtbusError("only a whole bank records its trajectories and readout")
+        raise BadInput("only a whole bank records its trajectories and readout")
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     vals = np.ascontiguousarray(values, dtype=np.float64).reshape(rows.size, M.receivers)
     stopped = False
@@ -431,9 +431,9 @@ def _validate_float(value: float, name: str) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise RgtbusError(f"{name} = {value!r} is not a number") from None
+        raise BadInput(f"{name} = {value!r} is not a number") from None
     if not math.isfinite(v):
-        raise RgtbusError(f"{name} = {value!r} is not finite")
+        raise BadInput(f"{name} = {value!r} is not finite")
     return v
 
 
@@ -464,25 +464,25 @@ class ResonatorBank:
     ):
         om = np.atleast_1d(np.asarray(omegas, dtype=float))
         if om.ndim != 1 or om.size == 0:
-            raise RgtbusError(f"omegas must be a non-empty list of numbers, got shape {om.shape}")
+            raise BadInput(f"omegas must be a non-empty list of numbers, got shape {om.shape}")
         for j, w in enumerate(om):
             if not math.isfinite(w) or w <= 0:
-                raise RgtbusError(f"omega[{j}] = {w!r} must be a positive finite number (rad/s)")
+                raise BadInput(f"omega[{j}] = {w!r} must be a positive finite number (rad/s)")
         if mode not in MODES:
-            raise RgtbusError(f"mode {mode!r} is not one of {', '.join(MODES)}")
+            raise BadInput(f"mode {mode!r} is not one of {', '.join(MODES)}")
         self.tau = _validate_float(tau, "tau")
         if self.tau <= 0:
-            raise RgtbusError(f"tau = {tau!r} must be positive (seconds per sample)")
+            raise BadInput(f"tau = {tau!r} must be positive (seconds per sample)")
         self.b = _validate_float(b, "b")
         threshold = _validate_float(threshold, "threshold")
         spike_value = _validate_float(spike_value, "spike_value")
         reset_value = _validate_float(reset_value, "reset_value")
         if isinstance(n_receivers, bool) or not isinstance(n_receivers, int | np.integer):
-            raise RgtbusError(f"n_receivers = {n_receivers!r} must be a positive integer")
+            raise BadInput(f"n_receivers = {n_receivers!r} must be a positive integer")
         if n_receivers < 1:
-            raise RgtbusError(f"n_receivers = {n_receivers!r} must be a positive integer")
+            raise BadInput(f"n_receivers = {n_receivers!r} must be a positive integer")
         if epoch is not None and (not isinstance(epoch, int | np.integer) or epoch < 1):
-            raise RgtbusError(f"epoch = {epoch!r} must be a positive integer")
+            raise BadInput(f"epoch = {epoch!r} must be a positive integer")
         self.omegas = om
         self.mode = mode
         self.n_receivers = int(n_receivers)
@@ -529,7 +529,7 @@ class ResonatorBank:
         receivers = [receiver] if isinstance(receiver, int) else list(receiver)
         for r in receivers:
             if not 0 <= r < self.n_receivers:
-                raise RgtbusError(f"quench: receiver {r} not in the bank ({self.n_receivers})")
+                raise BadInput(f"quench: receiver {r} not in the bank ({self.n_receivers})")
         s = self.state
         wr, wi, pend = s.wr.copy(), s.wi.copy(), s.pend.copy()
         C = self.n_channels
@@ -600,20 +600,20 @@ class ResonatorBank:
         if v.ndim <= 1:
             v = np.broadcast_to(v.reshape(-1, 1), (v.size, self.n_receivers))
         if v.shape != (r.size, self.n_receivers):
-            raise RgtbusError(
+            raise BadInput(
                 f"values of shape {np.shape(values)} do not fit {r.size} rows and "
                 f"{self.n_receivers} receiver(s)"
             )
         n0 = self.state.n
         if r.size:
             if r[0] < n0 or r[-1] >= end or (r.size > 1 and bool((r[1:] <= r[:-1]).any())):
-                raise RgtbusError(
+                raise BadInput(
                     f"input rows must be sorted, unique and within [{n0}, {end}): got "
                     f"{int(r[0])}..{int(r[-1])}"
                 )
             if not np.isfinite(v).all():
                 bad = int(r[np.flatnonzero(~np.isfinite(v).all(axis=1))[0]])
-                raise RgtbusError(f"sample {bad} is not finite")
+                raise BadInput(f"sample {bad} is not finite")
         return self._run(int(end), r, v, stop, record, readout, stop_lanes, receivers, expand)
 
     def _run(
@@ -650,13 +650,13 @@ class ResonatorBank:
             if self.n_receivers > 1:
                 u = np.broadcast_to(u, (u.shape[0], self.n_receivers))
         elif u.ndim != 2 or u.shape[1] != self.n_receivers:
-            raise RgtbusError(
+            raise BadInput(
                 f"samples of shape {np.shape(samples)} do not fit the bank: expected (n,) or "
                 f"(n, {self.n_receivers}) for {self.n_receivers} receiver(s)"
             )
         if not np.isfinite(u).all():
             bad = int(np.flatnonzero(~np.isfinite(u).all(axis=1))[0])
-            raise RgtbusError(f"sample {self.state.n + bad} is not finite")
+            raise BadInput(f"sample {self.state.n + bad} is not finite")
         return u
 
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal import kernels
 from rgtbus.signal.nearest import Score, Scores, confidence, nearest_words
 
@@ -78,5 +78,5 @@ def rule_named(name: str) -> Rule:
     """The rule called ``name``; a one-line error naming the rules there are."""
     rule = RULES.get(name) if isinstance(name, str) else None
     if rule is None:
-        raise RgtbusError(f"unknown decoding rule {name!r} ({', '.join(RULES)})")
+        raise BadInput(f"unknown decoding rule {name!r} ({', '.join(RULES)})")
     return rule

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.signal.resonator import PAPER_TAU
 from rgtbus.timebase import sample_of, time_of
 
@@ -30,11 +30,11 @@ def pulse_samples(omega: float, start: float, pulses: int, tau: float) -> tuple[
 def pulse_instants(omega: float, start: float, pulses: int, tau: float = PAPER_TAU) -> np.ndarray:
     """Sample indices of a code's pulses: ``round((start + j·2π/ω)/τ)``, j = 0..pulses−1."""
     if not (math.isfinite(omega) and omega > 0):
-        raise RgtbusError(f"omega = {omega!r} must be a positive frequency (rad/s)")
+        raise BadInput(f"omega = {omega!r} must be a positive frequency (rad/s)")
     if not math.isfinite(start) or start < 0:
-        raise RgtbusError(f"start = {start!r} must be a time ≥ 0 s")
+        raise BadInput(f"start = {start!r} must be a time ≥ 0 s")
     if not isinstance(pulses, (int, np.integer)) or pulses < 1:
-        raise RgtbusError(f"pulses = {pulses!r} must be a positive integer")
+        raise BadInput(f"pulses = {pulses!r} must be a positive integer")
     return np.array(pulse_samples(omega, start, int(pulses), tau), dtype=np.int64)
 
 
@@ -57,9 +57,9 @@ def _word(word: Sequence[float], where: str) -> tuple[float, ...]:
     try:
         w = tuple(float(v) for v in word)
     except (TypeError, ValueError):
-        raise RgtbusError(f"{where}: word {word!r} is not a list of numbers") from None
+        raise BadInput(f"{where}: word {word!r} is not a list of numbers") from None
     if not w or not all(math.isfinite(v) for v in w):
-        raise RgtbusError(f"{where}: word {word!r} must be a non-empty list of finite numbers")
+        raise BadInput(f"{where}: word {word!r} must be a non-empty list of finite numbers")
     return w
 
 
@@ -75,13 +75,13 @@ def superpose(
 ) -> np.ndarray:
     """Sum of all transmissions' pulses, length ``n_samples``."""
     if not isinstance(n_samples, (int, np.integer)) or n_samples < 0:
-        raise RgtbusError(f"n_samples = {n_samples!r} must be a non-negative integer")
+        raise BadInput(f"n_samples = {n_samples!r} must be a non-negative integer")
     out = np.zeros(int(n_samples))
     for j, t in enumerate(transmissions):
         word = _word(t.word, f"transmission {j}")
         idx = pulse_instants(t.omega, t.start, len(word), tau)
         if idx[-1] >= n_samples:
-            raise RgtbusError(
+            raise BadInput(
                 f"transmission {j}: its last pulse at sample {int(idx[-1])} "
                 f"(t = {time_of(int(idx[-1]), tau):g} s) is past the end ({n_samples} samples)"
             )
@@ -110,23 +110,23 @@ def hear(
     Gaussian noise, independent per receiver and sample, from ``default_rng(seed)``.
     """
     if not isinstance(n_receivers, (int, np.integer)) or n_receivers < 1:
-        raise RgtbusError(f"n_receivers = {n_receivers!r} must be a positive integer")
+        raise BadInput(f"n_receivers = {n_receivers!r} must be a positive integer")
     if not (math.isfinite(sigma) and sigma >= 0):
-        raise RgtbusError(f"noise sigma = {sigma!r} must be ≥ 0")
+        raise BadInput(f"noise sigma = {sigma!r} must be ≥ 0")
     senders = sorted({t.sender for t in transmissions})
     if senders and (senders[0] < 0 or not all(isinstance(s, (int, np.integer)) for s in senders)):
-        raise RgtbusError(f"transmission sender {senders[0]!r} must be an index ≥ 0")
+        raise BadInput(f"transmission sender {senders[0]!r} must be an index ≥ 0")
     n_send = (max(senders) + 1) if senders else 0
     if gains is None:
         g = np.ones((n_send, n_receivers))
     else:
         g = np.asarray(gains, dtype=float)
         if g.ndim != 2 or g.shape[1] != n_receivers or g.shape[0] < n_send:
-            raise RgtbusError(
+            raise BadInput(
                 f"gains of shape {g.shape} must be (senders ≥ {n_send}, receivers = {n_receivers})"
             )
         if not np.isfinite(g).all():
-            raise RgtbusError("gains must be finite")
+            raise BadInput("gains must be finite")
     out = np.zeros((int(n_samples), n_receivers))
     for s in senders:
         x = superpose([t for t in transmissions if t.sender == s], n_samples, tau)

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog, RgtbusError
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.codec import Block, BlockSchema, Field, encode
 from rgtbus.telemetry.codec import decode as decode_block
@@ -228,7 +228,7 @@ def _decode_block(record: Mapping[str, Any]) -> Block:
 def _index(column: Any) -> np.ndarray:
     array = np.asarray(column)
     if array.size and array.dtype.kind not in "iu":
-        raise RgtbusError(f"an index column of {array.dtype}, not integers")
+        raise BadInput(f"an index column of {array.dtype}, not integers")
     return array
 
 
@@ -328,20 +328,20 @@ def encode_record(schema: BlockSchema, record: Mapping[str, Any]) -> bytes:
     record the block cannot hold (a missing field, a value of the wrong kind): RgtbusError."""
     extra = set(record) - {f.name for f in schema.fields}
     if extra:
-        raise RgtbusError(f"{schema.name}: unexpected field {sorted(extra)[0]!r}")
+        raise BadInput(f"{schema.name}: unexpected field {sorted(extra)[0]!r}")
     unit = record.get("unit", "")
     if type(unit) is not str:
-        raise RgtbusError(f"{schema.name}: unit {unit!r} is not a name")
+        raise BadInput(f"{schema.name}: unit {unit!r} is not a name")
     try:
         block = _TO_BLOCK[schema.name](record)
     except KeyError as e:
-        raise RgtbusError(f"{schema.name}: the record has no {e.args[0]!r}") from None
+        raise BadInput(f"{schema.name}: the record has no {e.args[0]!r}") from None
     except (TypeError, ValueError, OverflowError) as e:
-        raise RgtbusError(f"{schema.name}: {e}") from None
+        raise BadInput(f"{schema.name}: {e}") from None
     try:
         return encode(schema, block)
     except RgtbusError as e:
-        raise RgtbusError(f"{schema.name}: {e}") from None
+        raise BadInput(f"{schema.name}: {e}") from None
 
 
 # -- blocks -> records (every reader) -------------------------------------------------------------
@@ -353,13 +353,13 @@ def _check_index(block: Block, column: str, table: str, where: str) -> None:
     assert isinstance(index, np.ndarray) and isinstance(names, list)
     if index.size and int(index.max()) >= len(names):
         bad = int(index[int(np.argmax(index >= len(names)))])
-        raise RgtbusError(f"{where}: {column} {bad} is no index into its {len(names)} {table}")
+        raise BadLog(f"{where}: {column} {bad} is no index into its {len(names)} {table}")
 
 
 def _unit(block: Block, where: str) -> str:
     unit = block["unit"]
     if not unit:
-        raise RgtbusError(f"{where}: no unit")
+        raise BadLog(f"{where}: no unit")
     return str(unit)
 
 
@@ -381,7 +381,7 @@ def _units_record(block: Block, where: str) -> dict[str, Any]:
     assert isinstance(units, list)
     if units:
         if block["unit"] or len(units) < 2 or len(set(units)) < len(units):
-            raise RgtbusError(f"{where}: units {units!r}: not two or more unit names alone")
+            raise BadLog(f"{where}: units {units!r}: not two or more unit names alone")
         del block["unit"]
         return {"units": units, **block}
     return {"unit": _unit(block, where), **block}
@@ -395,11 +395,11 @@ def _pulse_record(block: Block, where: str) -> dict[str, Any]:
     _check_index(block, "addressee", "names", where)
     tau = block["tau"]
     if not (isinstance(tau, float) and 0 < tau <= 1):
-        raise RgtbusError(f"{where}: tau {tau!r} is not a sample period (0 < tau <= 1 s)")
+        raise BadLog(f"{where}: tau {tau!r} is not a sample period (0 < tau <= 1 s)")
     sample = block["sample"]
     assert isinstance(sample, np.ndarray)
     if sample.size and int(sample.max()) * tau > MAX_SECONDS:
-        raise RgtbusError(f"{where}: sample {int(sample.max())} is beyond {MAX_SECONDS:g} s")
+        raise BadLog(f"{where}: sample {int(sample.max())} is beyond {MAX_SECONDS:g} s")
     return dict(block)
 
 
@@ -441,13 +441,13 @@ def _ranges(schema: BlockSchema, block: Block, where: str) -> None:
                     continue
                 lo, hi = float(value.min()), float(value.max())  # NaN: both NaN
                 if not (math.isfinite(lo) and math.isfinite(hi)):
-                    raise RgtbusError(f"{where}: {f.name} holds {_NOT_FINITE}")
+                    raise BadLog(f"{where}: {f.name} holds {_NOT_FINITE}")
             else:
                 lo = hi = float(value)  # type: ignore[arg-type]
                 if not math.isfinite(lo):
-                    raise RgtbusError(f"{where}: {f.name} holds {_NOT_FINITE}")
+                    raise BadLog(f"{where}: {f.name} holds {_NOT_FINITE}")
             if f.name in _TIMES and (lo < 0 or hi > MAX_SECONDS):
-                raise RgtbusError(f"{where}: {f.name} holds a time outside 0..{MAX_SECONDS:g} s")
+                raise BadLog(f"{where}: {f.name} holds a time outside 0..{MAX_SECONDS:g} s")
         elif f.name in _SAMPLES:
             if isinstance(value, np.ndarray):
                 if not value.size:
@@ -456,7 +456,7 @@ def _ranges(schema: BlockSchema, block: Block, where: str) -> None:
             else:
                 lo_i = hi_i = int(value)  # type: ignore[arg-type]
             if lo_i < 0 or hi_i > MAX_SAMPLE:
-                raise RgtbusError(f"{where}: {f.name} holds an index outside 0..2^53")
+                raise BadLog(f"{where}: {f.name} holds an index outside 0..2^53")
 
 
 def decode_record(schema: BlockSchema, data: bytes, where: str) -> dict[str, Any]:
@@ -468,7 +468,7 @@ def decode_record(schema: BlockSchema, data: bytes, where: str) -> dict[str, Any
     where = f"{where}: {schema.name}"
     for f in schema.fields:
         if f.kind == "string" and f.repeated and len(block[f.name]) > MAX_NAMES:  # type: ignore[arg-type]
-            raise RgtbusError(f"{where}: {f.name} holds more than {MAX_NAMES}")
+            raise BadLog(f"{where}: {f.name} holds more than {MAX_NAMES}")
     _ranges(schema, block, where)
     return _TO_RECORD[schema.name](block, where)
 

@@ -33,7 +33,7 @@ from typing import Any, Literal, NoReturn, TypeAlias
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog
 
 Kind: TypeAlias = Literal[
     "double", "float", "fixed32", "sfixed32", "fixed64", "sfixed64", "bool", "string"
@@ -91,19 +91,19 @@ class BlockSchema:
     def __post_init__(self) -> None:
         package, _, message = self.name.rpartition(".")
         if not _NAME.match(message) or not all(_NAME.match(p) for p in package.split(".")):
-            raise RgtbusError(f"block type {self.name!r}: not a package-qualified name")
+            raise BadInput(f"block type {self.name!r}: not a package-qualified name")
         names: set[str] = set()
         numbers: set[int] = set()
         for f in self.fields:
             where = f"block type {self.name}, field {f.name!r}"
             if not _NAME.match(f.name) or f.name in names:
-                raise RgtbusError(f"{where}: not an identifier, or named twice")
+                raise BadInput(f"{where}: not an identifier, or named twice")
             if not 1 <= f.number <= _MAX_NUMBER or f.number in _RESERVED or f.number in numbers:
-                raise RgtbusError(f"{where}: number {f.number} out of range or used twice")
+                raise BadInput(f"{where}: number {f.number} out of range or used twice")
             if f.kind not in KINDS:
-                raise RgtbusError(f"{where}: kind {f.kind!r} is none of {', '.join(KINDS)}")
+                raise BadInput(f"{where}: kind {f.kind!r} is none of {', '.join(KINDS)}")
             if f.table is not None and not f.repeated:
-                raise RgtbusError(f"{where}: a scalar in table {f.table!r}")
+                raise BadInput(f"{where}: a scalar in table {f.table!r}")
             names.add(f.name)
             numbers.add(f.number)
         object.__setattr__(self, "_by_number", {f.number: f for f in self.fields})
@@ -171,19 +171,19 @@ def _column(f: Field, values: Any) -> np.ndarray:
         return values  # as the wire holds it already (a block builder's own)
     array = np.asarray(values)
     if array.ndim != 1:
-        raise RgtbusError(f"column {f.name!r}: {array.ndim}-dimensional, a column is 1")
+        raise BadInput(f"column {f.name!r}: {array.ndim}-dimensional, a column is 1")
     if f.kind == "bool":
         if array.dtype != np.bool_:
-            raise RgtbusError(f"column {f.name!r}: {array.dtype}, a bool column takes bool")
+            raise BadInput(f"column {f.name!r}: {array.dtype}, a bool column takes bool")
         return array.view(np.uint8) if array.flags.c_contiguous else array.astype(np.uint8)
     if array.dtype.kind not in "iuf" or (array.dtype.kind == "f") != (f.dtype.kind == "f"):
-        raise RgtbusError(f"column {f.name!r}: {array.dtype} values for a {f.kind} column")
+        raise BadInput(f"column {f.name!r}: {array.dtype} values for a {f.kind} column")
     out = array.astype(f.dtype, copy=False)
     if f.dtype.kind in "iu" and array.dtype != f.dtype:
         # a narrowing cast wraps silently: refuse what the column cannot hold
         info = np.iinfo(f.dtype)
         if array.size and (array.min() < info.min or array.max() > info.max):
-            raise RgtbusError(f"column {f.name!r}: values outside {f.kind}")
+            raise BadInput(f"column {f.name!r}: values outside {f.kind}")
     return out
 
 
@@ -231,18 +231,18 @@ def _scalar(f: Field, value: Any) -> bytes:
     pack = _PACK[f.kind]
     if f.kind in ("float", "double"):
         if type(value) is not float and not isinstance(value, int | float | np.number):
-            raise RgtbusError(f"field {f.name!r}: {value!r} is not a number")
+            raise BadInput(f"field {f.name!r}: {value!r} is not a number")
         try:
             raw = pack.pack(float(value))
         except OverflowError:
-            raise RgtbusError(f"field {f.name!r}: {value!r} outside {f.kind}") from None
+            raise BadInput(f"field {f.name!r}: {value!r} outside {f.kind}") from None
     else:
         if isinstance(value, float | np.floating) and not float(value).is_integer():
-            raise RgtbusError(f"field {f.name!r}: {value!r} is not an integer")
+            raise BadInput(f"field {f.name!r}: {value!r} is not an integer")
         try:
             raw = pack.pack(int(value))
         except (struct.error, OverflowError, TypeError, ValueError):
-            raise RgtbusError(f"field {f.name!r}: {value!r} outside {f.kind}") from None
+            raise BadInput(f"field {f.name!r}: {value!r} outside {f.kind}") from None
     # protobuf writes a scalar whose bits are not all zero (so -0.0 too, not 0.0)
     return _tag(f.number, _NUMERIC[f.kind][1]) + raw if any(raw) else b""
 
@@ -255,7 +255,7 @@ def encode(schema: BlockSchema, values: Mapping[str, Any]) -> bytes:
     names: frozenset[str] = schema.__dict__["_names"]
     unknown = values.keys() - names
     if unknown:
-        raise RgtbusError(f"{schema.name}: no field {sorted(unknown)[0]!r}")
+        raise BadInput(f"{schema.name}: no field {sorted(unknown)[0]!r}")
     parts: list[bytes] = []
     in_order: tuple[Field, ...] = schema.__dict__["_in_order"]
     for f in in_order:
@@ -328,7 +328,7 @@ def decode(
     naming ``where``, the message type and the field."""
 
     def fail(why: str) -> NoReturn:
-        raise RgtbusError(f"{where}: {schema.name}: {why}")
+        raise BadLog(f"{where}: {schema.name}: {why}")
 
     reader = _Reader(data, fail)
     pieces: dict[str, list[tuple[int, int]]] = {}

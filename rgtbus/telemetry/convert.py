@@ -22,7 +22,7 @@ from typing import Any, BinaryIO
 import foxglove
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog, RgtbusError
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.blocks import BLOCK_SECONDS, block_samples
 from rgtbus.telemetry.group_log import GroupLog
@@ -53,12 +53,12 @@ def _decoded(label: str, topic: str, t_ns: int, data: bytes) -> Any:
     try:
         message = orjson.loads(data)
     except orjson.JSONDecodeError as e:
-        raise RgtbusError(f"{where} is not JSON: {e}") from None
+        raise BadLog(f"{where} is not JSON: {e}") from None
     why = depth_error(message)
     if why is not None:
-        raise RgtbusError(f"{where} {why}")
+        raise BadLog(f"{where} {why}")
     if not isinstance(message, dict):
-        raise RgtbusError(f"{where}: not an object")
+        raise BadLog(f"{where}: not an object")
     return message
 
 
@@ -69,11 +69,11 @@ def _scenario(raw: RawLog) -> tuple[float, list[str]]:
 
     meta = dict(raw.metadata).get("scenario", {})
     if "text" not in meta:
-        raise RgtbusError(f"{raw.label}: cannot convert its pulses: no scenario metadata")
+        raise BadLog(f"{raw.label}: cannot convert its pulses: no scenario metadata")
     try:
         sc = parse_scenario(meta["text"], meta.get("path", "<scenario>"))
     except (RgtbusError, ValueError) as e:
-        raise RgtbusError(f"{raw.label}: cannot convert its pulses: the scenario: {e}") from None
+        raise BadLog(f"{raw.label}: cannot convert its pulses: the scenario: {e}") from None
     return float(sc.timing.tau), list(sc.units)
 
 
@@ -240,11 +240,11 @@ def convert_log(
     log, one already of format 2 or of a format not known, a message that is not what
     format 1 held (naming the topic, its log time and the field)."""
     if raw.corrupt:
-        raise RgtbusError(f"{raw.corruption}; not converted")
+        raise BadLog(f"{raw.corruption}; not converted")
     _require_run(raw.label, raw.library, raw.metadata, raw.header_only, fmt=False)
     version = format_of(raw.metadata)
     if version != 1:
-        raise RgtbusError(
+        raise BadLog(
             f"{raw.label}: already an rgtbus log of format {printable(repr(version))}: "
             "nothing to convert"
         )
@@ -286,8 +286,8 @@ def _named(label: str, topic: str, t_ns: int | None, step: Callable[[], None]) -
     try:
         step()
     except KeyError as e:
-        raise RgtbusError(f"{where}: no field {printable(repr(e.args[0]))}") from None
+        raise BadLog(f"{where}: no field {printable(repr(e.args[0]))}") from None
     except RgtbusError as e:
-        raise RgtbusError(f"{where}: {e}") from None
+        raise BadLog(f"{where}: {e}") from None
     except (TypeError, ValueError, IndexError, AttributeError, OverflowError) as e:
-        raise RgtbusError(f"{where}: {printable(str(e))}") from None
+        raise BadLog(f"{where}: {printable(str(e))}") from None

@@ -21,7 +21,7 @@ from typing import Any, TypeGuard
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.summary import HeldDecodes
 from rgtbus.telemetry.record_rows import decode_units
 from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES
@@ -112,7 +112,7 @@ def decode_table(
     holders: list[list[int]] = []
     for t_ns, record in records:
         if not isinstance(record, Mapping):
-            raise RgtbusError(f"{RX_DECODES} at log time {t_ns} ns: not an object")
+            raise BadLog(f"{RX_DECODES} at log time {t_ns} ns: not an object")
         whose = decode_units(record)
         unit = whose[0] if len(whose) == 1 else whose
         where = f"{RX_DECODES} of {unit!r} at t = {record.get('t')}"
@@ -129,7 +129,7 @@ def decode_table(
         elif all(type(a) is bool for a in accepted):
             parts["accepted"].append(np.asarray(accepted, dtype=np.bool_))
         else:
-            raise RgtbusError(f"{where}: column 'accepted' holds other than true and false")
+            raise BadLog(f"{where}: column 'accepted' holds other than true and false")
         for column, table_name in NAMED_COLUMNS.items():
             parts[column].append(_named(record, column, table_name, tables[table_name], where))
         of = [tables["names"].of(u) for u in whose]
@@ -182,16 +182,16 @@ def _dtype(column: str) -> type:
 def _numbers(values: Any, dtype: type, column: str, where: str) -> np.ndarray:
     if isinstance(values, np.ndarray):  # a writer's own: its dtype says what it holds
         if values.dtype.kind not in ("iu" if dtype is np.int64 else "iuf"):
-            raise RgtbusError(f"{where}: column {column!r} holds other than numbers")
+            raise BadLog(f"{where}: column {column!r} holds other than numbers")
         return values.astype(dtype, copy=False)
     if not all(type(v) in (int, float) for v in values) or (
         dtype is np.int64 and not all(type(v) is int for v in values)
     ):
-        raise RgtbusError(f"{where}: column {column!r} holds other than numbers")
+        raise BadLog(f"{where}: column {column!r} holds other than numbers")
     try:
         return np.asarray(values, dtype=dtype)
     except OverflowError:
-        raise RgtbusError(f"{where}: column {column!r} holds a number out of range") from None
+        raise BadLog(f"{where}: column {column!r} holds a number out of range") from None
 
 
 def _is_column(values: Any) -> TypeGuard[list[Any] | np.ndarray]:
@@ -216,7 +216,7 @@ def _length(record: Mapping[str, Any], where: str) -> int:
             else type(col).__name__
         )
         want = "a list" if n < 0 else f"{n} entries like times"
-        raise RgtbusError(f"{where}: column {column!r} is {got}, not {want}")
+        raise BadLog(f"{where}: column {column!r} is {got}, not {want}")
     return n
 
 
@@ -229,13 +229,13 @@ def _named(
     if not any(t in record for t in DECODE_TABLES):
         names = col.tolist() if isinstance(col, np.ndarray) else col
         if not all(isinstance(x, str) for x in names):
-            raise RgtbusError(f"{where}: {column} holds other than names")
+            raise BadLog(f"{where}: {column} holds other than names")
         return table.indexes(names)
     own: Any = record.get(table_name)
     mapped = table.known(own)
     if mapped is None:
         if not (isinstance(own, list) and all(isinstance(x, str) for x in own)):
-            raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
+            raise BadLog(f"{where}: {table_name!r} is not a list of names")
         mapped = table.mapped(own)
     idx = None
     if isinstance(col, np.ndarray):  # a writer's own record, or one read as arrays
@@ -247,7 +247,7 @@ def _named(
             idx = np.asarray(col, dtype=np.int64)
     if idx is None or (idx.size and (idx.min() < 0 or idx.max() >= len(own))):
         bad = next(i for i in col if not (type(i) is int and 0 <= i < len(own)))
-        raise RgtbusError(f"{where}: {column} {bad!r} is no index into its {len(own)} {table_name}")
+        raise BadLog(f"{where}: {column} {bad!r} is no index into its {len(own)} {table_name}")
     return mapped[idx] if own else np.empty(0, np.int32)
 
 

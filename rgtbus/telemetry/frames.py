@@ -18,7 +18,7 @@ from typing import IO, TYPE_CHECKING, Any, TypeVar, cast
 import numpy as np
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.summary import summary_json
 from rgtbus.telemetry.decode_table import decode_table, match_sent
 from rgtbus.telemetry.read import Replay, load_replay
@@ -181,7 +181,7 @@ class Log:
             wanted = [units] if isinstance(units, str) else list(units)
             unknown = [u for u in wanted if u not in self.replay.units]
             if unknown:
-                raise RgtbusError(
+                raise BadLog(
                     f"{self.path}: spikes(units=...): {unknown[0]!r} is not one of the log's "
                     f"{len(self.replay.units)} units"
                 )

@@ -48,7 +48,7 @@ from typing import Any
 import foxglove
 from foxglove.websocket import Capability, ServerListener
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.telemetry.mcap_recorder import sdk_logs_to_python, topic_channel
 from rgtbus.telemetry.message_json import kept_bytes
 from rgtbus.timebase import seconds
@@ -75,15 +75,15 @@ def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
     """``HOST:PORT`` (``[::1]:8765`` for IPv6; port 0: any free port) -> (host, port)."""
     host, sep, port_text = text.rpartition(":")
     if not sep or not host:
-        raise RgtbusError(f"{where} {text!r}: expected HOST:PORT, e.g. {DEFAULT_ADDRESS}")
+        raise BadInput(f"{where} {text!r}: expected HOST:PORT, e.g. {DEFAULT_ADDRESS}")
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
     try:
         port = int(port_text)
     except ValueError:
-        raise RgtbusError(f"{where} {text!r}: port {port_text!r} is not a number") from None
+        raise BadInput(f"{where} {text!r}: port {port_text!r} is not a number") from None
     if not 0 <= port <= 65535:
-        raise RgtbusError(f"{where} {text!r}: port {port} is not in 0..65535")
+        raise BadInput(f"{where} {text!r}: port {port} is not in 0..65535")
     return host, port
 
 
@@ -132,7 +132,7 @@ class LiveView:
         say: Callable[[str], None] | None = None,
     ) -> None:
         if realtime is not None and not realtime > 0:
-            raise RgtbusError(f"realtime {realtime}: must be a positive factor")
+            raise BadInput(f"realtime {realtime}: must be a positive factor")
         self.host = host
         self.realtime = realtime
         self.linger = linger
@@ -153,7 +153,7 @@ class LiveView:
                 message_backlog_size=backlog,
             )
         except Exception as exc:  # the SDK raises its own error type for a port in use
-            raise RgtbusError(f"live view on {host}:{port}: cannot listen: {exc}") from None
+            raise BadInput(f"live view on {host}:{port}: cannot listen: {exc}") from None
         self._channels: dict[str, foxglove.Channel] = {}
         self._queue: list[tuple[int, int, str, str, bytes]] = []  # paced: by due time
         self._fifo: deque[tuple[int, int, str, str, bytes]] = deque()  # unpaced: as put

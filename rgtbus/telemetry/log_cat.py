@@ -12,7 +12,7 @@ from typing import Any
 
 from mcap.reader import make_reader
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog
 from rgtbus.telemetry.blocks import MESSAGE_ENCODING, schema_of
 from rgtbus.telemetry.log_check import CheckedLog, check_log
 from rgtbus.telemetry.logtools import log_info
@@ -84,9 +84,9 @@ def cat_messages(
     known = list(info["topics"])
     for t in topics:
         if t not in known:
-            raise RgtbusError(f"--topic {t!r}: not in this log (topics: {', '.join(known)})")
+            raise BadInput(f"--topic {t!r}: not in this log (topics: {', '.join(known)})")
     if unit is not None and unit not in info["units"]:
-        raise RgtbusError(f"--unit {unit!r}: not a unit of this log ({', '.join(info['units'])})")
+        raise BadInput(f"--unit {unit!r}: not a unit of this log ({', '.join(info['units'])})")
     if info["start"] is not None:
         check_time_range(t_from, t_to, info["start"], info["end"])
     start = None if t_from is None else ns(t_from)
@@ -125,7 +125,7 @@ def _block_rows(
         try:
             rows = [(ns(row["t"]), row) for row in _ROWS[topic](block["message"])]
         except (TypeError, ValueError, KeyError, OverflowError, AttributeError) as exc:
-            raise RgtbusError(
+            raise BadLog(
                 f"{label}: message on {topic} at t = {seconds(block['log_time']):.3f} s "
                 f"is no block of rows ({type(exc).__name__}: {exc})"
             ) from None
@@ -213,13 +213,13 @@ def check_time_range(
     span = f"{start:g} to {end:g} s"
     for value in (t_from, t_to):
         if value is not None and not math.isfinite(value):
-            raise RgtbusError(f"{given}: not a time (the run is {span})")
+            raise BadInput(f"{given}: not a time (the run is {span})")
     if t_from is not None and t_to is not None and not t_to > t_from:
-        raise RgtbusError(f"{given}: empty time range (the run is {span})")
+        raise BadInput(f"{given}: empty time range (the run is {span})")
     lo = start if t_from is None else float(t_from)
     hi = end if t_to is None else float(t_to)
     # a run of one instant: a range holds it or not
     outside = lo > end or hi < start if start == end else lo >= end or hi <= start
     if outside:
-        raise RgtbusError(f"{given or 'the log'}: outside the run ({span})")
+        raise BadInput(f"{given or 'the log'}: outside the run ({span})")
     return lo, hi

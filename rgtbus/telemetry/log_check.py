@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import IOFailure
 from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES
 from rgtbus.telemetry.recorder import MCAP_MAGIC
 from rgtbus.telemetry.scan import RawLog, _require_run, _scan, require_run_log
@@ -140,10 +140,10 @@ def check_log(path: str | os.PathLike[str], *, scan: bool = False) -> Iterator[C
     label = os.fspath(path)
     try:
         if os.path.isdir(path):
-            raise RgtbusError(f"cannot read log {label!r}: is a directory")
+            raise IOFailure(f"cannot read log {label!r}: is a directory")
         stream = open(path, "rb")  # noqa: SIM115 - closed below
     except OSError as e:
-        raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
+        raise IOFailure(f"cannot read log {label!r}: {e.strerror}") from None
     with stream:
         try:
             size = os.fstat(stream.fileno()).st_size
@@ -156,5 +156,5 @@ def check_log(path: str | os.PathLike[str], *, scan: bool = False) -> Iterator[C
                 require_run_log(raw)
                 log = CheckedLog(label, stream, size, raw, None, raw.library, raw.metadata)
         except OSError as e:
-            raise RgtbusError(f"cannot read log {label!r}: {e.strerror}") from None
+            raise IOFailure(f"cannot read log {label!r}: {e.strerror}") from None
         yield log

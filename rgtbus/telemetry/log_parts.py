@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.telemetry import topics, untrusted
 from rgtbus.telemetry.blocks import block_samples
 from rgtbus.telemetry.recorder import DeferredTopics, LogMessage
@@ -189,7 +189,7 @@ def logged_seed(metadata: Mapping[str, Mapping[str, str]], label: str = "log") -
     try:
         return int(str(seed).strip(), 10)
     except ValueError:
-        raise RgtbusError(f"{label}: metadata run: seed {seed!r} is not an integer") from None
+        raise BadLog(f"{label}: metadata run: seed {seed!r} is not an integer") from None
 
 
 _NOT_PROGRESS = frozenset({MEDIUM, RUN, UNIT_REPORT, LOG})

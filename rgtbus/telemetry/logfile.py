@@ -11,7 +11,7 @@ import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 
 if TYPE_CHECKING:
     from rgtbus.telemetry.live import LiveView
@@ -53,7 +53,7 @@ def _open_locked(path: Path) -> BinaryIO:
                 elif exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                     raise
                 else:
-                    raise RgtbusError(
+                    raise BadInput(
                         f"log {str(path)!r} is being written by another run"
                         f"{_lock_holder(fd)}: give this run another --log"
                     ) from None
@@ -84,7 +84,7 @@ def refuse_if_being_written(path: str | os.PathLike[str], what: str) -> None:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except OSError as exc:
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise RgtbusError(
+                raise BadInput(
                     f"{what} {str(path)!r}: a run is writing it{_lock_holder(fd)}; wait for "
                     "its end (or stop it)"
                 ) from None
@@ -104,13 +104,13 @@ def open_log(path: Path, live: LiveView | None = None) -> tuple[BinaryIO, McapRe
     for parent in path.parents:  # mkdir says "File exists" for a file on the way
         if parent.exists():
             if not parent.is_dir():
-                raise RgtbusError(f"cannot write log {str(path)!r}: {str(parent)!r} is a file")
+                raise IOFailure(f"cannot write log {str(path)!r}: {str(parent)!r} is a file")
             break
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         stream = _open_locked(path)  # closed by close_log (which ends the lock)
     except OSError as exc:
-        raise RgtbusError(f"cannot write log {str(path)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot write log {str(path)!r}: {exc.strerror}") from None
     try:
         return stream, McapRecorder(stream, live=live)
     except RgtbusError:
@@ -132,6 +132,6 @@ def close_log(stream: BinaryIO, recorder: McapRecorder, *, finished: bool = True
             try:
                 stream.close()
             except OSError as exc:
-                raise RgtbusError(
+                raise IOFailure(
                     f"cannot write log {str(stream.name)!r}: {exc.strerror}"
                 ) from None

@@ -27,7 +27,7 @@ import numpy as np
 import orjson
 from mcap.reader import make_reader
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.scenario.limits import nesting_error
 from rgtbus.telemetry import topics as topics_mod
 from rgtbus.telemetry.log_check import CheckedLog, check_log
@@ -244,7 +244,7 @@ def _scanned_info(log: CheckedLog, raw: RawLog, problems: Sequence[str] = ()) ->
 def _run_record(label: str, log_time: int, data: bytes) -> dict[str, Any]:
     run = checked(RUN, log_time, data, label, check=False)  # not JSON, or too deep: refused
     if not isinstance(run, dict):
-        raise RgtbusError(f"{label}: its /run record is not a JSON object")
+        raise BadLog(f"{label}: its /run record is not a JSON object")
     return run
 
 
@@ -466,15 +466,15 @@ def stored_scenario(log: str | os.PathLike[str] | CheckedLog) -> str:
     metadata = {name: values for name, values in log.metadata}  # a repeated name: last wins
     text = metadata.get("scenario", {}).get("text")
     if text is None:
-        raise RgtbusError(f"{label}: stores no scenario (not an rgtbus run log, or a unit's part)")
+        raise BadLog(f"{label}: stores no scenario (not an rgtbus run log, or a unit's part)")
     too_deep = nesting_error(text, f"{label}: its stored scenario")  # before tomllib recurses
     if too_deep is not None:
-        raise RgtbusError(too_deep)
+        raise BadLog(too_deep)
     seed = logged_seed(metadata, label)
     try:
         return printable_toml(text if seed is None else with_seed_text(text, seed))
     except (ValueError, RecursionError):  # TOMLDecodeError is a ValueError; dotted keys deep
-        raise RgtbusError(
+        raise BadLog(
             f"{label}: its stored scenario (run seed {seed!r}) is not a scenario's TOML"
         ) from None
 

@@ -15,7 +15,7 @@ from typing import Any, BinaryIO
 import foxglove
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.message_json import _U64_MAX
 from rgtbus.telemetry.recorder import LiveSink, _Encoding, unfinished_trailer
@@ -238,18 +238,18 @@ class McapRecorder(_Encoding):
     ) -> None:
         super().__init__(validate, live)
         if compression not in _COMPRESSION:
-            raise RgtbusError(
+            raise BadInput(
                 f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
             )
         if type(compression_level) is not int or not 0 <= compression_level <= 19:
-            raise RgtbusError(
+            raise BadInput(
                 f"MCAP compression level {compression_level!r} is not an integer 0..19 "
                 "(0: the compressor's own default)"
             )
         if not (
             (flush_seconds is None or flush_seconds > 0) and flush_messages > 0 and flush_wall > 0
         ):
-            raise RgtbusError("flush_seconds, flush_messages and flush_wall must be positive")
+            raise BadInput("flush_seconds, flush_messages and flush_wall must be positive")
         self.stream = stream
         self.failed = None
         self._sink = _WatchedStream(stream)
@@ -314,7 +314,7 @@ class McapRecorder(_Encoding):
     @contextlib.contextmanager
     def _io(self) -> Iterator[None]:
         if self.failed:
-            raise RgtbusError(self.failed)
+            raise IOFailure(self.failed)
         try:
             yield
         except (OSError, RuntimeError) as e:
@@ -338,7 +338,7 @@ class McapRecorder(_Encoding):
         why = cause.strerror if isinstance(cause, OSError) and cause.strerror else str(cause)
         name = getattr(self.stream, "name", "<stream>")
         self.failed = f"cannot write log {str(name)!r}: {why}"
-        return RgtbusError(self.failed)
+        return IOFailure(self.failed)
 
     def _channel(self, topic: str, schema: str) -> foxglove.Channel:
         channel = topic_channel(self.context, topic, schema)
@@ -352,7 +352,7 @@ class McapRecorder(_Encoding):
     def _emit(self, topic: str, schema: str, data: bytes, t: int) -> None:
         """Hand one encoded message to the writer; the chunk is finished when due."""
         if self.failed:
-            raise RgtbusError(self.failed)
+            raise IOFailure(self.failed)
         log = self._logs.get(topic)
         if log is None:
             self._channel(topic, schema)
@@ -394,7 +394,7 @@ class McapRecorder(_Encoding):
     def metadata(self, name: str, values: dict[str, str]) -> None:
         """Write a metadata record ``name`` of string values."""
         if self._closed:
-            raise RgtbusError(f"metadata {name!r} on a closed recorder")
+            raise BadInput(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
         with self._lock, self._io():
             self._writer.write_metadata(name, values)

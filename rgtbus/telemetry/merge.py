@@ -26,7 +26,7 @@ from typing import Any, BinaryIO
 from mcap.writer import CompressionType, IndexType, Writer
 
 from rgtbus._version import __version__
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog, RgtbusError
 from rgtbus.telemetry.blocks import (
     PULSE,
     block_samples,
@@ -78,14 +78,14 @@ def merge_logs(
     ``salvage`` (``recover_log``): a damaged input gives what was read before its damage
     (every chunk of it CRC-checked), its damage noted like a cut, instead of a refusal."""
     if not logs:
-        raise RgtbusError("merge: no input logs")
+        raise BadInput("merge: no input logs")
     if compression not in _COMPRESSION:
-        raise RgtbusError(
+        raise BadLog(
             f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
         )
     for log in logs:
         if log.corrupt and not salvage:  # never copy a damaged chunk into a whole-looking log
-            raise RgtbusError(f"{log.corruption}; not merged")
+            raise BadLog(f"{log.corruption}; not merged")
         if not log.header_only:  # (one that holds nothing adds nothing)
             require_format(log.label, log.metadata)  # a format-1 input: convert it first
     res = MergeResult()
@@ -149,7 +149,7 @@ def _register(
         local_channel: dict[int, int] = {}
         for cid, c in log.channels.items():
             if c.schema_id not in local_schema:
-                raise RgtbusError(f"{log.label}: channel {c.topic} names unknown schema")
+                raise BadLog(f"{log.label}: channel {c.topic} names unknown schema")
             sid = local_schema[c.schema_id]
             channel_key = (c.topic, c.message_encoding, sid, tuple(sorted(c.metadata.items())))
             if channel_key not in channel_ids:

@@ -12,7 +12,7 @@ from typing import Any
 
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.pairs import SharedTable
 from rgtbus.telemetry.blocks import encode_record, schema_of
 from rgtbus.timebase import NS_PER_SECOND
@@ -48,9 +48,9 @@ def _check_t_ns(t_ns: Any) -> int:
             raise TypeError
         t = operator.index(t_ns)  # ints and numpy integers; never floats
     except TypeError:
-        raise RgtbusError(f"t_ns must be an int of nanoseconds, got {t_ns!r}") from None
+        raise BadInput(f"t_ns must be an int of nanoseconds, got {t_ns!r}") from None
     if not 0 <= t <= _U64_MAX:
-        raise RgtbusError(f"t_ns {t} out of range 0..2**64-1")
+        raise BadInput(f"t_ns {t} out of range 0..2**64-1")
     return t
 
 
@@ -60,7 +60,7 @@ def level_number(level: str) -> int:
         return LOG_LEVELS[level]
     except (KeyError, TypeError):
         names = ", ".join(k for k in LOG_LEVELS if k != "unknown")
-        raise RgtbusError(f"unknown log level {level!r} (use {names})") from None
+        raise BadInput(f"unknown log level {level!r} (use {names})") from None
 
 
 def log_message(

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.extras import require
 from rgtbus.telemetry.log_cat import check_time_range
 
@@ -116,7 +116,7 @@ def activity_figure(
 
     units = list(replay.units)
     if unit not in units:
-        raise RgtbusError(f"--unit {unit!r}: not a unit of this log (units: {', '.join(units)})")
+        raise BadInput(f"--unit {unit!r}: not a unit of this log (units: {', '.join(units)})")
     end = max(replay.sim_seconds, trace["t"][-1] if len(trace["t"]) else 0.0)
     lo, hi = check_time_range(t_from, t_to, 0.0, end)
     channels = list(trace["channels"]) or units

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.untrusted import printable
 from rgtbus.timebase import times_of
@@ -69,7 +69,7 @@ class PulseBatch:
         record whose unit is not its message's sender: RgtbusError naming both)."""
         m = pulse["message"]
         if pulse["unit"] != m["sender"]:
-            raise RgtbusError(
+            raise BadInput(
                 f"a pulse of {printable(repr(pulse['unit']))} in a message sent by "
                 f"{printable(repr(m['sender']))}"
             )

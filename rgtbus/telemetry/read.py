@@ -19,7 +19,7 @@ from typing import IO, Any, cast
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog, RgtbusError
 from rgtbus.scenario import Scenario, parse_scenario
 from rgtbus.summary import (
     HOW_IT_RAN,
@@ -254,7 +254,7 @@ class Replay:
     def require_scenario(self) -> Scenario:
         """The log's scenario, or RgtbusError saying why it cannot be re-run."""
         if self.scenario is None:
-            raise RgtbusError(f"{self.label}: cannot re-run: {self.scenario_error}")
+            raise BadLog(f"{self.label}: cannot re-run: {self.scenario_error}")
         return self.scenario
 
     def _units(self) -> tuple[str, ...]:

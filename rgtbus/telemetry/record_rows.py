@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any, cast
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.telemetry import records as r
 from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.recorder import LogMessage
@@ -66,7 +66,7 @@ def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
         return
     names, channel = record["names"], record["channel"]
     if len(channel) != len(samples):
-        raise RgtbusError(
+        raise BadLog(
             f"{_spikes_of(record)} at sample {record.get('sample')}: "
             f"{len(samples)} samples but {len(channel)} channels"
         )
@@ -77,7 +77,7 @@ def spike_samples(record: Mapping[str, Any]) -> Iterator[tuple[int, list[str]]]:
         while i < n and samples[i] == k:
             c = channel[i]
             if not 0 <= c < len(names):
-                raise RgtbusError(
+                raise BadLog(
                     f"{_spikes_of(record)} at sample {k}: channel {c} is not "
                     f"one of its {len(names)} names"
                 )
@@ -93,12 +93,12 @@ def _named(unit: str, record: dict[str, Any]) -> None:
     for column, table_name in NAMED_COLUMNS.items():
         table, col = record.get(table_name), record.get(column)
         if not (isinstance(table, list) and all(isinstance(x, str) for x in table)):
-            raise RgtbusError(f"{where}: {table_name!r} is not a list of names")
+            raise BadLog(f"{where}: {table_name!r} is not a list of names")
         if not isinstance(col, list):
             continue  # said below, with the other columns
         bad = [i for i in col if not (type(i) is int and 0 <= i < len(table))]
         if bad:
-            raise RgtbusError(
+            raise BadLog(
                 f"{where}: {column} {bad[0]!r} is no index into its {len(table)} {table_name}"
             )
         record[column] = [table[i] for i in col]
@@ -131,7 +131,7 @@ def decode_rows(record: Mapping[str, Any]) -> Iterator[DecodeRecord]:
             else type(col).__name__
         )
         want = "a list" if n < 0 else f"{n} entries like times"
-        raise RgtbusError(
+        raise BadLog(
             f"{RX_DECODES} of {unit!r} at t = {record.get('t')}: column {name!r} is {got}, "
             f"not {want}"
         )
@@ -157,7 +157,7 @@ def decode_units(record: Mapping[str, Any]) -> list[str]:
         or len(set(units)) < len(units)
         or "unit" in record
     ):
-        raise RgtbusError(
+        raise BadLog(
             f"{RX_DECODES} at t = {record.get('t')}: units {units!r}: not two or more unit "
             "names alone"
         )

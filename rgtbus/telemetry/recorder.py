@@ -23,7 +23,7 @@ from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
 from mcap.records import Metadata as McapMetadata
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.telemetry import topics, validate
 from rgtbus.telemetry.blocks import decode_record, encode_record, join_alike, schema_of
 from rgtbus.telemetry.message_json import (
@@ -166,41 +166,41 @@ class _Encoding:
 
     def _encode(self, topic: str, message: Mapping[str, Any], t_ns: int) -> tuple[str, bytes, int]:
         if self._closed:
-            raise RgtbusError(f"write to {topic!r} on a closed recorder")
+            raise BadInput(f"write to {topic!r} on a closed recorder")
         schema = self._schema(topic)
         # the common case first: a plain int in range (a run writes millions of these)
         t = t_ns if type(t_ns) is int and 0 <= t_ns <= _U64_MAX else _check_t_ns(t_ns)
         if type(message) is not dict and not isinstance(message, dict):
-            raise RgtbusError(f"message on {topic} must be a dict, got {type(message).__name__}")
+            raise BadInput(f"message on {topic} must be a dict, got {type(message).__name__}")
         block = schema_of(topic)
         if block is not None:  # a hot topic: its block's bytes, checked as they are built
             try:
                 data = encode_record(block, message)
             except RgtbusError as e:
-                raise RgtbusError(f"message on {topic} at t_ns={t}: {e}") from None
+                raise BadInput(f"message on {topic} at t_ns={t}: {e}") from None
             self.counts[topic] += 1
             return schema, data, t
         try:
             data = encode_json(message)
         except (TypeError, ValueError) as e:
-            raise RgtbusError(f"message on {topic} at t_ns={t} is not JSON: {e}") from None
+            raise BadInput(f"message on {topic} at t_ns={t} is not JSON: {e}") from None
         if self.validate:
             errs = validate.errors(json.loads(data), topics.load_schema(schema))
             if errs:
                 more = f" (+{len(errs) - 1} more)" if len(errs) > 1 else ""
-                raise RgtbusError(f"message on {topic} breaks {schema}: {errs[0]}{more}")
+                raise BadInput(f"message on {topic} breaks {schema}: {errs[0]}{more}")
         self.counts[topic] += 1
         return schema, data, t
 
     @staticmethod
     def _check_metadata(name: str, values: dict[str, str]) -> dict[str, str]:
         if not isinstance(name, str) or not name:
-            raise RgtbusError(f"metadata name must be a non-empty string, got {name!r}")
+            raise BadInput(f"metadata name must be a non-empty string, got {name!r}")
         if not isinstance(values, dict):
-            raise RgtbusError(f"metadata {name!r} must be a dict of strings")
+            raise BadInput(f"metadata {name!r} must be a dict of strings")
         for k, v in values.items():
             if not isinstance(k, str) or not isinstance(v, str):
-                raise RgtbusError(f"metadata {name!r}: {k!r}: {v!r} is not a string to a string")
+                raise BadInput(f"metadata {name!r}: {k!r}: {v!r} is not a string to a string")
         return dict(values)
 
     def log(
@@ -221,7 +221,7 @@ class _Encoding:
         topic's schema or JSON cannot take, and once the stream has failed."""
         schema, data, t = self._encode(topic, message, t_ns)
         if self.failed:
-            raise RgtbusError(self.failed)
+            raise IOFailure(self.failed)
         if self.live is not None and topic != RX_SPIKE:
             self.live.put(topic, schema, data, t)  # as made (a block of spikes as joined)
         if self._held is not None and t >= self._hold_from and topic in _TOLD_OUT_OF_ORDER:
@@ -295,7 +295,7 @@ class _Encoding:
         try:
             data = encode_json(message) if block is None else encode_record(block, message)
         except (TypeError, ValueError) as e:
-            raise RgtbusError(f"message on {topic} at t_ns={t_ns} is not JSON: {e}") from None
+            raise BadInput(f"message on {topic} at t_ns={t_ns} is not JSON: {e}") from None
         live.put(topic, schema, data, _check_t_ns(t_ns))
 
     @property
@@ -337,7 +337,7 @@ class MemoryRecorder(_Encoding):
     def metadata(self, name: str, values: dict[str, str]) -> None:
         """Keep a metadata record (one with no values is skipped, as in the file)."""
         if self._closed:
-            raise RgtbusError(f"metadata {name!r} on a closed recorder")
+            raise BadInput(f"metadata {name!r} on a closed recorder")
         values = self._check_metadata(name, values)
         if values:  # as in the MCAP file: foxglove's writer skips a record with no values
             self.metadata_records[name] = values

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.timebase import time_of
 
 if TYPE_CHECKING:
@@ -373,7 +373,7 @@ def spikes(
     if isinstance(unit, str) or len(unit) == 1:
         record = {"unit": unit if isinstance(unit, str) else unit[0]}
     elif not unit:
-        raise RgtbusError("a block of spikes of no unit")
+        raise BadInput("a block of spikes of no unit")
     else:
         record = {"units": sorted(unit)}
     record.update(
@@ -432,7 +432,7 @@ def decodes_of_columns(
     names cost more to make, write and compress than the rest of the record). The columns
     are the record's own from then on (they are not copied)."""
     if not len(cols) or not len(cols[7]):
-        raise RgtbusError(f"{RX_DECODES} of {unit!r}: no decode to log")
+        raise BadInput(f"{RX_DECODES} of {unit!r}: no decode to log")
     margin = cols[6]
     record: DecodesRecord = {
         **({"unit": unit} if isinstance(unit, str) else {"units": unit}),  # type: ignore[typeddict-item]

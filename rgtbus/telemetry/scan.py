@@ -19,7 +19,7 @@ import mcap.exceptions
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog, IOFailure, RgtbusError
 from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES, Reader, decompressed, split_chunk
 from rgtbus.telemetry.recorder import MCAP_MAGIC, UNFINISHED, LogContents
 from rgtbus.telemetry.version import require_format
@@ -139,9 +139,9 @@ class Deferred:
                         elif isinstance(rec, Message) and rec.channel_id in cids:
                             out.append((rec.log_time, bytes(rec.data)))
         except _Corrupt as e:
-            raise RgtbusError(f"{self.path}: changed since it was opened: {e}") from None
+            raise BadLog(f"{self.path}: changed since it was opened: {e}") from None
         except OSError as e:
-            raise RgtbusError(f"cannot read log {self.path!r}: {e.strerror}") from None
+            raise IOFailure(f"cannot read log {self.path!r}: {e.strerror}") from None
         out.sort(key=lambda m: m[0])
         return out
 
@@ -211,7 +211,7 @@ def _from_source(
             with open(source, "rb") as f:
                 return read(f, os.fspath(source))
         except OSError as e:
-            raise RgtbusError(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
+            raise IOFailure(f"cannot read log {os.fspath(source)!r}: {e.strerror}") from None
     return read(source, getattr(source, "name", "<stream>"))
 
 
@@ -310,7 +310,7 @@ def _scan(stream: IO[bytes], label: str, deferred: Deferred | None = None) -> Ra
         raw.corruption = f"{label}: corrupt log: {e}"
     except mcap.exceptions.InvalidMagic:
         if not at.started:
-            raise RgtbusError(f"{label}: not an MCAP file (bad magic)") from None
+            raise BadLog(f"{label}: not an MCAP file (bad magic)") from None
         raw.corruption = f"{label}: corrupt log: bad magic after the footer"
     except CRCValidationError as e:  # the data section's CRC, checked at DataEnd
         raw.corruption = (
@@ -474,10 +474,10 @@ def _stopped(e: Exception, raw: RawLog, src: _Tracked, stream: IO[bytes], at: _P
     label = raw.label
     if not at.started:
         if src.pos > len(MCAP_MAGIC) and not (src.short and not _ends_with_magic(stream)):
-            raise RgtbusError(
+            raise BadLog(
                 f"{label}: corrupt log: its header record is damaged ({type(e).__name__})"
             ) from None
-        raise RgtbusError(f"{label}: not an MCAP file (empty or cut before its header)") from None
+        raise BadLog(f"{label}: not an MCAP file (empty or cut before its header)") from None
     if _chunk_in_progress(stream, at.start) and not _ends_with_magic(stream):
         raw.note = (
             f"{label}: log truncated after {raw.count} messages (cut in a chunk "
@@ -503,7 +503,7 @@ def require_run_log(raw: RawLog) -> None:
     not written by an rgtbus run (no ``scenario`` or ``run`` metadata). Truncation passes:
     everything before the cut is good."""
     if raw.corrupt:
-        raise RgtbusError(raw.corruption)
+        raise BadLog(raw.corruption)
     _require_run(raw.label, raw.library, raw.metadata, raw.header_only)
 
 
@@ -516,9 +516,9 @@ def _require_run(
 ) -> None:
     by = f" (written by {library!r})" if library else ""
     if header_only:
-        raise RgtbusError(f"{label}: holds only an MCAP header{by}: no records to read")
+        raise BadLog(f"{label}: holds only an MCAP header{by}: no records to read")
     if not {name for name, _ in metadata} & {"scenario", "run"}:
-        raise RgtbusError(f"{label}: not an rgtbus run log: no scenario or run metadata{by}")
+        raise BadLog(f"{label}: not an rgtbus run log: no scenario or run metadata{by}")
     if fmt:
         require_format(label, metadata)
 
@@ -559,7 +559,7 @@ def decode_log(raw: RawLog, keep_raw: Callable[[str], bool] | None = None) -> Lo
 
     label = raw.label
     if raw.corrupt:
-        raise RgtbusError(raw.corruption)
+        raise BadLog(raw.corruption)
     messages: list[tuple[str, int, Any]] = []
     topics = {cid: ch.topic for cid, ch in raw.channels.items()}
     lazy = {cid for cid, t in topics.items() if keep_raw is not None and keep_raw(t)}

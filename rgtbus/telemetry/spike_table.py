@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 from rgtbus.telemetry.record_rows import spike_samples, spike_units
 from rgtbus.telemetry.records import RX_SPIKE
 from rgtbus.timebase import seconds, time_of
@@ -126,14 +126,14 @@ class _SpikeColumns:
         samples = np.asarray(m["samples"], dtype=np.int64)
         channel = np.asarray(m["channel"], dtype=np.int64)
         if samples.ndim != 1 or channel.shape != samples.shape:
-            raise RgtbusError(
+            raise BadLog(
                 f"{RX_SPIKE} at sample {m.get('sample')}: {samples.size} samples but "
                 f"{channel.size} channels"
             )
         outside = (channel < 0) | (channel >= len(names))
         if outside.any():
             i = int(np.argmax(outside))
-            raise RgtbusError(
+            raise BadLog(
                 f"{RX_SPIKE} at sample {int(samples[i])}: channel {int(channel[i])} is not one "
                 f"of its {len(names)} names"
             )

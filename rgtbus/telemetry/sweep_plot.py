@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.extras import require
 from rgtbus.telemetry.sweep_read import results_of
 
@@ -53,7 +53,7 @@ def _metric(
     columns = list(rows[0]) if rows else []
     col, eq, want = y.partition("=")
     if col not in columns:
-        raise RgtbusError(f"--y {y!r}: no column {col!r} (columns: {', '.join(columns)})")
+        raise BadInput(f"--y {y!r}: no column {col!r} (columns: {', '.join(columns)})")
     if eq:
         return (
             # a run without the column's value (no outcome: it failed) is not one with it
@@ -65,13 +65,13 @@ def _metric(
     if all(isinstance(v, bool) for v in sample):
         return (lambda r: None if r.get(col) is None else float(r[col])), True, f"share {col}"
     if any(isinstance(v, list | dict | tuple) for v in sample):
-        raise RgtbusError(
+        raise BadInput(
             f"--y {y!r}: column {col!r} holds lists or tables, not one number a run (e.g. "
             "units: decided_count, frustrated_count; relations: alliance_share; "
             "decode_errors: decode_error_count)"
         )
     if not all(isinstance(v, int | float) for v in sample):
-        raise RgtbusError(
+        raise BadInput(
             f"--y {y!r}: column {col!r} holds text; use {col}=VALUE for the share of runs "
             "where it equals VALUE"
         )
@@ -84,11 +84,11 @@ def select_rows(rows: list[dict[str, Any]], where: Sequence[str]) -> list[dict[s
     for cond in where:
         key, eq, want = cond.partition("=")
         if not eq:
-            raise RgtbusError(f"--where {cond!r}: write KEY=VALUE")
+            raise BadInput(f"--where {cond!r}: write KEY=VALUE")
         _key(rows, key, "--where")
         rows = [r for r in rows if r.get(key) is not None and _text(r[key]) == want]
         if not rows:
-            raise RgtbusError(f"--where {cond!r}: no run has {key} = {want}")
+            raise BadInput(f"--where {cond!r}: no run has {key} = {want}")
     return rows
 
 
@@ -98,7 +98,7 @@ def _text(v: Any) -> str:
 
 def _key(rows: list[dict[str, Any]], key: str, flag: str) -> None:
     if rows and key not in rows[0]:
-        raise RgtbusError(f"{flag} {key!r}: not a column of the results")
+        raise BadInput(f"{flag} {key!r}: not a column of the results")
 
 
 def _sort_key(v: Any) -> tuple[int, float, str]:
@@ -135,10 +135,10 @@ def plot_sweep(
 
     ys = [y] if isinstance(y, str) else list(y)
     if not ys:
-        raise RgtbusError("--y: name at least one metric")
+        raise BadInput("--y: name at least one metric")
     rows = results_of(out_dir)
     if not rows:
-        raise RgtbusError(f"{str(out_dir)!r}: the sweep's results hold no runs")
+        raise BadInput(f"{str(out_dir)!r}: the sweep's results hold no runs")
     _key(rows, x, "--x")
     if by:
         _key(rows, by, "--by")
@@ -198,7 +198,7 @@ def _panel(
             continue
         groups.setdefault(r.get(by) if by else None, {}).setdefault(r[x], []).append(v)
     if not groups:
-        raise RgtbusError(f"--y {y!r}: no run has a value")
+        raise BadInput(f"--y {y!r}: no run has a value")
     counts = set()
     for curve in sorted(groups, key=_sort_key):
         pts = groups[curve]
@@ -236,15 +236,15 @@ def _panel(
                     label=f"exact ({name})",
                 )
             else:
-                raise RgtbusError(
+                raise BadInput(
                     "--exact cograph needs n and relations.p as --x and --by (in either order)"
                 )
         elif exact == "alliance":  # both ends must send alliance: p² (the AND rule)
             if x != "relations.p":
-                raise RgtbusError("--exact alliance needs relations.p as --x")
+                raise BadInput("--exact alliance needs relations.p as --x")
             ax.plot(pos, [float(p) ** 2 for p in xs], ls="--", color="0.3", label="p² (AND rule)")
         elif exact:
-            raise RgtbusError(f"--exact {exact!r}: unknown (cograph or alliance)")
+            raise BadInput(f"--exact {exact!r}: unknown (cograph or alliance)")
     ax.set_xlabel(x)
     ax.set_ylabel(label)
     flat = all(v == 0 for pts in groups.values() for vals in pts.values() for v in vals)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.extras import require
 from rgtbus.telemetry.sweep_tables import (
     BOOL,
@@ -121,7 +121,7 @@ def frame_of(
         values = [r.get(name) for r in rows]
         bad = next((v for v in values if _misfit(v, kind)), None)
         if bad is not None:
-            raise RgtbusError(
+            raise BadInput(
                 f"{where}: column {name!r} holds {bad!r}, not of its type {kind!r} "
                 "(its columns.json does not fit its rows)"
             )
@@ -151,10 +151,10 @@ def _read_jsonl(path: Path) -> list[dict[str, Any]]:
                 except orjson.JSONDecodeError:
                     row = None
                 if not isinstance(row, dict):
-                    raise RgtbusError(f"{path}:{n}: not a row of a sweep's table (a JSON object)")
+                    raise BadInput(f"{path}:{n}: not a row of a sweep's table (a JSON object)")
                 rows.append(row)
     except OSError as exc:
-        raise RgtbusError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+        raise IOFailure(f"cannot read {str(path)!r}: {exc.strerror}") from None
     return rows
 
 
@@ -169,7 +169,7 @@ def results_of(out: str | os.PathLike[str]) -> list[dict[str, Any]]:
         import pyarrow.parquet as pq
 
         return table_rows(pq.read_table(d / "results.parquet"))
-    raise RgtbusError(f"{str(d)!r}: no results.jsonl or results.parquet (run the sweep first)")
+    raise BadInput(f"{str(d)!r}: no results.jsonl or results.parquet (run the sweep first)")
 
 
 _DECISION_COLUMNS = ("sweep", "run_id", "run", "seed", "unit", "round", "low", "high", "choice",
@@ -205,7 +205,7 @@ def table_columns(out: str | os.PathLike[str], table: str) -> Columns:
     try:
         return [_as_column(c) for c in json.loads(path.read_text(encoding="utf-8"))[table]]
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
-        raise RgtbusError(f"{str(path)!r}: not a sweep's columns ({type(exc).__name__})") from None
+        raise IOFailure(f"{str(path)!r}: not a sweep's columns ({type(exc).__name__})") from None
 
 
 def read_results(out: str | os.PathLike[str]) -> pd.DataFrame:

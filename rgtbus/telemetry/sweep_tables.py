@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput
 from rgtbus.summary import SUMMARY_JSON_KEYS
 
 if TYPE_CHECKING:
@@ -229,7 +229,7 @@ def results_columns(axes: Axes) -> Columns:
     names = [n for n, _ in fields]
     clash = sorted({n for n in names if names.count(n) > 1})
     if clash:
-        raise RgtbusError(f"sweep grid: {clash[0]!r} is a column of the results, not a grid key")
+        raise BadInput(f"sweep grid: {clash[0]!r} is a column of the results, not a grid key")
     return fields
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, BadLog, IOFailure, RgtbusError
 from rgtbus.telemetry import records as r
 from rgtbus.timebase import seconds
 
@@ -121,7 +121,7 @@ def schema_for(topic: str) -> str:
         if isinstance(topic, str) and pattern.match(topic):
             return schema
     known = [*TOPICS, *(p[0] for p in TOPIC_PATTERNS)]
-    raise RgtbusError(f"unknown telemetry topic {topic!r} (known: {', '.join(known)})")
+    raise BadInput(f"unknown telemetry topic {topic!r} (known: {', '.join(known)})")
 
 
 def schema_names() -> list[str]:
@@ -141,7 +141,7 @@ def schema_bytes(name: str) -> bytes:
     try:
         return (resources.files("rgtbus.telemetry") / "schemas" / f"{name}.json").read_bytes()
     except FileNotFoundError:
-        raise RgtbusError(f"no schema file for {name!r} in rgtbus/telemetry/schemas") from None
+        raise IOFailure(f"no schema file for {name!r} in rgtbus/telemetry/schemas") from None
 
 
 @cache
@@ -176,7 +176,7 @@ def checked_message(
         try:
             message = orjson.loads(message)
         except ValueError as e:
-            raise RgtbusError(f"{where} is not JSON: {e}") from None
+            raise BadLog(f"{where} is not JSON: {e}") from None
     if not check:
         return message
     try:
@@ -188,7 +188,7 @@ def checked_message(
         return message  # its large tables are ones checked before: held once
     errs = validate.errors(message, rules)
     if errs:
-        raise RgtbusError(f"{where} breaks {schema}: {errs[0]}")
+        raise BadLog(f"{where} breaks {schema}: {errs[0]}")
     if tables is not None:
         tables.keep(topic, message)
     return message

@@ -14,7 +14,7 @@ from typing import Any, TextIO
 import numpy as np
 import orjson
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog, RgtbusError
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.blocks import schema_of
 from rgtbus.telemetry.records import LogMessage
@@ -98,7 +98,7 @@ def message(
             why = depth_error(decoded)
         if why is not None:
             where = printable(f"{label}: message on {topic} at t = {seconds(t_ns):.3f} s")
-            raise RgtbusError(f"{where} {why}")
+            raise BadLog(f"{where} {why}")
         data = decoded
     return topics.checked_message(topic, t_ns, data, label, check, tables)
 
@@ -131,7 +131,7 @@ def printable_errors() -> Iterator[None]:
         text = str(e)
         if text.isprintable():
             raise
-        raise RgtbusError(printable(text)) from None
+        raise BadLog(printable(text)) from None
 
 
 class _PrintableLines:
@@ -247,4 +247,4 @@ def explained(messages: Callable[[], Iterable[LogMessage]], label: str) -> Itera
         why = schema_error(messages()) or range_error(messages())
         if why is None:
             raise
-        raise RgtbusError(f"{label}: {why}") from None
+        raise BadLog(f"{label}: {why}") from None

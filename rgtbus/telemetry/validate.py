@@ -23,7 +23,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog, RgtbusError
 
 KEYWORDS = frozenset(
     {
@@ -67,21 +67,21 @@ def _type_name(value: Any) -> str:
 def check_schema(schema: Any, where: str = "schema") -> None:
     """Refuse a schema that is no valid JSON Schema, or uses keywords outside our subset."""
     if not isinstance(schema, dict):
-        raise RgtbusError(f"{where}: a schema must be an object")
+        raise BadLog(f"{where}: a schema must be an object")
     _check_keywords(schema, where)
     import fastjsonschema
 
     try:
         fastjsonschema.compile(schema)
     except fastjsonschema.JsonSchemaDefinitionException as e:
-        raise RgtbusError(f"{where}: not a valid JSON Schema: {e}") from None
+        raise BadLog(f"{where}: not a valid JSON Schema: {e}") from None
 
 
 TYPES = ("array", "boolean", "integer", "null", "number", "object", "string")
 
 
 def _bad(where: str, why: str) -> RgtbusError:
-    return RgtbusError(f"{where}: not a valid JSON Schema: {why}")
+    return BadLog(f"{where}: not a valid JSON Schema: {why}")
 
 
 def _check_values(schema: dict[str, Any], where: str) -> None:
@@ -128,10 +128,10 @@ def _check_values(schema: dict[str, Any], where: str) -> None:
 
 def _check_keywords(schema: Any, where: str) -> None:
     if not isinstance(schema, dict):
-        raise RgtbusError(f"{where}: a schema must be an object")
+        raise BadLog(f"{where}: a schema must be an object")
     unknown = sorted(set(schema) - KEYWORDS - ANNOTATIONS)
     if unknown:
-        raise RgtbusError(f"{where}: unsupported keyword(s) {', '.join(unknown)}")
+        raise BadLog(f"{where}: unsupported keyword(s) {', '.join(unknown)}")
     _check_values(schema, where)
     for name, sub in schema.get("properties", {}).items():  # a dict: _check_values
         _check_keywords(sub, f"{where}.properties.{name}")

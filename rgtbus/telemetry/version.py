@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadLog
 
 FORMAT_RECORD = "format"  # the metadata record's name
 FORMAT_NAME = "rgtbus"
@@ -41,13 +41,13 @@ def require_format(label: str, metadata: Iterable[tuple[str, dict[str, str]]]) -
     if version == FORMAT_VERSION:
         return
     if version == 1:
-        raise RgtbusError(
+        raise BadLog(
             f"{label}: an rgtbus log of format 1 (before 2: every topic JSON); this rgtbus "
             f"reads format 2: convert it with `rgtbus convert {label} -o NEW.mcap`"
         )
     from rgtbus.telemetry.untrusted import printable
 
-    raise RgtbusError(
+    raise BadLog(
         f"{label}: an rgtbus log of format {printable(repr(version))}; this rgtbus reads "
         f"format {FORMAT_VERSION} (and converts format 1)"
     )

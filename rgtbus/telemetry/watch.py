@@ -36,7 +36,7 @@ from rgtbus.bus.certs import WATCH, check_tls
 from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.payload import decode_telemetry, is_signed_telemetry, open_signed_telemetry
 from rgtbus.bus.zenoh import close_session
-from rgtbus.errors import RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.telemetry import topics
 from rgtbus.telemetry.recorder import LiveSink
 from rgtbus.telemetry.records import is_trace_topic, trace_topic
@@ -65,7 +65,7 @@ class Watcher:
         **zenoh_options: Any,
     ) -> None:
         if not run_id or any(c in run_id for c in "/?#$") or (run_id != "*" and "*" in run_id):
-            raise RgtbusError(f"--run {run_id!r}: not a run id")
+            raise BadInput(f"--run {run_id!r}: not a run id")
         self.sink = sink
         self.key = check_key(key)
         self.received = 0
@@ -79,14 +79,14 @@ class Watcher:
         tls_run = None
         if tls is not None:
             if not roster:
-                raise RgtbusError("--tls: a watcher needs the run's roster (give --scenario)")
+                raise BadInput("--tls: a watcher needs the run's roster (give --scenario)")
             run = None if run_id == "*" else run_id
             tls_run = TlsRun(check_tls(tls, WATCH), tuple(roster), run)
         config = make_config(**zenoh_options, tls=tls_run)  # its own errors are one line already
         try:
             self.session = zenoh.open(config)
         except Exception as e:
-            raise RgtbusError(f"cannot open zenoh session: {zenoh_reason(e)}") from None
+            raise IOFailure(f"cannot open zenoh session: {zenoh_reason(e)}") from None
         self._sub = self.session.declare_subscriber(
             keys.every_unit(keys.TELEMETRY, run_id), self._on_sample
         )
