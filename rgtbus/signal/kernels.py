@@ -14,49 +14,36 @@ _ASKED = os.environ.get("RGTBUS_WALK", "").strip().lower()
 if _ASKED not in ("", "compiled", "numpy"):
     raise BadInput(f"RGTBUS_WALK={_ASKED!r}: expected compiled or numpy (or unset)")
 
-if _ASKED == "numpy":
-    from rgtbus.signal.walk_numpy import (
+_TWIN = _ASKED == "numpy"
+if not _TWIN:
+    try:
+        from rgtbus.signal._walk import (
+            WalkModel,
+            read_rows,
+            score,
+            score_matched,
+            timings,
+            walk_lanes,
+        )
+    except ImportError as exc:
+        if _ASKED == "compiled":
+            raise BadInput(f"RGTBUS_WALK=compiled: the compiled walk is missing ({exc})") from None
+        _TWIN = True
+        print(
+            "rgtbus: the compiled receiver (rgtbus.signal._walk) is not installed (built without "
+            "a C compiler?): using its NumPy twin, same results, several times slower",
+            file=sys.stderr,
+        )
+if _TWIN:
+    from rgtbus.signal.walk_numpy import (  # type: ignore[assignment]
         WalkModel,
         read_rows,
         score,
         score_matched,
         timings,
         walk_lanes,
-    )
-
-    COMPILED = False
-else:
-    try:
-        from rgtbus.signal._walk import (  # type: ignore[assignment]
-            WalkModel,
-            read_rows,
-            score,
-            score_matched,
-            timings,
-            walk_lanes,
-        )
-
-        COMPILED = True
-    except ImportError as exc:
-        if _ASKED == "compiled":
-            raise BadInput(
-                f"RGTBUS_WALK=compiled: the compiled walk is missing ({exc})"
-            ) from None
-        from rgtbus.signal.walk_numpy import (
-            WalkModel,
-            read_rows,
-            score,
-            score_matched,
-            timings,
-            walk_lanes,
-        )
-
-        COMPILED = False
-        print(
-            "rgtbus: the compiled receiver (rgtbus.signal._walk) is not installed (built without "
-            "a C compiler?): using its NumPy twin, same results, several times slower",
-            file=sys.stderr,
-        )
+    )  # fmt: skip
+COMPILED = not _TWIN
 
 __all__ = [
     "COMPILED", "WalkModel", "read_rows", "score", "score_matched", "timings", "walk_lanes",

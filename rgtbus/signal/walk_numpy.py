@@ -187,20 +187,25 @@ def _sum_squares(diff: np.ndarray) -> np.ndarray:
     return acc
 
 
+def _best(d: np.ndarray, rank: np.ndarray) -> tuple[int, int, float]:
+    """The row and word of the least of the distances ``d`` (M, W), as the compiled scans
+    find it (ties: the first row, then the lowest ``rank``), and that distance; every distance
+    inf or nan: row 0, word 0, inf, as the compiled scan keeps them."""
+    best_d = float(d.min())
+    if not best_d < math.inf:
+        return 0, 0, math.inf
+    best_m = int(np.flatnonzero((d == best_d).any(axis=1))[0])
+    ties = np.flatnonzero(d[best_m] == best_d)
+    return best_m, int(ties[np.argmin(rank[ties])]), best_d
+
+
 def score(
     vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
 ) -> tuple[int, int, float, float, float]:
     """``_walk.score``: the row and word at the smallest distance (ties: the first row, the
     lowest rank), that distance, the margin to the nearest other word, and its separation."""
     d = np.sqrt(_sum_squares(vals[:, None, :] - mat[None, :, :]))  # (M, W)
-    best_d = float(d.min())
-    if not best_d < math.inf:  # every distance inf or nan: the compiled scan keeps row 0, word 0
-        best_m, best_w = 0, 0
-        best_d = math.inf
-    else:
-        best_m = int(np.flatnonzero((d == best_d).any(axis=1))[0])
-        ties = np.flatnonzero(d[best_m] == best_d)
-        best_w = int(ties[np.argmin(rank[ties])])
+    best_m, best_w, best_d = _best(d, rank)
     acc = _sum_squares(vals[best_m][None, :] - mat)
     dist2 = _sum_squares(mat - mat[best_w][None, :])
     other = dist2 != 0.0  # the same word under another name is no runner-up
@@ -228,15 +233,7 @@ def score_matched(
 ) -> tuple[int, int, float, float, float]:
     """``_walk.score_matched``: ``score`` by the matched-filter distance
     (``rgtbus.signal.rules``)."""
-    d = _matched(vals, mat)  # (M, W)
-    best_d = float(d.min())
-    if not best_d < math.inf:
-        best_m, best_w = 0, 0
-        best_d = math.inf
-    else:
-        best_m = int(np.flatnonzero((d == best_d).any(axis=1))[0])
-        ties = np.flatnonzero(d[best_m] == best_d)
-        best_w = int(ties[np.argmin(rank[ties])])
+    best_m, best_w, best_d = _best(_matched(vals, mat), rank)  # of the (M, W) distances
     other = _sum_squares(mat - mat[best_w][None, :]) != 0.0
     if not other.any():
         return best_m, best_w, best_d, math.inf, 0.0
