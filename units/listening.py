@@ -1,14 +1,16 @@
 """A unit's listening: what it decoded (``DecodeColumns``), how it reads a code off its own
 readout, and how it takes a shared listen queue's decodes a batch at a time as columns.
 
-A listen names a code's instants; the unit decodes it on its own resonators' readout (the
-ears' ``read_code`` at the schedule's instants, or ``decode_among`` with a timing search over
-the channels it may be on) and hands the result to the unit (``act``), which records, checks
-and learns. Under the concurrent schedule every unit of a process decodes the same queue of
-codes: the ears read each position once for all of them (``SharedQueues``), and a unit takes a
-batch of its decodes as arrays (recorded, logged and learned from with no Python call per
-decode) up to the first that needs more than that (a code refused, a table completed), which
-it takes on its own. The same decodes either way (tested).
+A listen names a code's instants; the unit decodes it on its own resonators' readout through
+the ears' readings, where every decode is made (``rgtbus.engine.reading``: ``read_code`` at the
+schedule's instants, or ``decode_among`` with a timing search over the channels it may be on;
+for a batch, the column forms), and hands the result to the unit (``act``), which records,
+checks and learns. Listening decides what to read and when, never how. Under the concurrent
+schedule every unit of a process decodes the same queue of codes: the ears read each position
+once for all of them (``SharedQueues``), and a unit takes a batch of its decodes as arrays
+(recorded, logged and learned from with no Python call per decode) up to the first that needs
+more than that (a code refused, a table completed), which it takes on its own. The same
+decodes either way (tested).
 """
 
 from __future__ import annotations
@@ -30,10 +32,7 @@ from rgtbus.signal.decoder import (
     Decision,
     WordSet,
     code_candidates,
-    decode_among_columns,
     nearer_than_silence,
-    nearest_columns,
-    nearest_many_columns,
 )
 from rgtbus.signal.resonator import clean_first_spike
 from rgtbus.signal.rules import rule_named
@@ -414,7 +413,7 @@ class Listening:
             # (a↔c crosstalk makes resonators fire for other codes).
             ch = self.index_of[listen.sender]
             if self._timed:  # it lands where its link puts it: timed by the search
-                dec, _ = self.ears.decode_among(
+                dec, _ = self.ears.reading.decode_among(
                     self.member, (ch,), listen.start, self.id_words, self.protocol.search
                 )
             else:
@@ -422,7 +421,7 @@ class Listening:
                                              self.tau), ch, self.id_words)  # fmt: skip
             self.act(listen, dec.name, dec.margin, ch)
             return
-        dec, ch = self.ears.decode_among(
+        dec, ch = self.ears.reading.decode_among(
             self.member, self.channels_of(listen), listen.start, self.words_of(listen),
             self.protocol.search,
         )  # fmt: skip
@@ -431,7 +430,7 @@ class Listening:
     def read(self, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
         """The nearest of ``words`` to its readout at ``samples`` on ``channel``."""
         assert self.ears is not None
-        return self.ears.read_code(self.member, samples, channel, words)
+        return self.ears.reading.read_code(self.member, samples, channel, words)
 
     def attend(self, sender: str) -> int | None:
         """Confirmed attention (docs/protocol.md, "Attention"): the current turn's ID timed on
@@ -447,7 +446,7 @@ class Listening:
             # silence (to find it): the threshold between them adapted to the link's gain
             heard = tuple(float(self._gains[ch]) * m for m in self.cb.id_word)
             words = self._attention_words[ch] = (WordSet.of({"id": heard}), heard)
-        dec, _ = self.ears.decode_among(
+        dec, _ = self.ears.reading.decode_among(
             self.member, (ch,), self.protocol.turn_start, words[0], self.protocol.search
         )
         return dec.shift if nearer_than_silence(dec.values, words[1]) else None
@@ -514,18 +513,18 @@ class Listening:
         schedule = self.protocol.schedule
         search = self.protocol.search
         omegas = ears.bank.omegas
+        reading = ears.reading  # every decode on the ears' readout (engine/reading.py)
 
         def read(q: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             listen = queue.listen(int(due[q]))
             if listen.kind == "id":
                 ch = index[listen.sender]
                 samples = code_samples(listen.start, self.omegas[ch], cb.pulses, tau)
-                w, m = nearest_columns(ears.readout, samples, ch, self.id_words)
+                w, m = reading.id_columns(samples, ch, self.id_words)
                 return maps["id"][w], np.full(w.size, ch, dtype=np.int64), m
             family = "relation" if listen.kind == "relation" else "alternative"
-            pairs = tuple((c, float(omegas[c])) for c in self.channels_of(listen))
-            w, c, m = decode_among_columns(
-                ears.readout, pairs, listen.start, self.families[family], tau=tau, search=search
+            w, c, m = reading.among_columns(
+                self.channels_of(listen), listen.start, self.families[family], search
             )
             return maps[family][w], c, m
 
@@ -537,11 +536,11 @@ class Listening:
             of one kind and number of candidates decoded in one vectorised step (the same
             answers as ``read`` a position at a time; one whose candidates reach past what
             has been heard is ``read`` alone, as ``decode_among_columns`` trims them)."""
-            R = ears.readout.receivers
+            R = reading.receivers
             word = np.empty((q1 - q0, R), dtype=np.int64)
             chan = np.empty((q1 - q0, R), dtype=np.int64)
             margin = np.empty((q1 - q0, R))
-            end = ears.readout.end
+            end = reading.end
             groups: dict[tuple[str, int], tuple[list[Any], list[Any], list[Any]]] = {}
             ks, cs, ts = kind[q0:q1], channel[q0:q1], start[q0:q1]
             # every ID of the block at once: pulse j at round((start + j·T)/τ), T = 2π/ω
@@ -570,8 +569,7 @@ class Listening:
                 words = self.id_words if family == "id" else self.families[family]
                 cands = np.concatenate(chs)
                 at = np.concatenate(ats) if family == "id" else np.array(ats, dtype=np.int64)
-                row, w, m = nearest_many_columns(
-                    ears.readout,
+                row, w, m = reading.block_columns(
                     np.concatenate(insts),
                     cands,
                     words,

@@ -43,18 +43,13 @@ import simpy
 
 from rgtbus.engine.listener import HEARD_NOTHING, Heard, Listener, Wake
 from rgtbus.engine.queues import SharedQueues
+from rgtbus.engine.reading import Readings
 from rgtbus.engine.spike_log import SpikeKeeper
 from rgtbus.engine.traces import TraceWindows
 from rgtbus.errors import BadInput
 from rgtbus.protocol import NEVER
 from rgtbus.signal.channel import heard_by, render
-from rgtbus.signal.decoder import (
-    Decision,
-    ReadoutHistory,
-    WordSet,
-    decode_among_each,
-    nearest_each,
-)
+from rgtbus.signal.decoder import ReadoutHistory
 from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import (
     BankModel,
@@ -65,9 +60,6 @@ from rgtbus.signal.resonator import (
     resonate,
 )
 from rgtbus.timebase import sample_of, time_of
-
-_AmongKey = tuple[tuple[int, ...], float, WordSet, int]  # channels, start, words, search
-_ReadKey = tuple[tuple[int, ...], int, WordSet]  # samples, channel, words
 
 
 class Ears:
@@ -134,13 +126,8 @@ class Ears:
         )
         self.traces = TraceWindows(self.listeners, window)
         self.steps = 0  # bank advances so far
-        # decodes asked at the present end of the readout: every unit of the process decodes
-        # the same code at about the same time, so the first ask reads all of them
-        self._among: dict[
-            tuple[tuple[int, ...], float, WordSet, int], list[tuple[Decision, int]]
-        ] = {}
-        self._reads: dict[tuple[tuple[int, ...], int, WordSet], list[Decision]] = {}
-        self._decodes_end = -1
+        # every decode on the readout, single codes and a batch's columns (engine/reading.py)
+        self.reading = Readings(self.readout, tuple(float(w) for w in bank.omegas), self.tau)
         self.queues = SharedQueues(len(self.listeners))  # what every unit reads alike
         self._read_span = max(1, sample_of(READ_AS_HEARD_SECONDS, self.tau))
         self.pos = bank.n_fed  # the next sample the ears will hear (only _advance moves it)
@@ -240,38 +227,6 @@ class Ears:
         lst.watch_from = watch_from
         if not self._asking:
             _fire(self._poke)
-
-    def decode_among(
-        self, i: int, channels: tuple[int, ...], start: float, words: WordSet, search: int
-    ) -> tuple[Decision, int]:
-        """Unit ``i``'s ``decode_among`` over these channel indexes, on its own readout (see
-        ``decode_among_each``)."""
-        self._forget_decodes()
-        key = (channels, start, words, search)
-        got = self._among.get(key)
-        if got is None:
-            pairs = tuple((c, float(self.bank.omegas[c])) for c in channels)
-            got = self._among[key] = decode_among_each(
-                self.readout, pairs, start, words, tau=self.tau, search=search
-            )
-        return got[i]
-
-    def read_code(self, i: int, samples: tuple[int, ...], channel: int, words: WordSet) -> Decision:
-        """Unit ``i``'s nearest word to its readout at ``samples`` on ``channel``."""
-        self._forget_decodes()
-        key = (samples, channel, words)
-        got = self._reads.get(key)
-        if got is None:
-            got = self._reads[key] = nearest_each(self.readout, samples, channel, words)
-        return got[i]
-
-    def _forget_decodes(self) -> None:
-        """The decodes kept for every unit are of the readout's present end: once it moves
-        on, they are asked no more."""
-        if self._decodes_end != self.readout.end:
-            self._among.clear()
-            self._reads.clear()
-            self._decodes_end = self.readout.end
 
     def quench_at(self, i: int, sample: int) -> None:
         """Unit ``i``'s resonators back to rest before ``sample`` (the ears stop there)."""
