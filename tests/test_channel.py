@@ -466,6 +466,8 @@ def test_units_hear_and_decode_through_their_faded_links_and_the_log_verifies(en
     """Each receiver the engine builds hears its links faded (``Reception``) and its unit
     decodes on those gains: the shipped gate_fading opens its gate, both engines alike, and
     its log re-runs to the same records (``replay --verify``)."""
+    from dataclasses import replace
+
     from rgtbus.units.rerun import verify_log
 
     from rgtbus.engine.listener import OwnHearing, Reception
@@ -482,7 +484,8 @@ def test_units_hear_and_decode_through_their_faded_links_and_the_log_verifies(en
     summary, data = logged_run(sc, engine)
     assert summary["outcome"] == "gate: open" and summary["decode_errors"] == []
     assert verify_log(load_replay(io.BytesIO(data))).ok
-    worse = [logged_run(sc.with_seed(seed), engine)[0] for seed in (1, 4)]
+    nearest = replace(sc, decoding="nearest")  # it ships with the matched filter
+    worse = [logged_run(nearest.with_seed(seed), engine)[0] for seed in (1, 4)]
     assert all(s["decode_errors"] for s in worse)  # a deep fade or a strong link misreads
 
 
@@ -501,13 +504,9 @@ def test_the_matched_filter_rule_reads_faded_links_that_the_nearest_word_misread
     from rgtbus.telemetry.read import load_replay
 
     text = (ROOT / "scenarios" / "gate_fading.toml").read_text()
-
-    def decoding(rule: str) -> str:
-        return text.replace('\nmode = "paper"\n', f'\nmode = "paper"\ndecoding = "{rule}"\n', 1)
-
-    matched = parse_scenario(decoding("matched-filter"))
-    assert matched.decoding == "matched-filter"
-    nearest = load_scenario(ROOT / "scenarios" / "gate_fading.toml")
+    matched = load_scenario(ROOT / "scenarios" / "gate_fading.toml")
+    assert matched.decoding == "matched-filter"  # as it ships
+    nearest = replace(matched, decoding="nearest")
     misread = [s for s in (1, 4) if logged_run(nearest.with_seed(s), engine)[0]["decode_errors"]]
     assert misread == [1, 4]
     for seed in (1, 4):
@@ -515,4 +514,4 @@ def test_the_matched_filter_rule_reads_faded_links_that_the_nearest_word_misread
         assert summary["decode_errors"] == [] and summary["outcome"] == "gate: open"
         assert verify_log(load_replay(io.BytesIO(data))).ok
     with pytest.raises(RgtbusError, match=r"decoding: unknown decoding rule 'ml' \(nearest, "):
-        parse_scenario(decoding("ml"), "x.toml")
+        parse_scenario(text.replace('decoding = "matched-filter"', 'decoding = "ml"'), "x.toml")
