@@ -67,14 +67,35 @@ class Scores(NamedTuple):
 
 def distances(reads: np.ndarray, mat: np.ndarray) -> np.ndarray:
     """The rule's distance of every read (..., N) to every word of ``mat`` (W, N): (..., W),
-    ``sqrt(Σ_k (v_k − w_k)²)`` summed over k in order, as the compiled twin sums (a running
-    sum is added in order; numpy's ``sum`` adds in pairs from 8 terms on)."""
-    diff = reads[..., None, :] - mat
-    root: np.ndarray = np.sqrt(np.cumsum(diff * diff, axis=-1)[..., -1])
+    ``sqrt(Σ_k (v_k − w_k)²)`` summed over k in order, as the compiled twin sums: a running
+    sum, one (..., W) array a pulse (numpy's ``sum`` adds in pairs from 8 terms on, and a
+    cumulative sum over k would hold all N partial sums to read the last)."""
+    reads = np.asarray(reads)
+    acc: np.ndarray | None = None
+    for k in range(mat.shape[1]):
+        diff = reads[..., k, None] - mat[:, k]
+        acc = diff * diff if acc is None else acc + diff * diff
+    if acc is None:  # words of no pulses: every distance 0
+        return np.zeros((*reads.shape[:-1], mat.shape[0]))
+    root: np.ndarray = np.sqrt(acc)
     return root
 
 
 Distance = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (..., N), (W, N) -> (..., W)
+
+
+def _choose(
+    reads: np.ndarray, mat: np.ndarray, rank: np.ndarray, by: Distance
+) -> tuple[Choice, np.ndarray]:
+    """``nearest_choice``, and every distance it weighed: (D, M, W), words in rank order."""
+    reads = np.asarray(reads, dtype=np.float64)
+    by_rank = np.argsort(rank, kind="stable")
+    # words in rank order: the first least distance in (row, word) order is the rule's
+    weighed = by(reads, mat[by_rank])
+    dist = weighed.reshape(reads.shape[0], -1)
+    first = dist.argmin(axis=1)
+    row, at = np.divmod(first, mat.shape[0])
+    return Choice(row, by_rank[at], dist[np.arange(dist.shape[0]), first]), weighed
 
 
 def nearest_choice(
@@ -84,13 +105,7 @@ def nearest_choice(
     decode's M candidate rows against the words of ``mat`` (W, N), ties broken by ``rank``
     (W,): the least (distance, row, rank). ``by``: the distance (Euclidean; another rule's,
     ``rgtbus.signal.rules``)."""
-    reads = np.asarray(reads, dtype=np.float64)
-    by_rank = np.argsort(rank, kind="stable")
-    # words in rank order: the first least distance in (row, word) order is the rule's
-    dist = by(reads, mat[by_rank]).reshape(reads.shape[0], -1)
-    first = dist.argmin(axis=1)
-    row, at = np.divmod(first, mat.shape[0])
-    return Choice(row, by_rank[at], dist[np.arange(dist.shape[0]), first])
+    return _choose(reads, mat, rank, by)[0]
 
 
 def nearest_words(
@@ -98,16 +113,21 @@ def nearest_words(
 ) -> Scores:
     """The rule (module docstring) for D decodes at once: ``nearest_choice``'s row, word and
     distance, and each one's margin and separation; ``by`` as there (a word is another word
-    when it differs from the best, whatever the distance)."""
-    row, word, best = nearest_choice(reads, mat, rank, by)
+    when it differs from the best, whatever the distance). The words' distances to each
+    other are a (W, W) table worked out once a call, and the best row's distance to every
+    word is read from what the choice weighed: the same numbers, not worked out again."""
+    (row, word, best), weighed = _choose(reads, mat, rank, by)
     decodes = np.arange(word.size)
-    apart = distances(mat[word], mat)  # (D, W): each best word's distance to every word
+    table = distances(mat, mat)  # (W, W): word to word
+    apart = table[word]  # (D, W): each best word's distance to every word
     others = apart != 0.0  # a word equal to the best under another name is no runner-up
     if by is not distances:  # the best word read exactly, less its distance to itself
-        read_exactly = by(mat[word], mat)
-        apart = read_exactly - read_exactly[decodes, word][:, None]
+        exactly = by(mat, mat)
+        apart = exactly[word] - exactly[word, word][:, None]
     gaps = apart
-    read = by(np.asarray(reads, dtype=np.float64)[decodes, row], mat)  # (D, W)
+    in_rank = np.empty(rank.size, dtype=np.int64)  # where each word stands in rank order
+    in_rank[np.argsort(rank, kind="stable")] = np.arange(rank.size)
+    read = weighed[decodes, row][:, in_rank]  # (D, W): the best row to every word
     runner = np.where(others, read, np.inf).min(axis=1)
     has_others = others.any(axis=1)
     margin = np.where(has_others, runner - best, np.inf)

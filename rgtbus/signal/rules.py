@@ -58,8 +58,11 @@ def matched(reads: np.ndarray, mat: np.ndarray) -> np.ndarray:
     (W, N): (..., W), the negative matched-filter output ``−Σ v·w / sqrt(Σ w²)`` (−0 for the
     zero word), every sum in k's order as the compiled form sums (a running sum)."""
     reads = np.asarray(reads, dtype=np.float64)
-    vw = np.cumsum(reads[..., None, :] * mat, axis=-1)[..., -1]  # (..., W)
-    ww = np.cumsum(mat * mat, axis=-1)[..., -1]  # (W,)
+    vw = np.zeros((*reads.shape[:-1], mat.shape[0]))  # (..., W)
+    ww = np.zeros(mat.shape[0])  # (W,)
+    for k in range(mat.shape[1]):  # running sums in k's order (0 + x is x, bit for bit)
+        vw = vw + reads[..., k, None] * mat[:, k]
+        ww = ww + mat[:, k] * mat[:, k]
     out: np.ndarray = np.where(ww > 0.0, -(vw / np.sqrt(np.where(ww > 0.0, ww, 1.0))), -0.0)
     return out
 
