@@ -86,8 +86,9 @@ Distance = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (..., N), (W, N) ->
 
 def _choose(
     reads: np.ndarray, mat: np.ndarray, rank: np.ndarray, by: Distance
-) -> tuple[Choice, np.ndarray]:
-    """``nearest_choice``, and every distance it weighed: (D, M, W), words in rank order."""
+) -> tuple[Choice, np.ndarray, np.ndarray]:
+    """``nearest_choice``, every distance it weighed ((D, M, W), words in rank order) and
+    that order (the words' indexes)."""
     reads = np.asarray(reads, dtype=np.float64)
     by_rank = np.argsort(rank, kind="stable")
     # words in rank order: the first least distance in (row, word) order is the rule's
@@ -95,7 +96,7 @@ def _choose(
     dist = weighed.reshape(reads.shape[0], -1)
     first = dist.argmin(axis=1)
     row, at = np.divmod(first, mat.shape[0])
-    return Choice(row, by_rank[at], dist[np.arange(dist.shape[0]), first]), weighed
+    return Choice(row, by_rank[at], dist[np.arange(dist.shape[0]), first]), weighed, by_rank
 
 
 def nearest_choice(
@@ -116,7 +117,7 @@ def nearest_words(
     when it differs from the best, whatever the distance). The words' distances to each
     other are a (W, W) table worked out once a call, and the best row's distance to every
     word is read from what the choice weighed: the same numbers, not worked out again."""
-    (row, word, best), weighed = _choose(reads, mat, rank, by)
+    (row, word, best), weighed, by_rank = _choose(reads, mat, rank, by)
     decodes = np.arange(word.size)
     table = distances(mat, mat)  # (W, W): word to word
     apart = table[word]  # (D, W): each best word's distance to every word
@@ -126,7 +127,7 @@ def nearest_words(
         apart = exactly[word] - exactly[word, word][:, None]
     gaps = apart
     in_rank = np.empty(rank.size, dtype=np.int64)  # where each word stands in rank order
-    in_rank[np.argsort(rank, kind="stable")] = np.arange(rank.size)
+    in_rank[by_rank] = np.arange(rank.size)
     read = weighed[decodes, row][:, in_rank]  # (D, W): the best row to every word
     runner = np.where(others, read, np.inf).min(axis=1)
     has_others = others.any(axis=1)
