@@ -370,10 +370,12 @@ class Listening:
         self.settle = settle
         self.repairs = repairs
         self.omegas = [sc.frequencies[u] for u in self.units]
-        # its codes' words, read by the scenario's rule (an ID's attention, below, by the
-        # nearest word: it knows its link's gain and weighs the ID against silence)
+        # its payloads' words, read by the scenario's rule; an ID (which must read as the
+        # ID-code, else the turn fails) and its attention, below, by the nearest word: the
+        # matched filter weighs words by direction alone, and the ID-code lies close in
+        # direction to alternatives' words (docs/model.md, "Decoding rules")
         rule = rule_named(sc.decoding)
-        self.id_words = WordSet.of(self.cb.distinct_words(), rule=rule)
+        self.id_words = WordSet.of(self.cb.distinct_words())
         self.families = {
             f: WordSet.of(self.cb.family(f), rule=rule) for f in ("relation", "alternative")
         }

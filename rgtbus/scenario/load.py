@@ -13,7 +13,13 @@ from typing import Any
 from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.protocol.timetable import plan_of
 from rgtbus.scenario.channel import channel_of, check_timed_channel
-from rgtbus.scenario.codebook_section import codebook_of, decoding_of, default_codebook, mode_of
+from rgtbus.scenario.codebook_section import (
+    check_decoding,
+    codebook_of,
+    decoding_of,
+    default_codebook,
+    mode_of,
+)
 from rgtbus.scenario.context import Ctx, check_keys, sub_table
 from rgtbus.scenario.decisions import decisions_of
 from rgtbus.scenario.expect import check_expected_dynamics, check_expected_goals, expect_of
@@ -162,6 +168,7 @@ def parse_scenario(text: str, path: str = "<scenario>") -> Scenario:
     # the run's plan (``ProtocolState`` asks for the same one, cached): what the schedule needs
     timing = fit_to_schedule(ctx, data, timing, plan.nominal_end())
     check_timed_channel(ctx, channel, protocol, timing)
+    check_decoding(ctx, decoding, protocol)
     relations = relations_of(ctx, data, units)
     influences = influences_of(ctx, data, units, universe)
     decisions = decisions_of(ctx, data, units, universe)

@@ -12,7 +12,9 @@ rule sits beside these without touching the decode forms. A scenario names its r
   (−0 for the all-zero word; sums in k's order). It needs no link gain: a read ``a·w`` with
   any gain a > 0 is nearest its own word ``w`` (Cauchy–Schwarz), so faded or unknown links
   cost it nothing without noise; with noise it weighs words by their direction only, so
-  words of one direction and different lengths are one word to it.
+  words of one direction and different lengths are one word to it. It reads payloads of the
+  serial schedule: under the concurrent one every channel carries a code at once and it takes
+  crosstalk for codes (the loader refuses the pair); IDs keep the nearest word.
 
 Both rules break ties alike (the first row, then the lowest rank), and report a ``margin``
 (the least distance to a word that differs from the best, minus the best's) and a
