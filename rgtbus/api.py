@@ -85,7 +85,7 @@ def run(
             live.close()
             raise BadInput("a live view needs a log (log=PATH): it serves what is logged")
         out = run_group(sc, bus, NullRecorder(), **options)
-        return result_of(sc, out.summary, None)
+        return result_of(sc, out.summary, None, out.misreads)
     from rgtbus.telemetry.logfile import close_log
     from rgtbus.telemetry.logfile import open_log as open_file
 
@@ -118,7 +118,7 @@ def run(
             if live is not None:
                 live.close()
     out.summary["log"] = str(path)
-    return result_of(sc, out.summary, path)
+    return result_of(sc, out.summary, path, out.misreads)
 
 
 def open_log(source: str | os.PathLike[str] | IO[bytes]) -> Log:

@@ -36,8 +36,18 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
+import numpy as np
+
 from rgtbus.errors import BadInput, NotDecomposable, RgtbusError
-from rgtbus.pairs import PairTable, SharedTable, ordered_pairs, pair_key, relation_key
+from rgtbus.pairs import (
+    PairTable,
+    SharedTable,
+    ordered_pairs,
+    pair_key,
+    relation_key,
+    sorted_slots,
+    unordered_slots,
+)
 from rgtbus.rgt import (
     DecisionFunction,
     InfluenceMatrix,
@@ -154,6 +164,7 @@ def choose(
 
 
 _T = TypeVar("_T")
+_RELATION_TEXT = np.array(["conflict", "alliance"], dtype=object)  # by alliance?
 _MEMO: dict[tuple[Hashable, tuple[tuple[str, ...], bool, int, bytes]], Any] = {}
 _MEMO_SIZE = 16
 
@@ -248,6 +259,17 @@ class Mind:
         return _memo("installed", self.sent, self._installed)
 
     def _installed(self) -> dict[str, str]:
+        sent = self.sent
+        if isinstance(sent, PairTable) and sent.units == self.units:  # a table: as arrays
+            vals, held = sent.columns()
+            ab, ba, keys = unordered_slots(self.units)
+            known = np.flatnonzero(held[ab] & held[ba])
+            allied = (vals[ab[known]] != 0) & (vals[ba[known]] != 0)
+            return dict(
+                zip(
+                    keys[known].tolist(), _RELATION_TEXT[allied.view(np.int8)].tolist(), strict=True
+                )
+            )
         out = {}
         for i, a in enumerate(self.units):
             for b in self.units[i + 1 :]:
@@ -261,6 +283,13 @@ class Mind:
         return _memo("sent", self.sent, self._sent_table)
 
     def _sent_table(self) -> dict[str, str]:
+        sent = self.sent
+        if isinstance(sent, PairTable):  # a table: as arrays
+            vals, held = sent.columns()
+            order, keys = sorted_slots(sent.units)
+            mine = held[order]
+            texts = _RELATION_TEXT[(vals[order][mine] != 0).view(np.int8)]
+            return dict(zip(keys[mine].tolist(), texts.tolist(), strict=True))
         return {
             pair_key(s, r): "alliance" if v else "conflict"
             for (s, r), v in sorted(self.sent.items())
@@ -274,6 +303,15 @@ class Mind:
     def _influence_table(self) -> dict[str, list[str]]:
         u = self.universe
         lists: dict[int, list[str]] = {}  # one list an alternative (a few), not one a pair
+        table = self.influences
+        if isinstance(table, PairTable):  # a table: as arrays
+            vals, held = table.columns()
+            order, keys = sorted_slots(table.units)
+            mine = held[order]
+            got = vals[order][mine].tolist()
+            for v in set(got):
+                lists[v] = u.to_list(v)
+            return dict(zip(keys[mine].tolist(), map(lists.__getitem__, got), strict=True))
         return {
             pair_key(s, r): lists[v] if v in lists else lists.setdefault(v, u.to_list(v))
             for (s, r), v in sorted(self.influences.items())

@@ -79,6 +79,36 @@ def _slots_of(units: tuple[str, ...]) -> dict[Pair, int]:
 
 
 @functools.lru_cache(maxsize=64)
+def unordered_slots(units: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every unordered pair a-b of ``units`` (a before b, in the group's order, as
+    ``itertools.combinations``): the slots of a>b and of b>a in a ``PairTable`` of ``units``,
+    and its ``relation_key`` (an object array of the shared strings). Once a group."""
+    import numpy as np
+
+    n = len(units)
+    i, j = np.triu_indices(n, 1)
+    keys = np.empty(i.size, dtype=object)  # (np.array of strings would copy them)
+    keys[:] = [
+        relation_key(units[a], units[b]) for a, b in zip(i.tolist(), j.tolist(), strict=True)
+    ]
+    return i * n + j, j * n + i, keys
+
+
+@functools.lru_cache(maxsize=64)
+def sorted_slots(units: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The slots of a ``PairTable`` of ``units`` in the order of their pairs ``(s, r)`` sorted
+    as text (``sorted(table.items())``), and each one's ``pair_key`` (an object array of the
+    shared strings). Once a group."""
+    import numpy as np
+
+    pairs = _pairs_of(units)
+    order = sorted(range(len(pairs)), key=pairs.__getitem__)
+    keys = np.empty(len(order), dtype=object)
+    keys[:] = [pair_key(*pairs[k]) for k in order]
+    return np.array(order, dtype=np.int64), keys
+
+
+@functools.lru_cache(maxsize=64)
 def _pairs_of(units: tuple[str, ...]) -> tuple[Pair, ...]:
     """The pair of each slot of a ``PairTable`` of ``units`` (one tuple for every table)."""
     return tuple((s, r) for s in units for r in units)
@@ -210,6 +240,13 @@ class PairTable(MutableMapping[Pair, int]):
         import numpy as np
 
         return np.frombuffer(self._vals, dtype=_WIDTHS[self._width][1])
+
+    def columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every slot's value (0 where none) and whether it holds one, as arrays (slot
+        ``i·n + j``: the pair (units[i], units[j])): a whole table read in one step."""
+        vals = self._array()
+        held: np.ndarray = vals != self._absent
+        return vals * held, held
 
     def absent(self, slots: np.ndarray) -> np.ndarray:
         """Whether each of these slots holds nothing yet (a bool array)."""

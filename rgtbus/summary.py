@@ -21,10 +21,12 @@ Fields beyond the tables and decisions:
   (``"s>r"``: alternative); ``state`` (fixed point, cycle, neither; ``None`` for fewer than two
   whole rounds: a run that stopped early is judged on the rounds every pair was sent in),
   ``since`` and ``length`` (``round_dynamics``).
-* ``decode_errors``: every misread (each unit's decode that differs from what was sent);
-  ``decode_errors_left`` how many of them stayed wrong in what the unit took from its turn
-  (``decode_errors_left``: a repair's copy, or the payload of a misread ID, read right sets
-  one right). ``--check`` judges the run on those left.
+* ``decode_errors``: counts of the misreads (each unit's decode that differs from what was
+  sent): ``misread``, ``set_right`` (a repair's copy, or the payload of a misread ID, read
+  right), ``left_wrong`` (what the unit took from its turn stayed wrong: ``--check`` judges the
+  run on those), the same ``by_kind`` (id, relation, influence); the first few as a ``sample``,
+  and in ``rest`` where the others are (``rgtbus.misreads``: every one of them, as a
+  DataFrame, is ``RunResult.decode_errors()`` or ``open_log(LOG).decode_errors()``).
 * ``codebook``: the name of the codebook the run's codes came from (``paper``, or a generated
   one: ``generated-k2-N5-seed0``: K actions, N pulses a code, the generator's seed).
 * ``error``: why the run did not finish (the root cause), else ``None``.
@@ -32,20 +34,16 @@ Fields beyond the tables and decisions:
 
 from __future__ import annotations
 
-from array import array
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, TypedDict, TypeVar, cast
-
-import numpy as np
+from typing import Any, Protocol, TypedDict, cast
 
 from rgtbus.mind import decision_fields
+from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.pairs import pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
 from rgtbus.truth import Truth
-
-_T = TypeVar("_T")
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -70,7 +68,6 @@ SUMMARY_JSON_KEYS = (
     "engine",
     "log",
     "decode_errors",
-    "decode_errors_left",
     "repair",
     "error",
 )
@@ -110,169 +107,6 @@ def outcome_of(sc: Scenario, units: Mapping[str, Mapping[str, Any]]) -> str | No
     want = sc.universe.to_list(sc.outcome.choose)
     ok = all(units[x]["choice"] == want for x in sc.outcome.all_of)
     return f"{sc.outcome.name}: {sc.outcome.then if ok else sc.outcome.otherwise}"
-
-
-def is_wrong_decode(kind: str, code: str, addressee: str, sent: str, sent_to: str) -> bool:
-    """Whether a decode differs from what was sent: an ID must read as the ID-code; a payload
-    must be the code sent, found on its addressee's channel."""
-    return (code != "id") if kind == "id" else (code != sent or addressee != sent_to)
-
-
-class DecodeArrays(Protocol):
-    """Decodes held as columns (a unit's ``DecodeColumns``): ``arrays()`` gives each
-    decode's turn and the index of its (kind, addressee, code) among the distinct ones."""
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, Sequence[tuple[str, str, str]]]: ...
-
-
-class HeldDecodes:
-    """Decodes held as columns already (``DecodeArrays``): each one's turn, and the index
-    of its (kind, addressee, code) in ``rows`` (a slice of a unit's, or a unit's decodes
-    read from a log's columns)."""
-
-    def __init__(self, turns: np.ndarray, what: np.ndarray, rows: Sequence[tuple[str, str, str]]):
-        self._arrays = (turns, what, rows)
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, Sequence[tuple[str, str, str]]]:
-        return self._arrays
-
-    def __len__(self) -> int:
-        return len(self._arrays[0])
-
-    def __iter__(self) -> Iterator[list[Any]]:
-        """Each decode as a row: ``[turn, kind, addressee, code]``."""
-        turns, what, rows = self._arrays
-        for turn, w in zip(turns.tolist(), what.tolist(), strict=True):
-            yield [turn, *rows[w]]
-
-
-class SentTruth:
-    """What was sent, per (turn, "id" | "payload"): (addressee, code), the ground truth of
-    decode errors. Built once a run; its arrays (by turn) once, on first use by columns."""
-
-    def __init__(self, sent: Mapping[tuple[int, str], tuple[str, str]]) -> None:
-        self.sent = sent
-        self._arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.names: dict[str, int] = {}  # every addressee and code, as a number
-        self._shared: dict[int, tuple[object, Any]] = {}
-
-    def shared(self, key: object, build: Callable[[], _T]) -> _T:
-        """What every unit's decodes judge alike from ``key`` (a shared listen queue, say),
-        built once with this truth by the first that asks (``key`` is kept alive: it is found
-        by id)."""
-        got = self._shared.get(id(key))
-        if got is None:
-            got = self._shared[id(key)] = (key, build())
-        return cast(_T, got[1])
-
-    def number(self, text: str) -> int:
-        return self.names.setdefault(text, len(self.names))
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """[class (0: ID, 1: payload), turn] -> known, the addressee's and the code's number."""
-        if self._arrays is None:
-            self._arrays = self._by_turn(
-                (turn, cls != "id", addressee, code)
-                for (turn, cls), (addressee, code) in self.sent.items()
-                if turn >= 0
-            )
-        return self._arrays
-
-    @classmethod
-    def of_sends(cls, sends: Iterable[Sequence[Any]]) -> SentTruth:
-        """The truth of sends given as rows ``(turn, kind, addressee, code)`` (the last send
-        of a key counts), held as arrays by turn: a run of n units sends 4n(n−1) codes, and a
-        dict of tuples held about 190 bytes a send."""
-        truth = cls({})
-        other: dict[tuple[int, str], tuple[str, str]] = {}
-
-        def of_turns() -> Iterator[tuple[int, bool, str, str]]:
-            for turn, kind, addressee, code in sends:
-                if isinstance(turn, int) and turn >= 0:
-                    yield turn, kind != "id", addressee, code
-                else:  # not a turn of the arrays: looked up as it is
-                    other[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-
-        truth._arrays = truth._by_turn(of_turns())
-        truth.sent = _SentByTurn(truth, other)
-        return truth
-
-    def _by_turn(
-        self, sends: Iterable[tuple[int, bool, str, str]]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``arrays`` of sends ``(turn, payload?, addressee, code)``, in order: the last of a
-        key wins."""
-        number = self.number
-        turns, classes, to, codes = array("q"), array("q"), array("q"), array("q")
-        for turn, payload, addressee, code in sends:
-            turns.append(turn)
-            classes.append(payload)
-            to.append(number(addressee))
-            codes.append(number(code))
-        t, c = np.frombuffer(turns, dtype=np.int64), np.frombuffer(classes, dtype=np.int64)
-        span = int(t.max()) + 1 if t.size else 0
-        known = np.zeros((2, span), dtype=bool)
-        to_of = np.full((2, span), -1)
-        code_of = np.full((2, span), -1)
-        known[c, t] = True
-        to_of[c, t] = np.frombuffer(to, dtype=np.int64)
-        code_of[c, t] = np.frombuffer(codes, dtype=np.int64)
-        return known, to_of, code_of
-
-
-def wrong_decodes(
-    unit: str, decodes: Iterable[Sequence[Any]] | DecodeArrays, truth: SentTruth
-) -> list[dict[str, Any]]:
-    """A unit's decodes that differ from what was sent (``is_wrong_decode``), in decode
-    order, as ``decode_error`` entries; a decode of a turn with no known send is not judged.
-    Rows (turn, kind, addressee, code) are judged one by one; columns in one vectorised step
-    (n³ decodes at n units)."""
-    judge = getattr(decodes, "wrong", None)
-    if judge is not None:  # decodes that judge themselves (a unit's ``DecodeColumns``)
-        return cast(list[dict[str, Any]], judge(unit, truth))
-    sent_of = truth.sent
-    arrays = getattr(decodes, "arrays", None)
-    if arrays is None:
-        out = []
-        for turn, kind, addressee, code in cast(Iterable[Sequence[Any]], decodes):
-            key = (turn, "id" if kind == "id" else "payload")
-            if key in sent_of:
-                sent_to, sent = sent_of[key]
-                if is_wrong_decode(kind, code, addressee, sent, sent_to):
-                    out.append(decode_error(unit, turn, kind, code, sent))
-        return out
-    turns, what, rows = arrays()
-    if not len(turns) or not sent_of:
-        return []
-    known, to_of, code_of = truth.arrays()
-    number = truth.number
-    row_cls = np.array([int(k != "id") for k, _, _ in rows])
-    row_id_ok = np.array([k != "id" or c == "id" for k, _, c in rows])  # an ID read as the ID
-    row_to = np.array([number(a) for _, a, _ in rows])
-    row_code = np.array([number(c) for _, _, c in rows])
-    cls, t = row_cls[what], turns.astype(np.int64)
-    in_span = (t >= 0) & (t < known.shape[1])
-    t = np.where(in_span, t, 0)
-    judged = in_span & known[cls, t]
-    bad = np.where(
-        cls == 0,
-        ~row_id_ok[what],
-        (code_of[1, t] != row_code[what]) | (to_of[1, t] != row_to[what]),
-    )
-    out = []
-    for i in np.flatnonzero(judged & bad).tolist():
-        turn = int(turns[i])
-        kind, _, code = rows[what[i]]
-        key = (turn, "id" if kind == "id" else "payload")
-        out.append(decode_error(unit, turn, kind, code, sent_of[key][1]))
-    return out
-
-
-def decode_error(
-    unit: str, turn: int | None, kind: str, decoded: str, sent: str | None
-) -> dict[str, Any]:
-    """One entry of a summary's ``decode_errors``."""
-    return {"unit": unit, "turn": turn, "kind": kind, "decoded": decoded, "sent": sent}
 
 
 class DecisionRow(TypedDict):
@@ -363,12 +197,18 @@ class WorldEnd(Protocol):
 
 
 def summarise(
-    sc: Scenario, reports: Iterable[dict[str, Any]], result: WorldEnd, *, engine: str = "event"
+    sc: Scenario,
+    reports: Iterable[dict[str, Any]],
+    result: WorldEnd,
+    *,
+    engine: str = "event",
+    misreads: DecodeErrors | None = None,
 ) -> dict[str, Any]:
     """The run's summary from every unit's ``report()`` (one process or many) and how the
     world ended. Units without a
     report (a process that died) are absent from ``units`` and the run does not agree; the
-    shared fields are the first reporting unit's (none at all: empty)."""
+    shared fields are the first reporting unit's (none at all: empty). ``misreads``: the
+    reports' ``decode_errors_of`` where the caller keeps them (else worked out here)."""
     reports = list(reports)
     by_unit = {r["unit"]: r for r in reports}
     ref = next((by_unit[u] for u in sc.units if u in by_unit), _NO_REPORT)
@@ -376,8 +216,8 @@ def summarise(
     agree = agreement(
         [r["installed"] for r in reports], [r["polynomial"] for r in reports], len(sc.units)
     )
-    decode_errors = all_wrong_decodes(reports)
-    left = decode_errors_left(reports, decode_errors) if decode_errors else 0
+    if misreads is None:
+        misreads = decode_errors_of(reports)
     units_out = {name: by_unit[name]["result"] for name in sc.units if name in by_unit}
     outcome = outcome_of(sc, units_out) if len(units_out) == len(sc.units) else None
     error = root_cause(result.failure, reports)
@@ -411,8 +251,7 @@ def summarise(
             "influences": [_alternative_lists(u, r) for r in rounds],
         },
         "outcome": outcome,
-        "decode_errors": decode_errors,
-        "decode_errors_left": left,
+        "decode_errors": misreads.counts(),
         "repair": repair_summary(sc, reports),
         "sim_seconds": round(result.sim_seconds, 6),
         "wall_seconds": round(result.wall_seconds, 3),
@@ -437,95 +276,6 @@ def _alternative_lists(u: Universe, texts: Mapping[str, str]) -> dict[str, list[
             form = forms[v] = u.to_list(u.parse_alternative(v))
         out[k] = list(form)  # a list of its own, as each entry had
     return out
-
-
-def _sent_truth(reports: Sequence[Mapping[str, Any]]) -> SentTruth:
-    """The ground truth of decode errors: every report's sends (``SentTruth.of_sends``)."""
-    return SentTruth.of_sends(row for r in reports for row in r["sends"])
-
-
-class _SentByTurn(Mapping[tuple[int, str], tuple[str, str]]):
-    """``SentTruth.sent`` read from its arrays: (turn, "id" | "payload") -> (addressee, code)."""
-
-    def __init__(self, truth: SentTruth, other: dict[tuple[int, str], tuple[str, str]]) -> None:
-        self._arrays = truth.arrays()
-        self._names = list(truth.names)  # a number's text
-        self._other = other
-
-    def __getitem__(self, key: tuple[int, str]) -> tuple[str, str]:
-        known, to_of, code_of = self._arrays
-        turn, cls = key
-        if isinstance(turn, int) and 0 <= turn < known.shape[1] and cls in ("id", "payload"):
-            c = int(cls != "id")
-            if known[c, turn]:
-                return self._names[to_of[c, turn]], self._names[code_of[c, turn]]
-        return self._other[key]
-
-    def __iter__(self) -> Iterator[tuple[int, str]]:
-        cls, turn = np.nonzero(self._arrays[0])
-        for c, t in zip(cls.tolist(), turn.tolist(), strict=True):
-            yield (t, "payload" if c else "id")
-        yield from self._other
-
-    def __len__(self) -> int:
-        return int(self._arrays[0].sum()) + len(self._other)
-
-
-def all_wrong_decodes(reports: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Every unit's decodes that differ from what was sent (the ground truth: every report's
-    sends, per (turn, kind)), unit by unit in report order."""
-    sent_truth = _sent_truth(reports)
-    out = []
-    for r in reports:
-        out.extend(wrong_decodes(r["unit"], r["decodes"], sent_truth))
-    return out
-
-
-def decode_errors_left(
-    reports: Sequence[Mapping[str, Any]], errors: Sequence[Mapping[str, Any]]
-) -> int:
-    """How many of ``errors`` (``all_wrong_decodes``) stayed wrong in what the unit took from
-    its turn: a misread counts unless the unit's last read of that turn's payload matched what
-    was sent (a repair's copy read right, ``[protocol] repair``; or, for a misread ID, the
-    payload read right all the same). What ``--check`` judges: what the run decided on."""
-    sent_truth = _sent_truth(reports)
-    asked: dict[str, set[int]] = {}  # per unit, the turns of its errors
-    for e in errors:
-        asked.setdefault(e["unit"], set()).add(e["turn"])
-    right = {
-        r["unit"]: _payloads_read_right(r["decodes"], sent_truth, asked[r["unit"]])
-        for r in reports
-        if r["unit"] in asked
-    }
-    return sum(1 for e in errors if e["turn"] not in right.get(e["unit"], set()))
-
-
-def _payloads_read_right(
-    decodes: Iterable[Sequence[Any]] | DecodeArrays, truth: SentTruth, turns_asked: set[int]
-) -> set[int]:
-    """Which of ``turns_asked`` have their payload last read by the unit as it was sent (code
-    and addressee); the decodes of other turns are not looked at (held as columns, a large
-    run's are n² a unit)."""
-    last: dict[int, bool] = {}
-    arrays = getattr(decodes, "arrays", None)
-    sent_of = truth.sent
-    if arrays is None:
-        for turn, kind, addressee, code in cast(Iterable[Sequence[Any]], decodes):
-            key = (turn, "payload")
-            if turn in turns_asked and kind != "id" and key in sent_of:
-                sent_to, sent = sent_of[key]
-                last[turn] = not is_wrong_decode(kind, code, addressee, sent, sent_to)
-        return {t for t, ok in last.items() if ok}
-    turns, what, rows = arrays()
-    asked = np.array(sorted(t for t in turns_asked if t is not None), dtype=np.int64)
-    at = np.flatnonzero(np.isin(turns, asked))
-    for i, t in zip(at.tolist(), turns[at].tolist(), strict=True):  # the last read wins
-        kind, addressee, code = rows[what[i]]
-        key = (int(t), "payload")
-        if kind != "id" and key in sent_of:
-            sent_to, sent = sent_of[key]
-            last[int(t)] = not is_wrong_decode(kind, code, addressee, sent, sent_to)
-    return {t for t, ok in last.items() if ok}
 
 
 def root_cause(world_failure: str | None, reports: Sequence[Mapping[str, Any]]) -> str | None:
@@ -681,8 +431,7 @@ def check_expectations(scenario: Scenario, s: dict[str, Any]) -> list[tuple[str,
         check("influence dynamics", (s.get("rounds") or {}).get("state"), exp["dynamics"])
     # judged on what the run decided: a misread a repair's copy (or the payload itself) set
     # right is no error of the run; the summary lists every misread all the same
-    misread = len(s["decode_errors"])
-    left = s.get("decode_errors_left", misread)
+    misread, left = s["decode_errors"]["misread"], s["decode_errors"]["left_wrong"]
     label = "no decode error left wrong" + (
         f" ({misread - left} misread, set right)" if misread > left else ""
     )

@@ -266,7 +266,7 @@ def test_a_run_with_bursts_is_the_same_on_both_engines_and_verifies(
         assert verify_log(rp).ok
     assert summaries[0] == summaries[1]
     assert (summaries[0]["error"] is not None) is fails
-    assert bool(summaries[0]["decode_errors"]) is (burst > 0.1)
+    assert bool(summaries[0]["decode_errors"]["misread"]) is (burst > 0.1)
 
 
 # -- delays and clocks ---------------------------------------------------------------------------
@@ -482,11 +482,13 @@ def test_units_hear_and_decode_through_their_faded_links_and_the_log_verifies(en
         assert np.array_equal(gains, fading_amplitudes("rayleigh", sc.seed, r, 4))
         assert len(set(gains.round(6))) == 4  # every link its own
     summary, data = logged_run(sc, engine)
-    assert summary["outcome"] == "gate: open" and summary["decode_errors"] == []
+    assert summary["outcome"] == "gate: open" and summary["decode_errors"]["misread"] == 0
     assert verify_log(load_replay(io.BytesIO(data))).ok
     nearest = replace(sc, decoding="nearest")  # it ships with the matched filter
     worse = [logged_run(nearest.with_seed(seed), engine)[0] for seed in (1, 4)]
-    assert all(s["decode_errors"] for s in worse)  # a deep fade or a strong link misreads
+    assert all(
+        s["decode_errors"]["misread"] for s in worse
+    )  # a deep fade or a strong link misreads
 
 
 @pytest.mark.parametrize("engine", ["event", "dense"])
@@ -507,11 +509,13 @@ def test_the_matched_filter_rule_reads_faded_links_that_the_nearest_word_misread
     matched = load_scenario(ROOT / "scenarios" / "gate_fading.toml")
     assert matched.decoding == "matched-filter"  # as it ships
     nearest = replace(matched, decoding="nearest")
-    misread = [s for s in (1, 4) if logged_run(nearest.with_seed(s), engine)[0]["decode_errors"]]
+    misread = [
+        s for s in (1, 4) if logged_run(nearest.with_seed(s), engine)[0]["decode_errors"]["misread"]
+    ]
     assert misread == [1, 4]
     for seed in (1, 4):
         summary, data = logged_run(replace(matched, seed=seed), engine)
-        assert summary["decode_errors"] == [] and summary["outcome"] == "gate: open"
+        assert summary["decode_errors"]["misread"] == 0 and summary["outcome"] == "gate: open"
         assert verify_log(load_replay(io.BytesIO(data))).ok
     with pytest.raises(RgtbusError, match=r"decoding: unknown decoding rule 'ml' \(nearest, "):
         parse_scenario(text.replace('decoding = "matched-filter"', 'decoding = "ml"'), "x.toml")
@@ -554,7 +558,7 @@ def test_over_noisy_faded_links_the_matched_filter_reads_a_group_the_nearest_wor
     for sc in (matched, replace(matched, decoding="nearest")):
         summary = run_group(sc, "memory", NullRecorder()).summary
         assert summary["error"] is None
-        got[sc.decoding] = len(summary["decode_errors"])
+        got[sc.decoding] = summary["decode_errors"]["misread"]
     assert got["matched-filter"] * 4 < got["nearest"], got
     with pytest.raises(RgtbusError, match=r"fleet.toml:6: decoding: 'matched-filter' reads the "):
         concurrent = FLEET.replace('schedule = "serial"', 'schedule = "concurrent"')

@@ -144,7 +144,7 @@ def test_random_groups_are_the_same_on_both_engines(seed, noise, gains, anchor):
     if seed == 11:
         assert "turn 10" in s["error"] and s["sim_seconds"] > 100  # the others went on
     if seed == 12:
-        assert s["decode_errors"]
+        assert s["decode_errors"]["misread"]
 
 
 @pytest.mark.parametrize("engine", ["event", "dense"])
@@ -561,15 +561,13 @@ def test_a_block_of_queued_codes_decodes_as_each_code_alone(monkeypatch, seed):
         rec = MemoryRecorder()
         out = run_group(sc, "memory", rec)
         summary = {k: v for k, v in out.summary.items() if k not in ("wall_seconds", "sync")}
-        got.append(
-            (summary, sorted((tp, t, _json(m)) for tp, t, m in rec.messages))
-        )
+        got.append((summary, sorted((tp, t, _json(m)) for tp, t, m in rec.messages)))
     assert got[0] == got[1]
-    assert got[0][0]["decode_errors"]  # noisy enough that some codes are misread
+    assert got[0][0]["decode_errors"]["misread"]  # noisy enough that some codes are misread
     # a unit judges its batches against the queue's truth: as its decodes judged row by row
-    from rgtbus.summary import _sent_truth, wrong_decodes
+    from rgtbus.misreads import sent_truth, wrong_decodes
 
-    truth = _sent_truth(out.reports)
+    truth = sent_truth(out.reports)
     for unit in out.units:
         rows = [list(row) for row in unit.decoded]
         assert wrong_decodes(unit.name, unit.decoded, truth) == wrong_decodes(

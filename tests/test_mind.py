@@ -136,3 +136,45 @@ def test_minds_that_decoded_alike_share_the_forward_task_and_still_choose_their_
     for i, p in enumerate(pairs):
         apart.hear_influence(1, p, i % 2)
     assert apart.polynomial != a.polynomial and apart.results is not a.results
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_tables_read_as_arrays_give_what_the_pair_by_pair_reading_gives(seed):
+    """A mind's tables (relation codes, pairs installed, influences) and the installed graph
+    read from a ``PairTable`` as arrays equal the same read pair by pair from a dict, with
+    codes missing, units of any names, and the same refusal of a missing code."""
+    import random
+    import re
+
+    from rgtbus.mind import mind_of
+    from rgtbus.pairs import PairTable
+    from rgtbus.rgt.polynomial import install_relations
+
+    rng = random.Random(seed)
+    names = rng.sample(["zed", "a1", "B", "m_2", "q", "aa", "c9", "x"], rng.randint(2, 8))
+    text = (ROOT / "scenarios" / "gate.toml").read_text()
+    sc = parse_scenario(text)  # a mind of gate's, given tables of other names
+    table = PairTable(names, boolean=True)
+    missing = rng.random() < 0.5
+    for s in names:
+        for r in names:
+            if s != r and not (missing and rng.random() < 0.1):
+                table[(s, r)] = rng.random() < 0.6
+    plain = dict(table.items())
+    fast, slow = mind_of(sc, sc.units[0]), mind_of(sc, sc.units[0])
+    fast.units = slow.units = tuple(names)
+    fast.sent, slow.sent = table, plain
+    assert fast._installed() == slow._installed()
+    assert list(fast._sent_table().items()) == list(slow._sent_table().items())
+    infl = PairTable(names)
+    for p in plain:
+        infl[p] = rng.randrange(4)
+    fast.influences, slow.influences = infl, dict(infl.items())
+    assert list(fast._influence_table().items()) == list(slow._influence_table().items())
+    try:
+        want = install_relations(names, plain)
+    except Exception as exc:  # the refusal itself is compared
+        with pytest.raises(type(exc), match=re.escape(str(exc))):
+            install_relations(names, table)
+    else:
+        assert install_relations(names, table) == want

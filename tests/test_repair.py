@@ -248,10 +248,10 @@ def test_check_judges_what_the_run_decided_misreads_set_right_are_no_error(seed)
     """gate_repair's --check passes: its misreads (IDs, and payloads a repair's copy read
     right) are listed, and none is left wrong in what the units took."""
     s, lines = _checked(seed)
-    assert s["decode_errors"] and s["decode_errors_left"] == 0
+    assert s["decode_errors"]["misread"] and s["decode_errors"]["left_wrong"] == 0
     assert all(ok for _, ok, _ in lines), [x for x in lines if not x[1]]
     label = next(w for w, _, _ in lines if w.startswith("no decode error left wrong"))
-    assert f"({len(s['decode_errors'])} misread, set right)" in label
+    assert f"({s['decode_errors']['misread']} misread, set right)" in label
 
 
 def test_gate_repair_checks_in_every_seed_1_to_20():
@@ -265,6 +265,10 @@ def test_a_misread_left_wrong_fails_the_check():
     text = (ROOT / "scenarios" / "gate_repair.toml").read_text()
     text = text.replace("noise = 0.1", "noise = 0.13").replace('repair = "arq"', 'repair = "none"')
     s, lines = _checked(3, text)
-    assert 0 < s["decode_errors_left"] < len(s["decode_errors"])
+    assert 0 < s["decode_errors"]["left_wrong"] < s["decode_errors"]["misread"]
     left = [x for x in lines if x[0].startswith("no decode error left wrong")]
-    assert left and not left[0][1] and left[0][2] == f"got {s['decode_errors_left']}, expected 0"
+    assert (
+        left
+        and not left[0][1]
+        and left[0][2] == f"got {s['decode_errors']['left_wrong']}, expected 0"
+    )

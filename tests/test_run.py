@@ -51,7 +51,7 @@ def test_paper_scenarios_end_to_end(name, bus):
     assert summary["error"] is None
     failed = [(w, d) for w, ok, d in check_expectations(sc, summary) if not ok]
     assert failed == []
-    assert summary["agree"] and summary["decode_errors"] == []
+    assert summary["agree"] and summary["decode_errors"]["misread"] == 0
 
 
 def test_corrected_paper_values():
@@ -129,7 +129,11 @@ def test_alliance_probability_is_0_61():
         sc = replace(base, seed=seed)
         for u in sc.units:
             choices = choose_relations(
-                u, sc.units, seed=seed, fixed=sc.relations.fixed, draws=sc.relations.draws,
+                u,
+                sc.units,
+                seed=seed,
+                fixed=sc.relations.fixed,
+                draws=sc.relations.draws,
                 p=sc.relations.p,
             )
             n += len(choices)
@@ -161,7 +165,9 @@ def test_noisy_channel_still_decodes(seed):
     base = load_scenario(ROOT / "scenarios" / "gate.toml")
     sc = replace(base, channel=replace(base.channel, noise=0.002), seed=seed)
     _, s, (messages, _) = run(sc)
-    assert s["error"] is None and s["outcome"] == "gate: open" and s["decode_errors"] == []
+    assert (
+        s["error"] is None and s["outcome"] == "gate: open" and s["decode_errors"]["misread"] == 0
+    )
     margins = [x for t, _, m in messages if t == "/rx/decodes" for x in m["margin"]]
     assert min(margins) > 0.1
 
@@ -355,7 +361,7 @@ def test_noisy_gate_decodes_at_sigma_0_05_when_anchored_on_the_schedule(seed):
     sc = load_scenario(ROOT / "scenarios" / "gate_noisy.toml").with_seed(seed)
     assert sc.channel.noise == 0.05 and sc.timing.anchor == "schedule"
     sc_, s, _ = run(sc)
-    assert s["error"] is None and s["decode_errors"] == []
+    assert s["error"] is None and s["decode_errors"]["misread"] == 0
     assert [w for w, ok, _ in check_expectations(sc_, s) if not ok] == []
 
 
@@ -449,8 +455,7 @@ def test_decode_records_hold_a_block_of_time_each(name):
         own = [
             t
             for topic, t, m in rec.messages
-            if m.get("unit") == unit.name
-            and topic not in ("/tx/pulse", "/rx/spike", "/rx/decodes")
+            if m.get("unit") == unit.name and topic not in ("/tx/pulse", "/rx/spike", "/rx/decodes")
         ]
         assert own == sorted(own)
         got = [
@@ -572,7 +577,7 @@ def _judged_alike(cols, rows, truth):
     """The errors of a unit's decodes held as columns, checked against the same decodes
     judged as rows, and against the columns pickled (a unit process's report: its runs go
     as rows, their queue stays behind)."""
-    from rgtbus.summary import wrong_decodes
+    from rgtbus.misreads import wrong_decodes
 
     got = wrong_decodes("u", cols, truth)
     assert got == wrong_decodes("u", [list(r) for r in rows], truth)
@@ -587,7 +592,7 @@ def test_wrong_decodes_judge_columns_as_rows():
     step, and rows (read from a log) one by one: the same errors, in decode order."""
     from rgtbus.units.listening import DecodeColumns
 
-    from rgtbus.summary import SentTruth, wrong_decodes
+    from rgtbus.misreads import SentTruth, wrong_decodes
 
     truth = SentTruth({
         (0, "id"): ("b", "id"), (0, "payload"): ("b", "alliance"),
@@ -630,7 +635,7 @@ def test_a_units_batches_are_judged_as_the_same_decodes_held_as_rows():
     import numpy as np
     from rgtbus.units.listening import KINDS, DecodeColumns, QueueReads
 
-    from rgtbus.summary import SentTruth, wrong_decodes
+    from rgtbus.misreads import SentTruth, wrong_decodes
 
     units, names = ("a", "b", "c"), ("id", "alliance", "conflict", "{go}")
     # positions: (turn, kind, sender, expected addressee)
@@ -933,7 +938,7 @@ def test_the_truth_of_sends_is_held_as_arrays_and_read_as_a_mapping():
     """A run's sends, the ground truth of its decode errors, are held by turn as arrays; read
     as a mapping they are every (turn, kind) -> (addressee, code), the last send of a key
     counting, as a dict of them would be; a key that is no turn is kept as it is."""
-    from rgtbus.summary import SentTruth, _sent_truth, wrong_decodes
+    from rgtbus.misreads import SentTruth, sent_truth, wrong_decodes
 
     reports = [
         {"sends": [[0, "id", "b", "id"], [0, "payload", "b", "alliance"],
@@ -946,7 +951,7 @@ def test_the_truth_of_sends_is_held_as_arrays_and_read_as_a_mapping():
     for r in reports:
         for turn, kind, addressee, code in r["sends"]:
             want[(turn, "id" if kind == "id" else "payload")] = (addressee, code)
-    truth = _sent_truth(reports)
+    truth = sent_truth(reports)
     assert dict(truth.sent) == want and len(truth.sent) == len(want)
     assert (0, "payload") in truth.sent and (1, "id") not in truth.sent
     rows = [

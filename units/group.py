@@ -18,6 +18,7 @@ from rgtbus.units.unit import AutonomousUnit
 from rgtbus._version import __version__
 from rgtbus.bus import drop_summary, open_bus
 from rgtbus.engine.sim import World
+from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
 from rgtbus.telemetry import Recorder, records
@@ -29,6 +30,7 @@ class RunOutput:
     summary: dict[str, Any]
     units: list[AutonomousUnit]
     reports: list[dict[str, Any]]  # what the summary was made from (``shared_reports``)
+    misreads: DecodeErrors  # every misread decode, as the summary counts them
 
 
 def default_run_id(sc: Scenario) -> str:
@@ -105,9 +107,10 @@ def run_group(
     for m in members:
         m.write_report(result.sim_seconds)
     reports = shared_reports(members)
-    summary = summarise(sc, reports, result, engine=engine)
+    misreads = decode_errors_of(reports)
+    summary = summarise(sc, reports, result, engine=engine, misreads=misreads)
     recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
-    return RunOutput(summary, members, reports)
+    return RunOutput(summary, members, reports, misreads)
 
 
 def shared_reports(members: Sequence[AutonomousUnit]) -> list[dict[str, Any]]:

@@ -39,6 +39,7 @@ from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.registry import cross_process_kind
 from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.interrupts import interrupted_by
+from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario, load_scenario
 from rgtbus.summary import summarise, summary_json
 
@@ -601,11 +602,13 @@ def launch(
     )
     if interrupted is not None:
         failures.insert(0, interrupted)
-    result = _summarised(sc, outputs, failures, time.perf_counter() - t0, engine)
+    result, misreads = _summarised(sc, outputs, failures, time.perf_counter() - t0, engine)
     failures.extend(_merged(sc, run_id, where, result, failures, logs, key))
     result["log"] = str(where / "run.mcap")
     merged = where / "run.mcap"
-    return RunResult(summary_json(result), sc, merged, result, failures, interrupted is not None)
+    return RunResult(
+        summary_json(result), sc, merged, result, failures, interrupted is not None, misreads
+    )
 
 
 def _run_processes(
@@ -672,8 +675,9 @@ def _summarised(
     failures: list[str],
     wall_seconds: float,
     engine: str,
-) -> dict[str, Any]:
-    """The run's summary from what every unit reported, its error the first failure."""
+) -> tuple[dict[str, Any], DecodeErrors]:
+    """The run's summary from what every unit reported, its error the first failure, and
+    its misreads."""
     from rgtbus.engine.sim import WorldResult
 
     reports = [outputs[u]["report"] for u in sc.units if u in outputs]
@@ -686,7 +690,8 @@ def _summarised(
         bus_stats={u: o["bus"] for u, o in outputs.items()},
         sync={u: o.get("sync", {}) for u, o in outputs.items()},
     )
-    return summarise(sc, reports, ended, engine=engine)
+    misreads = decode_errors_of(reports)
+    return summarise(sc, reports, ended, engine=engine, misreads=misreads), misreads
 
 
 def _merged(
@@ -711,9 +716,7 @@ def _merged(
 
     f, rec = open_log(where / "launch.mcap")
     try:
-        write_metadata(
-            rec, sc, cross_process_kind(), run_id, process="launch", auth=auth_name(key)
-        )
+        write_metadata(rec, sc, cross_process_kind(), run_id, process="launch", auth=auth_name(key))
         for msg in failures:
             rec.log("error", msg, ns(summary["sim_seconds"]), name="launch")
         rec.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))

@@ -25,6 +25,7 @@ import numpy as np
 from rgtbus.units.timers import Timer, Timers
 
 from rgtbus.errors import BadInput
+from rgtbus.misreads import DECODE_KINDS, HeldDecodes, Misreads, SentTruth, misreads_of
 from rgtbus.pairs import PairTable
 from rgtbus.protocol import Listen, ListenQueue, ProtocolState, code_samples
 from rgtbus.scenario import Scenario
@@ -36,7 +37,6 @@ from rgtbus.signal.decoder import (
 )
 from rgtbus.signal.resonator import clean_first_spike
 from rgtbus.signal.rules import rule_named
-from rgtbus.summary import HeldDecodes, SentTruth, decode_error, wrong_decodes
 from rgtbus.telemetry import records
 from rgtbus.telemetry.unit_log import DecodePart, UnitLog
 from rgtbus.timebase import samples_of
@@ -49,7 +49,7 @@ DecodedRow = tuple[int, str, str, str]  # (turn, kind, addressee, code): what th
 Act = Callable[[Listen, str, float, int], None]  # what a decode read: code, margin, channel
 
 _ID, _RELATION, _INFLUENCE = 0, 1, 2  # the kinds of a listen, as a column
-KINDS = ("id", "relation", "influence")
+KINDS = DECODE_KINDS
 
 
 class DecodeColumns:
@@ -132,7 +132,7 @@ class DecodeColumns:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, list[tuple[str, str, str]]]:
         """(each held decode's turn, the index of its (kind, addressee, code) in the third),
-        in decode order (``rgtbus.summary.wrong_decodes``): over the rows' own memory when
+        in decode order (``rgtbus.misreads.misreads_of``): over the rows' own memory when
         there is no run, else built (a unit's, once)."""
         dtype = np.uint16 if self._what.typecode == "H" else np.uintc
         turns = np.frombuffer(self._turns, dtype=np.intc)
@@ -167,38 +167,36 @@ class DecodeColumns:
         parts_w.append(what[done:].astype(np.int64))
         return np.concatenate(parts_t), np.concatenate(parts_w), self._rows
 
-    def wrong(self, unit: str, truth: SentTruth) -> list[dict[str, Any]]:
-        """``rgtbus.summary.wrong_decodes`` of these decodes (the summary asks this), in
-        decode order, without building every held decode: rows are judged as rows, a run
-        against its queue's truth, worked out once a queue for every unit (``_queue_truth``):
-        a few array operations over its bytes."""
+    def misreads(self, truth: SentTruth) -> Misreads:
+        """``rgtbus.misreads.misreads_of`` these decodes (the summary asks this), in decode
+        order, without building every held decode: rows are judged as rows, a run against its
+        queue's truth, worked out once a queue for every unit (``_queue_truth``): a few array
+        operations over its bytes."""
         dtype = np.uint16 if self._what.typecode == "H" else np.uintc
         turns = np.frombuffer(self._turns, dtype=np.intc)
         what = np.frombuffer(self._what, dtype=dtype)
         words = np.frombuffer(
             self._words, dtype=np.uint8 if self._words.typecode == "B" else np.uint16
         )
-        out: list[dict[str, Any]] = []
+        parts: list[Misreads] = []
         done = 0  # rows judged so far
+        code_of = truth.arrays()[2] if self._runs else None
         for rows_before, reads, a, b, w0 in self._runs:
-            part = HeldDecodes(turns[done:rows_before], what[done:rows_before], self._rows)
-            out += wrong_decodes(unit, part, truth)
+            rows = HeldDecodes(turns[done:rows_before], what[done:rows_before], self._rows)
+            parts.append(misreads_of(rows, truth))
             done = rows_before
             judged, addressed, sent_word, where = _queue_truth(reads, truth)
             pa, pb = int(reads.n_pay[a]), int(reads.n_pay[b])
             read = words[w0 : w0 + pb - pa]
-            bad = judged[pa:pb] & ((sent_word[pa:pb] != read) | ~addressed[pa:pb])
-            for i in np.flatnonzero(bad).tolist():
-                p = int(where[pa + i])
-                turn = int(reads.turn[p])
-                out.append(
-                    decode_error(
-                        unit, turn, KINDS[int(reads.kind[p])], reads.names[int(read[i])],
-                        truth.sent[(turn, "payload")][1],
-                    )
-                )  # fmt: skip
-        out += wrong_decodes(unit, HeldDecodes(turns[done:], what[done:], self._rows), truth)
-        return out
+            bad = np.flatnonzero(judged[pa:pb] & ((sent_word[pa:pb] != read) | ~addressed[pa:pb]))
+            p = where[pa + bad]
+            turn = reads.turn[p].astype(np.int64)
+            kinds, names = _numbers(reads, truth)
+            assert code_of is not None
+            read_as = names[read[bad]]
+            parts.append(Misreads.of(turn, kinds[reads.kind[p]], read_as, code_of[1, turn]))
+        parts.append(misreads_of(HeldDecodes(turns[done:], what[done:], self._rows), truth))
+        return Misreads.concat([m for m in parts if len(m)])
 
     def __iter__(self) -> Iterator[DecodedRow]:
         turns, what, rows = self.arrays()
@@ -231,7 +229,7 @@ def _queue_truth(
     """Over a queue's payloads, in queue order (once a queue and truth: ``truth.shared``):
     whether each is judged (its turn's payload is known), whether it was sent to the
     addressee whose channel the queue reads it on, the index in ``reads.names`` of the word
-    sent (-1: none of them), and each payload's position in the queue. As ``wrong_decodes``
+    sent (-1: none of them), and each payload's position in the queue. As ``misreads_of``
     judges a payload row: wrong when the code or the addressee differs from what was sent."""
 
     def build() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -249,6 +247,16 @@ def _queue_truth(
         return judged, addressed, sent_word, where
 
     return truth.shared(reads, build)
+
+
+def _numbers(reads: QueueReads, truth: SentTruth) -> tuple[np.ndarray, np.ndarray]:
+    """The numbers (``SentTruth.number``) of a queue's kinds and of its word names."""
+
+    def build() -> tuple[np.ndarray, np.ndarray]:
+        kinds = np.array([truth.number(k) for k in KINDS], dtype=np.int64)
+        return kinds, np.array([truth.number(w) for w in reads.names], dtype=np.int64)
+
+    return truth.shared(reads.names, build)  # they depend on the names alone
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,6 +12,7 @@ from rgtbus.errors import BadInput
 if TYPE_CHECKING:
     import pandas as pd
 
+    from rgtbus.misreads import DecodeErrors
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
 
@@ -34,6 +35,8 @@ class RunResult:
     details: dict[str, Any] = field(default_factory=dict, repr=False)
     failures: list[str] = field(default_factory=list)
     interrupted: bool = False
+    # every misread decode, as the summary counts them (``decode_errors()``)
+    misreads: DecodeErrors | None = field(default=None, repr=False, compare=False)
 
     @property
     def ok(self) -> bool:
@@ -48,6 +51,15 @@ class RunResult:
 
         return open_log(self.log)
 
+    def decode_errors(self) -> pd.DataFrame:
+        """Every misread decode of the run, one row each (``Log.decode_errors()``'s columns:
+        ``unit, turn, kind, decoded, sent, left_wrong``); the summary's ``decode_errors``
+        counts them. From the run itself, else (a result rebuilt without its details) from its
+        log."""
+        if self.misreads is None:
+            return self.open_log().decode_errors()
+        return self.misreads.frame()
+
     def decisions(self) -> pd.DataFrame:
         """The summary's decisions as a DataFrame (one row per unit and round), as
         ``Log.decisions()`` gives them."""
@@ -56,10 +68,14 @@ class RunResult:
         return decisions_frame(self.summary)
 
 
-def result_of(sc: Scenario, summary: dict[str, Any], log: Path | None) -> RunResult:
+def result_of(
+    sc: Scenario, summary: dict[str, Any], log: Path | None, misreads: DecodeErrors | None = None
+) -> RunResult:
     """The ``RunResult`` of a run in one process from its whole summary (its error, if any,
-    the one failure it names)."""
+    the one failure it names) and its misreads."""
     from rgtbus.summary import summary_json
 
     error = summary.get("error")
-    return RunResult(summary_json(summary), sc, log, summary, [error] if error else [])
+    return RunResult(
+        summary_json(summary), sc, log, summary, [error] if error else [], misreads=misreads
+    )

@@ -72,7 +72,7 @@ from rgtbus.units.workers import (
 
 from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.scenario import Scenario
-from rgtbus.summary import decode_errors_left, summary_json
+from rgtbus.summary import summary_json
 from rgtbus.telemetry.sweep_read import SweepTables, read_results, read_sweep
 from rgtbus.telemetry.sweep_tables import (
     NOT_COLUMNS,
@@ -145,7 +145,8 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
             # a grid key keeps its name; a summary field of the same name gets a prefix
             row[f"summary.{k}" if k in grid_keys else k] = v
         row["_decisions"] = s.get("decisions") or []
-        row["decode_error_count"] = len(s["decode_errors"])
+        misread = s["decode_errors"]
+        row["decode_error_count"] = misread["misread"]
         row["frustrated_count"] = len(s["frustrated"])
         decided = sum(1 for u in s["units"].values() if u["decided"])
         row["decided_count"] = decided
@@ -157,8 +158,9 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row["alliance_share"] = rels.count("alliance") / len(rels) if rels else None
         decodes = sum(len(m.decoded) for m in out.units)
         row["decodes"] = decodes
-        row["decode_error_rate"] = len(s["decode_errors"]) / decodes if decodes else None
-        row.update(id_columns(s["decode_errors"], out.units, out.reports))
+        row["decode_error_rate"] = misread["misread"] / decodes if decodes else None
+        row["decode_errors_left"] = misread["left_wrong"]
+        row.update(id_columns(misread, out.units))
         row["failed"] = s["error"] is not None
     except Exception as exc:  # a run that raises is a result of the sweep, never its end
         last = traceback.extract_tb(exc.__traceback__)[-1:] or None
@@ -170,25 +172,20 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
     return row
 
 
-def id_columns(
-    errors: Sequence[Mapping[str, Any]],
-    units: Sequence[AutonomousUnit],
-    reports: Sequence[Mapping[str, Any]],
-) -> dict[str, Any]:
+def id_columns(misread: Mapping[str, Any], units: Sequence[AutonomousUnit]) -> dict[str, Any]:
     """A run's ID-codes as read: how many its units decoded (``id_decodes``), how many of
     those read otherwise than sent (``id_misread_count``, ``id_misread_rate``), and how many
-    misread IDs stayed wrong in what the unit took from their turns (``id_misreads_left``,
-    as ``summary.decode_errors_left`` judges: a repair, or the payload read right all the
-    same, sets one right; ``reports``: the units' reports the run's summary was made from).
-    What the ID-noise study plots (scenarios/sweeps/id_noise.toml)."""
-    misread = [e for e in errors if e["kind"] == "id"]
+    misread IDs stayed wrong in what the unit took from their turns (``id_misreads_left``:
+    a repair, or the payload read right all the same, sets one right). ``misread``: the
+    summary's ``decode_errors`` (``rgtbus.misreads``). What the ID-noise study plots
+    (scenarios/sweeps/id_noise.toml)."""
+    ids = misread["by_kind"]["id"]
     decoded = sum(m.decoded.count("id") for m in units)
-    left = decode_errors_left(reports, misread) if misread else 0
     return {
         "id_decodes": decoded,
-        "id_misread_count": len(misread),
-        "id_misread_rate": len(misread) / decoded if decoded else None,
-        "id_misreads_left": left,
+        "id_misread_count": ids["misread"],
+        "id_misread_rate": ids["misread"] / decoded if decoded else None,
+        "id_misreads_left": ids["left_wrong"],
     }
 
 

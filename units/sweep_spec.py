@@ -31,8 +31,9 @@ MAX_RUNS = 1_000_000
 # the version of the tables a sweep directory holds (sweep.json "tables"): 2 is native Arrow
 # types and decisions.parquet; 1 (no key) held nested columns as JSON text
 # 3: every row names its sweep and run (sweep, run_id); 4: the ID-codes as read (id_decodes,
-# id_misread_count, id_misread_rate, id_misreads_left)
-TABLES_VERSION = 4
+# id_misread_count, id_misread_rate, id_misreads_left); 5: decode_errors as counts and a
+# sample (rgtbus.misreads), decode_errors_left a derived column
+TABLES_VERSION = 5
 ErrorAt = Callable[[str | None, str], RgtbusError]  # (key or None, reason) -> the error to raise
 
 
@@ -292,9 +293,7 @@ def _read_capped(path: Path, what: str) -> bytes:
     except OSError as exc:
         raise IOFailure(f"cannot read {what} {str(path)!r}: {exc.strerror}") from None
     if len(data) > MAX_SCENARIO_BYTES:
-        raise BadInput(
-            f"{str(path)!r}: larger than {MAX_SCENARIO_BYTES >> 20} MiB: not a {what}"
-        )
+        raise BadInput(f"{str(path)!r}: larger than {MAX_SCENARIO_BYTES >> 20} MiB: not a {what}")
     return data
 
 

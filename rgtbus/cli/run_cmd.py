@@ -23,6 +23,7 @@ from rgtbus.cli.tables import fitted_table_lines, relations_lines, wrapped_table
 from rgtbus.errors import BadInput
 from rgtbus.interrupts import interrupted_by, last_signal
 from rgtbus.mind import goal_text
+from rgtbus.misreads import decode_errors_line
 from rgtbus.scenario import Scenario
 from rgtbus.summary import not_decomposable_text
 
@@ -356,21 +357,7 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         print(f"goal: {goal_line(u, g)}")
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
-    errors = s["decode_errors"]
-    left = s.get("decode_errors_left", len(errors))
-    print(
-        f"decode errors: {len(errors)}"
-        + (f", {left} left wrong (the others set right)" if left < len(errors) else "")
-        + (
-            "  ("
-            + "; ".join(
-                f"{e['unit']} turn {e['turn']}: {e['decoded']} for {e['sent']}" for e in errors[:5]
-            )
-            + ")"
-            if errors
-            else ""
-        )
-    )
+    print(decode_errors_line(s["decode_errors"]))
     print(
         f"time: {s['sim_seconds']:.1f} s simulated in {s['wall_seconds']:.2f} s wall "
         f"({s['engine']} engine, {s['steps']} steps)"

@@ -20,7 +20,10 @@ import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from rgtbus.errors import BadInput, NotDecomposable
+from rgtbus.pairs import PairTable, unordered_slots
 from rgtbus.rgt.expr import Const, Expr, Not, Prod, Sum, Var, format_expr, variables
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -123,9 +126,7 @@ class _PolynomialParser:
         """A variable, or a parenthesised sum."""
         t = self.peek()
         if t is None or t[0] in ("+", "*", ")"):
-            raise BadInput(
-                f"expected a variable or '(' but found {self.where()} in {self.text!r}"
-            )
+            raise BadInput(f"expected a variable or '(' but found {self.where()} in {self.text!r}")
         self.pos += 1
         if t[0] == "name":
             return Var(t[1])
@@ -338,6 +339,8 @@ def install_relations(
     ``sent[(s, r)]`` is True when s sent the alliance code to r, False for conflict; every
     ordered pair of distinct subjects is needed.
     """
+    if isinstance(sent, PairTable) and sent.units == tuple(subjects):  # a table: as arrays
+        return _installed_of_table(sent)
     pairs = []
     for a, b in itertools.combinations(subjects, 2):
         for key in ((a, b), (b, a)):
@@ -346,6 +349,25 @@ def install_relations(
         if sent[(a, b)] and sent[(b, a)]:
             pairs.append((a, b))
     return RelationGraph.from_pairs(subjects, pairs)
+
+
+def _installed_of_table(sent: PairTable) -> RelationGraph:
+    """``install_relations`` of a ``PairTable`` (n² slots read as arrays): the same graph, or
+    the same refusal of the first missing code in pair order."""
+    units = sent.units
+    vals, held = sent.columns()
+    ab, ba, _ = unordered_slots(units)
+    missing = np.flatnonzero(~(held[ab] & held[ba]))
+    if missing.size:
+        k = int(missing[0])
+        slot = int(ab[k]) if not held[ab[k]] else int(ba[k])
+        s, r = divmod(slot, len(units))
+        raise BadInput(f"missing relationship code {units[s]}>{units[r]}")
+    allied = np.flatnonzero((vals[ab] != 0) & (vals[ba] != 0))
+    graph = RelationGraph.from_pairs(units, ())  # the subjects checked
+    n = len(units)
+    pairs = frozenset(frozenset((units[i // n], units[i % n])) for i in ab[allied].tolist())
+    return RelationGraph(graph.subjects, pairs)
 
 
 def random_polynomial(subjects: Sequence[str], rng: random.Random) -> Expr:

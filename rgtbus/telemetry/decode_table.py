@@ -22,7 +22,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from rgtbus.errors import BadLog
-from rgtbus.summary import HeldDecodes
+from rgtbus.misreads import HeldDecodes
 from rgtbus.telemetry.record_rows import decode_units
 from rgtbus.telemetry.records import DECODE_TABLES, NAMED_COLUMNS, RX_DECODES
 

@@ -97,6 +97,13 @@ class Log:
         return decisions_frame(self.summary())
 
     @_explained
+    def decode_errors(self) -> pd.DataFrame:
+        """Every misread decode, one row each in unit and decode order: ``unit, turn, kind,
+        decoded, sent`` (categoricals but ``turn``, int64) and ``left_wrong`` (what the unit
+        took from that turn stayed wrong); the summary's ``decode_errors`` counts them."""
+        return self.replay.decode_errors().frame()
+
+    @_explained
     def decodes(self) -> pd.DataFrame:
         """One row per decode: ``unit, t, turn, kind, sender, addressee, channel, code, value,
         margin, accepted, sent, matches`` (``value``: the alternative an influence's code

@@ -20,12 +20,12 @@ from typing import IO, Any, cast
 import numpy as np
 
 from rgtbus.errors import BadLog, RgtbusError
+from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario, parse_scenario
 from rgtbus.summary import (
     HOW_IT_RAN,
     RunEnd,
     agreement,
-    decode_error,
     summarise,
     summary_json,
 )
@@ -127,17 +127,13 @@ class Replay:
         """Each unit's last ``/unit/relations`` record (a 200-unit run's are 200 tables of
         39,800 pairs: read only when asked for)."""
         with explained(self.by_topic.messages, self.label):
-            return {
-                m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]
-            }
+            return {m["unit"]: cast(RelationsRecord, m) for _, m in self.by_topic[UNIT_RELATIONS]}
 
     @functools.cached_property
     def influences(self) -> dict[str, InfluencesRecord]:
         """Each unit's last ``/unit/influences`` record."""
         with explained(self.by_topic.messages, self.label):
-            return {
-                m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]
-            }
+            return {m["unit"]: cast(InfluencesRecord, m) for _, m in self.by_topic[UNIT_INFLUENCES]}
 
     @functools.cached_property
     def decisions(self) -> list[DecisionRecord]:
@@ -310,15 +306,10 @@ class Replay:
         polys = [None if r is None else r["polynomial"] for r in held]
         return agreement(tables, polys, len(self.units))
 
-    def decode_errors(self) -> list[dict[str, Any]]:
-        """As ``summarise`` lists them: per unit (in unit order), decodes of a wrong code."""
-        out = []
-        order = {u: i for i, u in enumerate(self.units)}
-        rows = sorted(self.decodes, key=lambda d: order.get(d.unit, len(order)))
-        for d in rows:
-            if d.matches is False:
-                out.append(decode_error(d.unit, d.turn, d.kind, d.code, d.sent))
-        return out
+    def decode_errors(self) -> DecodeErrors:
+        """Every unit's misreads, as the summary counts them (``decode_errors_of`` on the
+        reports the summary is computed from)."""
+        return decode_errors_of(self.unit_reports())
 
     def unit_reports(self) -> list[dict[str, Any]]:
         """Each unit's share of the run summary, from its ``/unit/report`` and its

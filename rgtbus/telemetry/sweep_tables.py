@@ -132,9 +132,15 @@ def _summary_types() -> dict[str, ColumnType]:
         ("length", INT),
         ("influences", list_of(influences)),
     )
-    decode_error = struct_of(
-        ("unit", TEXT), ("turn", INT), ("kind", TEXT), ("decoded", TEXT), ("sent", TEXT)
-    )
+    misread = struct_of(
+        ("unit", TEXT), ("turn", INT), ("kind", TEXT), ("decoded", TEXT), ("sent", TEXT),
+        ("left_wrong", BOOL),
+    )  # fmt: skip
+    fates = (("misread", INT), ("set_right", INT), ("left_wrong", INT))
+    decode_errors = struct_of(
+        *fates, ("by_kind", map_of(TEXT, struct_of(*fates))), ("sample", list_of(misread)),
+        ("rest", TEXT),
+    )  # fmt: skip
     counts = ("requests", "repeats", "copies", "missing", "resolved", "unresolved")
     repair = struct_of(
         ("mode", TEXT), ("blocks_per_phase", INT), ("seconds", FLOAT), *[(k, INT) for k in counts]
@@ -155,8 +161,7 @@ def _summary_types() -> dict[str, ColumnType]:
         "outcome": TEXT,
         "sim_seconds": FLOAT,
         "wall_seconds": FLOAT,
-        "decode_errors": list_of(decode_error),
-        "decode_errors_left": INT,  # those not set right (summary.decode_errors_left)
+        "decode_errors": decode_errors,  # counts and a sample (rgtbus.misreads)
         "codebook": TEXT,
         "repair": repair,  # null without a repair
         "error": TEXT,
@@ -181,6 +186,7 @@ def _derived_types() -> Columns:
         ("alliance_share", FLOAT),
         ("decodes", INT),
         ("decode_error_rate", FLOAT),
+        ("decode_errors_left", INT),  # the summary's decode_errors.left_wrong
         ("id_decodes", INT),
         ("id_misread_count", INT),
         ("id_misread_rate", FLOAT),
