@@ -71,7 +71,9 @@ def assert_prefix_is_whole(log: Path, scenario: Path) -> float:
     the log, and none more; and it reaches to within ``SLACK_SECONDS`` of the last spikes of
     the unit whose log ends first, not back to the start. Returns it."""
     report = verify_log(log)
-    assert report.truncated and not report.mismatches and report.until is not None, report.verdict()
+    assert report.truncated and not report.mismatches and report.until is not None, (
+        report.verdict()
+    )
     cut = load_replay(log)
     assert what_units_did(cut, report.until) == what_units_did(whole_run(scenario), report.until)
     # the unit whose log ends first bounds it (the others of a launch may run to the end)

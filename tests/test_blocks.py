@@ -68,7 +68,9 @@ def test_a_pulse_block_is_canonical_whatever_order_its_pulses_came_in() -> None:
 def test_decodes_spikes_medium_and_trace_round_trip() -> None:
     decodes = _decodes()
     back = blocks.decode_record(blocks.DECODE, blocks.encode_record(blocks.DECODE, decodes), "t")
-    assert [dict(r) for r in decode_rows(back)] == [dict(r) for r in decode_rows(decodes)]
+    assert [dict(r) for r in decode_rows(back)] == [
+        dict(r) for r in decode_rows(decodes)
+    ]
     spikes = records.spikes(["b", "a"], TAU, np.array([3, 3, 7]), np.array([0, 1, 0]), ["x", "y"])
     back = blocks.decode_record(blocks.SPIKE, blocks.encode_record(blocks.SPIKE, spikes), "t")
     assert back["units"] == ["a", "b"] and "unit" not in back

@@ -219,7 +219,9 @@ def _hostile(src: Path, tmp_path: Path, topic: str, edit) -> Path:
         ("/medium", lambda r: r.update(window=True), "window: True is not an integer"),
     ],
 )
-def test_a_hostile_format_1_log_is_one_line_and_no_output(topic, edit, says, old, tmp_path, capsys):
+def test_a_hostile_format_1_log_is_one_line_and_no_output(
+    topic, edit, says, old, tmp_path, capsys
+):
     src = _hostile(old["gate"], tmp_path, topic, edit)
     out = tmp_path / "out.mcap"
     assert main(["convert", str(src), "-o", str(out)]) == 2

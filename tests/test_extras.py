@@ -38,7 +38,7 @@ def core_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     sweep = where / "s.toml"
     sweep.write_text(
         f'name = "s"\nscenario = "{ROOT / "scenarios" / "random_group.toml"}"\nseeds = "0..1"\n'
-        "[grid]\nn = [3]\n"
+        '[grid]\nn = [3]\n'
     )
     done = _core("sweep", str(sweep), "--out", "s", "--workers", "2", "--quiet", cwd=where)
     assert done.returncode == 0, done.stderr

@@ -69,7 +69,7 @@ def test_a_process_s_pulses_of_a_block_are_one_record_once_every_sender_is_past_
     group.pulses_passed(0, 2 * SPAN)
     assert sink.written == []  # b's clock is not past the first block
     group.pulses_passed(1, SPAN)
-    ((topic, t_ns, block),) = sink.written
+    (topic, t_ns, block), = sink.written
     rows = pulse_rows(block)
     assert topic == "/tx/pulse" and t_ns == round(140 * TAU * 1e9)
     assert [(p["sample"], p["unit"]) for p in rows] == [

@@ -181,7 +181,7 @@ def test_the_codebook_a_run_uses_is_said_and_one_that_cannot_fit_is_refused(tmp_
         parse_scenario(_group(12, 'codebook = "paper"'), "g12.toml")
     said = str(refused.value)
     assert said.startswith("g12.toml:4: codebook: 'paper' has 3 pulses a code"), said
-    assert "at most 8 units" in said and "pulses = 5}" in said
+    assert "at most 8 units" in said and 'pulses = 5}' in said
     fits = parse_scenario(_group(12, 'codebook = {kind = "generated", pulses = 5}'))
     assert fits.codebook.pulses == 5
 

@@ -178,7 +178,9 @@ SAMPLES: dict[str, dict] = {
         "file": "",
         "line": 0,
     },
-    "/scene": scene_update("a", 1.5, {"a": [0.0, 0.0], "b": [3.0, 4.0]}, {"a-b": "alliance"}),
+    "/scene": scene_update(
+        "a", 1.5, {"a": [0.0, 0.0], "b": [3.0, 4.0]}, {"a-b": "alliance"}
+    ),
     "/trace/a": {
         "unit": "a",
         "sample": 3,
@@ -778,6 +780,7 @@ def test_check_time_range_on_a_run_of_one_instant(t_from, t_to, held):
     else:
         with pytest.raises(RgtbusError, match=r"outside the run \(0.005 to 0.005 s\)"):
             check_time_range(t_from, t_to, 0.005, 0.005)
+
 
 
 def test_plots_module_imports_no_matplotlib():

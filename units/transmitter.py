@@ -96,7 +96,9 @@ class Transmitter:
         """Plan a send: its pulses go out to the bus now (ahead of time), and to the log."""
         word = self.word(send)
         if len(word) != len(send.samples):
-            raise BadInput(f"{send.code!r}: {len(word)} magnitudes for {len(send.samples)} pulses")
+            raise BadInput(
+                f"{send.code!r}: {len(word)} magnitudes for {len(send.samples)} pulses"
+            )
         self._out_at.extend(send.samples)
         self._out_value.extend(word)
         if not send.block:  # a repair's sends are counted (``RepairBook``), not listed

@@ -216,7 +216,9 @@ class BusBase:
         none twice; RgtbusError naming what is wrong."""
         self.run_id = check_name("run id", run_id)
         if isinstance(members, str):
-            raise BadInput(f"members must be a sequence of unit names, got the string {members!r}")
+            raise BadInput(
+                f"members must be a sequence of unit names, got the string {members!r}"
+            )
         self.members = tuple(check_name("unit name", m) for m in members)
         if not self.members:
             raise BadInput(f"run {run_id!r} has no members")

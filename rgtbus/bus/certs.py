@@ -267,7 +267,9 @@ def make_certs(
     if not force:
         for path in targets:
             if path.exists():
-                raise BadInput(f"{path}: exists (give --force to replace the run's certificates)")
+                raise BadInput(
+                    f"{path}: exists (give --force to replace the run's certificates)"
+                )
     try:
         (directory / RUN_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -382,7 +384,9 @@ def check_tls(directory: str | os.PathLike[str], identity: str) -> TlsFiles:
     cert_path, key_path = paths(d, identity)
     cert = _load_cert(cert_path, f"the certificate of {describe(identity)}")
     if not _signed_by(cert, ca):
-        raise BadInput(f"{cert_path}: not signed by the run's CA {ca_path} (a foreign certificate)")
+        raise BadInput(
+            f"{cert_path}: not signed by the run's CA {ca_path} (a foreign certificate)"
+        )
     _check_validity(cert, cert_path, now)
     if _is_ca(cert):
         raise BadInput(f"{cert_path}: a CA certificate, not a process's")

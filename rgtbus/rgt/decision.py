@@ -155,7 +155,9 @@ class InfluenceMatrix:
         m = cls(subjects, universe)
         for spec in specs:
             if "=" not in spec or ">" not in spec.split("=", 1)[0]:
-                raise BadInput(f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}")
+                raise BadInput(
+                    f"bad influence {spec!r}: write SRC>DST=VALUE, e.g. a>b={{alpha}}"
+                )
             lhs, value = spec.split("=", 1)
             src, dst = (p.strip() for p in parse_pair_key(lhs))
             if m.get(src, dst) is not None:
@@ -224,7 +226,9 @@ def evaluate(
             try:
                 v = on[s]
             except KeyError:
-                raise BadInput(f"missing influence {s}>{subject} (on subject {subject})") from None
+                raise BadInput(
+                    f"missing influence {s}>{subject} (on subject {subject})"
+                ) from None
             args_a.append(v)
             args_b.append(v)
     return SubjectResult(subject, f(*args_a), f(*args_b))

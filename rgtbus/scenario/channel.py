@@ -217,8 +217,7 @@ def _path_loss(ctx: Ctx, ch: dict[str, Any], positions: dict[str, Any]) -> float
     return float(value)
 
 
-def check_timed_channel(
-    ctx: Ctx, channel: Channel, protocol: ProtocolSection, timing: Timing
+def check_timed_channel(ctx: Ctx, channel: Channel, protocol: ProtocolSection, timing: Timing
 ) -> None:
     """A channel whose pulses land off their samples (a speed, clocks) needs turns that follow
     what each unit hears: the serial schedule timed by confirmed attention (each unit times

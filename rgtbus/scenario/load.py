@@ -114,7 +114,9 @@ def _decode_text(data: bytes, where: str) -> str:
     nul = text.find("\0")
     if nul >= 0:
         line = text.count("\n", 0, nul) + 1
-        raise BadInput(f"{where}:{line}: a binary file, not a scenario (NUL byte on line {line})")
+        raise BadInput(
+            f"{where}:{line}: a binary file, not a scenario (NUL byte on line {line})"
+        )
     return text
 
 

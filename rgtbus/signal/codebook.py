@@ -101,7 +101,9 @@ class Codebook:
         known = {"name", "pulses", "min_distance", "actions", "id", "relation", "alternative"}
         for key in data:
             if key not in known:
-                raise BadInput(f"{where}: unknown key {key!r} (known: {', '.join(sorted(known))})")
+                raise BadInput(
+                    f"{where}: unknown key {key!r} (known: {', '.join(sorted(known))})"
+                )
         for key in ("pulses", "id", "relation", "alternative"):
             if key not in data:
                 raise BadInput(f"{where}: missing key {key!r}")

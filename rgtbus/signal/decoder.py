@@ -319,7 +319,9 @@ def _heard_candidates(
     if hi >= history.end:  # rarely: candidates past what has been heard
         ok = inst[:, -1] < history.end
         if not ok.any():
-            raise BadInput(f"decode: no pulse instants of a code at {start:g} s are in the readout")
+            raise BadInput(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
         chans, shifts, inst = chans[ok], shifts[ok], inst[ok]
         hi = int(inst[:, -1].max())
     return chans, shifts, inst, history.gather(inst, chans, span=(lo, hi))
@@ -478,7 +480,9 @@ def code_candidates(
     if start < (search + 1) * tau and inst[:, 0].min() < 0:  # before the first sample: left out
         keep = inst[:, 0] >= 0
         if not keep.any():
-            raise BadInput(f"decode: no pulse instants of a code at {start:g} s are in the readout")
+            raise BadInput(
+                f"decode: no pulse instants of a code at {start:g} s are in the readout"
+            )
         chans, inst = chans[keep], inst[keep]
     return chans, inst
 
@@ -714,7 +718,9 @@ def decode_code(
                 dec.name, dec.distance, dec.margin, dec.confidence, dec.values, inst, shift
             )
     if best is None:
-        raise BadInput(f"decode: no pulse instants of the code at {start:g} s are in the readout")
+        raise BadInput(
+            f"decode: no pulse instants of the code at {start:g} s are in the readout"
+        )
     return best
 
 

@@ -44,7 +44,6 @@ def block_samples(tau: float) -> int:
     ``convert`` and a cut log's bound."""
     return max(1, round(BLOCK_SECONDS / tau))
 
-
 SCHEMA_ENCODING = "protobuf"
 MESSAGE_ENCODING = "protobuf"
 

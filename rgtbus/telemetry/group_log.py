@@ -191,7 +191,9 @@ class GroupLog:
                 groups.append(idx)
                 continue
             columns = [
-                np.ascontiguousarray(np.concatenate([pieces[i][1][c] for i in idx]), dtype=dtype)
+                np.ascontiguousarray(
+                    np.concatenate([pieces[i][1][c] for i in idx]), dtype=dtype
+                )
                 .reshape(len(idx), rows)
                 .view(np.uint8)
                 for c, dtype in enumerate(_BITS.values())

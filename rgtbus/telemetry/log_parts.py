@@ -297,7 +297,9 @@ def legacy_report(
         "result": result,
         "decisions": rows,
         "sends": [
-            [tx.turn, tx.kind, tx.addressee, tx.code] for tx in transmissions if tx.sender == unit
+            [tx.turn, tx.kind, tx.addressee, tx.code]
+            for tx in transmissions
+            if tx.sender == unit
         ],
         "sent_influences": [],
         "failure": None,

@@ -132,4 +132,6 @@ def close_log(stream: BinaryIO, recorder: McapRecorder, *, finished: bool = True
             try:
                 stream.close()
             except OSError as exc:
-                raise IOFailure(f"cannot write log {str(stream.name)!r}: {exc.strerror}") from None
+                raise IOFailure(
+                    f"cannot write log {str(stream.name)!r}: {exc.strerror}"
+                ) from None

@@ -35,7 +35,6 @@ class MediumLog(Protocol):
 
     def sender_pulses(self) -> dict[str, tuple[np.ndarray, np.ndarray]]: ...
 
-
 # Two logged times of one instant agree to within this (a log time is whole nanoseconds).
 _NANOSECOND = seconds(1)
 
@@ -59,7 +58,9 @@ def medium_windows(
             continue
         if len(m["samples"]) != L:
             bad.append(
-                Mismatch(MEDIUM, seconds(t_ns), None, f"window {w} length", len(m["samples"]), L)
+                Mismatch(
+                    MEDIUM, seconds(t_ns), None, f"window {w} length", len(m["samples"]), L
+                )
             )
             continue
         if not math.isclose(m["t"], w * ws, abs_tol=_NANOSECOND) or t_ns != ns(w * ws):
@@ -79,7 +80,9 @@ def medium_windows(
     return out, bad
 
 
-def medium_pulses(sc: Scenario, windows: Mapping[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def medium_pulses(
+    sc: Scenario, windows: Mapping[int, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
     """The logged medium as (sample indexes, values) of its non-silent samples: what every
     unit heard, bit for bit (each unit's magnitudes added up, then the units in order)."""
     L = sc.timing.window_samples

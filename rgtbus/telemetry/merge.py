@@ -80,7 +80,9 @@ def merge_logs(
     if not logs:
         raise BadInput("merge: no input logs")
     if compression not in _COMPRESSION:
-        raise BadLog(f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})")
+        raise BadLog(
+            f"unknown MCAP compression {compression!r} (use {', '.join(_COMPRESSION)})"
+        )
     for log in logs:
         if log.corrupt and not salvage:  # never copy a damaged chunk into a whole-looking log
             raise BadLog(f"{log.corruption}; not merged")

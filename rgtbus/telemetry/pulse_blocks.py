@@ -116,7 +116,9 @@ class PulseBatch:
         counts = np.fromiter(map(len, by[0]), dtype=np.int64, count=len(rows))
         total = int(counts.sum())
         sample = np.fromiter(itertools.chain.from_iterable(by[0]), dtype=np.int64, count=total)
-        magnitude = np.fromiter(itertools.chain.from_iterable(by[1]), dtype=np.float64, count=total)
+        magnitude = np.fromiter(
+            itertools.chain.from_iterable(by[1]), dtype=np.float64, count=total
+        )
         omega_of = dict(zip(by[2], by[3], strict=True))
         channels = sorted(omega_of)
         kinds, codes = sorted(set(by[5])), sorted(set(by[6]))

@@ -58,6 +58,8 @@ def unfinished_trailer() -> bytes:
     return bytes(out.end()) + MCAP_MAGIC  # type: ignore[no-untyped-call]  # mcap leaves it bare
 
 
+
+
 @runtime_checkable
 class Recorder(Protocol):
     """Where a run writes its log: messages by topic at a log time, text lines, metadata records.

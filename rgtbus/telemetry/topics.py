@@ -96,7 +96,6 @@ def unit_end_record(unit: str) -> str:
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
 
-
 def is_block_schema(name: str) -> bool:
     """Whether schema ``name`` is a hot topic's protobuf block (else a JSON Schema)."""
     from rgtbus.telemetry.blocks import SCHEMAS

@@ -132,12 +132,7 @@ def gate_with(old: str, new: str) -> str:
         ),
     ],
     ids=[
-        "sample_rate-1e9",
-        "window",
-        "rounds-1000",
-        "rounds-figures",
-        "cograph-10000",
-        "n1000",
+        "sample_rate-1e9", "window", "rounds-1000", "rounds-figures", "cograph-10000", "n1000",
         "codebook-14",
     ],
 )

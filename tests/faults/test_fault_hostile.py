@@ -186,7 +186,6 @@ def order_and_count_edits(src: bytes) -> Iterator[tuple[str, Any]]:
         return next(i for i, m in enumerate(held) if m[0] == topic)
 
     for topic in topics:
-
         def late(held: list[Held], md: Any, topic: str = topic) -> None:  # after everything
             i = first(held, topic)
             end = max(m[1] for m in held)
@@ -219,13 +218,11 @@ def order_and_count_edits(src: bytes) -> Iterator[tuple[str, Any]]:
     yield "a topic of someone else's", foreign
     names = [r.name for r in make_reader(io.BytesIO(src)).iter_metadata()]
     for name in dict.fromkeys(names):
-
         def gone(held: Any, md: list[tuple[str, dict[str, str]]], name: str = name) -> None:
             md[:] = [r for r in md if r[0] != name]
 
         yield f"metadata {name} gone", gone
         for bad in ("", "x", "1e400", "-1", "[1, 2]", "{}", "\u0000"):
-
             def damaged(held: Any, md: list[tuple[str, dict[str, str]]], name: str = name,
                         bad: str = bad) -> None:  # fmt: skip
                 md[:] = [(n, {k: bad for k in v} if n == name else v) for n, v in md]

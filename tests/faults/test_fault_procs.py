@@ -122,7 +122,6 @@ def test_a_unit_killed_outright_is_named_and_nothing_is_lost(procs, tmp_path):
     messages, _metadata = read_log(tmp_path / "run.mcap")
     run = [m for t, _, m in messages if t == "/run"]
     assert len(run) == 1 and run[0]["error"] == first.removeprefix("launch: ")
-
     # every record of b's is in the merge: a block of spikes b heard alike with others, or of
     # decodes b made alike with them, is in their one record, and b's pulses in its block of
     # time with theirs (the merge joins them), so those are compared one row a unit
