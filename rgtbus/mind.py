@@ -41,6 +41,7 @@ import numpy as np
 from rgtbus.errors import BadInput, NotDecomposable, RgtbusError
 from rgtbus.pairs import (
     PairTable,
+    PairTexts,
     SharedTable,
     ordered_pairs,
     pair_key,
@@ -165,6 +166,7 @@ def choose(
 
 _T = TypeVar("_T")
 _RELATION_TEXT = np.array(["conflict", "alliance"], dtype=object)  # by alliance?
+_RELATION_NAMES = {0: "conflict", 1: "alliance"}
 _MEMO: dict[tuple[Hashable, tuple[tuple[str, ...], bool, int, bytes]], Any] = {}
 _MEMO_SIZE = 16
 
@@ -294,6 +296,26 @@ class Mind:
             pair_key(s, r): "alliance" if v else "conflict"
             for (s, r), v in sorted(self.sent.items())
         }
+
+    def sent_view(self) -> Mapping[str, str]:
+        """``sent_table`` as a report holds it: read from the table's bytes (``PairTexts``,
+        not n² dict entries a unit), one object for every mind holding an equal table."""
+        sent = self.sent
+        if not isinstance(sent, PairTable):
+            return self.sent_table()
+        return _memo("sent view", sent, lambda: PairTexts(sent, _RELATION_NAMES))
+
+    def influence_view(self) -> Mapping[str, list[str]]:
+        """``influence_table`` as a report holds it (``sent_view``)."""
+        table, u = self.influences, self.universe
+        if not isinstance(table, PairTable):
+            return self.influence_table()
+
+        def build() -> PairTexts[list[str]]:
+            vals, held = table.columns()
+            return PairTexts(table, {v: u.to_list(v) for v in set(vals[held].tolist())})
+
+        return _memo(f"influence view {u.actions}", table, build)
 
     def influence_table(self) -> dict[str, list[str]]:
         """The influences of the last round decided: ``{"s>r": [action, ...]}``."""

@@ -36,14 +36,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, TypedDict, cast
+from typing import Any, Protocol, TypedDict, TypeVar, cast
 
 from rgtbus.mind import decision_fields
 from rgtbus.misreads import DecodeErrors, decode_errors_of
-from rgtbus.pairs import pair_key, parse_pair_key
+from rgtbus.pairs import PairTexts, pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
 from rgtbus.truth import Truth
+
+_V = TypeVar("_V")
 
 SUMMARY_JSON_KEYS = (
     "scenario",
@@ -236,10 +238,10 @@ def summarise(
         "decomposable": decomposable,
         "p4": None if p4 is None else list(p4),
         "relations": ref["installed"],
-        "sent_relations": ref["sent_relations"],
+        "sent_relations": _plain(ref["sent_relations"]),
         "unit_relations": tables,
         "agree": agree,
-        "influences": ref["influences"],
+        "influences": _plain(ref["influences"]),
         "units": units_out,
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
@@ -263,6 +265,12 @@ def summarise(
     }
     summary["goals"] = judge_goals(sc, units_out, should.goal_prospects(last_round))
     return summary
+
+
+def _plain(table: Mapping[str, _V]) -> Mapping[str, _V]:
+    """A report's table as the summary holds it: a dict (a report may hold a unit's table as
+    the mind's view of it, ``PairTexts``: made a dict once, here)."""
+    return table.to_dict() if isinstance(table, PairTexts) else table
 
 
 def _alternative_lists(u: Universe, texts: Mapping[str, str]) -> dict[str, list[str]]:

@@ -638,20 +638,27 @@ class AutonomousUnit:
         record and its decodes."""
         return {
             # read from its sends as they are iterated: a group's 4n(n−1) sends, not held twice
-            **self._report_fields(SendRows(self.sent)),
+            **self._report_fields(SendRows(self.sent), views=True),
             "decodes": self.decoded,  # columns (DecodeColumns): iterates as rows
         }
 
-    def _report_fields(self, sends: Sequence[list[Any]]) -> records.UnitReportRecord:
-        """The report record with ``sends`` as its rows of sends."""
+    def _report_fields(
+        self, sends: Sequence[list[Any]], *, views: bool = False
+    ) -> records.UnitReportRecord:
+        """The report record with ``sends`` as its rows of sends (``views``: its tables of
+        relation codes and influences as the mind's views, ``PairTexts``, not dicts)."""
         mind = self.mind
         out: records.UnitReportRecord = {
             "unit": self.name,
             "installed": mind.installed(),
             "polynomial": mind.polynomial,
             "p4": None if mind.p4 is None else list(mind.p4),
-            "sent_relations": mind.sent_table(),
-            "influences": mind.influence_table(),
+            "sent_relations": cast(
+                dict[str, str], mind.sent_view() if views else mind.sent_table()
+            ),
+            "influences": cast(
+                dict[str, list[str]], mind.influence_view() if views else mind.influence_table()
+            ),
             "result": result_fields(mind),
             "decisions": list(self.decisions),
             "sends": cast(list[list[Any]], sends),
