@@ -339,14 +339,13 @@ class PairTexts(Mapping[str, _V]):
         if isinstance(other, PairTexts):
             import numpy as np
 
-            if (
-                other._units == self._units
-                and np.array_equal(self._held, other._held)
-                and np.array_equal(self._vals, other._vals)
-                and self._texts == other._texts
-            ):
-                return True  # the same values named alike: no dict built
-            return self.to_dict() == other.to_dict()
+            if other._units != self._units:
+                return self.to_dict() == other.to_dict()
+            if not np.array_equal(self._held, other._held):
+                return False  # a pair one holds and the other does not
+            # equal when every pair's two values name equal texts: a few distinct couples
+            both = np.unique(np.stack([self._vals[self._held], other._vals[self._held]]), axis=1)
+            return all(self._texts[a] == other._texts[b] for a, b in both.T.tolist())
         if isinstance(other, Mapping):
             return self.to_dict() == dict(other.items())
         return NotImplemented

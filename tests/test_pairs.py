@@ -156,3 +156,31 @@ def test_a_table_takes_a_byte_an_entry_and_widens_only_when_a_value_needs_it():
     b.set_slots(np.array([1, 7]), np.array([1, 2**33]))
     assert b._vals.itemsize == 8 and b == {("u0", "u1"): 1, ("u1", "u2"): 2**33}
     assert b.absent(np.array([0, 1, 2])).tolist() == [True, False, True]
+
+
+def test_pair_texts_read_a_table_as_the_dict_of_its_texts_and_compare_as_dicts():
+    """``PairTexts``: what a report holds of a unit's table; equal to another view or a dict
+    exactly when the dicts of their texts are equal, whatever the values behind the texts."""
+    import random
+
+    from rgtbus.pairs import PairTable, PairTexts
+
+    rng = random.Random(3)
+    units = ("zed", "a1", "B", "m_2")
+    for _ in range(200):
+        a, b = PairTable(units), PairTable(units)
+        for s in units:
+            for r in units:
+                if s != r and rng.random() < 0.9:
+                    a[(s, r)] = rng.randrange(3)
+                    if rng.random() < 0.95:
+                        b[(s, r)] = a[(s, r)] if rng.random() < 0.97 else rng.randrange(3)
+        texts_a = {0: "x", 1: "y", 2: "z"}
+        texts_b = {0: "x", 1: "y", 2: "y"} if rng.random() < 0.3 else texts_a  # two values alike
+        va, vb = PairTexts(a, texts_a), PairTexts(b, texts_b)
+        da, db = va.to_dict(), vb.to_dict()
+        assert list(da) == sorted(da, key=lambda k: tuple(k.split(">")))  # sorted by pair
+        assert da == {f"{s}>{r}": texts_a[v] for (s, r), v in a.items()}
+        assert (va == vb) == (da == db) == (vb == va)
+        assert (va == db) == (da == db) and (da == vb) == (da == db)
+        assert len(va) == len(a) and all(va[k] == da[k] for k in da)

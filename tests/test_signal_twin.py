@@ -87,6 +87,33 @@ def test_the_score_the_timings_and_the_rows_are_the_compiled_bits():
     assert (twin.read_rows(rows, vals, idx, chans) == _walk.read_rows(rows, vals, idx, chans)).all()
 
 
+def test_many_decodes_at_once_are_the_bits_of_the_rule_and_of_one_at_a_time():
+    """``_walk.score_many`` (the nearest rule's many decodes, compiled) against the rule's
+    NumPy statement (``nearest_words``) and against its twin, a decode at a time: rows,
+    words, distances, margins, separations, ties and words under two names included."""
+    from rgtbus.signal.nearest import nearest_words
+    from rgtbus.signal.rules import NEAREST
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        D, M = int(rng.integers(1, 40)), int(rng.integers(1, 6))
+        W, N = int(rng.integers(1, 9)), int(rng.integers(1, 7))
+        mat = np.round(rng.normal(size=(W, N)), int(rng.integers(0, 3)))  # rounded: ties
+        if rng.random() < 0.3:
+            mat[-1] = mat[0]  # a word under two names
+        if rng.random() < 0.2:
+            mat[int(rng.integers(0, W))] = 0.0
+        vals = np.round(rng.normal(size=(D, M, N)), int(rng.integers(0, 3)))
+        rank = rng.permutation(W).astype(np.int64)
+        got = _walk.score_many(vals, mat, rank)
+        for a, b, c, d in zip(
+            got, nearest_words(vals, mat, rank), twin.score_many(vals, mat, rank),
+            NEAREST.many(vals, mat, rank), strict=True,
+        ):  # fmt: skip
+            assert a.dtype == b.dtype and np.array_equal(a, b) and np.array_equal(a, c)
+            assert np.array_equal(a, d)
+
+
 def test_without_the_compiled_module_the_twin_runs_and_says_so_once(tmp_path):
     code = (
         "import sys; sys.modules['rgtbus.signal._walk'] = None\n"

@@ -37,6 +37,9 @@ def walk_lanes(
 def score(
     vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
 ) -> tuple[int, int, float, float, float]: ...
+def score_many(
+    vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
 def score_matched(
     vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
 ) -> tuple[int, int, float, float, float]: ...

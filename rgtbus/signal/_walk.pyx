@@ -267,6 +267,69 @@ def score(const double[:, ::1] vals, const double[:, ::1] mat, const long[::1] r
     return best_m, best_w, best_d, runner - best_d, sep
 
 
+def score_many(const double[:, :, ::1] vals, const double[:, ::1] mat, const long[::1] rank):
+    """``score`` for D decodes at once: ``vals`` (D, M, N); returns five arrays (D,): row,
+    word, distance, margin, separation. The words' gaps to each other (W x W) are summed once
+    a call, each decode's distances once (a noisy group decodes millions of codes, each its
+    own: no Python object a decode)."""
+    cdef Py_ssize_t D = vals.shape[0], M = vals.shape[1], W = mat.shape[0], N = mat.shape[1]
+    cdef Py_ssize_t t, i, j, k, best_m, best_w
+    cdef double best_d, acc, diff, d, runner, sep
+    row_a = np.empty(D, dtype=np.int64)
+    word_a = np.empty(D, dtype=np.int64)
+    dist_a = np.empty(D)
+    margin_a = np.empty(D)
+    sep_a = np.empty(D)
+    gaps_a = np.empty((W, W))
+    here_a = np.empty((max(M, 1), W))
+    cdef long[::1] row_o = row_a, word_o = word_a
+    cdef double[::1] dist_o = dist_a, margin_o = margin_a, sep_o = sep_a
+    cdef double[:, ::1] gaps = gaps_a, here = here_a
+    with nogil:
+        for j in range(W):  # word j to word i: summed as score sums it, (w_j − w_i)² in k's order
+            for i in range(W):
+                acc = 0.0
+                for k in range(N):
+                    diff = mat[j, k] - mat[i, k]
+                    acc = acc + diff * diff
+                gaps[i, j] = acc
+        for t in range(D):
+            best_m = 0
+            best_w = 0
+            best_d = INFINITY
+            for i in range(M):
+                for j in range(W):
+                    acc = 0.0
+                    for k in range(N):
+                        diff = vals[t, i, k] - mat[j, k]
+                        acc = acc + diff * diff
+                    d = sqrt(acc)
+                    here[i, j] = d
+                    if d < best_d or (d == best_d and i == best_m and rank[j] < rank[best_w]):
+                        best_m = i
+                        best_w = j
+                        best_d = d
+            runner = INFINITY
+            sep = INFINITY
+            for j in range(W):
+                if gaps[best_w, j] == 0.0:
+                    continue  # the same word under another name (e.g. id and alliance)
+                if here[best_m, j] < runner:
+                    runner = here[best_m, j]
+                if sqrt(gaps[best_w, j]) < sep:
+                    sep = sqrt(gaps[best_w, j])
+            row_o[t] = best_m
+            word_o[t] = best_w
+            dist_o[t] = best_d
+            if runner == INFINITY:
+                margin_o[t] = INFINITY
+                sep_o[t] = 0.0
+            else:
+                margin_o[t] = runner - best_d
+                sep_o[t] = sep
+    return row_a, word_a, dist_a, margin_a, sep_a
+
+
 cdef inline double _matched(
     const double[:, ::1] a, Py_ssize_t i, const double[:, ::1] mat, Py_ssize_t j, Py_ssize_t N
 ) noexcept nogil:

@@ -21,6 +21,7 @@ if not _TWIN:
             WalkModel,
             read_rows,
             score,
+            score_many,
             score_matched,
             timings,
             walk_lanes,
@@ -39,6 +40,7 @@ if _TWIN:
         WalkModel,
         read_rows,
         score,
+        score_many,
         score_matched,
         timings,
         walk_lanes,
@@ -46,5 +48,6 @@ if _TWIN:
 COMPILED = not _TWIN
 
 __all__ = [
-    "COMPILED", "WalkModel", "read_rows", "score", "score_matched", "timings", "walk_lanes",
+    "COMPILED", "WalkModel", "read_rows", "score", "score_many", "score_matched", "timings",
+    "walk_lanes",
 ]  # fmt: skip

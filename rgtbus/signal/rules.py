@@ -74,7 +74,20 @@ def matched_words(reads: np.ndarray, mat: np.ndarray, rank: np.ndarray) -> Score
     return nearest_words(reads, mat, rank, by=matched)
 
 
-NEAREST = Rule("nearest", kernels.score, nearest_words)
+def _nearest_compiled(reads: np.ndarray, mat: np.ndarray, rank: np.ndarray) -> Scores:
+    """``nearest_words`` computed by the compiled receiver (``_walk.score_many``): the same
+    sums in the same order, so the same bits (tested), a loop in C over the decodes."""
+    return Scores(
+        *kernels.score_many(
+            np.ascontiguousarray(reads, dtype=np.float64),
+            np.ascontiguousarray(mat, dtype=np.float64),
+            np.ascontiguousarray(rank, dtype=np.int64),
+        )
+    )
+
+
+# many decodes at once: compiled where the receiver is (its NumPy twin decodes one at a time)
+NEAREST = Rule("nearest", kernels.score, _nearest_compiled if kernels.COMPILED else nearest_words)
 MATCHED = Rule("matched-filter", kernels.score_matched, matched_words)
 RULES: dict[str, Rule] = {rule.name: rule for rule in (NEAREST, MATCHED)}
 

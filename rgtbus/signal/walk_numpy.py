@@ -216,6 +216,18 @@ def score(
     return best_m, best_w, best_d, runner - best_d, sep
 
 
+def score_many(
+    vals: np.ndarray, mat: np.ndarray, rank: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``_walk.score_many``: ``score`` of each of D decodes (``vals`` (D, M, N)), as five
+    arrays (D,) (a decode at a time: ``rgtbus.signal.rules`` decodes many at once by the
+    rule's NumPy form where this twin stands in)."""
+    got = [score(np.ascontiguousarray(v), mat, rank) for v in vals]
+    cols = list(zip(*got, strict=True)) if got else [(), (), (), (), ()]
+    ints = [np.array(c, dtype=np.int64) for c in cols[:2]]
+    return ints[0], ints[1], *(np.array(c, dtype=np.float64) for c in cols[2:])  # type: ignore[return-value]
+
+
 def _matched(a: np.ndarray, mat: np.ndarray) -> np.ndarray:
     """The matched-filter distance of every row of ``a`` (R, N) to every word of ``mat``
     (W, N), as the compiled ``_matched`` works it out: its sums in k's order."""
