@@ -1,6 +1,7 @@
 """Units in several processes: ``rgtbus launch --procs P`` against the single-process zenoh run.
 
     python -m benchmarks.bench_procs [--scenario group50] [--procs 1,2,4,8,16] [--repeat 3]
+                                     [--noise 0.01]
 
 Each case is a whole process (start-up, join, run and merged log included), timed from the
 spawn to its exit; within each repeat the cases run in turn (a noisy machine slows them alike)
@@ -13,6 +14,12 @@ Goal (issue 34): group50 over 4 processes within 1.3x of one process, no P above
 machine with fewer cores than processes the processes share the cores, and each does work of
 its own that one process does once for all its units (every unit decodes every code; one
 process decodes each code once for its units): the ratio then grows with P.
+
+The noisy case (``--noise``, 0 for none): the same scenario with white noise σ on every
+receiver (``[channel] noise``), where no receiver hears as another does and one process shares
+nothing: its P processes split the units' work. Its table gives the speed-up over one process
+(one process / P, the median of per-repeat ratios). Goal (issue 53): speed-up >= 0.7 P up to
+the machine's cores.
 """
 
 from __future__ import annotations
@@ -32,16 +39,31 @@ EXE = [sys.executable, "-m", "rgtbus"]
 GOAL_AT, GOAL, CEILING = 4, 1.3, 1.5
 
 
-def cases(scenario: str, procs: list[int], tmp: str) -> dict[str, list[str]]:
-    """label -> argv: the single-process zenoh run first."""
-    path = str(ROOT / "scenarios" / f"{scenario}.toml")
-    out = {"1 process (`run --bus zenoh`)": [*EXE, "run", path, "--bus", "zenoh", "--log",
-                                              f"{tmp}/single.mcap", "--quiet"]}  # fmt: skip
+def cases(scenario: str, procs: list[int], tmp: str, path: str | None = None,
+          tag: str = "") -> dict[str, list[str]]:  # fmt: skip
+    """label -> argv: the single-process zenoh run first (``path``: a scenario file instead
+    of the shipped one; ``tag``: a label's prefix and its logs' folder)."""
+    path = path or str(ROOT / "scenarios" / f"{scenario}.toml")
+    out = {f"{tag}1 process (`run --bus zenoh`)": [
+        *EXE, "run", path, "--bus", "zenoh", "--log", f"{tmp}/{tag}single.mcap", "--quiet",
+    ]}  # fmt: skip
     for p in procs:
-        out[f"launch --procs {p}"] = [
-            *EXE, "launch", path, "--procs", str(p), "--log-dir", f"{tmp}/p{p}", "--quiet",
+        out[f"{tag}launch --procs {p}"] = [
+            *EXE, "launch", path, "--procs", str(p), "--log-dir", f"{tmp}/{tag}p{p}", "--quiet",
         ]  # fmt: skip
     return out
+
+
+def noisy_file(scenario: str, noise: float, tmp: str) -> str:
+    """The shipped scenario with white noise σ = ``noise`` on every receiver, as a file."""
+    import tomllib
+
+    text = (ROOT / "scenarios" / f"{scenario}.toml").read_text()
+    if "channel" in tomllib.loads(text):
+        raise SystemExit(f"{scenario}: has a [channel] of its own: give a noiseless scenario")
+    path = Path(tmp) / f"{scenario}-noisy.toml"
+    path.write_text(f"{text}\n[channel]\nnoise = {noise!r}\n")
+    return str(path)
 
 
 def sync_costs(scenario: str, procs: list[int], tmp: str) -> list[dict[str, Any]]:
@@ -77,18 +99,50 @@ def sync_costs(scenario: str, procs: list[int], tmp: str) -> list[dict[str, Any]
     return rows
 
 
+def noisy_table(
+    scenario: str, noise: float, walls: dict[str, list[float]], noisy: dict[str, list[str]]
+) -> None:
+    """The noisy case: each P's speed-up over one process, and the goal (>= 0.7 P up to the
+    machine's cores)."""
+    base = walls[next(iter(noisy))]
+    cores = os.cpu_count() or 1
+    print()
+    print(f"## {scenario} with white noise σ = {noise:g} on every receiver: speed-up of P "
+          f"processes ({cores} CPUs)")  # fmt: skip
+    print()
+    print("| case | wall s (min / median / max) | speed-up over 1 process | goal (>= 0.7 P) |")
+    print("|---|---|---|---|")
+    for name, xs in walls.items():
+        if name not in noisy:
+            continue
+        up = statistics.median(b / a for a, b in zip(xs, base, strict=True))
+        goal = "—"
+        if " --procs " in name:
+            p = int(name.rsplit(" ", 1)[1])
+            goal = ("met" if up >= 0.7 * p else "NOT met") if p <= cores else "(P > cores)"
+        print(f"| {name} | {min(xs):.2f} / {statistics.median(xs):.2f} / {max(xs):.2f} | "
+              f"{up:.2f}x | {goal} |")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="group50", help="a shipped scenario (group50)")
     ap.add_argument("--procs", default="1,2,4,8,16", help="the P to launch with")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--noise", type=float, default=0.01, help="the noisy case's σ (0: none)")
     args = ap.parse_args()
     procs = [int(p) for p in args.procs.split(",")]
     load0 = os.getloadavg()[0]
     walls: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory(prefix="rgtbus-bench-") as tmp:
         todo = cases(args.scenario, procs, tmp)
+        noisy = {}
+        if args.noise > 0:
+            path = noisy_file(args.scenario, args.noise, tmp)
+            noisy = cases(args.scenario, procs, tmp, path, tag=f"σ = {args.noise:g}: ")
         for _ in range(args.repeat):
+            for name, argv in noisy.items():
+                walls.setdefault(name, []).append(timed(argv))
             for name, argv in todo.items():
                 walls.setdefault(name, []).append(timed(argv))
         sync = sync_costs(args.scenario, procs, tmp)
@@ -101,6 +155,8 @@ def main() -> None:
     print("|---|---|---|")
     ratio: dict[int, float] = {}
     for name, xs in walls.items():
+        if name in noisy:
+            continue
         r = statistics.median(a / b for a, b in zip(xs, base, strict=True))
         if name.startswith("launch --procs "):
             ratio[int(name.rsplit(" ", 1)[1])] = r
@@ -115,6 +171,8 @@ def main() -> None:
     worst = max(ratio, key=ratio.__getitem__)
     print(f"- slowest: --procs {worst} at {ratio[worst]:.2f}x (goal: none above {CEILING}x): "
           f"{'met' if ratio[worst] <= CEILING else 'NOT met'}")  # fmt: skip
+    if noisy:
+        noisy_table(args.scenario, args.noise, walls, noisy)
     print()
     print(f"## The cost of the clock ({args.scenario}, one launch a P)")
     print()

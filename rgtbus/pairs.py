@@ -344,8 +344,17 @@ class PairTexts(Mapping[str, _V]):
             if not np.array_equal(self._held, other._held):
                 return False  # a pair one holds and the other does not
             # equal when every pair's two values name equal texts: a few distinct couples
-            both = np.unique(np.stack([self._vals[self._held], other._vals[self._held]]), axis=1)
-            return all(self._texts[a] == other._texts[b] for a, b in both.T.tolist())
+            mine = self._vals[self._held].astype(np.int64)
+            theirs = other._vals[self._held].astype(np.int64)
+            if not mine.size:
+                return True
+            lo = min(int(mine.min()), int(theirs.min()))
+            span = max(int(mine.max()), int(theirs.max())) - lo + 1
+            couples = np.unique((mine - lo) * span + (theirs - lo))  # no sort by rows
+            return all(
+                self._texts[a + lo] == other._texts[b + lo]
+                for a, b in zip(*divmod(couples, span), strict=True)
+            )
         if isinstance(other, Mapping):
             return self.to_dict() == dict(other.items())
         return NotImplemented
