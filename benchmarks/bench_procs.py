@@ -1,7 +1,7 @@
 """Units in several processes: ``rgtbus launch --procs P`` against the single-process zenoh run.
 
     python -m benchmarks.bench_procs [--scenario group50] [--procs 1,2,4,8,16] [--repeat 3]
-                                     [--noise 0.01]
+                                     [--noise 0.01] [--noisy-size 100]
 
 Each case is a whole process (start-up, join, run and merged log included), timed from the
 spawn to its exit; within each repeat the cases run in turn (a noisy machine slows them alike)
@@ -15,11 +15,12 @@ machine with fewer cores than processes the processes share the cores, and each 
 its own that one process does once for all its units (every unit decodes every code; one
 process decodes each code once for its units): the ratio then grows with P.
 
-The noisy case (``--noise``, 0 for none): the same scenario with white noise σ on every
-receiver (``[channel] noise``), where no receiver hears as another does and one process shares
-nothing: its P processes split the units' work. Its table gives the speed-up over one process
-(one process / P, the median of per-repeat ratios). Goal (issue 53): speed-up >= 0.7 P up to
-the machine's cores.
+The noisy case (``--noise``, 0 for none): ``bench_scale``'s concurrent group of
+``--noisy-size`` units (100: a run long enough for the processes' start and join to count
+little) with white noise σ on every receiver (``[channel] noise``), where no receiver hears as
+another does and one process shares nothing: its P processes split the units' work. Its
+table gives the speed-up over one process (one process / P, the median of per-repeat ratios).
+Goal (issue 53): speed-up >= 0.7 P up to the machine's cores.
 """
 
 from __future__ import annotations
@@ -54,15 +55,13 @@ def cases(scenario: str, procs: list[int], tmp: str, path: str | None = None,
     return out
 
 
-def noisy_file(scenario: str, noise: float, tmp: str) -> str:
-    """The shipped scenario with white noise σ = ``noise`` on every receiver, as a file."""
-    import tomllib
+def noisy_file(size: int, noise: float, tmp: str) -> str:
+    """``bench_scale``'s concurrent group of ``size`` units with white noise σ = ``noise`` on
+    every receiver, as a file."""
+    from benchmarks.bench_scale import scale_toml
 
-    text = (ROOT / "scenarios" / f"{scenario}.toml").read_text()
-    if "channel" in tomllib.loads(text):
-        raise SystemExit(f"{scenario}: has a [channel] of its own: give a noiseless scenario")
-    path = Path(tmp) / f"{scenario}-noisy.toml"
-    path.write_text(f"{text}\n[channel]\nnoise = {noise!r}\n")
+    path = Path(tmp) / f"noisy{size}.toml"
+    path.write_text(scale_toml(size, "concurrent", noise=noise))
     return str(path)
 
 
@@ -130,6 +129,7 @@ def main() -> None:
     ap.add_argument("--procs", default="1,2,4,8,16", help="the P to launch with")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--noise", type=float, default=0.01, help="the noisy case's σ (0: none)")
+    ap.add_argument("--noisy-size", type=int, default=100, help="the noisy case's units")
     args = ap.parse_args()
     procs = [int(p) for p in args.procs.split(",")]
     load0 = os.getloadavg()[0]
@@ -138,8 +138,9 @@ def main() -> None:
         todo = cases(args.scenario, procs, tmp)
         noisy = {}
         if args.noise > 0:
-            path = noisy_file(args.scenario, args.noise, tmp)
-            noisy = cases(args.scenario, procs, tmp, path, tag=f"σ = {args.noise:g}: ")
+            path = noisy_file(args.noisy_size, args.noise, tmp)
+            tag = f"{args.noisy_size} units, σ = {args.noise:g}: "
+            noisy = cases(args.scenario, procs, tmp, path, tag=tag)
         for _ in range(args.repeat):
             for name, argv in noisy.items():
                 walls.setdefault(name, []).append(timed(argv))
@@ -172,7 +173,7 @@ def main() -> None:
     print(f"- slowest: --procs {worst} at {ratio[worst]:.2f}x (goal: none above {CEILING}x): "
           f"{'met' if ratio[worst] <= CEILING else 'NOT met'}")  # fmt: skip
     if noisy:
-        noisy_table(args.scenario, args.noise, walls, noisy)
+        noisy_table(f"{args.noisy_size} units", args.noise, walls, noisy)
     print()
     print(f"## The cost of the clock ({args.scenario}, one launch a P)")
     print()
