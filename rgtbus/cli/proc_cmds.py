@@ -27,6 +27,7 @@ from rgtbus.cli.arguments import (
 )
 from rgtbus.errors import BadInput
 from rgtbus.interrupts import interrupted_by
+from rgtbus.pairs import PairTexts
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
@@ -231,9 +232,12 @@ def _print_units(sc: Scenario, outs: dict[str, dict[str, Any]], log_path: Path) 
 
 
 def _columns_as_lists(obj: Any) -> Any:
-    """JSON for what a unit's output holds as columns (its decodes): rows as lists."""
+    """JSON for what a unit's output holds as columns (its decodes: rows as lists) or as a
+    view of its tables (``PairTexts``: the dict)."""
     if hasattr(obj, "tolist"):
         return obj.tolist()
+    if isinstance(obj, PairTexts):
+        return obj.to_dict()
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
