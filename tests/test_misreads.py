@@ -110,20 +110,25 @@ def _random_case(rng: random.Random) -> tuple[SentTruth, list[list]]:
     return SentTruth(sent), rows
 
 
+def _as_columns(rows: list[list]) -> HeldDecodes:
+    """The same decodes held as columns (each one's turn and its distinct row's index)."""
+    distinct = sorted({tuple(r[1:]) for r in rows})
+    index = {k: i for i, k in enumerate(distinct)}
+    return HeldDecodes(
+        np.array([r[0] for r in rows], dtype=np.intc),
+        np.array([index[tuple(r[1:])] for r in rows], dtype=np.int64),
+        distinct,
+    )
+
+
 @pytest.mark.parametrize("seed", range(40))
 def test_the_column_forms_judge_as_the_row_forms(seed):
     """misreads_of and payloads_read_right on columns (HeldDecodes) against the same decodes
     as rows, on random sends and decodes (turns out of span, repeats, unknown turns)."""
     rng = random.Random(seed)
     truth_rows, rows = _random_case(rng)
-    truth_cols, _ = SentTruth(truth_rows.sent), None
-    distinct = sorted({tuple(r[1:]) for r in rows})
-    index = {k: i for i, k in enumerate(distinct)}
-    held = HeldDecodes(
-        np.array([r[0] for r in rows], dtype=np.intc),
-        np.array([index[tuple(r[1:])] for r in rows], dtype=np.int64),
-        distinct,
-    )
+    truth_cols = SentTruth(truth_rows.sent)
+    held = _as_columns(rows)
     assert wrong_decodes("u", held, truth_cols) == wrong_decodes("u", rows, truth_rows)
     m = misreads_of(held, truth_cols)
     turns = np.unique(m.turn)
@@ -139,13 +144,7 @@ def test_reports_of_rows_and_of_columns_give_equal_decode_errors():
         truth, rows = _random_case(rng)
     sends = [(t, k, *v) for (t, k), v in truth.sent.items()]
     reports = [{"unit": "u", "decodes": rows, "sends": sends}]
-    distinct = sorted({tuple(r[1:]) for r in rows})
-    index = {k: i for i, k in enumerate(distinct)}
-    held = HeldDecodes(
-        np.array([r[0] for r in rows], dtype=np.intc),
-        np.array([index[tuple(r[1:])] for r in rows], dtype=np.int64),
-        distinct,
-    )
+    held = _as_columns(rows)
     a = decode_errors_of(reports)
     b = decode_errors_of([{**reports[0], "decodes": held}])
     assert len(a) > 0 and a == b and a.counts() == b.counts()
