@@ -12,7 +12,12 @@ from rgtbus.units.group import run_group
 from rgtbus.scenario import parse_scenario
 from rgtbus.telemetry import NullRecorder
 
-pytest.importorskip("numba")  # the bench extra (rgtbus[bench]); make test installs it
+
+@pytest.fixture(autouse=True)
+def _numba() -> None:
+    """The bench extra (rgtbus[bench]; make test installs it), imported by the tests that run
+    (not at collection: numba would weigh on every test's process)."""
+    pytest.importorskip("numba")
 
 
 def _run(n: int, noise: float):
