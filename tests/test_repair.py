@@ -272,3 +272,19 @@ def test_a_misread_left_wrong_fails_the_check():
         and not left[0][1]
         and left[0][2] == f"got {s['decode_errors']['left_wrong']}, expected 0"
     )
+
+
+def test_a_large_concurrent_group_keeps_its_readout_as_far_back_as_its_repair_reads():
+    # ten units on the concurrent schedule: a phase and its blocks outlast the default history
+    # (30 s and more); the blocks re-read the phase's payloads, so the units keep them
+    from rgtbus.units.group import run_group
+
+    from rgtbus.telemetry import NullRecorder
+
+    sc = group(10, noise=0.0)
+    plan = ProtocolState("r0", sc.units, dict(sc.frequencies), sc.timing.tau, anchor="schedule",
+                         kind="concurrent", repair_rounds=3).plan  # fmt: skip
+    assert plan.repair_reach() > 30.0
+    out = run_group(sc, "memory", NullRecorder())
+    assert out.summary["error"] is None
+    assert out.summary["repair"]["requests"] == 0

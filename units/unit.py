@@ -251,12 +251,14 @@ class AutonomousUnit:
         """How far back its readout is kept: ``KEEP_SECONDS``, plus its longest code (slow
         channels make codes of tens of seconds), plus how late a code may be read: a batch's
         listens at its wake, the concurrent schedule's as the ears hear them whole
-        (``Listening.expect_queue``, at most ``READ_AS_HEARD_SECONDS`` late)."""
+        (``Listening.expect_queue``, at most ``READ_AS_HEARD_SECONDS`` late), plus, with the
+        repair on the concurrent schedule, the reach of its blocks (``Plan.repair_reach``)."""
         sc = self.scenario
         longest = (sc.codebook.pulses - 1) * max(2 * math.pi / w for w in sc.frequencies.values())
         concurrent = sc.protocol.schedule == "concurrent"
         late = READ_AS_HEARD_SECONDS if concurrent else self._batch_seconds
-        return KEEP_SECONDS + longest + late
+        # a repair block re-reads its phase's payloads: the history spans the phase and its blocks
+        return KEEP_SECONDS + longest + late + self.protocol.plan.repair_reach()
 
     def batching(self) -> bool:
         """Whether this unit may take its decodes a batch at a wake (``Timers.batch_end``):

@@ -107,6 +107,21 @@ class Plan:
             )
         return self._rounds_at
 
+    def repair_reach(self) -> float:
+        """How far back, in seconds, a repair block of the concurrent schedule reads: from the
+        earliest payload of its phase to the block's last repeat (0 without repair, or on the
+        serial schedule, whose reads are taken as each turn ends). A unit keeps its readout at
+        least this long: a phase of a large group outlasts the default history."""
+        if self.kind != "concurrent" or not self.repair_rounds:
+            return 0.0
+        start = {p.turn.index: p.payload_start for r in self.timing() for p in r.placed}
+        reach = 0.0
+        for rnd in self.timing():
+            for block in rnd.repairs:
+                first = min(start[s.turn] for s in block.slots)
+                reach = max(reach, block.end - first)
+        return reach
+
     def turns_sent_by(self, sender: str) -> tuple[int, ...]:
         """The indexes of the turns ``sender`` sends, ascending (once for every unit: a unit
         looking through all n(n−1) turns for its own made n³ steps in a run)."""
