@@ -204,7 +204,7 @@ def test_sweep_plot_draws_a_metric_with_intervals(tmp_path, capsys):
 
 
 def test_wilson_interval():
-    from rgtbus.telemetry.sweep_plot import wilson
+    from rgtbus.stats import wilson
 
     p, lo, hi = wilson(0, 10)
     assert p == 0 and lo == 0 and 0.27 < hi < 0.28

@@ -1,49 +1,22 @@
 """A metric of a sweep's runs against one of its parameters, with 95 % intervals over seeds.
 
 Per x value (and curve): a yes/no metric is a share p̂ = k/n with its Wilson score interval
-
-    (p̂ + z²/2n ± z·sqrt(p̂(1−p̂)/n + z²/4n²)) / (1 + z²/n),   z = 1.96;
-
-a number is a mean with mean ± z·s/sqrt(n) (s the sample standard deviation). Runs where the
-metric is empty (e.g. ``decomposable`` of a run that failed before its table) are left out and
-counted in the caption.
+(``rgtbus.stats.wilson``); a number is a mean with mean ± z·s/sqrt(n) (s the sample standard
+deviation). Runs where the metric is empty (e.g. ``decomposable`` of a run that failed before
+its table) are left out and counted in the caption.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from rgtbus.errors import BadInput
 from rgtbus.extras import require
+from rgtbus.stats import mean_interval, wilson
 from rgtbus.telemetry.sweep_read import results_of
-
-Z95 = 1.959963984540054
-
-
-def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float, float]:
-    """Share k/n and its Wilson score interval (lo, hi)."""
-    if n <= 0:
-        raise ValueError("no runs")
-    p = k / n
-    den = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return p, max(0.0, centre - half), min(1.0, centre + half)
-
-
-def mean_interval(values: list[float], z: float = Z95) -> tuple[float, float, float]:
-    """Mean of ``values`` and its interval (lo, hi), mean ± z·s/sqrt(n); one value: the value three
-    times."""
-    n = len(values)
-    m = math.fsum(values) / n
-    if n < 2:
-        return m, m, m
-    sd = math.sqrt(math.fsum((v - m) ** 2 for v in values) / (n - 1))
-    return m, m - z * sd / math.sqrt(n), m + z * sd / math.sqrt(n)
 
 
 def _metric(
