@@ -33,6 +33,7 @@ MAPPED = {
     "rgtbus.units": "units",
     "rgtbus.scenarios": "scenarios",  # data only: the shipped scenarios, found by name
     "rgtbus.scenarios.sweeps": "scenarios/sweeps",
+    "rgtbus.scenarios.studies": "scenarios/studies",  # study files and their reference curves
 }
 
 EXTENSIONS = cythonize(
@@ -66,6 +67,7 @@ setup(
         "rgtbus.telemetry.schemas": ["*.json"],
         "rgtbus.scenarios": ["*.toml"],
         "rgtbus.scenarios.sweeps": ["*.toml"],
+        "rgtbus.scenarios.studies": ["*.toml", "*.csv"],
     },
     ext_modules=EXTENSIONS,
     options={"bdist_wheel": {"py_limited_api": "cp311"}},

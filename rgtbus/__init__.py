@@ -19,7 +19,7 @@ from rgtbus._version import __version__
 from rgtbus.errors import BadInput, BadLog, IOFailure, PeerSilent, RgtbusError
 
 if TYPE_CHECKING:
-    from rgtbus.api import load_scenario, open_log, run, sweep
+    from rgtbus.api import load_scenario, open_log, run, study, sweep
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
     from rgtbus.units.launch import launch
@@ -31,6 +31,7 @@ _LAZY = {
     "launch": "rgtbus.units.launch",
     "open_log": "rgtbus.api",
     "sweep": "rgtbus.api",
+    "study": "rgtbus.api",
     "RunResult": "rgtbus.units.result",
     "Log": "rgtbus.telemetry.frames",
     "Scenario": "rgtbus.scenario",
@@ -50,6 +51,7 @@ __all__ = [
     "load_scenario",
     "open_log",
     "run",
+    "study",
     "sweep",
 ]
 

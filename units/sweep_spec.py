@@ -122,12 +122,15 @@ def _line_of(text: str, key: str) -> int | None:
     return None
 
 
-def _error(path: str, text: str, key: str | None, reason: str) -> RgtbusError:
+def error_at(
+    path: str, text: str, key: str | None, reason: str, what: str = "sweep"
+) -> RgtbusError:
+    """One line naming the file, the key's line in it (when found) and the key (else ``what``)."""
     line = _line_of(text, key) if key else None
     if line is None and key and "." in key:  # [grid.relations] p = ..., or an inline table
         line = _line_of(text, key.rpartition(".")[2])
     where = f"{path}:{line}" if line else path
-    return BadInput(f"{where}: {key or 'sweep'}: {reason}")
+    return BadInput(f"{where}: {key or what}: {reason}")
 
 
 def parse_seeds(value: Any) -> tuple[int, ...]:
@@ -163,7 +166,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     if not p.exists() and (shipped := find_sweep(str(path))) is not None:
         p = shipped
     where = str(p)
-    data_bytes = _read_capped(p, "sweep")
+    data_bytes = read_capped(p, "sweep")
     try:
         text = data_bytes.decode("utf-8")
         too_deep = nesting_error(text, where)  # before tomllib, which recurses
@@ -180,7 +183,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
         raise BadInput(too_deep)
 
     def err(key: str | None, reason: str) -> RgtbusError:
-        return _error(where, text, key, reason)
+        return error_at(where, text, key, reason)
 
     for key in data:
         if key not in SWEEP_KEYS:
@@ -196,7 +199,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     if not scen_path.exists() and (named := find_shipped(scen)) is not None:
         scen_path = named  # a shipped scenario by name
     try:
-        scen_text = _read_capped(scen_path, "scenario").decode("utf-8")
+        scen_text = read_capped(scen_path, "scenario").decode("utf-8")
     except UnicodeDecodeError:
         raise err("scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
     except RgtbusError as exc:
@@ -211,7 +214,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     cases_table = data.get("cases", {})
     if not isinstance(cases_table, dict):
         raise err("cases", "must be a table of name = { key = value, ... }")
-    grid, cases = _axes(list(_flatten(grid_table)), list(cases_table.items()), err)
+    grid, cases = _axes(list(flatten_keys(grid_table)), list(cases_table.items()), err)
     sweep = Sweep(where, text, name, str(scen_path), scen_text, seeds, grid, cases)
     check_sweep(sweep, err)
     return sweep
@@ -240,7 +243,7 @@ def _axes(
     for case, settings in case_items:
         if not isinstance(settings, dict) or not settings:
             raise err(case, f"a case must be a non-empty table of keys, got {settings!r}")
-        keys = list(_flatten(settings))
+        keys = list(flatten_keys(settings))
         for key, value in keys:
             if key in ("seed", "case", "n") or key in dict(grid):
                 reason = "set by the grid" if key in dict(grid) else "not a case key"
@@ -281,7 +284,7 @@ def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
             raise err("grid", f"cell {dict(cell)}: {exc}") from None
 
 
-def _read_capped(path: Path, what: str) -> bytes:
+def read_capped(path: Path, what: str) -> bytes:
     """A sweep or scenario file's bytes; one line if it cannot be read, is no regular file (a
     FIFO, a device: refused before a byte is read) or is far too large."""
     try:
@@ -297,11 +300,11 @@ def _read_capped(path: Path, what: str) -> bytes:
     return data
 
 
-def _flatten(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+def flatten_keys(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
     """``[grid]`` keys, dotted (``relations.p = [...]`` and ``"relations.p" = [...]`` alike)."""
     for k, v in table.items():
         if isinstance(v, Mapping):
-            yield from _flatten(v, f"{prefix}{k}.")
+            yield from flatten_keys(v, f"{prefix}{k}.")
         else:
             yield f"{prefix}{k}", v
 
@@ -309,14 +312,14 @@ def _flatten(table: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, 
 # -- a sweep from arguments (the library) ------------------------------------------------------
 
 
-def _plain(value: Any) -> Any:
+def plain_value(value: Any) -> Any:
     """A grid value as a TOML value: numpy scalars and arrays as Python ones, tuples as lists."""
     if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
         return value.tolist()
     if isinstance(value, tuple | list):
-        return [_plain(v) for v in value]
+        return [plain_value(v) for v in value]
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain_value(v) for k, v in value.items()}
     return value
 
 
@@ -334,7 +337,7 @@ def _seeds_arg(seeds: int | Sequence[int] | str) -> tuple[int, ...]:
             return parse_seeds(seeds)
         if isinstance(seeds, int):  # not reached (an Integral above); for the type checker
             raise TypeError(seeds)
-        return parse_seeds(_plain(list(seeds)))
+        return parse_seeds(plain_value(list(seeds)))
     except (TypeError, ValueError) as exc:
         raise BadInput(f"sweep seeds: {exc}") from None
 
@@ -367,15 +370,15 @@ def make_sweep(
         return BadInput(f"sweep: {key}: {reason}" if key else f"sweep: {reason}")
 
     items = []
-    for key, values in _flatten(grid):
+    for key, values in flatten_keys(grid):
         try:
             if isinstance(values, str | bytes):
                 raise TypeError
             listed = list(values)
         except TypeError:
             raise err(key, f"must be a non-empty list of values, got {values!r}") from None
-        items.append((key, _plain(listed)))
-    case_items = [(str(k), _plain(v)) for k, v in (cases or {}).items()]
+        items.append((key, plain_value(listed)))
+    case_items = [(str(k), plain_value(v)) for k, v in (cases or {}).items()]
     grid_t, cases_t = _axes(items, case_items, err)
     seeds_t = _seeds_arg(seeds)
     sweep_name = name or sc.name
@@ -412,9 +415,9 @@ def scenario_for(
         if key == "n":  # a group of n units u1..un (the scenario's own names replaced)
             if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 200:
                 raise BadInput(f"n: a group size must be an integer 1..200, got {value!r}")
-            _set(data, "units", [f"u{i}" for i in range(1, value + 1)])
+            set_key(data, "units", [f"u{i}" for i in range(1, value + 1)])
             continue
-        _set(data, key, value)
+        set_key(data, key, value)
     data["seed"] = seed
     settings = [f"{k}={v!r}" for k, v in cell] + [f"seed {seed}"]
     label = f"{sweep.scenario_path} [{'; '.join(settings)}]"
@@ -425,7 +428,7 @@ def scenario_for(
     return parse_scenario(text, label)
 
 
-def _set(data: dict[str, Any], key: str, value: Any) -> None:
+def set_key(data: dict[str, Any], key: str, value: Any) -> None:
     parts = key.split(".")
     node = data
     for part in parts[:-1]:

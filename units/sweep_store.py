@@ -215,18 +215,19 @@ def read_rows(out_dir: Path, sweep_digest: str, sealed: bool | str = True) -> St
     return StoredRows(rows, rewrite, notes)
 
 
-def _lock(out_dir: Path) -> IO[str]:
-    """Create ``out_dir`` and hold it: an exclusive ``flock`` on ``DIR/sweep.lock`` (holding
-    this process's pid), refused at once (one line naming the holder) when another sweep holds
-    it. Released when the returned file is closed (or the process ends, however it ends)."""
+def lock_dir(out_dir: Path, name: str = LOCK, what: str = "sweep") -> IO[str]:
+    """Create ``out_dir`` and hold it: an exclusive ``flock`` on ``DIR/NAME`` (``sweep.lock``,
+    holding this process's pid), refused at once (one line naming the holder) when another
+    ``what`` (a sweep, a study) holds it. Released when the returned file is closed (or the
+    process ends, however it ends)."""
     if out_dir.exists() and not out_dir.is_dir():
         raise BadInput(f"{str(out_dir)!r}: exists and is not a directory")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        f = open(out_dir / LOCK, "a+", encoding="utf-8")  # noqa: SIM115 (held until closed)
+        f = open(out_dir / name, "a+", encoding="utf-8")  # noqa: SIM115 (held until closed)
     except OSError as exc:
         reason = exc.strerror or one_line(exc)
-        raise IOFailure(f"{str(out_dir)!r}: cannot write a sweep there ({reason})") from None
+        raise IOFailure(f"{str(out_dir)!r}: cannot write a {what} there ({reason})") from None
     try:
         import fcntl
     except ImportError:  # no flock here: unlocked
@@ -240,7 +241,7 @@ def _lock(out_dir: Path) -> IO[str]:
         holder = f.read().strip() or "unknown"
         f.close()
         raise BadInput(
-            f"{str(out_dir)!r} is in use by another sweep (pid {holder}): wait for it to end, "
+            f"{str(out_dir)!r} is in use by another {what} (pid {holder}): wait for it to end, "
             "or stop it"
         ) from None
     f.seek(0)
@@ -260,7 +261,7 @@ def write_text(path: Path, text: str) -> None:
 def prepare_out(
     sweep: Sweep, out_dir: Path, resume: bool
 ) -> tuple[list[dict[str, Any]], list[str]]:
-    """Fill ``out_dir`` (created and held by ``_lock``) with the sweep file and versions; on
+    """Fill ``out_dir`` (created and held by ``lock_dir``) with the sweep file and versions; on
     resume, the rows already there (they must be of this sweep, intact, and fit its tables);
     and what reading them had to say."""
     rows_path = out_dir / ROWS
@@ -356,7 +357,7 @@ class SweepStore:
 
     def __init__(self, sweep: Sweep, out_dir: Path, resume: bool) -> None:
         self.sweep, self.out_dir = sweep, out_dir
-        self._lock = _lock(out_dir)
+        self._lock = lock_dir(out_dir)
         try:
             done_rows, self.notes = prepare_out(sweep, out_dir, resume)
             secret = sweep_key(out_dir, create=True)

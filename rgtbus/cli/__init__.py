@@ -97,6 +97,9 @@ COMMANDS: dict[str, str] = {
     "watch": "watch_cmd",
     "sweep": "sweep_cmds",
     "sweep-plot": "sweep_cmds",
+    "study": "study_cmds",
+    "study-plot": "study_cmds",
+    "studies": "study_cmds",
     "completion": "completion_cmd",
 }
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 # A name, not a path: letters, digits, _ and -, ".toml" optional, "sweeps/" for a sweep file.
-NAME = re.compile(r"(sweeps/)?[A-Za-z0-9_-]+(\.toml)?\Z")
+NAME = re.compile(r"((sweeps|studies)/)?[A-Za-z0-9_-]+(\.toml)?\Z")
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,21 @@ def find_sweep(name: str) -> Path | None:
     if not is_name(name):
         return None
     return find_shipped(name if name.startswith("sweeps/") else f"sweeps/{name}")
+
+
+def find_study(name: str) -> Path | None:
+    """The shipped study file called ``name`` (``control_gate``, ``studies/control_gate``)."""
+    if not is_name(name) or name.startswith("sweeps/"):
+        return None
+    return find_shipped(name if name.startswith("studies/") else f"studies/{name}")
+
+
+def shipped_studies() -> list[Path]:
+    """Every shipped study file (``scenarios/studies/*.toml``), by name."""
+    where = shipped_dir()
+    if where is None or not (where / "studies").is_dir():
+        return []
+    return sorted((where / "studies").glob("*.toml"))
 
 
 def shipped_sweeps() -> list[ShippedScenario]:

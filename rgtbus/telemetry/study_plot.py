@@ -1,0 +1,83 @@
+"""A study's curves (docs/studies.md): how often the target chose what it was steered to, with
+its Wilson 95 % band and the clean channel's share beside it; and the payloads' symbol error
+rate measured, with its interval, beside the union bound of the best receiver. One curve per
+combination of the grid's other axes; the channel axis (σ, or SNR in dB) across."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rgtbus.errors import BadInput
+from rgtbus.extras import require
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+FLOOR = 1e-5  # a symbol error rate of 0 drawn here on the log axis (said in the caption)
+
+
+def grid_columns(points: pd.DataFrame) -> list[str]:
+    """The grid's columns of a points table: those between ``point`` and ``sigma``, the channel
+    axis last."""
+    cols = list(points.columns)
+    if "point" not in cols or "sigma" not in cols or cols.index("sigma") < cols.index("point"):
+        raise BadInput("not a study's points table (no point ... sigma columns)")
+    return cols[cols.index("point") + 1 : cols.index("sigma")]
+
+
+def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) -> list[Path]:
+    """Draw ``points`` (a study's points table) to ``output`` as PNG and SVG (its suffix
+    replaced); return both paths."""
+    require("matplotlib", "study-plot")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = grid_columns(points)
+    axis, others = keys[-1], keys[:-1]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    groups = points.groupby(others, sort=False) if others else [((), points)]
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    early = 0
+    for i, (values, group) in enumerate(groups):
+        values = values if isinstance(values, tuple) else (values,)
+        label = ", ".join(f"{k}={v}" for k, v in zip(others, values, strict=True)) or "all"
+        run = group[group["runs"] > 0].sort_values(axis)
+        early += int((group["runs"] == 0).sum())
+        c = colours[i % len(colours)]
+        x = run[axis].astype(float)
+        left.fill_between(x, run["p_target_lo"], run["p_target_hi"], color=c, alpha=0.2, lw=0)
+        left.plot(x, run["p_target"], "o-", color=c, label=f"{label}: noisy")
+        left.plot(x, run["p_clean"], ":", color=c, label=f"{label}: clean channel")
+        ser = run["ser"].clip(lower=FLOOR)
+        err = [
+            (ser - run["ser_lo"].clip(lower=FLOOR)).clip(lower=0),
+            (run["ser_hi"].clip(lower=FLOOR) - ser).clip(lower=0),
+        ]
+        right.errorbar(x, ser, yerr=err, fmt="o-", color=c, capsize=3, label=f"{label}: measured")
+        right.plot(x, run["ser_bound"].clip(lower=FLOOR), "--", color=c,
+                   label=f"{label}: union bound")  # fmt: skip
+    xlabel = "channel noise σ" if axis == "noise" else "SNR (dB) on a link of gain 1"
+    left.axhline(0.9, color="grey", lw=0.8, ls="--")
+    left.set(xlabel=xlabel, ylabel="P(target chooses what it was steered to)", ylim=(-0.02, 1.02))
+    right.set(xlabel=xlabel, ylabel="payload symbol error rate", yscale="log")
+    left.legend(fontsize="small")
+    right.legend(fontsize="small")
+    notes = ["shaded and bars: Wilson 95 % intervals", f"0 drawn at {FLOOR:g}"]
+    if early:
+        notes.append(f"{early} point(s) not run: an easier channel than one with no failure")
+    fig.suptitle(title or "reflexive control over a noisy medium")
+    fig.text(0.5, -0.02, "; ".join(notes), ha="center", fontsize="small")
+    out = []
+    for suffix in (".png", ".svg"):
+        path = output.with_suffix(suffix)
+        try:
+            fig.savefig(path, dpi=120, bbox_inches="tight")
+        except OSError as exc:
+            plt.close(fig)
+            raise BadInput(f"cannot write {str(path)!r}: {exc.strerror}") from None
+        out.append(path)
+    plt.close(fig)
+    return out
