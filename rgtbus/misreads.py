@@ -318,6 +318,17 @@ class DecodeErrors:
 
     __hash__ = None  # type: ignore[assignment]
 
+    def word_errors(self) -> dict[str, int]:
+        """The misreads of each kind (``DECODE_KINDS``) read as another word than the one sent:
+        the symbol errors a bound on telling the words apart speaks of. The other misreads
+        were read as the word sent, but on another unit's channel or for another turn (a
+        misread ID moves its payload)."""
+        other = self.misread.decoded != self.misread.sent
+        return {
+            kind: int(np.count_nonzero(other & (self.misread.kind == self._number(kind))))
+            for kind in DECODE_KINDS
+        }
+
     def counts(self, sample: int = MISREAD_SAMPLE) -> dict[str, Any]:
         """The summary's ``decode_errors``: how many decodes were misread, how many of them a
         later read set right and how many were left wrong, the same per kind of decode; the

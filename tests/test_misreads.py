@@ -166,3 +166,17 @@ def test_json_prints_counts_and_a_bounded_sample(tmp_path):
         and str(counts["misread"] - MISREAD_SAMPLE) in counts["rest"]
     )
     assert "decode_errors_left" not in s
+
+
+def test_word_errors_are_the_misreads_read_as_another_word():
+    res = rgtbus.run(parse_scenario(_noisy_repair()).with_seed(1))
+    assert res.misreads is not None
+    frame = res.decode_errors()
+    other = frame[frame["decoded"].astype(str) != frame["sent"].astype(str)]
+    other = other.groupby("kind", observed=True).size()
+    got = res.misreads.word_errors()
+    assert set(got) == {"id", "relation", "influence"}
+    for kind, n in got.items():
+        assert n == int(other.get(kind, 0))
+    # some misreads here are the word sent, read for another turn or unit: no symbol error
+    assert sum(got.values()) < len(frame)

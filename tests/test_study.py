@@ -184,6 +184,15 @@ def test_study_tables_equal_an_independent_loop_over_rgtbus_run(tmp_path):
             k = runs - failures
             assert (row["p_target"], row["p_target_lo"], row["p_target_hi"]) == wilson(k, runs)
             early = failures == 0
+    runs = got.runs
+    for kind in ("relation", "influence"):  # a symbol error is a misread as another word
+        assert (runs[f"{kind}_symbol_errors"] <= runs[f"{kind}_misreads"]).all()
+        made = runs.groupby("point")[f"{kind}_decodes"].sum()
+        wrong = runs.groupby("point")[f"{kind}_symbol_errors"].sum()
+        name = "ser" if kind == "influence" else "relation_ser"
+        for p, n in made.items():
+            row = got.points.set_index("point").loc[p]
+            assert row[name] == (wrong[p] / n if n else None) or (n == 0 and pd.isna(row[name]))
     # every run of the tables re-runs to its row from its point's file and seed
     for run in got.runs.sample(4, random_state=0).to_dict("records"):
         scenario = tmp_path / "out" / "points" / f"point-{run['point']:03d}.toml"

@@ -81,11 +81,12 @@ RETRIES = 3  # a run whose worker died is handed out again, at most this often
 # a run's row: what runs.jsonl holds and runs.csv shows (after the point's grid columns)
 RUN_COLUMNS = (
     "point", "run", "seed", "steered", "clean_steered", "decision_wrong", "choice", "error",
-    "id_decodes", "id_misreads", "relation_decodes", "relation_misreads", "influence_decodes",
-    "influence_misreads", "repair_requests", "repair_seconds", "sim_seconds", "wall_s",
+    "id_decodes", "id_misreads", "relation_decodes", "relation_misreads",
+    "relation_symbol_errors", "influence_decodes", "influence_misreads",
+    "influence_symbol_errors", "repair_requests", "repair_seconds", "sim_seconds", "wall_s",
 )  # fmt: skip
 # a point's row (after its grid columns and sigma); the shares with their Wilson 95 % intervals
-SHARES = ("p_target", "p_clean", "decision_error", "id_ser", "relation_ser", "ser")
+SHARES = ("p_target", "p_clean", "decision_error", "id_ser", "relation_ser", "ser", "misread")
 POINT_COLUMNS = (
     "runs", "failures", "stopped", "errors",
     *(c for s in SHARES for c in (s, f"{s}_lo", f"{s}_hi")),
@@ -102,7 +103,8 @@ def study_run(study: Study, point: int, run: int) -> dict[str, Any]:
     """Run ``run`` of point ``point`` (in a worker): its row. ``steered``: the target chose
     ``steer_to``; ``clean_steered``: it would have on a perfect medium (the noise-free run of
     the same scenario and seed, ``rgtbus.truth``); ``decision_wrong``: its decision differs from
-    that one's (or it did not decide); decodes and misreads by kind; the repair's requests
+    that one's (or it did not decide); decodes, misreads and symbol errors (misreads read as
+    another word: ``DecodeErrors.word_errors``) by kind; the repair's requests
     and seconds. A run that raises is a row with its error (a failure of the target)."""
     from rgtbus.units.group import run_group
 
@@ -129,9 +131,12 @@ def study_run(study: Study, point: int, run: int) -> dict[str, Any]:
         row["decision_wrong"] = not unit.get("decided") or bool(wrong)
         row["error"] = s["error"]
         kinds = s["decode_errors"]["by_kind"]
+        words = out.misreads.word_errors()
         for kind in ("id", "relation", "influence"):
             row[f"{kind}_decodes"] = sum(m.decoded.count(kind) for m in out.units)
             row[f"{kind}_misreads"] = int(kinds.get(kind, {}).get("misread", 0))
+            if kind != "id":
+                row[f"{kind}_symbol_errors"] = words[kind]
         repair = s.get("repair") or {}
         row["repair_requests"] = int(repair.get("requests", 0))
         row["repair_seconds"] = float(repair.get("seconds", 0.0))
@@ -153,6 +158,7 @@ def empty_row(point: int, run: int, seed: int, error: str | None = None) -> dict
         "point": point, "run": run, "seed": seed, "steered": False, "clean_steered": None,
         "decision_wrong": True, "choice": None, "error": error,
         **{f"{k}_{c}": 0 for k in ("id", "relation", "influence") for c in ("decodes", "misreads")},
+        "relation_symbol_errors": 0, "influence_symbol_errors": 0,
         "repair_requests": 0, "repair_seconds": 0.0, "sim_seconds": 0.0, "wall_s": 0.0,
     }  # fmt: skip
 
@@ -212,10 +218,15 @@ def point_rows(
         out.update(_share(sum(bool(r["decision_wrong"]) for r in used), n, "decision_error"))
         ids = sum(r["id_decodes"] for r in used)
         out.update(_share(min(ids, sum(r["id_misreads"] for r in used)), ids, "id_ser"))
+        # symbol errors: payloads read as another word (what the bound speaks of); misread:
+        # every payload read otherwise than sent (another word, or for another turn or unit)
         for kind, name in (("relation", "relation_ser"), ("influence", "ser")):
             made = sum(r[f"{kind}_decodes"] for r in used)
-            wrong = sum(r[f"{kind}_misreads"] for r in used)
+            wrong = sum(r[f"{kind}_symbol_errors"] for r in used)
             out.update(_share(min(wrong, made), made, name))
+        made = sum(r["relation_decodes"] + r["influence_decodes"] for r in used)
+        wrong = sum(r["relation_misreads"] + r["influence_misreads"] for r in used)
+        out.update(_share(min(wrong, made), made, "misread"))
         if p.index not in bounds:
             cb = point_scenario(study, p.index).codebook
             bounds[p.index] = (
