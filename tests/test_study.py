@@ -316,3 +316,27 @@ def test_shipped_studies_are_listed_and_load_by_name(capsys):
         assert name in names
         st = load_study(name)
         assert st.points and st.failures >= 50
+
+
+def test_crossings_interpolate_where_each_curve_falls_below_the_level():
+    from rgtbus.units.study import crossings
+
+    points = pd.DataFrame(
+        {
+            "repair": [False, False, False, True, True],
+            "noise": [0.0, 0.1, 0.2, 0.1, 0.2],
+            "runs": [10, 10, 10, 10, 10],
+            "p_target": [1.0, 0.95, 0.45, 1.0, 0.95],
+            "p_target_lo": [0.9, 0.85, 0.2, 0.9, 0.85],
+            "p_target_hi": [1.0, 1.0, 0.7, 1.0, 1.0],
+        }
+    )
+    got = crossings(points, ["repair", "noise"]).set_index("repair")
+    assert got.loc[False, "crossing"] == pytest.approx(0.11)  # 0.95 -> 0.45 over 0.1..0.2
+    assert got.loc[False, "earliest"] == pytest.approx(0.0)  # the lower end starts at 0.9
+    assert got.loc[False, "latest"] == pytest.approx(0.1 + 0.1 * 0.1 / 0.3)
+    assert pd.isna(got.loc[True, "crossing"]) and pd.isna(got.loc[True, "latest"])
+    assert got.loc[True, "earliest"] == pytest.approx(0.1)
+    snr = points.rename(columns={"noise": "snr_db"}).assign(snr_db=[30.0, 20.0, 10.0, 20.0, 10.0])
+    got = crossings(snr, ["repair", "snr_db"]).set_index("repair")
+    assert got.loc[False, "crossing"] == pytest.approx(20.0 - 10.0 * 0.05 / 0.5)

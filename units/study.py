@@ -64,6 +64,7 @@ __all__ = [
     "Study",
     "StudyResult",
     "check_reference",
+    "crossings",
     "load_study",
     "point_rows",
     "read_study",
@@ -88,7 +89,7 @@ RUN_COLUMNS = (
 # a point's row (after its grid columns and sigma); the shares with their Wilson 95 % intervals
 SHARES = ("p_target", "p_clean", "decision_error", "id_ser", "relation_ser", "ser", "misread")
 POINT_COLUMNS = (
-    "runs", "failures", "stopped", "errors",
+    "runs", "failures", "stopped", "errors", "id_decodes", "relation_decodes", "influence_decodes",
     *(c for s in SHARES for c in (s, f"{s}_lo", f"{s}_hi")),
     "relation_ser_bound", "ser_bound", "repair_requests", "repair_seconds", "runs_per_s",
     "decodes_per_s",
@@ -211,6 +212,8 @@ def point_rows(
         out: dict[str, Any] = {"point": p.index, **dict(p.settings), "sigma": p.sigma}
         out.update(runs=end.runs, failures=end.failures, stopped=end.stopped)
         out["errors"] = sum(1 for r in used if r["error"] is not None)
+        for kind in ("id", "relation", "influence"):
+            out[f"{kind}_decodes"] = sum(r[f"{kind}_decodes"] for r in used)
         judged = [r for r in used if r["clean_steered"] is not None]
         n = len(used)
         out.update(_share(n - end.failures, n, "p_target"))
@@ -662,6 +665,45 @@ def read_study(out_dir: str | os.PathLike[str]) -> tuple[pd.DataFrame, pd.DataFr
         except (OSError, ValueError) as exc:
             raise BadInput(f"{str(path)!r}: not a study table ({one_line(exc)})") from None
     return tables[0], tables[1]
+
+
+def crossings(
+    points: pd.DataFrame, keys: Sequence[str], level: float = 0.9, column: str = "p_target"
+) -> pd.DataFrame:
+    """Where each curve of ``points`` first falls below ``level`` along its channel axis (the
+    last of ``keys``; from the easiest channel on: σ rising, SNR falling), linearly
+    interpolated between the last point at or above it and the first below: ``crossing`` for
+    the estimate, ``earliest`` and ``latest`` where the lower and upper ends of its 95 %
+    interval cross (None where that curve stays above ``level`` on the points run, or starts
+    below it). A row a curve, with the other axes' values."""
+    import pandas as pd
+
+    keys = list(keys)
+    axis, others = keys[-1], keys[:-1]
+    rising = axis != "snr_db"
+    rows = []
+    groups = points.groupby(others, sort=False) if others else [((), points)]
+    for values, group in groups:
+        values = values if isinstance(values, tuple) else (values,)
+        run = group[group["runs"] > 0].sort_values(axis, ascending=rising)
+        x = run[axis].astype(float).tolist()
+        row: dict[str, Any] = dict(zip(others, values, strict=True))
+        row["level"] = level
+        for name, col in (("crossing", column), ("earliest", f"{column}_lo"),
+                          ("latest", f"{column}_hi")):  # fmt: skip
+            row[name] = _falls_below(x, run[col].astype(float).tolist(), level)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=[*others, "level", "crossing", "earliest", "latest"])
+
+
+def _falls_below(x: list[float], y: list[float], level: float) -> float | None:
+    if not y or y[0] < level:
+        return None
+    for i in range(1, len(y)):
+        if y[i] < level:
+            x0, x1, y0, y1 = x[i - 1], x[i], y[i - 1], y[i]
+            return x0 + (x1 - x0) * (y0 - level) / (y0 - y1)
+    return None
 
 
 # -- against a reference -----------------------------------------------------------------------

@@ -121,6 +121,19 @@ def run_study_cmd(args: argparse.Namespace) -> int:
             "ser", "ser_bound", "runs_per_s"]  # fmt: skip
     table = got.points[cols]
     print(tabulate(table.values.tolist(), headers=cols, floatfmt=".4g"))
+    from rgtbus.units.study import crossings
+
+    axis = "σ" if st.axis == "noise" else "SNR (dB)"
+    for row in crossings(got.points, st.keys).to_dict("records"):
+        where = ", ".join(f"{k}={row[k]}" for k in st.keys[:-1])
+        at = row["crossing"]
+        if at is None or at != at:
+            said = "does not fall below 0.9 on the points run"
+        else:
+            lo, hi = (row["earliest"], row["latest"])
+            span = ", ".join("?" if v is None or v != v else f"{v:.4g}" for v in (lo, hi))
+            said = f"falls below 0.9 at {axis} ≈ {at:.4g} (95 %: {span})"
+        print(f"p_target {said}" + (f" ({where})" if where else ""))
     print(
         f"study {st.name}: {got.computed} runs in {got.seconds:.1f} s -> {out / 'points.csv'}, "
         f"{out / 'runs.csv'}"

@@ -6,7 +6,7 @@ combination of the grid's other axes; the channel axis (σ, or SNR in dB) across
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rgtbus.errors import BadInput
 from rgtbus.extras import require
@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 FLOOR = 1e-5  # a symbol error rate of 0 drawn here on the log axis (said in the caption)
+FEWEST = 100  # a point's symbol error rate is drawn from this many influence decodes on
 
 
 def grid_columns(points: pd.DataFrame) -> list[str]:
@@ -41,6 +42,7 @@ def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) 
     groups = points.groupby(others, sort=False) if others else [((), points)]
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     early = 0
+    bounds: dict[tuple[float, ...], tuple[Any, Any, str, list[str]]] = {}
     for i, (values, group) in enumerate(groups):
         values = values if isinstance(values, tuple) else (values,)
         label = ", ".join(f"{k}={v}" for k, v in zip(others, values, strict=True)) or "all"
@@ -51,21 +53,33 @@ def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) 
         left.fill_between(x, run["p_target_lo"], run["p_target_hi"], color=c, alpha=0.2, lw=0)
         left.plot(x, run["p_target"], "o-", color=c, label=f"{label}: noisy")
         left.plot(x, run["p_clean"], ":", color=c, label=f"{label}: clean channel")
-        ser = run["ser"].clip(lower=FLOOR)
+        read = run[run["influence_decodes"] >= FEWEST]
+        ser = read["ser"].clip(lower=FLOOR)
         err = [
-            (ser - run["ser_lo"].clip(lower=FLOOR)).clip(lower=0),
-            (run["ser_hi"].clip(lower=FLOOR) - ser).clip(lower=0),
+            (ser - read["ser_lo"].clip(lower=FLOOR)).clip(lower=0),
+            (read["ser_hi"].clip(lower=FLOOR) - ser).clip(lower=0),
         ]
-        right.errorbar(x, ser, yerr=err, fmt="o-", color=c, capsize=3, label=f"{label}: measured")
-        right.plot(x, run["ser_bound"].clip(lower=FLOOR), "--", color=c,
-                   label=f"{label}: union bound")  # fmt: skip
+        right.errorbar(read[axis].astype(float), ser, yerr=err, fmt="o-", color=c, capsize=3,
+                       label=f"{label}: measured")  # fmt: skip
+        bound = group.sort_values(axis)
+        key = tuple(bound["ser_bound"].round(12)) + tuple(bound[axis].astype(float))
+        bounds.setdefault(key, (bound[axis].astype(float), bound["ser_bound"], c, []))[3].append(
+            label
+        )
+    for x, y, c, labels in bounds.values():  # one line for the series that share their words
+        shared = len(labels) > 1 or not others
+        right.plot(x, y.clip(lower=FLOOR), "--", color="black" if shared else c,
+                   label="union bound" if shared else f"{labels[0]}: union bound")  # fmt: skip
     xlabel = "channel noise σ" if axis == "noise" else "SNR (dB) on a link of gain 1"
     left.axhline(0.9, color="grey", lw=0.8, ls="--")
     left.set(xlabel=xlabel, ylabel="P(target chooses what it was steered to)", ylim=(-0.02, 1.02))
     right.set(xlabel=xlabel, ylabel="payload symbol error rate", yscale="log")
     left.legend(fontsize="small")
     right.legend(fontsize="small")
-    notes = ["shaded and bars: Wilson 95 % intervals", f"0 drawn at {FLOOR:g}"]
+    notes = [
+        "shaded and bars: Wilson 95 % intervals",
+        f"symbol errors of points with {FEWEST}+ influence decodes, 0 drawn at {FLOOR:g}",
+    ]
     if early:
         notes.append(f"{early} point(s) not run: an easier channel than one with no failure")
     fig.suptitle(title or "reflexive control over a noisy medium")
