@@ -128,12 +128,12 @@ def run_study_cmd(args: argparse.Namespace) -> int:
         where = ", ".join(f"{k}={row[k]}" for k in st.keys[:-1])
         at = row["crossing"]
         if at is None or at != at:
-            said = "does not fall below 0.9 on the points run"
+            line = "does not fall below 0.9 on the points run"
         else:
             lo, hi = (row["earliest"], row["latest"])
             span = ", ".join("?" if v is None or v != v else f"{v:.4g}" for v in (lo, hi))
-            said = f"falls below 0.9 at {axis} ≈ {at:.4g} (95 %: {span})"
-        print(f"p_target {said}" + (f" ({where})" if where else ""))
+            line = f"falls below 0.9 at {axis} ≈ {at:.4g} (95 %: {span})"
+        print(f"p_target {line}" + (f" ({where})" if where else ""))
     print(
         f"study {st.name}: {got.computed} runs in {got.seconds:.1f} s -> {out / 'points.csv'}, "
         f"{out / 'runs.csv'}"
