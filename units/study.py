@@ -33,7 +33,6 @@ import platform
 import shlex
 import tempfile
 import time
-import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
@@ -47,11 +46,12 @@ from rgtbus.units.study_spec import (
     point_scenario,
     target_wants,
 )
+from rgtbus.units.sweep import run_error
 from rgtbus.units.sweep_store import lock_dir, write_text
 from rgtbus.units.workers import Pool, WorkerDied, one_line, open_pool
 
 from rgtbus._version import __version__
-from rgtbus.errors import BadInput, IOFailure, RgtbusError
+from rgtbus.errors import BadInput, IOFailure
 from rgtbus.signal.evaluate import ml_ser_bounds
 from rgtbus.stats import wilson
 
@@ -143,10 +143,7 @@ def study_run(study: Study, point: int, run: int) -> dict[str, Any]:
         row["repair_seconds"] = float(repair.get("seconds", 0.0))
         row["sim_seconds"] = float(s["sim_seconds"])
     except Exception as exc:  # a run that raises is a result of the study, never its end
-        last = traceback.extract_tb(exc.__traceback__)[-1:] or None
-        at = f" (at {Path(last[0].filename).name}:{last[0].lineno})" if last else ""
-        msg = str(exc) if isinstance(exc, RgtbusError) else f"{type(exc).__name__}: {exc}{at}"
-        row["error"] = msg
+        row["error"] = run_error(exc)
         row["steered"] = False
     row["wall_s"] = round(time.perf_counter() - t0, 6)
     return row

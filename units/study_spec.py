@@ -48,12 +48,18 @@ from typing import Any
 
 import numpy as np
 import tomli_w
-from rgtbus.units.sweep_spec import error_at, flatten_keys, plain_value, read_capped, set_key
+from rgtbus.units.sweep_spec import (
+    error_at,
+    flatten_keys,
+    plain_value,
+    read_capped,
+    read_toml,
+    set_key,
+)
 
 from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.rgt.diagonal import EXACT_VARS
 from rgtbus.scenario import Scenario, parse_scenario
-from rgtbus.scenario.limits import key_depth_error, nesting_error
 from rgtbus.scenario.shipped import find_shipped, find_study
 from rgtbus.scenario.values import MAX_LEVEL
 
@@ -208,22 +214,8 @@ def load_study(source: str | os.PathLike[str] | Mapping[str, Any]) -> Study:
     p = Path(source)
     if not p.exists() and (shipped := find_study(str(source))) is not None:
         p = shipped
-    where = str(p)
-    raw = read_capped(p, "study")
-    try:
-        text = raw.decode("utf-8")
-        too_deep = nesting_error(text, where)  # before tomllib, which recurses
-        if too_deep:
-            raise BadInput(too_deep)
-        data = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise BadInput(f"{where}: not a UTF-8 text file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"{where}: not valid TOML: {exc}") from None
-    too_deep = key_depth_error(data, text, where)
-    if too_deep:
-        raise BadInput(too_deep)
-    return _study(data, text, where, p.parent)
+    text, data = read_toml(p, "study")
+    return _study(data, text, str(p), p.parent)
 
 
 def _study(data: dict[str, Any], text: str, where: str, here: Path) -> Study:

@@ -163,13 +163,20 @@ def run_row(sweep: Sweep, task: Task, log_dir: str | None = None) -> dict[str, A
         row.update(id_columns(misread, out.units))
         row["failed"] = s["error"] is not None
     except Exception as exc:  # a run that raises is a result of the sweep, never its end
-        last = traceback.extract_tb(exc.__traceback__)[-1:] or None
-        at = f" (at {Path(last[0].filename).name}:{last[0].lineno})" if last else ""
-        msg = str(exc) if isinstance(exc, RgtbusError) else f"{type(exc).__name__}: {exc}{at}"
-        row["error"] = msg
+        row["error"] = run_error(exc)
         row["failed"] = True
     row["log"] = log_path
     return row
+
+
+def run_error(exc: Exception) -> str:
+    """The one line of a run that raised: an rgtbus error as it says, anything else with its
+    type and where it was raised (the file and line)."""
+    if isinstance(exc, RgtbusError):
+        return str(exc)
+    last = traceback.extract_tb(exc.__traceback__)[-1:] or None
+    at = f" (at {Path(last[0].filename).name}:{last[0].lineno})" if last else ""
+    return f"{type(exc).__name__}: {exc}{at}"
 
 
 def id_columns(misread: Mapping[str, Any], units: Sequence[AutonomousUnit]) -> dict[str, Any]:

@@ -166,21 +166,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     if not p.exists() and (shipped := find_sweep(str(path))) is not None:
         p = shipped
     where = str(p)
-    data_bytes = read_capped(p, "sweep")
-    try:
-        text = data_bytes.decode("utf-8")
-        too_deep = nesting_error(text, where)  # before tomllib, which recurses
-        if too_deep:
-            raise BadInput(too_deep)
-        data = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise BadInput(f"{where}: not a UTF-8 text file") from None
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
-        raise BadInput(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
-    too_deep = key_depth_error(data, text, where)  # a dotted key: [grid] is flattened below
-    if too_deep:
-        raise BadInput(too_deep)
+    text, data = read_toml(p, "sweep")
 
     def err(key: str | None, reason: str) -> RgtbusError:
         return error_at(where, text, key, reason)
@@ -282,6 +268,29 @@ def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
             scenario_for(sweep, cell, seed, base)
         except RgtbusError as exc:
             raise err("grid", f"cell {dict(cell)}: {exc}") from None
+
+
+def read_toml(path: Path, what: str) -> tuple[str, dict[str, Any]]:
+    """A sweep or study file's text and its TOML, each refusal one line naming the file (and
+    the line, for bad TOML); nesting too deep is refused before tomllib recurses, dotted keys
+    too deep after."""
+    where = str(path)
+    raw = read_capped(path, what)
+    try:
+        text = raw.decode("utf-8")
+        too_deep = nesting_error(text, where)  # before tomllib, which recurses
+        if too_deep:
+            raise BadInput(too_deep)
+        data = tomllib.loads(text)
+    except UnicodeDecodeError:
+        raise BadInput(f"{where}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"\(at line (\d+), column \d+\)", str(exc))
+        raise BadInput(f"{where}:{m.group(1) if m else '?'}: not valid TOML: {exc}") from None
+    too_deep = key_depth_error(data, text, where)  # a dotted key: [grid] is flattened later
+    if too_deep:
+        raise BadInput(too_deep)
+    return text, data
 
 
 def read_capped(path: Path, what: str) -> bytes:
