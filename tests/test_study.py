@@ -340,3 +340,13 @@ def test_crossings_interpolate_where_each_curve_falls_below_the_level():
     snr = points.rename(columns={"noise": "snr_db"}).assign(snr_db=[30.0, 20.0, 10.0, 20.0, 10.0])
     got = crossings(snr, ["repair", "snr_db"]).set_index("repair")
     assert got.loc[False, "crossing"] == pytest.approx(20.0 - 10.0 * 0.05 / 0.5)
+
+
+def test_a_family_s_bad_relations_and_a_bad_grid_value_name_their_key(tmp_path):
+    path = tmp_path / "f.toml"
+    path.write_text(UNSEEN.replace('relations = "drawn"', 'relations = {"u1>u2" = "ally"}'))
+    with pytest.raises(RgtbusError, match=r":6: relations: relations\.fixed\.u1>u2: must be"):
+        load_study(path)
+    path.write_text(UNSEEN.replace("[grid]", '[grid]\n"channel.gain" = [{"u1>zz" = 0.5}]'))
+    with pytest.raises(RgtbusError, match=r"grid: at channel\.gain=.*unknown unit 'zz'"):
+        load_study(path)

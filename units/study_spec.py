@@ -40,6 +40,7 @@ import hashlib
 import itertools
 import math
 import os
+import re
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -451,7 +452,7 @@ def _set(data: dict[str, Any], key: str, value: Any, err: ErrorAt) -> None:
     try:
         set_key(data, key, plain_value(value))
     except BadInput as exc:
-        raise err(key, str(exc)) from None
+        raise err(key, str(exc).removeprefix(f"{key}: ")) from None
 
 
 def _parsed(
@@ -464,16 +465,26 @@ def _parsed(
             raise err(key, f"unknown unit {name!r} (units: {', '.join(map(str, units))})")
     if study.controller == study.target:
         raise err("target", "the controller steers another unit, not itself")
-    label = f"{study.where} [{', '.join(f'{k}={_text(v)}' for k, v in settings)}]"
+    point = ", ".join(f"{k}={_text(v)}" for k, v in settings)
+    label = f"{study.where} [{point}]"
     try:
         text = tomli_w.dumps(data)
         return parse_scenario(text, label)
     except TypeError as exc:
         raise err("grid", f"not a TOML value: {exc}") from None
     except RgtbusError as exc:
-        if "goals." in str(exc) and ("want" in str(exc) or study.steer_to in str(exc)):
-            raise err("steer_to", str(exc)) from None
-        raise err("grid" if settings else "scenario", str(exc)) from None
+        # the scenario's own words, less its label and the line of the TOML made from it
+        inner = str(exc)
+        if inner.startswith(label):
+            inner = re.sub(r"^:\d+", "", inner[len(label) :]).lstrip(": ")
+        section = inner.split(":", 1)[0]
+        if section.startswith(f"goals.{study.controller}"):
+            key = "steer_to"
+        elif study.family and section.startswith("relations"):
+            key = "relations"
+        else:
+            key = "grid" if settings else "scenario"
+        raise err(key, f"at {point}: {inner}" if point else inner) from None
 
 
 def _check_goal(study: Study, sc: Scenario, err: ErrorAt) -> None:
