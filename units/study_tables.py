@@ -18,7 +18,7 @@ from rgtbus.units.workers import one_line
 
 from rgtbus.errors import BadInput, IOFailure
 from rgtbus.signal.evaluate import ml_ser_bounds
-from rgtbus.stats import wilson
+from rgtbus.stats import mean_interval, wilson
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -35,7 +35,8 @@ SHARES = ("p_target", "p_clean", "decision_error", "id_ser", "relation_ser", "se
 POINT_COLUMNS = (
     "runs", "failures", "stopped", "errors", "id_decodes", "relation_decodes", "influence_decodes",
     *(c for s in SHARES for c in (s, f"{s}_lo", f"{s}_hi")),
-    "relation_ser_bound", "ser_bound", "repair_requests", "repair_seconds", "runs_per_s",
+    "relation_ser_bound", "ser_bound", "repair_requests", "repair_requests_lo",
+    "repair_requests_hi", "repair_seconds", "runs_per_s",
     "decodes_per_s",
 )  # fmt: skip
 TIMED = ("runs_per_s", "decodes_per_s", "wall_s")  # measured time: differ from call to call
@@ -126,7 +127,10 @@ def point_rows(
                 ml_ser_bounds(cb.alternatives, p.sigma).union,
             )
         out["relation_ser_bound"], out["ser_bound"] = bounds[p.index]
-        out["repair_requests"] = sum(r["repair_requests"] for r in used) / n if n else None
+        # the repair's requests a run: their mean with its 95 % interval (mean ± 1.96 s/√n)
+        requests = [float(r["repair_requests"]) for r in used]
+        m, lo, hi = mean_interval(requests) if n else (None, None, None)
+        out.update(repair_requests=m, repair_requests_lo=lo, repair_requests_hi=hi)
         out["repair_seconds"] = sum(r["repair_seconds"] for r in used) / n if n else None
         wall = math.fsum(r["wall_s"] for r in used)
         decodes = sum(r[f"{k}_decodes"] for r in used for k in ("id", "relation", "influence"))
