@@ -289,9 +289,8 @@ def test_the_reference_check_fails_when_a_curve_moves_outside_its_interval(tmp_p
     keys = ["repair", "noise"]
     assert check_reference(got.points, got.points, keys) == []
     moved = got.points.copy()
-    row = moved.index[(moved["runs"] > 0) & (moved["p_target"] > 0.5)][0]
-    for c in ("p_target", "p_target_lo", "p_target_hi"):
-        moved.loc[row, c] = moved.loc[row, c] - 0.6
+    row = moved.index[(moved["runs"] > 0) & (moved["failures"] == 0)][0]
+    moved.loc[row, "failures"] = moved.loc[row, "runs"]  # every run now fails: p 1 -> 0
     bad = check_reference(moved, got.points, keys)
     assert len(bad) == 1 and "outside the reference's" in bad[0]
     assert check_reference(got.points, got.points[got.points["repair"]], keys)

@@ -20,6 +20,8 @@ from rgtbus.errors import BadInput, IOFailure
 from rgtbus.signal.evaluate import ml_ser_bounds
 from rgtbus.stats import mean_interval, wilson
 
+Z_CHECK = 3.2905267314919255  # two-sided 99.9 %: the reference check, point by point
+
 if TYPE_CHECKING:
     import pandas as pd
 
@@ -236,14 +238,15 @@ def _falls_below(x: list[float], y: list[float], level: float) -> float | None:
 
 
 def check_reference(
-    points: pd.DataFrame, reference: pd.DataFrame, keys: Iterable[str], column: str = "p_target"
+    points: pd.DataFrame, reference: pd.DataFrame, keys: Iterable[str], z: float = Z_CHECK
 ) -> list[str]:
     """Each point of ``points`` against the reference curve's point of the same grid values
-    (``keys``): it agrees when its 95 % interval and the reference's overlap, i.e. its
-    estimate lies inside the reference's interval widened by its own interval's reach. A
-    reduced run (fewer runs a point, the same seeds) is held to what its own runs can tell.
-    Returns a line per point that disagrees (or is missing from the reference); [] when all
-    agree."""
+    (``keys``): P(target steered) agrees when the two Wilson intervals at ``z`` (99.9 % by
+    default) overlap, both from their runs and failures: the estimate lies inside the
+    reference's interval widened by what its own runs can tell, so a reduced study (fewer runs
+    a point, the same seeds) is held to its own precision. At 99.9 % a point of a curve that
+    did not move fails about once in a thousand, a grid of tens of points in a few hundred.
+    Returns a line per point that disagrees (or has no reference point); [] when all agree."""
     keys = list(keys)
     ref = {tuple(_key(r[k]) for k in keys): r for r in reference.to_dict("records")}
     bad = []
@@ -256,12 +259,12 @@ def check_reference(
         if r is None or not r["runs"]:
             bad.append(f"{label}: no reference point")
             continue
-        lo, hi, p = row[f"{column}_lo"], row[f"{column}_hi"], row[column]
-        rlo, rhi = r[f"{column}_lo"], r[f"{column}_hi"]
+        p, lo, hi = wilson(int(row["runs"] - row["failures"]), int(row["runs"]), z)
+        rp, rlo, rhi = wilson(int(r["runs"] - r["failures"]), int(r["runs"]), z)
         if hi < rlo or lo > rhi:
             bad.append(
-                f"{label}: {column} {p:.3f} [{lo:.3f}, {hi:.3f}] outside the reference's "
-                f"{r[column]:.3f} [{rlo:.3f}, {rhi:.3f}]"
+                f"{label}: p_target {p:.3f} [{lo:.3f}, {hi:.3f}] of {row['runs']} runs outside "
+                f"the reference's {rp:.3f} [{rlo:.3f}, {rhi:.3f}] of {r['runs']} runs"
             )
     return bad
 
