@@ -66,16 +66,22 @@ def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) 
         bounds.setdefault(key, (bound[axis].astype(float), bound["ser_bound"], c, []))[3].append(
             label
         )
+    styles = iter(["--", "-.", ":", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1))] * 100)
     for x, y, c, labels in bounds.values():  # one line for the series that share their words
         shared = len(labels) > 1 or not others
-        right.plot(x, y.clip(lower=FLOOR), "--", color="black" if shared else c,
-                   label="union bound" if shared else f"{labels[0]}: union bound")  # fmt: skip
+        parts = [lab.split(", ") for lab in labels]
+        common = [kv for kv in parts[0] if all(kv in p for p in parts)]
+        name = "union bound" + (f" ({', '.join(common)})" if common and len(bounds) > 1 else "")
+        right.plot(x, y.clip(lower=FLOOR), next(styles) if shared else "--",
+                   color="black" if shared else c,
+                   label=name if shared else f"{labels[0]}: union bound")  # fmt: skip
     xlabel = "channel noise σ" if axis == "noise" else "SNR (dB) on a link of gain 1"
     left.axhline(0.9, color="grey", lw=0.8, ls="--")
     left.set(xlabel=xlabel, ylabel="P(target chooses what it was steered to)", ylim=(-0.02, 1.02))
     right.set(xlabel=xlabel, ylabel="payload symbol error rate", yscale="log")
-    left.legend(fontsize="small")
-    right.legend(fontsize="small")
+    many = len(bounds) > 2 or sum(1 for _ in left.get_lines()) > 8
+    for ax in (left, right):
+        ax.legend(fontsize="x-small" if many else "small", ncol=2 if many else 1)
     notes = [
         "shaded and bars: Wilson 95 % intervals",
         f"symbol errors of points with {FEWEST}+ influence decodes, 0 drawn at {FLOOR:g}",
