@@ -305,6 +305,10 @@ def test_study_plot_draws_png_and_svg(tmp_path, capsys):
         assert path.stat().st_size > 1000
     assert (out / "study.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert b"<svg" in (out / "study.svg").read_bytes()[:1000]
+    capsys.readouterr()
+    assert main(["study-plot", str(out), "-o", str(tmp_path / "f"), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["outputs"] == [str(tmp_path / "f.png"), str(tmp_path / "f.svg")]
     assert main(["study-plot", str(tmp_path / "nothing")]) == 2
 
 

@@ -59,6 +59,7 @@ def register(subparsers: SubParsers) -> None:
         "-o", "--output", metavar="PATH", help="PATH.png and PATH.svg (default DIR/study)"
     )
     q.add_argument("--title", help="figure title")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=run_study_plot_cmd)
 
     s = subparsers.add_parser(
@@ -148,7 +149,11 @@ def run_study_plot_cmd(args: argparse.Namespace) -> int:
 
     points, _ = read_study(args.dir)
     output = Path(args.output) if args.output else Path(args.dir) / "study"
-    for path in plot_study(points, output, title=args.title):
+    paths = plot_study(points, output, title=args.title)
+    if args.json:
+        print(json.dumps({"outputs": [str(p) for p in paths], "points": len(points)}))
+        return 0
+    for path in paths:
         print(f"wrote {path}")
     return 0
 
