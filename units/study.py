@@ -35,7 +35,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rgtbus.units.study_spec import Point, Study, load_study, target_wants
+from rgtbus.units.study_spec import (
+    Point,
+    RunTask,
+    Study,
+    load_study,
+    run_task,
+    target_wants,
+)
 from rgtbus.units.study_store import ROWS, StudyStore
 from rgtbus.units.study_tables import (
     POINT_COLUMNS,
@@ -67,6 +74,7 @@ __all__ = [
     "TIMED",
     "Point",
     "PointEnd",
+    "RunTask",
     "Study",
     "StudyResult",
     "check_reference",
@@ -86,8 +94,8 @@ RETRIES = 3  # a run whose worker died is handed out again, at most this often
 # -- one run -----------------------------------------------------------------------------------
 
 
-def study_run(study: Study, point: int, run: int) -> dict[str, Any]:
-    """Run ``run`` of point ``point`` (in a worker): its row. ``steered``: the target chose
+def study_run(task: RunTask) -> dict[str, Any]:
+    """Run a study's run (in a worker): its row. ``steered``: the target chose
     ``steer_to``; ``clean_steered``: it would have on a perfect medium (the noise-free run of
     the same scenario and seed, ``rgtbus.truth``); ``decision_wrong``: its decision differs from
     that one's (or it did not decide); decodes, misreads and symbol errors (misreads read as
@@ -99,22 +107,23 @@ def study_run(study: Study, point: int, run: int) -> dict[str, Any]:
     from rgtbus.telemetry import NullRecorder
     from rgtbus.truth import noise_free
 
-    sc = study.scenario_of(point, run)
-    row = empty_row(point, run, sc.seed)
-    want = target_wants(sc, study.steer_to)
+    sc = task.scenario_of()
+    row = empty_row(task.point, task.run, sc.seed)
+    want = target_wants(sc, task.steer_to)
+    target = task.target
     t0 = time.perf_counter()
     try:
         clean = noise_free(sc)
-        mine = clean.get(study.target, {})
+        mine = clean.get(target, {})
         row["clean_steered"] = bool(mine.get("decided")) and mine.get("choice") == want
         out = run_group(sc, "memory", NullRecorder())
         s = out.summary
-        unit = s["units"].get(study.target) or {}
+        unit = s["units"].get(target) or {}
         choice = unit.get("choice") if unit.get("decided") else None
         row["steered"] = s["error"] is None and choice == want
         u = sc.universe
         row["choice"] = None if choice is None else u.format(u.from_list(choice))
-        wrong = wrong_decisions({study.target: unit}, clean) if unit else [study.target]
+        wrong = wrong_decisions({target: unit}, clean) if unit else [target]
         row["decision_wrong"] = not unit.get("decided") or bool(wrong)
         row["error"] = s["error"]
         kinds = s["decode_errors"]["by_kind"]
@@ -206,10 +215,10 @@ class _Runner:
                     if key is None:
                         break
                     if ex is None:
-                        self._keep(study_run(self.study, *key))
+                        self._keep(study_run(run_task(self.study, *key)))
                         self._close_points()
                         continue
-                    pending[ex.submit(study_run, self.study, *key)] = key
+                    pending[ex.submit(study_run, run_task(self.study, *key))] = key
                 if not pending:
                     if all(ch.pos >= len(ch.points) for ch in self.chains):
                         return

@@ -170,19 +170,52 @@ class Study:
         )
 
 
-_SCENARIOS: dict[tuple[str, int], Scenario] = {}
+@dataclass(frozen=True)
+class RunTask:
+    """What a worker needs to run one run of a study, and no more (a study's every point need
+    not travel with each run): the point's scenario text and label, the run's seed, the target
+    and what it is steered to."""
+
+    point: int
+    run: int
+    seed: int
+    scenario: str
+    where: str
+    target: str
+    steer_to: str
+
+    def scenario_of(self) -> Scenario:
+        """The run's scenario: its point's (parsed once a process), with its seed."""
+        return _parsed_text(self.scenario, self.where).with_seed(self.seed)
+
+
+_SCENARIOS: dict[str, Scenario] = {}
+
+
+def _parsed_text(text: str, where: str) -> Scenario:
+    sc = _SCENARIOS.get(text)
+    if sc is None:
+        if len(_SCENARIOS) > 64:
+            _SCENARIOS.clear()
+        sc = _SCENARIOS[text] = parse_scenario(text, where)
+    return sc
 
 
 def point_scenario(study: Study, point: int) -> Scenario:
     """A point's scenario (its seed a placeholder: a run sets its own), parsed once a process."""
-    key = (study.fingerprint, point)
-    sc = _SCENARIOS.get(key)
-    if sc is None:
-        if len(_SCENARIOS) > 256:
-            _SCENARIOS.clear()
-        where = f"{study.where} [{study.points[point].label()}]"
-        sc = _SCENARIOS[key] = parse_scenario(study.point_texts[point], where)
-    return sc
+    return _parsed_text(study.point_texts[point], _where(study, point))
+
+
+def _where(study: Study, point: int) -> str:
+    return f"{study.where} [{study.points[point].label()}]"
+
+
+def run_task(study: Study, point: int, run: int) -> RunTask:
+    """Run ``run`` of point ``point`` as a worker's task."""
+    return RunTask(
+        point, run, study.seed_of(point, run), study.point_texts[point], _where(study, point),
+        study.target, study.steer_to,
+    )  # fmt: skip
 
 
 def _text(value: Any) -> str:
