@@ -19,11 +19,12 @@ from rgtbus._version import __version__
 from rgtbus.errors import BadInput, BadLog, IOFailure, PeerSilent, RgtbusError
 
 if TYPE_CHECKING:
-    from rgtbus.api import load_scenario, open_log, run, study, sweep
+    from rgtbus.api import load_scenario, open_log, run, sweep
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
     from rgtbus.units.launch import launch
     from rgtbus.units.result import RunResult
+    from rgtbus.units.study import study
 
 _LAZY = {
     "load_scenario": "rgtbus.api",
@@ -31,7 +32,7 @@ _LAZY = {
     "launch": "rgtbus.units.launch",
     "open_log": "rgtbus.api",
     "sweep": "rgtbus.api",
-    "study": "rgtbus.api",
+    "study": "rgtbus.units.study",
     "RunResult": "rgtbus.units.result",
     "Log": "rgtbus.telemetry.frames",
     "Scenario": "rgtbus.scenario",

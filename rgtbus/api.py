@@ -9,7 +9,8 @@
 * ``open_log(path)`` -> ``Log`` (``.summary()``, ``.metadata``, DataFrames);
 * ``sweep(scenario, *, grid, seeds, ...)`` -> a DataFrame of the rows ``rgtbus sweep`` writes;
 * ``study(file_or_name_or_mapping, *, out, failures, budget, ...)`` -> ``StudyResult``
-  (``.points``, ``.runs``: what ``rgtbus study`` writes; docs/studies.md).
+  (``.points``, ``.runs``: what ``rgtbus study`` writes; docs/studies.md): ``rgtbus.study`` is
+  ``rgtbus.units.study.study`` itself.
 
 Every command is a thin wrapper over these: the same errors (``RgtbusError``, one line with
 file:line: key), the same results.
@@ -26,12 +27,11 @@ from rgtbus.errors import BadInput
 from rgtbus.units.result import RunResult, result_of
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping
+    from collections.abc import Callable
 
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
     from rgtbus.telemetry.live import LiveView
-    from rgtbus.units.study import Study, StudyResult
 
 
 def load_scenario(source: str | os.PathLike[str] | Scenario) -> Scenario:
@@ -156,27 +156,3 @@ def sweep(
         scenario, grid=grid, seeds=seeds, workers=workers, out=out, scheduler=scheduler, **options
     )
 
-
-def study(
-    source: str | os.PathLike[str] | Mapping[str, Any] | Study,
-    *,
-    out: str | os.PathLike[str] | None = None,
-    failures: int | None = None,
-    budget: int | None = None,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    resume: bool = False,
-) -> StudyResult:
-    """Run a study (docs/studies.md): a study file, a shipped study's name (``"control_gate"``),
-    a mapping shaped like the file, or a ``Study``. Each grid point runs until ``failures``
-    target failures or ``budget`` runs (the file's unless given), on a process pool of
-    ``workers`` (or the Dask cluster at ``scheduler``). Returns a ``StudyResult``: ``.points``
-    and ``.runs`` as pandas DataFrames (what ``points.csv`` and ``runs.csv`` hold). ``out``: the
-    directory to keep it in (``None``: a temporary one); ``resume``: finish one stopped halfway.
-    Works from a script or notebook cell without a main guard."""
-    from rgtbus.units.study import study as run_study
-
-    return run_study(
-        source, out=out, failures=failures, budget=budget, workers=workers,
-        scheduler=scheduler, resume=resume,
-    )  # fmt: skip

@@ -53,7 +53,7 @@ from rgtbus.units.sweep_spec import (
     error_at,
     flatten_keys,
     plain_value,
-    read_capped,
+    read_base,
     read_toml,
     set_key,
 )
@@ -61,7 +61,7 @@ from rgtbus.units.sweep_spec import (
 from rgtbus.errors import BadInput, RgtbusError
 from rgtbus.rgt.diagonal import EXACT_VARS
 from rgtbus.scenario import Scenario, parse_scenario
-from rgtbus.scenario.shipped import find_shipped, find_study
+from rgtbus.scenario.shipped import find_study
 from rgtbus.scenario.values import MAX_LEVEL
 
 STUDY_KEYS = (
@@ -413,15 +413,7 @@ def _base(
     scen = head.get("scenario")
     if not isinstance(scen, str) or not scen:
         raise err("scenario", "must name the base scenario file (or a shipped scenario)")
-    path = (here / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
-    if not path.exists() and (named := find_shipped(scen)) is not None:
-        path = named
-    try:
-        text = read_capped(path, "scenario").decode("utf-8")
-    except UnicodeDecodeError:
-        raise err("scenario", f"{str(path)!r}: not UTF-8 text") from None
-    except RgtbusError as exc:
-        raise err("scenario", str(exc)) from None
+    path, text = read_base(scen, here, err)
     return str(path), text
 
 

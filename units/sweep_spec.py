@@ -181,15 +181,7 @@ def load_sweep(path: str | os.PathLike[str]) -> Sweep:
     scen = data.get("scenario")
     if not isinstance(scen, str) or not scen:
         raise err("scenario", "must name the base scenario file")
-    scen_path = (p.parent / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
-    if not scen_path.exists() and (named := find_shipped(scen)) is not None:
-        scen_path = named  # a shipped scenario by name
-    try:
-        scen_text = read_capped(scen_path, "scenario").decode("utf-8")
-    except UnicodeDecodeError:
-        raise err("scenario", f"{str(scen_path)!r}: not UTF-8 text") from None
-    except RgtbusError as exc:
-        raise err("scenario", str(exc)) from None
+    scen_path, scen_text = read_base(scen, p.parent, err)
     try:
         seeds = parse_seeds(data.get("seeds", "0..0"))
     except ValueError as exc:
@@ -268,6 +260,21 @@ def check_sweep(sweep: Sweep, err: ErrorAt) -> None:
             scenario_for(sweep, cell, seed, base)
         except RgtbusError as exc:
             raise err("grid", f"cell {dict(cell)}: {exc}") from None
+
+
+def read_base(scen: str, here: Path, err: ErrorAt) -> tuple[Path, str]:
+    """The base scenario a sweep or study file names: its path (relative to the file's
+    directory ``here``; a shipped scenario's name where no such file is there) and its text;
+    a refusal is ``err("scenario", why)``."""
+    path = (here / scen).resolve() if not Path(scen).is_absolute() else Path(scen)
+    if not path.exists() and (named := find_shipped(scen)) is not None:
+        path = named  # a shipped scenario by name
+    try:
+        return path, read_capped(path, "scenario").decode("utf-8")
+    except UnicodeDecodeError:
+        raise err("scenario", f"{str(path)!r}: not UTF-8 text") from None
+    except RgtbusError as exc:
+        raise err("scenario", str(exc)) from None
 
 
 def read_toml(path: Path, what: str) -> tuple[str, dict[str, Any]]:
