@@ -159,8 +159,10 @@ class _Runner:
     come back; ``ends`` holds every closed point."""
 
     def __init__(self, study: Study, store: StudyStore, pool: Pool,
-                 progress: Callable[[Point, PointEnd], None] | None) -> None:  # fmt: skip
+                 progress: Callable[[Point, PointEnd], None] | None,
+                 on_run: Callable[[], None] | None = None) -> None:  # fmt: skip
         self.study, self.store, self.pool, self.progress = study, store, pool, progress
+        self.on_run = on_run
         self.chains = collections.deque(_Chain(c) for c in study.chains())
         self.ends: dict[int, PointEnd] = {}
         self.computed = 0
@@ -256,6 +258,8 @@ class _Runner:
     def _keep(self, row: dict[str, Any]) -> None:
         self.store.add(row)
         self.computed += 1
+        if self.on_run:
+            self.on_run()
 
 
 @dataclass
@@ -281,18 +285,19 @@ def run_study(
     scheduler: str | None = None,
     resume: bool = False,
     progress: Callable[[Point, PointEnd], None] | None = None,
+    on_run: Callable[[], None] | None = None,
 ) -> StudyResult:
     """Run ``study`` into ``out_dir`` (resuming what it holds with ``resume``) on a local
     process pool (``workers``, all cores by default; 1: this process) or the Dask cluster at
     ``scheduler``; write its tables; return them. ``progress(point, end)`` as each point
-    closes."""
+    closes, ``on_run()`` as each run is kept."""
     import pandas as pd
 
     t0 = time.perf_counter()
     with StudyStore(study, Path(out_dir), resume) as store:
         runs_left = len(study.points) * study.budget - len(store.rows)
         with open_pool(workers, scheduler, max(1, runs_left)) as pool:
-            runner = _Runner(study, store, pool, progress)
+            runner = _Runner(study, store, pool, progress, on_run)
             runner.run()
             record = pool.record()
         points = point_rows(study, runner.ends, store.rows)

@@ -127,30 +127,26 @@ class StudyStore:
         path = self.out_dir / ROWS
         if not path.exists():
             return
-        try:
-            raw = path.read_bytes()
-        except OSError as exc:
-            raise IOFailure(f"cannot read {str(path)!r}: {exc.strerror}") from None
-        good: list[str] = []
         dropped = 0
         fp = self.study.fingerprint
-        for line in raw.decode("utf-8", errors="replace").splitlines(keepends=True):
-            row = _whole(line, fp)
-            if row is None:
-                dropped += 1
-                continue
-            if not 0 <= row["point"] < len(self.study.points):
-                dropped += 1
-                continue
-            self.rows[(row["point"], row["run"])] = row
-            good.append(line)
+        try:
+            with open(path, "rb") as f:
+                for raw in f:  # a line at a time: the file may hold many runs
+                    row = _whole(raw.decode("utf-8", errors="replace"), fp)
+                    if row is None or not 0 <= row["point"] < len(self.study.points):
+                        dropped += 1
+                        continue
+                    self.rows[(row["point"], row["run"])] = row
+        except OSError as exc:
+            raise IOFailure(f"cannot read {str(path)!r}: {exc.strerror}") from None
         if dropped:
             self.notes.append(
                 f"{str(path)!r}: {dropped} line(s) not whole (cut by a stop) left out: their "
                 "runs run again"
             )
+            # the whole lines again, as they were written (one canonical form a row)
             tmp = path.with_suffix(".jsonl.tmp")
-            write_text(tmp, "".join(good))
+            write_text(tmp, "".join(_line(r, fp) for r in self.rows.values()))
             os.replace(tmp, path)
 
     def add(self, row: Mapping[str, Any]) -> None:

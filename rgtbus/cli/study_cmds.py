@@ -91,14 +91,24 @@ def run_study_cmd(args: argparse.Namespace) -> int:
             what = "not run (an easier channel than a point with no failure)"
         else:
             what = f"{end.runs} runs, {end.failures} failures ({end.stopped})"
-        print(f"{st.name}: {point.label()}: {what}", file=sys.stderr, flush=True)
+        line = f"{st.name}: {point.label()}: {what}"
+        if bar is not None:
+            bar.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr, flush=True)
 
     main_thread = threading.current_thread() is threading.main_thread()
+    bar = None
+    if not args.quiet and sys.stderr.isatty():  # runs as they come: a point may take minutes
+        from tqdm import tqdm
+
+        bar = tqdm(unit="run", desc=st.name, file=sys.stderr, leave=False)
     with interrupted_by(signal.SIGTERM, signal.SIGINT):
         try:
             got = run_study(
                 st, out, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                 progress=None if args.quiet else said,
+                on_run=None if bar is None else bar.update,
             )  # fmt: skip
         except KeyboardInterrupt:
             if main_thread:
@@ -110,6 +120,9 @@ def run_study_cmd(args: argparse.Namespace) -> int:
                 flush=True,
             )
             return 130
+        finally:
+            if bar is not None:
+                bar.close()
     for note in got.notes:
         print(note, file=sys.stderr, flush=True)
     if args.json:
