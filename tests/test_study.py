@@ -263,6 +263,16 @@ def test_killed_at_any_moment_and_resumed_the_tables_equal_an_uninterrupted_stud
     pd.testing.assert_frame_equal(untimed(runs), untimed(want_runs))
 
 
+def test_a_directory_whose_study_never_ran_a_run_is_begun_again(tmp_path, capsys):
+    path = gate_file(tmp_path, failures=2, budget=4)
+    out = tmp_path / "out"
+    assert main(["study", str(path), "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot reach Dask scheduler" in capsys.readouterr().err
+    assert (out / "manifest.json").exists() and not (out / "points.csv").exists()
+    assert main(["study", str(path), "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    assert read_study(out)[0]["runs"].sum() > 0
+
+
 def test_resume_refuses_another_study_or_other_versions_in_one_line(tmp_path, capsys):
     path = gate_file(tmp_path, failures=2, budget=4)
     out = tmp_path / "out"

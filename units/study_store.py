@@ -87,6 +87,12 @@ class StudyStore:
             write_text(manifest, json.dumps(want, indent=2) + "\n")
             self._write_points()
             return
+        rows = out / ROWS
+        if not resume and (not rows.exists() or rows.stat().st_size == 0):
+            # a study that never finished a run (its pool could not start): begin it again
+            write_text(manifest, json.dumps(want, indent=2) + "\n")
+            self._write_points()
+            return
         if not resume:
             raise BadInput(
                 f"{str(out)!r} holds a study already: --resume (resume=True) to finish it, "
