@@ -263,6 +263,15 @@ def test_killed_at_any_moment_and_resumed_the_tables_equal_an_uninterrupted_stud
     pd.testing.assert_frame_equal(untimed(runs), untimed(want_runs))
 
 
+def test_json_prints_a_point_a_line_with_nulls_for_points_not_run(tmp_path, capsys):
+    path = gate_file(tmp_path, failures=3, budget=12)
+    assert main(["study", str(path), "--out", str(tmp_path / "o"), "--json", "--quiet"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(rows) == 6 and {r["stopped"] for r in rows} >= {"early", "budget"}
+    early = next(r for r in rows if r["stopped"] == "early")
+    assert early["p_target"] is None and early["runs"] == 0
+
+
 def test_a_directory_whose_study_never_ran_a_run_is_begun_again(tmp_path, capsys):
     path = gate_file(tmp_path, failures=2, budget=4)
     out = tmp_path / "out"

@@ -125,9 +125,10 @@ def run_study_cmd(args: argparse.Namespace) -> int:
                 bar.close()
     for note in got.notes:
         print(note, file=sys.stderr, flush=True)
-    if args.json:
-        for row in got.points.to_dict("records"):
-            print(json.dumps(row, default=str))
+    if args.json:  # an empty cell (a point not run) as null: NaN is no JSON
+        plain = got.points.astype(object).where(got.points.notna(), None)
+        for row in plain.to_dict("records"):
+            print(json.dumps(row, default=str, allow_nan=False))
         return 0
     from tabulate import tabulate
 
