@@ -49,6 +49,7 @@ from rgtbus.units.study_tables import (
     RUN_COLUMNS,
     TIMED,
     PointEnd,
+    PointScan,
     check_reference,
     columns_of,
     crossings,
@@ -150,6 +151,7 @@ def study_run(task: RunTask) -> dict[str, Any]:
 @dataclass
 class _Chain:
     points: list[Point]
+    scan: PointScan  # the open point's stop rule, read as far as its runs have come
     pos: int = 0
     next_run: int = 0
 
@@ -163,18 +165,19 @@ class _Runner:
                  on_run: Callable[[], None] | None = None) -> None:  # fmt: skip
         self.study, self.store, self.pool, self.progress = study, store, pool, progress
         self.on_run = on_run
-        self.chains = collections.deque(_Chain(c) for c in study.chains())
+        self.chains = collections.deque(_Chain(c, self._scan()) for c in study.chains())
         self.ends: dict[int, PointEnd] = {}
         self.computed = 0
         self.tries: collections.Counter[tuple[int, int]] = collections.Counter()
 
+    def _scan(self) -> PointScan:
+        return PointScan(self.study.failures, self.study.budget)
+
     def _close_points(self) -> None:
-        study = self.study
         for ch in self.chains:
             while ch.pos < len(ch.points):
                 p = ch.points[ch.pos]
-                runs = {r: row for (q, r), row in self.store.rows.items() if q == p.index}
-                end = point_end(study, runs)
+                end = ch.scan.feed(self.store.by_point.get(p.index, {}))
                 if end is None:
                     break
                 self.ends[p.index] = end
@@ -182,6 +185,7 @@ class _Runner:
                     self.progress(p, end)
                 ch.pos += 1
                 ch.next_run = 0
+                ch.scan = self._scan()
                 if end.failures == 0:  # none in its whole budget: the easier points show none
                     for q in ch.points[ch.pos :]:
                         self.ends[q.index] = PointEnd(0, 0, "early")

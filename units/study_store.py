@@ -68,6 +68,7 @@ class StudyStore:
         self.study, self.out_dir = study, out_dir
         self.notes: list[str] = []
         self.rows: dict[tuple[int, int], dict[str, Any]] = {}
+        self.by_point: dict[int, dict[int, dict[str, Any]]] = {}  # the same rows, by point
         self._lock = lock_dir(out_dir, LOCK, "study")
         try:
             self._open(resume)
@@ -142,7 +143,7 @@ class StudyStore:
                     if row is None or not 0 <= row["point"] < len(self.study.points):
                         dropped += 1
                         continue
-                    self.rows[(row["point"], row["run"])] = row
+                    self._hold(row)
         except OSError as exc:
             raise IOFailure(f"cannot read {str(path)!r}: {exc.strerror}") from None
         if dropped:
@@ -155,9 +156,13 @@ class StudyStore:
             write_text(tmp, "".join(_line(r, fp) for r in self.rows.values()))
             os.replace(tmp, path)
 
+    def _hold(self, row: dict[str, Any]) -> None:
+        self.rows[(row["point"], row["run"])] = row
+        self.by_point.setdefault(row["point"], {})[row["run"]] = row
+
     def add(self, row: Mapping[str, Any]) -> None:
         """Keep a finished run: appended to runs.jsonl and flushed."""
-        self.rows[(row["point"], row["run"])] = dict(row)
+        self._hold(dict(row))
         try:
             self._sink.write(_line(row, self.study.fingerprint))
             self._sink.flush()

@@ -70,19 +70,34 @@ class PointEnd:
     stopped: str
 
 
+@dataclass
+class PointScan:
+    """The stop rule, read as a point's runs come: runs in order, the first run that brings the
+    failures to ``study.failures`` ends the point, else run ``budget − 1`` does. ``feed`` reads
+    on from where it stopped (the runs read so far, ``scanned``, and their ``failures``)."""
+
+    failures_wanted: int
+    budget: int
+    scanned: int = 0
+    failures: int = 0
+
+    def feed(self, rows: Mapping[int, Mapping[str, Any]]) -> PointEnd | None:
+        """Where the point stops, or None while the next run it needs is missing."""
+        while self.scanned < self.budget:
+            row = rows.get(self.scanned)
+            if row is None:
+                return None
+            self.scanned += 1
+            self.failures += not row["steered"]
+            if self.failures >= self.failures_wanted:
+                return PointEnd(self.scanned, self.failures, "failures")
+        return PointEnd(self.budget, self.failures, "budget")
+
+
 def point_end(study: Study, rows: Mapping[int, Mapping[str, Any]]) -> PointEnd | None:
-    """Where a point stops, from its rows by run index; None while a run it needs is missing.
-    The rule reads runs in order: the first run that brings the failures to ``study.failures``
-    ends it, else run ``budget − 1`` does."""
-    failures = 0
-    for r in range(study.budget):
-        row = rows.get(r)
-        if row is None:
-            return None
-        failures += not row["steered"]
-        if failures >= study.failures:
-            return PointEnd(r + 1, failures, "failures")
-    return PointEnd(study.budget, failures, "budget")
+    """Where a point stops, from its rows by run index; None while a run it needs is missing
+    (``PointScan``: the rule)."""
+    return PointScan(study.failures, study.budget).feed(rows)
 
 
 def _share(k: int, n: int, name: str) -> dict[str, float | None]:
