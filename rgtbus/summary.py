@@ -245,6 +245,9 @@ def summarise(
         "units": units_out,
         "frustrated": frustrated_units(units_out),
         "wrong_decisions": wrong_decisions(units_out, clean[-1]) if units_out else [],
+        # every unit's decision on a perfect medium (the last round's; not in --json): what
+        # wrong_decisions judges against, kept so that a study need not work it out again
+        "noise_free": clean[-1] if units_out else None,
         "decisions": judged_decisions(sc, reports, clean) if units_out else [],
         "goals": [],
         "rounds": {

@@ -114,11 +114,12 @@ def study_run(task: RunTask) -> dict[str, Any]:
     target = task.target
     t0 = time.perf_counter()
     try:
-        clean = noise_free(sc)
-        mine = clean.get(target, {})
-        row["clean_steered"] = bool(mine.get("decided")) and mine.get("choice") == want
         out = run_group(sc, "memory", NullRecorder())
         s = out.summary
+        # the perfect medium's decisions: the summary's where it judged the run by them
+        clean = s.get("noise_free") or noise_free(sc)
+        mine = clean.get(target, {})
+        row["clean_steered"] = bool(mine.get("decided")) and mine.get("choice") == want
         unit = s["units"].get(target) or {}
         choice = unit.get("choice") if unit.get("decided") else None
         row["steered"] = s["error"] is None and choice == want
