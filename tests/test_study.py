@@ -372,3 +372,19 @@ def test_a_family_s_bad_relations_and_a_bad_grid_value_name_their_key(tmp_path):
     path.write_text(UNSEEN.replace("[grid]", '[grid]\n"channel.gain" = [{"u1>zz" = 0.5}]'))
     with pytest.raises(RgtbusError, match=r"grid: at channel\.gain=.*unknown unit 'zz'"):
         load_study(path)
+
+
+def test_a_row_changed_after_it_was_written_is_no_finished_run(tmp_path):
+    path = gate_file(tmp_path, failures=3, budget=8)
+    out = tmp_path / "out"
+    first = study(path, out=out, workers=1)
+    rows = out / "runs.jsonl"
+    lines = rows.read_text().splitlines(keepends=True)
+    row = json.loads(lines[3])
+    row["steered"] = not row["steered"]  # its checksum no longer holds
+    lines[3] = json.dumps(row, sort_keys=True) + "\n"
+    rows.write_text("".join(lines))
+    again = study(path, out=out, workers=1, resume=True)
+    assert again.computed == 1 and any("not whole" in n for n in again.notes)
+    pd.testing.assert_frame_equal(untimed(again.points), untimed(first.points))
+    assert all(json.loads(x)["_sha256"] for x in rows.read_text().splitlines())
