@@ -226,10 +226,13 @@ class _Runner:
                         self._close_points()
                         continue
                     pending[ex.submit(study_run, run_task(self.study, *key))] = key
-                if not pending:
-                    if all(ch.pos >= len(ch.points) for ch in self.chains):
-                        return
-                    continue
+                if not pending:  # nothing out and nothing to hand out: every point closed
+                    self._close_points()
+                    open_points = [ch.points[ch.pos].label() for ch in self.chains
+                                   if ch.pos < len(ch.points)]  # fmt: skip
+                    if open_points:  # a run neither kept nor out: a fault of the runner
+                        raise RuntimeError(f"study runner stalled at {', '.join(open_points)}")
+                    return
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in sorted(done, key=lambda f: pending[f]):
                     key = pending.pop(fut)

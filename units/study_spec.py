@@ -441,7 +441,6 @@ def _points(study: Study, err: ErrorAt) -> tuple[tuple[Point, ...], tuple[str, .
             set_key(d, "channel.noise", sigma)
             point = Point(len(points), c, (*settings, (axis, v)), sigma)
             sc = _parsed(study, d, point.settings, err)
-            _check_goal(study, sc, err)
             points.append(point)
             texts.append(sc.text)
     return tuple(points), tuple(texts)
@@ -510,13 +509,6 @@ def _parsed(
         else:
             key = "grid" if settings else "scenario"
         raise err(key, f"at {point}: {inner}" if point else inner) from None
-
-
-def _check_goal(study: Study, sc: Scenario, err: ErrorAt) -> None:
-    try:
-        sc.universe.parse_alternative(study.steer_to)
-    except RgtbusError as exc:
-        raise err("steer_to", str(exc)) from None
 
 
 def _rms_amplitude(sc: Scenario) -> float:

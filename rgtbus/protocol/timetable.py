@@ -87,6 +87,7 @@ class Plan:
         self._rounds_at: (
             tuple[tuple[int, ...], tuple[float, ...], tuple[RepairBlock, ...]] | None
         ) = None
+        self._repair_reach: float | None = None
 
     def timing(self) -> tuple[RoundTiming, ...]:
         """The concurrent schedule's rounds, placed (once for every unit)."""
@@ -114,13 +115,15 @@ class Plan:
         least this long: a phase of a large group outlasts the default history."""
         if self.kind != "concurrent" or not self.repair_rounds:
             return 0.0
-        start = {p.turn.index: p.payload_start for r in self.timing() for p in r.placed}
-        reach = 0.0
-        for rnd in self.timing():
-            for block in rnd.repairs:
-                first = min(start[s.turn] for s in block.slots)
-                reach = max(reach, block.end - first)
-        return reach
+        if self._repair_reach is None:  # once for every unit (the plan is shared)
+            start = {p.turn.index: p.payload_start for r in self.timing() for p in r.placed}
+            reach = 0.0
+            for rnd in self.timing():
+                for block in rnd.repairs:
+                    first = min(start[s.turn] for s in block.slots)
+                    reach = max(reach, block.end - first)
+            self._repair_reach = reach
+        return self._repair_reach
 
     def turns_sent_by(self, sender: str) -> tuple[int, ...]:
         """The indexes of the turns ``sender`` sends, ascending (once for every unit: a unit
