@@ -388,3 +388,19 @@ def test_a_row_changed_after_it_was_written_is_no_finished_run(tmp_path):
     assert again.computed == 1 and any("not whole" in n for n in again.notes)
     pd.testing.assert_frame_equal(untimed(again.points), untimed(first.points))
     assert all(json.loads(x)["_sha256"] for x in rows.read_text().splitlines())
+
+
+def test_a_table_valued_axis_is_json_text_in_the_tables_and_plots(tmp_path, capsys):
+    path = gate_file(tmp_path, failures=2, budget=4)
+    path.write_text(path.read_text().replace(
+        "repair = [false, true]", '"channel.gain" = [{}, {"d>a" = 0.5}]'
+    ))  # fmt: skip
+    out = tmp_path / "out"
+    assert main(["study", str(path), "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert sum(line.startswith("p_target ") for line in said) == 2  # a crossing a curve
+    points, runs = read_study(out)
+    assert list(points["channel.gain"].unique()) == ["{}", '{"d>a": 0.5}']
+    assert set(runs["channel.gain"]) <= {"{}", '{"d>a": 0.5}'}
+    assert main(["study-plot", str(out)]) == 0
+    assert check_reference(points, points, ["channel.gain", "noise"]) == []

@@ -5,6 +5,7 @@ the runs each point used, where a curve falls below a level, and a curve against
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import tempfile
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rgtbus.units.study_spec import Study, point_scenario
+from rgtbus.units.study_spec import Point, Study, point_scenario
 from rgtbus.units.workers import one_line
 
 from rgtbus.errors import BadInput, IOFailure
@@ -105,6 +106,16 @@ def _share(k: int, n: int, name: str) -> dict[str, float | None]:
     return {name: p, f"{name}_lo": lo, f"{name}_hi": hi}
 
 
+def grid_cells(point: Point) -> dict[str, Any]:
+    """A point's grid values as the tables hold them: a list or a table (``"channel.gain" =
+    [{...}]``) as JSON text with its keys sorted, as a sweep's tables hold them; the rest as
+    they are."""
+    return {
+        k: json.dumps(v, sort_keys=True) if isinstance(v, list | dict) else v
+        for k, v in point.settings
+    }
+
+
 def point_rows(
     study: Study, ends: Mapping[int, PointEnd], rows: Mapping[tuple[int, int], Mapping[str, Any]]
 ) -> list[dict[str, Any]]:
@@ -116,7 +127,7 @@ def point_rows(
     for p in study.points:
         end = ends.get(p.index, PointEnd(0, 0, "early"))
         used = [rows[(p.index, r)] for r in range(end.runs)]
-        out: dict[str, Any] = {"point": p.index, **dict(p.settings), "sigma": p.sigma}
+        out: dict[str, Any] = {"point": p.index, **grid_cells(p), "sigma": p.sigma}
         out.update(runs=end.runs, failures=end.failures, stopped=end.stopped)
         out["errors"] = sum(1 for r in used if r["error"] is not None)
         for kind in ("id", "relation", "influence"):
@@ -168,7 +179,7 @@ def run_rows(
         for r in range(end.runs if end else 0):
             row = dict(rows[(p.index, r)])
             out.append(
-                {"point": p.index, **dict(p.settings), "sigma": p.sigma,
+                {"point": p.index, **grid_cells(p), "sigma": p.sigma,
                  **{k: row[k] for k in RUN_COLUMNS if k != "point"}}
             )  # fmt: skip
     return out
