@@ -38,7 +38,10 @@ def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) 
 
     keys = grid_columns(points)
     axis, others = keys[-1], keys[:-1]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    # no constrained layout: long legends (a table-valued axis) would collapse the axes; the
+    # tight bounding box at saving takes them in
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig.subplots_adjust(wspace=0.25)
     groups = points.groupby(others, sort=False) if others else [((), points)]
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     early = 0
@@ -79,17 +82,23 @@ def plot_study(points: pd.DataFrame, output: Path, *, title: str | None = None) 
     left.axhline(0.9, color="grey", lw=0.8, ls="--")
     left.set(xlabel=xlabel, ylabel="P(target chooses what it was steered to)", ylim=(-0.02, 1.02))
     right.set(xlabel=xlabel, ylabel="payload symbol error rate", yscale="log")
-    many = len(bounds) > 2 or sum(1 for _ in left.get_lines()) > 8
+    # beside few curves the legend fits inside; many (or long labels) go below each panel
+    many = len(bounds) > 2 or len(left.get_lines()) > 8
+    long = max((len(str(h.get_label())) for h in left.get_lines()), default=0) > 45
     for ax in (left, right):
-        ax.legend(fontsize="x-small" if many else "small", ncol=2 if many else 1)
+        if many or long:
+            ax.legend(fontsize="x-small", ncol=1 if long else 2, loc="upper center",
+                      bbox_to_anchor=(0.5, -0.16))  # fmt: skip
+        else:
+            ax.legend(fontsize="small")
     notes = [
         "shaded and bars: Wilson 95 % intervals",
         f"symbol errors of points with {FEWEST}+ influence decodes, 0 drawn at {FLOOR:g}",
     ]
     if early:
         notes.append(f"{early} point(s) not run: an easier channel than one with no failure")
-    fig.suptitle(title or "reflexive control over a noisy medium")
-    fig.text(0.5, -0.02, "; ".join(notes), ha="center", fontsize="small")
+    fig.suptitle(title or "reflexive control over a noisy medium", y=1.0)
+    fig.text(0.5, 0.93, "; ".join(notes), ha="center", fontsize="x-small")
     out = []
     for suffix in (".png", ".svg"):
         path = output.with_suffix(suffix)
