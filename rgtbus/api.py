@@ -29,6 +29,7 @@ from rgtbus.units.result import RunResult, result_of
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from rgtbus.engine.steering import Requests
     from rgtbus.scenario import Scenario
     from rgtbus.telemetry.frames import Log
     from rgtbus.telemetry.live import LiveView
@@ -57,6 +58,7 @@ def run(
     realtime: float | None = None,
     progress: Callable[[float, int], None] | None = None,
     live: LiveView | None = None,
+    control: Requests | None = None,
 ) -> RunResult:
     """Run every unit of ``scenario`` in this process and return its summary.
 
@@ -65,7 +67,10 @@ def run(
     MCAP log to (``None``: no log); ``traces``: resonator states in the log; ``key``: the
     run's shared secret (frames signed and checked); ``realtime``: pace the run at that many
     simulated seconds per wall second; ``progress(sim_seconds, step)``: called as the run
-    goes; ``live``: a Foxglove live view offered every message (needs ``log``). A run that
+    goes; ``live``: a Foxglove live view offered every message (needs ``log``); ``control``:
+    where a steered run's requests come from (``live.control``, a ``Controller``, for a
+    Foxglove client's; anything with ``take``, ``wait`` and ``clock``: docs/foxglove.md),
+    each applied at a window boundary and logged on /control/*. A run that
     fails returns its summary with ``error`` set (and its log closed and readable); bad
     arguments raise ``RgtbusError``."""
     from rgtbus.bus.registry import bus_kinds
@@ -81,7 +86,7 @@ def run(
         checks.realtime(realtime)
     options: dict[str, Any] = {
         "traces": traces, "engine": engine, "key": key, "realtime": realtime,
-        "progress": progress,
+        "progress": progress, "control": control,
     }  # fmt: skip
     if log is None:
         if live is not None:

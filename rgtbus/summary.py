@@ -43,6 +43,7 @@ from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.pairs import PairTexts, pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
+from rgtbus.steering import Steered
 from rgtbus.truth import Truth
 
 _V = TypeVar("_V")
@@ -71,6 +72,7 @@ SUMMARY_JSON_KEYS = (
     "log",
     "decode_errors",
     "repair",
+    "steered",
     "error",
 )
 
@@ -205,11 +207,13 @@ def summarise(
     *,
     engine: str = "event",
     misreads: DecodeErrors | None = None,
+    steered: Steered | None = None,
 ) -> dict[str, Any]:
     """The run's summary from every unit's ``report()`` (one process or many) and how the
-    world ended. Units without a
-    report (a process that died) are absent from ``units`` and the run does not agree; the
-    shared fields are the first reporting unit's (none at all: empty). ``misreads``: the
+    world ended (``steered``: the changes a steered run made, which its truth accounts for).
+    Units without a report (a process that died) are absent from ``units`` and the run does
+    not agree; the shared fields are the first reporting unit's (none at all: empty).
+    ``misreads``: the
     reports' ``decode_errors_of`` where the caller keeps them (else worked out here)."""
     reports = list(reports)
     by_unit = {r["unit"]: r for r in reports}
@@ -226,7 +230,7 @@ def summarise(
     p4 = ref.get("p4")
     decomposable = None if p4 is None and ref["polynomial"] is None else p4 is None
     rounds, whole, last_round = influence_rounds(sc, reports)
-    should = Truth(sc)  # what a perfect medium would have given
+    should = Truth(sc, steered)  # what a perfect medium would have given
     clean = should.rounds if units_out else [{}]
     u = sc.universe
     summary = {
@@ -267,6 +271,13 @@ def summarise(
         "error": error,
     }
     summary["goals"] = judge_goals(sc, units_out, should.goal_prospects(last_round))
+    # what a steered run's truth accounts for (docs/foxglove.md); None: not steered
+    summary["steered"] = None
+    if steered is not None:
+        summary["steered"] = {
+            "influences": len(steered.injected),
+            "relations": len(steered.relations),
+        }
     return summary
 
 

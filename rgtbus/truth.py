@@ -25,6 +25,7 @@ from rgtbus.mind import Mind, Pair, choose, intents, mind_of, result_fields
 from rgtbus.protocol import PHASES, Listen, ProtocolState, choice_sample
 from rgtbus.rgt import SubjectResult
 from rgtbus.scenario import Scenario
+from rgtbus.steering import Steered
 
 UnitDecisions = dict[str, dict[str, Any]]  # unit -> its decision (``result_fields``)
 
@@ -37,6 +38,7 @@ class Truth:
     one entry); ``decisions``, after the last."""
 
     scenario: Scenario
+    steered: Steered | None = None  # the changes a steered run made (``rgtbus.steering``)
 
     @cached_property
     def intended(self) -> tuple[dict[Pair, bool], dict[Pair, int]]:
@@ -49,11 +51,15 @@ class Truth:
 
     @cached_property
     def trajectory(self) -> list[dict[Pair, int]]:
-        return sent_in_rounds(self.scenario, self.group, self.intended[1])
+        return sent_in_rounds(
+            self.scenario, self.group, self.intended[1], self.steered, self.intended[0]
+        )
 
     @cached_property
     def rounds(self) -> list[UnitDecisions]:
-        return decided_in_rounds(self.scenario, self.group, self.trajectory)
+        return decided_in_rounds(
+            self.scenario, self.group, self.trajectory, self.steered, self.intended[0]
+        )
 
     @property
     def decisions(self) -> UnitDecisions:
@@ -168,14 +174,48 @@ def _decodes_and_choices(sc: Scenario) -> tuple[ProtocolState, list[_Event]]:
     return plan, events
 
 
-def sent_in_rounds(sc: Scenario, known: Mind, policy: Mapping[Pair, int]) -> list[dict[Pair, int]]:
+def _held_group(
+    sc: Scenario,
+    known: Mind,
+    relations: Mapping[Pair, bool] | None,
+    held: Mapping[Pair, bool],
+    cache: dict[frozenset[tuple[Pair, bool]], Mind],
+) -> Mind:
+    """The group a unit decides on: ``known``, or, where a steered run made it hold some
+    relations otherwise (``held``), the group of the intended ``relations`` with those."""
+    if not held or relations is None:
+        return known
+    key = frozenset(held.items())
+    if key not in cache:
+        cache[key] = group_of(sc, {**relations, **held})
+    return cache[key]
+
+
+def sent_in_rounds(
+    sc: Scenario,
+    known: Mind,
+    policy: Mapping[Pair, int],
+    steered: Steered | None = None,
+    relations: Mapping[Pair, bool] | None = None,
+) -> list[dict[Pair, int]]:
     """What every unit would send in every influence round on a perfect medium: the policy's
     influences, and a goal-driven unit's choices made exactly as the unit makes them (each
-    with the influences decoded before its choice sample). ``known``: the intended group."""
+    with the influences decoded before its choice sample). ``known``: the intended group;
+    ``steered``: a steered run's changes (an injected influence is sent instead of the
+    policy's or the choice; a goal-driven unit made to hold other ``relations`` chooses on
+    its group from the round it holds them)."""
     k = sc.protocol.influence_rounds
+    injected = steered.injected if steered else {}
     if not sc.goals:
-        return [dict(policy) for _ in range(k)]
+        trajectory = [dict(policy) for _ in range(k)]
+        if injected:
+            schedule = clean_timeline(sc)[0].schedule
+            for index, value in injected.items():
+                t = schedule[index]
+                trajectory[t.round - 1][(t.sender, t.addressee)] = value
+        return trajectory
     plan, events = _decodes_and_choices(sc)
+    groups: dict[frozenset[tuple[Pair, bool]], Mind] = {}
     goals = {(g.unit, g.target): g for g in sc.goals}
     sent: dict[int, int] = {}
     minds = {u: mind_of(sc, u) for u in {g.unit for g in sc.goals}}
@@ -190,45 +230,66 @@ def sent_in_rounds(sc: Scenario, known: Mind, policy: Mapping[Pair, int]) -> lis
                 for m in minds.values():
                     m.df, m.p4, m.error = known.df, known.p4, known.error
         elif kind == "choice":
-            got = minds[t.sender].steer(goals[pair], t.round)
-            value = None if isinstance(got, str) else got.value
-            sent[index] = policy[pair] if value is None else value
+            if index in injected:
+                sent[index] = injected[index]
+                continue
+            m = minds[t.sender]
+            if steered and relations_heard == relation_turns:
+                held = steered.held_by(t.sender, t.round)
+                g = _held_group(sc, known, relations, held, groups)
+                m.df, m.p4, m.error = g.df, g.p4, g.error
+            got = m.steer(goals[pair], t.round)
+            chosen = None if isinstance(got, str) else got.value
+            sent[index] = policy[pair] if chosen is None else chosen
         else:
-            value = sent.get(index, policy[pair])
+            value = sent.get(index, injected.get(index, policy[pair]))
             for m in minds.values():
                 m.heard_in(t.round)[pair] = value
-    trajectory: list[dict[Pair, int]] = [{} for _ in range(k)]
+    out: list[dict[Pair, int]] = [{} for _ in range(k)]
     for t in plan.schedule:
         if t.phase == PHASES[1]:
             pair = (t.sender, t.addressee)
-            trajectory[t.round - 1][pair] = sent.get(t.index, policy[pair])
-    return trajectory
+            out[t.round - 1][pair] = sent.get(t.index, injected.get(t.index, policy[pair]))
+    return out
 
 
 def decided_in_rounds(
-    sc: Scenario, known: Mind, trajectory: Sequence[Mapping[Pair, int]]
+    sc: Scenario,
+    known: Mind,
+    trajectory: Sequence[Mapping[Pair, int]],
+    steered: Steered | None = None,
+    relations: Mapping[Pair, bool] | None = None,
 ) -> list[UnitDecisions]:
     """Every unit's decision (``result_fields``) after each round of ``trajectory``, on the
     group ``known``: ``[{unit: result_fields}, ...]`` (round 1 first; at least one entry). The
     forward task is the same for every unit that knows everything: it is solved once a
-    distinct round; each unit then chooses by its own policy (a random one draws each round)."""
+    distinct round and group; each unit then chooses by its own policy (a random one draws
+    each round). A unit a steered run made hold other ``relations`` decides on their group
+    from the round it held them (``Steered.held_by``)."""
     solved: dict[tuple[Any, ...], dict[str, SubjectResult] | None] = {}
-    per_round = []
-    for infl in trajectory:
-        key = tuple(sorted(infl.items()))
+    groups: dict[frozenset[tuple[Pair, bool]], Mind] = {}
+
+    def forward_of(group: Mind, infl: Mapping[Pair, int]) -> dict[str, SubjectResult] | None:
+        key = (id(group), tuple(sorted(infl.items())))
         if key not in solved:
-            known.influences = infl
-            known.results = None
-            known.decide()
-            solved[key] = known.results
-        per_round.append(solved[key])
-    out: list[UnitDecisions] = [{} for _ in per_round] or [{}]
+            group.influences = infl
+            group.results = None
+            group.decide()
+            solved[key] = group.results
+        return solved[key]
+
+    out: list[UnitDecisions] = [{} for _ in trajectory] or [{}]
     for me in sc.units:
         mind = mind_of(sc, me)
         mind.df, mind.polynomial, mind.p4 = known.df, known.polynomial, known.p4
-        if not per_round:
+        if not trajectory:
             out[0][me] = result_fields(mind)
-        for i, results in enumerate(per_round):
+        for i, infl in enumerate(trajectory):
+            group = known
+            if steered:
+                group = _held_group(sc, known, relations, steered.held_by(me, i + 1), groups)
+                mind.df, mind.polynomial, mind.p4 = group.df, group.polynomial, group.p4
+            results = forward_of(group, infl)
             mind.results = results
             if results is not None:
                 mind.choice = choose(mind.policy, results[me], mind.universe, mind.rng)

@@ -83,6 +83,22 @@ def built() -> dict[str, dict]:
         "/scene": scene_update(
             "b", 9.0, {"a": [0.0, 0.0], "b": [2.0, 0.0, 1.0]}, {"a-b": "conflict"}
         ),
+        "/control/parameter": records.control_parameter(
+            0.5, 100, 0, "client 1", "channel.noise", 0.1, 0.0, 0.1, True, "channel.noise: 0 -> 0.1"
+        ),
+        "/control/service": records.control_service(
+            0.5,
+            100,
+            1,
+            "client 1",
+            "influence",
+            {"influence": "a>b=1"},
+            True,
+            "influence",
+            rnd=1,
+            turn=3,
+            value=1,
+        ),
         "/run": records.run_record(
             {
                 "scenario": "s",

@@ -57,6 +57,7 @@ class Arq:
         self.pulses = scenario.codebook.pulses
         self.tau = scenario.timing.tau
         self.blocks = scenario.protocol.repairs_per_phase
+        self.budget = self.blocks  # blocks after each phase it still asks in (a steered run's)
         self.book = book
         self.payload_codes = payload_codes
         self.schedule, self.emit, self.record, self.learn, self.log = (
@@ -129,7 +130,10 @@ class Arq:
 
     def _request(self, block: RepairBlock) -> None:
         """Ask for every payload of the block's phase it is still unsure of: the ID-code on
-        the payload's sender's channel, in the payload's request slot."""
+        the payload's sender's channel, in the payload's request slot (none beyond its
+        budget)."""
+        if block.number > self.budget:
+            return
         for slot in self.book.requests(block):
             self.emit(
                 Send(slot.turn, "request", slot.sender, "id", slot.request_start,

@@ -18,6 +18,7 @@ from rgtbus.units.unit import AutonomousUnit
 from rgtbus._version import __version__
 from rgtbus.bus import drop_summary, open_bus
 from rgtbus.engine.sim import World
+from rgtbus.engine.steering import Requests, Steering
 from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario
 from rgtbus.summary import summarise
@@ -87,17 +88,28 @@ def run_group(
     engine: str = "event",
     realtime: float | None = None,
     key: bytes | None = None,
+    control: Requests | None = None,
 ) -> RunOutput:
     """Every unit of ``scenario`` in this process on one bus; ``key`` signs and checks every
-    frame (rgtbus.bus.auth)."""
+    frame (rgtbus.bus.auth); ``control``: a steered run's requests (``rgtbus.engine.steering``),
+    applied at window boundaries and logged."""
     sc = scenario
     run_id = run_id or default_run_id(sc)
-    write_metadata(recorder, sc, bus_kind, run_id, engine=engine, auth=auth_name(key))
-    members = [AutonomousUnit(u, sc, recorder, traces=traces, realtime=realtime) for u in sc.units]
+    extra = {"steered": "yes"} if control is not None else {}
+    write_metadata(recorder, sc, bus_kind, run_id, engine=engine, auth=auth_name(key), **extra)
+    steerable = control is not None
+    members = [
+        AutonomousUnit(u, sc, recorder, traces=traces, realtime=realtime, steerable=steerable)
+        for u in sc.units
+    ]
+    steering = None
+    if control is not None:
+        steering = Steering(sc, sc.timing.window_samples, source=control, pace=realtime)
     with open_bus(bus_kind, run_id, sc.units, sc.timing.sample_rate, key=key) as bus:
         result = World.for_scenario(
             sc, members, bus, recorder,
             engine=engine, timeout=timeout, progress=progress, realtime=realtime,
+            steering=steering,
         ).run()  # fmt: skip
         for note in bus.drop_notes():  # what reached the bus and was refused, say why
             recorder.log("warning", f"dropped: {note}", ns(result.sim_seconds))
@@ -108,7 +120,8 @@ def run_group(
         m.write_report(result.sim_seconds)
     reports = shared_reports(members)
     misreads = decode_errors_of(reports)
-    summary = summarise(sc, reports, result, engine=engine, misreads=misreads)
+    steered = steering.steered() if steering is not None else None
+    summary = summarise(sc, reports, result, engine=engine, misreads=misreads, steered=steered)
     recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
     return RunOutput(summary, members, reports, misreads)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 from collections import defaultdict
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import IO, Any
 
@@ -24,11 +24,13 @@ from rgtbus.units.unit import AutonomousUnit, decision_records
 from rgtbus.bus.logbus import LogBus
 from rgtbus.bus.payload import NEVER
 from rgtbus.engine.sim import World
+from rgtbus.engine.steering import Steering
 from rgtbus.errors import RgtbusError
 from rgtbus.mind import Mind, mind_of
 from rgtbus.pairs import parse_pair_key
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses
+from rgtbus.steering import Request
 from rgtbus.summary import summarise
 from rgtbus.telemetry import log_message, records
 from rgtbus.telemetry.log_parts import stack_traces
@@ -86,6 +88,7 @@ def rerun(
     traces: Collection[str] = (),
     only: Collection[str] | None = None,
     engine: str = "event",
+    control: Sequence[tuple[int, int, Request]] | None = None,
 ) -> Rerun:
     """Feed the logged medium to freshly built units.
 
@@ -100,8 +103,12 @@ def rerun(
     sc = scenario
     rec = CaptureRecorder()
     names = [u for u in sc.units if only is None or u in only]
-    members = [AutonomousUnit(u, sc, rec, traces=u in traces) for u in names]
+    steerable = control is not None
+    members = [AutonomousUnit(u, sc, rec, traces=u in traces, steerable=steerable) for u in names]
     bus = LogBus("replay", sc.units, medium, local=names, end=end)
+    steering = None
+    if control is not None:
+        steering = Steering(sc, sc.timing.window_samples, logged=control)
     world = World.for_scenario(
         sc,
         members,
@@ -109,12 +116,18 @@ def rerun(
         rec,
         engine=engine,
         write_medium=False,  # the log has the medium; the diff compares what units did
+        steering=steering,
     )
     result = world.run()
     for m in members:  # as the run's units did at its end
         m.end_log()
     complete = all(m.done for m in members)
-    summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
+    steered = steering.steered() if steering is not None else None
+    summary = (
+        summarise(sc, [m.report() for m in members], result, steered=steered)
+        if only is None
+        else {}
+    )
     return Rerun(rec.messages, summary, members, complete)
 
 
@@ -138,7 +151,8 @@ def rerun_replay(
         )
     if traces is None:
         traces = replay.traced_units()
-    return rerun(sc, medium, end=end, traces=traces, only=only)
+    control = replay.control_requests() if replay.steered else None
+    return rerun(sc, medium, end=end, traces=traces, only=only, control=control)
 
 
 def check_reasoning(replay: Replay) -> list[Mismatch]:

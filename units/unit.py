@@ -50,6 +50,7 @@ from rgtbus.scenario import Goal, Scenario
 from rgtbus.signal.pulses import Pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.signal.rules import rule_named
+from rgtbus.steering import Refused
 from rgtbus.summary import DecisionRow, decision_row, not_decomposable_text
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.group_log import GroupLog
@@ -144,6 +145,7 @@ class AutonomousUnit:
         recorder: Recorder,
         traces: bool = False,
         realtime: float | None = None,
+        steerable: bool = False,
     ) -> None:
         sc = scenario
         self.name, self.scenario, self.recorder, self.traces = name, sc, recorder, traces
@@ -169,6 +171,12 @@ class AutonomousUnit:
         # choice sample (``choice_sample``); nothing goes out before (the promise says so)
         self._pending: dict[int, Send] = {}
         self._pending_first = NEVER
+        # a steered run (``rgtbus.engine.steering``): every influence waits for its choice
+        # sample, so that one injected before then goes out instead; and the relations it was
+        # made to hold, which what it decodes does not undo
+        self.steerable = steerable
+        self._injected: dict[int, int] = {}  # turn -> the alternative to send
+        self._held: dict[tuple[str, str], bool] = {}
         self.relation_choice, self.influence_choice = intents(sc, name)
         # it listens to samples before its limit: max_seconds, or a deliberate stop before it
         stop = sc.timing.stop
@@ -476,7 +484,8 @@ class AutonomousUnit:
         """A send the protocol planned goes out, but an influence on a goal's target, which
         waits for its choice sample (``_choose``)."""
         turn = self.protocol.schedule[send.turn]
-        if send.kind == "payload" and turn.phase == PHASES[1] and send.addressee in self.goals:
+        chosen = send.addressee in self.goals or self.steerable
+        if send.kind == "payload" and turn.phase == PHASES[1] and chosen:
             b = choice_sample(send.start, self.scenario.timing.reaction_delay, self.tau)
             timer = self.timers.add(b, b - 1, "choose")  # its seq names the send
             self._pending[timer.seq] = send
@@ -493,6 +502,12 @@ class AutonomousUnit:
             return
         self._pending_first = min((s.samples[0] for s in self._pending.values()), default=NEVER)
         rnd = self.protocol.schedule[send.turn].round
+        injected = self._injected.get(send.turn)
+        if injected is not None or send.addressee not in self.goals:
+            if injected is not None:
+                send = dataclasses.replace(send, code=self.scenario.universe.format(injected))
+            self.transmitter.emit(send)
+            return
         goal = self.goals[send.addressee]
         got: SteeringChoice | str = why or self.mind.steer(goal, rnd)
         u = self.scenario.universe
@@ -567,7 +582,7 @@ class AutonomousUnit:
         mind = self.mind
         key = listen.pair
         if listen.kind == "relation":
-            mind.sent[key] = code == "alliance"
+            mind.sent[key] = self._held.get(key, code == "alliance")
             if mind.relations_complete():
                 mind.build_group()
                 if self.log.enabled:
@@ -595,6 +610,71 @@ class AutonomousUnit:
             self._log_decisions(t, done)
         if mind.all_rounds_decided and (self.arq is None or not self.arq.left):
             self.finished = True
+
+    # -- steering (``rgtbus.engine.steering``) ------------------------------------------------
+
+    def _steerable(self, what: str) -> None:
+        if self.done:
+            state = "failed" if self.failure else "finished"
+            raise Refused(f"{what}: {self.name} has {state}: it sends and decides nothing more")
+
+    def inject(self, peer: str, value: int) -> tuple[int, int]:
+        """Its influence on ``peer`` is ``value`` in the next round whose code it has not sent
+        yet (its choice sample not reached); returns (turn, round)."""
+        self._steerable("influence")
+        if not self.steerable:
+            raise Refused("influence: this run is not steered (--control)")
+        for t in self.protocol.schedule:
+            if (
+                t.phase == PHASES[1] and t.sender == self.name and t.addressee == peer
+                and t.index not in self.transmitter.payload_code
+                and t.index not in self._injected
+            ):  # fmt: skip
+                self._injected[t.index] = value
+                return t.index, t.round
+        raise Refused(f"influence: {self.name} has no round left in which to influence {peer}")
+
+    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int:
+        """It holds ``pair``'s relation code as ``alliance`` (or conflict) from now on, whatever
+        it decodes: its group is built again if it knows every pair. Returns the first round
+        it decides with it."""
+        self._steerable("relation")
+        mind = self.mind
+        if mind.all_rounds_decided:
+            raise Refused(f"relation: {self.name} has decided every round")
+        self._held[pair] = alliance
+        mind.sent[pair] = alliance
+        assert self.env is not None
+        t = self.env.now
+        if mind.relations_complete():
+            mind.build_group()
+            if self.log.enabled:
+                record = records.relations(
+                    self.name, t, mind.sent_table(), mind.installed(), mind.polynomial, mind.p4
+                )
+                self.log.write_in_order(records.UNIT_RELATIONS, record, t)
+                self._logged_relations = record
+                self._draw(t, mind.installed())
+        return mind.decided_rounds + 1
+
+    def set_repair_budget(self, blocks: int) -> None:
+        """It asks for repeats in at most ``blocks`` repair blocks after each phase from now."""
+        if self.arq is not None:
+            self.arq.budget = blocks
+
+    def state(self) -> dict[str, Any]:
+        """What it knows now, as plain data (a mark's record)."""
+        mind, u = self.mind, self.scenario.universe
+        return {
+            "done": self.done,
+            "failure": self.failure,
+            "decided_rounds": mind.decided_rounds,
+            "relations": mind.installed(),
+            "polynomial": mind.polynomial,
+            "influences": mind.influence_table(),
+            "choice": None if mind.choice is None else u.format(mind.choice),
+            "decisions": [dict(d) for d in self.decisions],
+        }
 
     def _draw(self, t: float, installed: dict[str, str] | None = None) -> None:
         """Its place on ``/scene`` (a spatial scenario's only): its sphere and name, and once it

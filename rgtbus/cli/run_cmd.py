@@ -30,6 +30,7 @@ from rgtbus.summary import not_decomposable_text
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
     from rgtbus.rgt.algebra import Universe
+    from rgtbus.telemetry.control import Controller
     from rgtbus.telemetry.live import LiveView
 
 
@@ -73,6 +74,7 @@ def register(subparsers: SubParsers) -> None:
     )
     add_key_argument(p)
     add_live_arguments(p)
+    add_control_argument(p)
     add_quiet_argument(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
@@ -100,9 +102,42 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> LiveView | None:
+def add_control_argument(p: argparse.ArgumentParser) -> None:
+    """``--control``: a live view's clients may steer the run (``open_live`` reads it)."""
+    p.add_argument(
+        "--control",
+        action="store_true",
+        help="with --live and --realtime: Foxglove clients may steer the run (parameters: "
+        "channel.noise, channel.gains.a>b, repair.budget, pace; services: pause, resume, "
+        "step, relation, influence, mark), each change logged on /control/*; a keyed run's "
+        "clients only after /control/auth (docs/foxglove.md)",
+    )
+
+
+def open_controller(
+    args: argparse.Namespace, scenario: Scenario, key: bytes | None
+) -> Controller | None:
+    """The steering ``--control`` asks for (None without it); ``--live`` and ``--realtime``
+    must come with it."""
+    if not getattr(args, "control", False):
+        return None
+    if args.live is None:
+        raise BadInput("--control goes with --live (clients steer the run through the live view)")
+    if args.realtime is None:
+        raise BadInput("--control goes with --realtime FACTOR (a run steered as it goes is paced)")
+    from rgtbus.telemetry.control import Controller
+
+    return Controller(scenario, key=key, pace=args.realtime)
+
+
+def open_live(
+    args: argparse.Namespace,
+    advertise: list[tuple[str, str]],
+    control: Controller | None = None,
+) -> LiveView | None:
     """The live view ``--live`` asks for (None without it): listening, channels advertised,
-    waited for a client if ``--live-wait``; its address on stderr."""
+    waited for a client if ``--live-wait``; its address on stderr. ``control``: it serves
+    the run's steering too (``--control``)."""
     if args.live is None:
         if args.live_wait:
             raise BadInput("--live-wait goes with --live")
@@ -112,9 +147,12 @@ def open_live(args: argparse.Namespace, advertise: list[tuple[str, str]]) -> Liv
     from rgtbus.telemetry.live import LiveView, parse_address
 
     host, port = parse_address(args.live)
-    live = LiveView(host, port, realtime=args.realtime)
+    live = LiveView(host, port, realtime=args.realtime, control=control)
     live.advertise(advertise)
     print(f"live: {live.url} (Foxglove: Open connection, Foxglove WebSocket)", file=sys.stderr)
+    if control is not None:
+        keyed = "; keyed: /control/auth first" if control.key is not None else ""
+        print(f"live: steering on (parameters and /control/* services{keyed})", file=sys.stderr)
     sys.stderr.flush()
     if args.live_wait and not live.wait_for_client(args.live_wait):
         print(f"live: no client after {args.live_wait:g} s; starting", file=sys.stderr)
@@ -188,7 +226,8 @@ def run(args: argparse.Namespace) -> int:
     log_path = (
         None if args.no_log else Path(args.log) if args.log else default_log_path(scenario.name)
     )
-    live = open_live(args, live_topics(scenario.units, args.traces))
+    control = open_controller(args, scenario, key)
+    live = open_live(args, live_topics(scenario.units, args.traces), control)
     progress = Progress(not (args.quiet or args.json) and sys.stderr.isatty())
     try:
         with interrupted_by(signal.SIGINT, signal.SIGTERM):  # SIGTERM ends it like Ctrl-C
@@ -203,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
                 realtime=args.realtime,
                 progress=progress,
                 live=live,
+                control=control,
             )
     except KeyboardInterrupt:
         progress.done()

@@ -135,6 +135,13 @@ class Ears:
 
     # -- the world's side ---------------------------------------------------------------------
 
+    def links_changed(self) -> None:
+        """A listener's gains changed (a steered run): the ears hear with the new ones from
+        their next sample."""
+        self._gains = np.stack([lst.gains for lst in self.listeners])
+        self._unit_gains = bool(np.all(self._gains == 1.0))
+        self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]
+
     @property
     def timed(self) -> bool:
         """Whether pulses land off their samples (delays, clocks): see ``hear``'s ``cuts``."""

@@ -147,3 +147,22 @@ class Reception:
             spike_log=own.spike_log,
             awaits=own.awaits,
         )
+
+    def set_noise(self, lst: Listener, sigma: float) -> None:
+        """A steered run's noise (``rgtbus.steering``): ``lst`` hears white noise of σ =
+        ``sigma`` from the next sample it draws (its own generator, made now if it had none:
+        a receiver that was noise-free starts its draws here)."""
+        lst.noise = sigma
+        if sigma > 0 and lst.rng is None:
+            lst.rng = noise_rng(self.seed, self._index[lst.name])
+
+    def set_gain(self, lst: Listener, sender: str, gain: float) -> None:
+        """A steered run's link gain: ``sender`` reaches ``lst`` with ``gain`` (faded as the
+        run's links are) from the next sample it hears. A new array: whoever was told the old
+        gains keeps them."""
+        s = self._index[sender]
+        me = self._index[lst.name]
+        faded = fading_amplitudes(self.channel.fading, self.seed, me, len(self.units))
+        gains = lst.gains.copy()
+        gains[s] = gain * faded[s]
+        lst.gains = gains

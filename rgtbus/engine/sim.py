@@ -35,10 +35,12 @@ from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import OwnHearing, Reception
+from rgtbus.engine.steering import Steering
 from rgtbus.errors import BadInput, MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
+from rgtbus.steering import Refused
 from rgtbus.telemetry import Recorder, records
 from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.timebase import ns, time_of
@@ -58,6 +60,11 @@ class Member(Protocol):
     def take_outbox(self) -> Pulses: ...
     def promise(self, horizon: int) -> int: ...
     def awaited(self) -> tuple[int, int, int] | None: ...
+    # steering (``rgtbus.engine.steering``): each raises ``Refused`` with why not
+    def inject(self, peer: str, value: int) -> tuple[int, int]: ...
+    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int: ...
+    def set_repair_budget(self, blocks: int) -> None: ...
+    def state(self) -> dict[str, Any]: ...
 
 
 _NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -131,6 +138,7 @@ class World:
         progress: Callable[[float, int], None] | None = None,
         write_medium: bool = True,
         realtime: float | None = None,
+        steering: Steering | None = None,
     ) -> None:
         if engine not in ENGINES:
             raise BadInput(f"unknown engine {engine!r} (use {', '.join(ENGINES)})")
@@ -174,6 +182,7 @@ class World:
         # the horizon by the shortest propagation delay from the binding sender.
         self._ahead_of_horizon = False  # set with the ears (``_build_ears``)
         self._fed: dict[str, int] = {}
+        self.steering = steering  # a steered run's changes, applied at window boundaries
 
     @classmethod
     def for_scenario(
@@ -240,7 +249,12 @@ class World:
         env = self.env
         self._build_ears()
         yield env.timeout(0)  # every unit begins (its first sends and requests)
+        steering = self.steering
         while True:
+            if steering is not None:  # what is due at this horizon, before anyone plans on
+                steering.poll(self.computed())
+                steering.apply(self, self.horizon)
+                steering.gate(self)
             self._publish()
             if self._finished():
                 break
@@ -250,6 +264,8 @@ class World:
             self.sync.wait_seconds += time.perf_counter() - waited
             if self.engine == "dense":
                 h = min(h, self.horizon + self.window)
+            if steering is not None:  # nothing is heard past the next change
+                h = min(h, max(self.horizon, steering.next_at()))
             pulses = self.bus.take(h)
             cuts = None
             if self._ahead_of_horizon and h < NEVER:
@@ -278,6 +294,8 @@ class World:
                 yield env.timeout(max(0.0, until - env.now))
             else:  # every member promised silence: run until the local units are done
                 yield env.all_of([e.quiet for e in self._ears])
+        if steering is not None:
+            steering.finish(self)
         end = self.end_sample()
         self._log_medium({}, final_before=NEVER)
         # what is still on its way (transmissions of units that are done) goes out
@@ -291,6 +309,9 @@ class World:
         and what the bus holds past ``h`` below the cut; less what earlier rounds handed the
         ears already (``_fed``). Returns those pulses and the cuts."""
         cuts = {u: max(h, s.promise) for u, s in self.bus.status().items()}
+        if self.steering is not None:  # no further than the next change
+            limit = max(h, self.steering.next_at())
+            cuts = {u: min(c, limit) for u, c in cuts.items()}
         pending = self.bus.known(NEVER)  # not yet taken: all at or after h
         out: dict[str, Pulses] = {}
         for u, cut in cuts.items():
@@ -369,6 +390,8 @@ class World:
                 continue
             ears, i = self._where[m.name]
             until = min(bound, aw[2] + 1)  # no reaction after the ID's deadline
+            if self.steering is not None:  # a look no further than the next change
+                until = min(until, max(h + 1, self.steering.next_at()))
             # Remote members' pulses as received; the local ones' as sent (a bus may hand our
             # own frames back later than the peers' frames that depend on them).
             known = {u: p for u, p in self.bus.known(until).items() if u not in plain}
@@ -404,6 +427,52 @@ class World:
         """The run's last sample: the last sample any member listened to or transmitted."""
         done = [s.done_at for s in self.bus.status().values() if s.flags]
         return max([*done, self._last_pulse, 0])
+
+    # -- steering (``rgtbus.engine.steering``) ------------------------------------------------
+
+    def computed(self) -> int:
+        """How far the run has computed: no change may take effect before this sample (past
+        the run's last sample once every member promised silence)."""
+        k = max([self.horizon, self._heard, *(e.horizon for e in self._ears)])
+        if k >= NEVER:
+            k = max([self.end_sample() + 1, *(e.pos for e in self._ears)])
+        return k
+
+    def member(self, name: str) -> Member:
+        """The local member ``name`` (``Refused`` if it runs elsewhere)."""
+        for m in self.members:
+            if m.name == name:
+                return m
+        raise Refused(f"unit {name!r} does not run in this process")
+
+    def set_noise(self, sigma: float) -> None:
+        """Every local receiver's white noise is σ = ``sigma`` from the horizon on."""
+        reception = self.receivers.reception
+        for ears in self._ears:
+            for lst in ears.listeners:
+                reception.set_noise(lst, sigma)
+
+    def set_gain(self, link: tuple[str, str], gain: float) -> None:
+        """Link ``link``'s gain at its receiver is ``gain`` from the horizon on."""
+        reception = self.receivers.reception
+        for ears in self._ears:
+            if any(lst.name == link[1] for lst in ears.listeners):
+                for lst in ears.listeners:
+                    if lst.name == link[1]:
+                        reception.set_gain(lst, link[0], gain)
+                ears.links_changed()
+
+    def set_pace(self, realtime: float) -> None:
+        """A paced world's clock runs at ``realtime`` simulated seconds a wall second now."""
+        if isinstance(self.env, simpy.rt.RealtimeEnvironment):
+            self.env.sync()
+            self.env._factor = 1.0 / realtime  # simpy's own: no setter
+            self._slice = PACED_SLICE_WALL * realtime
+
+    def resync(self) -> None:
+        """After a pause: a paced world's clock takes up from now (it does not catch up)."""
+        if isinstance(self.env, simpy.rt.RealtimeEnvironment):
+            self.env.sync()
 
     # -- the medium's log --------------------------------------------------------------------
 

@@ -49,6 +49,7 @@ import foxglove
 from foxglove.websocket import Capability, ServerListener
 
 from rgtbus.errors import BadInput
+from rgtbus.telemetry.control import Controller
 from rgtbus.telemetry.mcap_recorder import sdk_logs_to_python, topic_channel
 from rgtbus.telemetry.message_json import kept_bytes
 from rgtbus.timebase import seconds
@@ -88,13 +89,29 @@ def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
 
 
 class _Subscriptions(ServerListener):
-    """The server's listener: which (client, channel) pairs are subscribed. Callbacks come
-    from the server's threads and never block."""
+    """The server's listener: which (client, channel) pairs are subscribed; a steered run's
+    parameters (``control``). Callbacks come from the server's threads and never block."""
 
-    def __init__(self) -> None:
+    def __init__(self, control: Controller | None = None) -> None:
         self.pairs: set[tuple[int, int]] = set()
         self.changed = threading.Condition()
         self.last_change = 0.0
+        self.control = control
+
+    def on_get_parameters(
+        self, client: Any, param_names: list[str], request_id: str | None = None
+    ) -> list[Any]:
+        return [] if self.control is None else self.control.on_get_parameters(client, param_names)
+
+    def on_set_parameters(
+        self, client: Any, parameters: list[Any], request_id: str | None = None
+    ) -> list[Any]:
+        if self.control is None:
+            return []
+        try:
+            return self.control.on_set_parameters(client, parameters)
+        except Exception:  # the run is stopping: nothing changes
+            return self.control.parameters()
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
         with self.changed:
@@ -130,6 +147,7 @@ class LiveView:
         queue_bytes: int = QUEUE_BYTES,
         max_channels: int = MAX_CHANNELS,
         say: Callable[[str], None] | None = None,
+        control: Controller | None = None,
     ) -> None:
         if realtime is not None and not realtime > 0:
             raise BadInput(f"realtime {realtime}: must be a positive factor")
@@ -140,27 +158,46 @@ class LiveView:
         self.max_channels = max_channels
         self._say = say or _stderr
         self.context = foxglove.Context()
-        self.subscriptions = _Subscriptions()
+        self.subscriptions = _Subscriptions(control)
+        self.control = control
+        steer: dict[str, Any] = {}
+        capabilities = [Capability.Time]
+        if control is not None:  # a steered run (docs/foxglove.md, "Steer a live run")
+            capabilities += [Capability.Parameters, Capability.Services]
+            steer = {
+                "services": control.services(),
+                "supported_encodings": ["json"],
+                "session_id": control.session,
+            }
         try:
             sdk_logs_to_python()
             self.server = foxglove.start_server(
                 name=name,
                 host=host,
                 port=port,
-                capabilities=[Capability.Time],
+                capabilities=capabilities,
                 server_listener=self.subscriptions,
                 context=self.context,
                 message_backlog_size=backlog,
+                **steer,
             )
         except Exception as exc:  # the SDK raises its own error type for a port in use
             raise BadInput(f"live view on {host}:{port}: cannot listen: {exc}") from None
+        if control is not None:
+            control.view = self
+            control.publish = self.server.publish_parameter_values
         self._channels: dict[str, foxglove.Channel] = {}
         self._queue: list[tuple[int, int, str, str, bytes]] = []  # paced: by due time
         self._fifo: deque[tuple[int, int, str, str, bytes]] = deque()  # unpaced: as put
         self._queued = 0  # bytes in _queue or _fifo
         self._order = itertools.count()
         self._wake = threading.Condition(threading.Lock())
-        self._origin: float | None = None
+        self._origin: float | None = None  # begun (the clock's wall time at t = 0)
+        # the paced clock: at wall time _clock_at it read _clock_t ns, and runs at _rate ns a
+        # wall second (0: paused); a steered run moves it (``set_clock``)
+        self._clock_at = 0.0
+        self._clock_t = 0
+        self._rate = (realtime or 0.0) * 1e9
         self._time = 0  # the latest log time sent, ns
         self._computed = 0  # the latest log time put (a paced clock never runs past it)
         self._last_broadcast = 0.0
@@ -213,8 +250,23 @@ class LiveView:
     def begin(self) -> None:
         """The run starts now: simulated time 0 is this wall instant (paced runs)."""
         with self._wake:
-            self._origin = time.monotonic()
+            self._origin = self._clock_at = time.monotonic()
             self._wake.notify()
+
+    def set_clock(self, t_ns: int, realtime: float | None, running: bool) -> None:
+        """A steered run's clock (paced): at ``t_ns`` now, running at ``realtime`` simulated
+        seconds a wall second, or paused; what is due is released by it from now on."""
+        with self._wake:
+            self._clock_t = max(self._clock_t, int(t_ns)) if running else int(t_ns)
+            self._clock_at = time.monotonic()
+            if realtime is not None and self.realtime is not None:
+                self.realtime = realtime
+            self._rate = (self.realtime or 0.0) * 1e9 if running else 0.0
+            self._wake.notify()
+
+    def _clock(self, now: float) -> int:
+        """The paced clock at wall time ``now``, ns."""
+        return self._clock_t + int((now - self._clock_at) * self._rate)
 
     # -- messages -------------------------------------------------------------------------------
 
@@ -275,9 +327,13 @@ class LiveView:
         return True
 
     def due_wall(self, t_ns: int) -> float:
-        """The monotonic wall time at which a message of log time ``t_ns`` is due."""
-        origin = self._origin if self._origin is not None else time.monotonic()
-        return origin + seconds(t_ns) / (self.realtime or float("inf"))
+        """The monotonic wall time at which a message of log time ``t_ns`` is due (infinity
+        while a steered run is paused)."""
+        if self._origin is None:
+            return time.monotonic() + seconds(t_ns) / (self.realtime or float("inf"))
+        if not self._rate:
+            return float("inf") if self.realtime is not None else self._clock_at
+        return self._clock_at + (t_ns - self._clock_t) / self._rate
 
     def _send(self, topic: str, schema: str, data: bytes, t_ns: int) -> None:
         channel = self._channels.get(topic) or self._channel(topic, schema)
@@ -305,7 +361,6 @@ class LiveView:
         """The view's thread: hands queued messages to the server (paced: once due), a batch
         at a time, and broadcasts the time."""
         paced = self.realtime is not None
-        per_ns = seconds(1) / self.realtime if self.realtime is not None else 0.0
         while True:
             with self._wake:
                 due: list[tuple[int, int, str, str, bytes]] = []
@@ -313,7 +368,7 @@ class LiveView:
                     while self._fifo and len(due) < _BATCH:
                         due.append(self._fifo.popleft())
                 elif self._origin is not None:
-                    clock = int((time.monotonic() - self._origin) / per_ns)
+                    clock = self._clock(time.monotonic())
                     while (
                         self._queue
                         and len(due) < _BATCH
@@ -331,8 +386,8 @@ class LiveView:
                     if self._closing:
                         return
                     wait = _TICK
-                    if paced and self._origin is not None and self._queue:
-                        wait = (self._queue[0][0] - clock) * per_ns
+                    if paced and self._origin is not None and self._queue and self._rate:
+                        wait = (self._queue[0][0] - clock) / self._rate
                     self._wake.wait(max(0.0005, min(_TICK, wait)))
                     if not paced or self._origin is None:
                         continue
@@ -352,7 +407,7 @@ class LiveView:
             if due and not abandon:
                 self._cost += ((time.thread_time() - cpu) / len(due) - self._cost) * 0.5
             if paced and self._origin is not None:
-                now_clock = int((time.monotonic() - self._origin) / per_ns)
+                now_clock = self._clock(time.monotonic())
                 self._broadcast(max(self._time, min(now_clock, self._computed)))
             elif time.monotonic() - self._last_broadcast >= _TICK:
                 self._broadcast(self._time)
@@ -373,6 +428,8 @@ class LiveView:
                 return
             self._closing = True
             self._wake.notify()
+        if self.control is not None:
+            self.control.close()
         self._thread.join(max(FLUSH_TIMEOUT, self.linger))
         if self._thread.is_alive():  # the clients take too long: what is left is dropped
             with self._wake:

@@ -22,6 +22,7 @@ import numpy as np
 from rgtbus.errors import BadLog, RgtbusError
 from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario, parse_scenario
+from rgtbus.steering import Request, steered_of
 from rgtbus.summary import (
     HOW_IT_RAN,
     RunEnd,
@@ -46,6 +47,8 @@ from rgtbus.telemetry.pulse_blocks import pulse_rows
 from rgtbus.telemetry.record_rows import decode_rows, decode_units, spike_units
 from rgtbus.telemetry.recorder import DeferredTopics, LogContents, LogMessage
 from rgtbus.telemetry.records import (
+    CONTROL_PARAMETER,
+    CONTROL_SERVICE,
     MEDIUM,
     RUN,
     RX_DECODE,
@@ -359,12 +362,34 @@ class Replay:
         else:
             end = RunEnd(sim_seconds=self.sim_seconds, failure=run.get("error"))
             engine = self.metadata.get("run", {}).get("engine", "event")
-            out = summarise(sc, self.unit_reports(), end, engine=engine)
+            steered = (
+                steered_of(m for _, m in self.by_topic[CONTROL_SERVICE]) if self.steered else None
+            )
+            out = summarise(sc, self.unit_reports(), end, engine=engine, steered=steered)
             for key in HOW_IT_RAN:
                 out.pop(key, None)
         out["wall_seconds"] = None
         out["log"] = self.label
         return out
+
+    @property
+    def steered(self) -> bool:
+        """Whether the run was steered (``--control``): its units took changes as it ran."""
+        return self.metadata.get("run", {}).get("steered") == "yes" or bool(
+            self.by_topic[CONTROL_PARAMETER] or self.by_topic[CONTROL_SERVICE]
+        )
+
+    def control_requests(self) -> list[tuple[int, int, Request]]:
+        """A steered run's changes as its log holds them, in the order they applied:
+        (sample, seq, the request with its record) for a re-run to apply again."""
+        out: list[tuple[int, int, Request]] = []
+        for _, m in self.by_topic[CONTROL_PARAMETER]:
+            req = Request("parameter", m["name"], m["value"], m["who"], logged=m)
+            out.append((int(m["sample"]), int(m["seq"]), req))
+        for _, m in self.by_topic[CONTROL_SERVICE]:
+            req = Request("service", m["service"], m["request"], m["who"], logged=m)
+            out.append((int(m["sample"]), int(m["seq"]), req))
+        return sorted(out, key=lambda e: (e[0], e[1]))
 
     def spike_counts(
         self, span: tuple[float | None, float | None] | None = None
@@ -450,9 +475,14 @@ class Replay:
 
     def has_gains(self) -> bool:
         """Whether units hear the senders differently (link gains, or delays and clocks):
-        a re-run then needs each sender's own pulses, not the summed medium."""
+        a re-run then needs each sender's own pulses, not the summed medium. A steered run's
+        gain set by a client counts too."""
         ch = self.require_scenario().channel
-        return not ch.unit_gains or ch.timed
+        steered = any(
+            m.get("applied") and str(m.get("name", "")).startswith("channel.gain")
+            for _, m in self.by_topic[CONTROL_PARAMETER]
+        )
+        return not ch.unit_gains or ch.timed or steered
 
     def units_until_ns(self) -> int | None:
         """The log time before which every unit's messages are complete in a log cut short

@@ -34,6 +34,8 @@ UNIT_GOAL = "/unit/goal"
 UNIT_REPORT = "/unit/report"
 LOG = "/log"
 RUN = "/run"
+CONTROL_PARAMETER = "/control/parameter"  # a steered run's parameter changes (docs/foxglove.md)
+CONTROL_SERVICE = "/control/service"  # ... and its service calls
 SCENE = "/scene"  # foxglove.SceneUpdate: a spatial scenario's units and links (3D panel)
 TRACE_PREFIX = "/trace/"  # a family: one topic a traced unit
 
@@ -300,6 +302,68 @@ class TraceRecord(TypedDict):
     x: list[float]
 
 
+# A steered run's changes (``rgtbus.steering``), each at the window boundary it was applied or
+# refused at: ``seq`` orders those of one sample; ``who`` is the client; ``text`` says what it
+# did, or why not ("refused: ...").
+ControlParameterRecord = TypedDict(
+    "ControlParameterRecord",
+    {
+        "t": float,
+        "sample": int,
+        "seq": int,
+        "who": str,
+        "name": str,
+        "value": Any,  # as the client sent it
+        "from": Any,  # the value before (None: refused before it was read)
+        "to": Any,  # the value after (the value before, if refused)
+        "applied": bool,
+        "text": str,
+    },
+)
+
+
+class ControlServiceRecord(TypedDict):
+    """``/control/service``: a service call on a steered run."""
+
+    t: float
+    sample: int
+    seq: int
+    who: str
+    service: str
+    request: dict[str, Any]  # its arguments, as the client sent them
+    applied: bool
+    text: str
+    round: int | None  # influence: the round it changed; relation: the first round decided with it
+    turn: int | None  # influence: the schedule turn whose code it changed
+    value: int | None  # influence: the alternative (a mask of the universe's actions)
+    until: int | None  # step: the sample the run pauses at
+    state: dict[str, Any] | None  # mark: every unit's state there
+
+
+def control_parameter(
+    t: float, sample: int, seq: int, who: str, name: str, value: Any, before: Any, after: Any,
+    applied: bool, text: str,
+) -> ControlParameterRecord:  # fmt: skip
+    """A ``/control/parameter`` record: ``name`` set to ``value`` by ``who`` at ``sample``."""
+    return {
+        "t": t, "sample": sample, "seq": seq, "who": who, "name": name, "value": value,
+        "from": before, "to": after, "applied": applied, "text": text,
+    }  # fmt: skip
+
+
+def control_service(
+    t: float, sample: int, seq: int, who: str, service: str, request: dict[str, Any],
+    applied: bool, text: str, *, rnd: int | None = None, turn: int | None = None,
+    value: int | None = None, until: int | None = None, state: dict[str, Any] | None = None,
+) -> ControlServiceRecord:  # fmt: skip
+    """A ``/control/service`` record: ``service`` called by ``who`` with ``request``."""
+    return {
+        "t": t, "sample": sample, "seq": seq, "who": who, "service": service,
+        "request": request, "applied": applied, "text": text, "round": rnd, "turn": turn,
+        "value": value, "until": until, "state": state,
+    }  # fmt: skip
+
+
 # topic -> its record type (``/trace/<unit>`` is a family: ``TraceRecord``)
 RECORD_TYPES: dict[str, type] = {
     MEDIUM: MediumRecord,
@@ -314,6 +378,8 @@ RECORD_TYPES: dict[str, type] = {
     UNIT_REPORT: UnitReportRecord,
     RUN: RunRecord,
     SCENE: SceneUpdateRecord,
+    CONTROL_PARAMETER: ControlParameterRecord,
+    CONTROL_SERVICE: ControlServiceRecord,
 }
 
 

@@ -65,6 +65,16 @@ TOPICS: dict[str, tuple[str, str]] = {
         "a spatial scenario's units on Foxglove's 3D panel: each unit's sphere and name, then "
         "its half of each link, green for an alliance and red for a conflict as it holds it",
     ),
+    r.CONTROL_PARAMETER: (
+        "rgtbus.ControlParameter",
+        "a steered run's parameter changes (`--control`): who set what, from, to, at which "
+        "window boundary, or why it was refused",
+    ),
+    r.CONTROL_SERVICE: (
+        "rgtbus.ControlService",
+        "a steered run's service calls (pause, resume, step, relation, influence, mark): "
+        "applied or refused, and what they changed",
+    ),
     r.RUN: ("rgtbus.RunSummary", "how the run ended, written last"),
 }
 

@@ -125,6 +125,9 @@ _KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
     r.UNIT_GOAL: lambda t, m: (m.get("unit"), m.get("turn")),
     r.LOG: lambda t, m: (t, m.get("name"), m.get("level"), m.get("message")),
     r.SCENE: lambda t, m: (t, *(e.get("id") for e in m.get("entities", ()))),
+    # a steered run's changes: the re-run applies each again at its sample, in its order
+    r.CONTROL_PARAMETER: lambda t, m: (m.get("seq"),),
+    r.CONTROL_SERVICE: lambda t, m: (m.get("seq"),),
 }
 
 
@@ -144,6 +147,8 @@ def _key_text(topic: str, key: MessageKey) -> str:
         return f"line {key[3]!r}"
     if topic == r.SCENE:
         return f"entity {', '.join(map(str, key[1:]))}"
+    if topic in (r.CONTROL_PARAMETER, r.CONTROL_SERVICE):
+        return f"change {key[0]}"
     if r.is_trace_topic(topic):
         return f"trace at {seconds(key[0]):.3f} s"
     return "table"

@@ -1,0 +1,319 @@
+"""A steered run's changes, applied in the SimPy world (what they are: ``rgtbus.steering``).
+
+A request takes effect at ``S = boundary(computed, window)``: the first window boundary at or
+after everything the run has computed (the ears' horizon). The world never lets its horizon
+pass the next such sample (``next_at``) before the change is applied there, so the medium
+before S is heard as it was and the medium from S on with the change: the same results
+however the run is cut, and a re-run (``replay --verify``) that applies the logged changes at
+their samples agrees message for message. Each request, applied or refused, is logged at S
+(``/control/parameter``, ``/control/service``, in the order applied: ``seq``).
+
+Pausing is the wall clock's alone: a paused world waits at S (``gate``) until resumed or
+stepped; a step runs on to the next window, turn or round boundary and pauses there. None
+of it changes a result; a re-run keeps only the records.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol, cast
+
+from rgtbus.bus.payload import NEVER
+from rgtbus.pairs import pair_key
+from rgtbus.steering import (
+    PACE,
+    Refused,
+    Request,
+    Setting,
+    Steered,
+    boundary,
+    check_call,
+    check_setting,
+    steered_of,
+    step_target,
+)
+from rgtbus.telemetry import records
+from rgtbus.timebase import ns, sample_of, time_of
+
+if TYPE_CHECKING:
+    from rgtbus.engine.sim import World
+    from rgtbus.scenario import Scenario
+
+
+class Requests(Protocol):
+    """Where a live run's requests come from (``rgtbus.telemetry.control.Controller``)."""
+
+    def take(self) -> list[Request]:
+        """The requests that came since the last call, in the order they came."""
+        ...
+
+    def wait(self, timeout: float) -> None:
+        """Wait (wall time) until a request comes, at most ``timeout`` s."""
+        ...
+
+    def clock(self, t_ns: int, pace: float | None, running: bool) -> None:
+        """The run's clock is at ``t_ns``, paced at ``pace``, running or paused (a live view
+        holds its own clock to it)."""
+        ...
+
+    def close(self) -> None:
+        """The run is ending: no request is taken from now on (each is refused at once)."""
+        ...
+
+
+@dataclass(frozen=True)
+class _Due:
+    sample: int
+    seq: int
+    request: Request
+
+
+def _fmt(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+class Steering:
+    """The changes of one run: live requests (``source``) or logged ones (``logged``: the
+    re-run of a steered log); see the module docstring. ``pace``: the run's, None unpaced."""
+
+    def __init__(
+        self,
+        sc: Scenario,
+        window: int,
+        *,
+        source: Requests | None = None,
+        logged: Sequence[tuple[int, int, Request]] = (),
+        pace: float | None = None,
+    ) -> None:
+        self.sc = sc
+        self.window = window
+        self.source = source
+        self.pace = pace
+        self.paused = False
+        self.pause_at: int | None = None  # a step's end
+        self.seq = 0
+        self._due: list[tuple[int, int, _Due]] = []
+        for sample, seq, req in logged:
+            heapq.heappush(self._due, (sample, seq, _Due(sample, seq, req)))
+            self.seq = max(self.seq, seq + 1)
+        self.noise = sc.channel.noise
+        self.gains = dict(sc.channel.gains)
+        self.budget = sc.protocol.repairs_per_phase
+        self.calls: list[records.ControlServiceRecord] = []
+        self.records = 0
+        self._starts: dict[str, list[int]] | None = None
+        self.on_pace: Callable[[float], None] | None = None  # the world's clock, told a pace
+
+    # -- when -----------------------------------------------------------------------------------
+
+    def next_at(self) -> int:
+        """The next sample at which something is due (a change, a step's pause); NEVER: none."""
+        nxt = self._due[0][0] if self._due else NEVER
+        return min(nxt, self.pause_at) if self.pause_at is not None else nxt
+
+    def poll(self, computed: int) -> None:
+        """Take the live requests that came: each is due at ``boundary(computed)``."""
+        if self.source is None:
+            return
+        at = boundary(computed, self.window)
+        for req in self.source.take():
+            heapq.heappush(self._due, (at, self.seq, _Due(at, self.seq, req)))
+            self.seq += 1
+
+    def apply(self, world: World, horizon: int) -> None:
+        """Apply (or refuse) everything due at or before ``horizon``, in order; a step that
+        ends there pauses first."""
+        if self.pause_at is not None and self.pause_at <= horizon:
+            self.pause_at = None
+            self._set_paused(world, True)
+        while self._due and self._due[0][0] <= horizon:
+            _, _, due = heapq.heappop(self._due)
+            self._apply(world, due)
+
+    def gate(self, world: World) -> None:
+        """A live, paused run waits here (wall time) for a resume or a step; meanwhile every
+        request that comes is applied at this very boundary."""
+        if self.source is None or not self.paused:
+            return
+        while self.paused:  # it computed nothing past its horizon (the pause clamped it)
+            self.source.wait(0.2)
+            self.poll(world.horizon)
+            self.apply(world, world.horizon)
+        world.resync()
+
+    def finish(self, world: World) -> None:
+        """The run is over: what is still due, and what came since the last look, is refused
+        (and logged) at its sample; the source takes no more."""
+        self.pause_at = None
+        if self.source is not None:
+            self.poll(world.computed())
+            self.source.close()
+            self.poll(world.computed())  # what came while it closed
+        while self._due:
+            _, _, due = heapq.heappop(self._due)
+            req = due.request
+            if req.logged is None:
+                req = req.refuse("the run ended before it applied")
+            self._apply(world, due, req)
+
+    def steered(self) -> Steered:
+        """What the changes applied mean for the run's truth."""
+        return steered_of(self.calls)
+
+    # -- what ------------------------------------------------------------------------------------
+
+    def _apply(self, world: World, due: _Due, req: Request | None = None) -> None:
+        req = req or due.request
+        t = time_of(due.sample, world.tau)
+        if req.kind == "parameter":
+            rec = self._parameter(world, due, req, t)
+            world.recorder.write(records.CONTROL_PARAMETER, rec, ns(t))
+        else:
+            srec = self._service(world, due, req, t)
+            world.recorder.write(records.CONTROL_SERVICE, srec, ns(t))
+            self.calls.append(srec)
+        self.records += 1
+
+    def _parameter(
+        self, world: World, due: _Due, req: Request, t: float
+    ) -> records.ControlParameterRecord:
+        if req.logged is not None and not req.logged.get("applied"):
+            return cast(records.ControlParameterRecord, dict(req.logged))  # as it was logged
+        before: Any = None
+        try:
+            if req.refused is not None:
+                raise Refused(req.refused)
+            s = check_setting(self.sc, req.name, req.value)
+            if s.kind == "pace" and self.pace is None and req.logged is not None:
+                self.pace = req.logged.get("from")  # a re-run is not paced: the run's pace
+            before = self._current(s)
+            self._set(world, s)
+            after = self._current(s)
+            text = f"{s.name}: {_fmt(before)} -> {_fmt(after)} at t = {t:.3f} s"
+            return records.control_parameter(
+                t, due.sample, due.seq, req.who, s.name, req.value, before, after, True, text
+            )
+        except Refused as exc:
+            return records.control_parameter(
+                t, due.sample, due.seq, req.who, req.name, req.value, before, before, False,
+                f"refused: {exc}",
+            )  # fmt: skip
+
+    def _current(self, s: Setting) -> Any:
+        if s.kind == "noise":
+            return self.noise
+        if s.kind == "gain":
+            assert s.link is not None
+            return self.gains.get(s.link, 1.0)
+        if s.kind == "budget":
+            return self.budget
+        return self.pace
+
+    def _set(self, world: World, s: Setting) -> None:
+        if s.kind == "noise":
+            self.noise = float(s.value)
+            world.set_noise(self.noise)
+        elif s.kind == "gain":
+            assert s.link is not None
+            self.gains[s.link] = float(s.value)
+            world.set_gain(s.link, float(s.value))
+        elif s.kind == "budget":
+            self.budget = int(s.value)
+            for m in world.members:
+                m.set_repair_budget(self.budget)
+        else:
+            if self.pace is None and self.source is not None:
+                raise Refused(f"{PACE}: this run is not paced (rgtbus run --realtime X)")
+            self.pace = float(s.value)
+            if self.source is not None:
+                world.set_pace(self.pace)
+                self.source.clock(ns(world.env.now), self.pace, not self.paused)
+
+    def _service(
+        self, world: World, due: _Due, req: Request, t: float
+    ) -> records.ControlServiceRecord:
+        args = req.value if isinstance(req.value, dict) else {}
+        if req.logged is not None and not req.logged.get("applied"):
+            return cast(records.ControlServiceRecord, dict(req.logged))  # as it was logged
+        try:
+            if req.refused is not None:
+                raise Refused(req.refused)
+            call = check_call(self.sc, req.name, req.value)
+            extra: dict[str, Any] = {}
+            if call.service == "pause":
+                if self.paused:
+                    raise Refused("pause: the run is paused already")
+                self._set_paused(world, True)
+                text = f"paused at t = {t:.3f} s"
+            elif call.service == "resume":
+                if not self.paused:
+                    raise Refused("resume: the run is not paused")
+                self._set_paused(world, False)
+                text = f"resumed at t = {t:.3f} s"
+            elif call.service == "step":
+                if not self.paused:
+                    raise Refused("step: the run is not paused (pause it first)")
+                assert call.by is not None
+                until = step_target(call.by, due.sample, self.window, self._schedule_starts(world))
+                self._set_paused(world, False)
+                self.pause_at = until
+                extra["until"] = until
+                where = "its end" if until is None else f"t = {time_of(until, world.tau):.3f} s"
+                text = f"step by {call.by} from t = {t:.3f} s: pauses at {where}"
+            elif call.service == "influence":
+                assert call.unit is not None and call.peer is not None and call.value is not None
+                member = world.member(call.unit)
+                turn, rnd = member.inject(call.peer, call.value)
+                extra.update(turn=turn, rnd=rnd, value=call.value)
+                text = (
+                    f"influence {pair_key(call.unit, call.peer)} = "
+                    f"{self.sc.universe.format(call.value)} in round {rnd} (turn {turn})"
+                )
+            elif call.service == "relation":
+                assert call.unit is not None and call.pair is not None
+                assert call.alliance is not None
+                member = world.member(call.unit)
+                rnd = member.hold_relation(call.pair, call.alliance)
+                extra["rnd"] = rnd
+                what = "alliance" if call.alliance else "conflict"
+                text = (
+                    f"{call.unit} holds {pair_key(*call.pair)} as {what} from t = {t:.3f} s "
+                    f"(its decisions from round {rnd} on)"
+                )
+            elif call.service == "auth":
+                text = f"{req.who} may steer"
+            else:  # mark
+                extra["state"] = {m.name: m.state() for m in world.members}
+                text = f"mark at t = {t:.3f} s" + (f": {call.label}" if call.label else "")
+            return records.control_service(
+                t, due.sample, due.seq, req.who, req.name, args, True, text, **extra
+            )
+        except Refused as exc:
+            return records.control_service(
+                t, due.sample, due.seq, req.who, req.name, args, False, f"refused: {exc}"
+            )
+
+    def _set_paused(self, world: World, paused: bool) -> None:
+        self.paused = paused
+        if self.source is not None:
+            self.source.clock(ns(world.env.now), self.pace, not paused)
+
+    def _schedule_starts(self, world: World) -> dict[str, list[int]]:
+        """The clean schedule's first sample of every turn and of every influence round."""
+        if self._starts is None:
+            from rgtbus.truth import clean_timeline
+
+            plan, listens = clean_timeline(self.sc)
+            first: dict[int, int] = {}
+            for listen in listens:
+                k = sample_of(listen.start, world.tau)
+                first[listen.turn] = min(first.get(listen.turn, k), k)
+            rounds: dict[tuple[str, int], int] = {}
+            for turn, k in first.items():
+                tt = plan.schedule[turn]
+                key = (tt.phase, tt.round)
+                rounds[key] = min(rounds.get(key, k), k)
+            self._starts = {"turn": sorted(first.values()), "round": sorted(rounds.values())}
+        return self._starts
