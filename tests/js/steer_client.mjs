@@ -6,6 +6,8 @@
 //   {"set": {"channel.noise": 0.05}}                      setParameters (answered: parameterValues)
 //   {"call": "/control/influence", "request": {...}}      a service call (answered: response or failure)
 //   {"auth": "HEX"}                                       /control/auth {"proof": HEX}
+//   {"auth_key": "KEY"}                                   the same, HEX the proof of holding KEY:
+//                                                         HMAC-SHA256(KEY, "rgtbus-control:" + session id)
 //   {"get": ["channel.noise"]}                            getParameters
 // Prints one JSON object a line: {"op": "serverInfo"|"answer"|"failure"|"parameters"|"control"|"end", ...}
 // ("control": each /control/* message received, decoded; "end": message counts) and exits
@@ -13,6 +15,7 @@
 import pkg from "@foxglove/ws-protocol";
 import WebSocket from "ws";
 import { readFileSync } from "node:fs";
+import { createHmac } from "node:crypto";
 
 const { FoxgloveClient } = pkg;
 const [url, stepsFile] = process.argv.slice(2);
@@ -28,7 +31,11 @@ let started = false;
 let callId = 0;
 const pending = new Map(); // call id -> resolve
 
-client.on("serverInfo", (info) => out({ op: "serverInfo", info }));
+let session = "";
+client.on("serverInfo", (info) => {
+  session = info.sessionId ?? "";
+  out({ op: "serverInfo", info });
+});
 client.on("advertise", (channels) => {
   for (const ch of channels) topics.set(client.subscribe(ch.id), ch.topic);
 });
@@ -69,6 +76,9 @@ async function take(step) {
     const wait = answered(id);
     client.getParameters(step.get, id);
     return wait;
+  }
+  if (step.auth_key !== undefined) {
+    step = { auth: createHmac("sha256", step.auth_key).update("rgtbus-control:" + session).digest("hex") };
   }
   const name = step.auth !== undefined ? "/control/auth" : step.call;
   const request = step.auth !== undefined ? { proof: step.auth } : (step.request ?? {});

@@ -1,0 +1,148 @@
+"""A live run steered from Foxglove's side (issue 55): the official Foxglove WebSocket client
+(@foxglove/ws-protocol, tests/js/steer_client.mjs) sets a parameter and injects influences
+into a paced ``rgtbus run --live --control``; the units decide as the forward task says, the
+changes are in the log, and ``replay --verify`` re-runs the steered log to agreement. On a
+keyed run an unkeyed client's calls are refused, and logged."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from rgtbus.units.rerun import verify_log
+
+from rgtbus.telemetry.read import load_replay
+
+JS = Path(__file__).parent / "js"
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(
+    NODE is None or not (JS / "node_modules" / "@foxglove" / "ws-protocol").is_dir(),
+    reason="no Node.js, or no npm ci --prefix tests/js (where .ci/run installs the client)",
+)
+WAIT = 120.0  # s: a bound, never a pace
+
+
+def steered_run(tmp_path: Path, steps: list[dict], *extra: str) -> tuple[dict, list[dict], Path]:
+    """Run gate paced, steered by the client taking ``steps``: (the run's --json summary, what
+    the client printed, the log)."""
+    log = tmp_path / "steered.mcap"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "rgtbus", "run", "gate", "--log", str(log), "--live",
+         "127.0.0.1:0", "--realtime", "40", "--control", "--live-wait", str(WAIT), "--json",
+         *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        url, seen = None, []
+        deadline = time.monotonic() + WAIT
+        assert run.stderr is not None
+        while url is None and time.monotonic() < deadline:
+            line = run.stderr.readline()
+            if not line:
+                break
+            seen.append(line)
+            m = re.search(r"ws://[0-9.]+:\d+", line)
+            url = m.group(0) if m else None
+        assert url, "".join(seen)
+        rest: list[str] = []
+        drain = threading.Thread(target=lambda: rest.extend(run.stderr), daemon=True)  # type: ignore[arg-type]
+        drain.start()
+        (tmp_path / "steps.json").write_text(json.dumps(steps))
+        client = subprocess.run(
+            [NODE, "steer_client.mjs", url, str(tmp_path / "steps.json")],  # type: ignore[list-item]
+            cwd=JS, capture_output=True, text=True, timeout=WAIT,
+        )  # fmt: skip
+        assert client.returncode == 0, client.stderr
+        out, _ = run.communicate(timeout=WAIT)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    printed = [json.loads(line) for line in client.stdout.splitlines()]
+    assert {"op": "timeout"} not in printed, printed
+    return json.loads(out), printed, log
+
+
+def logged(log: Path, topic: str) -> list[dict]:
+    return [m for _, m in load_replay(str(log)).by_topic[topic]]
+
+
+def test_a_live_run_is_steered_by_the_official_client_and_verified(tmp_path):
+    steps = [
+        {"get": ["channel.noise", "channel.gains.d>a", "pace"]},
+        {"call": "/control/influence", "request": {"influence": "d>a=0"}},
+        {"call": "/control/influence", "request": {"influence": "d>b=0"}},
+        {"set": {"channel.noise": 0.02}},
+        {"call": "/control/influence", "request": {"influence": "q>a=0"}},
+        {"call": "/control/mark", "request": {"label": "steered"}},
+    ]
+    summary, printed, log = steered_run(tmp_path, steps)
+    info = next(p["info"] for p in printed if p["op"] == "serverInfo")
+    assert {"parameters", "services", "time"} <= set(info["capabilities"])
+    got = next(p for p in printed if p["op"] == "parameters" and p["id"] == "get-1")
+    assert {p["name"]: p["value"] for p in got["parameters"]} == {
+        "channel.noise": 0, "channel.gains.d>a": 1, "pace": 40,
+    }  # fmt: skip
+    answers = [p for p in printed if p["op"] in ("answer", "failure")]
+    assert [a["op"] for a in answers] == ["answer", "answer", "failure", "answer"]
+    assert "unknown unit 'q'" in answers[2]["message"]
+    # the units decided as the forward task says on what was injected
+    assert summary["error"] is None
+    assert summary["outcome"] == "gate: closed"
+    assert summary["units"]["a"]["choice"] == [] and summary["units"]["c"]["choice"] == ["open"]
+    assert summary["wrong_decisions"] == [] and summary["steered"]["influences"] == 2
+    # in the log, as the client saw them live
+    services = logged(log, "/control/service")
+    params = logged(log, "/control/parameter")
+    assert [(s["service"], s["applied"]) for s in services] == [
+        ("influence", True), ("influence", True), ("influence", False), ("mark", True),
+    ]  # fmt: skip
+    assert [(p["name"], p["from"], p["to"], p["applied"]) for p in params] == [
+        ("channel.noise", 0, 0.02, True)
+    ]
+    streamed = [p["message"] for p in printed if p["op"] == "control"]
+    assert sorted(m["seq"] for m in streamed) == sorted(m["seq"] for m in services + params)
+    assert all(s["who"] == services[0]["who"] for s in services)
+    report = verify_log(log)
+    assert report.ok, report.verdict()
+    verify = subprocess.run(
+        [sys.executable, "-m", "rgtbus", "replay", str(log), "--verify"],
+        capture_output=True, text=True, timeout=WAIT,
+    )  # fmt: skip
+    assert verify.returncode == 0, verify.stdout + verify.stderr
+
+
+def test_on_a_keyed_run_an_unkeyed_clients_calls_are_refused_and_logged(tmp_path):
+    key = "a-test-key-of-thirty-two-bytes!!"
+    (tmp_path / "run.key").write_text(key + "\n")
+    steps = [
+        {"call": "/control/influence", "request": {"influence": "d>a=0"}},
+        {"set": {"channel.noise": 0.05}},
+        {"auth": "00" * 32},
+        {"auth_key": key},
+        {"call": "/control/mark", "request": {"label": "after auth"}},
+    ]
+    summary, printed, log = steered_run(tmp_path, steps, "--key-file", str(tmp_path / "run.key"))
+    answers = [p for p in printed if p["op"] in ("answer", "failure")]
+    assert [a["op"] for a in answers] == ["failure", "failure", "answer", "answer"]
+    assert "not allowed" in answers[0]["message"]
+    assert "wrong proof" in answers[1]["message"]
+    noise = next(p for p in printed if p["op"] == "parameters")
+    assert {p["name"]: p["value"] for p in noise["parameters"]}["channel.noise"] == 0
+    assert summary["outcome"] == "gate: open" and summary["steered"]["influences"] == 0
+    services = logged(log, "/control/service")
+    params = logged(log, "/control/parameter")
+    assert [(s["service"], s["applied"]) for s in services] == [
+        ("influence", False), ("auth", False), ("auth", True), ("mark", True),
+    ]  # fmt: skip
+    assert services[0]["text"].startswith("refused: not allowed: this run is keyed")
+    assert params[0]["applied"] is False and params[0]["text"].startswith("refused: not allowed")
+    assert not re.search(r"[0-9a-f]{64}", json.dumps(services))  # a proof is never logged
+    assert verify_log(log).ok
