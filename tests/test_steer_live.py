@@ -146,3 +146,26 @@ def test_on_a_keyed_run_an_unkeyed_clients_calls_are_refused_and_logged(tmp_path
     assert params[0]["applied"] is False and params[0]["text"].startswith("refused: not allowed")
     assert not re.search(r"[0-9a-f]{64}", json.dumps(services))  # a proof is never logged
     assert verify_log(log).ok
+
+
+def test_pause_step_and_resume_hold_the_live_clock(tmp_path):
+    steps = [
+        {"call": "/control/pause"},
+        {"sleep": 800},
+        {"sleep": 500},  # paused: the server's time stands still
+        {"call": "/control/step", "request": {"by": "window"}},
+        {"sleep": 500},  # one window on, paused again
+        {"call": "/control/resume"},
+    ]
+    summary, printed, log = steered_run(tmp_path, steps)
+    assert summary["error"] is None and summary["outcome"] == "gate: open"
+    t1, t2, t3 = (int(p["time"]) for p in printed if p["op"] == "time")
+    assert t1 == t2 < t3
+    pause, step, resume = logged(log, "/control/service")
+    assert [pause["service"], step["service"], resume["service"]] == ["pause", "step", "resume"]
+    assert pause["applied"] and step["applied"] and resume["applied"]
+    assert step["sample"] == pause["sample"] and step["until"] == pause["sample"] + 20
+    assert resume["sample"] == step["until"]
+    at = round(pause["t"] * 1e9)
+    assert at - 100_000_000 <= t2 <= at  # the view's clock stood at the pause, not past it
+    assert verify_log(log).ok

@@ -344,3 +344,22 @@ def test_engines_agree_on_a_steered_run(tmp_path):
     dense, log_d, _ = run(tmp_path, [], source=dense_src, engine="dense", name="dense")
     assert _records(log_d, "/control/parameter")[0]["sample"] == sample
     assert dense["units"] == event["units"] and dense["decode_errors"] == event["decode_errors"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "why"),
+    [
+        (["--control"], "--control goes with --live"),
+        (["--control", "--live", "127.0.0.1:0"], "--control goes with --realtime"),
+    ],
+)
+def test_control_without_a_live_paced_run_is_a_one_line_error(tmp_path, extra, why):
+    import subprocess
+    import sys
+
+    p = subprocess.run(
+        [sys.executable, "-m", "rgtbus", "run", "gate", "--log", str(tmp_path / "x.mcap"), *extra],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2
+    assert why in p.stderr and len(p.stderr.strip().splitlines()) == 1

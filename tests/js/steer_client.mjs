@@ -9,6 +9,7 @@
 //   {"auth_key": "KEY"}                                   the same, HEX the proof of holding KEY:
 //                                                         HMAC-SHA256(KEY, "rgtbus-control:" + session id)
 //   {"get": ["channel.noise"]}                            getParameters
+//   {"sleep": MS}                                         wait MS ms, then print the server's time
 // Prints one JSON object a line: {"op": "serverInfo"|"answer"|"failure"|"parameters"|"control"|"end", ...}
 // ("control": each /control/* message received, decoded; "end": message counts) and exits
 // when /run arrives or the server closes.
@@ -61,7 +62,17 @@ client.on("close", () => finish());
 
 const answered = (id) => new Promise((resolve) => pending.set(id, resolve));
 
+let serverTime = null; // the latest time broadcast, ns (a string: a bigint)
+client.on("time", (t) => {
+  serverTime = String(t.timestamp);
+});
+
 async function take(step) {
+  if (step.sleep !== undefined) {
+    await new Promise((resolve) => setTimeout(resolve, step.sleep));
+    out({ op: "time", time: serverTime });
+    return;
+  }
   if (step.set) {
     const id = `set-${++callId}`;
     const wait = answered(id);
