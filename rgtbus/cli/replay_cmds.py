@@ -30,18 +30,25 @@ if TYPE_CHECKING:
 # simulated seconds (from, to) the timeline, CSV tables and plot are cut to; None: open
 Span = tuple[float | None, float | None]
 
+SERVE_ADDRESS = "127.0.0.1:8765"  # --serve's default (rgtbus.telemetry.live.DEFAULT_ADDRESS)
+_EXIT_LINGER = 5.0  # s: --exit-at-end gives the clients this long to leave once played out
+
 
 def register(subparsers: SubParsers) -> None:
     """Add ``replay`` and ``merge``."""
     p = subparsers.add_parser(
         "replay",
-        help="read a run's MCAP log: timeline, verification, plots, CSV tables",
+        help="read a run's MCAP log: timeline, verification, plots, CSV tables; --serve it "
+        "to Foxglove",
         description="Read a run back from its MCAP log. Without options: what happened, in "
         "order (transmissions with their decodes, spikes, tables, decisions, outcome). "
         "--verify re-runs every unit's receiver and reasoning on the logged medium and lists "
         "each disagreement (exit 0: verified; 1: mismatches; 3: truncated log, everything read "
         "agrees (3 without --verify too); 2: unreadable, corrupt, header-only or not an rgtbus "
-        "log).",
+        "log). --serve plays the log to Foxglove over its WebSocket protocol (Open connection, "
+        "Foxglove WebSocket, ws://HOST:PORT): every channel as the log holds it, on the log's "
+        "own clock, with a playback bar to play, pause, seek and set the speed (0.1 to 100x); "
+        "it serves until Ctrl-C (exit 3 for a log that stops short: served as far as it reads).",
     )
     p.add_argument("log", metavar="LOG", help="an MCAP log written by rgtbus run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -57,6 +64,30 @@ def register(subparsers: SubParsers) -> None:
     )
     p.add_argument("--to", dest="t_to", type=float, metavar="T", help="... up to T simulated s")
     p.add_argument("--csv", metavar="DIR", help="write transmissions/decodes/decisions/spikes.csv")
+    p.add_argument(
+        "--serve",
+        nargs="?",
+        const=SERVE_ADDRESS,
+        metavar="HOST:PORT",
+        help=f"serve the log to Foxglove, with play, pause, seek and speed (default "
+        f"{SERVE_ADDRESS}; port 0: a free one); until Ctrl-C",
+    )
+    p.add_argument(
+        "--speed",
+        metavar="X",
+        help="with --serve: play at X times the log's own pace (0.1 to 100; default 1)",
+    )
+    p.add_argument(
+        "--paused",
+        action="store_true",
+        help="with --serve: wait for a client's play (default: play once a client subscribes)",
+    )
+    p.add_argument(
+        "--exit-at-end",
+        action="store_true",
+        help="with --serve: stop serving once the log has played to its end (and the "
+        "clients have left, 5 s at most)",
+    )
     add_quiet_argument(p)
     p.set_defaults(func=replay)
 
@@ -113,10 +144,17 @@ def register(subparsers: SubParsers) -> None:
 
 
 def replay(args: argparse.Namespace) -> int:
-    """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest."""
+    """``rgtbus replay LOG``: the options checked, the log loaded; ``_replay`` does the rest
+    (``--serve``: ``_serve``)."""
     from rgtbus.telemetry.read import load_replay
     from rgtbus.telemetry.untrusted import explained
 
+    if args.serve is not None:
+        return _serve(args)
+    for flag, given in (("--speed", args.speed is not None), ("--paused", args.paused),
+                        ("--exit-at-end", args.exit_at_end)):  # fmt: skip
+        if given:
+            raise BadInput(f"{flag} goes with --serve")
     if args.plot is None and args.unit:
         raise BadInput("--unit goes with --plot OUT.png")
     if args.plot is not None:  # before the log is read: the plot is what was asked for
@@ -171,6 +209,88 @@ def _replay(rp: Replay, args: argparse.Namespace) -> int:
         print_timeline(rp, span)
     # A log that ends early was read as far as it goes: say so in the exit code too.
     return EXIT_TRUNCATED if rp.truncated else 0
+
+
+def _serve(args: argparse.Namespace) -> int:
+    """``rgtbus replay LOG --serve [HOST:PORT]``: the log served (``LogServer``) until Ctrl-C
+    or SIGTERM (or its end, ``--exit-at-end``); its address on stderr as it starts, what it
+    sent at the end (``--json``: one object). Exit 0, or 3 for a log that stops short (a cut,
+    damage: served as far as it reads)."""
+    import signal
+    import threading
+
+    from rgtbus.telemetry.live import parse_address
+    from rgtbus.telemetry.serve import LogServer, check_speed, index_log
+    from rgtbus.telemetry.verify import EXIT_TRUNCATED
+    from rgtbus.timebase import seconds
+
+    others = [flag for flag, given in (
+        ("--verify", args.verify), ("--plot", args.plot is not None), ("--unit", args.unit),
+        ("--from", args.t_from is not None), ("--to", args.t_to is not None),
+        ("--csv", args.csv is not None),
+    ) if given]  # fmt: skip
+    if others:
+        raise BadInput(f"--serve goes alone (not with {', '.join(others)})")
+    speed = 1.0
+    if args.speed is not None:
+        try:
+            speed = float(args.speed)
+        except ValueError:
+            raise BadInput(f"--speed {args.speed!r}: not a number") from None
+        check_speed(speed, "--speed")
+    host, port = parse_address(args.serve, "--serve")
+    index = index_log(args.log)
+    stop = threading.Event()
+    old: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():  # (where handlers can be set)
+        for sig in (signal.SIGINT, signal.SIGTERM):  # Ctrl-C or SIGTERM: stop serving
+            old[sig] = signal.signal(sig, lambda *_: stop.set())
+    linger = 0.0
+    try:
+        server = LogServer(index, host, port, speed=speed, autoplay=not args.paused)
+        try:
+            _serve_start(server, args)  # even --quiet: the address (port 0: the one taken)
+            if index.note:
+                print(f"note: {printable(index.note)}; served up to there", file=sys.stderr)
+            while not stop.wait(0.1):
+                if args.exit_at_end and server.wait_ended(0):
+                    linger = _EXIT_LINGER  # the clients take the last messages, and leave
+                    break
+        finally:
+            server.close(linger)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    ended = server.state()["status"] == "ended"
+    if args.json:
+        print(json.dumps({
+            "url": server.url, "log": index.path, "messages": index.messages,
+            "sent": server.sent, "seeks": server.seeks, "ended": ended,
+            "start": seconds(index.start_ns), "end": seconds(index.end_ns),
+            "note": index.note, "problem": server.problem,
+        }))  # fmt: skip
+    elif not args.quiet:
+        print(
+            f"served {printable(index.path)} on {server.url}: {server.sent} messages sent "
+            f"({index.messages} in the log), {server.seeks} seeks"
+            + ("; played to its end" if ended else "")
+        )
+    return EXIT_TRUNCATED if index.note or server.problem else 0
+
+
+def _serve_start(server: Any, args: argparse.Namespace) -> None:
+    """The line saying where the log is served (stderr: stdout is the result's)."""
+    from rgtbus.timebase import seconds
+
+    ix = server.index
+    how = "paused: play from Foxglove" if args.paused else "plays once a client subscribes"
+    print(
+        f"serving {printable(ix.path)} on {server.url} (Foxglove: Open connection, Foxglove "
+        f"WebSocket): {ix.messages} messages, {seconds(ix.start_ns):g} to {seconds(ix.end_ns):g} s "
+        f"of log time; {how}; Ctrl-C stops",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def _write_csv(rp: Replay, out: Path, span: Span | None) -> str:
