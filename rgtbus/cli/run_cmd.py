@@ -397,6 +397,12 @@ def print_summary(scenario: Scenario, s: dict[str, Any]) -> None:
         print(f"goal: {goal_line(u, g)}")
     if s["outcome"] is not None:
         print(f"outcome: {s['outcome']}")
+    steered = s.get("steered")
+    if steered is not None:  # --control: what the truth it was judged against accounts for
+        print(
+            f"steered: {steered['influences']} influences injected, {steered['relations']} "
+            "relations edited (judged against the forward task with them; the log's /control/*)"
+        )
     print(decode_errors_line(s["decode_errors"]))
     print(
         f"time: {s['sim_seconds']:.1f} s simulated in {s['wall_seconds']:.2f} s wall "
