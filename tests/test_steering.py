@@ -363,3 +363,16 @@ def test_control_without_a_live_paced_run_is_a_one_line_error(tmp_path, extra, w
     )  # fmt: skip
     assert p.returncode == 2
     assert why in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_a_served_steered_log_shows_its_controls_as_they_happened(tmp_path):
+    import json
+
+    from rgtbus.telemetry.serve import iter_log
+
+    _, log, _ = run(tmp_path, [svc("influence", influence="d>a=0"), par("channel.noise", 0.01)])
+    served = [(topic, t, json.loads(d)) for topic, t, d in iter_log(log) if "/control/" in topic]
+    assert [(topic, m["seq"]) for topic, _, m in served] == [
+        ("/control/service", 0), ("/control/parameter", 1),
+    ]  # fmt: skip
+    assert all(t == round(m["t"] * 1e9) for _, t, m in served)  # at the log's own times
