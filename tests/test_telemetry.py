@@ -196,6 +196,33 @@ SAMPLES: dict[str, dict] = {
         "sim_seconds": 12.5,
         "error": None,
     },
+    "/control/parameter": {
+        "t": 3.2,
+        "sample": 640,
+        "seq": 0,
+        "who": "client 1",
+        "name": "channel.noise",
+        "value": 0.02,
+        "from": 0.0,
+        "to": 0.02,
+        "applied": True,
+        "text": "channel.noise: 0 -> 0.02 at t = 3.200 s",
+    },
+    "/control/service": {
+        "t": 3.2,
+        "sample": 640,
+        "seq": 1,
+        "who": "client 1",
+        "service": "pause",
+        "request": {"now": 1},
+        "applied": False,
+        "text": "refused: pause: unknown key 'now' (allowed: none)",
+        "round": None,
+        "turn": None,
+        "value": None,
+        "until": None,
+        "state": None,
+    },
 }
 
 
