@@ -88,6 +88,28 @@ def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
     return host, port
 
 
+def stop_server(server: Any, what: str) -> str | None:
+    """Stop a foxglove WebSocket server, waiting ``STOP_TIMEOUT`` s at most; what went wrong
+    (None: it stopped). The SDK's stop waits for every client's last frame to be written:
+    forever, for a client that stopped reading; a daemon thread never holds up the
+    interpreter's exit."""
+    stopped = threading.Event()
+
+    def stop() -> None:
+        try:
+            server.stop()
+        finally:
+            stopped.set()
+
+    threading.Thread(target=stop, name=f"{what}-stop", daemon=True).start()
+    if stopped.wait(STOP_TIMEOUT):
+        return None
+    return (
+        f"{what}: the server did not stop within {STOP_TIMEOUT:g} s (a client that no longer "
+        "reads?): left to stop in the background"
+    )
+
+
 class _Subscriptions(ServerListener):
     """The server's listener: which (client, channel) pairs are subscribed; a steered run's
     parameters (``control``). Callbacks come from the server's threads and never block."""
@@ -441,22 +463,8 @@ class LiveView:
         with subs.changed:
             while subs.pairs and time.monotonic() < deadline:
                 subs.changed.wait(max(0.01, deadline - time.monotonic()))
-        stopped = threading.Event()
-
-        def stop() -> None:
-            try:
-                self.server.stop()
-            finally:
-                stopped.set()
-
-        # The SDK's stop waits for every client's last frame to be written: forever, for a
-        # client that stopped reading. A daemon thread never holds up the interpreter's exit.
-        threading.Thread(target=stop, name="live-stop", daemon=True).start()
-        if not stopped.wait(STOP_TIMEOUT):
-            self.stop_problem = (
-                f"live: the server did not stop within {STOP_TIMEOUT:g} s (a client that no "
-                "longer reads?): left to stop in the background"
-            )
+        self.stop_problem = stop_server(self.server, "live")
+        if self.stop_problem:
             self._say(self.stop_problem)
         if self.dropped or self.refused:
             what = []

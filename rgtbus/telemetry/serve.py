@@ -64,7 +64,7 @@ from mcap.records import Channel, Chunk, Message, Schema
 
 from rgtbus.errors import BadInput, BadLog, IOFailure
 from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES, decompressed, split_chunk
-from rgtbus.telemetry.live import DEFAULT_ADDRESS, STOP_TIMEOUT, parse_address
+from rgtbus.telemetry.live import DEFAULT_ADDRESS, parse_address, stop_server
 from rgtbus.telemetry.mcap_recorder import sdk_logs_to_python
 from rgtbus.timebase import ns, seconds
 
@@ -712,22 +712,9 @@ class LogServer:
             while self._pairs and (left := deadline - time.monotonic()) > 0:
                 self._cond.wait(left)
         self._closed = True
-        stopped = threading.Event()
-
-        def stop() -> None:
-            try:
-                self.server.stop()
-            finally:
-                stopped.set()
-
-        # The SDK's stop waits for every client's last frame: forever for one that stopped
-        # reading. A daemon thread never holds up the interpreter's exit.
-        threading.Thread(target=stop, name="serve-stop", daemon=True).start()
-        if not stopped.wait(STOP_TIMEOUT):
-            self._say(
-                f"serve: the server did not stop within {STOP_TIMEOUT:g} s (a client that no "
-                "longer reads?): left to stop in the background"
-            )
+        problem = stop_server(self.server, "serve")
+        if problem:
+            self._say(problem)
         self._file.close()
 
     def __enter__(self) -> LogServer:
