@@ -88,6 +88,17 @@ def parse_address(text: str, where: str = "--live") -> tuple[str, int]:
     return host, port
 
 
+def open_server(host: str, port: int, what: str, **options: Any) -> Any:
+    """foxglove-sdk's WebSocket server on ``host:port`` with ``options`` (its log lines go to
+    Python's logging); one that cannot listen (a port in use) is ``BadInput`` naming
+    ``what``."""
+    try:
+        sdk_logs_to_python()
+        return foxglove.start_server(host=host, port=port, **options)
+    except Exception as exc:  # the SDK raises its own error type for a port in use
+        raise BadInput(f"{what} on {host}:{port}: cannot listen: {exc}") from None
+
+
 def stop_server(server: Any, what: str) -> str | None:
     """Stop a foxglove WebSocket server, waiting ``STOP_TIMEOUT`` s at most; what went wrong
     (None: it stopped). The SDK's stop waits for every client's last frame to be written:
@@ -191,20 +202,11 @@ class LiveView:
                 "supported_encodings": ["json"],
                 "session_id": control.session,
             }
-        try:
-            sdk_logs_to_python()
-            self.server = foxglove.start_server(
-                name=name,
-                host=host,
-                port=port,
-                capabilities=capabilities,
-                server_listener=self.subscriptions,
-                context=self.context,
-                message_backlog_size=backlog,
-                **steer,
-            )
-        except Exception as exc:  # the SDK raises its own error type for a port in use
-            raise BadInput(f"live view on {host}:{port}: cannot listen: {exc}") from None
+        self.server = open_server(
+            host, port, "live view",
+            name=name, capabilities=capabilities, server_listener=self.subscriptions,
+            context=self.context, message_backlog_size=backlog, **steer,
+        )  # fmt: skip
         if control is not None:
             control.view = self
             control.publish = self.server.publish_parameter_values

@@ -64,8 +64,7 @@ from mcap.records import Channel, Chunk, Message, Schema
 
 from rgtbus.errors import BadInput, BadLog, IOFailure
 from rgtbus.telemetry.chunks import MAX_CHUNK_BYTES, decompressed, split_chunk
-from rgtbus.telemetry.live import DEFAULT_ADDRESS, parse_address, stop_server
-from rgtbus.telemetry.mcap_recorder import sdk_logs_to_python
+from rgtbus.telemetry.live import DEFAULT_ADDRESS, open_server, parse_address, stop_server
 from rgtbus.timebase import ns, seconds
 
 MIN_SPEED = 0.1  # the slowest playback a client may ask for (slower: this)
@@ -424,20 +423,16 @@ class LogServer:
         self.context = foxglove.Context()
         self._channels = self._make_channels()
         try:
-            sdk_logs_to_python()
-            self.server = foxglove.start_server(
-                name=name,
-                host=host,
-                port=port,
-                capabilities=[Capability.Time, Capability.PlaybackControl],
-                server_listener=_Listener(self),
-                context=self.context,
+            self.server = open_server(
+                host, port, "serve",
+                name=name, capabilities=[Capability.Time, Capability.PlaybackControl],
+                server_listener=_Listener(self), context=self.context,
                 playback_time_range=(self.index.start_ns, self.index.end_ns),
                 message_backlog_size=backlog,
-            )
-        except Exception as exc:  # the SDK raises its own error type for a port in use
+            )  # fmt: skip
+        except BadInput:
             self._file.close()
-            raise BadInput(f"serve on {host}:{port}: cannot listen: {exc}") from None
+            raise
         self._port = int(self.server.port)  # (the SDK's reads 0 once it has stopped)
         self._thread = threading.Thread(target=self._play_loop, name="serve", daemon=True)
         self._thread.start()
