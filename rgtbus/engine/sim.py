@@ -35,7 +35,7 @@ from rgtbus.bus.payload import FAILED, FINAL, NEVER
 from rgtbus.checks import ENGINES
 from rgtbus.engine.hearing import Ears
 from rgtbus.engine.listener import OwnHearing, Reception
-from rgtbus.engine.steering import Steering
+from rgtbus.engine.steering import SteeredMember, Steering
 from rgtbus.errors import BadInput, MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
@@ -46,8 +46,8 @@ from rgtbus.telemetry.group_log import GroupLog
 from rgtbus.timebase import ns, time_of
 
 
-class Member(Protocol):
-    """What the world uses of a local unit."""
+class Member(SteeredMember, Protocol):
+    """What the world uses of a local unit (and steering: ``SteeredMember``)."""
 
     name: str
     done: bool
@@ -60,11 +60,6 @@ class Member(Protocol):
     def take_outbox(self) -> Pulses: ...
     def promise(self, horizon: int) -> int: ...
     def awaited(self) -> tuple[int, int, int] | None: ...
-    # steering (``rgtbus.engine.steering``): each raises ``Refused`` with why not
-    def inject(self, peer: str, value: int) -> tuple[int, int]: ...
-    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int: ...
-    def set_repair_budget(self, blocks: int) -> None: ...
-    def state(self) -> dict[str, Any]: ...
 
 
 _NONE: Pulses = (np.zeros(0, dtype=np.int64), np.zeros(0))

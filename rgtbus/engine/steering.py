@@ -38,8 +38,40 @@ from rgtbus.telemetry import records
 from rgtbus.timebase import ns, sample_of, time_of
 
 if TYPE_CHECKING:
-    from rgtbus.engine.sim import World
+    import simpy
+
     from rgtbus.scenario import Scenario
+    from rgtbus.telemetry import Recorder
+
+
+class SteeredMember(Protocol):
+    """What steering uses of a local member (``rgtbus.engine.sim.Member`` has it all); each
+    raises ``Refused`` with why not."""
+
+    name: str
+
+    def inject(self, peer: str, value: int) -> tuple[int, int]: ...
+    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int: ...
+    def set_repair_budget(self, blocks: int) -> None: ...
+    def state(self) -> dict[str, Any]: ...
+
+
+class World(Protocol):
+    """What steering uses of the world it steers (``rgtbus.engine.sim.World``)."""
+
+    horizon: int
+    tau: float
+    env: simpy.Environment
+    recorder: Recorder
+
+    @property
+    def members(self) -> Sequence[SteeredMember]: ...
+    def member(self, name: str) -> SteeredMember: ...
+    def computed(self) -> int: ...
+    def set_noise(self, sigma: float) -> None: ...
+    def set_gain(self, link: tuple[str, str], gain: float) -> None: ...
+    def set_pace(self, realtime: float) -> None: ...
+    def resync(self) -> None: ...
 
 
 class Requests(Protocol):
