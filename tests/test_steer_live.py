@@ -148,6 +148,7 @@ def test_on_a_keyed_run_an_unkeyed_clients_calls_are_refused_and_logged(tmp_path
     assert verify_log(log).ok
 
 
+@pytest.mark.slow  # it sleeps to watch the clock stand still (CI's slow pass runs it)
 def test_pause_step_and_resume_hold_the_live_clock(tmp_path):
     steps = [
         {"call": "/control/pause"},
