@@ -376,3 +376,79 @@ def test_a_served_steered_log_shows_its_controls_as_they_happened(tmp_path):
         ("/control/service", 0), ("/control/parameter", 1),
     ]  # fmt: skip
     assert all(t == round(m["t"] * 1e9) for _, t, m in served)  # at the log's own times
+
+
+# -- the live view's side: the Controller, without a server ----------------------------------
+
+
+class Client:
+    def __init__(self, id: int) -> None:
+        self.id = id
+
+
+def test_the_controller_checks_at_once_and_hands_everything_to_the_run(gate):
+    import json
+
+    from foxglove.websocket import Parameter
+
+    from rgtbus.telemetry.control import MAX_REQUEST, Controller
+
+    c = Controller(gate, pace=5.0)
+    ok = json.loads(c.call("influence", 3, b'{"influence": "d>a=0"}'))
+    assert ok["ok"] is True
+    for payload, why in [
+        (b"{not json", "not JSON"),
+        (b"[1, 2]", "not a JSON object"),
+        (b'{"influence": "d>zz=0"}', "unknown unit 'zz'"),
+        (b"x" * (MAX_REQUEST + 1), "more than"),
+    ]:
+        with pytest.raises(Refused, match=why):
+            c.call("influence", 3, payload)
+    values = c.on_set_parameters(
+        Client(3),
+        [
+            Parameter("channel.noise", value=0.25),
+            Parameter("pace", value=-1.0),
+            Parameter("x" * 50, value="y" * (2 * MAX_REQUEST)),
+        ],
+    )
+    assert {p.name: p.get_value() for p in values}["channel.noise"] == 0.25
+    assert {p.name: p.get_value() for p in values}["pace"] == 5.0
+    got = c.take()
+    assert [(r.kind, r.name, r.refused is None) for r in got][:2] == [
+        ("service", "influence", True), ("service", "influence", False),
+    ]  # fmt: skip
+    assert [r.who for r in got] == ["client 3"] * len(got)
+    huge = got[-1]
+    assert huge.refused is not None and "not kept" in huge.value  # the log stays small
+    assert c.take() == []
+    c.close()
+    with pytest.raises(Refused, match="stopping"):
+        c.call("pause", 3, b"{}")
+
+
+def test_a_keyed_controller_lets_only_a_proven_client_steer(gate):
+    from foxglove.websocket import Parameter
+
+    from rgtbus.telemetry.control import Controller, control_proof
+
+    key = b"k" * 32
+    c = Controller(gate, key=key)
+    with pytest.raises(Refused, match="not allowed: this run is keyed"):
+        c.call("pause", 1, b"{}")
+    with pytest.raises(Refused, match="wrong proof"):
+        c.call("auth", 1, b'{"proof": "00"}')
+    proof = control_proof(key, c.session)
+    assert control_proof(key, "another session") != proof  # a proof is good for one server
+    c.call("auth", 2, f'{{"proof": "{proof}"}}'.encode())
+    c.call("pause", 2, b"{}")  # the client that proved it
+    with pytest.raises(Refused, match="not allowed"):
+        c.call("pause", 1, b"{}")  # not the one that did not
+    c.on_set_parameters(Client(1), [Parameter("channel.noise", value=0.5)])
+    assert {p.name: p.get_value() for p in c.parameters()}["channel.noise"] == 0.0
+    got = [(r.name, r.refused is None, r.who) for r in c.take()]
+    assert got == [
+        ("pause", False, "client 1"), ("auth", False, "client 1"), ("auth", True, "client 2"),
+        ("pause", True, "client 2"), ("pause", False, "client 1"),
+        ("channel.noise", False, "client 1"),
+    ]  # fmt: skip

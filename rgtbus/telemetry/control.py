@@ -182,15 +182,15 @@ class Controller:
         who = _who(client)
         for p in parameters:
             value = p.get_value()
-            name = p.name
-            req = Request("parameter", name, _plain(value), who)
+            name = _bounded(p.name)
+            req = Request("parameter", name, _bounded(_plain(value)), who)
             why = self._not_allowed(client)
             if why is None:
                 try:
                     s = check_setting(self.sc, name, value)
                     if s.kind == "pace" and self.values.get(PACE) is None:
                         raise Refused(f"{PACE}: this run is not paced (--realtime)")
-                    req = Request("parameter", s.name, _plain(value), who)
+                    req = Request("parameter", s.name, value, who)
                     with self._lock:
                         self.values[s.name] = s.value
                 except Refused as exc:
@@ -312,6 +312,13 @@ class Controller:
 
 def _who(client: Client) -> str:
     return f"client {client.id}"
+
+
+def _bounded(value: Any) -> Any:
+    """What a log keeps of what a client sent: the value, or, when its JSON is longer than
+    ``MAX_REQUEST`` bytes, a line saying how long it was (a client cannot fill the log)."""
+    size = len(json.dumps(value, default=str))
+    return value if size <= MAX_REQUEST else f"(a value of {size} bytes, not kept)"
 
 
 def _plain(value: Any) -> Any:
