@@ -258,6 +258,23 @@ class Steered:
         return {p: a for u, p, a, r in self.relations if u == unit and r <= rnd}
 
 
+def steered_in(reports: Iterable[Mapping[str, Any]]) -> Steered | None:
+    """The ``Steered`` of a run from its units' reports (each steered unit's ``steered``:
+    the influences injected into its sends, the relations it was made to hold); None: the
+    run was not steered (no report says it was)."""
+    out: Steered | None = None
+    for r in reports:
+        mine = r.get("steered")
+        if mine is None:
+            continue
+        out = out or Steered()
+        for turn, value in mine["injected"]:
+            out.injected[int(turn)] = int(value)
+        for s, rcv, alliance, rnd in mine["held"]:
+            out.relations.append((r["unit"], (s, rcv), bool(alliance), int(rnd)))
+    return out
+
+
 def steered_of(calls: Iterable[Mapping[str, Any]]) -> Steered:
     """The ``Steered`` of a run from its applied service calls (``/control/service`` records:
     ``service``, ``request``, ``applied``, ``turn``, ``round``), in the order they applied."""

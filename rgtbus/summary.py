@@ -43,7 +43,7 @@ from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.pairs import PairTexts, pair_key, parse_pair_key
 from rgtbus.rgt import SubjectResult, Universe
 from rgtbus.scenario import Scenario
-from rgtbus.steering import Steered
+from rgtbus.steering import steered_in
 from rgtbus.truth import Truth
 
 _V = TypeVar("_V")
@@ -207,15 +207,15 @@ def summarise(
     *,
     engine: str = "event",
     misreads: DecodeErrors | None = None,
-    steered: Steered | None = None,
 ) -> dict[str, Any]:
     """The run's summary from every unit's ``report()`` (one process or many) and how the
-    world ended (``steered``: the changes a steered run made, which its truth accounts for).
-    Units without a report (a process that died) are absent from ``units`` and the run does
-    not agree; the shared fields are the first reporting unit's (none at all: empty).
-    ``misreads``: the
+    world ended; a steered run's truth accounts for the changes its units' reports say they
+    took (``steered_in``). Units without a report (a process that died) are absent from
+    ``units`` and the run does not agree; the shared fields are the first reporting unit's
+    (none at all: empty). ``misreads``: the
     reports' ``decode_errors_of`` where the caller keeps them (else worked out here)."""
     reports = list(reports)
+    steered = steered_in(reports)
     by_unit = {r["unit"]: r for r in reports}
     ref = next((by_unit[u] for u in sc.units if u in by_unit), _NO_REPORT)
     tables = {r["unit"]: r["installed"] for r in reports}

@@ -120,8 +120,7 @@ def run_group(
         m.write_report(result.sim_seconds)
     reports = shared_reports(members)
     misreads = decode_errors_of(reports)
-    steered = steering.steered() if steering is not None else None
-    summary = summarise(sc, reports, result, engine=engine, misreads=misreads, steered=steered)
+    summary = summarise(sc, reports, result, engine=engine, misreads=misreads)
     recorder.write(records.RUN, records.run_record(summary), ns(summary["sim_seconds"]))
     return RunOutput(summary, members, reports, misreads)
 

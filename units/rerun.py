@@ -122,12 +122,7 @@ def rerun(
     for m in members:  # as the run's units did at its end
         m.end_log()
     complete = all(m.done for m in members)
-    steered = steering.steered() if steering is not None else None
-    summary = (
-        summarise(sc, [m.report() for m in members], result, steered=steered)
-        if only is None
-        else {}
-    )
+    summary = summarise(sc, [m.report() for m in members], result) if only is None else {}
     return Rerun(rec.messages, summary, members, complete)
 
 

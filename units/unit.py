@@ -177,6 +177,7 @@ class AutonomousUnit:
         self.steerable = steerable
         self._injected: dict[int, int] = {}  # turn -> the alternative to send
         self._held: dict[tuple[str, str], bool] = {}
+        self._held_from: list[list[Any]] = []  # [sender, receiver, alliance?, from round]
         self.relation_choice, self.influence_choice = intents(sc, name)
         # it listens to samples before its limit: max_seconds, or a deliberate stop before it
         stop = sc.timing.stop
@@ -634,18 +635,18 @@ class AutonomousUnit:
                 return t.index, t.round
         raise Refused(f"influence: {self.name} has no round left in which to influence {peer}")
 
-    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int:
-        """It holds ``pair``'s relation code as ``alliance`` (or conflict) from now on, whatever
-        it decodes: its group is built again if it knows every pair. Returns the first round
-        it decides with it."""
+    def hold_relation(self, pair: tuple[str, str], alliance: bool, at: int) -> int:
+        """It holds ``pair``'s relation code as ``alliance`` (or conflict) from sample ``at``
+        on, whatever it decodes: its group is built again if it knows every pair. Returns the
+        first round it decides with it."""
         self._steerable("relation")
         mind = self.mind
         if mind.all_rounds_decided:
             raise Refused(f"relation: {self.name} has decided every round")
         self._held[pair] = alliance
+        self._held_from.append([pair[0], pair[1], alliance, mind.decided_rounds + 1])
         mind.sent[pair] = alliance
-        assert self.env is not None
-        t = self.env.now
+        t = time_of(at, self.tau)
         if mind.relations_complete():
             mind.build_group()
             if self.log.enabled:
@@ -752,6 +753,9 @@ class AutonomousUnit:
         }
         if self.arq is not None:
             out["repair"] = self.arq.book.report()  # type: ignore[typeddict-item]
+        if self.steerable:  # what it took of a steered run's changes (``steered_in``)
+            injected = [[turn, value] for turn, value in sorted(self._injected.items())]
+            out["steered"] = {"injected": injected, "held": [list(h) for h in self._held_from]}
         return out
 
 

@@ -27,11 +27,9 @@ from rgtbus.steering import (
     Refused,
     Request,
     Setting,
-    Steered,
     boundary,
     check_call,
     check_setting,
-    steered_of,
     step_target,
 )
 from rgtbus.telemetry import records
@@ -51,7 +49,7 @@ class SteeredMember(Protocol):
     name: str
 
     def inject(self, peer: str, value: int) -> tuple[int, int]: ...
-    def hold_relation(self, pair: tuple[str, str], alliance: bool) -> int: ...
+    def hold_relation(self, pair: tuple[str, str], alliance: bool, at: int) -> int: ...
     def set_repair_budget(self, blocks: int) -> None: ...
     def state(self) -> dict[str, Any]: ...
 
@@ -133,7 +131,6 @@ class Steering:
         self.noise = sc.channel.noise
         self.gains = dict(sc.channel.gains)
         self.budget = sc.protocol.repairs_per_phase
-        self.calls: list[records.ControlServiceRecord] = []
         self.records = 0
         self._starts: dict[str, list[int]] | None = None
         self.on_pace: Callable[[float], None] | None = None  # the world's clock, told a pace
@@ -190,10 +187,6 @@ class Steering:
                 req = req.refuse("the run ended before it applied")
             self._apply(world, due, req)
 
-    def steered(self) -> Steered:
-        """What the changes applied mean for the run's truth."""
-        return steered_of(self.calls)
-
     # -- what ------------------------------------------------------------------------------------
 
     def _apply(self, world: World, due: _Due, req: Request | None = None) -> None:
@@ -205,7 +198,6 @@ class Steering:
         else:
             srec = self._service(world, due, req, t)
             world.recorder.write(records.CONTROL_SERVICE, srec, ns(t))
-            self.calls.append(srec)
         self.records += 1
 
     def _parameter(
@@ -307,7 +299,7 @@ class Steering:
                 assert call.unit is not None and call.pair is not None
                 assert call.alliance is not None
                 member = world.member(call.unit)
-                rnd = member.hold_relation(call.pair, call.alliance)
+                rnd = member.hold_relation(call.pair, call.alliance, due.sample)
                 extra["rnd"] = rnd
                 what = "alliance" if call.alliance else "conflict"
                 text = (

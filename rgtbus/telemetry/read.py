@@ -22,7 +22,7 @@ import numpy as np
 from rgtbus.errors import BadLog, RgtbusError
 from rgtbus.misreads import DecodeErrors, decode_errors_of
 from rgtbus.scenario import Scenario, parse_scenario
-from rgtbus.steering import Request, steered_of
+from rgtbus.steering import Request
 from rgtbus.summary import (
     HOW_IT_RAN,
     RunEnd,
@@ -362,10 +362,7 @@ class Replay:
         else:
             end = RunEnd(sim_seconds=self.sim_seconds, failure=run.get("error"))
             engine = self.metadata.get("run", {}).get("engine", "event")
-            steered = (
-                steered_of(m for _, m in self.by_topic[CONTROL_SERVICE]) if self.steered else None
-            )
-            out = summarise(sc, self.unit_reports(), end, engine=engine, steered=steered)
+            out = summarise(sc, self.unit_reports(), end, engine=engine)
             for key in HOW_IT_RAN:
                 out.pop(key, None)
         out["wall_seconds"] = None

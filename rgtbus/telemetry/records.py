@@ -241,6 +241,15 @@ class RepairCounts(TypedDict):
     seconds: float  # simulated time the repair blocks add to the run
 
 
+class SteeredFields(TypedDict):
+    """A steered unit's share of its run's changes (``rgtbus.steering.steered_in``): the
+    influences injected into its sends, [turn, alternative], and the relation codes it was
+    made to hold, [sender, receiver, alliance?, first round decided with it]."""
+
+    injected: list[list[int]]
+    held: list[list[Any]]
+
+
 class UnitReportRecord(TypedDict, total=False):
     """``/unit/report``: what a unit knows at the end of its run, its share of the run summary.
     Its tables (``RELATIONS_FIELDS``, ``influences``) are left out where the unit's last
@@ -262,6 +271,7 @@ class UnitReportRecord(TypedDict, total=False):
     done_at: Required[int | None]
     mind_error: Required[str | None]
     repair: RepairCounts  # with [protocol] repair = "arq" only
+    steered: SteeredFields  # a steered run's units only (``--control``)
 
 
 class RunRecord(TypedDict):
