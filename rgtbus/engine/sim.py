@@ -433,12 +433,15 @@ class World:
             k = max([self.end_sample() + 1, *(e.pos for e in self._ears)])
         return k
 
-    def member(self, name: str) -> Member:
-        """The local member ``name`` (``Refused`` if it runs elsewhere)."""
+    def member(self, name: str) -> Member | None:
+        """The local member ``name``; None: a member of the run that runs in another process
+        (``Refused``: no member at all)."""
         for m in self.members:
             if m.name == name:
                 return m
-        raise Refused(f"unit {name!r} does not run in this process")
+        if name in self.bus.members:
+            return None
+        raise Refused(f"unit {name!r} is not a member of this run")
 
     def set_noise(self, sigma: float) -> None:
         """Every local receiver's white noise is σ = ``sigma`` from the horizon on."""

@@ -64,7 +64,7 @@ class World(Protocol):
 
     @property
     def members(self) -> Sequence[SteeredMember]: ...
-    def member(self, name: str) -> SteeredMember: ...
+    def member(self, name: str) -> SteeredMember | None: ...
     def computed(self) -> int: ...
     def set_noise(self, sigma: float) -> None: ...
     def set_gain(self, link: tuple[str, str], gain: float) -> None: ...
@@ -196,8 +196,10 @@ class Steering:
             rec = self._parameter(world, due, req, t)
             world.recorder.write(records.CONTROL_PARAMETER, rec, ns(t))
         else:
-            srec = self._service(world, due, req, t)
-            world.recorder.write(records.CONTROL_SERVICE, srec, ns(t))
+            for srec in self._service(world, due, req, t):
+                world.recorder.write(records.CONTROL_SERVICE, srec, ns(t))
+                self.records += 1
+            return
         self.records += 1
 
     def _parameter(
@@ -257,10 +259,12 @@ class Steering:
 
     def _service(
         self, world: World, due: _Due, req: Request, t: float
-    ) -> records.ControlServiceRecord:
+    ) -> list[records.ControlServiceRecord]:
+        """The call's records: one; one a local unit (a mark); none where the unit it is about
+        runs in another process (whose record it is)."""
         args = req.value if isinstance(req.value, dict) else {}
         if req.logged is not None and not req.logged.get("applied"):
-            return cast(records.ControlServiceRecord, dict(req.logged))  # as it was logged
+            return [cast(records.ControlServiceRecord, dict(req.logged))]  # as it was logged
         try:
             if req.refused is not None:
                 raise Refused(req.refused)
@@ -289,6 +293,8 @@ class Steering:
             elif call.service == "influence":
                 assert call.unit is not None and call.peer is not None and call.value is not None
                 member = world.member(call.unit)
+                if member is None:
+                    return []
                 turn, rnd = member.inject(call.peer, call.value)
                 extra.update(turn=turn, rnd=rnd, value=call.value)
                 text = (
@@ -299,6 +305,8 @@ class Steering:
                 assert call.unit is not None and call.pair is not None
                 assert call.alliance is not None
                 member = world.member(call.unit)
+                if member is None:
+                    return []
                 rnd = member.hold_relation(call.pair, call.alliance, due.sample)
                 extra["rnd"] = rnd
                 what = "alliance" if call.alliance else "conflict"
@@ -308,16 +316,26 @@ class Steering:
                 )
             elif call.service == "auth":
                 text = f"{req.who} may steer"
-            else:  # mark
-                extra["state"] = {m.name: m.state() for m in world.members}
+            else:  # mark: a record a unit (its process writes it, however the run is laid out)
                 text = f"mark at t = {t:.3f} s" + (f": {call.label}" if call.label else "")
-            return records.control_service(
-                t, due.sample, due.seq, req.who, req.name, args, True, text, **extra
-            )
+                return [
+                    records.control_service(
+                        t, due.sample, due.seq, req.who, req.name, args, True, text,
+                        state={m.name: m.state()},
+                    )
+                    for m in world.members
+                ]  # fmt: skip
+            return [
+                records.control_service(
+                    t, due.sample, due.seq, req.who, req.name, args, True, text, **extra
+                )
+            ]
         except Refused as exc:
-            return records.control_service(
-                t, due.sample, due.seq, req.who, req.name, args, False, f"refused: {exc}"
-            )
+            return [
+                records.control_service(
+                    t, due.sample, due.seq, req.who, req.name, args, False, f"refused: {exc}"
+                )
+            ]
 
     def _set_paused(self, world: World, paused: bool) -> None:
         self.paused = paused

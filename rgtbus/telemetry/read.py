@@ -383,7 +383,11 @@ class Replay:
         for _, m in self.by_topic[CONTROL_PARAMETER]:
             req = Request("parameter", m["name"], m["value"], m["who"], logged=m)
             out.append((int(m["sample"]), int(m["seq"]), req))
+        seen: set[int] = set()
         for _, m in self.by_topic[CONTROL_SERVICE]:
+            if m["seq"] in seen:  # a mark's: a record a unit, one call
+                continue
+            seen.add(m["seq"])
             req = Request("service", m["service"], m["request"], m["who"], logged=m)
             out.append((int(m["sample"]), int(m["seq"]), req))
         return sorted(out, key=lambda e: (e[0], e[1]))

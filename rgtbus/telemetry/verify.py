@@ -127,7 +127,7 @@ _KEYS: dict[str, Callable[[int, dict[str, Any]], MessageKey]] = {
     r.SCENE: lambda t, m: (t, *(e.get("id") for e in m.get("entities", ()))),
     # a steered run's changes: the re-run applies each again at its sample, in its order
     r.CONTROL_PARAMETER: lambda t, m: (m.get("seq"),),
-    r.CONTROL_SERVICE: lambda t, m: (m.get("seq"),),
+    r.CONTROL_SERVICE: lambda t, m: (m.get("seq"), *sorted(m.get("state") or ())),
 }
 
 
