@@ -89,10 +89,17 @@ class Request:
     who: str
     refused: str | None = None
     logged: Mapping[str, Any] | None = None
+    # placed by the process that steers a run across processes: its sample and order
+    at: int | None = None
+    seq: int | None = None
 
     def refuse(self, why: str) -> Request:
         """The same request, refused for ``why``."""
         return replace(self, refused=why)
+
+    def placed(self, at: int, seq: int) -> Request:
+        """The same request, due at sample ``at`` as change ``seq`` of the run."""
+        return replace(self, at=at, seq=seq)
 
 
 def boundary(sample: int, window: int) -> int:

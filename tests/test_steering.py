@@ -11,6 +11,7 @@ import pytest
 from rgtbus.units.rerun import verify_log
 
 import rgtbus
+from rgtbus.engine.steering import RequestSource
 from rgtbus.scenario import load_scenario
 from rgtbus.steering import (
     Refused,
@@ -26,7 +27,7 @@ from rgtbus.steering import (
 from rgtbus.truth import Truth, clean_timeline
 
 
-class Script:
+class Script(RequestSource):
     """A run's requests, handed over at its ``at``-th look (the world looks once a round), and
     what ``wait`` hands over while it is paused (``on_wait``); the clock's calls kept."""
 
@@ -336,15 +337,18 @@ def test_the_repair_budget_stops_the_asking(tmp_path):
 
 
 def test_engines_agree_on_a_steered_run(tmp_path):
-    requests = lambda: [par("channel.noise", 0.03), svc("influence", influence="d>c=0")]  # noqa: E731
+    def requests():
+        return [par("channel.noise", 0.03), svc("influence", influence="d>c=0")]
+
     event, log_e, _ = run(tmp_path, requests(), at=5, name="event")
-    dense_src = Script(requests(), at=1)
-    # the dense engine looks every window: hand the requests over at the event run's sample
     sample = _records(log_e, "/control/parameter")[0]["sample"]
-    dense_src.at = sample // 20 + 1
-    dense, log_d, _ = run(tmp_path, [], source=dense_src, engine="dense", name="dense")
+    # the dense engine gets them placed at that sample (as a run across processes does)
+    placed = [r.placed(sample, k) for k, r in enumerate(requests())]
+    dense, log_d, _ = run(tmp_path, placed, name="dense", engine="dense")
     assert _records(log_d, "/control/parameter")[0]["sample"] == sample
     assert dense["units"] == event["units"] and dense["decode_errors"] == event["decode_errors"]
+    assert [m for m in _records(log_d, "/control/service")] == _records(log_e, "/control/service")
+    assert verify_log(log_d).ok
 
 
 @pytest.mark.parametrize(

@@ -234,7 +234,8 @@ class World:
             for i, m in enumerate(group):
                 m.begin(self.env, ears, i)
                 self._where[m.name] = (ears, i)
-        self._ahead_of_horizon = not dense and _delays_only(arrivals)
+        # (a steered world's ears hear no further than the horizon: a change may come there)
+        self._ahead_of_horizon = not dense and self.steering is None and _delays_only(arrivals)
 
     # -- the SimPy process ------------------------------------------------------------------
 
@@ -247,7 +248,7 @@ class World:
         steering = self.steering
         while True:
             if steering is not None:  # what is due at this horizon, before anyone plans on
-                steering.poll(self.computed())
+                steering.poll(self.computed(), self._promised())
                 steering.apply(self, self.horizon)
                 steering.gate(self)
             self._publish()
@@ -259,8 +260,12 @@ class World:
             self.sync.wait_seconds += time.perf_counter() - waited
             if self.engine == "dense":
                 h = min(h, self.horizon + self.window)
-            if steering is not None:  # nothing is heard past the next change
-                h = min(h, max(self.horizon, steering.next_at()))
+            if steering is not None:
+                # a change placed by another process at this very horizon came while this
+                # one waited (it could not pass it before): applied before anything after it
+                steering.poll(self.computed(), self._promised())
+                steering.apply(self, self.horizon)
+                h = min(h, max(self.horizon, steering.next_at()))  # nothing heard past the next
             pulses = self.bus.take(h)
             cuts = None
             if self._ahead_of_horizon and h < NEVER:
@@ -304,9 +309,6 @@ class World:
         and what the bus holds past ``h`` below the cut; less what earlier rounds handed the
         ears already (``_fed``). Returns those pulses and the cuts."""
         cuts = {u: max(h, s.promise) for u, s in self.bus.status().items()}
-        if self.steering is not None:  # no further than the next change
-            limit = max(h, self.steering.next_at())
-            cuts = {u: min(c, limit) for u, c in cuts.items()}
         pending = self.bus.known(NEVER)  # not yet taken: all at or after h
         out: dict[str, Pulses] = {}
         for u, cut in cuts.items():
@@ -341,6 +343,8 @@ class World:
                 now = held
                 self._held[m.name] = []
                 promise = promises[m.name]
+            if self.steering is not None:  # not past a change the other processes lack
+                promise = max(min(promise, self.steering.hold()), self._sent_promise[m.name])
             changed = (
                 now[0].size
                 or flags != self._sent_flags[m.name]
@@ -378,15 +382,14 @@ class World:
         remote = [s.promise for u, s in self.bus.status().items() if u not in plain]
         out = dict(plain)
         least = _two_least([*plain.values(), *remote])
-        for m in self.members:
+        # a steered world makes no look-ahead: a change may come for any sample past the horizon
+        for m in self.members if self.steering is None else ():
             bound = least[1] if plain[m.name] == least[0] else least[0]  # every other's least
             aw = m.awaited()
             if aw is None or plain[m.name] >= bound or m.name not in self._where:
                 continue
             ears, i = self._where[m.name]
             until = min(bound, aw[2] + 1)  # no reaction after the ID's deadline
-            if self.steering is not None:  # a look no further than the next change
-                until = min(until, max(h + 1, self.steering.next_at()))
             # Remote members' pulses as received; the local ones' as sent (a bus may hand our
             # own frames back later than the peers' frames that depend on them).
             known = {u: p for u, p in self.bus.known(until).items() if u not in plain}
@@ -432,6 +435,14 @@ class World:
         if k >= NEVER:
             k = max([self.end_sample() + 1, *(e.pos for e in self._ears)])
         return k
+
+    def _promised(self) -> int:
+        """What a change placed here must not precede, besides what this process computed:
+        in a run across processes, the least promise its members have sent (no other process
+        has passed it); in one process, nothing."""
+        if len(self.bus.local) == len(self.bus.members):
+            return 0
+        return min(self._sent_promise.values(), default=0)
 
     def member(self, name: str) -> Member | None:
         """The local member ``name``; None: a member of the run that runs in another process

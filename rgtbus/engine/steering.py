@@ -92,6 +92,40 @@ class Requests(Protocol):
         """The run is ending: no request is taken from now on (each is refused at once)."""
         ...
 
+    def announce(self, req: Request) -> None:
+        """A request this process placed (``req.at``, ``req.seq``): the run's other processes
+        must have it before any passes its sample (a one-process run's: nothing to do)."""
+        ...
+
+    def settle(self, seqs: Sequence[int], timeout: float) -> list[str]:
+        """Wait (wall time, at most ``timeout`` s) until every other process has the changes
+        ``seqs``; the processes that did not say so (a one-process run's: none)."""
+        ...
+
+
+class RequestSource:
+    """A ``Requests`` of one process to build on: ``take`` is yours; it never waits, keeps no
+    clock, and has no other process to tell (``rgtbus.run(..., control=...)`` from a
+    script: docs/api.md)."""
+
+    def take(self) -> list[Request]:
+        return []
+
+    def wait(self, timeout: float) -> None:
+        return None
+
+    def clock(self, t_ns: int, pace: float | None, running: bool) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+    def announce(self, req: Request) -> None:
+        return None
+
+    def settle(self, seqs: Sequence[int], timeout: float) -> list[str]:
+        return []
+
 
 @dataclass(frozen=True)
 class _Due:
@@ -133,7 +167,9 @@ class Steering:
         self.budget = sc.protocol.repairs_per_phase
         self.records = 0
         self._starts: dict[str, list[int]] | None = None
-        self.on_pace: Callable[[float], None] | None = None  # the world's clock, told a pace
+        self._unsettled: dict[int, int] = {}  # seq -> sample: announced, not yet had by all
+        self._mine: set[int] = set()  # the changes this process placed (its to refuse at the end)
+        self.settle_timeout = 10.0  # s a change waits for the other processes to have it
 
     # -- when -----------------------------------------------------------------------------------
 
@@ -142,21 +178,49 @@ class Steering:
         nxt = self._due[0][0] if self._due else NEVER
         return min(nxt, self.pause_at) if self.pause_at is not None else nxt
 
-    def poll(self, computed: int) -> None:
-        """Take the live requests that came: each is due at ``boundary(computed)``."""
+    def hold(self) -> int:
+        """No member of this process may promise past this sample: a change it placed there
+        is not yet had by every other process (NEVER: none is waiting)."""
+        return min(self._unsettled.values(), default=NEVER)
+
+    def poll(self, computed: int, promised: int = 0) -> None:
+        """Take the requests that came: one placed by the process that steers the run at its
+        sample; another at ``boundary``, at or after both what this process computed and
+        what it ``promised`` (no other process has passed that), announced to the others."""
         if self.source is None:
             return
-        at = boundary(computed, self.window)
+        at = boundary(max(computed, promised), self.window)
         for req in self.source.take():
-            heapq.heappush(self._due, (at, self.seq, _Due(at, self.seq, req)))
-            self.seq += 1
+            if req.at is not None and req.seq is not None:  # placed by the steering process
+                due = _Due(req.at, req.seq, req)
+                self.seq = max(self.seq, req.seq + 1)
+            else:
+                due = _Due(at, self.seq, req.placed(at, self.seq))
+                self.seq += 1
+                self._mine.add(due.seq)
+                if req.refused is None:  # a refusal is this process's record alone
+                    self.source.announce(due.request)
+                    self._unsettled[due.seq] = at
+            heapq.heappush(self._due, (due.sample, due.seq, due))
 
     def apply(self, world: World, horizon: int) -> None:
-        """Apply (or refuse) everything due at or before ``horizon``, in order; a step that
-        ends there pauses first."""
+        """Apply (or refuse) everything due at or before ``horizon``, in order, once every
+        process has it; a step that ends there pauses first."""
         if self.pause_at is not None and self.pause_at <= horizon:
             self.pause_at = None
             self._set_paused(world, True)
+        waiting = [seq for seq, at in self._unsettled.items() if at <= horizon]
+        if waiting and self.source is not None:
+            late = self.source.settle(waiting, self.settle_timeout)
+            for seq in waiting:
+                del self._unsettled[seq]
+            if late:  # gone, most likely (the bus names a member gone)
+                world.recorder.log(
+                    "warning",
+                    f"steering: {', '.join(late)} did not confirm changes {waiting} within "
+                    f"{self.settle_timeout:g} s",
+                    ns(time_of(horizon, world.tau)),
+                )
         while self._due and self._due[0][0] <= horizon:
             _, _, due = heapq.heappop(self._due)
             self._apply(world, due)
@@ -184,6 +248,8 @@ class Steering:
             _, _, due = heapq.heappop(self._due)
             req = due.request
             if req.logged is None:
+                if due.seq not in self._mine:  # the process that placed it says what came of it
+                    continue
                 req = req.refuse("the run ended before it applied")
             self._apply(world, due, req)
 

@@ -28,7 +28,7 @@ import hmac
 import json
 import secrets
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import foxglove
@@ -302,6 +302,13 @@ class Controller:
                 self.values[PACE] = pace
         if self.view is not None:
             self.view.set_clock(t_ns, pace, running)
+
+    def announce(self, req: Request) -> None:
+        """A one-process run's: no other process to tell."""
+
+    def settle(self, seqs: Sequence[int], timeout: float) -> list[str]:
+        """A one-process run's: no other process to wait for."""
+        return []
 
     def close(self) -> None:
         """The run is stopping: calls from now on are refused (said to the client)."""
