@@ -85,19 +85,21 @@ def test_the_access_control_lets_each_unit_put_only_on_its_own_keys(ids):
     for u in UNITS:
         assert allowed(u, "ingress", "put") == {
             f"rgtbus/r1/tx/{u}", f"rgtbus/r1/hello/{u}", f"rgtbus/r1/telemetry/{u}",
-            f"rgtbus/r1/resend/{u}",
+            f"rgtbus/r1/resend/{u}", f"rgtbus/r1/change/{u}", f"rgtbus/r1/have/{u}",
         }  # fmt: skip
         assert allowed(u, "ingress", "liveliness_token") == {f"rgtbus/r1/alive/{u}"}
         assert allowed(u, "ingress", "declare_subscriber") == every
         assert allowed(u, "egress", "put") == every
         assert allowed(u, "ingress", "delete") == allowed(u, "ingress", "query") == set()
     assert allowed(ROUTER, "ingress", "put") == every  # it forwards the others' traffic
-    assert allowed(WATCH, "ingress", "put") == set()  # a watcher says nothing
+    # a watcher says nothing but a steered run's requests (rgtbus.bus.steer_link)
+    assert allowed(WATCH, "ingress", "put") == {"rgtbus/r1/steer/watch"}
     assert allowed(WATCH, "ingress", "declare_subscriber") == every
     # no run id (a router not told which run): the same rules, for any run
     anyrun = access_control(UNITS, None)
     assert by_id(anyrun["rules"])["puts of b"]["key_exprs"] == [
         "rgtbus/*/tx/b", "rgtbus/*/hello/b", "rgtbus/*/telemetry/b", "rgtbus/*/resend/b",
+        "rgtbus/*/change/b", "rgtbus/*/have/b",
     ]  # fmt: skip
 
 

@@ -535,6 +535,7 @@ def launch(
     traces: bool = False,
     router: bool | None = None,
     tls: str | os.PathLike[str] | None = None,
+    control: bool = False,
 ) -> RunResult:
     """Run every unit of ``scenario`` as OS processes over zenoh (see the module docstring)
     and return the run's ``RunResult``: its summary (that of ``rgtbus.run`` but for wall time
@@ -555,8 +556,9 @@ def launch(
     ``ROUTER_ABOVE`` processes, a router above (a mesh of n processes opens n(n-1)/2 links);
     ``tls``: the run's directory of TLS identities (``rgtbus certs``): every process proves
     itself with its own certificate (one unit a process), the mesh or router on ``tls/``
-    endpoints, under the run's access control. Bad arguments, and every bad TLS file, raise
-    ``RgtbusError`` before a process starts."""
+    endpoints, under the run's access control; ``control``: the run may be steered through
+    ``rgtbus watch --control`` (docs/foxglove.md). Bad arguments, and every bad TLS file,
+    raise ``RgtbusError`` before a process starts."""
     from rgtbus.bus.auth import load_key
     from rgtbus.bus.certs import ROUTER, check_tls, process_tls
 
@@ -590,7 +592,7 @@ def launch(
     logs = {p: where / f"{p}.mcap" for p in groups}
     run_id = f"{default_run_id(sc)}-{os.getpid()}"  # never mixes with another launch's traffic
     opts = {"run_id": run_id, "timeout": timeout, "engine": engine, "realtime": realtime,
-            "key": key, "traces": traces, "tls": tls}  # fmt: skip
+            "key": key, "traces": traces, "tls": tls, "control": control}  # fmt: skip
     results, stopped, interrupted = _run_processes(fork, sc, groups, logs, net_given, router, opts)
     by_unit: dict[str, dict[str, Any]] = {}
     for p, said in results.items():

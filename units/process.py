@@ -31,8 +31,10 @@ from rgtbus.units.unit import AutonomousUnit
 from rgtbus.bus import drop_summary, open_bus
 from rgtbus.bus.hello import join_seconds
 from rgtbus.bus.registry import cross_process_kind
+from rgtbus.bus.steer_link import SteerLink
 from rgtbus.bus.zenoh import ZenohBus
 from rgtbus.engine.sim import World, WorldResult
+from rgtbus.engine.steering import Steering
 from rgtbus.errors import BadInput, IOFailure, RgtbusError
 from rgtbus.scenario import Scenario
 from rgtbus.telemetry import McapRecorder, Recorder
@@ -173,6 +175,7 @@ def run_units(
     on_result: Callable[[dict[str, dict[str, Any]]], None] | None = None,
     key: bytes | None = None,
     tls: str | os.PathLike[str] | None = None,
+    control: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Run the units ``names`` of ``sc`` in this process, one world and one zenoh session for
     all of them (their ears advanced together, one frame per unit and step); returns each
@@ -185,17 +188,24 @@ def run_units(
     proves itself with its one unit's certificate: rgtbus.bus.certs). A failed join is written
     to the log before it is raised. When the run gives up on silent members, the units of this
     process say whether they are the late ones themselves (``lateness``: their part's
-    ``late``)."""
+    ``late``). ``control``: the run is steered (``rgtbus watch --control``): the process
+    that runs the roster's first unit takes the watcher's requests and places them, every
+    process applies them at the same sample (``rgtbus.bus.steer_link``)."""
     names = _checked_names(sc, names)
     first = names[0]
     run_id = run_id or default_run_id(sc)
     t0 = time.perf_counter()
     hosted = {"units": ",".join(names)} if len(names) > 1 else {}
     kind = cross_process_kind()
+    if control:
+        hosted["steered"] = "yes"
     write_metadata(
         recorder, sc, kind, run_id, process=first, engine=engine, auth=auth_name(key), **hosted
     )
-    units = [AutonomousUnit(name, sc, recorder, traces=traces, realtime=realtime) for name in names]
+    units = [
+        AutonomousUnit(name, sc, recorder, traces=traces, realtime=realtime, steerable=control)
+        for name in names
+    ]
     opts = dict(zenoh_options or {})
     # a peer starved of CPU keeps its links as long as the run would wait for it
     opts.setdefault("send_patience", timeout)
@@ -223,8 +233,18 @@ def run_units(
             if on_open is not None:  # e.g. a launcher starting the peers that connect here
                 on_open()
             allowance = join_seconds(len(sc.units)) if join_timeout is None else join_timeout
-            _join(bus, sc, names, recorder, allowance)
-            result, outs = _run_world(sc, units, bus, recorder, world_options, run_id, t0)
+            link = _steer_link(bus, sc, names, key) if control else None
+            if link is not None:
+                steering = Steering(sc, sc.timing.window_samples, source=link, pace=realtime)
+                steering.settle_timeout = timeout  # a process that lags: as long as the run waits
+                world_options["steering"] = steering
+            try:
+                _join(bus, sc, names, recorder, allowance)
+                result, outs = _run_world(sc, units, bus, recorder, world_options, run_id, t0)
+            finally:
+                if link is not None:
+                    link.close()
+                    link.undeclare()
             sim_seconds = result.sim_seconds
             if on_result is not None:
                 flush = getattr(recorder, "flush", None)
@@ -251,6 +271,13 @@ def run_units(
         else:
             _write_end(recorder, unit.name, UNIT_DONE, unit.failure or "", sim_seconds)
     return outs
+
+
+def _steer_link(bus: Any, sc: Scenario, names: list[str], key: bytes | None) -> SteerLink:
+    """This process's side of steering the run (``--control``), on the bus's zenoh session."""
+    if not isinstance(bus, ZenohBus):
+        raise BadInput("--control across processes needs the zenoh bus")
+    return SteerLink(bus.session, bus.run_id, names, sc.units, key)
 
 
 def _checked_names(sc: Scenario, names: Sequence[str]) -> list[str]:

@@ -38,7 +38,7 @@ import re
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Protocol, Self, runtime_checkable
@@ -135,9 +135,12 @@ class Bus(Protocol):
         the last sample it listened to)."""
         ...
 
-    def wait(self, beyond: int, timeout: float = 5.0) -> int:
+    def wait(
+        self, beyond: int, timeout: float = 5.0, stop: Callable[[], bool] | None = None
+    ) -> int:
         """Block until every member promised past sample ``beyond``; the horizon (the
-        smallest promise). RgtbusError when no such promise comes."""
+        smallest promise). RgtbusError when no such promise comes. ``stop``: asked as it
+        waits; once it says so, the horizon as it is (a steered run's change came)."""
         ...
 
     def take(self, until: int) -> dict[str, Pulses]:
@@ -519,10 +522,13 @@ class QueueBus(BusBase):
         while len(history) > HISTORY_FRAMES or self._history_bytes[unit] > HISTORY_BYTES:
             self._history_bytes[unit] -= len(history.pop(next(iter(history))))
 
-    def wait(self, beyond: int, timeout: float = 5.0) -> int:
+    def wait(
+        self, beyond: int, timeout: float = 5.0, stop: Callable[[], bool] | None = None
+    ) -> int:
         """Block until every member has promised past sample ``beyond`` (once everyone has
         promised silence for good: until every member is done); return the horizon (the
-        smallest promise). RgtbusError naming the silent members after ``timeout`` s."""
+        smallest promise). RgtbusError naming the silent members after ``timeout`` s.
+        ``stop``: asked every tick; once it says so, the horizon as it is, at once."""
         self._check_open("wait")
         started = time.monotonic()
         deadline = started + max(0.0, float(timeout))
@@ -531,6 +537,8 @@ class QueueBus(BusBase):
         self._check_trusted()
         next_look = started + _REPAIR_TICK  # the first look for gaps, requests
         while not self._past(beyond):
+            if stop is not None and stop():
+                break
             self._check_trusted()
             left = self._left_holding(beyond)
             if left:

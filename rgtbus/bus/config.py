@@ -80,7 +80,7 @@ def tls_settings(files: TlsFiles) -> dict[str, Any]:
 # Nothing else is allowed.
 PUT, TOKEN, SUBSCRIBE = "put", "liveliness_token", "declare_subscriber"
 WATCH_TOKENS = "declare_liveliness_subscriber"  # a unit learns at once that a member left
-OWN_PUTS = (keys.TX, keys.HELLO, keys.TELEMETRY, keys.RESEND)
+OWN_PUTS = (keys.TX, keys.HELLO, keys.TELEMETRY, keys.RESEND, keys.CHANGE, keys.HAVE)
 
 
 def _subject(identity: str) -> str:
@@ -99,7 +99,8 @@ def access_control(units: Sequence[str], run_id: str | None = None) -> dict[str,
     router and a watcher (egress): all four on the run's keys. The router (``@router``) may
     do all four on the run's keys, both ways: it forwards the others' traffic, and its own
     copy of these rules holds each of its clients to its own keys. A watcher (``@watch``) may
-    only subscribe: it puts nothing."""
+    subscribe, and put only the requests of a steered run (``rgtbus/<run>/steer/watch``):
+    no one else may. A unit's own keys include its changes and receipts of them."""
     run = "*" if run_id is None else run_id
     run_keys = [f"{keys.ROOT}/{run}/**"]
     # a unit counts foreign frames, a watcher may watch every run: their subscriptions
@@ -141,7 +142,12 @@ def access_control(units: Sequence[str], run_id: str | None = None) -> dict[str,
     subjects.append({"id": _subject(ROUTER), "cert_common_names": [ROUTER]})
     policies.append({"id": "router", "subjects": [_subject(ROUTER)], "rules": [forwarded, deliver]})
     subjects.append({"id": _subject(WATCH), "cert_common_names": [WATCH]})
-    policies.append({"id": "watcher", "subjects": [_subject(WATCH)], "rules": [subscribe, deliver]})
+    steer = rule(
+        "requests of the watcher", "ingress", [PUT], [keys.key(keys.STEER, run, keys.WATCHER)]
+    )
+    policies.append(
+        {"id": "watcher", "subjects": [_subject(WATCH)], "rules": [subscribe, deliver, steer]}
+    )
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -5,6 +5,9 @@
     rgtbus/<run>/alive/<unit>       liveliness tokens
     rgtbus/<run>/telemetry/<unit>   what a unit logs, for ``rgtbus watch``
     rgtbus/<run>/resend/<unit>      a member's requests for frames it missed
+    rgtbus/<run>/steer/watch        a watcher's requests to steer the run (``--control``)
+    rgtbus/<run>/change/<unit>      the changes the steering process placed
+    rgtbus/<run>/have/<unit>        a process's receipt of a change
 
 ``run=None`` in a subscription means every run (``*``): a bus that counts foreign traffic.
 """
@@ -13,6 +16,8 @@ from __future__ import annotations
 
 ROOT = "rgtbus"
 TX, HELLO, ALIVE, TELEMETRY, RESEND = "tx", "hello", "alive", "telemetry", "resend"
+STEER, CHANGE, HAVE = "steer", "change", "have"  # steering across processes (bus.steer_link)
+WATCHER = "watch"  # the name a watcher's requests go under (a key chunk: no "@")
 
 
 def key(kind: str, run_id: str, unit: str) -> str:

@@ -11,7 +11,7 @@ short raises ``LogEnded``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -73,7 +73,9 @@ class LogBus(BusBase):
         st.flags, st.done_at = flags, done_at
         self._published += 1
 
-    def wait(self, beyond: int, timeout: float = 0.0) -> int:
+    def wait(
+        self, beyond: int, timeout: float = 0.0, stop: Callable[[], bool] | None = None
+    ) -> int:
         """The horizon, the log's end, at once; ``LogEnded`` past the end of a log cut short."""
         self._check_open("wait")
         if beyond >= self.end and self.end < NEVER:

@@ -518,11 +518,13 @@ class ZenohBus(QueueBus):
             self._drop("dropped_malformed", f"hello: {e} ({bytes(raw[:40])!r})")
         return None
 
-    def wait(self, beyond: int, timeout: float = 5.0) -> int:
+    def wait(
+        self, beyond: int, timeout: float = 5.0, stop: Callable[[], bool] | None = None
+    ) -> int:
         """As ``QueueBus.wait``, answering late hellos and resend requests while it waits once
         the run has started."""
         self._between_frames()
-        return super().wait(beyond, timeout)
+        return super().wait(beyond, timeout, stop)
 
     def _between_frames(self) -> None:
         if self._joined is not None:

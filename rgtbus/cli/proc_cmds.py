@@ -69,9 +69,20 @@ def _add_unit(subparsers: SubParsers) -> None:
     )
     add_key_argument(u)
     add_tls_argument(u)
+    _add_control(u)
     u.add_argument("--json", action="store_true", help="print one JSON object")
     add_quiet_argument(u)
     u.set_defaults(func=run_unit_cmd)
+
+
+def _add_control(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--control",
+        action="store_true",
+        help="the run may be steered from Foxglove through rgtbus watch --control (the same "
+        "flag on every unit of a run): each change applied at the same sample in every "
+        "process (docs/foxglove.md)",
+    )
 
 
 def _add_launch(subparsers: SubParsers) -> None:
@@ -120,6 +131,7 @@ def _add_launch(subparsers: SubParsers) -> None:
         "unit's process proves itself with its own certificate (one unit a process), the mesh "
         "or --router on tls/ endpoints, under the run's access control (docs/hosts.md)",
     )
+    _add_control(la)
     la.add_argument("--json", action="store_true", help="print one JSON object (as rgtbus run)")
     add_quiet_argument(la)
     la.set_defaults(func=run_launch)
@@ -195,6 +207,7 @@ def run_unit_cmd(args: argparse.Namespace) -> int:
                 sc, names, log_path, zenoh_options=zenoh_options(args), run_id=args.run_id,
                 timeout=args.timeout, join_timeout=args.join_timeout, traces=args.traces,
                 engine=args.engine, realtime=args.realtime, key=key, tls=args.tls,
+                control=args.control,
             )  # fmt: skip
         except KeyboardInterrupt:
             print(f"rgtbus unit: {label}: interrupted", file=sys.stderr)
@@ -252,7 +265,7 @@ def run_launch(args: argparse.Namespace) -> int:
         args.scenario, procs=args.procs, seed=args.seed, log_dir=args.log_dir,
         zenoh=zenoh_options(args), key_file=args.key_file, realtime=args.realtime,
         timeout=args.timeout, engine=args.engine, traces=args.traces, router=args.router,
-        tls=args.tls,
+        tls=args.tls, control=args.control,
     )  # fmt: skip
     if args.json:
         print(json.dumps(summary_json(result.details)))

@@ -22,6 +22,7 @@ from rgtbus.cli.run_cmd import LIVE_ADDRESS
 
 if TYPE_CHECKING:
     from rgtbus.cli import SubParsers
+    from rgtbus.telemetry.control import Controller
 
 
 def register(subparsers: SubParsers) -> None:
@@ -55,7 +56,16 @@ def register(subparsers: SubParsers) -> None:
     w.add_argument(
         "--scenario",
         metavar="SCENARIO",
-        help="with --tls: the run's scenario, whose roster the access control is made from",
+        help="with --tls: the run's scenario, whose roster the access control is made from; "
+        "with --control: what requests are checked against",
+    )
+    w.add_argument(
+        "--control",
+        action="store_true",
+        help="Foxglove clients may steer the run (a launch or units started with --control): "
+        "the parameters and /control/* services of rgtbus run --control, each applied at the "
+        "same sample in every process (needs --scenario; a keyed run's clients only after "
+        "/control/auth; docs/foxglove.md)",
     )
     add_seconds_argument(
         w, "--idle-exit", help="end once S seconds pass without telemetry, after some came"
@@ -79,12 +89,17 @@ def run_watch(args: argparse.Namespace) -> int:
     key = read_key(args)
     roster = _roster(args)
     say = _teller(quiet=args.quiet)
-    with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say) as live:
+    control = _controller(args, key)
+    with LiveView(host, port, name="rgtbus watch", linger=1.0, say=say, control=control) as live:
         live.advertise(_topics())
         with Watcher(
             live, run_id=args.run, key=key, tls=args.tls, roster=roster, **zenoh_options(args)
         ) as watcher:
             say(f"watch: serving {live.url} (listening for the telemetry of run {args.run})")
+            if control is not None:
+                watcher.steer(control)
+                keyed = "; clients /control/auth first" if control.key is not None else ""
+                say(f"watch: steering on (parameters and /control/* services{keyed})")
             subscribed = 0
             hinted = False
             try:
@@ -126,14 +141,36 @@ def run_watch(args: argparse.Namespace) -> int:
     return 0
 
 
+def _controller(args: argparse.Namespace, key: bytes | None) -> Controller | None:
+    """The steering ``--control`` asks for (None without it), checking requests against
+    ``--scenario``. Who may steer: a client that proves it holds the run's key; on a TLS run
+    without one, the watcher's own (its certificate's key file stands for it)."""
+    from rgtbus.errors import BadInput
+
+    if not args.control:
+        return None
+    if args.scenario is None:
+        raise BadInput("watch: --control needs --scenario (what requests are checked against)")
+    import hashlib
+
+    from rgtbus.scenario import load_scenario
+    from rgtbus.telemetry.control import Controller
+
+    if key is None and args.tls is not None:
+        from rgtbus.bus.certs import WATCH, check_tls
+
+        key = hashlib.sha256(check_tls(args.tls, WATCH).key.read_bytes()).digest()
+    return Controller(load_scenario(args.scenario), key=key, pace=None, paced=True)
+
+
 def _roster(args: argparse.Namespace) -> tuple[str, ...]:
     """The roster of ``--scenario``, for ``--tls`` (its files checked here, before the live
     view opens); () without ``--tls``."""
     from rgtbus.errors import BadInput
 
     if args.tls is None:
-        if args.scenario is not None:
-            raise BadInput("watch: --scenario is for --tls (its access control)")
+        if args.scenario is not None and not args.control:
+            raise BadInput("watch: --scenario is for --tls (its access control) or --control")
         return ()
     if args.scenario is None:
         raise BadInput("watch: --tls needs --scenario (the roster of the access control)")

@@ -256,7 +256,7 @@ class World:
                 break
             beyond = self.horizon + self.window - 1 if self.engine == "dense" else self.horizon
             waited = time.perf_counter()
-            h = self.bus.wait(beyond, timeout=self.timeout)
+            h = self.bus.wait(beyond, timeout=self.timeout, stop=self._change_came)
             self.sync.wait_seconds += time.perf_counter() - waited
             if self.engine == "dense":
                 h = min(h, self.horizon + self.window)
@@ -436,6 +436,15 @@ class World:
             k = max([self.end_sample() + 1, *(e.pos for e in self._ears)])
         return k
 
+    def _change_came(self) -> bool:
+        """While waiting for the others: whether a change came that is due at this very
+        horizon (another process placed it here: it is applied before waiting on)."""
+        st = self.steering
+        if st is None or len(self.bus.local) == len(self.bus.members):
+            return False
+        st.poll(self.computed(), self._promised())
+        return st.next_at() <= self.horizon
+
     def _promised(self) -> int:
         """What a change placed here must not precede, besides what this process computed:
         in a run across processes, the least promise its members have sent (no other process
@@ -477,6 +486,11 @@ class World:
             self.env.sync()
             self.env._factor = 1.0 / realtime  # simpy's own: no setter
             self._slice = PACED_SLICE_WALL * realtime
+
+    def beat(self) -> None:
+        """Paused, not stalled: whoever follows the run's progress hears it is there."""
+        if self.progress is not None:
+            self.progress(self.env.now, self.steps)
 
     def resync(self) -> None:
         """After a pause: a paced world's clock takes up from now (it does not catch up)."""

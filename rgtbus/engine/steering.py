@@ -70,6 +70,7 @@ class World(Protocol):
     def set_gain(self, link: tuple[str, str], gain: float) -> None: ...
     def set_pace(self, realtime: float) -> None: ...
     def resync(self) -> None: ...
+    def beat(self) -> None: ...
 
 
 class Requests(Protocol):
@@ -231,6 +232,7 @@ class Steering:
         if self.source is None or not self.paused:
             return
         while self.paused:  # it computed nothing past its horizon (the pause clamped it)
+            world.beat()  # alive, paused (a launcher watching for stalls hears it)
             self.source.wait(0.2)
             self.poll(world.horizon)
             self.apply(world, world.horizon)

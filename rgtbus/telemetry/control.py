@@ -120,8 +120,18 @@ class Controller:
     """A live run's steering, between the Foxglove server and the run (module docstring).
     ``key``: the run's shared secret (None: any client may steer)."""
 
-    def __init__(self, sc: Scenario, *, key: bytes | None = None, pace: float | None = None):
+    def __init__(
+        self,
+        sc: Scenario,
+        *,
+        key: bytes | None = None,
+        pace: float | None = None,
+        paced: bool | None = None,
+    ):
+        """``pace``: the run's (None: unpaced); ``paced``: whether it is paced, where its
+        pace is not known here (a watcher's: the run's processes have it)."""
         self.sc = sc
+        self.paced = pace is not None if paced is None else paced
         self.key = key
         self.session = secrets.token_hex(16)  # the server's session id: what a proof signs
         self.view: ClockView | None = None  # set by the live view it serves on
@@ -188,7 +198,7 @@ class Controller:
             if why is None:
                 try:
                     s = check_setting(self.sc, name, value)
-                    if s.kind == "pace" and self.values.get(PACE) is None:
+                    if s.kind == "pace" and not self.paced:
                         raise Refused(f"{PACE}: this run is not paced (--realtime)")
                     req = Request("parameter", s.name, value, who)
                     with self._lock:

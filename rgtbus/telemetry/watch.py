@@ -35,15 +35,19 @@ from rgtbus.bus.auth import AuthError, check_key, check_tag
 from rgtbus.bus.certs import WATCH, check_tls
 from rgtbus.bus.config import TlsRun, make_config, zenoh_reason
 from rgtbus.bus.payload import decode_telemetry, is_signed_telemetry, open_signed_telemetry
+from rgtbus.bus.steer_link import Signer, request_payload, steer_key
 from rgtbus.bus.zenoh import close_session
 from rgtbus.errors import BadInput, IOFailure
+from rgtbus.steering import Request
 from rgtbus.telemetry import topics
+from rgtbus.telemetry.control import Controller
 from rgtbus.telemetry.recorder import LiveSink
 from rgtbus.telemetry.records import is_trace_topic, trace_topic
 
 MAX_FRAME = 4 << 20  # bytes: no logged message comes near it
 MAX_TRACES = 1024  # /trace/<unit> topics served (one per unit: far more than a run has)
 MAX_RUNS = 64  # run ids remembered (for the summary line)
+MAX_WAITING = 1024  # steering requests held until a run is heard (the oldest go)
 MAX_STREAMS = 4096  # (run, unit) senders whose sequence numbers are followed
 DROPS = ("malformed", "oversize", "unauthenticated", "signed", "duplicate", "topic")
 _TRACE_SCHEMA = topics.schema_for(trace_topic("x"))
@@ -73,6 +77,10 @@ class Watcher:
         self.last_heard = time.monotonic()
         self.heard = threading.Event()  # set at the first message
         self.runs: set[str] = set()
+        self._run_id = run_id
+        self._closing = threading.Event()
+        self._forwarder: threading.Thread | None = None
+        self.forwarded = 0  # steering requests put
         self._lock = threading.Lock()  # zenoh may call back from several threads
         self._streams: dict[tuple[str, str], tuple[bytes, int]] = {}  # -> (nonce, last seq)
         self._traces: set[str] = set()
@@ -172,8 +180,37 @@ class Watcher:
         self.last_heard = time.monotonic()
         self.heard.set()
 
+    def steer(self, control: Controller) -> None:
+        """Forward what clients of the live view ask of the runs watched (``control``: its
+        ``Controller``) to their steering process (``rgtbus.bus.steer_link``), signed with
+        the run's key; requests wait for a run to be heard (the watched run's id, or every
+        run heard)."""
+        signer = Signer(self.key, "")
+
+        def forward() -> None:
+            waiting: list[Request] = []
+            while not self._closing.is_set():
+                control.wait(0.2)
+                waiting += control.take()
+                runs = [self._run_id] if self._run_id != "*" else sorted(self.runs)
+                if not waiting or not runs:
+                    waiting = waiting[-MAX_WAITING:]
+                    continue
+                for run in runs:
+                    signer.run_id = run
+                    for req in waiting:
+                        self.session.put(steer_key(run), request_payload(req, signer))
+                self.forwarded += len(waiting)
+                waiting = []
+
+        self._forwarder = threading.Thread(target=forward, name="watch-steer", daemon=True)
+        self._forwarder.start()
+
     def close(self, timeout: float = 5.0) -> str | None:
         """Undeclare and close; what went wrong closing, or None."""
+        self._closing.set()
+        if self._forwarder is not None:
+            self._forwarder.join(timeout)
         try:
             self._sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves it bare
         except Exception as e:  # zenoh's ZError
