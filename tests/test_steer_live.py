@@ -170,3 +170,107 @@ def test_pause_step_and_resume_hold_the_live_clock(tmp_path):
     at = round(pause["t"] * 1e9)
     assert at - 100_000_000 <= t2 <= at  # the view's clock stood at the pause, not past it
     assert verify_log(log).ok
+
+
+@pytest.mark.slow  # a router, a watcher and a launch of two processes (CI's slow pass runs it)
+def test_a_launch_is_steered_through_the_watcher_at_one_instant_in_every_process(tmp_path):
+    """The official client steers a launch of two processes through `rgtbus watch --control`:
+    both processes apply each change at the same sample, the units decide as the forward task
+    says, and the merged log holds what one process would have logged for the same changes at
+    that sample, and verifies."""
+    import queue
+
+    from rgtbus.units.launch import free_ports
+
+    import rgtbus
+    from rgtbus.engine.steering import RequestSource
+    from rgtbus.steering import Request
+
+    (port,) = free_ports(1)
+    router_ep = f"tcp/127.0.0.1:{port}"
+    exe = [sys.executable, "-m", "rgtbus"]
+    spawned: list[subprocess.Popen] = []
+
+    def spawn(*argv: str) -> subprocess.Popen:
+        p = subprocess.Popen([*exe, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             stdin=subprocess.DEVNULL, text=True)  # fmt: skip
+        spawned.append(p)
+        return p
+
+    try:
+        spawn("router", "-l", router_ep)
+        watcher = spawn(
+            "watch", "-m", "client", "-e", router_ep, "--control", "--scenario", "gate",
+            "--live", "127.0.0.1:0", "--idle-exit", "5",
+        )  # fmt: skip
+        lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(
+            target=lambda: [lines.put(x) for x in watcher.stderr],
+            daemon=True,  # type: ignore[union-attr]
+        ).start()
+        url = None
+        while url is None:
+            m = re.search(r"ws://[0-9.]+:\d+", lines.get(timeout=WAIT))
+            url = m.group(0) if m else None
+        run_dir = tmp_path / "run"
+        launch = spawn(
+            "launch", "gate", "--procs", "2", "-m", "client", "-e", router_ep, "--control",
+            "--realtime", "20", "--log-dir", str(run_dir), "--json",
+        )  # fmt: skip
+        steps = [
+            {"sleep": 1000},
+            {"call": "/control/influence", "request": {"influence": "d>a=0"}},
+            {"call": "/control/influence", "request": {"influence": "d>b=0"}},
+            {"set": {"channel.noise": 0.02}},
+        ]
+        (tmp_path / "steps.json").write_text(json.dumps(steps))
+        client = subprocess.run(
+            [NODE, "steer_client.mjs", url, str(tmp_path / "steps.json")],  # type: ignore[list-item]
+            cwd=JS, capture_output=True, text=True, timeout=WAIT * 2,
+        )  # fmt: skip
+        assert client.returncode == 0, client.stderr
+        out, err = launch.communicate(timeout=WAIT * 2)
+        assert launch.returncode == 0, err
+    finally:
+        for p in spawned:
+            if p.poll() is None:
+                p.terminate()
+        for p in spawned:
+            try:
+                p.wait(timeout=WAIT)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    summary = json.loads(out)
+    assert summary["outcome"] == "gate: closed" and summary["wrong_decisions"] == []
+    assert summary["steered"] == {"influences": 2, "relations": 0}
+    # every process applied the noise at the same sample
+    samples = {
+        m["sample"]
+        for log in run_dir.glob("proc-*.mcap")
+        for m in logged(log, "/control/parameter")
+    }
+    assert len(samples) == 1 and len(list(run_dir.glob("proc-*.mcap"))) == 2
+    merged = run_dir / "run.mcap"
+    assert verify_log(merged).ok
+    # the same changes at the same sample in one process: the same records
+    (sample,) = samples
+    requests = [
+        Request("service", "influence", {"influence": "d>a=0"}, "client 1"),
+        Request("service", "influence", {"influence": "d>b=0"}, "client 1"),
+        Request("parameter", "channel.noise", 0.02, "client 1"),
+    ]
+
+    class Placed(RequestSource):
+        def __init__(self) -> None:
+            self.requests = [r.placed(sample, k) for k, r in enumerate(requests)]
+
+        def take(self) -> list[Request]:
+            out, self.requests = self.requests, []
+            return out
+
+    one = rgtbus.run("gate", log=tmp_path / "one.mcap", control=Placed())
+    assert one.summary["units"] == summary["units"]
+    for topic in ("/control/service", "/control/parameter"):
+        got = sorted(json.dumps(m, sort_keys=True) for m in logged(merged, topic))
+        want = sorted(json.dumps(m, sort_keys=True) for m in logged(tmp_path / "one.mcap", topic))
+        assert got == want, topic
