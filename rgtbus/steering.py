@@ -7,6 +7,9 @@ of simulated time, ``boundary``):
 
     channel.noise        σ of every receiver's white noise, 0..MAX_LEVEL
     channel.gains.a>b    the gain of link a→b at b, > 0 (also spelt channel.gain.a>b)
+    channel.clock.drift.U
+                         unit U's clock drift, ppm (a run whose units keep clocks of their
+                         own: [channel.clock] or a speed), its clock running on continuous
     repair.budget        the repair blocks after each phase in which units still ask, 0..K
                          (a run with repair = "arq" only)
     pace                 simulated seconds a wall second (a paced run's; never a result)
@@ -32,11 +35,13 @@ from typing import Any
 from rgtbus.errors import RgtbusError
 from rgtbus.pairs import Pair, pair_key, parse_pair_key
 from rgtbus.scenario import Scenario
+from rgtbus.scenario.channel import MAX_PPM
 from rgtbus.scenario.values import MAX_LEVEL
 
 NOISE = "channel.noise"
 GAIN_PREFIX = "channel.gains."
 GAIN_ALIAS = "channel.gain."  # the scenario file's own table, [channel] gain
+DRIFT_PREFIX = "channel.clock.drift."  # a unit's clock drift, ppm
 BUDGET = "repair.budget"
 PACE = "pace"
 MAX_PACE = 1000.0  # simulated seconds a wall second
@@ -59,7 +64,7 @@ class Setting:
     name: str
     kind: str
     value: float | int
-    link: Pair | None = None
+    link: Pair | None = None  # a gain's link; a drift's unit, as (unit, unit)
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,8 @@ def parameter_names(sc: Scenario) -> list[str]:
     """Every parameter a run of ``sc`` advertises: noise, a gain for every ordered pair, the
     repair budget (with repair), the pace."""
     names = [NOISE, *(GAIN_PREFIX + pair_key(a, b) for a, b in sc.pairs())]
+    if sc.channel.timed:
+        names += [DRIFT_PREFIX + u for u in sc.units]
     if sc.protocol.repairs_per_phase:
         names.append(BUDGET)
     return [*names, PACE]
@@ -157,6 +164,17 @@ def check_setting(sc: Scenario, name: str, value: Any) -> Setting:
         if not 0 < v <= MAX_LEVEL:
             raise Refused(f"{name}: {value!r} is not a gain in (0, {MAX_LEVEL:g}]")
         return Setting(GAIN_PREFIX + pair_key(*link), "gain", v, link)
+    if name.startswith(DRIFT_PREFIX):
+        unit = _unit(sc, name[len(DRIFT_PREFIX) :], name)
+        if not sc.channel.timed:
+            raise Refused(
+                f"{name}: this run's units share one clock (no [channel.clock] or speed): "
+                "there is no clock to drift"
+            )
+        v = _number(name, value)
+        if not abs(v) <= MAX_PPM:
+            raise Refused(f"{name}: {value!r} is not a drift in ppm within ±{MAX_PPM:g}")
+        return Setting(DRIFT_PREFIX + unit, "drift", v, (unit, unit))
     if name == BUDGET:
         k = sc.protocol.repairs_per_phase
         if not k:
@@ -174,7 +192,8 @@ def check_setting(sc: Scenario, name: str, value: Any) -> Setting:
             )
         return Setting(name, "pace", v)
     raise Refused(
-        f"unknown parameter {name!r} (channel.noise, channel.gains.a>b, repair.budget, pace)"
+        f"unknown parameter {name!r} (channel.noise, channel.gains.a>b, "
+        "channel.clock.drift.U, repair.budget, pace)"
     )
 
 

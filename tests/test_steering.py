@@ -457,3 +457,31 @@ def test_a_keyed_controller_lets_only_a_proven_client_steer(gate):
         ("pause", True, "client 2"), ("pause", False, "client 1"),
         ("channel.noise", False, "client 1"),
     ]  # fmt: skip
+
+
+def test_a_units_clock_drifts_from_its_sample_on_and_the_re_run_agrees(tmp_path):
+    sc = load_scenario("robots_on_a_plane")  # clocks of their own, sound delays
+    assert "channel.clock.drift.b" in parameter_names(sc)
+    assert "channel.clock.drift.b" not in parameter_names(load_scenario("gate"))
+    with pytest.raises(Refused, match="share one clock"):
+        check_setting(load_scenario("gate"), "channel.clock.drift.b", 10)
+    with pytest.raises(Refused, match="within"):
+        check_setting(sc, "channel.clock.drift.b", 5000)
+    base = rgtbus.run(sc, log=tmp_path / "base.mcap")
+    _, log, _ = run(tmp_path, [par("channel.clock.drift.b", 900.0)], at=4, scenario=sc)
+    (rec,) = _records(log, "/control/parameter")
+    assert (rec["from"], rec["to"], rec["applied"]) == (-35.0, 900.0, True)
+    t = rec["t"]
+    before = rgtbus.open_log(base.log).decodes()
+    after = rgtbus.open_log(log).decodes()
+    assert (
+        before[before.t < t]
+        .reset_index(drop=True)
+        .equals(after[after.t < t].reset_index(drop=True))
+    )
+    heard_by_b = after[(after.t >= t) & (after.unit == "b")]
+    was = before[(before.t >= t) & (before.unit == "b")]
+    assert len(heard_by_b) and not heard_by_b.reset_index(drop=True).equals(
+        was.reset_index(drop=True)
+    )  # b hears otherwise from there on
+    assert verify_log(log).ok

@@ -108,7 +108,8 @@ def add_control_argument(p: argparse.ArgumentParser) -> None:
         "--control",
         action="store_true",
         help="with --live and --realtime: Foxglove clients may steer the run (parameters: "
-        "channel.noise, channel.gains.a>b, repair.budget, pace; services: pause, resume, "
+        "channel.noise, channel.gains.a>b, channel.clock.drift.U, repair.budget, pace; "
+        "services: pause, resume, "
         "step, relation, influence, mark), each change logged on /control/*; a keyed run's "
         "clients only after /control/auth (docs/foxglove.md)",
     )

@@ -136,8 +136,10 @@ class Ears:
     # -- the world's side ---------------------------------------------------------------------
 
     def links_changed(self) -> None:
-        """A listener's gains changed (a steered run): the ears hear with the new ones from
-        their next sample."""
+        """A listener's gains or arrivals changed (a steered run): the ears hear with the new
+        ones what they are handed from now on."""
+        if self._timed:
+            self._arrival = np.stack([lst.arrival for lst in self.listeners])  # type: ignore[misc]
         self._gains = np.stack([lst.gains for lst in self.listeners])
         self._unit_gains = bool(np.all(self._gains == 1.0))
         self._unit_gain = [bool(np.all(lst.gains == 1.0)) for lst in self.listeners]

@@ -20,6 +20,7 @@ every transmission is out. The world knows members only through ``Member`` (no i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -38,6 +39,7 @@ from rgtbus.engine.listener import OwnHearing, Reception
 from rgtbus.engine.steering import SteeredMember, Steering
 from rgtbus.errors import BadInput, MembersSilent, RgtbusError
 from rgtbus.scenario import Scenario
+from rgtbus.signal.channel import Channel, Clock
 from rgtbus.signal.pulses import Pulses, medium_sum, merge_pulses, split_pulses
 from rgtbus.signal.resonator import ResonatorBank
 from rgtbus.steering import Refused
@@ -178,6 +180,7 @@ class World:
         self._ahead_of_horizon = False  # set with the ears (``_build_ears``)
         self._fed: dict[str, int] = {}
         self.steering = steering  # a steered run's changes, applied at window boundaries
+        self._steered_channel: Channel | None = None  # its channel as changed (clocks)
 
     @classmethod
     def for_scenario(
@@ -479,6 +482,23 @@ class World:
                     if lst.name == link[1]:
                         reception.set_gain(lst, link[0], gain)
                 ears.links_changed()
+
+    def set_drift(self, unit: str, ppm: float, at: int) -> None:
+        """Unit ``unit``'s clock drifts ``ppm`` from its sample ``at`` on, running on from
+        where it is (its offset moves so that its sample ``at`` keeps its true time):
+        ``offset' = offset + at·τ·(rate − rate')``. Where each sender's samples land on
+        each local receiver's is worked out again (``Channel.arrivals``) for what is heard
+        from the horizon on."""
+        reception = self.receivers.reception
+        ch = self._steered_channel or reception.channel
+        old = ch.clocks.get(unit, Clock())
+        new = Clock(old.offset + at * self.tau * (old.rate - (1 + ppm * 1e-6)), ppm)
+        ch = dataclasses.replace(ch, clocks={**ch.clocks, unit: new})
+        self._steered_channel = ch
+        for ears in self._ears:
+            for lst in ears.listeners:
+                lst.arrival = ch.arrivals(reception.units, lst.name, self.tau)
+            ears.links_changed()
 
     def set_pace(self, realtime: float) -> None:
         """A paced world's clock runs at ``realtime`` simulated seconds a wall second now."""

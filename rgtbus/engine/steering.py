@@ -68,6 +68,7 @@ class World(Protocol):
     def computed(self) -> int: ...
     def set_noise(self, sigma: float) -> None: ...
     def set_gain(self, link: tuple[str, str], gain: float) -> None: ...
+    def set_drift(self, unit: str, ppm: float, at: int) -> None: ...
     def set_pace(self, realtime: float) -> None: ...
     def resync(self) -> None: ...
     def beat(self) -> None: ...
@@ -165,6 +166,7 @@ class Steering:
             self.seq = max(self.seq, seq + 1)
         self.noise = sc.channel.noise
         self.gains = dict(sc.channel.gains)
+        self.drifts = {u: c.drift for u, c in sc.channel.clocks.items()}
         self.budget = sc.protocol.repairs_per_phase
         self.records = 0
         self._starts: dict[str, list[int]] | None = None
@@ -283,7 +285,7 @@ class Steering:
             if s.kind == "pace" and self.pace is None and req.logged is not None:
                 self.pace = req.logged.get("from")  # a re-run is not paced: the run's pace
             before = self._current(s)
-            self._set(world, s)
+            self._set(world, s, due.sample)
             after = self._current(s)
             text = f"{s.name}: {_fmt(before)} -> {_fmt(after)} at t = {t:.3f} s"
             return records.control_parameter(
@@ -303,9 +305,12 @@ class Steering:
             return self.gains.get(s.link, 1.0)
         if s.kind == "budget":
             return self.budget
+        if s.kind == "drift":
+            assert s.link is not None
+            return self.drifts.get(s.link[0], 0.0)
         return self.pace
 
-    def _set(self, world: World, s: Setting) -> None:
+    def _set(self, world: World, s: Setting, at: int) -> None:
         if s.kind == "noise":
             self.noise = float(s.value)
             world.set_noise(self.noise)
@@ -313,6 +318,10 @@ class Steering:
             assert s.link is not None
             self.gains[s.link] = float(s.value)
             world.set_gain(s.link, float(s.value))
+        elif s.kind == "drift":
+            assert s.link is not None
+            self.drifts[s.link[0]] = float(s.value)
+            world.set_drift(s.link[0], float(s.value), at)
         elif s.kind == "budget":
             self.budget = int(s.value)
             for m in world.members:

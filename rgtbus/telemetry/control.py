@@ -45,6 +45,7 @@ from rgtbus.pairs import pair_key
 from rgtbus.scenario import Scenario
 from rgtbus.steering import (
     BUDGET,
+    DRIFT_PREFIX,
     GAIN_PREFIX,
     NOISE,
     PACE,
@@ -142,6 +143,10 @@ class Controller:
         self.values: dict[str, Any] = {NOISE: sc.channel.noise, PACE: pace}
         for a, b in sc.pairs():
             self.values[GAIN_PREFIX + pair_key(a, b)] = sc.channel.gains.get((a, b), 1.0)
+        if sc.channel.timed:
+            for u in sc.units:
+                clock = sc.channel.clocks.get(u)
+                self.values[DRIFT_PREFIX + u] = 0.0 if clock is None else clock.drift
         if sc.protocol.repairs_per_phase:
             self.values[BUDGET] = sc.protocol.repairs_per_phase
         self.received = 0  # requests handed to the run
