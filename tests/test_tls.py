@@ -21,7 +21,7 @@ from rgtbus.units.launch import free_ports
 from test_cross_process import EXE, launch_equals_single, single
 
 from rgtbus.bus import keys
-from rgtbus.bus.certs import ROUTER, check_tls, make_certs
+from rgtbus.bus.certs import ROUTER, WATCH, check_tls, make_certs
 from rgtbus.bus.config import TlsRun, make_config
 
 ROOT = Path(__file__).parent.parent
@@ -168,6 +168,37 @@ def test_c_cannot_speak_as_b_on_a_tls_mesh(ids):
     finally:
         if c is not None:
             c.close()
+        a.close()
+
+
+def test_only_the_watchers_certificate_puts_steering_requests(ids):
+    """A steered run's requests (``rgtbus/<run>/steer/watch``): a's access control lets the
+    watcher's certificate put them, and refuses c's at the door (docs/security.md)."""
+    port = free_ports(1)[0]
+    a = session(ids, "a", listen=[f"tls/127.0.0.1:{port}"])
+    opened: list[zenoh.Session] = []
+    heard: list[bytes] = []
+    sub = a.declare_subscriber(
+        keys.key(keys.STEER, RUN, keys.WATCHER), lambda s: heard.append(s.payload.to_bytes())
+    )
+    try:
+        c = session(ids, "c", connect=[f"tls/127.0.0.1:{port}"])
+        opened.append(c)
+        w = session(ids, WATCH, connect=[f"tls/127.0.0.1:{port}"])
+        opened.append(w)
+        key = keys.key(keys.STEER, RUN, keys.WATCHER)
+
+        def said() -> bool:
+            c.put(key, b"from c")
+            w.put(key, b"from the watcher")
+            return b"from the watcher" in heard
+
+        assert until(said)
+        assert b"from c" not in heard
+    finally:
+        sub.undeclare()
+        for s in opened:
+            s.close()
         a.close()
 
 
