@@ -116,6 +116,12 @@ def add_key_argument(
     p.add_argument("--key-file", metavar="FILE", help=help)
 
 
+def add_control_argument(p: argparse.ArgumentParser, help: str) -> None:
+    """``--control``: the run may be steered from Foxglove (docs/foxglove.md, "Steer a live
+    run"); ``help`` says how, for the command at hand."""
+    p.add_argument("--control", action="store_true", help=help)
+
+
 def read_key(args: argparse.Namespace) -> bytes | None:
     """The shared secret ``--key-file`` names (None without it), checked by
     ``rgtbus.bus.auth.load_key``."""

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import (
+    add_control_argument,
     add_engine_argument,
     add_join_timeout_argument,
     add_key_argument,
@@ -76,10 +77,9 @@ def _add_unit(subparsers: SubParsers) -> None:
 
 
 def _add_control(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--control",
-        action="store_true",
-        help="the run may be steered from Foxglove through rgtbus watch --control (the same "
+    add_control_argument(
+        p,
+        "the run may be steered from Foxglove through rgtbus watch --control (the same "
         "flag on every unit of a run): each change applied at the same sample in every "
         "process (docs/foxglove.md)",
     )

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from rgtbus.bus.registry import BUS_KINDS, bus_kinds
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import (
+    add_control_argument,
     add_engine_argument,
     add_key_argument,
     add_realtime_argument,
@@ -74,7 +75,7 @@ def register(subparsers: SubParsers) -> None:
     )
     add_key_argument(p)
     add_live_arguments(p)
-    add_control_argument(p)
+    _add_control(p)
     add_quiet_argument(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
@@ -102,12 +103,10 @@ def add_live_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def add_control_argument(p: argparse.ArgumentParser) -> None:
-    """``--control``: a live view's clients may steer the run (``open_live`` reads it)."""
-    p.add_argument(
-        "--control",
-        action="store_true",
-        help="with --live and --realtime: Foxglove clients may steer the run (parameters: "
+def _add_control(p: argparse.ArgumentParser) -> None:
+    add_control_argument(
+        p,
+        "with --live and --realtime: Foxglove clients may steer the run (parameters: "
         "channel.noise, channel.gains.a>b, channel.clock.drift.U, repair.budget, pace; "
         "services: pause, resume, "
         "step, relation, influence, mark), each change logged on /control/*; a keyed run's "

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from rgtbus.cli import add_quiet_argument
 from rgtbus.cli.arguments import (
+    add_control_argument,
     add_key_argument,
     add_seconds_argument,
     add_tls_argument,
@@ -59,10 +60,9 @@ def register(subparsers: SubParsers) -> None:
         help="with --tls: the run's scenario, whose roster the access control is made from; "
         "with --control: what requests are checked against",
     )
-    w.add_argument(
-        "--control",
-        action="store_true",
-        help="Foxglove clients may steer the run (a launch or units started with --control): "
+    add_control_argument(
+        w,
+        "Foxglove clients may steer the run (a launch or units started with --control): "
         "the parameters and /control/* services of rgtbus run --control, each applied at the "
         "same sample in every process (needs --scenario; a keyed run's clients only after "
         "/control/auth; docs/foxglove.md)",
