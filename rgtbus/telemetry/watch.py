@@ -192,7 +192,9 @@ class Watcher:
             while not self._closing.is_set():
                 control.wait(0.2)
                 waiting += control.take()
-                runs = [self._run_id] if self._run_id != "*" else sorted(self.runs)
+                with self._lock:  # zenoh's threads add the runs they hear
+                    heard = sorted(self.runs)
+                runs = [self._run_id] if self._run_id != "*" else heard
                 if not waiting or not runs:
                     waiting = waiting[-MAX_WAITING:]
                     continue
