@@ -70,6 +70,20 @@ def steered_run(tmp_path: Path, steps: list[dict], *extra: str) -> tuple[dict, l
     return json.loads(out), printed, log
 
 
+def listening(port: int) -> None:
+    """Wait (bounded) until something accepts TCP connections on ``port`` of the loopback."""
+    import socket
+
+    deadline = time.monotonic() + WAIT
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return
+        except OSError:
+            assert time.monotonic() < deadline, f"nothing listens on port {port}"
+            time.sleep(0.05)
+
+
 def logged(log: Path, topic: str) -> list[dict]:
     return [m for _, m in load_replay(str(log)).by_topic[topic]]
 
@@ -199,6 +213,7 @@ def test_a_launch_is_steered_through_the_watcher_at_one_instant_in_every_process
 
     try:
         spawn("router", "-l", router_ep)
+        listening(port)  # the watcher, a client, opens only once the router listens
         watcher = spawn(
             "watch", "-m", "client", "-e", router_ep, "--control", "--scenario", "gate",
             "--live", "127.0.0.1:0", "--idle-exit", "5",
@@ -208,9 +223,16 @@ def test_a_launch_is_steered_through_the_watcher_at_one_instant_in_every_process
             target=lambda: [lines.put(x) for x in watcher.stderr],
             daemon=True,  # type: ignore[union-attr]
         ).start()
-        url = None
+        url, said = None, []
+        deadline = time.monotonic() + WAIT
         while url is None:
-            m = re.search(r"ws://[0-9.]+:\d+", lines.get(timeout=WAIT))
+            assert time.monotonic() < deadline, "".join(said)
+            try:
+                said.append(lines.get(timeout=1.0))
+            except queue.Empty:
+                assert watcher.poll() is None, "".join(said)  # it ended, saying why
+                continue
+            m = re.search(r"ws://[0-9.]+:\d+", said[-1])
             url = m.group(0) if m else None
         run_dir = tmp_path / "run"
         launch = spawn(

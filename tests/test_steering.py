@@ -485,3 +485,16 @@ def test_a_units_clock_drifts_from_its_sample_on_and_the_re_run_agrees(tmp_path)
         was.reset_index(drop=True)
     )  # b hears otherwise from there on
     assert verify_log(log).ok
+
+
+def test_a_resume_during_a_step_lets_the_run_go_on(tmp_path):
+    plain = rgtbus.run("gate").summary
+    source = Script([svc("pause"), svc("step", by="round"), svc("resume")], at=3)
+    summary, log, _ = run(tmp_path, [], source=source, realtime=2000.0)
+    assert summary["units"] == plain["units"]
+    calls = _records(log, "/control/service")
+    assert [(c["service"], c["applied"]) for c in calls] == [
+        ("pause", True), ("step", True), ("resume", True),
+    ]  # fmt: skip
+    assert calls[2]["text"].endswith("(the step's pause is off)")
+    assert verify_log(log).ok

@@ -350,13 +350,16 @@ class Steering:
             if call.service == "pause":
                 if self.paused:
                     raise Refused("pause: the run is paused already")
+                self.pause_at = None  # a step on its way ends here
                 self._set_paused(world, True)
                 text = f"paused at t = {t:.3f} s"
             elif call.service == "resume":
-                if not self.paused:
+                if not self.paused and self.pause_at is None:
                     raise Refused("resume: the run is not paused")
+                stepping = self.pause_at is not None
+                self.pause_at = None  # a step on its way goes on: no pause at its end
                 self._set_paused(world, False)
-                text = f"resumed at t = {t:.3f} s"
+                text = f"resumed at t = {t:.3f} s" + (" (the step's pause is off)" * stepping)
             elif call.service == "step":
                 if not self.paused:
                     raise Refused("step: the run is not paused (pause it first)")
