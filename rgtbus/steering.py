@@ -52,8 +52,15 @@ RELATIONS = ("alliance", "conflict")
 MAX_LABEL = 200  # characters of a mark's label
 
 
+MAX_WHY = 500  # characters of a refusal's line (it may quote what a client sent)
+
+
 class Refused(RgtbusError):
-    """A change that cannot be made: its one line says why."""
+    """A change that cannot be made: its one line says why, at most ``MAX_WHY`` characters
+    (a client's huge value is quoted only in part)."""
+
+    def __init__(self, why: str) -> None:
+        super().__init__(why if len(why) <= MAX_WHY else why[: MAX_WHY - 1] + "…")
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@ for by the truth, and re-run to agreement by ``replay --verify``. The Foxglove c
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -497,4 +498,27 @@ def test_a_resume_during_a_step_lets_the_run_go_on(tmp_path):
         ("pause", True), ("step", True), ("resume", True),
     ]  # fmt: skip
     assert calls[2]["text"].endswith("(the step's pause is off)")
+    assert verify_log(log).ok
+
+
+def test_whatever_a_source_sends_the_run_goes_on_and_its_log_stays_small(tmp_path):
+    huge = "x" * 1_000_000
+    requests = [
+        par("channel.noise", math.inf),
+        par("channel.noise", math.nan),
+        par("channel.noise", huge),
+        par(huge, 1.0),
+        par("channel.gains.a>b", {"k": (1, b"\xff")}),
+        Request("service", "influence", ["not", "an", "object"], "test"),
+        Request("service", "mark", {"label": 1e309}, "test"),
+        svc("influence", influence="d>a=" + huge),
+    ]
+    summary, log, _ = run(tmp_path, requests)
+    assert summary["error"] is None and summary["outcome"] == "gate: open"
+    recs = _records(log, "/control/parameter") + _records(log, "/control/service")
+    assert len(recs) == len(requests) and not any(r["applied"] for r in recs)
+    assert max(len(json.dumps(r)) for r in recs) < 2000  # what was sent, bounded
+    assert [r["value"] for r in recs[:2]] == ["inf", "nan"]
+    assert recs[5]["request"] == {"sent": ["not", "an", "object"]}
+    assert log.stat().st_size < 200_000
     assert verify_log(log).ok

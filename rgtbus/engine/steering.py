@@ -339,7 +339,7 @@ class Steering:
     ) -> list[records.ControlServiceRecord]:
         """The call's records: one; one a local unit (a mark); none where the unit it is about
         runs in another process (whose record it is)."""
-        args = req.value if isinstance(req.value, dict) else {}
+        args = req.value  # the record keeps what was sent (``records.loggable``)
         if req.logged is not None and not req.logged.get("applied"):
             return [cast(records.ControlServiceRecord, dict(req.logged))]  # as it was logged
         try:

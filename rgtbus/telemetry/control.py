@@ -55,11 +55,12 @@ from rgtbus.steering import (
     check_call,
     check_setting,
 )
+from rgtbus.telemetry.records import KEPT_BYTES, loggable
 
 SERVICE_PREFIX = "/control/"
 AUTH = "auth"
 MAX_PENDING = 1024  # requests not yet taken by the run (beyond: refused at once)
-MAX_REQUEST = 4096  # bytes of a service call's request
+MAX_REQUEST = KEPT_BYTES  # bytes of a service call's request
 
 _SCHEMAS: dict[str, dict[str, Any]] = {
     "pause": {"type": "object", "properties": {}, "additionalProperties": False},
@@ -197,8 +198,8 @@ class Controller:
         who = _who(client)
         for p in parameters:
             value = p.get_value()
-            name = _bounded(p.name)
-            req = Request("parameter", name, _bounded(_plain(value)), who)
+            name = str(loggable(p.name, 200))
+            req = Request("parameter", name, loggable(value), who)  # bounded while it waits
             why = self._not_allowed(client)
             if why is None:
                 try:
@@ -334,21 +335,3 @@ class Controller:
 
 def _who(client: Client) -> str:
     return f"client {client.id}"
-
-
-def _bounded(value: Any) -> Any:
-    """What a log keeps of what a client sent: the value, or, when its JSON is longer than
-    ``MAX_REQUEST`` bytes, a line saying how long it was (a client cannot fill the log)."""
-    size = len(json.dumps(value, default=str))
-    return value if size <= MAX_REQUEST else f"(a value of {size} bytes, not kept)"
-
-
-def _plain(value: Any) -> Any:
-    """A parameter's value as JSON keeps it."""
-    if isinstance(value, bytes):
-        return value.hex()
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    return value

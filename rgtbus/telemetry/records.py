@@ -10,6 +10,8 @@ integer nanoseconds, ``rgtbus.timebase.ns``).
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Required, TypeAlias, TypedDict, cast
 
@@ -350,27 +352,61 @@ class ControlServiceRecord(TypedDict):
     state: dict[str, Any] | None  # mark: every unit's state there
 
 
+KEPT_BYTES = 4096  # of what a client sent, a control record keeps at most this much JSON
+
+
+def loggable(value: Any, limit: int = KEPT_BYTES) -> Any:
+    """What a control record keeps of a value a client sent (anything): plain JSON (bytes as
+    hex, tuples as lists, keys as text, a number that is not finite and any other object as
+    its text), or, when that is longer than ``limit`` bytes, a line saying how long it was: a
+    client can neither break the log nor fill it."""
+
+    def plain(v: Any) -> Any:
+        if v is None or isinstance(v, bool | int | str):
+            return v
+        if isinstance(v, float):
+            return v if math.isfinite(v) else repr(v)
+        if isinstance(v, bytes | bytearray):
+            return bytes(v).hex()
+        if isinstance(v, list | tuple):
+            return [plain(x) for x in v]
+        if isinstance(v, Mapping):
+            return {str(k): plain(x) for k, x in v.items()}
+        return repr(v)
+
+    out = plain(value)
+    size = len(json.dumps(out))
+    return out if size <= limit else f"(a value of {size} bytes, not kept)"
+
+
 def control_parameter(
     t: float, sample: int, seq: int, who: str, name: str, value: Any, before: Any, after: Any,
     applied: bool, text: str,
 ) -> ControlParameterRecord:  # fmt: skip
-    """A ``/control/parameter`` record: ``name`` set to ``value`` by ``who`` at ``sample``."""
+    """A ``/control/parameter`` record: ``name`` set to ``value`` by ``who`` at ``sample``
+    (what a client sent kept as ``loggable``)."""
     return {
-        "t": t, "sample": sample, "seq": seq, "who": who, "name": name, "value": value,
-        "from": before, "to": after, "applied": applied, "text": text,
+        "t": t, "sample": sample, "seq": seq, "who": str(loggable(who, 200)),
+        "name": str(loggable(name, 200)), "value": loggable(value), "from": before,
+        "to": after, "applied": applied, "text": text,
     }  # fmt: skip
 
 
 def control_service(
-    t: float, sample: int, seq: int, who: str, service: str, request: dict[str, Any],
+    t: float, sample: int, seq: int, who: str, service: str, request: Any,
     applied: bool, text: str, *, rnd: int | None = None, turn: int | None = None,
     value: int | None = None, until: int | None = None, state: dict[str, Any] | None = None,
 ) -> ControlServiceRecord:  # fmt: skip
-    """A ``/control/service`` record: ``service`` called by ``who`` with ``request``."""
+    """A ``/control/service`` record: ``service`` called by ``who`` with ``request`` (a JSON
+    object; anything else is kept as ``{"sent": ...}``; what a client sent kept as
+    ``loggable``)."""
+    kept = loggable(request)
     return {
-        "t": t, "sample": sample, "seq": seq, "who": who, "service": service,
-        "request": request, "applied": applied, "text": text, "round": rnd, "turn": turn,
-        "value": value, "until": until, "state": state,
+        "t": t, "sample": sample, "seq": seq, "who": str(loggable(who, 200)),
+        "service": str(loggable(service, 200)),
+        "request": kept if isinstance(kept, dict) else {"sent": kept}, "applied": applied,
+        "text": text, "round": rnd, "turn": turn, "value": value, "until": until,
+        "state": state,
     }  # fmt: skip
 
 
