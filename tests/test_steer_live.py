@@ -296,3 +296,9 @@ def test_a_launch_is_steered_through_the_watcher_at_one_instant_in_every_process
         got = sorted(json.dumps(m, sort_keys=True) for m in logged(merged, topic))
         want = sorted(json.dumps(m, sort_keys=True) for m in logged(tmp_path / "one.mcap", topic))
         assert got == want, topic
+    # and message for message, as an unsteered launch's (tests/same_run.py)
+    from same_run import content
+
+    from rgtbus.telemetry import read_log
+
+    assert content(read_log(merged)[0]) == content(read_log(tmp_path / "one.mcap")[0])
