@@ -306,25 +306,3 @@ def steered_in(reports: Iterable[Mapping[str, Any]]) -> Steered | None:
         for s, rcv, alliance, rnd in mine["held"]:
             out.relations.append((r["unit"], (s, rcv), bool(alliance), int(rnd)))
     return out
-
-
-def steered_of(calls: Iterable[Mapping[str, Any]]) -> Steered:
-    """The ``Steered`` of a run from its applied service calls (``/control/service`` records:
-    ``service``, ``request``, ``applied``, ``turn``, ``round``), in the order they applied."""
-    out = Steered()
-    for c in calls:
-        if not c.get("applied"):
-            continue
-        if c["service"] == "influence" and c.get("turn") is not None:
-            out.injected[int(c["turn"])] = int(c["value"])
-        elif c["service"] == "relation" and c.get("round") is not None:
-            req = c["request"]
-            out.relations.append(
-                (
-                    req["unit"],
-                    parse_pair_key(req["pair"]),
-                    req["relation"] == "alliance",
-                    int(c["round"]),
-                )
-            )
-    return out

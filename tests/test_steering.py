@@ -22,7 +22,7 @@ from rgtbus.steering import (
     check_call,
     check_setting,
     parameter_names,
-    steered_of,
+    steered_in,
     step_target,
 )
 from rgtbus.truth import Truth, clean_timeline
@@ -158,19 +158,15 @@ def test_the_truth_accounts_for_an_injected_influence(gate):
     steered = Truth(gate, Steered(injected={turns["d", "a"]: 0, turns["d", "b"]: 0}))
     assert steered.trajectory[0][("d", "a")] == 0
     assert steered.decisions["a"]["choice"] == [] and steered.decisions["c"]["choice"] == ["open"]
-    calls = [
-        {"service": "influence", "applied": True, "turn": turns["d", "a"], "value": 0},
-        {"service": "influence", "applied": False, "turn": None, "value": None},
-        {
-            "service": "relation",
-            "applied": True,
-            "round": 1,
-            "request": {"unit": "a", "pair": "d>a", "relation": "alliance"},
-        },
+    reports = [
+        {"unit": "d", "steered": {"injected": [[turns["d", "a"], 0]], "held": []}},
+        {"unit": "a", "steered": {"injected": [], "held": [["d", "a", True, 1]]}},
+        {"unit": "b"},  # a report without it: a unit that took nothing of it
     ]
-    got = steered_of(calls)
-    assert got.injected == {turns["d", "a"]: 0}
+    got = steered_in(reports)
+    assert got is not None and got.injected == {turns["d", "a"]: 0}
     assert got.relations == [("a", ("d", "a"), True, 1)]
+    assert steered_in([{"unit": "a"}]) is None  # no report says the run was steered
     assert got.held_by("a", 1) == {("d", "a"): True} and got.held_by("b", 1) == {}
 
 

@@ -334,6 +334,7 @@ class World:
         dense = self.engine == "dense"
         promises = self._promises(fresh) if self.engine == "event" else {}
         binding = self._binding(promises) if promises else set()
+        hold = NEVER if self.steering is None else self.steering.hold()
         for m in self.members:
             flags = (FAILED if m.failure else FINAL) if m.done else 0
             held = merge_pulses(self._held[m.name]) if self._held[m.name] else _NONE
@@ -346,8 +347,8 @@ class World:
                 now = held
                 self._held[m.name] = []
                 promise = promises[m.name]
-            if self.steering is not None:  # not past a change the other processes lack
-                promise = max(min(promise, self.steering.hold()), self._sent_promise[m.name])
+            if hold < NEVER:  # not past a change the other processes lack
+                promise = max(min(promise, hold), self._sent_promise[m.name])
             changed = (
                 now[0].size
                 or flags != self._sent_flags[m.name]

@@ -168,7 +168,6 @@ class Steering:
         self.gains = dict(sc.channel.gains)
         self.drifts = {u: c.drift for u, c in sc.channel.clocks.items()}
         self.budget = sc.protocol.repairs_per_phase
-        self.records = 0
         self._starts: dict[str, list[int]] | None = None
         self._unsettled: dict[int, int] = {}  # seq -> sample: announced, not yet had by all
         self._mine: set[int] = set()  # the changes this process placed (its to refuse at the end)
@@ -268,9 +267,6 @@ class Steering:
         else:
             for srec in self._service(world, due, req, t):
                 world.recorder.write(records.CONTROL_SERVICE, srec, ns(t))
-                self.records += 1
-            return
-        self.records += 1
 
     def _parameter(
         self, world: World, due: _Due, req: Request, t: float
